@@ -1,0 +1,71 @@
+"""The `dockhil` command: one entry point, one module per subcommand.
+
+Subcommand modules are imported only when their command runs, so
+`dockhil --help` and light commands start fast and load no heavy packages.
+Each module in `dockhil.commands` provides `add_arguments(parser)` and
+`run(args) -> int`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from dockhil.errors import DockhilError
+
+# name -> (module, one-line help). Order is the order shown by --help.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "launch": ("dockhil.commands.launch", "run a scene from a YAML launch file"),
+    "graph": ("dockhil.commands.graph", "show what a launch file would start, or why it is refused"),
+    "run": ("dockhil.commands.run", "start one node alone against a running graph"),
+    "topic": ("dockhil.commands.topic", "list, echo or measure the rate of topics of a running graph"),
+    "node": ("dockhil.commands.node", "list the nodes of running graphs"),
+    "params": ("dockhil.commands.params", "virtual impedance k1, b1, k2, b2 from an ideal contact (paper Eqs. 5-6)"),
+    "stability": ("dockhil.commands.stability", "stiffness bound for a delayed contact loop (paper Eq. 12 and exact)"),
+    "bag": ("dockhil.commands.bag", "record, inspect, export and replay MCAP bags"),
+    "plot": ("dockhil.commands.plot", "plot force and velocity profiles from a bag"),
+    "report": ("dockhil.commands.report", "error against run time, stiff and extreme cases, lean scenes"),
+}
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="dockhil",
+        description="Hardware-in-the-loop docking simulation (passive + virtual compliance contact).",
+        epilog="Run 'dockhil COMMAND --help' for the options of one command.",
+    )
+    from dockhil import __version__
+
+    parser.add_argument("--version", action="version", version=f"dockhil {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        if name == only:
+            importlib.import_module(module).add_arguments(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    # Find the subcommand first so that only its module is imported.
+    only = next((a for a in argv if not a.startswith("-")), None)
+    if only is not None and only not in COMMANDS:
+        only = None
+    parser = build_parser(only)
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 0
+    module = importlib.import_module(COMMANDS[args.command][0])
+    try:
+        return int(module.run(args) or 0)
+    except DockhilError as exc:
+        print(f"dockhil {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

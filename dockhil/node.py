@@ -1,0 +1,168 @@
+"""The node API: a node is a step function with declared, typed ports.
+
+A node class declares `inputs`, `outputs` and `params` and implements
+`step(tick, inputs) -> outputs`. It never opens sockets, reads clocks or
+sleeps: the runtime owns transport and time, so the same class runs as its
+own process, composed with others in one process, in sim time or wall time.
+
+    class Gain(Node):
+        '''Multiplies a wrench by a gain.'''
+        inputs = {"wrench": Input(WrenchStamped, "/ft/wrench")}
+        outputs = {"scaled": Output(WrenchStamped, "/ft/scaled")}
+        params = {"gain": Param(float, 1.0, unit="1", help="scale factor")}
+
+        def step(self, tick, inputs):
+            w = inputs["wrench"]
+            ...
+            return {"scaled": WrenchStamped(header=tick.header(), ...)}
+
+Feedthrough: an input with `feedthrough=True` (the default) is read at the
+same tick k (the output at tick k depends on it); `feedthrough=False` means
+the node's output at tick k depends on this input only up to tick k-1, and in
+sim time the runtime hands it the message of tick k-1 (None at tick 0). A
+cycle made only of feedthrough inputs is an algebraic loop and is refused.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+from typing import Any, ClassVar
+
+from dockhil.errors import ParamError
+from msgs import Header
+
+
+@dataclass(frozen=True)
+class Input:
+    type: type
+    topic: str
+    feedthrough: bool = True
+    required: bool = True
+    help: str = ""
+
+
+@dataclass(frozen=True)
+class Output:
+    type: type
+    topic: str
+    help: str = ""
+
+
+@dataclass(frozen=True)
+class Param:
+    """A typed parameter: type is float, int, bool or str."""
+
+    type: type
+    default: Any
+    unit: str = ""
+    help: str = ""
+    ge: float | None = None
+    gt: float | None = None
+    le: float | None = None
+    lt: float | None = None
+    choices: tuple | None = None
+
+    def check(self, node: str, name: str, value: Any) -> Any:
+        """Return `value` converted to this type, or raise one clear ParamError."""
+        where = f"node {node!r} parameter {name!r}"
+        want = self.type
+        if want is float and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if want is bool and not isinstance(value, bool) or (
+            want is not bool and (isinstance(value, bool) or not isinstance(value, want))
+        ):
+            raise ParamError(
+                f"{where}: expected {want.__name__}, got {type(value).__name__} {value!r}"
+                f" ({self._describe()})"
+            )
+        if want is float and not math.isfinite(value):
+            raise ParamError(f"{where}: {value!r} is not a finite number ({self._describe()})")
+        for bound, ok, sym in (
+            (self.ge, lambda b: value >= b, ">="),
+            (self.gt, lambda b: value > b, ">"),
+            (self.le, lambda b: value <= b, "<="),
+            (self.lt, lambda b: value < b, "<"),
+        ):
+            if bound is not None and not ok(bound):
+                raise ParamError(f"{where}: {value!r} is out of range, must be {sym} {bound}")
+        if self.choices is not None and value not in self.choices:
+            raise ParamError(f"{where}: {value!r} is not one of {', '.join(map(str, self.choices))}")
+        return value
+
+    def _describe(self) -> str:
+        unit = f" [{self.unit}]" if self.unit else ""
+        return f"{self.type.__name__}{unit}, default {self.default!r}: {self.help}".rstrip(": ")
+
+
+@dataclass
+class Tick:
+    """What the runtime tells a node about the current step."""
+
+    index: int  # tick number k, from 0
+    t: float  # time [s]: k * dt in sim time, seconds since start in wall time
+    dt: float  # nominal step [s]
+    frame: str = ""
+
+    def header(self, frame: str | None = None) -> Header:
+        return Header(stamp=self.t, tick=self.index, seq=self.index, frame=self.frame if frame is None else frame)
+
+
+@dataclass
+class NodeContext:
+    """Given to a node at construction: its name, the step and a logger."""
+
+    name: str
+    dt: float
+    sim_time: bool = True
+    log: Any = field(default=None)
+
+    def __post_init__(self):
+        if self.log is None:
+            self.log = lambda msg: print(msg, file=sys.stderr, flush=True)
+
+
+class Node:
+    """Base class of every node. Subclasses declare ports and params."""
+
+    inputs: ClassVar[dict[str, Input]] = {}
+    outputs: ClassVar[dict[str, Output]] = {}
+    params: ClassVar[dict[str, Param]] = {}
+
+    def __init__(self, ctx: NodeContext, **params: Any):
+        self.ctx = ctx
+        self.p = SimpleNamespace(**self.resolve_params(ctx.name, params))
+
+    @classmethod
+    def resolve_params(cls, node_name: str, given: dict[str, Any]) -> dict[str, Any]:
+        """Defaults overlaid with `given`, each checked; unknown names refused."""
+        unknown = sorted(set(given) - set(cls.params))
+        if unknown:
+            known = ", ".join(sorted(cls.params)) or "none"
+            raise ParamError(
+                f"node {node_name!r} ({cls.__name__}): unknown parameter {unknown[0]!r}; known: {known}"
+            )
+        values = {}
+        for name, spec in cls.params.items():
+            value = given.get(name, spec.default)
+            values[name] = spec.check(node_name, name, value)
+        return values
+
+    def setup(self) -> None:
+        """Open devices, determine constants. Raise DeviceError if hardware is missing."""
+
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release devices; hardware drivers hold or stop the robot here."""
+
+    def log(self, msg: str) -> None:
+        self.ctx.log(msg)
+
+    @classmethod
+    def describe(cls) -> str:
+        doc = (cls.__doc__ or "").strip().splitlines()
+        return doc[0] if doc else cls.__name__

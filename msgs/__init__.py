@@ -1,0 +1,170 @@
+"""dockhil message types: msgspec Structs, msgpack on the wire.
+
+Every top-level message starts with a Header. Geometry is 6-DOF shaped
+(3-D force, torque, position, quaternion orientation, velocity) even where
+a scene uses one axis, so more degrees of freedom need no new wire format.
+Units are SI: m, m/s, rad, rad/s, N, N m, kg, s.
+
+Physical fields are `Finite`: decoding refuses NaN and Inf.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import msgspec
+
+_MAX = 1.7976931348623157e308
+Finite = Annotated[float, msgspec.Meta(ge=-_MAX, le=_MAX, description="finite real number")]
+NonNegative = Annotated[float, msgspec.Meta(ge=0.0, le=_MAX, description="finite, >= 0")]
+Count = Annotated[int, msgspec.Meta(ge=0)]
+
+
+class Header(msgspec.Struct, frozen=True):
+    """stamp [s] (sim or wall time), tick (sim-time step index), seq (per publisher), frame."""
+
+    stamp: NonNegative = 0.0
+    tick: Count = 0
+    seq: Count = 0
+    frame: str = ""
+
+
+class Vector3(msgspec.Struct, frozen=True):
+    x: Finite = 0.0
+    y: Finite = 0.0
+    z: Finite = 0.0
+
+
+class Quaternion(msgspec.Struct, frozen=True):
+    """Unit quaternion, scalar last (x, y, z, w) as in ROS."""
+
+    x: Finite = 0.0
+    y: Finite = 0.0
+    z: Finite = 0.0
+    w: Finite = 1.0
+
+
+class Pose(msgspec.Struct, frozen=True):
+    """position [m], orientation (unit quaternion)."""
+
+    position: Vector3 = Vector3()
+    orientation: Quaternion = Quaternion()
+
+
+class Twist(msgspec.Struct, frozen=True):
+    """linear [m/s], angular [rad/s]."""
+
+    linear: Vector3 = Vector3()
+    angular: Vector3 = Vector3()
+
+
+class Wrench(msgspec.Struct, frozen=True):
+    """force [N], torque [N m]."""
+
+    force: Vector3 = Vector3()
+    torque: Vector3 = Vector3()
+
+
+class BodyState(msgspec.Struct, frozen=True):
+    """One free-floating body: mass [kg] (0 = fixed to the ground), pose, twist."""
+
+    name: str = ""
+    mass: NonNegative = 0.0
+    pose: Pose = Pose()
+    twist: Twist = Twist()
+
+
+class SatelliteState(msgspec.Struct, frozen=True):
+    """The bodies the satellite-dynamics node integrates, chaser first."""
+
+    header: Header = Header()
+    bodies: list[BodyState] = []
+    in_contact: bool = False
+
+
+class WrenchStamped(msgspec.Struct, frozen=True):
+    """A wrench acting on the chaser (body 0); the target feels its opposite."""
+
+    header: Header = Header()
+    wrench: Wrench = Wrench()
+
+
+class BodyWrenches(msgspec.Struct, frozen=True):
+    """One wrench per body, in the order of SatelliteState.bodies."""
+
+    header: Header = Header()
+    wrenches: list[Wrench] = []
+
+
+class RobotCommand(msgspec.Struct, frozen=True):
+    """Setpoint for the robot: the pose of the chaser's docking probe relative
+    to the target's interface (x > 0 is penetration), with its velocity."""
+
+    header: Header = Header()
+    pose: Pose = Pose()
+    twist: Twist = Twist()
+    enable: bool = True
+
+
+class RobotState(msgspec.Struct, frozen=True):
+    """The robot's actual pose in the same frame as RobotCommand."""
+
+    header: Header = Header()
+    pose: Pose = Pose()
+    twist: Twist = Twist()
+    status: str = "ok"
+
+
+class ImpedanceParams(msgspec.Struct, frozen=True):
+    """Virtual impedance k1 [N/m], b1 [N s/m], k2, b2 and how they were found."""
+
+    header: Header = Header()
+    k1: Finite = 0.0
+    b1: Finite = 0.0
+    k2: Finite = 0.0
+    b2: Finite = 0.0
+    method: str = ""
+
+
+class NodeStatus(msgspec.Struct, frozen=True):
+    header: Header = Header()
+    node: str = ""
+    state: str = "running"
+    ticks: Count = 0
+    dropped: Count = 0
+    message: str = ""
+
+
+class EStop(msgspec.Struct, frozen=True):
+    """Emergency stop: active=True stops commanding and holds the robot."""
+
+    header: Header = Header()
+    active: bool = False
+    reason: str = ""
+
+
+# Wire type names, stable across releases: used in bags and by the launcher.
+TYPES: dict[str, type[msgspec.Struct]] = {
+    f"dockhil/{cls.__name__}": cls
+    for cls in (
+        SatelliteState,
+        WrenchStamped,
+        BodyWrenches,
+        RobotCommand,
+        RobotState,
+        ImpedanceParams,
+        NodeStatus,
+        EStop,
+    )
+}
+
+
+def type_name(cls: type) -> str:
+    return f"dockhil/{cls.__name__}"
+
+
+def type_by_name(name: str) -> type[msgspec.Struct]:
+    try:
+        return TYPES[name]
+    except KeyError:
+        raise KeyError(f"unknown message type {name!r}; known: {', '.join(sorted(TYPES))}") from None

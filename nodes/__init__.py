@@ -1,0 +1,27 @@
+"""Node types by name. Values are "module:Class" strings, imported only
+when a scene uses the node, so a scene loads only what it runs."""
+
+from __future__ import annotations
+
+import importlib
+
+from dockhil.errors import LaunchError
+
+REGISTRY: dict[str, str] = {}
+
+
+def load(type_name: str):
+    """The node class for a registered name or a "package.module:Class" path."""
+    target = REGISTRY.get(type_name, type_name)
+    if ":" not in target:
+        known = ", ".join(sorted(REGISTRY)) or "none"
+        raise LaunchError(f"unknown node type {type_name!r}; known types: {known} (or give module:Class)")
+    module_name, _, class_name = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise LaunchError(f"node type {type_name!r}: cannot import {module_name!r} ({exc})") from None
+    try:
+        return getattr(module, class_name)
+    except AttributeError:
+        raise LaunchError(f"node type {type_name!r}: module {module_name!r} has no {class_name!r}") from None
