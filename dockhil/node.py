@@ -150,6 +150,12 @@ class Node:
             values[name] = spec.check(node_name, name, value)
         return values
 
+    @classmethod
+    def ports(cls, params: dict[str, Any]) -> tuple[dict[str, Input], dict[str, Output]]:
+        """Inputs and outputs for these parameters; override for nodes whose
+        ports depend on parameters (a bag source, a recorder)."""
+        return cls.inputs, cls.outputs
+
     def setup(self) -> None:
         """Open devices, determine constants. Raise DeviceError if hardware is missing."""
 

@@ -4,6 +4,8 @@ when a scene uses the node, so a scene loads only what it runs."""
 from __future__ import annotations
 
 import importlib
+import os
+import sys
 
 from dockhil.errors import LaunchError
 
@@ -17,6 +19,8 @@ def load(type_name: str):
         known = ", ".join(sorted(REGISTRY)) or "none"
         raise LaunchError(f"unknown node type {type_name!r}; known types: {known} (or give module:Class)")
     module_name, _, class_name = target.partition(":")
+    if os.getcwd() not in sys.path:  # user nodes next to the launch file, as `python -m` would find them
+        sys.path.append(os.getcwd())
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:

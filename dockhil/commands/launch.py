@@ -1,0 +1,46 @@
+"""`dockhil launch FILE [name:=value ...]`: run a scene."""
+
+from __future__ import annotations
+
+import sys
+
+from dockhil.errors import LaunchError
+
+
+def add_arguments(p) -> None:
+    p.add_argument("file", help="launch file (YAML), e.g. launch/hil.yaml")
+    p.add_argument("overrides", nargs="*", metavar="name:=value",
+                   help="launch arguments, ROS 2 style (see 'dockhil graph FILE' for the list)")
+    clock = p.add_mutually_exclusive_group()
+    clock.add_argument("--sim-time", dest="clock", action="store_const", const="sim",
+                       help="lock-step ticks, deterministic, as fast as possible (default)")
+    clock.add_argument("--wall-time", dest="clock", action="store_const", const="wall",
+                       help="fixed rate in real time, for hardware")
+    p.set_defaults(clock="sim")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="simulated (or wall) seconds to run; default: the file's `duration`")
+    p.add_argument("--composed", action="store_true",
+                   help="run every node in this one process (same schedule, same results)")
+    p.add_argument("--transport", choices=("ipc", "tcp"), default="ipc",
+                   help="ipc sockets on one host (default) or tcp on 127.0.0.1")
+    p.add_argument("--bag", metavar="PATH", help="record every topic to this MCAP bag")
+    p.add_argument("--summary", metavar="FILE.json", help="write the run summary (peak force, contact duration, ...)")
+    p.add_argument("--quiet", action="store_true", help="print no progress")
+
+
+def run(args) -> int:
+    from dockhil import launchfile
+    from dockhil.graph import build
+
+    scene = launchfile.load(args.file, launchfile.parse_overrides(args.overrides))
+    duration = args.duration if args.duration is not None else scene.duration
+    if duration is not None and not duration > 0:
+        raise LaunchError(f"--duration must be a positive number of seconds, got {duration}")
+    if args.clock == "sim" and duration is None:
+        raise LaunchError(f"{args.file}: sim time needs a run length: give --duration S or `duration:` in the file")
+    graph = build(scene)
+    from dockhil.session import run_scene
+
+    return run_scene(graph, clock=args.clock, duration=duration, composed=args.composed,
+                     transport=args.transport, bag=args.bag, summary=args.summary,
+                     progress=not args.quiet and sys.stderr.isatty())

@@ -1,0 +1,255 @@
+"""Run a node over the transport, in sim time (lock-step) or wall time (fixed rate).
+
+Sim time: every message carries its tick. A node computes tick k once it
+holds, for each connected input, the message of tick k (feedthrough) or
+tick k-1 (not feedthrough; None at tick 0). No hop adds a hidden delay, and
+the result does not depend on arrival order, so a graph run as processes
+and the same graph composed in one process give bit-identical outputs.
+
+Wall time: a fixed-rate loop; each input holds its latest value (None until
+the first message arrives); outputs a node leaves out are not sent.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import msgspec
+
+import msgs
+from dockhil.errors import DockhilError
+from dockhil.node import Node, NodeContext, Tick
+from msgs.codec import DecodeError, decode, encode
+
+
+class _HeaderOnly(msgspec.Struct):
+    header: msgs.Header
+
+
+@dataclass
+class PortWire:
+    topic: str
+    endpoint: str
+    type: str  # wire type name, e.g. dockhil/WrenchStamped
+    feedthrough: bool = True
+    subscribers: int = 0  # outputs: how many subscriptions to await in sim time
+
+
+@dataclass
+class RunSpec:
+    """Everything a node process needs; the launcher writes it as JSON."""
+
+    name: str
+    type_name: str
+    params: dict[str, Any]
+    dt: float
+    clock: str = "sim"  # "sim" | "wall"
+    n_ticks: int | None = None  # ticks 0..n_ticks-1; None = until stopped
+    inputs: dict[str, PortWire] = field(default_factory=dict)
+    outputs: dict[str, PortWire] = field(default_factory=dict)
+    start_timeout: float = 20.0
+
+
+class Stop:
+    """A flag set by SIGINT/SIGTERM; loops check it between waits."""
+
+    def __init__(self) -> None:
+        self.requested = False
+
+    def install(self) -> None:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self._handle)
+
+    def _handle(self, signum, frame) -> None:
+        self.requested = True
+
+
+def check_outputs(name: str, declared: dict, k: int, outs: dict, sim: bool) -> None:
+    """Refuse outputs a node did not declare, of the wrong type, or (sim time) missing."""
+    for port, msg in outs.items():
+        if port not in declared:
+            raise DockhilError(f"node {name!r} returned undeclared output {port!r} at tick {k}")
+        if msg is None:
+            continue
+        if type(msg) is not declared[port].type:
+            raise DockhilError(
+                f"node {name!r} output {port!r} at tick {k}: expected {declared[port].type.__name__}, "
+                f"got {type(msg).__name__}"
+            )
+        if sim and msg.header.tick != k:
+            raise DockhilError(
+                f"node {name!r} output {port!r} at tick {k} carries header.tick {msg.header.tick}; "
+                f"build headers with tick.header()"
+            )
+    if sim:
+        missing = [p for p in declared if outs.get(p) is None]
+        if missing:
+            raise DockhilError(
+                f"node {name!r} sent no {missing[0]!r} at tick {k}; in sim time every output is sent every tick"
+            )
+
+
+class NodeExecutor:
+    """Owns one node's sockets and loop. Used by node processes and `dockhil run`."""
+
+    def __init__(self, spec: RunSpec, node_cls: type, stop: Stop, log=None):
+        import zmq
+
+        from dockhil.transport import Publisher, Subscriber
+
+        self.spec = spec
+        self.stop = stop
+        self.log = log or (lambda m: print(m, file=sys.stderr, flush=True))
+        self.node = node_cls(NodeContext(spec.name, spec.dt, spec.clock == "sim", self.log), **spec.params)
+        ins, outs = node_cls.ports(vars(self.node.p))
+        self.outputs = outs
+        self.unconnected = [port for port in ins if port not in spec.inputs]
+        self.in_types = {port: ins[port].type for port in spec.inputs}
+        self.ctx = zmq.Context.instance()
+        self.sub = Subscriber(self.ctx)
+        self.by_topic: dict[bytes, list[str]] = {}
+        for port, wire in spec.inputs.items():
+            self.sub.connect(wire.endpoint)
+            self.by_topic.setdefault(wire.topic.encode(), []).append(port)
+        self.pubs = {port: Publisher(self.ctx, wire.topic, wire.endpoint) for port, wire in spec.outputs.items()}
+        self.dropped = 0
+        self._drop_logged = 0.0
+        self.ticks_done = 0
+
+    # -- receiving ---------------------------------------------------------
+    def _decode(self, topic: bytes, payload: bytes) -> list[tuple[str, int | None, Any]]:
+        """[(port, tick, msg or None if bad)] for one frame pair."""
+        ports = self.by_topic.get(topic)
+        if ports is None:
+            self._drop(topic.decode(errors="replace"), "message on a topic this node does not subscribe")
+            return []
+        out = []
+        for port in ports:
+            try:
+                msg = decode(payload, self.in_types[port])
+                out.append((port, msg.header.tick, msg))
+            except DecodeError as exc:
+                self._drop(topic.decode(), str(exc))
+                try:
+                    tick = msgspec.msgpack.decode(payload, type=_HeaderOnly).header.tick
+                except (msgspec.DecodeError, msgspec.ValidationError):
+                    tick = None
+                out.append((port, tick, None))
+        return out
+
+    def _drop(self, topic: str, reason: str) -> None:
+        self.dropped += 1
+        now = time.monotonic()
+        # One line per bad message, but at most ~10 lines a second.
+        if now - self._drop_logged > 0.1:
+            self._drop_logged = now
+            self.log(f"dropped bad message on {topic}: {reason} ({self.dropped} dropped so far)")
+
+    # -- running -------------------------------------------------------------
+    def start(self) -> None:
+        self.node.setup()
+
+    def wait_for_subscribers(self) -> None:
+        for port, pub in self.pubs.items():
+            pub.wait_subscribers(self.spec.outputs[port].subscribers, self.spec.start_timeout, lambda: self.stop.requested)
+
+    def publish(self, k: int, outs: dict) -> None:
+        for port, msg in outs.items():
+            if msg is not None:
+                self.pubs[port].send(encode(msg))
+
+    def run_sim(self) -> None:
+        spec, node = self.spec, self.node
+        self.wait_for_subscribers()
+        buffers: dict[str, dict[int, Any]] = {port: {} for port in spec.inputs}
+        held: dict[str, Any] = {port: None for port in spec.inputs}
+        want_prev = {port: not w.feedthrough for port, w in spec.inputs.items()}
+        k = 0
+        waited_since = time.monotonic()
+        warned = False
+        while (spec.n_ticks is None or k < spec.n_ticks) and not self.stop.requested:
+            missing = [p for p in buffers if not (want_prev[p] and k == 0) and (k - want_prev[p]) not in buffers[p]]
+            if missing:
+                frames = self.sub.recv(0.2)
+                if frames is None:
+                    if not warned and time.monotonic() - waited_since > 10:
+                        warned = True
+                        self.log(f"tick {k}: still waiting for {spec.inputs[missing[0]].topic} after 10 s")
+                    continue
+                for port, tick, msg in self._decode(*frames):
+                    if tick is None:
+                        continue
+                    if msg is None:  # bad message for a known tick: hold the last good value
+                        msg = held[port]
+                    else:
+                        held[port] = msg
+                    buffers[port][tick] = msg
+                continue
+            inputs = {}
+            for port, buf in buffers.items():
+                want = k - 1 if want_prev[port] else k
+                inputs[port] = buf.pop(want, None)
+                buf.pop(want - 1, None)
+            for port in self.unconnected:
+                inputs[port] = None
+            outs = node.step(Tick(k, k * spec.dt, spec.dt), inputs)
+            check_outputs(spec.name, self.outputs, k, outs, sim=True)
+            self.publish(k, outs)
+            k += 1
+            self.ticks_done = k
+            waited_since = time.monotonic()
+            warned = False
+
+    def run_wall(self, duration: float | None) -> dict:
+        spec, node = self.spec, self.node
+        latest: dict[str, Any] = {port: None for port in spec.inputs}
+        for port in self.unconnected:
+            latest[port] = None
+        period = spec.dt
+        t0 = time.monotonic()
+        next_t = t0
+        k = 0
+        misses = 0
+        while not self.stop.requested:
+            now = time.monotonic()
+            if duration is not None and now - t0 >= duration:
+                break
+            while (frames := self.sub.recv_nowait()) is not None:
+                for port, _tick, msg in self._decode(*frames):
+                    if msg is not None:
+                        latest[port] = msg
+            outs = node.step(Tick(k, now - t0, period), dict(latest))
+            check_outputs(spec.name, self.outputs, k, outs, sim=False)
+            self.publish(k, outs)
+            k += 1
+            self.ticks_done = k
+            next_t += period
+            late = time.monotonic() - next_t
+            if late > 0:
+                misses += 1
+                if late > period:  # fell far behind: skip, do not burst to catch up
+                    next_t = time.monotonic() + period
+            else:
+                _sleep_until(next_t)
+        return {"ticks": k, "deadline_misses": misses}
+
+    def close(self) -> None:
+        try:
+            self.node.close()
+        finally:
+            for pub in self.pubs.values():
+                pub.close()
+            self.sub.close()
+
+
+def _sleep_until(deadline: float) -> None:
+    # Sleep most of the way, then spin briefly: time.sleep alone overshoots by ~60-100 us.
+    left = deadline - time.monotonic()
+    if left > 0.0003:
+        time.sleep(left - 0.0002)
+    while time.monotonic() < deadline:
+        pass

@@ -1,0 +1,154 @@
+"""From a launch scene to a validated graph: who publishes, who listens, in what order.
+
+Like Drake's DiagramBuilder, the graph is checked before anything runs:
+unknown node types, bad parameters, unconnected required inputs, ports of
+different types on one topic, two publishers on one topic, and algebraic
+loops (cycles whose every input is feedthrough) are refused with one line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import msgs
+import nodes as node_registry
+from dockhil.errors import LaunchError, ParamError
+from dockhil.launchfile import Scene
+from dockhil.node import Input, Output
+
+
+@dataclass
+class PortRef:
+    node: str
+    port: str
+    topic: str
+    type: type
+    feedthrough: bool = True
+    required: bool = True
+
+
+@dataclass
+class GraphNode:
+    name: str
+    type_name: str
+    cls: type
+    params: dict[str, Any]
+    inputs: dict[str, PortRef]
+    outputs: dict[str, PortRef]
+    respawn: bool = False
+    respawn_delay: float = 1.0
+
+
+@dataclass
+class Graph:
+    scene: Scene
+    nodes: dict[str, GraphNode]
+    order: list[str]  # a topological order over feedthrough edges
+    publishers: dict[str, PortRef]  # topic -> the output publishing it
+    subscribers: dict[str, list[PortRef]] = field(default_factory=dict)  # topic -> inputs
+    unconnected: list[PortRef] = field(default_factory=list)  # optional inputs with no publisher
+
+    def topic_type(self, topic: str) -> type:
+        return self.publishers[topic].type
+
+
+def _topic_for(port: str, default: str, remap: dict[str, str]) -> str:
+    return remap.get(port, remap.get(default, default))
+
+
+def build(scene: Scene) -> Graph:
+    gnodes: dict[str, GraphNode] = {}
+    for spec in scene.nodes:
+        where = f"{spec.source}: node {spec.name!r}"
+        try:
+            cls = node_registry.load(spec.type)
+        except LaunchError as exc:
+            raise LaunchError(f"{where}: {exc}") from None
+        try:
+            params = cls.resolve_params(spec.name, spec.params)
+        except ParamError as exc:
+            raise LaunchError(f"{spec.source}: {exc}") from None
+        ins, outs = cls.ports(params)
+        known = set(ins) | set(outs) | {p.topic for p in ins.values()} | {p.topic for p in outs.values()}
+        bad = sorted(set(spec.remap) - known)
+        if bad:
+            raise LaunchError(
+                f"{where}: remap {bad[0]!r} names no port or topic of {spec.type}; "
+                f"ports: {', '.join(sorted(set(ins) | set(outs)))}"
+            )
+        inputs = {
+            name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap), p.type, p.feedthrough, p.required)
+            for name, p in ins.items()
+        }
+        outputs = {name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap), p.type) for name, p in outs.items()}
+        gnodes[spec.name] = GraphNode(spec.name, spec.type, cls, params, inputs, outputs, spec.respawn, spec.respawn_delay)
+
+    publishers: dict[str, PortRef] = {}
+    for gn in gnodes.values():
+        for ref in gn.outputs.values():
+            other = publishers.get(ref.topic)
+            if other is not None:
+                raise LaunchError(
+                    f"{scene.path}: topic {ref.topic} is published by both {other.node}.{other.port} and "
+                    f"{ref.node}.{ref.port}; remap one of them"
+                )
+            publishers[ref.topic] = ref
+
+    subscribers: dict[str, list[PortRef]] = {}
+    unconnected = []
+    for gn in gnodes.values():
+        for ref in gn.inputs.values():
+            pub = publishers.get(ref.topic)
+            if pub is None:
+                if ref.required:
+                    raise LaunchError(
+                        f"{scene.path}: node {ref.node!r} input {ref.port!r} needs topic {ref.topic} but no node "
+                        f"publishes it; add a node that does, or remap the input"
+                    )
+                unconnected.append(ref)
+                continue
+            if pub.type is not ref.type:
+                raise LaunchError(
+                    f"{scene.path}: topic {ref.topic}: {pub.node}.{pub.port} publishes {msgs.type_name(pub.type)} "
+                    f"but {ref.node}.{ref.port} expects {msgs.type_name(ref.type)}; connect ports of one type"
+                )
+            subscribers.setdefault(ref.topic, []).append(ref)
+
+    order = _feedthrough_order(scene.path, gnodes, publishers)
+    return Graph(scene, gnodes, order, publishers, subscribers, unconnected)
+
+
+def _feedthrough_order(path: str, gnodes: dict[str, GraphNode], publishers: dict[str, PortRef]) -> list[str]:
+    """Topological order over feedthrough edges; refuse a cycle and name it."""
+    edges: dict[str, list[str]] = {name: [] for name in gnodes}
+    for gn in gnodes.values():
+        for ref in gn.inputs.values():
+            pub = publishers.get(ref.topic)
+            if pub is not None and ref.feedthrough:
+                edges[pub.node].append(gn.name)
+    # Depth-first search finds a cycle to name; file order keeps the result stable.
+    state: dict[str, int] = {}
+    stack: list[str] = []
+    post: list[str] = []
+
+    def visit(n: str) -> None:
+        state[n] = 1
+        stack.append(n)
+        for m in edges[n]:
+            if state.get(m) == 1:
+                cycle = stack[stack.index(m):] + [m]
+                raise LaunchError(
+                    f"{path}: algebraic loop {' -> '.join(cycle)}: every input on it is feedthrough; "
+                    f"put a delay or a state-holding node on the loop"
+                )
+            if m not in state:
+                visit(m)
+        stack.pop()
+        state[n] = 2
+        post.append(n)
+
+    for n in gnodes:
+        if n not in state:
+            visit(n)
+    return post[::-1]

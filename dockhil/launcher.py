@@ -1,0 +1,274 @@
+"""Start a validated graph as one process per node, watch it, stop it safely.
+
+The launcher assigns each topic an endpoint, hands each node its spec,
+prefixes every line a node prints with the node's name, forwards SIGINT and
+SIGTERM, and when a node dies stops the rest of the graph and exits non-zero.
+While a graph runs, a small JSON file in the runtime directory describes it,
+so that `dockhil topic` and `dockhil node` can find it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import msgspec
+
+import msgs
+from dockhil.executor import PortWire, RunSpec
+from dockhil.graph import Graph
+from dockhil.process import READY
+from dockhil.transport import ipc_endpoint, runtime_dir
+
+
+@dataclass
+class ExtraProcess:
+    """A helper process that subscribes to topics (a recorder): it counts as
+    a subscriber so that sim time waits for it before tick 0."""
+
+    name: str
+    argv: list[str]
+    topics: list[str]
+
+
+@dataclass
+class Endpoints:
+    run_id: str
+    run_dir: Path
+    topics: dict[str, str]  # topic -> endpoint
+    types: dict[str, str]  # topic -> wire type name
+
+
+def _free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def assign_endpoints(graph: Graph, transport: str = "ipc") -> Endpoints:
+    run_id = time.strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:6]
+    run_dir = runtime_dir() / run_id
+    run_dir.mkdir(parents=True, exist_ok=True)
+    topics = {}
+    for topic in graph.publishers:
+        topics[topic] = ipc_endpoint(run_dir, topic) if transport == "ipc" else f"tcp://127.0.0.1:{_free_tcp_port()}"
+    types = {topic: msgs.type_name(ref.type) for topic, ref in graph.publishers.items()}
+    return Endpoints(run_id, run_dir, topics, types)
+
+
+def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extra: list[ExtraProcess]) -> dict[str, RunSpec]:
+    extra_count: dict[str, int] = {}
+    for proc in extra:
+        for topic in proc.topics:
+            extra_count[topic] = extra_count.get(topic, 0) + 1
+    specs = {}
+    for name in graph.order:
+        gn = graph.nodes[name]
+        inputs = {
+            port: PortWire(ref.topic, ep.topics[ref.topic], ep.types[ref.topic], ref.feedthrough)
+            for port, ref in gn.inputs.items()
+            if ref.topic in ep.topics
+        }
+        outputs = {
+            port: PortWire(ref.topic, ep.topics[ref.topic], ep.types[ref.topic],
+                           subscribers=len({s.node for s in graph.subscribers.get(ref.topic, [])})
+                           + extra_count.get(ref.topic, 0))
+            for port, ref in gn.outputs.items()
+        }
+        specs[name] = RunSpec(name, gn.type_name, gn.params, graph.scene.dt, clock, n_ticks, inputs, outputs)
+    return specs
+
+
+def registry_dir() -> Path:
+    path = runtime_dir() / "graphs"
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def running_graphs() -> list[dict]:
+    """Descriptions of graphs whose launcher is still alive."""
+    out = []
+    for f in sorted(registry_dir().glob("*.json")):
+        try:
+            info = json.loads(f.read_text())
+            os.kill(info["pid"], 0)
+        except (OSError, ValueError, KeyError):
+            continue
+        out.append(info)
+    return out
+
+
+@dataclass
+class _Child:
+    name: str
+    argv: list[str]
+    proc: subprocess.Popen | None = None
+    ready: bool = False
+    respawn: bool = False
+    respawn_delay: float = 1.0
+    finished: bool = False
+    reader: threading.Thread | None = None
+    lines: list[str] = field(default_factory=list)
+
+
+class Launcher:
+    def __init__(self, graph: Graph, *, clock: str = "sim", duration: float | None = None,
+                 transport: str = "ipc", extra: list[ExtraProcess] | None = None, out=None):
+        self.graph = graph
+        self.clock = clock
+        self.extra = extra or []
+        dt = graph.scene.dt
+        self.n_ticks = None if duration is None else int(round(duration / dt)) + 1
+        self.out = out or sys.stdout
+        self.endpoints = assign_endpoints(graph, transport)
+        self.specs = run_specs(graph, self.endpoints, clock, self.n_ticks, self.extra)
+        self._print_lock = threading.Lock()
+        self._stop_signal: int | None = None
+        self.children: list[_Child] = []
+        for name, spec in self.specs.items():
+            argv = [sys.executable, "-m", "dockhil.process", msgspec.json.encode(spec).decode()]
+            gn = graph.nodes[name]
+            self.children.append(_Child(name, argv, respawn=gn.respawn and clock == "wall",
+                                        respawn_delay=gn.respawn_delay))
+        for proc in self.extra:
+            self.children.append(_Child(proc.name, proc.argv))
+
+    # -- output ----------------------------------------------------------------
+    def say(self, line: str) -> None:
+        with self._print_lock:
+            print(line, file=self.out, flush=True)
+
+    def _read(self, child: _Child, stream) -> None:
+        for raw in stream:
+            line = raw.rstrip("\n")
+            if line == READY:
+                child.ready = True
+                continue
+            child.lines.append(line)
+            self.say(f"[{child.name}] {line}")
+
+    # -- processes -------------------------------------------------------------
+    def _start(self, child: _Child) -> None:
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        child.ready = False
+        child.proc = subprocess.Popen(
+            child.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            text=True, bufsize=1, start_new_session=True, env=env,
+        )
+        child.reader = threading.Thread(target=self._read, args=(child, child.proc.stdout), daemon=True)
+        child.reader.start()
+
+    def _write_registry(self) -> Path:
+        path = registry_dir() / f"{self.endpoints.run_id}.json"
+        info = {
+            "run_id": self.endpoints.run_id,
+            "pid": os.getpid(),
+            "file": self.graph.scene.path,
+            "clock": self.clock,
+            "nodes": {c.name: {"type": self.specs[c.name].type_name if c.name in self.specs else "process",
+                               "pid": c.proc.pid if c.proc else None} for c in self.children},
+            "topics": {t: {"type": self.endpoints.types[t], "endpoint": e,
+                           "publisher": self.graph.publishers[t].node} for t, e in self.endpoints.topics.items()},
+        }
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(info, indent=1))
+        tmp.replace(path)
+        return path
+
+    def _on_signal(self, signum, frame) -> None:
+        self._stop_signal = signum
+
+    def stop_all(self, grace: float = 3.0) -> None:
+        live = [c for c in self.children if c.proc and c.proc.poll() is None]
+        for c in live:
+            try:
+                c.proc.send_signal(signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + grace
+        for c in live:
+            try:
+                c.proc.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self.say(f"[launch] node {c.name!r} did not stop within {grace:.0f} s; killing it")
+                c.proc.kill()
+                c.proc.wait()
+
+    def run(self) -> int:
+        """Run until every node finishes, a node dies, or a signal arrives. Returns the exit code."""
+        old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        registry = None
+        try:
+            for child in self.children:
+                self._start(child)
+            registry = self._write_registry()
+            return self._watch()
+        finally:
+            self.stop_all()
+            for child in self.children:
+                if child.reader:
+                    child.reader.join(timeout=1.0)
+            for s, h in old.items():
+                signal.signal(s, h)
+            if registry is not None:
+                registry.unlink(missing_ok=True)
+            shutil.rmtree(self.endpoints.run_dir, ignore_errors=True)
+
+    def _watch(self) -> int:
+        while True:
+            if self._stop_signal is not None:
+                name = signal.Signals(self._stop_signal).name
+                self.say(f"[launch] {name}: stopping the graph")
+                self.stop_all()
+                return 128 + self._stop_signal
+            running = 0
+            for child in self.children:
+                if child.finished:
+                    continue
+                code = child.proc.poll()
+                if code is None:
+                    running += 1
+                    continue
+                if child.reader:
+                    child.reader.join(timeout=1.0)
+                if code == 0:
+                    child.finished = True
+                    if self.clock == "wall" and self.n_ticks is None and child.name in self.specs:
+                        # In wall time without a duration nodes run until stopped; an exit is a death.
+                        return self._died(child, code)
+                    continue
+                if child.respawn and child.ready:
+                    self.say(f"[launch] node {child.name!r} exited with code {code}; respawning in "
+                             f"{child.respawn_delay:g} s")
+                    time.sleep(child.respawn_delay)
+                    self._start(child)
+                    running += 1
+                    continue
+                return self._died(child, code)
+            if running == 0:
+                return 0
+            time.sleep(0.05)
+
+    def _died(self, child: _Child, code: int) -> int:
+        how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
+        when = "while running" if child.ready else "at start"
+        self.say(f"[launch] node {child.name!r} {how} {when}; stopping the graph")
+        if not child.ready:
+            # Let nodes still opening devices finish, so every missing device gets its own line.
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline and any(
+                c.proc.poll() is None and not c.ready for c in self.children if c is not child
+            ):
+                time.sleep(0.05)
+        self.stop_all()
+        return 1

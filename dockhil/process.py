@@ -1,0 +1,82 @@
+"""Entry point of one node process: `python -m dockhil.process SPEC_JSON`.
+
+The launcher starts one of these per node. It prints one line per error,
+a READY line (read by the launcher, not shown) once its device is open, and
+exits 0 when its ticks are done or it is asked to stop.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import signal
+import sys
+
+import msgspec
+
+READY = "\x1edockhil-ready"  # a line the launcher intercepts
+
+
+def _die_with_parent() -> None:
+    # If the launcher is killed outright, the kernel sends us SIGTERM: no orphans.
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
+def run_node(spec, log=None, on_ready=None) -> int:
+    """Set up and run one node until its ticks are done or a stop is requested."""
+    import nodes
+    from dockhil.errors import DockhilError
+    from dockhil.executor import NodeExecutor, Stop
+
+    log = log or (lambda m: print(m, file=sys.stderr, flush=True))
+    stop = Stop()
+    stop.install()
+    executor = None
+    try:
+        executor = NodeExecutor(spec, nodes.load(spec.type_name), stop, log)
+        executor.start()
+        if on_ready:
+            on_ready()
+        if spec.clock == "sim":
+            executor.run_sim()
+        else:
+            duration = None if spec.n_ticks is None else spec.n_ticks * spec.dt
+            stats = executor.run_wall(duration)
+            if stats["deadline_misses"]:
+                log(f"{stats['deadline_misses']} of {stats['ticks']} ticks missed their deadline")
+    except DockhilError as exc:
+        log(f"error: {exc}")
+        return 2
+    except Exception as exc:  # a bug in a node: one line, traceback only on request
+        tick = executor.ticks_done if executor else 0
+        log(f"error: node {spec.name!r} failed at tick {tick}: {type(exc).__name__}: {exc}")
+        if os.environ.get("DOCKHIL_DEBUG"):
+            import traceback
+
+            traceback.print_exc()
+        return 1
+    finally:
+        if executor is not None:
+            try:
+                executor.close()
+            except Exception as exc:  # closing must not hide the first error
+                log(f"error while closing: {type(exc).__name__}: {exc}")
+    if executor.dropped:
+        log(f"{executor.dropped} bad message(s) dropped")
+    return 0
+
+
+def main() -> int:
+    from dockhil.executor import RunSpec
+
+    _die_with_parent()
+    spec = msgspec.json.decode(sys.argv[1].encode(), type=RunSpec)
+    return run_node(spec, on_ready=lambda: print(READY, flush=True))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,111 @@
+"""ZeroMQ transport: one bound publisher socket per topic, one subscriber socket per node.
+
+Frames on the wire: [topic, msgpack payload]. Publishers are XPUB sockets so
+that they see subscriptions arrive: in sim time a publisher waits until every
+subscriber the launcher expects has joined before it sends tick 0, so the
+slow-joiner effect of PUB/SUB never loses a message. High-water marks are
+off (0): in lock-step, a subscriber that lags holds its queue, not loses it.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import zmq
+
+from dockhil.errors import DockhilError
+
+
+def runtime_dir() -> Path:
+    """Where ipc sockets and the registry of running graphs live."""
+    base = os.environ.get("DOCKHIL_RUNTIME_DIR") or f"/tmp/dockhil-{os.getuid()}"
+    path = Path(base)
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def ipc_endpoint(run_dir: Path, topic: str) -> str:
+    name = topic.strip("/").replace("/", ".") or "root"
+    return f"ipc://{run_dir}/{name}"
+
+
+class Publisher:
+    def __init__(self, ctx: zmq.Context, topic: str, endpoint: str):
+        self.topic = topic
+        self.topic_bytes = topic.encode()
+        self.sock = ctx.socket(zmq.XPUB)
+        self.sock.setsockopt(zmq.SNDHWM, 0)
+        self.sock.setsockopt(zmq.XPUB_VERBOSE, 1)
+        self.sock.setsockopt(zmq.LINGER, 2000)
+        try:
+            if endpoint.startswith("tcp://") and endpoint.endswith(":0"):
+                port = self.sock.bind_to_random_port(endpoint.rsplit(":", 1)[0])
+                endpoint = endpoint.rsplit(":", 1)[0] + f":{port}"
+            else:
+                self.sock.bind(endpoint)
+        except zmq.ZMQError as exc:
+            raise DockhilError(f"topic {topic}: cannot bind {endpoint}: {exc}; is another graph using it?") from None
+        self.endpoint = endpoint
+        self.subscribers = 0
+
+    def wait_subscribers(self, expected: int, timeout: float, should_stop=lambda: False) -> None:
+        """Block until `expected` subscriptions have arrived (sim-time start barrier)."""
+        deadline = time.monotonic() + timeout
+        while self.subscribers < expected:
+            if should_stop():
+                return
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise DockhilError(
+                    f"topic {self.topic}: {self.subscribers} of {expected} subscribers joined within {timeout:.0f} s; "
+                    f"a subscribing node did not start"
+                )
+            if self.sock.poll(min(left, 0.2) * 1000, zmq.POLLIN):
+                frame = self.sock.recv()
+                if frame[:1] == b"\x01":
+                    self.subscribers += 1
+
+    def send(self, payload: bytes) -> None:
+        self.sock.send_multipart((self.topic_bytes, payload), copy=len(payload) > 4096)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class Subscriber:
+    """One SUB socket connected to the endpoints of all of a node's inputs."""
+
+    def __init__(self, ctx: zmq.Context):
+        self.sock = ctx.socket(zmq.SUB)
+        self.sock.setsockopt(zmq.RCVHWM, 0)
+        self.sock.setsockopt(zmq.LINGER, 0)
+        self.sock.setsockopt(zmq.SUBSCRIBE, b"")
+        self._connected: set[str] = set()
+
+    def connect(self, endpoint: str) -> None:
+        if endpoint not in self._connected:
+            self.sock.connect(endpoint)
+            self._connected.add(endpoint)
+
+    def recv(self, timeout_s: float | None) -> tuple[bytes, bytes] | None:
+        """(topic, payload), or None on time-out. timeout_s=None blocks."""
+        if timeout_s is not None and not self.sock.poll(timeout_s * 1000, zmq.POLLIN):
+            return None
+        frames = self.sock.recv_multipart()
+        if len(frames) != 2:
+            return (frames[0] if frames else b"", b"")
+        return frames[0], frames[1]
+
+    def recv_nowait(self) -> tuple[bytes, bytes] | None:
+        try:
+            frames = self.sock.recv_multipart(zmq.NOBLOCK)
+        except zmq.Again:
+            return None
+        if len(frames) != 2:
+            return (frames[0] if frames else b"", b"")
+        return frames[0], frames[1]
+
+    def close(self) -> None:
+        self.sock.close()

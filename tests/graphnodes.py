@@ -1,0 +1,84 @@
+"""Small nodes for runtime tests: a counter loop with a state-holding integrator."""
+
+from __future__ import annotations
+
+import os
+
+from dockhil.node import Input, Node, Output, Param
+from msgs import Vector3, Wrench, WrenchStamped
+
+
+def _w(tick, x):
+    return WrenchStamped(header=tick.header(), wrench=Wrench(force=Vector3(x=x)))
+
+
+class Integrator(Node):
+    """x[k] = x[k-1] + dt * u[k-1]: state-holding, its input is not feedthrough."""
+
+    inputs = {"u": Input(WrenchStamped, "/u", feedthrough=False)}
+    outputs = {"x": Output(WrenchStamped, "/x")}
+    params = {"x0": Param(float, 1.0, unit="m", help="initial state")}
+
+    def setup(self):
+        self.x = self.p.x0
+
+    def step(self, tick, inputs):
+        u = inputs["u"]
+        if u is not None:
+            self.x += tick.dt * u.wrench.force.x
+        return {"x": _w(tick, self.x)}
+
+
+class Gain(Node):
+    """u[k] = -gain * x[k] + noise-free nonlinearity, feedthrough."""
+
+    inputs = {"x": Input(WrenchStamped, "/x")}
+    outputs = {"u": Output(WrenchStamped, "/u")}
+    params = {
+        "gain": Param(float, 2.0, unit="1/s", help="feedback gain", ge=0.0),
+        "die_at": Param(int, -1, help="exit abruptly at this tick (tests)"),
+    }
+
+    def step(self, tick, inputs):
+        if tick.index == self.p.die_at:
+            os._exit(3)
+        x = inputs["x"].wrench.force.x
+        return {"u": _w(tick, -self.p.gain * x + 0.1 * x * x)}
+
+
+class Source(Node):
+    """A source with no inputs: a ramp."""
+
+    outputs = {"x": Output(WrenchStamped, "/x")}
+
+    def step(self, tick, inputs):
+        return {"x": _w(tick, 0.5 * tick.index)}
+
+
+class Sink(Node):
+    """Consumes /x (feedthrough) and /u (optional)."""
+
+    inputs = {"x": Input(WrenchStamped, "/x"), "opt": Input(WrenchStamped, "/none", required=False)}
+
+    def step(self, tick, inputs):
+        return {}
+
+
+class Trace(Node):
+    """Appends the exact bits (float.hex) of /x and /u per tick to a file at close."""
+
+    inputs = {"x": Input(WrenchStamped, "/x"), "u": Input(WrenchStamped, "/u", required=False)}
+    params = {"path": Param(str, "", help="output file")}
+
+    def setup(self):
+        self.rows = []
+
+    def step(self, tick, inputs):
+        u = inputs["u"]
+        self.rows.append(f"{tick.index} {inputs['x'].wrench.force.x.hex()} {u.wrench.force.x.hex() if u else '-'}")
+        return {}
+
+    def close(self):
+        if self.p.path:
+            with open(self.p.path, "w") as f:
+                f.write("\n".join(self.rows) + "\n")
