@@ -1,0 +1,780 @@
+"""MCAP bags: record the wire bytes of topics, read them back, even unfinished.
+
+A bag is an MCAP file (https://mcap.dev) that standard MCAP tools open:
+
+- one schema per message type: name "dockhil/WrenchStamped" etc., encoding
+  "jsonschema", data the JSON Schema of the msgspec Struct;
+- one channel per topic, message encoding "msgpack";
+- the messages exactly as they travelled on the bus (no re-encoding).
+
+Chunks are small (64 KiB or 0.5 s, whichever comes first) and each is handed
+to the OS as soon as it is complete. A recorder killed with SIGKILL therefore
+leaves a file without footer or summary whose complete chunks `BagReader`
+reads back; only the chunk being filled at the moment of the kill is lost.
+
+    with BagWriter("run.mcap") as bag:
+        bag.add_topic("/ft/wrench", "dockhil/WrenchStamped")
+        bag.write("/ft/wrench", log_time_ns, publish_time_ns, wire_bytes)
+
+    for topic, type_name, log_time_ns, data in BagReader("run.mcap"):
+        ...
+    info("run.mcap")  # topics, counts, start/end, duration, rates, recovered
+
+Every failure a user can cause (unwritable path, full disk, a file that is
+not a bag, a damaged chunk) raises `BagError` with one line that says what
+and where.
+"""
+
+from __future__ import annotations
+
+import csv
+import errno
+import io
+import json
+import operator
+import os
+import struct
+import time
+import zlib
+from dataclasses import dataclass
+from typing import IO, Any, Iterable, Iterator, NamedTuple
+
+import msgspec
+
+from dockhil.errors import DockhilError
+
+MAGIC = b"\x89MCAP0\r\n"
+MESSAGE_ENCODING = "msgpack"
+SCHEMA_ENCODING = "jsonschema"
+COMPRESSIONS = ("zstd", "lz4", "none")
+
+# MCAP opcodes (spec "Records"); 0x80-0xFF are reserved for user records.
+_HEADER, _FOOTER, _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _DATA_END = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0F
+_KNOWN_OPCODES = frozenset(range(0x01, 0x10))
+_RECORD_HEAD = struct.Struct("<BQ")  # opcode, body length
+_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+_CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
+_U64 = 2**64 - 1
+# Size of a message record in a chunk besides its data: opcode, length, _MESSAGE_HEAD.
+_MESSAGE_OVERHEAD = 9 + _MESSAGE_HEAD.size
+
+
+class BagError(DockhilError):
+    """A bag cannot be written or read: the message names the file and the reason."""
+
+
+def _reason(exc: OSError) -> str:
+    """'No space left on device (ENOSPC)': the words and the name people search for."""
+    text = exc.strerror or str(exc)
+    name = errno.errorcode.get(exc.errno or 0)
+    return f"{text} ({name})" if name else text
+
+
+# --------------------------------------------------------------------------- writing
+
+
+class BagWriter:
+    """Writes an MCAP bag: call `add_topic` once per topic, then `write` the wire bytes.
+
+    `chunk_size` [bytes] and `chunk_seconds` [s, wall clock] bound a chunk, and so
+    what a crash of the recording process can lose. `flush()` closes the chunk
+    being filled now (a logger with a quiet topic may call it on a timer).
+    An existing file is refused unless `overwrite` is true.
+
+    Any OSError while writing (full disk, removed device) raises BagError once
+    and leaves the writer stopped: later `write` calls raise the same error and
+    `close()` only releases the file. What reached the disk before stays
+    readable by `BagReader` as an unfinished bag.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike | IO[bytes],
+        *,
+        chunk_size: int = 64 * 1024,
+        chunk_seconds: float = 0.5,
+        compression: str = "zstd",
+        overwrite: bool = False,
+    ):
+        from mcap.writer import CompressionType, Writer
+
+        from dockhil import __version__
+
+        if compression not in COMPRESSIONS:
+            raise BagError(f"unknown bag compression {compression!r}; choose one of {', '.join(COMPRESSIONS)}")
+        if not chunk_size > 0 or not chunk_seconds > 0:
+            raise BagError(f"chunk_size and chunk_seconds must be > 0, got {chunk_size!r} and {chunk_seconds!r}")
+        if hasattr(path, "write"):
+            self.path = str(getattr(path, "name", "<stream>"))
+            self._file = path
+            self._owns_file = False
+        else:
+            self.path = os.fspath(path)
+            self._file = _open_for_writing(self.path, overwrite)
+            self._owns_file = True
+        self._chunk_size = int(chunk_size)
+        self._chunk_seconds = float(chunk_seconds)
+        self._chunk_opened: float | None = None  # monotonic time of the first message of the open chunk
+        self._pending = 0  # bytes in the open chunk
+        self._channels: dict[str, tuple[int, str]] = {}  # topic -> (channel id, type name)
+        self._schemas: dict[str, int] = {}  # type name -> schema id
+        self._sequence: dict[int, int] = {}
+        self._failed: BagError | None = None
+        self._closed = False
+        self.messages_written = 0
+        self.messages_flushed = 0  # in complete chunks handed to the OS: they survive a kill
+        self._writer = Writer(
+            self._file,
+            # Chunks are closed here, by bytes and by time, so that each one is
+            # flushed to the OS; the library's own size limit is never reached.
+            chunk_size=2**62,
+            compression={
+                "zstd": CompressionType.ZSTD,
+                "lz4": CompressionType.LZ4,
+                "none": CompressionType.NONE,
+            }[compression],
+        )
+        try:
+            self._writer.start(profile="", library=f"dockhil {__version__}")
+            # The header on disk at once: a bag killed before its first chunk is still a bag.
+            self._file.flush()
+        except OSError as exc:
+            self._release()
+            raise BagError(f"cannot start bag {self.path}: {_reason(exc)}") from None
+
+    @property
+    def topics(self) -> dict[str, str]:
+        """topic -> type name of the topics added so far."""
+        return {topic: type_name for topic, (_, type_name) in self._channels.items()}
+
+    def add_topic(self, topic: str, type_name: str) -> None:
+        """Declare a topic and its message type (a key of msgs.TYPES); adding it again is a no-op."""
+        from msgs import TYPES
+        from msgs.codec import schema
+
+        if not isinstance(topic, str) or not topic:
+            raise BagError(f"bag {self.path}: a topic must be a non-empty string, got {topic!r}")
+        known = self._channels.get(topic)
+        if known is not None:
+            if known[1] != type_name:
+                raise BagError(f"bag {self.path}: topic {topic} is already recorded as {known[1]}, not {type_name}")
+            return
+        cls = TYPES.get(type_name)
+        if cls is None:
+            raise BagError(
+                f"bag {self.path}: topic {topic} has unknown message type {type_name!r}; "
+                f"known: {', '.join(sorted(TYPES))}"
+            )
+        schema_id = self._schemas.get(type_name)
+        if schema_id is None:
+            data = json.dumps(schema(cls), separators=(",", ":")).encode()
+            schema_id = self._writer.register_schema(name=type_name, encoding=SCHEMA_ENCODING, data=data)
+            self._schemas[type_name] = schema_id
+            self._pending += len(data)
+        channel_id = self._writer.register_channel(topic=topic, message_encoding=MESSAGE_ENCODING, schema_id=schema_id)
+        self._channels[topic] = (channel_id, type_name)
+        self._sequence[channel_id] = 0
+
+    def write(self, topic: str, log_time_ns: int, publish_time_ns: int, data: bytes) -> None:
+        """Append one message: its wire bytes as they are, times in integer ns."""
+        if self._failed is not None:
+            raise self._failed
+        if self._closed:
+            raise BagError(f"bag {self.path} is closed")
+        known = self._channels.get(topic)
+        if known is None:
+            raise BagError(f"bag {self.path}: topic {topic} was not added; call add_topic(topic, type) first")
+        # Checked before the library sees them: a bad value mid-record would corrupt the chunk.
+        try:
+            log_time_ns = operator.index(log_time_ns)
+            publish_time_ns = operator.index(publish_time_ns)
+        except TypeError:
+            log_time_ns = -1
+        if not (0 <= log_time_ns <= _U64 and 0 <= publish_time_ns <= _U64):
+            raise BagError(f"bag {self.path}: topic {topic}: times must be integer ns in [0, 2**64), got {log_time_ns!r}")
+        channel_id = known[0]
+        sequence = self._sequence[channel_id]
+        self._sequence[channel_id] = (sequence + 1) & 0xFFFFFFFF
+        self._writer.add_message(channel_id, log_time_ns, data, publish_time_ns, sequence)
+        self.messages_written += 1
+        if self._chunk_opened is None:
+            self._chunk_opened = time.monotonic()
+        self._pending += _MESSAGE_OVERHEAD + len(data)
+        if self._pending >= self._chunk_size or time.monotonic() - self._chunk_opened >= self._chunk_seconds:
+            self.flush()
+
+    def flush(self) -> None:
+        """Close the open chunk and hand it to the OS (not fsync: it survives a crash
+        of this process, not a power cut)."""
+        if self._failed is not None:
+            raise self._failed
+        if self._closed:
+            return
+        try:
+            self._writer.flush()
+        except OSError as exc:
+            raise self._stop(exc, "writing") from None
+        self._pending = 0
+        self._chunk_opened = None
+        self.messages_flushed = self.messages_written
+
+    def close(self) -> None:
+        """Write the last chunk, the summary and the footer; then fsync and close."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._failed is not None:
+            self._release()
+            return
+        try:
+            self._writer.finish()
+            self._file.flush()
+            if self._owns_file:
+                os.fsync(self._file.fileno())
+                self._file.close()
+        except OSError as exc:
+            error = self._stop(exc, "finishing")
+            self._release()
+            raise error from None
+        self.messages_flushed = self.messages_written
+
+    def __enter__(self) -> "BagWriter":
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+    def _stop(self, exc: OSError, doing: str) -> BagError:
+        self._failed = BagError(
+            f"bag {self.path}: {doing} failed: {_reason(exc)}; recording stopped, "
+            f"{self.messages_flushed} of {self.messages_written} messages are on disk"
+        )
+        return self._failed
+
+    def _release(self) -> None:
+        # The writer has failed: closing may retry a write that fails again.
+        if self._owns_file:
+            try:
+                self._file.close()
+            except OSError:
+                pass
+
+
+def _open_for_writing(path: str, overwrite: bool):
+    try:
+        return open(path, "wb" if overwrite else "xb")
+    except FileExistsError:
+        raise BagError(f"bag {path} already exists; choose another name or allow overwriting it") from None
+    except IsADirectoryError:
+        raise BagError(f"cannot create bag {path}: it is a directory") from None
+    except OSError as exc:
+        raise BagError(f"cannot create bag {path}: {_reason(exc)}") from None
+
+
+# --------------------------------------------------------------------------- reading
+
+
+class BagMessage(NamedTuple):
+    """One recorded message: its topic, type name, log time [ns] and wire bytes."""
+
+    topic: str
+    type_name: str
+    log_time_ns: int
+    data: bytes
+
+    def decode(self):
+        """The message as its msgs Struct (typed, validated); DecodeError if it is not one."""
+        from msgs import type_by_name
+        from msgs.codec import decode
+
+        return decode(self.data, type_by_name(self.type_name))
+
+
+@dataclass
+class _Channel:
+    topic: str
+    type_name: str
+    encoding: str
+
+
+class BagReader:
+    """Reads a bag front to back, finished or not.
+
+    A finished bag ends with a footer. An unfinished one (the recorder was
+    killed, or its disk filled up) ends wherever writing stopped; every
+    complete record before that point is read and the cut record at the end
+    is skipped. After a full pass, `recovered` says which case it was and
+    `skipped_bytes` how much of the end could not be read. A record that is
+    complete but damaged (checksum, compression, framing) is a BagError: that
+    is corruption, not an interrupted write.
+
+    Messages come in file order, which is the order the recorder wrote them.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = os.fspath(path)
+        try:
+            self._file = open(self.path, "rb")
+        except FileNotFoundError:
+            raise BagError(f"{self.path}: no such file") from None
+        except IsADirectoryError:
+            raise BagError(f"{self.path}: is a directory, not an MCAP bag") from None
+        except OSError as exc:
+            raise BagError(f"{self.path}: cannot open: {_reason(exc)}") from None
+        # One snapshot of the size: a bag still being recorded reads as unfinished up to here.
+        self.size_bytes = os.fstat(self._file.fileno()).st_size
+        self._channels: dict[int, _Channel] = {}
+        self._schema_names: dict[int, str] = {}
+        self.recovered: bool | None = None  # known after a full pass
+        self.skipped_bytes = 0
+        self.chunks = 0
+        try:
+            self.profile, self.library = self._read_start()
+        except BaseException:
+            self._file.close()
+            raise
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> "BagReader":
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+    def __iter__(self) -> Iterator[BagMessage]:
+        return self.messages()
+
+    @property
+    def topics(self) -> dict[str, str]:
+        """topic -> type name, from the channels seen so far (all of them after a full pass)."""
+        return {c.topic: c.type_name for c in self._channels.values()}
+
+    def messages(
+        self,
+        topics: Iterable[str] | None = None,
+        *,
+        start_ns: int | None = None,
+        end_ns: int | None = None,
+    ) -> Iterator[BagMessage]:
+        """Messages on `topics` (all if None) with start_ns <= log time <= end_ns."""
+        wanted = None if topics is None else set(topics)
+        selected: dict[int, bool] = {}
+        channels = self._channels
+        lo = 0 if start_ns is None else start_ns
+        hi = _U64 if end_ns is None else end_ns
+        for channel_id, log_time, data in self._raw_messages(with_data=True):
+            keep = selected.get(channel_id)
+            if keep is None:
+                channel = channels.get(channel_id)
+                if channel is None:
+                    raise BagError(f"{self.path}: a message refers to channel {channel_id}, which is never defined")
+                keep = selected[channel_id] = wanted is None or channel.topic in wanted
+            if keep and lo <= log_time <= hi:
+                channel = channels[channel_id]
+                yield BagMessage(channel.topic, channel.type_name, log_time, data)
+
+    def decoded(self, topics: Iterable[str] | None = None, **bounds) -> Iterator[tuple[str, int, Any]]:
+        """(topic, log_time_ns, msgs Struct) for each message; BagError if one does not decode."""
+        from msgs.codec import DecodeError
+
+        checked: set[str] = set()
+        for message in self.messages(topics, **bounds):
+            if message.topic not in checked:
+                self._check_encoding(message.topic)
+                checked.add(message.topic)
+            try:
+                yield message.topic, message.log_time_ns, message.decode()
+            except (DecodeError, KeyError) as exc:
+                raise BagError(
+                    f"{self.path}: message on {message.topic} at log time {message.log_time_ns} ns: {exc}"
+                ) from None
+
+    def summary(self) -> dict:
+        """One pass over the file: what `info` reports (see there)."""
+        counts: dict[int, list[int]] = {}  # channel id -> [count, first, last]
+        for channel_id, log_time, _ in self._raw_messages(with_data=False):
+            entry = counts.get(channel_id)
+            if entry is None:
+                counts[channel_id] = [1, log_time, log_time]
+            else:
+                entry[0] += 1
+                if log_time < entry[1]:
+                    entry[1] = log_time
+                if log_time > entry[2]:
+                    entry[2] = log_time
+        topics = []
+        for channel_id, channel in self._channels.items():
+            count, first, last = counts.get(channel_id, (0, None, None))
+            span = (last - first) / 1e9 if count else 0.0
+            topics.append(
+                {
+                    "topic": channel.topic,
+                    "type": channel.type_name,
+                    "encoding": channel.encoding,
+                    "count": count,
+                    "first": None if first is None else first / 1e9,
+                    "last": None if last is None else last / 1e9,
+                    # Over the topic's own span: a topic that starts late is not diluted.
+                    "rate_hz": (count - 1) / span if count > 1 and span > 0 else 0.0,
+                }
+            )
+        topics.sort(key=lambda t: t["topic"])
+        firsts = [v[1] for v in counts.values()]
+        lasts = [v[2] for v in counts.values()]
+        start = min(firsts) / 1e9 if firsts else None
+        end = max(lasts) / 1e9 if lasts else None
+        return {
+            "path": self.path,
+            "size_bytes": self.size_bytes,
+            "recovered": bool(self.recovered),
+            "skipped_bytes": self.skipped_bytes,
+            "library": self.library,
+            "messages": sum(v[0] for v in counts.values()),
+            "chunks": self.chunks,
+            "start": start,
+            "end": end,
+            "duration_s": (end - start) if firsts else 0.0,
+            "topics": topics,
+        }
+
+    def _check_encoding(self, topic: str) -> None:
+        for channel in self._channels.values():
+            if channel.topic == topic and channel.encoding != MESSAGE_ENCODING:
+                raise BagError(
+                    f"{self.path}: topic {topic} is encoded as {channel.encoding!r}, not {MESSAGE_ENCODING!r}"
+                )
+
+    # The file, record by record. -----------------------------------------
+
+    def _read_start(self) -> tuple[str, str]:
+        f, size = self._file, self.size_bytes
+        if size == 0:
+            raise BagError(f"{self.path}: empty file (0 bytes), not an MCAP bag")
+        head = f.read(16)
+        if not head.startswith(MAGIC[: len(head)]):
+            what = _guess_format(head)
+            raise BagError(f"{self.path}: not an MCAP bag ({what})")
+        if size < len(MAGIC) + 9:
+            raise BagError(f"{self.path}: truncated: {size} bytes end inside the MCAP header; nothing was recorded")
+        f.seek(len(MAGIC))
+        opcode, length = _RECORD_HEAD.unpack(f.read(9))
+        if opcode != _HEADER:
+            raise BagError(f"{self.path}: corrupt: the first record is opcode 0x{opcode:02x}, not the MCAP header")
+        if length > size - len(MAGIC) - 9:
+            raise BagError(f"{self.path}: truncated: {size} bytes end inside the MCAP header; nothing was recorded")
+        try:
+            body = f.read(length)
+            (n,) = struct.unpack_from("<I", body, 0)
+            profile = body[4 : 4 + n].decode()
+            (m,) = struct.unpack_from("<I", body, 4 + n)
+            library = body[8 + n : 8 + n + m].decode()
+        except (struct.error, UnicodeDecodeError):
+            raise BagError(f"{self.path}: corrupt MCAP header") from None
+        return profile, library
+
+    def _records(self) -> Iterator[tuple[int, int, bytes]]:
+        """(offset, opcode, body) of each complete record after the header.
+
+        Sets `recovered` and `skipped_bytes` when it stops.
+        """
+        f, size = self._file, self.size_bytes
+        f.seek(len(MAGIC))
+        pos = len(MAGIC)
+        self.chunks = 0
+        while True:
+            if pos >= size:
+                self._stopped(size, size)
+                return
+            head = f.read(9)
+            if self._is_tail(pos, head[0]):
+                self._stopped(pos, size)
+                return
+            if len(head) < 9:
+                self._stopped(pos, size)
+                return
+            opcode, length = _RECORD_HEAD.unpack(head)
+            if length > size - pos - 9:
+                # The recorder stopped while writing this record: the end of an unfinished bag.
+                self._stopped(pos, size)
+                return
+            body = f.read(length)
+            if opcode != _HEADER:
+                yield pos, opcode, body
+            pos += 9 + length
+            if opcode == _FOOTER:
+                f.seek(pos)
+                self.recovered = f.read(len(MAGIC)) != MAGIC
+                self.skipped_bytes = 0
+                return
+
+    def _is_tail(self, pos: int, opcode: int) -> bool:
+        """True at a zero-filled tail (pre-allocated, or lost in a power cut): nothing
+        was written there. An opcode that is no MCAP record is corruption."""
+        if opcode in _KNOWN_OPCODES or opcode >= 0x80:
+            return False
+        if opcode == 0 and self._zeros_from(pos):
+            return True
+        raise BagError(f"{self.path}: corrupt at byte {pos}: opcode 0x{opcode:02x} is not an MCAP record")
+
+    def _zeros_from(self, pos: int) -> bool:
+        self._file.seek(pos)
+        while block := self._file.read(1 << 16):
+            if block.count(0) != len(block):
+                return False
+        return True
+
+    def _stopped(self, valid_end: int, size: int) -> None:
+        self.recovered = True
+        self.skipped_bytes = size - valid_end
+
+    def _raw_messages(self, with_data: bool) -> Iterator[tuple[int, int, bytes | None]]:
+        """(channel id, log time, data) in file order; registers schemas and channels on the way."""
+        unpack_head = _MESSAGE_HEAD.unpack_from
+        for pos, opcode, body in self._records():
+            if opcode == _CHUNK:
+                self.chunks += 1
+                records = self._chunk_records(pos, body)
+                i, n = 0, len(records)
+                try:
+                    while i < n:
+                        op, length = _RECORD_HEAD.unpack_from(records, i)
+                        start, end = i + 9, i + 9 + length
+                        if end > n:
+                            raise ValueError(f"record at {i} runs past the chunk end")
+                        if op == _MESSAGE:
+                            channel_id, _, log_time, _ = unpack_head(records, start)
+                            yield channel_id, log_time, records[start + 22 : end] if with_data else None
+                        elif op == _SCHEMA or op == _CHANNEL:
+                            self._define(op, records[start:end])
+                        i = end
+                except (struct.error, ValueError, UnicodeDecodeError) as exc:
+                    raise BagError(f"{self.path}: corrupt chunk at byte {pos}: {exc}") from None
+            elif opcode == _MESSAGE:  # unchunked files from other writers
+                channel_id, _, log_time, _ = unpack_head(body, 0)
+                yield channel_id, log_time, body[22:] if with_data else None
+            elif opcode == _SCHEMA or opcode == _CHANNEL:
+                try:
+                    self._define(opcode, body)
+                except (struct.error, ValueError, UnicodeDecodeError) as exc:
+                    raise BagError(f"{self.path}: corrupt record at byte {pos}: {exc}") from None
+
+    def _define(self, opcode: int, body: bytes) -> None:
+        from mcap.data_stream import ReadDataStream
+        from mcap.exceptions import EndOfFile
+        from mcap.records import Channel, Schema
+
+        stream = ReadDataStream(io.BytesIO(body))
+        try:
+            if opcode == _SCHEMA:
+                schema = Schema.read(stream)
+                if schema.id != 0:
+                    self._schema_names[schema.id] = schema.name
+            else:
+                channel = Channel.read(stream)
+                self._channels[channel.id] = _Channel(
+                    channel.topic, self._schema_names.get(channel.schema_id, ""), channel.message_encoding
+                )
+        except EndOfFile:
+            raise ValueError("a schema or channel record is cut short") from None
+
+    def _chunk_records(self, pos: int, body: bytes) -> bytes:
+        try:
+            _, _, size, crc, name_length = _CHUNK_HEAD.unpack_from(body, 0)
+            offset = _CHUNK_HEAD.size
+            compression = body[offset : offset + name_length].decode()
+            offset += name_length
+            (length,) = struct.unpack_from("<Q", body, offset)
+            offset += 8
+            if offset + length > len(body):
+                raise ValueError("its data runs past the record end")
+            data = body[offset : offset + length]
+            if compression == "zstd":
+                import zstandard
+
+                records = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+            elif compression == "lz4":
+                import lz4.frame
+
+                records = lz4.frame.decompress(data)
+            elif compression == "":
+                records = data
+            else:
+                raise ValueError(f"unsupported compression {compression!r}")
+        except BagError:
+            raise
+        except Exception as exc:  # zstandard and lz4 raise their own types
+            raise BagError(f"{self.path}: corrupt chunk at byte {pos}: {exc}") from None
+        if len(records) != size:
+            raise BagError(f"{self.path}: corrupt chunk at byte {pos}: {len(records)} bytes, header says {size}")
+        if crc != 0 and zlib.crc32(records) != crc:
+            raise BagError(f"{self.path}: corrupt chunk at byte {pos}: checksum mismatch")
+        return records
+
+
+def _guess_format(head: bytes) -> str:
+    if head.startswith(b"#ROSBAG"):
+        return "it is a ROS 1 bag"
+    if head.startswith(b"SQLite format 3"):
+        return "it is an SQLite database, e.g. a ROS 2 .db3 bag"
+    return "it does not start with the MCAP magic bytes"
+
+
+def info(path: str | os.PathLike) -> dict:
+    """What a bag holds, read in one pass (finished or unfinished bag).
+
+    Keys: path, size_bytes, recovered (True: no footer, the recorder stopped
+    without closing), skipped_bytes (cut record at the end), library,
+    messages, chunks, start and end [s] (log times of the first and last
+    message, None if empty), duration_s, and topics: a list of {topic, type,
+    encoding, count, first, last [s], rate_hz (mean over the topic's span)}.
+    """
+    with BagReader(path) as reader:
+        return reader.summary()
+
+
+# --------------------------------------------------------------------------- export
+
+
+def flatten(value: Any, prefix: str = "") -> dict[str, Any]:
+    """Nested Struct/dict/list -> {"header.stamp": .., "bodies.0.pose.position.x": ..}."""
+    out: dict[str, Any] = {}
+    _flatten_into(value, prefix, out)
+    return out
+
+
+def _flatten_into(value: Any, prefix: str, out: dict[str, Any]) -> None:
+    if isinstance(value, msgspec.Struct):
+        for name in value.__struct_fields__:
+            _flatten_into(getattr(value, name), f"{prefix}.{name}" if prefix else name, out)
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            _flatten_into(item, f"{prefix}.{key}" if prefix else str(key), out)
+    elif isinstance(value, (list, tuple)):
+        for index, item in enumerate(value):
+            _flatten_into(item, f"{prefix}.{index}" if prefix else str(index), out)
+    else:
+        out[prefix or "value"] = value
+
+
+class ExportResult(NamedTuple):
+    rows: int
+    unvalidated: int  # msgpack that failed typed validation (e.g. NaN): exported as recorded
+    skipped: int  # not msgpack at all: no row
+    recovered: bool
+
+
+def export_csv(path: str | os.PathLike, topic: str, out: str | os.PathLike | IO[str]) -> ExportResult:
+    """Write one CSV row per message on `topic`: log_time_ns, then the flattened fields.
+
+    A file `out` appears only when complete (written aside, then renamed).
+    Messages that fail typed validation (a recorded NaN, say) are exported as
+    recorded; bytes that are not msgpack at all are skipped and counted.
+    """
+    with BagReader(path) as reader:
+        found = reader.summary()
+        entry = next((t for t in found["topics"] if t["topic"] == topic), None)
+        if entry is None:
+            have = ", ".join(t["topic"] for t in found["topics"]) or "none"
+            raise BagError(f"{reader.path}: no topic {topic}; topics in the bag: {have}")
+        reader._check_encoding(topic)
+        if hasattr(out, "write"):
+            result = _write_csv(reader, topic, out)
+        else:
+            out = os.fspath(out)
+            part = f"{out}.part"
+            try:
+                with open(part, "w", newline="") as fh:
+                    result = _write_csv(reader, topic, fh)
+                os.replace(part, out)
+            except OSError as exc:
+                _remove_quietly(part)
+                raise BagError(f"cannot write {out}: {_reason(exc)}") from None
+            except BaseException:
+                _remove_quietly(part)
+                raise
+        return ExportResult(*result, bool(reader.recovered))
+
+
+def _write_csv(reader: BagReader, topic: str, fh: IO[str]) -> tuple[int, int, int]:
+    from msgs import TYPES
+    from msgs.codec import DecodeError, decode
+
+    type_name = reader.topics[topic]
+    cls = TYPES.get(type_name)
+    untyped = msgspec.msgpack.Decoder()
+    counts = {"unvalidated": 0, "skipped": 0}
+
+    def rows() -> Iterator[dict[str, Any]]:
+        for message in reader.messages([topic]):
+            value = None
+            if cls is not None:
+                try:
+                    value = decode(message.data, cls)
+                except DecodeError:
+                    counts["unvalidated"] += 1
+            if value is None:
+                try:
+                    value = untyped.decode(message.data)
+                except msgspec.DecodeError:
+                    counts["skipped"] += 1
+                    continue
+            row = {"log_time_ns": message.log_time_ns}
+            row.update(flatten(value))
+            yield row
+
+    # One pass when every row has the columns of the first (fixed-shape
+    # messages); a second pass with the union when lists change length.
+    columns: list[str] | None = None
+    known: set[str] = set()
+    reshaped = False
+    written = 0
+    writer = csv.writer(fh)
+    for row in rows():
+        if columns is None:
+            columns = list(row)
+            known = set(columns)
+            writer.writerow(columns)
+        if not reshaped and row.keys() <= known:
+            writer.writerow([row.get(c, "") for c in columns])
+            written += 1
+            continue
+        reshaped = True
+        for key in row:
+            if key not in known:
+                known.add(key)
+                columns.append(key)
+    if reshaped:
+        if not fh.seekable():
+            raise BagError(f"{reader.path}: messages on {topic} change shape; export to a file, not a stream")
+        fh.seek(0)
+        fh.truncate()
+        counts = {"unvalidated": 0, "skipped": 0}
+        writer.writerow(columns)
+        written = 0
+        for row in rows():
+            writer.writerow([row.get(c, "") for c in columns])
+            written += 1
+    if columns is None:
+        writer.writerow(["log_time_ns"])
+    return written, counts["unvalidated"], counts["skipped"]
+
+
+def _remove_quietly(path: str) -> None:
+    try:
+        os.remove(path)
+    except OSError:
+        pass
+
+
+__all__ = [
+    "BagError",
+    "BagMessage",
+    "BagReader",
+    "BagWriter",
+    "ExportResult",
+    "export_csv",
+    "flatten",
+    "info",
+]

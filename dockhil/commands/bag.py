@@ -1,0 +1,193 @@
+"""`dockhil bag`: inspect, export, record and replay MCAP bags.
+
+`info` and `export` read files only. `record` and `play` talk to a running
+graph; they live in `dockhil.bag_live`, imported only when they run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import sys
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.epilog = "Run 'dockhil bag SUBCOMMAND --help' for the options of one subcommand."
+    sub = parser.add_subparsers(dest="bag_command", metavar="SUBCOMMAND", required=True)
+
+    p = sub.add_parser(
+        "info",
+        help="topics, types, message counts, start, end, duration and rates of a bag",
+        description="Show what a bag holds. Works on unfinished bags too (a recorder that was "
+        "killed): they are read up to their last complete chunk and marked as recovered.",
+    )
+    p.add_argument("path", metavar="PATH", help="MCAP bag file")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+
+    p = sub.add_parser(
+        "export",
+        help="write the messages of one topic as CSV, one row per message",
+        description="Write one CSV row per message of a topic: log_time_ns, then every field, "
+        "nested fields flattened to dotted names (header.stamp, wrench.force.x, "
+        "bodies.0.pose.position.x).",
+    )
+    p.add_argument("path", metavar="PATH", help="MCAP bag file")
+    p.add_argument("--topic", "-t", required=True, metavar="T", help="topic to export, e.g. /ft/wrench")
+    p.add_argument("--csv", required=True, metavar="OUT", help="CSV file to write ('-' for standard output)")
+
+    p = sub.add_parser(
+        "record",
+        help="record topics of a running graph to a new bag",
+        description="Record topics of a graph that is already running, until Ctrl-C. "
+        "Chunks are small, so a recorder that is killed loses at most its last chunk.",
+    )
+    p.add_argument("path", metavar="PATH", help="MCAP bag file to create")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to record (default: all)")
+    p.add_argument("--overwrite", action="store_true", help="replace PATH if it exists (default: refuse)")
+
+    p = sub.add_parser(
+        "play",
+        help="re-publish a bag on the bus, in wall time or driving sim time",
+        description="Re-publish the messages of a bag on their topics. In wall time they keep "
+        "their recorded spacing, scaled by --rate; with --sim-time the bag drives the ticks "
+        "and a recorded run is reproduced exactly.",
+    )
+    p.add_argument("path", metavar="PATH", help="MCAP bag file")
+    p.add_argument("--rate", type=_positive_float, default=1.0, metavar="R",
+                   help="playback speed factor in wall time (default 1.0; 10 plays 60 s in 6 s)")
+    p.add_argument("--loop", action="store_true", help="start again from the beginning at the end")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to play (default: all)")
+    p.add_argument("--start", type=_non_negative_float, default=0.0, metavar="S",
+                   help="skip the first S seconds of the bag (default 0)")
+    p.add_argument("--sim-time", action="store_true",
+                   help="drive sim-time ticks from the bag's stamps instead of the wall clock")
+
+
+def run(args: argparse.Namespace) -> int:
+    return {"info": _info, "export": _export, "record": _record, "play": _play}[args.bag_command](args)
+
+
+def _info(args: argparse.Namespace) -> int:
+    from dockhil.bag import info
+
+    found = info(args.path)
+    if args.json:
+        print(json.dumps(found, indent=2))
+    else:
+        print(format_info(found))
+    return 0
+
+
+def format_info(found: dict) -> str:
+    """The table `dockhil bag info` prints."""
+    if found["recovered"]:
+        state = "unfinished, recovered (the recorder stopped without closing the bag)"
+        if found["skipped_bytes"]:
+            state += f"; {_size(found['skipped_bytes'])} cut off at the end skipped"
+    else:
+        state = "finished"
+    lines = [
+        f"path:      {found['path']}",
+        f"size:      {_size(found['size_bytes'])}",
+        f"state:     {state}",
+        f"messages:  {found['messages']} in {found['chunks']} chunks",
+        f"start:     {_time(found['start'])}",
+        f"end:       {_time(found['end'])}",
+        f"duration:  {found['duration_s']:.3f} s",
+        "topics:",
+    ]
+    rows = [("topic", "type", "count", "rate [Hz]")] + [
+        (t["topic"], t["type"] or "?", str(t["count"]), f"{t['rate_hz']:.1f}") for t in found["topics"]
+    ]
+    if len(rows) == 1:
+        lines.append("  (none)")
+    else:
+        widths = [max(len(r[i]) for r in rows) for i in range(4)]
+        for r in rows:
+            lines.append(f"  {r[0]:<{widths[0]}}  {r[1]:<{widths[1]}}  {r[2]:>{widths[2]}}  {r[3]:>{widths[3]}}")
+    return "\n".join(lines)
+
+
+def _time(seconds: float | None) -> str:
+    if seconds is None:
+        return "-"
+    text = f"{seconds:.6f} s"
+    # Wall-time bags carry Unix time; sim-time bags start near 0.
+    if seconds > 1e9:
+        stamp = datetime.datetime.fromtimestamp(seconds, datetime.timezone.utc)
+        text += f" ({stamp:%Y-%m-%d %H:%M:%S.%f} UTC)"
+    return text
+
+
+def _size(n: int) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n} B"
+
+
+def _export(args: argparse.Namespace) -> int:
+    from dockhil.bag import export_csv
+
+    out = sys.stdout if args.csv == "-" else args.csv
+    result = export_csv(args.path, args.topic, out)
+    notes = []
+    if result.recovered:
+        notes.append("the bag is unfinished; exported what it holds up to its last complete chunk")
+    if result.unvalidated:
+        notes.append(f"{result.unvalidated} messages fail validation (e.g. NaN) and are exported as recorded")
+    if result.skipped:
+        notes.append(f"{result.skipped} messages are not msgpack and were skipped")
+    for note in notes:
+        print(f"dockhil bag export: note: {note}", file=sys.stderr)
+    if args.csv != "-":
+        print(f"{result.rows} rows of {args.topic} written to {args.csv}")
+    return 0
+
+
+def _record(args: argparse.Namespace) -> int:
+    return _live().record(args)
+
+
+def _play(args: argparse.Namespace) -> int:
+    return _live().play(args)
+
+
+def _live():
+    import importlib
+
+    from dockhil.errors import DockhilError
+
+    try:
+        bag_live = importlib.import_module("dockhil.bag_live")
+    except ModuleNotFoundError as exc:
+        if exc.name != "dockhil.bag_live":
+            raise
+        raise DockhilError("recording and playback need the dockhil runtime (dockhil.bag_live), not found") from None
+    return bag_live
+
+
+def _positive_float(text: str) -> float:
+    value = _float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def _non_negative_float(text: str) -> float:
+    value = _float(text)
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def _float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text}") from None
+    if value != value or value in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text}")
+    return value
