@@ -264,6 +264,8 @@ def _open_for_writing(path: str, overwrite: bool):
     try:
         return open(path, "wb" if overwrite else "xb")
     except FileExistsError:
+        if os.path.isdir(path):
+            raise BagError(f"cannot create bag {path}: it is a directory") from None
         raise BagError(f"bag {path} already exists; choose another name or allow overwriting it") from None
     except IsADirectoryError:
         raise BagError(f"cannot create bag {path}: it is a directory") from None
@@ -713,13 +715,15 @@ def _write_csv(reader: BagReader, topic: str, fh: IO[str]) -> tuple[int, int, in
                 try:
                     value = decode(message.data, cls)
                 except DecodeError:
-                    counts["unvalidated"] += 1
+                    pass
             if value is None:
                 try:
                     value = untyped.decode(message.data)
                 except msgspec.DecodeError:
                     counts["skipped"] += 1
                     continue
+                if cls is not None:
+                    counts["unvalidated"] += 1
             row = {"log_time_ns": message.log_time_ns}
             row.update(flatten(value))
             yield row
