@@ -118,6 +118,7 @@ class NodeExecutor:
         self.pubs = {port: Publisher(self.ctx, wire.topic, wire.endpoint) for port, wire in spec.outputs.items()}
         self.dropped = 0
         self._drop_logged = 0.0
+        self._drop_reasons: set[str] = set()
         self.ticks_done = 0
 
     # -- receiving ---------------------------------------------------------
@@ -144,8 +145,10 @@ class NodeExecutor:
     def _drop(self, topic: str, reason: str) -> None:
         self.dropped += 1
         now = time.monotonic()
-        # One line per bad message, but at most ~10 lines a second.
-        if now - self._drop_logged > 0.1:
+        # One line per bad message, at most ~10 a second, but every new kind of fault once.
+        kind = reason.split(" - at ")[0][:60]
+        if now - self._drop_logged > 0.1 or kind not in self._drop_reasons:
+            self._drop_reasons.add(kind)
             self._drop_logged = now
             self.log(f"dropped bad message on {topic}: {reason} ({self.dropped} dropped so far)")
 

@@ -162,6 +162,8 @@ def _arg_specs(path: Path, raw: Any) -> dict[str, ArgSpec]:
         raise LaunchError(f"{path}: `args:` must be a mapping name -> {{default, help}}")
     specs = {}
     for name, body in raw.items():
+        if not isinstance(name, str):
+            raise LaunchError(f"{path}: arg name {name!r} is not a string (YAML reads on/off/yes/no as booleans: quote it)")
         if not isinstance(body, dict):
             body = {"default": body}
         unknown = sorted(set(body) - _ARG_KEYS)

@@ -20,7 +20,16 @@ NonNegative = Annotated[float, msgspec.Meta(ge=0.0, le=_MAX, description="finite
 Count = Annotated[int, msgspec.Meta(ge=0)]
 
 
-class Header(msgspec.Struct, frozen=True):
+class _Field(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Base of nested values: a misspelt field is refused, not ignored."""
+
+
+class Message(_Field, tag_field="type", tag=lambda name: f"dockhil/{name}"):
+    """Base of top-level messages. The encoded map carries "type": "dockhil/<Name>",
+    so a message of another type is refused on decode; `header` is required."""
+
+
+class Header(_Field):
     """stamp [s] (sim or wall time), tick (sim-time step index), seq (per publisher), frame."""
 
     stamp: NonNegative = 0.0
@@ -29,13 +38,13 @@ class Header(msgspec.Struct, frozen=True):
     frame: str = ""
 
 
-class Vector3(msgspec.Struct, frozen=True):
+class Vector3(_Field):
     x: Finite = 0.0
     y: Finite = 0.0
     z: Finite = 0.0
 
 
-class Quaternion(msgspec.Struct, frozen=True):
+class Quaternion(_Field):
     """Unit quaternion, scalar last (x, y, z, w) as in ROS."""
 
     x: Finite = 0.0
@@ -44,28 +53,28 @@ class Quaternion(msgspec.Struct, frozen=True):
     w: Finite = 1.0
 
 
-class Pose(msgspec.Struct, frozen=True):
+class Pose(_Field):
     """position [m], orientation (unit quaternion)."""
 
     position: Vector3 = Vector3()
     orientation: Quaternion = Quaternion()
 
 
-class Twist(msgspec.Struct, frozen=True):
+class Twist(_Field):
     """linear [m/s], angular [rad/s]."""
 
     linear: Vector3 = Vector3()
     angular: Vector3 = Vector3()
 
 
-class Wrench(msgspec.Struct, frozen=True):
+class Wrench(_Field):
     """force [N], torque [N m]."""
 
     force: Vector3 = Vector3()
     torque: Vector3 = Vector3()
 
 
-class BodyState(msgspec.Struct, frozen=True):
+class BodyState(_Field):
     """One free-floating body: mass [kg] (0 = fixed to the ground), pose, twist."""
 
     name: str = ""
@@ -74,51 +83,51 @@ class BodyState(msgspec.Struct, frozen=True):
     twist: Twist = Twist()
 
 
-class SatelliteState(msgspec.Struct, frozen=True):
+class SatelliteState(Message):
     """The bodies the satellite-dynamics node integrates, chaser first."""
 
-    header: Header = Header()
+    header: Header
     bodies: list[BodyState] = []
     in_contact: bool = False
 
 
-class WrenchStamped(msgspec.Struct, frozen=True):
+class WrenchStamped(Message):
     """A wrench acting on the chaser (body 0); the target feels its opposite."""
 
-    header: Header = Header()
+    header: Header
     wrench: Wrench = Wrench()
 
 
-class BodyWrenches(msgspec.Struct, frozen=True):
+class BodyWrenches(Message):
     """One wrench per body, in the order of SatelliteState.bodies."""
 
-    header: Header = Header()
+    header: Header
     wrenches: list[Wrench] = []
 
 
-class RobotCommand(msgspec.Struct, frozen=True):
+class RobotCommand(Message):
     """Setpoint for the robot: the pose of the chaser's docking probe relative
     to the target's interface (x > 0 is penetration), with its velocity."""
 
-    header: Header = Header()
+    header: Header
     pose: Pose = Pose()
     twist: Twist = Twist()
     enable: bool = True
 
 
-class RobotState(msgspec.Struct, frozen=True):
+class RobotState(Message):
     """The robot's actual pose in the same frame as RobotCommand."""
 
-    header: Header = Header()
+    header: Header
     pose: Pose = Pose()
     twist: Twist = Twist()
     status: str = "ok"
 
 
-class ImpedanceParams(msgspec.Struct, frozen=True):
+class ImpedanceParams(Message):
     """Virtual impedance k1 [N/m], b1 [N s/m], k2, b2 and how they were found."""
 
-    header: Header = Header()
+    header: Header
     k1: Finite = 0.0
     b1: Finite = 0.0
     k2: Finite = 0.0
@@ -126,8 +135,8 @@ class ImpedanceParams(msgspec.Struct, frozen=True):
     method: str = ""
 
 
-class NodeStatus(msgspec.Struct, frozen=True):
-    header: Header = Header()
+class NodeStatus(Message):
+    header: Header
     node: str = ""
     state: str = "running"
     ticks: Count = 0
@@ -135,10 +144,10 @@ class NodeStatus(msgspec.Struct, frozen=True):
     message: str = ""
 
 
-class EStop(msgspec.Struct, frozen=True):
+class EStop(Message):
     """Emergency stop: active=True stops commanding and holds the robot."""
 
-    header: Header = Header()
+    header: Header
     active: bool = False
     reason: str = ""
 

@@ -42,7 +42,7 @@ class Gain(Node):
     def step(self, tick, inputs):
         if tick.index == self.p.die_at:
             os._exit(3)
-        x = inputs["x"].wrench.force.x
+        x = inputs["x"].wrench.force.x if inputs["x"] is not None else 0.0  # None before data, in wall time
         return {"u": _w(tick, -self.p.gain * x + 0.1 * x * x)}
 
 
@@ -82,3 +82,14 @@ class Trace(Node):
         if self.p.path:
             with open(self.p.path, "w") as f:
                 f.write("\n".join(self.rows) + "\n")
+
+
+class StateSink(Node):
+    """Expects a RobotState on /x: wiring it to a WrenchStamped publisher is a type error."""
+
+    from msgs import RobotState as _RS
+
+    inputs = {"x": Input(_RS, "/x")}
+
+    def step(self, tick, inputs):
+        return {}

@@ -1,0 +1,1 @@
+"""One module per `dockhil` subcommand; see dockhil/cli.py."""

@@ -1,0 +1,68 @@
+"""`dockhil graph FILE`: what a launch file would start, how it connects, what it leaves out."""
+
+from __future__ import annotations
+
+import msgs
+
+
+def add_arguments(p) -> None:
+    p.add_argument("file", help="launch file (YAML)")
+    p.add_argument("overrides", nargs="*", metavar="name:=value", help="launch arguments")
+    p.add_argument("--dot", action="store_true", help="print Graphviz DOT instead of text")
+
+
+def run(args) -> int:
+    from dockhil import launchfile
+    from dockhil.graph import build
+
+    scene = launchfile.load(args.file, launchfile.parse_overrides(args.overrides))
+    graph = build(scene)
+    print(to_dot(graph) if args.dot else to_text(graph))
+    return 0
+
+
+def to_text(graph) -> str:
+    scene = graph.scene
+    lines = [f"{scene.path}: {scene.description}".rstrip(": "),
+             f"rate {scene.rate:g} Hz (step {scene.dt:g} s)" + (f", duration {scene.duration:g} s" if scene.duration else "")]
+    if scene.args:
+        lines.append("args:")
+        for name, spec in scene.args.items():
+            value = scene.values[name]
+            mark = "" if value == spec.default else f" (default {spec.default!r})"
+            lines.append(f"  {name} = {value!r}{mark}  {spec.help}")
+    lines.append(f"nodes ({len(graph.nodes)}, in step order):")
+    for name in graph.order:
+        gn = graph.nodes[name]
+        lines.append(f"  {name} [{gn.type_name}] {gn.cls.describe()}")
+        for port, ref in gn.inputs.items():
+            src = graph.publishers.get(ref.topic)
+            frm = f"<- {src.node}.{src.port}" if src else "(unconnected, optional)"
+            ft = "" if ref.feedthrough else ", previous tick"
+            lines.append(f"    in  {port}: {ref.topic} {msgs.type_name(ref.type)} {frm}{ft}")
+        for port, ref in gn.outputs.items():
+            subs = ", ".join(f"{s.node}.{s.port}" for s in graph.subscribers.get(ref.topic, [])) or "no subscriber"
+            lines.append(f"    out {port}: {ref.topic} {msgs.type_name(ref.type)} -> {subs}")
+        changed = {k: v for k, v in gn.params.items() if v != gn.cls.params[k].default}
+        if changed:
+            lines.append("    params: " + ", ".join(f"{k}={v!r}" for k, v in changed.items()))
+    if scene.skipped:
+        lines.append("left out by conditions:")
+        for s in scene.skipped:
+            lines.append(f"  {s.name} ({s.reason})")
+    return "\n".join(lines)
+
+
+def to_dot(graph) -> str:
+    out = ["digraph dockhil {", "  rankdir=LR;", "  node [shape=box];"]
+    for name in graph.order:
+        out.append(f'  "{name}" [label="{name}\\n{graph.nodes[name].type_name}"];')
+    for topic, subs in graph.subscribers.items():
+        pub = graph.publishers[topic]
+        for s in subs:
+            style = "" if s.feedthrough else ", style=dashed"
+            out.append(f'  "{pub.node}" -> "{s.node}" [label="{topic}"{style}];')
+    for s in graph.scene.skipped:
+        out.append(f'  "{s.name}" [style=dotted, label="{s.name}\\n(left out)"];')
+    out.append("}")
+    return "\n".join(out)

@@ -1,0 +1,60 @@
+"""`dockhil node list`: the nodes of running graphs."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+
+def add_arguments(p) -> None:
+    sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
+    sub.add_parser("list", help="nodes of every running graph, with type, pid and state")
+    types = sub.add_parser("types", help="node types this installation knows, with their ports and parameters")
+    types.add_argument("name", nargs="?", help="show one type in full")
+
+
+def _alive(pid) -> bool:
+    try:
+        os.kill(pid, 0)
+        return True
+    except (OSError, TypeError):
+        return False
+
+
+def run(args) -> int:
+    if args.action == "types":
+        return _types(args.name)
+    from dockhil.launcher import running_graphs
+
+    graphs = running_graphs()
+    if not graphs:
+        print("no running graph", file=sys.stderr)
+        return 0
+    for info in graphs:
+        print(f"{info['run_id']}  {info['file']}  ({info['clock']} time)")
+        for name, n in info["nodes"].items():
+            state = "running" if _alive(n["pid"]) else "exited"
+            print(f"  {name}  {n['type']}  pid {n['pid']}  {state}")
+    return 0
+
+
+def _types(name: str | None) -> int:
+    import msgs
+    import nodes
+
+    names = [name] if name else sorted(nodes.REGISTRY)
+    for type_name in names:
+        cls = nodes.load(type_name)
+        print(f"{type_name}: {cls.describe()}")
+        if not name:
+            continue
+        for port, i in cls.inputs.items():
+            ft = "" if i.feedthrough else " (previous tick)"
+            opt = "" if i.required else " (optional)"
+            print(f"  in  {port}: {i.topic} {msgs.type_name(i.type)}{ft}{opt}  {i.help}")
+        for port, o in cls.outputs.items():
+            print(f"  out {port}: {o.topic} {msgs.type_name(o.type)}  {o.help}")
+        for pname, p in cls.params.items():
+            unit = f" [{p.unit}]" if p.unit else ""
+            print(f"  param {pname}: {p.type.__name__}{unit} = {p.default!r}  {p.help}")
+    return 0

@@ -1,0 +1,86 @@
+"""`dockhil run NODE [param:=value ...]`: one node alone, wired to a running graph.
+
+Its inputs connect to the topics of the running graph; its outputs bind
+fresh endpoints (registered, so `dockhil topic echo` finds them). It runs in
+wall time at --rate until Ctrl-C or --duration.
+"""
+
+from __future__ import annotations
+
+import os
+
+from dockhil.errors import DockhilError
+
+
+def add_arguments(p) -> None:
+    p.add_argument("node", help="node type (see 'dockhil node types') or module:Class")
+    p.add_argument("params", nargs="*", metavar="param:=value", help="node parameters")
+    p.add_argument("--name", help="node name (default: the type name)")
+    p.add_argument("-r", "--remap", action="append", default=[], metavar="FROM:=TO",
+                   help="remap a port or topic to a topic (repeatable)")
+    p.add_argument("--rate", type=float, default=100.0, metavar="HZ", help="loop rate (default 100)")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+
+
+def run(args) -> int:
+    import json
+    import uuid
+
+    import yaml
+
+    import msgs
+    import nodes
+    from dockhil.executor import PortWire, RunSpec
+    from dockhil.launcher import registry_dir, running_graphs
+    from dockhil.launchfile import parse_overrides
+    from dockhil.process import run_node
+    from dockhil.transport import ipc_endpoint, runtime_dir
+
+    if not args.rate > 0:
+        raise DockhilError(f"--rate must be positive, got {args.rate}")
+    cls = nodes.load(args.node)
+    name = args.name or args.node.rsplit(":", 1)[-1]
+    params = {k: yaml.safe_load(v) for k, v in parse_overrides(args.params).items()}
+    params = cls.resolve_params(name, params)
+    remap = parse_overrides(args.remap)
+    ins, outs = cls.ports(params)
+    topic_of = lambda port, default: remap.get(port, remap.get(default, default))  # noqa: E731
+
+    published = {}
+    for info in running_graphs():
+        for topic, t in info["topics"].items():
+            published.setdefault(topic, t)
+    inputs = {}
+    for port, i in ins.items():
+        topic = topic_of(port, i.topic)
+        t = published.get(topic)
+        if t is None:
+            if i.required:
+                raise DockhilError(
+                    f"node {name!r} input {port!r} needs {topic}, which no running graph publishes; "
+                    f"start the graph first or remap with -r {port}:=TOPIC"
+                )
+            continue
+        if t["type"] != msgs.type_name(i.type):
+            raise DockhilError(f"topic {topic} carries {t['type']}, but {name}.{port} expects {msgs.type_name(i.type)}")
+        inputs[port] = PortWire(topic, t["endpoint"], t["type"], i.feedthrough)
+    run_id = f"run-{name}-{uuid.uuid4().hex[:6]}"
+    run_dir = runtime_dir() / run_id
+    run_dir.mkdir(parents=True, exist_ok=True)
+    outputs = {port: PortWire(topic_of(port, o.topic), ipc_endpoint(run_dir, topic_of(port, o.topic)),
+                              msgs.type_name(o.type)) for port, o in outs.items()}
+    n_ticks = None if args.duration is None else int(round(args.duration * args.rate))
+    spec = RunSpec(name, args.node, params, 1.0 / args.rate, "wall", n_ticks, inputs, outputs)
+    reg = registry_dir() / f"{run_id}.json"
+    reg.write_text(json.dumps({
+        "run_id": run_id, "pid": os.getpid(), "file": f"dockhil run {args.node}", "clock": "wall",
+        "nodes": {name: {"type": args.node, "pid": os.getpid()}},
+        "topics": {w.topic: {"type": w.type, "endpoint": w.endpoint, "publisher": name} for w in outputs.values()},
+    }))
+    try:
+        return run_node(spec)
+    finally:
+        reg.unlink(missing_ok=True)
+        for f in run_dir.iterdir():
+            f.unlink(missing_ok=True)
+        run_dir.rmdir()

@@ -1,0 +1,184 @@
+"""The runtime in motion: determinism, shutdown, node death, bad input."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import msgpack
+import pytest
+import zmq
+
+import msgs
+from msgs.codec import decode, encode
+from tests.conftest import dockhil_cmd
+
+LOOP = """
+rate: 1000
+duration: 0.4
+nodes:
+  - {{name: integ, node: "tests.graphnodes:Integrator"}}
+  - {{name: gain, node: "tests.graphnodes:Gain", params: {{die_at: {die_at}}}}}
+  - {{name: trace, node: "tests.graphnodes:Trace", params: {{path: "{trace}"}}}}
+"""
+
+
+def run_loop(write_launch, tmp_path, tag, *extra, die_at=-1, timeout=60):
+    trace = tmp_path / f"trace-{tag}.txt"
+    path = write_launch(LOOP.format(trace=trace, die_at=die_at), f"loop-{tag}.yaml")
+    r = subprocess.run(dockhil_cmd("launch", path, *extra), capture_output=True, text=True, timeout=timeout)
+    return r, trace
+
+
+def test_multiprocess_runs_are_identical_and_equal_composed(write_launch, tmp_path):
+    r1, t1 = run_loop(write_launch, tmp_path, "a")
+    r2, t2 = run_loop(write_launch, tmp_path, "b", "--transport", "tcp")
+    r3, t3 = run_loop(write_launch, tmp_path, "c", "--composed")
+    for r in (r1, r2, r3):
+        assert r.returncode == 0, r.stdout + r.stderr
+    a, b, c = t1.read_text(), t2.read_text(), t3.read_text()
+    assert len(a.splitlines()) == 401  # ticks 0..400 at 1 kHz for 0.4 s
+    assert a == b == c
+
+
+def test_lockstep_has_no_hidden_delay(write_launch, tmp_path):
+    """x[k] = x[k-1] + dt u[k-1] and u[k] = f(x[k]) exactly: the trace matches a plain loop."""
+    r, trace = run_loop(write_launch, tmp_path, "d")
+    assert r.returncode == 0
+    x, rows = 1.0, []
+    u = None
+    for k in range(401):
+        if u is not None:
+            x += 0.001 * u
+        u = -2.0 * x + 0.1 * x * x
+        rows.append(f"{k} {x.hex()} {u.hex()}")
+    assert trace.read_text().splitlines() == rows
+
+
+def test_killed_node_stops_graph_nonzero(write_launch, tmp_path):
+    r, _ = run_loop(write_launch, tmp_path, "e", die_at=100)
+    assert r.returncode != 0
+    assert "[launch] node 'gain' exited with code 3 while running; stopping the graph" in r.stdout
+    assert "Traceback" not in r.stdout + r.stderr
+
+
+def _children_of(pid):
+    out = subprocess.run(["ps", "-o", "pid=", "--ppid", str(pid)], capture_output=True, text=True).stdout
+    return [int(p) for p in out.split()]
+
+
+def _alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    st = open(f"/proc/{pid}/stat").read().split()[2] if os.path.exists(f"/proc/{pid}/stat") else "X"
+    return st != "Z"
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_shutdown_leaves_no_process(write_launch, tmp_path, sig):
+    path = write_launch("rate: 200\nnodes:\n  - {name: integ, node: 'tests.graphnodes:Integrator'}\n"
+                        "  - {name: gain, node: 'tests.graphnodes:Gain'}\n")
+    p = subprocess.Popen(dockhil_cmd("launch", path, "--wall-time"), stdout=subprocess.PIPE,
+                         stderr=subprocess.STDOUT, text=True)
+    deadline = time.time() + 20
+    kids = []
+    while time.time() < deadline and len(kids) < 2:
+        time.sleep(0.2)
+        kids = _children_of(p.pid)
+    assert len(kids) == 2
+    time.sleep(0.5)
+    p.send_signal(sig)
+    out, _ = p.communicate(timeout=20)
+    assert p.returncode == 128 + sig
+    assert f"[launch] {signal.Signals(sig).name}: stopping the graph" in out
+    time.sleep(0.2)
+    assert not [k for k in kids if _alive(k)]
+
+
+def test_launcher_killed_outright_leaves_no_orphans(write_launch):
+    path = write_launch("rate: 200\nnodes:\n  - {name: integ, node: 'tests.graphnodes:Integrator'}\n"
+                        "  - {name: gain, node: 'tests.graphnodes:Gain'}\n")
+    p = subprocess.Popen(dockhil_cmd("launch", path, "--wall-time"), stdout=subprocess.DEVNULL)
+    kids = []
+    deadline = time.time() + 20
+    while time.time() < deadline and len(kids) < 2:
+        time.sleep(0.2)
+        kids = _children_of(p.pid)
+    p.kill()
+    p.wait()
+    time.sleep(1.0)
+    assert not [k for k in kids if _alive(k)]
+
+
+def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
+    """`dockhil run` wires a node to a (fake) running graph; garbage on its input is dropped and counted."""
+    ctx = zmq.Context.instance()
+    pub = ctx.socket(zmq.PUB)
+    port = pub.bind_to_random_port("tcp://127.0.0.1")
+    reg = tmp_path / "rt-reg"
+    env = dict(os.environ)
+    graphs = os.path.join(env["DOCKHIL_RUNTIME_DIR"], "graphs")
+    os.makedirs(graphs, exist_ok=True)
+    with open(os.path.join(graphs, "fake.json"), "w") as f:
+        json.dump({"run_id": "fake", "pid": os.getpid(), "file": "test", "clock": "wall", "nodes": {},
+                   "topics": {"/x": {"type": "dockhil/WrenchStamped", "endpoint": f"tcp://127.0.0.1:{port}",
+                                     "publisher": "test"}}}, f)
+    node = subprocess.Popen(dockhil_cmd("run", "tests.graphnodes:Gain", "gain:=3.0", "--rate", "200"),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    # Find the node's output endpoint in the registry, subscribe to it.
+    endpoint = None
+    deadline = time.time() + 20
+    while endpoint is None and time.time() < deadline:
+        for name in os.listdir(graphs):
+            if name.startswith("run-"):
+                try:
+                    endpoint = json.load(open(os.path.join(graphs, name)))["topics"]["/u"]["endpoint"]
+                except (ValueError, KeyError):
+                    pass
+        time.sleep(0.1)
+    assert endpoint
+    sub = ctx.socket(zmq.SUB)
+    sub.setsockopt(zmq.SUBSCRIBE, b"")
+    sub.connect(endpoint)
+    time.sleep(0.5)
+    good = msgs.WrenchStamped(header=msgs.Header(), wrench=msgs.Wrench(force=msgs.Vector3(x=2.0)))
+
+    def latest_output(seconds):
+        got = None
+        deadline = time.time() + seconds
+        while time.time() < deadline:  # the newest output, after queued older ones
+            if sub.poll(50):
+                got = decode(sub.recv_multipart()[1], msgs.WrenchStamped)
+        return got
+
+    # Until the node's subscription is live, PUB/SUB drops: send good data until it answers to it.
+    deadline = time.time() + 10
+    while time.time() < deadline:
+        pub.send_multipart([b"/x", encode(good)])
+        got = latest_output(0.2)
+        if got is not None and got.wrench.force.x == pytest.approx(-5.6):
+            break
+    nan = msgpack.unpackb(encode(good))
+    nan["wrench"]["force"]["x"] = float("nan")
+    bad = [b"\xc1garbage", msgpack.packb([1, 2, 3]), msgpack.packb(nan), encode(msgs.RobotState(header=msgs.Header()))]
+    for _ in range(3):
+        for b in bad:
+            pub.send_multipart([b"/x", b])
+        pub.send_multipart([b"/x"])  # a frame missing
+        time.sleep(0.2)
+    # Still running, and still computing from the last good value: u = -3*2 + 0.1*4.
+    assert node.poll() is None
+    got = latest_output(0.5)
+    assert got is not None and got.wrench.force.x == pytest.approx(-5.6)
+    node.send_signal(signal.SIGINT)
+    out, _ = node.communicate(timeout=10)
+    assert node.returncode == 0, out
+    assert "dropped bad message on /x" in out
+    assert "NaN or Inf refused" in out and "not msgpack" in out and "Expected `object`, got `array`" in out and "dockhil/RobotState" in out
+    assert "15 bad message(s) dropped" in out
+    assert "Traceback" not in out
+    pub.close()
