@@ -64,18 +64,18 @@ def graph_messages(seconds: float, rate_hz: float = 1000.0) -> tuple[list[tuple[
         x = 0.02 * math.sin(2 * math.pi * 0.5 * t)
         v = 0.02 * math.pi * math.cos(2 * math.pi * 0.5 * t)
         f = max(0.0, 4000.0 * x) + rng.gauss(0.0, 0.5)
-        wrench = WrenchStamped(header=h, wrench=Wrench(force=Vector3(f, rng.gauss(0, 0.2), rng.gauss(0, 0.2)),
-                                                       torque=Vector3(rng.gauss(0, 0.01), rng.gauss(0, 0.01), 0.0)))
-        virtual = WrenchStamped(header=h, wrench=Wrench(force=Vector3(-0.8 * f - 30.0 * v)))
-        pose = Pose(position=Vector3(x, 0.0, 0.0))
-        twist = Twist(linear=Vector3(v, 0.0, 0.0))
+        wrench = WrenchStamped(header=h, wrench=Wrench(force=Vector3(x=f, y=rng.gauss(0, 0.2), z=rng.gauss(0, 0.2)),
+                                                       torque=Vector3(x=rng.gauss(0, 0.01), y=rng.gauss(0, 0.01))))
+        virtual = WrenchStamped(header=h, wrench=Wrench(force=Vector3(x=-0.8 * f - 30.0 * v)))
+        pose = Pose(position=Vector3(x=x))
+        twist = Twist(linear=Vector3(x=v))
         state = SatelliteState(
             header=h,
-            bodies=[BodyState("chaser", 120.0, pose, twist), BodyState("target", 300.0, Pose(), Twist())],
+            bodies=[BodyState(name="chaser", mass=120.0, pose=pose, twist=twist), BodyState(name="target", mass=300.0)],
             in_contact=x > 0,
         )
         command = RobotCommand(header=h, pose=pose, twist=twist)
-        actual = RobotState(header=h, pose=Pose(position=Vector3(x + rng.gauss(0, 1e-5))), twist=twist)
+        actual = RobotState(header=h, pose=Pose(position=Vector3(x=x + rng.gauss(0, 1e-5))), twist=twist)
         for topic, msg in (
             ("/ft/wrench", wrench),
             ("/impedance/wrench", virtual),

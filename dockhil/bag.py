@@ -489,6 +489,7 @@ class BagReader:
             if pos >= size:
                 self._stopped(size, size)
                 return
+            f.seek(pos)  # another pass over this reader may have moved the shared file position
             head = f.read(9)
             if self._is_tail(pos, head[0]):
                 self._stopped(pos, size)
@@ -706,6 +707,8 @@ def _write_csv(reader: BagReader, topic: str, fh: IO[str]) -> tuple[int, int, in
     type_name = reader.topics[topic]
     cls = TYPES.get(type_name)
     untyped = msgspec.msgpack.Decoder()
+    # A tagged Struct carries its type name in the map; a typed row has no such column.
+    tag_field = getattr(getattr(cls, "__struct_config__", None), "tag_field", None)
     counts = {"unvalidated": 0, "skipped": 0}
 
     def rows() -> Iterator[dict[str, Any]]:
@@ -724,6 +727,8 @@ def _write_csv(reader: BagReader, topic: str, fh: IO[str]) -> tuple[int, int, in
                     continue
                 if cls is not None:
                     counts["unvalidated"] += 1
+                if tag_field is not None and isinstance(value, dict):
+                    value.pop(tag_field, None)
             row = {"log_time_ns": message.log_time_ns}
             row.update(flatten(value))
             yield row

@@ -117,6 +117,10 @@ def test_round_trip_info_export_read_back(tmp_path, capsys):
             w for w in written if w[0] == "/dynamics/state"
         ]
         assert len(list(reader.messages(start_ns=5_100 * MS, end_ns=5_199 * MS))) == 110
+        # Two passes at once over one reader (play reading while info is asked) do not disturb each other.
+        first, second = reader.messages(), reader.messages()
+        pairs = list(zip(first, second))
+        assert len(pairs) == len(written) and all(a == b for a, b in pairs)
 
     # CLI info: a table and the same facts as JSON.
     code, out, err = run_cli(capsys, "info", path)
@@ -168,14 +172,18 @@ def test_export_keeps_a_recorded_nan_and_skips_non_msgpack(tmp_path, capsys):
     with BagWriter(path) as bag:
         bag.add_topic("/ft/wrench", "dockhil/WrenchStamped")
         bag.write("/ft/wrench", 1, 1, encode(wrench(1)))
-        bag.write("/ft/wrench", 2, 2, encode(WrenchStamped(wrench=Wrench(force=Vector3(x=math.nan)))))
+        bag.write("/ft/wrench", 2, 2, encode(WrenchStamped(header=Header(seq=2), wrench=Wrench(force=Vector3(x=math.nan)))))
         bag.write("/ft/wrench", 3, 3, b"\xc1")  # never valid msgpack
     out_csv = tmp_path / "w.csv"
     code, out, err = run_cli(capsys, "export", path, "--topic", "/ft/wrench", "--csv", out_csv)
     assert code == 0
     assert "1 messages fail validation" in err and "1 messages are not msgpack" in err
-    rows = list(csv.DictReader(open(out_csv, newline="")))
-    assert len(rows) == 2 and math.isnan(float(rows[1]["wrench.force.x"]))
+    with open(out_csv, newline="") as fh:
+        header = next(csv.reader(fh))
+        fh.seek(0)
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 2 and math.isnan(float(rows[1]["wrench.force.x"])) and rows[1]["header.seq"] == "2"
+    assert header == ["log_time_ns", *flatten(wrench(1))]  # the row exported as recorded has the same columns
 
 
 # --------------------------------------------------------------------------- interop
