@@ -238,6 +238,7 @@ def test_sigkill_mid_run_loses_at_most_the_last_chunk(tmp_path, capsys):
     child = subprocess.Popen(
         [sys.executable, "-c", _KILLED_WRITER, str(path)], stdout=subprocess.PIPE, text=True, env=env
     )
+    line = "0"
     try:
         for line in child.stdout:
             if int(line) >= 3000:
