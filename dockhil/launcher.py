@@ -231,19 +231,20 @@ class Launcher:
                 self.say(f"[launch] {name}: stopping the graph")
                 self.stop_all()
                 return 128 + self._stop_signal
-            running = 0
+            nodes_running = 0
             for child in self.children:
                 if child.finished:
                     continue
                 code = child.proc.poll()
+                is_node = child.name in self.specs
                 if code is None:
-                    running += 1
+                    nodes_running += is_node
                     continue
                 if child.reader:
                     child.reader.join(timeout=1.0)
                 if code == 0:
                     child.finished = True
-                    if self.clock == "wall" and self.n_ticks is None and child.name in self.specs:
+                    if is_node and self.clock == "wall" and self.n_ticks is None:
                         # In wall time without a duration nodes run until stopped; an exit is a death.
                         return self._died(child, code)
                     continue
@@ -252,12 +253,30 @@ class Launcher:
                              f"{child.respawn_delay:g} s")
                     time.sleep(child.respawn_delay)
                     self._start(child)
-                    running += 1
+                    nodes_running += 1
                     continue
                 return self._died(child, code)
-            if running == 0:
-                return 0
+            if nodes_running == 0:
+                return self._finish_extras()
             time.sleep(0.05)
+
+    def _finish_extras(self, timeout: float = 10.0) -> int:
+        """Nodes are done: give helper processes (a recorder draining its queue) time to exit."""
+        deadline = time.monotonic() + timeout
+        for child in self.children:
+            if child.name in self.specs or child.finished:
+                continue
+            if self.clock == "wall":
+                child.proc.send_signal(signal.SIGTERM)  # wall-time helpers run until told
+            try:
+                code = child.proc.wait(max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self.say(f"[launch] {child.name!r} did not finish within {timeout:.0f} s; stopping it")
+                return 1
+            child.finished = True
+            if code != 0:
+                return self._died(child, code)
+        return 0
 
     def _died(self, child: _Child, code: int) -> int:
         how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
