@@ -9,7 +9,12 @@ import sys
 
 from dockhil.errors import LaunchError
 
-REGISTRY: dict[str, str] = {}
+REGISTRY: dict[str, str] = {
+    "ft_can": "nodes.ft_can:FtCanDriver",
+    "ft_emulator": "nodes.ft_emulator:FtSensorEmulator",
+    "robot_modbus": "nodes.robot_modbus:RobotModbusDriver",
+    "robot_emulator": "nodes.robot_emulator:RobotControllerEmulatorNode",
+}
 
 
 def load(type_name: str):

@@ -1,0 +1,342 @@
+"""Robot-controller emulator: a Modbus TCP server (pymodbus) with a servo behind it.
+
+It serves the register map of dockhil/hardware/modbus_map.py. A servo
+cycle, on its own clock as a real controller's, follows the setpoint
+through a pure delay and a first-order lag:
+
+    target(t) = setpoint written at t - delay
+    d pose/dt = (target - pose) / tau            (tau = 0: pose = target)
+
+Controller rules the driver relies on:
+- FOLLOWING needs ENABLE, no HOLD, a live heartbeat, and a setpoint written
+  since the robot last stopped: after a hold, a lost heartbeat or a restart
+  the controller never resumes on an old setpoint; it holds until a fresh one.
+- A heartbeat that does not change for `heartbeat_timeout` holds the robot
+  and sets HEARTBEAT_LOST, so a host that dies mid-motion stops the robot.
+- HOLD and DISABLED stop at the actual pose; the delay line is flushed.
+- FAULT (set by `inject_fault`, for tests) holds until CONTROL RESET.
+
+Run alone: python -m dockhil.hardware.robot_emulator --port 5020 [--delay S --tau S]
+It prints "listening HOST:PORT" once it accepts connections.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import math
+import signal
+import sys
+import threading
+import time
+from collections import deque
+
+from dockhil.hardware import modbus_map as mm
+
+FOLLOW, HOLD, DISABLED = "follow", "hold", "disabled"
+
+
+def quiet_pymodbus() -> None:
+    # pymodbus logs every refused or dropped connection; our callers report
+    # device problems themselves, as one line.
+    logger = logging.getLogger("pymodbus.logging")
+    if not logger.handlers:
+        logger.addHandler(logging.NullHandler())
+        logger.propagate = False
+
+
+def _normalize(q):
+    n = math.sqrt(sum(c * c for c in q))
+    return tuple(c / n for c in q) if n > 0 else (0.0, 0.0, 0.0, 1.0)
+
+
+def _angular_velocity(q_old, q_new, dt):
+    """Body rate [rad/s] that turns q_old into q_new in dt (small-angle, x y z w order)."""
+    x1, y1, z1, w1 = q_new
+    x0, y0, z0, w0 = -q_old[0], -q_old[1], -q_old[2], q_old[3]  # conjugate of q_old
+    # q_new * conj(q_old)
+    x = w1 * x0 + x1 * w0 + y1 * z0 - z1 * y0
+    y = w1 * y0 - x1 * z0 + y1 * w0 + z1 * x0
+    z = w1 * z0 + x1 * y0 - y1 * x0 + z1 * w0
+    w = w1 * w0 - x1 * x0 - y1 * y0 - z1 * z0
+    s = 2.0 / dt if w >= 0 else -2.0 / dt  # shortest rotation
+    return (s * x, s * y, s * z)
+
+
+class ServoModel:
+    """The controller's state machine and servo, advanced by `cycle(now)`. No I/O."""
+
+    def __init__(self, delay: float = 0.0, tau: float = 0.0, heartbeat_timeout: float = 0.2):
+        self.delay = delay
+        self.tau = tau
+        self.heartbeat_timeout = heartbeat_timeout
+        self.holding = mm.encode_write(0, 0, mm.HOLD_POSE)  # what the host wrote
+        self.position = [0.0, 0.0, 0.0]
+        self.orientation = (0.0, 0.0, 0.0, 1.0)
+        self.linear = (0.0, 0.0, 0.0)
+        self.angular = (0.0, 0.0, 0.0)
+        self.mode = DISABLED
+        self.fault = False
+        self.heartbeat_lost = False
+        self.cycles = 0
+        self.setpoint_fresh = False  # a setpoint was written since the robot last stopped
+        self._last_heartbeat: int | None = None
+        self._heartbeat_t: float | None = None
+        self._last_t: float | None = None
+        self._line: deque = deque()  # (time written, setpoint) awaiting the delay
+        self._target = self._actual_pose()
+        self.inputs = mm.encode_inputs(0, 0, 0, self.actual())
+
+    def _actual_pose(self):
+        return tuple(self.position) + tuple(self.orientation)
+
+    def actual(self) -> mm.PoseTwist:
+        return tuple(self.position) + tuple(self.orientation) + tuple(self.linear) + tuple(self.angular)
+
+    def host_wrote(self, address: int, values: list[int]) -> None:
+        """A Modbus write to holding registers [address, address + len)."""
+        end = min(address + len(values), mm.HR_COUNT)
+        if address < 0 or address >= end:
+            return
+        self.holding[address:end] = values[: end - address]
+        if end > mm.HR_SETPOINT:
+            self.setpoint_fresh = True
+
+    def status(self) -> int:
+        s = 0
+        control = self.holding[mm.HR_CONTROL]
+        if control & mm.CONTROL_ENABLE:
+            s |= mm.STATUS_ENABLED
+        if self.mode == HOLD:
+            s |= mm.STATUS_HOLDING
+        if self.mode == FOLLOW:
+            s |= mm.STATUS_FOLLOWING
+        if self.fault:
+            s |= mm.STATUS_FAULT
+        if self.heartbeat_lost:
+            s |= mm.STATUS_HEARTBEAT_LOST
+        return s
+
+    def cycle(self, now: float) -> None:
+        host = mm.decode_holding(self.holding)
+        if host.heartbeat != self._last_heartbeat:
+            self._last_heartbeat, self._heartbeat_t = host.heartbeat, now
+        self.heartbeat_lost = self._heartbeat_t is None or now - self._heartbeat_t > self.heartbeat_timeout
+        if host.control & mm.CONTROL_RESET:
+            self.fault = False
+            self.holding[mm.HR_CONTROL] &= ~mm.CONTROL_RESET  # a one-shot command
+        if not host.control & mm.CONTROL_ENABLE:
+            mode = DISABLED
+        elif host.control & mm.CONTROL_HOLD or self.heartbeat_lost or self.fault:
+            mode = HOLD
+        else:
+            mode = FOLLOW if self.setpoint_fresh else HOLD
+        if mode != FOLLOW:
+            self.setpoint_fresh = False  # resuming needs a setpoint written from now on
+        if mode != self.mode:
+            self._line.clear()
+            self._target = self._actual_pose()  # stop where the robot is
+            self.mode = mode
+        if mode == FOLLOW:
+            self._line.append((now, host.setpoint[:7]))
+            while self._line and self._line[0][0] <= now - self.delay:
+                self._target = self._line.popleft()[1]
+        self._advance(now)
+        self.cycles = (self.cycles + 1) & 0xFFFF
+        self.inputs = mm.encode_inputs(self.status(), host.heartbeat, self.cycles, self.actual())
+
+    def _advance(self, now: float) -> None:
+        dt = 0.0 if self._last_t is None else now - self._last_t
+        self._last_t = now
+        target = self._target
+        if self.tau > 0 and dt > 0:
+            a = 1.0 - math.exp(-dt / self.tau)
+        else:
+            a = 1.0 if self.tau == 0 else 0.0
+        old_p, old_q = list(self.position), self.orientation
+        self.position = [p + a * (t - p) for p, t in zip(self.position, target[:3])]
+        tq = target[3:7]
+        if sum(c * d for c, d in zip(old_q, tq)) < 0:
+            tq = tuple(-c for c in tq)  # same rotation, shorter way
+        self.orientation = _normalize(tuple(q + a * (t - q) for q, t in zip(old_q, tq)))
+        if dt > 0:
+            self.linear = tuple((p - o) / dt for p, o in zip(self.position, old_p))
+            self.angular = _angular_velocity(old_q, self.orientation, dt)
+
+    def teleport(self, position) -> None:
+        """Move the actual pose at once (tests: an encoder jump, a collision)."""
+        self.position = list(position)
+
+
+class RobotControllerEmulator:
+    """The Modbus TCP server and the servo, on one asyncio loop (so a request
+    and a servo cycle never interleave)."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 5020, delay: float = 0.0, tau: float = 0.0,
+                 cycle: float = 0.001, heartbeat_timeout: float = 0.2):
+        self.host = host
+        self.port = port
+        self.period = cycle
+        self.servo = ServoModel(delay, tau, heartbeat_timeout)
+        self.requests = 0
+        self._server = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
+        self._stopped: asyncio.Event | None = None
+        self._servo_task: asyncio.Task | None = None
+
+    async def _action(self, function_code, start_address, address, count, registers, set_values):
+        self.requests += 1
+        offset = address - start_address
+        if function_code == 4:  # input registers: hand out the servo's latest
+            inputs = self.servo.inputs
+            for i in range(count):
+                if 0 <= address + i < len(inputs):
+                    registers[offset + i] = inputs[address + i]
+        elif set_values is not None:
+            self.servo.host_wrote(address, list(set_values))
+        else:  # holding read: the controller may have changed them (RESET)
+            for i in range(count):
+                if 0 <= address + i < mm.HR_COUNT:
+                    registers[offset + i] = self.servo.holding[address + i]
+        return None
+
+    async def start(self) -> int:
+        """Listen and start the servo; return the port (useful with port 0)."""
+        from pymodbus.server import ModbusTcpServer
+        from pymodbus.simulator import DataType, SimData, SimDevice
+
+        quiet_pymodbus()
+        bits = [SimData(0, count=16, values=False, datatype=DataType.BITS)]
+        device = SimDevice(
+            0,  # every unit id: a TCP controller does not care which one the host asks for
+            simdata=(
+                bits,
+                list(bits),
+                [SimData(0, count=mm.HR_COUNT, values=0, datatype=DataType.REGISTERS)],
+                [SimData(0, count=mm.IR_COUNT, values=0, datatype=DataType.REGISTERS)],
+            ),
+            action=self._action,
+        )
+        self._server = ModbusTcpServer(device, address=(self.host, self.port))
+        await self._server.serve_forever(background=True)
+        self.port = self._server.transport.sockets[0].getsockname()[1]
+        self._stopped = asyncio.Event()
+        self._servo_task = asyncio.get_running_loop().create_task(self._run_servo())
+        return self.port
+
+    async def _run_servo(self) -> None:
+        next_t = time.monotonic()
+        while True:
+            now = time.monotonic()
+            self.servo.cycle(now)
+            next_t += self.period
+            delay = next_t - time.monotonic()
+            if delay < -self.period:  # fell behind: do not burst to catch up
+                next_t = time.monotonic()
+                delay = 0.0
+            await asyncio.sleep(max(delay, 0.0))
+
+    async def stop_async(self) -> None:
+        if self._servo_task is not None:
+            self._servo_task.cancel()
+        if self._server is not None:
+            await self._server.shutdown()
+        if self._stopped is not None:
+            self._stopped.set()
+
+    async def serve(self, on_listening=None) -> None:
+        await self.start()
+        if on_listening:
+            on_listening(self)
+        await self._stopped.wait()
+
+    # -- in a thread, for a node or a test -----------------------------------
+    def start_thread(self, timeout: float = 5.0) -> int:
+        ready = threading.Event()
+        error: list[BaseException] = []
+
+        def run():
+            self._loop = asyncio.new_event_loop()
+            try:
+                self._loop.run_until_complete(self.start())
+            except BaseException as exc:  # noqa: BLE001 - handed to the starting thread
+                error.append(exc)
+                ready.set()
+                self._loop.close()
+                return
+            ready.set()
+            self._loop.run_until_complete(self._stopped.wait())
+            self._loop.close()
+
+        self._thread = threading.Thread(target=run, name="robot-emulator", daemon=True)
+        self._thread.start()
+        if not ready.wait(timeout):
+            raise RuntimeError("robot emulator did not start")
+        if error:
+            raise error[0]
+        return self.port
+
+    def call(self, fn, *args):
+        """Run fn(*args) on the emulator's loop (between requests and servo cycles)."""
+        if self._loop is None:
+            return fn(*args)
+        fut = asyncio.run_coroutine_threadsafe(self._call(fn, *args), self._loop)
+        return fut.result(timeout=5.0)
+
+    @staticmethod
+    async def _call(fn, *args):
+        return fn(*args)
+
+    def stop_thread(self) -> None:
+        if self._loop is not None and self._thread is not None and self._thread.is_alive():
+            asyncio.run_coroutine_threadsafe(self.stop_async(), self._loop).result(timeout=5.0)
+            self._thread.join(timeout=5.0)
+
+    def inject_fault(self) -> None:
+        self.call(setattr, self.servo, "fault", True)
+
+
+def listen_problem(host: str, port: int) -> str:
+    """Why listening on host:port fails (pymodbus reports only that it did)."""
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind((host, port))
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    return "the server did not start"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m dockhil.hardware.robot_emulator",
+                                     description="Robot-controller emulator: Modbus TCP server with a servo.")
+    parser.add_argument("--host", default="127.0.0.1")
+    parser.add_argument("--port", type=int, default=5020, help="TCP port (0: any free port)")
+    parser.add_argument("--delay", type=float, default=0.0, help="servo delay [s]")
+    parser.add_argument("--tau", type=float, default=0.0, help="servo lag time constant [s]")
+    parser.add_argument("--cycle", type=float, default=0.001, help="servo period [s]")
+    parser.add_argument("--heartbeat-timeout", type=float, default=0.2, help="hold when the heartbeat stops [s]")
+    args = parser.parse_args(argv)
+    emulator = RobotControllerEmulator(args.host, args.port, args.delay, args.tau, args.cycle, args.heartbeat_timeout)
+
+    async def run():
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, lambda: loop.create_task(emulator.stop_async()))
+        await emulator.serve(lambda em: print(f"listening {em.host}:{em.port}", flush=True))
+
+    try:
+        asyncio.run(run())
+    except (OSError, RuntimeError):
+        print(f"robot emulator: error: cannot listen on {args.host}:{args.port}: {listen_problem(args.host, args.port)}",
+              file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,224 @@
+"""F/T sensor driver over CAN (python-can): publishes /ft/wrench from the sensor's frames.
+
+The frame layout is in dockhil/hardware/ft_frames.py. python-can is imported
+in setup(), so a scene that does not use this driver never loads it.
+"""
+
+from __future__ import annotations
+
+import time
+
+from dockhil.errors import DeviceError, LaunchError
+from dockhil.hardware import ft_frames as ff
+from dockhil.node import Node, Output, Param
+from msgs import Vector3, Wrench, WrenchStamped
+
+# A step reads at most this many frames, so a flooded bus cannot stall the loop.
+MAX_FRAMES_PER_STEP = 512
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception and its cause as one line (python-can wraps the useful part)."""
+    text = str(exc) or type(exc).__name__
+    cause = exc.__cause__
+    if cause is not None and str(cause) and str(cause) not in text:
+        text += f" ({cause})"
+    return " ".join(text.split())
+
+
+class FtCanDriver(Node):
+    """F/T sensor over CAN: tare at start, stale-data and bus-error detection."""
+
+    outputs = {"wrench": Output(WrenchStamped, "/ft/wrench", help="wrench the contact exerts on the chaser")}
+    params = {
+        "interface": Param(str, "slcan", help="python-can interface: slcan, socketcan, pcan, virtual, ..."),
+        "channel": Param(str, "/tmp/dockhil-ft.slcan", help="python-can channel: serial port, can0, ..."),
+        "bitrate": Param(int, 1_000_000, unit="bit/s", help="CAN bitrate", gt=0),
+        "can_id": Param(int, ff.DEFAULT_BASE_ID, help="base CAN ID: force frame = base, torque frame = base + 1",
+                        ge=0, le=ff.MAX_STANDARD_ID - 1),
+        "force_resolution": Param(float, 0.01, unit="N/count", help="force per count", gt=0.0),
+        "torque_resolution": Param(float, 0.001, unit="N m/count", help="torque per count", gt=0.0),
+        "sign": Param(float, 1.0, help="-1 if the sensor reports the force on the target side", choices=(1.0, -1.0)),
+        "tare_samples": Param(int, 100, help="samples averaged into the bias at start (0: no tare); "
+                              "nothing may touch the probe meanwhile", ge=0),
+        "stale_timeout": Param(float, 0.1, unit="s", help="no new sample for this long is an error", gt=0.0),
+        "open_timeout": Param(float, 2.0, unit="s", help="time for the device to appear and start streaming",
+                              gt=0.0),
+        "max_bus_errors": Param(int, 10, help="error frames in a row without a valid sample that are an error",
+                                ge=1),
+        "open_delay": Param(float, 0.0, unit="s", help="slcan only: wait after opening the serial port "
+                            "(adapters that reset on open need ~2 s)", ge=0.0),
+        "frame": Param(str, "", help="header frame id of the published wrench"),
+    }
+
+    def setup(self) -> None:
+        p = self.p
+        if self.ctx.sim_time:
+            raise LaunchError(
+                f"node {self.ctx.name!r} reads a real F/T sensor and runs only in wall time (launch with --wall-time)"
+            )
+        import can  # here, not at module import: only scenes with this driver load python-can
+
+        self._can = can
+        self.device = f"F/T sensor ({p.interface} {p.channel}, CAN ID {p.can_id:#05x})"
+        self.scaling = ff.FtScaling(p.force_resolution, p.torque_resolution)
+        self.assembler = ff.SampleAssembler()
+        self.bias_force = (0.0, 0.0, 0.0)
+        self.bias_torque = (0.0, 0.0, 0.0)
+        self.lost = 0
+        self.repeated = 0
+        self.bad_frames = 0
+        self.error_frames = 0
+        self._error_run = 0
+        self._last_seq: int | None = None
+        self._last_fresh_t: float | None = None
+        self._bad_logged = 0
+        self.bus = self._open_bus(time.monotonic() + p.open_timeout)
+        try:
+            self._tare()
+        except BaseException:
+            self._shutdown_bus()
+            raise
+
+    def _open_bus(self, deadline: float):
+        can, p = self._can, self.p
+        kwargs = {}
+        if p.interface == "slcan":
+            # Non-blocking serial reads: recv(0) must not wait a serial timeout per step.
+            kwargs = {"sleep_after_open": p.open_delay, "timeout": 0.0}
+        filters = [{"can_id": p.can_id + off, "can_mask": 0x7FF, "extended": False}
+                   for off in (ff.FORCE_OFFSET, ff.TORQUE_OFFSET)]
+        while True:
+            try:
+                return can.Bus(interface=p.interface, channel=p.channel, bitrate=p.bitrate,
+                               can_filters=filters, **kwargs)
+            except (can.CanInterfaceNotImplementedError, ValueError, TypeError) as exc:
+                raise DeviceError(f"{self.device}: cannot open: {one_line(exc)}") from None
+            except (can.CanError, OSError) as exc:
+                # The device may still be appearing (adapter enumerating, emulator starting).
+                if time.monotonic() >= deadline:
+                    raise DeviceError(f"{self.device}: cannot open: {one_line(exc)}") from None
+                time.sleep(0.05)
+
+    def _read_samples(self) -> list[ff.FtSample]:
+        """New samples on the bus, oldest first; raises DeviceError on bus and sensor faults."""
+        can = self._can
+        samples = []
+        for _ in range(MAX_FRAMES_PER_STEP):
+            try:
+                msg = self.bus.recv(0.0)
+            except (can.CanError, OSError) as exc:
+                raise DeviceError(f"{self.device}: bus error: {one_line(exc)}") from None
+            if msg is None:
+                break
+            if msg.is_error_frame:
+                self.error_frames += 1
+                self._error_run += 1
+                if self._error_run >= self.p.max_bus_errors:
+                    raise DeviceError(
+                        f"{self.device}: bus error: {self._error_run} error frames in a row "
+                        f"(check wiring, termination and bitrate {self.p.bitrate})"
+                    )
+                continue
+            try:
+                half = ff.decode_frame(msg.arbitration_id, msg.data, self.p.can_id, self.scaling,
+                                       is_extended_id=msg.is_extended_id, is_remote_frame=msg.is_remote_frame)
+            except ff.FrameError as exc:
+                self.bad_frames += 1
+                if self._bad_logged < 5:  # the first few tell the story; the count is logged at close
+                    self._bad_logged += 1
+                    self.log(f"{self.device}: dropped a bad frame: {exc}")
+                continue
+            if half is None:
+                continue
+            sample = self.assembler.add(half)
+            if sample is None:
+                continue
+            self._error_run = 0
+            if sample.seq == self._last_seq:
+                self.repeated += 1  # a stuck sensor repeats itself; not new data
+                continue
+            if self._last_seq is not None:
+                self.lost += (sample.seq - self._last_seq - 1) % 256
+            self._last_seq = sample.seq
+            if sample.status & (ff.STATUS_FAULT | ff.STATUS_OVERRANGE):
+                raise DeviceError(
+                    f"{self.device}: sensor reports {ff.describe_status(sample.status)} "
+                    f"(raw force {_fmt(sample.force)} N, torque {_fmt(sample.torque)} N m)"
+                )
+            samples.append(sample)
+        return samples
+
+    def _tare(self) -> None:
+        p = self.p
+        first_deadline = time.monotonic() + p.open_timeout
+        got: list[ff.FtSample] = []
+        want = max(1, p.tare_samples)
+        deadline = first_deadline
+        while len(got) < want:
+            new = self._read_samples()
+            if new and not got:
+                # Streaming: allow the tare its own time budget from the first sample on.
+                deadline = time.monotonic() + p.open_timeout
+            got.extend(new)
+            if len(got) >= want:
+                break
+            if time.monotonic() >= deadline:
+                if not got:
+                    raise DeviceError(
+                        f"{self.device}: no F/T frames on CAN IDs {p.can_id:#05x}/{p.can_id + 1:#05x} within "
+                        f"{p.open_timeout:g} s: is the sensor powered, streaming, and at {p.bitrate} bit/s?"
+                    )
+                raise DeviceError(
+                    f"{self.device}: only {len(got)} of {want} tare samples within {p.open_timeout:g} s"
+                )
+            time.sleep(0.0005)
+        if p.tare_samples:
+            n = len(got)
+            self.bias_force = tuple(sum(s.force[i] for s in got) / n for i in range(3))
+            self.bias_torque = tuple(sum(s.torque[i] for s in got) / n for i in range(3))
+            self.log(f"{self.device}: tared over {n} samples: bias force {_fmt(self.bias_force)} N, "
+                     f"torque {_fmt(self.bias_torque)} N m")
+
+    def step(self, tick, inputs):
+        samples = self._read_samples()
+        t = tick.t
+        if self._last_fresh_t is None:
+            self._last_fresh_t = t  # the stale clock starts with the first tick
+        if not samples:
+            age = t - self._last_fresh_t
+            if age > self.p.stale_timeout:
+                raise DeviceError(
+                    f"{self.device}: stale data: no new sample for {age:.3f} s (stale_timeout {self.p.stale_timeout:g} s)"
+                )
+            return {}  # nothing new: publish nothing rather than repeat an old sample
+        self._last_fresh_t = t
+        s = samples[-1]  # one message per tick: the newest sample
+        sign = self.p.sign
+        force = Vector3(*(sign * (s.force[i] - self.bias_force[i]) for i in range(3)))
+        torque = Vector3(*(sign * (s.torque[i] - self.bias_torque[i]) for i in range(3)))
+        return {"wrench": WrenchStamped(header=tick.header(self.p.frame), wrench=Wrench(force=force, torque=torque))}
+
+    def _shutdown_bus(self) -> None:
+        bus = getattr(self, "bus", None)
+        if bus is not None:
+            self.bus = None
+            try:
+                bus.shutdown()
+            except Exception:  # the device may already be gone; closing must not raise
+                pass
+
+    def close(self) -> None:
+        if getattr(self, "bus", None) is None:
+            return
+        self._shutdown_bus()
+        problems = [f"{n} {what}" for n, what in (
+            (self.lost, "samples lost"), (self.repeated, "samples repeated"),
+            (self.bad_frames, "bad frames"), (self.error_frames, "error frames"),
+            (self.assembler.orphans, "unpaired frames")) if n]
+        if problems:
+            self.log(f"{self.device}: {', '.join(problems)}")
+
+
+def _fmt(v) -> str:
+    return "(" + ", ".join(f"{x:.3f}" for x in v) + ")"

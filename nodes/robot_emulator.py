@@ -1,0 +1,47 @@
+"""Robot-controller emulator node: a Modbus TCP server on this host with a servo behind it.
+
+The server and the servo run in a thread of their own, on the controller's
+own clock, from setup() to close(); step() has nothing to do. The servo and
+register map are in dockhil/hardware/robot_emulator.py and modbus_map.py.
+"""
+
+from __future__ import annotations
+
+from dockhil.errors import DeviceError
+from dockhil.node import Node, Param
+
+
+class RobotControllerEmulatorNode(Node):
+    """Emulated robot controller: Modbus TCP server, servo with delay and first-order lag."""
+
+    params = {
+        "host": Param(str, "127.0.0.1", help="address to listen on"),
+        "port": Param(int, 5020, help="TCP port (0: any free port, logged)", ge=0, le=65535),
+        "delay": Param(float, 0.0, unit="s", help="servo delay: setpoints take effect this much later", ge=0.0),
+        "tau": Param(float, 0.0, unit="s", help="servo first-order lag time constant (0: none)", ge=0.0),
+        "cycle": Param(float, 0.001, unit="s", help="servo period", gt=0.0),
+        "heartbeat_timeout": Param(float, 0.2, unit="s", help="hold when the host heartbeat stops this long",
+                                   gt=0.0),
+    }
+
+    def setup(self) -> None:
+        from dockhil.hardware.robot_emulator import RobotControllerEmulator, listen_problem
+
+        p = self.p
+        self.emulator = RobotControllerEmulator(p.host, p.port, p.delay, p.tau, p.cycle, p.heartbeat_timeout)
+        try:
+            self.emulator.start_thread()
+        except (OSError, RuntimeError):
+            raise DeviceError(
+                f"robot controller emulator: cannot listen on {p.host}:{p.port}: {listen_problem(p.host, p.port)}"
+            ) from None
+        self.log(f"robot controller emulator listening on {p.host}:{self.emulator.port}")
+
+    def step(self, tick, inputs):
+        return {}
+
+    def close(self) -> None:
+        emulator = getattr(self, "emulator", None)
+        if emulator is not None:
+            emulator.stop_thread()
+            self.emulator = None

@@ -1,0 +1,482 @@
+"""Robot-command driver over Modbus TCP (pymodbus): setpoints out, actual pose in, safety limits.
+
+The register map is in dockhil/hardware/modbus_map.py. A link thread owns
+the Modbus connection: one Modbus round trip takes a few hundred
+microseconds, too long to block a 1 kHz step. step() hands it the newest
+fresh setpoint and picks up the newest reading; the thread writes each
+setpoint once, keeps the heartbeat going, and reconnects with backoff.
+
+Never a stale setpoint: a setpoint is written only in the connection it was
+handed over in; after a reconnect the robot holds until a command that
+arrived after the reconnect. (The controller enforces the same: it
+resumes only on a setpoint written after it stopped.)
+
+Safety: a limit violation requests a hold, waits briefly for the hold to
+be written, and raises SafetyStop (one line naming the limit and the value);
+from then on nothing is commanded. close() holds the robot.
+pymodbus is imported in setup(), so a scene without this driver never loads it.
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import threading
+import time
+
+from dockhil.errors import DeviceError, LaunchError
+from dockhil.hardware import SafetyStop
+from dockhil.hardware import modbus_map as mm
+from dockhil.node import Input, Node, Output, Param
+from msgs import EStop, Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3, WrenchStamped
+
+HOLD_CONFIRM_TIMEOUT = 0.25  # s: how long a safety stop waits for the hold to be written
+
+
+def _key(msg) -> tuple:
+    """Identifies one published message; the runtime may hand the same one again."""
+    h = msg.header
+    return (h.stamp, h.tick, h.seq)
+
+
+def _norm(v: Vector3) -> float:
+    return math.sqrt(v.x * v.x + v.y * v.y + v.z * v.z)
+
+
+def _command_values(cmd: RobotCommand) -> mm.PoseTwist:
+    p, q, lin, ang = cmd.pose.position, cmd.pose.orientation, cmd.twist.linear, cmd.twist.angular
+    return (p.x, p.y, p.z, q.x, q.y, q.z, q.w, lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
+
+
+class ModbusLink(threading.Thread):
+    """Owns the Modbus client: writes setpoints, heartbeat and holds; reads the actual pose."""
+
+    def __init__(self, client, describe: str, p, probe):
+        super().__init__(name="robot-modbus-link", daemon=True)
+        self.client = client
+        self.describe = describe
+        self.p = p
+        self.probe = probe  # why a connect failed, as text
+        self.lock = threading.Lock()
+        self.wake = threading.Event()
+        self.stop_event = threading.Event()
+        self.stopping = False
+        self.pending: tuple[str, mm.PoseTwist | None] | None = None  # ("set", setpoint) or ("hold", None)
+        self.hold_latched = False
+        self.hold_written = threading.Event()
+        self.connected = True  # setup hands over a connected, verified client
+        self.lost_since: float | None = None
+        self.last_error = ""
+        self.reading: mm.ControllerReading | None = None
+        self.readings = 0
+        self.heartbeat = 0
+        self.writes = 0
+        self.reconnects = 0
+        self.fatal: str | None = None
+        self.notes: list[str] = []  # log lines for the node thread to emit
+
+    # -- from the node thread -------------------------------------------------
+    def submit(self, setpoint: mm.PoseTwist | None) -> None:
+        """Write this setpoint next (None: hold until the next one)."""
+        with self.lock:
+            self.pending = ("set", setpoint) if setpoint is not None else ("hold", None)
+        self.wake.set()
+
+    def hold(self, timeout: float) -> bool:
+        """Hold from now on; True once a hold has been written to the controller."""
+        with self.lock:
+            self.hold_latched = True
+            self.pending = None
+            self.hold_written.clear()
+        self.wake.set()
+        return self.hold_written.wait(timeout)
+
+    def latest(self) -> tuple[int, mm.ControllerReading | None]:
+        with self.lock:
+            return self.readings, self.reading
+
+    def take_notes(self) -> list[str]:
+        with self.lock:
+            notes, self.notes = self.notes, []
+        return notes
+
+    def stop(self) -> None:
+        self.stopping = True
+        self.stop_event.set()
+        self.wake.set()
+        self.join(timeout=2.0 + 2 * self.p.timeout)
+
+    # -- the thread -------------------------------------------------------------
+    def _note(self, line: str) -> None:
+        with self.lock:
+            self.notes.append(line)
+
+    def run(self) -> None:
+        backoff = self.p.reconnect_min
+        while not self.stopping:
+            if not self.connected:
+                if not self._reconnect():
+                    self.stop_event.wait(backoff)  # commands do not shorten the backoff; close() does
+                    backoff = min(backoff * 2, self.p.reconnect_max)
+                    continue
+                backoff = self.p.reconnect_min
+            self.wake.clear()
+            with self.lock:
+                pending, self.pending = self.pending, None
+                hold = self.hold_latched
+            try:
+                self._cycle(pending, hold)
+            except Exception as exc:  # noqa: BLE001 - any failure of the link is a lost connection
+                self._lost(exc)
+                continue
+            self.wake.wait(self.p.poll_period)
+
+    def _cycle(self, pending, hold: bool) -> None:
+        client, dev = self.client, self.p.device_id
+        self.heartbeat = (self.heartbeat + 1) & 0xFFFF
+        if hold or (pending is not None and pending[0] == "hold"):
+            self._check(client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE | mm.CONTROL_HOLD,
+                                                                   self.heartbeat), device_id=dev))
+            if hold:
+                self.hold_written.set()
+        elif pending is not None:
+            self._check(client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE, self.heartbeat, pending[1]),
+                                               device_id=dev))
+            self.writes += 1
+        else:
+            self._check(client.write_register(mm.HR_HEARTBEAT, self.heartbeat, device_id=dev))
+        rr = self._check(client.read_input_registers(0, count=mm.IR_COUNT, device_id=dev))
+        reading = mm.decode_inputs(rr.registers)
+        with self.lock:
+            self.reading = reading
+            self.readings += 1
+
+    @staticmethod
+    def _check(response):
+        if response.isError():
+            raise ConnectionError(f"controller answered with an error: {response}")
+        return response
+
+    def _lost(self, exc: BaseException) -> None:
+        self.client.close()
+        self.connected = False
+        self.lost_since = time.monotonic()
+        self.last_error = " ".join(str(exc).split()) or type(exc).__name__
+        with self.lock:
+            self.pending = None  # a setpoint handed over before the loss is never written
+        self._note(f"{self.describe}: connection lost ({self.last_error}); reconnecting")
+
+    def _reconnect(self) -> bool:
+        if not self.client.connect():
+            self.last_error = self.probe()
+            return False
+        try:
+            verify_and_hold(self.client, self.p.device_id, self.heartbeat)
+        except mm.RegisterError as exc:
+            self.fatal = f"{self.describe}: {exc}"
+            self.stopping = True
+            return False
+        except Exception as exc:  # noqa: BLE001
+            self.client.close()
+            self.last_error = " ".join(str(exc).split())
+            return False
+        with self.lock:
+            self.pending = None  # commands from before the reconnect are stale
+            if self.hold_latched:
+                self.hold_written.set()
+        gap = time.monotonic() - (self.lost_since or time.monotonic())
+        self.connected = True
+        self.lost_since = None
+        self.reconnects += 1
+        self._note(f"{self.describe}: reconnected after {gap:.2f} s; holding until a fresh command")
+        return True
+
+
+def verify_and_hold(client, device_id: int, heartbeat: int) -> mm.ControllerReading:
+    """Check the device speaks this register map, then hold the robot where it is."""
+    rr = client.read_input_registers(0, count=mm.IR_COUNT, device_id=device_id)
+    if rr.isError():
+        raise mm.RegisterError(f"cannot read input registers 0-{mm.IR_COUNT - 1}: {rr}")
+    reading = mm.decode_inputs(rr.registers)
+    wr = client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE | mm.CONTROL_HOLD, heartbeat),
+                                device_id=device_id)
+    if wr.isError():
+        raise mm.RegisterError(f"cannot write holding registers 0-1: {wr}")
+    return reading
+
+
+class RobotModbusDriver(Node):
+    """Robot over Modbus TCP: setpoints from /robot/command, actual pose to /robot/state, safety limits."""
+
+    inputs = {
+        "command": Input(RobotCommand, "/robot/command", help="setpoint: probe pose relative to the target"),
+        "wrench": Input(WrenchStamped, "/ft/wrench", feedthrough=False, required=False,
+                        help="measured contact wrench, for max_force and the F/T watchdog"),
+        "estop": Input(EStop, "/estop", feedthrough=False, required=False, help="emergency stop"),
+    }
+    outputs = {"state": Output(RobotState, "/robot/state", help="actual pose read from the controller")}
+    params = {
+        "host": Param(str, "127.0.0.1", help="controller address"),
+        "port": Param(int, 5020, help="controller Modbus TCP port", ge=1, le=65535),
+        "device_id": Param(int, 1, help="Modbus unit id", ge=0, le=255),
+        "timeout": Param(float, 0.1, unit="s", help="connect and per-request timeout", gt=0.0),
+        "connect_timeout": Param(float, 2.0, unit="s", help="setup fails if no connection within this", gt=0.0),
+        "reconnect_min": Param(float, 0.05, unit="s", help="first reconnect backoff (doubles)", gt=0.0),
+        "reconnect_max": Param(float, 1.0, unit="s", help="longest reconnect backoff", gt=0.0),
+        "reconnect_timeout": Param(float, 5.0, unit="s", help="connection lost this long is an error (0: never)",
+                                   ge=0.0),
+        "poll_period": Param(float, 0.002, unit="s", help="read the actual pose at least this often", gt=0.0),
+        "max_force": Param(float, 200.0, unit="N", help="contact force limit |F| (0: off)", ge=0.0),
+        "max_speed": Param(float, 0.1, unit="m/s", help="commanded speed limit: twist and setpoint steps (0: off)",
+                           ge=0.0),
+        "max_actual_speed": Param(float, 0.2, unit="m/s", help="measured speed limit; above max_speed to allow "
+                                  "for tracking transients and velocity noise (0: off)", ge=0.0),
+        "max_following_error": Param(float, 0.02, unit="m", help="setpoint distance from the actual pose "
+                                     "(catches a start far from the robot before it jumps; 0: off)", ge=0.0),
+        "x_min": Param(float, -0.5, unit="m", help="workspace lower bound, x"),
+        "x_max": Param(float, 0.1, unit="m", help="workspace upper bound, x (x > 0 is penetration)"),
+        "y_min": Param(float, -0.2, unit="m", help="workspace lower bound, y"),
+        "y_max": Param(float, 0.2, unit="m", help="workspace upper bound, y"),
+        "z_min": Param(float, -0.2, unit="m", help="workspace lower bound, z"),
+        "z_max": Param(float, 0.2, unit="m", help="workspace upper bound, z"),
+        "ft_timeout": Param(float, 0.05, unit="s", help="F/T watchdog: no new wrench this long stops (0: off)",
+                            ge=0.0),
+        "ft_grace": Param(float, 2.0, unit="s", help="time from the first tick for the first wrench; "
+                          "commands are held until it arrives", ge=0.0),
+        "frame": Param(str, "", help="header frame id of the published state"),
+    }
+
+    def setup(self) -> None:
+        p = self.p
+        if self.ctx.sim_time:
+            raise LaunchError(
+                f"node {self.ctx.name!r} commands a real robot and runs only in wall time (launch with --wall-time)"
+            )
+        for axis in "xyz":
+            lo, hi = getattr(p, f"{axis}_min"), getattr(p, f"{axis}_max")
+            if lo >= hi:
+                raise LaunchError(f"node {self.ctx.name!r}: workspace {axis}_min {lo} must be below {axis}_max {hi}")
+        from pymodbus.client import ModbusTcpClient  # here: only scenes with this driver load pymodbus
+
+        from dockhil.hardware.robot_emulator import quiet_pymodbus
+
+        quiet_pymodbus()
+        self.device = f"robot controller (Modbus TCP {p.host}:{p.port})"
+        self.link: ModbusLink | None = None
+        self.tripped: SafetyStop | None = None
+        self._last_cmd = None
+        self._last_wrench_key = None
+        self._last_wrench_t: float | None = None
+        self._first_t: float | None = None
+        self._seen_readings = 0
+        self._status_word = None
+        client = ModbusTcpClient(p.host, port=p.port, timeout=p.timeout, retries=0)
+        deadline = time.monotonic() + p.connect_timeout
+        backoff = p.reconnect_min
+        while not client.connect():
+            if time.monotonic() + backoff > deadline:
+                raise DeviceError(f"{self.device}: no connection within {p.connect_timeout:g} s: {self._probe()}")
+            time.sleep(backoff)
+            backoff = min(backoff * 2, p.reconnect_max)
+        try:
+            _nodelay(client)
+            verify_and_hold(client, p.device_id, 0)
+        except mm.RegisterError as exc:
+            client.close()
+            raise DeviceError(f"{self.device}: {exc}") from None
+        except Exception as exc:  # noqa: BLE001 - e.g. the server closed on us
+            client.close()
+            raise DeviceError(f"{self.device}: {' '.join(str(exc).split())}") from None
+        self.link = ModbusLink(_NoDelayClient(client), self.device, p, self._probe)
+        self.link.start()
+
+    def _probe(self) -> str:
+        try:
+            with socket.create_connection((self.p.host, self.p.port), timeout=self.p.timeout):
+                return "the server accepts connections but the Modbus client could not connect"
+        except OSError as exc:
+            return exc.strerror or str(exc) or type(exc).__name__
+
+    # -- step -------------------------------------------------------------------
+    def step(self, tick, inputs):
+        if self.tripped is not None:
+            raise self.tripped  # latched: nothing is commanded after a safety stop
+        link, p, t = self.link, self.p, tick.t
+        for line in link.take_notes():
+            self.log(line)
+        if link.fatal:
+            raise DeviceError(link.fatal)
+        if not link.connected and p.reconnect_timeout and link.lost_since is not None:
+            gone = time.monotonic() - link.lost_since
+            if gone > p.reconnect_timeout:
+                raise DeviceError(f"{self.device}: connection lost for {gone:.1f} s "
+                                  f"(reconnect_timeout {p.reconnect_timeout:g} s): {link.last_error}")
+        if self._first_t is None:
+            self._first_t = t
+
+        estop = inputs.get("estop")
+        if estop is not None and estop.active:
+            self._trip("estop", estop.reason or "active", f"e-stop active ({estop.reason or 'no reason given'})")
+
+        ft_fresh = self._check_wrench(inputs.get("wrench"), t)
+
+        cmd = inputs.get("command")
+        if cmd is not None and (self._last_cmd is None or _key(cmd) != _key(self._last_cmd)):
+            self._check_command(cmd, link.latest()[1])
+            prev, self._last_cmd = self._last_cmd, cmd
+            self._check_jump(prev, cmd)
+            if not ft_fresh:
+                link.submit(None)  # no F/T data yet: hold rather than move blind
+            elif cmd.enable:
+                link.submit(_command_values(cmd))
+            else:
+                link.submit(None)
+
+        count, reading = link.latest()
+        if reading is None or count == self._seen_readings:
+            return {}
+        self._seen_readings = count
+        self._check_actual(reading)
+        if reading.status != self._status_word:
+            self._status_changed(reading.status)
+        return {"state": _state(tick.header(p.frame), reading)}
+
+    def _check_wrench(self, wrench: WrenchStamped | None, t: float) -> bool:
+        """Check the force limit and the watchdog; True if the F/T data are fresh enough to move."""
+        p = self.p
+        if wrench is not None and _key(wrench) != self._last_wrench_key:
+            self._last_wrench_key = _key(wrench)
+            self._last_wrench_t = t
+            f = _norm(wrench.wrench.force)
+            if p.max_force and f > p.max_force:
+                self._trip("max_force", f, f"max_force: contact force |F| = {f:.1f} N > {p.max_force:g} N")
+        if not p.ft_timeout:
+            return True
+        if self._last_wrench_t is None:
+            waited = t - self._first_t
+            if waited > p.ft_grace + p.ft_timeout:
+                self._trip("ft_timeout", waited,
+                           f"ft_timeout: no F/T data {waited:.3f} s after start (ft_grace {p.ft_grace:g} s + "
+                           f"ft_timeout {p.ft_timeout:g} s; connect /ft/wrench or set ft_timeout 0)")
+            return False
+        age = t - self._last_wrench_t
+        if age > p.ft_timeout:
+            self._trip("ft_timeout", age, f"ft_timeout: no F/T data for {age:.3f} s > {p.ft_timeout:g} s")
+        return True
+
+    def _check_position(self, what: str, x: float, y: float, z: float) -> None:
+        p = self.p
+        for axis, v in (("x", x), ("y", y), ("z", z)):
+            lo, hi = getattr(p, f"{axis}_min"), getattr(p, f"{axis}_max")
+            if v < lo:
+                self._trip("workspace", v, f"workspace: {what} position.{axis} = {v:.4f} m below {axis}_min {lo:g} m")
+            if v > hi:
+                self._trip("workspace", v, f"workspace: {what} position.{axis} = {v:.4f} m above {axis}_max {hi:g} m")
+
+    def _check_command(self, cmd: RobotCommand, reading: mm.ControllerReading | None) -> None:
+        p = self.p
+        pos = cmd.pose.position
+        self._check_position("commanded", pos.x, pos.y, pos.z)
+        speed = _norm(cmd.twist.linear)
+        if p.max_speed and speed > p.max_speed:
+            self._trip("max_speed", speed, f"max_speed: commanded speed {speed:.3f} m/s > {p.max_speed:g} m/s")
+        if p.max_following_error and reading is not None:
+            a = reading.actual
+            err = math.sqrt((pos.x - a[0]) ** 2 + (pos.y - a[1]) ** 2 + (pos.z - a[2]) ** 2)
+            if err > p.max_following_error:
+                self._trip("max_following_error", err,
+                           f"max_following_error: setpoint {err:.4f} m from the actual pose > "
+                           f"{p.max_following_error:g} m (move the robot to the start pose first)")
+
+    def _check_jump(self, prev: RobotCommand | None, cmd: RobotCommand) -> None:
+        # A setpoint that moves faster than the limit is a too-fast command, whatever its twist says.
+        if prev is None or not self.p.max_speed:
+            return
+        dt = cmd.header.stamp - prev.header.stamp
+        if dt <= 0:
+            return
+        a, b = prev.pose.position, cmd.pose.position
+        step = math.sqrt((b.x - a.x) ** 2 + (b.y - a.y) ** 2 + (b.z - a.z) ** 2)
+        speed = step / dt
+        if speed > self.p.max_speed * (1 + 1e-9):
+            self._trip("max_speed", speed, f"max_speed: setpoint moved {step:.4f} m in {dt:.4f} s "
+                       f"({speed:.3f} m/s) > {self.p.max_speed:g} m/s")
+
+    def _check_actual(self, reading: mm.ControllerReading) -> None:
+        a = reading.actual
+        self._check_position("actual", a[0], a[1], a[2])
+        speed = math.sqrt(a[7] ** 2 + a[8] ** 2 + a[9] ** 2)
+        if self.p.max_actual_speed and speed > self.p.max_actual_speed:
+            self._trip("max_actual_speed", speed,
+                       f"max_actual_speed: measured speed {speed:.3f} m/s > {self.p.max_actual_speed:g} m/s")
+        if reading.status & mm.STATUS_FAULT:
+            self.link.hold(HOLD_CONFIRM_TIMEOUT)
+            raise DeviceError(f"{self.device}: controller reports a fault (status {reading.status:#06x}); holding")
+
+    def _status_changed(self, status: int) -> None:
+        old = self._status_word
+        self._status_word = status
+        if status & mm.STATUS_HEARTBEAT_LOST and (old is None or not old & mm.STATUS_HEARTBEAT_LOST):
+            if old is not None:
+                self.log(f"{self.device}: controller lost our heartbeat and holds; resuming on the next command")
+
+    def _trip(self, limit: str, value, text: str) -> None:
+        line = f"safety stop: {text}"
+        held = self.link.connected and self.link.hold(HOLD_CONFIRM_TIMEOUT)
+        if not held:
+            self.link.hold(0.0)
+            line += "; hold not confirmed (controller unreachable: its heartbeat timeout holds the robot)"
+        else:
+            line += "; robot held"
+        self.tripped = SafetyStop(line, limit, value)
+        raise self.tripped
+
+    def close(self) -> None:
+        link = getattr(self, "link", None)
+        if link is None:
+            return
+        self.link = None
+        held = link.connected and link.hold(HOLD_CONFIRM_TIMEOUT)
+        link.stop()
+        for line in link.take_notes():
+            self.log(line)
+        link.client.close()
+        if not held and self.tripped is None:
+            self.log(f"{self.device}: could not hold the robot at close (not connected); "
+                     f"the controller holds when our heartbeat stops")
+
+
+class _NoDelayClient:
+    """The pymodbus client, with TCP_NODELAY set again after every reconnect."""
+
+    def __init__(self, client):
+        self._client = client
+
+    def connect(self) -> bool:
+        ok = self._client.connect()
+        if ok:
+            _nodelay(self._client)
+        return ok
+
+    def __getattr__(self, name):
+        return getattr(self._client, name)
+
+
+def _nodelay(client) -> None:
+    # Small request/response frames: do not let Nagle hold a setpoint back.
+    sock = getattr(client, "socket", None)
+    if sock is not None:
+        try:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        except OSError:
+            pass
+
+
+def _state(header, reading: mm.ControllerReading) -> RobotState:
+    a = reading.actual
+    return RobotState(
+        header=header,
+        pose=Pose(position=Vector3(a[0], a[1], a[2]), orientation=Quaternion(a[3], a[4], a[5], a[6])),
+        twist=Twist(linear=Vector3(a[7], a[8], a[9]), angular=Vector3(a[10], a[11], a[12])),
+        status=mm.describe_status(reading.status),
+    )
