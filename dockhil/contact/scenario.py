@@ -50,19 +50,23 @@ def check_finite(name: str, value: float, unit: str = "") -> float:
 def check_positive(name: str, value: float, unit: str = "") -> float:
     number = check_finite(name, value, unit)
     if number <= 0.0:
-        raise ContactModelError(f"{name} must be > 0{_unit(unit)}, got {number!r}")
+        raise ContactModelError(f"{name} must be > 0{_after(unit)}, got {number!r}")
     return number
 
 
 def check_nonnegative(name: str, value: float, unit: str = "") -> float:
     number = check_finite(name, value, unit)
     if number < 0.0:
-        raise ContactModelError(f"{name} must be >= 0{_unit(unit)}, got {number!r}")
+        raise ContactModelError(f"{name} must be >= 0{_after(unit)}, got {number!r}")
     return number
 
 
 def _unit(unit: str) -> str:
     return f" [{unit}]" if unit else ""
+
+
+def _after(unit: str) -> str:
+    return f" {unit}" if unit else ""
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,150 @@
+"""`dockhil params`: the virtual impedance k1, b1, k2, b2 that makes the hybrid
+model (passive k + virtual impedance) behave like the ideal contact."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import warnings
+
+from dockhil.errors import DockhilError
+
+_SCENARIO_ARGS = (
+    # name, unit, check, help
+    ("m1", "kg", "positive", "chaser mass [kg] (Table 1: 750)"),
+    ("m2", "kg", "positive", "target mass [kg] (Table 1: 1e6)"),
+    ("kcs", "N/m", "nonnegative", "ideal contact stiffness of Eq. 1 [N/m] (Table 1: 3000)"),
+    ("bcs", "N s/m", "nonnegative", "ideal contact damping of Eq. 1 [N s/m] (Table 1: 40)"),
+    ("k", "N/m", "nonnegative", "stiffness of the passive compliance on the robot [N/m] (Table 1: 1000)"),
+)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.description = (
+        "Virtual impedance k1, b1, k2, b2 (SI) such that the hybrid model of Eqs. 2-4\n"
+        "(passive compliance k + virtual springs/dampers on a wall at the centre of mass)\n"
+        "reproduces the ideal spring-dashpot contact of Eq. 1. Found by the two-time fit\n"
+        "of Eqs. 5-6 (signs corrected) on the ideal model's states and checked against\n"
+        "the closed form k1 = (kcs - k)(1 + m1/m2), b1 = bcs (1 + m1/m2),\n"
+        "k2 = (kcs - k)(1 + m2/m1), b2 = bcs (1 + m2/m1)."
+    )
+    parser.epilog = (
+        "examples:\n"
+        "  dockhil params --table1                 # the paper's Table 1\n"
+        "  dockhil params --m1 750 --m2 1e6 --kcs 3000 --bcs 40 --k 1000 --json\n"
+        "  dockhil params --table1 --t1 0.3 --t2 1.2 --states rk4 --dt 0.01"
+    )
+    for name, _unit, _check, help_text in _SCENARIO_ARGS:
+        parser.add_argument(f"--{name}", type=float, metavar="X", help=help_text)
+    parser.add_argument(
+        "--table1",
+        action="store_true",
+        help="take every value not given from the paper's Table 1"
+        " (m1=750, m2=1e6, kcs=3000, bcs=40, k=1000, v1=0.03, v2=0)",
+    )
+    parser.add_argument(
+        "--v1",
+        type=float,
+        default=0.03,
+        metavar="V",
+        help="chaser velocity before contact [m/s] (default 0.03); the result does not depend on it,"
+        " but the chaser must close in (v1 > v2)",
+    )
+    parser.add_argument("--v2", type=float, default=0.0, metavar="V", help="target velocity before contact [m/s] (default 0)")
+    parser.add_argument(
+        "--t1",
+        type=float,
+        metavar="T",
+        help="first fit time after contact onset [s], strictly inside the contact (default: T/4 of the contact duration T)",
+    )
+    parser.add_argument("--t2", type=float, metavar="T", help="second fit time [s] (default: 3T/4)")
+    parser.add_argument(
+        "--states",
+        default="exact",
+        choices=("exact", "closed_form", "rk4", "symplectic_euler", "euler", "solve_ivp"),
+        help="where the ideal model's states at t1, t2 come from: a simulation with the exact"
+        " step (default), the closed form, a fixed-step method with --dt, or solve_ivp",
+    )
+    parser.add_argument(
+        "--dt", type=float, default=1e-3, metavar="S", help="step [s] for --states rk4|symplectic_euler|euler (default 0.001)"
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+
+
+def _scenario(args):
+    from dockhil.contact.scenario import TABLE1, ContactScenario, check_finite, check_nonnegative, check_positive
+
+    checks = {"positive": check_positive, "nonnegative": check_nonnegative}
+    values = {}
+    for name, unit, check, help_text in _SCENARIO_ARGS:
+        value = getattr(args, name)
+        if value is None:
+            if not args.table1:
+                raise DockhilError(
+                    f"missing --{name} ({help_text.split(' (')[0]}); give --m1 --m2 --kcs --bcs --k,"
+                    " or --table1 to take the paper's values"
+                )
+            value = getattr(TABLE1, name)
+        values[name] = checks[check](f"--{name}", value, unit)
+    values["v1"] = check_finite("--v1", args.v1, "m/s")
+    values["v2"] = check_finite("--v2", args.v2, "m/s")
+    if values["kcs"] == 0.0 and values["bcs"] == 0.0:
+        raise DockhilError("--kcs and --bcs are both 0: the ideal contact has no force to reproduce")
+    if values["v1"] <= values["v2"]:
+        raise DockhilError(
+            f"--v1 = {values['v1']:g} m/s must exceed --v2 = {values['v2']:g} m/s so that the bodies"
+            " come into contact (the result does not depend on the velocities)"
+        )
+    for name in ("t1", "t2"):
+        if getattr(args, name) is not None:
+            check_finite(f"--{name}", getattr(args, name), "s")
+    check_positive("--dt", args.dt, "s")
+    return ContactScenario(**values)
+
+
+def run(args: argparse.Namespace) -> int:
+    from dockhil.contact.impedance import fit_impedance
+    from dockhil.contact.scenario import NegativeVirtualStiffnessWarning
+
+    scenario = _scenario(args)
+    with warnings.catch_warnings():
+        # The warning text is reported below, in the table or the JSON.
+        warnings.simplefilter("ignore", NegativeVirtualStiffnessWarning)
+        fit = fit_impedance(scenario, args.t1, args.t2, states=args.states, dt=args.dt)
+    imp, closed = fit.impedance.as_dict(), fit.closed_form.as_dict()
+    duration = None if math.isinf(fit.contact_duration) else fit.contact_duration
+    result = {
+        **imp,
+        "units": {"k1": "N/m", "b1": "N s/m", "k2": "N/m", "b2": "N s/m"},
+        "method": "two-time fit of Eqs. 5-6 (signs corrected) on the ideal model's states",
+        "states": fit.states,
+        "t1": fit.t1,
+        "t2": fit.t2,
+        "contact_duration": duration,
+        "condition_number": max(fit.condition_chaser, fit.condition_target),
+        "closed_form": closed,
+        "max_relative_deviation": fit.max_relative_deviation,
+        "agrees_with_closed_form": fit.agrees,
+        "inputs": scenario.as_dict(),
+        "warnings": list(fit.warnings),
+    }
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    units = result["units"]
+    print(f"virtual impedance: two-time fit of Eqs. 5-6 on the ideal model's states ({fit.states})")
+    print(f"  {'':4}{'fit':>16}  {'closed form':>16}  unit")
+    for name in ("k1", "b1", "k2", "b2"):
+        print(f"  {name:4}{imp[name]:16.8g}  {closed[name]:16.8g}  {units[name]}")
+    span = f"{duration:.6g} s" if duration is not None else "no end (not underdamped)"
+    print(f"  fit times t1 = {fit.t1:.6g} s, t2 = {fit.t2:.6g} s; contact duration {span}")
+    print(
+        f"  condition number {result['condition_number']:.3g};"
+        f" fit and closed form {'agree' if fit.agrees else 'DIFFER'}"
+        f" to {fit.max_relative_deviation:.2g} (relative)"
+    )
+    for note in fit.warnings:
+        print(f"warning: {note}")
+    return 0

@@ -1,0 +1,182 @@
+"""The sampled HIL loop, piece by piece, and the whole loop as one function.
+
+The simulation nodes (satellite dynamics, virtual impedance, delay injector,
+robot servo, F/T sensor) each call one piece below per tick; `simulate_hil`
+calls the same pieces in the same order, so the node graph and this bare
+loop produce bit-identical trajectories.
+
+Timing of one tick k (step dt): the dynamics integrate from tick k-1 to k
+with the forces of tick k-1 held constant (zero-order hold), then publish
+the state of tick k; the virtual impedance, the delayed robot and the F/T
+sensor answer at the same tick. The sampled loop thus adds one step to the
+robot delay h; the delay injector holds the first command until h has
+passed (a robot stays where it started until it hears from the simulator).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dockhil.contact.hybrid import VirtualImpedance, passive_force, virtual_forces
+from dockhil.contact.integrators import Integrator, LinearSecondOrderSystem
+from dockhil.contact.scenario import ContactModelError, ContactScenario
+
+
+class Bodies:
+    """Two free-floating bodies on one axis (chaser, target); m2 = 0 fixes the
+    target to the ground. `method` is one of the model tool's integrators.
+    With `ideal` (kcs, bcs) the ideal spring-dashpot acts inside the step
+    while the bodies touch, instead of measured forces."""
+
+    def __init__(self, m1: float, m2: float, x1: float, x2: float, v1: float, v2: float,
+                 method: str = "exact", ideal: tuple[float, float] | None = None, on_unstable: str = "raise"):
+        self.fixed_target = m2 == 0.0
+        self.m1, self.m2 = m1, m2
+        self.x2_fixed = x2
+        masses = [m1] if self.fixed_target else [m1, m2]
+        self.free = Integrator(LinearSecondOrderSystem.free(masses), method, on_unstable)
+        self.contact = None
+        if ideal is not None:
+            kcs, bcs = ideal
+            if self.fixed_target:
+                system = LinearSecondOrderSystem([m1], [[kcs]], [[bcs]])
+            else:
+                system = LinearSecondOrderSystem.ideal_contact(ContactScenario(m1, m2, kcs, bcs))
+            self.contact = Integrator(system, method, on_unstable)
+            self.kcs, self.bcs = kcs, bcs
+        self.state = np.array([x1, v1]) if self.fixed_target else np.array([x1, x2, v1, v2])
+
+    def positions(self) -> tuple[float, float, float, float]:
+        """(x1, x2, v1, v2) as Python floats."""
+        s = self.state
+        if self.fixed_target:
+            return float(s[0]), self.x2_fixed, float(s[1]), 0.0
+        return float(s[0]), float(s[1]), float(s[2]), float(s[3])
+
+    def touching(self) -> bool:
+        x1, x2, v1, v2 = self.positions()
+        p = x1 - x2
+        return p > 0.0 or (p == 0.0 and v1 - v2 > 0.0)
+
+    def step(self, f1: float, f2: float, dt: float) -> None:
+        """Advance dt [s] with external forces f1, f2 [N] held constant."""
+        integ = self.contact if self.contact is not None and self.touching() else self.free
+        force = np.array([f1]) if self.fixed_target else np.array([f1, f2])
+        self.state = integ.step(self.state, force, dt)
+        if not np.all(np.isfinite(self.state)):
+            raise ContactModelError(
+                f"the bodies' state diverged to {self.state.tolist()}; the loop is unstable or the step too large"
+            )
+
+    def ideal_force(self) -> float:
+        """Compressive ideal contact force [N] at the current state (0 apart)."""
+        if self.contact is None or not self.touching():
+            return 0.0
+        x1, x2, v1, v2 = self.positions()
+        return self.kcs * (x1 - x2) + self.bcs * (v1 - v2)
+
+
+def virtual_wrench(x1: float, x2: float, v1: float, v2: float, m1: float, m2: float,
+                   impedance: VirtualImpedance) -> tuple[float, float]:
+    """Virtual forces [N] on chaser and target while touching; m2 = 0 is a fixed
+    target (infinite mass: the wall is the target itself)."""
+    if m2 != 0.0:
+        return virtual_forces(x1, x2, v1, v2, m1, m2, impedance)
+    p = x1 - x2
+    if p <= 0.0:
+        return 0.0, 0.0
+    return -(impedance.k1 * p + impedance.b1 * (v1 - v2)), 0.0
+
+
+def sensor_force(robot_x: float, k: float) -> float:
+    """Force [N] of the passive compliance on the chaser (along +x): -k p while p > 0."""
+    return -passive_force(robot_x, k)
+
+
+class DelayLine:
+    """Holds values for a fixed number of ticks; before that, the first value."""
+
+    def __init__(self, ticks: int):
+        if ticks < 0:
+            raise ContactModelError(f"delay must be >= 0 ticks, got {ticks}")
+        self.ticks = ticks
+        self.buf: deque = deque(maxlen=ticks + 1)
+
+    def push(self, value):
+        self.buf.append(value)
+        return self.buf[0]
+
+
+class Servo:
+    """First-order lag x' = (u - x) / tau, exact for u held over a step; tau = 0 follows u."""
+
+    def __init__(self, tau: float, dt: float):
+        self.alpha = 1.0 if tau == 0.0 else -math.expm1(-dt / tau)
+        self.x: float | None = None
+        self.v = 0.0
+
+    def step(self, target: float, target_v: float) -> tuple[float, float]:
+        if self.x is None or self.alpha == 1.0:
+            self.x, self.v = target, target_v
+        else:
+            self.x += self.alpha * (target - self.x)
+            self.v += self.alpha * (target_v - self.v)
+        return self.x, self.v
+
+
+def delay_ticks(delay: float, dt: float) -> int:
+    return int(round(delay / dt))
+
+
+@dataclass
+class HilRun:
+    """Per-tick arrays of a HIL run. force: compressive contact force on the chaser [N]."""
+
+    t: np.ndarray
+    x1: np.ndarray
+    x2: np.ndarray
+    v1: np.ndarray
+    v2: np.ndarray
+    force: np.ndarray
+    extra: dict = field(default_factory=dict)
+
+
+def simulate_hil(*, m1: float, m2: float, k: float, impedance: VirtualImpedance, dt: float, n_ticks: int,
+                 delay: float = 0.0, x1: float = 0.0, x2: float = 0.0, v1: float = 0.0, v2: float = 0.0,
+                 thrust: float = 0.0, method: str = "exact", lag: float = 0.0) -> HilRun:
+    """The HIL loop of the graph in hil.yaml/stability.yaml, without the graph."""
+    bodies = Bodies(m1, m2, x1, x2, v1, v2, method)
+    line = DelayLine(delay_ticks(delay, dt))
+    servo = Servo(lag, dt)
+    out = np.empty((6, n_ticks))
+    f1 = f2 = 0.0
+    for tick in range(n_ticks):
+        if tick > 0:
+            bodies.step(f1, f2, dt)
+        a1, a2, b1, b2 = bodies.positions()
+        fv1, fv2 = virtual_wrench(a1, a2, b1, b2, m1, m2, impedance)
+        cmd_x, cmd_v = line.push((a1 - a2, b1 - b2))
+        rx, _rv = servo.step(cmd_x, cmd_v)
+        fs = sensor_force(rx, k)
+        f1 = fs + fv1 + thrust
+        f2 = -fs + fv2
+        out[:, tick] = (tick * dt, a1, a2, b1, b2, -(fs + fv1))
+    return HilRun(*out)
+
+
+def simulate_ideal(*, m1: float, m2: float, kcs: float, bcs: float, dt: float, n_ticks: int,
+                   x1: float = 0.0, x2: float = 0.0, v1: float = 0.0, v2: float = 0.0,
+                   thrust: float = 0.0, method: str = "exact") -> HilRun:
+    """The ideal model (Eq. 1) sampled as the satellite-dynamics node runs it in ideal.yaml."""
+    bodies = Bodies(m1, m2, x1, x2, v1, v2, method, ideal=(kcs, bcs))
+    out = np.empty((6, n_ticks))
+    for tick in range(n_ticks):
+        if tick > 0:
+            bodies.step(thrust, 0.0, dt)
+        a1, a2, b1, b2 = bodies.positions()
+        out[:, tick] = (tick * dt, a1, a2, b1, b2, bodies.ideal_force())
+    return HilRun(*out)
