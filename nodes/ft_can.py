@@ -86,12 +86,11 @@ class FtCanDriver(Node):
         if p.interface == "slcan":
             # Non-blocking serial reads: recv(0) must not wait a serial timeout per step.
             kwargs = {"sleep_after_open": p.open_delay, "timeout": 0.0}
-        filters = [{"can_id": p.can_id + off, "can_mask": 0x7FF, "extended": False}
-                   for off in (ff.FORCE_OFFSET, ff.TORQUE_OFFSET)]
         while True:
             try:
-                return can.Bus(interface=p.interface, channel=p.channel, bitrate=p.bitrate,
-                               can_filters=filters, **kwargs)
+                # No ID filters: several interfaces filter error frames with them,
+                # and foreign frames cost only a comparison in decode_frame.
+                return can.Bus(interface=p.interface, channel=p.channel, bitrate=p.bitrate, **kwargs)
             except (can.CanInterfaceNotImplementedError, ValueError, TypeError) as exc:
                 raise DeviceError(f"{self.device}: cannot open: {one_line(exc)}") from None
             except (can.CanError, OSError) as exc:
