@@ -1,15 +1,16 @@
 """Run a whole graph in one process with in-process delivery and the same schedule.
 
-Nodes step in the graph's feedthrough order: at tick k a node reads tick k
-of its feedthrough inputs and tick k-1 of the others, exactly as the
-multi-process lock-step does, so the trajectories are bit-identical.
-Messages pass as objects (float64 survives msgpack exactly, so skipping the
-codec changes no bit); taps see every message for recording.
+Nodes step in the graph's same-tick order: at tick k a node reads, for each
+input, the message of tick k - lag, exactly as the multi-process lock-step
+does, so the trajectories are bit-identical. Messages pass as objects
+(float64 survives msgpack exactly, so skipping the codec changes no bit);
+taps see every message for recording.
 """
 
 from __future__ import annotations
 
 import time
+from collections import deque
 from typing import Any, Callable
 
 from dockhil.executor import Stop, _sleep_until, check_outputs
@@ -26,16 +27,23 @@ class ComposedGraph:
         self.taps = taps or []
         self.log = log or (lambda name, msg: print(f"[{name}] {msg}", flush=True))
         self.nodes = {}
-        self.plan = []  # (name, node, [(port, topic, previous?)], [(port, topic)], declared outputs)
+        # The longest lag any reader needs of each topic: how much history to keep.
+        depth: dict[str, int] = {}
+        for gn in graph.nodes.values():
+            for ref in gn.inputs.values():
+                depth[ref.topic] = max(depth.get(ref.topic, 0), ref.lag)
+        self.history = {topic: deque([None] * (depth.get(topic, 0) + 1), maxlen=depth.get(topic, 0) + 1)
+                        for topic in graph.publishers}
+        self.plan = []  # (name, node, [(port, history, lag)], [(port, topic, history)], declared outputs)
         for name in graph.order:
             gn = graph.nodes[name]
             ctx = NodeContext(name, self.dt, sim_time, lambda m, n=name: self.log(n, m))
             node = gn.cls(ctx, **gn.params)
             self.nodes[name] = node
             _, outs = gn.cls.ports(gn.params)
-            ins = [(port, ref.topic if ref.topic in graph.publishers else None, not ref.feedthrough)
-                   for port, ref in gn.inputs.items()]
-            self.plan.append((name, node, ins, [(p, r.topic) for p, r in gn.outputs.items()], outs))
+            ins = [(port, self.history.get(ref.topic), ref.lag) for port, ref in gn.inputs.items()]
+            outs_map = [(p, r.topic, self.history[r.topic]) for p, r in gn.outputs.items()]
+            self.plan.append((name, node, ins, outs_map, outs))
 
     def setup(self) -> None:
         for node in self.nodes.values():
@@ -53,27 +61,31 @@ class ComposedGraph:
 
     def run(self, n_ticks: int | None, *, wall: bool = False, stop: Stop | None = None,
             progress: Callable[[int], None] | None = None) -> int:
-        """Step ticks 0..n_ticks-1 (None: until stopped). Returns ticks done."""
-        now: dict[str, Any] = {}  # topic -> message of the current tick
-        prev: dict[str, Any] = {}  # topic -> message of the previous tick
+        """Step ticks 0..n_ticks-1 (None: until stopped). Returns ticks done.
+
+        Each topic's history holds its last lag+1 messages, newest last; a
+        reader with lag L at tick k reads history[-1-L] once this tick's
+        message has been appended (or before it, for L >= 1)."""
         stop = stop or Stop()
         dt = self.dt
         t0 = time.monotonic()
+        histories = list(self.history.values())
         k = 0
         while (n_ticks is None or k < n_ticks) and not stop.requested:
             tick = Tick(k, (time.monotonic() - t0) if wall else k * dt, dt)
+            for hist in histories:  # a slot for this tick; stays None if nothing is sent
+                hist.append(hist[-1] if wall else None)
             for name, node, ins, outs_map, declared in self.plan:
-                inputs = {port: (None if topic is None else (prev if previous else now).get(topic))
-                          for port, topic, previous in ins}
+                inputs = {port: (None if hist is None else hist[-1 - lag]) for port, hist, lag in ins}
                 outs = node.step(tick, inputs)
-                check_outputs(name, declared, k, outs, sim=not wall)
-                for port, topic in outs_map:
+                if k == 0 or not wall:
+                    check_outputs(name, declared, k, outs, sim=not wall)
+                for port, topic, hist in outs_map:
                     msg = outs.get(port)
                     if msg is not None:
-                        now[topic] = msg
+                        hist[-1] = msg
                         for tap in self.taps:
                             tap(topic, msg)
-            prev, now = now, ({} if not wall else dict(now))
             k += 1
             if progress is not None:
                 progress(k)

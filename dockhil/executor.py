@@ -1,8 +1,11 @@
 """Run a node over the transport, in sim time (lock-step) or wall time (fixed rate).
 
 Sim time: every message carries its tick. A node computes tick k once it
-holds, for each connected input, the message of tick k (feedthrough) or
-tick k-1 (not feedthrough; None at tick 0). No hop adds a hidden delay, and
+holds, for each connected input, the message of tick k - lag (lag 0 for
+feedthrough inputs, 1 for the others, more for a declared delay; None
+before tick 0). An output a node leaves empty at a tick is sent as an
+explicit "no message" frame, so lock-step never waits for it. No hop adds a
+hidden delay, and
 the result does not depend on arrival order, so a graph run as processes
 and the same graph composed in one process give bit-identical outputs.
 
@@ -35,7 +38,7 @@ class PortWire:
     topic: str
     endpoint: str
     type: str  # wire type name, e.g. dockhil/WrenchStamped
-    feedthrough: bool = True
+    lag: int = 0  # inputs: ticks between the message read and the tick computed
     subscribers: int = 0  # outputs: how many subscriptions to await in sim time
 
 
@@ -69,7 +72,7 @@ class Stop:
 
 
 def check_outputs(name: str, declared: dict, k: int, outs: dict, sim: bool) -> None:
-    """Refuse outputs a node did not declare, of the wrong type, or (sim time) missing."""
+    """Refuse outputs a node did not declare, of the wrong type, or stamped with another tick."""
     for port, msg in outs.items():
         if port not in declared:
             raise DockhilError(f"node {name!r} returned undeclared output {port!r} at tick {k}")
@@ -84,12 +87,6 @@ def check_outputs(name: str, declared: dict, k: int, outs: dict, sim: bool) -> N
             raise DockhilError(
                 f"node {name!r} output {port!r} at tick {k} carries header.tick {msg.header.tick}; "
                 f"build headers with tick.header()"
-            )
-    if sim:
-        missing = [p for p in declared if outs.get(p) is None]
-        if missing:
-            raise DockhilError(
-                f"node {name!r} sent no {missing[0]!r} at tick {k}; in sim time every output is sent every tick"
             )
 
 
@@ -122,24 +119,33 @@ class NodeExecutor:
         self.ticks_done = 0
 
     # -- receiving ---------------------------------------------------------
-    def _decode(self, topic: bytes, payload: bytes) -> list[tuple[str, int | None, Any]]:
-        """[(port, tick, msg or None if bad)] for one frame pair."""
+    def _decode(self, frames: list[bytes]) -> list[tuple[str, int | None, Any, bool]]:
+        """[(port, tick, msg, ok)] for one received message; ok=False for a bad one,
+        (port, tick, None, True) for an empty tick."""
+        topic = frames[0] if frames else b""
         ports = self.by_topic.get(topic)
         if ports is None:
             self._drop(topic.decode(errors="replace"), "message on a topic this node does not subscribe")
             return []
+        if len(frames) == 3 and frames[1] == b"" and len(frames[2]) == 8:
+            tick = int.from_bytes(frames[2], "little")
+            return [(port, tick, None, True) for port in ports]
+        if len(frames) != 2:
+            self._drop(topic.decode(errors="replace"), f"{len(frames)} frames, expected [topic, payload]")
+            return []
+        payload = frames[1]
         out = []
         for port in ports:
             try:
                 msg = decode(payload, self.in_types[port])
-                out.append((port, msg.header.tick, msg))
+                out.append((port, msg.header.tick, msg, True))
             except DecodeError as exc:
                 self._drop(topic.decode(), str(exc))
                 try:
                     tick = msgspec.msgpack.decode(payload, type=_HeaderOnly).header.tick
                 except (msgspec.DecodeError, msgspec.ValidationError):
                     tick = None
-                out.append((port, tick, None))
+                out.append((port, tick, None, False))
         return out
 
     def _drop(self, topic: str, reason: str) -> None:
@@ -160,22 +166,25 @@ class NodeExecutor:
         for port, pub in self.pubs.items():
             pub.wait_subscribers(self.spec.outputs[port].subscribers, self.spec.start_timeout, lambda: self.stop.requested)
 
-    def publish(self, k: int, outs: dict) -> None:
-        for port, msg in outs.items():
+    def publish(self, k: int, outs: dict, sim: bool) -> None:
+        for port, pub in self.pubs.items():
+            msg = outs.get(port)
             if msg is not None:
-                self.pubs[port].send(encode(msg))
+                pub.send(encode(msg))
+            elif sim:
+                pub.send_empty(k)
 
     def run_sim(self) -> None:
         spec, node = self.spec, self.node
         self.wait_for_subscribers()
         buffers: dict[str, dict[int, Any]] = {port: {} for port in spec.inputs}
         held: dict[str, Any] = {port: None for port in spec.inputs}
-        want_prev = {port: not w.feedthrough for port, w in spec.inputs.items()}
+        lag = {port: w.lag for port, w in spec.inputs.items()}
         k = 0
         waited_since = time.monotonic()
         warned = False
         while (spec.n_ticks is None or k < spec.n_ticks) and not self.stop.requested:
-            missing = [p for p in buffers if not (want_prev[p] and k == 0) and (k - want_prev[p]) not in buffers[p]]
+            missing = [p for p in buffers if k - lag[p] >= 0 and (k - lag[p]) not in buffers[p]]
             if missing:
                 frames = self.sub.recv(0.2)
                 if frames is None:
@@ -183,25 +192,21 @@ class NodeExecutor:
                         warned = True
                         self.log(f"tick {k}: still waiting for {spec.inputs[missing[0]].topic} after 10 s")
                     continue
-                for port, tick, msg in self._decode(*frames):
+                for port, tick, msg, ok in self._decode(frames):
                     if tick is None:
                         continue
-                    if msg is None:  # bad message for a known tick: hold the last good value
+                    if not ok:  # bad message for a known tick: hold the last good value
                         msg = held[port]
-                    else:
+                    elif msg is not None:
                         held[port] = msg
                     buffers[port][tick] = msg
                 continue
-            inputs = {}
-            for port, buf in buffers.items():
-                want = k - 1 if want_prev[port] else k
-                inputs[port] = buf.pop(want, None)
-                buf.pop(want - 1, None)
+            inputs = {port: buf.pop(k - lag[port], None) for port, buf in buffers.items()}
             for port in self.unconnected:
                 inputs[port] = None
             outs = node.step(Tick(k, k * spec.dt, spec.dt), inputs)
             check_outputs(spec.name, self.outputs, k, outs, sim=True)
-            self.publish(k, outs)
+            self.publish(k, outs, sim=True)
             k += 1
             self.ticks_done = k
             waited_since = time.monotonic()
@@ -222,12 +227,12 @@ class NodeExecutor:
             if duration is not None and now - t0 >= duration:
                 break
             while (frames := self.sub.recv_nowait()) is not None:
-                for port, _tick, msg in self._decode(*frames):
+                for port, _tick, msg, ok in self._decode(frames):
                     if msg is not None:
                         latest[port] = msg
             outs = node.step(Tick(k, now - t0, period), dict(latest))
             check_outputs(spec.name, self.outputs, k, outs, sim=False)
-            self.publish(k, outs)
+            self.publish(k, outs, sim=False)
             k += 1
             self.ticks_done = k
             next_t += period

@@ -3,7 +3,7 @@
 Like Drake's DiagramBuilder, the graph is checked before anything runs:
 unknown node types, bad parameters, unconnected required inputs, ports of
 different types on one topic, two publishers on one topic, and algebraic
-loops (cycles whose every input is feedthrough) are refused with one line.
+loops (cycles whose every input is read at the same tick) are refused with one line.
 """
 
 from __future__ import annotations
@@ -24,8 +24,12 @@ class PortRef:
     port: str
     topic: str
     type: type
-    feedthrough: bool = True
+    lag: int = 0  # ticks: the input at tick k reads the message of tick k - lag
     required: bool = True
+
+    @property
+    def feedthrough(self) -> bool:
+        return self.lag == 0
 
 
 @dataclass
@@ -78,7 +82,8 @@ def build(scene: Scene) -> Graph:
                 f"ports: {', '.join(sorted(set(ins) | set(outs)))}"
             )
         inputs = {
-            name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap), p.type, p.feedthrough, p.required)
+            name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap), p.type, p.lag_ticks(scene.dt),
+                          p.required)
             for name, p in ins.items()
         }
         outputs = {name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap), p.type) for name, p in outs.items()}

@@ -75,7 +75,7 @@ def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extr
     for name in graph.order:
         gn = graph.nodes[name]
         inputs = {
-            port: PortWire(ref.topic, ep.topics[ref.topic], ep.types[ref.topic], ref.feedthrough)
+            port: PortWire(ref.topic, ep.topics[ref.topic], ep.types[ref.topic], ref.lag)
             for port, ref in gn.inputs.items()
             if ref.topic in ep.topics
         }

@@ -16,11 +16,16 @@ own process, composed with others in one process, in sim time or wall time.
             ...
             return {"scaled": WrenchStamped(header=tick.header(), ...)}
 
-Feedthrough: an input with `feedthrough=True` (the default) is read at the
-same tick k (the output at tick k depends on it); `feedthrough=False` means
-the node's output at tick k depends on this input only up to tick k-1, and in
-sim time the runtime hands it the message of tick k-1 (None at tick 0). A
-cycle made only of feedthrough inputs is an algebraic loop and is refused.
+Feedthrough and delay: an input with `feedthrough=True` (the default) is
+read at the same tick k (the output at tick k depends on it);
+`feedthrough=False` means the output at tick k depends on this input only up
+to tick k-1, and in sim time the runtime hands the node the message of tick
+k-1 (None at tick 0). `delay` [s] says more: the output depends on the input
+only up to `delay` earlier, and the node gets the message of tick
+k - round(delay/dt) (None before). A node that declares its delay lets the
+graph pipeline: the ticks behind the delay need not wait for each other. A
+cycle made only of inputs read at the same tick is an algebraic loop and is
+refused.
 """
 
 from __future__ import annotations
@@ -42,6 +47,11 @@ class Input:
     feedthrough: bool = True
     required: bool = True
     help: str = ""
+    delay: float = 0.0  # [s]
+
+    def lag_ticks(self, dt: float) -> int:
+        """Ticks between the message a node reads and the tick it computes."""
+        return max(0 if self.feedthrough else 1, int(round(self.delay / dt)))
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,7 @@
 """ZeroMQ transport: one bound publisher socket per topic, one subscriber socket per node.
 
-Frames on the wire: [topic, msgpack payload]. Publishers are XPUB sockets so
+Frames on the wire: [topic, msgpack payload]; in sim time, a tick with no
+message is [topic, b"", tick as 8 bytes little-endian]. Publishers are XPUB sockets so
 that they see subscriptions arrive: in sim time a publisher waits until every
 subscriber the launcher expects has joined before it sends tick 0, so the
 slow-joiner effect of PUB/SUB never loses a message. High-water marks are
@@ -70,6 +71,10 @@ class Publisher:
     def send(self, payload: bytes) -> None:
         self.sock.send_multipart((self.topic_bytes, payload), copy=len(payload) > 4096)
 
+    def send_empty(self, tick: int) -> None:
+        """Sim time: this topic has no message at this tick."""
+        self.sock.send_multipart((self.topic_bytes, b"", tick.to_bytes(8, "little")))
+
     def close(self) -> None:
         self.sock.close()
 
@@ -89,23 +94,17 @@ class Subscriber:
             self.sock.connect(endpoint)
             self._connected.add(endpoint)
 
-    def recv(self, timeout_s: float | None) -> tuple[bytes, bytes] | None:
-        """(topic, payload), or None on time-out. timeout_s=None blocks."""
+    def recv(self, timeout_s: float | None) -> list[bytes] | None:
+        """The frames of one message, or None on time-out. timeout_s=None blocks."""
         if timeout_s is not None and not self.sock.poll(timeout_s * 1000, zmq.POLLIN):
             return None
-        frames = self.sock.recv_multipart()
-        if len(frames) != 2:
-            return (frames[0] if frames else b"", b"")
-        return frames[0], frames[1]
+        return self.sock.recv_multipart()
 
-    def recv_nowait(self) -> tuple[bytes, bytes] | None:
+    def recv_nowait(self) -> list[bytes] | None:
         try:
-            frames = self.sock.recv_multipart(zmq.NOBLOCK)
+            return self.sock.recv_multipart(zmq.NOBLOCK)
         except zmq.Again:
             return None
-        if len(frames) != 2:
-            return (frames[0] if frames else b"", b"")
-        return frames[0], frames[1]
 
     def close(self) -> None:
         self.sock.close()

@@ -93,3 +93,25 @@ class StateSink(Node):
 
     def step(self, tick, inputs):
         return {}
+
+
+class StateTrace(Node):
+    """Writes the exact bits of chaser/target positions and velocities per tick, at close."""
+
+    from msgs import SatelliteState as _SS
+
+    inputs = {"state": Input(_SS, "/satellite/state")}
+    params = {"path": Param(str, "", help="output file")}
+
+    def setup(self):
+        self.rows = []
+
+    def step(self, tick, inputs):
+        b = inputs["state"].bodies
+        self.rows.append(" ".join(v.hex() for v in (b[0].pose.position.x, b[1].pose.position.x,
+                                                     b[0].twist.linear.x, b[1].twist.linear.x)))
+        return {}
+
+    def close(self):
+        with open(self.p.path, "w") as f:
+            f.write("\n".join(self.rows) + "\n")

@@ -38,7 +38,7 @@ def to_text(graph) -> str:
         for port, ref in gn.inputs.items():
             src = graph.publishers.get(ref.topic)
             frm = f"<- {src.node}.{src.port}" if src else "(unconnected, optional)"
-            ft = "" if ref.feedthrough else ", previous tick"
+            ft = "" if ref.lag == 0 else ", previous tick" if ref.lag == 1 else f", {ref.lag} ticks earlier"
             lines.append(f"    in  {port}: {ref.topic} {msgs.type_name(ref.type)} {frm}{ft}")
         for port, ref in gn.outputs.items():
             subs = ", ".join(f"{s.node}.{s.port}" for s in graph.subscribers.get(ref.topic, [])) or "no subscriber"

@@ -49,7 +49,7 @@ def _types(name: str | None) -> int:
         if not name:
             continue
         for port, i in cls.inputs.items():
-            ft = "" if i.feedthrough else " (previous tick)"
+            ft = f" (delayed {i.delay:g} s)" if i.delay else "" if i.feedthrough else " (previous tick)"
             opt = "" if i.required else " (optional)"
             print(f"  in  {port}: {i.topic} {msgs.type_name(i.type)}{ft}{opt}  {i.help}")
         for port, o in cls.outputs.items():

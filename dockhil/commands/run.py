@@ -63,7 +63,7 @@ def run(args) -> int:
             continue
         if t["type"] != msgs.type_name(i.type):
             raise DockhilError(f"topic {topic} carries {t['type']}, but {name}.{port} expects {msgs.type_name(i.type)}")
-        inputs[port] = PortWire(topic, t["endpoint"], t["type"], i.feedthrough)
+        inputs[port] = PortWire(topic, t["endpoint"], t["type"], i.lag_ticks(1.0 / args.rate))
     run_id = f"run-{name}-{uuid.uuid4().hex[:6]}"
     run_dir = runtime_dir() / run_id
     run_dir.mkdir(parents=True, exist_ok=True)

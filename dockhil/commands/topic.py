@@ -68,7 +68,7 @@ def run(args) -> int:
         n = 0
         while args.count is None or n < args.count:
             frames = sub.recv(1.0)
-            if frames is None:
+            if frames is None or len(frames) != 2:  # time-out, or a sim-time tick with no message
                 continue
             try:
                 msg = decode(frames[1], cls)
@@ -82,7 +82,8 @@ def run(args) -> int:
     count = 0
     t0 = time.monotonic()
     while args.count is None or reports < args.count:
-        if sub.recv(0.1) is not None:
+        frames = sub.recv(0.1)
+        if frames is not None and len(frames) == 2:
             count += 1
         now = time.monotonic()
         if now - t0 >= args.window:

@@ -9,8 +9,8 @@ Timing of one tick k (step dt): the dynamics integrate from tick k-1 to k
 with the forces of tick k-1 held constant (zero-order hold), then publish
 the state of tick k; the virtual impedance, the delayed robot and the F/T
 sensor answer at the same tick. The sampled loop thus adds one step to the
-robot delay h; the delay injector holds the first command until h has
-passed (a robot stays where it started until it hears from the simulator).
+robot delay h. Until h has passed the robot has no command, reports no
+pose, and the sensor reads no force.
 """
 
 from __future__ import annotations
@@ -92,19 +92,19 @@ def virtual_wrench(x1: float, x2: float, v1: float, v2: float, m1: float, m2: fl
     return -(impedance.k1 * p + impedance.b1 * (v1 - v2)), 0.0
 
 
-def sensor_force(robot_x: float, k: float) -> float:
-    """Force [N] of the passive compliance on the chaser (along +x): -k p while p > 0."""
-    return -passive_force(robot_x, k)
+def sensor_force(robot_x: float | None, k: float) -> float:
+    """Force [N] of the passive compliance on the chaser (along +x): -k p while p > 0;
+    0 while the robot reports no pose."""
+    return 0.0 if robot_x is None else -passive_force(robot_x, k)
 
 
 class DelayLine:
-    """Holds values for a fixed number of ticks; before that, the first value."""
+    """Returns the value pushed `ticks` pushes ago, None before that."""
 
     def __init__(self, ticks: int):
         if ticks < 0:
             raise ContactModelError(f"delay must be >= 0 ticks, got {ticks}")
-        self.ticks = ticks
-        self.buf: deque = deque(maxlen=ticks + 1)
+        self.buf: deque = deque([None] * (ticks + 1), maxlen=ticks + 1)
 
     def push(self, value):
         self.buf.append(value)
@@ -120,6 +120,7 @@ class Servo:
         self.v = 0.0
 
     def step(self, target: float, target_v: float) -> tuple[float, float]:
+        """Pose and velocity after one step towards the target."""
         if self.x is None or self.alpha == 1.0:
             self.x, self.v = target, target_v
         else:
@@ -159,8 +160,8 @@ def simulate_hil(*, m1: float, m2: float, k: float, impedance: VirtualImpedance,
             bodies.step(f1, f2, dt)
         a1, a2, b1, b2 = bodies.positions()
         fv1, fv2 = virtual_wrench(a1, a2, b1, b2, m1, m2, impedance)
-        cmd_x, cmd_v = line.push((a1 - a2, b1 - b2))
-        rx, _rv = servo.step(cmd_x, cmd_v)
+        cmd = line.push((a1 - a2, b1 - b2))
+        rx = None if cmd is None else servo.step(*cmd)[0]
         fs = sensor_force(rx, k)
         f1 = fs + fv1 + thrust
         f2 = -fs + fv2

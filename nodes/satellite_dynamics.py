@@ -1,0 +1,76 @@
+"""satellite-dynamics: two free-floating bodies on one axis under measured + virtual forces."""
+
+from __future__ import annotations
+
+from dockhil.node import Input, Node, Output, Param
+from msgs import (BodyState, BodyWrenches, Pose, RobotCommand, SatelliteState, Twist, Vector3,
+                  WrenchStamped)
+
+
+class SatelliteDynamics(Node):
+    """Integrates chaser and target under F/T + virtual + thrust forces; publishes states and the robot command."""
+
+    inputs = {
+        "ft": Input(WrenchStamped, "/ft/wrench", feedthrough=False,
+                    help="contact force on the chaser, measured (the target feels its opposite)"),
+        "impedance": Input(BodyWrenches, "/impedance/wrench", feedthrough=False, help="virtual forces per body"),
+    }
+    outputs = {
+        "state": Output(SatelliteState, "/satellite/state", help="chaser and target, chaser first"),
+        "command": Output(RobotCommand, "/robot/command", help="probe pose relative to the target, x > 0 = contact"),
+    }
+    params = {
+        "m1": Param(float, 750.0, unit="kg", help="chaser mass", gt=0.0),
+        "m2": Param(float, 1e6, unit="kg", help="target mass; 0 fixes the target to the ground", ge=0.0),
+        "x1": Param(float, 0.0, unit="m", help="chaser initial position (contact point at 0)"),
+        "x2": Param(float, 0.0, unit="m", help="target initial position"),
+        "v1": Param(float, 0.03, unit="m/s", help="chaser initial velocity"),
+        "v2": Param(float, 0.0, unit="m/s", help="target initial velocity"),
+        "thrust": Param(float, 0.0, unit="N", help="constant thrust on the chaser along +x"),
+        "method": Param(str, "exact", help="integrator of the model tool",
+                        choices=("exact", "rk4", "symplectic_euler", "euler")),
+        "model": Param(str, "hybrid", help="hybrid: forces come from the F/T and impedance topics; "
+                       "ideal: the ideal spring-dashpot (kcs, bcs) acts inside the node", choices=("hybrid", "ideal")),
+        "kcs": Param(float, 3000.0, unit="N/m", help="ideal contact stiffness (model=ideal)", ge=0.0),
+        "bcs": Param(float, 40.0, unit="N s/m", help="ideal contact damping (model=ideal)", ge=0.0),
+    }
+
+    @classmethod
+    def ports(cls, params):
+        if params["model"] == "ideal":  # the ideal scene needs no sensor and no impedance
+            return {}, cls.outputs
+        return cls.inputs, cls.outputs
+
+    def setup(self):
+        from dockhil.contact.hilloop import Bodies
+
+        p = self.p
+        ideal = (p.kcs, p.bcs) if p.model == "ideal" else None
+        self.bodies = Bodies(p.m1, p.m2, p.x1, p.x2, p.v1, p.v2, p.method, ideal=ideal)
+
+    def step(self, tick, inputs):
+        p = self.p
+        if tick.index > 0:
+            if p.model == "ideal":
+                f1, f2 = p.thrust, 0.0
+            else:
+                ft, imp = inputs.get("ft"), inputs.get("impedance")
+                fs = ft.wrench.force.x if ft is not None else 0.0
+                fv1, fv2 = (imp.wrenches[0].force.x, imp.wrenches[1].force.x) if imp is not None else (0.0, 0.0)
+                # The same sums, in the same order, as dockhil.contact.hilloop.simulate_hil.
+                f1 = fs + fv1 + p.thrust
+                f2 = -fs + fv2
+            self.bodies.step(f1, f2, tick.dt)
+        x1, x2, v1, v2 = self.bodies.positions()
+        header = tick.header("world")
+        state = SatelliteState(
+            header=header,
+            bodies=[
+                BodyState("chaser", p.m1, Pose(Vector3(x1)), Twist(Vector3(v1))),
+                BodyState("target", p.m2, Pose(Vector3(x2)), Twist(Vector3(v2))),
+            ],
+            in_contact=self.bodies.touching(),
+        )
+        command = RobotCommand(header=tick.header("target"), pose=Pose(Vector3(x1 - x2)),
+                               twist=Twist(Vector3(v1 - v2)))
+        return {"state": state, "command": command}
