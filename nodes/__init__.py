@@ -10,6 +10,11 @@ import sys
 from dockhil.errors import LaunchError
 
 REGISTRY: dict[str, str] = {
+    "satellite_dynamics": "nodes.satellite_dynamics:SatelliteDynamics",
+    "virtual_impedance": "nodes.virtual_impedance:VirtualImpedance",
+    "ft_sim": "nodes.ft_sim:FtSensorSim",
+    "robot_sim": "nodes.robot_sim:RobotSim",
+    "delay_injector": "nodes.delay_injector:DelayInjector",
     "ft_can": "nodes.ft_can:FtCanDriver",
     "ft_emulator": "nodes.ft_emulator:FtSensorEmulator",
     "robot_modbus": "nodes.robot_modbus:RobotModbusDriver",
