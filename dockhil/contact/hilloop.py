@@ -86,10 +86,10 @@ def virtual_wrench(x1: float, x2: float, v1: float, v2: float, m1: float, m2: fl
     target (infinite mass: the wall is the target itself)."""
     if m2 != 0.0:
         return virtual_forces(x1, x2, v1, v2, m1, m2, impedance)
-    p = x1 - x2
-    if p <= 0.0:
+    p, pd = x1 - x2, v1 - v2
+    if p < 0.0 or (p == 0.0 and pd <= 0.0):  # the same contact test as virtual_forces
         return 0.0, 0.0
-    return -(impedance.k1 * p + impedance.b1 * (v1 - v2)), 0.0
+    return -(impedance.k1 * p + impedance.b1 * pd), 0.0
 
 
 def sensor_force(robot_x: float | None, k: float) -> float:

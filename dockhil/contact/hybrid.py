@@ -50,10 +50,12 @@ def virtual_forces(
     """Forces [N] of the virtual impedance on the chaser and on the target
     (positive along +x), zero out of contact. Cheap: call it every step."""
     p = x1 - x2
-    if p <= 0.0:
+    pd = v1 - v2
+    # Touching as in the ideal model: penetrating, or at the surface and closing in
+    # (so the dashpot acts from the first sample of a contact that starts at p = 0).
+    if p < 0.0 or (p == 0.0 and pd <= 0.0):
         return 0.0, 0.0
     total = m1 + m2
-    pd = v1 - v2
     imp = impedance
     return -(m2 / total) * (imp.k1 * p + imp.b1 * pd), (m1 / total) * (imp.k2 * p + imp.b2 * pd)
 

@@ -1,0 +1,121 @@
+"""The summary of a docking run: peak contact force, contact duration, exit velocity,
+and, where the scene has an ideal reference, the same from the ideal model and the errors.
+
+Works on per-tick arrays, so the same code summarizes a bag, a composed run's
+taps, or the model library's own loop.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+import msgs
+
+
+@dataclass
+class Samples:
+    """Per-tick series: time [s], penetration p = x1 - x2 [m], its rate [m/s],
+    compressive contact force on the chaser [N]."""
+
+    t: np.ndarray
+    p: np.ndarray
+    pd: np.ndarray
+    force: np.ndarray
+
+
+def contact_metrics(s: Samples) -> dict:
+    """peak_force_N, contact_duration_s, exit_velocity_mps of the first contact (None where absent)."""
+    touching = (s.p > 0.0) | ((s.p == 0.0) & (s.pd > 0.0))
+    out = {"peak_force_N": None, "contact_duration_s": None, "exit_velocity_mps": None, "contact_start_s": None}
+    if not touching.any():
+        return out
+    i0 = int(np.argmax(touching))
+    after = np.nonzero(~touching[i0:])[0]
+    i1 = i0 + int(after[0]) if after.size else len(s.t)
+    out["peak_force_N"] = float(np.max(s.force[i0:i1]))
+    # Contact start and end at the zero crossings of p, interpolated between ticks.
+    t_start = s.t[i0] if i0 == 0 or s.p[i0] == 0.0 else _crossing(s.t, s.p, i0 - 1)
+    out["contact_start_s"] = float(t_start)
+    if after.size:
+        t_end = _crossing(s.t, s.p, i1 - 1)
+        w = (t_end - s.t[i1 - 1]) / (s.t[i1] - s.t[i1 - 1])
+        out["contact_duration_s"] = float(t_end - t_start)
+        out["exit_velocity_mps"] = float(s.pd[i1 - 1] + w * (s.pd[i1] - s.pd[i1 - 1]))
+    return out
+
+
+def _crossing(t, p, i) -> float:
+    """Time where p crosses zero between ticks i and i+1 (linear)."""
+    dp = p[i + 1] - p[i]
+    return float(t[i] if dp == 0.0 else t[i] - p[i] * (t[i + 1] - t[i]) / dp)
+
+
+def summarize(s: Samples, *, run_time_s: float | None = None, ideal: dict | None = None) -> dict:
+    """The run summary; `ideal` holds the ideal model's peak_force_N, contact_duration_s,
+    exit_velocity_mps and optionally its force series `force_N` on the same ticks."""
+    sim_time = float(s.t[-1] - s.t[0]) if len(s.t) > 1 else 0.0
+    out = {"run_time_s": run_time_s, "sim_time_s": sim_time,
+           "real_time_factor": (sim_time / run_time_s) if run_time_s else None}
+    metrics = contact_metrics(s)
+    out.update({k: v for k, v in metrics.items() if k != "contact_start_s"})
+    if ideal is not None:
+        ref = {k: ideal[k] for k in ("peak_force_N", "contact_duration_s", "exit_velocity_mps")}
+        out["ideal"] = ref
+        err = {k: (None if out[k] is None or ref[k] is None else out[k] - ref[k]) for k in ref}
+        if "force_N" in ideal:
+            n = min(len(ideal["force_N"]), len(s.force))
+            err["max_force_N"] = float(np.max(np.abs(np.asarray(ideal["force_N"][:n]) - s.force[:n])))
+        out["error"] = {k: err.get(k) for k in ("peak_force_N", "max_force_N", "contact_duration_s",
+                                                 "exit_velocity_mps")}
+    return out
+
+
+def ideal_reference(*, m1: float, m2: float, kcs: float, bcs: float, v1: float, v2: float,
+                    t: np.ndarray, x1: float = 0.0, x2: float = 0.0) -> dict:
+    """The ideal model's summary (closed form) and its force on the ticks t."""
+    from dockhil.contact.ideal import ideal_contact_summary, ideal_trajectory
+    from dockhil.contact.scenario import ContactScenario
+
+    scn = ContactScenario(m1, m2, kcs, bcs, 0.0, v1, v2)
+    cs = ideal_contact_summary(scn)
+    traj = ideal_trajectory(scn, t, gap=max(0.0, x2 - x1))
+    force = np.where(traj.in_contact, kcs * traj.penetration + bcs * traj.penetration_rate, 0.0)
+    dur = cs.duration if math.isfinite(cs.duration) else None
+    return {"peak_force_N": cs.peak_force, "contact_duration_s": dur,
+            "exit_velocity_mps": cs.exit_relative_velocity if dur is not None else None, "force_N": force}
+
+
+class Collector:
+    """Gathers the per-tick series from published messages (a composed tap, or a bag)."""
+
+    def __init__(self, ideal_force: tuple[float, float] | None = None):
+        self.ideal_force = ideal_force  # (kcs, bcs) when the dynamics run the ideal model inside
+        self.state: dict[int, tuple] = {}
+        self.ft: dict[int, float] = {}
+        self.virtual: dict[int, float] = {}
+
+    def __call__(self, topic: str, msg) -> None:
+        if isinstance(msg, msgs.SatelliteState) and len(msg.bodies) >= 2:
+            c, g = msg.bodies[0], msg.bodies[1]
+            self.state[msg.header.tick] = (msg.header.stamp, c.pose.position.x - g.pose.position.x,
+                                           c.twist.linear.x - g.twist.linear.x)
+        elif topic == "/ft/wrench" and isinstance(msg, msgs.WrenchStamped):
+            self.ft[msg.header.tick] = msg.wrench.force.x
+        elif topic == "/impedance/wrench" and isinstance(msg, msgs.BodyWrenches) and msg.wrenches:
+            self.virtual[msg.header.tick] = msg.wrenches[0].force.x
+
+    def samples(self) -> Samples:
+        ticks = sorted(self.state)
+        t, p, pd = (np.array(v, dtype=float) for v in zip(*(self.state[k] for k in ticks))) if ticks else \
+            (np.array([]),) * 3
+        if self.ideal_force is not None:
+            kcs, bcs = self.ideal_force
+            touching = (p > 0.0) | ((p == 0.0) & (pd > 0.0))
+            force = np.where(touching, kcs * p + bcs * pd, 0.0)
+        else:
+            # Compressive force on the chaser: minus (measured + virtual) force along +x.
+            force = np.array([-(self.ft.get(k, 0.0) + self.virtual.get(k, 0.0)) for k in ticks])
+        return Samples(t, p, pd, force)
