@@ -1,0 +1,84 @@
+"""`dockhil plot BAG [BAG ...] --png FILE`: contact force and velocity profiles, like the paper's Fig. 9."""
+
+from __future__ import annotations
+
+from dockhil.errors import DockhilError
+
+
+def add_arguments(p) -> None:
+    p.add_argument("bags", nargs="+", metavar="BAG", help="one or more recorded runs (MCAP); each is one curve")
+    p.add_argument("--png", required=True, metavar="FILE", help="where to write the figure")
+    p.add_argument("--labels", nargs="+", metavar="LABEL", help="legend label per bag (default: file names)")
+    p.add_argument("--kcs", type=float, help="ideal runs: contact stiffness [N/m] to compute the force from the state")
+    p.add_argument("--bcs", type=float, help="ideal runs: contact damping [N s/m]")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC",
+                   help="extra topics to plot in a third panel: every numeric field over time")
+
+
+def load_samples(path: str, ideal_force=None):
+    """Per-tick series of one bag, through the same Collector the run summary uses."""
+    from dockhil.bag import BagReader
+    from dockhil.summary import Collector
+
+    collect = Collector(ideal_force)
+    with BagReader(path) as bag:
+        for topic, _t, msg in bag.decoded(["/satellite/state", "/ft/wrench", "/impedance/wrench"]):
+            collect(topic, msg)
+    s = collect.samples()
+    if not len(s.t):
+        raise DockhilError(f"{path}: no /satellite/state messages; record the dynamics' state to plot a run")
+    return s
+
+
+def run(args) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if args.labels and len(args.labels) != len(args.bags):
+        raise DockhilError(f"--labels has {len(args.labels)} labels for {len(args.bags)} bags; give one per bag")
+    if (args.kcs is None) != (args.bcs is None):
+        raise DockhilError("--kcs and --bcs go together (the ideal contact force is kcs p + bcs p')")
+    ideal = (args.kcs, args.bcs) if args.kcs is not None else None
+    panels = 3 if args.topics else 2
+    fig, axes = plt.subplots(panels, 1, sharex=True, figsize=(8, 2.6 * panels + 0.6))
+    for i, path in enumerate(args.bags):
+        s = load_samples(path, ideal)
+        label = args.labels[i] if args.labels else path.rsplit("/", 1)[-1]
+        axes[0].plot(s.t, s.force, label=label)
+        axes[1].plot(s.t, s.pd, label=label)
+        if args.topics:
+            _plot_topics(axes[2], path, args.topics, label)
+    axes[0].set_ylabel("contact force on chaser [N]")
+    axes[1].set_ylabel("relative velocity [m/s]")
+    axes[-1].set_xlabel("time [s]")
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("Contact force and velocity profiles")
+    fig.tight_layout()
+    try:
+        fig.savefig(args.png, dpi=120)
+    except OSError as exc:
+        raise DockhilError(f"cannot write {args.png}: {exc.strerror or exc}") from None
+    print(f"wrote {args.png}")
+    return 0
+
+
+def _plot_topics(ax, path, topics, label) -> None:
+    from dockhil.bag import BagReader, flatten
+
+    with BagReader(path) as bag:
+        series: dict[str, tuple[list, list]] = {}
+        for topic, t_ns, msg in bag.decoded(topics):
+            for name, value in flatten(msg).items():
+                if isinstance(value, float) and not name.startswith("header."):
+                    xs, ys = series.setdefault(f"{topic} {name}", ([], []))
+                    xs.append(msg.header.stamp)
+                    ys.append(value)
+    if not series:
+        raise DockhilError(f"{path}: none of {', '.join(topics)} has numeric fields recorded")
+    for name, (xs, ys) in series.items():
+        if any(ys):  # all-zero fields (unused axes) would only clutter the panel
+            ax.plot(xs, ys, label=f"{label}: {name}")
