@@ -75,6 +75,14 @@ def main() -> int:
 
     _die_with_parent()
     spec = msgspec.json.decode(sys.argv[1].encode(), type=RunSpec)
+    profile_dir = os.environ.get("DOCKHIL_PROFILE")
+    if profile_dir:  # developers: one cProfile dump per node, named after it
+        import cProfile
+
+        prof = cProfile.Profile()
+        code = prof.runcall(run_node, spec, on_ready=lambda: print(READY, flush=True))
+        prof.dump_stats(os.path.join(profile_dir, f"{spec.name}.prof"))
+        return code
     return run_node(spec, on_ready=lambda: print(READY, flush=True))
 
 

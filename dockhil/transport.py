@@ -88,6 +88,7 @@ class Subscriber:
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.setsockopt(zmq.SUBSCRIBE, b"")
         self._connected: set[str] = set()
+        self._timeout_ms = -1
 
     def connect(self, endpoint: str) -> None:
         if endpoint not in self._connected:
@@ -96,9 +97,15 @@ class Subscriber:
 
     def recv(self, timeout_s: float | None) -> list[bytes] | None:
         """The frames of one message, or None on time-out. timeout_s=None blocks."""
-        if timeout_s is not None and not self.sock.poll(timeout_s * 1000, zmq.POLLIN):
+        # A receive time-out on the socket costs one call per message, where poll+recv costs two.
+        ms = -1 if timeout_s is None else int(timeout_s * 1000)
+        if ms != self._timeout_ms:
+            self.sock.setsockopt(zmq.RCVTIMEO, ms)
+            self._timeout_ms = ms
+        try:
+            return self.sock.recv_multipart()
+        except zmq.Again:
             return None
-        return self.sock.recv_multipart()
 
     def recv_nowait(self) -> list[bytes] | None:
         try:

@@ -119,7 +119,6 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
     ctx = zmq.Context.instance()
     pub = ctx.socket(zmq.PUB)
     port = pub.bind_to_random_port("tcp://127.0.0.1")
-    reg = tmp_path / "rt-reg"
     env = dict(os.environ)
     graphs = os.path.join(env["DOCKHIL_RUNTIME_DIR"], "graphs")
     os.makedirs(graphs, exist_ok=True)
@@ -129,56 +128,60 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
                                      "publisher": "test"}}}, f)
     node = subprocess.Popen(dockhil_cmd("run", "tests.graphnodes:Gain", "gain:=3.0", "--rate", "200"),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    # Find the node's output endpoint in the registry, subscribe to it.
-    endpoint = None
-    deadline = time.time() + 20
-    while endpoint is None and time.time() < deadline:
-        for name in os.listdir(graphs):
-            if name.startswith("run-"):
-                try:
-                    endpoint = json.load(open(os.path.join(graphs, name)))["topics"]["/u"]["endpoint"]
-                except (ValueError, KeyError):
-                    pass
-        time.sleep(0.1)
-    assert endpoint
-    sub = ctx.socket(zmq.SUB)
-    sub.setsockopt(zmq.SUBSCRIBE, b"")
-    sub.connect(endpoint)
-    time.sleep(0.5)
-    good = msgs.WrenchStamped(header=msgs.Header(), wrench=msgs.Wrench(force=msgs.Vector3(x=2.0)))
+    try:
+        # Find the node's output endpoint in the registry, subscribe to it.
+        endpoint = None
+        deadline = time.time() + 20
+        while endpoint is None and time.time() < deadline:
+            for name in os.listdir(graphs):
+                if name.startswith("run-"):
+                    try:
+                        endpoint = json.load(open(os.path.join(graphs, name)))["topics"]["/u"]["endpoint"]
+                    except (ValueError, KeyError):
+                        pass
+            time.sleep(0.1)
+        assert endpoint
+        sub = ctx.socket(zmq.SUB)
+        sub.setsockopt(zmq.SUBSCRIBE, b"")
+        sub.connect(endpoint)
+        time.sleep(0.5)
+        good = msgs.WrenchStamped(header=msgs.Header(), wrench=msgs.Wrench(force=msgs.Vector3(x=2.0)))
 
-    def latest_output(seconds):
-        got = None
-        deadline = time.time() + seconds
-        while time.time() < deadline:  # the newest output, after queued older ones
-            if sub.poll(50):
-                got = decode(sub.recv_multipart()[1], msgs.WrenchStamped)
-        return got
+        def latest_output(seconds):
+            got = None
+            deadline = time.time() + seconds
+            while time.time() < deadline:  # the newest output, after queued older ones
+                if sub.poll(50):
+                    got = decode(sub.recv_multipart()[1], msgs.WrenchStamped)
+            return got
 
-    # Until the node's subscription is live, PUB/SUB drops: send good data until it answers to it.
-    deadline = time.time() + 10
-    while time.time() < deadline:
-        pub.send_multipart([b"/x", encode(good)])
-        got = latest_output(0.2)
-        if got is not None and got.wrench.force.x == pytest.approx(-5.6):
-            break
-    nan = msgpack.unpackb(encode(good))
-    nan["wrench"]["force"]["x"] = float("nan")
-    bad = [b"\xc1garbage", msgpack.packb([1, 2, 3]), msgpack.packb(nan), encode(msgs.RobotState(header=msgs.Header()))]
-    for _ in range(3):
-        for b in bad:
-            pub.send_multipart([b"/x", b])
-        pub.send_multipart([b"/x"])  # a frame missing
-        time.sleep(0.2)
-    # Still running, and still computing from the last good value: u = -3*2 + 0.1*4.
-    assert node.poll() is None
-    got = latest_output(0.5)
-    assert got is not None and got.wrench.force.x == pytest.approx(-5.6)
-    node.send_signal(signal.SIGINT)
-    out, _ = node.communicate(timeout=10)
-    assert node.returncode == 0, out
-    assert "dropped bad message on /x" in out
-    assert "NaN or Inf refused" in out and "not msgpack" in out and "Expected `object`, got `array`" in out and "dockhil/RobotState" in out
-    assert "15 bad message(s) dropped" in out
-    assert "Traceback" not in out
-    pub.close()
+        # Until the node's subscription is live, PUB/SUB drops: send good data until it answers to it.
+        deadline = time.time() + 10
+        while time.time() < deadline:
+            pub.send_multipart([b"/x", encode(good)])
+            got = latest_output(0.2)
+            if got is not None and got.wrench.force.x == pytest.approx(-5.6):
+                break
+        nan = msgpack.unpackb(encode(good))
+        nan["wrench"]["force"]["x"] = float("nan")
+        bad = [b"\xc1garbage", msgpack.packb([1, 2, 3]), msgpack.packb(nan), encode(msgs.RobotState(header=msgs.Header()))]
+        for _ in range(3):
+            for b in bad:
+                pub.send_multipart([b"/x", b])
+            pub.send_multipart([b"/x"])  # a frame missing
+            time.sleep(0.2)
+        # Still running, and still computing from the last good value: u = -3*2 + 0.1*4.
+        assert node.poll() is None
+        got = latest_output(0.5)
+        assert got is not None and got.wrench.force.x == pytest.approx(-5.6)
+        node.send_signal(signal.SIGINT)
+        out, _ = node.communicate(timeout=10)
+        assert node.returncode == 0, out
+        assert "dropped bad message on /x" in out
+        assert "NaN or Inf refused" in out and "not msgpack" in out and "Expected `object`, got `array`" in out and "dockhil/RobotState" in out
+        assert "15 bad message(s) dropped" in out
+        assert "Traceback" not in out
+    finally:
+        if node.poll() is None:
+            node.kill()
+        pub.close()
