@@ -42,9 +42,9 @@ def test_params_table1_preset_and_velocity_independence(capsys):
 
 def test_params_table_and_warning(capsys):
     assert main(["params", "--table1", "--kcs", "500"]) == 0
-    out = capsys.readouterr().out
-    assert "k1" in out and "closed form" in out and "agree" in out
-    assert "warning: kcs = 500 N/m is below the passive stiffness k = 1000 N/m" in out
+    captured = capsys.readouterr()
+    assert "k1" in captured.out and "closed form" in captured.out and "agree" in captured.out
+    assert "warning: kcs = 500 N/m is below the passive stiffness k = 1000 N/m" in captured.err
     result = run_json(capsys, ["params", "--table1", "--kcs", "500", "--json"])
     assert result["k1"] < 0 and result["warnings"]
 

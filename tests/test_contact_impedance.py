@@ -103,6 +103,14 @@ def test_refuses_ill_conditioned_times():
         fit_impedance(TABLE1, 0.5, 0.5 + 1e-9)
 
 
+def test_refuses_times_where_the_contact_has_died_out():
+    # over-damped: the contact never ends, but after many time constants the
+    # states are round-off around the CoM motion and carry nothing to fit
+    heavy = ContactScenario(m1=100.0, m2=100.0, kcs=100.0, bcs=500.0, k=50.0, v1=0.1)
+    with pytest.raises(FitError, match=r"at t2 = 2000 s the contact motion has decayed to .* too little to fit; .*e\.g\. t1 = "):
+        fit_impedance(heavy, 0.1, 2000.0)
+
+
 @pytest.mark.parametrize(
     "changes, match",
     [
@@ -170,3 +178,32 @@ def test_recommended_times_in_fit_result():
     assert fit.t1 == pytest.approx(fit.contact_duration / 4)
     assert fit.t2 == pytest.approx(3 * fit.contact_duration / 4)
     assert fit.contact_duration == pytest.approx(math.pi / math.sqrt(3000 / TABLE1.reduced_mass - (40 / (2 * TABLE1.reduced_mass)) ** 2))
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+def _log_uniform(lo, hi):
+    return st.floats(math.log10(lo), math.log10(hi)).map(lambda e: 10.0**e)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    m1=_log_uniform(1.0, 1e6),
+    m2=_log_uniform(1.0, 1e6),
+    kcs=_log_uniform(1.0, 1e7),
+    zeta=_log_uniform(1e-3, 30.0),
+    k_fraction=st.floats(0.0, 0.99),
+    v1=st.floats(-1.0, 1.0),
+    closing=_log_uniform(1e-4, 1.0),
+)
+def test_fit_equals_closed_form_for_any_scenario(m1, m2, kcs, zeta, k_fraction, v1, closing):
+    bcs = 2.0 * zeta * math.sqrt(kcs * m1 * m2 / (m1 + m2))
+    scn = ContactScenario(m1=m1, m2=m2, kcs=kcs, bcs=bcs, k=k_fraction * kcs, v1=v1, v2=v1 - closing)
+    fit = fit_impedance(scn)
+    # The fit works on absolute states, so it loses the digits by which the
+    # velocities exceed the closing velocity, and heavy damping (kcs p drowned
+    # in bcs p') costs more: a round-off bound, far below any physical effect.
+    speed_ratio = max(abs(scn.v1), abs(scn.v2)) / closing
+    assert fit.max_relative_deviation < 1e-9 * (1.0 + speed_ratio) * (1.0 + zeta), fit

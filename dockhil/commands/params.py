@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import warnings
 
 from dockhil.errors import DockhilError
@@ -146,5 +147,5 @@ def run(args: argparse.Namespace) -> int:
         f" to {fit.max_relative_deviation:.2g} (relative)"
     )
     for note in fit.warnings:
-        print(f"warning: {note}")
+        print(f"dockhil params: warning: {note}", file=sys.stderr)
     return 0

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dockhil.contact.hybrid import VirtualImpedance
-from dockhil.contact.ideal import _force_stationary_time, _modes, contact_duration, ideal_trajectory
+from dockhil.contact.ideal import _modes, contact_duration, ideal_trajectory
 from dockhil.contact.integrators import METHODS, Integrator, LinearSecondOrderSystem, simulate_reference
 from dockhil.contact.scenario import (
     ContactModelError,
@@ -77,21 +77,39 @@ def negative_stiffness_message(scenario: ContactScenario) -> str | None:
     )
 
 
+def _deepest_penetration_time(scenario: ContactScenario) -> float:
+    """Time [s] after onset at which p' = 0 (inf for a pure damper)."""
+    mo = _modes(scenario.reduced_mass, scenario.kcs, scenario.bcs)
+    if mo.underdamped:
+        return math.atan2(mo.omega_d, mo.sigma) / mo.omega_d
+    if mo.mu == 0.0:
+        return 1.0 / mo.sigma
+    fast = mo.sigma + mo.mu
+    if 2.0 * mo.mu >= fast:  # kcs = 0: the slow root is 0, p never peaks
+        return math.inf
+    return -math.log1p(-2.0 * mo.mu / fast) / (2.0 * mo.mu)
+
+
 def _fit_window(scenario: ContactScenario) -> tuple[float, float, float]:
     """(recommended t1, t2, contact duration) for the fit."""
     m = scenario.reduced_mass
     duration = contact_duration(m, scenario.kcs, scenario.bcs)
-    if math.isfinite(duration):
-        # A quarter period apart: the rows (p, p'/omega) are then nearly orthogonal.
+    if math.isfinite(duration) and scenario.damping_ratio < 0.5:
+        # A quarter period apart: the rows (omega p, p') are then nearly orthogonal.
         return 0.25 * duration, 0.75 * duration, duration
-    mo = _modes(m, scenario.kcs, scenario.bcs)
-    t_char = 1.0 / (mo.sigma - mo.mu) if mo.sigma > mo.mu else 1.0 / (2.0 * mo.sigma)
-    t_peak = _force_stationary_time(m, scenario.kcs, scenario.bcs) or t_char
-    return 0.5 * min(t_peak, t_char), 2.0 * min(t_peak, t_char), duration
+    # Heavier damping: the motion dies out long before p returns to zero (if
+    # ever), so use half the time of deepest penetration and that time itself,
+    # where p' = 0 and the row isolates the stiffness that damping would swamp.
+    t_ref = _deepest_penetration_time(scenario)
+    if not math.isfinite(t_ref):  # pure damper: its time constant
+        t_ref = scenario.reduced_mass / scenario.bcs
+    return 0.5 * t_ref, t_ref, duration
 
 
 def recommended_fit_times(scenario: ContactScenario) -> tuple[float, float]:
-    """Two well-separated times [s] after onset inside the contact: T/4 and 3T/4."""
+    """Two well-separated times [s] after onset inside the contact: T/4 and 3T/4
+    of the contact duration T when the damping ratio is below 0.5; otherwise
+    half the time of deepest penetration and that time itself."""
     t1, t2, _ = _fit_window(scenario)
     return t1, t2
 
@@ -139,7 +157,7 @@ def ideal_states(
             for _ in range(int(steps)):
                 x = integ.step(x, None, dt)
             if rest > 0.0:
-                x = integ.step(x, None, rest) if source == "exact" else integ._partial_step(x, np.zeros(2), rest)
+                x = integ.step(x, None, rest) if source == "exact" else integ.step_uncached(x, np.zeros(2), rest)
             out[j] = x
         x1, x2, v1, v2 = out.T
     else:
@@ -235,11 +253,19 @@ def fit_impedance(
         raise FitError(f"t1 = t2 = {t1:.10g} s gives two identical rows of Eqs. 5-6 (singular); {advice}")
 
     st = ideal_states(scn, [t1, t2], states, dt)
+    omega = scn.natural_frequency if scn.kcs > 0.0 else scn.bcs / scn.reduced_mass
+    activity = np.hypot(omega * (st.x1 - st.x2), st.v1 - st.v2) / scn.closing_velocity
+    for name, t, level in (("t1", t1, activity[0]), ("t2", t2, activity[1])):
+        # Below this the states are round-off around the CoM motion, not contact.
+        if not level > 1e-7:
+            raise FitError(
+                f"at {name} = {t:.10g} s the contact motion has decayed to {level:.2g} of its"
+                f" initial size, too little to fit; {advice}"
+            )
     total = scn.total_mass
     wall = (scn.m1 * st.x1 + scn.m2 * st.x2) / total
     wall_rate = (scn.m1 * st.v1 + scn.m2 * st.v2) / total
     passive = scn.k * (st.x1 - st.x2)
-    omega = scn.natural_frequency if scn.kcs > 0.0 else scn.bcs / scn.reduced_mass
     chaser, cond1 = _solve_rows(
         np.column_stack([-(st.x1 - wall), -(st.v1 - wall_rate)]), scn.m1 * st.a1 + passive, omega
     )

@@ -262,9 +262,10 @@ class Integrator:
         phi, gamma = self.step_matrices(dt)
         return phi @ state + gamma @ (self._zero_force if force is None else force)
 
-    def _partial_step(self, state, force, dt: float) -> np.ndarray:
-        # Sub-steps to contact events are shorter than a checked step, so they
-        # are stable too; not cached because their lengths never repeat.
+    def step_uncached(self, state, force, dt: float) -> np.ndarray:
+        """One step without caching or stability check: for the sub-steps that
+        end at a contact event, which are shorter than a checked step (so
+        stable too) and whose lengths never repeat."""
         phi, gamma = step_matrices(self.system, self.method, dt)
         return phi @ state + gamma @ force
 
@@ -343,13 +344,13 @@ def simulate_contact(
         remaining = dt
         for _ in range(16):  # more events in one step than this would be chatter
             integ = contact if touching else free
-            x_new = integ.step(x, u, dt) if remaining == dt else integ._partial_step(x, u, remaining)
+            x_new = integ.step(x, u, dt) if remaining == dt else integ.step_uncached(x, u, remaining)
             p_new = x_new[0] - x_new[1]
             if not ((p_new <= 0.0) if touching else (p_new > 0.0)):
                 x = x_new
                 break
             tau = _locate_event(integ, x, u, remaining, touching, t_now)
-            x = integ._partial_step(x, u, tau)
+            x = integ.step_uncached(x, u, tau)
             t_now += tau
             remaining -= tau
             touching = not touching
@@ -359,6 +360,10 @@ def simulate_contact(
                 exit_time = t_now
             if remaining <= 0.0:
                 break
+        else:
+            raise ContactModelError(
+                f"more than 16 contact events within the step at t = {times[i]:.6g} s (chatter); use a smaller dt"
+            )
         states[i + 1], flags[i + 1] = x, touching
         forces[i + 1] = _contact_force(contact_sys, x, touching)
     return Trajectory(
@@ -380,7 +385,7 @@ def _locate_event(integ: Integrator, x, u, span: float, touching: bool, t_now: f
     returns the first point found on the new side, so the mode switch is safe."""
 
     def crossed(tau: float) -> bool:
-        y = integ._partial_step(x, u, tau)
+        y = integ.step_uncached(x, u, tau)
         p = y[0] - y[1]
         return p <= 0.0 if touching else p > 0.0
 
@@ -452,12 +457,13 @@ def simulate_reference(
             exit_time = t0
     states = np.empty((t_eval.size, 4))
     flags = np.empty(t_eval.size, dtype=bool)
-    for i, t in enumerate(t_eval):
-        for start, end, mode, dense in phases:
-            if t <= end or (start, end, mode, dense) == phases[-1]:
-                states[i] = dense(t)
-                flags[i] = mode
-                break
+    ends = np.array([end for _start, end, _mode, _dense in phases[:-1]])
+    # A sample at an event time belongs to the phase that starts there.
+    which = np.searchsorted(ends, t_eval, side="right")
+    for i, (t, k) in enumerate(zip(t_eval, which)):
+        _start, _end, mode, dense = phases[k]
+        states[i] = dense(t)
+        flags[i] = mode
     forces = np.array([_contact_force(contact_sys, s, f) for s, f in zip(states, flags)])
     return Trajectory(
         t=t_eval,

@@ -119,7 +119,7 @@ def pade_bound(m: float, b: float, h: float, order: int = 1, damper: str = "dela
     first = edges[0] if edges else 1.0
     if not _poly_stable(a_poly + 0.5 * first * b_poly):
         return None
-    return (edges[0] if edges else math.inf) * m / (h * h)
+    return float(edges[0]) * m / (h * h) if edges else math.inf
 
 
 def _solve_theta(beta: np.ndarray, damper: str) -> np.ndarray:
