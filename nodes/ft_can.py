@@ -173,6 +173,7 @@ class FtCanDriver(Node):
                 )
             time.sleep(0.0005)
         if p.tare_samples:
+            got = got[:want]
             n = len(got)
             self.bias_force = tuple(sum(s.force[i] for s in got) / n for i in range(3))
             self.bias_torque = tuple(sum(s.torque[i] for s in got) / n for i in range(3))

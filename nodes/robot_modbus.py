@@ -270,6 +270,7 @@ class RobotModbusDriver(Node):
         self._first_t: float | None = None
         self._seen_readings = 0
         self._status_word = None
+        self.heartbeat_losses = 0
         client = ModbusTcpClient(p.host, port=p.port, timeout=p.timeout, retries=0)
         deadline = time.monotonic() + p.connect_timeout
         backoff = p.reconnect_min
@@ -416,8 +417,9 @@ class RobotModbusDriver(Node):
     def _status_changed(self, status: int) -> None:
         old = self._status_word
         self._status_word = status
-        if status & mm.STATUS_HEARTBEAT_LOST and (old is None or not old & mm.STATUS_HEARTBEAT_LOST):
-            if old is not None:
+        if status & mm.STATUS_HEARTBEAT_LOST and old is not None and not old & mm.STATUS_HEARTBEAT_LOST:
+            self.heartbeat_losses += 1
+            if self.heartbeat_losses == 1:  # the first one tells the story; close() reports the count
                 self.log(f"{self.device}: controller lost our heartbeat and holds; resuming on the next command")
 
     def _trip(self, limit: str, value, text: str) -> None:
@@ -441,6 +443,8 @@ class RobotModbusDriver(Node):
         for line in link.take_notes():
             self.log(line)
         link.client.close()
+        if self.heartbeat_losses > 1:
+            self.log(f"{self.device}: the controller lost our heartbeat {self.heartbeat_losses} times")
         if not held and self.tripped is None:
             self.log(f"{self.device}: could not hold the robot at close (not connected); "
                      f"the controller holds when our heartbeat stops")

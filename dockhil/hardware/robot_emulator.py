@@ -7,6 +7,9 @@ through a pure delay and a first-order lag:
     target(t) = setpoint written at t - delay
     d pose/dt = (target - pose) / tau            (tau = 0: pose = target)
 
+sampled once per servo cycle, so a setpoint takes effect up to one cycle
+after `delay` (a zero-order hold, as in a digital controller).
+
 Controller rules the driver relies on:
 - FOLLOWING needs ENABLE, no HOLD, a live heartbeat, and a setpoint written
   since the robot last stopped: after a hold, a lost heartbeat or a restart
@@ -138,11 +141,14 @@ class ServoModel:
             self._line.clear()
             self._target = self._actual_pose()  # stop where the robot is
             self.mode = mode
+        # The pose moves over the cycle that ends now toward the target held
+        # during it (a zero-order hold), then the target for the next cycle is
+        # taken from the delay line.
+        self._advance(now)
         if mode == FOLLOW:
             self._line.append((now, host.setpoint[:7]))
             while self._line and self._line[0][0] <= now - self.delay:
                 self._target = self._line.popleft()[1]
-        self._advance(now)
         self.cycles = (self.cycles + 1) & 0xFFFF
         self.inputs = mm.encode_inputs(self.status(), host.heartbeat, self.cycles, self.actual())
 

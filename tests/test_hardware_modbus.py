@@ -1,0 +1,391 @@
+"""Modbus TCP: the controller emulator's servo and rules, the robot driver against
+it over loopback (in a subprocess and in a thread), missing and lost connections."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from dockhil.errors import DeviceError, LaunchError
+from dockhil.hardware import modbus_map as mm
+from dockhil.hardware.robot_emulator import FOLLOW, HOLD, RobotControllerEmulator, ServoModel
+from dockhil.node import NodeContext, Tick
+from msgs import Header, Pose, RobotCommand, Twist, Vector3
+from nodes.robot_modbus import RobotModbusDriver
+
+pytest.importorskip("pymodbus")
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+SETPOINT = (0.004, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+# -- the servo and the controller's rules (no I/O, chosen times) -----------------
+
+
+def write(model: ServoModel, control: int, heartbeat: int, setpoint=None) -> None:
+    model.host_wrote(0, mm.encode_write(control, heartbeat, setpoint))
+
+
+def test_servo_follows_after_the_delay_with_first_order_lag():
+    model = ServoModel(delay=0.02, tau=0.01, heartbeat_timeout=1.0)
+    write(model, mm.CONTROL_ENABLE, 1, SETPOINT)
+    xs = {}
+    for i in range(0, 101):  # 1 ms cycles for 0.1 s
+        t = i * 0.001
+        model.cycle(t)
+        xs[i] = model.position[0]
+    assert model.mode == FOLLOW
+    assert xs[20] == 0.0  # nothing moves before the delay
+    # first-order lag from t = delay: x = sp * (1 - exp(-(t - delay) / tau))
+    for i in (30, 50, 100):
+        assert xs[i] == pytest.approx(0.004 * (1 - math.exp(-(i - 20) * 0.001 / 0.01)), rel=1e-9)
+    assert model.linear[0] == pytest.approx((xs[100] - xs[99]) / 0.001)
+    reading = mm.decode_inputs(model.inputs)
+    assert reading.actual[0] == pytest.approx(xs[100], abs=1e-6)
+    assert reading.status & mm.STATUS_FOLLOWING and reading.heartbeat == 1 and reading.cycle == 101
+
+
+def test_controller_holds_on_heartbeat_loss_and_resumes_only_on_a_fresh_setpoint():
+    model = ServoModel(heartbeat_timeout=0.1)  # no delay, no lag: the pose is the target of the last cycle
+    write(model, mm.CONTROL_ENABLE, 1, SETPOINT)
+    model.cycle(0.0)
+    model.cycle(0.001)
+    assert model.mode == FOLLOW and model.position[0] == pytest.approx(0.004)
+    model.cycle(0.15)  # the host went quiet
+    assert model.mode == HOLD and model.heartbeat_lost
+    assert mm.decode_inputs(model.inputs).status & mm.STATUS_HEARTBEAT_LOST
+    write(model, mm.CONTROL_ENABLE, 2)  # heartbeat back, but no setpoint since the stop
+    for i in range(5):
+        model.cycle(0.16 + i * 0.001)
+    assert model.mode == HOLD and not model.heartbeat_lost
+    model.host_wrote(mm.HR_SETPOINT, mm.encode_block((0.009,) + SETPOINT[1:]))
+    model.cycle(0.17)
+    model.cycle(0.171)
+    assert model.mode == FOLLOW and model.position[0] == pytest.approx(0.009)  # a fresh setpoint re-arms
+    write(model, mm.CONTROL_ENABLE | mm.CONTROL_HOLD, 3)
+    model.cycle(0.172)
+    x_hold = model.position[0]
+    assert model.mode == HOLD
+    write(model, mm.CONTROL_ENABLE, 4)  # HOLD cleared, but the setpoint registers are old
+    for i in range(5):
+        model.cycle(0.18 + i * 0.001)
+    assert model.mode == HOLD and model.position[0] == x_hold
+    write(model, mm.CONTROL_ENABLE, 5, SETPOINT)
+    model.cycle(0.19)
+    model.cycle(0.191)
+    assert model.mode == FOLLOW and model.position[0] == pytest.approx(0.004)
+
+
+def test_fault_holds_until_reset():
+    model = ServoModel()
+    write(model, mm.CONTROL_ENABLE, 1, SETPOINT)
+    model.cycle(0.0)
+    model.fault = True
+    write(model, mm.CONTROL_ENABLE, 2, SETPOINT)
+    model.cycle(0.001)
+    assert model.mode == HOLD and mm.describe_status(mm.decode_inputs(model.inputs).status) == "fault"
+    write(model, mm.CONTROL_ENABLE | mm.CONTROL_RESET, 3, SETPOINT)
+    model.cycle(0.002)
+    assert not model.fault and model.holding[mm.HR_CONTROL] == mm.CONTROL_ENABLE
+
+
+# -- helpers ----------------------------------------------------------------------
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start_emulator(port: int = 0, *args: str) -> tuple[subprocess.Popen, int]:
+    proc = subprocess.Popen([sys.executable, "-m", "dockhil.hardware.robot_emulator", "--port", str(port), *args],
+                            cwd=ROOT, env=ENV, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    line = []
+    reader = threading.Thread(target=lambda: line.append(proc.stdout.readline()), daemon=True)
+    reader.start()
+    reader.join(10)
+    assert line and line[0].startswith("listening 127.0.0.1:"), proc.stderr.read() if proc.poll() is not None else ""
+    return proc, int(line[0].rsplit(":", 1)[1])
+
+
+def end(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.kill()
+    proc.wait(timeout=5)
+    proc.stdout.close()
+    proc.stderr.close()
+
+
+class Drive:
+    """Steps a driver in wall time, building fresh commands."""
+
+    def __init__(self, node):
+        self.node = node
+        self.k = 0
+        self.t0 = time.monotonic()
+        self.states = []
+
+    def now(self) -> float:
+        return time.monotonic() - self.t0
+
+    def command(self, x: float = 0.0, v: float = 0.0, y: float = 0.0, enable: bool = True) -> RobotCommand:
+        t = self.now()
+        return RobotCommand(header=Header(stamp=t, tick=self.k, seq=self.k),
+                            pose=Pose(position=Vector3(x=x, y=y)), twist=Twist(linear=Vector3(x=v)), enable=enable)
+
+    def step(self, command=None, wrench=None, estop=None):
+        out = self.node.step(Tick(self.k, self.now(), 0.001), {"command": command, "wrench": wrench, "estop": estop})
+        self.k += 1
+        if out:
+            self.states.append((self.now(), out["state"]))
+        return out
+
+    def run(self, seconds: float, make=lambda d: {}):
+        end_t = time.monotonic() + seconds
+        while time.monotonic() < end_t:
+            self.step(**make(self))
+            time.sleep(0.001)
+
+
+def driver(port: int, logs: list | None = None, **params) -> RobotModbusDriver:
+    log = logs.append if logs is not None else (lambda line: None)
+    params.setdefault("ft_timeout", 0.0)
+    return RobotModbusDriver(NodeContext("robot", 0.001, sim_time=False, log=log), port=port, **params)
+
+
+def read_holding(port: int) -> mm.HostWrite:
+    from pymodbus.client import ModbusTcpClient
+
+    client = ModbusTcpClient("127.0.0.1", port=port, timeout=1.0, retries=0)
+    assert client.connect()
+    try:
+        return mm.decode_holding(client.read_holding_registers(0, count=mm.HR_COUNT, device_id=1).registers)
+    finally:
+        client.close()
+
+
+# -- driver and emulator across processes -------------------------------------------
+
+
+def test_driver_follows_through_the_emulator_across_processes():
+    proc, port = start_emulator(0, "--delay", "0.02", "--tau", "0.01")
+    node = driver(port)
+    try:
+        node.setup()
+        drive = Drive(node)
+
+        def ramp(d):  # rest, then 0.05 m/s for 0.2 s, then rest at 10 mm
+            t = d.now() - 0.1
+            x = min(max(t, 0.0) * 0.05, 0.01)
+            return {"command": d.command(x=x, v=0.05 if 0 < t < 0.2 else 0.0)}
+
+        drive.run(0.6, ramp)
+        times = [t for t, s in drive.states if s.pose.position.x > 1e-5]
+        assert times, "the robot never moved"
+        assert times[0] - 0.1 >= 0.02 - 0.003  # the servo delay shows (less one servo and one poll cycle)
+        last = drive.states[-1][1]
+        assert last.pose.position.x == pytest.approx(0.01, abs=2e-6)
+        assert last.status == "ok" and last.pose.orientation.w == pytest.approx(1.0)
+        ramp_speeds = sorted(s.twist.linear.x for _, s in drive.states if 0.003 < s.pose.position.x < 0.007)
+        assert ramp_speeds[len(ramp_speeds) // 2] == pytest.approx(0.05, rel=0.3)  # median: robust to jitter
+        assert len(drive.states) > 150  # the actual pose arrives at about the command rate
+        # Each fresh command is written at most once; a busy machine skips to the newest.
+        assert 0.5 * drive.k <= node.link.writes <= drive.k
+        assert read_holding(port).setpoint[0] == pytest.approx(0.01)
+    finally:
+        node.close()
+        end(proc)
+
+
+def test_lost_connection_reconnects_and_never_sends_a_stale_setpoint():
+    lag = ("--tau", "0.05")  # a lagging servo: moving 2 mm takes no jump
+    proc, port = start_emulator(0, *lag)
+    logs: list[str] = []
+    node = driver(port, logs)
+    try:
+        node.setup()
+        drive = Drive(node)
+        drive.run(0.2, lambda d: {"command": d.command(x=0.002)})
+        assert drive.states[-1][1].pose.position.x == pytest.approx(0.002, rel=0.05)
+        end(proc)  # the controller dies
+        n_before = len(drive.states)
+        # Fresh commands keep coming while it is gone; none of them may reach the new controller.
+        drive.run(0.3, lambda d: {"command": d.command(x=0.002)})
+        assert len(drive.states) - n_before <= 2  # no actual pose, no state (one may have been in flight)
+        assert [line for line in logs if "connection lost" in line][0].endswith("; reconnecting")
+        proc, _ = start_emulator(port, *lag)  # a new controller on the same port, at x = 0
+        held = drive.command(x=0.002)
+        deadline = time.monotonic() + 5
+        while node.link.reconnects == 0 and time.monotonic() < deadline:
+            drive.step(command=held)  # the same message again: not fresh
+            time.sleep(0.001)
+        assert node.link.reconnects == 1
+        drive.run(0.1, lambda d: {"command": held})
+        state = drive.states[-1][1]
+        assert state.status == "holding" and state.pose.position.x == 0.0
+        assert read_holding(port).setpoint == mm.HOLD_POSE  # the restarted controller never got a setpoint
+        assert any("reconnected after" in line for line in logs)
+        drive.run(0.2, lambda d: {"command": d.command(x=0.002)})  # fresh commands move it again
+        state = drive.states[-1][1]
+        assert state.status == "ok" and state.pose.position.x == pytest.approx(0.002, rel=0.05)
+    finally:
+        node.close()
+        end(proc)
+
+
+def test_connection_lost_too_long_is_an_error():
+    proc, port = start_emulator(0)
+    node = driver(port, reconnect_timeout=0.3)
+    try:
+        node.setup()
+        drive = Drive(node)
+        drive.run(0.05, lambda d: {"command": d.command()})
+        end(proc)
+        t = time.monotonic()
+        with pytest.raises(DeviceError) as err:
+            drive.run(3.0, lambda d: {"command": d.command()})
+        assert time.monotonic() - t < 1.0
+        text = str(err.value)
+        assert "\n" not in text
+        assert text.startswith(f"robot controller (Modbus TCP 127.0.0.1:{port}): connection lost for 0.")
+        assert "reconnect_timeout 0.3 s" in text
+    finally:
+        node.close()
+        end(proc)
+
+
+# -- missing or wrong device ----------------------------------------------------------
+
+
+def test_missing_controller_fails_fast_with_one_line():
+    port = free_port()
+    node = driver(port, connect_timeout=0.5)
+    t = time.monotonic()
+    with pytest.raises(DeviceError) as err:
+        node.setup()
+    assert time.monotonic() - t < 1.5
+    assert str(err.value) == (f"robot controller (Modbus TCP 127.0.0.1:{port}): no connection within 0.5 s: "
+                              "Connection refused")
+
+
+class ForeignDevice(RobotControllerEmulator):
+    """A Modbus server with some other register map."""
+
+    async def _action(self, function_code, start_address, address, count, registers, set_values):
+        return None  # input registers stay 0: no magic number
+
+
+def test_a_device_with_another_register_map_is_refused():
+    other = ForeignDevice(port=0)
+    port = other.start_thread()
+    try:
+        with pytest.raises(DeviceError, match=r"not a dockhil robot controller: input registers 0-1 read 0x0000 0"):
+            driver(port).setup()
+    finally:
+        other.stop_thread()
+
+
+def test_node_process_exits_non_zero_with_one_line_when_the_controller_is_missing():
+    port = free_port()
+    spec = {"name": "robot", "type_name": "robot_modbus", "dt": 0.001, "clock": "wall",
+            "params": {"port": port, "connect_timeout": 0.5}}
+    t = time.monotonic()
+    proc = subprocess.run([sys.executable, "-m", "dockhil.process", json.dumps(spec)], cwd=ROOT, env=ENV,
+                          capture_output=True, text=True, timeout=30)
+    assert time.monotonic() - t < 5.0
+    assert proc.returncode != 0
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert f"robot controller (Modbus TCP 127.0.0.1:{port})" in lines[0] and "Connection refused" in lines[0]
+
+
+def test_emulator_refuses_a_busy_port_with_one_line():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        proc = subprocess.run([sys.executable, "-m", "dockhil.hardware.robot_emulator", "--port", str(port)],
+                              cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=30)
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == f"robot emulator: error: cannot listen on 127.0.0.1:{port}: Address already in use"
+
+
+def test_sim_time_and_an_empty_workspace_are_refused():
+    with pytest.raises(LaunchError, match="runs only in wall time"):
+        RobotModbusDriver(NodeContext("robot", 0.001, sim_time=True)).setup()
+    with pytest.raises(LaunchError, match="workspace y_min 0.1 must be below y_max 0.1"):
+        driver(free_port(), y_min=0.1, y_max=0.1).setup()
+
+
+def test_modules_do_not_import_pymodbus_until_setup():
+    code = ("import sys, nodes.robot_modbus, nodes.robot_emulator, dockhil.hardware.robot_emulator; "
+            "print(sorted(m for m in ('can', 'serial', 'pymodbus') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=30)
+    assert out.stdout.strip() == "[]", out.stderr
+
+
+# -- driver and emulator in one process ---------------------------------------------------
+
+
+@pytest.fixture
+def controller():
+    em = RobotControllerEmulator(port=0, tau=0.005)
+    em.start_thread()
+    yield em
+    em.stop_thread()
+
+
+def test_close_holds_the_robot(controller):
+    node = driver(controller.port)
+    node.setup()
+    drive = Drive(node)
+    drive.run(0.1, lambda d: {"command": d.command(x=0.001)})
+    assert controller.call(lambda: controller.servo.mode) == FOLLOW
+    node.close()
+    assert controller.call(lambda: controller.servo.holding[mm.HR_CONTROL]) == mm.CONTROL_ENABLE | mm.CONTROL_HOLD
+    time.sleep(0.01)
+    assert controller.call(lambda: controller.servo.mode) == HOLD
+
+
+def test_disabled_command_holds_and_a_controller_fault_is_an_error(controller):
+    node = driver(controller.port)
+    node.setup()
+    try:
+        drive = Drive(node)
+        drive.run(0.05, lambda d: {"command": d.command(x=0.0005)})
+        drive.run(0.05, lambda d: {"command": d.command(x=0.0005, enable=False)})
+        assert drive.states[-1][1].status == "holding"
+        controller.inject_fault()
+        with pytest.raises(DeviceError, match=r"controller reports a fault \(status 0x0007\); holding"):
+            drive.run(0.5, lambda d: {"command": d.command(x=0.0005)})
+    finally:
+        node.close()
+
+
+def test_driver_logs_when_the_controller_lost_its_heartbeat(controller):
+    logs: list[str] = []
+    node = driver(controller.port, logs)
+    node.setup()
+    try:
+        drive = Drive(node)
+        drive.run(0.05, lambda d: {"command": d.command()})
+        controller.call(setattr, controller.servo, "heartbeat_timeout", 0.0)  # as if our writes stalled
+        drive.run(0.05, lambda d: {"command": d.command()})
+        assert any(s.status == "heartbeat-lost" for _, s in drive.states)
+        assert [line for line in logs if "heartbeat" in line] == [
+            f"robot controller (Modbus TCP 127.0.0.1:{controller.port}): controller lost our heartbeat and holds; "
+            "resuming on the next command"]  # once, however often it flickers
+    finally:
+        node.close()
+    assert node.heartbeat_losses > 1 and f"lost our heartbeat {node.heartbeat_losses} times" in logs[-1]
