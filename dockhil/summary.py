@@ -119,3 +119,15 @@ class Collector:
             # Compressive force on the chaser: minus (measured + virtual) force along +x.
             force = np.array([-(self.ft.get(k, 0.0) + self.virtual.get(k, 0.0)) for k in ticks])
         return Samples(t, p, pd, force)
+
+
+def growth_rate(t: np.ndarray, y: np.ndarray) -> float:
+    """Exponential growth rate [1/s] of an oscillation's envelope: a least-squares line
+    through log |peaks| of y about its median (positive grows, negative settles)."""
+    e = np.asarray(y, float) - np.median(y)
+    a = np.abs(e)
+    peaks = np.nonzero((a[1:-1] > a[:-2]) & (a[1:-1] >= a[2:]))[0] + 1
+    peaks = peaks[a[peaks] > 0.0]
+    if peaks.size < 4:
+        raise ValueError("fewer than 4 peaks: run longer to measure a growth rate")
+    return float(np.polyfit(np.asarray(t, float)[peaks], np.log(a[peaks]), 1)[0])
