@@ -190,10 +190,11 @@ class ImpedanceFit:
 def _solve_rows(rows: np.ndarray, rhs: np.ndarray, omega: float) -> tuple[np.ndarray, float]:
     scaled = rows * np.array([omega, 1.0])
     cond = float(np.linalg.cond(scaled))
-    if not math.isfinite(cond):
+    try:
+        sol = np.linalg.solve(scaled, rhs) * np.array([omega, 1.0])
+    except np.linalg.LinAlgError:  # exactly singular: refused by the caller
         return np.full(2, np.nan), math.inf
-    sol = np.linalg.solve(scaled, rhs) * np.array([omega, 1.0])
-    return sol, cond
+    return sol, cond if math.isfinite(cond) else math.inf
 
 
 def _relative_deviation(fit: VirtualImpedance, ref: VirtualImpedance, scenario: ContactScenario) -> float:
@@ -224,8 +225,10 @@ def fit_impedance(
     """The two-time fit of Eqs. 5-6 (signs corrected) on the ideal model's states.
 
     t1, t2: times [s] after contact onset, strictly inside the contact;
-    default T/4 and 3T/4 of the contact duration T. Refuses (FitError) equal
-    times, times outside the contact and ill-conditioned pairs, saying which
+    default `recommended_fit_times` (T/4 and 3T/4 of the contact duration T
+    for light damping). states: where the ideal states come from (see
+    `ideal_states`). Refuses (FitError) equal times, times outside the
+    contact or after it has died out, and ill-conditioned pairs, saying which
     times to choose. Warns (NegativeVirtualStiffnessWarning) when kcs < k.
     """
     scn = scenario
@@ -235,12 +238,9 @@ def fit_impedance(
             " needs > 0); the result does not depend on the velocities, so any v1 > v2 will do"
         )
     rec1, rec2, duration = _fit_window(scn)
-    advice = (
-        f"choose two distinct times inside the contact (0, {duration:.6g}) s, about a quarter"
-        f" period apart, e.g. t1 = {rec1:.4g} s and t2 = {rec2:.4g} s"
-        if math.isfinite(duration)
-        else f"choose two distinct times after onset, e.g. t1 = {rec1:.4g} s and t2 = {rec2:.4g} s"
-    )
+    where = f"inside the contact (0, {duration:.6g}) s" if math.isfinite(duration) else "after onset"
+    spacing = ", about a quarter period apart" if scn.damping_ratio < 0.5 else ""
+    advice = f"choose two distinct times {where}{spacing}, e.g. t1 = {rec1:.4g} s and t2 = {rec2:.4g} s"
     t1 = rec1 if t1 is None else check_finite("t1", t1, "s")
     t2 = rec2 if t2 is None else check_finite("t2", t2, "s")
     for name, t in (("t1", t1), ("t2", t2)):
@@ -263,14 +263,16 @@ def fit_impedance(
                 f" initial size, too little to fit; {advice}"
             )
     total = scn.total_mass
-    wall = (scn.m1 * st.x1 + scn.m2 * st.x2) / total
-    wall_rate = (scn.m1 * st.v1 + scn.m2 * st.v2) / total
-    passive = scn.k * (st.x1 - st.x2)
+    # Offsets from the wall w = (m1 x1 + m2 x2) / M through the exact identities
+    # x1 - w = (m2/M) p and x2 - w = -(m1/M) p: subtracting w itself would cancel
+    # away the heavy body's tiny offset (about 1e-6 p for Table 1's target).
+    p, p_rate = st.x1 - st.x2, st.v1 - st.v2
+    passive = scn.k * p
     chaser, cond1 = _solve_rows(
-        np.column_stack([-(st.x1 - wall), -(st.v1 - wall_rate)]), scn.m1 * st.a1 + passive, omega
+        np.column_stack([-(scn.m2 / total) * p, -(scn.m2 / total) * p_rate]), scn.m1 * st.a1 + passive, omega
     )
     target, cond2 = _solve_rows(
-        np.column_stack([-(st.x2 - wall), -(st.v2 - wall_rate)]), scn.m2 * st.a2 - passive, omega
+        np.column_stack([(scn.m1 / total) * p, (scn.m1 / total) * p_rate]), scn.m2 * st.a2 - passive, omega
     )
     worst = max(cond1, cond2)
     if worst > max_condition:
