@@ -152,8 +152,8 @@ class Trajectory:
     """Sampled states of a two-body contact run (numpy arrays of one length).
 
     force is the compressive contact force on the chaser [N] (0 out of
-    contact); onset and exit are the contact start and end times [s], None
-    when the run does not reach them.
+    contact); onset and exit are the start and end times [s] of the first
+    contact, None when the run does not reach them.
     """
 
     t: "np.ndarray"
