@@ -19,6 +19,7 @@ REGISTRY: dict[str, str] = {
     "ft_emulator": "nodes.ft_emulator:FtSensorEmulator",
     "robot_modbus": "nodes.robot_modbus:RobotModbusDriver",
     "robot_emulator": "nodes.robot_emulator:RobotControllerEmulatorNode",
+    "bag_source": "nodes.bag_source:BagSource",
 }
 
 

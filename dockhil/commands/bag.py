@@ -62,6 +62,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="skip the first S seconds of the bag (default 0)")
     p.add_argument("--sim-time", action="store_true",
                    help="drive sim-time ticks from the bag's stamps instead of the wall clock")
+    p.add_argument("--subscribers", type=_non_negative_int, metavar="N",
+                   help="wait until each topic has N subscribers before playing "
+                        "(default 1 with --sim-time, 0 in wall time)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -179,6 +182,16 @@ def _positive_float(text: str) -> float:
 def _non_negative_float(text: str) -> float:
     value = _float(text)
     if not value >= 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text}") from None
+    if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
     return value
 

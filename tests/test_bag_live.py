@@ -1,0 +1,303 @@
+"""Bags with a running graph: launch --bag, bag record, bag play, bag_source."""
+
+from __future__ import annotations
+
+import csv
+import glob
+import json
+import os
+import resource
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from dockhil import cli
+from dockhil.bag import BagReader, BagWriter, info
+from msgs import Header, Vector3, Wrench, WrenchStamped, type_name
+from msgs.codec import encode
+from tests.conftest import dockhil_cmd
+
+# A driven loop: /drive (a seeded noisy source, silent at every 5th tick) feeds
+# the plant at the same tick; plant and gain close a loop through /x and /u.
+# With drive:=bag, /drive comes from a bag instead of from its source node.
+SCENE = """
+rate: 1000
+duration: 0.3
+args:
+  drive: {default: sim, choices: [sim, bag]}
+  bag: {default: "", help: "bag to take /drive from with drive:=bag"}
+  seed: {default: 7, help: "noise seed of the simulated drive"}
+nodes:
+  - {name: drive, node: "tests.bagnodes:Drive", params: {seed: $(arg seed), quiet_every: 5}, if: $(arg drive) == sim}
+  - {name: drive, node: bag_source, params: {path: $(arg bag), topics: [/drive]}, if: $(arg drive) == bag}
+  - {name: plant, node: "tests.bagnodes:Plant"}
+  - {name: gain, node: "tests.graphnodes:Gain"}
+"""
+TICKS = 301  # 0..300 at 1 kHz for 0.3 s
+
+
+def launch(scene, *args, timeout=60, **kw):
+    return subprocess.run(dockhil_cmd("launch", scene, *args), capture_output=True, text=True, timeout=timeout, **kw)
+
+
+def by_topic(path) -> dict[str, list[tuple[int, bytes]]]:
+    """topic -> [(log time ns, wire bytes)] in file order."""
+    out: dict[str, list[tuple[int, bytes]]] = {}
+    with BagReader(path) as reader:
+        for m in reader:
+            out.setdefault(m.topic, []).append((m.log_time_ns, m.data))
+    return out
+
+
+def assert_ok(r):
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "Traceback" not in r.stdout + r.stderr
+
+
+def one_line(text: str) -> str:
+    assert text.endswith("\n") and text.count("\n") == 1, text
+    assert "Traceback" not in text
+    return text
+
+
+def registered(prefix: str = "", node: str | None = None, timeout=20.0) -> dict:
+    """The registry entry of a running graph: run id starting with `prefix`, with `node` among its nodes."""
+    graphs = os.path.join(os.environ["DOCKHIL_RUNTIME_DIR"], "graphs")
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        for name in glob.glob(os.path.join(graphs, f"{prefix}*.json")):
+            try:
+                entry = json.load(open(name))
+            except (OSError, ValueError):
+                continue
+            if node is None or node in entry["nodes"]:
+                return entry
+        time.sleep(0.02)
+    raise AssertionError(f"no graph {prefix}* with node {node} registered")
+
+
+def play_and_record(bag, out, *play_args):
+    """`bag play BAG ...` with `bag record OUT` joined to it; both must end by themselves."""
+    play = subprocess.Popen(dockhil_cmd("bag", "play", bag, *play_args), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        registered("play-")
+        rec = subprocess.run(dockhil_cmd("bag", "record", out), capture_output=True, text=True, timeout=30)
+        _, play_err = play.communicate(timeout=30)
+    finally:
+        if play.poll() is None:
+            play.kill()
+    assert play.returncode == 0, play_err
+    assert_ok(rec)
+    return play_err, rec.stderr
+
+
+# --------------------------------------------------------------------------- round trip
+
+
+def test_launch_bag_round_trip_record_info_export_play(write_launch, tmp_path, capsys):
+    scene = write_launch(SCENE)
+    multi, composed = tmp_path / "multi.mcap", tmp_path / "composed.mcap"
+    r = launch(scene, "--bag", multi)
+    assert_ok(r)
+    assert f"[bag-recorder] recorded 843 messages on 3 topics to {multi}; 0 lost" in r.stdout
+    r = launch(scene, "--composed", "--bag", composed)
+    assert_ok(r)
+    assert f"[bag-recorder] recorded 843 messages on 3 topics to {composed}; 0 lost" in r.stderr
+
+    # One graph, two ways of running it: the same bytes at the same (sim) log times.
+    a, b = by_topic(multi), by_topic(composed)
+    assert a == b
+    assert {t: len(v) for t, v in a.items()} == {"/x": TICKS, "/u": TICKS, "/drive": TICKS - TICKS // 5}
+    assert [ns for ns, _ in a["/x"]] == [k * 1_000_000 for k in range(TICKS)]  # sim times, not wall times
+    assert [ns for ns, _ in a["/drive"]] == [k * 1_000_000 for k in range(TICKS) if k % 5 != 4]
+
+    code = cli.main(["bag", "info", str(multi), "--json"])
+    found = json.loads(capsys.readouterr().out)
+    assert code == 0 and found["recovered"] is False and found["duration_s"] == pytest.approx(0.3)
+    assert {t["topic"]: (t["type"], t["count"]) for t in found["topics"]} == {
+        "/x": ("dockhil/WrenchStamped", TICKS), "/u": ("dockhil/WrenchStamped", TICKS),
+        "/drive": ("dockhil/WrenchStamped", 241)}
+
+    out_csv = tmp_path / "x.csv"
+    assert cli.main(["bag", "export", str(multi), "--topic", "/x", "--csv", str(out_csv)]) == 0
+    with open(out_csv, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(row["header.tick"]) for row in rows] == list(range(TICKS))
+    with BagReader(multi) as reader:
+        xs = [m.decode().wrench.force.x for m in reader.messages(["/x"])]
+    assert [float(row["wrench.force.x"]) for row in rows] == xs
+
+    # Play in sim time to a recorder joined to the player: the same bag again.
+    replayed = tmp_path / "replayed.mcap"
+    play_err, rec_err = play_and_record(multi, replayed, "--sim-time")
+    assert "played 843 messages on 3 topics in tick order" in play_err
+    assert "0 lost" in rec_err
+    assert by_topic(replayed) == a
+
+
+# --------------------------------------------------------------------------- replay as a source
+
+
+def test_replay_as_source_reproduces_the_recorded_run(write_launch, tmp_path):
+    scene = write_launch(SCENE)
+    recorded = tmp_path / "recorded.mcap"
+    assert_ok(launch(scene, "--bag", recorded))
+    want = by_topic(recorded)
+
+    # /drive from the bag instead of its source node: every topic, bit for bit, multi-process and composed.
+    for mode in ([], ["--composed"]):
+        out = tmp_path / f"replay{len(mode)}.mcap"
+        r = launch(scene, "drive:=bag", f"bag:={recorded}", "--bag", out, *mode)
+        assert_ok(r)
+        assert by_topic(out) == want, mode
+
+    # The bag is what drives the replay: another seed gives another run.
+    other = tmp_path / "other.mcap"
+    assert_ok(launch(scene, "seed:=8", "--composed", "--bag", other))
+    assert by_topic(other)["/x"] != want["/x"]
+
+    # A run longer than the bag stops at the first tick the bag does not hold, in one line.
+    r = launch(scene, "drive:=bag", f"bag:={recorded}", "--duration", "0.5", "--composed")
+    assert r.returncode != 0
+    assert "has no tick 301: it ends at tick 300" in r.stderr and "Traceback" not in r.stderr
+    r = launch(scene, "drive:=bag", f"bag:={tmp_path / 'missing.mcap'}")
+    assert r.returncode == 2 and "missing.mcap: no such file" in one_line(r.stderr)
+
+
+# --------------------------------------------------------------------------- failures
+
+
+def test_recorder_killed_mid_run_leaves_a_readable_bag(write_launch, tmp_path):
+    scene = write_launch(SCENE)
+    path = tmp_path / "killed.mcap"
+    p = subprocess.Popen(dockhil_cmd("launch", scene, "--wall-time", "--duration", "20", "--bag", path),
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        recorder = registered(node="bag-recorder")["nodes"]["bag-recorder"]["pid"]
+        deadline = time.time() + 15
+        while time.time() < deadline and (not path.exists() or path.stat().st_size < 30_000):
+            time.sleep(0.05)  # a few chunks on disk
+        os.kill(recorder, signal.SIGKILL)
+        out, _ = p.communicate(timeout=30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode != 0
+    assert "[launch] node 'bag-recorder' was killed by SIGKILL while running; stopping the graph" in out
+    assert "Traceback" not in out
+
+    found = info(path)
+    assert found["recovered"] is True
+    counts = {t["topic"]: t["count"] for t in found["topics"]}
+    assert counts["/x"] > 100 and counts["/u"] > 100
+    out_csv = tmp_path / "x.csv"
+    assert cli.main(["bag", "export", str(path), "--topic", "/x", "--csv", str(out_csv)]) == 0
+    with open(out_csv, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == counts["/x"]
+    seqs = [int(row["header.seq"]) for row in rows]
+    assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # nothing missing before the cut
+
+
+def test_unwritable_bag_fails_the_launch_in_one_line_before_any_node_runs(write_launch, tmp_path):
+    scene = write_launch(SCENE)
+    existing = tmp_path / "existing.mcap"
+    existing.write_bytes(b"keep me")
+    for bag, words in [(tmp_path / "no" / "run.mcap", "No such file or directory"),
+                       (existing, "already exists"), (tmp_path, "directory")]:
+        for mode in ([], ["--composed"]):
+            r = launch(scene, "--bag", bag, *mode)
+            assert r.returncode == 2, (bag, mode, r.stdout + r.stderr)
+            line = one_line(r.stderr)
+            assert line.startswith("dockhil launch: error: ") and str(bag) in line and words in line
+            assert r.stdout == ""  # no node started
+    assert existing.read_bytes() == b"keep me"
+
+    # `bag record` of a running graph: the same, one line.
+    r = subprocess.run(dockhil_cmd("bag", "record", tmp_path / "x.mcap"), capture_output=True, text=True)
+    assert r.returncode == 2 and "no running graph found" in one_line(r.stderr)
+    graphs = Path(os.environ["DOCKHIL_RUNTIME_DIR"]) / "graphs"
+    graphs.mkdir(exist_ok=True)
+    (graphs / "fake.json").write_text(json.dumps({
+        "run_id": "fake", "pid": os.getpid(), "file": "test", "clock": "wall", "nodes": {},
+        "topics": {"/x": {"type": "dockhil/WrenchStamped", "endpoint": "tcp://127.0.0.1:9", "publisher": "t"}}}))
+    try:
+        r = subprocess.run(dockhil_cmd("bag", "record", tmp_path / "no" / "x.mcap"), capture_output=True, text=True)
+        assert r.returncode == 2 and "No such file or directory" in one_line(r.stderr)
+        r = subprocess.run(dockhil_cmd("bag", "record", tmp_path / "x.mcap", "--topics", "/nope"),
+                           capture_output=True, text=True)
+        assert r.returncode == 2 and "topic /nope is not published by any running graph; topics: /x" in one_line(r.stderr)
+    finally:
+        (graphs / "fake.json").unlink()
+
+
+def _small_file_limit():
+    # The disk "fills up" at 20 kB for this process and its children (Python ignores SIGXFSZ: writes fail).
+    resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, 20_000))
+
+
+@pytest.mark.parametrize("mode", ["multi", "composed"])
+def test_full_disk_stops_recording_in_one_line_and_the_graph_runs_on(write_launch, tmp_path, mode):
+    scene = write_launch(SCENE)
+    path = tmp_path / "full.mcap"
+    r = launch(scene, "--duration", "1", "--bag", path, *(["--composed"] if mode == "composed" else []),
+               preexec_fn=_small_file_limit)
+    assert_ok(r)  # the run completes
+    text = r.stdout + r.stderr
+    stopped = [line for line in text.splitlines() if "recording stopped" in line and "error" in line]
+    assert len(stopped) == 1 and "File too large (EFBIG)" in stopped[0] and "the graph keeps running" in stopped[0]
+    assert "[launch] done: 1 s simulated" in text
+    found = info(path)
+    assert found["recovered"] is True and 0 < found["messages"] < 3 * 1001
+    report = next(line for line in text.splitlines() if "[bag-recorder] recorded" in line)
+    assert f"recorded {found['messages']} messages" in report
+    assert f"{1001 + 1001 + 801 - found['messages']} lost" in report
+
+
+# --------------------------------------------------------------------------- play
+
+
+def write_wrench_bag(path, seconds: float, rate_hz: float) -> list[bytes]:
+    n = int(seconds * rate_hz) + 1
+    data = []
+    with BagWriter(path) as bag:
+        bag.add_topic("/ft/wrench", type_name(WrenchStamped))
+        for k in range(n):
+            ns = 1_700_000_000_000_000_000 + int(k * 1e9 / rate_hz)
+            msg = encode(WrenchStamped(header=Header(stamp=k / rate_hz, tick=k, seq=k),
+                                       wrench=Wrench(force=Vector3(x=0.5 * k))))
+            bag.write("/ft/wrench", ns, ns, msg)
+            data.append(msg)
+    return data
+
+
+def test_play_rate_scales_the_recorded_timing(tmp_path):
+    bag, out = tmp_path / "3s.mcap", tmp_path / "played.mcap"
+    sent = write_wrench_bag(bag, 3.0, 100.0)
+    started = time.monotonic()
+    play_err, _ = play_and_record(bag, out, "--rate", "10", "--subscribers", "1")
+    assert time.monotonic() - started < 3.0  # well under the bag's own 3 s
+    played_s = float(play_err.split(" in ")[-1].split(" s")[0])
+    assert 0.29 <= played_s < 0.6, play_err
+    got = by_topic(out)["/ft/wrench"]
+    assert [d for _, d in got] == sent
+    span = (got[-1][0] - got[0][0]) / 1e9  # receive times in the new bag
+    assert 0.25 < span < 0.6
+
+
+def test_play_refuses_bad_files_and_topics_in_one_line(tmp_path, capsys):
+    bag = tmp_path / "ok.mcap"
+    write_wrench_bag(bag, 0.1, 100.0)
+    text = tmp_path / "text.mcap"
+    text.write_text("time,force\n")
+    for args, words in [([text], "not an MCAP bag"), ([tmp_path / "none.mcap"], "no such file"),
+                        ([bag, "--topics", "/nope"], "no messages on /nope; topics in the bag: /ft/wrench"),
+                        ([bag, "--start", "5"], "no message after --start 5 s")]:
+        code = cli.main(["bag", "play", *map(str, args)])
+        err = capsys.readouterr().err
+        assert code == 2 and words in one_line(err), err
