@@ -317,7 +317,7 @@ class RobotModbusDriver(Node):
 
         estop = inputs.get("estop")
         if estop is not None and estop.active:
-            self._trip("estop", estop.reason or "active", f"e-stop active ({estop.reason or 'no reason given'})")
+            self._trip("estop", estop.reason or "active", f"estop: e-stop active ({estop.reason or 'no reason given'})")
 
         ft_fresh = self._check_wrench(inputs.get("wrench"), t)
 
