@@ -31,6 +31,10 @@ from dockhil.process import READY
 from dockhil.transport import ipc_endpoint, runtime_dir
 
 
+class _Ticked(msgspec.Struct):
+    header: msgs.Header
+
+
 @dataclass
 class ExtraProcess:
     """A helper process that subscribes to topics (a recorder): it counts as
@@ -123,7 +127,8 @@ class _Child:
 
 class Launcher:
     def __init__(self, graph: Graph, *, clock: str = "sim", duration: float | None = None,
-                 transport: str = "ipc", extra: list[ExtraProcess] | None = None, out=None):
+                 transport: str = "ipc", extra: list[ExtraProcess] | None = None, out=None,
+                 progress: bool = False):
         self.graph = graph
         self.clock = clock
         self.extra = extra or []
@@ -132,6 +137,7 @@ class Launcher:
         self.out = out or sys.stdout
         self.endpoints = assign_endpoints(graph, transport)
         self.specs = run_specs(graph, self.endpoints, clock, self.n_ticks, self.extra)
+        self.progress = progress and clock == "sim" and self.n_ticks is not None
         self._print_lock = threading.Lock()
         self._stop_signal: int | None = None
         self.children: list[_Child] = []
@@ -224,8 +230,50 @@ class Launcher:
                 registry.unlink(missing_ok=True)
             shutil.rmtree(self.endpoints.run_dir, ignore_errors=True)
 
+    def _progress_probe(self):
+        """A subscriber on one topic whose header ticks tell how far the graph is."""
+        import zmq
+
+        from dockhil.transport import Subscriber
+
+        topic = next(iter(self.endpoints.topics), None)
+        if topic is None:
+            return None
+        sub = Subscriber(zmq.Context.instance())
+        sub.connect(self.endpoints.topics[topic])
+        return sub
+
+    def _show_progress(self, probe, bar) -> None:
+        import msgspec
+
+        tick = None
+        while (frames := probe.recv_nowait()) is not None:
+            if len(frames) == 2:
+                try:
+                    tick = msgspec.msgpack.decode(frames[1], type=_Ticked).header.tick
+                except (msgspec.DecodeError, msgspec.ValidationError):
+                    pass
+        if tick is not None:
+            bar.update(tick + 1)
+
     def _watch(self) -> int:
+        probe = bar = None
+        if self.progress:
+            from dockhil.progress import Progress
+
+            probe, bar = self._progress_probe(), Progress(self.n_ticks, self.graph.scene.dt)
+        try:
+            return self._watch_children(probe, bar)
+        finally:
+            if bar is not None:
+                bar.done()
+            if probe is not None:
+                probe.close()
+
+    def _watch_children(self, probe, bar) -> int:
         while True:
+            if probe is not None:
+                self._show_progress(probe, bar)
             if self._stop_signal is not None:
                 name = signal.Signals(self._stop_signal).name
                 self.say(f"[launch] {name}: stopping the graph")
