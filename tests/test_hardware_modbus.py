@@ -199,7 +199,7 @@ def test_driver_follows_through_the_emulator_across_processes():
         assert last.status == "ok" and last.pose.orientation.w == pytest.approx(1.0)
         ramp_speeds = sorted(s.twist.linear.x for _, s in drive.states if 0.003 < s.pose.position.x < 0.007)
         assert ramp_speeds[len(ramp_speeds) // 2] == pytest.approx(0.05, rel=0.3)  # median: robust to jitter
-        assert len(drive.states) > 150  # the actual pose arrives at about the command rate
+        assert len(drive.states) > 0.3 * drive.k  # fresh actual poses keep coming (fewer on a busy machine)
         # Each fresh command is written at most once; a busy machine skips to the newest.
         assert 0.5 * drive.k <= node.link.writes <= drive.k
         assert read_holding(port).setpoint[0] == pytest.approx(0.01)
