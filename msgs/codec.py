@@ -42,6 +42,8 @@ def decode(buf: bytes, cls: type):
         raise DecodeError(f"{cls.__name__}: {text}") from None
     except msgspec.DecodeError as exc:
         raise DecodeError(f"{cls.__name__}: not msgpack ({exc})") from None
+    except UnicodeDecodeError as exc:  # a map key or string that is not UTF-8
+        raise DecodeError(f"{cls.__name__}: a string is not valid UTF-8 ({exc.reason} at byte {exc.start})") from None
 
 
 def schema(cls: type) -> dict:

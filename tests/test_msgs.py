@@ -92,3 +92,10 @@ def test_wrong_message_type_and_unknown_fields_refused():
     with pytest.raises(DecodeError, match="unknown field `fx`"):
         decode(msgpack.packb({"header": {}, "wrench": {"force": {"fx": 1.0}}}), msgs.WrenchStamped)
     assert msgpack.unpackb(encode(msgs.EStop(header=msgs.Header())))["type"] == "dockhil/EStop"
+
+
+@pytest.mark.parametrize("data", [b"\x81\xa4type\xa3\xff\xfe\xfd", b"\x81\xa3\xff\xfe\xfd\x01"])
+def test_invalid_utf8_is_a_decode_error(data):
+    for cls in msgs.TYPES.values():
+        with pytest.raises(DecodeError, match="UTF-8|Expected|Invalid|unknown"):
+            decode(data, cls)
