@@ -53,7 +53,12 @@ def main(argv: list[str] | None = None) -> int:
     if only is not None and only not in COMMANDS:
         only = None
     parser = build_parser(only)
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    # ROS 2 style `name:=value` may come after options: gather them wherever they stand.
+    if unknown and hasattr(args, "overrides") and all(":=" in u and not u.startswith("-") for u in unknown):
+        args.overrides = list(args.overrides or []) + unknown
+    elif unknown:
+        parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     if args.command is None:
         parser.print_help()
         return 0

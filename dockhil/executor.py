@@ -214,6 +214,8 @@ class NodeExecutor:
 
     def run_wall(self, duration: float | None) -> dict:
         spec, node = self.spec, self.node
+        # As in sim time: what is sent before a subscriber (a recorder) has joined would be lost.
+        self.wait_for_subscribers()
         latest: dict[str, Any] = {port: None for port in spec.inputs}
         for port in self.unconnected:
             latest[port] = None

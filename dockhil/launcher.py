@@ -239,7 +239,7 @@ class Launcher:
         topic = next(iter(self.endpoints.topics), None)
         if topic is None:
             return None
-        sub = Subscriber(zmq.Context.instance())
+        sub = Subscriber(zmq.Context.instance(), observer=True)
         sub.connect(self.endpoints.topics[topic])
         return sub
 

@@ -13,7 +13,7 @@ class Progress:
         self.stream = stream or sys.stderr
         self.tty = self.stream.isatty()
         self.start = time.perf_counter()
-        self.last = 0.0
+        self.last = self.start  # nothing to show for the first moments
         self.min_interval = min_interval if self.tty else 5.0  # logs get a line every few seconds
         self.shown = False
 

@@ -1,43 +1,89 @@
-"""One run of a scene: multi-process or composed, with optional recording and summary."""
+"""One run of a scene: multi-process or composed, with optional recording and summary.
+
+A sim-time run of a scene with satellite dynamics ends with its summary
+(peak force, contact duration, exit velocity, and the ideal model's where
+the scene has one). In a multi-process run the summary is read back from
+the run's bag: the one asked for with --bag, or a temporary one.
+"""
 
 from __future__ import annotations
 
+import json
+import os
 import sys
+import tempfile
 import time
 
+from dockhil.errors import DockhilError
 from dockhil.graph import Graph
 
 
 def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None, composed: bool = False,
               transport: str = "ipc", bag: str | None = None, summary: str | None = None,
-              progress: bool = False) -> int:
+              progress: bool = False, show_summary: bool = True) -> int:
+    from dockhil import summary as summ
+
     dt = graph.scene.dt
     n_ticks = None if duration is None else int(round(duration / dt)) + 1
+    has_dynamics = "/satellite/state" in graph.publishers
+    if summary is not None and not has_dynamics:
+        raise DockhilError(f"{graph.scene.path}: --summary needs a scene that publishes /satellite/state")
+    want_summary = has_dynamics and n_ticks is not None and (summary is not None or show_summary)
+    if summary is not None:
+        _check_writable(summary)
+    ideal_force = summ.scene_reference(graph).get("ideal_force")
+    collector = summ.Collector(ideal_force) if want_summary else None
+    tmp = None
     started = time.perf_counter()
     if composed:
-        code = _run_composed(graph, clock, n_ticks, progress, bag)
+        code = _run_composed(graph, clock, n_ticks, progress, bag, collector)
     else:
+        from dockhil import bag_live
         from dockhil.launcher import Launcher
 
+        if bag is None and want_summary:
+            tmp = tempfile.TemporaryDirectory(prefix="dockhil-summary-")
+            bag = os.path.join(tmp.name, "run.mcap")
         extra = []
         if bag is not None:
-            from dockhil import bag_live
-
             bag_live.check_bag_path(bag)  # a bag that cannot be written fails the launch before any node runs
             extra.append(bag_live.recorder_process(bag, graph, clock, n_ticks))
-        code = Launcher(graph, clock=clock, duration=duration, transport=transport, extra=extra).run()
+        code = Launcher(graph, clock=clock, duration=duration, transport=transport, extra=extra,
+                        progress=progress).run()
     elapsed = time.perf_counter() - started
-    if code == 0 and clock == "sim" and n_ticks:
-        sim_s = (n_ticks - 1) * dt
-        print(f"[launch] done: {sim_s:g} s simulated in {elapsed:.2f} s "
-              f"({sim_s / elapsed:.1f}x real time)", file=sys.stderr)
+    try:
+        if code == 0 and want_summary:
+            samples = collector.samples() if composed else summ.samples_from_bag(bag, ideal_force)
+            out = summ.scene_summary(graph, samples, elapsed)
+            if show_summary:
+                print(summ.format_summary(out), flush=True)
+            if summary is not None:
+                with open(summary, "w") as f:
+                    json.dump(out, f, indent=1)
+                print(f"summary written to {summary}", file=sys.stderr)
+        elif code == 0 and clock == "sim" and n_ticks:
+            sim_s = (n_ticks - 1) * dt
+            print(f"[launch] done: {sim_s:g} s simulated in {elapsed:.2f} s "
+                  f"({sim_s / elapsed:.1f}x real time)", file=sys.stderr)
+    finally:
+        if tmp is not None:
+            tmp.cleanup()
     return code
 
 
-def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool, bag: str | None = None) -> int:
+def _check_writable(path: str) -> None:
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise DockhilError(f"--summary {path}: folder {folder} does not exist")
+    if not os.access(folder, os.W_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
+        raise DockhilError(f"--summary {path}: not writable")
+
+
+def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool, bag: str | None,
+                  collector) -> int:
     from dockhil.composed import ComposedGraph
-    from dockhil.errors import DockhilError
     from dockhil.executor import Stop
+    from dockhil.progress import Progress
 
     stop = Stop()
     stop.install()
@@ -48,13 +94,18 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
 
         recorder = TapRecorder(bag, graph, sim=clock == "sim")
         g.taps.append(recorder)
+    if collector is not None:
+        g.taps.append(collector)
+    bar = Progress(n_ticks, graph.scene.dt) if progress and clock == "sim" else None
     try:
         g.setup()
-        g.run(n_ticks, wall=clock == "wall", stop=stop)
+        g.run(n_ticks, wall=clock == "wall", stop=stop, progress=bar.update if bar else None)
     except DockhilError as exc:
         print(f"[launch] error: {exc}", file=sys.stderr)
         return 1
     finally:
+        if bar is not None:
+            bar.done()
         try:
             g.close()
         finally:

@@ -131,3 +131,91 @@ def growth_rate(t: np.ndarray, y: np.ndarray) -> float:
     if peaks.size < 4:
         raise ValueError("fewer than 4 peaks: run longer to measure a growth rate")
     return float(np.polyfit(np.asarray(t, float)[peaks], np.log(a[peaks]), 1)[0])
+
+
+def samples_from_bag(path: str, ideal_force: tuple[float, float] | None = None) -> Samples:
+    """Per-tick series of a recorded run, through the same Collector the live summary uses."""
+    from dockhil.bag import BagReader
+
+    collect = Collector(ideal_force)
+    with BagReader(path) as bag:
+        for topic, _t, msg in bag.decoded(["/satellite/state", "/ft/wrench", "/impedance/wrench"]):
+            collect(topic, msg)
+    return collect.samples()
+
+
+def _first(graph, type_name: str):
+    return next((gn for gn in graph.nodes.values() if gn.type_name == type_name), None)
+
+
+def scene_reference(graph) -> dict:
+    """What the summary of this scene can be compared with, read from its nodes' parameters:
+    `ideal_force` (kcs, bcs) when the dynamics run the ideal model, `ideal` (the ideal
+    contact's parameters) for a free contact, `growth` (m, K, b, h) for a body pushed
+    against a fixed sheet through a delay (Figs. 11-12)."""
+    dyn = _first(graph, "satellite_dynamics")
+    if dyn is None:
+        return {}
+    p = dyn.params
+    out: dict = {}
+    if p["model"] == "ideal":
+        out["ideal_force"] = (p["kcs"], p["bcs"])
+        kcs, bcs = p["kcs"], p["bcs"]
+    else:
+        imp = _first(graph, "virtual_impedance")
+        kcs = bcs = None
+        if imp is not None and imp.params["mode"] == "determine":
+            kcs, bcs = imp.params["kcs"], imp.params["bcs"]
+    free_contact = p["thrust"] == 0.0 and p["m2"] > 0.0 and p["v1"] > p["v2"]
+    if kcs is not None and free_contact:
+        out["ideal"] = dict(m1=p["m1"], m2=p["m2"], kcs=kcs, bcs=bcs, v1=p["v1"], v2=p["v2"], x1=p["x1"], x2=p["x2"])
+    ft, imp, delay = _first(graph, "ft_sim"), _first(graph, "virtual_impedance"), _first(graph, "delay_injector")
+    if p["m2"] == 0.0 and p["thrust"] != 0.0 and ft and imp and delay and imp.params["mode"] == "given":
+        out["growth"] = dict(m=p["m1"], K=ft.params["k"], b=imp.params["b1"], h=delay.params["delay"])
+    return out
+
+
+def scene_summary(graph, s: Samples, run_time_s: float | None) -> dict:
+    """The run summary of a scene, with its ideal reference or predicted growth where it has one."""
+    ref = scene_reference(graph)
+    ideal = None
+    if "ideal" in ref and len(s.t):
+        ideal = ideal_reference(t=s.t, **ref["ideal"])
+    out = summarize(s, run_time_s=run_time_s, ideal=ideal)
+    if "growth" in ref and len(s.t):
+        from dockhil.contact.stability import growth_rate as predicted
+
+        g = ref["growth"]
+        try:
+            out["growth_rate_1_s"] = growth_rate(s.t, s.p)
+        except ValueError:
+            out["growth_rate_1_s"] = None
+        # The sampled loop holds forces over a step: on average half a step more delay.
+        out["predicted_growth_rate_1_s"] = predicted(g["m"], g["K"], g["b"], g["h"] + graph.scene.dt / 2,
+                                                     damper="undelayed")
+    return out
+
+
+def format_summary(out: dict) -> str:
+    """A few readable lines of a summary."""
+    def f(v, unit, fmt="{:.4g}"):
+        return "-" if v is None else fmt.format(v) + f" {unit}"
+
+    rtf = out.get("real_time_factor")
+    lines = [f"simulated {f(out['sim_time_s'], 's')} in {f(out['run_time_s'], 's', '{:.2f}')}"
+             + (f" ({rtf:.1f}x real time)" if rtf else "")]
+    rows = [("peak force", "peak_force_N", "N"), ("contact duration", "contact_duration_s", "s"),
+            ("exit velocity", "exit_velocity_mps", "m/s")]
+    if "ideal" in out:
+        lines.append(f"{'':18}{'run':>14}{'ideal':>14}{'error':>14}")
+        for label, key, unit in rows:
+            lines.append(f"{label:18}{f(out[key], unit):>14}{f(out['ideal'][key], unit):>14}"
+                         f"{f(out['error'][key], unit):>14}")
+        lines.append(f"{'max force error':18}{f(out['error']['max_force_N'], 'N'):>14}")
+    else:
+        for label, key, unit in rows:
+            lines.append(f"{label:18}{f(out[key], unit):>14}")
+    if "predicted_growth_rate_1_s" in out:
+        lines.append(f"{'growth rate':18}{f(out['growth_rate_1_s'], '1/s'):>14}   "
+                     f"predicted {f(out['predicted_growth_rate_1_s'], '1/s')} (rightmost root)")
+    return "\n".join(lines)

@@ -64,8 +64,9 @@ class Publisher:
                     f"a subscribing node did not start"
                 )
             if self.sock.poll(min(left, 0.2) * 1000, zmq.POLLIN):
-                frame = self.sock.recv()
-                if frame[:1] == b"\x01":
+                # Graph members subscribe to everything (b""); observers (progress, `topic echo`)
+                # subscribe to the prefix "/" and are not waited for.
+                if self.sock.recv() == b"\x01":
                     self.subscribers += 1
 
     def send(self, payload: bytes) -> None:
@@ -80,13 +81,16 @@ class Publisher:
 
 
 class Subscriber:
-    """One SUB socket connected to the endpoints of all of a node's inputs."""
+    """One SUB socket connected to the endpoints of all of a node's inputs.
 
-    def __init__(self, ctx: zmq.Context):
+    An observer (a progress display, `dockhil topic echo`) is not part of the
+    graph: sim time does not wait for it, and it may miss the first messages."""
+
+    def __init__(self, ctx: zmq.Context, observer: bool = False):
         self.sock = ctx.socket(zmq.SUB)
         self.sock.setsockopt(zmq.RCVHWM, 0)
         self.sock.setsockopt(zmq.LINGER, 0)
-        self.sock.setsockopt(zmq.SUBSCRIBE, b"")
+        self.sock.setsockopt(zmq.SUBSCRIBE, b"/" if observer else b"")
         self._connected: set[str] = set()
         self._timeout_ms = -1
 

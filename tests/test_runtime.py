@@ -185,3 +185,24 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
         if node.poll() is None:
             node.kill()
         pub.close()
+
+
+def test_observers_are_not_counted_as_subscribers(tmp_path):
+    """A progress probe or `topic echo` joining first must not let sim time start early."""
+    from dockhil.errors import DockhilError
+    from dockhil.transport import Publisher, Subscriber
+
+    ctx = zmq.Context.instance()
+    endpoint = f"ipc://{tmp_path}/t"
+    pub = Publisher(ctx, "/t", endpoint)
+    observer = Subscriber(ctx, observer=True)
+    observer.connect(endpoint)
+    with pytest.raises(DockhilError, match="0 of 1 subscribers joined"):
+        pub.wait_subscribers(1, 0.5)
+    member = Subscriber(ctx)
+    member.connect(endpoint)
+    pub.wait_subscribers(1, 5.0)
+    pub.send(b"\x80")
+    assert member.recv(5.0) == [b"/t", b"\x80"] and observer.recv(5.0) == [b"/t", b"\x80"]
+    for s in (pub, observer, member):
+        s.close()

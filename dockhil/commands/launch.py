@@ -25,7 +25,7 @@ def add_arguments(p) -> None:
                    help="ipc sockets on one host (default) or tcp on 127.0.0.1")
     p.add_argument("--bag", metavar="PATH", help="record every topic to this MCAP bag")
     p.add_argument("--summary", metavar="FILE.json", help="write the run summary (peak force, contact duration, ...)")
-    p.add_argument("--quiet", action="store_true", help="print no progress")
+    p.add_argument("--quiet", action="store_true", help="print no progress and no summary table")
 
 
 def run(args) -> int:
@@ -43,4 +43,4 @@ def run(args) -> int:
 
     return run_scene(graph, clock=args.clock, duration=duration, composed=args.composed,
                      transport=args.transport, bag=args.bag, summary=args.summary,
-                     progress=not args.quiet and sys.stderr.isatty())
+                     progress=not args.quiet, show_summary=not args.quiet)

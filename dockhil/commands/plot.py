@@ -16,15 +16,9 @@ def add_arguments(p) -> None:
 
 
 def load_samples(path: str, ideal_force=None):
-    """Per-tick series of one bag, through the same Collector the run summary uses."""
-    from dockhil.bag import BagReader
-    from dockhil.summary import Collector
+    from dockhil.summary import samples_from_bag
 
-    collect = Collector(ideal_force)
-    with BagReader(path) as bag:
-        for topic, _t, msg in bag.decoded(["/satellite/state", "/ft/wrench", "/impedance/wrench"]):
-            collect(topic, msg)
-    s = collect.samples()
+    s = samples_from_bag(path, ideal_force)
     if not len(s.t):
         raise DockhilError(f"{path}: no /satellite/state messages; record the dynamics' state to plot a run")
     return s

@@ -39,7 +39,7 @@ def _subscribe(endpoint: str):
     from dockhil.transport import Subscriber
     import zmq
 
-    sub = Subscriber(zmq.Context.instance())
+    sub = Subscriber(zmq.Context.instance(), observer=True)
     sub.connect(endpoint)
     return sub
 
