@@ -64,20 +64,20 @@ def one_line(text: str) -> str:
     return text
 
 
-def registered(prefix: str = "", node: str | None = None, timeout=20.0) -> dict:
-    """The registry entry of a running graph: run id starting with `prefix`, with `node` among its nodes."""
+def registered(pid: int, timeout=20.0) -> dict:
+    """The registry entry of the graph run by process `pid`."""
     graphs = os.path.join(os.environ["DOCKHIL_RUNTIME_DIR"], "graphs")
     deadline = time.time() + timeout
     while time.time() < deadline:
-        for name in glob.glob(os.path.join(graphs, f"{prefix}*.json")):
+        for name in glob.glob(os.path.join(graphs, "*.json")):
             try:
                 entry = json.load(open(name))
             except (OSError, ValueError):
                 continue
-            if node is None or node in entry["nodes"]:
+            if entry.get("pid") == pid:
                 return entry
         time.sleep(0.02)
-    raise AssertionError(f"no graph {prefix}* with node {node} registered")
+    raise AssertionError(f"process {pid} registered no graph")
 
 
 def play_and_record(bag, out, *play_args):
@@ -85,7 +85,7 @@ def play_and_record(bag, out, *play_args):
     play = subprocess.Popen(dockhil_cmd("bag", "play", bag, *play_args), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
-        registered("play-")
+        registered(play.pid)
         rec = subprocess.run(dockhil_cmd("bag", "record", out), capture_output=True, text=True, timeout=30)
         _, play_err = play.communicate(timeout=30)
     finally:
@@ -178,7 +178,7 @@ def test_recorder_killed_mid_run_leaves_a_readable_bag(write_launch, tmp_path):
     p = subprocess.Popen(dockhil_cmd("launch", scene, "--wall-time", "--duration", "20", "--bag", path),
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        recorder = registered(node="bag-recorder")["nodes"]["bag-recorder"]["pid"]
+        recorder = registered(p.pid)["nodes"]["bag-recorder"]["pid"]
         deadline = time.time() + 15
         while time.time() < deadline and (not path.exists() or path.stat().st_size < 30_000):
             time.sleep(0.05)  # a few chunks on disk
