@@ -17,6 +17,7 @@ import pytest
 
 from dockhil import cli
 from dockhil.bag import BagReader, BagWriter, info
+from dockhil.errors import DockhilError
 from msgs import Header, Vector3, Wrench, WrenchStamped, type_name
 from msgs.codec import encode
 from tests.conftest import dockhil_cmd
@@ -139,6 +140,15 @@ def test_launch_bag_round_trip_record_info_export_play(write_launch, tmp_path, c
     assert "0 lost" in rec_err
     assert by_topic(replayed) == a
 
+    # From 0.1 s on: the played run starts again at tick 0, with the recorded values of tick 100 on.
+    later = tmp_path / "later.mcap"
+    play_and_record(multi, later, "--sim-time", "--start", "0.1", "--topics", "/x")
+    with BagReader(later) as reader:
+        got = [msg for _, _, msg in reader.decoded()]
+    assert [m.header.tick for m in got] == list(range(TICKS - 100))
+    assert [m.header.stamp for m in got] == pytest.approx([k * 1e-3 for k in range(TICKS - 100)])
+    assert [m.wrench.force.x for m in got] == xs[100:]
+
 
 # --------------------------------------------------------------------------- replay as a source
 
@@ -167,6 +177,43 @@ def test_replay_as_source_reproduces_the_recorded_run(write_launch, tmp_path):
     assert "has no tick 301: it ends at tick 300" in r.stderr and "Traceback" not in r.stderr
     r = launch(scene, "drive:=bag", f"bag:={tmp_path / 'missing.mcap'}")
     assert r.returncode == 2 and "missing.mcap: no such file" in one_line(r.stderr)
+
+
+def test_bag_source_steps_by_tick_or_by_time(tmp_path):
+    from dockhil.node import NodeContext, Tick
+    from nodes.bag_source import BagSource
+
+    bag = tmp_path / "100hz.mcap"
+    write_wrench_bag(bag, 1.0, 100.0)  # ticks 0..100, force.x = 0.5 k, log times 10 ms apart
+    _, outs = BagSource.ports({"path": str(bag), "topics": [], "start": 0.0})
+    assert list(outs) == ["/ft/wrench"] and outs["/ft/wrench"].type is WrenchStamped
+
+    def source(sim, **params):
+        node = BagSource(NodeContext("ft", 0.01, sim_time=sim, log=lambda m: None), path=str(bag), **params)
+        node.setup()
+        return node
+
+    def x(out):
+        return out["/ft/wrench"].wrench.force.x
+
+    # Sim time, 0.5 s in: tick k replays recorded tick k + 50, renumbered to k.
+    node = source(True, start=0.5)
+    for k in range(51):
+        msg = node.step(Tick(k, k * 0.01, 0.01), {})["/ft/wrench"]
+        assert (msg.header.tick, msg.wrench.force.x) == (k, 0.5 * (k + 50))
+    with pytest.raises(DockhilError, match="has no tick 101: it ends at tick 100"):
+        node.step(Tick(51, 0.51, 0.01), {})
+    node.close()
+
+    # Wall time: the newest message whose time has come; nothing new, nothing sent.
+    node = source(False)
+    assert x(node.step(Tick(0, 0.0, 0.01), {})) == 0.0
+    assert node.step(Tick(1, 0.005, 0.01), {}) == {}
+    assert x(node.step(Tick(2, 0.0149, 0.01), {})) == 0.5
+    assert x(node.step(Tick(3, 0.0501, 0.01), {})) == 2.5  # 0.02..0.04 s are passed over
+    assert x(node.step(Tick(4, 5.0, 0.01), {})) == 50.0  # past the end: the last message, once
+    assert node.step(Tick(5, 5.01, 0.01), {}) == {}
+    node.close()
 
 
 # --------------------------------------------------------------------------- failures
