@@ -980,7 +980,7 @@ def delay_cases(cfg: ReportConfig) -> list[dict]:
                        params={**scn.as_dict(), "delay": 0.0, "dt": dt}, tolerance=step_change,
                        expected_value=ref.peak_force, measured_value=m["peak_force_N"]))
     # Delay far beyond the contact: until h passes the robot reports no pose.
-    h = 5.0
+    h = 10.0
     soft = scn.replace(kcs=scn.kcs - scn.k)
     soft_ref = ideal_contact_summary(soft)
     run = _hil_samples(scn, h, dt, h + soft_ref.duration + 0.5)
