@@ -499,7 +499,8 @@ class _Player:
                      + "; to play fewer topics give --topics, to wait for fewer subscribers --subscribers")
             for topic in short:
                 sock = self.pubs[topic].sock
-                # Each subscription arrives as one frame starting with 1 (XPUB_VERBOSE).
+                # A subscription is a frame starting with 1 (XPUB_VERBOSE). Unlike a graph's
+                # publishers, a player counts observers (`topic echo`) too: they may be its audience.
                 while sock.poll(0) and sock.recv()[:1] == b"\x01":
                     self.pubs[topic].subscribers += 1
             time.sleep(0.01)
@@ -553,7 +554,7 @@ def play(args: argparse.Namespace) -> int:
             with BagReader(args.path) as reader:
                 stream = reader.messages(list(topics), start_ns=start_ns)
                 if sim:
-                    sent += _play_sim(_tick_order(stream), player.socks, topics, state, stop)
+                    sent += _play_sim(_tick_order(stream), player.socks, state, stop)
                 else:
                     sent += _play_wall(stream, player.socks, args.rate, stop)
             passes += 1
@@ -644,7 +645,7 @@ def _retick(data: bytes, type_name: str, tick: int, stamp: float) -> bytes | Non
     return encode(msgspec.structs.replace(msg, header=header))
 
 
-def _play_sim(ordered, socks: dict, topics: dict, state: _TickShift, stop) -> int:
+def _play_sim(ordered, socks: dict, state: _TickShift, stop) -> int:
     """Send in tick order. Before tick k starts, every topic is complete up to k-1: a
     topic with no message at a tick gets the transport's empty-tick frame, so that
     lock-step subscribers never wait for a tick that has no message."""
