@@ -112,7 +112,10 @@ class NodeExecutor:
         for port, wire in spec.inputs.items():
             self.sub.connect(wire.endpoint)
             self.by_topic.setdefault(wire.topic.encode(), []).append(port)
-        self.pubs = {port: Publisher(self.ctx, wire.topic, wire.endpoint) for port, wire in spec.outputs.items()}
+        # Sim time loses nothing: a finished node waits (up to 60 s) until its slowest subscriber has all.
+        linger = 60.0 if spec.clock == "sim" else 1.0
+        self.pubs = {port: Publisher(self.ctx, wire.topic, wire.endpoint, linger)
+                     for port, wire in spec.outputs.items()}
         self.dropped = 0
         self._drop_logged = 0.0
         self._drop_reasons: set[str] = set()
@@ -254,6 +257,7 @@ class NodeExecutor:
             for pub in self.pubs.values():
                 pub.close()
             self.sub.close()
+            self.ctx.term()  # returns once queued messages are out (or linger has passed)
 
 
 def _sleep_until(deadline: float) -> None:

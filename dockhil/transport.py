@@ -33,13 +33,14 @@ def ipc_endpoint(run_dir: Path, topic: str) -> str:
 
 
 class Publisher:
-    def __init__(self, ctx: zmq.Context, topic: str, endpoint: str):
+    def __init__(self, ctx: zmq.Context, topic: str, endpoint: str, linger_s: float = 2.0):
         self.topic = topic
         self.topic_bytes = topic.encode()
         self.sock = ctx.socket(zmq.XPUB)
         self.sock.setsockopt(zmq.SNDHWM, 0)
         self.sock.setsockopt(zmq.XPUB_VERBOSE, 1)
-        self.sock.setsockopt(zmq.LINGER, 2000)
+        # On close, queued messages still go out for up to linger_s (a slow recorder in sim time).
+        self.sock.setsockopt(zmq.LINGER, int(linger_s * 1000))
         try:
             if endpoint.startswith("tcp://") and endpoint.endswith(":0"):
                 port = self.sock.bind_to_random_port(endpoint.rsplit(":", 1)[0])

@@ -1,0 +1,91 @@
+"""The HIL graph of the paper, run as processes: identical to composed and to the model library,
+and the paper's experiments reproduced from its summaries."""
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from dockhil.bag import BagReader
+from dockhil.contact.hilloop import simulate_hil
+from dockhil.contact.hybrid import VirtualImpedance
+from dockhil.contact.impedance import impedance_closed_form
+from dockhil.contact.scenario import TABLE1
+from dockhil.summary import samples_from_bag
+from tests.conftest import dockhil_cmd
+
+
+def launch(*args, timeout=180):
+    r = subprocess.run(dockhil_cmd("launch", *args), capture_output=True, text=True, timeout=timeout)
+    assert r.returncode == 0, r.stdout + r.stderr
+    return r
+
+
+def messages(path):
+    with BagReader(path) as bag:
+        return [(m.topic, m.log_time_ns, m.data) for m in bag]
+
+
+def test_multiprocess_equals_composed_equals_library(tmp_path):
+    a, b = tmp_path / "mp.mcap", tmp_path / "composed.mcap"
+    launch("launch/hil.yaml", "--duration", "2", "--bag", a, "--quiet")
+    launch("launch/hil.yaml", "--duration", "2", "--bag", b, "--composed", "--quiet")
+    ma, mb = messages(a), messages(b)
+    assert len(ma) == 6 * 2001 - 2 * 32  # six topics; no delayed command and no robot pose in the first 32 ms
+    assert sorted(ma) == sorted(mb)  # the same bytes on every topic at every tick
+    s = samples_from_bag(a)
+    lib = simulate_hil(m1=TABLE1.m1, m2=TABLE1.m2, k=TABLE1.k, impedance=impedance_closed_form(TABLE1), dt=1e-3,
+                       n_ticks=2001, v1=TABLE1.v1, delay=0.032)
+    assert np.array_equal(s.p, lib.x1 - lib.x2) and np.array_equal(s.pd, lib.v1 - lib.v2)
+    assert np.array_equal(s.force, lib.force)
+
+
+def test_fig9_from_the_graph_summary(tmp_path):
+    out = {}
+    for delay in ("0.0", "0.032"):
+        path = tmp_path / f"s{delay}.json"
+        r = launch("launch/hil.yaml", f"delay:={delay}", "--summary", path)
+        assert "peak force" in r.stdout and "ideal" in r.stdout
+        out[delay] = json.loads(path.read_text())
+    undelayed, delayed = out["0.0"], out["0.032"]
+    for key in ("run_time_s", "sim_time_s", "real_time_factor", "peak_force_N", "contact_duration_s",
+                "exit_velocity_mps", "ideal", "error"):
+        assert key in delayed
+    # No delay: the hybrid loop is the ideal contact, to the sampling error.
+    assert abs(undelayed["error"]["peak_force_N"]) < 0.05 and undelayed["error"]["max_force_N"] < 0.1
+    assert abs(undelayed["error"]["contact_duration_s"]) < 1e-3
+    # 32 ms: a higher peak and a faster exit than the ideal contact.
+    assert 0.3 < delayed["error"]["peak_force_N"] < 1.5
+    assert delayed["exit_velocity_mps"] < undelayed["exit_velocity_mps"] < 0
+
+
+def test_ideal_scene_matches_the_closed_form(tmp_path):
+    path = tmp_path / "ideal.json"
+    launch("launch/ideal.yaml", "--summary", path, "--quiet")
+    s = json.loads(path.read_text())
+    assert abs(s["error"]["max_force_N"]) < 1e-6 and abs(s["error"]["contact_duration_s"]) < 1e-6
+
+
+@pytest.mark.parametrize("b, grows", [(20, True), (60, False)])
+def test_figs11_12_from_the_graph(tmp_path, b, grows):
+    path = tmp_path / "st.json"
+    launch("launch/stability.yaml", f"b:={b}", "x0:=0.006", "--duration", "15", "--summary", path, "--quiet")
+    s = json.loads(path.read_text())
+    measured, predicted = s["growth_rate_1_s"], s["predicted_growth_rate_1_s"]
+    assert (measured > 0) is grows and (predicted > 0) is grows
+    assert measured == pytest.approx(predicted, rel=0.2)
+
+
+def test_plot_draws_fig9_from_bags(tmp_path):
+    bags = []
+    for delay in ("0.0", "0.032"):
+        bags.append(tmp_path / f"d{delay}.mcap")
+        launch("launch/hil.yaml", f"delay:={delay}", "--bag", bags[-1], "--composed", "--quiet")
+    png = tmp_path / "fig9.png"
+    r = subprocess.run(dockhil_cmd("plot", *bags, "--labels", "no delay", "32 ms", "--png", png),
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+    r = subprocess.run(dockhil_cmd("plot", bags[0], "--labels", "a", "b", "--png", png), capture_output=True, text=True)
+    assert r.returncode == 2 and "--labels has 2 labels for 1 bags" in r.stderr
