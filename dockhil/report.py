@@ -327,20 +327,28 @@ def _wp_entry(model: str, method: str, *, step_s=None, rtol=None, error=None, ru
         entry["steps"] = steps
     if refused is not None:
         entry["refused"] = refused
-        named = re.search(r"largest stable step is ([0-9.eE+-]+) s", refused)
-        entry["largest_stable_step_s"] = float(named.group(1)) if named else (0.0 if "no step is stable" in refused else None)
+        entry["largest_stable_step_s"] = named_stable_step(refused)
     if extra:
         entry.update(extra)
     return entry
 
 
-def ideal_fixed_step(method: str, dt: float, cfg: ReportConfig, scenario: ContactScenario = TABLE1) -> dict:
-    """The ideal contact with one integrator and step, against the closed form."""
+# The ideal contacts of the work-precision part: Table 1, and the same with a
+# 1000x stiffer spring (63 rad/s), where the explicit methods meet their limits.
+IDEAL_MODELS = {
+    "ideal": (TABLE1, 2.0),
+    "ideal_stiff": (TABLE1.replace(kcs=3e6), 0.1),
+}
+
+
+def ideal_fixed_step(method: str, dt: float, cfg: ReportConfig, model: str = "ideal") -> dict:
+    """An ideal contact with one integrator and step, against the closed form."""
+    scenario, t_end = IDEAL_MODELS[model]
     try:
         traj, elapsed = _best_time(
-            lambda: simulate_contact(scenario, method=method, dt=dt, t_end=cfg.contact_t_end), cfg.min_timing_s)
+            lambda: simulate_contact(scenario, method=method, dt=dt, t_end=t_end), cfg.min_timing_s)
     except StepTooLargeError as exc:
-        return _wp_entry("ideal", method, step_s=dt, refused=str(exc))
+        return _wp_entry(model, method, step_s=dt, refused=str(exc))
     idx = _grid_indices(traj.t, dt)
     ref = ideal_trajectory(scenario, traj.t[idx])
     mine = compared_force(scenario, None, traj.penetration[idx], traj.penetration_rate[idx],
@@ -348,15 +356,16 @@ def ideal_fixed_step(method: str, dt: float, cfg: ReportConfig, scenario: Contac
     theirs = compared_force(scenario, None, ref.penetration, ref.penetration_rate, ref.in_contact,
                             traj.in_contact[idx])
     exit_error = None if traj.exit is None or ref.exit is None else abs(traj.exit - ref.exit)
-    return _wp_entry("ideal", method, step_s=dt, error=float(np.max(np.abs(mine - theirs))), run_time=elapsed,
+    return _wp_entry(model, method, step_s=dt, error=float(np.max(np.abs(mine - theirs))), run_time=elapsed,
                      exit_error=exit_error, steps=len(traj.t) - 1)
 
 
-def ideal_ivp(method: str, rtol: float, cfg: ReportConfig, scenario: ContactScenario = TABLE1) -> dict:
-    grid = np.arange(int(round(cfg.contact_t_end / GRID)) + 1) * GRID
+def ideal_ivp(method: str, rtol: float, cfg: ReportConfig, model: str = "ideal") -> dict:
+    scenario, t_end = IDEAL_MODELS[model]
+    grid = np.arange(int(round(t_end / GRID)) + 1) * GRID
 
     def run():
-        r = DelayedContactRun(scenario, t_end=cfg.contact_t_end, method=method, rtol=rtol, atol=rtol * 1e-4)
+        r = DelayedContactRun(scenario, t_end=t_end, method=method, rtol=rtol, atol=rtol * 1e-4)
         return r, r.sample(grid)
 
     (r, s), elapsed = _best_time(run, cfg.min_timing_s)
@@ -364,9 +373,9 @@ def ideal_ivp(method: str, rtol: float, cfg: ReportConfig, scenario: ContactScen
     p, pd = s["x1"] - s["x2"], s["v1"] - s["v2"]
     mine = compared_force(scenario, None, p, pd, s["touching"], ref.in_contact)
     theirs = compared_force(scenario, None, ref.penetration, ref.penetration_rate, ref.in_contact, s["touching"])
-    exits = r.events[1:2] if r.events and r.events[0] > 0 else r.events[:1]
-    exit_error = abs(exits[0] - ref.exit) if exits and ref.exit is not None else None
-    return _wp_entry("ideal", f"solve_ivp {method}", rtol=rtol, error=float(np.max(np.abs(mine - theirs))),
+    # The run starts in contact (no gap), so its first event is the separation.
+    exit_error = abs(r.events[0] - ref.exit) if r.events and ref.exit is not None else None
+    return _wp_entry(model, f"solve_ivp {method}", rtol=rtol, error=float(np.max(np.abs(mine - theirs))),
                      run_time=elapsed, exit_error=exit_error, steps=r.steps)
 
 
@@ -1119,7 +1128,7 @@ STIFF_GROUPS: tuple[tuple[str, Callable[[ReportConfig], list[dict]]], ...] = (
 
 
 def _count_tasks(cfg: ReportConfig) -> int:
-    wp = 2 * (len(METHODS) + len(cfg.ivp_methods)) + 1
+    wp = (len(IDEAL_MODELS) + 1) * (len(METHODS) + len(cfg.ivp_methods)) + 1
     energy = len(METHODS) + len(cfg.ivp_methods)
     graph = 3 if cfg.graph else 0
     return wp + energy + graph + len(STIFF_GROUPS) + (1 if cfg.lean else 0)
@@ -1129,12 +1138,13 @@ def work_precision(cfg: ReportConfig, progress: Progress) -> tuple[list[dict], d
     import scipy.integrate  # noqa: F401  imported here so that no timed run pays for it
 
     entries: list[dict] = []
-    for method in METHODS:
-        progress.step(f"work precision: ideal, {method}")
-        entries += [ideal_fixed_step(method, dt, cfg) for dt in cfg.steps]
-    for method in cfg.ivp_methods:
-        progress.step(f"work precision: ideal, solve_ivp {method}")
-        entries += [ideal_ivp(method, rtol, cfg) for rtol in cfg.rtols]
+    for model in IDEAL_MODELS:
+        for method in METHODS:
+            progress.step(f"work precision: {model}, {method}")
+            entries += [ideal_fixed_step(method, dt, cfg, model) for dt in cfg.steps]
+        for method in cfg.ivp_methods:
+            progress.step(f"work precision: {model}, solve_ivp {method}")
+            entries += [ideal_ivp(method, rtol, cfg, model) for rtol in cfg.rtols]
     progress.step("work precision: delayed hybrid reference")
     ref = hybrid_reference(cfg)
     for method in METHODS:
@@ -1297,8 +1307,9 @@ def render_markdown(report: dict, plots: dict[str, str]) -> str:
     out.append(f"Run times are {repeats}; the machine may be shared, so compare orders of magnitude.")
     out += ["", "## Error against run time", ""]
     ref = report["reference"]
-    out.append("Ideal contact: Table 1 (m1 = 750 kg, m2 = 1e6 kg, kcs = 3000 N/m, bcs = 40 N s/m, v1 = 0.03 m/s), "
-               f"reference {ref['ideal']}. Hybrid loop: Table 1 with k = 1000 N/m and a 32 ms robot delay, reference "
+    out.append("Ideal contact: Table 1 (m1 = 750 kg, m2 = 1e6 kg, kcs = 3000 N/m, bcs = 40 N s/m, v1 = 0.03 m/s); "
+               "ideal_stiff: the same with kcs = 3e6 N/m (63 rad/s, contact 50 ms), where explicit methods reach"
+               f" their stability limits; reference {ref['ideal']}. Hybrid loop: Table 1 with k = 1000 N/m and a 32 ms robot delay, reference "
                f"{ref['hybrid_delay']}; {ref['hybrid_delay_check']}. Errors are the largest force error on the "
                f"{1 / ref['error_grid_s']:g} Hz grid ({ref['force_compared']}). Fixed-step runs of the hybrid loop are "
                "`simulate_hil`, the arithmetic every node of hil.yaml does; a step that does not divide 32 ms "
@@ -1390,9 +1401,10 @@ def write_plots(report: dict, out_dir: Path) -> dict[str, str]:
 
     plots = {}
     floor = 1e-16  # errors at round-off are drawn here on the log scale
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
-    for ax, model, title in ((axes[0], "ideal", "ideal contact (closed form)"),
-                             (axes[1], "hybrid_delay", "hybrid loop, 32 ms delay")):
+    fig, axes = plt.subplots(1, 3, figsize=(17, 4.8))
+    for ax, model, title in ((axes[0], "ideal", "ideal contact, Table 1 (closed form)"),
+                             (axes[1], "ideal_stiff", "ideal contact, kcs = 3e6 N/m (closed form)"),
+                             (axes[2], "hybrid_delay", "hybrid loop, 32 ms delay")):
         methods = []
         for e in report["work_precision"]:
             if e["model"] == model and e["method"] not in methods:

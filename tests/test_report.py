@@ -70,7 +70,7 @@ def test_work_precision_entries(quick_report):
     _, out, _ = quick_report
     entries = json.loads((out / "report.json").read_text())["work_precision"]
     models = {e["model"] for e in entries}
-    assert models == {"ideal", "hybrid_delay"}
+    assert models == {"ideal", "ideal_stiff", "hybrid_delay"}
     for e in entries:
         assert ("step_s" in e) != ("rtol" in e), e
         assert {"model", "method", "max_error_N", "run_time_s"} <= set(e)
@@ -87,6 +87,14 @@ def test_work_precision_entries(quick_report):
     # The exact step reproduces the closed form to round-off; explicit Euler is first order.
     assert error("ideal", "exact", 1e-3) < 1e-9
     assert 5 < error("ideal", "euler", 1e-3) / error("ideal", "euler", 1e-4) < 20
+    # Explicit Euler on the stiff contact is refused above its stability limit, which the entry names.
+    stiff = R.IDEAL_MODELS["ideal_stiff"][0]
+    limit = max_stable_step(LinearSecondOrderSystem.ideal_contact(stiff), "euler")
+    refused = [e for e in entries if e["model"] == "ideal_stiff" and e["method"] == "euler" and "refused" in e]
+    assert refused and all(e["step_s"] > limit for e in refused)
+    assert all(e["largest_stable_step_s"] == pytest.approx(limit, rel=1e-5) for e in refused)
+    ran = [e for e in entries if e["model"] == "ideal_stiff" and e["method"] == "euler" and "refused" not in e]
+    assert all(e["step_s"] <= limit for e in ran)
     # The sampled HIL loop converges to the continuous delay reference at first order.
     assert 5 < error("hybrid_delay", "exact", 1e-3) / error("hybrid_delay", "exact", 1e-4) < 20
 
