@@ -72,7 +72,7 @@ class ComposedGraph:
         histories = list(self.history.values())
         k = 0
         while (n_ticks is None or k < n_ticks) and not stop.requested:
-            tick = Tick(k, (time.monotonic() - t0) if wall else k * dt, dt)
+            tick = Tick(k, (time.monotonic() - t0) if wall else k * dt, dt, stamp=time.time() if wall else None)
             for hist in histories:  # a slot for this tick; stays None if nothing is sent
                 hist.append(hist[-1] if wall else None)
             for name, node, ins, outs_map, declared in self.plan:

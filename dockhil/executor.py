@@ -15,6 +15,8 @@ the first message arrives); outputs a node leaves out are not sent.
 
 from __future__ import annotations
 
+import json
+import os
 import signal
 import sys
 import time
@@ -222,20 +224,23 @@ class NodeExecutor:
         latest: dict[str, Any] = {port: None for port in spec.inputs}
         for port in self.unconnected:
             latest[port] = None
+        timing = LoopTiming(list(spec.inputs))
         period = spec.dt
         t0 = time.monotonic()
         next_t = t0
         k = 0
-        misses = 0
         while not self.stop.requested:
             now = time.monotonic()
             if duration is not None and now - t0 >= duration:
                 break
+            timing.started(now - next_t)
             while (frames := self.sub.recv_nowait()) is not None:
                 for port, _tick, msg, ok in self._decode(frames):
                     if msg is not None:
                         latest[port] = msg
-            outs = node.step(Tick(k, now - t0, period), dict(latest))
+            stamp = time.time()
+            timing.inputs(stamp, latest)
+            outs = node.step(Tick(k, now - t0, period, stamp=stamp), dict(latest))
             check_outputs(spec.name, self.outputs, k, outs, sim=False)
             self.publish(k, outs, sim=False)
             k += 1
@@ -243,12 +248,13 @@ class NodeExecutor:
             next_t += period
             late = time.monotonic() - next_t
             if late > 0:
-                misses += 1
+                timing.missed()
                 if late > period:  # fell far behind: skip, do not burst to catch up
                     next_t = time.monotonic() + period
             else:
                 _sleep_until(next_t)
-        return {"ticks": k, "deadline_misses": misses}
+        timing.ticks = k
+        return timing.report(spec.name)
 
     def close(self) -> None:
         try:
@@ -258,6 +264,49 @@ class NodeExecutor:
                 pub.close()
             self.sub.close()
             self.ctx.term()  # returns once queued messages are out (or linger has passed)
+
+
+class LoopTiming:
+    """Wall-time loop statistics: how late each tick started against its schedule,
+    missed deadlines, and how old each input's latest message was when used."""
+
+    def __init__(self, ports: list[str]):
+        from array import array
+
+        self.lateness = array("d")
+        self.ages = {port: array("d") for port in ports}
+        self.misses = 0
+        self.ticks = 0
+
+    def started(self, late_s: float) -> None:
+        self.lateness.append(late_s)
+
+    def inputs(self, now: float, latest: dict) -> None:
+        for port, ages in self.ages.items():
+            msg = latest.get(port)
+            if msg is not None:
+                ages.append(now - msg.header.stamp)
+
+    def missed(self) -> None:
+        self.misses += 1
+
+    def report(self, name: str) -> dict:
+        import numpy as np
+
+        def pct(values) -> dict:
+            if not len(values):
+                return {}
+            us = np.abs(np.asarray(values)) * 1e6
+            return {"p50": float(np.percentile(us, 50)), "p99": float(np.percentile(us, 99)), "max": float(us.max())}
+
+        out = {"node": name, "ticks": self.ticks, "deadline_misses": self.misses,
+               "jitter_us": pct(self.lateness[1:]),  # the first tick has no schedule to keep
+               "input_age_us": {port: pct(a) for port, a in self.ages.items()}}
+        folder = os.environ.get("DOCKHIL_TIMING_DIR")
+        if folder:  # benchmarks collect every node's figures
+            with open(os.path.join(folder, f"{name}.json"), "w") as f:
+                json.dump(out, f)
+        return out
 
 
 def _sleep_until(deadline: float) -> None:

@@ -112,12 +112,15 @@ class Tick:
     """What the runtime tells a node about the current step."""
 
     index: int  # tick number k, from 0
-    t: float  # time [s]: k * dt in sim time, seconds since start in wall time
+    t: float  # time [s]: k * dt in sim time, seconds since the node started in wall time
     dt: float  # nominal step [s]
     frame: str = ""
+    stamp: float | None = None  # header stamp [s]: t in sim time, Unix time in wall time
 
     def header(self, frame: str | None = None) -> Header:
-        return Header(stamp=self.t, tick=self.index, seq=self.index, frame=self.frame if frame is None else frame)
+        # Wall-time stamps are absolute, so stamps of different processes compare (latencies, alignment).
+        return Header(stamp=self.t if self.stamp is None else self.stamp, tick=self.index, seq=self.index,
+                      frame=self.frame if frame is None else frame)
 
 
 @dataclass

@@ -89,35 +89,48 @@ def ideal_reference(*, m1: float, m2: float, kcs: float, bcs: float, v1: float, 
 
 
 class Collector:
-    """Gathers the per-tick series from published messages (a composed tap, or a bag)."""
+    """Gathers the per-tick series from published messages (a composed tap, or a bag).
+
+    Forces are matched to each state by header stamp, taking the newest force
+    at or before it: in sim time that is the force of the same tick (stamps
+    are k dt everywhere), in wall time the one the dynamics would have seen."""
 
     def __init__(self, ideal_force: tuple[float, float] | None = None):
         self.ideal_force = ideal_force  # (kcs, bcs) when the dynamics run the ideal model inside
-        self.state: dict[int, tuple] = {}
-        self.ft: dict[int, float] = {}
-        self.virtual: dict[int, float] = {}
+        self.state: list[tuple[float, float, float]] = []
+        self.ft: list[tuple[float, float]] = []
+        self.virtual: list[tuple[float, float]] = []
 
     def __call__(self, topic: str, msg) -> None:
         if isinstance(msg, msgs.SatelliteState) and len(msg.bodies) >= 2:
             c, g = msg.bodies[0], msg.bodies[1]
-            self.state[msg.header.tick] = (msg.header.stamp, c.pose.position.x - g.pose.position.x,
-                                           c.twist.linear.x - g.twist.linear.x)
+            self.state.append((msg.header.stamp, c.pose.position.x - g.pose.position.x,
+                               c.twist.linear.x - g.twist.linear.x))
         elif topic == "/ft/wrench" and isinstance(msg, msgs.WrenchStamped):
-            self.ft[msg.header.tick] = msg.wrench.force.x
+            self.ft.append((msg.header.stamp, msg.wrench.force.x))
         elif topic == "/impedance/wrench" and isinstance(msg, msgs.BodyWrenches) and msg.wrenches:
-            self.virtual[msg.header.tick] = msg.wrenches[0].force.x
+            self.virtual.append((msg.header.stamp, msg.wrenches[0].force.x))
+
+    @staticmethod
+    def _at(series: list[tuple[float, float]], t: np.ndarray) -> np.ndarray:
+        """The newest value at or before each time in t (0 before the first)."""
+        if not series:
+            return np.zeros_like(t)
+        st, v = (np.array(x, dtype=float) for x in zip(*sorted(series)))
+        i = np.searchsorted(st, t, side="right") - 1
+        return np.where(i >= 0, v[np.clip(i, 0, None)], 0.0)
 
     def samples(self) -> Samples:
-        ticks = sorted(self.state)
-        t, p, pd = (np.array(v, dtype=float) for v in zip(*(self.state[k] for k in ticks))) if ticks else \
-            (np.array([]),) * 3
+        if not self.state:
+            return Samples(*(np.array([]),) * 4)
+        t, p, pd = (np.array(v, dtype=float) for v in zip(*sorted(self.state)))
         if self.ideal_force is not None:
             kcs, bcs = self.ideal_force
             touching = (p > 0.0) | ((p == 0.0) & (pd > 0.0))
             force = np.where(touching, kcs * p + bcs * pd, 0.0)
         else:
             # Compressive force on the chaser: minus (measured + virtual) force along +x.
-            force = np.array([-(self.ft.get(k, 0.0) + self.virtual.get(k, 0.0)) for k in ticks])
+            force = -(self._at(self.ft, t) + self._at(self.virtual, t))
         return Samples(t, p, pd, force)
 
 
