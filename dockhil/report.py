@@ -1321,10 +1321,15 @@ def render_markdown(report: dict, plots: dict[str, str]) -> str:
         [[r["model"], r["method"], r["runs"], r["refused"] or "-", _g(r["best_error_N"]), _g(r["order"], 2),
           _cheapest(r["cheapest_within_1mN"])]
          for r in report["work_precision_summary"]])]
-    refusals = [e for e in report["work_precision"] if "refused" in e]
+    refusals: dict[tuple[str, str], list[dict]] = {}
+    for e in report["work_precision"]:
+        if "refused" in e:
+            refusals.setdefault((e["model"], e["method"]), []).append(e)
     if refusals:
         out += ["", "Refused steps (outside the method's stability region):", ""]
-        out += [f"- {e['model']}, {e['method']} at {e['step_s']:g} s: {e['refused']}" for e in refusals]
+        for (model, method), refused in refusals.items():
+            steps = ", ".join(f"{e['step_s']:g}" for e in refused)
+            out.append(f"- {model}, {method} at {steps} s: \"{refused[0]['refused']}\"")
     out += ["", "<details><summary>every run</summary>", "", _md_table(
         ["model", "method", "step [s] / rtol", "max error [N]", "run time [s]", "exit error [s]", "note"],
         [[e["model"], e["method"], _g(e.get("step_s", e.get("rtol"))), _g(e["max_error_N"]), _g(e["run_time_s"]),

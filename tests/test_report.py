@@ -1,6 +1,7 @@
 """`dockhil report` on its small configuration, and each stiff or extreme case on its own,
 with its expectation recomputed here from the model."""
 
+import contextlib
 import io
 import json
 
@@ -22,9 +23,11 @@ SCENARIO_KEYS = ("m1", "m2", "kcs", "bcs", "k", "v1", "v2")
 def quick_report(tmp_path_factory):
     out = tmp_path_factory.mktemp("report")
     err = io.StringIO()
-    import contextlib
-
-    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+    runtime = tmp_path_factory.mktemp("rt")
+    # Module scope runs before conftest's per-test runtime directory: give the launches their own.
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stderr(err), \
+            contextlib.redirect_stdout(io.StringIO()):
+        mp.setenv("DOCKHIL_RUNTIME_DIR", str(runtime))
         code = main(["report", "--quick", "--out", str(out)])
     return code, out, err.getvalue()
 
