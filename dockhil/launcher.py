@@ -136,7 +136,11 @@ class Launcher:
         self.n_ticks = None if duration is None else int(round(duration / dt)) + 1
         self.out = out or sys.stdout
         self.endpoints = assign_endpoints(graph, transport)
-        self.specs = run_specs(graph, self.endpoints, clock, self.n_ticks, self.extra)
+        # Wall time: the launcher stops the whole graph at once when the duration is up, so no driver
+        # sees its device (an emulator) stop first and mistakes that for a fault.
+        self.wall_duration = duration if clock == "wall" else None
+        self.specs = run_specs(graph, self.endpoints, clock, self.n_ticks if clock == "sim" else None, self.extra)
+        self._all_ready_at: float | None = None
         self.progress = progress and clock == "sim" and self.n_ticks is not None
         self._print_lock = threading.Lock()
         self._stop_signal: int | None = None
@@ -270,10 +274,28 @@ class Launcher:
             if probe is not None:
                 probe.close()
 
+    def _duration_over(self) -> bool:
+        if self.wall_duration is None:
+            return False
+        if self._all_ready_at is None:
+            if all(c.ready for c in self.children if c.name in self.specs):
+                self._all_ready_at = time.monotonic()
+            return False
+        return time.monotonic() - self._all_ready_at >= self.wall_duration
+
+    def _stop_at_duration(self) -> int:
+        self.stop_all()
+        failed = [c for c in self.children if c.proc.returncode not in (0, None)]
+        for c in failed:
+            self.say(f"[launch] {c.name!r} exited with code {c.proc.returncode} while stopping")
+        return 1 if failed else 0
+
     def _watch_children(self, probe, bar) -> int:
         while True:
             if probe is not None:
                 self._show_progress(probe, bar)
+            if self._duration_over():
+                return self._stop_at_duration()
             if self._stop_signal is not None:
                 name = signal.Signals(self._stop_signal).name
                 self.say(f"[launch] {name}: stopping the graph")
@@ -292,8 +314,8 @@ class Launcher:
                     child.reader.join(timeout=1.0)
                 if code == 0:
                     child.finished = True
-                    if is_node and self.clock == "wall" and self.n_ticks is None:
-                        # In wall time without a duration nodes run until stopped; an exit is a death.
+                    if is_node and self.clock == "wall":
+                        # In wall time nodes run until the launcher stops them; an exit is a death.
                         return self._died(child, code)
                     continue
                 if child.respawn and child.ready:

@@ -32,7 +32,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     if summary is not None:
         _check_writable(summary)
     ideal_force = summ.scene_reference(graph).get("ideal_force")
-    collector = summ.Collector(ideal_force) if want_summary else None
+    collector = summ.Collector(ideal_force, dt) if want_summary else None
     tmp = None
     started = time.perf_counter()
     if composed:
@@ -53,7 +53,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     elapsed = time.perf_counter() - started
     try:
         if code == 0 and want_summary:
-            samples = collector.samples() if composed else summ.samples_from_bag(bag, ideal_force)
+            samples = collector.samples() if composed else summ.samples_from_bag(bag, ideal_force, dt)
             out = summ.scene_summary(graph, samples, elapsed)
             if show_summary:
                 print(summ.format_summary(out), flush=True)

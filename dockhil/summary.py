@@ -91,20 +91,23 @@ def ideal_reference(*, m1: float, m2: float, kcs: float, bcs: float, v1: float, 
 class Collector:
     """Gathers the per-tick series from published messages (a composed tap, or a bag).
 
-    Forces are matched to each state by header stamp, taking the newest force
-    at or before it: in sim time that is the force of the same tick (stamps
-    are k dt everywhere), in wall time the one the dynamics would have seen."""
+    Time is simulated time: (tick - first tick) * dt when dt is known, else the
+    stamps from the first state on. Forces are matched to each state by header
+    stamp, taking the newest force at or before it: in sim time that is the
+    force of the same tick (stamps are k dt everywhere), in wall time the one
+    the dynamics would have seen."""
 
-    def __init__(self, ideal_force: tuple[float, float] | None = None):
+    def __init__(self, ideal_force: tuple[float, float] | None = None, dt: float | None = None):
         self.ideal_force = ideal_force  # (kcs, bcs) when the dynamics run the ideal model inside
-        self.state: list[tuple[float, float, float]] = []
+        self.dt = dt
+        self.state: list[tuple[float, int, float, float]] = []
         self.ft: list[tuple[float, float]] = []
         self.virtual: list[tuple[float, float]] = []
 
     def __call__(self, topic: str, msg) -> None:
         if isinstance(msg, msgs.SatelliteState) and len(msg.bodies) >= 2:
             c, g = msg.bodies[0], msg.bodies[1]
-            self.state.append((msg.header.stamp, c.pose.position.x - g.pose.position.x,
+            self.state.append((msg.header.stamp, msg.header.tick, c.pose.position.x - g.pose.position.x,
                                c.twist.linear.x - g.twist.linear.x))
         elif topic == "/ft/wrench" and isinstance(msg, msgs.WrenchStamped):
             self.ft.append((msg.header.stamp, msg.wrench.force.x))
@@ -123,14 +126,15 @@ class Collector:
     def samples(self) -> Samples:
         if not self.state:
             return Samples(*(np.array([]),) * 4)
-        t, p, pd = (np.array(v, dtype=float) for v in zip(*sorted(self.state)))
+        stamp, tick, p, pd = (np.array(v, dtype=float) for v in zip(*sorted(self.state)))
+        t = (tick - tick[0]) * self.dt if self.dt is not None else stamp - stamp[0]
         if self.ideal_force is not None:
             kcs, bcs = self.ideal_force
             touching = (p > 0.0) | ((p == 0.0) & (pd > 0.0))
             force = np.where(touching, kcs * p + bcs * pd, 0.0)
         else:
             # Compressive force on the chaser: minus (measured + virtual) force along +x.
-            force = -(self._at(self.ft, t) + self._at(self.virtual, t))
+            force = -(self._at(self.ft, stamp) + self._at(self.virtual, stamp))
         return Samples(t, p, pd, force)
 
 
@@ -146,11 +150,11 @@ def growth_rate(t: np.ndarray, y: np.ndarray) -> float:
     return float(np.polyfit(np.asarray(t, float)[peaks], np.log(a[peaks]), 1)[0])
 
 
-def samples_from_bag(path: str, ideal_force: tuple[float, float] | None = None) -> Samples:
+def samples_from_bag(path: str, ideal_force: tuple[float, float] | None = None, dt: float | None = None) -> Samples:
     """Per-tick series of a recorded run, through the same Collector the live summary uses."""
     from dockhil.bag import BagReader
 
-    collect = Collector(ideal_force)
+    collect = Collector(ideal_force, dt)
     with BagReader(path) as bag:
         for topic, _t, msg in bag.decoded(["/satellite/state", "/ft/wrench", "/impedance/wrench"]):
             collect(topic, msg)

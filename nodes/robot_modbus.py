@@ -393,7 +393,9 @@ class RobotModbusDriver(Node):
         # A setpoint that moves faster than the limit is a too-fast command, whatever its twist says.
         if prev is None or not self.p.max_speed:
             return
-        dt = cmd.header.stamp - prev.header.stamp
+        # The simulation moves the setpoint by one step per tick, whatever the loop's jitter made of the
+        # wall-clock stamps: the time between two setpoints is at least their tick distance.
+        dt = max(cmd.header.stamp - prev.header.stamp, (cmd.header.tick - prev.header.tick) * self.ctx.dt)
         if dt <= 0:
             return
         a, b = prev.pose.position, cmd.pose.position

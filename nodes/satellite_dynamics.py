@@ -47,10 +47,17 @@ class SatelliteDynamics(Node):
         p = self.p
         ideal = (p.kcs, p.bcs) if p.model == "ideal" else None
         self.bodies = Bodies(p.m1, p.m2, p.x1, p.x2, p.v1, p.v2, p.method, ideal=ideal)
+        self.started = False
 
     def step(self, tick, inputs):
         p = self.p
-        if tick.index > 0:
+        if not self.started:
+            # Wall time with hardware: the simulated clock starts when the sensor answers, so the robot
+            # is not asked to jump to where the simulation went while the drivers were still starting.
+            self.started = self.ctx.sim_time or p.model == "ideal" or inputs.get("ft") is not None
+            if not self.started:  # hold the robot at the start pose; no state until the run begins
+                return {"command": self._publish(tick)["command"]}
+        elif tick.index > 0:
             if p.model == "ideal":
                 f1, f2 = p.thrust, 0.0
             else:
@@ -61,6 +68,10 @@ class SatelliteDynamics(Node):
                 f1 = fs + fv1 + p.thrust
                 f2 = -fs + fv2
             self.bodies.step(f1, f2, tick.dt)
+        return self._publish(tick)
+
+    def _publish(self, tick):
+        p = self.p
         x1, x2, v1, v2 = self.bodies.positions()
         header = tick.header("world")
         state = SatelliteState(

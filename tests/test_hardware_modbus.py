@@ -49,7 +49,11 @@ def test_servo_follows_after_the_delay_with_first_order_lag():
     # first-order lag from t = delay: x = sp * (1 - exp(-(t - delay) / tau))
     for i in (30, 50, 100):
         assert xs[i] == pytest.approx(0.004 * (1 - math.exp(-(i - 20) * 0.001 / 0.01)), rel=1e-9)
-    assert model.linear[0] == pytest.approx((xs[100] - xs[99]) / 0.001)
+    # Velocity is the mean over the emulator's velocity window (10 cycles of 1 ms here).
+    from dockhil.hardware.robot_emulator import VELOCITY_WINDOW_S
+
+    cycles = round(VELOCITY_WINDOW_S / 0.001)
+    assert model.linear[0] == pytest.approx((xs[100] - xs[100 - cycles]) / VELOCITY_WINDOW_S)
     reading = mm.decode_inputs(model.inputs)
     assert reading.actual[0] == pytest.approx(xs[100], abs=1e-6)
     assert reading.status & mm.STATUS_FOLLOWING and reading.heartbeat == 1 and reading.cycle == 101

@@ -67,6 +67,9 @@ def _angular_velocity(q_old, q_new, dt):
     return (s * x, s * y, s * z)
 
 
+VELOCITY_WINDOW_S = 0.01
+
+
 class ServoModel:
     """The controller's state machine and servo, advanced by `cycle(now)`. No I/O."""
 
@@ -88,6 +91,7 @@ class ServoModel:
         self._heartbeat_t: float | None = None
         self._last_t: float | None = None
         self._line: deque = deque()  # (time written, setpoint) awaiting the delay
+        self._history: deque = deque()  # (time, position, orientation) over the velocity window
         self._target = self._actual_pose()
         self.inputs = mm.encode_inputs(0, 0, 0, self.actual())
 
@@ -166,9 +170,16 @@ class ServoModel:
         if sum(c * d for c, d in zip(old_q, tq)) < 0:
             tq = tuple(-c for c in tq)  # same rotation, shorter way
         self.orientation = _normalize(tuple(q + a * (t - q) for q, t in zip(old_q, tq)))
-        if dt > 0:
-            self.linear = tuple((p - o) / dt for p, o in zip(self.position, old_p))
-            self.angular = _angular_velocity(old_q, self.orientation, dt)
+        # Velocity over a window of VELOCITY_WINDOW_S, as a controller filters its encoders:
+        # a per-cycle difference turns the host's write jitter into spurious speed spikes.
+        self._history.append((now, list(self.position), self.orientation))
+        while len(self._history) > 2 and now - self._history[1][0] >= VELOCITY_WINDOW_S:
+            self._history.popleft()
+        t_old, p_old, q_old = self._history[0]
+        span = now - t_old
+        if span > 0:
+            self.linear = tuple((p - o) / span for p, o in zip(self.position, p_old))
+            self.angular = _angular_velocity(q_old, self.orientation, span)
 
     def teleport(self, position) -> None:
         """Move the actual pose at once (tests: an encoder jump, a collision)."""
