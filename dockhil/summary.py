@@ -35,15 +35,19 @@ def contact_metrics(s: Samples) -> dict:
     i0 = int(np.argmax(touching))
     after = np.nonzero(~touching[i0:])[0]
     i1 = i0 + int(after[0]) if after.size else len(s.t)
-    out["peak_force_N"] = float(np.max(s.force[i0:i1]))
     # Contact start and end at the zero crossings of p, interpolated between ticks.
     t_start = s.t[i0] if i0 == 0 or s.p[i0] == 0.0 else _crossing(s.t, s.p, i0 - 1)
     out["contact_start_s"] = float(t_start)
+    if after.size and i1 - i0 <= 1:
+        out["note"] = ("the contact lasted less than one sample: its peak force and duration are not "
+                       "resolved at this rate")
+        out["exit_velocity_mps"] = float(s.pd[i1])
+        return out
+    out["peak_force_N"] = float(np.max(s.force[i0:i1]))
     if after.size:
-        t_end = _crossing(s.t, s.p, i1 - 1)
-        w = (t_end - s.t[i1 - 1]) / (s.t[i1] - s.t[i1 - 1])
-        out["contact_duration_s"] = float(t_end - t_start)
-        out["exit_velocity_mps"] = float(s.pd[i1 - 1] + w * (s.pd[i1] - s.pd[i1 - 1]))
+        out["contact_duration_s"] = float(_crossing(s.t, s.p, i1 - 1) - t_start)
+        # In free flight the relative velocity no longer changes: the first sample after is the exit.
+        out["exit_velocity_mps"] = float(s.pd[i1])
     return out
 
 
@@ -60,7 +64,9 @@ def summarize(s: Samples, *, run_time_s: float | None = None, ideal: dict | None
     out = {"run_time_s": run_time_s, "sim_time_s": sim_time,
            "real_time_factor": (sim_time / run_time_s) if run_time_s else None}
     metrics = contact_metrics(s)
-    out.update({k: v for k, v in metrics.items() if k != "contact_start_s"})
+    out.update({k: v for k, v in metrics.items() if k not in ("contact_start_s", "note")})
+    if "note" in metrics:
+        out["note"] = metrics["note"]
     if ideal is not None:
         ref = {k: ideal[k] for k in ("peak_force_N", "contact_duration_s", "exit_velocity_mps")}
         out["ideal"] = ref
@@ -223,16 +229,19 @@ def format_summary(out: dict) -> str:
              + (f" ({rtf:.1f}x real time)" if rtf else "")]
     rows = [("peak force", "peak_force_N", "N"), ("contact duration", "contact_duration_s", "s"),
             ("exit velocity", "exit_velocity_mps", "m/s")]
+    w = 16
     if "ideal" in out:
-        lines.append(f"{'':18}{'run':>14}{'ideal':>14}{'error':>14}")
+        lines.append(f"{'':18}{'run':>{w}}{'ideal':>{w}}{'error':>{w}}")
         for label, key, unit in rows:
-            lines.append(f"{label:18}{f(out[key], unit):>14}{f(out['ideal'][key], unit):>14}"
-                         f"{f(out['error'][key], unit):>14}")
-        lines.append(f"{'max force error':18}{f(out['error']['max_force_N'], 'N'):>14}")
+            lines.append(f"{label:18}{f(out[key], unit):>{w}}{f(out['ideal'][key], unit):>{w}}"
+                         f"{f(out['error'][key], unit):>{w}}")
+        lines.append(f"{'max force error':18}{f(out['error']['max_force_N'], 'N'):>{w}}")
     else:
         for label, key, unit in rows:
-            lines.append(f"{label:18}{f(out[key], unit):>14}")
+            lines.append(f"{label:18}{f(out[key], unit):>{w}}")
     if "predicted_growth_rate_1_s" in out:
-        lines.append(f"{'growth rate':18}{f(out['growth_rate_1_s'], '1/s'):>14}   "
+        lines.append(f"{'growth rate':18}{f(out['growth_rate_1_s'], '1/s'):>{w}}   "
                      f"predicted {f(out['predicted_growth_rate_1_s'], '1/s')} (rightmost root)")
+    if "note" in out:
+        lines.append(f"note: {out['note']}")
     return "\n".join(lines)

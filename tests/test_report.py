@@ -181,8 +181,6 @@ def _by_name(cases):
     return {c["name"]: c for c in cases}
 
 
-@pytest.mark.xfail(strict=True, reason="simulate_contact looks for a contact event only at the end of a step: "
-                   "a contact shorter than the step is missed when the bodies end the step still overlapping")
 def test_stiff_contact_inside_one_step_at_every_onset_phase():
     case = _by_name(R.stiff_contact_cases(R.ReportConfig(graph=False)))["exact step, onset at tenths of a step"]
     assert case["passed"], case["measured"]

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dockhil.contact.hybrid import VirtualImpedance, passive_force, virtual_forces
-from dockhil.contact.integrators import Integrator, LinearSecondOrderSystem
+from dockhil.contact.integrators import RELATIVE, Integrator, LinearSecondOrderSystem, Penetration, step_with_events
 from dockhil.contact.scenario import ContactModelError, ContactScenario
 
 
@@ -43,30 +43,43 @@ class Bodies:
         if ideal is not None:
             kcs, bcs = ideal
             if self.fixed_target:
-                system = LinearSecondOrderSystem([m1], [[kcs]], [[bcs]])
+                system = LinearSecondOrderSystem([m1], [[kcs]], [[bcs]])  # on x1 - x2: see `state`
             else:
                 system = LinearSecondOrderSystem.ideal_contact(ContactScenario(m1, m2, kcs, bcs))
             self.contact = Integrator(system, method, on_unstable)
             self.kcs, self.bcs = kcs, bcs
-        self.state = np.array([x1, v1]) if self.fixed_target else np.array([x1, x2, v1, v2])
+            reduced = m1 if self.fixed_target else m1 * m2 / (m1 + m2)
+            self.omega = math.sqrt(kcs / reduced)
+        # A fixed target's state is kept relative to it, so a contact spring pulls toward the sheet.
+        self.pen = Penetration([1.0]) if self.fixed_target else RELATIVE
+        self.state = np.array([x1 - x2, v1]) if self.fixed_target else np.array([x1, x2, v1, v2])
+        self.in_contact = self._overlapping()
 
     def positions(self) -> tuple[float, float, float, float]:
         """(x1, x2, v1, v2) as Python floats."""
         s = self.state
         if self.fixed_target:
-            return float(s[0]), self.x2_fixed, float(s[1]), 0.0
+            return float(s[0]) + self.x2_fixed, self.x2_fixed, float(s[1]), 0.0
         return float(s[0]), float(s[1]), float(s[2]), float(s[3])
 
     def touching(self) -> bool:
+        """In contact: as located by the stepping with the ideal contact inside, else by the positions."""
+        return self.in_contact if self.contact is not None else self._overlapping()
+
+    def _overlapping(self) -> bool:
         x1, x2, v1, v2 = self.positions()
         p = x1 - x2
         return p > 0.0 or (p == 0.0 and v1 - v2 > 0.0)
 
     def step(self, f1: float, f2: float, dt: float) -> None:
-        """Advance dt [s] with external forces f1, f2 [N] held constant."""
-        integ = self.contact if self.contact is not None and self.touching() else self.free
+        """Advance dt [s] with external forces f1, f2 [N] held constant; with the ideal
+        contact inside, contact onsets and separations within the step are located."""
         force = np.array([f1]) if self.fixed_target else np.array([f1, f2])
-        self.state = integ.step(self.state, force, dt)
+        if self.contact is None:
+            self.state = self.free.step(self.state, force, dt)
+        else:
+            self.state, self.in_contact, _ = step_with_events(self.free, self.contact, self.state, force, dt,
+                                                              self.in_contact, self.pen, self.omega)
         if not np.all(np.isfinite(self.state)):
             raise ContactModelError(
                 f"the bodies' state diverged to {self.state.tolist()}; the loop is unstable or the step too large"
@@ -74,7 +87,7 @@ class Bodies:
 
     def ideal_force(self) -> float:
         """Compressive ideal contact force [N] at the current state (0 apart)."""
-        if self.contact is None or not self.touching():
+        if self.contact is None or not self.in_contact:
             return 0.0
         x1, x2, v1, v2 = self.positions()
         return self.kcs * (x1 - x2) + self.bcs * (v1 - v2)

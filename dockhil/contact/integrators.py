@@ -339,31 +339,14 @@ def simulate_contact(
     exit_time = None
     states[0], flags[0] = x, touching
     forces[0] = _contact_force(contact_sys, x, touching)
+    omega = scenario.natural_frequency
     for i in range(steps):
-        t_now = times[i]
-        remaining = dt
-        for _ in range(16):  # more events in one step than this would be chatter
-            integ = contact if touching else free
-            x_new = integ.step(x, u, dt) if remaining == dt else integ.step_uncached(x, u, remaining)
-            p_new = x_new[0] - x_new[1]
-            if not ((p_new <= 0.0) if touching else (p_new > 0.0)):
-                x = x_new
-                break
-            tau = _locate_event(integ, x, u, remaining, touching, t_now)
-            x = integ.step_uncached(x, u, tau)
-            t_now += tau
-            remaining -= tau
-            touching = not touching
-            if touching and onset is None:
-                onset = t_now
-            elif not touching and exit_time is None:
-                exit_time = t_now
-            if remaining <= 0.0:
-                break
-        else:
-            raise ContactModelError(
-                f"more than 16 contact events within the step at t = {times[i]:.6g} s (chatter); use a smaller dt"
-            )
+        x, touching, events = step_with_events(free, contact, x, u, dt, touching, RELATIVE, omega)
+        for offset, now_touching in events:
+            if now_touching and onset is None:
+                onset = times[i] + offset
+            elif not now_touching and exit_time is None:
+                exit_time = times[i] + offset
         states[i + 1], flags[i + 1] = x, touching
         forces[i + 1] = _contact_force(contact_sys, x, touching)
     return Trajectory(
@@ -380,20 +363,92 @@ def simulate_contact(
     )
 
 
-def _locate_event(integ: Integrator, x, u, span: float, touching: bool, t_now: float) -> float:
-    """Sub-step length in (0, span] at which the penetration changes side:
+class Penetration:
+    """p = c . q + offset: how far the bodies overlap, as a linear function of positions q."""
+
+    def __init__(self, c, offset: float = 0.0):
+        self.c = np.asarray(c, float)
+        self.offset = offset
+
+    def of(self, state) -> float:
+        return float(self.c @ state[: self.c.size]) + self.offset
+
+    def rate(self, state) -> float:
+        return float(self.c @ state[self.c.size:])
+
+
+RELATIVE = Penetration([1.0, -1.0])  # chaser minus target
+
+
+def step_with_events(free: Integrator, contact: Integrator, x, u, dt: float, touching: bool,
+                     pen: Penetration, omega: float) -> tuple[np.ndarray, bool, list[tuple[float, bool]]]:
+    """One step of dt with the contact switching on and off inside it.
+
+    `omega` [rad/s] is the contact's natural frequency. Returns the new
+    state, whether the bodies touch at its end, and the events [(time into
+    the step, touching after)]. A step with no event is the plain cached
+    step, so event handling changes no result where nothing happens. Events
+    hidden inside a step (a contact shorter than dt) are found by sampling
+    at a quarter of the contact period and, in free flight, at the vertex of
+    the parabola the penetration follows."""
+    events: list[tuple[float, bool]] = []
+    done = 0.0
+    remaining = dt
+    for _ in range(16):  # more events in one step than this would be chatter
+        integ = contact if touching else free
+        end = integ.step(x, u, dt) if remaining == dt else integ.step_uncached(x, u, remaining)
+        bracket = _event_bracket(integ, x, u, remaining, end, touching, pen, omega)
+        if bracket is None:
+            return end, touching, events
+        tau = _locate_event(integ, x, u, bracket, touching, pen)
+        x = integ.step_uncached(x, u, tau)
+        done += tau
+        remaining -= tau
+        touching = not touching
+        events.append((done, touching))
+        if remaining <= 0.0:
+            return x, touching, events
+    raise ContactModelError(
+        f"more than 16 contact events within one step of {dt:.6g} s (chatter); use a smaller dt"
+    )
+
+
+def _side_changed(y, touching: bool, pen: Penetration) -> bool:
+    p = pen.of(y)
+    return p <= 0.0 if touching else p > 0.0
+
+
+def _event_bracket(integ: Integrator, x, u, span: float, end, touching: bool, pen: Penetration,
+                   omega: float) -> tuple[float, float] | None:
+    """(lo, hi) with the penetration on the old side at lo and on the new side at hi, or None."""
+    inner: list[float] = []
+    if touching and omega * span > 0.5 * math.pi:
+        # In contact p changes sign at most once per half period: look every quarter period.
+        quarter = 0.5 * math.pi / omega
+        inner = [quarter * j for j in range(1, int(span / quarter) + 1) if quarter * j < span]
+    elif not touching:
+        # In free flight p is a parabola: it may enter and leave contact within the step.
+        n = integ.system.n
+        v0 = pen.rate(x)
+        a = float(pen.c @ integ.system.accelerations(x[:n], x[n:], u))
+        if a < 0.0 < v0 and -v0 / a < span:
+            inner = [-v0 / a]
+    lo = 0.0
+    for t in inner:
+        if _side_changed(integ.step_uncached(x, u, t), touching, pen):
+            return lo, t
+        lo = t
+    return (lo, span) if _side_changed(end, touching, pen) else None
+
+
+def _locate_event(integ: Integrator, x, u, bracket: tuple[float, float], touching: bool, pen: Penetration) -> float:
+    """Sub-step length in (lo, hi] at which the penetration changes side:
     returns the first point found on the new side, so the mode switch is safe."""
-
-    def crossed(tau: float) -> bool:
-        y = integ.step_uncached(x, u, tau)
-        p = y[0] - y[1]
-        return p <= 0.0 if touching else p > 0.0
-
-    lo, hi = 0.0, span
-    resolution = 4.0 * np.finfo(float).eps * max(1.0, abs(t_now) + span)
+    lo, hi = bracket
+    resolution = 4.0 * np.finfo(float).eps * max(1.0, hi)
     while hi - lo > resolution:
         mid = 0.5 * (lo + hi)
-        if crossed(mid):
+        if _side_changed(integ.step_uncached(x, u, mid), touching, pen):
             hi = mid
         else:
             lo = mid
