@@ -1,0 +1,93 @@
+"""The same scene on real-protocol drivers: CAN F/T over a pseudo-terminal slcan adapter,
+robot over Modbus TCP on 127.0.0.1, both emulated; missing devices and safety through the launcher."""
+
+import json
+import socket
+import subprocess
+import time
+
+import pytest
+
+from tests.conftest import dockhil_cmd
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def hardware_args(tmp_path, emulators=True):
+    return ["ft:=can", "robot:=modbus", f"emulators:={'true' if emulators else 'false'}",
+            f"can_channel:={tmp_path / 'ft.slcan'}", f"modbus_port:={free_port()}"]
+
+
+def test_swap_runs_the_scene_through_the_drivers_and_lands_near_the_simulated_run(tmp_path):
+    sim, hw = tmp_path / "sim.json", tmp_path / "hw.json"
+    r = subprocess.run(dockhil_cmd("launch", "launch/hil.yaml", "--summary", sim, "--quiet"),
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
+    r = subprocess.run(dockhil_cmd("launch", "launch/hil.yaml", *hardware_args(tmp_path), "--wall-time",
+                                   "--duration", "2.5", "--summary", hw, "--quiet"),
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "tared over 100 samples" in r.stdout and "listening on 127.0.0.1" in r.stdout
+    s, h = json.loads(sim.read_text()), json.loads(hw.read_text())
+    # Real protocols and wall-clock scheduling add a little delay on top of the emulated 32 ms.
+    assert h["peak_force_N"] == pytest.approx(s["peak_force_N"], abs=2.0)
+    assert h["contact_duration_s"] == pytest.approx(s["contact_duration_s"], abs=0.05)
+    assert h["exit_velocity_mps"] == pytest.approx(s["exit_velocity_mps"], abs=0.003)
+
+
+def test_missing_devices_fail_fast_with_one_line_each(tmp_path):
+    t0 = time.monotonic()
+    r = subprocess.run(dockhil_cmd("launch", "launch/hil.yaml", *hardware_args(tmp_path, emulators=False),
+                                   "--wall-time", "--duration", "30", "--quiet"),
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0
+    assert time.monotonic() - t0 < 15
+    out = r.stdout + r.stderr
+    errors = [line for line in out.splitlines() if " error: " in line]
+    assert any(line.startswith("[robot] error: robot controller (Modbus TCP") for line in errors), out
+    assert any(line.startswith("[ft] error: F/T sensor (slcan") for line in errors), out
+    assert "Traceback" not in out
+
+
+def test_a_safety_limit_stops_the_graph_naming_limit_and_value(tmp_path):
+    # The sensor measures the passive compliance alone: k v / omega, about 15 N at its peak here.
+    r = subprocess.run(dockhil_cmd("launch", "launch/hil.yaml", *hardware_args(tmp_path), "max_force:=10",
+                                   "--wall-time", "--duration", "3", "--quiet"),
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0
+    out = r.stdout + r.stderr
+    trip = [line for line in out.splitlines() if "safety stop: max_force" in line]
+    assert len(trip) == 1 and "> 10 N" in trip[0].replace("10.0", "10"), out
+    assert "robot held" in trip[0] and "Traceback" not in out
+
+
+def test_a_dead_device_stops_the_graph(tmp_path):
+    """The sensor's CAN adapter (the emulator) dies mid-run: the launcher stops the graph, non-zero.
+    The driver's own watchdog and hold are tested in test_hardware_safety.py."""
+    args = hardware_args(tmp_path)
+    p = subprocess.Popen(dockhil_cmd("launch", "launch/hil.yaml", *args, "--wall-time", "--duration", "20", "--quiet"),
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.time() + 30
+        emulator = None
+        while emulator is None and time.time() < deadline:
+            out = subprocess.run(["pgrep", "-f", "-n", "dockhil.process.*ft_emulator"], capture_output=True, text=True)
+            emulator = int(out.stdout.split()[0]) if out.stdout.strip() else None
+            time.sleep(0.2)
+        assert emulator is not None
+        time.sleep(1.5)
+        import os
+        import signal
+
+        os.kill(emulator, signal.SIGKILL)
+        out, _ = p.communicate(timeout=30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode != 0
+    assert "[launch] node 'ft_emulator' was killed by SIGKILL while running; stopping the graph" in out
+    assert "Traceback" not in out
