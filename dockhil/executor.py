@@ -57,6 +57,7 @@ class RunSpec:
     inputs: dict[str, PortWire] = field(default_factory=dict)
     outputs: dict[str, PortWire] = field(default_factory=dict)
     start_timeout: float = 20.0
+    realtime: bool = False  # wall time: ask the OS for real-time (SCHED_FIFO) scheduling
 
 
 class Stop:
@@ -309,10 +310,14 @@ class LoopTiming:
         return out
 
 
+SPIN_S = float(os.environ.get("DOCKHIL_SPIN_S", "0.0002"))
+
+
 def _sleep_until(deadline: float) -> None:
-    # Sleep most of the way, then spin briefly: time.sleep alone overshoots by ~60-100 us.
+    # Sleep most of the way, then spin the last SPIN_S: time.sleep alone overshoots by ~60-150 us,
+    # but every microsecond spun is CPU the other nodes on the machine do not get.
     left = deadline - time.monotonic()
-    if left > 0.0003:
-        time.sleep(left - 0.0002)
+    if left > SPIN_S:
+        time.sleep(left - SPIN_S)
     while time.monotonic() < deadline:
         pass

@@ -128,7 +128,7 @@ class _Child:
 class Launcher:
     def __init__(self, graph: Graph, *, clock: str = "sim", duration: float | None = None,
                  transport: str = "ipc", extra: list[ExtraProcess] | None = None, out=None,
-                 progress: bool = False):
+                 progress: bool = False, realtime: bool = False):
         self.graph = graph
         self.clock = clock
         self.extra = extra or []
@@ -140,6 +140,8 @@ class Launcher:
         # sees its device (an emulator) stop first and mistakes that for a fault.
         self.wall_duration = duration if clock == "wall" else None
         self.specs = run_specs(graph, self.endpoints, clock, self.n_ticks if clock == "sim" else None, self.extra)
+        for spec in self.specs.values():
+            spec.realtime = realtime
         self._all_ready_at: float | None = None
         self.progress = progress and clock == "sim" and self.n_ticks is not None
         self._print_lock = threading.Lock()

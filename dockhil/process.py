@@ -26,6 +26,18 @@ def _die_with_parent() -> None:
         pass
 
 
+REALTIME_PRIORITY = 50
+
+
+def _ask_realtime(log) -> None:
+    """SCHED_FIFO for a wall-time loop; one line, and normal priority, where the OS refuses."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
+    except (PermissionError, OSError, AttributeError) as exc:
+        log(f"real-time scheduling refused ({exc}); running at normal priority "
+            f"(grant CAP_SYS_NICE or an rtprio limit to use --realtime)")
+
+
 def run_node(spec, log=None, on_ready=None) -> int:
     """Set up and run one node until its ticks are done or a stop is requested."""
     import nodes
@@ -36,6 +48,8 @@ def run_node(spec, log=None, on_ready=None) -> int:
     stop = Stop()
     stop.install()
     executor = None
+    if spec.realtime and spec.clock == "wall":
+        _ask_realtime(log)
     try:
         executor = NodeExecutor(spec, nodes.load(spec.type_name), stop, log)
         executor.start()

@@ -20,7 +20,7 @@ from dockhil.graph import Graph
 
 def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None, composed: bool = False,
               transport: str = "ipc", bag: str | None = None, summary: str | None = None,
-              progress: bool = False, show_summary: bool = True) -> int:
+              progress: bool = False, show_summary: bool = True, realtime: bool = False) -> int:
     from dockhil import summary as summ
 
     dt = graph.scene.dt
@@ -49,7 +49,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
             bag_live.check_bag_path(bag)  # a bag that cannot be written fails the launch before any node runs
             extra.append(bag_live.recorder_process(bag, graph, clock, n_ticks))
         code = Launcher(graph, clock=clock, duration=duration, transport=transport, extra=extra,
-                        progress=progress).run()
+                        progress=progress, realtime=realtime).run()
     elapsed = time.perf_counter() - started
     try:
         if code == 0 and want_summary:

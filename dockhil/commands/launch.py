@@ -26,6 +26,8 @@ def add_arguments(p) -> None:
     p.add_argument("--bag", metavar="PATH", help="record every topic to this MCAP bag")
     p.add_argument("--summary", metavar="FILE.json", help="write the run summary (peak force, contact duration, ...)")
     p.add_argument("--quiet", action="store_true", help="print no progress and no summary table")
+    p.add_argument("--realtime", action="store_true",
+                   help="wall time: run node loops with real-time (SCHED_FIFO) priority where the OS allows")
 
 
 def run(args) -> int:
@@ -43,4 +45,4 @@ def run(args) -> int:
 
     return run_scene(graph, clock=args.clock, duration=duration, composed=args.composed,
                      transport=args.transport, bag=args.bag, summary=args.summary,
-                     progress=not args.quiet, show_summary=not args.quiet)
+                     progress=not args.quiet, show_summary=not args.quiet, realtime=args.realtime)
