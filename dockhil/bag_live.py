@@ -49,6 +49,7 @@ from typing import Any, Callable, Iterator
 import msgspec
 
 import msgs
+from msgs.codec import decode_header
 from dockhil.bag import BagError, BagMessage, BagReader, BagWriter
 from dockhil.errors import DockhilError
 
@@ -57,22 +58,6 @@ FLUSH_EVERY_S = 0.5  # bounds what a SIGKILL loses when topics are quiet
 DRAIN_QUIET_S = 0.2  # at stop: what still arrives within this is recorded
 DRAIN_MAX_S = 2.0
 FIND_GRAPH_TIMEOUT_S = 20.0  # as long as sim-time publishers wait for subscribers
-
-
-class _Stamped(msgspec.Struct):
-    """Only the header of any message: the rest of the map is skipped, not validated."""
-
-    header: msgs.Header
-
-
-_read_header = msgspec.msgpack.Decoder(_Stamped).decode
-
-
-def _header(data: bytes) -> msgs.Header | None:
-    try:
-        return _read_header(data).header
-    except (msgspec.DecodeError, msgspec.ValidationError):
-        return None
 
 
 def _log(line: str) -> None:
@@ -208,7 +193,7 @@ class Recorder:
             return
         self.received += 1
         data = frames[1] if len(frames) == 2 else b"".join(frames[1:])
-        header = _header(data)
+        header = decode_header(data)
         if header is None:
             self.unreadable += 1
             log_ns = st.last_log if st.sim else time.time_ns()
@@ -619,7 +604,7 @@ def _tick_order(stream: Iterator[BagMessage], window: int = 4096) -> Iterator[tu
     n = 0
     last = (0, 0.0)
     for topic, type_name, _log_ns, data in stream:
-        header = _header(data)
+        header = decode_header(data)
         key = (header.tick, header.stamp) if header is not None else last
         last = key
         heapq.heappush(heap, (key[0], n, key[1], topic, type_name, data))

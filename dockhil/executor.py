@@ -23,16 +23,9 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-import msgspec
-
-import msgs
 from dockhil.errors import DockhilError
-from dockhil.node import Node, NodeContext, Tick
-from msgs.codec import DecodeError, decode, encode
-
-
-class _HeaderOnly(msgspec.Struct):
-    header: msgs.Header
+from dockhil.node import NodeContext, Tick
+from msgs.codec import DecodeError, decode, decode_header, encode
 
 
 @dataclass
@@ -147,10 +140,8 @@ class NodeExecutor:
                 out.append((port, msg.header.tick, msg, True))
             except DecodeError as exc:
                 self._drop(topic.decode(), str(exc))
-                try:
-                    tick = msgspec.msgpack.decode(payload, type=_HeaderOnly).header.tick
-                except (msgspec.DecodeError, msgspec.ValidationError):
-                    tick = None
+                header = decode_header(payload)
+                tick = None if header is None else header.tick
                 out.append((port, tick, None, False))
         return out
 

@@ -15,7 +15,6 @@ import msgs
 import nodes as node_registry
 from dockhil.errors import LaunchError, ParamError
 from dockhil.launchfile import Scene
-from dockhil.node import Input, Output
 
 
 @dataclass

@@ -31,10 +31,6 @@ from dockhil.process import READY
 from dockhil.transport import ipc_endpoint, runtime_dir
 
 
-class _Ticked(msgspec.Struct):
-    header: msgs.Header
-
-
 @dataclass
 class ExtraProcess:
     """A helper process that subscribes to topics (a recorder): it counts as
@@ -250,15 +246,13 @@ class Launcher:
         return sub
 
     def _show_progress(self, probe, bar) -> None:
-        import msgspec
+        from msgs.codec import decode_header
 
         tick = None
         while (frames := probe.recv_nowait()) is not None:
-            if len(frames) == 2:
-                try:
-                    tick = msgspec.msgpack.decode(frames[1], type=_Ticked).header.tick
-                except (msgspec.DecodeError, msgspec.ValidationError):
-                    pass
+            header = decode_header(frames[1]) if len(frames) == 2 else None
+            if header is not None:
+                tick = header.tick
         if tick is not None:
             bar.update(tick + 1)
 

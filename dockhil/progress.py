@@ -1,4 +1,8 @@
-"""A one-line progress display for long runs: simulated time, share done, real-time factor."""
+"""Progress on stderr for long runs: redrawn in place on a terminal, one line at a time in logs.
+
+`Progress` follows a sim-time run (simulated time, share done, real-time
+factor); `TaskProgress` counts named steps (the report).
+"""
 
 from __future__ import annotations
 
@@ -6,16 +10,41 @@ import sys
 import time
 
 
+class StatusLine:
+    """One line of status: rewritten in place on a terminal; elsewhere each update is a new line."""
+
+    def __init__(self, stream=None):
+        self.stream = sys.stderr if stream is None else stream
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.shown = False
+
+    def show(self, text: str) -> None:
+        self.stream.write(("\r" + text + "\x1b[K") if self.tty else text + "\n")
+        self.stream.flush()
+        self.shown = True
+
+    def end(self, keep: bool = False) -> None:
+        """Leave the line (keep=True) or erase it, on a terminal."""
+        if self.shown and self.tty:
+            self.stream.write("\n" if keep else "\r\x1b[K")
+            self.stream.flush()
+
+
+def bar(fraction: float, width: int) -> str:
+    filled = int(width * min(1.0, max(0.0, fraction)))
+    return "#" * filled + "." * (width - filled)
+
+
 class Progress:
+    """A sim-time run: simulated time, share done, real-time factor."""
+
     def __init__(self, total_ticks: int | None, dt: float, stream=None, min_interval: float = 0.2):
         self.total = total_ticks
         self.dt = dt
-        self.stream = stream or sys.stderr
-        self.tty = self.stream.isatty()
+        self.line = StatusLine(stream)
         self.start = time.perf_counter()
         self.last = self.start  # nothing to show for the first moments
-        self.min_interval = min_interval if self.tty else 5.0  # logs get a line every few seconds
-        self.shown = False
+        self.min_interval = min_interval if self.line.tty else 5.0  # logs get a line every few seconds
 
     def update(self, ticks_done: int, force: bool = False) -> None:
         now = time.perf_counter()
@@ -26,19 +55,35 @@ class Progress:
         elapsed = now - self.start
         rtf = f"{sim / elapsed:.1f}x real time" if elapsed > 0 else ""
         if self.total:
-            share = ticks_done / self.total
-            bar = "#" * int(24 * share)
-            text = f"[{bar:<24}] {sim:.2f} of {(self.total - 1) * self.dt:.2f} s simulated, {rtf}"
+            text = f"[{bar(ticks_done / self.total, 24)}] {sim:.2f} of {(self.total - 1) * self.dt:.2f} s simulated, {rtf}"
         else:
             text = f"{sim:.2f} s simulated, {rtf}"
-        if self.tty:
-            self.stream.write("\r" + text + "\x1b[K")
-        else:
-            self.stream.write(text + "\n")
-        self.stream.flush()
-        self.shown = True
+        self.line.show(text)
 
     def done(self) -> None:
-        if self.shown and self.tty:
-            self.stream.write("\r\x1b[K")
-            self.stream.flush()
+        self.line.end()
+
+
+class TaskProgress:
+    """Named steps of a long job: `step(label)` before each, `finish()` at the end."""
+
+    def __init__(self, total: int, stream=None, width: int = 30):
+        self.total = max(1, total)
+        self.done = 0
+        self.width = width
+        self.line = StatusLine(stream)
+        self.started = time.perf_counter()
+
+    def step(self, label: str) -> None:
+        """Announce the task about to run (counts the previous one as done)."""
+        self._draw(label)
+        self.done = min(self.total, self.done + 1)
+
+    def finish(self, label: str = "done") -> None:
+        self.done = self.total
+        self._draw(label)
+        self.line.end(keep=True)
+
+    def _draw(self, label: str) -> None:
+        elapsed = time.perf_counter() - self.started
+        self.line.show(f"[{bar(self.done / self.total, self.width)}] {self.done:>3}/{self.total} {elapsed:6.1f} s  {label}")

@@ -41,6 +41,7 @@ from typing import Callable
 
 import numpy as np
 
+from dockhil.progress import TaskProgress
 from dockhil.contact.hilloop import simulate_hil, simulate_ideal
 from dockhil.contact.hybrid import VirtualImpedance
 from dockhil.contact.ideal import ideal_contact_summary, ideal_trajectory, relative_motion
@@ -102,45 +103,6 @@ class ReportConfig:
             min_timing_s=0.0,
             quick=True,
         )
-
-
-class Progress:
-    """A plain-text progress bar on a stream: redrawn in place on a terminal,
-    one line per step otherwise (logs, CI)."""
-
-    def __init__(self, total: int, stream=None, width: int = 30):
-        self.total = max(1, total)
-        self.done = 0
-        self.stream = sys.stderr if stream is None else stream
-        self.width = width
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
-        self.started = time.perf_counter()
-        self._last_len = 0
-
-    def step(self, label: str) -> None:
-        """Announce the task about to run (counts the previous one as done)."""
-        self._draw(label)
-        self.done = min(self.total, self.done + 1)
-
-    def finish(self, label: str = "done") -> None:
-        self.done = self.total
-        self._draw(label)
-        if self.tty:
-            self.stream.write("\n")
-            self.stream.flush()
-
-    def _draw(self, label: str) -> None:
-        filled = int(self.width * self.done / self.total)
-        bar = "#" * filled + "." * (self.width - filled)
-        elapsed = time.perf_counter() - self.started
-        line = f"[{bar}] {self.done:>3}/{self.total} {elapsed:6.1f} s  {label}"
-        if self.tty:
-            pad = max(0, self._last_len - len(line))
-            self.stream.write("\r" + line + " " * pad)
-            self._last_len = len(line)
-        else:
-            self.stream.write(line + "\n")
-        self.stream.flush()
 
 
 def _best_time(run: Callable[[], object], min_total: float) -> tuple[object, float]:
@@ -581,7 +543,7 @@ def bag_samples(path: str, ideal_force=None):
     return load_samples(path, ideal_force)
 
 
-def graph_cost(cfg: ReportConfig, progress: Progress | None = None) -> dict:
+def graph_cost(cfg: ReportConfig, progress: TaskProgress | None = None) -> dict:
     """hil.yaml run three ways: the model library's loop, composed in one process,
     separate processes. Run times side by side; trajectories compared bit for bit."""
     from dockhil.summary import ideal_reference, summarize
@@ -1134,7 +1096,7 @@ def _count_tasks(cfg: ReportConfig) -> int:
     return wp + energy + graph + len(STIFF_GROUPS) + (1 if cfg.lean else 0)
 
 
-def work_precision(cfg: ReportConfig, progress: Progress) -> tuple[list[dict], dict]:
+def work_precision(cfg: ReportConfig, progress: TaskProgress) -> tuple[list[dict], dict]:
     import scipy.integrate  # noqa: F401  imported here so that no timed run pays for it
 
     entries: list[dict] = []
@@ -1203,7 +1165,7 @@ def work_precision_summary(entries: list[dict]) -> list[dict]:
     return rows
 
 
-def energy_drift(cfg: ReportConfig, progress: Progress) -> dict:
+def energy_drift(cfg: ReportConfig, progress: TaskProgress) -> dict:
     scn = undamped_scenario()
     runs = []
     for method in METHODS:
@@ -1219,7 +1181,7 @@ def energy_drift(cfg: ReportConfig, progress: Progress) -> dict:
             "runs": [{k: _plain(v) if not isinstance(v, list) else v for k, v in r.items()} for r in runs]}
 
 
-def stiff_cases(cfg: ReportConfig, progress: Progress) -> list[dict]:
+def stiff_cases(cfg: ReportConfig, progress: TaskProgress) -> list[dict]:
     cases = []
     for label, run in STIFF_GROUPS:
         progress.step(f"stiff cases: {label}")
@@ -1227,7 +1189,7 @@ def stiff_cases(cfg: ReportConfig, progress: Progress) -> list[dict]:
     return cases
 
 
-def lean_scenes(cfg: ReportConfig, progress: Progress) -> dict:
+def lean_scenes(cfg: ReportConfig, progress: TaskProgress) -> dict:
     from dockhil import leanness
 
     progress.step("lean scenes: one interpreter per node type")
@@ -1242,7 +1204,7 @@ def build_report(cfg: ReportConfig | None = None, stream=None) -> dict:
     import platform
 
     cfg = cfg or ReportConfig()
-    progress = Progress(_count_tasks(cfg), stream)
+    progress = TaskProgress(_count_tasks(cfg), stream)
     started = time.perf_counter()
     entries, reference = work_precision(cfg, progress)
     report = {

@@ -12,6 +12,8 @@ import re
 
 import msgspec
 
+from msgs import Header
+
 _encoder = msgspec.msgpack.Encoder()
 encode = _encoder.encode
 
@@ -44,6 +46,23 @@ def decode(buf: bytes, cls: type):
         raise DecodeError(f"{cls.__name__}: not msgpack ({exc})") from None
     except UnicodeDecodeError as exc:  # a map key or string that is not UTF-8
         raise DecodeError(f"{cls.__name__}: a string is not valid UTF-8 ({exc.reason} at byte {exc.start})") from None
+
+
+class _Headed(msgspec.Struct):
+    """Only the header of any message: the rest of the map is skipped, not validated."""
+
+    header: Header
+
+
+_header_decoder = msgspec.msgpack.Decoder(_Headed)
+
+
+def decode_header(buf: bytes) -> Header | None:
+    """The header of any dockhil message (nothing else checked), or None where none can be read."""
+    try:
+        return _header_decoder.decode(buf).header
+    except (msgspec.DecodeError, msgspec.ValidationError, UnicodeDecodeError):
+        return None
 
 
 def schema(cls: type) -> dict:

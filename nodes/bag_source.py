@@ -32,6 +32,7 @@ from typing import Any
 import msgspec
 
 import msgs
+from msgs.codec import decode_header
 from dockhil.bag import BagError, BagReader
 from dockhil.errors import DockhilError, ParamError
 from dockhil.node import Node, Output, Param
@@ -76,20 +77,6 @@ def _selected(params: dict[str, Any]) -> dict[str, str]:
     return selected
 
 
-class _Stamped(msgspec.Struct):
-    header: msgs.Header
-
-
-_read_header = msgspec.msgpack.Decoder(_Stamped).decode
-
-
-def _header(data: bytes) -> msgs.Header | None:
-    try:
-        return _read_header(data).header
-    except (msgspec.DecodeError, msgspec.ValidationError):
-        return None
-
-
 class BagSource(Node):
     """Replays recorded topics from an MCAP bag: in sim time tick by tick, in wall time by time."""
 
@@ -131,7 +118,7 @@ class BagSource(Node):
             return False
         queue = self.queues.get(message.topic)
         if self.ctx.sim_time:
-            header = _header(message.data)
+            header = decode_header(message.data)
             if header is not None:
                 self.last_tick_in_bag = max(self.last_tick_in_bag, header.tick)
         if queue is not None:
@@ -168,7 +155,7 @@ class BagSource(Node):
                 )
 
     def _tick_of(self, topic: str, message) -> int:
-        header = _header(message.data)
+        header = decode_header(message.data)
         if header is None:
             raise DockhilError(f"bag {self.p.path}: a message on {topic} at log time {message.log_time_ns} ns "
                                f"has no readable header")

@@ -9,7 +9,6 @@ import pytest
 
 from dockhil.bag import BagReader
 from dockhil.contact.hilloop import simulate_hil
-from dockhil.contact.hybrid import VirtualImpedance
 from dockhil.contact.impedance import impedance_closed_form
 from dockhil.contact.scenario import TABLE1
 from dockhil.summary import samples_from_bag

@@ -8,6 +8,8 @@ import json
 import numpy as np
 import pytest
 
+from dockhil.progress import TaskProgress
+
 from dockhil import report as R
 from dockhil.cli import main
 from dockhil.contact import stability
@@ -61,7 +63,7 @@ def test_progress_redraws_in_place_on_a_terminal():
             return True
 
     stream = Tty()
-    bar = R.Progress(3, stream)
+    bar = TaskProgress(3, stream)
     for label in ("a", "b", "c"):
         bar.step(label)
     assert "\n" not in stream.getvalue() and stream.getvalue().count("\r") == 3

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import sys
-
 from dockhil.errors import LaunchError
 
 

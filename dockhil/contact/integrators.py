@@ -349,18 +349,7 @@ def simulate_contact(
                 exit_time = times[i] + offset
         states[i + 1], flags[i + 1] = x, touching
         forces[i + 1] = _contact_force(contact_sys, x, touching)
-    return Trajectory(
-        t=times,
-        x1=states[:, 0],
-        x2=states[:, 1],
-        v1=states[:, 2],
-        v2=states[:, 3],
-        force=forces,
-        in_contact=flags,
-        onset=onset,
-        exit=exit_time,
-        method=method,
-    )
+    return Trajectory.from_states(times, states, forces, flags, onset, exit_time, method)
 
 
 class Penetration:
@@ -520,15 +509,4 @@ def simulate_reference(
         states[i] = dense(t)
         flags[i] = mode
     forces = np.array([_contact_force(contact_sys, s, f) for s, f in zip(states, flags)])
-    return Trajectory(
-        t=t_eval,
-        x1=states[:, 0],
-        x2=states[:, 1],
-        v1=states[:, 2],
-        v2=states[:, 3],
-        force=forces,
-        in_contact=flags,
-        onset=onset,
-        exit=exit_time,
-        method="solve_ivp",
-    )
+    return Trajectory.from_states(t_eval, states, forces, flags, onset, exit_time, "solve_ivp")

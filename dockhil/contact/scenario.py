@@ -167,6 +167,11 @@ class Trajectory:
     exit: float | None
     method: str
 
+    @classmethod
+    def from_states(cls, t, states, force, in_contact, onset, exit, method: str) -> "Trajectory":
+        """From rows of states [x1, x2, v1, v2]."""
+        return cls(t, states[:, 0], states[:, 1], states[:, 2], states[:, 3], force, in_contact, onset, exit, method)
+
     @property
     def penetration(self):
         return self.x1 - self.x2

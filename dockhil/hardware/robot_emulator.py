@@ -164,7 +164,7 @@ class ServoModel:
             a = 1.0 - math.exp(-dt / self.tau)
         else:
             a = 1.0 if self.tau == 0 else 0.0
-        old_p, old_q = list(self.position), self.orientation
+        old_q = self.orientation
         self.position = [p + a * (t - p) for p, t in zip(self.position, target[:3])]
         tq = target[3:7]
         if sum(c * d for c, d in zip(old_q, tq)) < 0:
