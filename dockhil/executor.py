@@ -130,7 +130,7 @@ class NodeExecutor:
             tick = int.from_bytes(frames[2], "little")
             return [(port, tick, None, True) for port in ports]
         if len(frames) != 2:
-            self._drop(topic.decode(errors="replace"), f"{len(frames)} frames, expected [topic, payload]")
+            self._drop(topic.decode(errors="replace"), "malformed frame: expected the topic, a NUL byte, then msgpack")
             return []
         payload = frames[1]
         out = []
@@ -174,29 +174,18 @@ class NodeExecutor:
     def run_sim(self) -> None:
         spec, node = self.spec, self.node
         self.wait_for_subscribers()
-        buffers: dict[str, dict[int, Any]] = {port: {} for port in spec.inputs}
-        held: dict[str, Any] = {port: None for port in spec.inputs}
+        self._buffers: dict[str, dict[int, Any]] = {port: {} for port in spec.inputs}
+        self._held: dict[str, Any] = {port: None for port in spec.inputs}
+        self._last_seen = {port: -1 for port in spec.inputs}
         lag = {port: w.lag for port, w in spec.inputs.items()}
+        buffers = self._buffers
+        self._waited_since = time.monotonic()
+        self._warned_at: int | None = None
         k = 0
-        waited_since = time.monotonic()
-        warned = False
         while (spec.n_ticks is None or k < spec.n_ticks) and not self.stop.requested:
             missing = [p for p in buffers if k - lag[p] >= 0 and (k - lag[p]) not in buffers[p]]
             if missing:
-                frames = self.sub.recv(0.2)
-                if frames is None:
-                    if not warned and time.monotonic() - waited_since > 10:
-                        warned = True
-                        self.log(f"tick {k}: still waiting for {spec.inputs[missing[0]].topic} after 10 s")
-                    continue
-                for port, tick, msg, ok in self._decode(frames):
-                    if tick is None:
-                        continue
-                    if not ok:  # bad message for a known tick: hold the last good value
-                        msg = held[port]
-                    elif msg is not None:
-                        held[port] = msg
-                    buffers[port][tick] = msg
+                self._receive(k, missing[0])
                 continue
             inputs = {port: buf.pop(k - lag[port], None) for port, buf in buffers.items()}
             for port in self.unconnected:
@@ -206,8 +195,33 @@ class NodeExecutor:
             self.publish(k, outs, sim=True)
             k += 1
             self.ticks_done = k
-            waited_since = time.monotonic()
-            warned = False
+            self._waited_since = time.monotonic()
+        # Stay subscribed until every input's last tick is in: a publisher waits for its subscribers
+        # before tick 0, and a node that needs no input for its ticks (a long delay) must not leave first.
+        while spec.n_ticks is not None and not self.stop.requested:
+            behind = [p for p, seen in self._last_seen.items() if seen < spec.n_ticks - 1]
+            if not behind:
+                break
+            self._receive(k, behind[0], keep=False)
+
+    def _receive(self, k: int, waiting_for: str, keep: bool = True) -> None:
+        """Take one message off the socket (or time out after 0.2 s), file it by tick."""
+        frames = self.sub.recv(0.2)
+        if frames is None:
+            if time.monotonic() - self._waited_since > 10 and self._warned_at != k:
+                self._warned_at = k
+                self.log(f"tick {k}: still waiting for {self.spec.inputs[waiting_for].topic} after 10 s")
+            return
+        for port, tick, msg, ok in self._decode(frames):
+            if tick is None:
+                continue
+            self._last_seen[port] = max(self._last_seen[port], tick)
+            if not ok:  # bad message for a known tick: hold the last good value
+                msg = self._held[port]
+            elif msg is not None:
+                self._held[port] = msg
+            if keep:
+                self._buffers[port][tick] = msg
 
     def run_wall(self, duration: float | None) -> dict:
         spec, node = self.spec, self.node

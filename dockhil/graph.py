@@ -8,6 +8,7 @@ loops (cycles whose every input is read at the same tick) are refused with one l
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -56,8 +57,15 @@ class Graph:
         return self.publishers[topic].type
 
 
-def _topic_for(port: str, default: str, remap: dict[str, str]) -> str:
-    return remap.get(port, remap.get(default, default))
+_TOPIC = re.compile(r"/[A-Za-z0-9_./-]*")
+
+
+def _topic_for(port: str, default: str, remap: dict[str, str], where: str) -> str:
+    topic = remap.get(port, remap.get(default, default))
+    if not _TOPIC.fullmatch(topic):
+        raise LaunchError(f"{where}: topic {topic!r} of port {port!r} must start with / and use only "
+                          f"letters, digits and _ . - /")
+    return topic
 
 
 def build(scene: Scene) -> Graph:
@@ -81,11 +89,12 @@ def build(scene: Scene) -> Graph:
                 f"ports: {', '.join(sorted(set(ins) | set(outs)))}"
             )
         inputs = {
-            name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap), p.type, p.lag_ticks(scene.dt),
-                          p.required)
+            name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap, where), p.type,
+                          p.lag_ticks(scene.dt), p.required)
             for name, p in ins.items()
         }
-        outputs = {name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap), p.type) for name, p in outs.items()}
+        outputs = {name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap, where), p.type)
+                   for name, p in outs.items()}
         gnodes[spec.name] = GraphNode(spec.name, spec.type, cls, params, inputs, outputs, spec.respawn, spec.respawn_delay)
 
     publishers: dict[str, PortRef] = {}

@@ -1,7 +1,12 @@
 """ZeroMQ transport: one bound publisher socket per topic, one subscriber socket per node.
 
-Frames on the wire: [topic, msgpack payload]; in sim time, a tick with no
-message is [topic, b"", tick as 8 bytes little-endian]. Publishers are XPUB sockets so
+On the wire each message is one ZeroMQ frame: the topic, a NUL byte, then
+the msgpack payload; in sim time a tick with no message is the topic, byte
+0x01 and the tick as 8 bytes little-endian. (One frame, not a [topic,
+payload] envelope: each frame sent costs a wake-up of ZeroMQ's I/O thread.)
+Topic names never hold those two bytes, so the first one ends the topic, and
+SUB prefix filtering on the topic still works. Receivers see [topic,
+payload] or [topic, b"", tick]. Publishers are XPUB sockets so
 that they see subscriptions arrive: in sim time a publisher waits until every
 subscriber the launcher expects has joined before it sends tick 0, so the
 slow-joiner effect of PUB/SUB never loses a message. High-water marks are
@@ -17,6 +22,25 @@ from pathlib import Path
 import zmq
 
 from dockhil.errors import DockhilError
+
+
+MESSAGE = b"\x00"
+EMPTY_TICK = b"\x01"
+
+
+def split(frames: list[bytes]) -> list[bytes]:
+    """One wire frame -> [topic, payload] or [topic, b"", tick]; anything else is passed on as it
+    came, for the receiver to count as malformed."""
+    if len(frames) != 1:
+        return frames
+    frame = frames[0]
+    a, b = frame.find(MESSAGE), frame.find(EMPTY_TICK)
+    i = a if b < 0 or 0 <= a < b else b
+    if i < 0:
+        return frames
+    if frame[i:i + 1] == MESSAGE:
+        return [frame[:i], frame[i + 1:]]
+    return [frame[:i], b"", frame[i + 1:]]
 
 
 def runtime_dir() -> Path:
@@ -36,6 +60,8 @@ class Publisher:
     def __init__(self, ctx: zmq.Context, topic: str, endpoint: str, linger_s: float = 2.0):
         self.topic = topic
         self.topic_bytes = topic.encode()
+        self._message_prefix = self.topic_bytes + MESSAGE
+        self._empty_prefix = self.topic_bytes + EMPTY_TICK
         self.sock = ctx.socket(zmq.XPUB)
         self.sock.setsockopt(zmq.SNDHWM, 0)
         self.sock.setsockopt(zmq.XPUB_VERBOSE, 1)
@@ -71,11 +97,11 @@ class Publisher:
                     self.subscribers += 1
 
     def send(self, payload: bytes) -> None:
-        self.sock.send_multipart((self.topic_bytes, payload), copy=len(payload) > 4096)
+        self.sock.send(self._message_prefix + payload)
 
     def send_empty(self, tick: int) -> None:
         """Sim time: this topic has no message at this tick."""
-        self.sock.send_multipart((self.topic_bytes, b"", tick.to_bytes(8, "little")))
+        self.sock.send(self._empty_prefix + tick.to_bytes(8, "little"))
 
     def close(self) -> None:
         self.sock.close()
@@ -108,13 +134,13 @@ class Subscriber:
             self.sock.setsockopt(zmq.RCVTIMEO, ms)
             self._timeout_ms = ms
         try:
-            return self.sock.recv_multipart()
+            return split(self.sock.recv_multipart())
         except zmq.Again:
             return None
 
     def recv_nowait(self) -> list[bytes] | None:
         try:
-            return self.sock.recv_multipart(zmq.NOBLOCK)
+            return split(self.sock.recv_multipart(zmq.NOBLOCK))
         except zmq.Again:
             return None
 

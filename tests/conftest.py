@@ -1,4 +1,6 @@
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -7,12 +9,14 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(autouse=True)
-def _runtime_dir(tmp_path_factory, monkeypatch):
-    # Each test session gets its own registry and ipc directory, so tests never see a user's graphs.
-    d = tmp_path_factory.getbasetemp() / "rt"
-    d.mkdir(exist_ok=True)
-    monkeypatch.setenv("DOCKHIL_RUNTIME_DIR", str(d))
+def _runtime_dir(monkeypatch):
+    # Each test gets its own registry and ipc directory: no test sees a user's graphs or another
+    # test's. Short, under /tmp, because ipc socket paths are limited to about 100 characters.
+    d = tempfile.mkdtemp(prefix="dh-", dir="/tmp")
+    monkeypatch.setenv("DOCKHIL_RUNTIME_DIR", d)
     monkeypatch.chdir(ROOT)
+    yield
+    shutil.rmtree(d, ignore_errors=True)
 
 
 def dockhil_cmd(*args):

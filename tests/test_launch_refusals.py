@@ -42,6 +42,8 @@ CASES = {
     "bad yaml": ("nodes: [\n  - {name: a\n", [], "not valid YAML"),
     "not a mapping": ("- a\n- b\n", [], "a launch file is a YAML mapping"),
     "unknown key": ("nodez: []\n", [], "unknown key 'nodez'"),
+    "bad topic name": ('nodes:\n  - {name: a, node: "tests.graphnodes:Source", remap: {x: "no slash"}}\n', [],
+                       "topic 'no slash' of port 'x' must start with /"),
     "bad remap": ('nodes:\n  - {name: a, node: "tests.graphnodes:Source", remap: {y: /z}}\n', [],
                   "remap 'y' names no port or topic"),
     "undeclared arg": ('nodes:\n  - {name: a, node: "tests.graphnodes:Source", if: $(arg sim)}\n', [],

@@ -11,6 +11,7 @@ import pytest
 import zmq
 
 import msgs
+from dockhil.transport import split
 from msgs.codec import decode, encode
 from tests.conftest import dockhil_cmd
 
@@ -151,13 +152,13 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
             deadline = time.time() + seconds
             while time.time() < deadline:  # the newest output, after queued older ones
                 if sub.poll(50):
-                    got = decode(sub.recv_multipart()[1], msgs.WrenchStamped)
+                    got = decode(split(sub.recv_multipart())[1], msgs.WrenchStamped)
             return got
 
         # Until the node's subscription is live, PUB/SUB drops: send good data until it answers to it.
         deadline = time.time() + 10
         while time.time() < deadline:
-            pub.send_multipart([b"/x", encode(good)])
+            pub.send(b"/x\x00" + encode(good))
             got = latest_output(0.2)
             if got is not None and got.wrench.force.x == pytest.approx(-5.6):
                 break
@@ -166,8 +167,8 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
         bad = [b"\xc1garbage", msgpack.packb([1, 2, 3]), msgpack.packb(nan), encode(msgs.RobotState(header=msgs.Header()))]
         for _ in range(3):
             for b in bad:
-                pub.send_multipart([b"/x", b])
-            pub.send_multipart([b"/x"])  # a frame missing
+                pub.send(b"/x\x00" + b)
+            pub.send(b"/x")  # no payload at all
             time.sleep(0.2)
         # Still running, and still computing from the last good value: u = -3*2 + 0.1*4.
         assert node.poll() is None
