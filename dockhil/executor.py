@@ -5,9 +5,9 @@ holds, for each connected input, the message of tick k - lag (lag 0 for
 feedthrough inputs, 1 for the others, more for a declared delay; None
 before tick 0). An output a node leaves empty at a tick is sent as an
 explicit "no message" frame, so lock-step never waits for it. No hop adds a
-hidden delay, and
-the result does not depend on arrival order, so a graph run as processes
-and the same graph composed in one process give bit-identical outputs.
+hidden delay, and the result does not depend on arrival order, so a graph
+run as processes and the same graph composed in one process give
+bit-identical outputs.
 
 Wall time: a fixed-rate loop; each input holds its latest value (None until
 the first message arrives); outputs a node leaves out are not sent.

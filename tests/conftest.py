@@ -1,6 +1,12 @@
+import glob
+import json
+import os
 import shutil
+import signal
+import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -31,3 +37,34 @@ def write_launch(tmp_path):
         return p
 
     return write
+
+
+def registered(pid: int, timeout=20.0) -> dict:
+    """The registry entry of the graph run by process `pid`."""
+    graphs = os.path.join(os.environ["DOCKHIL_RUNTIME_DIR"], "graphs")
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        for name in glob.glob(os.path.join(graphs, "*.json")):
+            try:
+                entry = json.load(open(name))
+            except (OSError, ValueError):
+                continue
+            if entry.get("pid") == pid:
+                return entry
+        time.sleep(0.02)
+    raise AssertionError(f"process {pid} registered no graph")
+
+
+def kill_child_and_expect_the_graph_to_stop(launch: subprocess.Popen, name: str) -> str:
+    """SIGKILL the launched process `name`; the launcher must stop the graph, non-zero, in plain lines."""
+    pid = registered(launch.pid)["nodes"][name]["pid"]
+    try:
+        os.kill(pid, signal.SIGKILL)
+        out, _ = launch.communicate(timeout=30)
+    finally:
+        if launch.poll() is None:
+            launch.kill()
+    assert launch.returncode != 0
+    assert f"[launch] node '{name}' was killed by SIGKILL while running; stopping the graph" in out
+    assert "Traceback" not in out
+    return out
