@@ -42,6 +42,7 @@ class GraphNode:
     outputs: dict[str, PortRef]
     respawn: bool = False
     respawn_delay: float = 1.0
+    host: str = ""
 
 
 @dataclass
@@ -95,7 +96,8 @@ def build(scene: Scene) -> Graph:
         }
         outputs = {name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap, where), p.type)
                    for name, p in outs.items()}
-        gnodes[spec.name] = GraphNode(spec.name, spec.type, cls, params, inputs, outputs, spec.respawn, spec.respawn_delay)
+        gnodes[spec.name] = GraphNode(spec.name, spec.type, cls, params, inputs, outputs, spec.respawn,
+                                      spec.respawn_delay, spec.host)
 
     publishers: dict[str, PortRef] = {}
     for gn in gnodes.values():

@@ -45,8 +45,9 @@ class ExtraProcess:
 class Endpoints:
     run_id: str
     run_dir: Path
-    topics: dict[str, str]  # topic -> endpoint
+    topics: dict[str, str]  # topic -> endpoint subscribers connect to
     types: dict[str, str]  # topic -> wire type name
+    binds: dict[str, str] = field(default_factory=dict)  # topic -> endpoint the publisher binds
 
 
 def _free_tcp_port() -> int:
@@ -55,15 +56,30 @@ def _free_tcp_port() -> int:
         return s.getsockname()[1]
 
 
-def assign_endpoints(graph: Graph, transport: str = "ipc") -> Endpoints:
+def is_local(host: str) -> bool:
+    return host in ("", "localhost", "127.0.0.1", socket.gethostname(), socket.getfqdn())
+
+
+def assign_endpoints(graph: Graph, transport: str = "ipc", advertise: str | None = None) -> Endpoints:
+    """ipc sockets on one host; tcp when asked or when a node runs on another host. Over tcp a
+    publisher binds every interface and subscribers connect to its host: the node's `host`, or
+    for nodes started here `advertise` (default: this machine's name, 127.0.0.1 if all is local)."""
     run_id = time.strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:6]
     run_dir = runtime_dir() / run_id
     run_dir.mkdir(parents=True, exist_ok=True)
-    topics = {}
-    for topic in graph.publishers:
-        topics[topic] = ipc_endpoint(run_dir, topic) if transport == "ipc" else f"tcp://127.0.0.1:{_free_tcp_port()}"
+    remote = any(not is_local(gn.host) for gn in graph.nodes.values())
+    here = advertise or (socket.gethostname() if remote else "127.0.0.1")
+    topics, binds = {}, {}
+    for topic, ref in graph.publishers.items():
+        if transport == "ipc" and not remote:
+            topics[topic] = binds[topic] = ipc_endpoint(run_dir, topic)
+            continue
+        port = _free_tcp_port()
+        host = graph.nodes[ref.node].host
+        binds[topic] = f"tcp://{'0.0.0.0' if remote else '127.0.0.1'}:{port}"
+        topics[topic] = f"tcp://{host if not is_local(host) else here}:{port}"
     types = {topic: msgs.type_name(ref.type) for topic, ref in graph.publishers.items()}
-    return Endpoints(run_id, run_dir, topics, types)
+    return Endpoints(run_id, run_dir, topics, types, binds)
 
 
 def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extra: list[ExtraProcess]) -> dict[str, RunSpec]:
@@ -80,7 +96,7 @@ def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extr
             if ref.topic in ep.topics
         }
         outputs = {
-            port: PortWire(ref.topic, ep.topics[ref.topic], ep.types[ref.topic],
+            port: PortWire(ref.topic, ep.binds[ref.topic], ep.types[ref.topic],
                            subscribers=len({s.node for s in graph.subscribers.get(ref.topic, [])})
                            + extra_count.get(ref.topic, 0))
             for port, ref in gn.outputs.items()
@@ -117,6 +133,7 @@ class _Child:
     respawn: bool = False
     respawn_delay: float = 1.0
     finished: bool = False
+    host: str = ""  # another machine: started there by hand, not watched from here
     reader: threading.Thread | None = None
     lines: list[str] = field(default_factory=list)
 
@@ -147,7 +164,7 @@ class Launcher:
             argv = [sys.executable, "-m", "dockhil.process", msgspec.json.encode(spec).decode()]
             gn = graph.nodes[name]
             self.children.append(_Child(name, argv, respawn=gn.respawn and clock == "wall",
-                                        respawn_delay=gn.respawn_delay))
+                                        respawn_delay=gn.respawn_delay, host="" if is_local(gn.host) else gn.host))
         for proc in self.extra:
             self.children.append(_Child(proc.name, proc.argv))
 
@@ -175,6 +192,15 @@ class Launcher:
         )
         child.reader = threading.Thread(target=self._read, args=(child, child.proc.stdout), daemon=True)
         child.reader.start()
+
+    def _announce_remote(self, child: _Child) -> None:
+        """A node on another machine: say how to start it there. Sim time waits for it as for any
+        subscriber; its exit is not seen from here."""
+        import shlex
+
+        child.ready = child.finished = True
+        command = " ".join(shlex.quote(a) for a in ["python3", *child.argv[1:]])
+        self.say(f"[launch] node {child.name!r} runs on {child.host}: start it there with: {command}")
 
     def _write_registry(self) -> Path:
         path = registry_dir() / f"{self.endpoints.run_id}.json"
@@ -218,7 +244,10 @@ class Launcher:
         registry = None
         try:
             for child in self.children:
-                self._start(child)
+                if child.host:
+                    self._announce_remote(child)
+                else:
+                    self._start(child)
             registry = self._write_registry()
             return self._watch()
         finally:
@@ -281,7 +310,7 @@ class Launcher:
 
     def _stop_at_duration(self) -> int:
         self.stop_all()
-        failed = [c for c in self.children if c.proc.returncode not in (0, None)]
+        failed = [c for c in self.children if c.proc and c.proc.returncode not in (0, None)]
         for c in failed:
             self.say(f"[launch] {c.name!r} exited with code {c.proc.returncode} while stopping")
         return 1 if failed else 0
@@ -352,7 +381,7 @@ class Launcher:
             # Let nodes still opening devices finish, so every missing device gets its own line.
             deadline = time.monotonic() + 5.0
             while time.monotonic() < deadline and any(
-                c.proc.poll() is None and not c.ready for c in self.children if c is not child
+                c.proc and c.proc.poll() is None and not c.ready for c in self.children if c is not child
             ):
                 time.sleep(0.05)
         self.stop_all()

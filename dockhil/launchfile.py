@@ -11,6 +11,7 @@
         node: satellite_dynamics          # registered type, or module:Class
         params: {m1: $(arg m1)}
         remap: {command: /robot/command_raw}   # port name or topic -> topic
+        host: lab-pc-2                          # run on another machine (tcp)
         if: $(arg ft) == sim                   # or `unless:`
         respawn: false                          # wall time only
     include:
@@ -33,7 +34,7 @@ from dockhil.errors import LaunchError
 
 _ARG = re.compile(r"\$\(arg ([A-Za-z_][A-Za-z0-9_]*)\)")
 _TOP_KEYS = {"description", "rate", "duration", "args", "nodes", "include"}
-_NODE_KEYS = {"name", "node", "params", "remap", "if", "unless", "respawn", "respawn_delay"}
+_NODE_KEYS = {"name", "node", "params", "remap", "if", "unless", "respawn", "respawn_delay", "host"}
 _INCLUDE_KEYS = {"file", "args", "if", "unless"}
 _ARG_KEYS = {"default", "help", "choices", "type"}
 _TYPES = {"float": float, "int": int, "bool": bool, "str": str}
@@ -88,6 +89,7 @@ class NodeSpec:
     source: str
     respawn: bool = False
     respawn_delay: float = 1.0
+    host: str = ""  # another machine: the launcher says how to start the node there
 
 
 @dataclass
@@ -236,7 +238,8 @@ def _load(path: Path, given: dict[str, Any], from_cli: bool, stack: tuple) -> Sc
         if not isinstance(respawn, bool):
             raise LaunchError(f"{where}: `respawn` must be true or false")
         scene.nodes.append(NodeSpec(raw["name"], raw["node"], params, {str(k): v for k, v in remap.items()},
-                                    str(path), respawn, float(raw.get("respawn_delay", 1.0))))
+                                    str(path), respawn, float(raw.get("respawn_delay", 1.0)),
+                                    _host(raw.get("host", ""), values, where)))
 
     raw_includes = data.get("include") or []
     if not isinstance(raw_includes, list):
@@ -263,6 +266,13 @@ def _load(path: Path, given: dict[str, Any], from_cli: bool, stack: tuple) -> Sc
     if dup:
         raise LaunchError(f"{path}: two nodes are named {dup!r}; node names must be unique")
     return scene
+
+
+def _host(raw: Any, values: dict[str, Any], where: str) -> str:
+    host = _subst(raw, values, where)
+    if not isinstance(host, str) or any(c in host for c in " /:"):
+        raise LaunchError(f"{where}: `host` must be a host name or address, got {host!r}")
+    return host
 
 
 def _subst(value: Any, values: dict[str, Any], where: str) -> Any:

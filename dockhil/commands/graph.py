@@ -34,7 +34,8 @@ def to_text(graph) -> str:
     lines.append(f"nodes ({len(graph.nodes)}, in step order):")
     for name in graph.order:
         gn = graph.nodes[name]
-        lines.append(f"  {name} [{gn.type_name}] {gn.cls.describe()}")
+        where = f" (on {gn.host})" if gn.host else ""
+        lines.append(f"  {name} [{gn.type_name}]{where} {gn.cls.describe()}")
         for port, ref in gn.inputs.items():
             src = graph.publishers.get(ref.topic)
             frm = f"<- {src.node}.{src.port}" if src else "(unconnected, optional)"
