@@ -57,6 +57,7 @@ def main() -> None:
         "sensor_to_command_us_p50": round(ft_age.get("p50", float("nan")), 1),
         "sensor_to_command_us_p99": round(ft_age.get("p99", float("nan")), 1),
         "per_node": {name: {"jitter_us_p99": round(n["jitter_us"].get("p99", 0.0), 1),
+                            "jitter_us_max": round(n["jitter_us"].get("max", 0.0), 1), "worst_tick": n["worst_tick"],
                             "deadline_misses": n["deadline_misses"], "ticks": n["ticks"]}
                      for name, n in nodes.items()},
     }

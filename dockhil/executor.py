@@ -51,6 +51,7 @@ class RunSpec:
     outputs: dict[str, PortWire] = field(default_factory=dict)
     start_timeout: float = 20.0
     realtime: bool = False  # wall time: ask the OS for real-time (SCHED_FIFO) scheduling
+    wait_for_go: bool = False  # wall time: after READY, start the loop on SIGUSR1 (all nodes at once)
 
 
 class Stop:
@@ -305,8 +306,9 @@ class LoopTiming:
             us = np.abs(np.asarray(values)) * 1e6
             return {"p50": float(np.percentile(us, 50)), "p99": float(np.percentile(us, 99)), "max": float(us.max())}
 
+        late = np.abs(np.asarray(self.lateness[1:]))  # the first tick has no schedule to keep
         out = {"node": name, "ticks": self.ticks, "deadline_misses": self.misses,
-               "jitter_us": pct(self.lateness[1:]),  # the first tick has no schedule to keep
+               "jitter_us": pct(late), "worst_tick": int(np.argmax(late)) + 1 if late.size else None,
                "input_age_us": {port: pct(a) for port, a in self.ages.items()}}
         folder = os.environ.get("DOCKHIL_TIMING_DIR")
         if folder:  # benchmarks collect every node's figures

@@ -130,6 +130,7 @@ class _Child:
     argv: list[str]
     proc: subprocess.Popen | None = None
     ready: bool = False
+    go_sent: bool = False
     respawn: bool = False
     respawn_delay: float = 1.0
     finished: bool = False
@@ -153,8 +154,11 @@ class Launcher:
         # sees its device (an emulator) stop first and mistakes that for a fault.
         self.wall_duration = duration if clock == "wall" else None
         self.specs = run_specs(graph, self.endpoints, clock, self.n_ticks if clock == "sim" else None, self.extra)
-        for spec in self.specs.values():
+        for name, spec in self.specs.items():
             spec.realtime = realtime
+            # Wall time: every local node starts its fixed-rate loop when all are ready, so none runs
+            # against nodes still importing or opening devices. (A node on another host cannot be told.)
+            spec.wait_for_go = clock == "wall" and is_local(graph.nodes[name].host)
         self._all_ready_at: float | None = None
         self.progress = progress and clock == "sim" and self.n_ticks is not None
         self._print_lock = threading.Lock()
@@ -185,7 +189,7 @@ class Launcher:
     # -- processes -------------------------------------------------------------
     def _start(self, child: _Child) -> None:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        child.ready = False
+        child.ready = child.go_sent = False
         child.proc = subprocess.Popen(
             child.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
             text=True, bufsize=1, start_new_session=True, env=env,
@@ -299,12 +303,25 @@ class Launcher:
             if probe is not None:
                 probe.close()
 
-    def _duration_over(self) -> bool:
-        if self.wall_duration is None:
-            return False
+    def _send_go(self) -> None:
+        """Wall time: once every node is ready, tell each waiting one to start (again, after a respawn)."""
+        nodes = [c for c in self.children if c.name in self.specs]
+        if not all(c.ready for c in nodes):
+            return
+        for c in nodes:
+            if c.proc is not None and not c.go_sent and self.specs[c.name].wait_for_go:
+                c.go_sent = True
+                try:
+                    c.proc.send_signal(signal.SIGUSR1)
+                except ProcessLookupError:
+                    pass
         if self._all_ready_at is None:
-            if all(c.ready for c in self.children if c.name in self.specs):
-                self._all_ready_at = time.monotonic()
+            self._all_ready_at = time.monotonic()
+
+    def _duration_over(self) -> bool:
+        if self.clock == "wall":
+            self._send_go()
+        if self.wall_duration is None or self._all_ready_at is None:
             return False
         return time.monotonic() - self._all_ready_at >= self.wall_duration
 

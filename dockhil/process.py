@@ -11,6 +11,7 @@ import ctypes
 import os
 import signal
 import sys
+import time
 
 import msgspec
 
@@ -47,6 +48,9 @@ def run_node(spec, log=None, on_ready=None) -> int:
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
     stop = Stop()
     stop.install()
+    go = []
+    if spec.wait_for_go:  # installed before READY is said, so the launcher's go cannot be missed
+        signal.signal(signal.SIGUSR1, lambda signum, frame: go.append(True))
     executor = None
     if spec.realtime and spec.clock == "wall":
         _ask_realtime(log)
@@ -55,6 +59,8 @@ def run_node(spec, log=None, on_ready=None) -> int:
         executor.start()
         if on_ready:
             on_ready()
+        while spec.wait_for_go and not go and not stop.requested:
+            time.sleep(0.005)  # the other nodes are still opening their devices
         if spec.clock == "sim":
             executor.run_sim()
         else:
