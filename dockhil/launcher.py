@@ -158,7 +158,8 @@ class Launcher:
             spec.realtime = realtime
             # Wall time: every local node starts its fixed-rate loop when all are ready, so none runs
             # against nodes still importing or opening devices. (A node on another host cannot be told.)
-            spec.wait_for_go = clock == "wall" and is_local(graph.nodes[name].host)
+            gn = graph.nodes[name]
+            spec.wait_for_go = clock == "wall" and is_local(gn.host) and not gn.cls.free_running
         self._all_ready_at: float | None = None
         self.progress = progress and clock == "sim" and self.n_ticks is not None
         self._print_lock = threading.Lock()

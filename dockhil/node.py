@@ -143,6 +143,9 @@ class Node:
     inputs: ClassVar[dict[str, Input]] = {}
     outputs: ClassVar[dict[str, Output]] = {}
     params: ClassVar[dict[str, Param]] = {}
+    # Wall time: a node stands for a device that runs from power-on (an emulator), so it does not
+    # wait for the graph's common start; drivers may need it running to finish their own setup.
+    free_running: ClassVar[bool] = False
 
     def __init__(self, ctx: NodeContext, **params: Any):
         self.ctx = ctx

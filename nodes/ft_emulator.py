@@ -21,6 +21,8 @@ from msgs import RobotState
 class FtSensorEmulator(Node):
     """Emulated F/T sensor on CAN: force = -k * penetration (unilateral), noise and bias."""
 
+    free_running = True  # a device: it runs from power-on, the drivers' setup needs it
+
     inputs = {"state": Input(RobotState, "/robot/state", help="robot pose: probe relative to the target interface")}
     params = {
         "interface": Param(str, "pty", help="pty: be an slcan adapter on a pseudo-terminal; "

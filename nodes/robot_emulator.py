@@ -14,6 +14,8 @@ from dockhil.node import Node, Param
 class RobotControllerEmulatorNode(Node):
     """Emulated robot controller: Modbus TCP server, servo with delay and first-order lag."""
 
+    free_running = True  # a device: it runs from power-on, the drivers' setup needs it
+
     params = {
         "host": Param(str, "127.0.0.1", help="address to listen on"),
         "port": Param(int, 5020, help="TCP port (0: any free port, logged)", ge=0, le=65535),
