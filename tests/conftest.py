@@ -39,6 +39,29 @@ def write_launch(tmp_path):
     return write
 
 
+@pytest.fixture
+def controller():
+    """A robot controller emulator (Modbus TCP on a free port) in this process."""
+    from dockhil.hardware.robot_emulator import RobotControllerEmulator
+
+    em = RobotControllerEmulator(port=0, tau=0.005)
+    em.start_thread()
+    yield em
+    em.stop_thread()
+
+
+def node_process_error(spec: dict, env=None) -> str:
+    """Run one node process that must fail fast (a missing device): return its single error line."""
+    t = time.monotonic()
+    proc = subprocess.run([sys.executable, "-m", "dockhil.process", json.dumps(spec)], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=30)
+    assert time.monotonic() - t < 5.0
+    assert proc.returncode != 0
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    return lines[0]
+
+
 def registered(pid: int, timeout=20.0) -> dict:
     """The registry entry of the graph run by process `pid`."""
     graphs = os.path.join(os.environ["DOCKHIL_RUNTIME_DIR"], "graphs")

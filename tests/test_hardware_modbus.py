@@ -3,7 +3,6 @@ it over loopback (in a subprocess and in a thread), missing and lost connections
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import socket
@@ -14,6 +13,8 @@ import time
 from pathlib import Path
 
 import pytest
+
+from tests.conftest import node_process_error
 
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import modbus_map as mm
@@ -304,14 +305,8 @@ def test_node_process_exits_non_zero_with_one_line_when_the_controller_is_missin
     port = free_port()
     spec = {"name": "robot", "type_name": "robot_modbus", "dt": 0.001, "clock": "wall",
             "params": {"port": port, "connect_timeout": 0.5}}
-    t = time.monotonic()
-    proc = subprocess.run([sys.executable, "-m", "dockhil.process", json.dumps(spec)], cwd=ROOT, env=ENV,
-                          capture_output=True, text=True, timeout=30)
-    assert time.monotonic() - t < 5.0
-    assert proc.returncode != 0
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1, proc.stderr
-    assert f"robot controller (Modbus TCP 127.0.0.1:{port})" in lines[0] and "Connection refused" in lines[0]
+    line = node_process_error(spec, ENV)
+    assert f"robot controller (Modbus TCP 127.0.0.1:{port})" in line and "Connection refused" in line
 
 
 def test_emulator_refuses_a_busy_port_with_one_line():
@@ -342,12 +337,6 @@ def test_modules_do_not_import_pymodbus_until_setup():
 # -- driver and emulator in one process ---------------------------------------------------
 
 
-@pytest.fixture
-def controller():
-    em = RobotControllerEmulator(port=0, tau=0.005)
-    em.start_thread()
-    yield em
-    em.stop_thread()
 
 
 def test_close_holds_the_robot(controller):

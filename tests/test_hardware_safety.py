@@ -19,14 +19,6 @@ pytest.importorskip("pymodbus")
 
 
 @pytest.fixture
-def controller():
-    em = RobotControllerEmulator(port=0, tau=0.005)
-    em.start_thread()
-    yield em
-    em.stop_thread()
-
-
-@pytest.fixture
 def make(controller):
     made = []
 
