@@ -11,7 +11,7 @@ import pytest
 from dockhil.errors import DockhilError
 from dockhil.hardware import SafetyStop
 from dockhil.hardware import modbus_map as mm
-from dockhil.hardware.robot_emulator import FOLLOW, HOLD, RobotControllerEmulator
+from dockhil.hardware.robot_emulator import FOLLOW, HOLD
 from msgs import EStop, Header, Pose, RobotCommand, Vector3, Wrench, WrenchStamped
 from tests.test_hardware_modbus import Drive, driver, read_holding
 
