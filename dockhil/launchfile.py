@@ -126,8 +126,10 @@ def parse_overrides(items: list[str]) -> dict[str, str]:
     return out
 
 
-def load(path: str | Path, overrides: dict[str, Any] | None = None) -> Scene:
+def load(path: str | Path | None, overrides: dict[str, Any] | None = None) -> Scene:
     """Read a launch file, apply arguments, resolve includes and conditions."""
+    if path is None:
+        raise LaunchError("give a launch file, e.g. launch/hil.yaml (the scenes are in launch/)")
     path = Path(path)
     scene = _load(path, overrides or {}, from_cli=True, stack=())
     if not scene.nodes:

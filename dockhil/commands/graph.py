@@ -6,7 +6,7 @@ import msgs
 
 
 def add_arguments(p) -> None:
-    p.add_argument("file", help="launch file (YAML)")
+    p.add_argument("file", nargs="?", help="launch file (YAML)")
     p.add_argument("overrides", nargs="*", metavar="name:=value", help="launch arguments")
     p.add_argument("--dot", action="store_true", help="print Graphviz DOT instead of text")
 

@@ -6,7 +6,7 @@ from dockhil.errors import LaunchError
 
 
 def add_arguments(p) -> None:
-    p.add_argument("file", help="launch file (YAML), e.g. launch/hil.yaml")
+    p.add_argument("file", nargs="?", help="launch file (YAML), e.g. launch/hil.yaml")
     p.add_argument("overrides", nargs="*", metavar="name:=value",
                    help="launch arguments, ROS 2 style (see 'dockhil graph FILE' for the list)")
     clock = p.add_mutually_exclusive_group()
