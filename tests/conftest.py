@@ -78,8 +78,9 @@ def registered(pid: int, timeout=20.0) -> dict:
     raise AssertionError(f"process {pid} registered no graph")
 
 
-def kill_child_and_expect_the_graph_to_stop(launch: subprocess.Popen, name: str) -> str:
-    """SIGKILL the launched process `name`; the launcher must stop the graph, non-zero, in plain lines."""
+def kill_child_and_expect_the_graph_to_stop(launch: subprocess.Popen, name: str, dependent: str = "") -> str:
+    """SIGKILL the launched process `name`; the launcher must stop the graph, non-zero, in plain lines.
+    `dependent`: a node that may notice first (a driver whose device died) and fail with its own line."""
     pid = registered(launch.pid)["nodes"][name]["pid"]
     try:
         os.kill(pid, signal.SIGKILL)
@@ -88,6 +89,9 @@ def kill_child_and_expect_the_graph_to_stop(launch: subprocess.Popen, name: str)
         if launch.poll() is None:
             launch.kill()
     assert launch.returncode != 0
-    assert f"[launch] node '{name}' was killed by SIGKILL while running; stopping the graph" in out
+    killed = f"[launch] node '{name}' was killed by SIGKILL while running; stopping the graph" in out
+    noticed = bool(dependent) and f"[launch] node '{dependent}' exited with code 2 while running" in out \
+        and f"[{dependent}] error: " in out
+    assert killed or noticed, out
     assert "Traceback" not in out
     return out
