@@ -34,10 +34,7 @@ class FtCanDriver(Node):
         "interface": Param(str, "slcan", help="python-can interface: slcan, socketcan, pcan, virtual, ..."),
         "channel": Param(str, "/tmp/dockhil-ft.slcan", help="python-can channel: serial port, can0, ..."),
         "bitrate": Param(int, 1_000_000, unit="bit/s", help="CAN bitrate", gt=0),
-        "can_id": Param(int, ff.DEFAULT_BASE_ID, help="base CAN ID: force frame = base, torque frame = base + 1",
-                        ge=0, le=ff.MAX_STANDARD_ID - 1),
-        "force_resolution": Param(float, 0.01, unit="N/count", help="force per count", gt=0.0),
-        "torque_resolution": Param(float, 0.001, unit="N m/count", help="torque per count", gt=0.0),
+        **ff.frame_params(),
         "sign": Param(float, 1.0, help="-1 if the sensor reports the force on the target side", choices=(1.0, -1.0)),
         "tare_samples": Param(int, 100, help="samples averaged into the bias at start (0: no tare); "
                               "nothing may touch the probe meanwhile", ge=0),
