@@ -33,6 +33,7 @@ import io
 import json
 import operator
 import os
+import re
 import struct
 import time
 import zlib
@@ -49,8 +50,16 @@ SCHEMA_ENCODING = "jsonschema"
 COMPRESSIONS = ("zstd", "lz4", "none")
 
 # MCAP opcodes (spec "Records"); 0x80-0xFF are reserved for user records.
-_HEADER, _FOOTER, _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _DATA_END = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0F
+_HEADER, _FOOTER, _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _MESSAGE_INDEX, _DATA_END = (
+    0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x0F
+)
 _KNOWN_OPCODES = frozenset(range(0x01, 0x10))
+# Where a damaged stretch may end: an MCAP opcode, then a length below 2**40 (its top
+# three bytes zero). Zero-width, so that overlapping candidates are all found.
+_CANDIDATE = re.compile(rb"(?=[\x02-\x0f][\x00-\xff]{5}\x00\x00\x00)")
+_COMPRESSIONS_READ = {b"zstd": "zstd", b"lz4": "lz4", b"": ""}
+_MAX_CHUNK = 1 << 30  # uncompressed bytes; a larger size field is damage
+_MAX_DEFINITION = 1 << 24  # a schema or channel found while scanning damaged bytes
 _RECORD_HEAD = struct.Struct("<BQ")  # opcode, body length
 _MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 _CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
@@ -299,16 +308,43 @@ class _Channel:
     encoding: str
 
 
+class LostRegion(NamedTuple):
+    """Bytes of a bag that could not be read: a damaged record or chunk, or a cut end."""
+
+    offset: int  # first byte skipped
+    length: int  # bytes skipped
+    after_ns: int | None  # largest log time read before it (None: no message before)
+    before_ns: int | None  # smallest log time of the first chunk read after it (None: no message after)
+    at_end: bool  # nothing readable follows: the recorder stopped while writing, or a power cut
+
+
+class _Pass:
+    """What one pass over the file found; handed to the reader when the pass ends."""
+
+    def __init__(self) -> None:
+        self.chunks = 0
+        self.lost: list[LostRegion] = []
+        self.orphaned = 0  # messages whose channel definition was lost
+        self.bare = False  # a message outside any chunk was read: the file is not chunked
+        self.top_ns: int | None = None  # largest log time read so far
+        self.waiting: list[int] = []  # regions (index in lost) whose before_ns is the next chunk's first log time
+
+
 class BagReader:
-    """Reads a bag front to back, finished or not.
+    """Reads a bag front to back: finished, unfinished or damaged.
 
     A finished bag ends with a footer. An unfinished one (the recorder was
-    killed, or its disk filled up) ends wherever writing stopped; every
-    complete record before that point is read and the cut record at the end
-    is skipped. After a full pass, `recovered` says which case it was and
-    `skipped_bytes` how much of the end could not be read. A record that is
-    complete but damaged (checksum, compression, framing) is a BagError: that
-    is corruption, not an interrupted write.
+    killed, its disk filled up, the power went) ends wherever writing stopped.
+    A damaged record or chunk (checksum, zeros, a bad opcode or length) is
+    skipped: the reader scans forward for the next valid record (a chunk whose
+    framing is consistent and whose CRC checks, or a record whose fields are
+    consistent and that is followed by another record) and reads on from there.
+    Every intact message is read; the messages of a damaged chunk are lost.
+
+    After a full pass: `recovered` (no footer: unfinished), `lost` (the
+    regions skipped, with the log times around them), `skipped_bytes` (their
+    total), `orphaned` (messages on a channel whose definition was in a
+    damaged chunk of an unfinished bag: skipped) and `chunks`.
 
     Messages come in file order, which is the order the recorder wrote them.
     """
@@ -327,8 +363,11 @@ class BagReader:
         self.size_bytes = os.fstat(self._file.fileno()).st_size
         self._channels: dict[int, _Channel] = {}
         self._schema_names: dict[int, str] = {}
+        self._summary_read = False
         self.recovered: bool | None = None  # known after a full pass
+        self.lost: list[LostRegion] = []
         self.skipped_bytes = 0
+        self.orphaned = 0
         self.chunks = 0
         try:
             self.profile, self.library = self._read_start()
@@ -369,10 +408,7 @@ class BagReader:
         for channel_id, log_time, data in self._raw_messages(with_data=True):
             keep = selected.get(channel_id)
             if keep is None:
-                channel = channels.get(channel_id)
-                if channel is None:
-                    raise BagError(f"{self.path}: a message refers to channel {channel_id}, which is never defined")
-                keep = selected[channel_id] = wanted is None or channel.topic in wanted
+                keep = selected[channel_id] = wanted is None or channels[channel_id].topic in wanted
             if keep and lo <= log_time <= hi:
                 channel = channels[channel_id]
                 yield BagMessage(channel.topic, channel.type_name, log_time, data)
@@ -391,6 +427,11 @@ class BagReader:
             except (DecodeError, KeyError) as exc:
                 raise BagError(
                     f"{self.path}: message on {message.topic} at log time {message.log_time_ns} ns: {exc}"
+                ) from None
+            except RecursionError:
+                raise BagError(
+                    f"{self.path}: message on {message.topic} at log time {message.log_time_ns} ns "
+                    "nests too deeply to decode"
                 ) from None
 
     def summary(self) -> dict:
@@ -427,11 +468,22 @@ class BagReader:
         lasts = [v[2] for v in counts.values()]
         start = min(firsts) / 1e9 if firsts else None
         end = max(lasts) / 1e9 if lasts else None
-        return {
+        found = {
             "path": self.path,
             "size_bytes": self.size_bytes,
             "recovered": bool(self.recovered),
             "skipped_bytes": self.skipped_bytes,
+            "lost": [
+                {
+                    "offset": r.offset,
+                    "bytes": r.length,
+                    "after": None if r.after_ns is None else r.after_ns / 1e9,
+                    "before": None if r.before_ns is None else r.before_ns / 1e9,
+                    "at_end": r.at_end,
+                }
+                for r in self.lost
+            ],
+            "orphaned": self.orphaned,
             "library": self.library,
             "messages": sum(v[0] for v in counts.values()),
             "chunks": self.chunks,
@@ -440,6 +492,8 @@ class BagReader:
             "duration_s": (end - start) if firsts else 0.0,
             "topics": topics,
         }
+        found["loss"] = loss_line(found)
+        return found
 
     def _check_encoding(self, topic: str) -> None:
         for channel in self._channels.values():
@@ -474,146 +528,319 @@ class BagReader:
             library = body[8 + n : 8 + n + m].decode()
         except (struct.error, UnicodeDecodeError):
             raise BagError(f"{self.path}: corrupt MCAP header") from None
+        self._data_start = len(MAGIC) + 9 + length
         return profile, library
 
-    def _records(self) -> Iterator[tuple[int, int, bytes]]:
-        """(offset, opcode, body) of each complete record after the header.
-
-        Sets `recovered` and `skipped_bytes` when it stops.
-        """
-        f, size = self._file, self.size_bytes
-        f.seek(len(MAGIC))
-        pos = len(MAGIC)
-        self.chunks = 0
-        while True:
-            if pos >= size:
-                self._stopped(size, size)
-                return
-            f.seek(pos)  # another pass over this reader may have moved the shared file position
-            head = f.read(9)
-            if self._is_tail(pos, head[0]):
-                self._stopped(pos, size)
-                return
-            if len(head) < 9:
-                self._stopped(pos, size)
-                return
-            opcode, length = _RECORD_HEAD.unpack(head)
-            if length > size - pos - 9:
-                # The recorder stopped while writing this record: the end of an unfinished bag.
-                self._stopped(pos, size)
-                return
-            body = f.read(length)
-            if opcode != _HEADER:
-                yield pos, opcode, body
+    def _records(self, run: _Pass) -> Iterator[tuple[int, int, Any]]:
+        """(offset, opcode, content) of each valid record after the header; damaged
+        stretches are skipped and noted in `run`. Content: for a chunk its
+        decompressed records and their index (see `_chunk`), for a message,
+        schema or channel its body, else None. Hands `run` to the reader when done."""
+        size = self.size_bytes
+        pos = self._data_start
+        finished = False
+        while pos < size:
+            found = self._record_at(pos, run, resync=False)
+            if found is None:
+                resume = self._resync(pos + 1, run)
+                self._lose(run, pos, resume)
+                pos = resume
+                continue
+            opcode, length, content = found
+            yield pos, opcode, content
             pos += 9 + length
             if opcode == _FOOTER:
-                f.seek(pos)
-                self.recovered = f.read(len(MAGIC)) != MAGIC
-                self.skipped_bytes = 0
-                return
+                self._file.seek(pos)
+                finished = self._file.read(len(MAGIC)) == MAGIC
+                break
+        self.recovered = not finished
+        self.lost = run.lost
+        self.skipped_bytes = sum(r.length for r in run.lost)
+        self.orphaned = run.orphaned
+        self.chunks = run.chunks
 
-    def _is_tail(self, pos: int, opcode: int) -> bool:
-        """True at a zero-filled tail (pre-allocated, or lost in a power cut): nothing
-        was written there. An opcode that is no MCAP record is corruption."""
-        if opcode in _KNOWN_OPCODES or opcode >= 0x80:
-            return False
-        if opcode == 0 and self._zeros_from(pos):
+    def _lose(self, run: _Pass, start: int, end: int) -> None:
+        run.waiting.append(len(run.lost))
+        run.lost.append(LostRegion(start, end - start, run.top_ns, None, end >= self.size_bytes))
+
+    def _record_at(self, pos: int, run: _Pass, resync: bool) -> tuple[int, int, Any] | None:
+        """(opcode, body length, content) of a valid record at `pos`, else None.
+
+        `resync`: `pos` was found by scanning damaged bytes, so more is asked of
+        the record: a known MCAP opcode (not a user one), and unless it is a
+        chunk with a CRC, the record after it must start plausibly too.
+        """
+        f, size = self._file, self.size_bytes
+        f.seek(pos)
+        head = f.read(9)
+        if len(head) < 9:
+            return None
+        opcode, length = _RECORD_HEAD.unpack(head)
+        if length > size - pos - 9 or opcode == _HEADER:
+            return None
+        if not (opcode in _KNOWN_OPCODES or (opcode >= 0x80 and not resync)):
+            return None
+        content = None
+        checked = False  # True: a CRC vouches for the record
+        try:
+            if opcode == _CHUNK:
+                content, checked = self._chunk(pos, length)
+            elif opcode in (_MESSAGE, _SCHEMA, _CHANNEL):
+                if resync and length > _MAX_DEFINITION and opcode != _MESSAGE:
+                    return None
+                content = f.read(length)
+                if opcode == _MESSAGE:
+                    if length < _MESSAGE_HEAD.size:
+                        return None
+                    # Unless the file is known to be unchunked, a bare message found by
+                    # scanning is one of a damaged (uncompressed) chunk's own records.
+                    if resync and (run.chunks or not run.bare or _MESSAGE_HEAD.unpack_from(content)[0] not in self._channels):
+                        return None
+                else:
+                    _parse_definition(opcode, content)
+            elif opcode == _MESSAGE_INDEX:
+                if length < 6:
+                    return None
+                (n,) = struct.unpack("<I", f.read(6)[2:])
+                if 6 + n != length or n % 16:
+                    return None
+            elif opcode == _DATA_END and length != 4 or opcode == _FOOTER and length != 20:
+                return None
+        except Exception:  # struct, UTF-8, zstandard and lz4 errors alike: the record is damaged
+            return None
+        if resync and not checked and not self._followed_plausibly(pos + 9 + length, opcode):
+            return None
+        return opcode, length, content
+
+    def _followed_plausibly(self, pos: int, opcode: int) -> bool:
+        f, size = self._file, self.size_bytes
+        f.seek(pos)
+        if opcode == _FOOTER:
+            return f.read(len(MAGIC)) == MAGIC
+        head = f.read(9)
+        if len(head) < 9:  # the end of the file, or a cut record head
             return True
-        raise BagError(f"{self.path}: corrupt at byte {pos}: opcode 0x{opcode:02x} is not an MCAP record")
+        next_opcode, length = _RECORD_HEAD.unpack(head)
+        return next_opcode in _KNOWN_OPCODES and next_opcode != _HEADER and length <= size - pos - 9
 
-    def _zeros_from(self, pos: int) -> bool:
-        self._file.seek(pos)
-        while block := self._file.read(1 << 16):
-            if block.count(0) != len(block):
-                return False
-        return True
+    def _resync(self, start: int, run: _Pass) -> int:
+        """Offset of the first valid record at or after `start`, or the file size."""
+        f, size = self._file, self.size_bytes
+        window = 1 << 20
+        at = start
+        while at < size:
+            f.seek(at)
+            block = f.read(window + 8)
+            for match in _CANDIDATE.finditer(block, 0, window + 8):
+                if match.start() >= window:
+                    break  # the next window looks at it again, with all its bytes
+                if self._record_at(at + match.start(), run, resync=True) is not None:
+                    return at + match.start()
+            at += window
+        return size
 
-    def _stopped(self, valid_end: int, size: int) -> None:
-        self.recovered = True
-        self.skipped_bytes = size - valid_end
+    def _chunk(self, pos: int, length: int) -> tuple[tuple[bytes, list], bool]:
+        """(records, index) of the chunk record at `pos` and whether a CRC vouches for it.
+
+        index: (opcode, start, end) of each message record in `records`, and
+        (opcode, parsed record, 0) of each schema and channel. Raises unless the chunk's framing, compression, size and CRC all agree.
+        """
+        f = self._file
+        f.seek(pos + 9)
+        body = f.read(min(length, _CHUNK_HEAD.size + 8 + 4))
+        start, end, size, crc, name_length = _CHUNK_HEAD.unpack_from(body, 0)
+        compression = _COMPRESSIONS_READ.get(body[_CHUNK_HEAD.size : _CHUNK_HEAD.size + name_length])
+        offset = _CHUNK_HEAD.size + name_length
+        if compression is None or start > end or size > _MAX_CHUNK:
+            raise ValueError("implausible chunk header")
+        (data_length,) = struct.unpack_from("<Q", body, offset)
+        if offset + 8 + data_length != length:
+            raise ValueError("chunk framing does not add up to its record length")
+        f.seek(pos + 9 + offset + 8)
+        data = f.read(data_length)
+        if compression == "zstd":
+            import zstandard
+
+            records = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+        elif compression == "lz4":
+            import lz4.frame
+
+            records = lz4.frame.decompress(data)
+        else:
+            records = data
+        if len(records) != size:
+            raise ValueError("chunk size mismatch")
+        if crc != 0 and zlib.crc32(records) != crc:
+            raise ValueError("chunk checksum mismatch")
+        index: list[tuple[int, Any, int]] = []
+        unpack_head = _RECORD_HEAD.unpack_from
+        i = 0
+        while i < size:
+            op, n = unpack_head(records, i)
+            a, b = i + 9, i + 9 + n
+            if b > size:
+                raise ValueError("a record runs past the chunk end")
+            if op == _MESSAGE:
+                if n < _MESSAGE_HEAD.size:
+                    raise ValueError("a message record is too short")
+                index.append((op, a, b))
+            elif op == _SCHEMA or op == _CHANNEL:
+                index.append((op, _parse_definition(op, records[a:b]), 0))
+            i = b
+        return (records, index), crc != 0
 
     def _raw_messages(self, with_data: bool) -> Iterator[tuple[int, int, bytes | None]]:
         """(channel id, log time, data) in file order; registers schemas and channels on the way."""
         unpack_head = _MESSAGE_HEAD.unpack_from
-        for pos, opcode, body in self._records():
+        channels = self._channels
+        run = _Pass()
+        for _pos, opcode, content in self._records(run):
             if opcode == _CHUNK:
-                self.chunks += 1
-                records = self._chunk_records(pos, body)
-                i, n = 0, len(records)
-                try:
-                    while i < n:
-                        op, length = _RECORD_HEAD.unpack_from(records, i)
-                        start, end = i + 9, i + 9 + length
-                        if end > n:
-                            raise ValueError(f"record at {i} runs past the chunk end")
-                        if op == _MESSAGE:
-                            channel_id, _, log_time, _ = unpack_head(records, start)
-                            yield channel_id, log_time, records[start + 22 : end] if with_data else None
-                        elif op == _SCHEMA or op == _CHANNEL:
-                            self._define(op, records[start:end])
-                        i = end
-                except (struct.error, ValueError, UnicodeDecodeError) as exc:
-                    raise BagError(f"{self.path}: corrupt chunk at byte {pos}: {exc}") from None
+                run.chunks += 1
+                records, index = content
+                if run.waiting:
+                    self._close_waiting(run, [unpack_head(records, a)[2] for op, a, _ in index if op == _MESSAGE])
+                top = run.top_ns if run.top_ns is not None else -1
+                for op, a, b in index:
+                    if op != _MESSAGE:
+                        self._define(a)
+                        continue
+                    channel_id, _, log_time, _ = unpack_head(records, a)
+                    if log_time > top:
+                        top = log_time
+                    if channel_id not in channels and not self._recover_channel(channel_id):
+                        run.orphaned += 1
+                        continue
+                    yield channel_id, log_time, records[a + 22 : b] if with_data else None
+                if top >= 0:
+                    run.top_ns = top
             elif opcode == _MESSAGE:  # unchunked files from other writers
-                channel_id, _, log_time, _ = unpack_head(body, 0)
-                yield channel_id, log_time, body[22:] if with_data else None
+                channel_id, _, log_time, _ = unpack_head(content, 0)
+                run.bare = True
+                if run.waiting:
+                    self._close_waiting(run, [log_time])
+                if run.top_ns is None or log_time > run.top_ns:
+                    run.top_ns = log_time
+                if channel_id not in channels and not self._recover_channel(channel_id):
+                    run.orphaned += 1
+                    continue
+                yield channel_id, log_time, content[22:] if with_data else None
             elif opcode == _SCHEMA or opcode == _CHANNEL:
-                try:
-                    self._define(opcode, body)
-                except (struct.error, ValueError, UnicodeDecodeError) as exc:
-                    raise BagError(f"{self.path}: corrupt record at byte {pos}: {exc}") from None
+                self._define(_parse_definition(opcode, content))
 
-    def _define(self, opcode: int, body: bytes) -> None:
-        from mcap.data_stream import ReadDataStream
-        from mcap.exceptions import EndOfFile
-        from mcap.records import Channel, Schema
+    @staticmethod
+    def _close_waiting(run: _Pass, log_times: list[int]) -> None:
+        if log_times:
+            first = min(log_times)
+            for i in run.waiting:
+                run.lost[i] = run.lost[i]._replace(before_ns=first)
+            run.waiting = []
 
-        stream = ReadDataStream(io.BytesIO(body))
-        try:
-            if opcode == _SCHEMA:
-                schema = Schema.read(stream)
-                if schema.id != 0:
-                    self._schema_names[schema.id] = schema.name
-            else:
-                channel = Channel.read(stream)
-                self._channels[channel.id] = _Channel(
-                    channel.topic, self._schema_names.get(channel.schema_id, ""), channel.message_encoding
-                )
-        except EndOfFile:
-            raise ValueError("a schema or channel record is cut short") from None
+    def _define(self, record) -> None:
+        from mcap.records import Schema
 
-    def _chunk_records(self, pos: int, body: bytes) -> bytes:
-        try:
-            _, _, size, crc, name_length = _CHUNK_HEAD.unpack_from(body, 0)
-            offset = _CHUNK_HEAD.size
-            compression = body[offset : offset + name_length].decode()
-            offset += name_length
-            (length,) = struct.unpack_from("<Q", body, offset)
-            offset += 8
-            if offset + length > len(body):
-                raise ValueError("its data runs past the record end")
-            data = body[offset : offset + length]
-            if compression == "zstd":
-                import zstandard
+        if isinstance(record, Schema):
+            if record.id != 0:
+                self._schema_names[record.id] = record.name
+        else:
+            self._channels[record.id] = _Channel(
+                record.topic, self._schema_names.get(record.schema_id, ""), record.message_encoding
+            )
 
-                records = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-            elif compression == "lz4":
-                import lz4.frame
+    def _recover_channel(self, channel_id: int) -> bool:
+        """A channel defined in a damaged chunk: a finished bag repeats every
+        definition in its summary section. True if the channel is known now."""
+        if not self._summary_read:
+            self._summary_read = True
+            try:
+                for record in self._summary_definitions():
+                    self._define(record)
+            except Exception:  # a damaged summary: the channel stays unknown
+                pass
+        return channel_id in self._channels
 
-                records = lz4.frame.decompress(data)
-            elif compression == "":
-                records = data
-            else:
-                raise ValueError(f"unsupported compression {compression!r}")
-        except BagError:
-            raise
-        except Exception as exc:  # zstandard and lz4 raise their own types
-            raise BagError(f"{self.path}: corrupt chunk at byte {pos}: {exc}") from None
-        if len(records) != size:
-            raise BagError(f"{self.path}: corrupt chunk at byte {pos}: {len(records)} bytes, header says {size}")
-        if crc != 0 and zlib.crc32(records) != crc:
-            raise BagError(f"{self.path}: corrupt chunk at byte {pos}: checksum mismatch")
-        return records
+    def _summary_definitions(self) -> Iterator[Any]:
+        f, size = self._file, self.size_bytes
+        footer_at = size - len(MAGIC) - 9 - 20
+        if footer_at < self._data_start:
+            return
+        f.seek(footer_at)
+        tail = f.read(9 + 20 + len(MAGIC))
+        opcode, length, summary_start = struct.unpack_from("<BQQ", tail, 0)
+        if opcode != _FOOTER or length != 20 or tail[29:] != MAGIC or not self._data_start <= summary_start < footer_at:
+            return
+        pos = summary_start
+        while pos < footer_at:
+            f.seek(pos)
+            opcode, length = _RECORD_HEAD.unpack(f.read(9))
+            if length > footer_at - pos - 9:
+                return
+            if opcode == _SCHEMA or opcode == _CHANNEL:
+                yield _parse_definition(opcode, f.read(length))
+            pos += 9 + length
+
+
+def _parse_definition(opcode: int, body: bytes):
+    """A schema or channel record, parsed; ValueError unless its fields fill the body exactly."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.exceptions import EndOfFile
+    from mcap.records import Channel, Schema
+
+    stream = ReadDataStream(io.BytesIO(body))
+    try:
+        record = (Schema if opcode == _SCHEMA else Channel).read(stream)
+    except EndOfFile:
+        raise ValueError("a schema or channel record is cut short") from None
+    if stream.count != len(body):
+        raise ValueError("a schema or channel record has bytes to spare")
+    return record
+
+
+def loss_line(found: dict) -> str | None:
+    """What `info` found unreadable or unfinished, in one line; None for an intact, finished bag."""
+    lost, orphaned = found["lost"], found["orphaned"]
+    parts = []
+    if lost:
+        total = sum(r["bytes"] for r in lost)
+        where = "; ".join(_describe_region(r) for r in lost[:3])
+        if len(lost) > 3:
+            where += f"; and {len(lost) - 3} more"
+        places = "1 place" if len(lost) == 1 else f"{len(lost)} places"
+        parts.append(f"{format_size(total)} unreadable, skipped in {places}: {where}")
+    if orphaned:
+        parts.append(f"{orphaned} messages skipped: their channel was defined in a damaged chunk")
+    if found["recovered"]:
+        parts.append("the bag is unfinished (the recorder stopped without closing it)")
+    if not parts:
+        return None
+    if lost or orphaned:
+        parts.append("every other message was read")
+    return f"{found['path']}: " + "; ".join(parts)
+
+
+def _describe_region(region: dict) -> str:
+    end = region["offset"] + region["bytes"]
+    after, before = region["after"], region["before"]
+    if region["at_end"]:
+        when = "the end" + (f", after log time {after:.6f} s" if after is not None else ", no message before it")
+    elif after is not None and before is not None:
+        when = f"log time {after:.6f} s to {before:.6f} s"
+    elif before is not None:
+        when = f"before log time {before:.6f} s"
+    elif after is not None:
+        when = f"after log time {after:.6f} s"
+    else:
+        when = "no message before or after it"
+    return f"bytes {region['offset']}-{end} ({when})"
+
+
+def format_size(n: float) -> str:
+    """1536 -> '1.5 KiB'."""
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n} B"
 
 
 def _guess_format(head: bytes) -> str:
@@ -641,31 +868,34 @@ def info(path: str | os.PathLike) -> dict:
 
 
 def flatten(value: Any, prefix: str = "") -> dict[str, Any]:
-    """Nested Struct/dict/list -> {"header.stamp": .., "bodies.0.pose.position.x": ..}."""
+    """Nested Struct/dict/list -> {"header.stamp": .., "bodies.0.pose.position.x": ..}.
+
+    Iterative, not recursive: a recorded message may nest as deeply as msgpack allows.
+    """
     out: dict[str, Any] = {}
-    _flatten_into(value, prefix, out)
+    stack = [(prefix, value)]
+    while stack:
+        prefix, value = stack.pop()
+        if isinstance(value, msgspec.Struct):
+            items = [(name, getattr(value, name)) for name in value.__struct_fields__]
+        elif isinstance(value, dict):
+            items = list(value.items())
+        elif isinstance(value, (list, tuple)):
+            items = list(enumerate(value))
+        else:
+            out[prefix or "value"] = value
+            continue
+        # Pushed in reverse so that fields come out in their order.
+        stack.extend((f"{prefix}.{key}" if prefix else str(key), item) for key, item in reversed(items))
     return out
-
-
-def _flatten_into(value: Any, prefix: str, out: dict[str, Any]) -> None:
-    if isinstance(value, msgspec.Struct):
-        for name in value.__struct_fields__:
-            _flatten_into(getattr(value, name), f"{prefix}.{name}" if prefix else name, out)
-    elif isinstance(value, dict):
-        for key, item in value.items():
-            _flatten_into(item, f"{prefix}.{key}" if prefix else str(key), out)
-    elif isinstance(value, (list, tuple)):
-        for index, item in enumerate(value):
-            _flatten_into(item, f"{prefix}.{index}" if prefix else str(index), out)
-    else:
-        out[prefix or "value"] = value
 
 
 class ExportResult(NamedTuple):
     rows: int
     unvalidated: int  # msgpack that failed typed validation (e.g. NaN): exported as recorded
-    skipped: int  # not msgpack at all: no row
+    skipped: int  # not msgpack at all, or nested too deeply to decode: no row
     recovered: bool
+    loss: str | None  # the one line on what was unreadable or unfinished (see loss_line)
 
 
 def export_csv(path: str | os.PathLike, topic: str, out: str | os.PathLike | IO[str]) -> ExportResult:
@@ -697,7 +927,7 @@ def export_csv(path: str | os.PathLike, topic: str, out: str | os.PathLike | IO[
             except BaseException:
                 _remove_quietly(part)
                 raise
-        return ExportResult(*result, bool(reader.recovered))
+        return ExportResult(*result, bool(reader.recovered), found["loss"])
 
 
 def _write_csv(reader: BagReader, topic: str, fh: IO[str]) -> tuple[int, int, int]:
@@ -717,12 +947,12 @@ def _write_csv(reader: BagReader, topic: str, fh: IO[str]) -> tuple[int, int, in
             if cls is not None:
                 try:
                     value = decode(message.data, cls)
-                except DecodeError:
+                except (DecodeError, RecursionError):
                     pass
             if value is None:
                 try:
                     value = untyped.decode(message.data)
-                except msgspec.DecodeError:
+                except (msgspec.DecodeError, RecursionError):
                     counts["skipped"] += 1
                     continue
                 if cls is not None:

@@ -506,6 +506,8 @@ def play(args: argparse.Namespace) -> int:
 
     with BagReader(args.path) as reader:
         found = reader.summary()
+    if found["loss"]:
+        _log(f"dockhil bag play: warning: {found['loss']}")
     in_bag = {t["topic"]: t["type"] for t in found["topics"] if t["count"] > 0}
     if not in_bag:
         raise BagError(f"{args.path}: the bag holds no message; nothing to play")

@@ -20,7 +20,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "info",
         help="topics, types, message counts, start, end, duration and rates of a bag",
         description="Show what a bag holds. Works on unfinished bags too (a recorder that was "
-        "killed): they are read up to their last complete chunk and marked as recovered.",
+        "killed): they are read up to their last complete chunk and marked as recovered. "
+        "A damaged chunk or record is skipped; the line 'lost:' says how many bytes and which "
+        "log times, and every other message is read.",
     )
     p.add_argument("path", metavar="PATH", help="MCAP bag file")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
@@ -84,16 +86,20 @@ def _info(args: argparse.Namespace) -> int:
 
 def format_info(found: dict) -> str:
     """The table `dockhil bag info` prints."""
+    from dockhil.bag import format_size
+
     if found["recovered"]:
         state = "unfinished, recovered (the recorder stopped without closing the bag)"
-        if found["skipped_bytes"]:
-            state += f"; {_size(found['skipped_bytes'])} cut off at the end skipped"
     else:
         state = "finished"
     lines = [
         f"path:      {found['path']}",
-        f"size:      {_size(found['size_bytes'])}",
+        f"size:      {format_size(found['size_bytes'])}",
         f"state:     {state}",
+    ]
+    if found["lost"] or found["orphaned"]:
+        lines.append(f"lost:      {found['loss'].removeprefix(found['path'] + ': ')}")
+    lines += [
         f"messages:  {found['messages']} in {found['chunks']} chunks",
         f"start:     {_time(found['start'])}",
         f"end:       {_time(found['end'])}",
@@ -123,26 +129,18 @@ def _time(seconds: float | None) -> str:
     return text
 
 
-def _size(n: int) -> str:
-    for unit in ("B", "KiB", "MiB", "GiB"):
-        if n < 1024 or unit == "GiB":
-            return f"{n} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1024
-    return f"{n} B"
-
-
 def _export(args: argparse.Namespace) -> int:
     from dockhil.bag import export_csv
 
     out = sys.stdout if args.csv == "-" else args.csv
     result = export_csv(args.path, args.topic, out)
+    if result.loss:
+        print(f"dockhil bag export: warning: {result.loss}", file=sys.stderr)
     notes = []
-    if result.recovered:
-        notes.append("the bag is unfinished; exported what it holds up to its last complete chunk")
     if result.unvalidated:
         notes.append(f"{result.unvalidated} messages fail validation (e.g. NaN) and are exported as recorded")
     if result.skipped:
-        notes.append(f"{result.skipped} messages are not msgpack and were skipped")
+        notes.append(f"{result.skipped} messages are not msgpack (or nest too deeply) and were skipped")
     for note in notes:
         print(f"dockhil bag export: note: {note}", file=sys.stderr)
     if args.csv != "-":
