@@ -18,11 +18,16 @@ reads back; only the chunk being filled at the moment of the kill is lost.
 
     for topic, type_name, log_time_ns, data in BagReader("run.mcap"):
         ...
-    info("run.mcap")  # topics, counts, start/end, duration, rates, recovered
+    info("run.mcap")  # topics, counts, start/end, duration, rates, recovered, lost
+
+A damaged bag (a bad CRC, zeros over a chunk, a bad opcode or length, a
+chunk torn by a power cut) is read all the same: the reader skips the
+damaged record or chunk, resumes at the next valid one and keeps every
+intact message; `info` lists the regions skipped with the log times around
+them and `loss_line` says it in one line.
 
 Every failure a user can cause (unwritable path, full disk, a file that is
-not a bag, a damaged chunk) raises `BagError` with one line that says what
-and where.
+not a bag) raises `BagError` with one line that says what and where.
 """
 
 from __future__ import annotations
@@ -852,13 +857,18 @@ def _guess_format(head: bytes) -> str:
 
 
 def info(path: str | os.PathLike) -> dict:
-    """What a bag holds, read in one pass (finished or unfinished bag).
+    """What a bag holds, read in one pass (finished, unfinished or damaged bag).
 
     Keys: path, size_bytes, recovered (True: no footer, the recorder stopped
-    without closing), skipped_bytes (cut record at the end), library,
-    messages, chunks, start and end [s] (log times of the first and last
-    message, None if empty), duration_s, and topics: a list of {topic, type,
-    encoding, count, first, last [s], rate_hz (mean over the topic's span)}.
+    without closing), skipped_bytes (all bytes that could not be read),
+    lost: a list of {offset, bytes, after, before [s]: the largest log time
+    read before the region and the smallest of the first chunk after it (None:
+    no message there), at_end (nothing readable follows)}, orphaned (messages
+    skipped: their channel was defined in a damaged chunk), loss (one line on
+    all of it, None for an intact, finished bag), library, messages, chunks,
+    start and end [s] (log times of the first and last message, None if
+    empty), duration_s, and topics: a list of {topic, type, encoding, count,
+    first, last [s], rate_hz (mean over the topic's span)}.
     """
     with BagReader(path) as reader:
         return reader.summary()

@@ -95,6 +95,8 @@ class BagSource(Node):
     def setup(self):
         self.types = {t: msgs.TYPES[n] for t, n in _selected(vars(self.p)).items()}
         self.found = _summary(self.p.path)
+        if self.found["loss"]:  # damaged or unfinished: replay what is intact, and say so once
+            self.log(f"warning: {self.found['loss']}")
         self.reader = BagReader(self.p.path)
         # Every topic is read, in sim time to know the run's last tick (topics may have empty ticks).
         self.stream = self.reader.messages(None if self.ctx.sim_time else list(self.types))
@@ -166,6 +168,9 @@ class BagSource(Node):
             return self.decoders[topic].decode(message.data)
         except (msgspec.DecodeError, msgspec.ValidationError) as exc:
             raise DockhilError(f"bag {self.p.path}: message on {topic} at log time {message.log_time_ns} ns: {exc}") from None
+        except RecursionError:
+            raise DockhilError(f"bag {self.p.path}: message on {topic} at log time {message.log_time_ns} ns "
+                               "nests too deeply to decode") from None
 
     def _emit(self, topic: str, message, tick, recorded_tick: int):
         msg = self._decode(topic, message)

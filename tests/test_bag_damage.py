@@ -287,3 +287,24 @@ def test_export_of_a_deeply_nested_message_is_one_line(tmp_path, capsys):
     with BagReader(path) as reader, pytest.raises(BagError) as caught:
         list(reader.decoded())
     assert "\n" not in str(caught.value) and "log time 2 ns" in str(caught.value)
+
+
+def test_bag_source_replays_around_a_damaged_chunk_and_warns_once(bag, tmp_path):
+    from dockhil.node import NodeContext, Tick
+    from nodes.bag_source import BagSource
+
+    chunk = 2
+    path = tmp_path / "damaged.mcap"
+    path.write_bytes(_damage(bag, "crc", chunk))
+    logged: list[str] = []
+    node = BagSource(NodeContext("ft", 1e-3, sim_time=True, log=logged.append), path=str(path), topics=["/ft/wrench"])
+    node.setup()
+    sent = []
+    for k in range(N_CHUNKS * PER_CHUNK):
+        msg = node.step(Tick(k, k * 1e-3, 1e-3), {})["/ft/wrench"]
+        if msg is not None:
+            sent.append(msg.header.seq)
+    node.close()
+    # Ticks of the damaged chunk have no message, as ticks where the recorded run sent nothing.
+    assert sent == [s for s in bag.seqs_outside(chunk) if bag.topic_of[s] == "/ft/wrench"]
+    assert logged == [f"warning: {info(path)['loss']}"]
