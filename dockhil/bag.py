@@ -1,11 +1,26 @@
-"""MCAP bags: record the wire bytes of topics, read them back, even unfinished.
+"""MCAP bags: record the messages of topics, read them back, even unfinished or damaged.
 
-A bag is an MCAP file (https://mcap.dev) that standard MCAP tools open:
+A bag is an MCAP file (https://mcap.dev) that standard MCAP tools and viewers
+(Foxglove, PlotJuggler) open:
 
 - one schema per message type: name "dockhil/WrenchStamped" etc., encoding
-  "jsonschema", data the JSON Schema of the msgspec Struct;
-- one channel per topic, message encoding "msgpack";
-- the messages exactly as they travelled on the bus (no re-encoding).
+  "jsonschema", data a self-contained JSON Schema of the msgspec Struct
+  (top-level "type": "object", every $ref inlined: `channel_schema`);
+- one channel per topic, message encoding "json";
+- each message is its wire msgpack transcoded to JSON (msgspec, field for
+  field; a non-finite float, which JSON cannot hold, becomes null). Bytes
+  that are not msgpack cannot be JSON: they are counted
+  (`BagWriter.messages_unencodable`), not written.
+
+The bus stays msgpack, and `BagReader` hands back msgpack wire bytes whatever
+the bag holds, so replay sends what was recorded. Bags recorded before (channels
+encoded "msgpack") are read as they are; `dockhil bag convert` rewrites one.
+
+Times: log and publish times are integer nanoseconds since the Unix epoch
+(1970-01-01T00:00:00Z), as MCAP expects. A wall-time run logs the receive time
+(time.time_ns()). A sim-time run logs the message's sim time: sim time t [s]
+is t * 1e9 ns after the epoch, so a sim-time bag starts at 1970-01-01
+00:00:00 in a viewer and the same run recorded twice gives the same bag.
 
 Chunks are small (64 KiB or 0.5 s, whichever comes first) and each is handed
 to the OS as soon as it is complete. A recorder killed with SIGKILL therefore
@@ -50,7 +65,8 @@ import msgspec
 from dockhil.errors import DockhilError
 
 MAGIC = b"\x89MCAP0\r\n"
-MESSAGE_ENCODING = "msgpack"
+MESSAGE_ENCODING = "json"  # what BagWriter records
+READ_ENCODINGS = ("json", "msgpack")  # what BagReader decodes; msgpack: bags recorded before json
 SCHEMA_ENCODING = "jsonschema"
 COMPRESSIONS = ("zstd", "lz4", "none")
 
@@ -133,10 +149,13 @@ class BagWriter:
         self._channels: dict[str, tuple[int, str]] = {}  # topic -> (channel id, type name)
         self._schemas: dict[str, int] = {}  # type name -> schema id
         self._sequence: dict[int, int] = {}
+        self._from_wire = msgspec.msgpack.Decoder().decode
+        self._to_json = msgspec.json.Encoder().encode
         self._failed: BagError | None = None
         self._closed = False
         self.messages_written = 0
         self.messages_flushed = 0  # in complete chunks handed to the OS: they survive a kill
+        self.messages_unencodable = 0  # not msgpack (or no JSON for them): not written
         self._writer = Writer(
             self._file,
             # Chunks are closed here, by bytes and by time, so that each one is
@@ -164,7 +183,6 @@ class BagWriter:
     def add_topic(self, topic: str, type_name: str) -> None:
         """Declare a topic and its message type (a key of msgs.TYPES); adding it again is a no-op."""
         from msgs import TYPES
-        from msgs.codec import schema
 
         if not isinstance(topic, str) or not topic:
             raise BagError(f"bag {self.path}: a topic must be a non-empty string, got {topic!r}")
@@ -181,7 +199,7 @@ class BagWriter:
             )
         schema_id = self._schemas.get(type_name)
         if schema_id is None:
-            data = json.dumps(schema(cls), separators=(",", ":")).encode()
+            data = json.dumps(channel_schema(cls), separators=(",", ":")).encode()
             schema_id = self._writer.register_schema(name=type_name, encoding=SCHEMA_ENCODING, data=data)
             self._schemas[type_name] = schema_id
             self._pending += len(data)
@@ -190,7 +208,10 @@ class BagWriter:
         self._sequence[channel_id] = 0
 
     def write(self, topic: str, log_time_ns: int, publish_time_ns: int, data: bytes) -> None:
-        """Append one message: its wire bytes as they are, times in integer ns."""
+        """Append one message given as its wire (msgpack) bytes, times in integer ns.
+
+        Bytes that are not msgpack, or hold what JSON cannot (msgpack extension
+        types), are counted in `messages_unencodable` and not written."""
         if self._failed is not None:
             raise self._failed
         if self._closed:
@@ -206,6 +227,11 @@ class BagWriter:
             log_time_ns = -1
         if not (0 <= log_time_ns <= _U64 and 0 <= publish_time_ns <= _U64):
             raise BagError(f"bag {self.path}: topic {topic}: times must be integer ns in [0, 2**64), got {log_time_ns!r}")
+        try:
+            data = self._to_json(self._from_wire(data))
+        except (msgspec.DecodeError, msgspec.EncodeError, TypeError, ValueError, RecursionError):
+            self.messages_unencodable += 1
+            return
         channel_id = known[0]
         sequence = self._sequence[channel_id]
         self._sequence[channel_id] = (sequence + 1) & 0xFFFFFFFF
@@ -274,6 +300,41 @@ class BagWriter:
                 pass
 
 
+def channel_schema(cls: type) -> dict:
+    """The JSON Schema of a message type, self-contained for a bag's channel.
+
+    msgspec gives {"$ref": "#/$defs/X", "$defs": {...}}; viewers want the
+    message's own object at the top ("type": "object"), so every $ref is
+    inlined. A type that contains itself keeps $ref to "#/$defs/..." for the
+    inner occurrences, with the $defs they need.
+    """
+    from msgs.codec import schema
+
+    found = schema(cls)
+    defs = found.get("$defs", {})
+    kept: dict[str, Any] = {}
+
+    def inline(node: Any, path: tuple[str, ...]) -> Any:
+        if isinstance(node, list):
+            return [inline(item, path) for item in node]
+        if not isinstance(node, dict):
+            return node
+        ref = node.get("$ref")
+        if isinstance(ref, str) and ref.startswith("#/$defs/"):
+            name = ref[len("#/$defs/"):]
+            siblings = {k: inline(v, path) for k, v in node.items() if k not in ("$ref", "$defs")}
+            if name in path:  # recursion: leave a reference
+                kept[name] = defs[name]
+                return node
+            return {**inline(defs[name], path + (name,)), **siblings}
+        return {key: inline(value, path) for key, value in node.items() if key != "$defs"}
+
+    out = inline(found, ())
+    if kept:
+        out["$defs"] = {name: inline(d, (name,)) for name, d in kept.items()}
+    return out
+
+
 def _open_for_writing(path: str, overwrite: bool):
     try:
         return open(path, "wb" if overwrite else "xb")
@@ -311,6 +372,20 @@ class _Channel:
     topic: str
     type_name: str
     encoding: str
+    to_wire: Any = None  # json bytes -> msgpack bytes, for a json channel
+
+
+def _json_to_wire() -> Any:
+    from_json = msgspec.json.Decoder().decode
+    to_msgpack = msgspec.msgpack.Encoder().encode
+
+    def to_wire(data: bytes) -> bytes:
+        try:
+            return to_msgpack(from_json(data))
+        except (msgspec.DecodeError, RecursionError):
+            return data  # not JSON: handed on as it is, and fails to decode later with one line
+
+    return to_wire
 
 
 class LostRegion(NamedTuple):
@@ -410,13 +485,24 @@ class BagReader:
         channels = self._channels
         lo = 0 if start_ns is None else start_ns
         hi = _U64 if end_ns is None else end_ns
-        for channel_id, log_time, data in self._raw_messages(with_data=True):
+        for channel_id, log_time, _, data in self._raw_messages(with_data=True):
             keep = selected.get(channel_id)
             if keep is None:
                 keep = selected[channel_id] = wanted is None or channels[channel_id].topic in wanted
             if keep and lo <= log_time <= hi:
                 channel = channels[channel_id]
+                if channel.to_wire is not None:
+                    data = channel.to_wire(data)
                 yield BagMessage(channel.topic, channel.type_name, log_time, data)
+
+    def timed(self) -> Iterator[tuple[str, str, int, int, bytes]]:
+        """(topic, type name, log time, publish time, wire bytes) of every message."""
+        channels = self._channels
+        for channel_id, log_time, publish_time, data in self._raw_messages(with_data=True):
+            channel = channels[channel_id]
+            if channel.to_wire is not None:
+                data = channel.to_wire(data)
+            yield channel.topic, channel.type_name, log_time, publish_time, data
 
     def decoded(self, topics: Iterable[str] | None = None, **bounds) -> Iterator[tuple[str, int, Any]]:
         """(topic, log_time_ns, msgs Struct) for each message; BagError if one does not decode."""
@@ -442,7 +528,7 @@ class BagReader:
     def summary(self) -> dict:
         """One pass over the file: what `info` reports (see there)."""
         counts: dict[int, list[int]] = {}  # channel id -> [count, first, last]
-        for channel_id, log_time, _ in self._raw_messages(with_data=False):
+        for channel_id, log_time, _, _ in self._raw_messages(with_data=False):
             entry = counts.get(channel_id)
             if entry is None:
                 counts[channel_id] = [1, log_time, log_time]
@@ -502,9 +588,10 @@ class BagReader:
 
     def _check_encoding(self, topic: str) -> None:
         for channel in self._channels.values():
-            if channel.topic == topic and channel.encoding != MESSAGE_ENCODING:
+            if channel.topic == topic and channel.encoding not in READ_ENCODINGS:
                 raise BagError(
-                    f"{self.path}: topic {topic} is encoded as {channel.encoding!r}, not {MESSAGE_ENCODING!r}"
+                    f"{self.path}: topic {topic} is encoded as {channel.encoding!r}; "
+                    f"dockhil reads {' or '.join(READ_ENCODINGS)}"
                 )
 
     # The file, record by record. -----------------------------------------
@@ -694,8 +781,9 @@ class BagReader:
             i = b
         return (records, index), crc != 0
 
-    def _raw_messages(self, with_data: bool) -> Iterator[tuple[int, int, bytes | None]]:
-        """(channel id, log time, data) in file order; registers schemas and channels on the way."""
+    def _raw_messages(self, with_data: bool) -> Iterator[tuple[int, int, int, bytes | None]]:
+        """(channel id, log time, publish time, data as stored) in file order; registers
+        schemas and channels on the way."""
         unpack_head = _MESSAGE_HEAD.unpack_from
         channels = self._channels
         run = _Pass()
@@ -710,17 +798,17 @@ class BagReader:
                     if op != _MESSAGE:
                         self._define(a)
                         continue
-                    channel_id, _, log_time, _ = unpack_head(records, a)
+                    channel_id, _, log_time, publish_time = unpack_head(records, a)
                     if log_time > top:
                         top = log_time
                     if channel_id not in channels and not self._recover_channel(channel_id):
                         run.orphaned += 1
                         continue
-                    yield channel_id, log_time, records[a + 22 : b] if with_data else None
+                    yield channel_id, log_time, publish_time, records[a + 22 : b] if with_data else None
                 if top >= 0:
                     run.top_ns = top
             elif opcode == _MESSAGE:  # unchunked files from other writers
-                channel_id, _, log_time, _ = unpack_head(content, 0)
+                channel_id, _, log_time, publish_time = unpack_head(content, 0)
                 run.bare = True
                 if run.waiting:
                     self._close_waiting(run, [log_time])
@@ -729,7 +817,7 @@ class BagReader:
                 if channel_id not in channels and not self._recover_channel(channel_id):
                     run.orphaned += 1
                     continue
-                yield channel_id, log_time, content[22:] if with_data else None
+                yield channel_id, log_time, publish_time, content[22:] if with_data else None
             elif opcode == _SCHEMA or opcode == _CHANNEL:
                 self._define(_parse_definition(opcode, content))
 
@@ -749,7 +837,10 @@ class BagReader:
                 self._schema_names[record.id] = record.name
         else:
             self._channels[record.id] = _Channel(
-                record.topic, self._schema_names.get(record.schema_id, ""), record.message_encoding
+                record.topic,
+                self._schema_names.get(record.schema_id, ""),
+                record.message_encoding,
+                _json_to_wire() if record.message_encoding == "json" else None,
             )
 
     def _recover_channel(self, channel_id: int) -> bool:
@@ -1010,6 +1101,46 @@ def _write_csv(reader: BagReader, topic: str, fh: IO[str]) -> tuple[int, int, in
     return written, counts["unvalidated"], counts["skipped"]
 
 
+class ConvertResult(NamedTuple):
+    messages: int  # written to the new bag
+    unencodable: int  # not msgpack in the old bag: no JSON for them, not written
+    loss: str | None  # what of the old bag was unreadable or unfinished (see loss_line)
+
+
+def convert(src: str | os.PathLike, dst: str | os.PathLike, *, overwrite: bool = False) -> ConvertResult:
+    """Rewrite the bag `src` (msgpack channels, as recorded before json) as a json bag `dst`.
+
+    Topics, types, log and publish times and the order stay; what `src` holds
+    in damaged chunks stays lost. `dst` appears only when complete.
+    """
+    src, dst = os.fspath(src), os.fspath(dst)
+    if os.path.isdir(dst):
+        raise BagError(f"cannot create bag {dst}: it is a directory")
+    if os.path.exists(dst) and not overwrite:
+        raise BagError(f"bag {dst} already exists; choose another name or allow overwriting it")
+    part = f"{dst}.part"
+    with BagReader(src) as reader:
+        found = reader.summary()
+        try:
+            with BagWriter(part, overwrite=True) as out:
+                for topic, type_name in reader.topics.items():
+                    try:
+                        out.add_topic(topic, type_name)
+                    except BagError as exc:
+                        raise BagError(f"{src}: cannot convert: {str(exc).split(': ', 1)[1]}") from None
+                    reader._check_encoding(topic)
+                for topic, _, log_ns, publish_ns, data in reader.timed():
+                    out.write(topic, log_ns, publish_ns, data)
+            os.replace(part, dst)
+        except OSError as exc:
+            _remove_quietly(part)
+            raise BagError(f"cannot write {dst}: {_reason(exc)}") from None
+        except BaseException:
+            _remove_quietly(part)
+            raise
+    return ConvertResult(out.messages_written, out.messages_unencodable, found["loss"])
+
+
 def _remove_quietly(path: str) -> None:
     try:
         os.remove(path)
@@ -1022,8 +1153,14 @@ __all__ = [
     "BagMessage",
     "BagReader",
     "BagWriter",
+    "ConvertResult",
     "ExportResult",
+    "LostRegion",
+    "channel_schema",
+    "convert",
     "export_csv",
     "flatten",
+    "format_size",
     "info",
+    "loss_line",
 ]

@@ -31,6 +31,7 @@ from msgs import (
     type_name,
 )
 from msgs.codec import encode, schema
+from tests.bagfiles import write_msgpack_bag
 
 ROOT = Path(__file__).resolve().parent.parent
 MS = 1_000_000  # ns
@@ -167,30 +168,45 @@ def test_flatten_names_nested_fields():
     assert flatten({"a": [1, {"b": 2}]}) == {"a.0": 1, "a.1.b": 2}
 
 
-def test_export_keeps_a_recorded_nan_and_skips_non_msgpack(tmp_path, capsys):
+@pytest.mark.parametrize("encoding", ["json", "msgpack"])
+def test_export_keeps_a_recorded_nan_and_skips_non_msgpack(tmp_path, capsys, encoding):
     path = tmp_path / "nan.mcap"
-    with BagWriter(path) as bag:
-        bag.add_topic("/ft/wrench", "dockhil/WrenchStamped")
-        bag.write("/ft/wrench", 1, 1, encode(wrench(1)))
-        bag.write("/ft/wrench", 2, 2, encode(WrenchStamped(header=Header(seq=2), wrench=Wrench(force=Vector3(x=math.nan)))))
-        bag.write("/ft/wrench", 3, 3, b"\xc1")  # never valid msgpack
+    wire = [
+        encode(wrench(1)),
+        encode(WrenchStamped(header=Header(seq=2), wrench=Wrench(force=Vector3(x=math.nan)))),
+        b"\xc1",  # never valid msgpack
+    ]
+    if encoding == "json":
+        with BagWriter(path) as bag:
+            bag.add_topic("/ft/wrench", "dockhil/WrenchStamped")
+            for k, data in enumerate(wire, 1):
+                bag.write("/ft/wrench", k, k, data)
+        # JSON holds neither bytes that are not msgpack (counted, not written) nor NaN (null).
+        assert (bag.messages_written, bag.messages_unencodable) == (2, 1)
+    else:  # a bag recorded before json channels holds the wire bytes as they came
+        write_msgpack_bag(path, {"/ft/wrench": "dockhil/WrenchStamped"}, [("/ft/wrench", k, k, d) for k, d in enumerate(wire, 1)])
     out_csv = tmp_path / "w.csv"
     code, out, err = run_cli(capsys, "export", path, "--topic", "/ft/wrench", "--csv", out_csv)
     assert code == 0
-    assert "1 messages fail validation" in err and "1 messages are not msgpack" in err
+    assert "1 messages fail validation" in err
+    assert ("1 messages are not msgpack" in err) == (encoding == "msgpack")
     with open(out_csv, newline="") as fh:
         header = next(csv.reader(fh))
         fh.seek(0)
         rows = list(csv.DictReader(fh))
-    assert len(rows) == 2 and math.isnan(float(rows[1]["wrench.force.x"])) and rows[1]["header.seq"] == "2"
+    assert len(rows) == 2 and rows[1]["header.seq"] == "2"
+    if encoding == "json":
+        assert rows[1]["wrench.force.x"] == ""  # null
+    else:
+        assert math.isnan(float(rows[1]["wrench.force.x"]))
     assert header == ["log_time_ns", *flatten(wrench(1))]  # the row exported as recorded has the same columns
 
 
 # --------------------------------------------------------------------------- interop
 
 
-def test_reference_mcap_reader_and_msgpack_read_a_dockhil_bag(tmp_path):
-    import msgpack
+def test_reference_mcap_reader_reads_json_that_validates_against_the_channel_schema(tmp_path):
+    import jsonschema
     from mcap.reader import make_reader
 
     path = tmp_path / "run.mcap"
@@ -201,13 +217,55 @@ def test_reference_mcap_reader_and_msgpack_read_a_dockhil_bag(tmp_path):
         assert summary.statistics.message_count == len(written)
         got = list(reader.iter_messages(log_time_order=False))
     assert len(got) == len(written)
+    validators = {}
     for (schema_rec, channel, message), (topic, ns, msg) in zip(got, written):
-        assert channel.topic == topic and channel.message_encoding == "msgpack"
+        assert channel.topic == topic and channel.message_encoding == "json"
         assert schema_rec.name == type_name(type(msg)) and schema_rec.encoding == "jsonschema"
-        assert json.loads(schema_rec.data) == schema(type(msg))
         assert message.log_time == ns
         assert message.publish_time == (ns + 7 if topic == "/ft/wrench" else ns)
-        assert msgpack.unpackb(message.data) == msgspec.to_builtins(msg)
+        value = json.loads(message.data)
+        assert value == msgspec.to_builtins(msg)
+        if schema_rec.name not in validators:
+            found = json.loads(schema_rec.data)
+            # What viewers need: the message's own object at the top, no $ref to follow.
+            assert found["type"] == "object" and "$ref" not in json.dumps(found)
+            jsonschema.Draft202012Validator.check_schema(found)
+            validators[schema_rec.name] = jsonschema.Draft202012Validator(found)
+        validators[schema_rec.name].validate(value)
+    assert set(validators) == {"dockhil/WrenchStamped", "dockhil/SatelliteState"}
+    # The validator is not a yes-man: a field of the wrong type or a NaN (null in JSON) is refused.
+    bad = json.loads(got[0][2].data)
+    bad["wrench"]["force"]["x"] = None
+    assert not validators["dockhil/WrenchStamped"].is_valid(bad)
+    bad["wrench"]["force"]["x"] = "1.0"
+    assert not validators["dockhil/WrenchStamped"].is_valid(bad)
+
+
+class Tree(msgspec.Struct):
+    name: str
+    children: list["Tree"] = []
+
+
+def test_every_message_type_has_a_self_contained_schema_its_messages_meet():
+    import jsonschema
+
+    from dockhil.bag import channel_schema
+    from msgs import TYPES
+
+    for name, cls in TYPES.items():
+        found = channel_schema(cls)
+        assert found["type"] == "object" and "$ref" not in json.dumps(found) and "$defs" not in found, name
+        jsonschema.Draft202012Validator.check_schema(found)
+        # Same meaning as msgspec's own schema: the default message is valid under both.
+        default = msgspec.to_builtins(cls(header=Header()) if "header" in cls.__struct_fields__ else cls())
+        jsonschema.validate(default, found)
+        jsonschema.validate(default, schema(cls))
+
+    # A type that contains itself keeps a reference for the inner occurrences only.
+    found = channel_schema(Tree)
+    assert found["type"] == "object" and found["properties"]["children"]["items"] == {"$ref": "#/$defs/Tree"}
+    jsonschema.validate({"name": "a", "children": [{"name": "b", "children": []}]}, found)
+    assert not jsonschema.Draft202012Validator(found).is_valid({"name": "a", "children": [{"children": []}]})
 
 
 # --------------------------------------------------------------------------- unfinished bags
@@ -438,3 +496,86 @@ def test_record_and_play_parse_their_options():
     for bad in (["--rate", "0"], ["--rate", "nan"], ["--start", "-1"]):
         with pytest.raises(SystemExit):
             parser.parse_args(["bag", "play", "run.mcap", *bad])
+
+
+# --------------------------------------------------------------------------- bags recorded before json
+
+
+def _old_run(path, n=300):
+    """An old msgpack bag with the topics of write_run; returns (topic, log, publish, wire bytes)."""
+    messages = []
+    for k in range(n):
+        t = 5_000 * MS + k * MS
+        messages.append(("/ft/wrench", t, t + 7, encode(wrench(k))))
+        if k % 10 == 0:
+            messages.append(("/dynamics/state", t, t, encode(state(k // 10))))
+    write_msgpack_bag(path, {"/ft/wrench": "dockhil/WrenchStamped", "/dynamics/state": "dockhil/SatelliteState"},
+                      messages)
+    return messages
+
+
+def test_old_msgpack_bags_read_as_before_and_convert_to_json(tmp_path, capsys):
+    import jsonschema
+    import msgpack
+    from mcap.reader import make_reader
+
+    old = tmp_path / "old.mcap"
+    messages = _old_run(old)
+    with BagReader(old) as reader:
+        assert [(m.topic, m.log_time_ns, m.data) for m in reader] == [(t, ns, d) for t, ns, _, d in messages]
+    assert {t["topic"]: t["encoding"] for t in info(old)["topics"]} == {"/ft/wrench": "msgpack", "/dynamics/state": "msgpack"}
+
+    new = tmp_path / "new.mcap"
+    code, out, err = run_cli(capsys, "convert", old, new)
+    assert code == 0 and err == ""
+    assert out == f"{len(messages)} messages written to {new} (json)\n"
+    with open(new, "rb") as fh:
+        got = list(make_reader(fh, validate_crcs=True).iter_messages(log_time_order=False))
+    assert len(got) == len(messages)
+    for (schema_rec, channel, message), (topic, log_ns, publish_ns, data) in zip(got, messages):
+        assert (channel.topic, channel.message_encoding, message.log_time, message.publish_time) == (
+            topic, "json", log_ns, publish_ns
+        )
+        value = json.loads(message.data)
+        assert value == msgpack.unpackb(data)
+        jsonschema.validate(value, json.loads(schema_rec.data))
+    # Read back through dockhil: the wire bytes as they were recorded.
+    with BagReader(new) as reader:
+        assert [(m.topic, m.log_time_ns, m.data) for m in reader] == [(t, ns, d) for t, ns, _, d in messages]
+
+    # An existing OUT is refused in one line, unless --overwrite.
+    code, out, err = run_cli(capsys, "convert", old, new)
+    assert_one_line_error(code, err, str(new), "already exists")
+    code, out, err = run_cli(capsys, "convert", old, new, "--overwrite")
+    assert code == 0
+
+
+def test_convert_keeps_what_a_damaged_old_bag_holds_and_refuses_non_bags(tmp_path, capsys):
+    from mcap.reader import make_reader
+
+    old = tmp_path / "old.mcap"
+    messages = _old_run(old, n=500)
+    with open(old, "rb") as fh:
+        chunks = sorted((c.chunk_start_offset, c.chunk_length) for c in make_reader(fh).get_summary().chunk_indexes)
+    start, length = chunks[2]
+    data = bytearray(old.read_bytes())
+    data[start + length // 2] ^= 0x01
+    old.write_bytes(bytes(data))
+    # write_msgpack_bag closes a chunk after every 50 messages: chunk 2 held messages 100 to 149.
+    survivors = [(t, ns, d) for k, (t, ns, _, d) in enumerate(messages) if not 100 <= k < 150]
+
+    new = tmp_path / "new.mcap"
+    code, out, err = run_cli(capsys, "convert", old, new)
+    assert code == 0
+    assert err.count("\n") == 1 and err.startswith("dockhil bag convert: warning: ")
+    assert f"bytes {start}-{start + length}" in err
+    with BagReader(new) as reader:
+        assert [(m.topic, m.log_time_ns, m.data) for m in reader] == survivors
+    assert info(new)["loss"] is None  # the new bag itself is whole
+
+    text = tmp_path / "notes.txt"
+    text.write_text("not a bag\n")
+    out_bag = tmp_path / "out.mcap"
+    code, out, err = run_cli(capsys, "convert", text, out_bag)
+    assert_one_line_error(code, err, str(text), "not an MCAP bag")
+    assert not out_bag.exists() and not Path(f"{out_bag}.part").exists()

@@ -261,13 +261,15 @@ def test_info_export_and_play_report_the_loss_in_one_line_and_go_on(bag, tmp_pat
 
 
 def test_export_of_a_deeply_nested_message_is_one_line(tmp_path, capsys):
-    path = tmp_path / "nested.mcap"
+    from tests.bagfiles import write_msgpack_bag
+
     good = encode(WrenchStamped(header=Header(seq=1)))
-    with BagWriter(path) as writer:
-        writer.add_topic("/ft/wrench", "dockhil/WrenchStamped")
-        writer.write("/ft/wrench", 1, 1, good)
-        writer.write("/ft/wrench", 2, 2, b"\x91" * 20_000 + b"\x01")  # 20,000 nested arrays
-        writer.write("/ft/wrench", 3, 3, b"\x81\xa1a" * 500 + b"\x01")  # 500 nested maps: decodes, flattens deep
+    deep_arrays = b"\x91" * 20_000 + b"\x01"  # 20,000 nested arrays
+    deep_maps = b"\x81\xa1a" * 500 + b"\x01"  # 500 nested maps: decodes, flattens deep
+    # A bag recorded before json channels holds the wire bytes as they came.
+    path = tmp_path / "nested.mcap"
+    write_msgpack_bag(path, {"/ft/wrench": "dockhil/WrenchStamped"},
+                      [("/ft/wrench", k, k, d) for k, d in enumerate([good, deep_arrays, deep_maps], 1)])
     out_csv = tmp_path / "nested.csv"
     code = cli.main(["bag", "export", str(path), "--topic", "/ft/wrench", "--csv", str(out_csv)])
     out, err = capsys.readouterr()
@@ -287,6 +289,15 @@ def test_export_of_a_deeply_nested_message_is_one_line(tmp_path, capsys):
     with BagReader(path) as reader, pytest.raises(BagError) as caught:
         list(reader.decoded())
     assert "\n" not in str(caught.value) and "log time 2 ns" in str(caught.value)
+
+    # Recording it as json: too deep to transcode, counted and left out; the others are kept.
+    with BagWriter(tmp_path / "nested.json.mcap") as writer:
+        writer.add_topic("/ft/wrench", "dockhil/WrenchStamped")
+        for k, data in enumerate([good, deep_arrays, deep_maps], 1):
+            writer.write("/ft/wrench", k, k, data)
+    assert (writer.messages_written, writer.messages_unencodable) == (2, 1)
+    with BagReader(tmp_path / "nested.json.mcap") as reader:
+        assert [m.data for m in reader] == [good, deep_maps]
 
 
 def test_bag_source_replays_around_a_damaged_chunk_and_warns_once(bag, tmp_path):

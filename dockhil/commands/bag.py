@@ -1,6 +1,6 @@
 """`dockhil bag`: inspect, export, record and replay MCAP bags.
 
-`info` and `export` read files only. `record` and `play` talk to a running
+`info`, `export` and `convert` read and write files only. `record` and `play` talk to a running
 graph; they live in `dockhil.bag_live`, imported only when they run.
 """
 
@@ -39,6 +39,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--csv", required=True, metavar="OUT", help="CSV file to write ('-' for standard output)")
 
     p = sub.add_parser(
+        "convert",
+        help="rewrite a bag recorded with msgpack channels as a json bag (Foxglove, PlotJuggler)",
+        description="Rewrite a bag whose channels are msgpack (as dockhil recorded them before) "
+        "with json channels and self-contained JSON Schemas, which viewers open. Topics, types, "
+        "log and publish times stay; a damaged or unfinished bag is converted as far as it reads.",
+    )
+    p.add_argument("path", metavar="IN", help="MCAP bag to read")
+    p.add_argument("out", metavar="OUT", help="MCAP bag to create")
+    p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists (default: refuse)")
+
+    p = sub.add_parser(
         "record",
         help="record topics of a running graph to a new bag",
         description="Record topics of a graph that is already running, until Ctrl-C. "
@@ -70,7 +81,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    return {"info": _info, "export": _export, "record": _record, "play": _play}[args.bag_command](args)
+    return {"info": _info, "export": _export, "convert": _convert, "record": _record, "play": _play}[
+        args.bag_command
+    ](args)
 
 
 def _info(args: argparse.Namespace) -> int:
@@ -145,6 +158,19 @@ def _export(args: argparse.Namespace) -> int:
         print(f"dockhil bag export: note: {note}", file=sys.stderr)
     if args.csv != "-":
         print(f"{result.rows} rows of {args.topic} written to {args.csv}")
+    return 0
+
+
+def _convert(args: argparse.Namespace) -> int:
+    from dockhil.bag import convert
+
+    result = convert(args.path, args.out, overwrite=args.overwrite)
+    if result.loss:
+        print(f"dockhil bag convert: warning: {result.loss}", file=sys.stderr)
+    if result.unencodable:
+        print(f"dockhil bag convert: note: {result.unencodable} messages are not msgpack and were not converted",
+              file=sys.stderr)
+    print(f"{result.messages} messages written to {args.out} (json)")
     return 0
 
 
