@@ -140,7 +140,8 @@ class Recorder:
     Counts: `lost` messages (received but not on disk, or in sim time
     missing ticks), `skipped` header.seq numbers in wall time (a publisher
     that skips outputs, or messages that never arrived), `unreadable`
-    messages (recorded as they came, but without a header to read).
+    messages (without a header to read; recorded if they are msgpack,
+    counted in the bag's `messages_unencodable` if not).
     """
 
     def __init__(self, path: str, sources: dict[str, Source], *, n_ticks: int | None = None,
@@ -304,7 +305,9 @@ class Recorder:
         if self.skipped:
             line += f"; header.seq skipped {self.skipped} numbers (a publisher skipped outputs, or they never arrived)"
         if self.unreadable:
-            line += f"; {self.unreadable} recorded without a readable header"
+            line += f"; {self.unreadable} without a readable header"
+        if self.bag.messages_unencodable:
+            line += f"; {self.bag.messages_unencodable} not recorded: not msgpack, so no JSON for them"
         self.log(line)
         return line
 

@@ -33,3 +33,24 @@ def write_msgpack_bag(path, topics: dict[str, str], messages, *, per_chunk: int 
             if k % per_chunk == per_chunk - 1:
                 writer.flush()
         writer.finish()
+
+
+def assert_messages_meet_their_channel_schemas(path) -> int:
+    """Read `path` with the reference MCAP reader and validate every message, as JSON,
+    against its channel's JSON Schema (the jsonschema package); returns how many."""
+    import jsonschema
+    from mcap.reader import make_reader
+
+    validators: dict[int, jsonschema.Draft202012Validator] = {}
+    n = 0
+    with open(path, "rb") as fh:
+        for schema_rec, channel, message in make_reader(fh, validate_crcs=True).iter_messages(log_time_order=False):
+            assert channel.message_encoding == "json" and schema_rec.encoding == "jsonschema", channel
+            validator = validators.get(schema_rec.id)
+            if validator is None:
+                found = json.loads(schema_rec.data)
+                assert found["type"] == "object" and "$ref" not in found, schema_rec.name
+                validator = validators[schema_rec.id] = jsonschema.Draft202012Validator(found)
+            validator.validate(json.loads(message.data))
+            n += 1
+    return n

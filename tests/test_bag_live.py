@@ -17,6 +17,7 @@ from dockhil.bag import BagReader, BagWriter, info
 from dockhil.errors import DockhilError
 from msgs import Header, Vector3, Wrench, WrenchStamped, type_name
 from msgs.codec import encode
+from tests.bagfiles import assert_messages_meet_their_channel_schemas
 from tests.conftest import dockhil_cmd, kill_child_and_expect_the_graph_to_stop, registered
 
 # A driven loop: /drive (a seeded noisy source, silent at every 5th tick) feeds
@@ -94,6 +95,8 @@ def test_launch_bag_round_trip_record_info_export_play(write_launch, tmp_path, c
     # One graph, two ways of running it: the same bytes at the same (sim) log times.
     a, b = by_topic(multi), by_topic(composed)
     assert a == b
+    # Recorded as json that viewers read: every message meets its channel's schema.
+    assert assert_messages_meet_their_channel_schemas(multi) == assert_messages_meet_their_channel_schemas(composed) == 843
     assert {t: len(v) for t, v in a.items()} == {"/x": TICKS, "/u": TICKS, "/drive": TICKS - TICKS // 5}
     assert [ns for ns, _ in a["/x"]] == [k * 1_000_000 for k in range(TICKS)]  # sim times, not wall times
     assert [ns for ns, _ in a["/drive"]] == [k * 1_000_000 for k in range(TICKS) if k % 5 != 4]
