@@ -4,7 +4,13 @@ The mix is what the docking graph publishes every 1 ms tick (two wrenches,
 the satellite state with two bodies, robot command, delayed command and
 robot state) plus one 10 Hz status per node. Values follow a noisy contact
 trajectory so that compression sees realistic data. Messages are encoded
-beforehand: the recorder receives wire bytes, encoding is the publisher's cost.
+beforehand: the recorder receives wire (msgpack) bytes, encoding is the
+publisher's cost; transcoding them to the bag's JSON is the writer's.
+
+messages_per_s is over wall time, cpu_messages_per_s over the process's CPU
+time (steadier on a loaded machine). read_cpu_messages_per_s: BagReader handing
+back every message of the zstd bag as wire bytes (what `bag play` and replay
+do), over CPU time.
 
     python bench/bag_write.py [--seconds 10] [--runs 5]
 """
@@ -24,7 +30,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from dockhil.bag import BagWriter  # noqa: E402
+from dockhil.bag import BagReader, BagWriter  # noqa: E402
 from msgs import (  # noqa: E402
     BodyState,
     Header,
@@ -91,18 +97,24 @@ def graph_messages(seconds: float, rate_hz: float = 1000.0) -> tuple[list[tuple[
     return out, topics
 
 
-def one_run(messages, topics, compression: str) -> tuple[float, int]:
+def one_run(messages, topics, compression: str) -> tuple[float, float, int, float]:
+    """(wall s, CPU s, bytes) of writing the bag, and CPU s of reading it back."""
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "bench.mcap")
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         with BagWriter(path, compression=compression) as bag:
             for topic, type_ in topics.items():
                 bag.add_topic(topic, type_)
             write = bag.write
             for topic, ns, data in messages:
                 write(topic, ns, ns, data)
-        elapsed = time.perf_counter() - start
-        return elapsed, os.path.getsize(path)
+        elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
+        start = time.process_time()
+        with BagReader(path) as reader:
+            count = sum(1 for _ in reader)
+        read = time.process_time() - start
+        assert count == len(messages)
+        return elapsed, cpu, os.path.getsize(path), read
 
 
 def main() -> None:
@@ -126,11 +138,13 @@ def main() -> None:
         rate = len(messages) / elapsed
         entry = {
             "messages_per_s": round(rate),
+            "cpu_messages_per_s": round(len(messages) / statistics.median(r[1] for r in runs)),
             "realtime_factor": round(rate / needed, 1),
-            "bytes_per_message": round(runs[0][1] / len(messages), 1),
+            "bytes_per_message": round(runs[0][2] / len(messages), 1),
         }
         if compression == "zstd":  # the default: headline numbers
             result.update(entry)
+            result["read_cpu_messages_per_s"] = round(len(messages) / statistics.median(r[3] for r in runs))
         result.setdefault("by_compression", {})[compression] = entry
     print(json.dumps(result))
 
