@@ -608,20 +608,29 @@ class BagReader:
             raise BagError(f"{self.path}: truncated: {size} bytes end inside the MCAP header; nothing was recorded")
         f.seek(len(MAGIC))
         opcode, length = _RECORD_HEAD.unpack(f.read(9))
+        problem = None
         if opcode != _HEADER:
-            raise BagError(f"{self.path}: corrupt: the first record is opcode 0x{opcode:02x}, not the MCAP header")
-        if length > size - len(MAGIC) - 9:
-            raise BagError(f"{self.path}: truncated: {size} bytes end inside the MCAP header; nothing was recorded")
-        try:
-            body = f.read(length)
-            (n,) = struct.unpack_from("<I", body, 0)
-            profile = body[4 : 4 + n].decode()
-            (m,) = struct.unpack_from("<I", body, 4 + n)
-            library = body[8 + n : 8 + n + m].decode()
-        except (struct.error, UnicodeDecodeError):
-            raise BagError(f"{self.path}: corrupt MCAP header") from None
-        self._data_start = len(MAGIC) + 9 + length
-        return profile, library
+            problem = f"corrupt: the first record is opcode 0x{opcode:02x}, not the MCAP header"
+        elif length > size - len(MAGIC) - 9:
+            problem = f"truncated: {size} bytes end inside the MCAP header; nothing was recorded"
+        else:
+            try:
+                body = f.read(length)
+                (n,) = struct.unpack_from("<I", body, 0)
+                profile = body[4 : 4 + n].decode()
+                (m,) = struct.unpack_from("<I", body, 4 + n)
+                library = body[8 + n : 8 + n + m].decode()
+            except (struct.error, UnicodeDecodeError):
+                problem = "corrupt MCAP header"
+        if problem is None:
+            self._data_start = len(MAGIC) + 9 + length
+            return profile, library
+        # A damaged header: what follows may be whole. Read on if a valid record comes
+        # (the header is then a lost region like any other), else say what is wrong.
+        self._data_start = len(MAGIC)
+        if self._resync(len(MAGIC) + 1, _Pass()) >= size:
+            raise BagError(f"{self.path}: {problem}")
+        return "", ""
 
     def _records(self, run: _Pass) -> Iterator[tuple[int, int, Any]]:
         """(offset, opcode, content) of each valid record after the header; damaged

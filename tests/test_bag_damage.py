@@ -319,3 +319,15 @@ def test_bag_source_replays_around_a_damaged_chunk_and_warns_once(bag, tmp_path)
     # Ticks of the damaged chunk have no message, as ticks where the recorded run sent nothing.
     assert sent == [s for s in bag.seqs_outside(chunk) if bag.topic_of[s] == "/ft/wrench"]
     assert logged == [f"warning: {info(path)['loss']}"]
+
+
+def test_a_damaged_header_is_a_lost_region_when_chunks_follow(bag, tmp_path):
+    data = bytearray(bag.data)
+    data[8] = 0x42  # the header record's opcode, right after the magic
+    path = tmp_path / "header.mcap"
+    path.write_bytes(bytes(data))
+    assert _seqs(path) == bag.seqs_outside()
+    found = info(path)
+    first_chunk = bag.chunks[0][0]
+    assert found["lost"] == [{"offset": 8, "bytes": first_chunk - 8, "after": None,
+                              "before": T0 / 1e9, "at_end": False}]
