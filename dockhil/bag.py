@@ -695,7 +695,8 @@ class BagReader:
                         return None
                     # Unless the file is known to be unchunked, a bare message found by
                     # scanning is one of a damaged (uncompressed) chunk's own records.
-                    if resync and (run.chunks or not run.bare or _MESSAGE_HEAD.unpack_from(content)[0] not in self._channels):
+                    known = _MESSAGE_HEAD.unpack_from(content)[0] in self._channels
+                    if resync and (run.chunks or not run.bare or not known):
                         return None
                 else:
                     _parse_definition(opcode, content)
@@ -744,7 +745,8 @@ class BagReader:
         """(records, index) of the chunk record at `pos` and whether a CRC vouches for it.
 
         index: (opcode, start, end) of each message record in `records`, and
-        (opcode, parsed record, 0) of each schema and channel. Raises unless the chunk's framing, compression, size and CRC all agree.
+        (opcode, parsed record, 0) of each schema and channel. Raises unless the
+        chunk's framing, compression, size and CRC all agree.
         """
         f = self._file
         f.seek(pos + 9)

@@ -523,7 +523,8 @@ def test_old_msgpack_bags_read_as_before_and_convert_to_json(tmp_path, capsys):
     messages = _old_run(old)
     with BagReader(old) as reader:
         assert [(m.topic, m.log_time_ns, m.data) for m in reader] == [(t, ns, d) for t, ns, _, d in messages]
-    assert {t["topic"]: t["encoding"] for t in info(old)["topics"]} == {"/ft/wrench": "msgpack", "/dynamics/state": "msgpack"}
+    encodings = {t["topic"]: t["encoding"] for t in info(old)["topics"]}
+    assert encodings == {"/ft/wrench": "msgpack", "/dynamics/state": "msgpack"}
 
     new = tmp_path / "new.mcap"
     code, out, err = run_cli(capsys, "convert", old, new)

@@ -158,7 +158,9 @@ def test_torn_last_chunk_followed_by_zeros_is_read_up_to_it(bag, tmp_path):
     found = info(path)
     after = bag.after_ns(N_CHUNKS - 1)
     assert found["recovered"] is True
-    assert found["lost"] == [{"offset": start, "bytes": size - start, "after": after / 1e9, "before": None, "at_end": True}]
+    assert found["lost"] == [
+        {"offset": start, "bytes": size - start, "after": after / 1e9, "before": None, "at_end": True}
+    ]
     assert found["loss"] == (
         f"{path}: {format_size(size - start)} unreadable, skipped in 1 place: bytes {start}-{size} "
         f"(the end, after log time {after / 1e9:.6f} s); the bag is unfinished (the recorder stopped "
@@ -249,7 +251,8 @@ def test_info_export_and_play_report_the_loss_in_one_line_and_go_on(bag, tmp_pat
     assert code == 0
     assert err == f"dockhil bag export: warning: {expected_line}\n"
     rows = list(csv.DictReader(open(out_csv, newline="")))
-    assert [int(r["header.seq"]) for r in rows] == [s for s in bag.seqs_outside(chunk) if bag.topic_of[s] == "/ft/wrench"]
+    expected = [s for s in bag.seqs_outside(chunk) if bag.topic_of[s] == "/ft/wrench"]
+    assert [int(r["header.seq"]) for r in rows] == expected
 
     # play: no subscriber is waited for in wall time; a high rate plays the 0.9 s bag at once.
     code = cli.main(["bag", "play", str(path), "--rate", "1000"])
