@@ -312,7 +312,7 @@ def channel_schema(cls: type) -> dict:
 
     found = schema(cls)
     defs = found.get("$defs", {})
-    kept: dict[str, Any] = {}
+    kept: dict[str, bool] = {}  # definitions referred to from inside themselves
 
     def inline(node: Any, path: tuple[str, ...]) -> Any:
         if isinstance(node, list):
@@ -324,14 +324,18 @@ def channel_schema(cls: type) -> dict:
             name = ref[len("#/$defs/"):]
             siblings = {k: inline(v, path) for k, v in node.items() if k not in ("$ref", "$defs")}
             if name in path:  # recursion: leave a reference
-                kept[name] = defs[name]
+                kept[name] = True
                 return node
             return {**inline(defs[name], path + (name,)), **siblings}
         return {key: inline(value, path) for key, value in node.items() if key != "$defs"}
 
     out = inline(found, ())
     if kept:
-        out["$defs"] = {name: inline(d, (name,)) for name, d in kept.items()}
+        done: dict[str, Any] = {}
+        while len(done) < len(kept):  # inlining a kept definition may keep another
+            for name in [n for n in kept if n not in done]:
+                done[name] = inline(defs[name], (name,))
+        out["$defs"] = done
     return out
 
 
@@ -495,7 +499,7 @@ class BagReader:
                     data = channel.to_wire(data)
                 yield BagMessage(channel.topic, channel.type_name, log_time, data)
 
-    def timed(self) -> Iterator[tuple[str, str, int, int, bytes]]:
+    def messages_with_publish_time(self) -> Iterator[tuple[str, str, int, int, bytes]]:
         """(topic, type name, log time, publish time, wire bytes) of every message."""
         channels = self._channels
         for channel_id, log_time, publish_time, data in self._raw_messages(with_data=True):
@@ -1140,7 +1144,7 @@ def convert(src: str | os.PathLike, dst: str | os.PathLike, *, overwrite: bool =
                     except BagError as exc:
                         raise BagError(f"{src}: cannot convert: {str(exc).split(': ', 1)[1]}") from None
                     reader._check_encoding(topic)
-                for topic, _, log_ns, publish_ns, data in reader.timed():
+                for topic, _, log_ns, publish_ns, data in reader.messages_with_publish_time():
                     out.write(topic, log_ns, publish_ns, data)
             os.replace(part, dst)
         except OSError as exc:
