@@ -525,6 +525,8 @@ def test_old_msgpack_bags_read_as_before_and_convert_to_json(tmp_path, capsys):
         assert [(m.topic, m.log_time_ns, m.data) for m in reader] == [(t, ns, d) for t, ns, _, d in messages]
     encodings = {t["topic"]: t["encoding"] for t in info(old)["topics"]}
     assert encodings == {"/ft/wrench": "msgpack", "/dynamics/state": "msgpack"}
+    code, out, _ = run_cli(capsys, "info", old)
+    assert code == 0 and "encoding:  msgpack (recorded before json channels; 'dockhil bag convert'" in out
 
     new = tmp_path / "new.mcap"
     code, out, err = run_cli(capsys, "convert", old, new)
@@ -540,6 +542,8 @@ def test_old_msgpack_bags_read_as_before_and_convert_to_json(tmp_path, capsys):
         value = json.loads(message.data)
         assert value == msgpack.unpackb(data)
         jsonschema.validate(value, json.loads(schema_rec.data))
+    code, out, _ = run_cli(capsys, "info", new)
+    assert code == 0 and "encoding:  json\n" in out
     # Read back through dockhil: the wire bytes as they were recorded.
     with BagReader(new) as reader:
         assert [(m.topic, m.log_time_ns, m.data) for m in reader] == [(t, ns, d) for t, ns, _, d in messages]

@@ -117,8 +117,14 @@ def format_info(found: dict) -> str:
         f"start:     {_time(found['start'])}",
         f"end:       {_time(found['end'])}",
         f"duration:  {found['duration_s']:.3f} s",
-        "topics:",
     ]
+    encodings = sorted({t["encoding"] for t in found["topics"]})
+    if encodings:
+        line = f"encoding:  {', '.join(encodings)}"
+        if "msgpack" in encodings:
+            line += " (recorded before json channels; 'dockhil bag convert' rewrites it for viewers)"
+        lines.append(line)
+    lines.append("topics:")
     rows = [("topic", "type", "count", "rate [Hz]")] + [
         (t["topic"], t["type"] or "?", str(t["count"]), f"{t['rate_hz']:.1f}") for t in found["topics"]
     ]
