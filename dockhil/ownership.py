@@ -33,6 +33,11 @@ def owner() -> str:
     return f"{who} (pid {os.getpid()} on {socket.gethostname()})"
 
 
+def short_owner() -> str:
+    """The owner's name for a device that keeps 32 characters: run id and host."""
+    return f"{_graph or f'pid {os.getpid()}'}@{socket.gethostname()}"[:32]
+
+
 class DeviceLock:
     """A held claim on one device; release() or the process's death frees it."""
 
