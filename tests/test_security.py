@@ -437,3 +437,35 @@ def test_a_device_lock_dies_with_its_process(tmp_path):
         holder.kill()
         holder.wait()
     ownership.claim("dev", "the device").release()
+
+
+def test_a_driver_stalled_past_its_claim_does_not_resume_on_a_controller_taken_over(controller):
+    """SIGSTOP the owner past the heartbeat timeout: the controller holds and lets the claim go; another
+    host claims it. On SIGCONT the first driver's writes and its re-claim are refused; it stops in one line."""
+    from pymodbus.client import ModbusTcpClient
+
+    from dockhil.hardware import modbus_map as mm
+
+    first = start_driver(controller.port, "graph-one")
+    other = ModbusTcpClient("127.0.0.1", port=controller.port, timeout=1.0, retries=0)
+    try:
+        wait_ready(first)
+        servo = controller.servo
+        assert wait_until(lambda: servo.owner_session != 0)
+        os.kill(first.pid, signal.SIGSTOP)
+        assert wait_until(lambda: servo.owner_session == 0, timeout=10.0)
+        assert other.connect()
+        assert not other.write_registers(mm.HR_SESSION, mm.encode_owner(99, "graph-two@elsewhere"),
+                                         device_id=1).isError()
+        refused_before = servo.refused
+        os.kill(first.pid, signal.SIGCONT)
+        out, _ = first.communicate(timeout=30)
+        assert first.returncode == 2, out
+        assert "owned by graph graph-two@elsewhere" in out and "Traceback" not in out
+        assert servo.refused > refused_before  # it tried, and the controller said no
+    finally:
+        other.close()
+        if first.poll() is None:
+            os.kill(first.pid, signal.SIGCONT)
+            first.kill()
+            first.communicate(timeout=10)
