@@ -329,10 +329,12 @@ def record(args: argparse.Namespace) -> int:
     recorder = Recorder(args.path, sources, overwrite=args.overwrite)
     graphs = {(s.graph_pid, s.run_id) for s in sources.values()}
     _log(f"recording {len(sources)} topics to {args.path} (Ctrl-C to stop)")
-    why = recorder.run(stop, alive=lambda: any(_graph_running(*g) for g in graphs))
+    try:
+        why = recorder.run(stop, alive=lambda: any(_graph_running(*g) for g in graphs))
+    finally:  # also on a publisher that failed authentication: what was recorded is kept
+        recorder.close()
     if why == "the graph stopped":
         _log("the recorded graph stopped")
-    recorder.close()
     return 0
 
 
@@ -429,7 +431,12 @@ def _recorder_main(argv: list[str]) -> int:
     print(READY, flush=True)
     out(f"recording {len(sources)} topics to {args.path}")
     run_id = next(iter(sources.values())).run_id if sources else None
-    recorder.run(stop, alive=lambda: _alive(args.graph_pid) and (run_id is None or _graph_running(args.graph_pid, run_id)))
+    try:
+        recorder.run(stop, alive=lambda: _alive(args.graph_pid) and (run_id is None or _graph_running(args.graph_pid, run_id)))
+    except DockhilError as exc:  # a publisher that failed authentication: what was recorded is kept
+        out(f"error: {exc}")
+        recorder.close()
+        return 2
     recorder.close()
     return 0
 

@@ -275,17 +275,31 @@ class Publisher:
             self._ctx = None
 
 
+_HANDSHAKE_EVENTS = (zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
+                     | zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL)
+# A handshake cut short without detail may be a publisher closing mid-handshake: stop on the third in a row.
+NO_DETAIL_FAILURES = 3
+PEER_CHECK_S = 0.1  # recv_nowait looks at handshake failures at most this often
+
+
 class Subscriber:
     """One SUB socket connected to the endpoints of all of a node's inputs.
 
     An observer (a progress display, `dockhil topic echo`) is not part of the
-    graph: sim time does not wait for it, and it may miss the first messages."""
+    graph: sim time does not wait for it, and it may miss the first messages.
+
+    A peer that fails the CURVE handshake is not the graph's publisher (a
+    process that took its ipc path or tcp port): receiving then raises
+    DockhilError, so the node stops and says so instead of waiting in silence."""
 
     def __init__(self, ctx: zmq.Context, observer: bool = False):
         self.sock = ctx.socket(zmq.SUB)
         self.sock.setsockopt(zmq.RCVHWM, 0)
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.setsockopt(zmq.SUBSCRIBE, b"/" if observer else b"")
+        self._monitor = self.sock.get_monitor_socket(_HANDSHAKE_EVENTS)
+        self._failures: dict[str, int] = {}
+        self._next_check = 0.0
         self._connected: set[str] = set()
         self._timeout_ms = -1
 
@@ -310,13 +324,36 @@ class Subscriber:
         try:
             return split(self.sock.recv_multipart())
         except zmq.Again:
+            self.check_peers()
             return None
 
     def recv_nowait(self) -> list[bytes] | None:
         try:
             return split(self.sock.recv_multipart(zmq.NOBLOCK))
         except zmq.Again:
+            now = time.monotonic()
+            if now >= self._next_check:
+                self._next_check = now + PEER_CHECK_S
+                self.check_peers()
             return None
 
+    def check_peers(self) -> None:
+        """DockhilError if a peer failed the handshake: it is not the graph's publisher."""
+        from zmq.utils.monitor import recv_monitor_message
+
+        while self._monitor.poll(0):
+            event = recv_monitor_message(self._monitor)
+            endpoint = event["endpoint"].decode(errors="replace")
+            if event["event"] == zmq.EVENT_HANDSHAKE_SUCCEEDED:
+                self._failures.pop(endpoint, None)
+                continue
+            n = self._failures[endpoint] = self._failures.get(endpoint, 0) + 1
+            if event["event"] != zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL or n >= NO_DETAIL_FAILURES:
+                raise DockhilError(
+                    f"{endpoint}: the peer there failed the graph's authentication (CURVE handshake): it is not "
+                    f"this graph's publisher; another process may have taken its address. Nothing from it was read")
+
     def close(self) -> None:
+        self.sock.disable_monitor()
+        self._monitor.close(linger=0)
         self.sock.close()
