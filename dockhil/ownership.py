@@ -28,9 +28,9 @@ def set_graph(run_id: str) -> None:
 
 
 def owner() -> str:
-    """Who claims a device from this process: the graph's run id, host and pid."""
-    who = _graph or "no graph"
-    return f"{who} (pid {os.getpid()} on {socket.gethostname()})"
+    """Who claims a device from this process: the graph's run id, pid and host."""
+    where = f"pid {os.getpid()} on {socket.gethostname()}"
+    return f"graph {_graph} ({where})" if _graph else f"process {where} (not a graph)"
 
 
 def short_owner() -> str:
@@ -67,8 +67,8 @@ def claim(key: str, device: str) -> DeviceLock:
     except BlockingIOError:
         held_by = os.pread(fd, 512, 0).decode(errors="replace").strip() or "another process"
         os.close(fd)
-        raise DeviceError(f"{device} is in use by graph {held_by}; stop that graph first, "
-                          f"or give this one another device") from None
+        raise DeviceError(f"{device} is in use by {held_by}; stop it first, "
+                          f"or give this graph another device") from None
     except OSError as exc:
         os.close(fd)
         raise DeviceError(f"{device}: cannot lock {path}: {exc.strerror}") from None

@@ -424,7 +424,7 @@ def test_a_second_slcan_adapter_or_driver_on_the_same_path_is_refused(tmp_path):
                     "params": {"channel": link, "open_timeout": 0.5}}
             r = subprocess.run([sys.executable, "-m", "dockhil.process", json.dumps(spec)], capture_output=True,
                                text=True, env=env(), timeout=30)
-            assert r.returncode == 2 and f"F/T adapter (slcan {link}) is in use by graph no graph" in one_line(r.stderr)
+            assert r.returncode == 2 and f"F/T adapter (slcan {link}) is in use by process pid" in one_line(r.stderr)
         finally:
             held.release()
     finally:
