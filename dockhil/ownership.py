@@ -14,7 +14,9 @@ from __future__ import annotations
 import fcntl
 import os
 import re
+import secrets
 import socket
+import zlib
 
 from dockhil.errors import DeviceError
 
@@ -31,6 +33,13 @@ def owner() -> str:
     """Who claims a device from this process: the graph's run id, pid and host."""
     where = f"pid {os.getpid()} on {socket.gethostname()}"
     return f"graph {_graph} ({where})" if _graph else f"process {where} (not a graph)"
+
+
+def session_id(node: str) -> int:
+    """A nonzero 32-bit session id for a device that keeps its owner: the same for a node restarted
+    within its graph (a respawned driver takes its own claim back at once), random outside a graph."""
+    value = zlib.crc32(f"{_graph}/{node}".encode()) if _graph else secrets.randbits(32)
+    return value or 1
 
 
 def short_owner() -> str:

@@ -24,7 +24,6 @@ pymodbus is imported in setup(), so a scene without this driver never loads it.
 from __future__ import annotations
 
 import math
-import secrets
 import socket
 import threading
 import time
@@ -307,7 +306,7 @@ class RobotModbusDriver(Node):
         # One graph per controller: this host first (a lock file naming the owner), then the controller's
         # owner registers, read before anything is written.
         self._lock = ownership.claim(f"modbus-{_address(p.host)}-{p.port}", self.device)
-        self._claim = mm.encode_owner(secrets.randbits(32) or 1, ownership.short_owner())
+        self._claim = mm.encode_owner(ownership.session_id(self.ctx.name), ownership.short_owner())
         try:
             self._connect()
         except BaseException:

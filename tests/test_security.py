@@ -473,3 +473,31 @@ def test_a_driver_stalled_past_its_claim_does_not_resume_on_a_controller_taken_o
             os.kill(first.pid, signal.SIGCONT)
             first.kill()
             first.communicate(timeout=10)
+
+
+def test_a_respawned_driver_takes_its_own_graphs_claim_back_at_once(controller):
+    """Killed without letting go, a driver's claim outlives it by the heartbeat timeout; its own graph's
+    restarted driver (same run id and node) has the same session and may claim again at once."""
+    first = start_driver(controller.port, "graph-one")
+    try:
+        wait_ready(first)
+        servo = controller.servo
+        assert wait_until(lambda: servo.owner_session != 0)
+        session = servo.owner_session
+        servo.heartbeat_timeout = 30.0  # the claim would outlive the test: only the session can take it back
+        first.kill()
+        first.wait(timeout=10)
+        assert servo.owner_session == session
+        line = failing_driver(controller.port, "graph-two")
+        assert "owned by graph graph-one@" in line
+        second = start_driver(controller.port, "graph-one")
+        try:
+            wait_ready(second)
+            assert servo.owner_session == session and servo.refused == 0
+        finally:
+            second.send_signal(signal.SIGTERM)
+            second.communicate(timeout=30)
+    finally:
+        if first.poll() is None:
+            first.kill()
+            first.communicate(timeout=10)
