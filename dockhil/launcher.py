@@ -77,6 +77,24 @@ def bind_address(host: str) -> str:
                           f"give the node's host as an address") from None
 
 
+def _check_reachable(graph: Graph, here: str, addresses: dict[str, str]) -> None:
+    """Publishers bind one address, not every interface: the one this machine is reached by must not be
+    loopback when a node on another machine is to reach it."""
+    import ipaddress
+
+    local = addresses.get(here) or bind_address(here)
+    if not ipaddress.ip_address(local).is_loopback:
+        return
+    for gn in graph.nodes.values():
+        if is_local(gn.host):
+            continue
+        address = addresses.get(gn.host) or bind_address(gn.host)
+        if not ipaddress.ip_address(address).is_loopback:
+            raise LaunchError(f"node {gn.name!r} runs on {gn.host} ({address}), but this machine's name {here!r} "
+                              f"resolves to {local}, a loopback address it could not reach; map {here} to this "
+                              f"machine's network address (/etc/hosts or DNS)")
+
+
 def assign_endpoints(graph: Graph, transport: str = "ipc", advertise: str | None = None) -> Endpoints:
     """ipc sockets on one host; tcp when asked or when a node runs on another host. Over tcp a
     publisher binds only the interface the others reach it by, its host: the node's `host`, or
@@ -97,6 +115,8 @@ def assign_endpoints(graph: Graph, transport: str = "ipc", advertise: str | None
         port = _free_tcp_port()
         binds[topic] = f"tcp://{addresses[host]}:{port}"
         topics[topic] = f"tcp://{host}:{port}"
+    if remote:
+        _check_reachable(graph, here, addresses)
     run_dir = new_run_dir(run_id)
     for topic in graph.publishers:
         if topic not in topics:

@@ -501,3 +501,20 @@ def test_a_respawned_driver_takes_its_own_graphs_claim_back_at_once(controller):
         if first.poll() is None:
             first.kill()
             first.communicate(timeout=10)
+
+
+def test_a_remote_node_that_could_not_reach_a_loopback_bind_is_refused_before_anything_starts(write_launch):
+    """Publishers bind the one address this machine is reached by, never 0.0.0.0: if that address is
+    loopback, a node on a real other machine could never connect; say so instead of hanging."""
+    import socket
+
+    here = socket.gethostname()
+    if not socket.gethostbyname(here).startswith("127."):
+        pytest.skip(f"{here} resolves to a network address here")
+    scene = write_launch('nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
+                         '  - {name: gain, node: "tests.graphnodes:Gain", host: 192.0.2.7}\n')
+    r = subprocess.run(dockhil_cmd("launch", scene, "--duration", "0.1"), capture_output=True, text=True,
+                       env=env(), timeout=60)
+    assert r.returncode == 2 and r.stdout == ""
+    assert (f"node 'gain' runs on 192.0.2.7 (192.0.2.7), but this machine's name '{here}' resolves to "
+            in one_line(r.stderr))
