@@ -51,8 +51,11 @@ def command(y: float, tick: int = 0) -> msgs.RobotCommand:
 def test_runtime_directory_is_made_private(monkeypatch, tmp_path):
     d = tmp_path / "rt"
     monkeypatch.setenv("DOCKHIL_RUNTIME_DIR", str(d))
-    os.umask(old := os.umask(0o022))  # a usual umask would leave it 0755
-    assert runtime_dir() == d and mode(d) == 0o700
+    old = os.umask(0o022)  # a usual umask, which would leave a plain mkdir at 0755
+    try:
+        assert runtime_dir() == d and mode(d) == 0o700
+    finally:
+        os.umask(old)
     # Ours, readable by others but not writable (an older release made it so): tightened, not refused.
     d.chmod(0o755)
     runtime_dir()
