@@ -46,10 +46,9 @@ def _ask_realtime(log) -> None:
 def run_node(spec, log=None, on_ready=None) -> int:
     """Set up and run one node until its ticks are done or a stop is requested."""
     import nodes
+    from dockhil import ownership
     from dockhil.errors import DockhilError
     from dockhil.executor import NodeExecutor, Stop
-
-    from dockhil import ownership
 
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
     ownership.set_graph(spec.run_id)
