@@ -1,5 +1,7 @@
 """One-hop publish-to-receive latency between two processes: the runtime's
-transport and codec against raw pyzmq + msgpack, measured in one run.
+transport and codec against raw pyzmq + msgpack, measured in one run; the
+runtime path twice: with the graph's CURVE security (as every graph runs)
+and without it ("plain"), which shows what the encryption costs.
 
 Both paths use ipc sockets and the same pacing (1 kHz); runs alternate in
 blocks so that machine noise hits both alike. CLOCK_MONOTONIC is shared by
@@ -20,6 +22,20 @@ import time
 import numpy as np
 
 
+def _keys(kind: str, endpoint: str):
+    """CURVE keys shared through a key file beside the socket (as a graph's run directory holds it)."""
+    if kind != "runtime":
+        return None
+    from pathlib import Path
+
+    from dockhil.transport import GraphKeys
+
+    path = Path(endpoint[len("ipc://"):] + ".keys")
+    if not path.exists():
+        GraphKeys.make().write(path)
+    return GraphKeys.read(path)
+
+
 def sender(kind: str, endpoint: str, n: int, period: float) -> None:
     import zmq
 
@@ -27,10 +43,10 @@ def sender(kind: str, endpoint: str, n: int, period: float) -> None:
     from msgs.codec import encode
 
     ctx = zmq.Context.instance()
-    if kind == "runtime":
+    if kind in ("runtime", "plain"):
         from dockhil.transport import Publisher
 
-        pub = Publisher(ctx, "/ft/wrench", endpoint)
+        pub = Publisher(ctx, "/ft/wrench", endpoint, keys=_keys(kind, endpoint))
         pub.wait_subscribers(1, 10)
         wrench = msgs.Wrench(force=msgs.Vector3(x=1.0, y=2.0, z=3.0), torque=msgs.Vector3(x=0.1))
         send = lambda i: pub.send(encode(msgs.WrenchStamped(  # noqa: E731
@@ -57,13 +73,13 @@ def receiver(kind: str, endpoint: str, n: int) -> list[float]:
 
     ctx = zmq.Context.instance()
     out = []
-    if kind == "runtime":
+    if kind in ("runtime", "plain"):
         import msgs
         from dockhil.transport import Subscriber
         from msgs.codec import decode
 
         sub = Subscriber(ctx)
-        sub.connect(endpoint)
+        sub.connect(endpoint, keys=_keys(kind, endpoint))
         while len(out) < n:
             frames = sub.recv(5.0)
             if frames is None:
@@ -86,6 +102,7 @@ def receiver(kind: str, endpoint: str, n: int) -> list[float]:
 
 def one_block(kind: str, n: int, period: float, tmp: str) -> list[float]:
     endpoint = f"ipc://{tmp}/{kind}-{time.monotonic_ns()}"
+    _keys(kind, endpoint)  # written before either side reads it
     proc = subprocess.Popen([sys.executable, __file__, "--send", kind, endpoint, str(n), str(period)])
     try:
         return receiver(kind, endpoint, n)
@@ -105,23 +122,27 @@ def main() -> None:
         sender(kind, endpoint, int(n), float(period))
         return
     period = 1.0 / args.rate
-    lat = {"runtime": [], "raw": []}
+    lat = {"runtime": [], "plain": [], "raw": []}
     with tempfile.TemporaryDirectory(dir=os.environ.get("TMPDIR", "/tmp")) as tmp:
         for b in range(args.blocks):
-            for kind in ("runtime", "raw") if b % 2 == 0 else ("raw", "runtime"):
+            for kind in ("runtime", "plain", "raw") if b % 2 == 0 else ("raw", "plain", "runtime"):
                 got = one_block(kind, args.messages, period, tmp)
                 lat[kind].extend(got[len(got) // 10:])  # drop the warm-up tenth
                 print(f"{kind} block {b + 1}: {len(got)} messages", file=sys.stderr)
     r = np.array(lat["runtime"]) * 1e6
     w = np.array(lat["raw"]) * 1e6
+    c = np.array(lat["plain"]) * 1e6
     result = {
         "messages_per_path": int(len(r)),
         "runtime_hop_us_p50": round(float(np.percentile(r, 50)), 1),
         "runtime_hop_us_p99": round(float(np.percentile(r, 99)), 1),
+        "plain_hop_us_p50": round(float(np.percentile(c, 50)), 1),
+        "plain_hop_us_p99": round(float(np.percentile(c, 99)), 1),
         "raw_hop_us_p50": round(float(np.percentile(w, 50)), 1),
         "raw_hop_us_p99": round(float(np.percentile(w, 99)), 1),
     }
     result["ratio_p50"] = round(result["runtime_hop_us_p50"] / result["raw_hop_us_p50"], 2)
+    result["curve_cost_us_p50"] = round(result["runtime_hop_us_p50"] - result["plain_hop_us_p50"], 1)
     print(json.dumps(result))
 
 

@@ -87,6 +87,7 @@ class Source:
     sim: bool  # the publishing graph runs in sim time: log time = header stamp
     graph_pid: int
     run_id: str
+    key_file: str = ""  # the publishing graph's key file
 
 
 def _graph_running(pid: int, run_id: str) -> bool:
@@ -111,7 +112,8 @@ def find_sources(topics: list[str] | None = None, graph_pid: int | None = None) 
             if other is not None:
                 _log(f"note: topic {topic} is published by two running graphs; recording the one of pid {other.graph_pid}")
                 continue
-            found[topic] = Source(topic, t["endpoint"], t["type"], g.get("clock") == "sim", g["pid"], g["run_id"])
+            found[topic] = Source(topic, t["endpoint"], t["type"], g.get("clock") == "sim", g["pid"], g["run_id"],
+                                  g.get("keys", ""))
     if topics is None:
         return found
     missing = [t for t in topics if t not in found]
@@ -160,9 +162,17 @@ class Recorder:
         except BagError:
             self.bag.close()
             raise
+        from dockhil.launcher import graph_keys
+
         self.sub = Subscriber(zmq.Context.instance())
-        for source in sources.values():
-            self.sub.connect(source.endpoint)
+        try:
+            for source in sources.values():
+                keys = graph_keys({"run_id": source.run_id, "keys": source.key_file})
+                self.sub.connect(source.endpoint, keys=keys)
+        except DockhilError:
+            self.sub.close()
+            self.bag.close()
+            raise
         self._state = {s.topic.encode(): _TopicState(s.topic, s.sim) for s in sources.values()}
         self._pending_topics = len(self._state) if n_ticks is not None else -1
         self.received = 0
@@ -322,10 +332,12 @@ def record(args: argparse.Namespace) -> int:
     recorder = Recorder(args.path, sources, overwrite=args.overwrite)
     graphs = {(s.graph_pid, s.run_id) for s in sources.values()}
     _log(f"recording {len(sources)} topics to {args.path} (Ctrl-C to stop)")
-    why = recorder.run(stop, alive=lambda: any(_graph_running(*g) for g in graphs))
+    try:
+        why = recorder.run(stop, alive=lambda: any(_graph_running(*g) for g in graphs))
+    finally:  # also on a publisher that failed authentication: what was recorded is kept
+        recorder.close()
     if why == "the graph stopped":
         _log("the recorded graph stopped")
-    recorder.close()
     return 0
 
 
@@ -422,7 +434,12 @@ def _recorder_main(argv: list[str]) -> int:
     print(READY, flush=True)
     out(f"recording {len(sources)} topics to {args.path}")
     run_id = next(iter(sources.values())).run_id if sources else None
-    recorder.run(stop, alive=lambda: _alive(args.graph_pid) and (run_id is None or _graph_running(args.graph_pid, run_id)))
+    try:
+        recorder.run(stop, alive=lambda: _alive(args.graph_pid) and (run_id is None or _graph_running(args.graph_pid, run_id)))
+    except DockhilError as exc:  # a publisher that failed authentication: what was recorded is kept
+        out(f"error: {exc}")
+        recorder.close()
+        return 2
     recorder.close()
     return 0
 
@@ -436,17 +453,18 @@ class _Player:
     def __init__(self, path: str, topics: dict[str, str], sim: bool):
         import zmq
 
-        from dockhil.launcher import registry_dir
-        from dockhil.transport import Publisher, ipc_endpoint, runtime_dir
+        from dockhil.launcher import KEY_FILE, registry_dir
+        from dockhil.transport import GraphKeys, Publisher, ipc_endpoint, new_run_dir
 
         self.run_id = f"play-{uuid.uuid4().hex[:6]}"
-        self.run_dir = runtime_dir() / self.run_id
-        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.run_dir = new_run_dir(self.run_id)
         ctx = zmq.Context.instance()
         self.pubs: dict[str, Any] = {}
         try:
+            keys = GraphKeys.make()
+            self.key_file = keys.write(self.run_dir / KEY_FILE)
             for topic in topics:
-                pub = Publisher(ctx, topic, ipc_endpoint(self.run_dir, topic))
+                pub = Publisher(ctx, topic, ipc_endpoint(self.run_dir, topic), keys=keys)
                 if sim:
                     # Bounded queues that block instead of dropping: sends go as fast as subscribers take them.
                     pub.sock.setsockopt(zmq.SNDHWM, 1000)
@@ -462,7 +480,7 @@ class _Player:
         tmp = self.registry.with_suffix(".tmp")
         tmp.write_text(json.dumps({
             "run_id": self.run_id, "pid": os.getpid(), "file": f"dockhil bag play {path}",
-            "clock": "sim" if sim else "wall",
+            "clock": "sim" if sim else "wall", "keys": str(self.key_file),
             "nodes": {"bag-play": {"type": "bag play", "pid": os.getpid()}},
             "topics": {t: {"type": topics[t], "endpoint": p.endpoint, "publisher": "bag-play"}
                        for t, p in self.pubs.items()},

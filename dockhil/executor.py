@@ -52,6 +52,8 @@ class RunSpec:
     start_timeout: float = 20.0
     realtime: bool = False  # wall time: ask the OS for real-time (SCHED_FIFO) scheduling
     wait_for_go: bool = False  # wall time: after READY, start the loop on SIGUSR1 (all nodes at once)
+    key_file: str = ""  # the graph's CURVE key file (mode 0600); needed by a node with inputs or outputs
+    run_id: str = ""  # the graph's run id: names the owner of the devices this node claims
 
 
 class Stop:
@@ -87,6 +89,18 @@ def check_outputs(name: str, declared: dict, k: int, outs: dict, sim: bool) -> N
             )
 
 
+def read_spec_keys(spec: RunSpec):
+    """The graph's keys, which every endpoint needs; a node without endpoints needs none."""
+    from dockhil.transport import GraphKeys
+
+    if not spec.inputs and not spec.outputs:
+        return None
+    if not spec.key_file:
+        raise DockhilError(f"node {spec.name!r}: its spec names no key file for its endpoints; "
+                           f"start it with 'dockhil launch' or give --keys FILE")
+    return GraphKeys.read(spec.key_file)
+
+
 class NodeExecutor:
     """Owns one node's sockets and loop. Used by node processes and `dockhil run`."""
 
@@ -104,14 +118,15 @@ class NodeExecutor:
         self.unconnected = [port for port in ins if port not in spec.inputs]
         self.in_types = {port: ins[port].type for port in spec.inputs}
         self.ctx = zmq.Context.instance()
+        keys = read_spec_keys(spec)
         self.sub = Subscriber(self.ctx)
         self.by_topic: dict[bytes, list[str]] = {}
         for port, wire in spec.inputs.items():
-            self.sub.connect(wire.endpoint)
+            self.sub.connect(wire.endpoint, keys=keys)
             self.by_topic.setdefault(wire.topic.encode(), []).append(port)
         # Sim time loses nothing: a finished node waits (up to 60 s) until its slowest subscriber has all.
         linger = 60.0 if spec.clock == "sim" else 1.0
-        self.pubs = {port: Publisher(self.ctx, wire.topic, wire.endpoint, linger)
+        self.pubs = {port: Publisher(self.ctx, wire.topic, wire.endpoint, linger, keys=keys)
                      for port, wire in spec.outputs.items()}
         self.dropped = 0
         self._drop_logged = 0.0

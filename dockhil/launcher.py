@@ -5,6 +5,10 @@ prefixes every line a node prints with the node's name, forwards SIGINT and
 SIGTERM, and when a node dies stops the rest of the graph and exits non-zero.
 While a graph runs, a small JSON file in the runtime directory describes it,
 so that `dockhil topic` and `dockhil node` can find it.
+
+Each run gets a private directory (0700) holding its ipc sockets and the
+graph's CURVE key file (0600); nodes receive the key file's path in their
+spec, never the keys themselves on a command line.
 """
 
 from __future__ import annotations
@@ -25,10 +29,13 @@ from pathlib import Path
 import msgspec
 
 import msgs
+from dockhil.errors import LaunchError
 from dockhil.executor import PortWire, RunSpec
 from dockhil.graph import Graph
 from dockhil.process import READY
-from dockhil.transport import ipc_endpoint, runtime_dir
+from dockhil.transport import GraphKeys, ipc_endpoint, new_run_dir, private_dir, runtime_dir
+
+KEY_FILE = "graph.keys"
 
 
 @dataclass
@@ -48,6 +55,7 @@ class Endpoints:
     topics: dict[str, str]  # topic -> endpoint subscribers connect to
     types: dict[str, str]  # topic -> wire type name
     binds: dict[str, str] = field(default_factory=dict)  # topic -> endpoint the publisher binds
+    key_file: Path | None = None  # the graph's CURVE keys, mode 0600, in run_dir
 
 
 def _free_tcp_port() -> int:
@@ -60,26 +68,62 @@ def is_local(host: str) -> bool:
     return host in ("", "localhost", "127.0.0.1", socket.gethostname(), socket.getfqdn())
 
 
+def bind_address(host: str) -> str:
+    """The address of the one interface a publisher on `host` binds (ZeroMQ binds addresses, not names)."""
+    try:
+        return socket.gethostbyname(host)
+    except OSError as exc:
+        raise LaunchError(f"host {host!r}: cannot resolve its address to bind ({exc.strerror or exc}); "
+                          f"give the node's host as an address") from None
+
+
+def _check_reachable(graph: Graph, here: str, addresses: dict[str, str]) -> None:
+    """Publishers bind one address, not every interface: the one this machine is reached by must not be
+    loopback when a node on another machine is to reach it."""
+    import ipaddress
+
+    local = addresses.get(here) or bind_address(here)
+    if not ipaddress.ip_address(local).is_loopback:
+        return
+    for gn in graph.nodes.values():
+        if is_local(gn.host):
+            continue
+        address = addresses.get(gn.host) or bind_address(gn.host)
+        if not ipaddress.ip_address(address).is_loopback:
+            raise LaunchError(f"node {gn.name!r} runs on {gn.host} ({address}), but this machine's name {here!r} "
+                              f"resolves to {local}, a loopback address it could not reach; map {here} to this "
+                              f"machine's network address (/etc/hosts or DNS)")
+
+
 def assign_endpoints(graph: Graph, transport: str = "ipc", advertise: str | None = None) -> Endpoints:
     """ipc sockets on one host; tcp when asked or when a node runs on another host. Over tcp a
-    publisher binds every interface and subscribers connect to its host: the node's `host`, or
-    for nodes started here `advertise` (default: this machine's name, 127.0.0.1 if all is local)."""
+    publisher binds only the interface the others reach it by, its host: the node's `host`, or
+    for nodes started here `advertise` (default: this machine's name, 127.0.0.1 if all is local).
+    Every endpoint speaks CURVE with keys made here for this graph alone."""
     run_id = time.strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:6]
-    run_dir = runtime_dir() / run_id
-    run_dir.mkdir(parents=True, exist_ok=True)
     remote = any(not is_local(gn.host) for gn in graph.nodes.values())
     here = advertise or (socket.gethostname() if remote else "127.0.0.1")
     topics, binds = {}, {}
+    addresses: dict[str, str] = {}
     for topic, ref in graph.publishers.items():
         if transport == "ipc" and not remote:
-            topics[topic] = binds[topic] = ipc_endpoint(run_dir, topic)
             continue
-        port = _free_tcp_port()
         host = graph.nodes[ref.node].host
-        binds[topic] = f"tcp://{'0.0.0.0' if remote else '127.0.0.1'}:{port}"
-        topics[topic] = f"tcp://{host if not is_local(host) else here}:{port}"
+        host = host if not is_local(host) else here
+        if host not in addresses:
+            addresses[host] = bind_address(host)
+        port = _free_tcp_port()
+        binds[topic] = f"tcp://{addresses[host]}:{port}"
+        topics[topic] = f"tcp://{host}:{port}"
+    if remote:
+        _check_reachable(graph, here, addresses)
+    run_dir = new_run_dir(run_id)
+    for topic in graph.publishers:
+        if topic not in topics:
+            topics[topic] = binds[topic] = ipc_endpoint(run_dir, topic)
+    key_file = GraphKeys.make().write(run_dir / KEY_FILE)
     types = {topic: msgs.type_name(ref.type) for topic, ref in graph.publishers.items()}
-    return Endpoints(run_id, run_dir, topics, types, binds)
+    return Endpoints(run_id, run_dir, topics, types, binds, key_file)
 
 
 def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extra: list[ExtraProcess]) -> dict[str, RunSpec]:
@@ -101,14 +145,22 @@ def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extr
                            + extra_count.get(ref.topic, 0))
             for port, ref in gn.outputs.items()
         }
-        specs[name] = RunSpec(name, gn.type_name, gn.params, graph.scene.dt, clock, n_ticks, inputs, outputs)
+        specs[name] = RunSpec(name, gn.type_name, gn.params, graph.scene.dt, clock, n_ticks, inputs, outputs,
+                              key_file=str(ep.key_file or ""), run_id=ep.run_id)
     return specs
 
 
 def registry_dir() -> Path:
-    path = runtime_dir() / "graphs"
-    path.mkdir(parents=True, exist_ok=True)
-    return path
+    return private_dir(runtime_dir() / "graphs", "registry directory")
+
+
+def graph_keys(info: dict) -> GraphKeys:
+    """The CURVE keys of a registered graph, for an observer (`topic echo`, a recorder)."""
+    path = info.get("keys")
+    if not path:
+        raise LaunchError(f"graph {info.get('run_id')} names no key file; it was started by an older dockhil: "
+                          f"restart it")
+    return GraphKeys.read(path)
 
 
 def running_graphs() -> list[dict]:
@@ -204,8 +256,11 @@ class Launcher:
         import shlex
 
         child.ready = child.finished = True
-        command = " ".join(shlex.quote(a) for a in ["python3", *child.argv[1:]])
-        self.say(f"[launch] node {child.name!r} runs on {child.host}: start it there with: {command}")
+        keys = self.endpoints.key_file
+        argv = ["python3", "-m", "dockhil.process", "--keys", str(keys), *child.argv[3:]]
+        command = " ".join(shlex.quote(a) for a in argv)
+        self.say(f"[launch] node {child.name!r} runs on {child.host}: copy the key file {keys} to the same path "
+                 f"there (mode 0600, over a private channel such as scp) and start it there with: {command}")
 
     def _write_registry(self) -> Path:
         path = registry_dir() / f"{self.endpoints.run_id}.json"
@@ -214,6 +269,7 @@ class Launcher:
             "pid": os.getpid(),
             "file": self.graph.scene.path,
             "clock": self.clock,
+            "keys": str(self.endpoints.key_file),
             "nodes": {c.name: {"type": self.specs[c.name].type_name if c.name in self.specs else "process",
                                "pid": c.proc.pid if c.proc else None} for c in self.children},
             "topics": {t: {"type": self.endpoints.types[t], "endpoint": e,
@@ -276,7 +332,7 @@ class Launcher:
         if topic is None:
             return None
         sub = Subscriber(zmq.Context.instance(), observer=True)
-        sub.connect(self.endpoints.topics[topic])
+        sub.connect(self.endpoints.topics[topic], keys=GraphKeys.read(self.endpoints.key_file))
         return sub
 
     def _show_progress(self, probe, bar) -> None:

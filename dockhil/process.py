@@ -1,4 +1,8 @@
-"""Entry point of one node process: `python -m dockhil.process SPEC_JSON`.
+"""Entry point of one node process: `python -m dockhil.process [--keys KEY_FILE] SPEC_JSON`.
+
+The spec names the graph's key file (mode 0600, checked when read); the
+keys never appear on the command line, which every user can read in /proc.
+--keys overrides the spec's key file (a node started by hand on another host).
 
 The launcher starts one of these per node. It prints one line per error,
 a READY line (read by the launcher, not shown) once its device is open, and
@@ -42,10 +46,12 @@ def _ask_realtime(log) -> None:
 def run_node(spec, log=None, on_ready=None) -> int:
     """Set up and run one node until its ticks are done or a stop is requested."""
     import nodes
+    from dockhil import ownership
     from dockhil.errors import DockhilError
     from dockhil.executor import NodeExecutor, Stop
 
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
+    ownership.set_graph(spec.run_id)
     stop = Stop()
     stop.install()
     go = []
@@ -94,7 +100,20 @@ def main() -> int:
     from dockhil.executor import RunSpec
 
     _die_with_parent()
-    spec = msgspec.json.decode(sys.argv[1].encode(), type=RunSpec)
+    args = sys.argv[1:]
+    key_file = None
+    if len(args) == 3 and args[0] == "--keys":
+        key_file, args = args[1], args[2:]
+    if len(args) != 1:
+        print("usage: python -m dockhil.process [--keys KEY_FILE] SPEC_JSON", file=sys.stderr)
+        return 2
+    try:
+        spec = msgspec.json.decode(args[0].encode(), type=RunSpec)
+    except msgspec.DecodeError as exc:
+        print(f"error: node spec: {exc}", file=sys.stderr)
+        return 2
+    if key_file is not None:
+        spec.key_file = key_file
     profile_dir = os.environ.get("DOCKHIL_PROFILE")
     if profile_dir:  # developers: one cProfile dump per node, named after it
         import cProfile

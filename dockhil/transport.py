@@ -11,12 +11,25 @@ that they see subscriptions arrive: in sim time a publisher waits until every
 subscriber the launcher expects has joined before it sends tick 0, so the
 slow-joiner effect of PUB/SUB never loses a message. High-water marks are
 off (0): in lock-step, a subscriber that lags holds its queue, not loses it.
+
+Only the graph's own processes take part: every socket speaks CURVE with
+keys the launcher makes per graph (GraphKeys, handed over in a key file of
+mode 0600, never on a command line). A subscriber connects only to a
+publisher that proves it holds the graph's server secret key, so a process
+that binds a topic's ipc path or tcp port in its place is never heard; a
+publisher accepts only subscribers holding the graph's client key (checked
+by a ZAP handler), so a stranger receives nothing. The ipc sockets and key
+files live in a private runtime directory (0700, owner checked).
 """
 
 from __future__ import annotations
 
+import json
 import os
+import stat
+import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import zmq
@@ -43,12 +56,154 @@ def split(frames: list[bytes]) -> list[bytes]:
     return [frame[:i], b"", frame[i + 1:]]
 
 
-def runtime_dir() -> Path:
-    """Where ipc sockets and the registry of running graphs live."""
-    base = os.environ.get("DOCKHIL_RUNTIME_DIR") or f"/tmp/dockhil-{os.getuid()}"
-    path = Path(base)
-    path.mkdir(parents=True, exist_ok=True)
+def _check_private_dir(path: Path, what: str) -> None:
+    """Refuse, in one line, a directory another user could plant sockets or files in; tighten our own."""
+    try:
+        st = path.lstat()
+    except OSError as exc:
+        raise DockhilError(f"{what} {path}: {exc.strerror}; set DOCKHIL_RUNTIME_DIR to a directory of your own") from None
+    if stat.S_ISLNK(st.st_mode) or not stat.S_ISDIR(st.st_mode):
+        raise DockhilError(f"{what} {path} is not a plain directory (a symlink or a file); "
+                           f"remove it, or set DOCKHIL_RUNTIME_DIR to a directory of your own")
+    if st.st_uid != os.getuid():
+        raise DockhilError(f"{what} {path} belongs to uid {st.st_uid}, not to you (uid {os.getuid()}): "
+                           f"its owner could read or replace your graph's sockets; remove it, "
+                           f"or set DOCKHIL_RUNTIME_DIR to a directory of your own")
+    mode = stat.S_IMODE(st.st_mode)
+    if mode & 0o022:
+        raise DockhilError(f"{what} {path} has mode {mode:04o}: other users may write to it and replace your "
+                           f"graph's sockets; remove it (with what is in it), or chmod 700 {path}")
+    if mode != 0o700:
+        os.chmod(path, 0o700)  # ours and not writable by others: readable by others need not be
+
+
+def private_dir(path: Path, what: str = "runtime directory") -> Path:
+    """`path` as a directory of mode 0700 owned by this user, made if missing, refused otherwise."""
+    try:
+        path.mkdir(mode=0o700)
+    except FileExistsError:
+        pass
+    except OSError as exc:
+        raise DockhilError(f"cannot create {what} {path}: {exc.strerror}; "
+                           f"set DOCKHIL_RUNTIME_DIR to a directory of your own") from None
+    _check_private_dir(path, what)
     return path
+
+
+def runtime_dir() -> Path:
+    """Where ipc sockets, key files, device locks and the registry of running graphs live: private."""
+    base = Path(os.environ.get("DOCKHIL_RUNTIME_DIR") or f"/tmp/dockhil-{os.getuid()}")
+    if not base.parent.exists():
+        base.parent.mkdir(parents=True, mode=0o700)
+    return private_dir(base)
+
+
+def new_run_dir(run_id: str) -> Path:
+    """A fresh private directory for one run's sockets and keys."""
+    path = runtime_dir() / run_id
+    try:
+        path.mkdir(mode=0o700)
+    except OSError as exc:
+        raise DockhilError(f"cannot create run directory {path}: {exc.strerror}") from None
+    _check_private_dir(path, "run directory")
+    return path
+
+
+# --------------------------------------------------------------------------- keys
+
+
+@dataclass(frozen=True)
+class GraphKeys:
+    """One graph's CURVE keys (Z85 text): publishers prove the server key, subscribers the client key."""
+
+    server_public: bytes
+    server_secret: bytes
+    client_public: bytes
+    client_secret: bytes
+
+    @classmethod
+    def make(cls) -> "GraphKeys":
+        import zmq
+
+        server_public, server_secret = zmq.curve_keypair()
+        client_public, client_secret = zmq.curve_keypair()
+        return cls(server_public, server_secret, client_public, client_secret)
+
+    def write(self, path: Path) -> Path:
+        """A new key file of mode 0600 (refused if something is already there)."""
+        text = json.dumps({k: getattr(self, k).decode() for k in self.__dataclass_fields__})
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        return path
+
+    @classmethod
+    def read(cls, path: str | Path) -> "GraphKeys":
+        """Keys from a key file that only this user can read; one line otherwise."""
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
+        except OSError as exc:
+            raise DockhilError(f"key file {path}: {exc.strerror}; copy the graph's key file there "
+                               f"(mode 0600) or start the graph again") from None
+        with os.fdopen(fd) as f:
+            st = os.fstat(f.fileno())
+            if st.st_uid != os.getuid():
+                raise DockhilError(f"key file {path} belongs to uid {st.st_uid}, not to you (uid {os.getuid()}); "
+                                   f"use a copy of your own with mode 0600")
+            mode = stat.S_IMODE(st.st_mode)
+            if mode & 0o077:
+                raise DockhilError(f"key file {path} has mode {mode:04o}: other users can read the graph's keys; "
+                                   f"chmod 600 {path}")
+            try:
+                data = json.loads(f.read())
+                keys = cls(**{k: data[k].encode() for k in cls.__dataclass_fields__})
+            except (ValueError, KeyError, TypeError, AttributeError):
+                raise DockhilError(f"key file {path} is not a dockhil key file") from None
+        if any(len(getattr(keys, k)) != 40 for k in cls.__dataclass_fields__):
+            raise DockhilError(f"key file {path} is not a dockhil key file (keys must be 40 Z85 characters)")
+        return keys
+
+
+class _ClientKeys:
+    """ZAP credentials: the client keys of the graphs whose publishers live in this process."""
+
+    def __init__(self) -> None:
+        self.allowed: set[bytes] = set()
+
+    def callback(self, domain: str, key: bytes) -> bool:
+        return key in self.allowed
+
+
+_auth_lock = threading.Lock()
+_auth: dict[int, tuple] = {}  # id(context) -> (authenticator, credentials, publishers using it)
+
+
+def _allow_clients(ctx, keys: GraphKeys) -> None:
+    """Start this context's ZAP handler (once) and let the graph's client key in."""
+    with _auth_lock:
+        entry = _auth.get(id(ctx))
+        if entry is None:
+            from zmq.auth.thread import ThreadAuthenticator
+
+            auth = ThreadAuthenticator(ctx)
+            auth.log.disabled = True  # a refused stranger is not our log's business
+            auth.start()
+            creds = _ClientKeys()
+            auth.configure_curve_callback("*", creds)
+            entry = _auth[id(ctx)] = [auth, creds, 0]
+        entry[1].allowed.add(keys.client_public)
+        entry[2] += 1
+
+
+def _release_clients(ctx) -> None:
+    with _auth_lock:
+        entry = _auth.get(id(ctx))
+        if entry is None:
+            return
+        entry[2] -= 1
+        if entry[2] <= 0:
+            del _auth[id(ctx)]
+            entry[0].stop()
 
 
 def ipc_endpoint(run_dir: Path, topic: str) -> str:
@@ -57,7 +212,10 @@ def ipc_endpoint(run_dir: Path, topic: str) -> str:
 
 
 class Publisher:
-    def __init__(self, ctx: zmq.Context, topic: str, endpoint: str, linger_s: float = 2.0):
+    """A topic's XPUB socket, a CURVE server with the graph's keys (None: plain, for benchmarks only)."""
+
+    def __init__(self, ctx: zmq.Context, topic: str, endpoint: str, linger_s: float = 2.0, *,
+                 keys: GraphKeys | None):
         self.topic = topic
         self.topic_bytes = topic.encode()
         self._message_prefix = self.topic_bytes + MESSAGE
@@ -67,6 +225,12 @@ class Publisher:
         self.sock.setsockopt(zmq.XPUB_VERBOSE, 1)
         # On close, queued messages still go out for up to linger_s (a slow recorder in sim time).
         self.sock.setsockopt(zmq.LINGER, int(linger_s * 1000))
+        self._ctx = ctx if keys is not None else None
+        if keys is not None:
+            _allow_clients(ctx, keys)  # before bind: no handshake may happen without the check
+            self.sock.curve_server = True
+            self.sock.curve_secretkey = keys.server_secret
+            self.sock.curve_publickey = keys.server_public
         try:
             if endpoint.startswith("tcp://") and endpoint.endswith(":0"):
                 port = self.sock.bind_to_random_port(endpoint.rsplit(":", 1)[0])
@@ -74,6 +238,7 @@ class Publisher:
             else:
                 self.sock.bind(endpoint)
         except zmq.ZMQError as exc:
+            self.close()
             raise DockhilError(f"topic {topic}: cannot bind {endpoint}: {exc}; is another graph using it?") from None
         self.endpoint = endpoint
         self.subscribers = 0
@@ -105,24 +270,47 @@ class Publisher:
 
     def close(self) -> None:
         self.sock.close()
+        if self._ctx is not None:
+            _release_clients(self._ctx)
+            self._ctx = None
+
+
+_HANDSHAKE_EVENTS = (zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
+                     | zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL)
+# A handshake cut short without detail may be a publisher closing mid-handshake: stop on the third in a row.
+NO_DETAIL_FAILURES = 3
+PEER_CHECK_S = 0.1  # recv_nowait looks at handshake failures at most this often
 
 
 class Subscriber:
     """One SUB socket connected to the endpoints of all of a node's inputs.
 
     An observer (a progress display, `dockhil topic echo`) is not part of the
-    graph: sim time does not wait for it, and it may miss the first messages."""
+    graph: sim time does not wait for it, and it may miss the first messages.
+
+    A peer that fails the CURVE handshake is not the graph's publisher (a
+    process that took its ipc path or tcp port): receiving then raises
+    DockhilError, so the node stops and says so instead of waiting in silence."""
 
     def __init__(self, ctx: zmq.Context, observer: bool = False):
         self.sock = ctx.socket(zmq.SUB)
         self.sock.setsockopt(zmq.RCVHWM, 0)
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.setsockopt(zmq.SUBSCRIBE, b"/" if observer else b"")
+        self._monitor = self.sock.get_monitor_socket(_HANDSHAKE_EVENTS)
+        self._failures: dict[str, int] = {}
+        self._next_check = 0.0
         self._connected: set[str] = set()
         self._timeout_ms = -1
 
-    def connect(self, endpoint: str) -> None:
+    def connect(self, endpoint: str, *, keys: GraphKeys | None) -> None:
+        """Connect to a publisher of the graph with these keys (None: plain, for benchmarks only).
+        The keys are taken at connect time, so one socket may listen to several graphs."""
         if endpoint not in self._connected:
+            if keys is not None:
+                self.sock.curve_serverkey = keys.server_public
+                self.sock.curve_publickey = keys.client_public
+                self.sock.curve_secretkey = keys.client_secret
             self.sock.connect(endpoint)
             self._connected.add(endpoint)
 
@@ -136,13 +324,36 @@ class Subscriber:
         try:
             return split(self.sock.recv_multipart())
         except zmq.Again:
+            self.check_peers()
             return None
 
     def recv_nowait(self) -> list[bytes] | None:
         try:
             return split(self.sock.recv_multipart(zmq.NOBLOCK))
         except zmq.Again:
+            now = time.monotonic()
+            if now >= self._next_check:
+                self._next_check = now + PEER_CHECK_S
+                self.check_peers()
             return None
 
+    def check_peers(self) -> None:
+        """DockhilError if a peer failed the handshake: it is not the graph's publisher."""
+        from zmq.utils.monitor import recv_monitor_message
+
+        while self._monitor.poll(0):
+            event = recv_monitor_message(self._monitor)
+            endpoint = event["endpoint"].decode(errors="replace")
+            if event["event"] == zmq.EVENT_HANDSHAKE_SUCCEEDED:
+                self._failures.pop(endpoint, None)
+                continue
+            n = self._failures[endpoint] = self._failures.get(endpoint, 0) + 1
+            if event["event"] != zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL or n >= NO_DETAIL_FAILURES:
+                raise DockhilError(
+                    f"{endpoint}: the peer there failed the graph's authentication (CURVE handshake): it is not "
+                    f"this graph's publisher; another process may have taken its address. Nothing from it was read")
+
     def close(self) -> None:
+        self.sock.disable_monitor()
+        self._monitor.close(linger=0)
         self.sock.close()

@@ -2,12 +2,16 @@
 
 The frame layout is in dockhil/hardware/ft_frames.py. python-can is imported
 in setup(), so a scene that does not use this driver never loads it.
+One graph per adapter: setup claims the interface and channel (a lock file
+naming the owner) before it opens anything; close() lets go.
 """
 
 from __future__ import annotations
 
+import os
 import time
 
+from dockhil import ownership
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import ft_frames as ff
 from dockhil.node import Node, Output, Param
@@ -70,11 +74,14 @@ class FtCanDriver(Node):
         self._last_seq: int | None = None
         self._last_fresh_t: float | None = None
         self._bad_logged = 0
-        self.bus = self._open_bus(time.monotonic() + p.open_timeout)
+        channel = os.path.abspath(p.channel) if p.interface == "slcan" else p.channel
+        self._lock = ownership.claim(f"can-{p.interface}-{channel}", f"F/T adapter ({p.interface} {p.channel})")
         try:
+            self.bus = self._open_bus(time.monotonic() + p.open_timeout)
             self._tare()
         except BaseException:
             self._shutdown_bus()
+            self._lock.release()
             raise
 
     def _open_bus(self, deadline: float):
@@ -209,6 +216,7 @@ class FtCanDriver(Node):
         if getattr(self, "bus", None) is None:
             return
         self._shutdown_bus()
+        self._lock.release()
         problems = [f"{n} {what}" for n, what in (
             (self.lost, "samples lost"), (self.repeated, "samples repeated"),
             (self.bad_frames, "bad frames"), (self.error_frames, "error frames"),

@@ -49,7 +49,7 @@ class FtSensorEmulator(Node):
             from dockhil.hardware.slcan_pty import CanFrame, PtyCanBus
 
             self._frame = CanFrame
-            try:
+            try:  # PtyCanBus claims the link: one graph per adapter path
                 self._pty_bus = PtyCanBus([p.channel]).start()
             except OSError as exc:
                 raise DeviceError(f"F/T sensor emulator: cannot create slcan adapter at {p.channel}: {exc}") from None
@@ -57,11 +57,16 @@ class FtSensorEmulator(Node):
         else:
             import can
 
+            from dockhil import ownership
             from nodes.ft_can import one_line
 
+            # One emulated sensor per channel: two would stream the same CAN IDs.
+            self._lock = ownership.claim(f"can-emulator-{p.interface}-{p.channel}",
+                                         f"F/T sensor emulator on {p.interface} {p.channel}")
             try:
                 self._can_bus = can.Bus(interface=p.interface, channel=p.channel, bitrate=p.bitrate)
             except (can.CanError, OSError, ValueError) as exc:
+                self._lock.release()
                 raise DeviceError(f"F/T sensor emulator ({p.interface} {p.channel}): {one_line(exc)}") from None
             self._message = can.Message
 
@@ -101,3 +106,4 @@ class FtSensorEmulator(Node):
         if self._can_bus is not None:
             self._can_bus.shutdown()
             self._can_bus = None
+            self._lock.release()

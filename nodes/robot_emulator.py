@@ -27,13 +27,15 @@ class RobotControllerEmulatorNode(Node):
     }
 
     def setup(self) -> None:
-        from dockhil.hardware.robot_emulator import RobotControllerEmulator, listen_problem
+        from dockhil.hardware.robot_emulator import RobotControllerEmulator, claim_port, listen_problem
 
         p = self.p
+        self._lock = claim_port(p.host, p.port)  # one graph per emulator port, named when refused
         self.emulator = RobotControllerEmulator(p.host, p.port, p.delay, p.tau, p.cycle, p.heartbeat_timeout)
         try:
             self.emulator.start_thread()
         except (OSError, RuntimeError):
+            self._release()
             raise DeviceError(
                 f"robot controller emulator: cannot listen on {p.host}:{p.port}: {listen_problem(p.host, p.port)}"
             ) from None
@@ -47,3 +49,10 @@ class RobotControllerEmulatorNode(Node):
         if emulator is not None:
             emulator.stop_thread()
             self.emulator = None
+        self._release()
+
+    def _release(self) -> None:
+        lock = getattr(self, "_lock", None)
+        if lock is not None:
+            lock.release()
+            self._lock = None

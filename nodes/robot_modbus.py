@@ -11,6 +11,10 @@ handed over in; after a reconnect the robot holds until a command that
 arrived after the reconnect. (The controller enforces the same: it
 resumes only on a setpoint written after it stopped.)
 
+One graph per controller: setup claims it, on this host by a lock file and
+on the controller by its owner registers (modbus_map.py), and refuses, before
+writing anything, a controller another graph owns. close() lets go.
+
 Safety: a limit violation requests a hold, waits briefly for the hold to
 be written, and raises SafetyStop (one line naming the limit and the value);
 from then on nothing is commanded. close() holds the robot.
@@ -24,6 +28,7 @@ import socket
 import threading
 import time
 
+from dockhil import ownership
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import SafetyStop
 from dockhil.hardware import modbus_map as mm
@@ -51,9 +56,10 @@ def _command_values(cmd: RobotCommand) -> mm.PoseTwist:
 class ModbusLink(threading.Thread):
     """Owns the Modbus client: writes setpoints, heartbeat and holds; reads the actual pose."""
 
-    def __init__(self, client, describe: str, p, probe):
+    def __init__(self, client, describe: str, p, probe, claim: list[int] | None = None):
         super().__init__(name="robot-modbus-link", daemon=True)
         self.client = client
+        self.claim = claim  # our ownership registers, written again on every reconnect
         self.describe = describe
         self.p = p
         self.probe = probe  # why a connect failed, as text
@@ -171,7 +177,7 @@ class ModbusLink(threading.Thread):
             self.last_error = self.probe()
             return False
         try:
-            verify_and_hold(self.client, self.p.device_id, self.heartbeat)
+            verify_and_hold(self.client, self.p.device_id, self.heartbeat, self.claim)
         except mm.RegisterError as exc:
             self.fatal = f"{self.describe}: {exc}"
             self.stopping = True
@@ -192,12 +198,39 @@ class ModbusLink(threading.Thread):
         return True
 
 
-def verify_and_hold(client, device_id: int, heartbeat: int) -> mm.ControllerReading:
-    """Check the device speaks this register map, then hold the robot where it is."""
+def read_owner(client, device_id: int) -> tuple[int, str]:
+    rr = client.read_input_registers(mm.IR_OWNER, count=mm.IR_OWNER_COUNT, device_id=device_id)
+    if rr.isError():
+        raise mm.RegisterError(f"cannot read the owner registers (input {mm.IR_OWNER}-{mm.IR_END - 1}): {rr}; "
+                               f"without them nothing keeps another graph from commanding this robot")
+    return mm.decode_owner(rr.registers)
+
+
+def claim_controller(client, device_id: int, claim: list[int]) -> None:
+    """Claim the controller for our session; RegisterError naming the owner if another host has it."""
+    ours = mm.decode_owner(claim)[0]
+    session, name = read_owner(client, device_id)
+    if session not in (0, ours):
+        raise mm.RegisterError(_owned(session, name))
+    wr = client.write_registers(mm.HR_SESSION, claim, device_id=device_id)
+    if wr.isError():  # another host claimed it in between
+        raise mm.RegisterError(_owned(*read_owner(client, device_id)))
+
+
+def _owned(session: int, name: str) -> str:
+    return (f"owned by graph {name or '(no name)'} (session {session:#010x}); nothing written. Stop that graph "
+            f"first; a claim ends when its owner stops, or when its heartbeat has been silent for the "
+            f"controller's heartbeat timeout")
+
+
+def verify_and_hold(client, device_id: int, heartbeat: int, claim: list[int] | None = None) -> mm.ControllerReading:
+    """Check the device speaks this register map, claim it if asked, then hold the robot where it is."""
     rr = client.read_input_registers(0, count=mm.IR_COUNT, device_id=device_id)
     if rr.isError():
         raise mm.RegisterError(f"cannot read input registers 0-{mm.IR_COUNT - 1}: {rr}")
     reading = mm.decode_inputs(rr.registers)
+    if claim is not None:
+        claim_controller(client, device_id, claim)
     wr = client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE | mm.CONTROL_HOLD, heartbeat),
                                 device_id=device_id)
     if wr.isError():
@@ -256,8 +289,7 @@ class RobotModbusDriver(Node):
             lo, hi = getattr(p, f"{axis}_min"), getattr(p, f"{axis}_max")
             if lo >= hi:
                 raise LaunchError(f"node {self.ctx.name!r}: workspace {axis}_min {lo} must be below {axis}_max {hi}")
-        from pymodbus.client import ModbusTcpClient  # here: only scenes with this driver load pymodbus
-
+        # pymodbus is imported here: only scenes with this driver load it
         from dockhil.hardware.robot_emulator import quiet_pymodbus
 
         quiet_pymodbus()
@@ -271,6 +303,21 @@ class RobotModbusDriver(Node):
         self._seen_readings = 0
         self._status_word = None
         self.heartbeat_losses = 0
+        # One graph per controller: this host first (a lock file naming the owner), then the controller's
+        # owner registers, read before anything is written.
+        self._lock = ownership.claim(f"modbus-{_address(p.host)}-{p.port}", self.device)
+        self._claim = mm.encode_owner(ownership.session_id(self.ctx.name), ownership.short_owner())
+        try:
+            self._connect()
+        except BaseException:
+            self._lock.release()
+            raise
+
+    def _connect(self) -> None:
+        """Connect, check the register map, claim the controller, hold; start the link thread."""
+        from pymodbus.client import ModbusTcpClient
+
+        p = self.p
         client = ModbusTcpClient(p.host, port=p.port, timeout=p.timeout, retries=0)
         deadline = time.monotonic() + p.connect_timeout
         backoff = p.reconnect_min
@@ -281,14 +328,14 @@ class RobotModbusDriver(Node):
             backoff = min(backoff * 2, p.reconnect_max)
         try:
             _nodelay(client)
-            verify_and_hold(client, p.device_id, 0)
+            verify_and_hold(client, p.device_id, 0, self._claim)
         except mm.RegisterError as exc:
             client.close()
             raise DeviceError(f"{self.device}: {exc}") from None
         except Exception as exc:  # noqa: BLE001 - e.g. the server closed on us
             client.close()
             raise DeviceError(f"{self.device}: {' '.join(str(exc).split())}") from None
-        self.link = ModbusLink(_NoDelayClient(client), self.device, p, self._probe)
+        self.link = ModbusLink(_NoDelayClient(client), self.device, p, self._probe, self._claim)
         self.link.start()
 
     def _probe(self) -> str:
@@ -444,7 +491,13 @@ class RobotModbusDriver(Node):
         link.stop()
         for line in link.take_notes():
             self.log(line)
+        if link.connected and not link.fatal:
+            try:  # let go of the controller, so the next graph need not wait for our claim to time out
+                link.client.write_registers(mm.HR_SESSION, mm.encode_owner(0, ""), device_id=self.p.device_id)
+            except Exception:  # noqa: BLE001 - the heartbeat timeout ends the claim anyway
+                pass
         link.client.close()
+        self._lock.release()
         if self.heartbeat_losses > 1:
             self.log(f"{self.device}: the controller lost our heartbeat {self.heartbeat_losses} times")
         if not held and self.tripped is None:
@@ -466,6 +519,14 @@ class _NoDelayClient:
 
     def __getattr__(self, name):
         return getattr(self._client, name)
+
+
+def _address(host: str) -> str:
+    """One name for one controller in the lock key (localhost and 127.0.0.1 are the same device)."""
+    try:
+        return socket.gethostbyname(host)
+    except OSError:
+        return host
 
 
 def _nodelay(client) -> None:

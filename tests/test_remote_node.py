@@ -29,10 +29,13 @@ def test_remote_node_runs_from_the_printed_command_and_changes_no_bit(write_laun
     launch = subprocess.Popen(dockhil_cmd("launch", scene, "--quiet"), stdout=subprocess.PIPE,
                               stderr=subprocess.STDOUT, text=True)
     line = launch.stdout.readline()
-    assert line.startswith("[launch] node 'gain' runs on 127.0.0.2: start it there with: python3 -m dockhil.process")
+    assert line.startswith("[launch] node 'gain' runs on 127.0.0.2: copy the key file ")
+    key_file = line.split("copy the key file ", 1)[1].split()[0]
     argv = shlex.split(line.split("start it there with: ", 1)[1])
+    assert argv[:5] == ["python3", "-m", "dockhil.process", "--keys", key_file]
     spec = argv[-1]
-    assert '"endpoint":"tcp://0.0.0.0:' in spec  # it binds every interface; the others reach it by host name
+    # It binds only the interface the others reach it by, and no key travels on the command line.
+    assert '"endpoint":"tcp://127.0.0.2:' in spec and "secret" not in line
     time.sleep(0.5)  # the other machine's operator is a little slower than the launcher
     node = subprocess.run([sys.executable, *argv[1:]], capture_output=True, text=True, timeout=60)
     assert node.returncode == 0, node.stderr

@@ -116,14 +116,20 @@ def test_launcher_killed_outright_leaves_no_orphans(write_launch):
 
 def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
     """`dockhil run` wires a node to a (fake) running graph; garbage on its input is dropped and counted."""
+    from dockhil.transport import GraphKeys
+
     ctx = zmq.Context.instance()
+    keys = GraphKeys.make()
+    key_file = keys.write(tmp_path / "graph.keys")
     pub = ctx.socket(zmq.PUB)
+    pub.curve_server, pub.curve_secretkey = True, keys.server_secret
     port = pub.bind_to_random_port("tcp://127.0.0.1")
     env = dict(os.environ)
     graphs = os.path.join(env["DOCKHIL_RUNTIME_DIR"], "graphs")
-    os.makedirs(graphs, exist_ok=True)
+    os.makedirs(graphs, mode=0o700, exist_ok=True)
     with open(os.path.join(graphs, "fake.json"), "w") as f:
         json.dump({"run_id": "fake", "pid": os.getpid(), "file": "test", "clock": "wall", "nodes": {},
+                   "keys": str(key_file),
                    "topics": {"/x": {"type": "dockhil/WrenchStamped", "endpoint": f"tcp://127.0.0.1:{port}",
                                      "publisher": "test"}}}, f)
     node = subprocess.Popen(dockhil_cmd("run", "tests.graphnodes:Gain", "gain:=3.0", "--rate", "200"),
@@ -143,6 +149,8 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
         assert endpoint
         sub = ctx.socket(zmq.SUB)
         sub.setsockopt(zmq.SUBSCRIBE, b"")
+        sub.curve_serverkey, sub.curve_publickey, sub.curve_secretkey = \
+            keys.server_public, keys.client_public, keys.client_secret
         sub.connect(endpoint)
         time.sleep(0.5)
         good = msgs.WrenchStamped(header=msgs.Header(), wrench=msgs.Wrench(force=msgs.Vector3(x=2.0)))
@@ -192,15 +200,18 @@ def test_observers_are_not_counted_as_subscribers(tmp_path):
     from dockhil.errors import DockhilError
     from dockhil.transport import Publisher, Subscriber
 
+    from dockhil.transport import GraphKeys
+
     ctx = zmq.Context.instance()
     endpoint = f"ipc://{tmp_path}/t"
-    pub = Publisher(ctx, "/t", endpoint)
+    keys = GraphKeys.make()
+    pub = Publisher(ctx, "/t", endpoint, keys=keys)
     observer = Subscriber(ctx, observer=True)
-    observer.connect(endpoint)
+    observer.connect(endpoint, keys=keys)
     with pytest.raises(DockhilError, match="0 of 1 subscribers joined"):
         pub.wait_subscribers(1, 0.5)
     member = Subscriber(ctx)
-    member.connect(endpoint)
+    member.connect(endpoint, keys=keys)
     pub.wait_subscribers(1, 5.0)
     pub.send(b"\x80")
     assert member.recv(5.0) == [b"/t", b"\x80"] and observer.recv(5.0) == [b"/t", b"\x80"]

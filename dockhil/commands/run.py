@@ -31,10 +31,10 @@ def run(args) -> int:
     import msgs
     import nodes
     from dockhil.executor import PortWire, RunSpec
-    from dockhil.launcher import registry_dir, running_graphs
+    from dockhil.launcher import KEY_FILE, graph_keys, registry_dir, running_graphs
     from dockhil.launchfile import parse_overrides
     from dockhil.process import run_node
-    from dockhil.transport import ipc_endpoint, runtime_dir
+    from dockhil.transport import GraphKeys, ipc_endpoint, new_run_dir
 
     if not args.rate > 0:
         raise DockhilError(f"--rate must be positive, got {args.rate}")
@@ -49,7 +49,7 @@ def run(args) -> int:
     published = {}
     for info in running_graphs():
         for topic, t in info["topics"].items():
-            published.setdefault(topic, t)
+            published.setdefault(topic, dict(t, graph=info))
     inputs = {}
     for port, i in ins.items():
         topic = topic_of(port, i.topic)
@@ -64,16 +64,24 @@ def run(args) -> int:
         if t["type"] != msgs.type_name(i.type):
             raise DockhilError(f"topic {topic} carries {t['type']}, but {name}.{port} expects {msgs.type_name(i.type)}")
         inputs[port] = PortWire(topic, t["endpoint"], t["type"], i.lag_ticks(1.0 / args.rate))
+    # One key file: the graph's keys when wired to one, which this node's own outputs then share.
+    graphs = {published[w.topic]["graph"]["run_id"]: published[w.topic]["graph"] for w in inputs.values()}
+    if len(graphs) > 1:
+        raise DockhilError(f"node {name!r} inputs come from {len(graphs)} running graphs "
+                           f"({', '.join(sorted(graphs))}); a node joins one graph")
+    keys = graph_keys(next(iter(graphs.values()))) if graphs else GraphKeys.make()
     run_id = f"run-{name}-{uuid.uuid4().hex[:6]}"
-    run_dir = runtime_dir() / run_id
-    run_dir.mkdir(parents=True, exist_ok=True)
+    run_dir = new_run_dir(run_id)
+    key_file = keys.write(run_dir / KEY_FILE)
     outputs = {port: PortWire(topic_of(port, o.topic), ipc_endpoint(run_dir, topic_of(port, o.topic)),
                               msgs.type_name(o.type)) for port, o in outs.items()}
     n_ticks = None if args.duration is None else int(round(args.duration * args.rate))
-    spec = RunSpec(name, args.node, params, 1.0 / args.rate, "wall", n_ticks, inputs, outputs)
+    spec = RunSpec(name, args.node, params, 1.0 / args.rate, "wall", n_ticks, inputs, outputs,
+                   key_file=str(key_file), run_id=run_id)
     reg = registry_dir() / f"{run_id}.json"
     reg.write_text(json.dumps({
         "run_id": run_id, "pid": os.getpid(), "file": f"dockhil run {args.node}", "clock": "wall",
+        "keys": str(key_file),
         "nodes": {name: {"type": args.node, "pid": os.getpid()}},
         "topics": {w.topic: {"type": w.type, "endpoint": w.endpoint, "publisher": name} for w in outputs.values()},
     }))

@@ -20,27 +20,27 @@ def add_arguments(p) -> None:
     hz.add_argument("--count", "-n", type=int, metavar="N", help="stop after N reports")
 
 
-def find_topic(topic: str) -> tuple[str, str]:
-    """(endpoint, type name) of a topic in a running graph."""
-    from dockhil.launcher import running_graphs
+def find_topic(topic: str):
+    """(endpoint, type name, the graph's keys) of a topic in a running graph."""
+    from dockhil.launcher import graph_keys, running_graphs
 
     graphs = running_graphs()
     for info in graphs:
         if topic in info["topics"]:
             t = info["topics"][topic]
-            return t["endpoint"], t["type"]
+            return t["endpoint"], t["type"], graph_keys(info)
     if not graphs:
         raise DockhilError("no running graph found; start one with 'dockhil launch FILE'")
     known = sorted({t for info in graphs for t in info["topics"]})
     raise DockhilError(f"topic {topic} is not published by any running graph; topics: {', '.join(known)}")
 
 
-def _subscribe(endpoint: str):
+def _subscribe(endpoint: str, keys):
     from dockhil.transport import Subscriber
     import zmq
 
     sub = Subscriber(zmq.Context.instance(), observer=True)
-    sub.connect(endpoint)
+    sub.connect(endpoint, keys=keys)
     return sub
 
 
@@ -56,14 +56,14 @@ def run(args) -> int:
             for topic, t in sorted(info["topics"].items()):
                 print(f"{topic}  {t['type']}  from {t['publisher']}  ({info['run_id']})")
         return 0
-    endpoint, type_name = find_topic(args.topic)
+    endpoint, type_name, keys = find_topic(args.topic)
     import msgspec
 
     import msgs
     from msgs.codec import DecodeError, decode
 
     cls = msgs.type_by_name(type_name)
-    sub = _subscribe(endpoint)
+    sub = _subscribe(endpoint, keys)
     if args.action == "echo":
         n = 0
         while args.count is None or n < args.count:

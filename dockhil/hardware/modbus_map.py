@@ -12,6 +12,10 @@ Holding registers (the host writes them; FC 3, 6, 16, 23)
                        stops changing for the controller's heartbeat timeout,
                        the controller holds and sets HEARTBEAT_LOST
     2..27  SETPOINT    pose and twist block (below)
+    28..29 SESSION     u32, the host's session id (nonzero) when it claims the
+                       controller, 0 when it lets go (ownership, below)
+    30..45 OWNER_NAME  32 bytes of ASCII, NUL-padded: who the claiming host is
+                       (graph run id and host name), for other hosts to read
 
 Input registers (the controller writes them; FC 4)
 
@@ -23,6 +27,8 @@ Input registers (the controller writes them; FC 4)
     4      CYCLE       u16 servo cycle counter, wraps: a changing value shows
                        the actual pose is fresh
     5..30  ACTUAL      pose and twist block (below)
+    31..32 OWNER       u32 session id of the host that owns the controller; 0: nobody
+    33..48 OWNER_NAME  the owner's name as it wrote it
 
 Pose and twist block: 13 int32 (26 registers), in the frame of
 RobotCommand/RobotState (pose of the chaser's probe relative to the
@@ -36,6 +42,16 @@ target's interface, x > 0 is penetration):
 The velocities of a setpoint are a feed-forward the controller may use.
 One FC 16 write of registers 0..27 sets control, heartbeat and setpoint in
 one transaction, so the controller never sees a half-written setpoint.
+
+Ownership: one host commands the controller at a time. A host reads OWNER
+first and, if it is not 0, writes nothing. It claims the controller by one
+FC 16 write of SESSION and OWNER_NAME (registers 28..45). While the claim is
+alive the controller answers every write to its holding registers from
+any other connection with exception 6 (device busy), a second claim
+included; only the owner's session may claim again (its driver
+reconnecting). The claim dies when the owner writes SESSION 0, or when its
+heartbeat has not changed for the heartbeat timeout (the owner died or
+lost the link): then the controller holds and another host may claim it.
 """
 
 from __future__ import annotations
@@ -59,6 +75,13 @@ CONTROL_ENABLE = 0x0001
 CONTROL_HOLD = 0x0002
 CONTROL_RESET = 0x0004
 
+# Ownership block (holding: the host's claim; input: the controller's owner)
+HR_SESSION = 28
+HR_OWNER_NAME = 30
+OWNER_NAME_REGISTERS = 16  # 32 ASCII bytes
+HR_CLAIM_COUNT = 2 + OWNER_NAME_REGISTERS  # registers 28..45
+HR_END = HR_SESSION + HR_CLAIM_COUNT  # 46 holding registers in all
+
 # Input registers
 IR_MAGIC = 0
 IR_VERSION = 1
@@ -67,6 +90,11 @@ IR_HEARTBEAT = 3
 IR_CYCLE = 4
 IR_ACTUAL = 5
 IR_COUNT = IR_ACTUAL + BLOCK_REGISTERS  # 31
+
+IR_OWNER = 31
+IR_OWNER_NAME = 33
+IR_OWNER_COUNT = 2 + OWNER_NAME_REGISTERS  # registers 31..48
+IR_END = IR_OWNER + IR_OWNER_COUNT  # 49 input registers in all
 
 STATUS_ENABLED = 0x0001
 STATUS_HOLDING = 0x0002
@@ -208,3 +236,19 @@ def describe_status(status: int) -> str:
     if status & STATUS_HOLDING:
         return "holding"
     return "ok"
+
+
+def encode_owner(session: int, name: str) -> list[int]:
+    """SESSION (u32, high word first) and OWNER_NAME: a claim (holding 28..45) or the owner (input 31..48)."""
+    if not 0 <= session <= 0xFFFF_FFFF:
+        raise RegisterError(f"session id {session} does not fit 32 bits")
+    raw = name.encode("ascii", "replace")[: 2 * OWNER_NAME_REGISTERS].ljust(2 * OWNER_NAME_REGISTERS, b"\0")
+    return [session >> 16, session & 0xFFFF] + [int.from_bytes(raw[i:i + 2], "big") for i in range(0, len(raw), 2)]
+
+
+def decode_owner(regs) -> tuple[int, str]:
+    """(session id, name) from an ownership block; session 0: nobody."""
+    if len(regs) != HR_CLAIM_COUNT:
+        raise RegisterError(f"ownership block: expected {HR_CLAIM_COUNT} registers, got {len(regs)}")
+    raw = b"".join(int(r).to_bytes(2, "big") for r in regs[2:])
+    return (regs[0] << 16) | regs[1], raw.rstrip(b"\0").decode("ascii", "replace")

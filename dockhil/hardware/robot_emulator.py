@@ -18,6 +18,10 @@ Controller rules the driver relies on:
   and sets HEARTBEAT_LOST, so a host that dies mid-motion stops the robot.
 - HOLD and DISABLED stop at the actual pose; the delay line is flushed.
 - FAULT (set by `inject_fault`, for tests) holds until CONTROL RESET.
+- One owner: while a host's claim (SESSION, OWNER_NAME) is alive, writes from
+  any other connection are refused with exception 6 (device busy), so a
+  second graph cannot move or hold the first one's robot; the claim dies
+  with the owner's heartbeat or when it writes SESSION 0.
 
 Run alone: python -m dockhil.hardware.robot_emulator --port 5020 [--delay S --tau S]
 It prints "listening HOST:PORT" once it accepts connections.
@@ -27,6 +31,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextvars
+import itertools
 import logging
 import math
 import signal
@@ -94,6 +100,14 @@ class ServoModel:
         self._history: deque = deque()  # (time, position, orientation) over the velocity window
         self._target = self._actual_pose()
         self.inputs = mm.encode_inputs(0, 0, 0, self.actual())
+        # Ownership: the session and name of the host whose claim is alive, and its connection.
+        self.owner_session = 0
+        self.owner_name = ""
+        self.owner_client = None
+        self.claim = mm.encode_owner(0, "")  # holding registers 28..45 as last written
+        self.refused = 0  # writes refused because another host owns the controller
+        self._claim_new = False
+        self._claimed_at: float | None = None
 
     def _actual_pose(self):
         return tuple(self.position) + tuple(self.orientation)
@@ -101,14 +115,42 @@ class ServoModel:
     def actual(self) -> mm.PoseTwist:
         return tuple(self.position) + tuple(self.orientation) + tuple(self.linear) + tuple(self.angular)
 
-    def host_wrote(self, address: int, values: list[int]) -> None:
-        """A Modbus write to holding registers [address, address + len)."""
-        end = min(address + len(values), mm.HR_COUNT)
+    def host_wrote(self, address: int, values: list[int], client=None) -> bool:
+        """A Modbus write to holding registers [address, address + len) over connection `client`;
+        False if refused: another host owns the controller (or a claim without its session id)."""
+        end = address + len(values)
+        claim = list(values[mm.HR_SESSION - address:]) if address <= mm.HR_SESSION < end else None
+        if claim is not None and (address != mm.HR_SESSION or len(claim) < 2):
+            self.refused += 1  # a claim writes its session id whole, alone
+            return False
+        session = None if claim is None else (claim[0] << 16) | claim[1]
+        if self.owner_session and client != self.owner_client and session != self.owner_session:
+            self.refused += 1
+            return False
+        if claim is not None:
+            if session == 0:
+                self._release()
+            else:
+                self.claim = (claim + mm.encode_owner(0, "")[len(claim):])[: mm.HR_CLAIM_COUNT]
+                self.owner_session, self.owner_name = mm.decode_owner(self.claim)
+                self.owner_client = client
+                self._claim_new = True
+        end = min(end, mm.HR_COUNT)
         if address < 0 or address >= end:
-            return
+            return True
         self.holding[address:end] = values[: end - address]
         if end > mm.HR_SETPOINT:
             self.setpoint_fresh = True
+        return True
+
+    def _release(self) -> None:
+        self.owner_session, self.owner_name, self.owner_client = 0, "", None
+        self.claim = mm.encode_owner(0, "")
+        self._claimed_at = None
+
+    def owner_inputs(self) -> list[int]:
+        """Input registers 31..48: who owns the controller."""
+        return mm.encode_owner(self.owner_session, self.owner_name)
 
     def status(self) -> int:
         s = 0
@@ -130,6 +172,13 @@ class ServoModel:
         if host.heartbeat != self._last_heartbeat:
             self._last_heartbeat, self._heartbeat_t = host.heartbeat, now
         self.heartbeat_lost = self._heartbeat_t is None or now - self._heartbeat_t > self.heartbeat_timeout
+        if self._claim_new:
+            self._claim_new, self._claimed_at = False, now
+        if self.owner_session:
+            # The claim lives on the owner's heartbeat: a host that died or lost the link lets go.
+            last = max(self._claimed_at, self._heartbeat_t if self._heartbeat_t is not None else self._claimed_at)
+            if now - last > self.heartbeat_timeout:
+                self._release()
         if host.control & mm.CONTROL_RESET:
             self.fault = False
             self.holding[mm.HR_CONTROL] &= ~mm.CONTROL_RESET  # a one-shot command
@@ -186,6 +235,32 @@ class ServoModel:
         self.position = list(position)
 
 
+_connection: contextvars.ContextVar = contextvars.ContextVar("modbus_connection", default=None)
+_connection_ids = itertools.count(1)
+
+
+def _server_class():
+    """pymodbus's TCP server, telling the register callback which connection a request came on
+    (each request is handled in a task of its own, so a context variable carries it)."""
+    from pymodbus.server import ModbusTcpServer
+    from pymodbus.server.requesthandler import ServerRequestHandler
+
+    class Handler(ServerRequestHandler):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.connection_id = next(_connection_ids)
+
+        async def handle_request(self):
+            _connection.set(self.connection_id)
+            await super().handle_request()
+
+    class Server(ModbusTcpServer):
+        def callback_new_connection(self):
+            return Handler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
+
+    return Server
+
+
 class RobotControllerEmulator:
     """The Modbus TCP server and the servo, on one asyncio loop (so a request
     and a servo cycle never interleave)."""
@@ -207,21 +282,24 @@ class RobotControllerEmulator:
         self.requests += 1
         offset = address - start_address
         if function_code == 4:  # input registers: hand out the servo's latest
-            inputs = self.servo.inputs
+            inputs = self.servo.inputs + self.servo.owner_inputs()
             for i in range(count):
                 if 0 <= address + i < len(inputs):
                     registers[offset + i] = inputs[address + i]
         elif set_values is not None:
-            self.servo.host_wrote(address, list(set_values))
+            if not self.servo.host_wrote(address, list(set_values), _connection.get()):
+                from pymodbus.constants import ExcCodes
+
+                return ExcCodes.DEVICE_BUSY  # another host owns the controller
         else:  # holding read: the controller may have changed them (RESET)
+            holding = self.servo.holding + self.servo.claim
             for i in range(count):
-                if 0 <= address + i < mm.HR_COUNT:
-                    registers[offset + i] = self.servo.holding[address + i]
+                if 0 <= address + i < len(holding):
+                    registers[offset + i] = holding[address + i]
         return None
 
     async def start(self) -> int:
         """Listen and start the servo; return the port (useful with port 0)."""
-        from pymodbus.server import ModbusTcpServer
         from pymodbus.simulator import DataType, SimData, SimDevice
 
         quiet_pymodbus()
@@ -231,12 +309,12 @@ class RobotControllerEmulator:
             simdata=(
                 bits,
                 list(bits),
-                [SimData(0, count=mm.HR_COUNT, values=0, datatype=DataType.REGISTERS)],
-                [SimData(0, count=mm.IR_COUNT, values=0, datatype=DataType.REGISTERS)],
+                [SimData(0, count=mm.HR_END, values=0, datatype=DataType.REGISTERS)],
+                [SimData(0, count=mm.IR_END, values=0, datatype=DataType.REGISTERS)],
             ),
             action=self._action,
         )
-        self._server = ModbusTcpServer(device, address=(self.host, self.port))
+        self._server = _server_class()(device, address=(self.host, self.port))
         await self._server.serve_forever(background=True)
         self.port = self._server.transport.sockets[0].getsockname()[1]
         self._stopped = asyncio.Event()
@@ -315,6 +393,21 @@ class RobotControllerEmulator:
         self.call(setattr, self.servo, "fault", True)
 
 
+def claim_port(host: str, port: int):
+    """Claim the emulator's port for this graph (port 0, a free port, needs no claim); a DeviceLock or None."""
+    if port == 0:
+        return None
+    import socket
+
+    from dockhil import ownership
+
+    try:
+        address = socket.gethostbyname(host)
+    except OSError:
+        address = host
+    return ownership.claim(f"modbus-emulator-{address}-{port}", f"robot controller emulator port {host}:{port}")
+
+
 def listen_problem(host: str, port: int) -> str:
     """Why listening on host:port fails (pymodbus reports only that it did)."""
     import socket
@@ -338,6 +431,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cycle", type=float, default=0.001, help="servo period [s]")
     parser.add_argument("--heartbeat-timeout", type=float, default=0.2, help="hold when the heartbeat stops [s]")
     args = parser.parse_args(argv)
+    from dockhil.errors import DockhilError
+
+    try:
+        lock = claim_port(args.host, args.port)  # held until this process ends
+    except DockhilError as exc:
+        print(f"robot emulator: error: {exc}", file=sys.stderr)
+        return 2
     emulator = RobotControllerEmulator(args.host, args.port, args.delay, args.tau, args.cycle, args.heartbeat_timeout)
 
     async def run():
@@ -352,6 +452,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"robot emulator: error: cannot listen on {args.host}:{args.port}: {listen_problem(args.host, args.port)}",
               file=sys.stderr)
         return 2
+    finally:
+        if lock is not None:
+            lock.release()
     return 0
 
 

@@ -94,11 +94,22 @@ class SlcanPort:
     `path` is the slave device (/dev/pts/N); `link`, if given, is a symlink
     to it with a stable name. The port keeps its own copy of the slave open,
     so a host that closes and reopens the device does not hang up the
-    master end.
+    master end. A link is claimed for this process first (one graph per
+    adapter path): a second adapter at the same path is refused in one
+    line naming the owner, instead of taking the link over.
     """
 
     def __init__(self, link: str | None = None):
-        self._master, self._slave = os.openpty()
+        self._claim = None  # this process's claim on the link path
+        if link:
+            from dockhil import ownership
+
+            self._claim = ownership.claim(f"slcan-adapter-{os.path.abspath(link)}", f"slcan adapter {link}")
+        try:
+            self._master, self._slave = os.openpty()
+        except OSError:
+            self._release()
+            raise
         # Raw mode before any host opens it: no echo of what we write, no line editing.
         tty.setraw(self._slave)
         os.set_blocking(self._master, False)
@@ -238,13 +249,26 @@ class SlcanPort:
                 os.close(fd)
             except OSError:
                 pass
+        self._release()
+
+    def _release(self) -> None:
+        if self._claim is not None:
+            self._claim.release()
+            self._claim = None
 
 
 class PtyCanBus:
     """Several SlcanPorts joined into one CAN bus, served by `serve()` or a thread."""
 
     def __init__(self, links: list[str | None], on_frame=None):
-        self.ports = [SlcanPort(link) for link in links]
+        self.ports: list[SlcanPort] = []
+        try:
+            for link in links:
+                self.ports.append(SlcanPort(link))
+        except BaseException:
+            for port in self.ports:
+                port.close()
+            raise
         self.frames = 0
         self._on_frame = on_frame  # called with (port, frame) for every frame a host sends
         self._stop_r, self._stop_w = os.pipe()
@@ -300,10 +324,15 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("links", nargs="+", metavar="LINK", help="symlink to create for each adapter")
     args = parser.parse_args(argv)
+    from dockhil.errors import DockhilError
+
     try:
         bus = PtyCanBus(args.links)
     except OSError as exc:
         print(f"slcan_pty: error: cannot create adapter: {exc}", file=sys.stderr)
+        return 2
+    except DockhilError as exc:
+        print(f"slcan_pty: error: {exc}", file=sys.stderr)
         return 2
 
     def _stop(signum, frame):
