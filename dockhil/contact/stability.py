@@ -510,3 +510,85 @@ def critical_delay(m: float, k_direct: float, b_direct: float, k_delayed: float,
         return math.inf, None
     c = min(ups, key=lambda c: c.h0 if c.h0 > 0.0 else 2.0 * math.pi / c.omega)
     return (c.h0 if c.h0 > 0.0 else 2.0 * math.pi / c.omega), c.omega
+
+
+def _pade_hybrid_stable(m, kd, bd, kh, bh, h, order) -> bool:
+    c = pade_coefficients(order)
+    num = Polynomial(c * (-h) ** np.arange(c.size))  # N(s h), e^{-sh} ~ N / D
+    den = Polynomial(c * h ** np.arange(c.size))
+    poly = Polynomial([kd, bd, m]) * den + Polynomial([kh, bh]) * num
+    return _poly_stable(poly)
+
+
+def pade_critical_delay(m: float, k_direct: float, b_direct: float, k_delayed: float, b_delayed: float,
+                        order: int = 1, h_max: float = 100.0) -> float | None:
+    """The smallest delay [s] at which the loop with e^{-sh} replaced by its order-n Pade
+    approximant is unstable (found by scanning and bisection); inf when none up to h_max;
+    None when unstable without delay."""
+    m, kd, bd, kh, bh, _ = _check_hybrid(m, k_direct, b_direct, k_delayed, b_delayed, 0.0)
+    if not _poly_stable(Polynomial([kd + kh, bd + bh, m])):
+        return None
+    grid = np.geomspace(1e-7, h_max, 400)
+    prev = 0.0
+    for h in grid:
+        if not _pade_hybrid_stable(m, kd, bd, kh, bh, h, order):
+            lo, hi = prev, h
+            for _ in range(60):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if _pade_hybrid_stable(m, kd, bd, kh, bh, mid, order) else (lo, mid)
+            return hi
+        prev = h
+    return math.inf
+
+
+def hybrid_report(m: float, k_direct: float, b_direct: float, k_delayed: float, b_delayed: float, h: float,
+                  rate: float | None = None, pade_order: int | None = None) -> dict:
+    """Everything `dockhil stability` prints for the hybrid loop, as a JSON-ready dict: the
+    closed-form crossings and critical delay, Pade critical delays, the rightmost root, the
+    paper's verdict when the whole contact is delayed, and the sampled loop at `rate`."""
+    from dockhil.contact.sampled import SampledLoop, sampled_roots
+
+    m, kd, bd, kh, bh, h = _check_hybrid(m, k_direct, b_direct, k_delayed, b_delayed, h)
+    crossings = delay_crossings(m, kd, bd, kh, bh)
+    h_star, w_star = critical_delay(m, kd, bd, kh, bh)
+    root = hybrid_rightmost(m, kd, bd, kh, bh, h)
+    whole = hybrid_rightmost(m, 0.0, 0.0, kd + kh, bd + bh, h)
+    fin = lambda v: None if v is None or not math.isfinite(v) else v  # noqa: E731
+    out = {
+        "m": m, "k_direct": kd, "b_direct": bd, "k_delayed": kh, "b_delayed": bh, "h": h,
+        "equation": "m s^2 + b_d s + k_d + (k_h + b_h s) e^(-sh) = 0",
+        "crossings": [{"omega": c.omega, "h0": c.h0, "destabilizing": c.destabilizing} for c in crossings],
+        "critical_delay": fin(h_star), "critical_frequency": w_star,
+        "stable_without_delay": h_star is not None,
+        "no_delay_destabilizes": h_star is not None and math.isinf(h_star),
+        "pade1_critical_delay": fin(pade_critical_delay(m, kd, bd, kh, bh, 1)),
+        "rightmost_root": [root.real, root.imag], "growth_rate": root.real, "stable": bool(root.real < 0.0),
+        "unstable_roots": unstable_root_count(m, kd, bd, kh, bh, h),
+        "whole_delayed_growth_rate": whole.real,
+    }
+    if pade_order is not None:
+        out["pade_order"] = int(pade_order)
+        out["pade_n_critical_delay"] = fin(pade_critical_delay(m, kd, bd, kh, bh, pade_order))
+    if rate is not None:
+        dt = 1.0 / rate
+        d = int(round(h / dt))
+        guesses = [np.exp(s * dt) for s in hybrid_roots(m, kd, bd, kh, bh, h, count=4)]
+
+        def radius(ticks: int) -> float:
+            z = sampled_roots(SampledLoop(m, kd, bd, kh, bh, dt=dt, delay_ticks=ticks), guesses)[0]
+            return float(abs(z))
+
+        rho = radius(d)
+        sampled = {"rate": rate, "dt": dt, "delay_ticks": d, "spectral_radius": rho,
+                   "growth_rate": math.log(rho) * rate if rho > 0 else None, "stable": bool(rho < 1.0)}
+        # The smallest delay in whole ticks at which the sampled loop grows, near the exact one.
+        if h_star is not None and math.isfinite(h_star) and h_star * rate < 20000:
+            start = max(0, int(h_star * rate) - 6)
+            if radius(start) < 1.0:
+                ticks = start
+                while ticks < start + 40 and radius(ticks) < 1.0:
+                    ticks += 1
+                sampled["critical_delay_ticks"] = ticks
+                sampled["critical_delay"] = ticks * dt
+        out["sampled"] = sampled
+    return out
