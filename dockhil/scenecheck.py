@@ -108,17 +108,18 @@ def _analyse(info: dict) -> dict:
     return dict(continuous=complex(cont[0]), rho=rho, growth=(math.log(rho) / loop.dt) if rho > 0 else -math.inf)
 
 
-def _stable_rate(graph, info: dict, start: float) -> float:
-    """The lowest rate from `start` up (doubling) whose sampled loop agrees with the delay equation."""
+def _stable_rate(graph, info: dict, start: float) -> float | None:
+    """The lowest rate from `start` up (doubling) whose sampled loop agrees with the delay equation;
+    None when none does up to 256 times `start` (the integrator itself is the problem)."""
     rate = start
-    for _ in range(8):
+    for _ in range(9):
         trial = scene_loop(graph, 1.0 / rate)
         a = _analyse(trial)
         tol = 1e-9 * max(1.0, trial["omega"])
         if (a["growth"] > tol) == (a["continuous"].real > tol):
             return rate
         rate = sampled.round_up(2.0 * rate)
-    return rate
+    return None
 
 
 def scene_check(graph, refuse: bool = True) -> dict:
@@ -149,17 +150,21 @@ def scene_check(graph, refuse: bool = True) -> dict:
     sampled_unstable, physics_unstable = growth > tol, cont.real > tol
     if sampled_unstable != physics_unstable:
         problems.append(
-            f"the sampled loop {'grows' if sampled_unstable else 'decays'} (spectral radius {rho:.6g}, "
-            f"{growth:+.4g} 1/s) while the delay equation it stands for {'grows' if physics_unstable else 'decays'} "
-            f"(rightmost root {cont.real:+.4g} 1/s)")
+            f"the sampled loop {'grows' if sampled_unstable else 'does not grow'} (spectral radius {rho:.9g}, "
+            f"{growth:+.4g} 1/s) while the delay equation it stands for "
+            f"{'grows' if physics_unstable else 'does not'} (rightmost root {cont.real + 0.0:+.4g} 1/s)")
     warnings = []
     dyn = _first(graph, "satellite_dynamics")
     allowed = bool(dyn.params.get("allow_coarse", False))
     if problems:
-        good = max(rate, res.fine_rate())
-        good = _stable_rate(graph, info, good)
+        start = max(rate, res.fine_rate())
+        good = _stable_rate(graph, info, start)
         numbers["suggested_rate_Hz"] = good
-        line = f"{'; '.join(problems)}; run with rate:={good:g}"
+        if good is not None:
+            line = f"{'; '.join(problems)}; run with rate:={good:g}"
+        else:
+            line = (f"{'; '.join(problems)}; no rate up to {256 * start:g} Hz fixes it with method "
+                    f"{loop.method!r}: use method:=exact")
         if refuse and not allowed:
             raise DockhilError(f"{graph.scene.path}: refused: {line} (or allow_coarse:=true to run anyway)")
         warnings.append(f"ran although not resolved (allow_coarse): {line}")

@@ -252,7 +252,7 @@ def test_growth_rate_matches_the_sampled_loop_root_within_one_percent(b):
     dt, d, m, K = 1e-3, 16, 750.0, 2510.0
     n = 2 + 2 * d + 2
     a = np.zeros((n, n))
-    acc_p, acc_v, acc_late = 0.0, -b / m, -K / m
+    acc_v, acc_late = -b / m, -K / m
     a[0, 0], a[0, 1] = 1.0, dt + 0.5 * dt * dt * acc_v
     a[1, 1] = 1.0 + dt * acc_v
     a[0, 2 * d], a[1, 2 * d] = 0.5 * dt * dt * acc_late, dt * acc_late
