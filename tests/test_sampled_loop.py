@@ -77,8 +77,9 @@ def test_polynomial_roots_are_the_eigenvalues_of_the_tick_map_and_of_the_plain_l
     assert measured == pytest.approx(math.log(spectral_radius(loop)) / dt, abs=2e-4)
 
 
-def test_high_degree_loop_is_solved_without_the_companion_matrix():
-    # 1200 ticks of delay: the Newton path with the argument-principle check must find the same radius.
+def test_high_degree_loop_is_solved_without_the_companion_matrix(monkeypatch):
+    # 1600 ticks of delay: the Newton path with the argument-principle check, no companion matrix.
+    monkeypatch.setattr(np, "roots", lambda *a: pytest.fail("fell back to the companion matrix"))
     loop = SampledLoop(m=750.0, k_direct=0.0, b_direct=60.0, k_delayed=2510.0, dt=1e-5, delay_ticks=1600)
     from dockhil.contact.stability import hybrid_roots
 
@@ -89,6 +90,16 @@ def test_high_degree_loop_is_solved_without_the_companion_matrix():
     fast = sampled_roots(loop, guesses)[0]
     # At 100 kHz the sampled loop is the delay equation with h + dt/2 to within a part in 10^4.
     assert math.log(abs(fast)) / 1e-5 == pytest.approx(s[0].real, rel=2e-3)
+
+
+@pytest.mark.parametrize("guess", [0.5, 0.999 + 0.05j])
+def test_a_wrong_newton_guess_is_caught_and_the_dominant_root_still_found(monkeypatch, guess):
+    from dockhil.contact import sampled
+
+    monkeypatch.setattr(sampled, "DENSE_DEGREE", 5)  # force the Newton path on a small loop
+    loop = SampledLoop(m=375.0, k_direct=500.0, b_direct=30.0, k_delayed=2500.0, dt=1e-3, delay_ticks=20)
+    rho = max(abs(np.linalg.eigvals(one_tick_map(loop))))
+    assert abs(sampled.sampled_roots(loop, [guess])[0]) == pytest.approx(rho, rel=1e-12)
 
 
 # -- item 1: a step that does not resolve the contact is refused --------------------------------------

@@ -145,20 +145,21 @@ def _q_and_derivative(q: np.ndarray, z: complex) -> tuple[complex, complex]:
     return val, dval
 
 
-def _zeros_outside(q: np.ndarray, radius: float) -> int:
+VERIFY_MARGIN = 1e-4  # relative width of the annulus about the dominant roots checked for other zeros
+
+
+def _zeros_outside(q: np.ndarray, radius: float, margin: float = VERIFY_MARGIN) -> int:
     """How many zeros of Q lie outside |z| = radius: the degree minus the winding number of
-    Q(radius e^{i theta}) about 0 (argument principle)."""
+    Q(radius e^{i theta}) about 0 (argument principle). Sampled finely enough that a zero at
+    least `margin` * radius away from the circle cannot slip between two samples."""
     deg = len(q) - 1
-    n = max(8192, 32 * deg)
+    n = int(max(8192, 64 * deg, 40.0 * math.pi / margin))
     theta = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
-    idx = np.nonzero(q)[0]
-    z = radius * np.exp(1j * theta)
     vals = np.zeros(n, complex)
-    for i in idx:
+    for i in np.nonzero(q)[0]:
         vals += q[i] * radius ** int(i) * np.exp(1j * int(i) * theta)
     phase = np.unwrap(np.angle(np.append(vals, vals[0])))
     inside = int(round((phase[-1] - phase[0]) / (2.0 * math.pi)))
-    del z
     return deg - inside
 
 
@@ -186,8 +187,14 @@ def sampled_roots(loop: SampledLoop, guesses=()) -> np.ndarray:
         if all(abs(z - w) > 1e-10 for w in found):
             found.append(z)
     found.sort(key=lambda z: -abs(z))
-    if found and _zeros_outside(q, abs(found[0]) * (1.0 + 1e-9)) == 0:
-        return np.array(found)
+    if found:
+        # Accepted when no zero lies outside the annulus about the largest found, and every zero
+        # inside the annulus is one found.
+        rho = abs(found[0])
+        near = sum(1 for z in found if abs(z) > rho * (1.0 - VERIFY_MARGIN))
+        if (_zeros_outside(q, rho * (1.0 + VERIFY_MARGIN)) == 0
+                and _zeros_outside(q, rho * (1.0 - VERIFY_MARGIN)) == near):
+            return np.array(found)
     roots = np.roots(q[::-1])
     return roots[np.argsort(-np.abs(roots))]
 
