@@ -126,6 +126,11 @@ def test_scene_values_are_read_from_the_launch_file(capsys):
     (["--m", "750", "--b", "20", "--h", "0.016", "--K", "1e308"], "--K must be at most"),
     (["--scene", "launch/hil.yaml", "--m", "3"], "--m and --scene do not go together"),
     (["--scene", "launch/hil.yaml", "bogus:=1"], "unknown arg 'bogus'"),
+    (["map", "--m", "750", "--h-range", "0.01", "1e308", "--png", "x.png"], "--h-range HI must be at most 10 s"),
+    (["map", "--m", "750", "--b-range", "0", "1e308", "--png", "x.png"], "--b-range HI must be at most"),
+    (["map", "--m", "750", "--kcs", "3000", "--png", "x.png"], "needs both --kcs and --bcs"),
+    (["map", "--m", "750", "--kcs", "3000", "--bcs", "40", "--h-range", "0.01", "1", "--png", "x.png"],
+     "1000 ticks of delay"),
 ])
 def test_bad_input_gives_one_line_and_exit_2(argv, message):
     r = subprocess.run(dockhil_cmd("stability", *argv), capture_output=True, text=True, timeout=60)

@@ -109,7 +109,7 @@ def _within(name: str, value: float, hi: float, unit: str) -> float:
 
     check_finite(name, value, unit)
     if abs(value) > hi:
-        raise DockhilError(f"{name} must be at most {hi:g} {unit} in size, got {value:g}")
+        raise DockhilError(f"{name} must be at most {hi:g}{' ' + unit if unit else ''} in size, got {value:g}")
     return value
 
 
@@ -177,11 +177,9 @@ def _print_report(r: dict) -> None:
         )
 
 
-def _range(name: str, pair, positive: bool) -> tuple[float, float]:
-    from dockhil.contact.scenario import check_finite
-
-    lo = check_finite(f"{name} LO", pair[0])
-    hi = check_finite(f"{name} HI", pair[1])
+def _range(name: str, pair, positive: bool, most: float = MAX_COEFF, unit: str = "") -> tuple[float, float]:
+    lo = _within(f"{name} LO", pair[0], most, unit)
+    hi = _within(f"{name} HI", pair[1], most, unit)
     if lo < 0.0 or (positive and lo <= 0.0):
         raise DockhilError(f"{name} LO must be {'> 0' if positive else '>= 0'}, got {lo:g}")
     if hi <= lo:
@@ -200,8 +198,8 @@ def _run_map(args) -> int:
     m = check_positive("--m", _within("--m", args.m, MAX_MASS, "kg"), "kg")
     if args.kcs is not None or args.bcs is not None:
         return _run_hybrid_map(args, m)
-    b_lo, b_hi = _range("--b-range", args.b_range, positive=False)
-    h_lo, h_hi = _range("--h-range", args.h_range, positive=True)
+    b_lo, b_hi = _range("--b-range", args.b_range, positive=False, unit="N s/m")
+    h_lo, h_hi = _range("--h-range", args.h_range, positive=True, most=MAX_DELAY, unit="s")
     args.n = 200 if args.n is None else args.n
     if not 2 <= args.n <= 2000:
         raise DockhilError(f"--n must be between 2 and 2000, got {args.n}")
@@ -379,12 +377,12 @@ def _run_hybrid_map(args, m: float) -> int:
     kcs = check_positive("--kcs", _within("--kcs", args.kcs, MAX_COEFF, "N/m"), "N/m")
     bcs = check_nonnegative("--bcs", _within("--bcs", args.bcs, MAX_COEFF, "N s/m"), "N s/m")
     rate = check_positive("--rate", _within("--rate", args.rate, MAX_RATE, "Hz"), "Hz")
-    k_lo, k_hi = _range("--k-range", args.k_range or (0.0, 1.5 * kcs), positive=False)
+    k_lo, k_hi = _range("--k-range", args.k_range or (0.0, 1.5 * kcs), positive=False, unit="N/m")
     h_given = args.h_range if tuple(args.h_range) != (0.016, 0.032) else (0.001, 0.1)
-    h_lo, h_hi = _range("--h-range", h_given, positive=True)
-    if h_hi > MAX_DELAY or k_hi > MAX_COEFF or h_hi * rate > 2000:
-        raise DockhilError(f"the map reaches {h_hi * rate:.0f} ticks of delay or beyond {MAX_DELAY:g} s: narrow "
-                           f"--h-range or lower --rate (at most 2000 ticks)")
+    h_lo, h_hi = _range("--h-range", h_given, positive=True, most=MAX_DELAY, unit="s")
+    if h_hi * rate > 400:
+        raise DockhilError(f"the map reaches {h_hi * rate:.0f} ticks of delay: narrow --h-range or lower --rate "
+                           f"(at most 400 ticks)")
     args.n = 60 if args.n is None else args.n
     if not 2 <= args.n <= 400:
         raise DockhilError(f"--n must be between 2 and 400 for the hybrid map, got {args.n}")
