@@ -149,3 +149,15 @@ def test_hybrid_map_draws_both_regions(capsys, tmp_path):
     hs = np.linspace(0.004, 0.06, 8)
     eq12 = [40 * (4 * 750 - 2 * 40 * h) / (h * (4 * 750 - 40 * h)) for h in hs]  # b (4m - 2bh) / (h (4m - bh))
     assert r["eq12_stable_delays"] == pytest.approx(np.mean([3000 < k for k in eq12]))
+
+
+@pytest.mark.parametrize("theta", [0.2, 0.7, 1.3])
+def test_critical_delay_of_the_papers_loop_from_its_closed_form(capsys, theta):
+    # m s^2 + (K + b s) e^{-sh} = 0 crosses at s = j theta / h when b h / m = theta sin(theta) and
+    # K h^2 / m = theta^2 cos(theta): choose theta and h, derive b and K, find h back.
+    m, h = 750.0, 0.016
+    b, K = theta * math.sin(theta) * m / h, theta ** 2 * math.cos(theta) * m / h ** 2
+    r = run_json(capsys, ["stability", "--m", "750", "--k-delayed", repr(K), "--b-delayed", repr(b), "--h", "0.01",
+                          "--json"])
+    assert r["critical_delay"] == pytest.approx(h, rel=1e-9)
+    assert r["critical_frequency"] == pytest.approx(theta / h, rel=1e-9)
