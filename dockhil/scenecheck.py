@@ -173,6 +173,10 @@ def scene_check(graph, refuse: bool = True) -> dict:
         numbers["suggested_rate_Hz"] = good
         warnings.append(f"coarse step: {res.describe()}; the peak force errs by about "
                         f"{40 * res.omega_dt:.2g} %; rate:={good:g} resolves it")
+    h = info["h"]
+    if loop.held and h > 0.0 and abs(loop.delay_ticks * loop.dt - h) > 1e-9 * h:
+        warnings.append(f"the delay h = {h:g} s runs as {loop.delay_ticks} ticks = {loop.delay_ticks * loop.dt:g} s "
+                        f"at {rate:g} Hz (choose a rate with a whole number of ticks in h)")
     if physics_unstable and sampled_unstable:
         warnings.append(f"the loop is unstable: it grows at {growth:+.4g} 1/s (spectral radius {rho:.6g}), as "
                         f"the delay equation predicts ({cont.real:+.4g} 1/s)")

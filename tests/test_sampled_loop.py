@@ -283,3 +283,12 @@ def test_substeps_integrate_the_ideal_contact_more_finely(tmp_path):
         assert r.returncode == 0, r.stderr
         errors.append(json.loads(out.read_text())["error"]["max_force_N"])
     assert 4 ** 4 / 2 < errors[0] / errors[1] < 4 ** 4 * 2
+
+
+def test_a_delay_rounded_to_whole_ticks_is_warned(tmp_path):
+    out = tmp_path / "s.json"
+    r = launch("launch/stability.yaml", "b:=60", "rate:=300", "--duration", "0.1", "--quiet", "--summary", out)
+    assert r.returncode == 0, r.stderr
+    w = json.loads(out.read_text())["warnings"]
+    # 16 ms at 300 Hz is 4.8 ticks: it runs as 5 ticks, 16.67 ms.
+    assert len(w) == 1 and "runs as 5 ticks = 0.0166667 s" in w[0] and r.stderr.count("warning:") == 1
