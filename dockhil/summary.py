@@ -466,6 +466,12 @@ def format_summary(out: dict) -> str:
     if "predicted_growth_rate_1_s" in out:
         lines.append(f"{'growth rate':18}{f(out['growth_rate_1_s'], '1/s'):>{w}}   "
                      f"predicted {f(out['predicted_growth_rate_1_s'], '1/s')} (sampled loop's dominant root)")
+    loop = out.get("loop") or {}
+    if loop:
+        per = next((k for k in loop if k.startswith("samples_per_")), None)
+        lines.append(f"{'sampled loop':18}{loop['rate_Hz']:g} Hz, omega*dt {loop['omega_dt']:.3g}"
+                     + (f", {loop[per]:.4g} {per.replace('_', ' ')}" if per and loop[per] is not None else "")
+                     + f", spectral radius {loop['spectral_radius']:.9g}")
     if "note" in out:
         lines.append(f"note: {out['note']}")
     return "\n".join(lines)
