@@ -95,26 +95,29 @@ def _with_target(info: dict, p: dict, free: bool, k: float, b: float) -> dict:
     return info
 
 
-def _analyse(info: dict) -> dict:
+def _analyse(info: dict, cont=None) -> dict:
+    """Dominant root of the sampled loop, and the delay equation's roots `cont` (computed when not given)."""
     from dockhil.contact.stability import hybrid_roots
 
     loop = info["loop"]
     h = info["h"] if loop.held else 0.0
-    cont = hybrid_roots(info["m"], info["kd"], info["bd"], info["kh"], info["bh"], h, count=4)
+    if cont is None:
+        cont = hybrid_roots(info["m"], info["kd"], info["bd"], info["kh"], info["bh"], h, count=4)
     guesses = [cmath.exp(complex(s) * loop.dt) for s in cont] + [cmath.exp(complex(s).conjugate() * loop.dt)
                                                                  for s in cont]
     z = sampled.sampled_roots(loop, guesses)[0]
     rho = abs(complex(z))
-    return dict(continuous=complex(cont[0]), rho=rho, growth=(math.log(rho) / loop.dt) if rho > 0 else -math.inf)
+    return dict(continuous=complex(cont[0]), roots=cont, rho=rho,
+                growth=(math.log(rho) / loop.dt) if rho > 0 else -math.inf)
 
 
-def _stable_rate(graph, info: dict, start: float) -> float | None:
+def _stable_rate(graph, info: dict, start: float, cont) -> float | None:
     """The lowest rate from `start` up (doubling) whose sampled loop agrees with the delay equation;
     None when none does up to 256 times `start` (the integrator itself is the problem)."""
     rate = start
     for _ in range(9):
         trial = scene_loop(graph, 1.0 / rate)
-        a = _analyse(trial)
+        a = _analyse(trial, cont)
         tol = 1e-9 * max(1.0, trial["omega"])
         if (a["growth"] > tol) == (a["continuous"].real > tol):
             return rate
@@ -158,7 +161,7 @@ def scene_check(graph, refuse: bool = True) -> dict:
     allowed = bool(dyn.params.get("allow_coarse", False))
     if problems:
         start = max(rate, res.fine_rate())
-        good = _stable_rate(graph, info, start)
+        good = _stable_rate(graph, info, start, a["roots"])
         numbers["suggested_rate_Hz"] = good
         if good is not None:
             line = f"{'; '.join(problems)}; run with rate:={good:g}"
