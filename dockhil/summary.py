@@ -61,7 +61,6 @@ class ContactMeter:
         self.peak = -math.inf
         self.exit = None  # relative velocity after the last acting tick seen so far
         self.ideal = ideal
-        self.ideal_scn = None
         self.max_err = 0.0
         self.chunk_t: list[float] = []
         self.chunk_f: list[float] = []
