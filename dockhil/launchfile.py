@@ -203,10 +203,11 @@ def _load(path: Path, given: dict[str, Any], from_cli: bool, stack: tuple) -> Sc
         where = f"{path}" if from_cli else f"{path} (included)"
         spec = specs[name]
         values[name] = spec.parse(value, where) if isinstance(value, str) and spec.type is not str else spec.check(value, where)
-    rate = data.get("rate", 1000.0)
+    # `rate: $(arg rate)` and `duration: $(arg duration)` take launch arguments like params do.
+    rate = _subst(data.get("rate", 1000.0), values, f"{path}: rate")
     if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not rate > 0:
         raise LaunchError(f"{path}: `rate` must be a positive number of Hz, got {rate!r}")
-    duration = data.get("duration")
+    duration = _subst(data.get("duration"), values, f"{path}: duration")
     if duration is not None and (isinstance(duration, bool) or not isinstance(duration, (int, float)) or duration <= 0):
         raise LaunchError(f"{path}: `duration` must be a positive number of seconds, got {duration!r}")
     scene = Scene(str(path), str(data.get("description", "")), float(rate),

@@ -31,8 +31,10 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     want_summary = has_dynamics and n_ticks is not None and (summary is not None or show_summary)
     if summary is not None:
         _check_writable(summary)
-    ideal_force = summ.scene_reference(graph).get("ideal_force")
-    collector = summ.Collector(ideal_force, dt) if want_summary else None
+    # The loop this scene will run: refused here (one line) when its step does not resolve the contact.
+    for line in summ.scene_check(graph)["warnings"]:
+        print(f"[launch] warning: {line}", file=sys.stderr)
+    collector = summ.SummaryCollector(graph) if want_summary else None
     tmp = None
     started = time.perf_counter()
     if composed:
@@ -53,8 +55,9 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     elapsed = time.perf_counter() - started
     try:
         if code == 0 and want_summary:
-            samples = collector.samples() if composed else summ.samples_from_bag(bag, ideal_force, dt)
-            out = summ.scene_summary(graph, samples, elapsed)
+            if not composed:
+                summ.feed_from_bag(bag, collector)
+            out = collector.summary(elapsed)
             if show_summary:
                 print(summ.format_summary(out), flush=True)
             if summary is not None:

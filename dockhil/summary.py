@@ -1,170 +1,384 @@
-"""The summary of a docking run: peak contact force, contact duration, exit velocity,
-and, where the scene has an ideal reference, the same from the ideal model and the errors.
+"""The summary of a docking run: peak contact force, contact duration, entry and exit velocity,
+coefficient of restitution, and, where the scene has an ideal reference, the same from the ideal
+model and the errors; for a body held against a sheet, the growth rate of its oscillation.
 
-Works on per-tick arrays, so the same code summarizes a bag, a composed run's
-taps, or the model library's own loop.
+Everything is computed in one pass over the ticks with O(1) memory (`ContactMeter`), so a
+summary of a run of any length costs the same memory: the live summary of a composed run
+(`SummaryCollector`, a tap), a recorded bag (`feed_from_bag`), or arrays of the model library's
+own loop (`contact_metrics`, `summarize`).
+
+When is a contact over? The exit velocity is the relative velocity once no force acts any
+more, neither virtual nor measured: through the robot's delay the passive compliance keeps
+pushing for up to h after the simulated bodies separated, so the first sample after the
+separation is too early. The contact duration is the time the bodies overlap (penetration
+> 0, zero crossings interpolated between ticks), comparable with the ideal model's.
 """
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 import msgs
+from dockhil.scenecheck import scene_check  # noqa: F401  (the summary's check, re-exported for the session)
 
 
 @dataclass
 class Samples:
     """Per-tick series: time [s], penetration p = x1 - x2 [m], its rate [m/s],
-    compressive contact force on the chaser [N]."""
+    compressive contact force on the chaser [N]; `acting` (optional): whether any
+    contact force (virtual or measured, on either body) acts at that tick; by default
+    where the force is not zero."""
 
     t: np.ndarray
     p: np.ndarray
     pd: np.ndarray
     force: np.ndarray
+    acting: np.ndarray | None = None
+
+
+_CHUNK = 4096  # ticks whose ideal force is evaluated at once (bounded memory)
+
+
+class ContactMeter:
+    """Contact metrics of the first contact, fed one tick at a time; O(1) memory.
+
+    ideal: the ideal contact's parameters (m1, m2, kcs, bcs, v1, v2, x1, x2) to compare the
+    force with tick by tick; growth_about: the equilibrium penetration [m] about which the
+    envelope of an oscillation is fitted (its growth rate)."""
+
+    def __init__(self, ideal: dict | None = None, growth_about: float | None = None):
+        self.n = 0
+        self.t_first = self.t_last = None
+        self.state = "before"  # before -> in -> after -> done (a second contact is not summarized)
+        self.prev = None  # (t, p, pd, acting) of the previous tick
+        self.t_start = self.t_end = None
+        self.entry = None
+        self.samples_in = 0
+        self.peak = -math.inf
+        self.exit = None  # relative velocity after the last acting tick seen so far
+        self.ideal = ideal
+        self.max_err = 0.0
+        self.chunk_t: list[float] = []
+        self.chunk_f: list[float] = []
+        self.growth = None if growth_about is None else _EnvelopeFit(growth_about)
+
+    def add(self, t: float, p: float, pd: float, force: float, acting: bool) -> None:
+        if self.n == 0:
+            self.t_first = t
+        self.n += 1
+        self.t_last = t
+        touching = p > 0.0 or (p == 0.0 and pd > 0.0)
+        prev = self.prev
+        if prev is not None and prev[3] and self.state in ("in", "after"):
+            self.exit = pd  # the state after the force of the previous tick has acted
+        if self.state == "before" and touching:
+            self.state = "in"
+            first = prev is None or p == 0.0
+            self.t_start = t if first else _crossing(prev[0], prev[1], t, p)
+            self.entry = pd
+        elif self.state == "in" and not touching:
+            self.state = "after"
+            self.t_end = _crossing(prev[0], prev[1], t, p)
+        elif self.state == "after" and touching:
+            self.state = "done"
+        if self.state == "in":
+            self.samples_in += 1
+            self.peak = max(self.peak, force)
+        if self.ideal is not None:
+            self.chunk_t.append(t)
+            self.chunk_f.append(force)
+            if len(self.chunk_t) >= _CHUNK:
+                self._compare()
+        if self.growth is not None:
+            self.growth.add(t, p)
+        self.prev = (t, p, pd, acting)
+
+    def _compare(self) -> None:
+        if not self.chunk_t:
+            return
+        ref = _ideal_force(self.ideal, np.array(self.chunk_t))
+        self.max_err = max(self.max_err, float(np.max(np.abs(ref - np.array(self.chunk_f)))))
+        self.chunk_t.clear()
+        self.chunk_f.clear()
+
+    def result(self) -> dict:
+        """peak_force_N, contact_duration_s, entry_velocity_mps, exit_velocity_mps,
+        restitution, contact_start_s (None where absent), and a `note` when something is not
+        resolved or not over."""
+        out = {"peak_force_N": None, "contact_duration_s": None, "entry_velocity_mps": None,
+               "exit_velocity_mps": None, "restitution": None, "contact_start_s": None}
+        if self.state == "before":
+            return out
+        out["contact_start_s"] = float(self.t_start)
+        out["entry_velocity_mps"] = float(self.entry)
+        if self.state != "in" and self.samples_in <= 1:
+            out["note"] = ("the contact lasted less than one sample: its peak force and duration are not "
+                           "resolved at this rate")
+        else:
+            out["peak_force_N"] = float(self.peak)
+        if self.state == "in":
+            out["note"] = "the contact had not ended when the run stopped: run longer for its duration and exit"
+            return out
+        if "note" not in out:
+            out["contact_duration_s"] = float(self.t_end - self.t_start)
+        if self.prev[3] and self.state == "after":
+            out["note"] = ("a force still acted when the run stopped (the passive compliance behind the robot's "
+                           "delay): run longer for the exit velocity")
+            return out
+        if self.exit is not None:
+            out["exit_velocity_mps"] = float(self.exit)
+            if self.entry:
+                out["restitution"] = float(-self.exit / self.entry)
+        return out
+
+    def max_force_error(self) -> float:
+        self._compare()
+        return self.max_err
+
+
+def _crossing(t0: float, p0: float, t1: float, p1: float) -> float:
+    """Time where p crosses zero between (t0, p0) and (t1, p1) (linear)."""
+    dp = p1 - p0
+    return float(t0 if dp == 0.0 else t0 - p0 * (t1 - t0) / dp)
+
+
+class _EnvelopeFit:
+    """Least-squares line through log |peaks| of p - about, accumulated as sums (O(1) memory)."""
+
+    def __init__(self, about: float):
+        self.about = about
+        self.a1 = self.a2 = None  # |e| of the two previous ticks
+        self.t1 = None
+        self.sums = np.zeros(5)  # n, sum t, sum t^2, sum y, sum t y
+
+    def add(self, t: float, p: float) -> None:
+        a = abs(p - self.about)
+        if self.a2 is not None and self.a1 > self.a2 and self.a1 >= a and self.a1 > 0.0:
+            y = math.log(self.a1)
+            self.sums += (1.0, self.t1, self.t1 * self.t1, y, self.t1 * y)
+        self.a2, self.a1, self.t1 = self.a1, a, t
+
+    def rate(self) -> float:
+        n, st, stt, sy, sty = self.sums
+        if n < 4:
+            raise ValueError("fewer than 4 peaks: run longer to measure a growth rate")
+        # Centred sums keep the slope accurate when t is large.
+        return float((sty - st * sy / n) / (stt - st * st / n))
+
+
+def growth_rate(t: np.ndarray, y: np.ndarray, about: float | None = None) -> float:
+    """Exponential growth rate [1/s] of an oscillation's envelope: a least-squares line through
+    log |peaks| of y - about (positive grows, negative settles). `about` is the equilibrium;
+    give it where it is known: the median of a growing or decaying oscillation is not its
+    centre, and fitting about it biases the rate (by 8 to 9 % on Figs. 11-12 over 20 s)."""
+    y = np.asarray(y, float)
+    fit = _EnvelopeFit(float(np.median(y)) if about is None else float(about))
+    for ti, yi in zip(np.asarray(t, float).tolist(), y.tolist()):
+        fit.add(ti, yi)
+    return fit.rate()
+
+
+def _ideal_force(ideal: dict, t: np.ndarray) -> np.ndarray:
+    from dockhil.contact.ideal import ideal_trajectory
+    from dockhil.contact.scenario import ContactScenario
+
+    scn = ContactScenario(ideal["m1"], ideal["m2"], ideal["kcs"], ideal["bcs"], 0.0, ideal["v1"], ideal["v2"])
+    traj = ideal_trajectory(scn, t, gap=max(0.0, ideal.get("x2", 0.0) - ideal.get("x1", 0.0)))
+    return np.where(traj.in_contact, scn.kcs * traj.penetration + scn.bcs * traj.penetration_rate, 0.0)
+
+
+def _feed(meter: ContactMeter, s: Samples) -> ContactMeter:
+    acting = (s.force != 0.0) if s.acting is None else s.acting
+    for row in zip(s.t.tolist(), s.p.tolist(), s.pd.tolist(), s.force.tolist(), np.asarray(acting).tolist()):
+        meter.add(*row)
+    return meter
 
 
 def contact_metrics(s: Samples) -> dict:
-    """peak_force_N, contact_duration_s, exit_velocity_mps of the first contact (None where absent)."""
-    touching = (s.p > 0.0) | ((s.p == 0.0) & (s.pd > 0.0))
-    out = {"peak_force_N": None, "contact_duration_s": None, "exit_velocity_mps": None, "contact_start_s": None}
-    if not touching.any():
-        return out
-    i0 = int(np.argmax(touching))
-    after = np.nonzero(~touching[i0:])[0]
-    i1 = i0 + int(after[0]) if after.size else len(s.t)
-    # Contact start and end at the zero crossings of p, interpolated between ticks.
-    t_start = s.t[i0] if i0 == 0 or s.p[i0] == 0.0 else _crossing(s.t, s.p, i0 - 1)
-    out["contact_start_s"] = float(t_start)
-    if after.size and i1 - i0 <= 1:
-        out["note"] = ("the contact lasted less than one sample: its peak force and duration are not "
-                       "resolved at this rate")
-        out["exit_velocity_mps"] = float(s.pd[i1])
-        return out
-    out["peak_force_N"] = float(np.max(s.force[i0:i1]))
-    if after.size:
-        out["contact_duration_s"] = float(_crossing(s.t, s.p, i1 - 1) - t_start)
-        # In free flight the relative velocity no longer changes: the first sample after is the exit.
-        out["exit_velocity_mps"] = float(s.pd[i1])
-    return out
-
-
-def _crossing(t, p, i) -> float:
-    """Time where p crosses zero between ticks i and i+1 (linear)."""
-    dp = p[i + 1] - p[i]
-    return float(t[i] if dp == 0.0 else t[i] - p[i] * (t[i + 1] - t[i]) / dp)
+    """peak_force_N, contact_duration_s, entry/exit_velocity_mps, restitution of the first contact
+    (None where absent)."""
+    return _feed(ContactMeter(), s).result()
 
 
 def summarize(s: Samples, *, run_time_s: float | None = None, ideal: dict | None = None) -> dict:
-    """The run summary; `ideal` holds the ideal model's peak_force_N, contact_duration_s,
-    exit_velocity_mps and optionally its force series `force_N` on the same ticks."""
-    sim_time = float(s.t[-1] - s.t[0]) if len(s.t) > 1 else 0.0
+    """The run summary of per-tick arrays; `ideal` holds the ideal model's peak_force_N,
+    contact_duration_s, exit_velocity_mps and optionally its force series `force_N` on the same ticks."""
+    meter = _feed(ContactMeter(), s)
+    max_err = None
+    if ideal is not None and "force_N" in ideal:
+        n = min(len(ideal["force_N"]), len(s.force))
+        max_err = float(np.max(np.abs(np.asarray(ideal["force_N"][:n]) - s.force[:n]))) if n else None
+    return _summary(meter, run_time_s, ideal, max_err)
+
+
+_COMPARED = ("peak_force_N", "contact_duration_s", "exit_velocity_mps", "restitution")
+
+
+def _summary(meter: ContactMeter, run_time_s: float | None, ideal: dict | None, max_err: float | None) -> dict:
+    sim_time = float(meter.t_last - meter.t_first) if meter.n > 1 else 0.0
     out = {"run_time_s": run_time_s, "sim_time_s": sim_time,
            "real_time_factor": (sim_time / run_time_s) if run_time_s else None}
-    metrics = contact_metrics(s)
+    metrics = meter.result()
     out.update({k: v for k, v in metrics.items() if k not in ("contact_start_s", "note")})
     if "note" in metrics:
         out["note"] = metrics["note"]
     if ideal is not None:
-        ref = {k: ideal[k] for k in ("peak_force_N", "contact_duration_s", "exit_velocity_mps")}
+        ref = {k: ideal.get(k) for k in _COMPARED}
         out["ideal"] = ref
         err = {k: (None if out[k] is None or ref[k] is None else out[k] - ref[k]) for k in ref}
-        if "force_N" in ideal:
-            n = min(len(ideal["force_N"]), len(s.force))
-            err["max_force_N"] = float(np.max(np.abs(np.asarray(ideal["force_N"][:n]) - s.force[:n])))
+        err["max_force_N"] = max_err
         out["error"] = {k: err.get(k) for k in ("peak_force_N", "max_force_N", "contact_duration_s",
-                                                 "exit_velocity_mps")}
+                                                 "exit_velocity_mps", "restitution")}
     return out
+
+
+def ideal_summary(*, m1: float, m2: float, kcs: float, bcs: float, v1: float, v2: float,
+                  x1: float = 0.0, x2: float = 0.0) -> dict:
+    """The ideal model's peak_force_N, contact_duration_s, exit_velocity_mps, restitution (closed form)."""
+    from dockhil.contact.ideal import ideal_contact_summary
+    from dockhil.contact.scenario import ContactScenario
+
+    cs = ideal_contact_summary(ContactScenario(m1, m2, kcs, bcs, 0.0, v1, v2))
+    dur = cs.duration if math.isfinite(cs.duration) else None
+    return {"peak_force_N": cs.peak_force, "contact_duration_s": dur,
+            "exit_velocity_mps": cs.exit_relative_velocity if dur is not None else None,
+            "restitution": cs.restitution if dur is not None else None}
 
 
 def ideal_reference(*, m1: float, m2: float, kcs: float, bcs: float, v1: float, v2: float,
                     t: np.ndarray, x1: float = 0.0, x2: float = 0.0) -> dict:
     """The ideal model's summary (closed form) and its force on the ticks t."""
-    from dockhil.contact.ideal import ideal_contact_summary, ideal_trajectory
-    from dockhil.contact.scenario import ContactScenario
-
-    scn = ContactScenario(m1, m2, kcs, bcs, 0.0, v1, v2)
-    cs = ideal_contact_summary(scn)
-    traj = ideal_trajectory(scn, t, gap=max(0.0, x2 - x1))
-    force = np.where(traj.in_contact, kcs * traj.penetration + bcs * traj.penetration_rate, 0.0)
-    dur = cs.duration if math.isfinite(cs.duration) else None
-    return {"peak_force_N": cs.peak_force, "contact_duration_s": dur,
-            "exit_velocity_mps": cs.exit_relative_velocity if dur is not None else None, "force_N": force}
+    params = dict(m1=m1, m2=m2, kcs=kcs, bcs=bcs, v1=v1, v2=v2, x1=x1, x2=x2)
+    out = ideal_summary(**params)
+    out["force_N"] = _ideal_force(params, np.asarray(t, float))
+    return out
 
 
-class Collector:
-    """Gathers the per-tick series from published messages (a composed tap, or a bag).
+class _TickMatcher:
+    """Turns published messages into per-tick samples (t, p, pd, force, acting), in time order,
+    with bounded buffers: a state waits in a window of WINDOW states for the forces of its tick.
 
-    Time is simulated time: (tick - first tick) * dt when dt is known, else the
-    stamps from the first state on. Forces are matched to each state by header
-    stamp, taking the newest force at or before it: in sim time that is the
-    force of the same tick (stamps are k dt everywhere), in wall time the one
-    the dynamics would have seen."""
+    Time is simulated time: (tick - first tick) * dt when dt is known, else the stamps from the
+    first state on. Forces are matched to each state by header stamp, taking the newest force at
+    or before it: in sim time that is the force of the same tick (stamps are k dt everywhere), in
+    wall time the one the dynamics would have seen."""
 
-    def __init__(self, ideal_force: tuple[float, float] | None = None, dt: float | None = None):
+    WINDOW = 256
+
+    def __init__(self, sink, ideal_force: tuple[float, float] | None = None, dt: float | None = None):
+        self.sink = sink
         self.ideal_force = ideal_force  # (kcs, bcs) when the dynamics run the ideal model inside
         self.dt = dt
-        self.state: list[tuple[float, int, float, float]] = []
+        self.pending: list[tuple[float, int, float, float]] = []
         self.ft: list[tuple[float, float]] = []
-        self.virtual: list[tuple[float, float]] = []
+        self.virtual: list[tuple[float, float, float]] = []
+        self.first: tuple[float, int] | None = None
 
     def __call__(self, topic: str, msg) -> None:
         if isinstance(msg, msgs.SatelliteState) and len(msg.bodies) >= 2:
             c, g = msg.bodies[0], msg.bodies[1]
-            self.state.append((msg.header.stamp, msg.header.tick, c.pose.position.x - g.pose.position.x,
-                               c.twist.linear.x - g.twist.linear.x))
+            bisect.insort(self.pending, (msg.header.stamp, msg.header.tick, c.pose.position.x - g.pose.position.x,
+                                         c.twist.linear.x - g.twist.linear.x))
+            if len(self.pending) > self.WINDOW:
+                self._emit(self.pending.pop(0))
         elif topic == "/ft/wrench" and isinstance(msg, msgs.WrenchStamped):
-            self.ft.append((msg.header.stamp, msg.wrench.force.x))
+            bisect.insort(self.ft, (msg.header.stamp, msg.wrench.force.x))
         elif topic == "/impedance/wrench" and isinstance(msg, msgs.BodyWrenches) and msg.wrenches:
-            self.virtual.append((msg.header.stamp, msg.wrenches[0].force.x))
+            f2 = msg.wrenches[1].force.x if len(msg.wrenches) > 1 else 0.0
+            bisect.insort(self.virtual, (msg.header.stamp, msg.wrenches[0].force.x, f2))
 
     @staticmethod
-    def _at(series: list[tuple[float, float]], t: np.ndarray) -> np.ndarray:
-        """The newest value at or before each time in t (0 before the first)."""
-        if not series:
-            return np.zeros_like(t)
-        st, v = (np.array(x, dtype=float) for x in zip(*sorted(series)))
-        i = np.searchsorted(st, t, side="right") - 1
-        return np.where(i >= 0, v[np.clip(i, 0, None)], 0.0)
+    def _newest(series: list, stamp: float):
+        """The newest entry at or before stamp (None before the first); drops older ones."""
+        i = bisect.bisect_right(series, (stamp, math.inf, math.inf)) - 1
+        if i < 0:
+            return None
+        del series[:i]
+        return series[0]
 
-    def samples(self) -> Samples:
-        if not self.state:
-            return Samples(*(np.array([]),) * 4)
-        stamp, tick, p, pd = (np.array(v, dtype=float) for v in zip(*sorted(self.state)))
-        t = (tick - tick[0]) * self.dt if self.dt is not None else stamp - stamp[0]
+    def _emit(self, state) -> None:
+        stamp, tick, p, pd = state
+        if self.first is None:
+            self.first = (stamp, tick)
+        t = (tick - self.first[1]) * self.dt if self.dt is not None else stamp - self.first[0]
         if self.ideal_force is not None:
             kcs, bcs = self.ideal_force
-            touching = (p > 0.0) | ((p == 0.0) & (pd > 0.0))
-            force = np.where(touching, kcs * p + bcs * pd, 0.0)
+            touching = p > 0.0 or (p == 0.0 and pd > 0.0)
+            force, acting = (kcs * p + bcs * pd if touching else 0.0), touching
         else:
+            ft, virtual = self._newest(self.ft, stamp), self._newest(self.virtual, stamp)
+            fs = 0.0 if ft is None else ft[1]
+            v1, v2 = (0.0, 0.0) if virtual is None else virtual[1:]
             # Compressive force on the chaser: minus (measured + virtual) force along +x.
-            force = -(self._at(self.ft, stamp) + self._at(self.virtual, stamp))
-        return Samples(t, p, pd, force)
+            force, acting = -(fs + v1), (fs != 0.0 or v1 != 0.0 or v2 != 0.0)
+        self.sink(t, p, pd, force, acting)
+
+    def flush(self) -> None:
+        while self.pending:
+            self._emit(self.pending.pop(0))
 
 
-def growth_rate(t: np.ndarray, y: np.ndarray) -> float:
-    """Exponential growth rate [1/s] of an oscillation's envelope: a least-squares line
-    through log |peaks| of y about its median (positive grows, negative settles)."""
-    e = np.asarray(y, float) - np.median(y)
-    a = np.abs(e)
-    peaks = np.nonzero((a[1:-1] > a[:-2]) & (a[1:-1] >= a[2:]))[0] + 1
-    peaks = peaks[a[peaks] > 0.0]
-    if peaks.size < 4:
-        raise ValueError("fewer than 4 peaks: run longer to measure a growth rate")
-    return float(np.polyfit(np.asarray(t, float)[peaks], np.log(a[peaks]), 1)[0])
+class Collector:
+    """Gathers the per-tick series from published messages (a composed tap, or a bag), for
+    plots and comparisons; the run summary itself streams (`SummaryCollector`)."""
+
+    def __init__(self, ideal_force: tuple[float, float] | None = None, dt: float | None = None):
+        self.rows: list[tuple] = []
+        self.match = _TickMatcher(lambda *row: self.rows.append(row), ideal_force, dt)
+
+    def __call__(self, topic: str, msg) -> None:
+        self.match(topic, msg)
+
+    def samples(self) -> Samples:
+        self.match.flush()
+        if not self.rows:
+            return Samples(*(np.array([]),) * 4, np.array([], bool))
+        t, p, pd, f, acting = (np.array(v) for v in zip(*self.rows))
+        return Samples(t.astype(float), p.astype(float), pd.astype(float), f.astype(float), acting.astype(bool))
+
+
+class SummaryCollector:
+    """The run summary of a scene, gathered from published messages in one pass with O(1) memory."""
+
+    def __init__(self, graph):
+        self.graph = graph
+        ref = scene_reference(graph)
+        growth = ref.get("growth")
+        self.meter = ContactMeter(ideal=ref.get("ideal"), growth_about=None if growth is None else growth["about"])
+        self.match = _TickMatcher(self.meter.add, ref.get("ideal_force"), graph.scene.dt)
+
+    def __call__(self, topic: str, msg) -> None:
+        self.match(topic, msg)
+
+    def summary(self, run_time_s: float | None = None) -> dict:
+        self.match.flush()
+        return scene_summary(self.graph, self.meter, run_time_s)
+
+
+def _bag_messages(path: str):
+    from dockhil.bag import BagReader
+
+    with BagReader(path) as bag:
+        yield from bag.decoded(["/satellite/state", "/ft/wrench", "/impedance/wrench"])
 
 
 def samples_from_bag(path: str, ideal_force: tuple[float, float] | None = None, dt: float | None = None) -> Samples:
-    """Per-tick series of a recorded run, through the same Collector the live summary uses."""
-    from dockhil.bag import BagReader
-
+    """Per-tick series of a recorded run (for plots), through the same matching the live summary uses."""
     collect = Collector(ideal_force, dt)
-    with BagReader(path) as bag:
-        for topic, _t, msg in bag.decoded(["/satellite/state", "/ft/wrench", "/impedance/wrench"]):
-            collect(topic, msg)
+    for topic, _t, msg in _bag_messages(path):
+        collect(topic, msg)
     return collect.samples()
+
+
+def feed_from_bag(path: str, collector: SummaryCollector) -> SummaryCollector:
+    """Feed a recorded run into a summary collector, one message at a time."""
+    for topic, _t, msg in _bag_messages(path):
+        collector(topic, msg)
+    return collector
 
 
 def _first(graph, type_name: str):
@@ -174,8 +388,8 @@ def _first(graph, type_name: str):
 def scene_reference(graph) -> dict:
     """What the summary of this scene can be compared with, read from its nodes' parameters:
     `ideal_force` (kcs, bcs) when the dynamics run the ideal model, `ideal` (the ideal
-    contact's parameters) for a free contact, `growth` (m, K, b, h) for a body pushed
-    against a fixed sheet through a delay (Figs. 11-12)."""
+    contact's parameters) for a free contact, `growth` (m, K, b, h, about) for a body pushed
+    against a fixed sheet through a delay (Figs. 11-12); `about` is its equilibrium."""
     dyn = _first(graph, "satellite_dynamics")
     if dyn is None:
         return {}
@@ -194,28 +408,37 @@ def scene_reference(graph) -> dict:
         out["ideal"] = dict(m1=p["m1"], m2=p["m2"], kcs=kcs, bcs=bcs, v1=p["v1"], v2=p["v2"], x1=p["x1"], x2=p["x2"])
     ft, imp, delay = _first(graph, "ft_sim"), _first(graph, "virtual_impedance"), _first(graph, "delay_injector")
     if p["m2"] == 0.0 and p["thrust"] != 0.0 and ft and imp and delay and imp.params["mode"] == "given":
-        out["growth"] = dict(m=p["m1"], K=ft.params["k"], b=imp.params["b1"], h=delay.params["delay"])
+        K = ft.params["k"]
+        out["growth"] = dict(m=p["m1"], K=K, b=imp.params["b1"], h=delay.params["delay"],
+                             about=(p["thrust"] / K) if K > 0.0 else 0.0)
     return out
 
 
-def scene_summary(graph, s: Samples, run_time_s: float | None) -> dict:
-    """The run summary of a scene, with its ideal reference or predicted growth where it has one."""
+def scene_summary(graph, s, run_time_s: float | None) -> dict:
+    """The run summary of a scene (per-tick `Samples`, or a fed `ContactMeter`), with its ideal
+    reference or growth rate where it has one, and the check of its sampled loop."""
     ref = scene_reference(graph)
-    ideal = None
-    if "ideal" in ref and len(s.t):
-        ideal = ideal_reference(t=s.t, **ref["ideal"])
-    out = summarize(s, run_time_s=run_time_s, ideal=ideal)
-    if "growth" in ref and len(s.t):
-        from dockhil.contact.stability import growth_rate as predicted
-
-        g = ref["growth"]
+    growth = ref.get("growth")
+    if isinstance(s, Samples):
+        meter = _feed(ContactMeter(ideal=ref.get("ideal"), growth_about=None if growth is None else growth["about"]),
+                      s)
+    else:
+        meter = s
+    ideal = ideal_summary(**ref["ideal"]) if "ideal" in ref and meter.n else None
+    out = _summary(meter, run_time_s, ideal, meter.max_force_error() if ideal is not None else None)
+    if _first(graph, "satellite_dynamics").params["thrust"] != 0.0:
+        out["restitution"] = None  # pushed by thrust, the body's exit is not a rebound
+    check = scene_check(graph, refuse=False)
+    if growth is not None and meter.n:
         try:
-            out["growth_rate_1_s"] = growth_rate(s.t, s.p)
+            out["growth_rate_1_s"] = meter.growth.rate()
         except ValueError:
             out["growth_rate_1_s"] = None
-        # The sampled loop holds forces over a step: on average half a step more delay.
-        out["predicted_growth_rate_1_s"] = predicted(g["m"], g["K"], g["b"], g["h"] + graph.scene.dt / 2,
-                                                     damper="undelayed")
+        # The loop the graph runs: its dominant eigenvalue, ln|z| / dt; and the delay equation's root.
+        out["predicted_growth_rate_1_s"] = check["loop"].get("sampled_growth_rate_1_s")
+        out["delay_equation_growth_rate_1_s"] = check["loop"].get("continuous_growth_rate_1_s")
+    out["loop"] = check["loop"]
+    out["warnings"] = check["warnings"]
     return out
 
 
@@ -228,7 +451,7 @@ def format_summary(out: dict) -> str:
     lines = [f"simulated {f(out['sim_time_s'], 's')} in {f(out['run_time_s'], 's', '{:.2f}')}"
              + (f" ({rtf:.1f}x real time)" if rtf else "")]
     rows = [("peak force", "peak_force_N", "N"), ("contact duration", "contact_duration_s", "s"),
-            ("exit velocity", "exit_velocity_mps", "m/s")]
+            ("exit velocity", "exit_velocity_mps", "m/s"), ("restitution", "restitution", "")]
     w = 16
     if "ideal" in out:
         lines.append(f"{'':18}{'run':>{w}}{'ideal':>{w}}{'error':>{w}}")
@@ -238,10 +461,16 @@ def format_summary(out: dict) -> str:
         lines.append(f"{'max force error':18}{f(out['error']['max_force_N'], 'N'):>{w}}")
     else:
         for label, key, unit in rows:
-            lines.append(f"{label:18}{f(out[key], unit):>{w}}")
+            lines.append(f"{label:18}{f(out.get(key), unit):>{w}}")
     if "predicted_growth_rate_1_s" in out:
         lines.append(f"{'growth rate':18}{f(out['growth_rate_1_s'], '1/s'):>{w}}   "
-                     f"predicted {f(out['predicted_growth_rate_1_s'], '1/s')} (rightmost root)")
+                     f"predicted {f(out['predicted_growth_rate_1_s'], '1/s')} (sampled loop's dominant root)")
+    loop = out.get("loop") or {}
+    if loop:
+        per = next((k for k in loop if k.startswith("samples_per_")), None)
+        lines.append(f"{'sampled loop':18}{loop['rate_Hz']:g} Hz, omega*dt {loop['omega_dt']:.3g}"
+                     + (f", {loop[per]:.4g} {per.replace('_', ' ')}" if per and loop[per] is not None else "")
+                     + f", spectral radius {loop['spectral_radius']:.9g}")
     if "note" in out:
         lines.append(f"note: {out['note']}")
     return "\n".join(lines)

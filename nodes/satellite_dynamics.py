@@ -33,6 +33,10 @@ class SatelliteDynamics(Node):
                        "ideal: the ideal spring-dashpot (kcs, bcs) acts inside the node", choices=("hybrid", "ideal")),
         "kcs": Param(float, 3000.0, unit="N/m", help="ideal contact stiffness (model=ideal)", ge=0.0),
         "bcs": Param(float, 40.0, unit="N s/m", help="ideal contact damping (model=ideal)", ge=0.0),
+        "substeps": Param(int, 1, help="integrator steps per tick (forces held over the tick; the ideal "
+                          "contact is integrated inside each)", ge=1),
+        "allow_coarse": Param(bool, False, help="run even where the step does not resolve the contact "
+                              "(the summary then carries the warning)"),
     }
 
     @classmethod
@@ -67,7 +71,9 @@ class SatelliteDynamics(Node):
                 # The same sums, in the same order, as dockhil.contact.hilloop.simulate_hil.
                 f1 = fs + fv1 + p.thrust
                 f2 = -fs + fv2
-            self.bodies.step(f1, f2, tick.dt)
+            h = tick.dt / p.substeps
+            for _ in range(p.substeps):
+                self.bodies.step(f1, f2, h)
         return self._publish(tick)
 
     def _publish(self, tick):

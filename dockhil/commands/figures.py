@@ -31,6 +31,7 @@ def run(args) -> int:
           f"{delayed} {m[delayed]['peak_force_N']:.3f} N")
     for c in numbers["fig11_12"]:
         print(f"Figs. 11-12: b = {c['b_N_s_per_m']:g}: growth {c['growth_rate_1_s']:+.5f} 1/s, "
-              f"rightmost root {c['predicted_growth_rate_1_s']:+.5f} 1/s, Eq. 12 bound {c['eq12_bound_N_per_m']:.1f} N/m")
+              f"sampled loop's root {c['predicted_growth_rate_1_s']:+.5f} 1/s (delay equation "
+              f"{c['delay_equation_growth_rate_1_s']:+.5f} 1/s), Eq. 12 bound {c['eq12_bound_N_per_m']:.1f} N/m")
     print(f"wrote fig7.png, fig9.png, fig10.png, fig11_12.png and figures.json to {args.out}")
     return 0

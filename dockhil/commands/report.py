@@ -20,6 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--out", metavar="DIR", default="report",
                         help="directory for report.json, report.md and the PNG plots (default: ./report)")
+    parser.add_argument("--no-lean", action="store_true",
+                        help="skip the lean-scene measurement (one interpreter per node type)")
     parser.add_argument("--quick", action="store_true",
                         help="a small configuration (fewer steps and tolerances, shorter runs): seconds, for tests")
 
@@ -38,6 +40,10 @@ def run(args) -> int:
     except OSError as exc:
         raise DockhilError(f"--out {out}: cannot write there: {exc.strerror or exc}") from None
     cfg = report.ReportConfig.quick_config() if args.quick else report.ReportConfig()
+    if args.no_lean:
+        import dataclasses
+
+        cfg = dataclasses.replace(cfg, lean=False)
     data = report.build_report(cfg)
     plots = report.write_plots(data, out)
     data["plots"] = plots

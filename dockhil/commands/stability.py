@@ -31,6 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "  dockhil stability --m 750 --b 20 --h 0.016 --K 2510     # Fig. 11: unstable\n"
         "  dockhil stability --m 750 --b 60 --h 0.016 --K 2510     # Fig. 12: stable\n"
         "  dockhil stability map --m 750 --png fig7.png             # Fig. 7\n"
+        "  dockhil stability --m 749.4 --k-direct 2000 --b-direct 40 --k-delayed 1000 --h 0.032   # hil.yaml\n"
+        "  dockhil stability --scene launch/hil.yaml delay:=0.1     # the same, read from the scene\n"
+        "  dockhil stability map --m 749.4 --kcs 3000 --bcs 40 --png hybrid.png   # region over (k, h)\n"
         "run 'dockhil stability map --help' for the map's options"
     )
     parser.add_argument("--m", type=float, metavar="KG", help=_M_HELP)
@@ -47,6 +50,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="also give the bound with an order-N Pade approximation of the delay (1 to 20)",
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    hyb = parser.add_argument_group(
+        "the hybrid loop", "m s^2 + b_d s + k_d + (k_h + b_h s) e^(-sh) = 0: the virtual impedance acts on the"
+        " simulator's state (direct), the passive compliance through the robot (delayed); with any of these,"
+        " --m is the reduced mass and --h the delay")
+    hyb.add_argument("--k-direct", type=float, metavar="N_M", help="undelayed stiffness k_d [N/m] (hil: kcs - k)")
+    hyb.add_argument("--b-direct", type=float, metavar="NS_M", help="undelayed damping b_d [N s/m] (hil: bcs)")
+    hyb.add_argument("--k-delayed", type=float, metavar="N_M", help="delayed stiffness k_h [N/m] (hil: k)")
+    hyb.add_argument("--b-delayed", type=float, metavar="NS_M", help="delayed damping b_h [N s/m] (hil: 0)")
+    hyb.add_argument("--rate", type=float, metavar="HZ",
+                     help="also the sampled loop at this tick rate (forces held over a step; default 1000,"
+                          " a scene's own rate with --scene)")
+    hyb.add_argument("--scene", nargs="+", metavar="FILE [NAME:=VALUE", help="read the loop from a launch file,"
+                     " with its launch arguments: --scene launch/hil.yaml delay:=0.1 ...]")
     sub = parser.add_subparsers(dest="action", metavar="map", title="subcommands")
     mp = sub.add_parser(
         "map",
@@ -64,8 +80,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--h-range", type=float, nargs=2, metavar=("LO", "HI"), default=(0.016, 0.032),
         help="delay range [s] (default 0.016 0.032, as in Fig. 7)",
     )
-    mp.add_argument("--n", type=int, default=200, metavar="N", help="grid points per axis (default 200)")
+    mp.add_argument("--n", type=int, metavar="N", help="grid points per axis (default 200; hybrid map 60)")
     mp.add_argument("--damper", choices=("delayed", "undelayed"), default=argparse.SUPPRESS, help=_DAMPER_HELP)
+    mp.add_argument("--kcs", type=float, metavar="N_M", help="hybrid map: the target contact stiffness; draws the"
+                    " hybrid loop's stable region over (passive k, delay h) beside Eq. 12's verdict")
+    mp.add_argument("--bcs", type=float, metavar="NS_M", help="hybrid map: the target contact damping")
+    mp.add_argument("--k-range", type=float, nargs=2, metavar=("LO", "HI"),
+                    help="hybrid map: passive stiffness range [N/m] (default 0 to 1.5 kcs)")
+    mp.add_argument("--rate", type=float, metavar="HZ", default=1000.0,
+                    help="hybrid map: tick rate of the sampled loop drawn beside the exact one (default 1000)")
     mp.add_argument("--png", metavar="FILE", required=True, help="where to write the figure (PNG)")
     mp.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help="print a JSON summary of the map")
 
@@ -77,24 +100,43 @@ def _need(args, name: str, what: str) -> float:
     return value
 
 
-def _loop_values(args) -> tuple[float, float, float]:
-    from dockhil.contact.scenario import check_finite, check_nonnegative, check_positive
+# What the tool resolves: beyond these a value is a typo, and the numbers would overflow.
+MAX_MASS, MAX_COEFF, MAX_DELAY, MAX_RATE = 1e12, 1e12, 10.0, 1e7
 
-    m = check_positive("--m", _need(args, "m", "free-floating mass [kg]"), "kg")
-    b = check_nonnegative("--b", _need(args, "b", "virtual damping [N s/m]"), "N s/m")
-    h = check_nonnegative("--h", _need(args, "h", "robot delay [s]"), "s")
+
+def _within(name: str, value: float, hi: float, unit: str) -> float:
+    from dockhil.contact.scenario import check_finite
+
+    check_finite(name, value, unit)
+    if abs(value) > hi:
+        raise DockhilError(f"{name} must be at most {hi:g}{' ' + unit if unit else ''} in size, got {value:g}")
+    return value
+
+
+def _loop_values(args) -> tuple[float, float, float]:
+    from dockhil.contact.scenario import check_nonnegative, check_positive
+
+    m = check_positive("--m", _within("--m", _need(args, "m", "free-floating mass [kg]"), MAX_MASS, "kg"), "kg")
+    b = check_nonnegative("--b", _within("--b", _need(args, "b", "virtual damping [N s/m]"), MAX_COEFF, "N s/m"),
+                          "N s/m")
+    h = check_nonnegative("--h", _within("--h", _need(args, "h", "robot delay [s]"), MAX_DELAY, "s"), "s")
     if h == 0.0:
         raise DockhilError("--h must be > 0 s: without delay every K > 0 is stable when b > 0")
     if args.K is not None:
-        check_finite("--K", args.K, "N/m")
+        _within("--K", args.K, MAX_COEFF, "N/m")
     if args.pade_order is not None and not 1 <= args.pade_order <= 20:
         raise DockhilError(f"--pade-order must be between 1 and 20, got {args.pade_order}")
     return m, b, h
 
 
+_HYBRID = ("k_direct", "b_direct", "k_delayed", "b_delayed")
+
+
 def run(args: argparse.Namespace) -> int:
     if getattr(args, "action", None) == "map":
         return _run_map(args)
+    if args.scene is not None or any(getattr(args, n) is not None for n in _HYBRID):
+        return _run_hybrid(args)
     from dockhil.contact.stability import stability_report
 
     m, b, h = _loop_values(args)
@@ -135,11 +177,9 @@ def _print_report(r: dict) -> None:
         )
 
 
-def _range(name: str, pair, positive: bool) -> tuple[float, float]:
-    from dockhil.contact.scenario import check_finite
-
-    lo = check_finite(f"{name} LO", pair[0])
-    hi = check_finite(f"{name} HI", pair[1])
+def _range(name: str, pair, positive: bool, most: float = MAX_COEFF, unit: str = "") -> tuple[float, float]:
+    lo = _within(f"{name} LO", pair[0], most, unit)
+    hi = _within(f"{name} HI", pair[1], most, unit)
     if lo < 0.0 or (positive and lo <= 0.0):
         raise DockhilError(f"{name} LO must be {'> 0' if positive else '>= 0'}, got {lo:g}")
     if hi <= lo:
@@ -155,9 +195,12 @@ def _run_map(args) -> int:
 
     if getattr(args, "m", None) is None:
         raise DockhilError("missing --m (free-floating mass [kg])")
-    m = check_positive("--m", args.m, "kg")
-    b_lo, b_hi = _range("--b-range", args.b_range, positive=False)
-    h_lo, h_hi = _range("--h-range", args.h_range, positive=True)
+    m = check_positive("--m", _within("--m", args.m, MAX_MASS, "kg"), "kg")
+    if args.kcs is not None or args.bcs is not None:
+        return _run_hybrid_map(args, m)
+    b_lo, b_hi = _range("--b-range", args.b_range, positive=False, unit="N s/m")
+    h_lo, h_hi = _range("--h-range", args.h_range, positive=True, most=MAX_DELAY, unit="s")
+    args.n = 200 if args.n is None else args.n
     if not 2 <= args.n <= 2000:
         raise DockhilError(f"--n must be between 2 and 2000, got {args.n}")
     damper = getattr(args, "damper", "delayed")
@@ -233,6 +276,163 @@ def _plot(path: str, m: float, b, h, pade1, exact, damper: str) -> None:
     ax2.set_xlabel("b [N s/m]")
     ax2.set_ylabel("h [ms]")
     ax2.set_title(f"exact bound ({damper} damper); white: Eq. 12 excess [%]")
+    fig.tight_layout()
+    try:
+        fig.savefig(path, dpi=100)
+    except OSError as exc:
+        raise DockhilError(f"--png {path}: cannot write the figure ({exc.strerror or exc})") from None
+    finally:
+        plt.close(fig)
+
+
+def _scene_values(args) -> tuple[float, float, float, float, float, float, float]:
+    """m, k_d, b_d, k_h, b_h, h, rate of a scene's loop, as the graph will run it."""
+    from dockhil import launchfile
+    from dockhil.graph import build
+    from dockhil.scenecheck import scene_loop
+
+    given = [f"--{n.replace('_', '-')}" for n in ("m", "h", *_HYBRID) if getattr(args, n, None) is not None]
+    if given:
+        raise DockhilError(f"{given[0]} and --scene do not go together: the scene gives the loop; change it with "
+                           f"name:=value after the file")
+    path, *overrides = args.scene
+    graph = build(launchfile.load(path, launchfile.parse_overrides(overrides)))
+    info = scene_loop(graph)
+    if info is None:
+        raise DockhilError(f"{path}: no satellite_dynamics node, so no contact loop to analyse")
+    if not info["loop"].held:
+        raise DockhilError(f"{path}: the ideal model has no delay; its step is checked when it launches")
+    return info["m"], info["kd"], info["bd"], info["kh"], info["bh"], info["h"], graph.scene.rate
+
+
+def _hybrid_values(args) -> tuple[float, float, float, float, float, float, float]:
+    from dockhil.contact.scenario import check_nonnegative, check_positive
+
+    if args.scene is not None:
+        m, kd, bd, kh, bh, h, rate = _scene_values(args)
+        rate = rate if args.rate is None else args.rate
+    else:
+        m = check_positive("--m", _within("--m", _need(args, "m", "reduced mass [kg]"), MAX_MASS, "kg"), "kg")
+        h = check_nonnegative("--h", _within("--h", _need(args, "h", "robot delay [s]"), MAX_DELAY, "s"), "s")
+        kd, bd, kh, bh = (_within(f"--{n.replace('_', '-')}", getattr(args, n) or 0.0, MAX_COEFF,
+                                  "N/m" if n.startswith("k") else "N s/m") for n in _HYBRID)
+        rate = 1000.0 if args.rate is None else args.rate
+    rate = check_positive("--rate", _within("--rate", rate, MAX_RATE, "Hz"), "Hz")
+    if h * rate > 20000:
+        raise DockhilError(f"--rate {rate:g} Hz with h = {h:g} s is {h * rate:.0f} ticks of delay; the sampled "
+                           f"loop is analysed up to 20000 ticks: lower --rate")
+    if args.pade_order is not None and not 1 <= args.pade_order <= 20:
+        raise DockhilError(f"--pade-order must be between 1 and 20, got {args.pade_order}")
+    return m, kd, bd, kh, bh, h, rate
+
+
+def _run_hybrid(args) -> int:
+    from dockhil.contact.stability import hybrid_report
+
+    m, kd, bd, kh, bh, h, rate = _hybrid_values(args)
+    r = hybrid_report(m, kd, bd, kh, bh, h, rate=rate, pade_order=args.pade_order)
+    if args.json:
+        print(json.dumps(r))
+        return 0
+    print(f"hybrid contact loop: {r['equation']}")
+    print(f"  m = {m:g} kg, k_d = {kd:g} N/m, b_d = {bd:g} N s/m, k_h = {kh:g} N/m, b_h = {bh:g} N s/m, h = {h:g} s")
+    if not r["stable_without_delay"]:
+        print("  unstable already without delay: m s^2 + (b_d + b_h) s + k_d + k_h has a root with Re >= 0")
+    elif r["no_delay_destabilizes"]:
+        print("  no delay destabilizes it: |k_d - m w^2 + j b_d w| > |k_h + j b_h w| at every frequency")
+    else:
+        print(f"  {'critical delay (exact)':30} {r['critical_delay']:.6g} s, oscillating at "
+              f"{r['critical_frequency']:.6g} rad/s")
+        print(f"  {'critical delay (Pade 1)':30} {_fmt(r['pade1_critical_delay'])} s")
+        if "pade_order" in r:
+            print(f"  {'critical delay (Pade ' + str(r['pade_order']) + ')':30} {_fmt(r['pade_n_critical_delay'])} s")
+    for c in r["crossings"]:
+        print(f"  crossing s = j {c['omega']:.6g} rad/s at h = {c['h0']:.6g} s + n {2 * math.pi / c['omega']:.6g} s "
+              f"({'destabilizing' if c['destabilizing'] else 'stabilizing'})")
+    re_, im_ = r["rightmost_root"]
+    verdict = "stable" if r["stable"] else "UNSTABLE"
+    print(f"  at h = {h:g} s: {verdict}, growth rate {re_:+.4g} 1/s (rightmost root {re_:.4g} + {im_:.4g}j 1/s)")
+    print(f"  (were the whole contact delayed, as in Eq. 12's loop: growth rate {r['whole_delayed_growth_rate']:+.4g} 1/s)")
+    sm = r["sampled"]
+    verdict = "stable" if sm["stable"] else "UNSTABLE"
+    line = (f"  sampled at {sm['rate']:g} Hz ({sm['delay_ticks']} ticks of delay, forces held over a step): {verdict}, "
+            f"spectral radius {sm['spectral_radius']:.9g}, growth rate {_fmt(sm['growth_rate'])} 1/s")
+    print(line)
+    if "critical_delay_ticks" in sm:
+        print(f"  sampled critical delay: {sm['critical_delay_ticks']} ticks ({sm['critical_delay']:.6g} s)")
+    return 0
+
+
+def _run_hybrid_map(args, m: float) -> int:
+    """Stable region of the hybrid loop m s^2 + bcs s + (kcs - k) + k e^(-sh) over (k, h): exact (closed-form
+    crossings) and sampled at --rate, beside Eq. 12's verdict on the paper's loop (the whole kcs delayed)."""
+    import numpy as np
+
+    from dockhil.contact.sampled import SampledLoop, spectral_radius
+    from dockhil.contact.scenario import check_nonnegative, check_positive
+    from dockhil.contact.stability import pade1_bound, unstable_root_count
+
+    if args.kcs is None or args.bcs is None:
+        raise DockhilError("the hybrid map needs both --kcs and --bcs (the target contact)")
+    kcs = check_positive("--kcs", _within("--kcs", args.kcs, MAX_COEFF, "N/m"), "N/m")
+    bcs = check_nonnegative("--bcs", _within("--bcs", args.bcs, MAX_COEFF, "N s/m"), "N s/m")
+    rate = check_positive("--rate", _within("--rate", args.rate, MAX_RATE, "Hz"), "Hz")
+    k_lo, k_hi = _range("--k-range", args.k_range or (0.0, 1.5 * kcs), positive=False, unit="N/m")
+    h_given = args.h_range if tuple(args.h_range) != (0.016, 0.032) else (0.001, 0.1)
+    h_lo, h_hi = _range("--h-range", h_given, positive=True, most=MAX_DELAY, unit="s")
+    if h_hi * rate > 400:
+        raise DockhilError(f"the map reaches {h_hi * rate:.0f} ticks of delay: narrow --h-range or lower --rate "
+                           f"(at most 400 ticks)")
+    args.n = 60 if args.n is None else args.n
+    if not 2 <= args.n <= 400:
+        raise DockhilError(f"--n must be between 2 and 400 for the hybrid map, got {args.n}")
+    ks, hs = np.linspace(k_lo, k_hi, args.n), np.linspace(h_lo, h_hi, args.n)
+    start = time.perf_counter()
+    exact = np.zeros((hs.size, ks.size), bool)
+    sampled = np.zeros_like(exact)
+    for i, h in enumerate(hs):
+        for j, k in enumerate(ks):
+            exact[i, j] = unstable_root_count(m, kcs - k, bcs, k, 0.0, h) == 0
+            loop = SampledLoop(m, kcs - k, bcs, k, 0.0, dt=1.0 / rate, delay_ticks=int(round(h * rate)))
+            sampled[i, j] = spectral_radius(loop) < 1.0
+    eq12 = np.array([(lambda kb: kb is not None and kcs < kb)(pade1_bound(m, bcs, h)) for h in hs])
+    seconds = time.perf_counter() - start
+    _plot_hybrid(args.png, m, kcs, bcs, rate, ks, hs, exact, sampled, eq12)
+    summary = {"png": args.png, "m": m, "kcs": kcs, "bcs": bcs, "rate": rate, "grid": [args.n, args.n],
+               "k_range": [k_lo, k_hi], "h_range": [h_lo, h_hi], "compute_seconds": seconds,
+               "exact_stable_fraction": float(exact.mean()), "sampled_stable_fraction": float(sampled.mean()),
+               "sampled_disagrees_fraction": float((exact != sampled).mean()),
+               "eq12_stable_delays": float(eq12.mean())}
+    if getattr(args, "json", False):
+        print(json.dumps(summary))
+    else:
+        print(f"wrote {args.png}: the hybrid loop over {args.n} x {args.n} (k, h) points in {seconds:.2f} s")
+        print(f"  stable: {100 * summary['exact_stable_fraction']:.3g} % exact, "
+              f"{100 * summary['sampled_stable_fraction']:.3g} % sampled at {rate:g} Hz; Eq. 12 (kcs wholly delayed) "
+              f"calls {100 * summary['eq12_stable_delays']:.3g} % of the delays stable, whatever k")
+    return 0
+
+
+def _plot_hybrid(path, m, kcs, bcs, rate, ks, hs, exact, sampled, eq12) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    kk, hh = np.meshgrid(ks, hs * 1e3)
+    fig, (a, b) = plt.subplots(1, 2, figsize=(12, 5), sharey=True)
+    a.contourf(kk, hh, exact.astype(float), levels=[-0.5, 0.5, 1.5], colors=["#f4c7c3", "#b7e1cd"])
+    if sampled.any() and not sampled.all():
+        a.contour(kk, hh, sampled.astype(float), levels=[0.5], colors="k", linewidths=1.2)
+    a.set_title(f"hybrid loop, kcs = {kcs:g} N/m, bcs = {bcs:g} N s/m, m = {m:g} kg\n"
+                f"green: stable (exact); black: sampled boundary at {rate:g} Hz", fontsize=9)
+    a.set_xlabel("passive stiffness k [N/m] (virtual: kcs - k)")
+    a.set_ylabel("delay h [ms]")
+    b.contourf(kk, hh, np.repeat(eq12[:, None], ks.size, axis=1).astype(float), levels=[-0.5, 0.5, 1.5],
+               colors=["#f4c7c3", "#b7e1cd"])
+    b.set_title("Eq. 12 on the paper's loop (all of kcs behind the delay)\ngreen: kcs < K_max(bcs, h)", fontsize=9)
+    b.set_xlabel("passive stiffness k [N/m] (Eq. 12 does not depend on it)")
     fig.tight_layout()
     try:
         fig.savefig(path, dpi=100)

@@ -1,0 +1,186 @@
+"""Before a scene runs: the discrete-time loop it will actually run, and whether its step
+resolves the contact.
+
+Read from the graph's parameters: the dynamics' masses, integrator and sub-steps, the virtual
+impedance (direct: it acts on the state of the same tick), the passive compliance behind the
+robot's delay in ticks and servo lag, the tick. From them `dockhil.contact.sampled` gives the
+loop's exact eigenvalues; `dockhil.contact.stability` the delay equation the loop stands for.
+
+A run is refused (one line, naming the numbers and the `rate:=` that would work) when
+  * the step does not resolve the contact: omega*dt > 0.25 or fewer than 10 samples per contact
+    (per oscillation period for a lasting contact), where omega is the contact's fastest pole;
+  * the sampled loop and the delay equation disagree on stability (the sampling made it).
+`allow_coarse:=true` runs it anyway, with the refusal as a warning. A resolved but coarse step
+(omega*dt > 0.025 or fewer than 100 samples: about 1 % peak-force error) is a warning, and so
+is a loop that is unstable as the delay equation predicts (Fig. 11 is such a scene). Warnings
+are printed once and land in the summary JSON.
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+
+from dockhil.contact import sampled
+from dockhil.errors import DockhilError
+
+
+def _first(graph, type_name: str):
+    return next((gn for gn in graph.nodes.values() if gn.type_name == type_name), None)
+
+
+def scene_loop(graph, dt: float | None = None) -> dict | None:
+    """The loop of a scene at tick dt (default: the scene's): SampledLoop, the delay h [s], the
+    target contact (m, k, b) and its span (contact duration or period); None without dynamics."""
+    from dockhil.contact.hilloop import delay_ticks
+
+    dyn = _first(graph, "satellite_dynamics")
+    if dyn is None:
+        return None
+    p = dyn.params
+    dt = graph.scene.dt if dt is None else dt
+    m1, m2 = p["m1"], p["m2"]
+    m = m1 if m2 == 0.0 else m1 * m2 / (m1 + m2)
+    common = dict(dt=dt, method=p["method"], substeps=p.get("substeps", 1))
+    free = p["thrust"] == 0.0 and m2 > 0.0 and p["v1"] > p["v2"]
+    if p["model"] == "ideal":
+        loop = sampled.SampledLoop(m, p["kcs"], p["bcs"], held=False, **common)
+        return _with_target(dict(loop=loop, h=0.0, delay_known=True, m=m, kd=p["kcs"], bd=p["bcs"], kh=0.0, bh=0.0),
+                            p, free, p["kcs"], p["bcs"])
+    imp, ft = _first(graph, "virtual_impedance"), _first(graph, "ft_sim")
+    k1 = b1 = k2 = b2 = 0.0
+    kcs = bcs = None
+    passive = ft.params["k"] if ft is not None else None
+    if imp is not None:
+        ip = imp.params
+        if ip["mode"] == "determine" and m2 > 0.0:
+            from dockhil.contact.impedance import impedance_closed_form
+            from dockhil.contact.scenario import ContactScenario
+
+            kcs, bcs = ip["kcs"], ip["bcs"]
+            i = impedance_closed_form(ContactScenario(m1, m2, kcs, bcs, ip["k"], 0.03, 0.0), warn=False)
+            k1, b1, k2, b2 = i.k1, i.b1, i.k2, i.b2
+            passive = ip["k"] if passive is None else passive  # real sensor: the compliance the scene names
+        else:
+            k1, b1, k2, b2 = ip["k1"], ip["b1"], ip["k2"], ip["b2"]
+    # Relative acceleration of the virtual forces: -(m2^2 k1 + m1^2 k2) / M^2 p / m (see hybrid.virtual_forces).
+    if m2 == 0.0:
+        kd, bd = k1, b1
+    else:
+        w1, w2 = (m2 / (m1 + m2)) ** 2, (m1 / (m1 + m2)) ** 2
+        kd, bd = w1 * k1 + w2 * k2, w1 * b1 + w2 * b2
+    kh = passive or 0.0
+    delay = _first(graph, "delay_injector")
+    robot = _first(graph, "robot_sim")
+    h = delay.params["delay"] if delay is not None else 0.0
+    loop = sampled.SampledLoop(m, kd, bd, kh, 0.0, delay_ticks=delay_ticks(h, dt),
+                               lag=robot.params["lag"] if robot is not None else 0.0, **common)
+    info = dict(loop=loop, h=h, delay_known=delay is not None or robot is None, m=m, kd=kd, bd=bd, kh=kh, bh=0.0)
+    if kcs is not None:
+        return _with_target(info, p, free, kcs, bcs)
+    return _with_target(info, p, False, kd + kh, bd)
+
+
+def _with_target(info: dict, p: dict, free: bool, k: float, b: float) -> dict:
+    from dockhil.contact.ideal import contact_duration
+
+    m = info["m"]
+    omega = sampled.contact_poles_speed(m, abs(k), abs(b))
+    span, name = math.inf, "contact"
+    if free:
+        span = contact_duration(m, k, b)
+    if not math.isfinite(span) or span <= 0.0:
+        span, name = (2.0 * math.pi / omega if omega > 0.0 else math.inf), "period"
+    info.update(target=(m, k, b), omega=omega, span=span, span_name=name)
+    return info
+
+
+def _analyse(info: dict, cont=None) -> dict:
+    """Dominant root of the sampled loop, and the delay equation's roots `cont` (computed when not given)."""
+    from dockhil.contact.stability import hybrid_roots
+
+    loop = info["loop"]
+    h = info["h"] if loop.held else 0.0
+    if cont is None:
+        cont = hybrid_roots(info["m"], info["kd"], info["bd"], info["kh"], info["bh"], h, count=4)
+    guesses = [cmath.exp(complex(s) * loop.dt) for s in cont] + [cmath.exp(complex(s).conjugate() * loop.dt)
+                                                                 for s in cont]
+    z = sampled.sampled_roots(loop, guesses)[0]
+    rho = abs(complex(z))
+    return dict(continuous=complex(cont[0]), roots=cont, rho=rho,
+                growth=(math.log(rho) / loop.dt) if rho > 0 else -math.inf)
+
+
+def _stable_rate(graph, info: dict, start: float, cont) -> float | None:
+    """The lowest rate from `start` up (doubling) whose sampled loop agrees with the delay equation;
+    None when none does up to 256 times `start` (the integrator itself is the problem)."""
+    rate = start
+    for _ in range(9):
+        trial = scene_loop(graph, 1.0 / rate)
+        a = _analyse(trial, cont)
+        tol = 1e-9 * max(1.0, trial["omega"])
+        if (a["growth"] > tol) == (a["continuous"].real > tol):
+            return rate
+        rate = sampled.round_up(2.0 * rate)
+    return None
+
+
+def scene_check(graph, refuse: bool = True) -> dict:
+    """{"loop": numbers, "warnings": [one line each]}; raises DockhilError (one line) when the
+    scene must not run (and `refuse`), unless the dynamics' allow_coarse is set."""
+    info = scene_loop(graph)
+    if info is None:
+        return {"loop": {}, "warnings": []}
+    loop = info["loop"]
+    res = sampled.Resolution(info["omega"], loop.dt, info["span"], info["span_name"])
+    a = _analyse(info)
+    cont, rho, growth = a["continuous"], a["rho"], a["growth"]
+    rate = 1.0 / loop.dt
+    numbers = {
+        "rate_Hz": rate, "omega_rad_s": res.omega, "omega_dt": res.omega_dt,
+        f"samples_per_{res.span_name}": res.samples if math.isfinite(res.samples) else None,
+        "delay_ticks": loop.delay_ticks, "spectral_radius": rho,
+        "sampled_growth_rate_1_s": growth if math.isfinite(growth) else None,
+        "continuous_growth_rate_1_s": cont.real,
+    }
+    if not info["delay_known"]:
+        numbers["note"] = "the robot's delay is the hardware's: the loop is analysed without it"
+    problems = []
+    if res.refused:
+        problems.append(f"the step does not resolve the contact: {res.describe()}")
+    # Marginal loops (an undamped ideal contact, exact: |z| = 1 to rounding) count as not growing.
+    tol = 1e-9 * max(1.0, res.omega)
+    sampled_unstable, physics_unstable = growth > tol, cont.real > tol
+    if sampled_unstable != physics_unstable:
+        problems.append(
+            f"the sampled loop {'grows' if sampled_unstable else 'does not grow'} (spectral radius {rho:.9g}, "
+            f"{growth:+.4g} 1/s) while the delay equation it stands for "
+            f"{'grows' if physics_unstable else 'does not'} (rightmost root {cont.real + 0.0:+.4g} 1/s)")
+    warnings = []
+    dyn = _first(graph, "satellite_dynamics")
+    allowed = bool(dyn.params.get("allow_coarse", False))
+    if problems:
+        start = max(rate, res.fine_rate())
+        good = _stable_rate(graph, info, start, a["roots"])
+        numbers["suggested_rate_Hz"] = good
+        if good is not None:
+            line = f"{'; '.join(problems)}; run with rate:={good:g}"
+        else:
+            line = (f"{'; '.join(problems)}; no rate up to {256 * start:g} Hz fixes it with method "
+                    f"{loop.method!r}: use method:=exact")
+        if refuse and not allowed:
+            raise DockhilError(f"{graph.scene.path}: refused: {line} (or allow_coarse:=true to run anyway)")
+        warnings.append(f"ran although not resolved (allow_coarse): {line}")
+    elif res.coarse:
+        good = res.fine_rate()
+        numbers["suggested_rate_Hz"] = good
+        warnings.append(f"coarse step: {res.describe()}; the peak force errs by about "
+                        f"{40 * res.omega_dt:.2g} %; rate:={good:g} resolves it")
+    h = info["h"]
+    if loop.held and h > 0.0 and abs(loop.delay_ticks * loop.dt - h) > 1e-9 * h:
+        warnings.append(f"the delay h = {h:g} s runs as {loop.delay_ticks} ticks = {loop.delay_ticks * loop.dt:g} s "
+                        f"at {rate:g} Hz (choose a rate with a whole number of ticks in h)")
+    if physics_unstable and sampled_unstable:
+        warnings.append(f"the loop is unstable: it grows at {growth:+.4g} 1/s (spectral radius {rho:.6g}), as "
+                        f"the delay equation predicts ({cont.real:+.4g} 1/s)")
+    return {"loop": numbers, "warnings": warnings}
