@@ -207,11 +207,19 @@ def load_campaign(path: str | Path) -> Campaign:
             raise CampaignError(f"{where}: {raw.scene} has no arg {name!r}; its args: {', '.join(sorted(specs)) or 'none'}")
         return name
 
+    def check_value(name: str, value: Any, where: str) -> Any:
+        try:
+            return specs[name].check(value, where)
+        except DockhilError as exc:
+            if isinstance(value, str) and re.fullmatch(r"[-+]?[0-9.]+[eE][0-9]+", value):
+                raise CampaignError(f"{exc} (YAML reads {value} as text: write {value.replace('e', 'e+').replace('E', 'E+')})") from None
+            raise
+
     seen: dict[str, str] = {}
     fixed = {}
     for name, value in raw.args.items():
         check_name(name, f"{path}: args")
-        fixed[name] = specs[name].check(value, f"{path}: args.{name}")
+        fixed[name] = check_value(name, value, f"{path}: args.{name}")
         seen[name] = "args"
     grid = {}
     for name, axis in raw.grid.items():
@@ -219,7 +227,7 @@ def load_campaign(path: str | Path) -> Campaign:
         if name in seen:
             raise CampaignError(f"{path}: grid.{name}: {name!r} is already in `{seen[name]}:`; give it once")
         where = f"{path}: grid.{name}"
-        grid[name] = [specs[name].check(v, where) for v in _axis_values(name, axis, where)]
+        grid[name] = [check_value(name, v, where) for v in _axis_values(name, axis, where)]
         seen[name] = "grid"
     random = {}
     for name, dist in raw.random.items():
@@ -302,8 +310,16 @@ def flatten(summary: dict) -> dict:
     return out
 
 
+class Diverged(Exception):
+    pass
+
+
 def run_one(spec: dict) -> dict:
     """One composed sim-time run; returns its row. Never raises for what the run does."""
+    import warnings
+
+    import numpy as np
+
     from dockhil import launchfile, summary as summ
     from dockhil.composed import ComposedGraph
     from dockhil.graph import build
@@ -340,7 +356,16 @@ def run_one(spec: dict) -> dict:
             finally:
                 if recorder is not None:
                     recorder.close()
-        fields = flatten(summ.scene_summary(graph, collector.samples(), time.perf_counter() - sim_started))
+        samples = collector.samples()
+        bad = ~(np.isfinite(samples.p) & np.isfinite(samples.pd))
+        if bad.any():
+            raise Diverged(f"diverged: the state is not finite from t = {samples.t[np.argmax(bad)]:.6g} s on")
+        with warnings.catch_warnings():  # a diverging loop's prediction warns; its row says what happened
+            warnings.simplefilter("ignore", RuntimeWarning)
+            fields = flatten(summ.scene_summary(graph, samples, time.perf_counter() - sim_started))
+    except Diverged as exc:
+        row.update(status="failed", error=str(exc), run_time_s=time.perf_counter() - started)
+        return row
     except Exception as exc:  # a diverging or failing run is a row, never the end of the campaign
         row.update(status="failed", error=_one_line(exc), run_time_s=time.perf_counter() - started)
         return row
