@@ -398,54 +398,98 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
 
 
-def batch_size(n_runs: int, workers: int) -> int:
-    """About four batches per worker, so the load evens out, and at most 50 runs per batch."""
-    return max(1, min(50, math.ceil(n_runs / (4 * max(1, workers)))))
+class Batcher:
+    """Cuts the runs into batches sized so that one batch takes about `target_s`, from
+    the mean run time seen so far (the first batches hold one run each): per-task
+    overhead stays small for short runs, and progress and the journal stay current for
+    long ones. Near the end batches shrink so that every worker gets a share. A batch
+    whose worker was lost comes back first, RETRIES times."""
 
+    def __init__(self, specs: list[dict], workers: int, target_s: float = 2.0, max_size: int = 50):
+        from collections import deque
 
-def batches_of(specs: list[dict], size: int) -> list[list[dict]]:
-    return [specs[i:i + size] for i in range(0, len(specs), size)]
+        self.queue = deque(specs)
+        self.retry: deque = deque()  # (batch, tries so far)
+        self.workers = max(1, workers)
+        self.target_s, self.max_size = target_s, max_size
+        self.seen = 0
+        self.total_s = 0.0
+
+    def __bool__(self) -> bool:
+        return bool(self.queue or self.retry)
+
+    def next(self) -> tuple[list[dict], int] | None:
+        if self.retry:
+            return self.retry.popleft()
+        if not self.queue:
+            return None
+        size = 1 if not self.seen else int(self.target_s / max(self.total_s / self.seen, 1e-6))
+        size = max(1, min(size, self.max_size, math.ceil(len(self.queue) / self.workers)))
+        return [self.queue.popleft() for _ in range(size)], 0
+
+    def finished(self, rows: list[dict]) -> None:
+        for row in rows:
+            if row.get("run_time_s") is not None:
+                self.seen += 1
+                self.total_s += row["run_time_s"]
+
+    def lost(self, batch: list[dict], tries: int) -> list[dict] | None:
+        """Send the batch again, or (after RETRIES) its runs as failed rows."""
+        if tries < RETRIES:
+            self.retry.append((batch, tries + 1))
+            return None
+        return [failed_row(spec, f"worker lost {tries + 1} times running this batch") for spec in batch]
 
 
 class LocalPool:
-    """A process pool of `workers`; a pool broken by a lost worker is replaced and its
-    unfinished batches are sent again (RETRIES times, then their runs are failed rows)."""
+    """A process pool of `workers`, two batches in flight per worker. A pool broken by a
+    lost worker is replaced and its unfinished batches are sent again."""
 
     name = "local"
 
     def __init__(self, workers: int):
         self.workers = workers
 
-    def map(self, batches: list[list[dict]]) -> Iterator[list[dict]]:
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+    def map(self, batcher: Batcher) -> Iterator[list[dict]]:
+        from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
         from concurrent.futures.process import BrokenProcessPool
 
-        pending = dict(enumerate(batches))
-        tries = Counter()
-        while pending:
+        while batcher:
             pool = ProcessPoolExecutor(self.workers, initializer=_ignore_sigint)
-            broken = finished = False
+            in_flight: dict = {}
+            finished = False
             try:
-                futures = {pool.submit(run_batch, batch): i for i, batch in pending.items()}
-                for fut in as_completed(futures):
-                    i = futures[fut]
-                    try:
-                        rows = fut.result()
-                    except BrokenProcessPool:
-                        broken = True
+                while batcher or in_flight:
+                    while len(in_flight) < 2 * self.workers and (item := batcher.next()) is not None:
+                        in_flight[pool.submit(run_batch, item[0])] = item
+                    done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
+                    broken = False
+                    for fut in done:
+                        batch, tries = in_flight.pop(fut)
+                        try:
+                            rows = fut.result()
+                        except BrokenProcessPool:
+                            broken = True
+                            rows = batcher.lost(batch, tries)
+                        except Exception as exc:
+                            rows = [failed_row(spec, f"batch failed: {_one_line(exc)}") for spec in batch]
+                        if rows is not None:
+                            batcher.finished(rows)
+                            yield rows
+                    if broken:  # every batch still in flight is lost with the pool: send them again
+                        for fut, (batch, tries) in list(in_flight.items()):
+                            rows = batcher.lost(batch, tries)
+                            if rows is not None:
+                                yield rows
+                        in_flight.clear()
                         break
-                    except Exception as exc:
-                        rows = [failed_row(spec, f"batch failed: {_one_line(exc)}") for spec in pending[i]]
-                    del pending[i]
-                    yield rows
-                finished = not broken
-            finally:  # interrupted or broken: do not wait for the batches still running
+                else:
+                    finished = True
+            finally:
+                if not finished:  # interrupted or broken: end the workers now, not after their batches
+                    for proc in list(getattr(pool, "_processes", {}).values()):
+                        proc.terminate()
                 pool.shutdown(wait=finished, cancel_futures=True)
-            for i in list(pending):
-                tries[i] += 1
-                if tries[i] > RETRIES:
-                    yield [failed_row(spec, f"worker lost {tries[i]} times running this batch")
-                           for spec in pending.pop(i)]
 
     def close(self) -> None:
         pass
@@ -453,7 +497,8 @@ class LocalPool:
 
 class DaskExecutor:
     """Batches as Dask tasks on a cluster at `address`, or on a LocalCluster of worker
-    processes (address "local"). Dask resubmits a lost worker's tasks (retries=)."""
+    processes (address "local"), two in flight per worker. Dask resubmits a lost
+    worker's tasks itself (retries=)."""
 
     name = "dask"
 
@@ -479,22 +524,32 @@ class DaskExecutor:
         self.workers = max(1, len(self.client.scheduler_info().get("workers", {})))
         self.name = f"dask {address}"
 
-    def map(self, batches: list[list[dict]]) -> Iterator[list[dict]]:
+    def map(self, batcher: Batcher) -> Iterator[list[dict]]:
         from dask.distributed import as_completed
 
-        futures = {}
-        for i, batch in enumerate(batches):
-            fut = self.client.submit(run_batch, batch, retries=RETRIES, pure=False)
-            futures[fut] = i
+        in_flight: dict = {}
+        pending = as_completed()
+
+        def feed() -> None:
+            while len(in_flight) < 2 * self.workers and (item := batcher.next()) is not None:
+                fut = self.client.submit(run_batch, item[0], retries=RETRIES, pure=False)
+                in_flight[fut] = item[0]
+                pending.add(fut)
+
+        feed()
         try:
-            for fut in as_completed(list(futures)):
+            for fut in pending:
+                batch = in_flight.pop(fut)
                 try:
                     rows = fut.result()
                 except Exception as exc:  # e.g. KilledWorker after the retries
-                    rows = [failed_row(spec, f"task failed: {_one_line(exc)}") for spec in batches[futures[fut]]]
+                    rows = [failed_row(spec, f"task failed: {_one_line(exc)}") for spec in batch]
+                batcher.finished(rows)
                 yield rows
+                feed()
         finally:
-            self.client.cancel(list(futures))
+            if in_flight:
+                self.client.cancel(list(in_flight))
 
     def close(self) -> None:
         for thing in (getattr(self, "client", None), self.cluster):
@@ -626,9 +681,8 @@ def sweep(campaign: Campaign, results: str | Path, executor, *, progress: bool =
     executed = 0
     try:
         if todo:
-            size = batch_size(len(todo), executor.workers)
             with open(journal_path(results), "a") as journal:
-                for rows in executor.map(batches_of(todo, size)):
+                for rows in executor.map(Batcher(todo, executor.workers)):
                     for row in rows:
                         journal.write(json.dumps(row) + "\n")
                         done[row["run"]] = row
