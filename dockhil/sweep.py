@@ -381,6 +381,22 @@ def run_one(spec: dict) -> dict:
     return row
 
 
+def check_outputs(c: Campaign) -> None:
+    """Refuse `outputs:` naming no summary field: a probe of the first run for a few ticks
+    shows the scene's fields (skipped when the scene refuses that run's args)."""
+    if not c.outputs:
+        return
+    spec = {**runs(c)[0], "duration": 3.0 / c.rate, "outputs": None, "bag": None}
+    probe = run_one(spec)
+    if probe["status"] != "ok":
+        return
+    fields = [k for k in probe if k not in ("run", "sample", "args_hash", "status", "error", "run_time_s", *c.arg_names)]
+    unknown = [name for name in c.outputs if name not in fields]
+    if unknown:
+        raise CampaignError(f"{c.path}: outputs: {unknown[0]!r} is not a summary field of {Path(c.scene).name}; "
+                            f"its fields: {', '.join(fields)}")
+
+
 def run_batch(batch: list[dict]) -> list[dict]:
     return [run_one(spec) for spec in batch]
 

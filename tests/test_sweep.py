@@ -234,6 +234,7 @@ def test_a_lost_worker_s_batch_is_sent_again(tmp_path, monkeypatch):
     ("scene: stability.yaml\nargs: {k: 1.0}\ngrid: {k: [1.0]}\n", "give it once"),
     ("grid: {k: [1.0]}\n", "`scene:` is required"),
     ("scene: [\n", "not valid YAML"),
+    ("scene: stability.yaml\ngrid: {k: [5000.0]}\noutputs: [peak_force]\n", "'peak_force' is not a summary field"),
 ])
 def test_a_bad_campaign_file_is_one_line_and_exit_2(tmp_path, capsys, text, expect):
     path = tmp_path / "bad.yaml"

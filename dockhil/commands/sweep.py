@@ -65,9 +65,12 @@ def run(args) -> int:
     folder = os.path.dirname(os.path.abspath(args.out))
     if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
         raise DockhilError(f"--out {args.out}: folder {folder} does not exist or is not writable")
+    if os.path.isdir(args.out):
+        raise DockhilError(f"--out {args.out}: is a folder; give a file name, e.g. {os.path.join(args.out, 'results.parquet')}")
     from dockhil import sweep
 
     campaign = sweep.load_campaign(args.campaign)
+    sweep.check_outputs(campaign)
     if args.dask:
         executor = sweep.DaskExecutor(args.dask, args.workers)
     else:
