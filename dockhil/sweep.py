@@ -8,7 +8,7 @@ run of the scene in the worker's own process; its summary becomes one row.
 Runs go to workers in batches (a local process pool, or a Dask cluster). A
 finished batch's rows are appended to a journal next to the results at once
 (`RESULTS.parquet.partial`, JSON lines), and the Parquet file is written from
-all rows at the end or on interruption. A rerun reads both and skips every
+all rows every minute, at the end and on interruption. A rerun reads both and skips every
 run whose index and argument hash are already there.
 """
 
@@ -33,6 +33,7 @@ SHIPPED_SCENES = Path(__file__).resolve().parent.parent / "launch"
 STATUSES = ("ok", "invalid", "failed")
 RETRIES = 2  # a batch whose worker was lost is sent again this many times
 METADATA_KEY = b"dockhil.campaign"
+PARQUET_EVERY_S = 60.0  # the Parquet file is rewritten this often during a campaign (the journal at once)
 
 
 class CampaignError(DockhilError):
@@ -695,6 +696,7 @@ def sweep(campaign: Campaign, results: str | Path, executor, *, progress: bool =
     bar = SweepProgress(len(specs), skipped, stream) if progress else None
     started = time.perf_counter()
     executed = 0
+    written = started
     try:
         if todo:
             with open(journal_path(results), "a") as journal:
@@ -705,6 +707,9 @@ def sweep(campaign: Campaign, results: str | Path, executor, *, progress: bool =
                         counts[row["status"]] += 1
                     journal.flush()
                     executed += len(rows)
+                    if time.perf_counter() - written > PARQUET_EVERY_S:  # readable while the campaign runs
+                        write_parquet(results, list(done.values()), campaign)
+                        written = time.perf_counter()
                     if bar is not None:
                         bar.update(len(done), counts["failed"])
     finally:

@@ -326,3 +326,24 @@ def test_outputs_keep_only_the_named_summary_columns(tmp_path):
     assert "contact_duration_s" not in names and "growth_rate_per_s" not in names
     meta = json.loads(pq.read_table(out).schema.metadata[b"dockhil.campaign"])
     assert meta["rate"] == 1000.0 and meta["grid"] == ["k"]
+
+
+def test_bags_true_keeps_one_readable_bag_per_run(tmp_path):
+    from dockhil.bag import BagReader
+
+    campaign = write(tmp_path, """
+        scene: stability.yaml
+        args: {m: 20.0, delay: 0.016, b: 150}
+        duration: 0.05
+        grid:
+          k: [6000, 9000]
+        bags: true
+        """)
+    out = tmp_path / "r.parquet"
+    assert cli.main(["sweep", str(campaign), "--out", str(out), "--workers", "1", "--quiet"]) == 0
+    rows = rows_of(out)
+    assert [Path(r["bag"]).name for r in rows] == ["run-000000.mcap", "run-000001.mcap"]
+    for r in rows:
+        with BagReader(r["bag"]) as bag:
+            states = [m for topic, _t, m in bag.decoded(["/satellite/state"])]
+        assert len(states) == 51  # ticks 0..50 of 1 ms
