@@ -9,7 +9,7 @@ times) / runs: what batching, pickling, scheduling and idle workers cost each ru
 `speedup_2_vs_1` and `dask_vs_local_2` are the ratios of runs per second (goals: >= 1.7
 and >= 0.8). On a machine busy with other work the ratios come out lower.
 
-    python bench/sweep.py [--runs 200] [--duration 0.2]
+    python bench/sweep.py [--runs 200] [--duration 1.0]
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def measure(campaign, executor, folder: str, label: str) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=200)
-    ap.add_argument("--duration", type=float, default=0.2, help="simulated seconds per run")
+    ap.add_argument("--duration", type=float, default=1.0, help="simulated seconds per run")
     args = ap.parse_args()
     out: dict = {"runs": args.runs, "duration_s": args.duration, "cpus": sweep._cpu_count(),
                  "loadavg_1min": round(os.getloadavg()[0], 2)}
