@@ -123,14 +123,6 @@ def test_local_pool_and_dask_local_cluster_give_identical_rows(tmp_path):
                 "growth_rate_per_s", "stable"} <= set(r)
 
 
-def test_dask_local_from_the_command_line(tmp_path):
-    pytest.importorskip("dask.distributed")
-    campaign = write(tmp_path, SMALL.replace("samples: 2", "samples: 1"))
-    out = tmp_path / "r.parquet"
-    assert cli.main(["sweep", str(campaign), "--out", str(out), "--dask", "local", "--workers", "2", "--quiet"]) == 0
-    assert [r["status"] for r in rows_of(out)] == ["ok"] * 3
-
-
 def test_an_interrupted_campaign_resumes_without_rerunning_finished_rows(tmp_path):
     c = sweep.load_campaign(write(tmp_path, SMALL))
     out = tmp_path / "r.parquet"
@@ -263,9 +255,9 @@ def _has_right_half_plane_root(m: float, b: float, K: float, h: float) -> bool:
     import numpy as np
 
     R = 40.0 * math.sqrt(K / m) + 4.0 * b / m + 50.0
-    w = np.linspace(R, -R, 400001)
+    w = np.linspace(R, -R, 100001)
     s_axis = 1j * w
-    arc = R * np.exp(1j * np.linspace(-math.pi / 2, math.pi / 2, 40001))
+    arc = R * np.exp(1j * np.linspace(-math.pi / 2, math.pi / 2, 20001))
     s = np.concatenate([s_axis, arc])
     f = m * s * s + b * s + K * np.exp(-s * h)
     winding = np.sum(np.diff(np.unwrap(np.angle(f)))) / (2 * math.pi)
