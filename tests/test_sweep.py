@@ -339,3 +339,62 @@ def test_bags_true_keeps_one_readable_bag_per_run(tmp_path):
         with BagReader(r["bag"]) as bag:
             states = [m for topic, _t, m in bag.decoded(["/satellite/state"])]
         assert len(states) == 51  # ticks 0..50 of 1 ms
+
+
+@pytest.mark.wall_time
+def test_ctrl_c_ends_the_workers_keeps_the_rows_and_the_rerun_does_only_the_rest(tmp_path):
+    import signal
+    import subprocess
+    import time
+
+    import psutil
+
+    from tests.conftest import dockhil_cmd
+
+    campaign = write(tmp_path, """
+        scene: stability.yaml
+        args: {m: 20.0, delay: 0.016, b: 150}
+        duration: 2.0
+        grid:
+          k: {range: [6000, 9000], num: 60}
+        """)
+    out = tmp_path / "r.parquet"
+    proc = subprocess.Popen(dockhil_cmd("sweep", campaign, "--out", out, "--workers", "1", "--quiet"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        journal = sweep.journal_path(out)
+        while not (journal.exists() and journal.read_text().count("\n") >= 1):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.05)
+        workers = psutil.Process(proc.pid).children(recursive=True)
+        assert workers
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    assert "rerun the same command to resume" in err and "Traceback" not in err
+    gone, alive = psutil.wait_procs(workers, timeout=30)
+    assert not alive
+    done = {r["run"] for r in rows_of(out)}
+    assert 1 <= len(done) < 60 and all(r["status"] == "ok" for r in rows_of(out))
+    rerun = Counting(LocalPool(1))
+    result = sweep.sweep(sweep.load_campaign(campaign), out, rerun, progress=False)
+    assert sorted(rerun.executed) == sorted(set(range(60)) - done)
+    assert result["skipped"] == len(done) and len(rows_of(out)) == 60
+
+
+def test_the_shipped_fig7_campaign_brackets_the_boundary_at_every_point():
+    from dockhil.contact.stability import exact_bound
+
+    c = sweep.load_campaign(ROOT / "launch" / "campaigns" / "fig7.yaml")
+    assert c.total == 480 and c.fixed["m"] == 750.0
+    ks = c.grid["k"]
+    for h in c.grid["delay"]:
+        for b in c.grid["b"]:
+            k_max = exact_bound(750.0, b, h + DT / 2, damper="undelayed").k_max
+            below = [k for k in ks if k < k_max]
+            above = [k for k in ks if k > k_max]
+            assert len(below) >= 2 and len(above) >= 2, (b, h, k_max)
