@@ -312,7 +312,7 @@ def flatten(summary: dict) -> dict:
 
 
 class Diverged(Exception):
-    pass
+    """The simulated state left the finite numbers."""
 
 
 def run_one(spec: dict) -> dict:
@@ -370,13 +370,13 @@ def run_one(spec: dict) -> dict:
     except Exception as exc:  # a diverging or failing run is a row, never the end of the campaign
         row.update(status="failed", error=_one_line(exc), run_time_s=time.perf_counter() - started)
         return row
-    if spec.get("outputs") is not None:
-        fields = {k: fields.get(k) for k in spec["outputs"]}
     bad = [k for k, v in fields.items() if isinstance(v, float) and not math.isfinite(v)]
     if bad:
         row.update(status="failed", error=f"diverged: {bad[0]} is {fields[bad[0]]}")
-    elif fields.get("note"):
+    elif fields.get("note"):  # e.g. a contact shorter than one step: not resolved at this rate
         row.update(status="invalid", error=fields["note"])
+    if spec.get("outputs") is not None:
+        fields = {k: fields.get(k) for k in spec["outputs"]}
     row.update(fields)
     row["run_time_s"] = time.perf_counter() - started
     return row
