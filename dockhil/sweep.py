@@ -266,7 +266,7 @@ def runs(c: Campaign, results: str | Path | None = None) -> list[dict]:
     The random draws of run i come from the generator seeded by (seed, i) alone."""
     import numpy as np
 
-    bag_dir = None if not (c.bags and results) else Path(str(results) + ".bags")
+    bag_dir = None if not (c.bags and results) else Path(os.path.abspath(str(results) + ".bags"))  # workers' cwd may differ
     out = []
     names = list(c.grid)
     for point_index, point in enumerate(itertools.product(*c.grid.values())):
