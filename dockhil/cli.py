@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "plot": ("dockhil.commands.plot", "plot force and velocity profiles from a bag"),
     "figures": ("dockhil.commands.figures", "the paper's Figs. 7, 9, 10 and 11-12, recomputed, as PNGs"),
     "report": ("dockhil.commands.report", "error against run time, stiff and extreme cases, lean scenes"),
+    "sweep": ("dockhil.commands.sweep", "run a scene over a campaign of parameters into a Parquet table"),
 }
 
 

@@ -1,0 +1,100 @@
+"""`dockhil sweep CAMPAIGN.yaml --out RESULTS.parquet`: run a scene over a campaign of
+launch arguments; `dockhil sweep plot RESULTS.parquet --png FILE`: what the campaign found."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from dockhil.errors import DockhilError
+
+
+def add_arguments(p) -> None:
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.description = (
+        "Run a scene many times (composed, sim time) over the launch arguments a campaign\n"
+        "file gives: fixed args, a grid, random draws, samples. One Parquet row per run:\n"
+        "its args, status (ok / invalid / failed), error, run_time_s and its summary.\n"
+        "A rerun with the same --out skips the runs already done."
+    )
+    p.epilog = (
+        "campaign file:\n"
+        "  scene: stability.yaml          # shipped scene by name, or a path\n"
+        "  args: {m: 750, delay: 0.016}   # fixed launch args\n"
+        "  duration: 40                   # simulated seconds per run (default: the scene's)\n"
+        "  grid:                          # the product of all axes\n"
+        "    b: [20, 60]                  # values, or {values: [...]}\n"
+        "    k: {range: [500, 6000], num: 12}   # add log: true for a geometric range\n"
+        "  random:                        # per run: uniform [a, b], normal [mean, std], loguniform [a, b]\n"
+        "    thrust: {uniform: [8, 12]}\n"
+        "  samples: 1                     # runs per grid point\n"
+        "  seed: 0\n"
+        "  outputs: [peak_force_N, growth_rate_per_s, stable]   # summary columns to keep (default all)\n"
+        "  bags: false                    # true: one MCAP bag per run in RESULTS.parquet.bags/\n"
+        "\n"
+        "exit status: 0 every run ok or invalid (refused by the scene), 1 some run failed\n"
+        "(its row says why), 2 a bad campaign or results file, 130 interrupted (rerun to resume).\n"
+        "\n"
+        "examples:\n"
+        "  dockhil sweep launch/campaigns/fig7.yaml --out fig7.parquet\n"
+        "  dockhil sweep launch/campaigns/fig7.yaml --out fig7.parquet --dask local --workers 2\n"
+        "  dockhil sweep plot fig7.parquet --png fig7-sim.png"
+    )
+    p.add_argument("campaign", metavar="CAMPAIGN.yaml", help="the campaign file (or 'plot' to plot results)")
+    p.add_argument("results", nargs="?", metavar="RESULTS.parquet", help="with 'plot': the results to draw")
+    p.add_argument("--out", metavar="RESULTS.parquet", help="where the rows go (a rerun resumes it)")
+    p.add_argument("--workers", type=int, metavar="N",
+                   help="worker processes (default: the CPU count; with --dask ADDRESS: the cluster's)")
+    p.add_argument("--dask", metavar="ADDRESS|local",
+                   help="run on a Dask distributed scheduler (tcp://host:8786), or 'local' for a LocalCluster")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.add_argument("--png", metavar="FILE", help="with 'plot': where to write the figure")
+
+
+def run(args) -> int:
+    if args.campaign == "plot":
+        return _plot(args)
+    if args.results is not None:
+        raise DockhilError(f"unexpected {args.results!r}: give the results file with --out")
+    if not args.out:
+        raise DockhilError(f"{args.campaign}: give --out RESULTS.parquet (where the rows go)")
+    if args.workers is not None and args.workers < 1:
+        raise DockhilError(f"--workers must be >= 1, got {args.workers}")
+    import os
+
+    folder = os.path.dirname(os.path.abspath(args.out))
+    if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
+        raise DockhilError(f"--out {args.out}: folder {folder} does not exist or is not writable")
+    if os.path.isdir(args.out):
+        raise DockhilError(f"--out {args.out}: is a folder; give a file name, e.g. {os.path.join(args.out, 'results.parquet')}")
+    from dockhil import sweep
+
+    campaign = sweep.load_campaign(args.campaign)
+    sweep.check_outputs(campaign)
+    if args.dask:
+        executor = sweep.DaskExecutor(args.dask, args.workers)
+    else:
+        executor = sweep.LocalPool(args.workers or sweep._cpu_count())
+    try:
+        out = sweep.sweep(campaign, args.out, executor, progress=not args.quiet)
+    except KeyboardInterrupt:
+        print(f"dockhil sweep: interrupted; the finished runs are in {args.out}: rerun the same command to resume",
+              file=sys.stderr)
+        return 130
+    finally:
+        executor.close()
+    print(sweep.format_report(out, args.out, executor.name), flush=True)
+    return 1 if out["failed"] else 0
+
+
+def _plot(args) -> int:
+    if not args.results:
+        raise DockhilError("sweep plot: give the results file: dockhil sweep plot RESULTS.parquet --png FILE")
+    if not args.png:
+        raise DockhilError("sweep plot: give --png FILE (where to write the figure)")
+    from dockhil.sweep_plot import plot_results
+
+    for line in plot_results(args.results, args.png):
+        print(line)
+    print(f"figure written to {args.png}", file=sys.stderr)
+    return 0
