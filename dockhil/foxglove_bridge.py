@@ -48,7 +48,7 @@ class FoxgloveBridge:
     Serving starts at once; `observe` feeds it from a multi-process graph, `tap` from a composed one."""
 
     def __init__(self, topics: dict[str, str], *, sim: bool, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
-                 log: Callable[[str], None] = _log):
+                 log: Callable[[str], None] = _log, burst: int = BURST):
         try:
             import foxglove
         except ImportError:
@@ -58,6 +58,7 @@ class FoxgloveBridge:
 
         self.sim = sim
         self.log = log
+        self.burst = burst
         self.sent = 0  # messages handed to the server
         self.dropped = 0  # messages the bridge could not keep up with
         self.unencodable = 0  # not msgpack of a message with a header: not served
@@ -68,8 +69,9 @@ class FoxgloveBridge:
             self._server = foxglove.start_server(name="dockhil", host=host, port=port, context=self._context)
         except RuntimeError as exc:
             reason = str(exc).removeprefix("FoxgloveError: ")
-            raise DockhilError(f"--foxglove: cannot serve on {host}:{port}: {reason}; "
-                               f"choose a free port with --foxglove PORT") from None
+            todo = ("choose a free port with --foxglove PORT" if "in use" in reason
+                    else "give --foxglove-host an address of this machine")
+            raise DockhilError(f"--foxglove: cannot serve on {host}:{port}: {reason}; {todo}") from None
         self.host, self.port = host, self._server.port
         schemas = {}
         for type_name in set(topics.values()):
@@ -121,17 +123,22 @@ class FoxgloveBridge:
                 burst = [frames]
                 while len(burst) < DRAIN_MAX and (frames := sub.recv_nowait()) is not None:
                     burst.append(frames)
-                if len(burst) > BURST:
-                    self.dropped += len(burst) - BURST
-                    burst = burst[-BURST:]
-                for frames in burst:
-                    if len(frames) == 2:
-                        self._forward(frames[0].decode(errors="replace"), frames[1])
+                self.serve(burst)
         except DockhilError as exc:  # a peer failed the graph's authentication: serve nothing more from it
             self.error = str(exc)
             self.log(f"[foxglove] live view stopped: {exc}")
         finally:
             sub.close()
+
+    def serve(self, burst: list[list[bytes]]) -> None:
+        """Forward the messages ([topic, payload]) that came in since the last pass; of more than
+        `self.burst`, the oldest are dropped and counted: the bridge catches up instead of lagging."""
+        if len(burst) > self.burst:
+            self.dropped += len(burst) - self.burst
+            burst = burst[-self.burst:]
+        for frames in burst:
+            if len(frames) == 2:
+                self._forward(frames[0].decode(errors="replace"), frames[1])
 
     def _forward(self, topic: str, payload: bytes) -> None:
         channel = self.channels.get(topic)
