@@ -340,3 +340,48 @@ def test_a_launch_without_the_live_view_does_not_import_foxglove():
             "print('foxglove' in sys.modules)")
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=DEADLINE_S)
     assert r.stdout.strip() == "False", r.stderr
+
+
+def _resolve(schema: dict, fields: list[str]) -> dict:
+    """The schema of a field path such as ["bodies[0]", "pose", "position", "x"]."""
+    for field in fields:
+        name, _, index = field.partition("[")
+        assert name in schema.get("properties", {}), f"no field {name!r}"
+        schema = schema["properties"][name]
+        if index:
+            assert index.rstrip("]").isdigit() and schema["type"] == "array", field
+            schema = schema["items"]
+    return schema
+
+
+def test_the_shipped_layout_plots_numbers_the_scene_publishes():
+    """docs/foxglove-layout.json is a Foxglove layout (configById, layout tree, globalVariables,
+    userNodes) whose every plotted message path is a number field of a topic of launch/hil.yaml."""
+    import msgs
+    from dockhil.bag import channel_schema
+
+    layout = json.loads((ROOT / "docs" / "foxglove-layout.json").read_text())
+    assert {"configById", "layout", "globalVariables", "userNodes"} <= set(layout)
+
+    def panels(node):
+        if isinstance(node, str):
+            return [node]
+        assert node["direction"] in ("row", "column")
+        return panels(node["first"]) + panels(node["second"])
+
+    shown = panels(layout["layout"])
+    assert sorted(shown) == sorted(layout["configById"])
+    topics = scene_topics()
+    plotted = set()
+    for panel_id in shown:
+        assert panel_id.startswith("Plot!")
+        config = layout["configById"][panel_id]
+        assert config["xAxisVal"] == "timestamp" and config["paths"]
+        for path in config["paths"]:
+            topic, *fields = path["value"].split(".")
+            assert topic in topics, path["value"]
+            leaf = _resolve(channel_schema(msgs.type_by_name(topics[topic])), fields)
+            assert leaf["type"] == "number", path["value"]
+            plotted.add(path["value"])
+    assert "/ft/wrench.wrench.force.x" in plotted
+    assert {"/satellite/state.bodies[0].pose.position.x", "/satellite/state.bodies[0].twist.linear.x"} <= plotted
