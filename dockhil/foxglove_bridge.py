@@ -147,6 +147,8 @@ class FoxgloveBridge:
         try:
             message = self._from_wire(payload)
             log_ns = round(message["header"]["stamp"] * 1e9) if self.sim else time.time_ns()
+            if not 0 <= log_ns < 2**64:
+                raise ValueError(log_ns)
             data = self._to_json(message)
         except (msgspec.DecodeError, msgspec.EncodeError, TypeError, KeyError, ValueError, OverflowError):
             self.unencodable += 1
