@@ -20,7 +20,9 @@ from dockhil.graph import Graph
 
 def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None, composed: bool = False,
               transport: str = "ipc", bag: str | None = None, summary: str | None = None,
-              progress: bool = False, show_summary: bool = True, realtime: bool = False) -> int:
+              progress: bool = False, show_summary: bool = True, realtime: bool = False,
+              foxglove: tuple[str, int] | None = None) -> int:
+    """foxglove: (host, port) to serve a live view of the run on (dockhil.foxglove_bridge)."""
     from dockhil import summary as summ
 
     dt = graph.scene.dt
@@ -36,12 +38,18 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
         print(f"[launch] warning: {line}", file=sys.stderr)
     collector = summ.SummaryCollector(graph) if want_summary else None
     tmp = None
+    bridge = None
+    if foxglove is not None:  # before any node starts: a busy port is refused here
+        from dockhil.foxglove_bridge import start
+
+        bridge = start(graph, clock=clock, host=foxglove[0], port=foxglove[1])
     started = time.perf_counter()
     if composed:
-        code = _run_composed(graph, clock, n_ticks, progress, bag, collector)
+        code = _run_composed(graph, clock, n_ticks, progress, bag, collector, bridge)
     else:
         from dockhil import bag_live
         from dockhil.launcher import Launcher
+        from dockhil.transport import GraphKeys
 
         if bag is None and want_summary:
             tmp = tempfile.TemporaryDirectory(prefix="dockhil-summary-")
@@ -50,9 +58,14 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
         if bag is not None:
             bag_live.check_bag_path(bag)  # a bag that cannot be written fails the launch before any node runs
             extra.append(bag_live.recorder_process(bag, graph, clock, n_ticks))
-        code = Launcher(graph, clock=clock, duration=duration, transport=transport, extra=extra,
-                        progress=progress, realtime=realtime).run()
+        launcher = Launcher(graph, clock=clock, duration=duration, transport=transport, extra=extra,
+                            progress=progress, realtime=realtime)
+        if bridge is not None:
+            bridge.observe(launcher.endpoints.topics, GraphKeys.read(launcher.endpoints.key_file))
+        code = launcher.run()
     elapsed = time.perf_counter() - started
+    if bridge is not None:
+        bridge.close()
     try:
         if code == 0 and want_summary:
             if not composed:
@@ -83,7 +96,7 @@ def _check_writable(path: str) -> None:
 
 
 def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool, bag: str | None,
-                  collector) -> int:
+                  collector, bridge=None) -> int:
     from dockhil.composed import ComposedGraph
     from dockhil.executor import Stop
     from dockhil.progress import Progress
@@ -99,6 +112,8 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
         g.taps.append(recorder)
     if collector is not None:
         g.taps.append(collector)
+    if bridge is not None:
+        g.taps.append(bridge.tap)
     bar = Progress(n_ticks, graph.scene.dt) if progress and clock == "sim" else None
     try:
         g.setup()

@@ -26,6 +26,20 @@ def add_arguments(p) -> None:
     p.add_argument("--quiet", action="store_true", help="print no progress and no summary table")
     p.add_argument("--realtime", action="store_true",
                    help="wall time: run node loops with real-time (SCHED_FIFO) priority where the OS allows")
+    p.add_argument("--foxglove", nargs="?", const=8765, type=_port, metavar="PORT",
+                   help="serve every topic live to Foxglove over WebSocket on PORT (default 8765); "
+                        "layout: docs/foxglove-layout.json")
+    p.add_argument("--foxglove-host", metavar="HOST",
+                   help="address the Foxglove server binds (default 127.0.0.1: this machine only)")
+
+
+def _port(text: str) -> int:
+    import argparse
+
+    if not text.isdigit() or not 1 <= int(text) <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number (1-65535); "
+                                         f"give --foxglove PORT, or put --foxglove after the launch arguments")
+    return int(text)
 
 
 def run(args) -> int:
@@ -38,9 +52,12 @@ def run(args) -> int:
         raise LaunchError(f"--duration must be a positive number of seconds, got {duration}")
     if args.clock == "sim" and duration is None:
         raise LaunchError(f"{args.file}: sim time needs a run length: give --duration S or `duration:` in the file")
+    if args.foxglove_host is not None and args.foxglove is None:
+        raise LaunchError("--foxglove-host needs --foxglove [PORT]")
     graph = build(scene)
     from dockhil.session import run_scene
 
     return run_scene(graph, clock=args.clock, duration=duration, composed=args.composed,
                      transport=args.transport, bag=args.bag, summary=args.summary,
-                     progress=not args.quiet, show_summary=not args.quiet, realtime=args.realtime)
+                     progress=not args.quiet, show_summary=not args.quiet, realtime=args.realtime,
+                     foxglove=None if args.foxglove is None else (args.foxglove_host or "127.0.0.1", args.foxglove))
