@@ -323,6 +323,9 @@ def record(args: argparse.Namespace) -> int:
     if why == "the graph stopped":
         _log("the recorded graph stopped")
     recorder.close()
+    if recorder.lost:
+        _log(f"error: {recorder.lost} message(s) lost; the recording is incomplete")
+        return RECORDER_LOST_EXIT
     return 0
 
 
@@ -381,9 +384,16 @@ class TapRecorder:
         except BagError as exc:
             self.error = str(exc)
             self.log(f"error: {exc}")
-        lost = self.dropped + self.bag.messages_written - self.bag.messages_flushed
         self.log(f"recorded {self.bag.messages_flushed} messages on {len(self.bag.topics)} topics to {self.path}; "
-                 f"{lost} lost" + (" (recording stopped early, see above)" if self.error else ""))
+                 f"{self.lost} lost" + (" (recording stopped early, see above)" if self.error else ""))
+
+    @property
+    def lost(self) -> int:
+        """Messages handed to the recorder that are not on disk."""
+        return self.dropped + self.bag.messages_written - self.bag.messages_flushed
+
+
+RECORDER_LOST_EXIT = 4  # the recorder process: it ran, but messages are missing from the bag
 
 
 def _recorder_main(argv: list[str]) -> int:
@@ -421,6 +431,9 @@ def _recorder_main(argv: list[str]) -> int:
     run_id = next(iter(sources.values())).run_id if sources else None
     recorder.run(stop, alive=lambda: _alive(args.graph_pid) and (run_id is None or _graph_running(args.graph_pid, run_id)))
     recorder.close()
+    if recorder.lost:  # a recording that misses messages is not the run: fail, with the count
+        out(f"error: {recorder.lost} message(s) lost; the recording of this run is incomplete")
+        return RECORDER_LOST_EXIT
     return 0
 
 

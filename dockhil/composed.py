@@ -13,7 +13,7 @@ import time
 from collections import deque
 from typing import Any, Callable
 
-from dockhil.executor import Stop, _sleep_until, check_outputs
+from dockhil.executor import LoopTiming, Stop, _sleep_until, check_outputs, checked_payload
 from dockhil.graph import Graph
 from dockhil.node import NodeContext, Tick
 
@@ -34,6 +34,7 @@ class ComposedGraph:
                 depth[ref.topic] = max(depth.get(ref.topic, 0), ref.lag)
         self.history = {topic: deque([None] * (depth.get(topic, 0) + 1), maxlen=depth.get(topic, 0) + 1)
                         for topic in graph.publishers}
+        self.timing: LoopTiming | None = None  # wall time: the one loop's figures, for validity
         self.plan = []  # (name, node, [(port, history, lag)], [(port, topic, history)], declared outputs)
         for name in graph.order:
             gn = graph.nodes[name]
@@ -70,8 +71,11 @@ class ComposedGraph:
         dt = self.dt
         t0 = time.monotonic()
         histories = list(self.history.values())
+        timing = self.timing = LoopTiming([], period=dt) if wall else None
         k = 0
         while (n_ticks is None or k < n_ticks) and not stop.requested:
+            if wall:
+                timing.started(time.monotonic() - (t0 + k * dt))
             tick = Tick(k, (time.monotonic() - t0) if wall else k * dt, dt, stamp=time.time() if wall else None)
             for hist in histories:  # a slot for this tick; stays None if nothing is sent
                 hist.append(hist[-1] if wall else None)
@@ -83,6 +87,7 @@ class ComposedGraph:
                 for port, topic, hist in outs_map:
                     msg = outs.get(port)
                     if msg is not None:
+                        checked_payload(name, port, topic, k, msg)  # as a node process does before it sends
                         hist[-1] = msg
                         for tap in self.taps:
                             tap(topic, msg)
@@ -90,5 +95,9 @@ class ComposedGraph:
             if progress is not None:
                 progress(k)
             if wall:
+                if time.monotonic() > t0 + k * dt:
+                    timing.missed()
                 _sleep_until(t0 + k * dt)
+        if wall:
+            timing.ticks, timing.elapsed = k, time.monotonic() - t0
         return k

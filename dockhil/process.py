@@ -43,7 +43,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
     """Set up and run one node until its ticks are done or a stop is requested."""
     import nodes
     from dockhil.errors import DockhilError
-    from dockhil.executor import NodeExecutor, Stop
+    from dockhil.executor import TIMING, NodeExecutor, Stop
 
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
     stop = Stop()
@@ -85,6 +85,11 @@ def run_node(spec, log=None, on_ready=None) -> int:
                 executor.close()
             except Exception as exc:  # closing must not hide the first error
                 log(f"error while closing: {type(exc).__name__}: {exc}")
+            timing = getattr(executor, "timing", None)
+            if timing is not None:  # wall time: the launcher judges the run's validity on these figures
+                import json
+
+                print(TIMING + json.dumps(timing.report(spec.name)), flush=True)
     if executor.dropped:
         log(f"{executor.dropped} bad message(s) dropped")
     return 0

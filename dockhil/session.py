@@ -4,6 +4,11 @@ A sim-time run of a scene with satellite dynamics ends with its summary
 (peak force, contact duration, exit velocity, and the ideal model's where
 the scene has one). In a multi-process run the summary is read back from
 the run's bag: the one asked for with --bag, or a temporary one.
+
+Exit 0 means the result is valid (dockhil/validity.py): a wall-time run
+that fell behind, or any run that lost messages, says INVALID in one line,
+carries "valid": false and its reasons in the summary, and exits with
+INVALID_EXIT (3).
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ import sys
 import tempfile
 import time
 
+from dockhil import validity
 from dockhil.errors import DockhilError
 from dockhil.graph import Graph
 
@@ -35,8 +41,9 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     collector = summ.Collector(ideal_force, dt) if want_summary else None
     tmp = None
     started = time.perf_counter()
+    reasons: list[str] = []
     if composed:
-        code = _run_composed(graph, clock, n_ticks, progress, bag, collector)
+        code = _run_composed(graph, clock, n_ticks, progress, bag, collector, reasons)
     else:
         from dockhil import bag_live
         from dockhil.launcher import Launcher
@@ -48,13 +55,20 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
         if bag is not None:
             bag_live.check_bag_path(bag)  # a bag that cannot be written fails the launch before any node runs
             extra.append(bag_live.recorder_process(bag, graph, clock, n_ticks))
-        code = Launcher(graph, clock=clock, duration=duration, transport=transport, extra=extra,
-                        progress=progress, realtime=realtime).run()
+        launcher = Launcher(graph, clock=clock, duration=duration, transport=transport, extra=extra,
+                            progress=progress, realtime=realtime)
+        code = launcher.run()
+        if code == 0 and clock == "wall":
+            reasons += validity.wall_time_reasons(launcher.timings, list(graph.nodes), dt)
     elapsed = time.perf_counter() - started
+    if code == 0 and reasons:
+        code = validity.INVALID_EXIT
     try:
-        if code == 0 and want_summary:
+        if code in (0, validity.INVALID_EXIT) and want_summary:
             samples = collector.samples() if composed else summ.samples_from_bag(bag, ideal_force, dt)
             out = summ.scene_summary(graph, samples, elapsed)
+            out["valid"] = not reasons
+            out["invalid_reasons"] = list(reasons)
             if show_summary:
                 print(summ.format_summary(out), flush=True)
             if summary is not None:
@@ -68,6 +82,8 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     finally:
         if tmp is not None:
             tmp.cleanup()
+    if reasons and code == validity.INVALID_EXIT:
+        print(f"[launch] {validity.invalid_line(reasons)} (exit {validity.INVALID_EXIT})", file=sys.stderr, flush=True)
     return code
 
 
@@ -80,7 +96,7 @@ def _check_writable(path: str) -> None:
 
 
 def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool, bag: str | None,
-                  collector) -> int:
+                  collector, reasons: list[str]) -> int:
     from dockhil.composed import ComposedGraph
     from dockhil.executor import Stop
     from dockhil.progress import Progress
@@ -111,4 +127,12 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
         finally:
             if recorder is not None:
                 recorder.close()
-    return 130 if stop.requested else 0
+    if stop.requested:
+        return 130
+    if recorder is not None and recorder.lost:
+        print(f"[launch] error: the recorder lost {recorder.lost} message(s) ({bag}); the run is not complete",
+              file=sys.stderr)
+        return 1
+    if g.timing is not None:
+        reasons += validity.node_reasons(g.timing.report("composed"), graph.scene.dt)
+    return 0
