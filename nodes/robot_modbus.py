@@ -286,6 +286,7 @@ class RobotModbusDriver(Node):
         self._last_cmd_at: float | None = None  # when the last fresh command arrived
         self._sent: tuple[tuple[float, float, float], float] | None = None  # last setpoint handed over, when
         self._seen_readings = 0
+        self._reconnects_seen = 0
         self._status_word = None
         self.heartbeat_losses = 0
         client = ModbusTcpClient(p.host, port=p.port, timeout=p.timeout, retries=0)
@@ -344,6 +345,11 @@ class RobotModbusDriver(Node):
 
         ft_fresh = self._check_wrench(inputs.get("wrench"), t)
 
+        if not link.connected or link.reconnects != self._reconnects_seen:
+            # After a loss the controller holds until a fresh setpoint: the next step is judged from
+            # where the robot stands (max_following_error), not from a setpoint of the old connection.
+            self._reconnects_seen = link.reconnects
+            self._sent = None
         cmd = inputs.get("command")
         if cmd is not None and (self._last_cmd is None or _key(cmd) != _key(self._last_cmd)):
             self._check_command(cmd, link.latest()[1])
