@@ -45,7 +45,8 @@ class PortWire:
     type: str  # wire type name, e.g. dockhil/WrenchStamped
     lag: int = 0  # inputs: ticks between the message read and the tick computed
     subscribers: int = 0  # outputs: how many subscriptions to await in sim time
-    max_age: float | None = None  # inputs, wall time [s]: overrides the node's declaration (inf: no limit)
+    max_age: float | None = None  # inputs, wall time [s]: overrides the node's declaration
+    unlimited_age: bool = False  # inputs: no maximum age (a publisher the launcher respawns may pause)
 
 
 @dataclass
@@ -130,7 +131,8 @@ class NodeExecutor:
         ins, outs = node_cls.ports(vars(self.node.p))
         self.outputs = outs
         # Wall time: how long each input's latest message may be used after it arrived.
-        self.max_age = {port: wire.max_age if wire.max_age is not None else ins[port].age_limit(spec.dt)
+        self.max_age = {port: math.inf if wire.unlimited_age else
+                        wire.max_age if wire.max_age is not None else ins[port].age_limit(spec.dt)
                         for port, wire in spec.inputs.items() if port in ins}
         self.unconnected = [port for port in ins if port not in spec.inputs]
         self.in_types = {port: ins[port].type for port in spec.inputs}

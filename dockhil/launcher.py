@@ -10,7 +10,6 @@ so that `dockhil topic` and `dockhil node` can find it.
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import signal
@@ -95,7 +94,7 @@ def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extr
         gn = graph.nodes[name]
         inputs = {
             port: PortWire(ref.topic, ep.topics[ref.topic], ep.types[ref.topic], ref.lag,
-                           max_age=math.inf if ref.topic in respawned else None)
+                           unlimited_age=ref.topic in respawned)
             for port, ref in gn.inputs.items()
             if ref.topic in ep.topics
         }

@@ -47,6 +47,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     else:
         from dockhil import bag_live
         from dockhil.launcher import Launcher
+        from dockhil.launcher import is_local as launcher_is_local
 
         if bag is None and want_summary:
             tmp = tempfile.TemporaryDirectory(prefix="dockhil-summary-")
@@ -59,7 +60,9 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
                             progress=progress, realtime=realtime)
         code = launcher.run()
         if code == 0 and clock == "wall":
-            reasons += validity.wall_time_reasons(launcher.timings, list(graph.nodes), dt)
+            devices = {name: gn.cls.free_running for name, gn in graph.nodes.items() if not gn.host or
+                       launcher_is_local(gn.host)}
+            reasons += validity.wall_time_reasons(launcher.timings, devices, dt)
     elapsed = time.perf_counter() - started
     if code == 0 and reasons:
         code = validity.INVALID_EXIT

@@ -1,7 +1,7 @@
 """F/T sensor driver over CAN (python-can): publishes /ft/wrench from the sensor's frames.
 
 The frame layout is in dockhil/hardware/ft_frames.py. The stale-data
-watchdog runs on the runtime's clock (`ctx.clock`). python-can is imported
+watchdog runs on the runtime's clock (tick.t), never on time.*. python-can is imported
 in setup(), so a scene that does not use this driver never loads it.
 """
 
@@ -180,7 +180,7 @@ class FtCanDriver(Node):
 
     def step(self, tick, inputs):
         samples = self._read_samples()
-        t = self.ctx.clock()  # the runtime's clock: a test steps it, so "stale after 0.1 s" is exact
+        t = tick.t  # the runtime's clock (a test chooses it), so "stale after 0.1 s" is decided exactly
         if self._last_fresh_t is None:
             self._last_fresh_t = t  # the stale clock starts with the first tick
         if not samples:
