@@ -95,8 +95,9 @@ class ComposedGraph:
             if progress is not None:
                 progress(k)
             if wall:
-                if time.monotonic() > t0 + k * dt:
-                    timing.missed()
+                over = time.monotonic() - (t0 + k * dt)
+                if over > 0:
+                    timing.missed(over)
                 _sleep_until(t0 + k * dt)
         if wall:
             timing.ticks, timing.elapsed = k, time.monotonic() - t0
