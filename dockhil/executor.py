@@ -130,10 +130,19 @@ class NodeExecutor:
         self.node = node_cls(NodeContext(spec.name, spec.dt, spec.clock == "sim", self.log, clock), **spec.params)
         ins, outs = node_cls.ports(vars(self.node.p))
         self.outputs = outs
-        # Wall time: how long each input's latest message may be used after it arrived.
-        self.max_age = {port: math.inf if wire.unlimited_age else
-                        wire.max_age if wire.max_age is not None else ins[port].age_limit(spec.dt)
-                        for port, wire in spec.inputs.items() if port in ins}
+        # Wall time: how long each input's latest message may be used after it arrived. A free-running
+        # node stands for a device (an emulated sensor): like the physics it stands for, it goes on
+        # from the last value unless it declares a limit; the drivers' watchdogs judge what it delivers.
+        def limit(port: str, wire: PortWire) -> float:
+            if wire.unlimited_age:
+                return math.inf
+            if wire.max_age is not None:
+                return wire.max_age
+            if node_cls.free_running and ins[port].max_age is None:
+                return math.inf
+            return ins[port].age_limit(spec.dt)
+
+        self.max_age = {port: limit(port, wire) for port, wire in spec.inputs.items() if port in ins}
         self.unconnected = [port for port in ins if port not in spec.inputs]
         self.in_types = {port: ins[port].type for port in spec.inputs}
         self.ctx = zmq.Context.instance()
