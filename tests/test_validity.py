@@ -318,3 +318,44 @@ def test_sim_time_waits_for_a_slow_subscriber_and_loses_nothing(tmp_path):
         sub.close()
         pub.close()
         ctx.term()
+
+
+@pytest.mark.wall_time
+def test_a_stopped_composed_wall_time_run_is_invalid_in_its_summary(tmp_path):
+    """SIGSTOP of the whole (composed) graph for 0.5 s: nothing goes stale inside one loop, but the
+    loop fell half a second behind: the summary says so, the table says INVALID, exit 3."""
+    import json
+    import signal
+    import time
+
+    import threading
+
+    out = tmp_path / "s.json"
+    p = subprocess.Popen(dockhil_cmd("launch", "launch/hil.yaml", "--composed", "--wall-time", "--duration", "3",
+                                     "--summary", out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(iter(p.stdout.readline, "")), daemon=True)
+    reader.start()
+    try:
+        deadline = time.monotonic() + 60
+        while not any("impedance (closed form" in line for line in lines):  # the last line of set-up
+            assert time.monotonic() < deadline and p.poll() is None, lines
+            time.sleep(0.02)
+        time.sleep(0.3)  # in the loop, which runs 3 s
+        p.send_signal(signal.SIGSTOP)
+        time.sleep(0.5)
+        p.send_signal(signal.SIGCONT)
+        p.wait(timeout=120)
+        stderr = p.stderr.read()
+        reader.join(10)
+        stdout = "".join(lines)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 3, stdout + stderr
+    summary = json.loads(out.read_text())
+    assert summary["valid"] is False
+    assert any("node 'composed': a tick started" in r and "late" in r for r in summary["invalid_reasons"]), summary
+    invalid = [line for line in (stdout + stderr).splitlines() if "INVALID" in line]
+    assert len(invalid) == 1 and invalid[0].startswith("[launch] INVALID: node 'composed'")
+    assert "peak force" in stdout  # the table is still there, with the line that says what it is worth
