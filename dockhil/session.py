@@ -63,6 +63,8 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
             devices = {name: gn.cls.free_running for name, gn in graph.nodes.items() if not gn.host or
                        launcher_is_local(gn.host)}
             reasons += validity.wall_time_reasons(launcher.timings, devices, dt)
+        elif code == 0:
+            reasons += validity.sim_time_reasons(launcher.timings)
     elapsed = time.perf_counter() - started
     if code == 0 and reasons:
         code = validity.INVALID_EXIT

@@ -49,6 +49,11 @@ def wall_time_reasons(timings: dict[str, dict], expected: dict[str, bool], dt: f
     return reasons
 
 
+def sim_time_reasons(timings: dict[str, dict]) -> list[str]:
+    """Lock-step cannot fall behind: a sim-time run is judged only on messages it lost."""
+    return [r for t in timings.values() for r in message_reasons(t)]
+
+
 def node_reasons(t: dict, dt: float, device: bool = False) -> list[str]:
     name = t["node"]
     out = [] if device else schedule_reasons(t, dt)
@@ -56,6 +61,11 @@ def node_reasons(t: dict, dt: float, device: bool = False) -> list[str]:
         limit = (t.get("max_age_s") or {}).get(port)
         if limit is not None and age > limit:
             out.append(f"node {name!r}: input {port!r} was used {age:.3f} s old (> max_age {limit:g} s)")
+    return out + message_reasons(t)
+
+
+def message_reasons(t: dict) -> list[str]:
+    name, out = t["node"], []
     if t.get("dropped_out"):
         out.append(f"node {name!r} dropped {t['dropped_out']} output message(s): a subscriber did not keep up")
     if t.get("dropped_in"):
