@@ -13,7 +13,7 @@ import time
 from collections import deque
 from typing import Any, Callable
 
-from dockhil.executor import LoopTiming, Stop, _sleep_until, check_outputs, checked_payload
+from dockhil.executor import LoopTiming, Stop, _sleep_until, check_message, check_outputs
 from dockhil.graph import Graph
 from dockhil.node import NodeContext, Tick
 
@@ -87,7 +87,7 @@ class ComposedGraph:
                 for port, topic, hist in outs_map:
                     msg = outs.get(port)
                     if msg is not None:
-                        checked_payload(name, port, topic, k, msg)  # as a node process does before it sends
+                        check_message(name, port, topic, k, msg)  # as a node process does before it sends
                         hist[-1] = msg
                         for tap in self.taps:
                             tap(topic, msg)

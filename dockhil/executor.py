@@ -96,6 +96,47 @@ def checked_payload(name: str, port: str, topic: str, k: int, msg) -> bytes:
     return payload
 
 
+def check_message(name: str, port: str, topic: str, k: int, msg) -> None:
+    """What checked_payload checks, for a message that is not sent (composed runs): the numeric
+    bounds of the type first (a generated expression, twice as fast as encoding and decoding);
+    on a failure, the same check and line as a node process gives."""
+    if not _bounds_check(type(msg))(msg):
+        checked_payload(name, port, topic, k, msg)
+
+
+_MAX_FLOAT = 1.7976931348623157e308
+_BOUNDS_CHECKS: dict[type, Any] = {}
+
+
+def _bounds_check(cls: type):
+    check = _BOUNDS_CHECKS.get(cls)
+    if check is None:
+        import msgspec.inspect as mi
+
+        expr = _bounds_expr(mi, mi.type_info(cls), "m") or "True"
+        check = _BOUNDS_CHECKS[cls] = eval(f"lambda m: {expr}")  # noqa: S307 - built from the type, not input
+    return check
+
+
+def _bounds_expr(mi, t, var: str, depth: int = 0) -> str | None:
+    """A Python expression, true when every number under `var` is finite and within its type's bounds."""
+    if isinstance(t, mi.Metadata):
+        t = t.type
+    if isinstance(t, (mi.FloatType, mi.IntType)):
+        conds = [f"{var} - {var} == 0"] if isinstance(t, mi.FloatType) else []  # NaN and Inf fail
+        for op, bound in ((">=", t.ge), (">", t.gt), ("<=", t.le), ("<", t.lt)):
+            if bound is not None and abs(bound) != _MAX_FLOAT:
+                conds.append(f"{var} {op} {bound!r}")
+        return " and ".join(conds) or None
+    if isinstance(t, mi.StructType):
+        parts = [e for f in t.fields if (e := _bounds_expr(mi, f.type, f"{var}.{f.name}", depth))]
+        return " and ".join(f"({p})" for p in parts) or None
+    if isinstance(t, (mi.ListType, mi.VarTupleType)):
+        inner = _bounds_expr(mi, t.item_type, f"_i{depth}", depth + 1)
+        return f"all({inner} for _i{depth} in {var})" if inner else None
+    return None
+
+
 def check_outputs(name: str, declared: dict, k: int, outs: dict, sim: bool) -> None:
     """Refuse outputs a node did not declare, of the wrong type, or stamped with another tick."""
     for port, msg in outs.items():
