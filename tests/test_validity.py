@@ -359,3 +359,35 @@ def test_a_stopped_composed_wall_time_run_is_invalid_in_its_summary(tmp_path):
     invalid = [line for line in (stdout + stderr).splitlines() if "INVALID" in line]
     assert len(invalid) == 1 and invalid[0].startswith("[launch] INVALID: node 'composed'")
     assert "peak force" in stdout  # the table is still there, with the line that says what it is worth
+
+
+def test_the_composed_bounds_check_refuses_what_a_reader_refuses():
+    """A composed run checks outputs with an expression generated from the type; a node process
+    decodes what it sends. Both must refuse the same messages, with the same line."""
+    import math
+
+    import msgs
+    from dockhil.executor import check_message, checked_payload
+    from msgs import BodyState, BodyWrenches, Pose, SatelliteState, Twist
+
+    def body(mass=1.0, vx=0.0):
+        return BodyState(name="b", mass=mass, pose=Pose(), twist=Twist(linear=Vector3(x=vx)))
+
+    good = [msgs.TYPES[name](header=Header()) for name in msgs.TYPES] + [
+        SatelliteState(header=Header(stamp=2.0), bodies=[body(), body(0.0, -1e300)]),
+        BodyWrenches(header=Header(), wrenches=[Wrench(force=Vector3(x=1e308, y=-1e308))])]
+    bad = [SatelliteState(header=Header(), bodies=[body(), body(vx=math.inf)]),
+           SatelliteState(header=Header(), bodies=[body(mass=-1.0)]),
+           BodyWrenches(header=Header(), wrenches=[Wrench(), Wrench(torque=Vector3(z=math.nan))]),
+           WrenchStamped(header=Header(stamp=math.nan)),
+           WrenchStamped(header=Header(seq=-1))]
+    for msg in good:
+        check_message("n", "p", "/t", 0, msg)
+        checked_payload("n", "p", "/t", 0, msg)
+    for msg in bad:
+        with pytest.raises(DockhilError) as composed:
+            check_message("n", "p", "/t", 3, msg)
+        with pytest.raises(DockhilError) as process:
+            checked_payload("n", "p", "/t", 3, msg)
+        assert str(composed.value) == str(process.value)
+        assert str(process.value).startswith("node 'n' produced an invalid message at tick 3 on output 'p' (/t): ")
