@@ -21,7 +21,9 @@ Tap = Callable[[str, Any], None]  # (topic, message)
 
 
 class ComposedGraph:
-    def __init__(self, graph: Graph, *, sim_time: bool = True, log=None, taps: list[Tap] | None = None):
+    def __init__(self, graph: Graph, *, sim_time: bool = True, log=None, taps: list[Tap] | None = None,
+                 clock: Callable[[], float] = time.monotonic):
+        self.clock = clock  # wall time: the runtime's clock, handed to every node
         self.graph = graph
         self.dt = graph.scene.dt
         self.taps = taps or []
@@ -38,7 +40,7 @@ class ComposedGraph:
         self.plan = []  # (name, node, [(port, history, lag)], [(port, topic, history)], declared outputs)
         for name in graph.order:
             gn = graph.nodes[name]
-            ctx = NodeContext(name, self.dt, sim_time, lambda m, n=name: self.log(n, m))
+            ctx = NodeContext(name, self.dt, sim_time, lambda m, n=name: self.log(n, m), clock)
             node = gn.cls(ctx, **gn.params)
             self.nodes[name] = node
             _, outs = gn.cls.ports(gn.params)
@@ -69,14 +71,15 @@ class ComposedGraph:
         message has been appended (or before it, for L >= 1)."""
         stop = stop or Stop()
         dt = self.dt
-        t0 = time.monotonic()
+        clock = self.clock
+        t0 = clock()
         histories = list(self.history.values())
         timing = self.timing = LoopTiming([], period=dt) if wall else None
         k = 0
         while (n_ticks is None or k < n_ticks) and not stop.requested:
             if wall:
-                timing.started(time.monotonic() - (t0 + k * dt))
-            tick = Tick(k, (time.monotonic() - t0) if wall else k * dt, dt, stamp=time.time() if wall else None)
+                timing.started(clock() - (t0 + k * dt))
+            tick = Tick(k, (clock() - t0) if wall else k * dt, dt, stamp=time.time() if wall else None)
             for hist in histories:  # a slot for this tick; stays None if nothing is sent
                 hist.append(hist[-1] if wall else None)
             for name, node, ins, outs_map, declared in self.plan:
@@ -95,10 +98,10 @@ class ComposedGraph:
             if progress is not None:
                 progress(k)
             if wall:
-                over = time.monotonic() - (t0 + k * dt)
+                over = clock() - (t0 + k * dt)
                 if over > 0:
                     timing.missed(over)
-                _sleep_until(t0 + k * dt)
+                _sleep_until(t0 + k * dt, clock)
         if wall:
-            timing.ticks, timing.elapsed = k, time.monotonic() - t0
+            timing.ticks, timing.elapsed = k, clock() - t0
         return k
