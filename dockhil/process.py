@@ -86,7 +86,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
             except Exception as exc:  # closing must not hide the first error
                 log(f"error while closing: {type(exc).__name__}: {exc}")
             timing = getattr(executor, "timing", None)
-            if timing is not None:  # wall time: the launcher judges the run's validity on these figures
+            if timing is not None:  # the launcher judges the run's validity on these figures
                 import json
 
                 print(TIMING + json.dumps(timing.report(spec.name)), flush=True)

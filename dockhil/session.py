@@ -60,8 +60,8 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
                             progress=progress, realtime=realtime)
         code = launcher.run()
         if code == 0 and clock == "wall":
-            devices = {name: gn.cls.free_running for name, gn in graph.nodes.items() if not gn.host or
-                       launcher_is_local(gn.host)}
+            # Nodes on other hosts report to nobody here; a free-running node is an emulated device.
+            devices = {name: gn.cls.free_running for name, gn in graph.nodes.items() if launcher_is_local(gn.host)}
             reasons += validity.wall_time_reasons(launcher.timings, devices, dt)
         elif code == 0:
             reasons += validity.sim_time_reasons(launcher.timings)
@@ -87,8 +87,8 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     finally:
         if tmp is not None:
             tmp.cleanup()
-    if reasons and code == validity.INVALID_EXIT:
-        print(f"[launch] {validity.invalid_line(reasons)} (exit {validity.INVALID_EXIT})", file=sys.stderr, flush=True)
+    if reasons and code == validity.INVALID_EXIT:  # one line, right under the summary table where there is one
+        print(f"[launch] {validity.invalid_line(reasons)} (exit {validity.INVALID_EXIT})", flush=True)
     return code
 
 
