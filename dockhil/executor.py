@@ -354,7 +354,7 @@ class NodeExecutor:
                 next_t += period
                 late = clock() - next_t
                 if late > 0:
-                    timing.missed(late)
+                    timing.missed(late if k > 1 else 0.0)  # the first tick has no schedule to keep
                     if late > period:  # fell far behind: skip, do not burst to catch up
                         next_t = clock() + period
                 else:
