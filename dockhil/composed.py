@@ -100,7 +100,7 @@ class ComposedGraph:
             if wall:
                 over = clock() - (t0 + k * dt)
                 if over > 0:
-                    timing.missed(over)
+                    timing.missed(over if k > 1 else 0.0)  # the first tick has no schedule to keep
                 _sleep_until(t0 + k * dt, clock)
         if wall:
             timing.ticks, timing.elapsed = k, clock() - t0
