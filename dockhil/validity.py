@@ -32,7 +32,7 @@ from dockhil.node import default_max_age
 
 INVALID_EXIT = 3  # the run completed, but its result is not valid (see the reasons printed)
 
-MIN_COVERED = 0.90
+MIN_COVERED = 0.80
 MAX_MISS_RATIO = 0.25
 
 

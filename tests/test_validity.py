@@ -53,7 +53,7 @@ def test_a_run_that_fell_behind_is_invalid_with_the_figures():
     # The reported failure: 1.666 s simulated in 6.19 s.
     reasons = validity.node_reasons(figures(ticks=1666, covered_s=1.666, elapsed_s=6.19), 0.001)
     assert reasons == ["node 'dynamics' simulated 1.666 s in 6.190 s of wall time "
-                       "(fell behind real time; at least 90% needed)"]
+                       "(fell behind real time; at least 80% needed)"]
 
 
 def test_lateness_misses_ages_and_drops_each_make_a_run_invalid():
@@ -102,7 +102,7 @@ def test_a_stalled_tick_shows_as_lateness_and_lost_coverage_exactly():
     assert report["elapsed_s"] == 1.0 and report["covered_s"] == 768 * P
     assert report["worst_late_s"] == 255 * P
     assert validity.node_reasons(report, P) == [
-        "node 'n' simulated 0.750 s in 1.000 s of wall time (fell behind real time; at least 90% needed)",
+        "node 'n' simulated 0.750 s in 1.000 s of wall time (fell behind real time; at least 80% needed)",
         "node 'n': a tick started 0.249 s late (> 0.1 s)"]
 
 
