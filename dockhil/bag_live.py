@@ -338,6 +338,9 @@ def record(args: argparse.Namespace) -> int:
         recorder.close()
     if why == "the graph stopped":
         _log("the recorded graph stopped")
+    if recorder.lost:
+        _log(f"error: {recorder.lost} message(s) lost; the recording is incomplete")
+        return RECORDER_LOST_EXIT
     return 0
 
 
@@ -396,9 +399,16 @@ class TapRecorder:
         except BagError as exc:
             self.error = str(exc)
             self.log(f"error: {exc}")
-        lost = self.dropped + self.bag.messages_written - self.bag.messages_flushed
         self.log(f"recorded {self.bag.messages_flushed} messages on {len(self.bag.topics)} topics to {self.path}; "
-                 f"{lost} lost" + (" (recording stopped early, see above)" if self.error else ""))
+                 f"{self.lost} lost" + (" (recording stopped early, see above)" if self.error else ""))
+
+    @property
+    def lost(self) -> int:
+        """Messages handed to the recorder that are not on disk."""
+        return self.dropped + self.bag.messages_written - self.bag.messages_flushed
+
+
+RECORDER_LOST_EXIT = 4  # the recorder process: it ran, but messages are missing from the bag
 
 
 def _recorder_main(argv: list[str]) -> int:
@@ -441,6 +451,9 @@ def _recorder_main(argv: list[str]) -> int:
         recorder.close()
         return 2
     recorder.close()
+    if recorder.lost:  # a recording that misses messages is not the run: fail, with the count
+        out(f"error: {recorder.lost} message(s) lost; the recording of this run is incomplete")
+        return RECORDER_LOST_EXIT
     return 0
 
 

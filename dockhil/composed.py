@@ -13,7 +13,7 @@ import time
 from collections import deque
 from typing import Any, Callable
 
-from dockhil.executor import Stop, _sleep_until, check_outputs
+from dockhil.executor import LoopTiming, Stop, _sleep_until, check_message, check_outputs
 from dockhil.graph import Graph
 from dockhil.node import NodeContext, Tick
 
@@ -21,7 +21,9 @@ Tap = Callable[[str, Any], None]  # (topic, message)
 
 
 class ComposedGraph:
-    def __init__(self, graph: Graph, *, sim_time: bool = True, log=None, taps: list[Tap] | None = None):
+    def __init__(self, graph: Graph, *, sim_time: bool = True, log=None, taps: list[Tap] | None = None,
+                 clock: Callable[[], float] = time.monotonic):
+        self.clock = clock  # wall time: the runtime's clock, handed to every node
         self.graph = graph
         self.dt = graph.scene.dt
         self.taps = taps or []
@@ -34,10 +36,11 @@ class ComposedGraph:
                 depth[ref.topic] = max(depth.get(ref.topic, 0), ref.lag)
         self.history = {topic: deque([None] * (depth.get(topic, 0) + 1), maxlen=depth.get(topic, 0) + 1)
                         for topic in graph.publishers}
+        self.timing: LoopTiming | None = None  # wall time: the one loop's figures, for validity
         self.plan = []  # (name, node, [(port, history, lag)], [(port, topic, history)], declared outputs)
         for name in graph.order:
             gn = graph.nodes[name]
-            ctx = NodeContext(name, self.dt, sim_time, lambda m, n=name: self.log(n, m))
+            ctx = NodeContext(name, self.dt, sim_time, lambda m, n=name: self.log(n, m), clock)
             node = gn.cls(ctx, **gn.params)
             self.nodes[name] = node
             _, outs = gn.cls.ports(gn.params)
@@ -68,11 +71,15 @@ class ComposedGraph:
         message has been appended (or before it, for L >= 1)."""
         stop = stop or Stop()
         dt = self.dt
-        t0 = time.monotonic()
+        clock = self.clock
+        t0 = clock()
         histories = list(self.history.values())
+        timing = self.timing = LoopTiming([], period=dt) if wall else None
         k = 0
         while (n_ticks is None or k < n_ticks) and not stop.requested:
-            tick = Tick(k, (time.monotonic() - t0) if wall else k * dt, dt, stamp=time.time() if wall else None)
+            if wall:
+                timing.started(clock() - (t0 + k * dt))
+            tick = Tick(k, (clock() - t0) if wall else k * dt, dt, stamp=time.time() if wall else None)
             for hist in histories:  # a slot for this tick; stays None if nothing is sent
                 hist.append(hist[-1] if wall else None)
             for name, node, ins, outs_map, declared in self.plan:
@@ -83,6 +90,7 @@ class ComposedGraph:
                 for port, topic, hist in outs_map:
                     msg = outs.get(port)
                     if msg is not None:
+                        check_message(name, port, topic, k, msg)  # as a node process does before it sends
                         hist[-1] = msg
                         for tap in self.taps:
                             tap(topic, msg)
@@ -90,5 +98,10 @@ class ComposedGraph:
             if progress is not None:
                 progress(k)
             if wall:
-                _sleep_until(t0 + k * dt)
+                over = clock() - (t0 + k * dt)
+                if over > 0:
+                    timing.missed(over if k > 1 else 0.0)  # the first tick has no schedule to keep
+                _sleep_until(t0 + k * dt, clock)
+        if wall:
+            timing.ticks, timing.elapsed = k, clock() - t0
         return k

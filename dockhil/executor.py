@@ -9,13 +9,21 @@ hidden delay, and the result does not depend on arrival order, so a graph
 run as processes and the same graph composed in one process give
 bit-identical outputs.
 
-Wall time: a fixed-rate loop; each input holds its latest value (None until
-the first message arrives); outputs a node leaves out are not sent.
+Wall time: a fixed-rate loop on the runtime's clock; each input holds its
+latest value (None until the first message arrives), for at most its
+maximum age after it arrived: past it the node stops with one line naming
+node, input and age (its close() holds a robot). Outputs a node leaves out
+are not sent.
+
+Both clocks: every output is checked before it leaves the node. A NaN or
+Inf in a physical field (a diverging loop) stops the producing node with one
+line, the same in a multi-process and a composed run.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import sys
@@ -27,6 +35,8 @@ from dockhil.errors import DockhilError
 from dockhil.node import NodeContext, Tick
 from msgs.codec import DecodeError, decode, decode_header, encode
 
+TIMING = "\x1edockhil-timing "  # a node process's line with its wall-time loop figures (JSON), read by the launcher
+
 
 @dataclass
 class PortWire:
@@ -35,6 +45,7 @@ class PortWire:
     type: str  # wire type name, e.g. dockhil/WrenchStamped
     lag: int = 0  # inputs: ticks between the message read and the tick computed
     subscribers: int = 0  # outputs: how many subscriptions to await in sim time
+    unlimited_age: bool = False  # inputs: no maximum age (a publisher the launcher respawns may pause)
 
 
 @dataclass
@@ -68,6 +79,63 @@ class Stop:
 
     def _handle(self, signum, frame) -> None:
         self.requested = True
+
+
+class StaleInput(DockhilError):
+    """A wall-time input's latest message is older than its maximum age."""
+
+
+def checked_payload(name: str, port: str, topic: str, k: int, msg) -> bytes:
+    """`msg` encoded, after checking it decodes as a valid message: a NaN or Inf in a physical field
+    (a loop that diverged) stops the node that produced it, not its readers, with one line."""
+    payload = encode(msg)
+    try:
+        decode(payload, type(msg))
+    except DecodeError as exc:
+        raise DockhilError(f"node {name!r} produced an invalid message at tick {k} on output {port!r} "
+                           f"({topic}): {exc}; stopping the graph") from None
+    return payload
+
+
+def check_message(name: str, port: str, topic: str, k: int, msg) -> None:
+    """What checked_payload checks, for a message that is not sent (composed runs): the numeric
+    bounds of the type first (a generated expression, twice as fast as encoding and decoding);
+    on a failure, the same check and line as a node process gives."""
+    if not _bounds_check(type(msg))(msg):
+        checked_payload(name, port, topic, k, msg)
+
+
+_MAX_FLOAT = 1.7976931348623157e308
+_BOUNDS_CHECKS: dict[type, Any] = {}
+
+
+def _bounds_check(cls: type):
+    check = _BOUNDS_CHECKS.get(cls)
+    if check is None:
+        import msgspec.inspect as mi
+
+        expr = _bounds_expr(mi, mi.type_info(cls), "m") or "True"
+        check = _BOUNDS_CHECKS[cls] = eval(f"lambda m: {expr}")  # noqa: S307 - built from the type, not input
+    return check
+
+
+def _bounds_expr(mi, t, var: str, depth: int = 0) -> str | None:
+    """A Python expression, true when every number under `var` is finite and within its type's bounds."""
+    if isinstance(t, mi.Metadata):
+        t = t.type
+    if isinstance(t, (mi.FloatType, mi.IntType)):
+        conds = [f"{var} - {var} == 0"] if isinstance(t, mi.FloatType) else []  # NaN and Inf fail
+        for op, bound in ((">=", t.ge), (">", t.gt), ("<=", t.le), ("<", t.lt)):
+            if bound is not None and abs(bound) != _MAX_FLOAT:
+                conds.append(f"{var} {op} {bound!r}")
+        return " and ".join(conds) or None
+    if isinstance(t, mi.StructType):
+        parts = [e for f in t.fields if (e := _bounds_expr(mi, f.type, f"{var}.{f.name}", depth))]
+        return " and ".join(f"({p})" for p in parts) or None
+    if isinstance(t, (mi.ListType, mi.VarTupleType)):
+        inner = _bounds_expr(mi, t.item_type, f"_i{depth}", depth + 1)
+        return f"all({inner} for _i{depth} in {var})" if inner else None
+    return None
 
 
 def check_outputs(name: str, declared: dict, k: int, outs: dict, sim: bool) -> None:
@@ -104,17 +172,29 @@ def read_spec_keys(spec: RunSpec):
 class NodeExecutor:
     """Owns one node's sockets and loop. Used by node processes and `dockhil run`."""
 
-    def __init__(self, spec: RunSpec, node_cls: type, stop: Stop, log=None):
+    def __init__(self, spec: RunSpec, node_cls: type, stop: Stop, log=None, clock=time.monotonic):
         import zmq
 
         from dockhil.transport import Publisher, Subscriber
 
         self.spec = spec
         self.stop = stop
+        self.clock = clock
         self.log = log or (lambda m: print(m, file=sys.stderr, flush=True))
-        self.node = node_cls(NodeContext(spec.name, spec.dt, spec.clock == "sim", self.log), **spec.params)
+        self.node = node_cls(NodeContext(spec.name, spec.dt, spec.clock == "sim", self.log, clock), **spec.params)
         ins, outs = node_cls.ports(vars(self.node.p))
         self.outputs = outs
+        # Wall time: how long each input's latest message may be used after it arrived. A free-running
+        # node stands for a device (an emulated sensor): like the physics it stands for, it goes on
+        # from the last value unless it declares a limit; the drivers' watchdogs judge what it delivers.
+        def limit(port: str, wire: PortWire) -> float:
+            if wire.unlimited_age:
+                return math.inf
+            if node_cls.free_running and ins[port].max_age is None:
+                return math.inf
+            return ins[port].age_limit(spec.dt)
+
+        self.max_age = {port: limit(port, wire) for port, wire in spec.inputs.items() if port in ins}
         self.unconnected = [port for port in ins if port not in spec.inputs]
         self.in_types = {port: ins[port].type for port in spec.inputs}
         self.ctx = zmq.Context.instance()
@@ -126,7 +206,8 @@ class NodeExecutor:
             self.by_topic.setdefault(wire.topic.encode(), []).append(port)
         # Sim time loses nothing: a finished node waits (up to 60 s) until its slowest subscriber has all.
         linger = 60.0 if spec.clock == "sim" else 1.0
-        self.pubs = {port: Publisher(self.ctx, wire.topic, wire.endpoint, linger, keys=keys)
+        self.pubs = {port: Publisher(self.ctx, wire.topic, wire.endpoint, linger, keys=keys,
+                                     lossy=spec.clock != "sim")
                      for port, wire in spec.outputs.items()}
         self.dropped = 0
         self._drop_logged = 0.0
@@ -183,9 +264,20 @@ class NodeExecutor:
         for port, pub in self.pubs.items():
             msg = outs.get(port)
             if msg is not None:
-                pub.send(encode(msg))
+                if not pub.send(checked_payload(self.spec.name, port, pub.topic, k, msg)):
+                    self._lost_output(pub)
             elif sim:
                 pub.send_empty(k)
+
+    def _lost_output(self, pub) -> None:
+        # Wall time: a subscriber's queue is full (it stopped reading); the message is dropped, not queued.
+        if pub.dropped == 1 or pub.dropped % 1000 == 0:
+            self.log(f"output {pub.topic}: a subscriber is not keeping up; {pub.dropped} message(s) dropped "
+                     f"(high-water mark reached)")
+
+    @property
+    def dropped_outputs(self) -> int:
+        return sum(pub.dropped for pub in self.pubs.values())
 
     def run_sim(self) -> None:
         spec, node = self.spec, self.node
@@ -198,6 +290,7 @@ class NodeExecutor:
         self._waited_since = time.monotonic()
         self._warned_at: int | None = None
         k = 0
+        self.timing = LoopTiming([], period=spec.dt)  # sim time: only what was dropped is judged
         while (spec.n_ticks is None or k < spec.n_ticks) and not self.stop.requested:
             missing = [p for p in buffers if k - lag[p] >= 0 and (k - lag[p]) not in buffers[p]]
             if missing:
@@ -219,6 +312,8 @@ class NodeExecutor:
             if not behind:
                 break
             self._receive(k, behind[0], keep=False)
+        self.timing.ticks = k
+        self.timing.dropped_in = self.dropped
 
     def _receive(self, k: int, waiting_for: str, keep: bool = True) -> None:
         """Take one message off the socket (or time out after 0.2 s), file it by tick."""
@@ -244,39 +339,63 @@ class NodeExecutor:
         # As in sim time: what is sent before a subscriber (a recorder) has joined would be lost.
         self.wait_for_subscribers()
         latest: dict[str, Any] = {port: None for port in spec.inputs}
+        arrived: dict[str, float] = {}  # port -> when its latest message arrived (runtime clock)
         for port in self.unconnected:
             latest[port] = None
-        timing = LoopTiming(list(spec.inputs))
+        self.timing = timing = LoopTiming(list(spec.inputs), period=spec.dt, max_age=self.max_age)
+        clock = self.clock
         period = spec.dt
-        t0 = time.monotonic()
+        t0 = clock()
         next_t = t0
         k = 0
-        while not self.stop.requested:
-            now = time.monotonic()
-            if duration is not None and now - t0 >= duration:
-                break
-            timing.started(now - next_t)
-            while (frames := self.sub.recv_nowait()) is not None:
-                for port, _tick, msg, ok in self._decode(frames):
-                    if msg is not None:
-                        latest[port] = msg
-            stamp = time.time()
-            timing.inputs(stamp, latest)
-            outs = node.step(Tick(k, now - t0, period, stamp=stamp), dict(latest))
-            check_outputs(spec.name, self.outputs, k, outs, sim=False)
-            self.publish(k, outs, sim=False)
-            k += 1
-            self.ticks_done = k
-            next_t += period
-            late = time.monotonic() - next_t
-            if late > 0:
-                timing.missed()
-                if late > period:  # fell far behind: skip, do not burst to catch up
-                    next_t = time.monotonic() + period
-            else:
-                _sleep_until(next_t)
-        timing.ticks = k
-        return timing.report(spec.name)
+        try:
+            while not self.stop.requested:
+                now = clock()
+                if duration is not None and now - t0 >= duration:
+                    break
+                timing.started(now - next_t)
+                while (frames := self.sub.recv_nowait()) is not None:
+                    for port, _tick, msg, ok in self._decode(frames):
+                        if msg is not None:
+                            latest[port] = msg
+                            arrived[port] = now
+                self._check_ages(arrived, now, timing)
+                stamp = time.time()
+                timing.inputs(stamp, latest)
+                outs = node.step(Tick(k, now - t0, period, stamp=stamp), dict(latest))
+                check_outputs(spec.name, self.outputs, k, outs, sim=False)
+                self.publish(k, outs, sim=False)
+                k += 1
+                self.ticks_done = k
+                next_t += period
+                late = clock() - next_t
+                if late > 0:
+                    timing.missed(late if k > 1 else 0.0)  # the first tick has no schedule to keep
+                    if late > period:  # fell far behind: skip, do not burst to catch up
+                        next_t = clock() + period
+                else:
+                    _sleep_until(next_t, clock)
+        finally:
+            timing.ticks = k
+            timing.elapsed = clock() - t0
+            timing.dropped_in = self.dropped
+            timing.dropped_out = self.dropped_outputs
+        out = timing.report(spec.name)
+        folder = os.environ.get("DOCKHIL_TIMING_DIR")
+        if folder:  # benchmarks collect every node's figures
+            with open(os.path.join(folder, f"{spec.name}.json"), "w") as f:
+                json.dump(out, f)
+        return out
+
+    def _check_ages(self, arrived: dict[str, float], now: float, timing: "LoopTiming") -> None:
+        for port, at in arrived.items():
+            age = now - at
+            timing.aged(port, age)
+            limit = self.max_age.get(port, math.inf)
+            if age > limit:
+                topic = self.spec.inputs[port].topic
+                raise StaleInput(f"node {self.spec.name!r}: input {port!r} ({topic}) is {age:.3f} s old > "
+                                 f"max_age {limit:g} s (its publisher stalled or died); stopping")
 
     def close(self) -> None:
         try:
@@ -290,15 +409,27 @@ class NodeExecutor:
 
 class LoopTiming:
     """Wall-time loop statistics: how late each tick started against its schedule,
-    missed deadlines, and how old each input's latest message was when used."""
+    missed deadlines, and how old each input's latest message was when used
+    (by its stamp, and by the time since it arrived against its maximum age)."""
 
-    def __init__(self, ports: list[str]):
+    def __init__(self, ports: list[str], period: float = 0.0, max_age: dict[str, float] | None = None):
         from array import array
 
         self.lateness = array("d")
         self.ages = {port: array("d") for port in ports}
         self.misses = 0
         self.ticks = 0
+        self.period = period
+        self.elapsed = 0.0
+        self.max_age = dict(max_age or {})
+        self.worst_age = {port: 0.0 for port in ports}  # since arrival [s]
+        self.dropped_in = 0
+        self.dropped_out = 0
+        self.worst_overrun = 0.0
+
+    def aged(self, port: str, age: float) -> None:
+        if age > self.worst_age.get(port, 0.0):
+            self.worst_age[port] = age
 
     def started(self, late_s: float) -> None:
         self.lateness.append(late_s)
@@ -309,8 +440,11 @@ class LoopTiming:
             if msg is not None:
                 ages.append(now - msg.header.stamp)
 
-    def missed(self) -> None:
+    def missed(self, late: float = 0.0) -> None:
+        """A tick ended `late` seconds after its deadline (a long one re-bases the schedule, so the
+        next start does not show it: keep the worst here)."""
         self.misses += 1
+        self.worst_overrun = max(self.worst_overrun, late)
 
     def report(self, name: str) -> dict:
         import numpy as np
@@ -324,20 +458,26 @@ class LoopTiming:
         late = np.abs(np.asarray(self.lateness[1:]))  # the first tick has no schedule to keep
         out = {"node": name, "ticks": self.ticks, "deadline_misses": self.misses,
                "jitter_us": pct(late), "worst_tick": int(np.argmax(late)) + 1 if late.size else None,
-               "input_age_us": {port: pct(a) for port, a in self.ages.items()}}
-        folder = os.environ.get("DOCKHIL_TIMING_DIR")
-        if folder:  # benchmarks collect every node's figures
-            with open(os.path.join(folder, f"{name}.json"), "w") as f:
-                json.dump(out, f)
+               "input_age_us": {port: pct(a) for port, a in self.ages.items()},
+               # What validity is judged on (dockhil/validity.py):
+               "period_s": self.period, "elapsed_s": self.elapsed, "covered_s": self.ticks * self.period,
+               "worst_late_s": max(float(late.max()) if late.size else 0.0, self.worst_overrun),
+               "max_age_s": {p: (None if math.isinf(a) else a) for p, a in self.max_age.items()},
+               "worst_input_age_s": dict(self.worst_age),
+               "dropped_in": self.dropped_in, "dropped_out": self.dropped_out}
         return out
 
 
 SPIN_S = float(os.environ.get("DOCKHIL_SPIN_S", "0.0002"))
 
 
-def _sleep_until(deadline: float) -> None:
+def _sleep_until(deadline: float, clock=time.monotonic) -> None:
     # Sleep most of the way, then spin the last SPIN_S: time.sleep alone overshoots by ~60-150 us,
     # but every microsecond spun is CPU the other nodes on the machine do not get.
+    if clock is not time.monotonic:  # a test's clock: its time moves when the test says, never by waiting
+        if hasattr(clock, "sleep_until"):
+            clock.sleep_until(deadline)
+        return
     left = deadline - time.monotonic()
     if left > SPIN_S:
         time.sleep(left - SPIN_S)

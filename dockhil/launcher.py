@@ -30,7 +30,7 @@ import msgspec
 
 import msgs
 from dockhil.errors import LaunchError
-from dockhil.executor import PortWire, RunSpec
+from dockhil.executor import TIMING, PortWire, RunSpec
 from dockhil.graph import Graph
 from dockhil.process import READY
 from dockhil.transport import GraphKeys, ipc_endpoint, new_run_dir, private_dir, runtime_dir
@@ -132,10 +132,13 @@ def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extr
         for topic in proc.topics:
             extra_count[topic] = extra_count.get(topic, 0) + 1
     specs = {}
+    # A topic from a node the launcher respawns may pause while it restarts: no maximum age there.
+    respawned = {topic for topic, ref in graph.publishers.items() if graph.nodes[ref.node].respawn}
     for name in graph.order:
         gn = graph.nodes[name]
         inputs = {
-            port: PortWire(ref.topic, ep.topics[ref.topic], ep.types[ref.topic], ref.lag)
+            port: PortWire(ref.topic, ep.topics[ref.topic], ep.types[ref.topic], ref.lag,
+                           unlimited_age=ref.topic in respawned)
             for port, ref in gn.inputs.items()
             if ref.topic in ep.topics
         }
@@ -185,6 +188,7 @@ class _Child:
     go_sent: bool = False
     respawn: bool = False
     respawn_delay: float = 1.0
+    respawn_at: float | None = None  # when a scheduled respawn is due (monotonic)
     finished: bool = False
     host: str = ""  # another machine: started there by hand, not watched from here
     reader: threading.Thread | None = None
@@ -217,6 +221,7 @@ class Launcher:
         self._print_lock = threading.Lock()
         self._stop_signal: int | None = None
         self.children: list[_Child] = []
+        self.timings: dict[str, dict] = {}  # wall time: each node's loop figures, reported as it exits
         for name, spec in self.specs.items():
             argv = [sys.executable, "-m", "dockhil.process", msgspec.json.encode(spec).decode()]
             gn = graph.nodes[name]
@@ -235,6 +240,12 @@ class Launcher:
             line = raw.rstrip("\n")
             if line == READY:
                 child.ready = True
+                continue
+            if line.startswith(TIMING):
+                try:
+                    self.timings[child.name] = json.loads(line[len(TIMING):])
+                except ValueError:
+                    pass
                 continue
             child.lines.append(line)
             self.say(f"[{child.name}] {line}")
@@ -404,6 +415,12 @@ class Launcher:
             for child in self.children:
                 if child.finished:
                     continue
+                if child.respawn_at is not None:  # waiting to respawn: supervision goes on meanwhile
+                    nodes_running += 1
+                    if time.monotonic() >= child.respawn_at:
+                        child.respawn_at = None
+                        self._start(child)
+                    continue
                 code = child.proc.poll()
                 is_node = child.name in self.specs
                 if code is None:
@@ -420,8 +437,7 @@ class Launcher:
                 if child.respawn and child.ready:
                     self.say(f"[launch] node {child.name!r} exited with code {code}; respawning in "
                              f"{child.respawn_delay:g} s")
-                    time.sleep(child.respawn_delay)
-                    self._start(child)
+                    child.respawn_at = time.monotonic() + child.respawn_delay
                     nodes_running += 1
                     continue
                 return self._died(child, code)

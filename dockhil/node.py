@@ -26,15 +26,27 @@ k - round(delay/dt) (None before). A node that declares its delay lets the
 graph pipeline: the ticks behind the delay need not wait for each other. A
 cycle made only of inputs read at the same tick is an algebraic loop and is
 refused.
+
+Maximum age (wall time): an input's latest message may be used for at most
+`max_age` seconds after it arrived; past it the runtime stops the node with
+one line naming node, input and age (a driver holds the robot in close()).
+None means the default, `default_max_age(dt)`; math.inf means no limit (an
+event topic such as an e-stop that is silent while nothing happens).
+
+Clock: drivers and watchdogs read time only through `ctx.clock` (monotonic
+seconds), which the runtime owns; a test hands a node a `ManualClock` and
+advances it, so "the watchdog holds after 0.2 s" is decided the same way on
+any machine.
 """
 
 from __future__ import annotations
 
 import math
 import sys
+import time
 from dataclasses import dataclass, field
 from types import SimpleNamespace
-from typing import Any, ClassVar
+from typing import Any, Callable, ClassVar
 
 from dockhil.errors import ParamError
 from msgs import Header
@@ -48,10 +60,43 @@ class Input:
     required: bool = True
     help: str = ""
     delay: float = 0.0  # [s]
+    max_age: float | None = None  # [s], wall time; None: default_max_age(dt); math.inf: no limit
+
+    def age_limit(self, dt: float) -> float:
+        return default_max_age(dt) if self.max_age is None else self.max_age
 
     def lag_ticks(self, dt: float) -> int:
         """Ticks between the message a node reads and the tick it computes."""
         return max(0 if self.feedthrough else 1, int(round(self.delay / dt)))
+
+
+MAX_AGE_PERIODS = 20  # default maximum age of a wall-time input, in periods of the scene rate ...
+MAX_AGE_FLOOR_S = 0.1  # ... but never below this: a busy general-purpose OS stalls a process that long
+
+
+def default_max_age(dt: float) -> float:
+    """Default maximum age [s] of a wall-time input at step dt."""
+    return max(MAX_AGE_PERIODS * dt, MAX_AGE_FLOOR_S)
+
+
+class ManualClock:
+    """A monotonic clock that moves only when told: `clock.advance(0.001)`. For tests."""
+
+    def __init__(self, start: float = 0.0):
+        self.now = float(start)
+
+    def __call__(self) -> float:
+        return self.now
+
+    def advance(self, seconds: float) -> float:
+        if not seconds >= 0:
+            raise ValueError(f"a monotonic clock cannot go back ({seconds!r} s)")
+        self.now += seconds
+        return self.now
+
+    def sleep_until(self, deadline: float) -> None:
+        """What a wall-time loop's wait does on this clock: time jumps to the deadline."""
+        self.now = max(self.now, deadline)
 
 
 @dataclass(frozen=True)
@@ -125,12 +170,14 @@ class Tick:
 
 @dataclass
 class NodeContext:
-    """Given to a node at construction: its name, the step and a logger."""
+    """Given to a node at construction: its name, the step, a logger and the runtime's clock
+    (monotonic seconds; drivers time their watchdogs and limits with it, never with time.*)."""
 
     name: str
     dt: float
     sim_time: bool = True
     log: Any = field(default=None)
+    clock: Callable[[], float] = time.monotonic
 
     def __post_init__(self):
         if self.log is None:

@@ -48,7 +48,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
     import nodes
     from dockhil import ownership
     from dockhil.errors import DockhilError
-    from dockhil.executor import NodeExecutor, Stop
+    from dockhil.executor import TIMING, NodeExecutor, Stop
 
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
     ownership.set_graph(spec.run_id)
@@ -91,6 +91,11 @@ def run_node(spec, log=None, on_ready=None) -> int:
                 executor.close()
             except Exception as exc:  # closing must not hide the first error
                 log(f"error while closing: {type(exc).__name__}: {exc}")
+            timing = getattr(executor, "timing", None)
+            if timing is not None:  # the launcher judges the run's validity on these figures
+                import json
+
+                print(TIMING + json.dumps(timing.report(spec.name)), flush=True)
     if executor.dropped:
         log(f"{executor.dropped} bad message(s) dropped")
     return 0

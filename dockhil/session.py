@@ -4,6 +4,11 @@ A sim-time run of a scene with satellite dynamics ends with its summary
 (peak force, contact duration, exit velocity, and the ideal model's where
 the scene has one). In a multi-process run the summary is read back from
 the run's bag: the one asked for with --bag, or a temporary one.
+
+Exit 0 means the result is valid (dockhil/validity.py): a wall-time run
+that fell behind, or any run that lost messages, says INVALID in one line,
+carries "valid": false and its reasons in the summary, and exits with
+INVALID_EXIT (3).
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ import sys
 import tempfile
 import time
 
+from dockhil import validity
 from dockhil.errors import DockhilError
 from dockhil.graph import Graph
 
@@ -44,11 +50,13 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
 
         bridge = start(graph, clock=clock, host=foxglove[0], port=foxglove[1])
     started = time.perf_counter()
+    reasons: list[str] = []
     if composed:
-        code = _run_composed(graph, clock, n_ticks, progress, bag, collector, bridge)
+        code = _run_composed(graph, clock, n_ticks, progress, bag, collector, reasons, bridge)
     else:
         from dockhil import bag_live
         from dockhil.launcher import Launcher
+        from dockhil.launcher import is_local as launcher_is_local
         from dockhil.transport import GraphKeys
 
         if bag is None and want_summary:
@@ -63,14 +71,24 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
         if bridge is not None:
             bridge.observe(launcher.endpoints.topics, GraphKeys.read(launcher.endpoints.key_file))
         code = launcher.run()
+        if code == 0 and clock == "wall":
+            # Nodes on other hosts report to nobody here; a free-running node is an emulated device.
+            devices = {name: gn.cls.free_running for name, gn in graph.nodes.items() if launcher_is_local(gn.host)}
+            reasons += validity.wall_time_reasons(launcher.timings, devices, dt)
+        elif code == 0:
+            reasons += validity.sim_time_reasons(launcher.timings)
     elapsed = time.perf_counter() - started
     if bridge is not None:
         bridge.close()
+    if code == 0 and reasons:
+        code = validity.INVALID_EXIT
     try:
-        if code == 0 and want_summary:
+        if code in (0, validity.INVALID_EXIT) and want_summary:
             if not composed:
                 summ.feed_from_bag(bag, collector)
             out = collector.summary(elapsed)
+            out["valid"] = not reasons
+            out["invalid_reasons"] = list(reasons)
             if show_summary:
                 print(summ.format_summary(out), flush=True)
             if summary is not None:
@@ -84,6 +102,8 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     finally:
         if tmp is not None:
             tmp.cleanup()
+    if reasons and code == validity.INVALID_EXIT:  # one line, right under the summary table where there is one
+        print(f"[launch] {validity.invalid_line(reasons)} (exit {validity.INVALID_EXIT})", flush=True)
     return code
 
 
@@ -96,7 +116,7 @@ def _check_writable(path: str) -> None:
 
 
 def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool, bag: str | None,
-                  collector, bridge=None) -> int:
+                  collector, reasons: list[str], bridge=None) -> int:
     from dockhil.composed import ComposedGraph
     from dockhil.executor import Stop
     from dockhil.progress import Progress
@@ -129,4 +149,12 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
         finally:
             if recorder is not None:
                 recorder.close()
-    return 130 if stop.requested else 0
+    if stop.requested:
+        return 130
+    if recorder is not None and recorder.lost:
+        print(f"[launch] error: the recorder lost {recorder.lost} message(s) ({bag}); the run is not complete",
+              file=sys.stderr)
+        return 1
+    if g.timing is not None:
+        reasons += validity.node_reasons(g.timing.report("composed"), graph.scene.dt)
+    return 0

@@ -9,8 +9,7 @@ SUB prefix filtering on the topic still works. Receivers see [topic,
 payload] or [topic, b"", tick]. Publishers are XPUB sockets so
 that they see subscriptions arrive: in sim time a publisher waits until every
 subscriber the launcher expects has joined before it sends tick 0, so the
-slow-joiner effect of PUB/SUB never loses a message. High-water marks are
-off (0): in lock-step, a subscriber that lags holds its queue, not loses it.
+slow-joiner effect of PUB/SUB never loses a message.
 
 Only the graph's own processes take part: every socket speaks CURVE with
 keys the launcher makes per graph (GraphKeys, handed over in a key file of
@@ -20,6 +19,12 @@ that binds a topic's ipc path or tcp port in its place is never heard; a
 publisher accepts only subscribers holding the graph's client key (checked
 by a ZAP handler), so a stranger receives nothing. The ipc sockets and key
 files live in a private runtime directory (0700, owner checked).
+
+High-water marks bound every queue (HWM messages per subscriber). Sim time:
+a full queue blocks the publisher (XPUB_NODROP), so a slow subscriber slows
+the graph and lock-step loses nothing. Wall time: a message that a full
+queue cannot take is dropped and counted (`Publisher.dropped`); the node
+logs it and the run is judged on it.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ import zmq
 from dockhil.errors import DockhilError
 
 
+HWM = 20_000  # messages queued per subscriber, each way: bounded memory; far above any lock-step lead
 MESSAGE = b"\x00"
 EMPTY_TICK = b"\x01"
 
@@ -215,13 +221,16 @@ class Publisher:
     """A topic's XPUB socket, a CURVE server with the graph's keys (None: plain, for benchmarks only)."""
 
     def __init__(self, ctx: zmq.Context, topic: str, endpoint: str, linger_s: float = 2.0, *,
-                 keys: GraphKeys | None):
+                 keys: GraphKeys | None, lossy: bool = False):
         self.topic = topic
         self.topic_bytes = topic.encode()
         self._message_prefix = self.topic_bytes + MESSAGE
         self._empty_prefix = self.topic_bytes + EMPTY_TICK
         self.sock = ctx.socket(zmq.XPUB)
-        self.sock.setsockopt(zmq.SNDHWM, 0)
+        self.sock.setsockopt(zmq.SNDHWM, HWM)
+        self.sock.setsockopt(zmq.XPUB_NODROP, 1)  # a full queue refuses the message rather than lose it quietly
+        self._send_flags = zmq.NOBLOCK if lossy else 0  # wall time drops (counted); sim time waits
+        self.dropped = 0
         self.sock.setsockopt(zmq.XPUB_VERBOSE, 1)
         # On close, queued messages still go out for up to linger_s (a slow recorder in sim time).
         self.sock.setsockopt(zmq.LINGER, int(linger_s * 1000))
@@ -261,8 +270,14 @@ class Publisher:
                 if self.sock.recv() == b"\x01":
                     self.subscribers += 1
 
-    def send(self, payload: bytes) -> None:
-        self.sock.send(self._message_prefix + payload)
+    def send(self, payload: bytes) -> bool:
+        """False if a subscriber's full queue refused it (wall time only; sim time waits for room)."""
+        try:
+            self.sock.send(self._message_prefix + payload, self._send_flags)
+        except zmq.Again:
+            self.dropped += 1
+            return False
+        return True
 
     def send_empty(self, tick: int) -> None:
         """Sim time: this topic has no message at this tick."""
@@ -294,7 +309,7 @@ class Subscriber:
 
     def __init__(self, ctx: zmq.Context, observer: bool = False):
         self.sock = ctx.socket(zmq.SUB)
-        self.sock.setsockopt(zmq.RCVHWM, 0)
+        self.sock.setsockopt(zmq.RCVHWM, HWM)
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.setsockopt(zmq.SUBSCRIBE, b"/" if observer else b"")
         self._monitor = self.sock.get_monitor_socket(_HANDSHAKE_EVENTS)

@@ -1,6 +1,7 @@
 """F/T sensor driver over CAN (python-can): publishes /ft/wrench from the sensor's frames.
 
-The frame layout is in dockhil/hardware/ft_frames.py. python-can is imported
+The frame layout is in dockhil/hardware/ft_frames.py. The stale-data
+watchdog runs on the runtime's clock (tick.t), never on time.*. python-can is imported
 in setup(), so a scene that does not use this driver never loads it.
 One graph per adapter: setup claims the interface and channel (a lock file
 naming the owner) before it opens anything; close() lets go.
@@ -186,7 +187,7 @@ class FtCanDriver(Node):
 
     def step(self, tick, inputs):
         samples = self._read_samples()
-        t = tick.t
+        t = tick.t  # the runtime's clock (a test chooses it), so "stale after 0.1 s" is decided exactly
         if self._last_fresh_t is None:
             self._last_fresh_t = t  # the stale clock starts with the first tick
         if not samples:

@@ -18,6 +18,13 @@ writing anything, a controller another graph owns. close() lets go.
 Safety: a limit violation requests a hold, waits briefly for the hold to
 be written, and raises SafetyStop (one line naming the limit and the value);
 from then on nothing is commanded. close() holds the robot.
+
+Time: every watchdog and the setpoint speed are measured on the runtime's
+clock (`ctx.clock`), never on message stamps: a setpoint step is judged
+against the wall time since the previous setpoint was handed to the link,
+and any gap between two steps longer than `stall_timeout` (this process or
+the simulation stalled) holds the robot and stops. A NaN or Inf in a
+setpoint or a force trips "non-finite setpoint"/"non-finite force".
 pymodbus is imported in setup(), so a scene without this driver never loads it.
 """
 
@@ -56,8 +63,9 @@ def _command_values(cmd: RobotCommand) -> mm.PoseTwist:
 class ModbusLink(threading.Thread):
     """Owns the Modbus client: writes setpoints, heartbeat and holds; reads the actual pose."""
 
-    def __init__(self, client, describe: str, p, probe, claim: list[int] | None = None):
+    def __init__(self, client, describe: str, p, probe, claim: list[int] | None = None, clock=time.monotonic):
         super().__init__(name="robot-modbus-link", daemon=True)
+        self.clock = clock
         self.client = client
         self.claim = claim  # our ownership registers, written again on every reconnect
         self.describe = describe
@@ -166,7 +174,7 @@ class ModbusLink(threading.Thread):
     def _lost(self, exc: BaseException) -> None:
         self.client.close()
         self.connected = False
-        self.lost_since = time.monotonic()
+        self.lost_since = self.clock()
         self.last_error = " ".join(str(exc).split()) or type(exc).__name__
         with self.lock:
             self.pending = None  # a setpoint handed over before the loss is never written
@@ -190,7 +198,8 @@ class ModbusLink(threading.Thread):
             self.pending = None  # commands from before the reconnect are stale
             if self.hold_latched:
                 self.hold_written.set()
-        gap = time.monotonic() - (self.lost_since or time.monotonic())
+        now = self.clock()
+        gap = now - (self.lost_since or now)
         self.connected = True
         self.lost_since = None
         self.reconnects += 1
@@ -243,9 +252,11 @@ class RobotModbusDriver(Node):
 
     inputs = {
         "command": Input(RobotCommand, "/robot/command", help="setpoint: probe pose relative to the target"),
-        "wrench": Input(WrenchStamped, "/ft/wrench", feedthrough=False, required=False,
+        # Its maximum age is the driver's own watchdog, ft_timeout (with ft_grace before the first).
+        "wrench": Input(WrenchStamped, "/ft/wrench", feedthrough=False, required=False, max_age=math.inf,
                         help="measured contact wrench, for max_force and the F/T watchdog"),
-        "estop": Input(EStop, "/estop", feedthrough=False, required=False, help="emergency stop"),
+        # Event topic: silent while nothing happens, so no maximum age.
+        "estop": Input(EStop, "/estop", feedthrough=False, required=False, max_age=math.inf, help="emergency stop"),
     }
     outputs = {"state": Output(RobotState, "/robot/state", help="actual pose read from the controller")}
     params = {
@@ -274,6 +285,9 @@ class RobotModbusDriver(Node):
         "z_max": Param(float, 0.2, unit="m", help="workspace upper bound, z"),
         "ft_timeout": Param(float, 0.05, unit="s", help="F/T watchdog: no new wrench this long stops (0: off)",
                             ge=0.0),
+        "stall_timeout": Param(float, 0.2, unit="s", help="longest gap between two steps of this driver, or "
+                               "between two fresh setpoints while moving, before it holds and stops (a stalled "
+                               "process or simulation); the controller's own heartbeat timeout is 0.2 s", gt=0.0),
         "ft_grace": Param(float, 2.0, unit="s", help="time from the first tick for the first wrench; "
                           "commands are held until it arrives", ge=0.0),
         "frame": Param(str, "", help="header frame id of the published state"),
@@ -300,7 +314,11 @@ class RobotModbusDriver(Node):
         self._last_wrench_key = None
         self._last_wrench_t: float | None = None
         self._first_t: float | None = None
+        self._last_step_at: float | None = None
+        self._last_cmd_at: float | None = None  # when the last fresh command arrived
+        self._sent: tuple[tuple[float, float, float], float] | None = None  # last setpoint handed over, when
         self._seen_readings = 0
+        self._reconnects_seen = 0
         self._status_word = None
         self.heartbeat_losses = 0
         # One graph per controller: this host first (a lock file naming the owner), then the controller's
@@ -335,7 +353,7 @@ class RobotModbusDriver(Node):
         except Exception as exc:  # noqa: BLE001 - e.g. the server closed on us
             client.close()
             raise DeviceError(f"{self.device}: {' '.join(str(exc).split())}") from None
-        self.link = ModbusLink(_NoDelayClient(client), self.device, p, self._probe, self._claim)
+        self.link = ModbusLink(_NoDelayClient(client), self.device, p, self._probe, self._claim, self.ctx.clock)
         self.link.start()
 
     def _probe(self) -> str:
@@ -349,13 +367,19 @@ class RobotModbusDriver(Node):
     def step(self, tick, inputs):
         if self.tripped is not None:
             raise self.tripped  # latched: nothing is commanded after a safety stop
-        link, p, t = self.link, self.p, tick.t
+        link, p = self.link, self.p
+        t = now = self.ctx.clock()
         for line in link.take_notes():
             self.log(line)
         if link.fatal:
             raise DeviceError(link.fatal)
+        if self._last_step_at is not None and now - self._last_step_at > p.stall_timeout:
+            gap = now - self._last_step_at
+            self._trip("stall", gap, f"stall: no step for {gap:.3f} s > stall_timeout {p.stall_timeout:g} s "
+                       f"(this process was stopped or starved); resuming would jump")
+        self._last_step_at = now
         if not link.connected and p.reconnect_timeout and link.lost_since is not None:
-            gone = time.monotonic() - link.lost_since
+            gone = now - link.lost_since
             if gone > p.reconnect_timeout:
                 raise DeviceError(f"{self.device}: connection lost for {gone:.1f} s "
                                   f"(reconnect_timeout {p.reconnect_timeout:g} s): {link.last_error}")
@@ -368,17 +392,27 @@ class RobotModbusDriver(Node):
 
         ft_fresh = self._check_wrench(inputs.get("wrench"), t)
 
+        if not link.connected or link.reconnects != self._reconnects_seen:
+            # After a loss the controller holds until a fresh setpoint: the next step is judged from
+            # where the robot stands (max_following_error), not from a setpoint of the old connection.
+            self._reconnects_seen = link.reconnects
+            self._sent = None
         cmd = inputs.get("command")
         if cmd is not None and (self._last_cmd is None or _key(cmd) != _key(self._last_cmd)):
             self._check_command(cmd, link.latest()[1])
-            prev, self._last_cmd = self._last_cmd, cmd
-            self._check_jump(prev, cmd)
-            if not ft_fresh:
+            self._last_cmd, self._last_cmd_at = cmd, now
+            if not ft_fresh or not cmd.enable:
                 link.submit(None)  # no F/T data yet: hold rather than move blind
-            elif cmd.enable:
-                link.submit(_command_values(cmd))
+                self._sent = None
             else:
-                link.submit(None)
+                values = _command_values(cmd)
+                self._check_jump(values[:3], now)  # never hand over a step a limit would refuse
+                link.submit(values)
+                self._sent = (values[:3], now)
+        elif self._sent is not None and now - self._last_cmd_at > p.stall_timeout:
+            age = now - self._last_cmd_at
+            self._trip("stale_command", age, f"stale command: no new setpoint for {age:.3f} s > stall_timeout "
+                       f"{p.stall_timeout:g} s while moving (the simulation stalled)")
 
         count, reading = link.latest()
         if reading is None or count == self._seen_readings:
@@ -395,6 +429,9 @@ class RobotModbusDriver(Node):
         if wrench is not None and _key(wrench) != self._last_wrench_key:
             self._last_wrench_key = _key(wrench)
             self._last_wrench_t = t
+            bad = _non_finite(("force", wrench.wrench.force), ("torque", wrench.wrench.torque))
+            if bad:
+                self._trip("non_finite", bad, f"non-finite force: measured wrench {bad}")
             f = _norm(wrench.wrench.force)
             if p.max_force and f > p.max_force:
                 self._trip("max_force", f, f"max_force: contact force |F| = {f:.1f} N > {p.max_force:g} N")
@@ -423,6 +460,10 @@ class RobotModbusDriver(Node):
 
     def _check_command(self, cmd: RobotCommand, reading: mm.ControllerReading | None) -> None:
         p = self.p
+        bad = _non_finite(("position", cmd.pose.position), ("orientation", cmd.pose.orientation),
+                          ("linear velocity", cmd.twist.linear), ("angular velocity", cmd.twist.angular))
+        if bad:
+            self._trip("non_finite", bad, f"non-finite setpoint: commanded {bad}")
         pos = cmd.pose.position
         self._check_position("commanded", pos.x, pos.y, pos.z)
         speed = _norm(cmd.twist.linear)
@@ -436,17 +477,16 @@ class RobotModbusDriver(Node):
                            f"max_following_error: setpoint {err:.4f} m from the actual pose > "
                            f"{p.max_following_error:g} m (move the robot to the start pose first)")
 
-    def _check_jump(self, prev: RobotCommand | None, cmd: RobotCommand) -> None:
-        # A setpoint that moves faster than the limit is a too-fast command, whatever its twist says.
-        if prev is None or not self.p.max_speed:
+    def _check_jump(self, position: tuple[float, float, float], now: float) -> None:
+        """A setpoint that moves faster than the limit is a too-fast command, whatever its twist says.
+        The speed is the step from the last setpoint handed over, over the wall time since then on the
+        runtime's clock (message stamps say when the sender ran, not when the robot will move); at least
+        one period, the rate at which the loop hands setpoints over."""
+        if self._sent is None or not self.p.max_speed:
             return
-        # The simulation moves the setpoint by one step per tick, whatever the loop's jitter made of the
-        # wall-clock stamps: the time between two setpoints is at least their tick distance.
-        dt = max(cmd.header.stamp - prev.header.stamp, (cmd.header.tick - prev.header.tick) * self.ctx.dt)
-        if dt <= 0:
-            return
-        a, b = prev.pose.position, cmd.pose.position
-        step = math.sqrt((b.x - a.x) ** 2 + (b.y - a.y) ** 2 + (b.z - a.z) ** 2)
+        a, since = self._sent
+        dt = max(now - since, self.ctx.dt)
+        step = math.sqrt(sum((b - x) ** 2 for x, b in zip(a, position)))
         speed = step / dt
         if speed > self.p.max_speed * (1 + 1e-9):
             self._trip("max_speed", speed, f"max_speed: setpoint moved {step:.4f} m in {dt:.4f} s "
@@ -503,6 +543,16 @@ class RobotModbusDriver(Node):
         if not held and self.tripped is None:
             self.log(f"{self.device}: could not hold the robot at close (not connected); "
                      f"the controller holds when our heartbeat stops")
+
+
+def _non_finite(*named: tuple[str, object]) -> str:
+    """'position.x = nan' for the first NaN/Inf field of the named vectors, else ''."""
+    for name, vec in named:
+        for axis in ("x", "y", "z", "w"):
+            v = getattr(vec, axis, None)
+            if v is not None and not math.isfinite(v):
+                return f"{name}.{axis} = {v}"
+    return ""
 
 
 class _NoDelayClient:

@@ -166,6 +166,9 @@ class Drive:
 def driver(port: int, logs: list | None = None, **params) -> RobotModbusDriver:
     log = logs.append if logs is not None else (lambda line: None)
     params.setdefault("ft_timeout", 0.0)
+    # These tests step the driver from a test thread on the real clock, pausing it to kill and start
+    # controllers; the stall watchdog is tested on a controlled clock in test_hardware_safety.py.
+    params.setdefault("stall_timeout", 60.0)
     return RobotModbusDriver(NodeContext("robot", 0.001, sim_time=False, log=log), port=port, **params)
 
 

@@ -1,9 +1,15 @@
 """Safety limits of the robot driver, each against the controller emulator over Modbus TCP:
 a violation holds the robot, raises SafetyStop with one line naming the limit and
-the value, and nothing is commanded afterwards."""
+the value, and nothing is commanded afterwards.
+
+The driver's time is a ManualClock the test advances by one period per step, so every
+verdict here ("the watchdog holds after 0.04 s", "a 0.25 s gap is a stall") is the same on
+an idle and on a loaded machine. Only the Modbus link and the controller run in real time;
+the tests wait for their effects (a write, a mode) with deadlines."""
 
 from __future__ import annotations
 
+import math
 import time
 
 import pytest
@@ -12,10 +18,53 @@ from dockhil.errors import DockhilError
 from dockhil.hardware import SafetyStop
 from dockhil.hardware import modbus_map as mm
 from dockhil.hardware.robot_emulator import FOLLOW, HOLD
-from msgs import EStop, Header, Pose, RobotCommand, Vector3, Wrench, WrenchStamped
-from tests.test_hardware_modbus import Drive, driver, read_holding
+from dockhil.node import ManualClock, NodeContext, Tick
+from msgs import EStop, Header, Pose, RobotCommand, Twist, Vector3, Wrench, WrenchStamped
+from nodes.robot_modbus import RobotModbusDriver
+from tests.test_hardware_modbus import read_holding
 
-pytest.importorskip("pymodbus")
+DT = 0.001
+
+
+def wait_for(condition, timeout: float = 5.0, what: str = "condition") -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what} not reached within {timeout} s")
+        time.sleep(0.002)
+
+
+class ClockedDrive:
+    """Steps a driver on a ManualClock: each step is one period later on the driver's clock."""
+
+    def __init__(self, node: RobotModbusDriver, clock: ManualClock):
+        self.node = node
+        self.clock = clock
+        self.k = 0
+        self.states = []
+
+    def now(self) -> float:
+        return self.clock()
+
+    def command(self, x: float = 0.0, v: float = 0.0, stamp: float | None = None) -> RobotCommand:
+        return RobotCommand(header=Header(stamp=self.now() if stamp is None else stamp, tick=self.k, seq=self.k),
+                            pose=Pose(position=Vector3(x=x)), twist=Twist(linear=Vector3(x=v)))
+
+    def wrench(self, fx: float, fy: float = 0.0) -> WrenchStamped:
+        return WrenchStamped(header=Header(stamp=self.now(), tick=self.k, seq=self.k),
+                             wrench=Wrench(force=Vector3(x=fx, y=fy)))
+
+    def step(self, command=None, wrench=None, estop=None, dt: float = DT):
+        self.clock.advance(dt)
+        out = self.node.step(Tick(self.k, self.now(), DT), {"command": command, "wrench": wrench, "estop": estop})
+        self.k += 1
+        if out:
+            self.states.append(out["state"])
+        return out
+
+    def run(self, ticks: int, make=lambda d: {}):
+        for _ in range(ticks):
+            self.step(**make(self))
 
 
 @pytest.fixture
@@ -23,48 +72,52 @@ def make(controller):
     made = []
 
     def make_driver(**params):
-        node = driver(controller.port, **params)
+        params.setdefault("ft_timeout", 0.0)
+        clock = ManualClock(100.0)
+        node = RobotModbusDriver(NodeContext("robot", DT, sim_time=False, log=lambda line: None, clock=clock),
+                                 port=controller.port, **params)
         node.setup()
         made.append(node)
-        return Drive(node)
+        return ClockedDrive(node, clock)
 
     yield make_driver
     for node in made:
         node.close()
 
 
-def wrench(drive: Drive, fx: float) -> WrenchStamped:
-    return WrenchStamped(header=Header(stamp=drive.now(), tick=drive.k, seq=drive.k),
-                         wrench=Wrench(force=Vector3(x=fx)))
-
-
 def mode(controller) -> str:
     return controller.call(lambda: controller.servo.mode)
 
 
-def tripped(drive: Drive, controller, run, limit: str, message: str, value=None) -> SafetyStop:
+def following(drive: ClockedDrive, controller, make=lambda d: {"command": d.command()}) -> None:
+    """Step until the controller follows (the link writes in real time; the driver's clock moves per step)."""
+    deadline = time.monotonic() + 5.0
+    while mode(controller) != FOLLOW:
+        assert time.monotonic() < deadline, "the controller never followed"
+        drive.step(**make(drive))
+        time.sleep(0.002)
+
+
+def tripped(drive: ClockedDrive, controller, run, limit: str, message: str, value=None) -> SafetyStop:
     """Run until the stop; check the line, the hold, and that nothing is commanded afterwards."""
     with pytest.raises(SafetyStop) as err:
         run()
     stop = err.value
     assert isinstance(stop, DockhilError)  # the runtime turns it into a non-zero exit
     text = str(stop)
-    assert "\n" not in text and text.startswith("safety stop: ") and text.endswith("; robot held")
+    assert "\n" not in text and text.startswith("safety stop: ") and text.endswith("; robot held"), text
     assert message in text, text
     assert stop.limit == limit
     if value is not None:
         assert stop.value == pytest.approx(value, rel=1e-3)
     # the hold was written before the exception
     assert controller.call(lambda: controller.servo.holding[mm.HR_CONTROL]) == mm.CONTROL_ENABLE | mm.CONTROL_HOLD
-    deadline = time.monotonic() + 1.0
-    while mode(controller) != HOLD and time.monotonic() < deadline:
-        time.sleep(0.002)
-    assert mode(controller) == HOLD
+    wait_for(lambda: mode(controller) == HOLD, what="HOLD")
     # latched: fresh commands are refused and never written
     writes = drive.node.link.writes
     for _ in range(3):
         with pytest.raises(SafetyStop) as again:
-            drive.step(command=drive.command(x=0.0), wrench=wrench(drive, 0.0))
+            drive.step(command=drive.command(x=0.0), wrench=drive.wrench(0.0))
         assert again.value is stop
     time.sleep(0.02)
     assert drive.node.link.writes == writes
@@ -73,39 +126,103 @@ def tripped(drive: Drive, controller, run, limit: str, message: str, value=None)
 
 def test_max_force(controller, make):
     drive = make(max_force=120.0, ft_timeout=0.05)
-    drive.run(0.05, lambda d: {"command": d.command(), "wrench": wrench(d, -80.0)})
-    assert mode(controller) == FOLLOW
-    tripped(drive, controller, lambda: drive.step(command=drive.command(), wrench=wrench(drive, -150.5)),
+    following(drive, controller, lambda d: {"command": d.command(), "wrench": d.wrench(-80.0)})
+    tripped(drive, controller, lambda: drive.step(command=drive.command(), wrench=drive.wrench(-150.5)),
             "max_force", "max_force: contact force |F| = 150.5 N > 120 N", 150.5)
+
+
+def test_max_force_is_the_norm_of_the_force(controller, make):
+    drive = make(max_force=4.0, ft_timeout=0.05)
+    following(drive, controller, lambda d: {"command": d.command(), "wrench": d.wrench(-2.0)})
+    drive.step(command=drive.command(), wrench=drive.wrench(-3.0, 2.6))  # |F| = 3.97 N: under the limit
+    tripped(drive, controller, lambda: drive.step(command=drive.command(), wrench=drive.wrench(-3.0, 2.7)),
+            "max_force", "max_force: contact force |F| = 4.0 N > 4 N", math.hypot(3.0, 2.7))
 
 
 def test_max_speed_of_the_commanded_twist(controller, make):
     drive = make(max_speed=0.05)
-    drive.run(0.03, lambda d: {"command": d.command(v=0.05)})
+    following(drive, controller, lambda d: {"command": d.command(v=0.05)})
     tripped(drive, controller, lambda: drive.step(command=drive.command(v=0.08)),
             "max_speed", "max_speed: commanded speed 0.080 m/s > 0.05 m/s", 0.08)
 
 
-def test_max_speed_of_setpoint_steps(controller, make):
-    drive = make(max_speed=0.05)
-
-    def cmd(stamp, x):
-        return RobotCommand(header=Header(stamp=stamp, tick=drive.k, seq=drive.k), pose=Pose(position=Vector3(x=x)))
-
-    drive.step(command=cmd(1.000, 0.0))
-    drive.step(command=cmd(1.001, 0.00004))  # 0.04 m/s: fine, whatever the (zero) twist says
-    tripped(drive, controller, lambda: drive.step(command=cmd(1.002, 0.00014)),
+def test_setpoint_speed_is_judged_on_the_wall_time_between_setpoints_not_their_stamps(controller, make):
+    drive = make(max_speed=0.05, max_following_error=0.0)
+    following(drive, controller)
+    drive.step(command=drive.command(x=0.00004))  # 0.04 mm in 1 ms: 0.04 m/s, whatever the (zero) twist says
+    # Stamps 0.15 s apart (a stalled sender's backlog) do not make a 0.1 mm step in 1 ms slow.
+    late = drive.command(x=0.00014, stamp=drive.now() + 0.15)
+    tripped(drive, controller, lambda: drive.step(command=late),
             "max_speed", "max_speed: setpoint moved 0.0001 m in 0.0010 s (0.100 m/s) > 0.05 m/s", 0.1)
-    assert read_holding(controller.port).setpoint[0] != pytest.approx(0.00014)
+    assert read_holding(controller.port).setpoint[0] != pytest.approx(0.00014)  # the step was never written
+
+
+def test_a_step_after_a_short_gap_is_judged_over_the_gap(controller, make):
+    drive = make(max_speed=0.05, max_following_error=0.0)
+    following(drive, controller)
+    drive.step(command=drive.command(x=0.006), dt=0.15)  # 6 mm over 0.15 s: 0.04 m/s, below the stall timeout
+    wait_for(lambda: read_holding(controller.port).setpoint[0] == pytest.approx(0.006), what="the write")
+
+
+def test_a_gap_longer_than_the_stall_timeout_holds_and_stops(controller, make):
+    drive = make(stall_timeout=0.2)
+    following(drive, controller)
+    x_before = read_holding(controller.port).setpoint[0]
+    tripped(drive, controller, lambda: drive.step(command=drive.command(x=0.0001), dt=0.25),
+            "stall", "stall: no step for 0.250 s > stall_timeout 0.2 s", 0.25)
+    assert read_holding(controller.port).setpoint[0] == x_before  # the step after the gap was never written
+
+
+def test_a_gap_just_under_the_stall_timeout_is_not_a_stall(controller, make):
+    drive = make(stall_timeout=0.2)
+    following(drive, controller)
+    drive.step(command=drive.command(), dt=0.199)
+    drive.step(command=drive.command())
+
+
+def test_setpoints_that_stop_coming_while_moving_hold_and_stop(controller, make):
+    drive = make(stall_timeout=0.1)
+    following(drive, controller)
+    last = drive.command()
+    drive.step(command=last)
+    drive.run(99, lambda d: {"command": last})  # the same message again for 0.099 s: the simulation stalled
+    tripped(drive, controller, lambda: drive.step(command=last, dt=0.002),
+            "stale_command", "stale command: no new setpoint for 0.101 s > stall_timeout 0.1 s", 0.101)
+
+
+@pytest.mark.parametrize("field", ["x", "inf", "twist"])
+def test_a_non_finite_setpoint_trips_by_name_before_it_is_written(controller, make, field):
+    drive = make()
+    following(drive, controller)
+    writes = drive.node.link.writes
+    bad = {"x": Pose(position=Vector3(x=math.nan)), "inf": Pose(position=Vector3(z=-math.inf)),
+           "twist": Pose()}[field]
+    twist = Twist(linear=Vector3(y=math.nan)) if field == "twist" else Twist()
+    cmd = RobotCommand(header=Header(stamp=drive.now(), tick=drive.k, seq=drive.k), pose=bad, twist=twist)
+    expect = {"x": "position.x = nan", "inf": "position.z = -inf", "twist": "linear velocity.y = nan"}[field]
+    stop = tripped(drive, controller, lambda: drive.step(command=cmd),
+                   "non_finite", f"non-finite setpoint: commanded {expect}")
+    assert stop.value == expect
+    assert drive.node.link.writes == writes
+
+
+def test_a_non_finite_force_trips_by_name(controller, make):
+    drive = make(max_force=200.0, ft_timeout=0.05)
+    following(drive, controller, lambda d: {"command": d.command(), "wrench": d.wrench(-1.0)})
+    tripped(drive, controller, lambda: drive.step(command=drive.command(), wrench=drive.wrench(math.nan)),
+            "non_finite", "non-finite force: measured wrench force.x = nan")
 
 
 def test_max_actual_speed(controller, make):
     drive = make(max_actual_speed=0.2)
-    drive.run(0.03, lambda d: {"command": d.command()})
+    following(drive, controller)
     controller.call(controller.servo.teleport, (0.004, 0.0, 0.0))  # the robot lurches 4 mm in one cycle
 
     def run():
-        drive.run(1.0, lambda d: {"command": d.command()})
+        deadline = time.monotonic() + 2.0
+        while time.monotonic() < deadline:
+            drive.step(command=drive.command())
+            time.sleep(0.001)
 
     stop = tripped(drive, controller, run, "max_actual_speed", "max_actual_speed: measured speed ")
     assert stop.value > 0.2
@@ -113,7 +230,7 @@ def test_max_actual_speed(controller, make):
 
 def test_workspace_refuses_a_commanded_pose_before_it_is_written(controller, make):
     drive = make(x_max=0.005)
-    drive.run(0.03, lambda d: {"command": d.command(x=0.0)})
+    following(drive, controller)
     tripped(drive, controller, lambda: drive.step(command=drive.command(x=0.0051)),
             "workspace", "workspace: commanded position.x = 0.0051 m above x_max 0.005 m", 0.0051)
     assert read_holding(controller.port).setpoint[0] == 0.0
@@ -121,16 +238,22 @@ def test_workspace_refuses_a_commanded_pose_before_it_is_written(controller, mak
 
 def test_workspace_of_the_actual_pose(controller, make):
     drive = make(y_min=-0.01, max_actual_speed=0.0, max_following_error=0.0)  # only the workspace watches
-    drive.run(0.03, lambda d: {"command": d.command()})
+    following(drive, controller)
     controller.call(controller.servo.teleport, (0.0, -0.05, 0.0))  # the servo pulls it back from there
-    stop = tripped(drive, controller, lambda: drive.run(1.0, lambda d: {"command": d.command()}),
-                   "workspace", "workspace: actual position.y = -0.0")
+
+    def run():
+        deadline = time.monotonic() + 2.0
+        while time.monotonic() < deadline:
+            drive.step(command=drive.command())
+            time.sleep(0.001)
+
+    stop = tripped(drive, controller, run, "workspace", "workspace: actual position.y = -0.0")
     assert str(stop).endswith(" m below y_min -0.01 m; robot held") and -0.05 <= stop.value < -0.01
 
 
 def test_max_following_error_catches_a_start_far_from_the_robot(controller, make):
     drive = make(max_following_error=0.01)
-    drive.run(0.03, lambda d: {})  # the driver has read where the robot is
+    wait_for(lambda: drive.node.link.latest()[1] is not None, what="a reading")  # where the robot is
     tripped(drive, controller, lambda: drive.step(command=drive.command(x=-0.03)),
             "max_following_error", "max_following_error: setpoint 0.0300 m from the actual pose > 0.01 m", 0.03)
     assert controller.call(lambda: controller.servo.position[0]) == 0.0  # it never moved
@@ -138,35 +261,31 @@ def test_max_following_error_catches_a_start_far_from_the_robot(controller, make
 
 def test_ft_watchdog_stops_when_the_wrench_goes_stale(controller, make):
     drive = make(ft_timeout=0.04)
-    drive.run(0.05, lambda d: {"command": d.command(), "wrench": wrench(d, -5.0)})
-    assert mode(controller) == FOLLOW
-    last = wrench(drive, -5.0)
-    t_last = drive.now()
-
-    def run():
-        drive.run(1.0, lambda d: {"command": d.command(), "wrench": last})  # the same message again: stale
-
-    stop = tripped(drive, controller, run, "ft_timeout", "ft_timeout: no F/T data for 0.0")
-    assert 0.04 < stop.value < 0.04 + 0.03
-    assert drive.now() - t_last < 0.2
+    following(drive, controller, lambda d: {"command": d.command(), "wrench": d.wrench(-5.0)})
+    last = drive.wrench(-5.0)
+    drive.step(command=drive.command(), wrench=last)
+    drive.run(39, lambda d: {"command": d.command(), "wrench": last})  # the same message again: 0.039 s old
+    stop = tripped(drive, controller, lambda: drive.step(command=drive.command(), wrench=last, dt=0.002),
+                   "ft_timeout", "ft_timeout: no F/T data for 0.041 s > 0.04 s")
+    assert stop.value == pytest.approx(0.041)
 
 
 def test_ft_watchdog_holds_until_the_first_wrench_then_stops(controller, make):
     drive = make(ft_timeout=0.02, ft_grace=0.15)
-    drive.run(0.1, lambda d: {"command": d.command(x=0.001)})
+    drive.run(170, lambda d: {"command": d.command(x=0.001)})  # 0.169 s from the first step: within grace + timeout
+    time.sleep(0.05)  # whatever the link does meanwhile: without F/T data it only holds
     assert mode(controller) == HOLD  # commands arrive, but without F/T data the robot stays put
     assert read_holding(controller.port).setpoint[0] == 0.0
-    stop = tripped(drive, controller, lambda: drive.run(1.0, lambda d: {"command": d.command(x=0.001)}),
-                   "ft_timeout", "ft_timeout: no F/T data 0.1")
+    stop = tripped(drive, controller, lambda: drive.step(command=drive.command(x=0.001), dt=0.002),
+                   "ft_timeout", "ft_timeout: no F/T data 0.171 s after start")
     assert "after start (ft_grace 0.15 s + ft_timeout 0.02 s; connect /ft/wrench or set ft_timeout 0)" in str(stop)
-    assert 0.17 < stop.value < 0.25
+    assert stop.value == pytest.approx(0.171)
 
 
 def test_estop(controller, make):
     drive = make()
     calm = EStop(header=Header(), active=False)
-    drive.run(0.03, lambda d: {"command": d.command(), "estop": calm})
-    assert mode(controller) == FOLLOW
+    following(drive, controller, lambda d: {"command": d.command(), "estop": calm})
     pressed = EStop(header=Header(stamp=drive.now()), active=True, reason="operator button")
     tripped(drive, controller, lambda: drive.step(command=drive.command(), estop=pressed),
             "estop", "estop: e-stop active (operator button)")
@@ -174,7 +293,7 @@ def test_estop(controller, make):
 
 def test_a_stop_while_the_controller_is_unreachable_says_so(controller, make):
     drive = make(reconnect_timeout=0.0)
-    drive.run(0.03, lambda d: {"command": d.command()})
+    following(drive, controller)
     controller.stop_thread()
     deadline = time.monotonic() + 2.0
     while drive.node.link.connected and time.monotonic() < deadline:

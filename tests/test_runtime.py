@@ -159,6 +159,7 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
             got = None
             deadline = time.time() + seconds
             while time.time() < deadline:  # the newest output, after queued older ones
+                pub.send(b"/x\x00" + encode(good))  # fresh good data: a wall-time input has a maximum age
                 if sub.poll(50):
                     got = decode(split(sub.recv_multipart())[1], msgs.WrenchStamped)
             return got
@@ -177,7 +178,8 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
             for b in bad:
                 pub.send(b"/x\x00" + b)
             pub.send(b"/x")  # no payload at all
-            time.sleep(0.2)
+            pub.send(b"/x\x00" + encode(good))
+            time.sleep(0.05)
         # Still running, and still computing from the last good value: u = -3*2 + 0.1*4.
         assert node.poll() is None
         got = latest_output(0.5)

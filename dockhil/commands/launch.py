@@ -5,7 +5,22 @@ from __future__ import annotations
 from dockhil.errors import LaunchError
 
 
+EXIT_STATUS = """exit status:
+  0  the run completed and its result is valid
+  1  a node failed or a safety stop held the robot (the line above says which and why),
+     or the recorder lost messages
+  2  bad input: launch file, arguments or parameters (nothing ran)
+  3  INVALID: the run completed but its result is not valid (a wall-time run fell
+     behind real time, or messages were lost); the reasons are printed in one line
+     and in the summary JSON ("valid": false, "invalid_reasons")
+  128+N  stopped by signal N (130: Ctrl-C)"""
+
+
 def add_arguments(p) -> None:
+    import argparse
+
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = EXIT_STATUS
     p.add_argument("file", nargs="?", help="launch file (YAML), e.g. launch/hil.yaml")
     p.add_argument("overrides", nargs="*", metavar="name:=value",
                    help="launch arguments, ROS 2 style (see 'dockhil graph FILE' for the list)")

@@ -266,7 +266,8 @@ class RobotControllerEmulator:
     and a servo cycle never interleave)."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = 5020, delay: float = 0.0, tau: float = 0.0,
-                 cycle: float = 0.001, heartbeat_timeout: float = 0.2):
+                 cycle: float = 0.001, heartbeat_timeout: float = 0.2, clock=time.monotonic):
+        self.clock = clock  # the servo's time (monotonic seconds); ServoModel itself takes `now` per cycle
         self.host = host
         self.port = port
         self.period = cycle
@@ -322,14 +323,15 @@ class RobotControllerEmulator:
         return self.port
 
     async def _run_servo(self) -> None:
-        next_t = time.monotonic()
+        clock = self.clock
+        next_t = clock()
         while True:
-            now = time.monotonic()
+            now = clock()
             self.servo.cycle(now)
             next_t += self.period
-            delay = next_t - time.monotonic()
+            delay = next_t - clock()
             if delay < -self.period:  # fell behind: do not burst to catch up
-                next_t = time.monotonic()
+                next_t = clock()
                 delay = 0.0
             await asyncio.sleep(max(delay, 0.0))
 

@@ -1,0 +1,96 @@
+"""Is a run's result valid? Exit 0 means yes.
+
+A sim-time run is lock-step: it cannot fall behind, so it is valid unless
+messages were lost. A wall-time run is valid only if every node kept its
+schedule well enough that the simulated time is the time that passed:
+
+- covered: the ticks a node ran, times the step, cover at least
+  MIN_COVERED of the wall time its loop ran (a node that falls far behind
+  skips ticks, and the simulation runs slow against the hardware);
+- lateness: no tick started later than the node's tightest input maximum
+  age (default_max_age of the rate where it declares none): a tick that late
+  used, or handed on, data its readers would refuse;
+- deadline misses: at most MAX_MISS_RATIO of the ticks ended after their
+  deadline;
+  (these three do not apply to a free-running node, an emulated device:
+  its loop stands for hardware that keeps its own time, and the drivers'
+  watchdogs judge what it delivers)
+- input ages: no input was used older than its maximum age (the node stops
+  when that happens, so this reads only in a report that a node wrote);
+- no message lost: none dropped by a full queue (a subscriber that did not
+  keep up), none dropped as malformed, none lost by the recorder.
+
+An invalid run prints one INVALID line, gets "valid": false and its
+reasons in the summary JSON, and exits with INVALID_EXIT.
+"""
+
+from __future__ import annotations
+
+import math
+
+from dockhil.node import default_max_age
+
+INVALID_EXIT = 3  # the run completed, but its result is not valid (see the reasons printed)
+
+MIN_COVERED = 0.80
+MAX_MISS_RATIO = 0.25
+
+
+def wall_time_reasons(timings: dict[str, dict], expected: dict[str, bool], dt: float) -> list[str]:
+    """Why a wall-time run is not valid, from each node's loop figures (LoopTiming.report);
+    `expected`: the nodes that must have reported, each mapped to whether it is a device emulator."""
+    reasons = []
+    for name, device in expected.items():
+        t = timings.get(name)
+        if t is None:
+            reasons.append(f"node {name!r} reported no loop timing")
+            continue
+        reasons.extend(node_reasons(t, dt, device=device))
+    return reasons
+
+
+def sim_time_reasons(timings: dict[str, dict]) -> list[str]:
+    """Lock-step cannot fall behind: a sim-time run is judged only on messages it lost."""
+    return [r for t in timings.values() for r in message_reasons(t)]
+
+
+def node_reasons(t: dict, dt: float, device: bool = False) -> list[str]:
+    name = t["node"]
+    out = [] if device else schedule_reasons(t, dt)
+    for port, age in (t.get("worst_input_age_s") or {}).items():
+        limit = (t.get("max_age_s") or {}).get(port)
+        if limit is not None and age > limit:
+            out.append(f"node {name!r}: input {port!r} was used {age:.3f} s old (> max_age {limit:g} s)")
+    return out + message_reasons(t)
+
+
+def message_reasons(t: dict) -> list[str]:
+    name, out = t["node"], []
+    if t.get("dropped_out"):
+        out.append(f"node {name!r} dropped {t['dropped_out']} output message(s): a subscriber did not keep up")
+    if t.get("dropped_in"):
+        out.append(f"node {name!r} dropped {t['dropped_in']} bad input message(s)")
+    return out
+
+
+def schedule_reasons(t: dict, dt: float) -> list[str]:
+    """Did the node's loop keep real time?"""
+    name = t["node"]
+    out = []
+    elapsed, covered, ticks = t.get("elapsed_s", 0.0), t.get("covered_s", 0.0), t.get("ticks", 0)
+    if elapsed > 0 and covered < MIN_COVERED * elapsed:
+        out.append(f"node {name!r} simulated {covered:.3f} s in {elapsed:.3f} s of wall time "
+                   f"(fell behind real time; at least {MIN_COVERED:.0%} needed)")
+    limits = [a for a in (t.get("max_age_s") or {}).values() if a is not None and math.isfinite(a)]
+    late_limit = min(limits, default=default_max_age(dt))
+    worst = t.get("worst_late_s", 0.0)
+    if worst > late_limit:
+        out.append(f"node {name!r}: a tick started {worst:.3f} s late (> {late_limit:g} s)")
+    if ticks and t.get("deadline_misses", 0) > MAX_MISS_RATIO * ticks:
+        out.append(f"node {name!r} missed {t['deadline_misses']} of {ticks} deadlines "
+                   f"({t['deadline_misses'] / ticks:.0%} > {MAX_MISS_RATIO:.0%})")
+    return out
+
+
+def invalid_line(reasons: list[str]) -> str:
+    return "INVALID: " + "; ".join(reasons)

@@ -1,0 +1,54 @@
+"""Nodes that misbehave on purpose, for the validity and stall tests."""
+
+from __future__ import annotations
+
+import math
+import time
+
+from dockhil.node import Input, Node, Output, Param
+from msgs import Vector3, Wrench, WrenchStamped
+
+
+def _w(tick, x):
+    return WrenchStamped(header=tick.header(), wrench=Wrench(force=Vector3(x=x)))
+
+
+class NanAt(Node):
+    """Publishes a ramp on /x, and NaN from tick `at` on (a loop that diverged)."""
+
+    outputs = {"x": Output(WrenchStamped, "/x")}
+    params = {"at": Param(int, 5, help="first tick with NaN")}
+
+    def step(self, tick, inputs):
+        return {"x": _w(tick, math.nan if tick.index >= self.p.at else 0.1 * tick.index)}
+
+
+class Follow(Node):
+    """Reads /x, publishes /u = -x: a consumer."""
+
+    inputs = {"x": Input(WrenchStamped, "/x")}
+    outputs = {"u": Output(WrenchStamped, "/u")}
+
+    def step(self, tick, inputs):
+        x = inputs["x"]
+        return {"u": _w(tick, 0.0 if x is None else -x.wrench.force.x)}
+
+
+class Hiccup(Node):
+    """Publishes /x; at tick `at` its step takes `seconds` (a process starved or stopped)."""
+
+    outputs = {"x": Output(WrenchStamped, "/x")}
+    params = {"at": Param(int, 50, help="tick that stalls"),
+              "seconds": Param(float, 0.3, unit="s", help="how long it stalls", ge=0.0)}
+
+    def setup(self):
+        self.clock = self.ctx.clock
+
+    def step(self, tick, inputs):
+        if tick.index == self.p.at:
+            advance = getattr(self.clock, "advance", None)
+            if advance is not None:  # a test's clock: the stall is exact
+                advance(self.p.seconds)
+            else:
+                time.sleep(self.p.seconds)
+        return {"x": _w(tick, float(tick.index))}

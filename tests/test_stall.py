@@ -1,0 +1,131 @@
+"""A stalled process never passes silently, and supervision never waits: SIGSTOP/SIGCONT of a
+node by pid in a wall-time run, and a launcher waiting to respawn a node. True wall-time runs:
+they assert outcomes (a non-zero exit, the line that says why), not timings."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import time
+
+import pytest
+
+from tests.conftest import dockhil_cmd, registered
+
+STALE = re.compile(r"error: node '(\w+)': input '(\w+)' \((/[\w/]+)\) is (\d+\.\d+) s old > max_age ([\d.]+) s")
+
+
+def wait_line(lines: list[str], pattern: str, timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while not any(pattern in line for line in lines):
+        assert time.monotonic() < deadline, f"no line with {pattern!r} within {timeout} s: {lines}"
+        time.sleep(0.05)
+
+
+def start(args: list[str]) -> tuple[subprocess.Popen, list[str]]:
+    import threading
+
+    p = subprocess.Popen(dockhil_cmd(*args), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(iter(p.stdout.readline, "")), daemon=True).start()
+    return p, lines
+
+
+def stop_for(pid: int, seconds: float) -> None:
+    """SIGSTOP, then SIGCONT; a process that is already gone (the graph stopped) is left alone."""
+    try:
+        os.kill(pid, signal.SIGSTOP)
+    except ProcessLookupError:
+        return
+    time.sleep(seconds)
+    try:
+        os.kill(pid, signal.SIGCONT)
+    except ProcessLookupError:
+        pass
+
+
+def finish(p: subprocess.Popen, timeout: float = 60) -> int:
+    try:
+        return p.wait(timeout)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+
+
+@pytest.mark.wall_time
+@pytest.mark.parametrize("stalled", ["dynamics", "impedance"])
+def test_a_two_second_sigstop_of_a_simulation_node_stops_the_graph_in_one_line(stalled):
+    p, lines = start(["launch", "launch/hil.yaml", "--wall-time", "--duration", "30", "--quiet"])
+    try:
+        pid = registered(p.pid)["nodes"][stalled]["pid"]
+        wait_line(lines, "impedance (closed form", 30)  # running
+        time.sleep(0.5)
+        stop_for(pid, 2.0)
+        code = finish(p)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    text = "".join(lines)
+    assert code == 1 and "Traceback" not in text, text
+    stale = [m.groups() for m in map(STALE.search, text.splitlines()) if m]
+    # A reader of the stalled node's output said which input went stale, and how old.
+    assert any(node != stalled and float(age) >= float(limit) for node, _, _, age, limit in stale), text
+    assert "exited with code 2 while running; stopping the graph" in text
+
+
+RESPAWN = """
+rate: 200
+nodes:
+  - {name: integ, node: "tests.graphnodes:Integrator"}
+  - {name: gain, node: "tests.graphnodes:Gain", respawn: true, respawn_delay: 30, params: {die_at: 20}}
+"""
+
+
+@pytest.mark.wall_time
+def test_sigint_during_a_long_respawn_wait_stops_the_graph_at_once(write_launch):
+    p, lines = start(["launch", write_launch(RESPAWN), "--wall-time"])
+    wait_line(lines, "respawning in 30 s", 30)
+    p.send_signal(signal.SIGINT)
+    t = time.monotonic()
+    code = finish(p, timeout=25)
+    assert code == 128 + signal.SIGINT and time.monotonic() - t < 25  # not after the 30 s wait
+    assert "[launch] SIGINT: stopping the graph" in "".join(lines)
+
+
+@pytest.mark.wall_time
+def test_duration_ends_a_run_while_a_node_waits_to_respawn(write_launch):
+    p, lines = start(["launch", write_launch(RESPAWN), "--wall-time", "--duration", "2"])
+    code = finish(p, timeout=25)  # the respawn would be due only after 30 s
+    text = "".join(lines)
+    assert "respawning in 30 s" in text and "Traceback" not in text
+    # Stopped at the duration; the node that had died makes the run fail.
+    assert code == 1 and "[launch] 'gain' exited with code 3 while stopping" in text, text
+
+
+@pytest.mark.wall_time
+def test_a_stalled_robot_driver_holds_and_stops_the_graph(tmp_path):
+    """SIGSTOP of the Modbus robot driver for 0.5 s: on waking it finds the gap longer than its
+    stall_timeout and holds (or a reader of its state stopped the graph first); never exit 0."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    p, lines = start(["launch", "launch/hil.yaml", "ft:=can", "robot:=modbus", "emulators:=true",
+                      f"can_channel:={tmp_path / 'ft.slcan'}", f"modbus_port:={port}",
+                      "--wall-time", "--duration", "30", "--quiet"])
+    try:
+        pid = registered(p.pid)["nodes"]["robot"]["pid"]
+        wait_line(lines, "tared over", 30)
+        time.sleep(0.5)
+        stop_for(pid, 0.5)
+        code = finish(p)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    text = "".join(lines)
+    assert code != 0 and "Traceback" not in text, text
+    assert "safety stop: stall: no step for" in text or STALE.search(text), text
