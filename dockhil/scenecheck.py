@@ -103,12 +103,15 @@ def _analyse(info: dict, cont=None) -> dict:
     h = info["h"] if loop.held else 0.0
     if cont is None:
         cont = hybrid_roots(info["m"], info["kd"], info["bd"], info["kh"], info["bh"], h, count=4)
-    guesses = [cmath.exp(complex(s) * loop.dt) for s in cont] + [cmath.exp(complex(s).conjugate() * loop.dt)
-                                                                 for s in cont]
-    z = sampled.sampled_roots(loop, guesses)[0]
-    rho = abs(complex(z))
+    try:
+        guesses = [cmath.exp(complex(s) * loop.dt) for s in cont] + [cmath.exp(complex(s).conjugate() * loop.dt)
+                                                                     for s in cont]
+        z = sampled.sampled_roots(loop, guesses)[0]
+        rho = abs(complex(z))
+    except OverflowError:  # a root so far right that exp(s dt) overflows: the sampled loop explodes
+        rho = math.inf
     return dict(continuous=complex(cont[0]), roots=cont, rho=rho,
-                growth=(math.log(rho) / loop.dt) if rho > 0 else -math.inf)
+                growth=(math.log(rho) / loop.dt) if 0 < rho < math.inf else (math.inf if rho else -math.inf))
 
 
 def _stable_rate(graph, info: dict, start: float, cont) -> float | None:

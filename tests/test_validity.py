@@ -10,6 +10,8 @@ import os
 import resource
 import subprocess
 import sys
+import tempfile
+from pathlib import Path
 
 import pytest
 import zmq
@@ -18,7 +20,7 @@ from dockhil import validity
 from dockhil.errors import DockhilError
 from dockhil.executor import NodeExecutor, PortWire, RunSpec, StaleInput, Stop
 from dockhil.node import ManualClock, default_max_age
-from dockhil.transport import HWM, Publisher, Subscriber
+from dockhil.transport import HWM, GraphKeys, Publisher, Subscriber
 from msgs import Header, Vector3, Wrench, WrenchStamped
 from msgs.codec import encode
 from tests.conftest import dockhil_cmd
@@ -27,8 +29,12 @@ from tests.faultnodes import Follow, Hiccup, NanAt
 P = 1 / 1024  # a period that binary floating point adds up exactly
 
 
-def executor(node_cls, clock, params=None, inputs=None, name="n") -> NodeExecutor:
+def executor(node_cls, clock, params=None, inputs=None, name="n", keys=None) -> NodeExecutor:
+    """keys: the GraphKeys of the test's publisher (written to a 0600 key file the node reads)."""
     spec = RunSpec(name, f"tests.faultnodes:{node_cls.__name__}", params or {}, P, "wall", inputs=inputs or {})
+    if keys is not None:
+        folder = tempfile.mkdtemp(prefix="dh-keys-")
+        spec.key_file = str(keys.write(Path(folder) / "graph.keys"))
     ex = NodeExecutor(spec, node_cls, Stop(), log=lambda line: None, clock=clock)
     ex.start()
     return ex
@@ -111,7 +117,8 @@ def test_an_input_older_than_its_maximum_age_stops_the_node_with_one_line(tmp_pa
     its latest message more than max_age (0.1 s) old, that is at 153 P (103 P = 0.1006 s)."""
     ctx = zmq.Context()  # not the executor's: it ends its own context when it closes
     endpoint = f"ipc://{tmp_path}/x"
-    pub = Publisher(ctx, "/x", endpoint)
+    keys = GraphKeys.make()
+    pub = Publisher(ctx, "/x", endpoint, keys=keys)
     sent = []
 
     class Upstream(ManualClock):
@@ -124,7 +131,8 @@ def test_an_input_older_than_its_maximum_age_stops_the_node_with_one_line(tmp_pa
                 assert ex.sub.sock.poll(5000), "the message did not arrive"  # there before the next tick
 
     clock = Upstream()
-    ex = executor(Follow, clock, inputs={"x": PortWire("/x", endpoint, "dockhil/WrenchStamped")}, name="follow")
+    ex = executor(Follow, clock, inputs={"x": PortWire("/x", endpoint, "dockhil/WrenchStamped")}, name="follow",
+                  keys=keys)
     try:
         pub.wait_subscribers(1, 10.0)
         with pytest.raises(StaleInput) as err:
@@ -274,7 +282,7 @@ def test_a_full_filesystem_fails_the_run_with_the_count_of_lost_messages(write_l
 def test_wall_time_drops_and_counts_for_a_subscriber_that_never_reads(tmp_path):
     ctx = zmq.Context()
     endpoint = f"ipc://{tmp_path}/q"
-    pub = Publisher(ctx, "/q", endpoint, linger_s=0, lossy=True)
+    pub = Publisher(ctx, "/q", endpoint, linger_s=0, keys=None, lossy=True)
     idle = ctx.socket(zmq.SUB)  # a foreign subscriber that connects and never reads
     idle.setsockopt(zmq.SUBSCRIBE, b"")
     idle.connect(endpoint)
@@ -295,9 +303,9 @@ def test_sim_time_waits_for_a_slow_subscriber_and_loses_nothing(tmp_path):
 
     ctx = zmq.Context()
     endpoint = f"ipc://{tmp_path}/q"
-    pub = Publisher(ctx, "/q", endpoint, linger_s=0)
+    pub = Publisher(ctx, "/q", endpoint, linger_s=0, keys=None)
     sub = Subscriber(ctx)
-    sub.connect(endpoint)
+    sub.connect(endpoint, keys=None)
     n = 4 * HWM
     done = threading.Event()
 
