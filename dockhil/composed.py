@@ -59,6 +59,27 @@ class ComposedGraph:
         if first:
             raise first
 
+    def step(self, tick: Tick, wall: bool = False) -> dict[str, dict]:
+        """One tick of every node, in order; returns each node's outputs by node name.
+        (dockhil.testing steps a single node this way, with the test's inputs.)"""
+        k = tick.index
+        for hist in self.history.values():  # a slot for this tick; stays None if nothing is sent
+            hist.append(hist[-1] if wall else None)
+        done = {}
+        for name, node, ins, outs_map, declared in self.plan:
+            inputs = {port: (None if hist is None else hist[-1 - lag]) for port, hist, lag in ins}
+            outs = node.step(tick, inputs)
+            if k == 0 or not wall:
+                check_outputs(name, declared, k, outs, sim=not wall)
+            for port, topic, hist in outs_map:
+                msg = outs.get(port)
+                if msg is not None:
+                    hist[-1] = msg
+                    for tap in self.taps:
+                        tap(topic, msg)
+            done[name] = outs
+        return done
+
     def run(self, n_ticks: int | None, *, wall: bool = False, stop: Stop | None = None,
             progress: Callable[[int], None] | None = None) -> int:
         """Step ticks 0..n_ticks-1 (None: until stopped). Returns ticks done.
@@ -69,23 +90,10 @@ class ComposedGraph:
         stop = stop or Stop()
         dt = self.dt
         t0 = time.monotonic()
-        histories = list(self.history.values())
         k = 0
         while (n_ticks is None or k < n_ticks) and not stop.requested:
             tick = Tick(k, (time.monotonic() - t0) if wall else k * dt, dt, stamp=time.time() if wall else None)
-            for hist in histories:  # a slot for this tick; stays None if nothing is sent
-                hist.append(hist[-1] if wall else None)
-            for name, node, ins, outs_map, declared in self.plan:
-                inputs = {port: (None if hist is None else hist[-1 - lag]) for port, hist, lag in ins}
-                outs = node.step(tick, inputs)
-                if k == 0 or not wall:
-                    check_outputs(name, declared, k, outs, sim=not wall)
-                for port, topic, hist in outs_map:
-                    msg = outs.get(port)
-                    if msg is not None:
-                        hist[-1] = msg
-                        for tap in self.taps:
-                            tap(topic, msg)
+            self.step(tick, wall)
             k += 1
             if progress is not None:
                 progress(k)
