@@ -150,7 +150,7 @@ class NodeHarness:
         tick = Tick(k, tick_t, self.dt, stamp=None if self.sim_time else tick_t)
         done = self.graph.step(tick, wall=not self.sim_time)
         self.k += 1
-        return dict(done[self.name])
+        return {port: msg for port, msg in done[self.name].items() if msg is not None}
 
     def run(self, n: int, inputs: dict[str, Any] | Callable[[int], dict[str, Any] | None] | None = None
             ) -> list[dict[str, Any]]:
