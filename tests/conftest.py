@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -95,3 +96,48 @@ def kill_child_and_expect_the_graph_to_stop(launch: subprocess.Popen, name: str,
     assert killed or noticed, out
     assert "Traceback" not in out
     return out
+
+
+class VirtualFtSensor:
+    """Sends F/T frames on a python-can virtual bus, as the sensor would."""
+
+    def __init__(self, channel: str):
+        import can
+
+        self._can = can
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.seq = 0
+        self.force = (0.0, 0.0, 0.0)
+        self._run = False
+        self._thread = None
+
+    def send(self, force=None, torque=(0.0, 0.0, 0.0), seq=None, status=0, advance=True):
+        from dockhil.hardware import ft_frames as ff
+
+        seq = self.seq if seq is None else seq
+        for fid, data in ff.encode_sample(force or self.force, torque, seq, status=status):
+            self.bus.send(self._can.Message(arbitration_id=fid, data=data, is_extended_id=False))
+        if advance:
+            self.seq = (seq + 1) & 0xFF
+
+    def stream(self):
+        """Send at about 1 kHz in a thread (for the tare in setup)."""
+        self._run = True
+
+        def loop():
+            while self._run:
+                self.send()
+                time.sleep(0.001)
+
+        self._thread = threading.Thread(target=loop, daemon=True)
+        self._thread.start()
+        return self
+
+    def quiet(self):
+        self._run = False
+        if self._thread:
+            self._thread.join()
+
+    def close(self):
+        self.quiet()
+        self.bus.shutdown()

@@ -11,9 +11,11 @@ import threading
 import time
 from pathlib import Path
 
+import can
 import pytest
+import serial
 
-from tests.conftest import node_process_error
+from tests.conftest import VirtualFtSensor, node_process_error
 
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import ft_frames as ff
@@ -21,8 +23,6 @@ from dockhil.hardware.slcan_pty import CanFrame, PtyCanBus, SlcanPort, parse_tra
 from dockhil.node import NodeContext, Tick
 from nodes.ft_can import FtCanDriver
 
-can = pytest.importorskip("can")
-serial = pytest.importorskip("serial")
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
@@ -327,50 +327,10 @@ def test_modules_do_not_import_python_can_until_setup():
 # -- driver behaviour on a virtual bus (in process, ticks with chosen times) -----------
 
 
-class Sensor:
-    """Sends F/T frames on a python-can virtual bus, as the sensor would."""
-
-    def __init__(self, channel: str):
-        self.bus = can.Bus(interface="virtual", channel=channel)
-        self.seq = 0
-        self.force = (0.0, 0.0, 0.0)
-        self._run = False
-        self._thread = None
-
-    def send(self, force=None, torque=(0.0, 0.0, 0.0), seq=None, status=0, advance=True):
-        seq = self.seq if seq is None else seq
-        for fid, data in ff.encode_sample(force or self.force, torque, seq, status=status):
-            self.bus.send(can.Message(arbitration_id=fid, data=data, is_extended_id=False))
-        if advance:
-            self.seq = (seq + 1) & 0xFF
-
-    def stream(self):
-        """Send at about 1 kHz in a thread (for the tare in setup)."""
-        self._run = True
-
-        def loop():
-            while self._run:
-                self.send()
-                time.sleep(0.001)
-
-        self._thread = threading.Thread(target=loop, daemon=True)
-        self._thread.start()
-        return self
-
-    def quiet(self):
-        self._run = False
-        if self._thread:
-            self._thread.join()
-
-    def close(self):
-        self.quiet()
-        self.bus.shutdown()
-
-
 @pytest.fixture
 def virtual(request):
     channel = f"ft-{request.node.name}"
-    sensor = Sensor(channel)
+    sensor = VirtualFtSensor(channel)
     logs: list[str] = []
     nodes = []
 

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+import pymodbus  # noqa: F401  - a hard dependency: missing, the tests fail
 
 from tests.conftest import node_process_error
 
@@ -22,8 +23,6 @@ from dockhil.hardware.robot_emulator import FOLLOW, HOLD, RobotControllerEmulato
 from dockhil.node import NodeContext, Tick
 from msgs import Header, Pose, RobotCommand, Twist, Vector3
 from nodes.robot_modbus import RobotModbusDriver
-
-pytest.importorskip("pymodbus")
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}

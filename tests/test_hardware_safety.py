@@ -15,8 +15,6 @@ from dockhil.hardware.robot_emulator import FOLLOW, HOLD
 from msgs import EStop, Header, Pose, RobotCommand, Vector3, Wrench, WrenchStamped
 from tests.test_hardware_modbus import Drive, driver, read_holding
 
-pytest.importorskip("pymodbus")
-
 
 @pytest.fixture
 def make(controller):
