@@ -105,6 +105,7 @@ class VirtualFtSensor:
         import can
 
         self._can = can
+        self.channel = channel
         self.bus = can.Bus(interface="virtual", channel=channel)
         self.seq = 0
         self.force = (0.0, 0.0, 0.0)
