@@ -171,3 +171,34 @@ def test_bag_source_in_wall_time_emits_what_is_due_by_log_time(bag):
 def test_bag_source_refuses_a_topic_not_in_the_bag(bag):
     with pytest.raises(DockhilError, match=r"no messages on /estop; topics in the bag: /ft/wrench, /robot/command"):
         NodeHarness("bag_source", path=bag, topics=["/estop"])
+
+
+# -- the node-writing guide's own example ------------------------------------------------------
+
+
+def test_the_node_writing_guides_example_node_scene_and_test_work(tmp_path, monkeypatch):
+    import re
+    import sys
+
+    from dockhil import launchfile
+    from dockhil.composed import ComposedGraph
+    from dockhil.graph import build
+    from tests.conftest import ROOT
+
+    text = (ROOT / "docs" / "writing-a-node.md").read_text()
+    node_py, scene_yaml, test_py = (body for _, body in re.findall(r"```(python|yaml)\n(.*?)```", text, re.S))
+    (tmp_path / "spring_node.py").write_text(node_py)
+    (tmp_path / "scene.yaml").write_text(scene_yaml)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "spring_node", raising=False)
+    space: dict = {}
+    exec(compile(test_py, "writing-a-node.md", "exec"), space)
+    space["test_spring_pulls_back_to_the_set_point"]()
+    # The scene builds, and the spring pulls the chaser from x1 = 0.01 towards 0, its set point.
+    g = ComposedGraph(build(launchfile.load(str(tmp_path / "scene.yaml"))), log=lambda name, line: None)
+    xs = []
+    g.taps.append(lambda topic, msg: xs.append(msg.bodies[0].pose.position.x) if topic == "/satellite/state" else None)
+    g.setup()
+    g.run(300)
+    g.close()
+    assert xs[0] == 0.01 and 0.0 < xs[-1] < 0.01 and all(b <= a for a, b in zip(xs, xs[1:]))
