@@ -79,13 +79,52 @@ def registered(pid: int, timeout=20.0) -> dict:
     raise AssertionError(f"process {pid} registered no graph")
 
 
-def kill_child_and_expect_the_graph_to_stop(launch: subprocess.Popen, name: str, dependent: str = "") -> str:
+class Lines:
+    """Reads a process's text output in a thread, so a test can wait for a line with a deadline."""
+
+    def __init__(self, proc: subprocess.Popen):
+        self.proc = proc
+        self.lines: list[str] = []
+        self._cond = threading.Condition()
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            with self._cond:
+                self.lines.append(line)
+                self._cond.notify_all()
+        with self._cond:
+            self._eof = True
+            self._cond.notify_all()
+
+    def wait_for(self, text: str, count: int = 1, timeout: float = 60.0) -> str:
+        """Block until `text` has appeared in `count` lines; all output so far."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while sum(text in line for line in self.lines) < count:
+                left = deadline - time.monotonic()
+                if left <= 0 or getattr(self, "_eof", False):
+                    raise AssertionError(f"no {count} lines with {text!r} within {timeout} s:\n" + "".join(self.lines))
+                self._cond.wait(min(left, 0.5))
+            return "".join(self.lines)
+
+    def rest(self, timeout: float = 60.0) -> str:
+        """Wait for the process to end; all its output."""
+        self.proc.wait(timeout=timeout)
+        self._thread.join(timeout)
+        return "".join(self.lines)
+
+
+def kill_child_and_expect_the_graph_to_stop(launch: subprocess.Popen, name: str, dependent: str = "",
+                                            lines: Lines | None = None) -> str:
     """SIGKILL the launched process `name`; the launcher must stop the graph, non-zero, in plain lines.
-    `dependent`: a node that may notice first (a driver whose device died) and fail with its own line."""
+    `dependent`: a node that may notice first (a driver whose device died) and fail with its own line.
+    `lines`: the launcher's output, if a test already reads it."""
     pid = registered(launch.pid)["nodes"][name]["pid"]
     try:
         os.kill(pid, signal.SIGKILL)
-        out, _ = launch.communicate(timeout=30)
+        out = lines.rest(timeout=60) if lines else launch.communicate(timeout=60)[0]
     finally:
         if launch.poll() is None:
             launch.kill()

@@ -1,5 +1,10 @@
 """The same scene on real-protocol drivers: CAN F/T over a pseudo-terminal slcan adapter,
-robot over Modbus TCP on 127.0.0.1, both emulated; missing devices and safety through the launcher."""
+robot over Modbus TCP on 127.0.0.1, both emulated; missing devices and safety through the launcher.
+
+True wall-time end-to-end runs (marked wall_time): they assert outcomes, and wait for
+conditions with deadlines. The F/T watchdog is widened to 1 s where it is not what a
+test is about, so a busy machine's scheduling gaps do not stop the run; the watchdog
+itself is tested on the tick clock (test_hardware_safety.py, test_nodes_hardware.py)."""
 
 import json
 import socket
@@ -8,7 +13,9 @@ import time
 
 import pytest
 
-from tests.conftest import dockhil_cmd, kill_child_and_expect_the_graph_to_stop
+from tests.conftest import Lines, dockhil_cmd, kill_child_and_expect_the_graph_to_stop
+
+pytestmark = pytest.mark.wall_time
 
 
 def free_port() -> int:
@@ -19,7 +26,7 @@ def free_port() -> int:
 
 def hardware_args(tmp_path, emulators=True):
     return ["ft:=can", "robot:=modbus", f"emulators:={'true' if emulators else 'false'}",
-            f"can_channel:={tmp_path / 'ft.slcan'}", f"modbus_port:={free_port()}"]
+            f"can_channel:={tmp_path / 'ft.slcan'}", f"modbus_port:={free_port()}", "ft_timeout:=1.0"]
 
 
 def test_swap_runs_the_scene_through_the_drivers_and_lands_near_the_simulated_run(tmp_path):
@@ -45,7 +52,7 @@ def test_missing_devices_fail_fast_with_one_line_each(tmp_path):
                                    "--wall-time", "--duration", "30", "--quiet"),
                        capture_output=True, text=True, timeout=60)
     assert r.returncode != 0
-    assert time.monotonic() - t0 < 15
+    assert time.monotonic() - t0 < 25  # fails at start, long before the 30 s run would end
     out = r.stdout + r.stderr
     errors = [line for line in out.splitlines() if " error: " in line]
     assert any(line.startswith("[robot] error: robot controller (Modbus TCP") for line in errors), out
@@ -71,7 +78,8 @@ def test_a_dead_device_stops_the_graph(tmp_path):
     args = hardware_args(tmp_path)
     p = subprocess.Popen(dockhil_cmd("launch", "launch/hil.yaml", *args, "--wall-time", "--duration", "20", "--quiet"),
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    time.sleep(1.5)  # running: tared, commanding
-    out = kill_child_and_expect_the_graph_to_stop(p, "ft_emulator", dependent="ft")
+    lines = Lines(p)
+    lines.wait_for("tared over")  # running: the driver reads the emulated sensor
+    out = kill_child_and_expect_the_graph_to_stop(p, "ft_emulator", dependent="ft", lines=lines)
     # Either way the sensor's loss is named: the dead adapter, or the driver's bus error.
     assert "'ft_emulator' was killed by SIGKILL" in out or "bus error" in out or "stale data" in out
