@@ -56,7 +56,7 @@ def node_process_error(spec: dict, env=None) -> str:
     t = time.monotonic()
     proc = subprocess.run([sys.executable, "-m", "dockhil.process", json.dumps(spec)], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=30)
-    assert time.monotonic() - t < 5.0
+    assert time.monotonic() - t < 15.0  # fails at once, not after a hang (interpreter start-up on a busy machine)
     assert proc.returncode != 0
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
