@@ -11,8 +11,13 @@ import time
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 ROOT = Path(__file__).resolve().parent.parent
+
+# No per-example time limit: a busy machine makes an example slow, not wrong.
+settings.register_profile("dockhil", deadline=None)
+settings.load_profile("dockhil")
 
 
 @pytest.fixture(autouse=True)
