@@ -80,7 +80,8 @@ def test_missing_devices_fail_fast_with_one_line_each(tmp_path):
 
 def test_a_safety_limit_stops_the_graph_naming_limit_and_value(tmp_path):
     # The sensor measures the passive compliance alone: k v / omega, about 15 N at its peak here.
-    r = wall_run(tmp_path, "max_force:=10", "--duration", "3", done=lambda r: "safety stop: max_force" in r.stdout + r.stderr)
+    r = wall_run(tmp_path, "max_force:=10", "--duration", "3",
+                 done=lambda r: "safety stop: max_force" in r.stdout + r.stderr)
     assert r.returncode != 0
     out = r.stdout + r.stderr
     trip = [line for line in out.splitlines() if "safety stop: max_force" in line]

@@ -141,7 +141,8 @@ def closed_form(m1, m2, kcs, bcs, k):
     return ((kcs - k) * (1 + m1 / m2), bcs * (1 + m1 / m2), (kcs - k) * (1 + m2 / m1), bcs * (1 + m2 / m1))
 
 
-@pytest.mark.parametrize("m1, m2, kcs, bcs, k", [(750.0, 1e6, 3000.0, 40.0, 1000.0), (300.0, 900.0, 5000.0, 12.0, 800.0)])
+@pytest.mark.parametrize("m1, m2, kcs, bcs, k", [(750.0, 1e6, 3000.0, 40.0, 1000.0),
+                                                  (300.0, 900.0, 5000.0, 12.0, 800.0)])
 def test_impedance_is_the_spring_damper_to_the_wall_moving_at_v_com(m1, m2, kcs, bcs, k):
     k1, b1, k2, b2 = closed_form(m1, m2, kcs, bcs, k)
     v1, v2, t = 0.03, -0.002, 0.21
