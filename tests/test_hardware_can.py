@@ -241,7 +241,9 @@ def test_driver_reads_the_emulated_sensor_across_processes(tmp_path):
     link = str(tmp_path / "ft.slcan")
     em = spawn(EMULATOR, link, "1000.0", "2.5")
     logs: list[str] = []
-    node = FtCanDriver(wall_ctx("ft", logs), channel=link, tare_samples=50)
+    # stale_timeout 1 s: a busy machine may stall either process for a while (stale data is tested
+    # on the tick clock below); lost samples are counted, not failed on, for the same reason.
+    node = FtCanDriver(wall_ctx("ft", logs), channel=link, tare_samples=50, stale_timeout=1.0)
     try:
         assert ready_line(em) == "ready"
         t = time.monotonic()
@@ -265,7 +267,7 @@ def test_driver_reads_the_emulated_sensor_across_processes(tmp_path):
         em.stdin.flush()
         out, k = wall_until(node, lambda o: o["wrench"].wrench.force.x > -1.0, t0, k)
         assert out["wrench"].wrench.force.x == pytest.approx(0.0, abs=1e-9)
-        assert node.lost == 0 and node.bad_frames == 0
+        assert node.bad_frames == 0
 
         em.kill()  # the sensor goes away mid-run
         em.wait(timeout=5)
