@@ -84,8 +84,10 @@ def test_bad_inputs_and_outputs_are_refused_with_one_line():
         params = {"how": Param(str, "type")}
 
         def step(self, tick, inputs):
-            if self.p.how == "type":
+            if self.p.how == "type" or (self.p.how == "type later" and tick.index > 0):
                 return {"x": robot_command()}
+            if self.p.how == "type later":
+                return {"x": WrenchStamped(header=tick.header())}
             if self.p.how == "port":
                 return {"y": wrench()}
             return {"x": WrenchStamped(header=msgs.Header(tick=tick.index + 1))}
@@ -95,6 +97,10 @@ def test_bad_inputs_and_outputs_are_refused_with_one_line():
             h.step()
     with NodeHarness(Liar, how="port") as h:
         with pytest.raises(DockhilError, match=r"returned undeclared output 'y' at tick 0"):
+            h.step()
+    with NodeHarness(Liar, how="type later", sim_time=False) as h:  # wall time: every tick is checked too
+        h.step()
+        with pytest.raises(DockhilError, match=r"output 'x' at tick 1: expected WrenchStamped, got RobotCommand"):
             h.step()
     with NodeHarness(Liar, how="tick") as h:
         with pytest.raises(DockhilError, match=r"carries header.tick 1; build headers with tick.header\(\)"):
