@@ -220,7 +220,7 @@ def wall_steps(node, seconds: float, t0: float, k0: int = 0):
     return outs, k
 
 
-def wall_until(node, done, t0: float, k: int, timeout: float = 10.0):
+def wall_until(node, done, t0: float, k: int, timeout: float = 30.0):
     """Step a node in wall time until done(output) for an output; return (that output, next tick index)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

@@ -165,7 +165,7 @@ class Drive:
             self.step(**make(self))
             time.sleep(0.001)
 
-    def until(self, done, make=lambda d: {}, timeout: float = 10.0):
+    def until(self, done, make=lambda d: {}, timeout: float = 30.0):
         """Step (about every millisecond) until done(self); fail after `timeout` seconds."""
         deadline = time.monotonic() + timeout
         while not done(self):

@@ -22,7 +22,7 @@ from dockhil.hardware.robot_emulator import HOLD
 from dockhil.testing import NodeHarness, estop, robot_command, robot_state, wrench
 
 
-def until(h: NodeHarness, done, inputs=None, timeout: float = 10.0) -> dict:
+def until(h: NodeHarness, done, inputs=None, timeout: float = 30.0) -> dict:
     """Step (in wall time, about every millisecond) until done(outputs); the outputs that did it."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -161,7 +161,7 @@ def test_ft_driver_stale_data_counts_on_the_tick_clock(sensor):
 # -- ft_emulator: the sensor's frames from the robot pose ---------------------------------------
 
 
-def frames(bus, n: int, timeout: float = 5.0) -> list:
+def frames(bus, n: int, timeout: float = 30.0) -> list:
     got = []
     deadline = time.monotonic() + timeout
     while len(got) < n and time.monotonic() < deadline:
