@@ -181,6 +181,9 @@ class Drive:
 def driver(port: int, logs: list | None = None, **params) -> RobotModbusDriver:
     log = logs.append if logs is not None else (lambda line: None)
     params.setdefault("ft_timeout", 0.0)
+    # 1 s per request: on a busy machine a round trip to the emulator can outlast the 0.1 s default,
+    # which the driver would rightly take for a lost connection; that is tested on its own.
+    params.setdefault("timeout", 1.0)
     return RobotModbusDriver(NodeContext("robot", 0.001, sim_time=False, log=log), port=port, **params)
 
 

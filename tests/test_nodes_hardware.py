@@ -34,11 +34,12 @@ def until(h: NodeHarness, done, inputs=None, timeout: float = 30.0) -> dict:
 
 
 # -- robot_modbus against the controller emulator -------------------------------------------
+# (timeout=1.0: 1 s per Modbus request, so a busy machine's slow round trip is not a lost connection)
 
 
 @pytest.fixture
 def robot(controller):
-    h = NodeHarness("robot_modbus", sim_time=False, port=controller.port).setup()
+    h = NodeHarness("robot_modbus", sim_time=False, port=controller.port, timeout=1.0).setup()
     yield h
     h.close()
 
@@ -58,7 +59,7 @@ def test_robot_driver_moves_the_robot_to_the_commanded_pose_and_reports_it(robot
 
 
 def test_robot_driver_holds_until_the_first_wrench_arrives(controller):
-    with NodeHarness("robot_modbus", sim_time=False, port=controller.port) as h:
+    with NodeHarness("robot_modbus", sim_time=False, port=controller.port, timeout=1.0) as h:
         for _ in range(50):  # commands, but no F/T data yet: the robot must not move blind
             h.step({"command": robot_command(0.002)})
             time.sleep(0.001)
@@ -83,7 +84,8 @@ def test_robot_force_limit_reads_the_wrench_one_tick_late_and_trips_on_its_norm(
 def test_robot_ft_watchdog_counts_on_the_tick_clock(controller):
     # dt 10 ms, ft_timeout 50 ms: the wrench of tick 0 is read at tick 1 (t = 0.01 s) and is
     # the last; the age first exceeds 0.05 s at tick 7 (0.06 s), however slowly the test steps.
-    with NodeHarness("robot_modbus", sim_time=False, dt=0.01, port=controller.port, ft_timeout=0.05) as h:
+    with NodeHarness("robot_modbus", sim_time=False, dt=0.01, port=controller.port, ft_timeout=0.05,
+                     timeout=1.0) as h:
         h.step({"wrench": wrench()})
         for _ in range(6):
             h.step()
@@ -107,7 +109,7 @@ def test_robot_emulator_node_serves_the_driver_and_stops_serving_at_close():
     assert f"robot controller emulator listening on 127.0.0.1:{port}" in emulator.logs
     try:
         assert emulator.step() == {}  # the device runs on its own clock
-        with NodeHarness("robot_modbus", sim_time=False, port=port) as driver:
+        with NodeHarness("robot_modbus", sim_time=False, port=port, timeout=1.0) as driver:
             until(driver, lambda o: "state" in o and abs(o["state"].pose.position.x - 0.002) < 1e-6, fresh(0.002))
     finally:
         emulator.close()
