@@ -62,6 +62,28 @@ class ComposedGraph:
         if first:
             raise first
 
+    def step(self, tick: Tick, wall: bool = False) -> dict[str, dict]:
+        """One tick of every node, in order; returns each node's outputs by node name.
+        (dockhil.testing steps a single node this way, with the test's inputs.)"""
+        k = tick.index
+        for hist in self.history.values():  # a slot for this tick; stays None if nothing is sent
+            hist.append(hist[-1] if wall else None)
+        done = {}
+        for name, node, ins, outs_map, declared in self.plan:
+            inputs = {port: (None if hist is None else hist[-1 - lag]) for port, hist, lag in ins}
+            outs = node.step(tick, inputs)
+            if k == 0 or not wall:
+                check_outputs(name, declared, k, outs, sim=not wall)
+            for port, topic, hist in outs_map:
+                msg = outs.get(port)
+                if msg is not None:
+                    check_message(name, port, topic, k, msg)  # as a node process does before it sends
+                    hist[-1] = msg
+                    for tap in self.taps:
+                        tap(topic, msg)
+            done[name] = outs
+        return done
+
     def run(self, n_ticks: int | None, *, wall: bool = False, stop: Stop | None = None,
             progress: Callable[[int], None] | None = None) -> int:
         """Step ticks 0..n_ticks-1 (None: until stopped). Returns ticks done.
@@ -73,27 +95,13 @@ class ComposedGraph:
         dt = self.dt
         clock = self.clock
         t0 = clock()
-        histories = list(self.history.values())
         timing = self.timing = LoopTiming([], period=dt) if wall else None
         k = 0
         while (n_ticks is None or k < n_ticks) and not stop.requested:
             if wall:
                 timing.started(clock() - (t0 + k * dt))
             tick = Tick(k, (clock() - t0) if wall else k * dt, dt, stamp=time.time() if wall else None)
-            for hist in histories:  # a slot for this tick; stays None if nothing is sent
-                hist.append(hist[-1] if wall else None)
-            for name, node, ins, outs_map, declared in self.plan:
-                inputs = {port: (None if hist is None else hist[-1 - lag]) for port, hist, lag in ins}
-                outs = node.step(tick, inputs)
-                if k == 0 or not wall:
-                    check_outputs(name, declared, k, outs, sim=not wall)
-                for port, topic, hist in outs_map:
-                    msg = outs.get(port)
-                    if msg is not None:
-                        check_message(name, port, topic, k, msg)  # as a node process does before it sends
-                        hist[-1] = msg
-                        for tap in self.taps:
-                            tap(topic, msg)
+            self.step(tick, wall)
             k += 1
             if progress is not None:
                 progress(k)

@@ -48,9 +48,9 @@ class VirtualImpedance(Node):
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
                 self.impedance = impedance_closed_form(scenario)
-            for w in caught:
+                fit = fit_impedance(scenario)  # its warning is the closed form's: said once, below
+            for w in {str(w.message): w for w in caught}.values():
                 self.log(f"warning: {w.message}")
-            fit = fit_impedance(scenario)
             how = f"closed form; two-time fit agrees: {fit.agrees}"
         imp = self.impedance
         self.log(f"impedance ({how}): k1={imp.k1:.6g} N/m b1={imp.b1:.6g} N s/m "

@@ -18,13 +18,12 @@ import subprocess
 import sys
 import time
 
+import foxglove  # noqa: F401  (a dev dependency: a broken install fails here, never skips)
+import jsonschema
 import pytest
+import websockets
 
 from tests.conftest import ROOT, dockhil_cmd
-
-jsonschema = pytest.importorskip("jsonschema")
-websockets = pytest.importorskip("websockets")
-pytest.importorskip("foxglove")
 
 SCENE = "launch/hil.yaml"
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # foxglove-sdk 0.30; older servers

@@ -11,9 +11,11 @@ import threading
 import time
 from pathlib import Path
 
+import can
 import pytest
+import serial
 
-from tests.conftest import node_process_error
+from tests.conftest import VirtualFtSensor, node_process_error
 
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import ft_frames as ff
@@ -21,8 +23,6 @@ from dockhil.hardware.slcan_pty import CanFrame, PtyCanBus, SlcanPort, parse_tra
 from dockhil.node import NodeContext, Tick
 from nodes.ft_can import FtCanDriver
 
-can = pytest.importorskip("can")
-serial = pytest.importorskip("serial")
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
@@ -220,46 +220,59 @@ def wall_steps(node, seconds: float, t0: float, k0: int = 0):
     return outs, k
 
 
+def wall_until(node, done, t0: float, k: int, timeout: float = 30.0):
+    """Step a node in wall time until done(output) for an output; return (that output, next tick index)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        out = node.step(Tick(k, time.monotonic() - t0, 0.001), {})
+        k += 1
+        if out and done(out):
+            return out, k
+        time.sleep(0.001)
+    raise AssertionError(f"{node.ctx.name}: no such output within {timeout} s")
+
+
 def wall_ctx(name: str, logs: list) -> NodeContext:
     return NodeContext(name, 0.001, sim_time=False, log=logs.append)
 
 
+@pytest.mark.wall_time
 def test_driver_reads_the_emulated_sensor_across_processes(tmp_path):
     link = str(tmp_path / "ft.slcan")
     em = spawn(EMULATOR, link, "1000.0", "2.5")
     logs: list[str] = []
-    node = FtCanDriver(wall_ctx("ft", logs), channel=link, tare_samples=50)
+    # stale_timeout 1 s: a busy machine may stall either process for a while (stale data is tested
+    # on the tick clock below); lost samples are counted, not failed on, for the same reason.
+    node = FtCanDriver(wall_ctx("ft", logs), channel=link, tare_samples=50, stale_timeout=1.0)
     try:
         assert ready_line(em) == "ready"
         t = time.monotonic()
         node.setup()
-        assert time.monotonic() - t < 5.0  # open + tare within seconds, with margin for a loaded machine
+        assert time.monotonic() - t < 15.0  # open + tare within seconds, even on a loaded machine
         assert node.bias_force == pytest.approx((2.5, 0.0, 0.0))  # the tare found the emulated bias
         assert any("tared over 50 samples" in line for line in logs)
         t0 = time.monotonic()
-        outs, k = wall_steps(node, 0.2, t0)
-        assert len(outs) > 20  # about one sample per 1 ms tick when the machine is idle
-        assert outs[-1]["wrench"].wrench.force.x == pytest.approx(0.0, abs=1e-9)
+        out, k = wall_until(node, lambda o: True, t0, 0)
+        assert out["wrench"].wrench.force.x == pytest.approx(0.0, abs=1e-9)
 
         em.stdin.write("0.012\n")  # 12 mm into a 1000 N/m compliance
         em.stdin.flush()
-        outs, k = wall_steps(node, 0.2, t0, k)
-        w = outs[-1]["wrench"]
-        assert w.wrench.force.x == pytest.approx(-12.0, abs=0.006)  # force on the chaser pushes it back
+        # Force on the chaser pushes it back: -k x, to the sensor's 0.01 N resolution.
+        out, k = wall_until(node, lambda o: o["wrench"].wrench.force.x < -1.0, t0, k)
+        w = out["wrench"]
+        assert w.wrench.force.x == pytest.approx(-12.0, abs=0.006)
         assert (w.wrench.force.y, w.wrench.force.z) == (0.0, 0.0)
 
         em.stdin.write("-0.02\n")  # apart: a compliance does not pull
         em.stdin.flush()
-        outs, k = wall_steps(node, 0.1, t0, k)
-        assert outs[-1]["wrench"].wrench.force.x == pytest.approx(0.0, abs=1e-9)
-        assert node.lost == 0 and node.bad_frames == 0
+        out, k = wall_until(node, lambda o: o["wrench"].wrench.force.x > -1.0, t0, k)
+        assert out["wrench"].wrench.force.x == pytest.approx(0.0, abs=1e-9)
+        assert node.bad_frames == 0
 
         em.kill()  # the sensor goes away mid-run
         em.wait(timeout=5)
-        t_kill = time.monotonic()
-        with pytest.raises(DeviceError) as err:
-            wall_steps(node, 2.0, t0, k)
-        assert time.monotonic() - t_kill < 2.0  # stale timeout 0.1 s, plus scheduling margin
+        with pytest.raises(DeviceError) as err:  # stale data after 0.1 s, or the bus error at once
+            wall_steps(node, 30.0, t0, k)
         text = str(err.value)
         assert "\n" not in text and text.startswith(f"F/T sensor (slcan {link}, CAN ID 0x1a0): ")
         assert "bus error" in text or "stale data" in text
@@ -327,50 +340,10 @@ def test_modules_do_not_import_python_can_until_setup():
 # -- driver behaviour on a virtual bus (in process, ticks with chosen times) -----------
 
 
-class Sensor:
-    """Sends F/T frames on a python-can virtual bus, as the sensor would."""
-
-    def __init__(self, channel: str):
-        self.bus = can.Bus(interface="virtual", channel=channel)
-        self.seq = 0
-        self.force = (0.0, 0.0, 0.0)
-        self._run = False
-        self._thread = None
-
-    def send(self, force=None, torque=(0.0, 0.0, 0.0), seq=None, status=0, advance=True):
-        seq = self.seq if seq is None else seq
-        for fid, data in ff.encode_sample(force or self.force, torque, seq, status=status):
-            self.bus.send(can.Message(arbitration_id=fid, data=data, is_extended_id=False))
-        if advance:
-            self.seq = (seq + 1) & 0xFF
-
-    def stream(self):
-        """Send at about 1 kHz in a thread (for the tare in setup)."""
-        self._run = True
-
-        def loop():
-            while self._run:
-                self.send()
-                time.sleep(0.001)
-
-        self._thread = threading.Thread(target=loop, daemon=True)
-        self._thread.start()
-        return self
-
-    def quiet(self):
-        self._run = False
-        if self._thread:
-            self._thread.join()
-
-    def close(self):
-        self.quiet()
-        self.bus.shutdown()
-
-
 @pytest.fixture
 def virtual(request):
     channel = f"ft-{request.node.name}"
-    sensor = Sensor(channel)
+    sensor = VirtualFtSensor(channel)
     logs: list[str] = []
     nodes = []
 

@@ -17,9 +17,6 @@ from nodes.ft_can import FtCanDriver
 from nodes.ft_emulator import FtSensorEmulator
 from nodes.robot_modbus import RobotModbusDriver
 
-pytest.importorskip("can")
-pytest.importorskip("pymodbus")
-
 
 def test_pushing_into_the_compliance_measures_k_x_and_trips_the_force_limit(tmp_path):
     """The drivers run on a ManualClock advanced 1 ms per loop, and each loop waits (with a deadline)

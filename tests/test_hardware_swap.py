@@ -1,5 +1,10 @@
 """The same scene on real-protocol drivers: CAN F/T over a pseudo-terminal slcan adapter,
-robot over Modbus TCP on 127.0.0.1, both emulated; missing devices and safety through the launcher."""
+robot over Modbus TCP on 127.0.0.1, both emulated; missing devices and safety through the launcher.
+
+True wall-time end-to-end runs (marked wall_time): they assert outcomes, and wait for
+conditions with deadlines. The F/T watchdog is widened to 1 s where it is not what a
+test is about, so a busy machine's scheduling gaps do not stop the run; the watchdog
+itself is tested on the tick clock (test_hardware_safety.py, test_nodes_hardware.py)."""
 
 import json
 import socket
@@ -8,7 +13,9 @@ import time
 
 import pytest
 
-from tests.conftest import dockhil_cmd, kill_child_and_expect_the_graph_to_stop
+from tests.conftest import Lines, dockhil_cmd, kill_child_and_expect_the_graph_to_stop
+
+pytestmark = pytest.mark.wall_time
 
 
 def free_port() -> int:
@@ -18,19 +25,37 @@ def free_port() -> int:
 
 
 def hardware_args(tmp_path, emulators=True):
+    tmp_path.mkdir(exist_ok=True)
     return ["ft:=can", "robot:=modbus", f"emulators:={'true' if emulators else 'false'}",
-            f"can_channel:={tmp_path / 'ft.slcan'}", f"modbus_port:={free_port()}"]
+            f"can_channel:={tmp_path / 'ft.slcan'}", f"modbus_port:={free_port()}", "ft_timeout:=1.0"]
+
+
+def wall_run(tmp_path, *args, done, attempts=3) -> subprocess.CompletedProcess:
+    """Launch the hardware scene in wall time until the run gives the outcome `done(run)` is about.
+
+    On a busy machine a driver may stop a run early: stale sensor data, a watchdog. That is
+    the safety doing its job, not this test's outcome: such a run must stop non-zero with
+    one line saying why, and is tried again (a fresh port and adapter each time)."""
+    for attempt in range(attempts):
+        r = subprocess.run(dockhil_cmd("launch", "launch/hil.yaml", *hardware_args(tmp_path / str(attempt)),
+                                       "--wall-time", *args, "--quiet"),
+                           capture_output=True, text=True, timeout=120)
+        out = r.stdout + r.stderr
+        assert "Traceback" not in out, out
+        if done(r):
+            return r
+        why = [line for line in out.splitlines() if " error: " in line or "safety stop" in line or "INVALID" in line]
+        assert r.returncode != 0 and why, out
+    pytest.fail(f"{attempts} runs stopped early, the last one: {why[0]}")
 
 
 def test_swap_runs_the_scene_through_the_drivers_and_lands_near_the_simulated_run(tmp_path):
     sim, hw = tmp_path / "sim.json", tmp_path / "hw.json"
-    r = subprocess.run(dockhil_cmd("launch", "launch/hil.yaml", "--summary", sim, "--quiet"),
+    r = subprocess.run(dockhil_cmd("launch", "launch/hil.yaml", "--composed", "--summary", sim, "--quiet"),
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
-    r = subprocess.run(dockhil_cmd("launch", "launch/hil.yaml", *hardware_args(tmp_path), "--wall-time",
-                                   "--duration", "2.5", "--summary", hw, "--quiet"),
-                       capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0, r.stdout + r.stderr
+    # 4 s of wall time: a busy machine skips ticks, and the 1.57 s contact must end within the run.
+    r = wall_run(tmp_path, "--duration", "4", "--summary", hw, done=lambda r: r.returncode == 0)
     assert "tared over 100 samples" in r.stdout and "listening on 127.0.0.1" in r.stdout
     s, h = json.loads(sim.read_text()), json.loads(hw.read_text())
     # Real protocols and wall-clock scheduling add a little delay on top of the emulated 32 ms.
@@ -45,7 +70,7 @@ def test_missing_devices_fail_fast_with_one_line_each(tmp_path):
                                    "--wall-time", "--duration", "30", "--quiet"),
                        capture_output=True, text=True, timeout=60)
     assert r.returncode != 0
-    assert time.monotonic() - t0 < 15
+    assert time.monotonic() - t0 < 25  # fails at start, long before the 30 s run would end
     out = r.stdout + r.stderr
     errors = [line for line in out.splitlines() if " error: " in line]
     assert any(line.startswith("[robot] error: robot controller (Modbus TCP") for line in errors), out
@@ -55,9 +80,8 @@ def test_missing_devices_fail_fast_with_one_line_each(tmp_path):
 
 def test_a_safety_limit_stops_the_graph_naming_limit_and_value(tmp_path):
     # The sensor measures the passive compliance alone: k v / omega, about 15 N at its peak here.
-    r = subprocess.run(dockhil_cmd("launch", "launch/hil.yaml", *hardware_args(tmp_path), "max_force:=10",
-                                   "--wall-time", "--duration", "3", "--quiet"),
-                       capture_output=True, text=True, timeout=120)
+    r = wall_run(tmp_path, "max_force:=10", "--duration", "3",
+                 done=lambda r: "safety stop: max_force" in r.stdout + r.stderr)
     assert r.returncode != 0
     out = r.stdout + r.stderr
     trip = [line for line in out.splitlines() if "safety stop: max_force" in line]
@@ -71,7 +95,8 @@ def test_a_dead_device_stops_the_graph(tmp_path):
     args = hardware_args(tmp_path)
     p = subprocess.Popen(dockhil_cmd("launch", "launch/hil.yaml", *args, "--wall-time", "--duration", "20", "--quiet"),
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    time.sleep(1.5)  # running: tared, commanding
-    out = kill_child_and_expect_the_graph_to_stop(p, "ft_emulator", dependent="ft")
+    lines = Lines(p)
+    lines.wait_for("tared over")  # running: the driver reads the emulated sensor
+    out = kill_child_and_expect_the_graph_to_stop(p, "ft_emulator", dependent="ft", lines=lines)
     # Either way the sensor's loss is named: the dead adapter, or the driver's bus error.
     assert "'ft_emulator' was killed by SIGKILL" in out or "bus error" in out or "stale data" in out

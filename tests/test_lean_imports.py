@@ -15,10 +15,38 @@ def rows():
     return {row["node"]: row for row in measured}
 
 
-def test_every_registered_node_type_is_measured(rows):
+# Memory budget of one node process: its peak resident memory (VmHWM) above a bare interpreter's.
+# Memory and module sets do not depend on the machine's load; start-up times do, and are only
+# reported (bench/lean.py). Measured here: 24 MB at most for a node (numpy, msgspec and the node),
+# 26 MB for the whole simulated HIL scene composed in one process; scipy.linalg alone adds 42 MB,
+# matplotlib.pyplot 51 MB, so a node that loads either breaks the budget.
+NODE_BUDGET_MB = 32.0
+SCENE_BUDGET_MB = 36.0
+CLI_BUDGET_MB = 5.0  # `import dockhil.cli` loads no numpy (about 14 MB) until a command needs it
+
+
+def over_bare_interpreter(rows, name) -> float:
+    return rows[name]["rss_mb"] - rows["python, nothing of dockhil"]["rss_mb"]
+
+
+def test_every_registered_node_type_is_measured_and_within_its_memory_budget(rows):
     for type_name in nodes.REGISTRY:
         assert type_name in rows, type_name
-        assert rows[type_name]["startup_s"] > 0 and rows[type_name]["rss_mb"] > 0, rows[type_name]
+        row = rows[type_name]
+        assert row["startup_s"] is not None and "rss_mb" in row, row
+        assert over_bare_interpreter(rows, type_name) <= NODE_BUDGET_MB, row
+
+
+def test_the_simulated_scenes_and_the_cli_stay_within_their_memory_budget(rows):
+    for scene in ("scene launch/ideal.yaml", "scene launch/hil.yaml"):
+        assert over_bare_interpreter(rows, scene) <= SCENE_BUDGET_MB, rows[scene]
+    assert over_bare_interpreter(rows, "import dockhil.cli") <= CLI_BUDGET_MB, rows["import dockhil.cli"]
+
+
+def test_the_budget_would_catch_scipy_or_matplotlib_in_a_node(rows):
+    # The budget holds its meaning: a node process that also loaded scipy would exceed it.
+    heavy = leanness.measure("module:numpy,msgspec,scipy.linalg")
+    assert heavy["rss_mb"] - rows["python, nothing of dockhil"]["rss_mb"] > NODE_BUDGET_MB, heavy
 
 
 @pytest.mark.parametrize("type_name", sorted(nodes.REGISTRY))

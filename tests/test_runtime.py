@@ -1,4 +1,7 @@
-"""The runtime in motion: determinism, shutdown, node death, bad input."""
+"""The runtime in motion: determinism, shutdown, node death, bad input.
+
+The shutdown and bad-input tests run wall-time graphs (marked wall_time); they wait for
+conditions with deadlines, so a busy machine makes them slower, not wrong."""
 
 import json
 import os
@@ -13,7 +16,7 @@ import zmq
 import msgs
 from dockhil.transport import split
 from msgs.codec import decode, encode
-from tests.conftest import dockhil_cmd
+from tests.conftest import dockhil_cmd, registered
 
 LOOP = """
 rate: 1000
@@ -78,42 +81,55 @@ def _alive(pid):
     return st != "Z"
 
 
+def _still_alive(pids, timeout=30.0):
+    """The processes among `pids` still alive after waiting up to `timeout` for all to end."""
+    deadline = time.monotonic() + timeout
+    while True:
+        alive = [p for p in pids if _alive(p)]
+        if not alive or time.monotonic() > deadline:
+            return alive
+        time.sleep(0.05)
+
+
+def _wait_children(pid, n, timeout=60.0):
+    deadline = time.monotonic() + timeout
+    kids = []
+    while time.monotonic() < deadline and len(kids) < n:
+        time.sleep(0.1)
+        kids = _children_of(pid)
+    return kids
+
+
+@pytest.mark.wall_time
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_signal_shutdown_leaves_no_process(write_launch, tmp_path, sig):
     path = write_launch("rate: 200\nnodes:\n  - {name: integ, node: 'tests.graphnodes:Integrator'}\n"
                         "  - {name: gain, node: 'tests.graphnodes:Gain'}\n")
     p = subprocess.Popen(dockhil_cmd("launch", path, "--wall-time"), stdout=subprocess.PIPE,
                          stderr=subprocess.STDOUT, text=True)
-    deadline = time.time() + 20
-    kids = []
-    while time.time() < deadline and len(kids) < 2:
-        time.sleep(0.2)
-        kids = _children_of(p.pid)
+    kids = _wait_children(p.pid, 2)
     assert len(kids) == 2
-    time.sleep(0.5)
+    registered(p.pid)  # the graph is up
     p.send_signal(sig)
-    out, _ = p.communicate(timeout=20)
+    out, _ = p.communicate(timeout=60)
     assert p.returncode == 128 + sig
     assert f"[launch] {signal.Signals(sig).name}: stopping the graph" in out
-    time.sleep(0.2)
-    assert not [k for k in kids if _alive(k)]
+    assert _still_alive(kids) == []
 
 
+@pytest.mark.wall_time
 def test_launcher_killed_outright_leaves_no_orphans(write_launch):
     path = write_launch("rate: 200\nnodes:\n  - {name: integ, node: 'tests.graphnodes:Integrator'}\n"
                         "  - {name: gain, node: 'tests.graphnodes:Gain'}\n")
     p = subprocess.Popen(dockhil_cmd("launch", path, "--wall-time"), stdout=subprocess.DEVNULL)
-    kids = []
-    deadline = time.time() + 20
-    while time.time() < deadline and len(kids) < 2:
-        time.sleep(0.2)
-        kids = _children_of(p.pid)
+    kids = _wait_children(p.pid, 2)
+    assert len(kids) == 2
     p.kill()
     p.wait()
-    time.sleep(1.0)
-    assert not [k for k in kids if _alive(k)]
+    assert _still_alive(kids) == []  # the nodes notice their launcher is gone and stop
 
 
+@pytest.mark.wall_time
 def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
     """`dockhil run` wires a node to a (fake) running graph; garbage on its input is dropped and counted."""
     from dockhil.transport import GraphKeys
@@ -183,6 +199,9 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
         # Still running, and still computing from the last good value: u = -3*2 + 0.1*4.
         assert node.poll() is None
         got = latest_output(0.5)
+        deadline = time.time() + 20
+        while got is None and time.time() < deadline:  # a busy machine: the next output comes later
+            got = latest_output(0.5)
         assert got is not None and got.wrench.force.x == pytest.approx(-5.6)
         node.send_signal(signal.SIGINT)
         out, _ = node.communicate(timeout=10)
