@@ -324,6 +324,7 @@ def run_one(spec: dict) -> dict:
     from dockhil import launchfile, summary as summ
     from dockhil.composed import ComposedGraph
     from dockhil.graph import build
+    from dockhil.scenecheck import scene_check
 
     started = time.perf_counter()
     row = {"run": spec["run"], "sample": spec["sample"], **spec["args"], "args_hash": spec["args_hash"],
@@ -332,12 +333,13 @@ def run_one(spec: dict) -> dict:
         graph = build(launchfile.load(spec["scene"], dict(spec["args"])))
         if "/satellite/state" not in graph.publishers:
             raise DockhilError(f"{spec['scene']}: the scene publishes no /satellite/state, so a run has no summary")
+        check = scene_check(graph)  # a step that does not resolve the contact is refused, as in launch
     except DockhilError as exc:
         row.update(status="invalid", error=str(exc), run_time_s=time.perf_counter() - started)
         return row
     try:
         dt = graph.scene.dt
-        collector = summ.Collector(summ.scene_reference(graph).get("ideal_force"), dt)
+        collector = summ.SummaryCollector(graph)
         g = ComposedGraph(graph, sim_time=True, log=lambda name, msg: None, taps=[collector])
         recorder = None
         if spec.get("bag"):
@@ -351,19 +353,21 @@ def run_one(spec: dict) -> dict:
         try:
             g.setup()
             g.run(int(round(spec["duration"] / dt)) + 1)
+        except DockhilError as exc:
+            if "NaN or Inf" in str(exc):  # a node's output left the finite numbers: the loop diverged
+                raise Diverged(f"diverged: {exc}") from None
+            raise
         finally:
             try:
                 g.close()
             finally:
                 if recorder is not None:
                     recorder.close()
-        samples = collector.samples()
-        bad = ~(np.isfinite(samples.p) & np.isfinite(samples.pd))
-        if bad.any():
-            raise Diverged(f"diverged: the state is not finite from t = {samples.t[np.argmax(bad)]:.6g} s on")
         with warnings.catch_warnings():  # a diverging loop's prediction warns; its row says what happened
             warnings.simplefilter("ignore", RuntimeWarning)
-            fields = flatten(summ.scene_summary(graph, samples, time.perf_counter() - sim_started))
+            out = collector.summary(time.perf_counter() - sim_started)
+            out["warnings"] = "; ".join(out.get("warnings") or check["warnings"]) or None  # one Parquet column
+            fields = flatten(out)
     except Diverged as exc:
         row.update(status="failed", error=str(exc), run_time_s=time.perf_counter() - started)
         return row
@@ -373,7 +377,7 @@ def run_one(spec: dict) -> dict:
     bad = [k for k, v in fields.items() if isinstance(v, float) and not math.isfinite(v)]
     if bad:
         row.update(status="failed", error=f"diverged: {bad[0]} is {fields[bad[0]]}")
-    elif fields.get("note"):  # e.g. a contact shorter than one step: not resolved at this rate
+    elif (fields.get("note") or "").startswith("the contact lasted less than one sample"):  # not resolved
         row.update(status="invalid", error=fields["note"])
     if spec.get("outputs") is not None:
         fields = {k: fields.get(k) for k in spec["outputs"]}

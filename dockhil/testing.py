@@ -42,7 +42,7 @@ from dockhil.composed import ComposedGraph
 from dockhil.errors import DockhilError
 from dockhil.executor import check_outputs
 from dockhil.graph import Graph, GraphNode, PortRef
-from dockhil.node import Node, Output, Tick
+from dockhil.node import ManualClock, Node, Output, Tick
 from msgs import (BodyState, BodyWrenches, EStop, Header, Pose, RobotCommand, RobotState, SatelliteState, Twist,
                   Vector3, Wrench, WrenchStamped)
 
@@ -108,7 +108,10 @@ class NodeHarness:
         # Only graph.scene.dt is read: a namespace keeps dt exactly as given (1/(1/dt) need not be dt).
         scene = SimpleNamespace(path=f"<NodeHarness {self.name}>", dt=dt)
         graph = Graph(scene, {FEEDER: feeder, self.name: target}, [FEEDER, self.name], publishers, subscribers)
-        self.graph = ComposedGraph(graph, sim_time=sim_time, log=self._log)
+        # The node's clock (NodeContext.clock: watchdogs, speed checks) is the tick time: it moves only
+        # when the test steps, so a verdict does not depend on how fast the machine runs the test.
+        self.clock = ManualClock()
+        self.graph = ComposedGraph(graph, sim_time=sim_time, log=self._log, clock=self.clock)
         self.node = self.graph.nodes[self.name]
         self._feeder = self.graph.nodes[FEEDER]
         self.k = 0  # the tick the next step() computes
@@ -148,6 +151,7 @@ class NodeHarness:
         self._feeder.pending = {port: msg for port, msg in given.items() if msg is not None}
         k = self.k
         tick_t = k * self.dt if t is None else t
+        self.clock.sleep_until(tick_t)
         tick = Tick(k, tick_t, self.dt, stamp=None if self.sim_time else tick_t)
         outs = self.graph.step(tick, wall=not self.sim_time)[self.name]
         if not self.sim_time and k > 0:  # the composed wall-time loop checks tick 0 only; a test checks all
