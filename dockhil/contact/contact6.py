@@ -236,7 +236,10 @@ class Run6:
     force (n, 3) [N] on the chaser in world and torque (n, 3) [N m] on the chaser
     about its interface origin; e, rate (n, 6) interface coordinates;
     momentum (n, 3), angular_momentum (n, 3) about the world origin; energy (n,)
-    kinetic + contact potential [J]; in_contact (n,); onset, exit [s] or None.
+    kinetic + contact potential [J]; in_contact (n,); onset, exit [s] or None;
+    generalized (n, 6): the contact's generalized force K (e - anchor) + C e'
+    (its first entry is the compressive normal force); anchor: the spring
+    rest pose of the (last) contact.
     """
 
     t: np.ndarray
@@ -284,8 +287,9 @@ class Recorder:
         self.energy = np.empty(n)
         self.flag = np.zeros(n, dtype=bool)
         self.normal = np.zeros(n)
+        self.q = np.zeros((n, 6))
 
-    def record(self, i: int, t: float, m1: Motion, m2: Motion, force, torque, normal: float, potential: float,
+    def record(self, i: int, t: float, m1: Motion, m2: Motion, force, torque, q, potential: float,
                touching: bool) -> None:
         g, rate = interface_state(m1, m2)
         self.t[i] = t
@@ -295,17 +299,19 @@ class Recorder:
             self.vel[i, j] = st.velocity
             self.quat[i, j] = st.orientation
             self.omega[i, j] = m.omega_world()
-        self.force[i], self.torque[i], self.normal[i] = force, torque, normal
+        self.force[i], self.torque[i], self.q[i], self.normal[i] = force, torque, q, q[0]
         self.e[i], self.rate[i] = g.e, rate
         self.p[i] = rigid.total_momentum(m1, m2)
         self.l[i] = rigid.total_angular_momentum(m1, m2)
         self.energy[i] = m1.kinetic_energy() + m2.kinetic_energy() + potential
         self.flag[i] = touching
 
-    def run(self, onset, exit_time, final) -> Run6:
+    def run(self, onset, exit_time, final, anchor) -> Run6:
         run = Run6(self.t, self.pos, self.vel, self.quat, self.omega, self.force, self.torque, self.e, self.rate,
                    self.p, self.l, self.energy, self.flag, onset, exit_time, final)
         run._normal = self.normal
+        run.generalized = self.q
+        run.anchor = anchor
         return run
 
 
@@ -380,10 +386,9 @@ def simulate_contact6(
         g, rate = interface_state(m1, m2)
         if wrench.touching:
             force, moment, q = contact_wrench(model, g, rate, wrench.anchor)
-            normal = float(q[0])
         else:
-            force, moment, normal = np.zeros(3), np.zeros(3), 0.0
-        rec.record(i, i * dt, m1, m2, force, moment, normal, potential_energy(model, g, wrench.anchor, wrench.touching),
+            force, moment, q = np.zeros(3), np.zeros(3), np.zeros(6)
+        rec.record(i, i * dt, m1, m2, force, moment, q, potential_energy(model, g, wrench.anchor, wrench.touching),
                    wrench.touching)
 
     sample(0)
@@ -396,4 +401,4 @@ def simulate_contact6(
                 elif not now and exit_time is None and onset is not None:
                     exit_time = t_event
         sample(i + 1)
-    return rec.run(onset, exit_time, (m1.state(), m2.state()))
+    return rec.run(onset, exit_time, (m1.state(), m2.state()), wrench.anchor.copy())
