@@ -258,11 +258,14 @@ class Run6:
     onset: float | None
     exit: float | None
     final: tuple
+    generalized: np.ndarray | None = None
+    anchor: np.ndarray | None = None
+    impedance: object = None  # the hybrid loop's Impedance6
 
     @property
     def normal_force(self) -> np.ndarray:
         """Compressive force [N] along the target interface's normal (the 1-DOF 'force')."""
-        return self._normal
+        return self.generalized[:, 0]
 
     def peak(self, what: str) -> float:
         return float(np.max(np.linalg.norm(getattr(self, what), axis=1)))
@@ -286,7 +289,6 @@ class Recorder:
         self.l = np.empty((n, 3))
         self.energy = np.empty(n)
         self.flag = np.zeros(n, dtype=bool)
-        self.normal = np.zeros(n)
         self.q = np.zeros((n, 6))
 
     def record(self, i: int, t: float, m1: Motion, m2: Motion, force, torque, q, potential: float,
@@ -299,7 +301,7 @@ class Recorder:
             self.vel[i, j] = st.velocity
             self.quat[i, j] = st.orientation
             self.omega[i, j] = m.omega_world()
-        self.force[i], self.torque[i], self.q[i], self.normal[i] = force, torque, q, q[0]
+        self.force[i], self.torque[i], self.q[i] = force, torque, q
         self.e[i], self.rate[i] = g.e, rate
         self.p[i] = rigid.total_momentum(m1, m2)
         self.l[i] = rigid.total_angular_momentum(m1, m2)
@@ -307,12 +309,8 @@ class Recorder:
         self.flag[i] = touching
 
     def run(self, onset, exit_time, final, anchor) -> Run6:
-        run = Run6(self.t, self.pos, self.vel, self.quat, self.omega, self.force, self.torque, self.e, self.rate,
-                   self.p, self.l, self.energy, self.flag, onset, exit_time, final)
-        run._normal = self.normal
-        run.generalized = self.q
-        run.anchor = anchor
-        return run
+        return Run6(self.t, self.pos, self.vel, self.quat, self.omega, self.force, self.torque, self.e, self.rate,
+                    self.p, self.l, self.energy, self.flag, onset, exit_time, final, self.q, anchor)
 
 
 def _step_with_events(m1: Motion, m2: Motion, wrench: IdealContactWrench, h: float, order: int) -> list:
