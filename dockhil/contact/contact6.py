@@ -4,8 +4,8 @@ friction; interface wrenches from an F/T sensor; and the contact run.
 
 Interface coordinates (derivation in docs/sixdof.md). A is the chaser's
 interface frame (body 1), B the target's (body 2); the normal axis is B's x
-axis, pointing from the target toward the chaser's approach side reversed so
-that, as in the 1-DOF library, the penetration is positive while touching:
+axis, pointing the way the chaser moves when it pushes in, so that, as in the
+1-DOF library (p = x1 - x2), the penetration is positive while touching:
 
     d     = R_B^T (o_A - o_B)                 relative position in B   [m]
     theta = log(R_B^T R_A)                    relative rotation vector  [rad]

@@ -57,7 +57,7 @@ from dockhil.contact.contact6 import (
     sensor_wrench_to_bodies,
     skew,
 )
-from dockhil.contact.rigid import BodyState, HeldWrench, Motion, RigidBody, cross, quat_multiply
+from dockhil.contact.rigid import BodyState, HeldWrench, Motion, RigidBody, cross
 from dockhil.contact.scenario import ContactModelError, FitError, check_positive
 
 

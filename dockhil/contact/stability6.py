@@ -184,7 +184,8 @@ def stiffness_margin(loop: MultiAxisLoop, rel_tol: float = 1e-7) -> Margin:
     lo, hi = 0.0, 1.0
     if grows(1e-9):
         return Margin(None, None, rightmost(loop.scaled(1e-9)),
-                      "unstable for any delayed stiffness: the direct terms or damping through the delay destabilise it")
+                      "unstable for any delayed stiffness: the direct terms or the damping seen"
+                      " through the delay destabilise it")
     while not grows(hi):
         lo, hi = hi, 2.0 * hi
         if hi > 1e12:
