@@ -147,3 +147,25 @@ def test_hybrid_refuses_an_ideal_contact_with_friction():
     chaser, target, s1, s2, ideal, passive = off_axis_case()
     with pytest.raises(ContactModelError, match="frictionless"):
         simulate_hybrid6(chaser, target, s1, s2, Contact6(ideal.stiffness, mu=0.2), passive)
+
+
+@pytest.mark.parametrize("delay", [0.0, 0.032])
+def test_one_axis_hybrid_loop_is_the_1dof_hil_loop(delay):
+    # The graph's 1-DOF loop (hilloop.simulate_hil: passive spring read through the robot delay,
+    # virtual impedance on the CoM wall, forces held over each tick) against the 6-DOF loop
+    # along one axis: the same ticks, the same numbers to round-off.
+    from dockhil.contact import impedance_closed_form
+    from dockhil.contact.hilloop import simulate_hil
+
+    scn = TABLE1
+    dt, n = 2e-3, 1000
+    one = simulate_hil(m1=scn.m1, m2=scn.m2, k=scn.k, impedance=impedance_closed_form(scn), dt=dt, n_ticks=n,
+                       delay=delay, x1=0.0, x2=0.0, v1=scn.v1, v2=scn.v2)
+    chaser, target, s1, s2 = table1_bodies()
+    six = simulate_hybrid6(chaser, target, s1, s2, Contact6([scn.kcs, 0, 0, 0, 0, 0], [scn.bcs, 0, 0, 0, 0, 0]),
+                           Contact6([scn.k, 0, 0, 0, 0, 0]), dt=dt, t_end=(n - 1) * dt,
+                           delay_ticks=int(round(delay / dt)))
+    assert np.max(np.abs(six.velocities[:, 0, 0] - one.v1)) < 1e-9 * scn.v1
+    assert np.max(np.abs(six.velocities[:, 1, 0] - one.v2)) < 1e-9 * scn.v1 * scn.m1 / scn.m2
+    assert np.max(np.abs(-six.force[:, 0] - one.force)) < 1e-9 * np.max(np.abs(one.force))
+    assert np.max(np.abs(six.positions[:, 0, 0] + 1.0 - one.x1)) < 1e-9 * np.max(np.abs(one.x1))
