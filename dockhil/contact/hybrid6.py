@@ -115,13 +115,17 @@ def wall_split(g1: np.ndarray, g2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return g1 @ total, g2 @ total
 
 
-def impedance_closed_form6(ideal: Contact6, passive: Contact6, g1, g2) -> Impedance6:
-    """K_i, C_i with K_i D_i = K - K_p and C_i D_i = C - C_p (exact: see the module text)."""
+def _check_frictionless(ideal: Contact6) -> None:
     if ideal.mu > 0.0:
         raise ContactModelError(
             f"the hybrid 6-DOF model reproduces a frictionless ideal contact (mu = {ideal.mu!r});"
             " set mu = 0 in the ideal contact: friction comes from the hardware"
         )
+
+
+def impedance_closed_form6(ideal: Contact6, passive: Contact6, g1, g2) -> Impedance6:
+    """K_i, C_i with K_i D_i = K - K_p and C_i D_i = C - C_p (exact: see the module text)."""
+    _check_frictionless(ideal)
     d1, d2 = wall_split(g1, g2)
     dk, dc = ideal.stiffness - passive.stiffness, ideal.damping - passive.damping
     inv1, inv2 = np.linalg.inv(d1), np.linalg.inv(d2)
@@ -221,8 +225,7 @@ def simulate_hybrid6(
     t_end = check_positive("t_end", t_end, "s")
     if int(delay_ticks) != delay_ticks or delay_ticks < 0:
         raise ContactModelError(f"delay_ticks must be a whole number >= 0, got {delay_ticks!r}")
-    if ideal.mu > 0.0:
-        impedance_closed_form6(ideal, passive, np.eye(6), np.eye(6))  # the refusal
+    _check_frictionless(ideal)
     m1, m2 = Motion.from_state(body1, state1), Motion.from_state(body2, state2)
     steps = int(math.ceil(t_end / dt - 1e-9))
     rec = Recorder(steps)

@@ -199,6 +199,9 @@ class RigidBody:
     interface_position: np.ndarray = field(default_factory=lambda: np.zeros(3))
     interface_orientation: tuple = (0.0, 0.0, 0.0, 1.0)
     name: str = "body"
+    # Derived in __post_init__: principal moments [kg m^2] and axes (columns, body frame).
+    principal_moments: np.ndarray = field(init=False, repr=False)
+    principal_axes: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         n = self.name
