@@ -1,0 +1,402 @@
+"""The ideal 6-DOF contact: a spring-dashpot between the two docking-interface
+frames, unilateral on the normal axis, with optional regularised Coulomb
+friction; interface wrenches from an F/T sensor; and the contact run.
+
+Interface coordinates (derivation in docs/sixdof.md). A is the chaser's
+interface frame (body 1), B the target's (body 2); the normal axis is B's x
+axis, pointing the way the chaser moves when it pushes in, so that, as in the
+1-DOF library (p = x1 - x2), the penetration is positive while touching:
+
+    d     = R_B^T (o_A - o_B)                 relative position in B   [m]
+    theta = log(R_B^T R_A)                    relative rotation vector  [rad]
+    e     = [d, theta],  penetration p = d_x
+
+The potential V = 1/2 e^T K e and the dissipation 1/2 e'^T C e' give, by
+virtual work, the wrench on body 1 at the point o_A (body 2 gets its negative
+at the same point, so momenta are conserved whatever K, C and friction are):
+
+    g   = K_t e + C_t e'        (first three rows of K e + C e')
+    tau = K_r e + C_r e'        (last three rows)
+    F   = -R_B g,   M = -R_B J_l(theta)^{-T} tau
+
+with e' = [R_B^T (v_A - v_B + r x omega_B), J_l(theta)^{-1} R_B^T (omega_A - omega_B)],
+r = o_A - o_B, v_A, v_B the velocities of the two interface origins and
+J_l the left Jacobian of SO(3). Along one axis this is the 1-DOF Eq. 1:
+compressive force kcs p + bcs p'.
+
+Unilateral: the whole spring-dashpot acts while the bodies touch (p > 0, or
+p = 0 and closing) and vanishes when p returns to 0. The springs of the five
+non-normal axes rest at the relative pose of first touch (e_0, with d_x = 0):
+V = 1/2 (e - e_0)^T K (e - e_0), so a contact starts without a jump in force
+or energy however far off-axis it is. The pull of the dashpot
+just before separation is kept, as in the 1-DOF library. The potential stored
+in the non-normal springs at separation is released with the contact (the
+interface lets go), so energy is conserved through a whole contact when only
+the normal axis is stiff; with full K it is conserved while touching.
+
+Friction (optional): on the tangential sliding velocity u = (e'_y, e'_z),
+    f_t = -mu max(g_x, 0) u / sqrt(|u|^2 + v_s^2)      (in B, on body 1, at o_A)
+a Coulomb law regularised below the sliding speed v_s [m/s].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dockhil.contact import rigid
+from dockhil.contact.rigid import BodyState, Motion, RigidBody, Wrench, check_symmetric, check_unit_quaternion, \
+    check_vector, cross, quat_conjugate, quat_multiply, quat_to_matrix, quat_to_rotvec
+from dockhil.contact.scenario import ContactModelError, check_nonnegative, check_positive
+
+AXES = ("x", "y", "z", "rx", "ry", "rz")
+
+
+def skew(v) -> np.ndarray:
+    x, y, z = v
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def left_jacobian_inverse(theta) -> np.ndarray:
+    """J_l(theta)^{-1} of SO(3): d theta = J_l^{-1} d psi for R -> exp([d psi]x) R."""
+    th = np.asarray(theta, float)
+    angle = float(np.linalg.norm(th))
+    k = skew(th)
+    if angle < 1e-5:
+        c = 1.0 / 12.0 + angle * angle / 720.0
+    else:
+        c = 1.0 / angle**2 - (1.0 + math.cos(angle)) / (2.0 * angle * math.sin(angle))
+    return np.eye(3) - 0.5 * k + c * (k @ k)
+
+
+def check_matrix6(name: str, value, unit: str) -> np.ndarray:
+    """A 6x6 symmetric PSD matrix; a 6-vector means its diagonal."""
+    arr = np.asarray(value, dtype=float) if rigid._numeric(value) else None
+    if arr is not None and arr.shape == (6,):
+        if not np.all(np.isfinite(arr)) or np.any(arr < 0.0):
+            raise ContactModelError(f"{name} diagonal must be 6 finite numbers >= 0 [{unit}], got {arr.tolist()}")
+        return np.diag(arr)
+    return check_symmetric(name, value, 6, definite=False, unit=unit)
+
+
+@dataclass(frozen=True)
+class Contact6:
+    """Spring-dashpot between the interfaces: stiffness [N/m, N/rad, coupled]
+    and damping (6x6 symmetric PSD, or a 6-vector for the diagonal, axes
+    x y z rx ry rz of the target's interface frame); friction coefficient mu
+    and its regularising sliding speed [m/s]."""
+
+    stiffness: np.ndarray
+    damping: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    mu: float = 0.0
+    slip_velocity: float = 1e-3
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "stiffness", check_matrix6("stiffness", self.stiffness, "N/m, N m/rad"))
+        object.__setattr__(self, "damping", check_matrix6("damping", self.damping, "N s/m, N m s/rad"))
+        object.__setattr__(self, "mu", check_nonnegative("mu", self.mu))
+        object.__setattr__(self, "slip_velocity", check_positive("slip_velocity", self.slip_velocity, "m/s"))
+
+    @property
+    def dissipative(self) -> bool:
+        return bool(np.any(self.damping != 0.0) or self.mu > 0.0)
+
+
+class InterfaceGeometry:
+    """The pose-dependent part of the interface coordinates: e = [d, theta],
+    the wrench point o_A, R_B, J_l(theta)^{-1}, and the lever arms."""
+
+    __slots__ = ("e", "point", "rot_b", "jinv", "r", "arm1", "arm2")
+
+    def __init__(self, m1: Motion, m2: Motion):
+        r1, r2 = m1.rotation(), m2.rotation()
+        o_a = m1.x + r1 @ m1.body._r_p
+        o_b = m2.x + r2 @ m2.body._r_p
+        q_a = quat_multiply(m1.q, m1.body._q_pi)
+        q_b = quat_multiply(m2.q, m2.body._q_pi)
+        self.rot_b = quat_to_matrix(q_b)
+        self.r = o_a - o_b
+        theta = quat_to_rotvec(quat_multiply(quat_conjugate(q_b), q_a))
+        self.jinv = left_jacobian_inverse(theta)
+        self.e = np.concatenate([self.rot_b.T @ self.r, theta])
+        self.point = o_a
+        self.arm1 = o_a - m1.x  # CoM -> o_A
+        self.arm2 = o_b - m2.x  # CoM -> o_B
+
+    def rate(self, v1, w1, v2, w2) -> np.ndarray:
+        """e' from CoM velocities and world angular velocities of both bodies."""
+        v_a = v1 + cross(w1, self.arm1)
+        v_b = v2 + cross(w2, self.arm2)
+        d_rate = self.rot_b.T @ (v_a - v_b + cross(self.r, w2))
+        return np.concatenate([d_rate, self.jinv @ (self.rot_b.T @ (w1 - w2))])
+
+    @property
+    def penetration(self) -> float:
+        return float(self.e[0])
+
+
+def interface_state(m1: Motion, m2: Motion) -> tuple[InterfaceGeometry, np.ndarray]:
+    """(geometry, e') of the chaser's interface A in the target's B."""
+    g = InterfaceGeometry(m1, m2)
+    return g, g.rate(m1.v, m1.omega_world(), m2.v, m2.omega_world())
+
+
+def generalized_to_wrench(g: InterfaceGeometry, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Force and moment (world, about o_A) on body 1 of the generalized force q = dV/de (+ C e')."""
+    return -(g.rot_b @ q[:3]), -(g.rot_b @ (g.jinv.T @ q[3:]))
+
+
+def contact_wrench(model: Contact6, g: InterfaceGeometry, rate, anchor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(F, M, generalized force) on body 1 at o_A while touching; the springs
+    pull toward `anchor` (the onset pose, normal axis 0)."""
+    q = model.stiffness @ (g.e - anchor) + model.damping @ rate
+    force, moment = generalized_to_wrench(g, q)
+    if model.mu > 0.0:
+        u = rate[1:3]
+        normal = max(float(q[0]), 0.0)
+        scale = -model.mu * normal / math.sqrt(float(u @ u) + model.slip_velocity**2)
+        force = force + g.rot_b @ np.array([0.0, scale * u[0], scale * u[1]])
+    return force, moment, q
+
+
+class IdealContactWrench(Wrench):
+    """The ideal contact as the integrator's wrench, active while `touching`."""
+
+    def __init__(self, model: Contact6):
+        self.model = model
+        self.velocity_dependent = model.dissipative
+        self.touching = False
+        self.anchor = np.zeros(6)
+
+    def start(self, m1: Motion, m2: Motion) -> None:
+        """Contact onset: the tangential and rotational springs rest at the pose of first touch."""
+        self.touching = True
+        self.anchor = InterfaceGeometry(m1, m2).e.copy()
+        self.anchor[0] = 0.0
+
+    def prepare(self, m1: Motion, m2: Motion):
+        g = InterfaceGeometry(m1, m2)
+        if not self.touching:
+            zero = np.zeros(3)
+            return g.point, lambda v1, w1, v2, w2: (zero, zero)
+        model, anchor = self.model, self.anchor
+
+        def wrench_of(v1, w1, v2, w2):
+            force, moment, _ = contact_wrench(model, g, g.rate(v1, w1, v2, w2), anchor)
+            return force, moment
+
+        return g.point, wrench_of
+
+
+def touching_at(m1: Motion, m2: Motion) -> bool:
+    """Penetrating, or at the surface and closing in (as the 1-DOF library)."""
+    g, rate = interface_state(m1, m2)
+    return g.e[0] > 0.0 or (g.e[0] == 0.0 and rate[0] > 0.0)
+
+
+# --- the F/T sensor's wrench, moved to the centres of mass ---------------------------------
+
+def sensor_wrench_to_bodies(carrier: Motion, other: Motion, sensor_position, sensor_orientation, force, torque):
+    """Forces and torques [N, N m] (world, about each CoM) on the body carrying
+    the sensor and on the other body.
+
+    The sensor sits on `carrier` at `sensor_position` [m] with
+    `sensor_orientation` (x, y, z, w) in the carrier's body frame; it reports
+    `force` and `torque` (about its origin, in its own axes) that the other
+    body exerts on the carrier. The other body gets the opposite wrench at
+    the same point: (F_c, T_c, F_o, T_o) with F_o = -F_c and equal and
+    opposite moments about the sensor origin.
+    """
+    p_s = check_vector("sensor_position", sensor_position, unit="m")
+    q_s = check_unit_quaternion("sensor_orientation", sensor_orientation)
+    f_s = check_vector("force", force, unit="N")
+    t_s = check_vector("torque", torque, unit="N m")
+    b = carrier.body
+    q_body = quat_multiply(carrier.q, quat_conjugate(b._q_bp))  # body frame -> world
+    rot_body = quat_to_matrix(q_body)
+    rot_s = rot_body @ quat_to_matrix(q_s)
+    origin = carrier.x + rot_body @ (p_s - b.com)
+    f = rot_s @ f_s
+    m = rot_s @ t_s
+    t_c = m + cross(origin - carrier.x, f)
+    t_o = -m - cross(origin - other.x, f)
+    return f, t_c, -f, t_o
+
+
+# --- the contact run ------------------------------------------------------------------------
+
+@dataclass
+class Run6:
+    """Samples of a two-body 6-DOF run at t = n dt.
+
+    positions, velocities [m, m/s] (n, 2, 3) of the CoMs in world;
+    orientations (n, 2, 4) of the body frames; omegas (n, 2, 3) in world [rad/s];
+    force (n, 3) [N] on the chaser in world and torque (n, 3) [N m] on the chaser
+    about its interface origin; e, rate (n, 6) interface coordinates;
+    momentum (n, 3), angular_momentum (n, 3) about the world origin; energy (n,)
+    kinetic + contact potential [J]; in_contact (n,); onset, exit [s] or None;
+    generalized (n, 6): the contact's generalized force K (e - anchor) + C e'
+    (its first entry is the compressive normal force); anchor: the spring
+    rest pose of the (last) contact.
+    """
+
+    t: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray
+    orientations: np.ndarray
+    omegas: np.ndarray
+    force: np.ndarray
+    torque: np.ndarray
+    e: np.ndarray
+    rate: np.ndarray
+    momentum: np.ndarray
+    angular_momentum: np.ndarray
+    energy: np.ndarray
+    in_contact: np.ndarray
+    onset: float | None
+    exit: float | None
+    final: tuple
+    generalized: np.ndarray | None = None
+    anchor: np.ndarray | None = None
+    impedance: object = None  # the hybrid loop's Impedance6
+
+    @property
+    def normal_force(self) -> np.ndarray:
+        """Compressive force [N] along the target interface's normal (the 1-DOF 'force')."""
+        return self.generalized[:, 0]
+
+    def peak(self, what: str) -> float:
+        return float(np.max(np.linalg.norm(getattr(self, what), axis=1)))
+
+
+class Recorder:
+    """Collects the samples of a run."""
+
+    def __init__(self, steps: int):
+        n = steps + 1
+        self.t = np.empty(n)
+        self.pos = np.empty((n, 2, 3))
+        self.vel = np.empty((n, 2, 3))
+        self.quat = np.empty((n, 2, 4))
+        self.omega = np.empty((n, 2, 3))
+        self.force = np.zeros((n, 3))
+        self.torque = np.zeros((n, 3))
+        self.e = np.empty((n, 6))
+        self.rate = np.empty((n, 6))
+        self.p = np.empty((n, 3))
+        self.l = np.empty((n, 3))
+        self.energy = np.empty(n)
+        self.flag = np.zeros(n, dtype=bool)
+        self.q = np.zeros((n, 6))
+
+    def record(self, i: int, t: float, m1: Motion, m2: Motion, force, torque, q, potential: float,
+               touching: bool) -> None:
+        g, rate = interface_state(m1, m2)
+        self.t[i] = t
+        for j, m in enumerate((m1, m2)):
+            st = m.state()
+            self.pos[i, j] = st.position
+            self.vel[i, j] = st.velocity
+            self.quat[i, j] = st.orientation
+            self.omega[i, j] = m.omega_world()
+        self.force[i], self.torque[i], self.q[i] = force, torque, q
+        self.e[i], self.rate[i] = g.e, rate
+        self.p[i] = rigid.total_momentum(m1, m2)
+        self.l[i] = rigid.total_angular_momentum(m1, m2)
+        self.energy[i] = m1.kinetic_energy() + m2.kinetic_energy() + potential
+        self.flag[i] = touching
+
+    def run(self, onset, exit_time, final, anchor) -> Run6:
+        return Run6(self.t, self.pos, self.vel, self.quat, self.omega, self.force, self.torque, self.e, self.rate,
+                    self.p, self.l, self.energy, self.flag, onset, exit_time, final, self.q, anchor)
+
+
+def _step_with_events(m1: Motion, m2: Motion, wrench: IdealContactWrench, h: float, order: int) -> list:
+    """One step of h with contact onset/separation located inside it (bisection on the
+    step map, as the 1-DOF library): returns [(time into the step, touching after)].
+    A contact that starts and ends within one step is not seen."""
+    events = []
+    done = 0.0
+    remaining = h
+    for _ in range(16):
+        start = (m1.copy(), m2.copy())
+        rigid.step(m1, m2, wrench, remaining, order)
+        if touching_at(m1, m2) == wrench.touching:
+            return events
+        lo, hi = 0.0, remaining
+        while hi - lo > 4.0 * np.finfo(float).eps * max(1.0, hi):
+            mid = 0.5 * (lo + hi)
+            a, b = start[0].copy(), start[1].copy()
+            rigid.step(a, b, wrench, mid, order)
+            if touching_at(a, b) == wrench.touching:
+                lo = mid
+            else:
+                hi = mid
+        a, b = start
+        rigid.step(a, b, wrench, hi, order)
+        _assign(m1, a)
+        _assign(m2, b)
+        done += hi
+        remaining -= hi
+        if wrench.touching:
+            wrench.touching = False
+        else:
+            wrench.start(m1, m2)
+        events.append((done, wrench.touching))
+        if remaining <= 0.0:
+            return events
+    raise ContactModelError(f"more than 16 contact events within one step of {h:.6g} s (chatter); use a smaller dt")
+
+
+def _assign(dst: Motion, src: Motion) -> None:
+    dst.x, dst.v, dst.q, dst.L = src.x, src.v, src.q, src.L
+
+
+def potential_energy(model: Contact6, g: InterfaceGeometry, anchor, touching: bool) -> float:
+    """1/2 (e - anchor)^T K (e - anchor) [J] while touching."""
+    de = g.e - anchor
+    return 0.5 * float(de @ model.stiffness @ de) if touching else 0.0
+
+
+def simulate_contact6(
+    body1: RigidBody, body2: RigidBody, state1: BodyState, state2: BodyState, model: Contact6, *,
+    dt: float = 1e-3, t_end: float = 2.0, order: int = 4, substeps: int = 1,
+) -> Run6:
+    """Fixed-step run of the ideal 6-DOF contact from the given states, samples
+    every dt [s]; each sample interval is `substeps` integrator steps."""
+    dt = check_positive("dt", dt, "s")
+    t_end = check_positive("t_end", t_end, "s")
+    if int(substeps) != substeps or substeps < 1:
+        raise ContactModelError(f"substeps must be a whole number >= 1, got {substeps!r}")
+    m1, m2 = Motion.from_state(body1, state1), Motion.from_state(body2, state2)
+    wrench = IdealContactWrench(model)
+    if touching_at(m1, m2):
+        wrench.start(m1, m2)
+    steps = int(math.ceil(t_end / dt - 1e-9))
+    rec = Recorder(steps)
+    onset = 0.0 if wrench.touching else None
+    exit_time = None
+    h = dt / substeps
+
+    def sample(i):
+        g, rate = interface_state(m1, m2)
+        if wrench.touching:
+            force, moment, q = contact_wrench(model, g, rate, wrench.anchor)
+        else:
+            force, moment, q = np.zeros(3), np.zeros(3), np.zeros(6)
+        rec.record(i, i * dt, m1, m2, force, moment, q, potential_energy(model, g, wrench.anchor, wrench.touching),
+                   wrench.touching)
+
+    sample(0)
+    for i in range(steps):
+        for j in range(substeps):
+            for offset, now in _step_with_events(m1, m2, wrench, h, order):
+                t_event = i * dt + j * h + offset
+                if now and onset is None:
+                    onset = t_event
+                elif not now and exit_time is None and onset is not None:
+                    exit_time = t_event
+        sample(i + 1)
+    return rec.run(onset, exit_time, (m1.state(), m2.state()), wrench.anchor.copy())

@@ -1,0 +1,282 @@
+"""The hybrid 6-DOF model: a passive 6x6 compliance on the robots plus a
+virtual 6x6 impedance of each body on a virtual wall at the system's centre
+of mass, so that passive + virtual reproduce the ideal contact (contact6).
+Derivation in docs/sixdof.md.
+
+Mobility. A wrench W (generalized force q, W = -S q on body 1 at o_A, see
+contact6) accelerates the interface coordinates, to first order (velocity
+products left out), by e'' = -(G1 + G2) q with G_i the mobility of body i at
+the contact point o_A in the generalized coordinates:
+
+    G_i = P T [[1/m_i - [rho]x I^-1 [rho]x, -[rho]x I^-1], [I^-1 [rho]x, I^-1]] T^T P^T
+
+rho = o_A - x_i (lever arm from the CoM), I^-1 the world inverse inertia,
+T = diag(R_B^T, R_B^T), P = diag(1, J_l(theta)^-1). For a point mass G = 1/m.
+
+Virtual wall. In the 1-DOF model body 1 sits at x1 - w = (m2 / M) p from the
+wall at the CoM; the 6-DOF analogue splits the relative displacement in
+proportion to the mobilities: y_1 = D_1 (e - e_0), y_2 = -D_2 (e - e_0),
+D_i = G_i (G1 + G2)^-1 (D_1 + D_2 = 1; D_1 = m2 / M for point masses). The
+virtual impedances act on these:
+
+    q_1 = K_1 D_1 (e - e_0) + C_1 D_1 e'      (on body 1: W = -S q_1)
+    q_2 = K_2 D_2 (e - e_0) + C_2 D_2 e'      (on body 2: W = +S q_2)
+
+Closed form: passive + virtual = ideal on both bodies requires
+K_i D_i = K - K_p, C_i D_i = C - C_p, i.e.
+
+    K_1 = (K - K_p)(1 + G_2 G_1^-1),   K_2 = (K - K_p)(1 + G_1 G_2^-1)   (and C alike)
+
+which per axis, with the interface on principal axes through both CoMs, is
+k_1 = (kcs - k)(1 + m1/m2) for a translation (NOTES) and
+k_1 = (k_r - k_rp)(1 + I1/I2) for a rotation; a lever arm couples a
+translation with the rotations about the perpendicular axes. With D_i frozen
+at the contact onset the model is exact in continuous time for every motion
+(the D_i cancel); they matter where a wall is integrated as its own body
+(an approximation: see docs/sixdof.md) and in the fit below.
+
+The model reproduces a frictionless ideal contact; friction is the hardware's.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from dockhil.contact import rigid
+from dockhil.contact.contact6 import (
+    AXES,
+    Contact6,
+    InterfaceGeometry,
+    Recorder,
+    Run6,
+    interface_state,
+    sensor_wrench_to_bodies,
+    skew,
+)
+from dockhil.contact.rigid import BodyState, HeldWrench, Motion, RigidBody, cross
+from dockhil.contact.scenario import ContactModelError, FitError, check_positive
+
+
+def wrench_map(g: InterfaceGeometry) -> np.ndarray:
+    """S (6x6): [F; M about o_A] on body 1 = -S q for a generalized force q."""
+    s = np.zeros((6, 6))
+    s[:3, :3] = g.rot_b
+    s[3:, 3:] = g.rot_b @ g.jinv.T
+    return s
+
+
+def body_mobility(m: Motion, point, g: InterfaceGeometry) -> np.ndarray:
+    """G_i (6x6, symmetric positive definite) of one body at `point`, generalized coordinates."""
+    rot = m.rotation()
+    inv_inertia = (rot / m.body.principal_moments) @ rot.T
+    rho = skew(np.asarray(point) - m.x)
+    spatial = np.block([
+        [np.eye(3) / m.body.mass - rho @ inv_inertia @ rho, -rho @ inv_inertia],
+        [inv_inertia @ rho, inv_inertia],
+    ])
+    pt = np.zeros((6, 6))
+    pt[:3, :3] = g.rot_b.T
+    pt[3:, 3:] = g.jinv @ g.rot_b.T
+    return pt @ spatial @ pt.T
+
+
+def interface_mobilities(body1: RigidBody, body2: RigidBody, state1: BodyState, state2: BodyState):
+    """(G1, G2) at the chaser's interface origin for the given states."""
+    m1, m2 = Motion.from_state(body1, state1), Motion.from_state(body2, state2)
+    g = InterfaceGeometry(m1, m2)
+    return body_mobility(m1, g.point, g), body_mobility(m2, g.point, g)
+
+
+@dataclass(frozen=True)
+class Impedance6:
+    """Virtual stiffness and damping of chaser (1) and target (2) on the wall
+    (6x6, need not be symmetric), and the wall split D_1, D_2 they act through."""
+
+    k1: np.ndarray
+    c1: np.ndarray
+    k2: np.ndarray
+    c2: np.ndarray
+    d1: np.ndarray
+    d2: np.ndarray
+
+    def per_axis(self) -> dict[str, dict[str, float]]:
+        """Diagonal entries by axis (the whole story only when the axes decouple)."""
+        return {a: {"k1": float(self.k1[i, i]), "c1": float(self.c1[i, i]), "k2": float(self.k2[i, i]),
+                    "c2": float(self.c2[i, i])} for i, a in enumerate(AXES)}
+
+
+def wall_split(g1: np.ndarray, g2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """D_i = G_i (G1 + G2)^-1: each body's share of the relative displacement."""
+    total = np.linalg.inv(g1 + g2)
+    return g1 @ total, g2 @ total
+
+
+def _check_frictionless(ideal: Contact6) -> None:
+    if ideal.mu > 0.0:
+        raise ContactModelError(
+            f"the hybrid 6-DOF model reproduces a frictionless ideal contact (mu = {ideal.mu!r});"
+            " set mu = 0 in the ideal contact: friction comes from the hardware"
+        )
+
+
+def impedance_closed_form6(ideal: Contact6, passive: Contact6, g1, g2) -> Impedance6:
+    """K_i, C_i with K_i D_i = K - K_p and C_i D_i = C - C_p (exact: see the module text)."""
+    _check_frictionless(ideal)
+    d1, d2 = wall_split(g1, g2)
+    dk, dc = ideal.stiffness - passive.stiffness, ideal.damping - passive.damping
+    inv1, inv2 = np.linalg.inv(d1), np.linalg.inv(d2)
+    return Impedance6(dk @ inv1, dc @ inv1, dk @ inv2, dc @ inv2, d1, d2)
+
+
+def fit_impedance6(run: Run6, times, passive: Contact6, g1, g2, axes=AXES,
+                   max_condition: float = 1e8) -> dict[str, tuple[float, float, float, float]]:
+    """The two-time fit (Eqs. 5-6) per axis: (k1, c1, k2, c2) for each axis in `axes`.
+
+    At two times inside the contact of the ideal `run`, the virtual part must
+    supply what the ideal contact exerts beyond the passive one:
+        y(t) = q_ideal(t) - K_p (e - e_0) - C_p e'
+    and body i sees the wall displacement D_i (e - e_0) and rate D_i e'. Axis j
+    then gives the 2x2 system y_j = k_ij (D_i (e - e_0))_j + c_ij (D_i e')_j.
+    It is exact where D_i is diagonal (interface on principal axes through the
+    CoM, or pure translation); with a lever arm the axes couple and the
+    diagonal fit is an approximation of `impedance_closed_form6`.
+    """
+    t_list = [float(t) for t in times]
+    if len(t_list) != 2:
+        raise FitError(f"the fit takes two times inside the contact, got {len(t_list)}")
+    d1, d2 = wall_split(np.asarray(g1, float), np.asarray(g2, float))
+    idx = []
+    for t in t_list:
+        i = int(round(t / (run.t[1] - run.t[0])))
+        if not (0 <= i < run.t.size and abs(run.t[i] - t) < 1e-9 * max(1.0, t) and run.in_contact[i]):
+            raise FitError(
+                f"t = {t:.10g} s is not a sample of the run inside the contact"
+                f" (onset {run.onset}, exit {run.exit}); choose two samples about 1/3 and 2/3 into it"
+            )
+        idx.append(i)
+    if idx[0] == idx[1]:
+        raise FitError(f"t1 = t2 = {t_list[0]:.10g} s gives two identical rows (singular); choose two different times")
+    out = {}
+    for axis in axes:
+        if axis not in AXES:
+            raise FitError(f"unknown axis {axis!r}; axes are {', '.join(AXES)}")
+        j = AXES.index(axis)
+        rows = {1: [], 2: []}
+        rhs = []
+        for i in idx:
+            de = run.e[i] - run.anchor
+            y = run.generalized[i] - passive.stiffness @ de - passive.damping @ run.rate[i]
+            rhs.append(y[j])
+            rows[1].append([(d1 @ de)[j], (d1 @ run.rate[i])[j]])
+            rows[2].append([(d2 @ de)[j], (d2 @ run.rate[i])[j]])
+        result = []
+        for body in (1, 2):
+            a = np.array(rows[body])
+            scale = np.max(np.abs(a), axis=0)
+            if np.any(scale == 0.0) or not np.all(np.isfinite(a)):
+                raise FitError(
+                    f"axis {axis}: the contact does not move this axis at the chosen times, so its"
+                    " impedance cannot be fitted; fit only the axes the run excites or use the closed form"
+                )
+            cond = float(np.linalg.cond(a / scale))
+            if cond > max_condition:
+                raise FitError(
+                    f"axis {axis}: times {t_list[0]:.6g} s and {t_list[1]:.6g} s give an ill-conditioned fit"
+                    f" (condition {cond:.3g} > {max_condition:.3g}); choose two times about 1/3 and 2/3"
+                    " into the contact"
+                )
+            result.extend(np.linalg.solve(a, np.array(rhs)).tolist())
+        out[axis] = (result[0], result[1], result[2], result[3])
+    return out
+
+
+def _sensor_reading(g: InterfaceGeometry, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What an F/T sensor at the target's interface frame B reads for the passive
+    generalized force q: the wrench on the target (+S q at o_A), in B's axes,
+    moment about B's origin."""
+    force_b = q[:3]
+    moment_b = g.jinv.T @ q[3:] + cross(g.e[:3], force_b)
+    return force_b, moment_b
+
+
+def simulate_hybrid6(
+    body1: RigidBody, body2: RigidBody, state1: BodyState, state2: BodyState, ideal: Contact6,
+    passive: Contact6, *, dt: float = 1e-3, t_end: float = 2.0, delay_ticks: int = 0,
+    impedance: Impedance6 | None = None, order: int = 4,
+) -> Run6:
+    """The sampled hybrid loop, tick by tick, as the graph runs it.
+
+    Tick k: the passive wrench is what the F/T sensor on the target's
+    interface reads with the robots at the relative pose of tick k - delay
+    (robot delay); the dynamics move it to both CoMs with the current poses
+    (`sensor_wrench_to_bodies`), add the virtual impedance of tick k and hold
+    the sum over the tick (zero-order hold). Contact (passive and virtual) is
+    sensed per tick: penetrating, or at the surface and closing. The wall
+    split and, unless given, the closed-form impedance are computed at the
+    first tick in contact. `force` and `torque` record the total wrench on
+    the chaser (torque about its interface origin); `generalized` the
+    passive reading's generalized force.
+    """
+    dt = check_positive("dt", dt, "s")
+    t_end = check_positive("t_end", t_end, "s")
+    if int(delay_ticks) != delay_ticks or delay_ticks < 0:
+        raise ContactModelError(f"delay_ticks must be a whole number >= 0, got {delay_ticks!r}")
+    _check_frictionless(ideal)
+    m1, m2 = Motion.from_state(body1, state1), Motion.from_state(body2, state2)
+    steps = int(math.ceil(t_end / dt - 1e-9))
+    rec = Recorder(steps)
+    # Sensor frame = the target's interface frame, in the target's body frame.
+    sensor_position = body2.interface_position
+    sensor_orientation = body2.interface_orientation
+    readings: deque = deque([None] * delay_ticks, maxlen=delay_ticks + 1)
+    anchor = None
+    imp = impedance
+    onset = exit_time = None
+    zero = np.zeros(3)
+    for i in range(steps + 1):
+        g, rate = interface_state(m1, m2)
+        touching = g.e[0] > 0.0 or (g.e[0] == 0.0 and rate[0] > 0.0)
+        if touching and anchor is None:
+            anchor = g.e.copy()
+            anchor[0] = 0.0
+            onset = i * dt
+            if imp is None:
+                imp = impedance_closed_form6(ideal, passive, body_mobility(m1, g.point, g),
+                                             body_mobility(m2, g.point, g))
+        if not touching and anchor is not None and exit_time is None and onset is not None and i * dt > onset:
+            exit_time = i * dt
+        # The robots hold the relative pose of this tick; the sensor reads it `delay_ticks` later.
+        if touching:
+            de = g.e - anchor
+            q_passive = passive.stiffness @ de + passive.damping @ rate
+            readings.append(_sensor_reading(g, q_passive) + (q_passive,))
+        else:
+            readings.append(None)
+        reading = readings[0] if delay_ticks else readings[-1]
+        f1, t1, f2, t2 = zero, zero, zero, zero
+        q_seen = np.zeros(6)
+        if reading is not None:
+            f_s, m_s, q_seen = reading
+            f2, t2, f1, t1 = sensor_wrench_to_bodies(m2, m1, sensor_position, sensor_orientation, f_s, m_s)
+        if touching:
+            s = wrench_map(g)
+            de = g.e - anchor
+            q1 = imp.k1 @ (imp.d1 @ de) + imp.c1 @ (imp.d1 @ rate)
+            q2 = imp.k2 @ (imp.d2 @ de) + imp.c2 @ (imp.d2 @ rate)
+            w1, w2 = -(s @ q1), s @ q2
+            f1 = f1 + w1[:3]
+            t1 = t1 + w1[3:] + cross(g.arm1, w1[:3])
+            f2 = f2 + w2[:3]
+            t2 = t2 + w2[3:] + cross(g.point - m2.x, w2[:3])
+        # Record the state of tick i and the wrench held over the next tick.
+        moment_a = t1 - cross(g.arm1, f1)
+        rec.record(i, i * dt, m1, m2, f1, moment_a, q_seen, 0.0, touching)
+        if i < steps:
+            rigid.step(m1, m2, HeldWrench(f1, t1, f2, t2), dt, order)
+    run = rec.run(onset, exit_time, (m1.state(), m2.state()), None if anchor is None else anchor.copy())
+    run.impedance = imp
+    return run
