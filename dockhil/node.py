@@ -90,6 +90,12 @@ class Param:
             )
         if want is float and not math.isfinite(value):
             raise ParamError(f"{where}: {value!r} is not a finite number ({self._describe()})")
+        if want is float and value != 0.0 and abs(value) < sys.float_info.min:
+            # Subnormal: no physical quantity is that small, and 1/value overflows.
+            raise ParamError(f"{where}: {value!r} is too small to compute with; give 0 or a normal number "
+                             f"({self._describe()})")
+        if want is int and not -(2**63) <= value < 2**63:  # nodes get their parameters as msgpack int64
+            raise ParamError(f"{where}: {value!r} does not fit in 64 bits ({self._describe()})")
         for bound, ok, sym in (
             (self.ge, lambda b: value >= b, ">="),
             (self.gt, lambda b: value > b, ">"),

@@ -27,7 +27,7 @@ CASES = {
     "param out of range": ('nodes:\n  - {name: i, node: "tests.graphnodes:Integrator"}\n'
                            '  - {name: g, node: "tests.graphnodes:Gain", params: {gain: -1}}\n', [],
                            "'gain': -1.0 is out of range, must be >= 0.0"),
-    "unknown arg": (LOOP, ["gian:=3"], "unknown arg 'gian'; known args: gain, use_trace"),
+    "unknown arg": (LOOP, ["gian:=3"], "unknown arg 'gian'; did you mean 'gain'? (known args: gain, use_trace)"),
     "mistyped arg": (LOOP, ["gain:=high"], "arg 'gain' expects float, got 'high'"),
     "unconnected input": ('nodes:\n  - {name: g, node: "tests.graphnodes:Gain"}\n', [],
                           "node 'g' input 'x' needs topic /x but no node publishes it"),
@@ -55,7 +55,7 @@ CASES = {
     "bad override syntax": (LOOP, ["gain=3"], "is not of the form name:=value"),
     "no nodes left": ('args: {enabled: {default: false}}\nnodes:\n  - {name: a, node: "tests.graphnodes:Source", if: $(arg enabled)}\n',
                       [], "no node to start after conditions"),
-    "boolean arg name": ('args: {on: {default: false}}\nnodes: []\n', [], "arg name True is not a string"),
+    "boolean arg name": ('args: {on: {default: false}}\nnodes: []\n', [], "args: keys must be text (YAML reads on/off/yes/no as booleans"),
 }
 
 

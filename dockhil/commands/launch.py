@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dockhil.argtypes import seconds
 from dockhil.errors import LaunchError
 
 
@@ -15,7 +16,7 @@ def add_arguments(p) -> None:
     clock.add_argument("--wall-time", dest="clock", action="store_const", const="wall",
                        help="fixed rate in real time, for hardware")
     p.set_defaults(clock="sim")
-    p.add_argument("--duration", type=float, metavar="S",
+    p.add_argument("--duration", type=seconds, metavar="S",
                    help="simulated (or wall) seconds to run; default: the file's `duration`")
     p.add_argument("--composed", action="store_true",
                    help="run every node in this one process (same schedule, same results)")

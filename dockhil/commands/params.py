@@ -102,18 +102,72 @@ def _scenario(args):
         if getattr(args, name) is not None:
             check_finite(f"--{name}", getattr(args, name), "s")
     check_positive("--dt", args.dt, "s")
-    return ContactScenario(**values)
+    for name, value in (*values.items(), ("t1", args.t1), ("t2", args.t2), ("dt", args.dt)):
+        if value and abs(value) < sys.float_info.min:
+            raise DockhilError(f"--{name} {value!r} is too small to compute with (a subnormal number); "
+                               f"give a value of physical size, in SI units")
+    scenario = ContactScenario(**values)
+    _check_scales(scenario)
+    return scenario
+
+
+# Most fixed-step simulation steps to the later fit time: a Python loop, so also a bound on time.
+MAX_STEPS = 1_000_000
+
+
+def _check_scales(s) -> None:
+    """The fit divides and multiplies these: each must be a finite, normal number where not zero.
+    Masses of 1e308 kg or 1e-300 kg fit in a float but their products and quotients do not."""
+    from dockhil.contact.impedance import impedance_closed_form
+
+    from dockhil.contact.scenario import ContactModelError
+
+    try:
+        closed = impedance_closed_form(s, warn=False).as_dict()
+    except ContactModelError as exc:
+        raise DockhilError(f"the closed-form impedance leaves the floating-point range ({exc}): the values "
+                           f"given are not of physical size (SI units: kg, N/m, N s/m, m/s)") from None
+    derived = {"m1/m2": s.m1 / s.m2, "m2/m1": s.m2 / s.m1, "the reduced mass m1 m2/(m1 + m2)": s.reduced_mass,
+               "kcs/m": s.kcs / s.reduced_mass, "bcs/m": s.bcs / s.reduced_mass, "k/m": s.k / s.reduced_mass,
+               "the closing speed v1 - v2": s.closing_velocity,
+               **{f"the closed-form {name}": value for name, value in closed.items()}}
+    for name, value in derived.items():
+        if not math.isfinite(value) or (value and abs(value) < sys.float_info.min):
+            raise DockhilError(f"{name} is {value:g}, outside the floating-point range: the values given are "
+                               f"not of physical size (SI units: kg, N/m, N s/m, m/s)")
+
+
+def _check_steps(scenario, args) -> None:
+    """A fixed-step state source steps to the later fit time: refuse a step that makes that endless."""
+    from dockhil.contact.impedance import recommended_fit_times
+
+    if args.states not in ("rk4", "symplectic_euler", "euler"):
+        return
+    t1, t2 = recommended_fit_times(scenario)
+    t_end = max(args.t1 if args.t1 is not None else t1, args.t2 if args.t2 is not None else t2)
+    steps = t_end / args.dt
+    if not steps <= MAX_STEPS:
+        raise DockhilError(f"--dt {args.dt:g} s takes {steps:.3g} steps to t = {t_end:.6g} s with --states "
+                           f"{args.states}; at most {MAX_STEPS:g}: give a larger --dt")
 
 
 def run(args: argparse.Namespace) -> int:
     from dockhil.contact.impedance import fit_impedance
     from dockhil.contact.scenario import NegativeVirtualStiffnessWarning
 
+    import numpy as np
+
     scenario = _scenario(args)
-    with warnings.catch_warnings():
+    _check_steps(scenario, args)
+    # numpy's overflow warnings are not printed: the fit checks its results and says what is wrong.
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
         # The warning text is reported below, in the table or the JSON.
         warnings.simplefilter("ignore", NegativeVirtualStiffnessWarning)
-        fit = fit_impedance(scenario, args.t1, args.t2, states=args.states, dt=args.dt)
+        try:
+            fit = fit_impedance(scenario, args.t1, args.t2, states=args.states, dt=args.dt)
+        except (ArithmeticError, ValueError) as exc:
+            raise DockhilError(f"the fit left the floating-point range ({exc}); give values of physical "
+                               f"size (SI units)") from None
     imp, closed = fit.impedance.as_dict(), fit.closed_form.as_dict()
     duration = None if math.isinf(fit.contact_duration) else fit.contact_duration
     result = {
