@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 
-from dockhil.launchschema import MAX_DURATION, MAX_RATE, MIN_RATE
+from dockhil.launchschema import MAX_DURATION, MAX_RATE, MIN_RATE, NODE_NAME
 
 
 def _number(text: str) -> float:
@@ -32,3 +33,10 @@ def hertz(text: str) -> float:
     if not MIN_RATE <= value <= MAX_RATE:
         raise argparse.ArgumentTypeError(f"{text} Hz must be between {MIN_RATE:g} and {MAX_RATE:g} Hz")
     return value
+
+
+def node_name(text: str) -> str:
+    """A node name as in a launch file: it names files and registry entries, so no / or spaces."""
+    if not re.fullmatch(NODE_NAME, text) or len(text) > 64:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a node name: letters, digits, _ . - (at most 64)")
+    return text

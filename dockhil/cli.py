@@ -34,6 +34,7 @@ class Parser(argparse.ArgumentParser):
     """argparse, but a refused command line is one line (no usage block) and exit code 2."""
 
     def error(self, message: str):
+        message = message.replace("\r", "\\r").replace("\n", "\\n")
         self.exit(2, f"{self.prog}: error: {message}; see '{self.prog} --help'\n")
 
 
@@ -74,7 +75,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(module.run(args) or 0)
     except DockhilError as exc:
-        print(f"dockhil {args.command}: error: {exc}", file=sys.stderr)
+        # One line, whatever a message quotes from the input (a name with a line break, say).
+        text = str(exc).replace("\r", "\\r").replace("\n", "\\n")
+        print(f"dockhil {args.command}: error: {text}", file=sys.stderr)
         return 2
     except RecursionError:  # input nested deeper than any check foresaw: still one line
         print(f"dockhil {args.command}: error: the input is nested too deeply to process "

@@ -81,7 +81,11 @@ class ArgSpec:
     def typed(self, value: Any, where: str) -> Any:
         """`value` as this argument's type (an int is a float where a float is wanted), finite."""
         if self.type is float and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
+            try:
+                value = float(value)
+            except OverflowError:
+                raise LaunchError(f"{where}: arg {self.name!r}: an integer of {len(str(abs(value)))} digits "
+                                  f"is too large for a float") from None
         if not isinstance(value, self.type) or (self.type is not bool and isinstance(value, bool)):
             raise LaunchError(
                 f"{where}: arg {self.name!r} expects {self.type.__name__}, got {type(value).__name__} {value!r}"
@@ -309,4 +313,4 @@ def _truth(value: Any, at: list) -> bool:
         return True
     if text.lower() in ("false", "0"):
         return False
-    raise SchemaError(at, f"`{text}` is neither true/false nor `A == B` / `A != B`")
+    raise SchemaError(at, f"{text!r} is neither true/false nor `A == B` / `A != B`")

@@ -33,7 +33,8 @@ Duration = Annotated[float, Meta(gt=0.0, le=MAX_DURATION,
                                  description=f"run length [s], > 0 and at most {MAX_DURATION:g}; default for --duration")]
 RespawnDelay = Annotated[float, Meta(ge=0.0, le=MAX_RESPAWN_DELAY,
                                      description=f"wait before a respawn [s], 0 to {MAX_RESPAWN_DELAY:g}")]
-NodeName = Annotated[str, Meta(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$", max_length=64,
+NODE_NAME = r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$"
+NodeName = Annotated[str, Meta(pattern=NODE_NAME, max_length=64,
                                description="unique node name: letters, digits, _ . - (at most 64)")]
 NodeType = Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_.]*(:[A-Za-z_][A-Za-z0-9_]*)?$", max_length=200,
                                description="a registered node type (`dockhil node types`) or package.module:Class")]

@@ -31,6 +31,7 @@ refused.
 from __future__ import annotations
 
 import math
+import reprlib
 import sys
 from dataclasses import dataclass, field
 from types import SimpleNamespace
@@ -80,12 +81,16 @@ class Param:
         where = f"node {node!r} parameter {name!r}"
         want = self.type
         if want is float and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
+            try:
+                value = float(value)
+            except OverflowError:
+                raise ParamError(f"{where}: an integer of {len(str(abs(value)))} digits is too large for a float "
+                                 f"({self._describe()})") from None
         if want is bool and not isinstance(value, bool) or (
             want is not bool and (isinstance(value, bool) or not isinstance(value, want))
         ):
             raise ParamError(
-                f"{where}: expected {want.__name__}, got {type(value).__name__} {value!r}"
+                f"{where}: expected {want.__name__}, got {type(value).__name__} {reprlib.repr(value)}"
                 f" ({self._describe()})"
             )
         if want is float and not math.isfinite(value):
@@ -95,7 +100,8 @@ class Param:
             raise ParamError(f"{where}: {value!r} is too small to compute with; give 0 or a normal number "
                              f"({self._describe()})")
         if want is int and not -(2**63) <= value < 2**63:  # nodes get their parameters as msgpack int64
-            raise ParamError(f"{where}: {value!r} does not fit in 64 bits ({self._describe()})")
+            raise ParamError(f"{where}: an integer of {len(str(abs(value)))} digits does not fit in 64 bits "
+                             f"({self._describe()})")
         for bound, ok, sym in (
             (self.ge, lambda b: value >= b, ">="),
             (self.gt, lambda b: value > b, ">"),

@@ -9,14 +9,14 @@ from __future__ import annotations
 
 import os
 
-from dockhil.argtypes import hertz, seconds
+from dockhil.argtypes import hertz, node_name, seconds
 from dockhil.errors import DockhilError
 
 
 def add_arguments(p) -> None:
     p.add_argument("node", help="node type (see 'dockhil node types') or module:Class")
     p.add_argument("params", nargs="*", metavar="param:=value", help="node parameters")
-    p.add_argument("--name", help="node name (default: the type name)")
+    p.add_argument("--name", type=node_name, help="node name (default: the type name)")
     p.add_argument("-r", "--remap", action="append", default=[], metavar="FROM:=TO",
                    help="remap a port or topic to a topic (repeatable)")
     p.add_argument("--rate", type=hertz, default=100.0, metavar="HZ", help="loop rate (default 100)")
