@@ -68,9 +68,10 @@ def load(text: str, source: str):
     The root node's marks give line numbers for later messages (see `line_of`)."""
     if len(text) > MAX_BYTES:
         raise DockhilError(f"{source}: {len(text)} characters; a launch file may have at most {MAX_BYTES}")
-    loader = _Loader(text)
-    loader.name = source
+    loader = None
     try:
+        loader = _Loader(text)  # its reader refuses control characters here
+        loader.name = source
         root = loader.get_single_node()
         if root is None:
             return None, None
@@ -83,7 +84,8 @@ def load(text: str, source: str):
     except ValueError as exc:  # a number too long to convert (Python limits int digits)
         raise DockhilError(f"{source}: not valid YAML: {exc}") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
 
 
 def line_of(root: yaml.Node | None, path: list) -> int | None:

@@ -12,7 +12,7 @@ import argparse
 import importlib
 import sys
 
-from dockhil.errors import DockhilError
+from dockhil.errors import DockhilError, one_line
 
 # name -> (module, one-line help). Order is the order shown by --help.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -34,8 +34,7 @@ class Parser(argparse.ArgumentParser):
     """argparse, but a refused command line is one line (no usage block) and exit code 2."""
 
     def error(self, message: str):
-        message = message.replace("\r", "\\r").replace("\n", "\\n")
-        self.exit(2, f"{self.prog}: error: {message}; see '{self.prog} --help'\n")
+        self.exit(2, f"{self.prog}: error: {one_line(message)}; see '{self.prog} --help'\n")
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
@@ -75,9 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(module.run(args) or 0)
     except DockhilError as exc:
-        # One line, whatever a message quotes from the input (a name with a line break, say).
-        text = str(exc).replace("\r", "\\r").replace("\n", "\\n")
-        print(f"dockhil {args.command}: error: {text}", file=sys.stderr)
+        print(f"dockhil {args.command}: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except RecursionError:  # input nested deeper than any check foresaw: still one line
         print(f"dockhil {args.command}: error: the input is nested too deeply to process "

@@ -138,6 +138,8 @@ def parse_overrides(items: list[str]) -> dict[str, str]:
         name, sep, value = item.partition(":=")
         if not sep or not name:
             raise LaunchError(f"launch argument {item!r} is not of the form name:=value")
+        if name in out:  # which one was meant is a guess: ask
+            raise LaunchError(f"{name} is given twice ({name}:={out[name]}, {item}); give it once")
         out[name] = value
     return out
 
