@@ -35,11 +35,12 @@ RespawnDelay = Annotated[float, Meta(ge=0.0, le=MAX_RESPAWN_DELAY,
                                      description=f"wait before a respawn [s], 0 to {MAX_RESPAWN_DELAY:g}")]
 NODE_NAME = r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$"
 NodeName = Annotated[str, Meta(pattern=NODE_NAME, max_length=64,
-                               description="unique node name: letters, digits, _ . - (at most 64)")]
+                               description="a node name; letters, digits, _ . - and at most 64 characters")]
 NodeType = Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_.]*(:[A-Za-z_][A-Za-z0-9_]*)?$", max_length=200,
-                               description="a registered node type (`dockhil node types`) or package.module:Class")]
+                               description="a node type; a registered name (see `dockhil node types`) or "
+                                           "package.module:Class")]
 Host = Annotated[str, Meta(pattern=r"^[A-Za-z0-9_.\-]*$", max_length=253,
-                           description="run the node on this host (name or IPv4 address); empty: here")]
+                           description="a host name or address; letters, digits, . - _ (empty: this host)")]
 
 
 class ArgDecl(Struct, forbid_unknown_fields=True):
@@ -133,7 +134,11 @@ def _explain(text: str, data: Any, kind: Any) -> tuple[list, str]:
     msg = re.sub(r", got `[^`]*`$", "", msg).replace("Expected", "expected", 1)
     msg = re.sub(r"`([^`]*)`", lambda m: _words(m.group(1)), msg)
     about = _description(declared)
-    return path, f"{msg}, got {_show(_value_at(data, path))}" + (f" ({about})" if about else "")
+    got = _show(_value_at(data, path))
+    if "matching regex" in msg:  # the description says it in words: `host` must be a host name or address
+        head, _, tail = about.partition("; ")
+        return path, f"`{path[-1]}` must be {head}, got {got}" + (f" ({tail})" if tail else "")
+    return path, f"{msg}, got {got}" + (f" ({about})" if about else "")
 
 
 _WORDS = {"float": "a number", "int": "an integer", "str": "text", "bool": "true or false", "array": "a list",
