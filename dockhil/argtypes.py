@@ -40,3 +40,11 @@ def node_name(text: str) -> str:
     if not re.fullmatch(NODE_NAME, text) or len(text) > 64:
         raise argparse.ArgumentTypeError(f"{text!r} is not a node name: letters, digits, _ . - (at most 64)")
     return text
+
+
+def nonnegative(text: str) -> float:
+    """A physical coefficient (a stiffness, a damping): finite and >= 0."""
+    value = _number(text)
+    if value < 0.0:
+        raise argparse.ArgumentTypeError(f"{text} must be >= 0")
+    return value
