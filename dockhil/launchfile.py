@@ -38,7 +38,7 @@ from typing import Any, Optional, Union
 
 from dockhil import boundedyaml
 from dockhil.errors import DockhilError, LaunchError
-from dockhil.launchschema import (MAX_INCLUDES, MAX_NODES, ArgDecl, LaunchFile, Scalar, SchemaError,
+from dockhil.launchschema import (MAX_INCLUDES, MAX_NODES, MAX_TEXT, ArgDecl, LaunchFile, Scalar, SchemaError,
                                   convert)
 
 _ARG = re.compile(r"\$\(arg ([A-Za-z_][A-Za-z0-9_]*)\)")
@@ -173,6 +173,8 @@ def _read_yaml(path: Path, budget: _Budget) -> tuple[dict, Any]:
     try:
         with open(path, "rb") as f:
             raw = f.read(boundedyaml.MAX_BYTES + 1)
+        if len(raw) > boundedyaml.MAX_BYTES:
+            raise LaunchError(f"{path}: larger than {boundedyaml.MAX_BYTES} bytes; a launch file is a page or two")
         text = raw.decode("utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise LaunchError(f"{path}: cannot read: {exc}") from None
@@ -274,7 +276,11 @@ def _subst(value: Any, values: dict[str, Any], at: list) -> Any:
         whole = _ARG.fullmatch(value.strip())
         if whole:
             return _lookup(whole.group(1), values, at)
-        return _ARG.sub(lambda m: _text(_lookup(m.group(1), values, at)), value)
+        parts = [(m, _text(_lookup(m.group(1), values, at))) for m in _ARG.finditer(value)]
+        size = len(value) + sum(len(text) - len(m.group(0)) for m, text in parts)
+        if size > MAX_TEXT:  # sized before it is built: arguments that repeat arguments grow fast
+            raise SchemaError(at, f"is {size} characters after $(arg ...) substitution; at most {MAX_TEXT}")
+        return _ARG.sub(lambda m: _text(values[m.group(1)]), value)
     if isinstance(value, dict):
         return {k: _subst(v, values, [*at, k]) for k, v in value.items()}
     if isinstance(value, list):

@@ -24,6 +24,7 @@ MAX_RESPAWN_DELAY = 600.0  # [s]
 MAX_NODES = 1000  # nodes in one scene, includes counted
 MAX_INCLUDES = 100  # launch files read for one scene
 MAX_CHOICES = 1000
+MAX_TEXT = 65536  # characters of one string after $(arg ...) substitution
 
 Scalar = Union[bool, int, float, str]
 Condition = Union[bool, int, str, None]
@@ -116,7 +117,7 @@ def _explain(text: str, data: Any, kind: Any) -> tuple[list, str]:
     m = _AT.match(text)
     msg, where, key_error = m.group("msg"), m.group("path") or "$", bool(m.group("key"))
     path, declared = _resolve([k or i for k, i in _STEP.findall(where[1:])], data, kind)
-    kind_there = _inner(declared, _value_at(data, path))
+    kind_there = _inner(declared)
     unknown = re.match(r"Object contains unknown field `(.*)`$", msg)
     if unknown:
         name = unknown.group(1)
@@ -137,7 +138,7 @@ def _explain(text: str, data: Any, kind: Any) -> tuple[list, str]:
     got = _show(_value_at(data, path))
     if "matching regex" in msg:  # the description says it in words: `host` must be a host name or address
         head, _, tail = about.partition("; ")
-        return path, f"`{path[-1]}` must be {head}, got {got}" + (f" ({tail})" if tail else "")
+        return path, f"`{path[-1] if path else 'value'}` must be {head}, got {got}" + (f" ({tail})" if tail else "")
     return path, f"{msg}, got {got}" + (f" ({about})" if about else "")
 
 
@@ -156,7 +157,7 @@ def _resolve(steps: list, data: Any, kind: Any) -> tuple[list, Any]:
     first key whose value does not fit. Also the type expected at the end of the path."""
     path: list = []
     for step in steps:
-        kind = _inner(kind, data)
+        kind = _inner(kind)
         if _is_struct(kind):
             f = next((f for f in msgspec.structs.fields(kind) if f.encode_name == step), None)
             kind = f.type if f else Any
@@ -172,8 +173,8 @@ def _resolve(steps: list, data: Any, kind: Any) -> tuple[list, Any]:
     return path, kind
 
 
-def _inner(kind: Any, data: Any) -> Any:
-    """Through Annotated and Optional to the alternative of a Union that `data` is meant for."""
+def _inner(kind: Any) -> Any:
+    """Through Annotated and Optional to the one Struct, dict or list alternative of a Union."""
     while True:
         if get_origin(kind) is Annotated:
             kind = get_args(kind)[0]

@@ -259,7 +259,7 @@ BOUNDED = {
     "alias bomb": (_billion_laughs(), "expands to more than 100000 values"),
     "20000 nested [": ("nodes: " + "[" * 20000 + "\n", "nested deeper than 32 levels"),
     "200 nested mappings": ("".join(" " * k + f"k{k}:\n" for k in range(200)) + "\n", "nested deeper than 32 levels"),
-    "2 MB file": ("description: " + "x" * (2 << 20) + "\n", "a launch file may have at most"),
+    "2 MB file": ("description: " + "x" * (2 << 20) + "\n", "larger than 1048576 bytes"),
     "5000-digit number": ("rate: " + "9" * 5000 + "\n", "not valid YAML: Exceeds the limit"),
     "include cycle": ("include: [" + ", ".join(["{file: scene.yaml}"] * 2) + "]\n", "include cycle"),
 }
@@ -293,3 +293,17 @@ def test_an_include_fan_out_is_bounded(tmp_path):
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr[-2000:]
     assert "more than 100 launch files read for one scene" in lines[0]
+
+
+def test_arguments_that_double_through_includes_are_bounded(tmp_path):
+    """Each file passes `$(arg p)$(arg p)` to the next: the text doubles at every include."""
+    for k in range(40):
+        (tmp_path / f"f{k}.yaml").write_text(
+            "args: {p: {default: ab}}\n"
+            f"include:\n  - {{file: f{k + 1}.yaml, args: {{p: \"$(arg p)$(arg p)\"}}}}\n")
+    (tmp_path / "f40.yaml").write_text('args: {p: {default: ab}}\nnodes:\n  - {name: a, node: "tests.graphnodes:Source"}\n')
+    r = subprocess.run(dockhil_cmd("graph", tmp_path / "f0.yaml"), cwd=ROOT, capture_output=True, text=True,
+                       timeout=120, preexec_fn=_limited)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr[-2000:]
+    assert "f15.yaml:3: include[0].args.p: is 131072 characters after $(arg ...) substitution" in lines[0]
