@@ -73,7 +73,8 @@ def _topic_for(port: str, default: str, remap: dict[str, str], where: str) -> st
 def build(scene: Scene) -> Graph:
     gnodes: dict[str, GraphNode] = {}
     for spec in scene.nodes:
-        where = f"{spec.source}{f':{spec.line}' if spec.line else ''}: node {spec.name!r}"
+        declared = f"{spec.source}:{spec.line}" if spec.line else spec.source
+        where = f"{declared}: node {spec.name!r}"
         try:
             cls = node_registry.load(spec.type)
         except LaunchError as exc:
@@ -81,7 +82,7 @@ def build(scene: Scene) -> Graph:
         try:
             params = cls.resolve_params(spec.name, spec.params)
         except ParamError as exc:
-            raise LaunchError(f"{where.rsplit(': node ', 1)[0]}: {exc}") from None
+            raise LaunchError(f"{declared}: {exc}") from None
         ins, outs = cls.ports(params)
         for name, p in ins.items():
             # A declared input delay is kept as that many ticks of messages: bounded by the longest run.

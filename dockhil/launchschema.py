@@ -28,10 +28,10 @@ MAX_TEXT = 65536  # characters of one string after $(arg ...) substitution
 
 Scalar = Union[bool, int, float, str]
 Condition = Union[bool, int, str, None]
-Rate = Annotated[float, Meta(ge=MIN_RATE, le=MAX_RATE,
-                             description=f"steps per second [Hz], {MIN_RATE:g} to {MAX_RATE:g}; the sim-time step is 1/rate")]
-Duration = Annotated[float, Meta(gt=0.0, le=MAX_DURATION,
-                                 description=f"run length [s], > 0 and at most {MAX_DURATION:g}; default for --duration")]
+Rate = Annotated[float, Meta(ge=MIN_RATE, le=MAX_RATE, description=(
+    f"steps per second [Hz], {MIN_RATE:g} to {MAX_RATE:g}; the sim-time step is 1/rate"))]
+Duration = Annotated[float, Meta(gt=0.0, le=MAX_DURATION, description=(
+    f"run length [s], > 0 and at most {MAX_DURATION:g}; default for --duration"))]
 RespawnDelay = Annotated[float, Meta(ge=0.0, le=MAX_RESPAWN_DELAY,
                                      description=f"wait before a respawn [s], 0 to {MAX_RESPAWN_DELAY:g}")]
 NODE_NAME = r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$"

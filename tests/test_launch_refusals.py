@@ -114,13 +114,18 @@ def test_graph_shows_what_conditions_left_out(write_launch):
 # command, the words that say what and where). Every one is refused in one line, exit 2, before anything runs.
 SOURCE = '  - {name: a, node: "tests.graphnodes:Source"'
 BAD_INPUTS = {
-    "rate .inf": ("graph", "rate: .inf\nnodes:\n" + SOURCE + "}\n", [], "scene.yaml:1: rate: expected a number <= 1000000.0, got inf"),
-    "rate 1e308": ("graph", "rate: 1e308\nnodes:\n" + SOURCE + "}\n", [], "scene.yaml:1: rate: expected a number <= 1000000.0, got 1e+308"),
-    "rate nan": ("graph", "nodes:\n" + SOURCE + "}\nrate: .nan\n", [], "scene.yaml:3: rate: expected a number >= 0.001, got nan"),
-    "duration .inf": ("graph", "duration: .inf\nnodes:\n" + SOURCE + "}\n", [], "scene.yaml:1: duration: expected a number <= 1000000.0, got inf"),
+    "rate .inf": ("graph", "rate: .inf\nnodes:\n" + SOURCE + "}\n", [],
+                  "scene.yaml:1: rate: expected a number <= 1000000.0, got inf"),
+    "rate 1e308": ("graph", "rate: 1e308\nnodes:\n" + SOURCE + "}\n", [],
+                   "scene.yaml:1: rate: expected a number <= 1000000.0, got 1e+308"),
+    "rate nan": ("graph", "nodes:\n" + SOURCE + "}\nrate: .nan\n", [],
+                 "scene.yaml:3: rate: expected a number >= 0.001, got nan"),
+    "duration .inf": ("graph", "duration: .inf\nnodes:\n" + SOURCE + "}\n", [],
+                      "scene.yaml:1: duration: expected a number <= 1000000.0, got inf"),
     "respawn_delay soon": ("graph", "nodes:\n" + SOURCE + ", respawn: true, respawn_delay: soon}\n", [],
                            "scene.yaml:2: nodes[0].respawn_delay: expected a number, got 'soon'"),
-    "respawn_delay -5": ("launch", "nodes:\n" + SOURCE + ", respawn: true, respawn_delay: -5}\n", ["--duration", "0.01"],
+    "respawn_delay -5": ("launch", "nodes:\n" + SOURCE + ", respawn: true, respawn_delay: -5}\n",
+                         ["--duration", "0.01"],
                          "scene.yaml:2: nodes[0].respawn_delay: expected a number >= 0.0, got -5"),
     "choices 5": ("graph", "args:\n  x: {default: 5, choices: 5}\nnodes:\n" + SOURCE + "}\n", [],
                   "scene.yaml:2: args.x.choices: expected a list, got 5"),
