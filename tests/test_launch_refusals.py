@@ -262,3 +262,17 @@ def test_node_path_must_name_a_node_class(tmp_path, monkeypatch):
         with pytest.raises(LaunchError, match=words.replace(".", r"\.")):
             nodes.load(path)
     assert nodes.load("tests.graphnodes:Gain").__name__ == "Gain"
+
+
+@pytest.mark.parametrize("error, words", [(RecursionError, "nested too deeply"), (MemoryError, "out of memory")])
+def test_exhaustion_anywhere_is_one_line(monkeypatch, error, words):
+    """Whatever check is missing, exhausting the stack or memory ends in one line, exit 2."""
+    import dockhil.commands.graph as graph_command
+
+    def exhaust(args):
+        raise error()
+
+    monkeypatch.setattr(graph_command, "run", exhaust)
+    code, out, err = run_main("graph", "launch/hil.yaml")
+    assert_one_line_refusal(code, err, words)
+    assert out == ""
