@@ -190,12 +190,17 @@ def _read_yaml(path: Path, budget: _Budget) -> tuple[dict, Any]:
 def _where(path: Path, root: Any, at: list) -> str:
     line = boundedyaml.line_of(root, at)
     spot = "".join(f"[{s}]" if isinstance(s, int) else f".{s}" for s in at).lstrip(".")
-    return f"{path}:{line}" + (f": {spot}" if spot else "") if line else str(path) + (f": {spot}" if spot else "")
+    head = f"{path}:{line}" if line else str(path)
+    return f"{head}: {spot}" if spot else head
 
 
 def _load(path: Path, given: dict[str, Any], from_cli: bool, stack: tuple, budget: _Budget) -> Scene:
-    if path.resolve() in stack:
-        chain = " -> ".join(str(p) for p in (*stack, path.resolve()))
+    try:
+        resolved = path.resolve()
+    except (OSError, RuntimeError, ValueError) as exc:  # a symlink loop, a NUL in the name
+        raise LaunchError(f"launch file {str(path)!r} cannot be opened: {exc}") from None
+    if resolved in stack:
+        chain = " -> ".join(str(p) for p in (*stack, resolved))
         raise LaunchError(f"include cycle: {chain}")
     data, root = _read_yaml(path, budget)
     try:
@@ -239,8 +244,8 @@ def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: b
         if not keep:
             scene.skipped.append(Skipped(f"include {data['include'][i]['file']}", str(path), reason))
             continue
-        child_path = (path.parent / inc.file).resolve()
-        child = _load(child_path, inc.args or {}, from_cli=False, stack=(*stack, path.resolve()), budget=budget)
+        child = _load(path.parent / inc.file, inc.args or {}, from_cli=False, stack=(*stack, path.resolve()),
+                      budget=budget)
         scene.nodes.extend(child.nodes)
         scene.skipped.extend(child.skipped)
 

@@ -157,7 +157,8 @@ def mutated_scene(draw) -> str | bytes:
     elif kind == "include":
         doc["include"] = draw(st.one_of(
             st.integers(), text,
-            st.lists(st.fixed_dictionaries({"file": words.map(lambda w: w + ".yaml")}), min_size=1, max_size=2),
+            st.lists(st.fixed_dictionaries({"file": st.one_of(words.map(lambda w: w + ".yaml"), text)}),
+                     min_size=1, max_size=2),
             st.just([{"file": "scene.yaml"}]),  # itself: a cycle
             st.just([{"args": {"a": 1}}])))
     elif kind == "alias bomb":
@@ -261,6 +262,8 @@ BOUNDED = {
     "200 nested mappings": ("".join(" " * k + f"k{k}:\n" for k in range(200)) + "\n", "nested deeper than 32 levels"),
     "2 MB file": ("description: " + "x" * (2 << 20) + "\n", "larger than 1048576 bytes"),
     "5000-digit number": ("rate: " + "9" * 5000 + "\n", "not valid YAML: Exceeds the limit"),
+    "symlink loop": ("include: [{file: loop.yaml}]\n", "loop.yaml' cannot be opened: Symlink loop"),
+    "NUL in a file name": ('include: [{file: "a\\x00b.yaml"}]\n', "cannot be opened: embedded null byte"),
     "include cycle": ("include: [" + ", ".join(["{file: scene.yaml}"] * 2) + "]\n", "include cycle"),
 }
 
@@ -270,6 +273,7 @@ def test_expensive_inputs_are_refused_within_bounds(case, tmp_path):
     text, expected = BOUNDED[case]
     path = tmp_path / "scene.yaml"
     path.write_text(text)
+    (tmp_path / "loop.yaml").symlink_to("loop.yaml")
     started = time.monotonic()
     r = subprocess.run(dockhil_cmd("graph", path), cwd=ROOT, capture_output=True, text=True, timeout=120,
                        preexec_fn=_limited)
