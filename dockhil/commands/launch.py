@@ -34,9 +34,7 @@ def run(args) -> int:
     from dockhil.graph import build
 
     scene = launchfile.load(args.file, launchfile.parse_overrides(args.overrides))
-    duration = args.duration if args.duration is not None else scene.duration
-    if duration is not None and not duration > 0:
-        raise LaunchError(f"--duration must be a positive number of seconds, got {duration}")
+    duration = args.duration if args.duration is not None else scene.duration  # both checked, > 0 and bounded
     if args.clock == "sim" and duration is None:
         raise LaunchError(f"{args.file}: sim time needs a run length: give --duration S or `duration:` in the file")
     graph = build(scene)
