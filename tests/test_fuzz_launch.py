@@ -254,6 +254,22 @@ def test_launch_refuses_every_bad_duration_before_reading_the_file(scene_path, s
     assert "argument --duration" in err
 
 
+extreme = st.one_of(st.floats(), st.sampled_from([0.0, 5e-324, 1e-320, 1e-300, 1e-10, 1e10, 1e300, 1e308, -1.0]))
+
+
+@settings(FUZZ, max_examples=60)
+@given(st.dictionaries(st.sampled_from(["m1", "m2", "kcs", "bcs", "k", "v1", "v2", "t1", "t2", "dt"]), extreme,
+                       min_size=1, max_size=4),
+       st.sampled_from(["exact", "closed_form", "rk4", "euler", "symplectic_euler", "solve_ivp"]))
+def test_params_answers_or_refuses_absurd_values_in_one_line(values, states):
+    code, out, err = run_main("params", "--table1", "--states", states, *(f"--{k}={v!r}" for k, v in values.items()))
+    assert code in (0, 2), err
+    if code == 2:
+        assert_refused(code, out, err)
+    else:
+        assert "fit and closed form" in out
+
+
 def test_the_base_scene_is_valid(scene_path):
     """The fuzzed scenes are refused for their defect, not for something in the base."""
     scene_path.write_text(dump(BASE))
