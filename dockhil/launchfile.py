@@ -87,8 +87,9 @@ class ArgSpec:
                 raise LaunchError(f"{where}: arg {self.name!r}: an integer of {len(str(abs(value)))} digits "
                                   f"is too large for a float") from None
         if not isinstance(value, self.type) or (self.type is not bool and isinstance(value, bool)):
+            hint = " (YAML reads on/off/yes/no as booleans: quote them)" if isinstance(value, bool) else ""
             raise LaunchError(
-                f"{where}: arg {self.name!r} expects {self.type.__name__}, got {type(value).__name__} {value!r}"
+                f"{where}: arg {self.name!r} expects {self.type.__name__}, got {type(value).__name__} {value!r}{hint}"
             )
         if self.type is float and not math.isfinite(value):
             raise LaunchError(f"{where}: arg {self.name!r} is {value!r}; give a finite number")
