@@ -12,7 +12,7 @@ import argparse
 import importlib
 import sys
 
-from dockhil.errors import DockhilError
+from dockhil.errors import DockhilError, one_line
 
 # name -> (module, one-line help). Order is the order shown by --help.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -31,8 +31,15 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse, but a refused command line is one line (no usage block) and exit code 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {one_line(message)}; see '{self.prog} --help'\n")
+
+
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="dockhil",
         description="Hardware-in-the-loop docking simulation (passive + virtual compliance contact).",
         epilog="Run 'dockhil COMMAND --help' for the options of one command.",
@@ -68,7 +75,15 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(module.run(args) or 0)
     except DockhilError as exc:
-        print(f"dockhil {args.command}: error: {exc}", file=sys.stderr)
+        print(f"dockhil {args.command}: error: {one_line(str(exc))}", file=sys.stderr)
+        return 2
+    except RecursionError:  # input nested deeper than any check foresaw: still one line
+        print(f"dockhil {args.command}: error: the input is nested too deeply to process "
+              f"(Python's recursion limit); give a flatter one", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print(f"dockhil {args.command}: error: out of memory processing the input; give a smaller one",
+              file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

@@ -15,3 +15,12 @@ class ParamError(DockhilError):
 
 class DeviceError(DockhilError):
     """A hardware device is missing, unreachable or misbehaving."""
+
+
+_BREAKS = "\n\r\v\f\x1c\x1d\x1e\x85\u2028\u2029"  # every character str.splitlines() ends a line at
+
+
+def one_line(text: str) -> str:
+    """`text` with each character that would end a line written as its escape: a message quoting
+    input (a name with a line break, say) stays one line."""
+    return text.translate({ord(c): repr(c)[1:-1] for c in _BREAKS})

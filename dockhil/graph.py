@@ -16,6 +16,7 @@ import msgs
 import nodes as node_registry
 from dockhil.errors import LaunchError, ParamError
 from dockhil.launchfile import Scene
+from dockhil.launchschema import MAX_DURATION
 
 
 @dataclass
@@ -72,7 +73,8 @@ def _topic_for(port: str, default: str, remap: dict[str, str], where: str) -> st
 def build(scene: Scene) -> Graph:
     gnodes: dict[str, GraphNode] = {}
     for spec in scene.nodes:
-        where = f"{spec.source}: node {spec.name!r}"
+        declared = f"{spec.source}:{spec.line}" if spec.line else spec.source
+        where = f"{declared}: node {spec.name!r}"
         try:
             cls = node_registry.load(spec.type)
         except LaunchError as exc:
@@ -80,8 +82,13 @@ def build(scene: Scene) -> Graph:
         try:
             params = cls.resolve_params(spec.name, spec.params)
         except ParamError as exc:
-            raise LaunchError(f"{spec.source}: {exc}") from None
+            raise LaunchError(f"{declared}: {exc}") from None
         ins, outs = cls.ports(params)
+        for name, p in ins.items():
+            # A declared input delay is kept as that many ticks of messages: bounded by the longest run.
+            if not 0.0 <= p.delay <= MAX_DURATION:
+                raise LaunchError(f"{where}: input {name!r} delay {p.delay:g} s is not between 0 and "
+                                  f"{MAX_DURATION:g} s (the longest run)")
         known = set(ins) | set(outs) | {p.topic for p in ins.values()} | {p.topic for p in outs.values()}
         bad = sorted(set(spec.remap) - known)
         if bad:

@@ -21,22 +21,28 @@
 `$(arg NAME)` standing alone keeps the argument's type; inside a longer
 string it is replaced by its text. A condition is true/false, or
 `A == B` / `A != B` compared as text after substitution.
+
+The file is read with bounds (dockhil.boundedyaml), its arguments are
+substituted, and the result is checked against the schema in
+dockhil.launchschema: every refusal is one line with file, line and field.
 """
 
 from __future__ import annotations
 
+import difflib
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional, Union
 
-from dockhil.errors import LaunchError
+from dockhil import boundedyaml
+from dockhil.errors import DockhilError, LaunchError
+from dockhil.launchschema import (MAX_INCLUDES, MAX_NODES, MAX_TEXT, ArgDecl, LaunchFile, Scalar, SchemaError,
+                                  convert)
 
 _ARG = re.compile(r"\$\(arg ([A-Za-z_][A-Za-z0-9_]*)\)")
-_TOP_KEYS = {"description", "rate", "duration", "args", "nodes", "include"}
-_NODE_KEYS = {"name", "node", "params", "remap", "if", "unless", "respawn", "respawn_delay", "host"}
-_INCLUDE_KEYS = {"file", "args", "if", "unless"}
-_ARG_KEYS = {"default", "help", "choices", "type"}
+_ARG_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _TYPES = {"float": float, "int": int, "bool": bool, "str": str}
 
 
@@ -65,18 +71,28 @@ class ArgSpec:
         return self.check(value, where)
 
     def check(self, value: Any, where: str) -> Any:
-        if self.type is float and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
-        if not isinstance(value, self.type) or (self.type is not bool and isinstance(value, bool)):
-            raise LaunchError(
-                f"{where}: arg {self.name!r} expects {self.type.__name__}, got {type(value).__name__} {value!r}"
-            )
-        if self.type is float and value != value:
-            raise LaunchError(f"{where}: arg {self.name!r} is NaN; give a number")
+        value = self.typed(value, where)
         if self.choices is not None and value not in self.choices:
             raise LaunchError(
                 f"{where}: arg {self.name!r} must be one of {', '.join(map(str, self.choices))}, got {value!r}"
             )
+        return value
+
+    def typed(self, value: Any, where: str) -> Any:
+        """`value` as this argument's type (an int is a float where a float is wanted), finite."""
+        if self.type is float and isinstance(value, int) and not isinstance(value, bool):
+            try:
+                value = float(value)
+            except OverflowError:
+                raise LaunchError(f"{where}: arg {self.name!r}: an integer of {len(str(abs(value)))} digits "
+                                  f"is too large for a float") from None
+        if not isinstance(value, self.type) or (self.type is not bool and isinstance(value, bool)):
+            hint = " (YAML reads on/off/yes/no as booleans: quote them)" if isinstance(value, bool) else ""
+            raise LaunchError(
+                f"{where}: arg {self.name!r} expects {self.type.__name__}, got {type(value).__name__} {value!r}{hint}"
+            )
+        if self.type is float and not math.isfinite(value):
+            raise LaunchError(f"{where}: arg {self.name!r} is {value!r}; give a finite number")
         return value
 
 
@@ -90,6 +106,7 @@ class NodeSpec:
     respawn: bool = False
     respawn_delay: float = 1.0
     host: str = ""  # another machine: the launcher says how to start the node there
+    line: int = 0  # where the node is declared in `source`, for messages
 
 
 @dataclass
@@ -122,6 +139,8 @@ def parse_overrides(items: list[str]) -> dict[str, str]:
         name, sep, value = item.partition(":=")
         if not sep or not name:
             raise LaunchError(f"launch argument {item!r} is not of the form name:=value")
+        if name in out:  # which one was meant is a guess: ask
+            raise LaunchError(f"{name} is given twice ({name}:={out[name]}, {item}); give it once")
         out[name] = value
     return out
 
@@ -131,136 +150,103 @@ def load(path: str | Path | None, overrides: dict[str, Any] | None = None) -> Sc
     if path is None:
         raise LaunchError("give a launch file, e.g. launch/hil.yaml (the scenes are in launch/)")
     path = Path(path)
-    scene = _load(path, overrides or {}, from_cli=True, stack=())
+    scene = _load(path, overrides or {}, from_cli=True, stack=(), budget=_Budget())
     if not scene.nodes:
         raise LaunchError(f"{path}: no node to start after conditions; check the file's `nodes:` and `if:`")
     return scene
 
 
-def _read_yaml(path: Path) -> dict:
-    import yaml
+@dataclass
+class _Budget:
+    """What one scene may read and start, includes counted: an include tree cannot multiply without bound."""
 
+    files: int = 0
+    nodes: int = 0
+
+
+def _read_yaml(path: Path, budget: _Budget) -> tuple[dict, Any]:
+    budget.files += 1
+    if budget.files > MAX_INCLUDES:
+        raise LaunchError(f"{path}: more than {MAX_INCLUDES} launch files read for one scene; "
+                          f"include fewer files")
     if not path.is_file():
         raise LaunchError(f"launch file {str(path)!r} not found (or not a file)")
     try:
-        data = yaml.load(path.read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))  # libyaml: ~9x faster
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{path}:{mark.line + 1}" if mark else str(path)
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise LaunchError(f"{where}: not valid YAML: {problem}") from None
+        with open(path, "rb") as f:
+            raw = f.read(boundedyaml.MAX_BYTES + 1)
+        if len(raw) > boundedyaml.MAX_BYTES:
+            raise LaunchError(f"{path}: larger than {boundedyaml.MAX_BYTES} bytes; a launch file is a page or two")
+        text = raw.decode("utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise LaunchError(f"{path}: cannot read: {exc}") from None
+    try:
+        data, root = boundedyaml.load(text, str(path))
+    except DockhilError as exc:
+        raise LaunchError(str(exc)) from None
     if not isinstance(data, dict):
         raise LaunchError(f"{path}: a launch file is a YAML mapping with `nodes:`; got {type(data).__name__}")
-    unknown = sorted(set(data) - _TOP_KEYS)
-    if unknown:
-        raise LaunchError(f"{path}: unknown key {unknown[0]!r}; allowed: {', '.join(sorted(_TOP_KEYS))}")
-    return data
+    return data, root
 
 
-def _arg_specs(path: Path, raw: Any) -> dict[str, ArgSpec]:
-    if raw is None:
-        return {}
-    if not isinstance(raw, dict):
-        raise LaunchError(f"{path}: `args:` must be a mapping name -> {{default, help}}")
-    specs = {}
-    for name, body in raw.items():
-        if not isinstance(name, str):
-            raise LaunchError(f"{path}: arg name {name!r} is not a string (YAML reads on/off/yes/no as booleans: quote it)")
-        if not isinstance(body, dict):
-            body = {"default": body}
-        unknown = sorted(set(body) - _ARG_KEYS)
-        if unknown:
-            raise LaunchError(f"{path}: arg {name!r}: unknown key {unknown[0]!r}; allowed: {', '.join(sorted(_ARG_KEYS))}")
-        if "default" not in body:
-            raise LaunchError(f"{path}: arg {name!r} has no default; every arg needs one")
-        default = body["default"]
-        if "type" in body:
-            if body["type"] not in _TYPES:
-                raise LaunchError(f"{path}: arg {name!r}: type must be one of {', '.join(_TYPES)}")
-            typ = _TYPES[body["type"]]
-        else:
-            typ = type(default) if type(default) in (float, int, bool, str) else str
-        choices = tuple(body["choices"]) if body.get("choices") is not None else None
-        spec = ArgSpec(str(name), default, typ, str(body.get("help", "")), choices)
-        spec.default = spec.check(default, f"{path}: default")
-        specs[str(name)] = spec
-    return specs
+def _where(path: Path, root: Any, at: list) -> str:
+    line = boundedyaml.line_of(root, at)
+    spot = "".join(f"[{s}]" if isinstance(s, int) else f".{s}" for s in at).lstrip(".")
+    head = f"{path}:{line}" if line else str(path)
+    return f"{head}: {spot}" if spot else head
 
 
-def _load(path: Path, given: dict[str, Any], from_cli: bool, stack: tuple) -> Scene:
-    if path.resolve() in stack:
-        chain = " -> ".join(str(p) for p in (*stack, path.resolve()))
+def _load(path: Path, given: dict[str, Any], from_cli: bool, stack: tuple, budget: _Budget) -> Scene:
+    try:
+        resolved = path.resolve()
+    except (OSError, RuntimeError, ValueError) as exc:  # a symlink loop, a NUL in the name
+        raise LaunchError(f"launch file {str(path)!r} cannot be opened: {exc}") from None
+    if resolved in stack:
+        chain = " -> ".join(str(p) for p in (*stack, resolved))
         raise LaunchError(f"include cycle: {chain}")
-    data = _read_yaml(path)
-    specs = _arg_specs(path, data.get("args"))
+    data, root = _read_yaml(path, budget)
+    try:
+        return _scene(path, data, root, given, from_cli, stack, budget)
+    except SchemaError as exc:
+        raise LaunchError(f"{_where(path, root, exc.path)}: {exc.reason}") from None
+
+
+def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: bool, stack: tuple,
+           budget: _Budget) -> Scene:
+    decls = convert(data.get("args"), Optional[dict[str, Union[ArgDecl, Scalar]]], prefix=("args",)) or {}
+    specs = {name: _arg_spec(name, body, _where(path, root, ["args", name])) for name, body in decls.items()}
     values = {name: spec.default for name, spec in specs.items()}
     for name, value in given.items():
         if name not in specs:
-            known = ", ".join(sorted(specs)) or "none"
-            raise LaunchError(f"{path}: unknown arg {name!r}; known args: {known}")
+            raise LaunchError(f"{path}: unknown arg {name!r}; {_suggest(name, specs, 'known args')}")
         where = f"{path}" if from_cli else f"{path} (included)"
         spec = specs[name]
         values[name] = spec.parse(value, where) if isinstance(value, str) and spec.type is not str else spec.check(value, where)
-    # `rate: $(arg rate)` and `duration: $(arg duration)` take launch arguments like params do.
-    rate = _subst(data.get("rate", 1000.0), values, f"{path}: rate")
-    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not rate > 0:
-        raise LaunchError(f"{path}: `rate` must be a positive number of Hz, got {rate!r}")
-    duration = _subst(data.get("duration"), values, f"{path}: duration")
-    if duration is not None and (isinstance(duration, bool) or not isinstance(duration, (int, float)) or duration <= 0):
-        raise LaunchError(f"{path}: `duration` must be a positive number of seconds, got {duration!r}")
-    scene = Scene(str(path), str(data.get("description", "")), float(rate),
-                  None if duration is None else float(duration), specs, values)
 
-    raw_nodes = data.get("nodes") or []
-    if not isinstance(raw_nodes, list):
-        raise LaunchError(f"{path}: `nodes:` must be a list of nodes")
-    for i, raw in enumerate(raw_nodes):
-        where = f"{path}: nodes[{i}]"
-        if not isinstance(raw, dict):
-            raise LaunchError(f"{where}: a node is a mapping with `name` and `node`")
-        unknown = sorted(set(raw) - _NODE_KEYS)
-        if unknown:
-            raise LaunchError(f"{where}: unknown key {unknown[0]!r}; allowed: {', '.join(sorted(_NODE_KEYS))}")
-        for key in ("name", "node"):
-            if not isinstance(raw.get(key), str) or not raw[key]:
-                raise LaunchError(f"{where}: `{key}` is required and must be a string")
-        where = f"{path}: node {raw['name']!r}"
-        keep, reason = _condition(raw, values, where)
-        if not keep:
-            scene.skipped.append(Skipped(raw["name"], str(path), reason))
-            continue
-        params = _subst(raw.get("params") or {}, values, where)
-        if not isinstance(params, dict):
-            raise LaunchError(f"{where}: `params:` must be a mapping")
-        remap = _subst(raw.get("remap") or {}, values, where)
-        if not isinstance(remap, dict) or not all(isinstance(v, str) for v in remap.values()):
-            raise LaunchError(f"{where}: `remap:` must map port names or topics to topic strings")
-        respawn = raw.get("respawn", False)
-        if not isinstance(respawn, bool):
-            raise LaunchError(f"{where}: `respawn` must be true or false")
-        scene.nodes.append(NodeSpec(raw["name"], raw["node"], params, {str(k): v for k, v in remap.items()},
-                                    str(path), respawn, float(raw.get("respawn_delay", 1.0)),
-                                    _host(raw.get("host", ""), values, where)))
+    # Arguments are substituted everywhere but in `args:`; then the whole file meets the schema,
+    # so `rate: $(arg rate)` is bounded exactly like `rate: 500`.
+    body = {key: value if key == "args" else _subst(value, values, [key]) for key, value in data.items()}
+    doc = convert(body, LaunchFile)
+    scene = Scene(str(path), doc.description, doc.rate, doc.duration, specs, values)
 
-    raw_includes = data.get("include") or []
-    if not isinstance(raw_includes, list):
-        raise LaunchError(f"{path}: `include:` must be a list of {{file, args}}")
-    for i, raw in enumerate(raw_includes):
-        where = f"{path}: include[{i}]"
-        if not isinstance(raw, dict) or not isinstance(raw.get("file"), str):
-            raise LaunchError(f"{where}: an include is a mapping with `file:`")
-        unknown = sorted(set(raw) - _INCLUDE_KEYS)
-        if unknown:
-            raise LaunchError(f"{where}: unknown key {unknown[0]!r}; allowed: {', '.join(sorted(_INCLUDE_KEYS))}")
-        keep, reason = _condition(raw, values, where)
-        child_path = (path.parent / _subst(raw["file"], values, where)).resolve()
+    for i, nd in enumerate(doc.nodes or []):
+        at = ["nodes", i]
+        keep, reason = _condition(nd.if_, nd.unless, data["nodes"][i], at)
         if not keep:
-            scene.skipped.append(Skipped(f"include {raw['file']}", str(path), reason))
+            scene.skipped.append(Skipped(nd.name, str(path), reason))
             continue
-        child_args = _subst(raw.get("args") or {}, values, where)
-        child = _load(child_path, child_args, from_cli=False, stack=(*stack, path.resolve()))
+        budget.nodes += 1
+        if budget.nodes > MAX_NODES:
+            raise SchemaError(at, f"more than {MAX_NODES} nodes in one scene")
+        scene.nodes.append(NodeSpec(nd.name, nd.node, dict(nd.params or {}), dict(nd.remap or {}), str(path),
+                                    nd.respawn, nd.respawn_delay, nd.host, boundedyaml.line_of(root, at) or 0))
+
+    for i, inc in enumerate(doc.include or []):
+        keep, reason = _condition(inc.if_, inc.unless, data["include"][i], ["include", i])
+        if not keep:
+            scene.skipped.append(Skipped(f"include {data['include'][i]['file']}", str(path), reason))
+            continue
+        child = _load(path.parent / inc.file, inc.args or {}, from_cli=False, stack=(*stack, path.resolve()),
+                      budget=budget)
         scene.nodes.extend(child.nodes)
         scene.skipped.extend(child.skipped)
 
@@ -271,23 +257,40 @@ def _load(path: Path, given: dict[str, Any], from_cli: bool, stack: tuple) -> Sc
     return scene
 
 
-def _host(raw: Any, values: dict[str, Any], where: str) -> str:
-    host = _subst(raw, values, where)
-    if not isinstance(host, str) or any(c in host for c in " /:"):
-        raise LaunchError(f"{where}: `host` must be a host name or address, got {host!r}")
-    return host
+def _arg_spec(name: str, body: Any, where: str) -> ArgSpec:
+    if not _ARG_NAME.fullmatch(name):
+        raise LaunchError(f"{where}: arg name {name!r} cannot be written $(arg {name}); "
+                          f"use letters, digits and _")
+    if not isinstance(body, ArgDecl):
+        body = ArgDecl(default=body)
+    typ = _TYPES[body.type] if body.type else type(body.default)
+    spec = ArgSpec(name, body.default, typ, body.help)
+    if body.choices is not None:
+        spec.choices = tuple(spec.typed(c, f"{where}.choices") for c in body.choices)
+    spec.default = spec.check(body.default, f"{where}.default")
+    return spec
 
 
-def _subst(value: Any, values: dict[str, Any], where: str) -> Any:
+def _suggest(name: str, known, what: str) -> str:
+    near = difflib.get_close_matches(name, list(known), n=1)
+    listed = f"{what}: {', '.join(sorted(known)) or 'none'}"
+    return f"did you mean {near[0]!r}? ({listed})" if near else listed
+
+
+def _subst(value: Any, values: dict[str, Any], at: list) -> Any:
     if isinstance(value, str):
         whole = _ARG.fullmatch(value.strip())
         if whole:
-            return _lookup(whole.group(1), values, where)
-        return _ARG.sub(lambda m: _text(_lookup(m.group(1), values, where)), value)
+            return _lookup(whole.group(1), values, at)
+        parts = [(m, _text(_lookup(m.group(1), values, at))) for m in _ARG.finditer(value)]
+        size = len(value) + sum(len(text) - len(m.group(0)) for m, text in parts)
+        if size > MAX_TEXT:  # sized before it is built: arguments that repeat arguments grow fast
+            raise SchemaError(at, f"is {size} characters after $(arg ...) substitution; at most {MAX_TEXT}")
+        return _ARG.sub(lambda m: _text(values[m.group(1)]), value)
     if isinstance(value, dict):
-        return {k: _subst(v, values, where) for k, v in value.items()}
+        return {k: _subst(v, values, [*at, k]) for k, v in value.items()}
     if isinstance(value, list):
-        return [_subst(v, values, where) for v in value]
+        return [_subst(v, values, [*at, i]) for i, v in enumerate(value)]
     return value
 
 
@@ -295,25 +298,23 @@ def _text(value: Any) -> str:
     return ("true" if value else "false") if isinstance(value, bool) else str(value)
 
 
-def _lookup(name: str, values: dict[str, Any], where: str) -> Any:
+def _lookup(name: str, values: dict[str, Any], at: list) -> Any:
     if name not in values:
-        known = ", ".join(sorted(values)) or "none"
-        raise LaunchError(f"{where}: $(arg {name}) is not declared in `args:`; declared: {known}")
+        raise SchemaError(at, f"$(arg {name}) is not declared in `args:`; {_suggest(name, values, 'declared')}")
     return values[name]
 
 
-def _condition(raw: dict, values: dict[str, Any], where: str) -> tuple[bool, str]:
-    for key, want in (("if", True), ("unless", False)):
-        if key not in raw:
+def _condition(if_: Any, unless: Any, raw: dict, at: list) -> tuple[bool, str]:
+    for key, value, want in (("if", if_, True), ("unless", unless, False)):
+        if value is None:
             continue
-        text = raw[key]
-        result = _truth(_subst(text, values, where), where, key)
+        result = _truth(value, [*at, key])
         if result != want:
-            return False, f"{key}: {text} is {_text(result)}"
+            return False, f"{key}: {raw[key]} is {_text(result)}"
     return True, ""
 
 
-def _truth(value: Any, where: str, key: str) -> bool:
+def _truth(value: Any, at: list) -> bool:
     if isinstance(value, bool):
         return value
     text = str(value).strip()
@@ -326,4 +327,4 @@ def _truth(value: Any, where: str, key: str) -> bool:
         return True
     if text.lower() in ("false", "0"):
         return False
-    raise LaunchError(f"{where}: `{key}: {text}` is neither true/false nor `A == B` / `A != B`")
+    raise SchemaError(at, f"{text!r} is neither true/false nor `A == B` / `A != B`")

@@ -42,6 +42,7 @@ any machine.
 from __future__ import annotations
 
 import math
+import reprlib
 import sys
 import time
 from dataclasses import dataclass, field
@@ -125,16 +126,27 @@ class Param:
         where = f"node {node!r} parameter {name!r}"
         want = self.type
         if want is float and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
+            try:
+                value = float(value)
+            except OverflowError:
+                raise ParamError(f"{where}: an integer of {len(str(abs(value)))} digits is too large for a float "
+                                 f"({self._describe()})") from None
         if want is bool and not isinstance(value, bool) or (
             want is not bool and (isinstance(value, bool) or not isinstance(value, want))
         ):
             raise ParamError(
-                f"{where}: expected {want.__name__}, got {type(value).__name__} {value!r}"
+                f"{where}: expected {want.__name__}, got {type(value).__name__} {reprlib.repr(value)}"
                 f" ({self._describe()})"
             )
         if want is float and not math.isfinite(value):
             raise ParamError(f"{where}: {value!r} is not a finite number ({self._describe()})")
+        if want is float and value != 0.0 and abs(value) < sys.float_info.min:
+            # Subnormal: no physical quantity is that small, and 1/value overflows.
+            raise ParamError(f"{where}: {value!r} is too small to compute with; give 0 or a normal number "
+                             f"({self._describe()})")
+        if want is int and not -(2**63) <= value < 2**63:  # nodes get their parameters as msgpack int64
+            raise ParamError(f"{where}: an integer of {len(str(abs(value)))} digits does not fit in 64 bits "
+                             f"({self._describe()})")
         for bound, ok, sym in (
             (self.ge, lambda b: value >= b, ">="),
             (self.gt, lambda b: value > b, ">"),

@@ -111,8 +111,15 @@ def _check_writable(path: str) -> None:
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise DockhilError(f"--summary {path}: folder {folder} does not exist")
-    if not os.access(folder, os.W_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
-        raise DockhilError(f"--summary {path}: not writable")
+    if os.path.isdir(path):
+        raise DockhilError(f"--summary {path}: is a directory; name a file, e.g. {os.path.join(path, 'summary.json')}")
+    existed = os.path.exists(path)
+    try:  # opening it is the one test that holds for every user and file system
+        open(path, "a").close()
+    except OSError as exc:
+        raise DockhilError(f"--summary {path}: not writable ({exc.strerror})") from None
+    if not existed:
+        os.remove(path)
 
 
 def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool, bag: str | None,

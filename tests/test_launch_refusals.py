@@ -27,7 +27,7 @@ CASES = {
     "param out of range": ('nodes:\n  - {name: i, node: "tests.graphnodes:Integrator"}\n'
                            '  - {name: g, node: "tests.graphnodes:Gain", params: {gain: -1}}\n', [],
                            "'gain': -1.0 is out of range, must be >= 0.0"),
-    "unknown arg": (LOOP, ["gian:=3"], "unknown arg 'gian'; known args: gain, use_trace"),
+    "unknown arg": (LOOP, ["gian:=3"], "unknown arg 'gian'; did you mean 'gain'? (known args: gain, use_trace)"),
     "mistyped arg": (LOOP, ["gain:=high"], "arg 'gain' expects float, got 'high'"),
     "unconnected input": ('nodes:\n  - {name: g, node: "tests.graphnodes:Gain"}\n', [],
                           "node 'g' input 'x' needs topic /x but no node publishes it"),
@@ -55,7 +55,7 @@ CASES = {
     "bad override syntax": (LOOP, ["gain=3"], "is not of the form name:=value"),
     "no nodes left": ('args: {enabled: {default: false}}\nnodes:\n  - {name: a, node: "tests.graphnodes:Source", if: $(arg enabled)}\n',
                       [], "no node to start after conditions"),
-    "boolean arg name": ('args: {on: {default: false}}\nnodes: []\n', [], "arg name True is not a string"),
+    "boolean arg name": ('args: {on: {default: false}}\nnodes: []\n', [], "args: keys must be text (YAML reads on/off/yes/no as booleans"),
 }
 
 
@@ -108,3 +108,179 @@ def test_graph_shows_what_conditions_left_out(write_launch):
     assert "in  u: /u dockhil/WrenchStamped <- gain.u, previous tick" in r.stdout
     dot = subprocess.run(dockhil_cmd("graph", path, "--dot"), capture_output=True, text=True).stdout
     assert dot.startswith("digraph") and '"integ" -> "gain" [label="/x"]' in dot
+
+
+# Each bad input reported against the first release: (what, launch file or None, command line after the
+# command, the words that say what and where). Every one is refused in one line, exit 2, before anything runs.
+SOURCE = '  - {name: a, node: "tests.graphnodes:Source"'
+BAD_INPUTS = {
+    "rate .inf": ("graph", "rate: .inf\nnodes:\n" + SOURCE + "}\n", [],
+                  "scene.yaml:1: rate: expected a number <= 1000000.0, got inf"),
+    "rate 1e308": ("graph", "rate: 1e308\nnodes:\n" + SOURCE + "}\n", [],
+                   "scene.yaml:1: rate: expected a number <= 1000000.0, got 1e+308"),
+    "rate nan": ("graph", "nodes:\n" + SOURCE + "}\nrate: .nan\n", [],
+                 "scene.yaml:3: rate: expected a number >= 0.001, got nan"),
+    "duration .inf": ("graph", "duration: .inf\nnodes:\n" + SOURCE + "}\n", [],
+                      "scene.yaml:1: duration: expected a number <= 1000000.0, got inf"),
+    "respawn_delay soon": ("graph", "nodes:\n" + SOURCE + ", respawn: true, respawn_delay: soon}\n", [],
+                           "scene.yaml:2: nodes[0].respawn_delay: expected a number, got 'soon'"),
+    "respawn_delay -5": ("launch", "nodes:\n" + SOURCE + ", respawn: true, respawn_delay: -5}\n",
+                         ["--duration", "0.01"],
+                         "scene.yaml:2: nodes[0].respawn_delay: expected a number >= 0.0, got -5"),
+    "choices 5": ("graph", "args:\n  x: {default: 5, choices: 5}\nnodes:\n" + SOURCE + "}\n", [],
+                  "scene.yaml:2: args.x.choices: expected a list, got 5"),
+    "node os:system": ("graph", "nodes:\n  - {name: a, node: 'os:system'}\n", [],
+                       "scene.yaml:2: node 'a': node type 'os:system': system is not a dockhil node"),
+    "node json:dumps": ("graph", "nodes:\n  - {name: a, node: 'json:dumps'}\n", [],
+                        "scene.yaml:2: node 'a': node type 'json:dumps': "),  # not a class: not a node
+    "20000 nested [": ("graph", "nodes: " + "[" * 20000 + "\n", [], "scene.yaml:1: nested deeper than 32 levels"),
+    "--duration inf": ("launch", LOOP, ["--duration", "inf"], "argument --duration: 'inf' is not a finite number"),
+    "--duration nan": ("launch", LOOP, ["--duration", "nan"], "argument --duration: 'nan' is not a finite number"),
+    "--duration -1": ("launch", LOOP, ["--duration=-1"], "argument --duration: -1 s must be > 0"),
+    "delay:=1e308": ("graph", "launch/hil.yaml", ["delay:=1e308"],
+                     "hil.yaml:33: node 'delay': input 'input' delay 1e+308 s is not between 0 and 1e+06 s"),
+    "params --m1 1e-320": ("params", None, ["--table1", "--m1", "1e-320"], "--m1 1e-320 is too small to compute with"),
+    "params --m1 1e308": ("params", None, ["--table1", "--m1", "1e308"], "--m1 1e+308 kg is outside 1e-06 to 1e+12 kg"),
+    "params --m1 2e150 (solve_ivp never ended)": ("params", None, ["--table1", "--states", "solve_ivp", "--m1", "2e150",
+                                                                   "--m2", "6e-5"],
+                                                  "--m1 2e+150 kg is outside 1e-06 to 1e+12 kg"),
+    # sqrt(m / kcs) with m = 750 * 1e6 / (750 + 1e6) kg = 749.44 kg and kcs = 1e-300 N/m: 2.74e151 s
+    "params --kcs 1e-300": ("params", None, ["--table1", "--kcs", "1e-300", "--k", "0", "--bcs", "0"],
+                            "the contact's time scale sqrt(m/kcs) = 2.74e+151 s is outside 1e-09 to 1e+09 s"),
+    "params --dt 1e-9": ("params", None, ["--table1", "--states", "rk4", "--dt", "1e-9"],
+                         "--dt 1e-09 s takes 1.18e+09 steps"),
+    "arg typo": ("graph", "launch/hil.yaml", ["delya:=0.1"], "unknown arg 'delya'; did you mean 'delay'?"),
+    "key typo": ("graph", "nodes:\n" + SOURCE + ", parms: {}}\n", [],
+                 "scene.yaml:2: nodes[0].parms: unknown key 'parms'; did you mean 'params'?"),
+    "subnormal param": ("graph", "launch/hil.yaml", ["m1:=1e-320"],
+                        "hil.yaml:26: node 'dynamics' parameter 'm1': 1e-320 is too small to compute with"),
+    "rate arg 2e6": ("graph", "rate: $(arg rate)\nargs: {rate: {default: 1000.0}}\nnodes:\n" + SOURCE + "}\n",
+                     ["rate:=2e6"], "scene.yaml:1: rate: expected a number <= 1000000.0, got 2000000.0"),
+    "recursive alias": ("graph", "nodes: &n [*n]\n", [], "scene.yaml:1: alias *n refers to the value that contains it"),
+}
+
+
+def run_main(*argv):
+    """The CLI's main in this process: (exit code, stdout, stderr)."""
+    import contextlib
+    import io
+
+    from dockhil import cli
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = cli.main([str(a) for a in argv])
+        except SystemExit as exc:
+            code = exc.code
+    return code, out.getvalue(), err.getvalue()
+
+
+def assert_one_line_refusal(code, err, expected):
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert expected in lines[0], lines[0]
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("case", list(BAD_INPUTS))
+def test_reported_bad_input_is_one_line(case, write_launch):
+    command, text, argv, expected = BAD_INPUTS[case]
+    where = [] if text is None else [text if text.startswith("launch/") else write_launch(text)]
+    code, _, err = run_main(command, *where, *argv)
+    assert_one_line_refusal(code, err, expected)
+
+
+def test_summary_naming_a_directory_is_refused_before_the_run(tmp_path):
+    code, out, err = run_main("launch", "launch/ideal.yaml", "--composed", "--summary", tmp_path)
+    assert_one_line_refusal(code, err, f"--summary {tmp_path}: is a directory")
+    assert "simulated" not in out + err  # nothing ran
+
+
+def test_summary_in_a_missing_folder_is_refused(tmp_path):
+    code, _, err = run_main("launch", "launch/ideal.yaml", "--composed", "--summary", tmp_path / "no" / "s.json")
+    assert_one_line_refusal(code, err, "does not exist")
+
+
+def test_bag_export_of_a_deeply_nested_message(tmp_path):
+    from dockhil.bag import BagWriter
+    from msgs import WrenchStamped, type_name
+
+    bag = tmp_path / "deep.mcap"
+    with BagWriter(bag) as w:
+        w.add_topic("/ft/wrench", type_name(WrenchStamped))
+        # {"header": [[[...nil...]]]}: 100,000 nested one-element msgpack arrays
+        w.write("/ft/wrench", 1000, 1000, b"\x81\xa6header" + b"\x91" * 100_000 + b"\xc0")
+    code, _, err = run_main("bag", "export", bag, "-t", "/ft/wrench", "--csv", tmp_path / "out.csv")
+    assert_one_line_refusal(code, err, "nested too deeply")
+    assert not (tmp_path / "out.csv").exists()
+
+
+def test_rate_from_an_argument_sets_the_step(write_launch):
+    path = write_launch("rate: $(arg rate)\nduration: $(arg T)\nargs:\n  rate: {default: 1000.0}\n  T: {default: 0.5}\n"
+                        'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
+                        '  - {name: gain, node: "tests.graphnodes:Gain"}\n')
+    from dockhil import launchfile
+
+    scene = launchfile.load(path, {"rate": "250", "T": "2"})
+    assert (scene.rate, scene.dt, scene.duration) == (250.0, 1 / 250, 2.0)
+    assert launchfile.load(path).rate == 1000.0
+
+
+def test_aliases_within_bounds_still_work(write_launch):
+    path = write_launch('nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
+                        '  - {name: gain, node: "tests.graphnodes:Gain", params: &p {gain: 3.0}}\n'
+                        '  - {name: g2, node: "tests.graphnodes:Gain", params: *p, remap: {x: /u, u: /y}}\n')
+    from dockhil import launchfile
+
+    scene = launchfile.load(path)
+    assert [n.params for n in scene.nodes[1:]] == [{"gain": 3.0}, {"gain": 3.0}]
+
+
+def test_schema_is_printed_as_json_schema():
+    import json
+
+    code, out, _ = run_main("graph", "--schema")
+    schema = json.loads(out)
+    assert code == 0
+    scene = schema["$defs"]["LaunchFile"]["properties"]
+    assert scene["rate"]["maximum"] == 1e6 and scene["rate"]["minimum"] == 1e-3
+    node = schema["$defs"]["NodeDecl"]["properties"]
+    assert node["respawn_delay"]["minimum"] == 0 and node["respawn_delay"]["maximum"] == 600
+    assert "if" in node and schema["$defs"]["NodeDecl"]["additionalProperties"] is False
+
+
+def test_node_path_must_name_a_node_class(tmp_path, monkeypatch):
+    import nodes
+    from dockhil.errors import LaunchError
+
+    marker = tmp_path / "imported"
+    (tmp_path / "sidefx_mod.py").write_text(
+        f"open({str(marker)!r}, 'w').close()\n\ndef run():\n    pass\n\n\nclass Helper:\n    pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(LaunchError, match="module 'sidefx_mod' defines no class 'run'"):
+        nodes.load("sidefx_mod:run")
+    assert not marker.exists()  # refused from its source: the module was never imported
+    with pytest.raises(LaunchError, match="Helper is not a dockhil node"):
+        nodes.load("sidefx_mod:Helper")
+    assert marker.exists()
+    for path, words in [("os:system", "system is not a dockhil node"), ("dockhil.node:Node", "Node is not a dockhil node"),
+                        ("a..b:X", "not of the form package.module:Class"), ("no_such_pkg.x:Y", "cannot import")]:
+        with pytest.raises(LaunchError, match=words.replace(".", r"\.")):
+            nodes.load(path)
+    assert nodes.load("tests.graphnodes:Gain").__name__ == "Gain"
+
+
+@pytest.mark.parametrize("error, words", [(RecursionError, "nested too deeply"), (MemoryError, "out of memory")])
+def test_exhaustion_anywhere_is_one_line(monkeypatch, error, words):
+    """Whatever check is missing, exhausting the stack or memory ends in one line, exit 2."""
+    import dockhil.commands.graph as graph_command
+
+    def exhaust(args):
+        raise error()
+
+    monkeypatch.setattr(graph_command, "run", exhaust)
+    code, out, err = run_main("graph", "launch/hil.yaml")
+    assert_one_line_refusal(code, err, words)
+    assert out == ""

@@ -9,12 +9,20 @@ def add_arguments(p) -> None:
     p.add_argument("file", nargs="?", help="launch file (YAML)")
     p.add_argument("overrides", nargs="*", metavar="name:=value", help="launch arguments")
     p.add_argument("--dot", action="store_true", help="print Graphviz DOT instead of text")
+    p.add_argument("--schema", action="store_true", help="print the JSON Schema of launch files and exit")
 
 
 def run(args) -> int:
     from dockhil import launchfile
     from dockhil.graph import build
 
+    if args.schema:
+        import json
+
+        from dockhil.launchschema import json_schema
+
+        print(json.dumps(json_schema(), indent=1))
+        return 0
     scene = launchfile.load(args.file, launchfile.parse_overrides(args.overrides))
     graph = build(scene)
     print(to_dot(graph) if args.dot else to_text(graph))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dockhil.argtypes import seconds
 from dockhil.errors import LaunchError
 
 
@@ -30,7 +31,7 @@ def add_arguments(p) -> None:
     clock.add_argument("--wall-time", dest="clock", action="store_const", const="wall",
                        help="fixed rate in real time, for hardware")
     p.set_defaults(clock="sim")
-    p.add_argument("--duration", type=float, metavar="S",
+    p.add_argument("--duration", type=seconds, metavar="S",
                    help="simulated (or wall) seconds to run; default: the file's `duration`")
     p.add_argument("--composed", action="store_true",
                    help="run every node in this one process (same schedule, same results)")
@@ -62,9 +63,7 @@ def run(args) -> int:
     from dockhil.graph import build
 
     scene = launchfile.load(args.file, launchfile.parse_overrides(args.overrides))
-    duration = args.duration if args.duration is not None else scene.duration
-    if duration is not None and not duration > 0:
-        raise LaunchError(f"--duration must be a positive number of seconds, got {duration}")
+    duration = args.duration if args.duration is not None else scene.duration  # both checked, > 0 and bounded
     if args.clock == "sim" and duration is None:
         raise LaunchError(f"{args.file}: sim time needs a run length: give --duration S or `duration:` in the file")
     if args.foxglove_host is not None and args.foxglove is None:

@@ -102,18 +102,72 @@ def _scenario(args):
         if getattr(args, name) is not None:
             check_finite(f"--{name}", getattr(args, name), "s")
     check_positive("--dt", args.dt, "s")
-    return ContactScenario(**values)
+    for name, value in (*values.items(), ("t1", args.t1), ("t2", args.t2), ("dt", args.dt)):
+        if value and abs(value) < sys.float_info.min:
+            raise DockhilError(f"--{name} {value!r} is too small to compute with (a subnormal number); "
+                               f"give a value of physical size, in SI units")
+    scenario = ContactScenario(**values)
+    _check_scales(scenario)
+    return scenario
+
+
+# Most fixed-step simulation steps to the later fit time: a Python loop, so also a bound on time.
+MAX_STEPS = 1_000_000
+# Docking hardware spans a gram-scale probe to a space station, and a contact lasts from nanoseconds
+# (stiff metal) to years (a near-free drift): outside these the contact models are not the tool, and
+# the fit's solvers would take as long as the numbers are absurd.
+PLAUSIBLE = {"m1": (1e-6, 1e12, "kg"), "m2": (1e-6, 1e12, "kg"), "kcs": (0.0, 1e12, "N/m"),
+             "bcs": (0.0, 1e12, "N s/m"), "k": (0.0, 1e12, "N/m"), "v1": (-1e3, 1e3, "m/s"), "v2": (-1e3, 1e3, "m/s")}
+TIME_SCALE = (1e-9, 1e9)  # [s]
+
+
+def _check_scales(s) -> None:
+    """Each value within the range of docking hardware and the contact's time scales physical: then
+    no product or quotient the fit forms leaves the floating-point range, and its solvers end."""
+    for name, (low, high, unit) in PLAUSIBLE.items():
+        value = getattr(s, name)
+        if not low <= value <= high:
+            raise DockhilError(f"--{name} {value:g} {unit} is outside {low:g} to {high:g} {unit}, the range of "
+                               f"docking hardware these models are for")
+    scales = {"sqrt(m/kcs)": math.sqrt(s.reduced_mass / s.kcs) if s.kcs else None,
+              "m/bcs": s.reduced_mass / s.bcs if s.bcs else None}
+    for name, seconds in scales.items():
+        if seconds is not None and not TIME_SCALE[0] <= seconds <= TIME_SCALE[1]:
+            raise DockhilError(f"the contact's time scale {name} = {seconds:.3g} s is outside {TIME_SCALE[0]:g} to "
+                               f"{TIME_SCALE[1]:g} s: the masses, stiffness and damping are not of one physical system")
+
+
+def _check_steps(scenario, args) -> None:
+    """A fixed-step state source steps to the later fit time: refuse a step that makes that endless."""
+    from dockhil.contact.impedance import recommended_fit_times
+
+    if args.states not in ("rk4", "symplectic_euler", "euler"):
+        return
+    t1, t2 = recommended_fit_times(scenario)
+    t_end = max(args.t1 if args.t1 is not None else t1, args.t2 if args.t2 is not None else t2)
+    steps = t_end / args.dt
+    if not steps <= MAX_STEPS:
+        raise DockhilError(f"--dt {args.dt:g} s takes {steps:.3g} steps to t = {t_end:.6g} s with --states "
+                           f"{args.states}; at most {MAX_STEPS:g}: give a larger --dt")
 
 
 def run(args: argparse.Namespace) -> int:
     from dockhil.contact.impedance import fit_impedance
     from dockhil.contact.scenario import NegativeVirtualStiffnessWarning
 
+    import numpy as np
+
     scenario = _scenario(args)
-    with warnings.catch_warnings():
+    _check_steps(scenario, args)
+    # numpy's overflow warnings are not printed: the fit checks its results and says what is wrong.
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
         # The warning text is reported below, in the table or the JSON.
         warnings.simplefilter("ignore", NegativeVirtualStiffnessWarning)
-        fit = fit_impedance(scenario, args.t1, args.t2, states=args.states, dt=args.dt)
+        try:
+            fit = fit_impedance(scenario, args.t1, args.t2, states=args.states, dt=args.dt)
+        except (ArithmeticError, ValueError) as exc:
+            raise DockhilError(f"the fit left the floating-point range ({exc}); give values of physical "
+                               f"size (SI units)") from None
     imp, closed = fit.impedance.as_dict(), fit.closed_form.as_dict()
     duration = None if math.isinf(fit.contact_duration) else fit.contact_duration
     result = {

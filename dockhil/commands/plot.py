@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dockhil.argtypes import nonnegative
 from dockhil.errors import DockhilError
 
 
@@ -9,8 +10,8 @@ def add_arguments(p) -> None:
     p.add_argument("bags", nargs="+", metavar="BAG", help="one or more recorded runs (MCAP); each is one curve")
     p.add_argument("--png", required=True, metavar="FILE", help="where to write the figure")
     p.add_argument("--labels", nargs="+", metavar="LABEL", help="legend label per bag (default: file names)")
-    p.add_argument("--kcs", type=float, help="ideal runs: contact stiffness [N/m] to compute the force from the state")
-    p.add_argument("--bcs", type=float, help="ideal runs: contact damping [N s/m]")
+    p.add_argument("--kcs", type=nonnegative, help="ideal runs: contact stiffness [N/m] to compute the force from the state")
+    p.add_argument("--bcs", type=nonnegative, help="ideal runs: contact damping [N s/m]")
     p.add_argument("--topics", nargs="+", metavar="TOPIC",
                    help="extra topics to plot in a third panel: every numeric field over time")
 

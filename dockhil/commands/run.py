@@ -9,38 +9,36 @@ from __future__ import annotations
 
 import os
 
+from dockhil.argtypes import hertz, node_name, seconds
 from dockhil.errors import DockhilError
 
 
 def add_arguments(p) -> None:
     p.add_argument("node", help="node type (see 'dockhil node types') or module:Class")
     p.add_argument("params", nargs="*", metavar="param:=value", help="node parameters")
-    p.add_argument("--name", help="node name (default: the type name)")
+    p.add_argument("--name", type=node_name, help="node name (default: the type name)")
     p.add_argument("-r", "--remap", action="append", default=[], metavar="FROM:=TO",
                    help="remap a port or topic to a topic (repeatable)")
-    p.add_argument("--rate", type=float, default=100.0, metavar="HZ", help="loop rate (default 100)")
-    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--rate", type=hertz, default=100.0, metavar="HZ", help="loop rate (default 100)")
+    p.add_argument("--duration", type=seconds, metavar="S", help="stop after S seconds")
 
 
 def run(args) -> int:
     import json
     import uuid
 
-    import yaml
-
     import msgs
     import nodes
+    from dockhil import boundedyaml
     from dockhil.executor import PortWire, RunSpec
     from dockhil.launcher import KEY_FILE, graph_keys, registry_dir, running_graphs
     from dockhil.launchfile import parse_overrides
     from dockhil.process import run_node
     from dockhil.transport import GraphKeys, ipc_endpoint, new_run_dir
 
-    if not args.rate > 0:
-        raise DockhilError(f"--rate must be positive, got {args.rate}")
     cls = nodes.load(args.node)
     name = args.name or args.node.rsplit(":", 1)[-1]
-    params = {k: yaml.safe_load(v) for k, v in parse_overrides(args.params).items()}
+    params = {k: boundedyaml.load(v, f"parameter {k}:={v}")[0] for k, v in parse_overrides(args.params).items()}
     params = cls.resolve_params(name, params)
     remap = parse_overrides(args.remap)
     ins, outs = cls.ports(params)
