@@ -4,7 +4,12 @@ import subprocess
 
 import pytest
 
-from tests.conftest import dockhil_cmd
+from tests.conftest import ROOT, dockhil_cmd
+
+# The line each node of the shipped hil.yaml is declared on, read from the file (a refusal names it).
+HIL_LINE = {line.split("name:", 1)[1].strip(): n
+            for n, line in enumerate((ROOT / "launch" / "hil.yaml").read_text().splitlines(), 1)
+            if line.strip().startswith("- name:")}
 
 LOOP = """
 rate: 1000
@@ -138,7 +143,7 @@ BAD_INPUTS = {
     "--duration nan": ("launch", LOOP, ["--duration", "nan"], "argument --duration: 'nan' is not a finite number"),
     "--duration -1": ("launch", LOOP, ["--duration=-1"], "argument --duration: -1 s must be > 0"),
     "delay:=1e308": ("graph", "launch/hil.yaml", ["delay:=1e308"],
-                     "hil.yaml:33: node 'delay': input 'input' delay 1e+308 s is not between 0 and 1e+06 s"),
+                     f"hil.yaml:{HIL_LINE['delay']}: node 'delay': input 'input' delay 1e+308 s is not between 0 and 1e+06 s"),
     "params --m1 1e-320": ("params", None, ["--table1", "--m1", "1e-320"], "--m1 1e-320 is too small to compute with"),
     "params --m1 1e308": ("params", None, ["--table1", "--m1", "1e308"], "--m1 1e+308 kg is outside 1e-06 to 1e+12 kg"),
     "params --m1 2e150 (solve_ivp never ended)": ("params", None, ["--table1", "--states", "solve_ivp", "--m1", "2e150",
@@ -153,7 +158,7 @@ BAD_INPUTS = {
     "key typo": ("graph", "nodes:\n" + SOURCE + ", parms: {}}\n", [],
                  "scene.yaml:2: nodes[0].parms: unknown key 'parms'; did you mean 'params'?"),
     "subnormal param": ("graph", "launch/hil.yaml", ["m1:=1e-320"],
-                        "hil.yaml:26: node 'dynamics' parameter 'm1': 1e-320 is too small to compute with"),
+                        f"hil.yaml:{HIL_LINE['dynamics']}: node 'dynamics' parameter 'm1': 1e-320 is too small to compute with"),
     "rate arg 2e6": ("graph", "rate: $(arg rate)\nargs: {rate: {default: 1000.0}}\nnodes:\n" + SOURCE + "}\n",
                      ["rate:=2e6"], "scene.yaml:1: rate: expected a number <= 1000000.0, got 2000000.0"),
     "recursive alias": ("graph", "nodes: &n [*n]\n", [], "scene.yaml:1: alias *n refers to the value that contains it"),
@@ -201,20 +206,6 @@ def test_summary_naming_a_directory_is_refused_before_the_run(tmp_path):
 def test_summary_in_a_missing_folder_is_refused(tmp_path):
     code, _, err = run_main("launch", "launch/ideal.yaml", "--composed", "--summary", tmp_path / "no" / "s.json")
     assert_one_line_refusal(code, err, "does not exist")
-
-
-def test_bag_export_of_a_deeply_nested_message(tmp_path):
-    from dockhil.bag import BagWriter
-    from msgs import WrenchStamped, type_name
-
-    bag = tmp_path / "deep.mcap"
-    with BagWriter(bag) as w:
-        w.add_topic("/ft/wrench", type_name(WrenchStamped))
-        # {"header": [[[...nil...]]]}: 100,000 nested one-element msgpack arrays
-        w.write("/ft/wrench", 1000, 1000, b"\x81\xa6header" + b"\x91" * 100_000 + b"\xc0")
-    code, _, err = run_main("bag", "export", bag, "-t", "/ft/wrench", "--csv", tmp_path / "out.csv")
-    assert_one_line_refusal(code, err, "nested too deeply")
-    assert not (tmp_path / "out.csv").exists()
 
 
 def test_rate_from_an_argument_sets_the_step(write_launch):
