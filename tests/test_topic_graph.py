@@ -72,6 +72,8 @@ def test_graph_is_chosen_refused_when_ambiguous_and_its_end_is_said(tmp_path):
 
         listed = dockhil("topic", "list", "--graph", ida).stdout.splitlines()
         assert listed and all(line.endswith(f"({ida})") for line in listed)
+        nodes = dockhil("node", "list", "--graph", idb).stdout
+        assert nodes.startswith(idb) and ida not in nodes and "dynamics  satellite_dynamics" in nodes
 
         r = dockhil("topic", "echo", "/satellite/state", "--graph", "no-such-run")
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1

@@ -36,19 +36,25 @@ def _describe(info: dict) -> str:
     return f"{info['run_id']} ({info['file']})"
 
 
-def choose_graph(topic: str, graph_id: str | None) -> dict:
-    """The registry entry of the running graph whose `topic` to read; DockhilError (one line) if none or ambiguous."""
+def select_graphs(graph_id: str | None) -> list[dict]:
+    """The running graphs, or only the one with run id `graph_id`; DockhilError (one line) if it does not run."""
     from dockhil.launcher import running_graphs
 
     graphs = running_graphs()
+    if graph_id is None:
+        return graphs
+    chosen = [info for info in graphs if info["run_id"] == graph_id]
+    if not chosen:
+        running = ", ".join(_describe(i) for i in graphs) or "none"
+        raise DockhilError(f"--graph {graph_id}: no such running graph; running: {running} (see 'dockhil node list')")
+    return chosen
+
+
+def choose_graph(topic: str, graph_id: str | None) -> dict:
+    """The registry entry of the running graph whose `topic` to read; DockhilError (one line) if none or ambiguous."""
+    graphs = select_graphs(graph_id)
     if not graphs:
         raise DockhilError("no running graph found; start one with 'dockhil launch FILE'")
-    if graph_id is not None:
-        chosen = [info for info in graphs if info["run_id"] == graph_id]
-        if not chosen:
-            raise DockhilError(f"--graph {graph_id}: no such running graph; running: "
-                               f"{', '.join(_describe(i) for i in graphs)}")
-        graphs = chosen
     publishing = [info for info in graphs if topic in info["topics"]]
     if len(publishing) > 1:
         raise DockhilError(f"topic {topic} is published by {len(publishing)} running graphs: "
@@ -99,14 +105,10 @@ class _Watch:
 
 
 def run(args) -> int:
-    from dockhil.launcher import graph_keys, running_graphs
+    from dockhil.launcher import graph_keys
 
     if args.action == "list":
-        graphs = running_graphs()
-        if args.graph is not None:
-            graphs = [info for info in graphs if info["run_id"] == args.graph]
-            if not graphs:
-                choose_graph("", args.graph)  # raises the one line naming the running graphs
+        graphs = select_graphs(args.graph)
         if not graphs:
             print("no running graph", file=sys.stderr)
             return 0
