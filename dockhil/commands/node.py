@@ -8,7 +8,8 @@ import sys
 
 def add_arguments(p) -> None:
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
-    sub.add_parser("list", help="nodes of every running graph, with type, pid and state")
+    ls = sub.add_parser("list", help="nodes of every running graph (first its run id), with type, pid and state")
+    ls.add_argument("--graph", metavar="ID", help="only the graph with this run id")
     types = sub.add_parser("types", help="node types this installation knows, with their ports and parameters")
     types.add_argument("name", nargs="?", help="show one type in full")
 
@@ -24,9 +25,9 @@ def _alive(pid) -> bool:
 def run(args) -> int:
     if args.action == "types":
         return _types(args.name)
-    from dockhil.launcher import running_graphs
+    from dockhil.commands.topic import select_graphs
 
-    graphs = running_graphs()
+    graphs = select_graphs(args.graph)
     if not graphs:
         print("no running graph", file=sys.stderr)
         return 0

@@ -1,16 +1,25 @@
-"""`dockhil topic list | echo TOPIC | hz TOPIC`: look at the topics of running graphs."""
+"""`dockhil topic list | echo TOPIC | hz TOPIC`: look at the topics of running graphs.
+
+When several graphs run, `--graph ID` (the run id `dockhil node list` shows) picks one; echo and
+hz refuse to guess between graphs that publish the same topic. They stop, with one line and
+exit 0, when their graph ends.
+"""
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 
 from dockhil.errors import DockhilError
 
+# How often echo and hz look whether their graph still runs [s].
+ALIVE_CHECK_S = 0.5
+
 
 def add_arguments(p) -> None:
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
-    sub.add_parser("list", help="topics of every running graph, with type and publisher")
+    ls = sub.add_parser("list", help="topics of every running graph, with type and publisher")
     echo = sub.add_parser("echo", help="print messages of a topic as JSON lines")
     echo.add_argument("topic")
     echo.add_argument("--count", "-n", type=int, metavar="N", help="stop after N messages")
@@ -18,21 +27,54 @@ def add_arguments(p) -> None:
     hz.add_argument("topic")
     hz.add_argument("--window", type=float, default=1.0, metavar="S", help="report every S seconds (default 1)")
     hz.add_argument("--count", "-n", type=int, metavar="N", help="stop after N reports")
+    for q in (ls, echo, hz):
+        q.add_argument("--graph", metavar="ID",
+                       help="the run id of the graph to look at (see 'dockhil node list'); needed when several run")
 
 
-def find_topic(topic: str):
-    """(endpoint, type name, the graph's keys) of a topic in a running graph."""
-    from dockhil.launcher import graph_keys, running_graphs
+def _describe(info: dict) -> str:
+    return f"{info['run_id']} ({info['file']})"
+
+
+def select_graphs(graph_id: str | None) -> list[dict]:
+    """The running graphs, or only the one with run id `graph_id`; DockhilError (one line) if it does not run."""
+    from dockhil.launcher import running_graphs
 
     graphs = running_graphs()
-    for info in graphs:
-        if topic in info["topics"]:
-            t = info["topics"][topic]
-            return t["endpoint"], t["type"], graph_keys(info)
+    if graph_id is None:
+        return graphs
+    chosen = [info for info in graphs if info["run_id"] == graph_id]
+    if not chosen:
+        running = ", ".join(_describe(i) for i in graphs) or "none"
+        raise DockhilError(f"--graph {graph_id}: no such running graph; running: {running} (see 'dockhil node list')")
+    return chosen
+
+
+def choose_graph(topic: str, graph_id: str | None) -> dict:
+    """The registry entry of the running graph whose `topic` to read; DockhilError (one line) if none or ambiguous."""
+    graphs = select_graphs(graph_id)
     if not graphs:
         raise DockhilError("no running graph found; start one with 'dockhil launch FILE'")
-    known = sorted({t for info in graphs for t in info["topics"]})
-    raise DockhilError(f"topic {topic} is not published by any running graph; topics: {', '.join(known)}")
+    publishing = [info for info in graphs if topic in info["topics"]]
+    if len(publishing) > 1:
+        raise DockhilError(f"topic {topic} is published by {len(publishing)} running graphs: "
+                           f"{', '.join(_describe(i) for i in publishing)}; choose one with --graph ID")
+    if not publishing:
+        known = sorted({t for info in graphs for t in info["topics"]})
+        where = f"graph {graph_id}" if graph_id is not None else "any running graph"
+        raise DockhilError(f"topic {topic} is not published by {where}; topics: {', '.join(known)}")
+    return publishing[0]
+
+
+def graph_alive(info: dict) -> bool:
+    """Whether the graph's launcher still runs (it removes its registry entry when it ends)."""
+    from dockhil.launcher import registry_dir
+
+    try:
+        os.kill(info["pid"], 0)
+    except OSError:
+        return False
+    return (registry_dir() / f"{info['run_id']}.json").exists()
 
 
 def _subscribe(endpoint: str, keys):
@@ -44,11 +86,29 @@ def _subscribe(endpoint: str, keys):
     return sub
 
 
+class _Watch:
+    """Says, at most every ALIVE_CHECK_S, whether the graph has ended."""
+
+    def __init__(self, info: dict):
+        self.info = info
+        self.next = time.monotonic() + ALIVE_CHECK_S
+
+    def ended(self) -> bool:
+        now = time.monotonic()
+        if now < self.next:
+            return False
+        self.next = now + ALIVE_CHECK_S
+        if graph_alive(self.info):
+            return False
+        print(f"[topic] graph {self.info['run_id']} ended", file=sys.stderr, flush=True)
+        return True
+
+
 def run(args) -> int:
-    from dockhil.launcher import running_graphs
+    from dockhil.launcher import graph_keys
 
     if args.action == "list":
-        graphs = running_graphs()
+        graphs = select_graphs(args.graph)
         if not graphs:
             print("no running graph", file=sys.stderr)
             return 0
@@ -56,27 +116,28 @@ def run(args) -> int:
             for topic, t in sorted(info["topics"].items()):
                 print(f"{topic}  {t['type']}  from {t['publisher']}  ({info['run_id']})")
         return 0
-    endpoint, type_name, keys = find_topic(args.topic)
+    info = choose_graph(args.topic, args.graph)
+    t = info["topics"][args.topic]
     import msgspec
 
     import msgs
     from msgs.codec import DecodeError, decode
 
-    cls = msgs.type_by_name(type_name)
-    sub = _subscribe(endpoint, keys)
+    cls = msgs.type_by_name(t["type"])
+    sub = _subscribe(t["endpoint"], graph_keys(info))
+    watch = _Watch(info)
     if args.action == "echo":
         n = 0
         while args.count is None or n < args.count:
-            frames = sub.recv(1.0)
-            if frames is None or len(frames) != 2:  # time-out, or a sim-time tick with no message
-                continue
-            try:
-                msg = decode(frames[1], cls)
-            except DecodeError as exc:
-                print(f"# bad message: {exc}", file=sys.stderr)
-                continue
-            print(msgspec.json.encode(msg).decode(), flush=True)
-            n += 1
+            frames = sub.recv(ALIVE_CHECK_S)
+            if frames is not None and len(frames) == 2:  # not a time-out, nor a sim-time tick with no message
+                try:
+                    print(msgspec.json.encode(decode(frames[1], cls)).decode(), flush=True)
+                    n += 1
+                except DecodeError as exc:
+                    print(f"# bad message: {exc}", file=sys.stderr)
+            if watch.ended():
+                return 0
         return 0
     reports = 0
     count = 0
@@ -85,6 +146,8 @@ def run(args) -> int:
         frames = sub.recv(0.1)
         if frames is not None and len(frames) == 2:
             count += 1
+        if watch.ended():
+            return 0
         now = time.monotonic()
         if now - t0 >= args.window:
             print(f"{args.topic}: {count / (now - t0):.1f} Hz over {now - t0:.2f} s", flush=True)
