@@ -60,10 +60,11 @@ class Passivity:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.k) and self.k > 0.0):
-            raise ContactModelError(f"passivity compensation needs the passive stiffness k > 0 N/m "
-                                    f"(the compliance the sensor measures), got {self.k!r}")
+            raise ContactModelError(f"compensation 'passivity' needs the passive stiffness k > 0 N/m of the "
+                                    f"compliance the sensor measures, got k = {self.k!r}; set k (e.g. k:=2510)")
         if not (math.isfinite(self.max_damping) and self.max_damping > 0.0):
-            raise ContactModelError(f"passivity compensation needs max_damping > 0 N s/m, got {self.max_damping!r}")
+            raise ContactModelError(f"compensation 'passivity' needs max_damping > 0 N s/m, got {self.max_damping!r}; "
+                                    f"set max_damping (e.g. max_damping:=200)")
 
 
 @dataclass
