@@ -54,7 +54,8 @@ def table1_run(delay: float, compensate: bool, max_damping: float = MAX_DAMPING)
     t = TABLE1
     n = int(round((2.2 + 2.5 * delay) / DT))
     return simulate_hil(m1=t.m1, m2=t.m2, k=t.k, impedance=impedance_closed_form(t, warn=False), dt=DT, n_ticks=n,
-                        v1=t.v1, delay=delay, passivity=Passivity(t.k, max_damping) if compensate else None)
+                        v1=t.v1, delay=delay, passivity=Passivity(t.k, max_damping) if compensate else None,
+                        energy=True)
 
 
 def table1_errors(delay: float) -> dict:
