@@ -150,6 +150,16 @@ def graph_points() -> list[dict]:
                         "graph_peak_force_N": s["peak_force_N"], "library_peak_force_N": lib["peak_force_N"],
                         "identical": s["exit_velocity_mps"] == lib["exit_velocity_mps"]
                         and s["peak_force_N"] == lib["peak_force_N"], "valid": s.get("valid")})
+        path = os.path.join(tmp, "st.json")
+        subprocess.run([sys.executable, "-m", "dockhil.cli", "launch", os.path.join(root, "launch/stability.yaml"),
+                        "b:=20", "compensation:=passivity", "--composed", "--quiet", "--duration", "120",
+                        "--summary", path], check=True, env=env, capture_output=True)
+        with open(path) as f:
+            s = json.load(f)
+        lib = stability_runs(20.0, 2510.0, 0.016, 120.0)["passivity"]
+        out.append({"scene": "stability.yaml b:=20, 120 s", "graph_growth_rate_1_s": s["growth_rate_1_s"],
+                    "library_growth_rate_1_s": lib["growth_rate_1_s"], "valid": s.get("valid"),
+                    "equal_to_1e-9": math.isclose(s["growth_rate_1_s"], lib["growth_rate_1_s"], rel_tol=1e-9)})
     return out
 
 
