@@ -495,8 +495,10 @@ def format_summary(out: dict) -> str:
         for label, key, unit in rows:
             lines.append(f"{label:18}{f(out.get(key), unit):>{w}}")
     if "predicted_growth_rate_1_s" in out:
+        compensated = (out.get("energy") or {}).get("compensation") == "passivity"
         lines.append(f"{'growth rate':18}{f(out['growth_rate_1_s'], '1/s'):>{w}}   "
-                     f"predicted {f(out['predicted_growth_rate_1_s'], '1/s')} (sampled loop's dominant root)")
+                     f"predicted {f(out['predicted_growth_rate_1_s'], '1/s')} (sampled loop's dominant root"
+                     + (", without the compensation)" if compensated else ")"))
     loop = out.get("loop") or {}
     if loop:
         per = next((k for k in loop if k.startswith("samples_per_")), None)

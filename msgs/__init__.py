@@ -169,7 +169,8 @@ class Energy(Message):
     compensation_dissipated_J: taken out by the passivity controller;
     net_generated_J: generated_J - compensation_dissipated_J (> 0: the loop made energy);
     damping_Ns_m: the controller's damping [N s/m] over the next tick; at_max_damping: it wanted
-    more than its bound."""
+    more than its bound. Thrust is not in the account: kinetic_J changes by the work of the port,
+    the virtual impedance and the thrust."""
 
     header: Header
     port_work_J: Finite = 0.0
