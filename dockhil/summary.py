@@ -373,6 +373,8 @@ def energy_summary(out: dict, graph, meter) -> None:
     if meter.last is None:
         return
     e = meter.last
+    out.setdefault("valid", True)
+    out.setdefault("invalid_reasons", [])
     out["energy"] = {"generated_J": e.generated_J, "compensation_dissipated_J": e.compensation_dissipated_J,
                      "net_generated_J": e.net_generated_J, "virtual_dissipated_J": e.virtual_dissipated_J,
                      "port_work_J": e.port_work_J}
@@ -380,8 +382,6 @@ def energy_summary(out: dict, graph, meter) -> None:
     if imp is None or imp.params["compensation"] != "passivity":
         out["energy"]["compensation"] = "none"
         return
-    out.setdefault("valid", True)
-    out.setdefault("invalid_reasons", [])
     max_damping = imp.params["max_damping"]
     line = meter.saturation(max_damping)
     out["energy"].update(compensation="passivity", max_damping_Ns_m=max_damping,
