@@ -169,7 +169,8 @@ class Energy(Message):
     compensation_dissipated_J: taken out by the passivity controller;
     net_generated_J: generated_J - compensation_dissipated_J (> 0: the loop made energy);
     damping_Ns_m: the controller's damping [N s/m] over the next tick; at_max_damping: it wanted
-    more than its bound. Thrust is not in the account: kinetic_J changes by the work of the port,
+    more than its bound; port_loaded: the bodies touch or the port carries a force (above the
+    controller's deadband): where the controller may act. Thrust is not in the account: kinetic_J changes by the work of the port,
     the virtual impedance and the thrust."""
 
     header: Header
@@ -185,6 +186,7 @@ class Energy(Message):
     net_generated_J: Finite = 0.0
     damping_Ns_m: NonNegative = 0.0
     at_max_damping: bool = False
+    port_loaded: bool = False
 
 
 # Wire type names, stable across releases: used in bags and by the launcher.

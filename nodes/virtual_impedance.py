@@ -38,6 +38,8 @@ class VirtualImpedance(Node):
                               choices=("none", "passivity")),
         "max_damping": Param(float, 200.0, unit="N s/m", help="largest damping the passivity controller adds; "
                              "energy it cannot take out marks the run invalid", ge=0.0),
+        "force_deadband": Param(float, 0.0, unit="N", help="passivity: once the bodies part, a measured force "
+                                "below this counts as none (set it above the sensor's noise)", ge=0.0),
     }
 
     @classmethod
@@ -49,7 +51,7 @@ class VirtualImpedance(Node):
             from dockhil.errors import ParamError
 
             try:
-                Passivity(params["k"], params["max_damping"])
+                Passivity(params["k"], params["max_damping"], params["force_deadband"])
             except ContactModelError as exc:
                 raise ParamError(f"virtual_impedance: {exc}") from None
         return cls.inputs, cls.outputs
@@ -83,7 +85,8 @@ class VirtualImpedance(Node):
         imp = self.impedance
         from dockhil.contact.passivity import EnergyMonitor, Passivity
 
-        self.passivity = Passivity(p.k, p.max_damping) if p.compensation == "passivity" else None
+        self.passivity = (Passivity(p.k, p.max_damping, p.force_deadband) if p.compensation == "passivity"
+                          else None)
         self.monitor = EnergyMonitor(p.m1, p.m2, p.k, imp, self.passivity)
         self.log(f"impedance ({how}): k1={imp.k1:.6g} N/m b1={imp.b1:.6g} N s/m "
                  f"k2={imp.k2:.6g} N/m b2={imp.b2:.6g} N s/m")

@@ -53,10 +53,13 @@ RESIDUAL_TOLERANCE = 1e-3  # of the largest energy the port's spring held: more 
 @dataclass(frozen=True)
 class Passivity:
     """Parameters of the passivity controller: the passive stiffness k [N/m] whose store the
-    observer credits, and the largest damping [N s/m] the controller may add."""
+    observer credits, the largest damping [N s/m] the controller may add, and the force [N] below
+    which a port whose bodies no longer touch counts as unloaded (above the sensor's noise: the
+    controller would otherwise keep taking out the noise's positive swings after a contact)."""
 
     k: float
     max_damping: float
+    deadband: float = 0.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.k) and self.k > 0.0):
@@ -65,6 +68,8 @@ class Passivity:
         if not (math.isfinite(self.max_damping) and self.max_damping > 0.0):
             raise ContactModelError(f"compensation 'passivity' needs max_damping > 0 N s/m, got {self.max_damping!r}; "
                                     f"set max_damping (e.g. max_damping:=200)")
+        if not (math.isfinite(self.deadband) and self.deadband >= 0.0):
+            raise ContactModelError(f"compensation 'passivity' needs force_deadband >= 0 N, got {self.deadband!r}")
 
 
 @dataclass
@@ -83,6 +88,7 @@ class EnergyTick:
     net_generated_J: float = 0.0
     damping_Ns_m: float = 0.0
     at_max_damping: bool = False
+    port_loaded: bool = False
 
 
 ENERGY_FIELDS = tuple(f.name for f in fields(EnergyTick))
@@ -157,31 +163,40 @@ class EnergyMonitor:
         e.generated_J = (e.port_work_J + e.port_stored_J + e.virtual_work_J + e.virtual_stored_J
                          + e.virtual_dissipated_J - self.initial)
         e.net_generated_J = e.generated_J - e.compensation_dissipated_J
+        e.port_loaded = touching or abs(f) > (self.passivity.deadband if self.passivity is not None else 0.0)
         fc, e.damping_Ns_m, e.at_max_damping = damping_force(self.passivity, e.net_generated_J, pd, dt,
-                                                             touching or f != 0.0)
+                                                             e.port_loaded)
         self.prev = (x1, x2, p, pd, f, fc, fv1, fv2, touching)
         return fc, e
 
 
 class EnergyMeter:
-    """What a run's energy account says at its end, fed one account per tick (O(1) memory):
-    the last account, the largest spring energy, the ticks at the bound."""
+    """What a run's energy account says, fed one account per tick (O(1) memory): the last
+    account, the largest spring energy, the ticks at the bound, and the most energy left in
+    the loop when the controller stopped (each time the port was unloaded, and at the end)."""
 
     def __init__(self):
         self.last = None
         self.spring_max = 0.0
         self.ticks_at_max = 0
+        self.left = -math.inf
 
     def add(self, account) -> None:
+        if self.last is not None and self.last.port_loaded and not account.port_loaded:
+            self.left = max(self.left, account.net_generated_J)  # after the last loaded tick's force acted
         self.last = account
         self.spring_max = max(self.spring_max, account.port_spring_J)
         self.ticks_at_max += bool(account.at_max_damping)
 
+    def residual(self) -> float:
+        """[J] the most net generated energy the loop kept when the controller stopped."""
+        return max(self.left, self.last.net_generated_J) if self.last.port_loaded else self.left
+
     def saturation(self, max_damping: float) -> str | None:
         """One line when the controller left generated energy in the loop, else None."""
-        if self.last is None:
+        if self.last is None or self.residual() == -math.inf:
             return None
-        residual, tol = self.last.net_generated_J, RESIDUAL_TOLERANCE * self.spring_max
+        residual, tol = self.residual(), RESIDUAL_TOLERANCE * self.spring_max
         if residual <= tol:
             return None
         return (f"the passivity controller saturated at max_damping {max_damping:g} N s/m: {residual:.3g} J made "
