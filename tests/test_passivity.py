@@ -173,3 +173,24 @@ def test_graph_equals_library_with_compensation(tmp_path):
     for i, name in enumerate(ENERGY_FIELDS):
         assert np.array_equal(energy[:, i], lib.extra[name].astype(float)), name
     assert lib.extra["compensation_dissipated_J"][-1] > 0.01  # the damping acted
+
+
+def test_below_the_deadband_an_apart_port_is_unloaded_and_the_controller_does_not_act():
+    from dockhil.contact.passivity import EnergyMonitor
+
+    rng = np.random.default_rng(1)
+    monitor = EnergyMonitor(750.0, 0.0, 1000.0, VirtualImpedance(0.0, 20.0, 0.0, 0.0), Passivity(1000.0, 200.0, 0.5))
+    x = -0.01  # apart, flying away, with sensor noise of 0.1 N
+    for _ in range(2000):
+        x -= 0.03 * DT
+        fc, e = monitor.step(x, 0.0, -0.03, 0.0, float(rng.normal(0.0, 0.1)), 0.0, 0.0, DT)
+        assert fc == 0.0 and not e.port_loaded
+    assert e.compensation_dissipated_J == 0.0
+    # Without the deadband the same noise keeps the controller busy.
+    monitor = EnergyMonitor(750.0, 0.0, 1000.0, VirtualImpedance(0.0, 20.0, 0.0, 0.0), Passivity(1000.0, 200.0))
+    x, acted = -0.01, 0
+    for _ in range(2000):
+        x -= 0.03 * DT
+        fc, e = monitor.step(x, 0.0, -0.03, 0.0, float(rng.normal(0.0, 0.1)), 0.0, 0.0, DT)
+        acted += fc != 0.0
+    assert acted > 20
