@@ -384,8 +384,10 @@ def energy_summary(out: dict, graph, meter) -> None:
         return
     max_damping = imp.params["max_damping"]
     line = meter.saturation(max_damping)
+    left = meter.residual()
     out["energy"].update(compensation="passivity", max_damping_Ns_m=max_damping,
-                         ticks_at_max_damping=meter.ticks_at_max, saturated=line is not None)
+                         ticks_at_max_damping=meter.ticks_at_max, saturated=line is not None,
+                         left_in_loop_J=left if math.isfinite(left) else None)
     if line is not None:
         out["valid"] = False
         out["invalid_reasons"].append(line)

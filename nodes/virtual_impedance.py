@@ -60,6 +60,7 @@ class VirtualImpedance(Node):
         import warnings
 
         from dockhil.contact.hybrid import VirtualImpedance as Impedance
+        from dockhil.contact.passivity import EnergyMonitor, Passivity
 
         p = self.p
         if p.mode == "given":
@@ -83,8 +84,6 @@ class VirtualImpedance(Node):
             fit = fit_impedance(scenario)
             how = f"closed form; two-time fit agrees: {fit.agrees}"
         imp = self.impedance
-        from dockhil.contact.passivity import EnergyMonitor, Passivity
-
         self.passivity = (Passivity(p.k, p.max_damping, p.force_deadband) if p.compensation == "passivity"
                           else None)
         self.monitor = EnergyMonitor(p.m1, p.m2, p.k, imp, self.passivity)
