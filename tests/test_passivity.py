@@ -194,3 +194,17 @@ def test_below_the_deadband_an_apart_port_is_unloaded_and_the_controller_does_no
         fc, e = monitor.step(x, 0.0, -0.03, 0.0, float(rng.normal(0.0, 0.1)), 0.0, 0.0, DT)
         acted += fc != 0.0
     assert acted > 20
+
+
+def test_stability_measures_the_compensated_loop():
+    r = subprocess.run(dockhil_cmd("stability", "--m", 750, "--b", 20, "--h", 0.016, "--K", 2510,
+                                   "--compensation", "passivity", "--json"), capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    report = json.loads(r.stdout)
+    assert report["growth_rate"] > 0  # Fig. 11 without compensation
+    at_k = next(row for row in report["passivity"]["runs"] if row["label"] == "--K")
+    assert at_k["growth_rate"] < 0 and at_k["saturated"] is False
+    assert report["passivity"]["largest_decaying_K"] >= 3 * report["exact"] * 0.999
+    r = subprocess.run(dockhil_cmd("stability", "--m", 750, "--b", 20, "--h", 0.016, "--compensation", "passivity",
+                                   "--max-damping", -1), capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0 and r.stderr.strip().splitlines() == [r.stderr.strip()] and "--max-damping" in r.stderr

@@ -202,3 +202,16 @@ class EnergyMeter:
         return (f"the passivity controller saturated at max_damping {max_damping:g} N s/m: {residual:.3g} J made "
                 f"by the delay stayed in the loop (allowed {tol:.3g} J, {RESIDUAL_TOLERANCE:g} of the port's "
                 f"peak energy; {self.ticks_at_max} ticks at the bound); raise max_damping")
+
+
+def left_in_loop(account: dict) -> tuple[float, float]:
+    """(left, allowed) [J] of per-tick account arrays (simulate_hil's `extra`): the most net
+    generated energy kept when the controller stopped, as EnergyMeter.residual, and the tolerance."""
+    import numpy as np
+
+    loaded = np.asarray(account["port_loaded"], bool)
+    net = np.asarray(account["net_generated_J"], float)
+    stops = np.flatnonzero(loaded[:-1] & ~loaded[1:]) + 1
+    candidates = list(net[stops]) + ([net[-1]] if loaded[-1] else [])
+    left = max(candidates) if candidates else -math.inf
+    return float(left), RESIDUAL_TOLERANCE * float(np.max(account["port_spring_J"]))
