@@ -208,3 +208,16 @@ def test_stability_measures_the_compensated_loop():
     r = subprocess.run(dockhil_cmd("stability", "--m", 750, "--b", 20, "--h", 0.016, "--compensation", "passivity",
                                    "--max-damping", -1), capture_output=True, text=True, timeout=60)
     assert r.returncode != 0 and r.stderr.strip().splitlines() == [r.stderr.strip()] and "--max-damping" in r.stderr
+
+
+def test_the_report_section_compares_each_delay_with_and_without_compensation():
+    from dockhil.report import passivity_compensation
+
+    out = passivity_compensation()
+    rows = {(r["delay_s"], r["compensation"]): r for r in out["rows"]}
+    for delay in {r["delay_s"] for r in out["rows"]}:
+        plain, comp = rows[(delay, "none")], rows[(delay, "passivity")]
+        for key in ("exit_velocity_error_mps", "peak_force_error_N"):
+            assert abs(comp[key]) < abs(plain[key])
+        assert comp["restitution"] <= out["ideal_restitution"] + 1e-3 < plain["restitution"]
+    assert set(out["energy_32ms"]) == {"none", "passivity"}
