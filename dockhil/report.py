@@ -1316,6 +1316,40 @@ def lean_scenes(cfg: ReportConfig, progress: TaskProgress) -> dict:
                                                                 leanness.ALLOWED_AT_SETUP.items()}}
 
 
+PASSIVITY_DELAYS = (0.016, 0.032, 0.064, 0.1)  # [s] Table 1 with and without passivity compensation
+PASSIVITY_MAX_DAMPING = 200.0  # [N s/m] as the shipped scenes
+
+
+def passivity_compensation() -> dict:
+    """Table 1 at 1 kHz with and without the passivity controller: errors against the ideal contact,
+    restitution, energy made and left; and the energy over the contact at 32 ms (every 10th tick)."""
+    from dockhil.contact.passivity import Passivity, left_in_loop
+    from dockhil.summary import Samples, contact_metrics, ideal_summary
+
+    t = TABLE1
+    ideal = ideal_summary(m1=t.m1, m2=t.m2, kcs=t.kcs, bcs=t.bcs, v1=t.v1, v2=t.v2)
+    imp = impedance_closed_form(t, warn=False)
+    rows, curves = [], {}
+    for delay in PASSIVITY_DELAYS:
+        for comp in ("none", "passivity"):
+            pc = Passivity(t.k, PASSIVITY_MAX_DAMPING) if comp == "passivity" else None
+            run = simulate_hil(m1=t.m1, m2=t.m2, k=t.k, impedance=imp, dt=1e-3, n_ticks=int((2.2 + 2.5 * delay) * 1e3),
+                               v1=t.v1, delay=delay, passivity=pc, energy=True)
+            m = contact_metrics(Samples(run.t, run.x1 - run.x2, run.v1 - run.v2, run.force))
+            left, allowed = left_in_loop(run.extra)
+            rows.append({"delay_s": delay, "compensation": comp,
+                         "exit_velocity_error_mps": m["exit_velocity_mps"] - ideal["exit_velocity_mps"],
+                         "peak_force_error_N": m["peak_force_N"] - ideal["peak_force_N"],
+                         "restitution": m["restitution"], "generated_J": float(run.extra["generated_J"][-1]),
+                         "net_generated_J": float(run.extra["net_generated_J"][-1]),
+                         "saturated": bool(comp == "passivity" and left > allowed)})
+            if delay == 0.032:
+                curves[comp] = {"t": run.t[::10].tolist(), "generated_J": run.extra["generated_J"][::10].tolist(),
+                                "net_generated_J": run.extra["net_generated_J"][::10].tolist()}
+    return {"ideal_restitution": ideal["restitution"], "max_damping_Ns_m": PASSIVITY_MAX_DAMPING,
+            "rows": rows, "energy_32ms": curves}
+
+
 def build_report(cfg: ReportConfig | None = None, stream=None) -> dict:
     """Run everything; progress on `stream` (stderr by default)."""
     import platform
@@ -1339,6 +1373,7 @@ def build_report(cfg: ReportConfig | None = None, stream=None) -> dict:
         except DockhilError as exc:  # the rest of the report stands without it
             report["graph_cost"] = {"error": str(exc)}
     report["stiff_cases"] = stiff_cases(cfg, progress)
+    report["passivity"] = passivity_compensation()
     if cfg.lean:
         report["lean"] = lean_scenes(cfg, progress)
     report["run_time_s"] = time.perf_counter() - started
@@ -1457,6 +1492,23 @@ def render_markdown(report: dict, plots: dict[str, str]) -> str:
                          [[c["group"], c["name"], c["expected"], c["measured"], "yes" if c["passed"] else "**NO**"]
                           for c in cases]))
 
+    if "passivity" in report:
+        pas = report["passivity"]
+        out += ["", "## Passivity compensation", "",
+                "Table 1 at 1 kHz, without and with the passivity controller (`compensation:=passivity`, "
+                f"max_damping {pas['max_damping_Ns_m']:g} N s/m): errors against the ideal contact (restitution "
+                f"{pas['ideal_restitution']:.5g}), the energy the delay and the sampling made, and what was left in "
+                "the loop. `bench/passivity.py` measures the rest (long delays, Fig. 11, the Fig. 7 grid)."]
+        if "passivity" in plots:
+            out += ["", f"![energy over a contact]({plots['passivity']})"]
+        out += ["", _md_table(
+            ["delay [s]", "compensation", "exit velocity error [m/s]", "peak force error [N]", "restitution",
+             "energy made [J]", "left [J]", "saturated"],
+            [[_g(r["delay_s"]), r["compensation"], _g(r["exit_velocity_error_mps"]), _g(r["peak_force_error_N"]),
+              _g(r["restitution"], 5), _g(r["generated_J"]), _g(r["net_generated_J"]),
+              ("yes" if r["saturated"] else "no") if r["compensation"] == "passivity" else "-"]
+             for r in pas["rows"]])]
+
     if "lean" in report:
         lean = report["lean"]
         out += ["", "## Lean scenes", "",
@@ -1524,6 +1576,22 @@ def write_plots(report: dict, out_dir: Path) -> dict[str, str]:
     fig.savefig(out_dir / "energy_drift.png", dpi=110)
     plt.close(fig)
     plots["energy_drift"] = "energy_drift.png"
+
+    if "passivity" in report:
+        fig, ax = plt.subplots(figsize=(8, 4.5))
+        for comp, c in report["passivity"]["energy_32ms"].items():
+            line, = ax.plot(c["t"], c["generated_J"], label=f"{comp}: made by the delay and the sampling")
+            if comp == "passivity":
+                ax.plot(c["t"], c["net_generated_J"], "--", color=line.get_color(), label="passivity: left in the loop")
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("energy [J]")
+        ax.set_title("Table 1 contact, 32 ms robot delay")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(out_dir / "passivity.png", dpi=110)
+        plt.close(fig)
+        plots["passivity"] = "passivity.png"
 
     if "lean" in report:
         rows = [r for r in report["lean"]["rows"] if r.get("startup_s") is not None and "rss_mb" in r]

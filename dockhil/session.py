@@ -95,6 +95,8 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
                 with open(summary, "w") as f:
                     json.dump(out, f, indent=1)
                 print(f"summary written to {summary}", file=sys.stderr)
+            if out.get("valid") is False:  # exit 0 means the result is valid
+                code = 1
         elif code == 0 and clock == "sim" and n_ticks:
             sim_s = (n_ticks - 1) * dt
             print(f"[launch] done: {sim_s:g} s simulated in {elapsed:.2f} s "

@@ -345,25 +345,59 @@ class SummaryCollector:
     """The run summary of a scene, gathered from published messages in one pass with O(1) memory."""
 
     def __init__(self, graph):
+        from dockhil.contact.passivity import EnergyMeter
+
         self.graph = graph
         ref = scene_reference(graph)
         growth = ref.get("growth")
         self.meter = ContactMeter(ideal=ref.get("ideal"), growth_about=None if growth is None else growth["about"])
         self.match = _TickMatcher(self.meter.add, ref.get("ideal_force"), graph.scene.dt)
+        self.energy = EnergyMeter()
 
     def __call__(self, topic: str, msg) -> None:
+        if topic == "/energy" and isinstance(msg, msgs.Energy):
+            self.energy.add(msg)
+            return
         self.match(topic, msg)
 
     def summary(self, run_time_s: float | None = None) -> dict:
         self.match.flush()
-        return scene_summary(self.graph, self.meter, run_time_s)
+        out = scene_summary(self.graph, self.meter, run_time_s)
+        energy_summary(out, self.graph, self.energy)
+        return out
+
+
+def energy_summary(out: dict, graph, meter) -> None:
+    """Add the run's energy account (`energy`) to a summary; a passivity controller that left
+    energy in the loop marks the run invalid."""
+    if meter.last is None:
+        return
+    e = meter.last
+    out.setdefault("valid", True)
+    out.setdefault("invalid_reasons", [])
+    out["energy"] = {"generated_J": e.generated_J, "compensation_dissipated_J": e.compensation_dissipated_J,
+                     "net_generated_J": e.net_generated_J, "virtual_dissipated_J": e.virtual_dissipated_J,
+                     "port_work_J": e.port_work_J}
+    imp = _first(graph, "virtual_impedance")
+    if imp is None or imp.params["compensation"] != "passivity":
+        out["energy"]["compensation"] = "none"
+        return
+    max_damping = imp.params["max_damping"]
+    line = meter.saturation(max_damping)
+    left = meter.residual()
+    out["energy"].update(compensation="passivity", max_damping_Ns_m=max_damping,
+                         ticks_at_max_damping=meter.ticks_at_max, saturated=line is not None,
+                         left_in_loop_J=left if math.isfinite(left) else None)
+    if line is not None:
+        out["valid"] = False
+        out["invalid_reasons"].append(line)
 
 
 def _bag_messages(path: str):
     from dockhil.bag import BagReader
 
     with BagReader(path) as bag:
-        yield from bag.decoded(["/satellite/state", "/ft/wrench", "/impedance/wrench"])
+        yield from bag.decoded(["/satellite/state", "/ft/wrench", "/impedance/wrench", "/energy"])
 
 
 def samples_from_bag(path: str, ideal_force: tuple[float, float] | None = None, dt: float | None = None) -> Samples:
@@ -463,14 +497,23 @@ def format_summary(out: dict) -> str:
         for label, key, unit in rows:
             lines.append(f"{label:18}{f(out.get(key), unit):>{w}}")
     if "predicted_growth_rate_1_s" in out:
+        compensated = (out.get("energy") or {}).get("compensation") == "passivity"
         lines.append(f"{'growth rate':18}{f(out['growth_rate_1_s'], '1/s'):>{w}}   "
-                     f"predicted {f(out['predicted_growth_rate_1_s'], '1/s')} (sampled loop's dominant root)")
+                     f"predicted {f(out['predicted_growth_rate_1_s'], '1/s')} (sampled loop's dominant root"
+                     + (", without the compensation)" if compensated else ")"))
     loop = out.get("loop") or {}
     if loop:
         per = next((k for k in loop if k.startswith("samples_per_")), None)
         lines.append(f"{'sampled loop':18}{loop['rate_Hz']:g} Hz, omega*dt {loop['omega_dt']:.3g}"
                      + (f", {loop[per]:.4g} {per.replace('_', ' ')}" if per and loop[per] is not None else "")
                      + f", spectral radius {loop['spectral_radius']:.9g}")
+    energy = out.get("energy")
+    if energy:
+        taken = (f", compensation took {energy['compensation_dissipated_J']:.4g} J, net "
+                 f"{energy['net_generated_J']:.4g} J" if energy["compensation"] == "passivity" else "")
+        lines.append(f"{'energy made':18}{f(energy['generated_J'], 'J'):>{w}}   by the delay and the sampling{taken}")
     if "note" in out:
         lines.append(f"note: {out['note']}")
+    for reason in out.get("invalid_reasons", []):
+        lines.append(f"INVALID: {reason}")
     return "\n".join(lines)

@@ -152,6 +152,43 @@ class EStop(Message):
     reason: str = ""
 
 
+class Energy(Message):
+    """The HIL loop's energy account at one tick, in joules, cumulative from the start of the run
+    (see dockhil.contact.passivity). The port is the hardware: the measured force on the chaser
+    against the simulated relative interface motion p = x1 - x2.
+
+    port_work_J: work of the measured force on the simulated bodies (> 0: the hardware gave energy);
+    port_spring_J: F^2 / (2 k), what the passive compliance k carrying the measured force F holds;
+    port_stored_J: what the port holds, F p - F^2 / (2 k): the spring's energy plus F (p - F/k),
+        the work still in flight while the delayed robot catches up with the simulation;
+    kinetic_J: kinetic energy of the simulated bodies;
+    virtual_work_J, virtual_stored_J, virtual_dissipated_J: the virtual impedance's work on the
+        bodies, what its springs hold, what its dampers dissipated;
+    generated_J: energy made by the delay and the sampling (port and virtual impedance), which a
+        passive, delay-free loop would not make;
+    compensation_dissipated_J: taken out by the passivity controller;
+    net_generated_J: generated_J - compensation_dissipated_J (> 0: the loop made energy);
+    damping_Ns_m: the controller's damping [N s/m] over the next tick; at_max_damping: it wanted
+    more than its bound; port_loaded: the bodies touch or the port carries a force (above the
+    controller's deadband): where the controller may act. Thrust is not in the account: kinetic_J changes by the work of the port,
+    the virtual impedance and the thrust."""
+
+    header: Header
+    port_work_J: Finite = 0.0
+    port_spring_J: Finite = 0.0
+    port_stored_J: Finite = 0.0
+    kinetic_J: Finite = 0.0
+    virtual_work_J: Finite = 0.0
+    virtual_stored_J: Finite = 0.0
+    virtual_dissipated_J: Finite = 0.0
+    generated_J: Finite = 0.0
+    compensation_dissipated_J: Finite = 0.0
+    net_generated_J: Finite = 0.0
+    damping_Ns_m: NonNegative = 0.0
+    at_max_damping: bool = False
+    port_loaded: bool = False
+
+
 # Wire type names, stable across releases: used in bags and by the launcher.
 TYPES: dict[str, type[msgspec.Struct]] = {
     f"dockhil/{cls.__name__}": cls
@@ -164,6 +201,7 @@ TYPES: dict[str, type[msgspec.Struct]] = {
         ImpedanceParams,
         NodeStatus,
         EStop,
+        Energy,
     )
 }
 

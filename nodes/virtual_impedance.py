@@ -1,16 +1,25 @@
-"""virtual-impedance: k1, b1, k2, b2 on a virtual wall at the centre of mass."""
+"""virtual-impedance: k1, b1, k2, b2 on a virtual wall at the centre of mass; the loop's energy
+account, and optionally the passivity controller against the energy the delay makes."""
 
 from __future__ import annotations
 
 from dockhil.node import Input, Node, Output, Param
-from msgs import BodyWrenches, SatelliteState, Vector3, Wrench
+from msgs import BodyWrenches, Energy, SatelliteState, Vector3, Wrench, WrenchStamped
 
 
 class VirtualImpedance(Node):
     """Virtual spring-dampers tying each body to the CoM wall while in contact (paper Eqs. 2-4)."""
 
-    inputs = {"state": Input(SatelliteState, "/satellite/state")}
-    outputs = {"wrench": Output(BodyWrenches, "/impedance/wrench", help="virtual force on chaser, target")}
+    inputs = {
+        "state": Input(SatelliteState, "/satellite/state"),
+        "ft": Input(WrenchStamped, "/ft/wrench", required=False,
+                    help="measured force on the chaser: the hardware port of the energy account"),
+    }
+    outputs = {
+        "wrench": Output(BodyWrenches, "/impedance/wrench",
+                         help="virtual force on chaser, target (with the passivity controller's damping)"),
+        "energy": Output(Energy, "/energy", help="the loop's energy account per tick [J]"),
+    }
     params = {
         "mode": Param(str, "determine", help="determine: k1..b2 from kcs, bcs, k at start (closed form, "
                       "checked against the two-time fit of Eqs. 5-6); given: use k1..b2 as set",
@@ -24,12 +33,34 @@ class VirtualImpedance(Node):
         "b1": Param(float, 0.0, unit="N s/m", help="chaser virtual damping (mode=given)"),
         "k2": Param(float, 0.0, unit="N/m", help="target virtual stiffness (mode=given)"),
         "b2": Param(float, 0.0, unit="N s/m", help="target virtual damping (mode=given)"),
+        "compensation": Param(str, "none", help="passivity: add the damping that dissipates the energy the "
+                              "delay and the sampling make (time-domain passivity, needs k); none: as published",
+                              choices=("none", "passivity")),
+        "max_damping": Param(float, 200.0, unit="N s/m", help="largest damping the passivity controller adds; "
+                             "energy it cannot take out marks the run invalid", ge=0.0),
+        "force_deadband": Param(float, 0.0, unit="N", help="passivity: once the bodies part, a measured force "
+                                "below this counts as none (set it above the sensor's noise)", ge=0.0),
     }
+
+    @classmethod
+    def ports(cls, params):
+        # Refused when the graph is built, before anything runs: one line.
+        if params["compensation"] == "passivity":
+            from dockhil.contact.passivity import Passivity
+            from dockhil.contact.scenario import ContactModelError
+            from dockhil.errors import ParamError
+
+            try:
+                Passivity(params["k"], params["max_damping"], params["force_deadband"])
+            except ContactModelError as exc:
+                raise ParamError(f"virtual_impedance: {exc}") from None
+        return cls.inputs, cls.outputs
 
     def setup(self):
         import warnings
 
         from dockhil.contact.hybrid import VirtualImpedance as Impedance
+        from dockhil.contact.passivity import EnergyMonitor, Passivity
 
         p = self.p
         if p.mode == "given":
@@ -53,17 +84,27 @@ class VirtualImpedance(Node):
                 self.log(f"warning: {w.message}")
             how = f"closed form; two-time fit agrees: {fit.agrees}"
         imp = self.impedance
+        self.passivity = (Passivity(p.k, p.max_damping, p.force_deadband) if p.compensation == "passivity"
+                          else None)
+        self.monitor = EnergyMonitor(p.m1, p.m2, p.k, imp, self.passivity)
         self.log(f"impedance ({how}): k1={imp.k1:.6g} N/m b1={imp.b1:.6g} N s/m "
                  f"k2={imp.k2:.6g} N/m b2={imp.b2:.6g} N s/m")
 
     def step(self, tick, inputs):
         from dockhil.contact.hilloop import virtual_wrench
 
-        state = inputs["state"]
+        state, ft = inputs["state"], inputs.get("ft")
         f1 = f2 = 0.0
+        out = {}
         if state is not None and len(state.bodies) >= 2:
             c, t = state.bodies[0], state.bodies[1]
-            f1, f2 = virtual_wrench(c.pose.position.x, t.pose.position.x, c.twist.linear.x, t.twist.linear.x,
-                                    self.p.m1, self.p.m2, self.impedance)
-        return {"wrench": BodyWrenches(header=tick.header("world"),
-                                       wrenches=[Wrench(Vector3(f1)), Wrench(Vector3(f2))])}
+            x1, x2, v1, v2 = c.pose.position.x, t.pose.position.x, c.twist.linear.x, t.twist.linear.x
+            f1, f2 = virtual_wrench(x1, x2, v1, v2, self.p.m1, self.p.m2, self.impedance)
+            # The force the dynamics apply over the next tick; as dockhil.contact.hilloop.simulate_hil.
+            fs = ft.wrench.force.x if ft is not None else 0.0
+            fc, account = self.monitor.step(x1, x2, v1, v2, fs, f1, f2, tick.dt)
+            if self.passivity is not None:
+                f1, f2 = f1 + fc, f2 - fc
+            out["energy"] = Energy(header=tick.header("world"), **vars(account))
+        out["wrench"] = BodyWrenches(header=tick.header("world"), wrenches=[Wrench(Vector3(f1)), Wrench(Vector3(f2))])
+        return out

@@ -31,7 +31,7 @@ def test_multiprocess_equals_composed_equals_library(tmp_path):
     launch("launch/hil.yaml", "--duration", "2", "--bag", a, "--quiet")
     launch("launch/hil.yaml", "--duration", "2", "--bag", b, "--composed", "--quiet")
     ma, mb = messages(a), messages(b)
-    assert len(ma) == 6 * 2001 - 2 * 32  # six topics; no delayed command and no robot pose in the first 32 ms
+    assert len(ma) == 7 * 2001 - 2 * 32  # seven topics; no delayed command and no robot pose in the first 32 ms
     assert sorted(ma) == sorted(mb)  # the same bytes on every topic at every tick
     s = samples_from_bag(a)
     lib = simulate_hil(m1=TABLE1.m1, m2=TABLE1.m2, k=TABLE1.k, impedance=impedance_closed_form(TABLE1), dt=1e-3,

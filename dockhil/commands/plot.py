@@ -1,4 +1,5 @@
-"""`dockhil plot BAG [BAG ...] --png FILE`: contact force and velocity profiles, like the paper's Fig. 9."""
+"""`dockhil plot BAG [BAG ...] --png FILE`: contact force and velocity profiles, like the paper's Fig. 9,
+and the energy the delay made (with and without compensation) when the bags hold /energy."""
 
 from __future__ import annotations
 
@@ -25,6 +26,22 @@ def load_samples(path: str, ideal_force=None):
     return s
 
 
+def load_energy(path: str):
+    """(t [s], generated_J, net_generated_J) arrays of a bag's /energy, or None without it."""
+    import numpy as np
+
+    from dockhil.bag import BagReader
+
+    rows = []
+    with BagReader(path) as bag:
+        for _topic, _t, msg in bag.decoded(["/energy"]):
+            rows.append((msg.header.stamp, msg.generated_J, msg.net_generated_J))
+    if not rows:
+        return None
+    t, made, net = (np.array(v) for v in zip(*rows))
+    return t - t[0], made, net
+
+
 def run(args) -> int:
     import matplotlib
 
@@ -36,17 +53,26 @@ def run(args) -> int:
     if (args.kcs is None) != (args.bcs is None):
         raise DockhilError("--kcs and --bcs go together (the ideal contact force is kcs p + bcs p')")
     ideal = (args.kcs, args.bcs) if args.kcs is not None else None
-    panels = 3 if args.topics else 2
+    energies = [load_energy(path) for path in args.bags]
+    has_energy = any(e is not None for e in energies)
+    panels = 2 + has_energy + bool(args.topics)
     fig, axes = plt.subplots(panels, 1, sharex=True, figsize=(8, 2.6 * panels + 0.6))
     for i, path in enumerate(args.bags):
         s = load_samples(path, ideal)
         label = args.labels[i] if args.labels else path.rsplit("/", 1)[-1]
         axes[0].plot(s.t, s.force, label=label)
         axes[1].plot(s.t, s.pd, label=label)
+        if energies[i] is not None:
+            t, made, net = energies[i]
+            line, = axes[2].plot(t, made, label=f"{label}: made by delay and sampling")
+            if any(net != made):
+                axes[2].plot(t, net, "--", color=line.get_color(), label=f"{label}: left after compensation")
         if args.topics:
-            _plot_topics(axes[2], path, args.topics, label)
+            _plot_topics(axes[-1], path, args.topics, label)
     axes[0].set_ylabel("contact force on chaser [N]")
     axes[1].set_ylabel("relative velocity [m/s]")
+    if has_energy:
+        axes[2].set_ylabel("energy [J]")
     axes[-1].set_xlabel("time [s]")
     for ax in axes:
         ax.grid(True, alpha=0.3)

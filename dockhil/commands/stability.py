@@ -30,6 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "examples:\n"
         "  dockhil stability --m 750 --b 20 --h 0.016 --K 2510     # Fig. 11: unstable\n"
         "  dockhil stability --m 750 --b 60 --h 0.016 --K 2510     # Fig. 12: stable\n"
+        "  dockhil stability --m 750 --b 20 --h 0.016 --K 2510 --compensation passivity   # measured, compensated\n"
         "  dockhil stability map --m 750 --png fig7.png             # Fig. 7\n"
         "  dockhil stability --m 749.4 --k-direct 2000 --b-direct 40 --k-delayed 1000 --h 0.032   # hil.yaml\n"
         "  dockhil stability --scene launch/hil.yaml delay:=0.1     # the same, read from the scene\n"
@@ -50,6 +51,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="also give the bound with an order-N Pade approximation of the delay (1 to 20)",
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    parser.add_argument("--compensation", choices=("none", "passivity"), default="none",
+                        help="passivity: also measure (simulated, 30 s) the loop of stability.yaml with the passivity"
+                             " controller at 1, 2, 3, 5 and 10 times the exact bound (and at --K)")
+    parser.add_argument("--max-damping", type=float, default=200.0, metavar="NS_M",
+                        help="the passivity controller's largest damping [N s/m] (default 200, as the scenes)")
     hyb = parser.add_argument_group(
         "the hybrid loop", "m s^2 + b_d s + k_d + (k_h + b_h s) e^(-sh) = 0: the virtual impedance acts on the"
         " simulator's state (direct), the passive compliance through the robot (delayed); with any of these,"
@@ -141,11 +147,79 @@ def run(args: argparse.Namespace) -> int:
 
     m, b, h = _loop_values(args)
     report = stability_report(m, b, h, K=args.K, damper=args.damper, pade_order=args.pade_order)
+    if args.compensation == "passivity":
+        report["passivity"] = _compensated(m, b, h, args.K, args.max_damping)
     if args.json:
         print(json.dumps(report))
         return 0
     _print_report(report)
+    if "passivity" in report:
+        _print_compensated(report["passivity"])
     return 0
+
+
+_THRUST, _SECONDS, _RATE = 10.0, 30.0, 1000.0
+
+
+def _compensated(m: float, b: float, h: float, K: float | None, max_damping: float) -> dict:
+    """The loop of stability.yaml (10 N thrust against a sheet K, damper b on the simulated velocity,
+    delay h) with the passivity controller, simulated: growth rate and saturation per K."""
+    import numpy as np
+
+    from dockhil.contact.hilloop import simulate_hil
+    from dockhil.contact.hybrid import VirtualImpedance
+    from dockhil.contact.passivity import Passivity, left_in_loop
+    from dockhil.contact.scenario import ContactModelError
+    from dockhil.contact.stability import exact_bound
+    from dockhil.summary import growth_rate
+
+    if not (math.isfinite(max_damping) and max_damping > 0.0):
+        raise DockhilError(f"--max-damping must be > 0 N s/m, got {max_damping:g}")
+    bound = exact_bound(m, b, h, damper="undelayed").k_max
+    stiffnesses = [] if bound is None else [(f"{x:g}x exact", x * bound) for x in (1.0, 2.0, 3.0, 5.0, 10.0)]
+    if K is not None:
+        stiffnesses.append(("--K", K))
+    rows = []
+    for label, k in stiffnesses:
+        row = {"label": label, "K": k, "growth_rate": None, "saturated": None, "diverged": False}
+        try:
+            run = simulate_hil(m1=m, m2=0.0, k=k, impedance=VirtualImpedance(0.0, b, 0.0, 0.0), dt=1 / _RATE,
+                               n_ticks=int(_SECONDS * _RATE) + 1, delay=h, thrust=_THRUST, x1=2 * _THRUST / k,
+                               passivity=Passivity(k, max_damping))
+        except ContactModelError:
+            row["diverged"] = True
+            rows.append(row)
+            continue
+        left, allowed = left_in_loop(run.extra)
+        row["saturated"] = bool(left > allowed)
+        try:
+            row["growth_rate"] = growth_rate(run.t, run.x1 - run.x2, about=_THRUST / k)
+        except ValueError:  # settled within a few periods
+            row["growth_rate"] = None
+            row["settled"] = bool(np.ptp((run.x1 - run.x2)[-1000:]) < 1e-6)
+        rows.append(row)
+    ok = [r["K"] for r in rows if not r["diverged"] and not r["saturated"]
+          and (r["growth_rate"] is not None and r["growth_rate"] < 0 or r.get("settled"))]
+    return {"loop": "m s^2 + b s + K e^(-sh) = 0 (stability.yaml: damper on the simulated velocity), "
+                    f"sampled at {_RATE:g} Hz, {_THRUST:g} N thrust, {_SECONDS:g} s simulated",
+            "max_damping": max_damping, "exact_undelayed": bound, "runs": rows,
+            "largest_decaying_K": max(ok) if ok else None}
+
+
+def _print_compensated(r: dict) -> None:
+    print(f"with passivity compensation (max_damping {r['max_damping']:g} N s/m), measured on {r['loop']}:")
+    for row in r["runs"]:
+        if row["diverged"]:
+            verdict = "diverged"
+        elif row["growth_rate"] is None:
+            verdict = "settled" if row.get("settled") else "too few peaks to fit a growth rate"
+        else:
+            verdict = f"growth rate {row['growth_rate']:+.4g} 1/s, {'decays' if row['growth_rate'] < 0 else 'GROWS'}"
+        sat = ", SATURATED (energy left in the loop)" if row["saturated"] else ""
+        print(f"  K = {row['K']:<10.6g} N/m ({row['label']}): {verdict}{sat}")
+    largest = r["largest_decaying_K"]
+    print(f"  largest K that decays without saturating: {_fmt(largest)} N/m"
+          + ("" if largest is None or not r["exact_undelayed"] else f" ({largest / r['exact_undelayed']:.3g}x exact)"))
 
 
 def _fmt(value: float | None) -> str:

@@ -23,6 +23,7 @@ import numpy as np
 
 from dockhil.contact.hybrid import VirtualImpedance, passive_force, virtual_forces
 from dockhil.contact.integrators import RELATIVE, Integrator, LinearSecondOrderSystem, Penetration, step_with_events
+from dockhil.contact.passivity import ENERGY_FIELDS, EnergyMonitor, Passivity
 from dockhil.contact.scenario import ContactModelError, ContactScenario
 
 
@@ -161,12 +162,18 @@ class HilRun:
 
 def simulate_hil(*, m1: float, m2: float, k: float, impedance: VirtualImpedance, dt: float, n_ticks: int,
                  delay: float = 0.0, x1: float = 0.0, x2: float = 0.0, v1: float = 0.0, v2: float = 0.0,
-                 thrust: float = 0.0, method: str = "exact", lag: float = 0.0) -> HilRun:
-    """The HIL loop of the graph in hil.yaml/stability.yaml, without the graph."""
+                 thrust: float = 0.0, method: str = "exact", lag: float = 0.0,
+                 passivity: Passivity | None = None, energy: bool = False) -> HilRun:
+    """The HIL loop of the graph in hil.yaml/stability.yaml, without the graph. With `passivity`
+    the virtual impedance adds the passivity controller's force (as the node does). With
+    `energy` or `passivity`, `extra` holds the energy account per tick (the fields of
+    `EnergyTick`, as the node publishes on /energy); without, the loop runs at full speed."""
     bodies = Bodies(m1, m2, x1, x2, v1, v2, method)
     line = DelayLine(delay_ticks(delay, dt))
     servo = Servo(lag, dt)
+    monitor = EnergyMonitor(m1, m2, k, impedance, passivity) if energy or passivity is not None else None
     out = np.empty((6, n_ticks))
+    account = {name: np.empty(n_ticks) for name in ENERGY_FIELDS} if monitor is not None else {}
     f1 = f2 = 0.0
     for tick in range(n_ticks):
         if tick > 0:
@@ -176,10 +183,16 @@ def simulate_hil(*, m1: float, m2: float, k: float, impedance: VirtualImpedance,
         cmd = line.push((a1 - a2, b1 - b2))
         rx = None if cmd is None else servo.step(*cmd)[0]
         fs = sensor_force(rx, k)
+        if monitor is not None:
+            fc, e = monitor.step(a1, a2, b1, b2, fs, fv1, fv2, dt)
+            if passivity is not None:  # the same sums as the virtual-impedance node publishes
+                fv1, fv2 = fv1 + fc, fv2 - fc
+            for name, series in account.items():
+                series[tick] = getattr(e, name)
         f1 = fs + fv1 + thrust
         f2 = -fs + fv2
         out[:, tick] = (tick * dt, a1, a2, b1, b2, -(fs + fv1))
-    return HilRun(*out)
+    return HilRun(*out, extra=account)
 
 
 def simulate_ideal(*, m1: float, m2: float, kcs: float, bcs: float, dt: float, n_ticks: int,
