@@ -36,7 +36,9 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     has_dynamics = "/satellite/state" in graph.publishers
     if summary is not None and not has_dynamics:
         raise DockhilError(f"{graph.scene.path}: --summary needs a scene that publishes /satellite/state")
-    want_summary = has_dynamics and n_ticks is not None and (summary is not None or show_summary)
+    # A compensated scene's validity (the controller saturated) is in its summary: always compute it.
+    compensated = any(gn.params.get("compensation") == "passivity" for gn in graph.nodes.values())
+    want_summary = has_dynamics and n_ticks is not None and (summary is not None or show_summary or compensated)
     if summary is not None:
         _check_writable(summary)
     # The loop this scene will run: refused here (one line) when its step does not resolve the contact.
@@ -87,16 +89,17 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
             if not composed:
                 summ.feed_from_bag(bag, collector)
             out = collector.summary(elapsed)
+            reasons += out.get("invalid_reasons") or []  # the summary's own (a saturated compensation)
             out["valid"] = not reasons
             out["invalid_reasons"] = list(reasons)
+            if reasons and code == 0:
+                code = validity.INVALID_EXIT
             if show_summary:
                 print(summ.format_summary(out), flush=True)
             if summary is not None:
                 with open(summary, "w") as f:
                     json.dump(out, f, indent=1)
                 print(f"summary written to {summary}", file=sys.stderr)
-            if out.get("valid") is False:  # exit 0 means the result is valid
-                code = 1
         elif code == 0 and clock == "sim" and n_ticks:
             sim_s = (n_ticks - 1) * dt
             print(f"[launch] done: {sim_s:g} s simulated in {elapsed:.2f} s "

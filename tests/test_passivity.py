@@ -122,7 +122,7 @@ def test_saturation_marks_the_run_invalid(tmp_path):
     # 100 ms needs about k h = 100 N s/m: a bound of 40 leaves the energy in the loop.
     path = tmp_path / "s.json"
     r = launch("launch/hil.yaml", "delay:=0.1", "compensation:=passivity", "max_damping:=40", "--composed",
-               "--duration", "2.5", "--summary", path, expect=1)
+               "--duration", "2.5", "--summary", path, expect=3)
     s = json.loads(path.read_text())
     assert s["valid"] is False and s["energy"]["saturated"] is True
     assert "saturated at max_damping 40" in s["invalid_reasons"][0]
