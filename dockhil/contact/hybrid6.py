@@ -285,6 +285,7 @@ class PassiveSensor6:
     target's interface frame B (default: at B) and reports the wrench on the
     target, force and moment about its origin in its own axes. The compliance's
     non-normal springs rest at the first pose in contact (normal entry 0).
+    Friction (mu > 0) is contact6's regularised Coulomb law on A's sliding in B.
     """
 
     def __init__(self, passive: Contact6, mount_position=(0.0, 0.0, 0.0), mount_orientation=IDENTITY):
@@ -307,6 +308,10 @@ class PassiveSensor6:
         q = self.passive.stiffness @ (e - self.anchor) + self.passive.damping @ rate
         # The wrench on the target: +S q at o_A, i.e. in B's axes, moment about B's origin.
         force_b = q[:3]
+        if self.passive.mu > 0.0:  # the hardware's friction opposes A sliding on B (contact6's law)
+            u = pose.velocity[1:3]
+            scale = self.passive.mu * max(float(q[0]), 0.0) / math.sqrt(float(u @ u) + self.passive.slip_velocity**2)
+            force_b = force_b + np.array([0.0, scale * u[0], scale * u[1]])
         moment_b = jinv.T @ q[3:] + cross(pose.position, force_b)
         rot = self.mount_rotation
         return rot.T @ force_b, rot.T @ (moment_b - cross(self.mount_position, force_b)), q
