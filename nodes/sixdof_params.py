@@ -61,13 +61,14 @@ def checked(node: str, build):
 
 
 def bodies(p):
-    """(chaser, target) RigidBody from the BODY_PARAMS values (CoM at the body origin)."""
+    """(chaser, target) RigidBody from the BODY_PARAMS values (CoM at the body origin); errors name
+    the body: `chaser.inertia` is the param inertia1, `target.interface_position` interface2."""
     from dockhil.contact.rigid import RigidBody
 
     return (RigidBody(p.m1, _inertia(p.inertia1), interface_position=p.interface1,
-                      interface_orientation=p.interface_orientation1, name="chaser (params ...1)"),
+                      interface_orientation=p.interface_orientation1, name="chaser"),
             RigidBody(p.m2, _inertia(p.inertia2), interface_position=p.interface2,
-                      interface_orientation=p.interface_orientation2, name="target (params ...2)"))
+                      interface_orientation=p.interface_orientation2, name="target"))
 
 
 def _inertia(value):
