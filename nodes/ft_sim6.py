@@ -10,8 +10,9 @@ from nodes.sixdof_params import MOUNT_PARAMS, PASSIVE_PARAMS, checked, passive_c
 
 
 class FtSensorSim6(Node):
-    """Wrench of the passive compliance (K_p, C_p, optional friction) on the target, read by an F/T
-    sensor mounted in the target's interface frame: force and torque in the sensor's axes."""
+    """The passive 6x6 compliance (and friction) at the robot's pose, read by an F/T sensor on the target.
+
+    Force and torque on the target, in the axes of the sensor mounted in the target's interface frame."""
 
     inputs = {"robot": Input(RobotState, "/robot/state", help="actual pose of A in B")}
     outputs = {"wrench": Output(WrenchStamped, "/ft/wrench", help="wrench on the target, sensor frame")}

@@ -17,8 +17,9 @@ def relative_pose(msg):
 
 
 class RobotSim6(Node):
-    """Follows /robot/command (A's pose and twist in B) with a first-order lag (0: exactly):
-    position and velocities per axis, attitude along the geodesic (dockhil.contact.hybrid6.Servo6)."""
+    """Follows the 6-DOF /robot/command (A's pose and twist in B) with a first-order lag (0: exactly).
+
+    Position and velocities per axis, attitude along the geodesic (dockhil.contact.hybrid6.Servo6)."""
 
     inputs = {"command": Input(RobotCommand, "/robot/command", help="interface pose setpoint, in B")}
     outputs = {"state": Output(RobotState, "/robot/state", help="actual interface pose, in B")}

@@ -31,8 +31,10 @@ def attitude(q, rotvec, name):
 
 
 class SatelliteDynamics6(Node):
-    """Integrates chaser and target (dockhil.contact.rigid) under the F/T wrench, moved from the sensor
-    to both CoMs, plus the virtual wrenches; publishes full states and the robot command (A's pose in B)."""
+    """Integrates two rigid bodies under the F/T wrench and the virtual wrenches; publishes states and A's pose in B.
+
+    The sensor's wrench (sensor frame, on the target) is moved to both CoMs with the mounting pose
+    (dockhil.contact.hybrid6.held_wrench) and held over the tick; dockhil.contact.rigid integrates."""
 
     inputs = {
         "ft": Input(WrenchStamped, "/ft/wrench", feedthrough=False,

@@ -17,8 +17,10 @@ def published(body):
 
 
 class VirtualImpedance6(Node):
-    """The hybrid 6-DOF closed form (dockhil.contact.hybrid6): passive + virtual = the ideal 6x6 contact.
-    K_i, C_i are determined at the first tick in contact from both bodies' mobilities there."""
+    """Virtual 6x6 impedances of both bodies on the wall at the CoM, so that passive + virtual = the ideal contact.
+
+    K_i, C_i come from the closed form of dockhil.contact.hybrid6 at the first tick in contact,
+    from both bodies' mobilities there."""
 
     inputs = {"state": Input(SatelliteState, "/satellite/state")}
     outputs = {"wrench": Output(BodyWrenches, "/impedance/wrench",
