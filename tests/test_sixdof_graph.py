@@ -129,3 +129,21 @@ def test_bad_6dof_parameters_stop_the_launch_with_one_line(tmp_path, old, new, l
     assert "Traceback" not in r.stderr + r.stdout
     lines = [s for s in (r.stderr + r.stdout).splitlines() if s.strip()]
     assert len(lines) == 1 and line in lines[0], lines
+
+
+def test_plot_6dof_draws_the_recorded_pose_and_rates(tmp_path):
+    from dockhil.plot6 import series6
+
+    bag, png = tmp_path / "hil6.mcap", tmp_path / "hil6.png"
+    for args in (("launch", HIL6, "--composed", "--duration", "0.3", "--bag", bag, "--quiet", "delay:=0.01"),
+                 ("plot", bag, "--6dof", "--png", png)):
+        r = subprocess.run(dockhil_cmd(*args), capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stdout + r.stderr
+    assert png.stat().st_size > 10_000
+    s = series6(str(bag))
+    run = library_run(0.05, 0.02, 0.01, 0.01, 301)
+    # The command is A's pose in B of the published state: the library's e to rounding.
+    assert np.allclose(s.position, run.e[:, :3], rtol=0, atol=1e-12)
+    assert np.allclose(s.rotation, run.e[:, 3:], rtol=0, atol=1e-12)
+    assert np.array_equal(s.omega, run.omegas) and np.max(np.abs(s.omega[:, 0, 2])) > 0.0
+    assert s.torque.shape == (301, 3) and np.max(np.abs(s.torque)) > 0.05  # off-axis: the sensor feels torque
