@@ -214,6 +214,12 @@ def sensor_wrench_to_bodies(carrier: Motion, other: Motion, sensor_position, sen
     q_s = check_unit_quaternion("sensor_orientation", sensor_orientation)
     f_s = check_vector("force", force, unit="N")
     t_s = check_vector("torque", torque, unit="N m")
+    return sensor_wrench_checked(carrier, other, p_s, q_s, f_s, t_s)
+
+
+def sensor_wrench_checked(carrier: Motion, other: Motion, p_s, q_s, f_s, t_s):
+    """`sensor_wrench_to_bodies` for values already checked (float arrays, a unit quaternion):
+    the per-tick path of a sampled loop, whose mounting pose is checked once."""
     b = carrier.body
     q_body = quat_multiply(carrier.q, quat_conjugate(b._q_bp))  # body frame -> world
     rot_body = quat_to_matrix(q_body)

@@ -55,7 +55,7 @@ from dockhil.contact.contact6 import (
     Recorder,
     Run6,
     left_jacobian_inverse,
-    sensor_wrench_to_bodies,
+    sensor_wrench_checked,
     skew,
 )
 from dockhil.contact.rigid import (BodyState, HeldWrench, Motion, RigidBody, _normalised, check_unit_quaternion,
@@ -328,7 +328,10 @@ def sensor_mount_in_body(body2: RigidBody, mount_position=(0.0, 0.0, 0.0), mount
 def held_wrench(m1: Motion, m2: Motion, mount: tuple, force, torque, virtual: tuple) -> HeldWrench:
     """The dynamics' wrench for the next tick: the F/T reading (sensor on the target at
     `mount`, body frame) moved to both CoMs, plus the virtual wrenches (about the CoMs)."""
-    f2, t2, f1, t1 = sensor_wrench_to_bodies(m2, m1, mount[0], mount[1], force, torque)
+    # The mount is checked by sensor_mount_in_body and the reading is finite floats (a message, or
+    # PassiveSensor6): the per-tick path skips the checks, the numbers are the same.
+    f2, t2, f1, t1 = sensor_wrench_checked(m2, m1, mount[0], mount[1], np.asarray(force, float),
+                                           np.asarray(torque, float))
     fv1, tv1, fv2, tv2 = virtual
     return HeldWrench(f1 + fv1, t1 + tv1, f2 + fv2, t2 + tv2)
 
