@@ -147,3 +147,58 @@ def test_plot_6dof_draws_the_recorded_pose_and_rates(tmp_path):
     assert np.allclose(s.rotation, run.e[:, 3:], rtol=0, atol=1e-12)
     assert np.array_equal(s.omega, run.omegas) and np.max(np.abs(s.omega[:, 0, 2])) > 0.0
     assert s.torque.shape == (301, 3) and np.max(np.abs(s.torque)) > 0.05  # off-axis: the sensor feels torque
+
+
+def _off_axis_pair():
+    """Two bodies in contact off the axis, tilted and turning, and their published view."""
+    from dockhil.contact.hybrid6 import motion_from_published, published_body, relative_interface
+    from dockhil.contact.rigid import Motion
+
+    chaser = RigidBody(750.0, [[300.0, 10.0, 0.0], [10.0, 400.0, 5.0], [0.0, 5.0, 500.0]],
+                       interface_position=[1.0, 0.1, 0.0])
+    target = RigidBody(2000.0, np.diag([900.0, 1000.0, 1100.0]), interface_position=[-2.0, 0.0, 0.05],
+                       interface_orientation=quat_from_rotvec([0.0, 0.05, 0.0]))
+    m1 = Motion.from_state(chaser, BodyState([-0.99, 0.05, 0.01], quat_from_rotvec([0.01, 0.0, 0.02]),
+                                             [0.03, 0.004, -0.002], [0.01, 0.02, -0.01]))
+    m2 = Motion.from_state(target, BodyState([2.0, 0.0, 0.1], quat_from_rotvec([0.0, -0.05, 0.0]),
+                                             [0.0, 0.001, 0.0], [0.0, 0.0, 0.003]))
+    pubs = [published_body(m) for m in (m1, m2)]
+    s1 = motion_from_published(chaser, *pubs[0])
+    s2 = motion_from_published(target, *pubs[1])
+    g, rate, pose = relative_interface(s1, s2, pubs[0][3], pubs[1][3])
+    return m1, m2, g, rate, pose
+
+
+def test_sensor_reading_is_the_passive_contact_wrench_on_the_target_with_friction():
+    from dockhil.contact.contact6 import contact_wrench
+    from dockhil.contact.hybrid6 import PassiveSensor6
+    from dockhil.contact.rigid import cross
+
+    m1, m2, g, rate, pose = _off_axis_pair()
+    assert g.e[0] > 0.0 and np.linalg.norm(rate[1:3]) > 1e-3  # penetrating and sliding
+    passive = Contact6([1000.0, 800.0, 900.0, 100.0, 120.0, 90.0], [5.0, 4.0, 3.0, 0.5, 0.4, 0.3], mu=0.3)
+    sensor = PassiveSensor6(passive)
+    sensor.anchor = np.array([0.0, 0.01, -0.02, 0.003, -0.004, 0.005])  # springs resting off the axis
+    force_s, torque_s, _ = sensor.read(pose)
+    f1, mom1, _ = contact_wrench(passive, g, rate, sensor.anchor)  # on the chaser, world, about o_A
+    rb = g.rot_b
+    # The target gets (-F, -M) at o_A: in B's axes, about B's origin.
+    assert np.allclose(force_s, rb.T @ -f1, rtol=0, atol=1e-12)
+    assert np.allclose(torque_s, rb.T @ (-mom1 - cross(g.r, f1)), rtol=0, atol=1e-12)
+    assert abs(force_s[1]) > 0.1  # friction acts along the sliding
+
+
+def test_the_sensor_mounting_pose_does_not_change_the_wrench_on_the_bodies():
+    from dockhil.contact.hybrid6 import PassiveSensor6, held_wrench, sensor_mount_in_body
+
+    m1, m2, g, rate, pose = _off_axis_pair()
+    passive = Contact6([1000.0, 800.0, 900.0, 100.0, 120.0, 90.0])
+    zero = (np.zeros(3),) * 4
+    out = []
+    for position, orientation in (((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
+                                  ((0.02, -0.03, 0.1), quat_from_rotvec([0.3, -0.2, 0.5]))):
+        force, torque, _ = PassiveSensor6(passive, position, orientation).read(pose)
+        w = held_wrench(m1, m2, sensor_mount_in_body(m2.body, position, orientation), force, torque, zero)
+        out.append(np.concatenate([w.f1, w.t1, w.f2, w.t2]))
+    assert np.max(np.abs(out[0])) > 1.0
+    assert np.allclose(out[0], out[1], rtol=0, atol=1e-11)
