@@ -460,7 +460,13 @@ def scene_summary(graph, s, run_time_s: float | None) -> dict:
         meter = s
     ideal = ideal_summary(**ref["ideal"]) if "ideal" in ref and meter.n else None
     out = _summary(meter, run_time_s, ideal, meter.max_force_error() if ideal is not None else None)
-    if _first(graph, "satellite_dynamics").params["thrust"] != 0.0:
+    dyn = _first(graph, "satellite_dynamics")
+    if dyn is None:  # no 1-DOF dynamics (the 6-DOF scene): its CoM x is not the contact axis
+        out.update(dict.fromkeys(("peak_force_N", "contact_duration_s", "entry_velocity_mps", "exit_velocity_mps",
+                                  "restitution")))
+        out["note"] = ("only the run and simulated times are summarised: the contact numbers are those of a 1-DOF "
+                       "scene; `dockhil plot` draws a 6-DOF bag")
+    elif dyn.params["thrust"] != 0.0:
         out["restitution"] = None  # pushed by thrust, the body's exit is not a rebound
     check = scene_check(graph, refuse=False)
     if growth is not None and meter.n:

@@ -22,6 +22,10 @@ REGISTRY: dict[str, str] = {
     "robot_modbus": "nodes.robot_modbus:RobotModbusDriver",
     "robot_emulator": "nodes.robot_emulator:RobotControllerEmulatorNode",
     "bag_source": "nodes.bag_source:BagSource",
+    "satellite_dynamics6": "nodes.satellite_dynamics6:SatelliteDynamics6",
+    "virtual_impedance6": "nodes.virtual_impedance6:VirtualImpedance6",
+    "ft_sim6": "nodes.ft_sim6:FtSensorSim6",
+    "robot_sim6": "nodes.robot_sim6:RobotSim6",
 }
 
 

@@ -15,6 +15,8 @@ def add_arguments(p) -> None:
     p.add_argument("--bcs", type=nonnegative, help="ideal runs: contact damping [N s/m]")
     p.add_argument("--topics", nargs="+", metavar="TOPIC",
                    help="extra topics to plot in a third panel: every numeric field over time")
+    p.add_argument("--6dof", dest="six", action="store_true",
+                   help="6-DOF runs (launch/hil6.yaml): F/T force and torque, relative pose, angular rates")
 
 
 def load_samples(path: str, ideal_force=None):
@@ -50,6 +52,12 @@ def run(args) -> int:
 
     if args.labels and len(args.labels) != len(args.bags):
         raise DockhilError(f"--labels has {len(args.labels)} labels for {len(args.bags)} bags; give one per bag")
+    if getattr(args, "six", False):
+        from dockhil.plot6 import plot6
+
+        plot6(args.bags, args.png, args.labels)
+        print(f"wrote {args.png}")
+        return 0
     if (args.kcs is None) != (args.bcs is None):
         raise DockhilError("--kcs and --bcs go together (the ideal contact force is kcs p + bcs p')")
     ideal = (args.kcs, args.bcs) if args.kcs is not None else None

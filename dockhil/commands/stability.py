@@ -69,7 +69,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           " a scene's own rate with --scene)")
     hyb.add_argument("--scene", nargs="+", metavar="FILE [NAME:=VALUE", help="read the loop from a launch file,"
                      " with its launch arguments: --scene launch/hil.yaml delay:=0.1 ...]")
-    sub = parser.add_subparsers(dest="action", metavar="map", title="subcommands")
+    sub = parser.add_subparsers(dest="action", metavar="map | multi", title="subcommands")
     mp = sub.add_parser(
         "map",
         help="plot the critical stiffness surface K_max(b, h) (Fig. 7) to a PNG",
@@ -97,6 +97,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                     help="hybrid map: tick rate of the sampled loop drawn beside the exact one (default 1000)")
     mp.add_argument("--png", metavar="FILE", required=True, help="where to write the figure (PNG)")
     mp.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help="print a JSON summary of the map")
+    from dockhil.commands import stability_multi
+
+    stability_multi.add_arguments(sub.add_parser(
+        "multi", help="the multi-axis delayed loop (6-DOF scene or planar case): which axis limits the stiffness"))
 
 
 def _need(args, name: str, what: str) -> float:
@@ -141,6 +145,10 @@ _HYBRID = ("k_direct", "b_direct", "k_delayed", "b_delayed")
 def run(args: argparse.Namespace) -> int:
     if getattr(args, "action", None) == "map":
         return _run_map(args)
+    if getattr(args, "action", None) == "multi":
+        from dockhil.commands import stability_multi
+
+        return stability_multi.run(args)
     if args.scene is not None or any(getattr(args, n) is not None for n in _HYBRID):
         return _run_hybrid(args)
     from dockhil.contact.stability import stability_report

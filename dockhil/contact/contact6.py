@@ -108,7 +108,7 @@ class InterfaceGeometry:
     """The pose-dependent part of the interface coordinates: e = [d, theta],
     the wrench point o_A, R_B, J_l(theta)^{-1}, and the lever arms."""
 
-    __slots__ = ("e", "point", "rot_b", "jinv", "r", "arm1", "arm2")
+    __slots__ = ("e", "point", "rot_b", "jinv", "r", "arm1", "arm2", "q_rel")
 
     def __init__(self, m1: Motion, m2: Motion):
         r1, r2 = m1.rotation(), m2.rotation()
@@ -118,7 +118,8 @@ class InterfaceGeometry:
         q_b = quat_multiply(m2.q, m2.body._q_pi)
         self.rot_b = quat_to_matrix(q_b)
         self.r = o_a - o_b
-        theta = quat_to_rotvec(quat_multiply(quat_conjugate(q_b), q_a))
+        self.q_rel = quat_multiply(quat_conjugate(q_b), q_a)  # A's attitude in B
+        theta = quat_to_rotvec(self.q_rel)
         self.jinv = left_jacobian_inverse(theta)
         self.e = np.concatenate([self.rot_b.T @ self.r, theta])
         self.point = o_a
@@ -213,6 +214,12 @@ def sensor_wrench_to_bodies(carrier: Motion, other: Motion, sensor_position, sen
     q_s = check_unit_quaternion("sensor_orientation", sensor_orientation)
     f_s = check_vector("force", force, unit="N")
     t_s = check_vector("torque", torque, unit="N m")
+    return sensor_wrench_checked(carrier, other, p_s, q_s, f_s, t_s)
+
+
+def sensor_wrench_checked(carrier: Motion, other: Motion, p_s, q_s, f_s, t_s):
+    """`sensor_wrench_to_bodies` for values already checked (float arrays, a unit quaternion):
+    the per-tick path of a sampled loop, whose mounting pose is checked once."""
     b = carrier.body
     q_body = quat_multiply(carrier.q, quat_conjugate(b._q_bp))  # body frame -> world
     rot_body = quat_to_matrix(q_body)

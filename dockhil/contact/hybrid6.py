@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -53,11 +54,13 @@ from dockhil.contact.contact6 import (
     InterfaceGeometry,
     Recorder,
     Run6,
-    interface_state,
-    sensor_wrench_to_bodies,
+    left_jacobian_inverse,
+    sensor_wrench_checked,
     skew,
 )
-from dockhil.contact.rigid import BodyState, HeldWrench, Motion, RigidBody, cross
+from dockhil.contact.rigid import (BodyState, HeldWrench, Motion, RigidBody, _normalised, check_unit_quaternion,
+                                   check_vector, cross, quat_conjugate, quat_from_rotvec, quat_multiply,
+                                   quat_to_matrix, quat_to_rotvec)
 from dockhil.contact.scenario import ContactModelError, FitError, check_positive
 
 
@@ -194,89 +197,227 @@ def fit_impedance6(run: Run6, times, passive: Contact6, g1, g2, axes=AXES,
     return out
 
 
-def _sensor_reading(g: InterfaceGeometry, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """What an F/T sensor at the target's interface frame B reads for the passive
-    generalized force q: the wrench on the target (+S q at o_A), in B's axes,
-    moment about B's origin."""
-    force_b = q[:3]
-    moment_b = g.jinv.T @ q[3:] + cross(g.e[:3], force_b)
-    return force_b, moment_b
+# --- the sampled loop, one tick at a time -------------------------------------------------
+# The graph's 6-DOF nodes (nodes/*6.py) call these same functions on the values their
+# messages carry, so the graph and `simulate_hybrid6` compute the same numbers bit for bit.
+
+IDENTITY = (0.0, 0.0, 0.0, 1.0)
+
+
+class RelativePose(NamedTuple):
+    """The robot command: pose and twist of the chaser's interface A in the target's B.
+    position d [m] and velocity d' [m/s] in B axes, attitude of A in B (x, y, z, w),
+    relative angular velocity R_B^T (omega_1 - omega_2) [rad/s] in B axes."""
+
+    position: np.ndarray
+    orientation: tuple
+    velocity: np.ndarray
+    angular_velocity: np.ndarray
+
+
+def published_body(m: Motion) -> tuple:
+    """(CoM position, body-frame attitude, CoM velocity, world angular velocity): what the
+    dynamics publish for one body."""
+    return m.x.copy(), quat_multiply(m.q, quat_conjugate(m.body._q_bp)), m.v.copy(), m.omega_world()
+
+
+def motion_from_published(body: RigidBody, position, orientation, velocity, omega_world) -> Motion:
+    """The integrator's variables rebuilt from a published body state (what a node downstream sees)."""
+    q_p = _normalised(quat_multiply(orientation, body._q_bp))
+    omega = np.asarray(omega_world, float)
+    return Motion(body, np.asarray(position, float), np.asarray(velocity, float), q_p,
+                  body.principal_moments * (quat_to_matrix(q_p).T @ omega))
+
+
+def relative_interface(m1: Motion, m2: Motion, omega1, omega2) -> tuple[InterfaceGeometry, np.ndarray, RelativePose]:
+    """(geometry, e', robot command) for published states; omega_i world angular velocities."""
+    g = InterfaceGeometry(m1, m2)
+    rate = g.rate(m1.v, omega1, m2.v, omega2)
+    w_rel = g.rot_b.T @ (omega1 - omega2)
+    return g, rate, RelativePose(g.e[:3].copy(), g.q_rel, rate[:3].copy(), w_rel)
+
+
+def _touching(penetration: float, closing: float) -> bool:
+    """Penetrating, or at the surface and closing in (as the 1-DOF loop)."""
+    return penetration > 0.0 or (penetration == 0.0 and closing > 0.0)
+
+
+class VirtualWall6:
+    """The virtual impedance of both bodies on the wall (the virtual-impedance node).
+
+    At the first tick in contact it takes the spring rest pose (that tick's e
+    with the normal entry 0) and, unless `impedance` is given, the closed form
+    from the two bodies' mobilities there; while touching it returns the
+    wrenches q_i = K_i D_i (e - e_0) + C_i D_i e' mapped by S to each CoM.
+    """
+
+    def __init__(self, ideal: Contact6, passive: Contact6, impedance: Impedance6 | None = None):
+        _check_frictionless(ideal)
+        self.ideal, self.passive, self.impedance = ideal, passive, impedance
+        self.anchor: np.ndarray | None = None
+        self.touching = False
+
+    def wrenches(self, m1: Motion, m2: Motion, g: InterfaceGeometry, rate: np.ndarray) -> tuple:
+        """(F_1, T_1, F_2, T_2): world forces [N] and torques [N m] about each CoM."""
+        self.touching = _touching(g.e[0], rate[0])
+        zero = np.zeros(3)
+        if not self.touching:
+            return zero, zero, zero, zero
+        if self.anchor is None:
+            self.anchor = g.e.copy()
+            self.anchor[0] = 0.0
+            if self.impedance is None:
+                self.impedance = impedance_closed_form6(self.ideal, self.passive, body_mobility(m1, g.point, g),
+                                                        body_mobility(m2, g.point, g))
+        imp = self.impedance
+        s = wrench_map(g)
+        de = g.e - self.anchor
+        w1 = -(s @ (imp.k1 @ (imp.d1 @ de) + imp.c1 @ (imp.d1 @ rate)))
+        w2 = s @ (imp.k2 @ (imp.d2 @ de) + imp.c2 @ (imp.d2 @ rate))
+        return (w1[:3], w1[3:] + cross(g.arm1, w1[:3]), w2[:3], w2[3:] + cross(g.point - m2.x, w2[:3]))
+
+
+class PassiveSensor6:
+    """The passive compliance (K_p, C_p) between the robots' interfaces and the F/T
+    sensor that reads it (the F/T simulation node).
+
+    The sensor sits at `mount_position` [m] with `mount_orientation` in the
+    target's interface frame B (default: at B) and reports the wrench on the
+    target, force and moment about its origin in its own axes. The compliance's
+    non-normal springs rest at the first pose in contact (normal entry 0).
+    Friction (mu > 0) is contact6's regularised Coulomb law on A's sliding in B.
+    """
+
+    def __init__(self, passive: Contact6, mount_position=(0.0, 0.0, 0.0), mount_orientation=IDENTITY):
+        self.passive = passive
+        self.mount_position = check_vector("sensor_position", mount_position, unit="m")
+        self.mount_rotation = quat_to_matrix(check_unit_quaternion("sensor_orientation", mount_orientation))
+        self.anchor: np.ndarray | None = None
+
+    def read(self, pose: RelativePose | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(force [N], torque [N m]) in the sensor frame and the generalized passive force."""
+        if pose is None or not _touching(pose.position[0], pose.velocity[0]):
+            return np.zeros(3), np.zeros(3), np.zeros(6)
+        theta = quat_to_rotvec(pose.orientation)
+        jinv = left_jacobian_inverse(theta)
+        e = np.concatenate([pose.position, theta])
+        rate = np.concatenate([pose.velocity, jinv @ pose.angular_velocity])
+        if self.anchor is None:
+            self.anchor = e.copy()
+            self.anchor[0] = 0.0
+        q = self.passive.stiffness @ (e - self.anchor) + self.passive.damping @ rate
+        # The wrench on the target: +S q at o_A, i.e. in B's axes, moment about B's origin.
+        force_b = q[:3]
+        if self.passive.mu > 0.0:  # the hardware's friction opposes A sliding on B (contact6's law)
+            u = pose.velocity[1:3]
+            scale = self.passive.mu * max(float(q[0]), 0.0) / math.sqrt(float(u @ u) + self.passive.slip_velocity**2)
+            force_b = force_b + np.array([0.0, scale * u[0], scale * u[1]])
+        moment_b = jinv.T @ q[3:] + cross(pose.position, force_b)
+        rot = self.mount_rotation
+        return rot.T @ force_b, rot.T @ (moment_b - cross(self.mount_position, force_b)), q
+
+
+def sensor_mount_in_body(body2: RigidBody, mount_position=(0.0, 0.0, 0.0), mount_orientation=IDENTITY) -> tuple:
+    """The sensor's pose in the target's body frame, from its pose in the interface frame B."""
+    p = check_vector("sensor_position", mount_position, unit="m")
+    q = check_unit_quaternion("sensor_orientation", mount_orientation)
+    return (body2.interface_position + quat_to_matrix(body2.interface_orientation) @ p,
+            quat_multiply(body2.interface_orientation, q))
+
+
+def held_wrench(m1: Motion, m2: Motion, mount: tuple, force, torque, virtual: tuple) -> HeldWrench:
+    """The dynamics' wrench for the next tick: the F/T reading (sensor on the target at
+    `mount`, body frame) moved to both CoMs, plus the virtual wrenches (about the CoMs)."""
+    # The mount is checked by sensor_mount_in_body and the reading is finite floats (a message, or
+    # PassiveSensor6): the per-tick path skips the checks, the numbers are the same.
+    f2, t2, f1, t1 = sensor_wrench_checked(m2, m1, mount[0], mount[1], np.asarray(force, float),
+                                           np.asarray(torque, float))
+    fv1, tv1, fv2, tv2 = virtual
+    return HeldWrench(f1 + fv1, t1 + tv1, f2 + fv2, t2 + tv2)
+
+
+class Servo6:
+    """The robot's first-order lag on a 6-DOF pose (time constant tau; 0 follows exactly).
+
+    Position and the velocities as the 1-DOF `hilloop.Servo` (exact for a target held
+    over the step); the attitude moves the same fraction of the way along the
+    geodesic: q <- q exp(alpha log(q^-1 q_target)).
+    """
+
+    def __init__(self, tau: float, dt: float):
+        self.alpha = 1.0 if tau == 0.0 else -math.expm1(-dt / tau)
+        self.pose: RelativePose | None = None
+
+    def step(self, target: RelativePose) -> RelativePose:
+        a, p = self.alpha, self.pose
+        if p is None or a == 1.0:
+            self.pose = target
+        else:
+            turn = quat_to_rotvec(quat_multiply(quat_conjugate(p.orientation), target.orientation))
+            self.pose = RelativePose(
+                p.position + a * (target.position - p.position),
+                _normalised(quat_multiply(p.orientation, quat_from_rotvec(a * turn))),
+                p.velocity + a * (target.velocity - p.velocity),
+                p.angular_velocity + a * (target.angular_velocity - p.angular_velocity),
+            )
+        return self.pose
 
 
 def simulate_hybrid6(
     body1: RigidBody, body2: RigidBody, state1: BodyState, state2: BodyState, ideal: Contact6,
     passive: Contact6, *, dt: float = 1e-3, t_end: float = 2.0, delay_ticks: int = 0,
-    impedance: Impedance6 | None = None, order: int = 4,
+    impedance: Impedance6 | None = None, order: int = 4, lag: float = 0.0,
+    sensor_position=(0.0, 0.0, 0.0), sensor_orientation=IDENTITY,
 ) -> Run6:
     """The sampled hybrid loop, tick by tick, as the graph runs it.
 
-    Tick k: the passive wrench is what the F/T sensor on the target's
-    interface reads with the robots at the relative pose of tick k - delay
-    (robot delay); the dynamics move it to both CoMs with the current poses
-    (`sensor_wrench_to_bodies`), add the virtual impedance of tick k and hold
-    the sum over the tick (zero-order hold). Contact (passive and virtual) is
-    sensed per tick: penetrating, or at the surface and closing. The wall
-    split and, unless given, the closed-form impedance are computed at the
-    first tick in contact. `force` and `torque` record the total wrench on
-    the chaser (torque about its interface origin); `generalized` the
-    passive reading's generalized force.
+    Tick k: the dynamics publish both bodies' states and the robot command
+    (A's pose and twist in B); the virtual wall computes its wrenches from the
+    published states (`VirtualWall6`); the robot follows the command of tick
+    k - delay with its lag (`Servo6`); the F/T sensor reads the passive
+    compliance at the robot's pose (`PassiveSensor6`, sensor at
+    `sensor_position`/`sensor_orientation` in the target's interface frame);
+    the dynamics move the reading to both CoMs, add the virtual wrenches
+    (`held_wrench`) and hold the sum over the tick (zero-order hold). Contact
+    is sensed per tick: penetrating, or at the surface and closing. `force`
+    and `torque` record the total wrench on the chaser (torque about its
+    interface origin); `generalized` the passive reading's generalized force.
     """
     dt = check_positive("dt", dt, "s")
     t_end = check_positive("t_end", t_end, "s")
     if int(delay_ticks) != delay_ticks or delay_ticks < 0:
         raise ContactModelError(f"delay_ticks must be a whole number >= 0, got {delay_ticks!r}")
-    _check_frictionless(ideal)
+    wall = VirtualWall6(ideal, passive, impedance)
+    sensor = PassiveSensor6(passive, sensor_position, sensor_orientation)
+    mount = sensor_mount_in_body(body2, sensor_position, sensor_orientation)
+    servo = Servo6(lag, dt)
     m1, m2 = Motion.from_state(body1, state1), Motion.from_state(body2, state2)
     steps = int(math.ceil(t_end / dt - 1e-9))
     rec = Recorder(steps)
-    # Sensor frame = the target's interface frame, in the target's body frame.
-    sensor_position = body2.interface_position
-    sensor_orientation = body2.interface_orientation
-    readings: deque = deque([None] * delay_ticks, maxlen=delay_ticks + 1)
-    anchor = None
-    imp = impedance
+    commands: deque = deque([None] * delay_ticks, maxlen=delay_ticks + 1)
     onset = exit_time = None
-    zero = np.zeros(3)
     for i in range(steps + 1):
-        g, rate = interface_state(m1, m2)
-        touching = g.e[0] > 0.0 or (g.e[0] == 0.0 and rate[0] > 0.0)
-        if touching and anchor is None:
-            anchor = g.e.copy()
-            anchor[0] = 0.0
+        # dynamics -> state, command; virtual impedance on the published state
+        x1, q1, v1, w1 = published_body(m1)
+        x2, q2, v2, w2 = published_body(m2)
+        s1, s2 = motion_from_published(body1, x1, q1, v1, w1), motion_from_published(body2, x2, q2, v2, w2)
+        g, rate, command = relative_interface(s1, s2, w1, w2)
+        virtual = wall.wrenches(s1, s2, g, rate)
+        # delay injector -> robot -> F/T sensor
+        commands.append(command)
+        delayed = commands[0]
+        actual = None if delayed is None else servo.step(delayed)
+        force_s, torque_s, q_seen = sensor.read(actual)
+        wrench = held_wrench(m1, m2, mount, force_s, torque_s, virtual)
+        if wall.touching and onset is None:
             onset = i * dt
-            if imp is None:
-                imp = impedance_closed_form6(ideal, passive, body_mobility(m1, g.point, g),
-                                             body_mobility(m2, g.point, g))
-        if not touching and anchor is not None and exit_time is None and onset is not None and i * dt > onset:
+        if not wall.touching and onset is not None and exit_time is None and i * dt > onset:
             exit_time = i * dt
-        # The robots hold the relative pose of this tick; the sensor reads it `delay_ticks` later.
-        if touching:
-            de = g.e - anchor
-            q_passive = passive.stiffness @ de + passive.damping @ rate
-            readings.append(_sensor_reading(g, q_passive) + (q_passive,))
-        else:
-            readings.append(None)
-        reading = readings[0] if delay_ticks else readings[-1]
-        f1, t1, f2, t2 = zero, zero, zero, zero
-        q_seen = np.zeros(6)
-        if reading is not None:
-            f_s, m_s, q_seen = reading
-            f2, t2, f1, t1 = sensor_wrench_to_bodies(m2, m1, sensor_position, sensor_orientation, f_s, m_s)
-        if touching:
-            s = wrench_map(g)
-            de = g.e - anchor
-            q1 = imp.k1 @ (imp.d1 @ de) + imp.c1 @ (imp.d1 @ rate)
-            q2 = imp.k2 @ (imp.d2 @ de) + imp.c2 @ (imp.d2 @ rate)
-            w1, w2 = -(s @ q1), s @ q2
-            f1 = f1 + w1[:3]
-            t1 = t1 + w1[3:] + cross(g.arm1, w1[:3])
-            f2 = f2 + w2[:3]
-            t2 = t2 + w2[3:] + cross(g.point - m2.x, w2[:3])
         # Record the state of tick i and the wrench held over the next tick.
-        moment_a = t1 - cross(g.arm1, f1)
-        rec.record(i, i * dt, m1, m2, f1, moment_a, q_seen, 0.0, touching)
+        rec.record(i, i * dt, m1, m2, wrench.f1, wrench.t1 - cross(g.arm1, wrench.f1), q_seen, 0.0, wall.touching)
         if i < steps:
-            rigid.step(m1, m2, HeldWrench(f1, t1, f2, t2), dt, order)
-    run = rec.run(onset, exit_time, (m1.state(), m2.state()), None if anchor is None else anchor.copy())
-    run.impedance = imp
+            rigid.step(m1, m2, wrench, dt, order)
+    run = rec.run(onset, exit_time, (m1.state(), m2.state()),
+                  None if wall.anchor is None else wall.anchor.copy())
+    run.impedance = wall.impedance
     return run

@@ -172,7 +172,7 @@ def check_symmetric(name: str, matrix, size: int, definite: bool, unit: str = ""
     if asym > 1e-12 * scale:
         i, j = np.unravel_index(int(np.argmax(np.abs(arr - arr.T))), arr.shape)
         raise ContactModelError(
-            f"{name} must be symmetric: entry [{i}][{j}] = {arr[i, j]!r} but [{j}][{i}] = {arr[j, i]!r}"
+            f"{name} must be symmetric: entry [{i}][{j}] = {float(arr[i, j])!r} but [{j}][{i}] = {float(arr[j, i])!r}"
         )
     arr = 0.5 * (arr + arr.T)
     low = float(np.linalg.eigvalsh(arr)[0])

@@ -1,0 +1,83 @@
+"""Real-time factor of the 6-DOF scene launch/hil6.yaml (off-axis defaults, 1 kHz, sim time):
+the composed graph, its time per node, and the library's sampled loop (hybrid6.simulate_hybrid6)
+for the same scene. The goal is 20x real time. Prints one JSON object as its last line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+HIL6 = os.path.join(ROOT, "launch", "hil6.yaml")
+
+
+def composed(n_ticks: int, per_node: bool = False, order: int = 4) -> tuple[float, dict]:
+    from dockhil import launchfile
+    from dockhil.composed import ComposedGraph
+    from dockhil.graph import build
+
+    g = ComposedGraph(build(launchfile.load(HIL6, {"order": str(order)})), log=lambda n, m: None)
+    g.setup()
+    spent: dict[str, float] = {}
+    if per_node:  # wrap each node's step with a timer (adds a little overhead of its own)
+        for name, node in g.nodes.items():
+            def timed(tick, inputs, _step=node.step, _name=name):
+                t = time.perf_counter()
+                out = _step(tick, inputs)
+                spent[_name] = spent.get(_name, 0.0) + time.perf_counter() - t
+                return out
+            node.step = timed
+        g.plan = [(name, g.nodes[name], *rest) for name, _node, *rest in g.plan]
+    t0 = time.perf_counter()
+    g.run(n_ticks)
+    wall = time.perf_counter() - t0
+    g.close()
+    return wall, {k: v / n_ticks * 1e6 for k, v in spent.items()}
+
+
+def library(n_ticks: int) -> float:
+    import numpy as np
+
+    from dockhil.contact.contact6 import Contact6
+    from dockhil.contact.hybrid6 import simulate_hybrid6
+    from dockhil.contact.rigid import BodyState, RigidBody, quat_from_rotvec
+
+    chaser = RigidBody(750.0, np.diag([300.0, 400.0, 500.0]), interface_position=[1.0, 0.0, 0.0])
+    target = RigidBody(1e6, np.diag([4e6, 5e6, 6e6]), interface_position=[-2.0, 0.0, 0.0])
+    s1 = BodyState([-1.0, 0.05, 0.0], quat_from_rotvec([0.0, 0.0, 0.02]), [0.03, 0.0, 0.0], [0.01, 0.0, 0.0])
+    s2 = BodyState([2.0, 0.0, 0.0], (0.0, 0.0, 0.0, 1.0), [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    ideal = Contact6([3000.0, 3000.0, 3000.0, 300.0, 300.0, 300.0], [40.0, 40.0, 40.0, 4.0, 4.0, 4.0])
+    passive = Contact6([1000.0, 1000.0, 1000.0, 100.0, 100.0, 100.0])
+    t0 = time.perf_counter()
+    simulate_hybrid6(chaser, target, s1, s2, ideal, passive, dt=1e-3, t_end=(n_ticks - 1) * 1e-3, delay_ticks=32)
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=3.0, help="simulated seconds per run (default 3)")
+    ap.add_argument("--repeat", type=int, default=3, help="runs per mode; medians are reported")
+    args = ap.parse_args()
+    n = int(round(args.seconds * 1000)) + 1
+    sim = (n - 1) * 1e-3
+    comp = statistics.median(composed(n)[0] for _ in range(args.repeat))
+    comp2 = statistics.median(composed(n, order=2)[0] for _ in range(args.repeat))
+    lib = statistics.median(library(n) for _ in range(args.repeat))
+    _, per_node = composed(n, per_node=True)
+    print(json.dumps({
+        "scene": "launch/hil6.yaml (defaults: offset 0.05 m, tilt 0.02 rad, spin 0.01 rad/s, delay 32 ms)",
+        "rate_Hz": 1000.0, "sim_seconds": sim, "repeat": args.repeat,
+        "composed_rtf": sim / comp, "composed_order2_rtf": sim / comp2, "library_loop_rtf": sim / lib, "goal_rtf": 20.0,
+        "per_node_us_per_tick": {k: round(v, 1) for k, v in sorted(per_node.items(), key=lambda kv: -kv[1])},
+        "cpus": os.cpu_count(), "load_avg_1min": os.getloadavg()[0],
+    }))
+
+
+if __name__ == "__main__":
+    main()

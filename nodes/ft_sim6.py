@@ -1,0 +1,36 @@
+"""F/T sensor (simulated), 6-DOF: the passive 6x6 compliance between the interfaces at the robot's pose."""
+
+from __future__ import annotations
+
+from dockhil.node import Input, Node, Output, Param
+from msgs import RobotState, Wrench, WrenchStamped
+from nodes.robot_sim6 import relative_pose
+from nodes.satellite_dynamics6 import vector
+from nodes.sixdof_params import MOUNT_PARAMS, PASSIVE_PARAMS, checked, passive_contact
+
+
+class FtSensorSim6(Node):
+    """The passive 6x6 compliance (and friction) at the robot's pose, read by an F/T sensor on the target.
+
+    Force and torque on the target, in the axes of the sensor mounted in the target's interface frame."""
+
+    inputs = {"robot": Input(RobotState, "/robot/state", help="actual pose of A in B")}
+    outputs = {"wrench": Output(WrenchStamped, "/ft/wrench", help="wrench on the target, sensor frame")}
+    params = {
+        **PASSIVE_PARAMS,
+        "mu": Param(float, 0.0, help="tangential Coulomb friction of the hardware contact", ge=0.0),
+        "slip_velocity": Param(float, 1e-3, unit="m/s", help="friction regularising sliding speed", gt=0.0),
+        **MOUNT_PARAMS,
+    }
+
+    def setup(self):
+        from dockhil.contact.hybrid6 import PassiveSensor6
+
+        p = self.p
+        self.sensor = checked(self.ctx.name, lambda: PassiveSensor6(
+            passive_contact(p, p.mu, p.slip_velocity), p.sensor_position, p.sensor_orientation))
+
+    def step(self, tick, inputs):
+        robot = inputs["robot"]
+        force, torque, _ = self.sensor.read(None if robot is None else relative_pose(robot))
+        return {"wrench": WrenchStamped(header=tick.header("ft_sensor"), wrench=Wrench(vector(force), vector(torque)))}

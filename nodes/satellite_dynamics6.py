@@ -1,0 +1,124 @@
+"""satellite-dynamics, 6-DOF: two free-floating rigid bodies under the measured and virtual wrenches."""
+
+from __future__ import annotations
+
+from dockhil.node import Input, Node, Output, Param
+from msgs import (BodyState, BodyWrenches, Pose, Quaternion, RobotCommand, SatelliteState, Twist, Vector3,
+                  WrenchStamped)
+from nodes.sixdof_params import BODY_PARAMS, IDENTITY, MOUNT_PARAMS, bodies, checked
+
+
+def vector(v) -> Vector3:
+    return Vector3(float(v[0]), float(v[1]), float(v[2]))
+
+
+def quaternion(q) -> Quaternion:
+    return Quaternion(float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+
+
+def array3(v):
+    import numpy as np
+
+    return np.array((v.x, v.y, v.z))
+
+
+def attitude(q, rotvec, name):
+    """exp(rotvec) q: a tilt given in radians on top of a quaternion (unit, checked)."""
+    from dockhil.contact import rigid
+
+    q = rigid.check_unit_quaternion(name.replace("attitude", "q"), q)
+    return rigid.quat_multiply(rigid.quat_from_rotvec(rigid.check_vector(name, rotvec, unit="rad")), q)
+
+
+class SatelliteDynamics6(Node):
+    """Integrates two rigid bodies under the F/T wrench and the virtual wrenches; publishes states and A's pose in B.
+
+    The sensor's wrench (sensor frame, on the target) is moved to both CoMs with the mounting pose
+    (dockhil.contact.hybrid6.held_wrench) and held over the tick; dockhil.contact.rigid integrates."""
+
+    inputs = {
+        "ft": Input(WrenchStamped, "/ft/wrench", feedthrough=False,
+                    help="wrench on the target measured by the F/T sensor, in the sensor frame"),
+        "impedance": Input(BodyWrenches, "/impedance/wrench", feedthrough=False,
+                           help="virtual wrenches on chaser, target (world, about each CoM)"),
+    }
+    outputs = {
+        "state": Output(SatelliteState, "/satellite/state",
+                        help="chaser, target: CoM pose (body-frame attitude) and twist (world angular velocity)"),
+        "command": Output(RobotCommand, "/robot/command",
+                          help="chaser interface A relative to target interface B: pose and twist in B"),
+    }
+    params = {
+        **BODY_PARAMS,
+        "x1": Param(list, [-1.0, 0.0, 0.0], unit="m", help="chaser CoM, world"),
+        "x2": Param(list, [2.0, 0.0, 0.0], unit="m", help="target CoM, world"),
+        "q1": Param(list, IDENTITY, help="chaser attitude, body -> world (x, y, z, w)"),
+        "q2": Param(list, IDENTITY, help="target attitude, body -> world (x, y, z, w)"),
+        "attitude1": Param(list, [0.0, 0.0, 0.0], unit="rad",
+                           help="chaser attitude change as a rotation vector, applied after q1 (world axes)"),
+        "attitude2": Param(list, [0.0, 0.0, 0.0], unit="rad",
+                           help="target attitude change as a rotation vector, applied after q2 (world axes)"),
+        "v1": Param(list, [0.03, 0.0, 0.0], unit="m/s", help="chaser CoM velocity, world"),
+        "v2": Param(list, [0.0, 0.0, 0.0], unit="m/s", help="target CoM velocity, world"),
+        "w1": Param(list, [0.0, 0.0, 0.0], unit="rad/s", help="chaser angular velocity, body axes"),
+        "w2": Param(list, [0.0, 0.0, 0.0], unit="rad/s", help="target angular velocity, body axes"),
+        **MOUNT_PARAMS,
+        "order": Param(int, 4, help="integrator order (2 or 4)", choices=(2, 4)),
+    }
+
+    def setup(self):
+        from dockhil.contact import hybrid6, rigid
+
+        p = self.p
+
+        def build():
+            b1, b2 = bodies(p)
+            s1 = rigid.BodyState(p.x1, attitude(p.q1, p.attitude1, "attitude1"), p.v1, p.w1)
+            s2 = rigid.BodyState(p.x2, attitude(p.q2, p.attitude2, "attitude2"), p.v2, p.w2)
+            return (b1, b2, rigid.Motion.from_state(b1, s1), rigid.Motion.from_state(b2, s2),
+                    hybrid6.sensor_mount_in_body(b2, p.sensor_position, p.sensor_orientation))
+
+        self.b1, self.b2, self.m1, self.m2, self.mount = checked(self.ctx.name, build)
+        self.lib, self.rigid = hybrid6, rigid
+        self.started = False
+
+    def step(self, tick, inputs):
+        import numpy as np
+
+        if not self.started:
+            # Wall time with hardware: the simulated clock starts when the sensor answers (as the 1-DOF node).
+            self.started = self.ctx.sim_time or inputs.get("ft") is not None
+            if not self.started:
+                return {"command": self._publish(tick)["command"]}
+        elif tick.index > 0:
+            ft, imp = inputs.get("ft"), inputs.get("impedance")
+            zero = np.zeros(3)
+            force, torque = (array3(ft.wrench.force), array3(ft.wrench.torque)) if ft is not None else (zero, zero)
+            if imp is not None and len(imp.wrenches) >= 2:
+                w1, w2 = imp.wrenches[0], imp.wrenches[1]
+                virtual = (array3(w1.force), array3(w1.torque), array3(w2.force), array3(w2.torque))
+            else:
+                virtual = (zero, zero, zero, zero)
+            wrench = self.lib.held_wrench(self.m1, self.m2, self.mount, force, torque, virtual)
+            self.rigid.step(self.m1, self.m2, wrench, tick.dt, self.p.order)
+        return self._publish(tick)
+
+    def _publish(self, tick):
+        lib = self.lib
+        x1, q1, v1, w1 = lib.published_body(self.m1)
+        x2, q2, v2, w2 = lib.published_body(self.m2)
+        s1 = lib.motion_from_published(self.b1, x1, q1, v1, w1)
+        s2 = lib.motion_from_published(self.b2, x2, q2, v2, w2)
+        g, rate, cmd = lib.relative_interface(s1, s2, w1, w2)
+        state = SatelliteState(
+            header=tick.header("world"),
+            bodies=[
+                BodyState("chaser", self.p.m1, Pose(vector(x1), quaternion(q1)), Twist(vector(v1), vector(w1))),
+                BodyState("target", self.p.m2, Pose(vector(x2), quaternion(q2)), Twist(vector(v2), vector(w2))),
+            ],
+            in_contact=bool(g.e[0] > 0.0 or (g.e[0] == 0.0 and rate[0] > 0.0)),
+        )
+        command = RobotCommand(header=tick.header("target_interface"),
+                               pose=Pose(vector(cmd.position), quaternion(cmd.orientation)),
+                               twist=Twist(vector(cmd.velocity), vector(cmd.angular_velocity)))
+        return {"state": state, "command": command}
