@@ -46,7 +46,7 @@ from typing import Any, Optional, Union
 
 from dockhil import boundedyaml
 from dockhil.errors import DockhilError, LaunchError
-from dockhil.launchschema import (MAX_INCLUDES, MAX_NODES, MAX_TEXT, ArgDecl, LaunchFile, LetDecl, NodeDecl,
+from dockhil.launchschema import (MAX_INCLUDES, MAX_NODES, MAX_SUBSTITUTED, MAX_TEXT, ArgDecl, LaunchFile, LetDecl, NodeDecl,
                                   ParamDecl, Scalar, SchemaError, convert)
 
 _ARG = re.compile(r"\$\((?:arg|var) ([A-Za-z_][A-Za-z0-9_]*)\)")
@@ -173,6 +173,7 @@ class _Budget:
 
     files: int = 0
     nodes: int = 0
+    text: int = 0  # characters built by substitution inside longer strings
 
 
 def _read_yaml(path: Path, budget: _Budget) -> tuple[dict, Any]:
@@ -239,11 +240,12 @@ def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: b
         if let.name in values:
             what = "an argument" if let.name in specs else "a variable defined above"
             raise SchemaError(["let", i, "name"], f"{let.name!r} is already {what}; give the variable another name")
-        values[let.name] = lets[let.name] = _subst(let.value, values, ["let", i, "value"])
+        values[let.name] = lets[let.name] = _subst(let.value, values, ["let", i, "value"], budget)
 
     # Arguments are substituted everywhere but in `args:` and `let:`; then the whole file meets the
     # schema, so `rate: $(arg rate)` is bounded exactly like `rate: 500`.
-    body = {key: value if key in ("args", "let") else _subst(value, values, [key]) for key, value in data.items()}
+    body = {key: value if key in ("args", "let") else _subst(value, values, [key], budget)
+            for key, value in data.items()}
     doc = convert(body, LaunchFile)
     scene = Scene(str(path), doc.description, doc.rate, doc.duration, specs, values, lets=lets)
 
@@ -350,7 +352,7 @@ def _suggest(name: str, known, what: str) -> str:
     return f"did you mean {near[0]!r}? ({listed})" if near else listed
 
 
-def _subst(value: Any, values: dict[str, Any], at: list) -> Any:
+def _subst(value: Any, values: dict[str, Any], at: list, budget: _Budget) -> Any:
     if isinstance(value, str):
         whole = _ARG.fullmatch(value.strip())
         if whole:
@@ -359,11 +361,15 @@ def _subst(value: Any, values: dict[str, Any], at: list) -> Any:
         size = len(value) + sum(len(text) - len(m.group(0)) for m, text in parts)
         if size > MAX_TEXT:  # sized before it is built: arguments that repeat arguments grow fast
             raise SchemaError(at, f"is {size} characters after $(arg ...) substitution; at most {MAX_TEXT}")
+        budget.text += size if parts else 0
+        if budget.text > MAX_SUBSTITUTED:  # many strings that each repeat a long argument
+            raise SchemaError(at, f"substitution builds more than {MAX_SUBSTITUTED} characters for one scene; "
+                                  f"use fewer or shorter $(arg ...) in strings")
         return _ARG.sub(lambda m: _text(values[m.group(1)]), value)
     if isinstance(value, dict):
-        return {k: _subst(v, values, [*at, k]) for k, v in value.items()}
+        return {k: _subst(v, values, [*at, k], budget) for k, v in value.items()}
     if isinstance(value, list):
-        return [_subst(v, values, [*at, i]) for i, v in enumerate(value)]
+        return [_subst(v, values, [*at, i], budget) for i, v in enumerate(value)]
     return value
 
 

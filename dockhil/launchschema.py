@@ -25,6 +25,7 @@ MAX_NODES = 1000  # nodes in one scene, includes counted
 MAX_INCLUDES = 100  # launch files read for one scene
 MAX_CHOICES = 1000
 MAX_TEXT = 65536  # characters of one string after $(arg ...) substitution
+MAX_SUBSTITUTED = 1 << 22  # characters built by substitution for one scene, includes counted
 MAX_LETS = 1000  # `let` variables in one file
 MAX_AGE = 600.0  # [s] the longest maximum age a launch file may give a wall-time input
 

@@ -336,3 +336,35 @@ def test_the_schema_describes_the_ros2_forms():
 def test_load_refuses_through_the_launch_error_type(write_launch):
     with pytest.raises(LaunchError):
         launchfile.load(str(write_launch(LOOP % ("max_age: {u: 0}", "1.0"))))
+
+
+# -- bounds --------------------------------------------------------------------------------------
+
+
+def _many_copies(kind: str) -> str:
+    """A file of about 0.5 MB whose substitutions would build about 1 GB of text: an argument of
+    60,000 characters repeated inside 15,000 parameter strings, or 1,000 `let` variables."""
+    head = "args:\n  p: {default: " + "a" * 60000 + "}\n"
+    if kind == "params":
+        return head + ('nodes:\n  - name: a\n    node: "tests.graphnodes:Source"\n    params:\n'
+                       + "".join(f'      k{i}: "x$(arg p)"\n' for i in range(15000)))
+    return head + "let:\n" + "".join(f'  - {{name: v{i}, value: "x$(var p)"}}\n' for i in range(1000))
+
+
+@pytest.mark.parametrize("kind, where", [("params", "nodes[0].params.k{}"), ("let", "let[{}].value")])
+def test_substitution_that_repeats_a_long_argument_is_bounded(kind, where, tmp_path):
+    import subprocess
+
+    from tests.conftest import dockhil_cmd
+    from tests.test_fuzz_launch import _limited
+
+    path = tmp_path / "scene.yaml"
+    path.write_text(_many_copies(kind))
+    r = subprocess.run(dockhil_cmd("graph", path), cwd=ROOT, capture_output=True, text=True, timeout=120,
+                       preexec_fn=_limited)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr[-2000:]
+    # The copy (of 60,001 characters) that takes the total past 4 * 2**20 characters is refused.
+    first_over = (4 << 20) // 60001
+    assert f": {where.format(first_over)}: substitution builds more than {4 << 20} characters for one scene" \
+        in lines[0], lines[0]
