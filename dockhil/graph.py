@@ -111,8 +111,10 @@ def build(scene: Scene) -> Graph:
         known = set(ins) | set(outs) | {p.topic for p in ins.values()} | {p.topic for p in outs.values()}
         bad = sorted(set(spec.remap) - known)
         if bad:
+            near = difflib.get_close_matches(bad[0], sorted(known), n=1)
+            hint = f"did you mean {near[0]!r}? " if near else ""
             raise LaunchError(
-                f"{where}: remap {bad[0]!r} names no port or topic of {spec.type}; "
+                f"{where}: remap {bad[0]!r} names no port or topic of {spec.type}; {hint}"
                 f"ports: {', '.join(sorted(set(ins) | set(outs)))}"
             )
         for port in spec.max_age:

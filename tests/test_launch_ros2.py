@@ -113,6 +113,8 @@ def test_param_as_a_list_of_name_value_sets_what_the_mapping_sets(write_launch):
     ("remap: [{from: u, to: 3}]", "nodes[0].remap[0].to: expected text, got 3"),
     ("remap: [3]", "nodes[0].remap[0]: expected a mapping, got 3"),
     ("remap: [{from: u, to: a}]", "topic 'a' of port 'u' must start with /"),
+    ("remap: [{from: uu, to: /a}]", "remap 'uu' names no port or topic of tests.graphnodes:Integrator; "
+                                    "did you mean 'u'? ports: u, x"),
     ("params: {x0: 1.0}, param: [{name: x0, value: 2.0}]", "nodes[0].param[0].name: parameter 'x0' is given twice"),
     ("param: [{name: x0, value: 1.0}, {name: x0, value: 2.0}]", "nodes[0].param[1].name: parameter 'x0' is given"),
     ("param: [{nme: x0, value: 1.0}]", "nodes[0].param[0].nme: unknown key 'nme'; did you mean 'name'?"),
