@@ -46,8 +46,8 @@ from typing import Any, Optional, Union
 
 from dockhil import boundedyaml
 from dockhil.errors import DockhilError, LaunchError
-from dockhil.launchschema import (MAX_INCLUDES, MAX_NODES, MAX_SUBSTITUTED, MAX_TEXT, ArgDecl, LaunchFile, LetDecl, NodeDecl,
-                                  ParamDecl, Scalar, SchemaError, convert)
+from dockhil.launchschema import (MAX_INCLUDES, MAX_NODES, MAX_SUBSTITUTED, MAX_TEXT, ArgDecl, LaunchFile, LetDecl,
+                                  NodeDecl, Scalar, SchemaError, convert)
 
 _ARG = re.compile(r"\$\((?:arg|var) ([A-Za-z_][A-Za-z0-9_]*)\)")
 _ARG_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")

@@ -182,7 +182,8 @@ def mutated_scene(draw) -> str | bytes:
             st.integers(), text,
             st.just([{"name": "gain", "value": 1.0}]),  # an argument's name
             st.lists(st.fixed_dictionaries({"name": st.one_of(st.integers(), st.just(""), st.tuples(
-                words, st.sampled_from("- .$/"), words).map("".join)), "value": st.integers()}), min_size=1, max_size=2),
+                words, st.sampled_from("- .$/"), words).map("".join)), "value": st.integers()}),
+                min_size=1, max_size=2),
             st.lists(st.fixed_dictionaries({"name": identifiers, "value": st.one_of(containers, st.none())}),
                      min_size=1, max_size=2),
             st.just([{"name": "a", "value": "$(var nope)"}])))
@@ -190,7 +191,8 @@ def mutated_scene(draw) -> str | bytes:
         doc["group"] = draw(st.one_of(
             st.integers(), text,
             st.lists(st.fixed_dictionaries({"namespace": st.one_of(
-                st.integers(), containers, st.just(""), st.tuples(words, st.sampled_from("/ :.\n"), words).map("".join)),
+                st.integers(), containers, st.just(""),
+                st.tuples(words, st.sampled_from("/ :.\n"), words).map("".join)),
                 "nodes": st.just([])}), min_size=1, max_size=1),
             st.just([{"namespace": "ns"}]),  # no nodes
             st.just([{"nodes": [], "scoped": True}]),
@@ -198,7 +200,8 @@ def mutated_scene(draw) -> str | bytes:
     elif kind == "remap list":
         nodes[i]["remap"] = draw(st.one_of(
             st.lists(st.fixed_dictionaries({"from": st.sampled_from(["x", "u"]),
-                                            "to": st.one_of(st.integers(), words, containers)}), min_size=1, max_size=2),
+                                            "to": st.one_of(st.integers(), words, containers)}),
+                     min_size=1, max_size=2),
             st.lists(st.fixed_dictionaries({"from": words.filter(lambda w: w not in PORTS), "to": st.just("/y")}),
                      min_size=1, max_size=1),
             st.just([{"from": "x", "to": "/y"}, {"from": "x", "to": "/z"}]),

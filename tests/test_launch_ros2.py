@@ -217,6 +217,8 @@ def test_max_age_reaches_the_node_process_spec_and_its_limit(write_launch, tmp_p
     specs = run_specs(g, ep, "wall", None, [])
     assert specs["integ"].inputs["u"].max_age == expected and specs["gain"].inputs["x"].max_age is None
     assert g.wall_max_ages() == {"integ.u": expected, "gain.x": default_max_age(g.scene.dt)}
+    code, out, _ = run_main("graph", write_launch(LOOP % (f"max_age: {given}", "1.0")))
+    assert code == 0 and re.search(rf"in  u: /u .*, max_age {expected:g} s$", out, re.M), out
 
 
 @pytest.mark.parametrize("given, expected", [
