@@ -46,7 +46,7 @@ from typing import Any, Optional, Union
 
 from dockhil import boundedyaml
 from dockhil.errors import DockhilError, LaunchError
-from dockhil.launchschema import (MAX_INCLUDES, MAX_NODES, MAX_SUBSTITUTED, MAX_TEXT, ArgDecl, LaunchFile, LetDecl,
+from dockhil.launchschema import (MAX_INCLUDES, MAX_NODES, MAX_SUBSTITUTED, MAX_TEXT, ArgDecl, LaunchFile, Lets,
                                   NodeDecl, Scalar, SchemaError, convert)
 
 _ARG = re.compile(r"\$\((?:arg|var) ([A-Za-z_][A-Za-z0-9_]*)\)")
@@ -236,7 +236,7 @@ def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: b
 
     # `let` variables, in order: each may use the arguments and the variables before it.
     lets = {}
-    for i, let in enumerate(convert(data.get("let"), Optional[list[LetDecl]], prefix=("let",)) or []):
+    for i, let in enumerate(convert(data.get("let"), Lets, prefix=("let",)) or []):
         if let.name in values:
             what = "an argument" if let.name in specs else "a variable defined above"
             raise SchemaError(["let", i, "name"], f"{let.name!r} is already {what}; give the variable another name")
@@ -255,10 +255,11 @@ def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: b
         ns = (group.namespace or "").lstrip("/")
         keep, reason = _condition(group.if_, group.unless, data["group"][g], ["group", g])
         for i, nd in enumerate(group.nodes):
+            at = ["group", g, "nodes", i]
             if keep:
-                entries.append((nd, ["group", g, "nodes", i], ns))
+                entries.append((nd, at, ns))
             else:
-                scene.skipped.append(Skipped(_in_namespace(ns, nd.name, []), str(path), f"group {reason}"))
+                scene.skipped.append(Skipped(_in_namespace(ns, nd.name, [*at, "name"]), str(path), f"group {reason}"))
     for nd, at, ns in entries:
         keep, reason = _condition(nd.if_, nd.unless, _value_at(data, at), at)
         name = _in_namespace(ns, nd.name, [*at, "name"])

@@ -111,6 +111,9 @@ class IncludeDecl(Struct, forbid_unknown_fields=True):
     unless: Condition = None
 
 
+Lets = Optional[Annotated[list[LetDecl], Meta(max_length=MAX_LETS, description=f"at most {MAX_LETS} variables")]]
+
+
 class GroupDecl(Struct, forbid_unknown_fields=True):
     """Nodes under one namespace and one condition."""
 
@@ -127,7 +130,7 @@ class LaunchFile(Struct, forbid_unknown_fields=True):
     rate: Rate = 1000.0
     duration: Optional[Duration] = None
     args: Optional[dict[str, Union[ArgDecl, Scalar]]] = None
-    let: Optional[Annotated[list[LetDecl], Meta(max_length=MAX_LETS)]] = None
+    let: Lets = None
     nodes: Optional[list[NodeDecl]] = None
     group: Optional[list[GroupDecl]] = None
     include: Optional[list[IncludeDecl]] = None

@@ -79,6 +79,8 @@ def test_let_defines_variables_from_arguments_and_earlier_variables(write_launch
     ("[{name: a, value: [1, 2]}]", "scene.yaml:7: let[0].value: expected"),
     ("[{name: a}]", "scene.yaml:7: let[0]: `value` is required"),
     ("{a: 1}", "scene.yaml:7: let: expected a list, got {'a': 1}"),
+    ("[" + ", ".join(f"{{name: v{i}, value: 1}}" for i in range(1001)) + "]",
+     "scene.yaml:7: let: expected a list of length <= 1000, got"),
 ])
 def test_a_bad_let_is_refused_in_one_line_with_its_place(write_launch, let, expected):
     line = refusal(write_launch, LOOP % ("params: {x0: 0.5}", "1.0") + f"let: {let}\n")
