@@ -229,6 +229,10 @@ def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: b
     values = {name: spec.default for name, spec in specs.items()}
     for name, value in given.items():
         if name not in specs:
+            lets = data.get("let") if isinstance(data.get("let"), list) else []
+            if any(isinstance(d, dict) and d.get("name") == name for d in lets):
+                raise LaunchError(f"{path}: {name!r} is a `let` variable, made from the arguments: set those "
+                                  f"instead ({_suggest('', specs, 'known args')})")
             raise LaunchError(f"{path}: unknown arg {name!r}; {_suggest(name, specs, 'known args')}")
         where = f"{path}" if from_cli else f"{path} (included)"
         spec = specs[name]

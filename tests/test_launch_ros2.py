@@ -69,6 +69,14 @@ def test_let_defines_variables_from_arguments_and_earlier_variables(write_launch
     assert code == 0 and "let:\n  g = 1.25\n  start = 1.25\n  label = 'gain 1.25'\n" in out
 
 
+def test_a_let_variable_is_not_set_on_the_command_line(write_launch):
+    text = LOOP % ("params: {x0: 0.5}", "$(var g)") + "let:\n  - {name: g, value: $(var gain)}\n"
+    assert refusal(write_launch, text, "g:=3") == (
+        "dockhil graph: error: scene.yaml: 'g' is a `let` variable, made from the arguments: set those instead "
+        "(known args: gain)")
+    assert "unknown arg 'gian'; did you mean 'gain'?" in refusal(write_launch, text, "gian:=3")
+
+
 @pytest.mark.parametrize("let, expected", [
     ("[{name: gain, value: 1.0}]", "scene.yaml:7: let[0].name: 'gain' is already an argument"),
     ("[{name: a, value: 1}, {name: a, value: 2}]", "scene.yaml:7: let[1].name: 'a' is already a variable defined"),
