@@ -95,7 +95,7 @@ class ComposedGraph:
         dt = self.dt
         clock = self.clock
         t0 = clock()
-        timing = self.timing = LoopTiming([], period=dt) if wall else None
+        timing = self.timing = LoopTiming([], period=dt, max_age=self.graph.wall_max_ages()) if wall else None
         k = 0
         while (n_ticks is None or k < n_ticks) and not stop.requested:
             if wall:

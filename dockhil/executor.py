@@ -46,6 +46,7 @@ class PortWire:
     lag: int = 0  # inputs: ticks between the message read and the tick computed
     subscribers: int = 0  # outputs: how many subscriptions to await in sim time
     unlimited_age: bool = False  # inputs: no maximum age (a publisher the launcher respawns may pause)
+    max_age: float | None = None  # inputs: the launch file's maximum age [s], over the node's own
 
 
 @dataclass
@@ -190,6 +191,8 @@ class NodeExecutor:
         def limit(port: str, wire: PortWire) -> float:
             if wire.unlimited_age:
                 return math.inf
+            if wire.max_age is not None:
+                return wire.max_age
             if node_cls.free_running and ins[port].max_age is None:
                 return math.inf
             return ins[port].age_limit(spec.dt)

@@ -8,6 +8,7 @@ loops (cycles whose every input is read at the same tick) are refused with one l
 
 from __future__ import annotations
 
+import difflib
 import re
 from dataclasses import dataclass, field
 from typing import Any
@@ -27,6 +28,7 @@ class PortRef:
     type: type
     lag: int = 0  # ticks: the input at tick k reads the message of tick k - lag
     required: bool = True
+    max_age: float | None = None  # inputs, wall time: the launch file's maximum age [s] (None: the node's)
 
     @property
     def feedthrough(self) -> bool:
@@ -58,12 +60,29 @@ class Graph:
     def topic_type(self, topic: str) -> type:
         return self.publishers[topic].type
 
+    def wall_max_ages(self) -> dict[str, float]:
+        """Each input's maximum age in wall time ("node.port" -> s) as a node process applies it (see
+        NodeExecutor): the launch file's, else the node's declared, else the rate's default; none
+        (inf) for a free-running node's undeclared ones. The composed loop's lateness is judged on them."""
+        out = {}
+        for gn in self.nodes.values():
+            ins, _ = gn.cls.ports(gn.params)
+            for port, ref in gn.inputs.items():
+                if ref.max_age is not None:
+                    out[f"{gn.name}.{port}"] = ref.max_age
+                elif not (gn.cls.free_running and ins[port].max_age is None):
+                    out[f"{gn.name}.{port}"] = ins[port].age_limit(self.scene.dt)
+        return out
+
 
 _TOPIC = re.compile(r"/[A-Za-z0-9_./-]*")
 
 
-def _topic_for(port: str, default: str, remap: dict[str, str], where: str) -> str:
-    topic = remap.get(port, remap.get(default, default))
+def _topic_for(port: str, default: str, remap: dict[str, str], where: str, namespace: str = "") -> str:
+    """A remap names the exact topic; a default topic is put under the group's namespace."""
+    topic = remap.get(port, remap.get(default))
+    if topic is None:
+        topic = f"/{namespace}{default}" if namespace else default
     if not _TOPIC.fullmatch(topic):
         raise LaunchError(f"{where}: topic {topic!r} of port {port!r} must start with / and use only "
                           f"letters, digits and _ . - /")
@@ -92,16 +111,25 @@ def build(scene: Scene) -> Graph:
         known = set(ins) | set(outs) | {p.topic for p in ins.values()} | {p.topic for p in outs.values()}
         bad = sorted(set(spec.remap) - known)
         if bad:
+            near = difflib.get_close_matches(bad[0], sorted(known), n=1)
+            hint = f"did you mean {near[0]!r}? " if near else ""
             raise LaunchError(
-                f"{where}: remap {bad[0]!r} names no port or topic of {spec.type}; "
+                f"{where}: remap {bad[0]!r} names no port or topic of {spec.type}; {hint}"
                 f"ports: {', '.join(sorted(set(ins) | set(outs)))}"
             )
+        for port in spec.max_age:
+            if port not in ins:
+                near = difflib.get_close_matches(port, list(ins), n=1)
+                hint = f"did you mean {near[0]!r}? " if near else ""
+                raise LaunchError(f"{where}: max_age {port!r} names no input of {spec.type}; {hint}"
+                                  f"inputs: {', '.join(sorted(ins)) or 'none'}")
+        ns = spec.namespace
         inputs = {
-            name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap, where), p.type,
-                          p.lag_ticks(scene.dt), p.required)
+            name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap, where, ns), p.type,
+                          p.lag_ticks(scene.dt), p.required, spec.max_age.get(name))
             for name, p in ins.items()
         }
-        outputs = {name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap, where), p.type)
+        outputs = {name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap, where, ns), p.type)
                    for name, p in outs.items()}
         gnodes[spec.name] = GraphNode(spec.name, spec.type, cls, params, inputs, outputs, spec.respawn,
                                       spec.respawn_delay, spec.host)
@@ -134,6 +162,11 @@ def build(scene: Scene) -> Graph:
                 raise LaunchError(
                     f"{scene.path}: topic {ref.topic}: {pub.node}.{pub.port} publishes {msgs.type_name(pub.type)} "
                     f"but {ref.node}.{ref.port} expects {msgs.type_name(ref.type)}; connect ports of one type"
+                )
+            if ref.max_age is not None and gnodes[pub.node].respawn:
+                raise LaunchError(
+                    f"{scene.path}: node {ref.node!r} input {ref.port!r} has max_age {ref.max_age:g} s but reads "
+                    f"{ref.topic} from {pub.node!r}, which respawns (and may pause): drop one of the two"
                 )
             subscribers.setdefault(ref.topic, []).append(ref)
 

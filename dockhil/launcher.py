@@ -138,7 +138,7 @@ def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extr
         gn = graph.nodes[name]
         inputs = {
             port: PortWire(ref.topic, ep.topics[ref.topic], ep.types[ref.topic], ref.lag,
-                           unlimited_age=ref.topic in respawned)
+                           unlimited_age=ref.topic in respawned, max_age=ref.max_age)
             for port, ref in gn.inputs.items()
             if ref.topic in ep.topics
         }

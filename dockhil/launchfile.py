@@ -6,19 +6,27 @@
     args:
       delay: {default: 0.032, help: "robot response delay [s]"}
       ft: {default: sim, choices: [sim, can], help: "F/T sensor implementation"}
+    let:
+      - {name: slow, value: $(var delay)}        # a variable made from args (ROS 2 `let`)
     nodes:
       - name: dynamics
         node: satellite_dynamics          # registered type, or module:Class
-        params: {m1: $(arg m1)}
-        remap: {command: /robot/command_raw}   # port name or topic -> topic
+        params: {m1: $(arg m1)}                # or param: [{name: m1, value: ...}]
+        remap: {command: /robot/command_raw}   # port name or topic -> topic; or [{from, to}]
+        max_age: {state: 0.05}                  # wall time: an input's maximum age [s]
         host: lab-pc-2                          # run on another machine (tcp)
         if: $(arg ft) == sim                   # or `unless:`
         respawn: false                          # wall time only
+    group:
+      - namespace: left                         # nodes `left.NAME`, default topics under /left
+        if: $(var ft) == sim
+        nodes: [...]
     include:
       - file: other.yaml                        # relative to this file
         args: {delay: $(arg delay)}
 
-`$(arg NAME)` standing alone keeps the argument's type; inside a longer
+`$(arg NAME)` and `$(var NAME)` are the same: an argument or a `let`
+variable. Standing alone it keeps the value's type; inside a longer
 string it is replaced by its text. A condition is true/false, or
 `A == B` / `A != B` compared as text after substitution.
 
@@ -38,10 +46,10 @@ from typing import Any, Optional, Union
 
 from dockhil import boundedyaml
 from dockhil.errors import DockhilError, LaunchError
-from dockhil.launchschema import (MAX_INCLUDES, MAX_NODES, MAX_TEXT, ArgDecl, LaunchFile, Scalar, SchemaError,
-                                  convert)
+from dockhil.launchschema import (MAX_INCLUDES, MAX_NODES, MAX_SUBSTITUTED, MAX_TEXT, ArgDecl, LaunchFile, Lets,
+                                  NodeDecl, Scalar, SchemaError, convert)
 
-_ARG = re.compile(r"\$\(arg ([A-Za-z_][A-Za-z0-9_]*)\)")
+_ARG = re.compile(r"\$\((?:arg|var) ([A-Za-z_][A-Za-z0-9_]*)\)")
 _ARG_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _TYPES = {"float": float, "int": int, "bool": bool, "str": str}
 
@@ -107,6 +115,8 @@ class NodeSpec:
     respawn_delay: float = 1.0
     host: str = ""  # another machine: the launcher says how to start the node there
     line: int = 0  # where the node is declared in `source`, for messages
+    namespace: str = ""  # a group's: prefixes the default topics (/NS/...); the name is already NS.name
+    max_age: dict[str, float] = field(default_factory=dict)  # input port -> wall-time maximum age [s]
 
 
 @dataclass
@@ -123,9 +133,10 @@ class Scene:
     rate: float
     duration: float | None
     args: dict[str, ArgSpec]
-    values: dict[str, Any]
+    values: dict[str, Any]  # arguments and `let` variables
     nodes: list[NodeSpec] = field(default_factory=list)
     skipped: list[Skipped] = field(default_factory=list)
+    lets: dict[str, Any] = field(default_factory=dict)
 
     @property
     def dt(self) -> float:
@@ -162,6 +173,7 @@ class _Budget:
 
     files: int = 0
     nodes: int = 0
+    text: int = 0  # characters built by substitution inside longer strings
 
 
 def _read_yaml(path: Path, budget: _Budget) -> tuple[dict, Any]:
@@ -217,28 +229,53 @@ def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: b
     values = {name: spec.default for name, spec in specs.items()}
     for name, value in given.items():
         if name not in specs:
+            lets = data.get("let") if isinstance(data.get("let"), list) else []
+            if any(isinstance(d, dict) and d.get("name") == name for d in lets):
+                raise LaunchError(f"{path}: {name!r} is a `let` variable, made from the arguments: set those "
+                                  f"instead ({_suggest('', specs, 'known args')})")
             raise LaunchError(f"{path}: unknown arg {name!r}; {_suggest(name, specs, 'known args')}")
         where = f"{path}" if from_cli else f"{path} (included)"
         spec = specs[name]
         values[name] = spec.parse(value, where) if isinstance(value, str) and spec.type is not str else spec.check(value, where)
 
-    # Arguments are substituted everywhere but in `args:`; then the whole file meets the schema,
-    # so `rate: $(arg rate)` is bounded exactly like `rate: 500`.
-    body = {key: value if key == "args" else _subst(value, values, [key]) for key, value in data.items()}
-    doc = convert(body, LaunchFile)
-    scene = Scene(str(path), doc.description, doc.rate, doc.duration, specs, values)
+    # `let` variables, in order: each may use the arguments and the variables before it.
+    lets = {}
+    for i, let in enumerate(convert(data.get("let"), Lets, prefix=("let",)) or []):
+        if let.name in values:
+            what = "an argument" if let.name in specs else "a variable defined above"
+            raise SchemaError(["let", i, "name"], f"{let.name!r} is already {what}; give the variable another name")
+        values[let.name] = lets[let.name] = _subst(let.value, values, ["let", i, "value"], budget)
 
-    for i, nd in enumerate(doc.nodes or []):
-        at = ["nodes", i]
-        keep, reason = _condition(nd.if_, nd.unless, data["nodes"][i], at)
+    # Arguments are substituted everywhere but in `args:` and `let:`; then the whole file meets the
+    # schema, so `rate: $(arg rate)` is bounded exactly like `rate: 500`.
+    body = {key: value if key in ("args", "let") else _subst(value, values, [key], budget)
+            for key, value in data.items()}
+    doc = convert(body, LaunchFile)
+    scene = Scene(str(path), doc.description, doc.rate, doc.duration, specs, values, lets=lets)
+
+    # Top-level nodes, then each group's (under its namespace and condition).
+    entries = [(nd, ["nodes", i], "") for i, nd in enumerate(doc.nodes or [])]
+    for g, group in enumerate(doc.group or []):
+        ns = (group.namespace or "").lstrip("/")
+        keep, reason = _condition(group.if_, group.unless, data["group"][g], ["group", g])
+        for i, nd in enumerate(group.nodes):
+            at = ["group", g, "nodes", i]
+            if keep:
+                entries.append((nd, at, ns))
+            else:
+                scene.skipped.append(Skipped(_in_namespace(ns, nd.name, [*at, "name"]), str(path), f"group {reason}"))
+    for nd, at, ns in entries:
+        keep, reason = _condition(nd.if_, nd.unless, _value_at(data, at), at)
+        name = _in_namespace(ns, nd.name, [*at, "name"])
         if not keep:
-            scene.skipped.append(Skipped(nd.name, str(path), reason))
+            scene.skipped.append(Skipped(name, str(path), reason))
             continue
         budget.nodes += 1
         if budget.nodes > MAX_NODES:
             raise SchemaError(at, f"more than {MAX_NODES} nodes in one scene")
-        scene.nodes.append(NodeSpec(nd.name, nd.node, dict(nd.params or {}), dict(nd.remap or {}), str(path),
-                                    nd.respawn, nd.respawn_delay, nd.host, boundedyaml.line_of(root, at) or 0))
+        scene.nodes.append(NodeSpec(name, nd.node, _params(nd, at), _remaps(nd.remap, [*at, "remap"]), str(path),
+                                    nd.respawn, nd.respawn_delay, nd.host, boundedyaml.line_of(root, at) or 0,
+                                    ns, dict(nd.max_age or {})))
 
     for i, inc in enumerate(doc.include or []):
         keep, reason = _condition(inc.if_, inc.unless, data["include"][i], ["include", i])
@@ -255,6 +292,49 @@ def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: b
     if dup:
         raise LaunchError(f"{path}: two nodes are named {dup!r}; node names must be unique")
     return scene
+
+
+def _value_at(data: Any, at: list) -> Any:
+    for step in at:
+        data = data[step]
+    return data
+
+
+def _in_namespace(ns: str, name: str, at: list) -> str:
+    """A node's name in its group's namespace: NS.name (a name is also a file name: no /)."""
+    if not ns:
+        return name
+    full = f"{ns}.{name}"
+    if len(full) > 64:
+        raise SchemaError(at, f"the name in its namespace, {full!r}, is {len(full)} characters; at most 64")
+    return full
+
+
+def _params(nd: NodeDecl, at: list) -> dict[str, Any]:
+    """`params` and `param`, each a mapping or a list of {name, value}, as one mapping."""
+    out: dict[str, Any] = {}
+    for key in ("params", "param"):
+        given = getattr(nd, key)
+        items = given.items() if isinstance(given, dict) else ((p.name, p.value) for p in given or [])
+        for j, (name, value) in enumerate(items):
+            if name in out:
+                spot = [*at, key, name] if isinstance(given, dict) else [*at, key, j, "name"]
+                raise SchemaError(spot, f"parameter {name!r} is given twice; give it once")
+            out[name] = value
+    return out
+
+
+def _remaps(remap: Any, at: list) -> dict[str, str]:
+    """`remap` as a mapping {from: to} or a list [{from, to}] (ROS 2), as one mapping."""
+    if isinstance(remap, dict) or remap is None:
+        return dict(remap or {})
+    out: dict[str, str] = {}
+    for j, r in enumerate(remap):
+        if r.from_ in out:
+            raise SchemaError([*at, j, "from"], f"{r.from_!r} is remapped twice ({out[r.from_]}, {r.to}); "
+                                                f"remap it once")
+        out[r.from_] = r.to
+    return out
 
 
 def _arg_spec(name: str, body: Any, where: str) -> ArgSpec:
@@ -277,20 +357,24 @@ def _suggest(name: str, known, what: str) -> str:
     return f"did you mean {near[0]!r}? ({listed})" if near else listed
 
 
-def _subst(value: Any, values: dict[str, Any], at: list) -> Any:
+def _subst(value: Any, values: dict[str, Any], at: list, budget: _Budget) -> Any:
     if isinstance(value, str):
         whole = _ARG.fullmatch(value.strip())
         if whole:
-            return _lookup(whole.group(1), values, at)
-        parts = [(m, _text(_lookup(m.group(1), values, at))) for m in _ARG.finditer(value)]
+            return _lookup(whole, values, at)
+        parts = [(m, _text(_lookup(m, values, at))) for m in _ARG.finditer(value)]
         size = len(value) + sum(len(text) - len(m.group(0)) for m, text in parts)
         if size > MAX_TEXT:  # sized before it is built: arguments that repeat arguments grow fast
             raise SchemaError(at, f"is {size} characters after $(arg ...) substitution; at most {MAX_TEXT}")
+        budget.text += size if parts else 0
+        if budget.text > MAX_SUBSTITUTED:  # many strings that each repeat a long argument
+            raise SchemaError(at, f"substitution builds more than {MAX_SUBSTITUTED} characters for one scene; "
+                                  f"use fewer or shorter $(arg ...) in strings")
         return _ARG.sub(lambda m: _text(values[m.group(1)]), value)
     if isinstance(value, dict):
-        return {k: _subst(v, values, [*at, k]) for k, v in value.items()}
+        return {k: _subst(v, values, [*at, k], budget) for k, v in value.items()}
     if isinstance(value, list):
-        return [_subst(v, values, [*at, i]) for i, v in enumerate(value)]
+        return [_subst(v, values, [*at, i], budget) for i, v in enumerate(value)]
     return value
 
 
@@ -298,9 +382,11 @@ def _text(value: Any) -> str:
     return ("true" if value else "false") if isinstance(value, bool) else str(value)
 
 
-def _lookup(name: str, values: dict[str, Any], at: list) -> Any:
+def _lookup(m: re.Match, values: dict[str, Any], at: list) -> Any:
+    name = m.group(1)
     if name not in values:
-        raise SchemaError(at, f"$(arg {name}) is not declared in `args:`; {_suggest(name, values, 'declared')}")
+        raise SchemaError(at, f"{m.group(0)} is not declared in `args:` or `let:`; "
+                              f"{_suggest(name, values, 'declared')}")
     return values[name]
 
 

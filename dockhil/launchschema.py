@@ -1,7 +1,7 @@
 """The launch file's schema: typed, bounded fields, checked by msgspec.
 
-A file is checked against `LaunchFile` after `$(arg ...)` substitution, so
-`rate: $(arg rate)` is bounded like `rate: 500`. A refusal names the file,
+A file is checked against `LaunchFile` after `$(arg ...)` / `$(var ...)`
+substitution, so `rate: $(arg rate)` is bounded like `rate: 500`. A refusal names the file,
 the line and the field path (`nodes[2].respawn_delay`), says what was
 expected and what was given. `dockhil graph --schema` prints the JSON Schema.
 """
@@ -25,6 +25,9 @@ MAX_NODES = 1000  # nodes in one scene, includes counted
 MAX_INCLUDES = 100  # launch files read for one scene
 MAX_CHOICES = 1000
 MAX_TEXT = 65536  # characters of one string after $(arg ...) substitution
+MAX_SUBSTITUTED = 1 << 22  # characters built by substitution for one scene, includes counted
+MAX_LETS = 1000  # `let` variables in one file
+MAX_AGE = 600.0  # [s] the longest maximum age a launch file may give a wall-time input
 
 Scalar = Union[bool, int, float, str]
 Condition = Union[bool, int, str, None]
@@ -40,6 +43,15 @@ NodeName = Annotated[str, Meta(pattern=NODE_NAME, max_length=64,
 NodeType = Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_.]*(:[A-Za-z_][A-Za-z0-9_]*)?$", max_length=200,
                                description="a node type; a registered name (see `dockhil node types`) or "
                                            "package.module:Class")]
+NAMESPACE = r"^/?[A-Za-z_][A-Za-z0-9_]*$"
+Namespace = Annotated[str, Meta(pattern=NAMESPACE, max_length=32,
+                                description="a namespace; one word of letters, digits and _ (a leading / is "
+                                            "allowed), at most 32 characters")]
+VAR_NAME = r"^[A-Za-z_][A-Za-z0-9_]*$"
+VarName = Annotated[str, Meta(pattern=VAR_NAME, max_length=64,
+                              description="a variable name; letters, digits and _, not starting with a digit")]
+MaxAge = Annotated[float, Meta(gt=0.0, le=MAX_AGE, description=(
+    f"maximum age of the input's latest message in wall time [s], > 0 and at most {MAX_AGE:g}"))]
 Host = Annotated[str, Meta(pattern=r"^[A-Za-z0-9_.\-]*$", max_length=253,
                            description="a host name or address; letters, digits, . - _ (empty: this host)")]
 
@@ -53,13 +65,36 @@ class ArgDecl(Struct, forbid_unknown_fields=True):
     type: Optional[Literal["float", "int", "bool", "str"]] = None
 
 
+class RemapDecl(Struct, forbid_unknown_fields=True):
+    """One remap in the ROS 2 form: `{from: port or topic, to: topic}`."""
+
+    from_: str = field(name="from")
+    to: str
+
+
+class ParamDecl(Struct, forbid_unknown_fields=True):
+    """One parameter in the ROS 2 form: `{name: ..., value: ...}`."""
+
+    name: Annotated[str, Meta(min_length=1, max_length=200)]
+    value: Any
+
+
+class LetDecl(Struct, forbid_unknown_fields=True):
+    """A variable defined from arguments and earlier variables: `{name: ..., value: ...}`."""
+
+    name: VarName
+    value: Scalar
+
+
 class NodeDecl(Struct, forbid_unknown_fields=True):
     """One node of the scene."""
 
     name: NodeName
     node: NodeType
-    params: Optional[dict[str, Any]] = None
-    remap: Optional[dict[str, str]] = None
+    params: Union[dict[str, Any], list[ParamDecl], None] = None
+    param: Union[dict[str, Any], list[ParamDecl], None] = None  # the ROS 2 spelling; either form in either
+    remap: Union[dict[str, str], list[RemapDecl], None] = None
+    max_age: Optional[dict[str, MaxAge]] = None
     if_: Condition = field(default=None, name="if")
     unless: Condition = None
     respawn: bool = False
@@ -76,6 +111,18 @@ class IncludeDecl(Struct, forbid_unknown_fields=True):
     unless: Condition = None
 
 
+Lets = Optional[Annotated[list[LetDecl], Meta(max_length=MAX_LETS, description=f"at most {MAX_LETS} variables")]]
+
+
+class GroupDecl(Struct, forbid_unknown_fields=True):
+    """Nodes under one namespace and one condition."""
+
+    nodes: list[NodeDecl]
+    namespace: Optional[Namespace] = None
+    if_: Condition = field(default=None, name="if")
+    unless: Condition = None
+
+
 class LaunchFile(Struct, forbid_unknown_fields=True):
     """A dockhil launch file (YAML)."""
 
@@ -83,7 +130,9 @@ class LaunchFile(Struct, forbid_unknown_fields=True):
     rate: Rate = 1000.0
     duration: Optional[Duration] = None
     args: Optional[dict[str, Union[ArgDecl, Scalar]]] = None
+    let: Lets = None
     nodes: Optional[list[NodeDecl]] = None
+    group: Optional[list[GroupDecl]] = None
     include: Optional[list[IncludeDecl]] = None
 
 
@@ -117,7 +166,7 @@ def _explain(text: str, data: Any, kind: Any) -> tuple[list, str]:
     m = _AT.match(text)
     msg, where, key_error = m.group("msg"), m.group("path") or "$", bool(m.group("key"))
     path, declared = _resolve([k or i for k, i in _STEP.findall(where[1:])], data, kind)
-    kind_there = _inner(declared)
+    kind_there = _inner(declared, _value_at(data, path))
     unknown = re.match(r"Object contains unknown field `(.*)`$", msg)
     if unknown:
         name = unknown.group(1)
@@ -157,7 +206,7 @@ def _resolve(steps: list, data: Any, kind: Any) -> tuple[list, Any]:
     first key whose value does not fit. Also the type expected at the end of the path."""
     path: list = []
     for step in steps:
-        kind = _inner(kind)
+        kind = _inner(kind, data)
         if _is_struct(kind):
             f = next((f for f in msgspec.structs.fields(kind) if f.encode_name == step), None)
             kind = f.type if f else Any
@@ -173,14 +222,18 @@ def _resolve(steps: list, data: Any, kind: Any) -> tuple[list, Any]:
     return path, kind
 
 
-def _inner(kind: Any) -> Any:
-    """Through Annotated and Optional to the one Struct, dict or list alternative of a Union."""
+def _inner(kind: Any, data: Any = None) -> Any:
+    """Through Annotated and Optional to the one Struct, dict or list alternative of a Union (the
+    one of the data's shape when there are both: `remap` is a mapping or a list)."""
     while True:
         if get_origin(kind) is Annotated:
             kind = get_args(kind)[0]
         elif get_origin(kind) is Union:
             options = [k for k in get_args(kind) if k is not type(None)]
             shaped = [k for k in options if _is_struct(k) or get_origin(k) in (dict, list)]
+            if len(shaped) > 1:
+                want = list if isinstance(data, list) else dict if isinstance(data, dict) else None
+                shaped = [k for k in shaped if (get_origin(k) or dict) is want] or shaped
             kind = shaped[0] if len(shaped) == 1 else options[0] if len(options) == 1 else Any
         else:
             return kind

@@ -37,8 +37,8 @@ BASE = {
         {"name": "trace", "node": "tests.graphnodes:Trace", "if": "$(arg use_trace)"},
     ],
 }
-TOP_KEYS = {"description", "rate", "duration", "args", "nodes", "include"}
-NODE_KEYS = {"name", "node", "params", "remap", "if", "unless", "respawn", "respawn_delay", "host"}
+TOP_KEYS = {"description", "rate", "duration", "args", "let", "nodes", "group", "include"}
+NODE_KEYS = {"name", "node", "params", "param", "remap", "max_age", "if", "unless", "respawn", "respawn_delay", "host"}
 ARG_KEYS = {"default", "help", "choices", "type"}
 PORTS = {"x", "u", "/x", "/u"}  # Integrator and Gain ports and their topics
 
@@ -87,6 +87,7 @@ def mutated_scene(draw) -> str | bytes:
         "rate", "duration", "description", "top key", "node name", "node path", "respawn", "respawn_delay",
         "host", "remap", "condition", "node key", "unknown param", "param value", "deep params", "arg default",
         "arg choices", "arg type", "arg key", "arg name", "include", "alias bomb", "junk",
+        "max_age", "let", "group", "remap list", "param list",
     ]))
     i = draw(st.integers(0, 1))  # integ or gain: nodes that conditions keep
     if kind == "rate":
@@ -170,6 +171,48 @@ def mutated_scene(draw) -> str | bytes:
         lines = ["a0: &a0 [" + ", ".join(["x"] * fan) + "]"]
         lines += [f"a{k}: &a{k} [" + ", ".join([f"*a{k - 1}"] * fan) + "]" for k in range(1, levels + 1)]
         return "\n".join(lines) + "\n" + dump(doc)
+    elif kind == "max_age":  # Integrator's input is u, Gain's x
+        nodes[i]["max_age"] = draw(st.one_of(
+            st.fixed_dictionaries({"u" if i == 0 else "x": number_outside(0.0, 600.0, low_open=True)}),
+            st.dictionaries(words.filter(lambda w: w != ("u" if i == 0 else "x")), st.just(0.05), min_size=1,
+                            max_size=1),
+            st.integers(), text, st.lists(st.integers(), max_size=2)))
+    elif kind == "let":
+        doc["let"] = draw(st.one_of(
+            st.integers(), text,
+            st.just([{"name": "gain", "value": 1.0}]),  # an argument's name
+            st.lists(st.fixed_dictionaries({"name": st.one_of(st.integers(), st.just(""), st.tuples(
+                words, st.sampled_from("- .$/"), words).map("".join)), "value": st.integers()}),
+                min_size=1, max_size=2),
+            st.lists(st.fixed_dictionaries({"name": identifiers, "value": st.one_of(containers, st.none())}),
+                     min_size=1, max_size=2),
+            st.just([{"name": "a", "value": "$(var nope)"}])))
+    elif kind == "group":
+        doc["group"] = draw(st.one_of(
+            st.integers(), text,
+            st.lists(st.fixed_dictionaries({"namespace": st.one_of(
+                st.integers(), containers, st.just(""),
+                st.tuples(words, st.sampled_from("/ :.\n"), words).map("".join)),
+                "nodes": st.just([])}), min_size=1, max_size=1),
+            st.just([{"namespace": "ns"}]),  # no nodes
+            st.just([{"nodes": [], "scoped": True}]),
+            st.just([{"nodes": [{"name": "integ", "node": "tests.graphnodes:Source"}]}])))  # a name twice
+    elif kind == "remap list":
+        nodes[i]["remap"] = draw(st.one_of(
+            st.lists(st.fixed_dictionaries({"from": st.sampled_from(["x", "u"]),
+                                            "to": st.one_of(st.integers(), words, containers)}),
+                     min_size=1, max_size=2),
+            st.lists(st.fixed_dictionaries({"from": words.filter(lambda w: w not in PORTS), "to": st.just("/y")}),
+                     min_size=1, max_size=1),
+            st.just([{"from": "x", "to": "/y"}, {"from": "x", "to": "/z"}]),
+            st.just([{"from": "x"}])))
+    elif kind == "param list":
+        name = "x0" if i == 0 else "gain"
+        nodes[i]["param"] = draw(st.one_of(
+            st.just([{"name": name, "value": 1.0}]) if i == 0 else st.just([{"name": name, "value": 1.0}] * 2),
+            st.lists(st.fixed_dictionaries({"name": st.one_of(st.integers(), st.just(""), identifiers.filter(
+                lambda k: k not in ("x0", "gain", "die_at"))), "value": st.just(1.0)}), min_size=1, max_size=1),
+            st.just([{"name": name}]), st.integers(), text))
     elif kind == "junk":
         return draw(st.one_of(st.text(chars, max_size=200), st.binary(max_size=200)))
     return dump(doc)

@@ -1,6 +1,9 @@
-"""`dockhil graph FILE`: what a launch file would start, how it connects, what it leaves out."""
+"""`dockhil graph FILE`: what a launch file would start, how it connects, what it leaves out, and
+whether `dockhil launch` would refuse its step (the same scene check, same one line, exit 2)."""
 
 from __future__ import annotations
+
+import sys
 
 import msgs
 
@@ -23,9 +26,14 @@ def run(args) -> int:
 
         print(json.dumps(json_schema(), indent=1))
         return 0
+    from dockhil.scenecheck import scene_check
+
     scene = launchfile.load(args.file, launchfile.parse_overrides(args.overrides))
     graph = build(scene)
+    warnings = scene_check(graph)["warnings"]  # refused: one line, exit 2, as `dockhil launch` would
     print(to_dot(graph) if args.dot else to_text(graph))
+    for line in warnings:
+        print(f"[graph] warning: {line}", file=sys.stderr)
     return 0
 
 
@@ -39,6 +47,9 @@ def to_text(graph) -> str:
             value = scene.values[name]
             mark = "" if value == spec.default else f" (default {spec.default!r})"
             lines.append(f"  {name} = {value!r}{mark}  {spec.help}")
+    if scene.lets:
+        lines.append("let:")
+        lines.extend(f"  {name} = {value!r}" for name, value in scene.lets.items())
     lines.append(f"nodes ({len(graph.nodes)}, in step order):")
     for name in graph.order:
         gn = graph.nodes[name]
@@ -48,7 +59,8 @@ def to_text(graph) -> str:
             src = graph.publishers.get(ref.topic)
             frm = f"<- {src.node}.{src.port}" if src else "(unconnected, optional)"
             ft = "" if ref.lag == 0 else ", previous tick" if ref.lag == 1 else f", {ref.lag} ticks earlier"
-            lines.append(f"    in  {port}: {ref.topic} {msgs.type_name(ref.type)} {frm}{ft}")
+            age = "" if ref.max_age is None else f", max_age {ref.max_age:g} s"
+            lines.append(f"    in  {port}: {ref.topic} {msgs.type_name(ref.type)} {frm}{ft}{age}")
         for port, ref in gn.outputs.items():
             subs = ", ".join(f"{s.node}.{s.port}" for s in graph.subscribers.get(ref.topic, [])) or "no subscriber"
             lines.append(f"    out {port}: {ref.topic} {msgs.type_name(ref.type)} -> {subs}")
@@ -62,6 +74,11 @@ def to_text(graph) -> str:
     return "\n".join(lines)
 
 
+def _q(text: str) -> str:
+    """A DOT string's inside: quotes and backslashes escaped (an include's file name is free text)."""
+    return text.replace("\\", "\\\\").replace('"', '\\"')
+
+
 def to_dot(graph) -> str:
     out = ["digraph dockhil {", "  rankdir=LR;", "  node [shape=box];"]
     for name in graph.order:
@@ -71,7 +88,9 @@ def to_dot(graph) -> str:
         for s in subs:
             style = "" if s.feedthrough else ", style=dashed"
             out.append(f'  "{pub.node}" -> "{s.node}" [label="{topic}"{style}];')
-    for s in graph.scene.skipped:
-        out.append(f'  "{s.name}" [style=dotted, label="{s.name}\\n(left out)"];')
+    # A node left out may share its name with one that runs (`robot` of either kind): its own id,
+    # so it never restyles the running one.
+    for i, s in enumerate(graph.scene.skipped):
+        out.append(f'  "left out {i}" [style=dotted, label="{_q(s.name)}\\n(left out)"];')
     out.append("}")
     return "\n".join(out)
