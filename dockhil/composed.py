@@ -13,7 +13,7 @@ import time
 from collections import deque
 from typing import Any, Callable
 
-from dockhil.executor import LoopTiming, Stop, _sleep_until, check_message, check_outputs
+from dockhil.executor import LoopTiming, Stop, _bounds_check, _sleep_until, check_outputs, checked_payload
 from dockhil.graph import Graph
 from dockhil.node import NodeContext, Tick
 
@@ -62,6 +62,35 @@ class ComposedGraph:
         if first:
             raise first
 
+    def _publisher(self, name: str, declared: dict, outs_map, wall: bool):
+        """The one function a node's outputs go through each tick: what check_outputs and
+        check_message check (the same lines), with the types, topics and histories looked up once."""
+        taps = self.taps
+        ports = {}
+        for port, out in declared.items():
+            hist = next((h for p, _, h in outs_map if p == port), None)
+            topic = next((t for p, t, _ in outs_map if p == port), out.topic)
+            ports[port] = (out.type, _bounds_check(out.type), topic, hist)
+
+        def publish(k: int, outs: dict, check_types: bool) -> None:
+            for port, msg in outs.items():
+                entry = ports.get(port)
+                if entry is None or msg is None:
+                    if entry is None:
+                        check_outputs(name, declared, k, {port: msg}, sim=not wall)  # its line
+                    continue
+                cls, bounds, topic, hist = entry
+                if check_types and (type(msg) is not cls or (not wall and msg.header.tick != k)):
+                    check_outputs(name, declared, k, {port: msg}, sim=not wall)  # its line
+                if not bounds(msg):
+                    checked_payload(name, port, topic, k, msg)  # as a node process does before it sends
+                if hist is not None:
+                    hist[-1] = msg
+                    for tap in taps:
+                        tap(topic, msg)
+
+        return publish
+
     def run(self, n_ticks: int | None, *, wall: bool = False, stop: Stop | None = None,
             progress: Callable[[int], None] | None = None) -> int:
         """Step ticks 0..n_ticks-1 (None: until stopped). Returns ticks done.
@@ -72,28 +101,30 @@ class ComposedGraph:
         stop = stop or Stop()
         dt = self.dt
         clock = self.clock
-        t0 = clock()
         histories = list(self.history.values())
+        # The schedule, resolved once: each node's step, how it reads its inputs, where its outputs go.
+        schedule = []
+        for name, node, ins, outs_map, declared in self.plan:
+            reads = tuple((port, hist, -1 - lag) for port, hist, lag in ins)
+            schedule.append((node.step, reads, self._publisher(name, declared, outs_map, wall)))
         timing = self.timing = LoopTiming([], period=dt) if wall else None
+        end = n_ticks if n_ticks is not None else -1
+        t0 = clock()
         k = 0
-        while (n_ticks is None or k < n_ticks) and not stop.requested:
+        while k != end and not stop.requested:
             if wall:
                 timing.started(clock() - (t0 + k * dt))
-            tick = Tick(k, (clock() - t0) if wall else k * dt, dt, stamp=time.time() if wall else None)
-            for hist in histories:  # a slot for this tick; stays None if nothing is sent
-                hist.append(hist[-1] if wall else None)
-            for name, node, ins, outs_map, declared in self.plan:
-                inputs = {port: (None if hist is None else hist[-1 - lag]) for port, hist, lag in ins}
-                outs = node.step(tick, inputs)
-                if k == 0 or not wall:
-                    check_outputs(name, declared, k, outs, sim=not wall)
-                for port, topic, hist in outs_map:
-                    msg = outs.get(port)
-                    if msg is not None:
-                        check_message(name, port, topic, k, msg)  # as a node process does before it sends
-                        hist[-1] = msg
-                        for tap in self.taps:
-                            tap(topic, msg)
+                tick = Tick(k, clock() - t0, dt, stamp=time.time())
+                for hist in histories:  # a slot for this tick, holding the latest value
+                    hist.append(hist[-1])
+            else:
+                tick = Tick(k, k * dt, dt)
+                for hist in histories:  # a slot for this tick; stays None if nothing is sent
+                    hist.append(None)
+            check_types = k == 0 or not wall
+            for step, reads, publish in schedule:
+                inputs = {port: (None if hist is None else hist[at]) for port, hist, at in reads}
+                publish(k, step(tick, inputs), check_types)
             k += 1
             if progress is not None:
                 progress(k)
