@@ -22,7 +22,9 @@ Tap = Callable[[str, Any], None]  # (topic, message)
 
 class ComposedGraph:
     def __init__(self, graph: Graph, *, sim_time: bool = True, log=None, taps: list[Tap] | None = None,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic, boxes: dict[tuple[str, str], list] | None = None):
+        """boxes: (node, port) -> a one-element list holding that input's message of the current
+        tick, filled by the caller (a container, with what arrived from outside)."""
         self.clock = clock  # wall time: the runtime's clock, handed to every node
         self.graph = graph
         self.dt = graph.scene.dt
@@ -44,7 +46,8 @@ class ComposedGraph:
             node = gn.cls(ctx, **gn.params)
             self.nodes[name] = node
             _, outs = gn.cls.ports(gn.params)
-            ins = [(port, self.history.get(ref.topic), ref.lag) for port, ref in gn.inputs.items()]
+            ins = [(port, boxes[(name, port)], 0) if boxes and (name, port) in boxes
+                   else (port, self.history.get(ref.topic), ref.lag) for port, ref in gn.inputs.items()]
             outs_map = [(p, r.topic, self.history[r.topic]) for p, r in gn.outputs.items()]
             self.plan.append((name, node, ins, outs_map, outs))
 
@@ -91,6 +94,22 @@ class ComposedGraph:
 
         return publish
 
+    def schedule(self, wall: bool) -> list:
+        """The schedule, resolved once: each node's step, how it reads its inputs, where its outputs go."""
+        return [(node.step, tuple((port, hist, -1 - lag) for port, hist, lag in ins),
+                 self._publisher(name, declared, outs_map, wall))
+                for name, node, ins, outs_map, declared in self.plan]
+
+    def step_tick(self, schedule: list, tick: Tick, wall: bool) -> None:
+        """One tick of every node (a container's step; `run` inlines the same for speed)."""
+        k = tick.index
+        for hist in self.history.values():
+            hist.append(hist[-1] if wall else None)
+        check_types = k == 0 or not wall
+        for step, reads, publish in schedule:
+            publish(k, step(tick, {port: (None if hist is None else hist[at]) for port, hist, at in reads}),
+                    check_types)
+
     def run(self, n_ticks: int | None, *, wall: bool = False, stop: Stop | None = None,
             progress: Callable[[int], None] | None = None) -> int:
         """Step ticks 0..n_ticks-1 (None: until stopped). Returns ticks done.
@@ -102,11 +121,7 @@ class ComposedGraph:
         dt = self.dt
         clock = self.clock
         histories = list(self.history.values())
-        # The schedule, resolved once: each node's step, how it reads its inputs, where its outputs go.
-        schedule = []
-        for name, node, ins, outs_map, declared in self.plan:
-            reads = tuple((port, hist, -1 - lag) for port, hist, lag in ins)
-            schedule.append((node.step, reads, self._publisher(name, declared, outs_map, wall)))
+        schedule = self.schedule(wall)
         timing = self.timing = LoopTiming([], period=dt) if wall else None
         end = n_ticks if n_ticks is not None else -1
         t0 = clock()

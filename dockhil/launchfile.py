@@ -34,7 +34,8 @@ from dockhil.errors import LaunchError
 
 _ARG = re.compile(r"\$\(arg ([A-Za-z_][A-Za-z0-9_]*)\)")
 _TOP_KEYS = {"description", "rate", "duration", "args", "nodes", "include"}
-_NODE_KEYS = {"name", "node", "params", "remap", "if", "unless", "respawn", "respawn_delay", "host"}
+_NODE_KEYS = {"name", "node", "params", "remap", "if", "unless", "respawn", "respawn_delay", "host", "container",
+              "isolated"}
 _INCLUDE_KEYS = {"file", "args", "if", "unless"}
 _ARG_KEYS = {"default", "help", "choices", "type"}
 _TYPES = {"float": float, "int": int, "bool": bool, "str": str}
@@ -90,6 +91,8 @@ class NodeSpec:
     respawn: bool = False
     respawn_delay: float = 1.0
     host: str = ""  # another machine: the launcher says how to start the node there
+    container: Any = ""  # run in this process with the nodes naming the same (checked by the launcher)
+    isolated: Any = False  # never in a container (a pinned hardware driver; checked by the launcher)
 
 
 @dataclass
@@ -242,7 +245,9 @@ def _load(path: Path, given: dict[str, Any], from_cli: bool, stack: tuple) -> Sc
             raise LaunchError(f"{where}: `respawn` must be true or false")
         scene.nodes.append(NodeSpec(raw["name"], raw["node"], params, {str(k): v for k, v in remap.items()},
                                     str(path), respawn, float(raw.get("respawn_delay", 1.0)),
-                                    _host(raw.get("host", ""), values, where)))
+                                    _host(raw.get("host", ""), values, where),
+                                    _subst(raw.get("container", ""), values, where),
+                                    _subst(raw.get("isolated", False), values, where)))
 
     raw_includes = data.get("include") or []
     if not isinstance(raw_includes, list):
