@@ -87,8 +87,11 @@ class StaleInput(DockhilError):
 
 def checked_payload(name: str, port: str, topic: str, k: int, msg) -> bytes:
     """`msg` encoded, after checking it decodes as a valid message: a NaN or Inf in a physical field
-    (a loop that diverged) stops the node that produced it, not its readers, with one line."""
+    (a loop that diverged) stops the node that produced it, not its readers, with one line. The
+    screen generated from the type passes what is certainly valid; anything else is decoded."""
     payload = encode(msg)
+    if _bounds_check(type(msg))(msg):
+        return payload
     try:
         decode(payload, type(msg))
     except DecodeError as exc:
@@ -98,9 +101,9 @@ def checked_payload(name: str, port: str, topic: str, k: int, msg) -> bytes:
 
 
 def check_message(name: str, port: str, topic: str, k: int, msg) -> None:
-    """What checked_payload checks, for a message that is not sent (composed runs): a screen
-    generated from the type first (several times faster than encoding and decoding); on a
-    failure, the same check and line as a node process gives."""
+    """What checked_payload checks, for a message that is not sent (composed runs): the screen
+    first (several times faster than encoding and decoding); on a failure, the same check and
+    line as a node process gives."""
     if not _bounds_check(type(msg))(msg):
         checked_payload(name, port, topic, k, msg)
 
@@ -109,47 +112,80 @@ _MAX_FLOAT = 1.7976931348623157e308
 _BOUNDS_CHECKS: dict[type, Any] = {}
 
 
+class _Unscreened(Exception):
+    """A field type the screen does not judge: every message of that type gets the full check."""
+
+
 def _bounds_check(cls: type):
-    """A function true when every number in a message of type `cls` is finite and within its
-    type's bounds. A screen, not the verdict: it may say False for a good message (a sum of finite
-    values that overflows, a value of another type), and callers then run the full check. Floats
-    are summed: a NaN or Inf anywhere makes the sum non-finite, one test instead of one per field."""
+    """A function true only for a message of type `cls` that certainly decodes as one: every
+    field of its exact type, every number finite and within its bounds. A screen, not the
+    verdict: it may say False for a good message (a sum of finite values that overflows, an int
+    where a float goes), and callers then run the full check. The floats are gathered in one
+    tuple: their types are checked at once, and a NaN or Inf anywhere makes their sum non-finite."""
     check = _BOUNDS_CHECKS.get(cls)
     if check is None:
         import msgspec.inspect as mi
 
         lines: list[str] = []
-        _bounds_lines(mi, mi.type_info(cls), "m", lines, "    ", [0])
-        src = "def check(m):\n    s = 0.0\n    try:\n" + "".join(f"    {line}\n" for line in lines) + \
-              "    except Exception:\n        return False\n    return s - s == 0\n"
-        scope: dict[str, Any] = {}
-        exec(compile(src, f"<bounds check of {cls.__name__}>", "exec"), scope)  # noqa: S102 - from the type
+        scope: dict[str, Any] = {"_FLOAT": {float}}
+        try:
+            _screen_lines(mi, mi.type_info(cls), "m", lines, "        ", scope, root=True)
+        except _Unscreened:
+            lines = ["        return False"]
+        src = ("def check(m):\n    f = ()\n    try:\n" + "".join(f"{line}\n" for line in lines)
+               + "        if f and set(map(type, f)) != _FLOAT: return False\n"
+               + "        s = sum(f)\n    except Exception:\n        return False\n    return s - s == 0\n")
+        exec(compile(src, f"<screen of {cls.__name__}>", "exec"), scope)  # noqa: S102 - built from the type
         check = _BOUNDS_CHECKS[cls] = scope["check"]
     return check
 
 
-def _bounds_lines(mi, t, var: str, lines: list[str], indent: str, n: list[int]) -> None:
-    """Statements that return False on a number of `var` out of its bounds and add its floats to s."""
+def _screen_lines(mi, t, var: str, lines: list[str], indent: str, scope: dict, root: bool = False) -> None:
+    """Statements that return False when `var` is not of type t or a number of it is out of
+    bounds, and add its floats to the tuple f."""
+    floats: list[str] = []
+    _screen_struct(mi, t, var, lines, indent, scope, floats, root)
+    if floats:
+        lines.append(f"{indent}f += ({', '.join(floats)},)")
+
+
+def _screen_struct(mi, t, var, lines, indent, scope, floats, root=False) -> None:
     if isinstance(t, mi.Metadata):
         t = t.type
     if isinstance(t, (mi.FloatType, mi.IntType)):
+        if t.multiple_of is not None:
+            raise _Unscreened
         conds = [f"{var} {op} {bound!r}" for op, bound in ((">=", t.ge), (">", t.gt), ("<=", t.le), ("<", t.lt))
                  if bound is not None and abs(bound) != _MAX_FLOAT]
-        if conds:
-            lines.append(f"{indent}if not ({' and '.join(conds)}): return False")  # NaN fails too
+        if isinstance(t, mi.IntType):
+            conds.insert(0, f"type({var}) is int")
+        if conds:  # a NaN fails a bound too
+            lines.append(f"{indent}if not ({' and '.join(conds)}): return False")
         if isinstance(t, mi.FloatType):
-            lines.append(f"{indent}s += {var}")
+            floats.append(var)
+    elif isinstance(t, mi.StrType):
+        if t.min_length is not None or t.max_length is not None or t.pattern is not None:
+            raise _Unscreened
+        lines.append(f"{indent}if type({var}) is not str: return False")
+    elif isinstance(t, mi.BoolType):
+        lines.append(f"{indent}if type({var}) is not bool: return False")
     elif isinstance(t, mi.StructType):
-        for f in t.fields:
-            _bounds_lines(mi, f.type, f"{var}.{f.name}", lines, indent, n)
-    elif isinstance(t, (mi.ListType, mi.VarTupleType)):
-        item = f"_i{n[0]}"
-        n[0] += 1
-        body: list[str] = []
-        _bounds_lines(mi, t.item_type, item, body, indent + "    ", n)
-        if body:
-            lines.append(f"{indent}for {item} in {var}:")
-            lines.extend(body)
+        if not root:
+            name = f"_T{len(scope)}"
+            scope[name] = t.cls
+            lines.append(f"{indent}if type({var}) is not {name}: return False")
+        for field_ in t.fields:
+            _screen_struct(mi, field_.type, f"{var}.{field_.name}", lines, indent, scope, floats)
+    elif isinstance(t, mi.ListType):
+        if t.min_length is not None or t.max_length is not None:
+            raise _Unscreened
+        item = f"_i{len(scope)}"
+        scope[item] = None
+        lines.append(f"{indent}if type({var}) is not list: return False")
+        lines.append(f"{indent}for {item} in {var}:")
+        _screen_lines(mi, t.item_type, item, lines, indent + "    ", scope)
+    else:
+        raise _Unscreened
 
 
 def check_outputs(name: str, declared: dict, k: int, outs: dict, sim: bool) -> None:
@@ -299,26 +335,30 @@ class NodeExecutor:
         self._buffers: dict[str, dict[int, Any]] = {port: {} for port in spec.inputs}
         self._held: dict[str, Any] = {port: None for port in spec.inputs}
         self._last_seen = {port: -1 for port in spec.inputs}
-        lag = {port: w.lag for port, w in spec.inputs.items()}
-        buffers = self._buffers
+        # Looked up once, not per message: each input's buffer and lag, the loop's constants.
+        needs = [(port, self._buffers[port], w.lag) for port, w in spec.inputs.items()]
+        unconnected = {port: None for port in self.unconnected}
+        step, dt, name, declared, stop, publish = node.step, spec.dt, spec.name, self.outputs, self.stop, self.publish
+        end = -1 if spec.n_ticks is None else spec.n_ticks
         self._waited_since = time.monotonic()
         self._warned_at: int | None = None
         k = 0
         self.timing = LoopTiming([], period=spec.dt)  # sim time: only what was dropped is judged
-        while (spec.n_ticks is None or k < spec.n_ticks) and not self.stop.requested:
-            missing = [p for p in buffers if k - lag[p] >= 0 and (k - lag[p]) not in buffers[p]]
-            if missing:
-                self._receive(k, missing[0])
-                continue
-            inputs = {port: buf.pop(k - lag[port], None) for port, buf in buffers.items()}
-            for port in self.unconnected:
-                inputs[port] = None
-            outs = node.step(Tick(k, k * spec.dt, spec.dt), inputs)
-            check_outputs(spec.name, self.outputs, k, outs, sim=True)
-            self.publish(k, outs, sim=True)
-            k += 1
-            self.ticks_done = k
-            self._waited_since = time.monotonic()
+        while k != end and not stop.requested:
+            for port, buf, lag in needs:  # the first input whose message of this tick is not in yet
+                if k >= lag and k - lag not in buf:
+                    self._receive(k, port)
+                    break
+            else:
+                inputs = {port: buf.pop(k - lag, None) for port, buf, lag in needs}
+                if unconnected:
+                    inputs.update(unconnected)
+                outs = step(Tick(k, k * dt, dt), inputs)
+                check_outputs(name, declared, k, outs, sim=True)
+                publish(k, outs, sim=True)
+                k += 1
+                self.ticks_done = k
+                self._waited_since = time.monotonic()
         # Stay subscribed until every input's last tick is in: a publisher waits for its subscribers
         # before tick 0, and a node that needs no input for its ticks (a long delay) must not leave first.
         while spec.n_ticks is not None and not self.stop.requested:
