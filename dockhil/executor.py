@@ -90,7 +90,7 @@ def checked_payload(name: str, port: str, topic: str, k: int, msg) -> bytes:
     (a loop that diverged) stops the node that produced it, not its readers, with one line. The
     screen generated from the type passes what is certainly valid; anything else is decoded."""
     payload = encode(msg)
-    if _bounds_check(type(msg))(msg):
+    if _screen(type(msg), typed=True)(msg):
         return payload
     try:
         decode(payload, type(msg))
@@ -101,15 +101,15 @@ def checked_payload(name: str, port: str, topic: str, k: int, msg) -> bytes:
 
 
 def check_message(name: str, port: str, topic: str, k: int, msg) -> None:
-    """What checked_payload checks, for a message that is not sent (composed runs): the screen
-    first (several times faster than encoding and decoding); on a failure, the same check and
-    line as a node process gives."""
+    """What checked_payload checks, for a message that is not sent (composed runs): the numbers'
+    screen first (several times faster than encoding and decoding; the message is handed on as
+    the object it is); on a failure, the same check and line as a node process gives."""
     if not _bounds_check(type(msg))(msg):
         checked_payload(name, port, topic, k, msg)
 
 
 _MAX_FLOAT = 1.7976931348623157e308
-_BOUNDS_CHECKS: dict[type, Any] = {}
+_SCREENS: dict[tuple[type, bool], Any] = {}
 
 
 class _Unscreened(Exception):
@@ -117,26 +117,32 @@ class _Unscreened(Exception):
 
 
 def _bounds_check(cls: type):
-    """A function true only for a message of type `cls` that certainly decodes as one: every
-    field of its exact type, every number finite and within its bounds. A screen, not the
-    verdict: it may say False for a good message (a sum of finite values that overflows, an int
-    where a float goes), and callers then run the full check. The floats are gathered in one
-    tuple: their types are checked at once, and a NaN or Inf anywhere makes their sum non-finite."""
-    check = _BOUNDS_CHECKS.get(cls)
+    """The screen of the numbers of a message of type `cls` (see _screen)."""
+    return _screen(cls, typed=False)
+
+
+def _screen(cls: type, typed: bool):
+    """A function true only for a message of type `cls` whose every number is finite and within
+    its bounds and, if `typed`, whose every field is of its exact type (so it certainly decodes).
+    A screen, not the verdict: it may say False for a good message (a sum of finite values that
+    overflows, an int where a float goes), and callers then run the full check. The floats are
+    gathered in one tuple: a NaN or Inf anywhere makes their sum non-finite."""
+    check = _SCREENS.get((cls, typed))
     if check is None:
         import msgspec.inspect as mi
 
         lines: list[str] = []
-        scope: dict[str, Any] = {"_FLOAT": {float}}
+        scope: dict[str, Any] = {"_FLOAT": {float}, "_typed": typed}
         try:
             _screen_lines(mi, mi.type_info(cls), "m", lines, "        ", scope, root=True)
         except _Unscreened:
             lines = ["        return False"]
+        if typed:
+            lines.append("        if f and set(map(type, f)) != _FLOAT: return False")
         src = ("def check(m):\n    f = ()\n    try:\n" + "".join(f"{line}\n" for line in lines)
-               + "        if f and set(map(type, f)) != _FLOAT: return False\n"
                + "        s = sum(f)\n    except Exception:\n        return False\n    return s - s == 0\n")
         exec(compile(src, f"<screen of {cls.__name__}>", "exec"), scope)  # noqa: S102 - built from the type
-        check = _BOUNDS_CHECKS[cls] = scope["check"]
+        check = _SCREENS[(cls, typed)] = scope["check"]
     return check
 
 
@@ -157,7 +163,7 @@ def _screen_struct(mi, t, var, lines, indent, scope, floats, root=False) -> None
             raise _Unscreened
         conds = [f"{var} {op} {bound!r}" for op, bound in ((">=", t.ge), (">", t.gt), ("<=", t.le), ("<", t.lt))
                  if bound is not None and abs(bound) != _MAX_FLOAT]
-        if isinstance(t, mi.IntType):
+        if isinstance(t, mi.IntType) and scope["_typed"]:
             conds.insert(0, f"type({var}) is int")
         if conds:  # a NaN fails a bound too
             lines.append(f"{indent}if not ({' and '.join(conds)}): return False")
@@ -166,11 +172,13 @@ def _screen_struct(mi, t, var, lines, indent, scope, floats, root=False) -> None
     elif isinstance(t, mi.StrType):
         if t.min_length is not None or t.max_length is not None or t.pattern is not None:
             raise _Unscreened
-        lines.append(f"{indent}if type({var}) is not str: return False")
+        if scope["_typed"]:
+            lines.append(f"{indent}if type({var}) is not str: return False")
     elif isinstance(t, mi.BoolType):
-        lines.append(f"{indent}if type({var}) is not bool: return False")
+        if scope["_typed"]:
+            lines.append(f"{indent}if type({var}) is not bool: return False")
     elif isinstance(t, mi.StructType):
-        if not root:
+        if not root and scope["_typed"]:
             name = f"_T{len(scope)}"
             scope[name] = t.cls
             lines.append(f"{indent}if type({var}) is not {name}: return False")
@@ -181,7 +189,8 @@ def _screen_struct(mi, t, var, lines, indent, scope, floats, root=False) -> None
             raise _Unscreened
         item = f"_i{len(scope)}"
         scope[item] = None
-        lines.append(f"{indent}if type({var}) is not list: return False")
+        if scope["_typed"]:
+            lines.append(f"{indent}if type({var}) is not list: return False")
         lines.append(f"{indent}for {item} in {var}:")
         _screen_lines(mi, t.item_type, item, lines, indent + "    ", scope)
     else:
