@@ -22,6 +22,7 @@ line, the same in a multi-process and a composed run.
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 import os
@@ -314,6 +315,11 @@ class NodeExecutor:
     # -- running -------------------------------------------------------------
     def start(self) -> None:
         self.node.setup()
+        # What start-up made (imports, devices) lives for the whole run: keep the collector from
+        # walking it again on every full collection of the loop's garbage (measured: a quarter of
+        # a ring's CPU per tick).
+        gc.collect()
+        gc.freeze()
 
     def wait_for_subscribers(self) -> None:
         for port, pub in self.pubs.items():

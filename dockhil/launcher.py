@@ -360,6 +360,8 @@ class Launcher:
     # -- processes -------------------------------------------------------------
     def _start(self, child: _Child) -> None:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
+        # Nodes multiply matrices of a few elements: BLAS worker threads would only spin on the shared cores.
+        env.setdefault("OPENBLAS_NUM_THREADS", "1")
         child.ready = child.go_sent = False
         child.proc = subprocess.Popen(
             child.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
