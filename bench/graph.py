@@ -4,8 +4,9 @@ and the model library's bare loop, measured in one run.
 
 multiprocess_rtf and container_rtf count the whole launch (process start-up
 included); the *_ticking_rtf figures subtract a one-tick launch; composed
-and bare time the ticking only (CPU time of this process is given too, as
-the machine may be shared). Prints one JSON object as its last line.
+and bare time the ticking only. CPU time per tick (all processes of a launch,
+less a one-tick launch; this process for composed and bare) is given too: a
+shared machine's load inflates it much less than wall time. Prints one JSON object as its last line.
 """
 
 from __future__ import annotations
@@ -24,11 +25,27 @@ sys.path.insert(0, ROOT)
 HIL = os.path.join(ROOT, "launch", "hil.yaml")
 
 
+CPU: list[float] = []  # CPU seconds (user + system) of every process of each launch
+
+
 def multiprocess(seconds: float, scene: str = HIL) -> float:
+    import resource
+
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-m", "dockhil.cli", "launch", scene, "--duration", str(seconds), "--quiet"],
                    check=True, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    return time.perf_counter() - t0
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    CPU.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
+    return wall
+
+
+def launches(seconds: float, scene: str, repeat: int) -> tuple[float, float]:
+    """Median wall time and median CPU time of `repeat` launches."""
+    CPU.clear()
+    wall = statistics.median(multiprocess(seconds, scene) for _ in range(repeat))
+    return wall, statistics.median(CPU)
 
 
 def hardware_container(folder: str) -> str:
@@ -78,10 +95,10 @@ def main() -> None:
     med = statistics.median
     with tempfile.TemporaryDirectory() as folder:
         hw = hardware_container(folder)
-        start = med(multiprocess(0.001) for _ in range(args.repeat))
-        mp = med(multiprocess(args.seconds) for _ in range(args.repeat))
-        hw_start = med(multiprocess(0.001, hw) for _ in range(args.repeat))
-        cont = med(multiprocess(args.seconds, hw) for _ in range(args.repeat))
+        start, start_cpu = launches(0.001, HIL, args.repeat)
+        mp, mp_cpu = launches(args.seconds, HIL, args.repeat)
+        hw_start, hw_start_cpu = launches(0.001, hw, args.repeat)
+        cont, cont_cpu = launches(args.seconds, hw, args.repeat)
     comp_cpu: list[float] = []
     bare_cpu: list[float] = []
     comp = med(composed(n, comp_cpu) for _ in range(args.repeat))
@@ -92,8 +109,10 @@ def main() -> None:
         "multiprocess_rtf": round(args.seconds / mp, 2),
         "multiprocess_ticking_rtf": round(args.seconds / (mp - start), 2),
         "multiprocess_startup_s": round(start, 3),
+        "multiprocess_cpu_us_per_tick": round((mp_cpu - start_cpu) / (n - 1) * 1e6),
         "container_rtf": round(args.seconds / cont, 2),
         "container_ticking_rtf": round(args.seconds / (cont - hw_start), 2),
+        "container_cpu_us_per_tick": round((cont_cpu - hw_start_cpu) / (n - 1) * 1e6),
         "composed_rtf": round(args.seconds / comp, 1),
         "bare_rtf": round(args.seconds / bl, 1),
         "bare_over_composed": round(comp / bl, 2),
