@@ -1,5 +1,5 @@
-"""The screen a node runs on what it sends (generated from the message type) lets through only
-what its readers accept: anything it cannot pass is decoded, and refused with the reader's line."""
+"""A node sends exactly what its readers accept, and a composed run, which screens the numbers of
+a message with a function generated from its type, refuses a number out of bounds with the same line."""
 
 import math
 
