@@ -139,7 +139,10 @@ def processes(graph: Graph) -> dict[str, list[str]]:
     specs = {s.name: s for s in graph.scene.nodes}
     unit: dict[str, str] = {}
     for name in graph.order:
-        spec, where = specs[name], f"{graph.scene.path}: node {name!r}"
+        spec, where = specs.get(name), f"{graph.scene.path}: node {name!r}"
+        if spec is None:  # a graph assembled without a launch file: one process per node
+            unit[name] = name
+            continue
         container, isolated = spec.container, spec.isolated
         if not isinstance(isolated, bool):
             raise LaunchError(f"{where}: `isolated` must be true or false, got {isolated!r}")
