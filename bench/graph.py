@@ -1,9 +1,12 @@
 """Real-time factor of launch/hil.yaml at 1 kHz in sim time: multi-process,
-composed, and the model library's bare loop, measured in one run.
+with the simulated hardware (delay, robot, ft) in one container, composed,
+and the model library's bare loop, measured in one run.
 
-multiprocess_rtf counts the whole launch (process start-up included) and
-multiprocess_ticking_rtf subtracts a one-tick launch; composed and bare time
-the ticking only. Prints one JSON object as its last line.
+multiprocess_rtf and container_rtf count the whole launch (process start-up
+included); the *_ticking_rtf figures subtract a one-tick launch; composed
+and bare time the ticking only. CPU time per tick (all processes of a launch,
+less a one-tick launch; this process for composed and bare) is given too: a
+shared machine's load inflates it much less than wall time. Prints one JSON object as its last line.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -21,33 +25,64 @@ sys.path.insert(0, ROOT)
 HIL = os.path.join(ROOT, "launch", "hil.yaml")
 
 
-def multiprocess(seconds: float) -> float:
+CPU: list[float] = []  # CPU seconds (user + system) of every process of each launch
+
+
+def multiprocess(seconds: float, scene: str = HIL) -> float:
+    import resource
+
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "dockhil.cli", "launch", HIL, "--duration", str(seconds), "--quiet"],
+    subprocess.run([sys.executable, "-m", "dockhil.cli", "launch", scene, "--duration", str(seconds), "--quiet"],
                    check=True, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    return time.perf_counter() - t0
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    CPU.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
+    return wall
 
 
-def composed(n_ticks: int) -> float:
+def launches(seconds: float, scene: str, repeat: int) -> tuple[float, float]:
+    """Median wall time and median CPU time of `repeat` launches."""
+    CPU.clear()
+    wall = statistics.median(multiprocess(seconds, scene) for _ in range(repeat))
+    return wall, statistics.median(CPU)
+
+
+def hardware_container(folder: str) -> str:
+    """hil.yaml with delay, robot and ft in one container named hw."""
+    text = open(HIL).read().replace("file: emulators.yaml", f"file: {os.path.join(ROOT, 'launch', 'emulators.yaml')}")
+    for name, node in (("delay", "delay_injector"), ("robot", "robot_sim"), ("ft", "ft_sim")):
+        head = f"  - name: {name}\n    node: {node}\n"
+        assert head in text, head
+        text = text.replace(head, head + "    container: hw\n")
+    path = os.path.join(folder, "hil_hw.yaml")
+    with open(path, "w") as f:
+        f.write(text)
+    return path
+
+
+def composed(n_ticks: int, cpu: list[float]) -> float:
     from dockhil import launchfile
     from dockhil.composed import ComposedGraph
     from dockhil.graph import build
 
     g = ComposedGraph(build(launchfile.load(HIL)), log=lambda n, m: None)
     g.setup()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     g.run(n_ticks)
+    cpu.append(time.process_time() - c0)
     return time.perf_counter() - t0
 
 
-def bare(n_ticks: int) -> float:
+def bare(n_ticks: int, cpu: list[float]) -> float:
     from dockhil.contact.hilloop import simulate_hil
     from dockhil.contact.impedance import impedance_closed_form
     from dockhil.contact.scenario import ContactScenario
 
     imp = impedance_closed_form(ContactScenario(750.0, 1e6, 3000.0, 40.0, 1000.0, 0.03, 0.0))
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     simulate_hil(m1=750.0, m2=1e6, k=1000.0, impedance=imp, dt=1e-3, n_ticks=n_ticks, v1=0.03, delay=0.032)
+    cpu.append(time.process_time() - c0)
     return time.perf_counter() - t0
 
 
@@ -57,19 +92,33 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3, help="runs per mode; medians are reported")
     args = ap.parse_args()
     n = int(round(args.seconds * 1000)) + 1
-    start = statistics.median(multiprocess(0.001) for _ in range(args.repeat))
-    mp = statistics.median(multiprocess(args.seconds) for _ in range(args.repeat))
-    comp = statistics.median(composed(n) for _ in range(args.repeat))
-    bl = statistics.median(bare(n) for _ in range(args.repeat))
+    med = statistics.median
+    with tempfile.TemporaryDirectory() as folder:
+        hw = hardware_container(folder)
+        start, start_cpu = launches(0.001, HIL, args.repeat)
+        mp, mp_cpu = launches(args.seconds, HIL, args.repeat)
+        hw_start, hw_start_cpu = launches(0.001, hw, args.repeat)
+        cont, cont_cpu = launches(args.seconds, hw, args.repeat)
+    comp_cpu: list[float] = []
+    bare_cpu: list[float] = []
+    comp = med(composed(n, comp_cpu) for _ in range(args.repeat))
+    bl = med(bare(n, bare_cpu) for _ in range(args.repeat))
     out = {
         "scene": "launch/hil.yaml, 1 kHz, sim time",
         "sim_seconds": args.seconds,
         "multiprocess_rtf": round(args.seconds / mp, 2),
         "multiprocess_ticking_rtf": round(args.seconds / (mp - start), 2),
         "multiprocess_startup_s": round(start, 3),
+        "multiprocess_cpu_us_per_tick": round((mp_cpu - start_cpu) / (n - 1) * 1e6),
+        "container_rtf": round(args.seconds / cont, 2),
+        "container_ticking_rtf": round(args.seconds / (cont - hw_start), 2),
+        "container_cpu_us_per_tick": round((cont_cpu - hw_start_cpu) / (n - 1) * 1e6),
         "composed_rtf": round(args.seconds / comp, 1),
         "bare_rtf": round(args.seconds / bl, 1),
         "bare_over_composed": round(comp / bl, 2),
+        "composed_cpu_us_per_tick": round(med(comp_cpu) / n * 1e6, 2),
+        "bare_cpu_us_per_tick": round(med(bare_cpu) / n * 1e6, 2),
+        "load_average": os.getloadavg()[0],
     }
     print(json.dumps(out))
 

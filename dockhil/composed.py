@@ -13,7 +13,7 @@ import time
 from collections import deque
 from typing import Any, Callable
 
-from dockhil.executor import LoopTiming, Stop, _sleep_until, check_message, check_outputs
+from dockhil.executor import LoopTiming, Stop, _bounds_check, _sleep_until, check_outputs, checked_payload
 from dockhil.graph import Graph
 from dockhil.node import NodeContext, Tick
 
@@ -22,7 +22,9 @@ Tap = Callable[[str, Any], None]  # (topic, message)
 
 class ComposedGraph:
     def __init__(self, graph: Graph, *, sim_time: bool = True, log=None, taps: list[Tap] | None = None,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic, boxes: dict[tuple[str, str], list] | None = None):
+        """boxes: (node, port) -> a one-element list holding that input's message of the current
+        tick, filled by the caller (a container, with what arrived from outside)."""
         self.clock = clock  # wall time: the runtime's clock, handed to every node
         self.graph = graph
         self.dt = graph.scene.dt
@@ -37,6 +39,7 @@ class ComposedGraph:
         self.history = {topic: deque([None] * (depth.get(topic, 0) + 1), maxlen=depth.get(topic, 0) + 1)
                         for topic in graph.publishers}
         self.timing: LoopTiming | None = None  # wall time: the one loop's figures, for validity
+        self._schedules: dict[bool, list] = {}  # step(): the schedule, resolved once per clock
         self.plan = []  # (name, node, [(port, history, lag)], [(port, topic, history)], declared outputs)
         for name in graph.order:
             gn = graph.nodes[name]
@@ -44,7 +47,8 @@ class ComposedGraph:
             node = gn.cls(ctx, **gn.params)
             self.nodes[name] = node
             _, outs = gn.cls.ports(gn.params)
-            ins = [(port, self.history.get(ref.topic), ref.lag) for port, ref in gn.inputs.items()]
+            ins = [(port, boxes[(name, port)], 0) if boxes and (name, port) in boxes
+                   else (port, self.history.get(ref.topic), ref.lag) for port, ref in gn.inputs.items()]
             outs_map = [(p, r.topic, self.history[r.topic]) for p, r in gn.outputs.items()]
             self.plan.append((name, node, ins, outs_map, outs))
 
@@ -62,27 +66,62 @@ class ComposedGraph:
         if first:
             raise first
 
+    def _publisher(self, name: str, declared: dict, outs_map, wall: bool):
+        """The one function a node's outputs go through each tick: what check_outputs and
+        check_message check (the same lines), with the types, topics and histories looked up once."""
+        taps = self.taps
+        ports = {}
+        for port, out in declared.items():
+            hist = next((h for p, _, h in outs_map if p == port), None)
+            topic = next((t for p, t, _ in outs_map if p == port), out.topic)
+            ports[port] = (out.type, _bounds_check(out.type), topic, hist)
+
+        def publish(k: int, outs: dict, check_types: bool) -> None:
+            for port, msg in outs.items():
+                entry = ports.get(port)
+                if entry is None or msg is None:
+                    if entry is None:
+                        check_outputs(name, declared, k, {port: msg}, sim=not wall)  # its line
+                    continue
+                cls, bounds, topic, hist = entry
+                if check_types and (type(msg) is not cls or (not wall and msg.header.tick != k)):
+                    check_outputs(name, declared, k, {port: msg}, sim=not wall)  # its line
+                if not bounds(msg):
+                    checked_payload(name, port, topic, k, msg)  # as a node process does before it sends
+                if hist is not None:
+                    hist[-1] = msg
+                    for tap in taps:
+                        tap(topic, msg)
+
+        return publish
+
+    def schedule(self, wall: bool) -> list:
+        """The schedule, resolved once: each node's step, how it reads its inputs, where its outputs go."""
+        return [(node.step, tuple((port, hist, -1 - lag) for port, hist, lag in ins),
+                 self._publisher(name, declared, outs_map, wall))
+                for name, node, ins, outs_map, declared in self.plan]
+
+    def step_tick(self, schedule: list, tick: Tick, wall: bool) -> dict[str, dict]:
+        """One tick of every node (a container's step; `run` inlines the same for speed); returns
+        each node's outputs by node name."""
+        k = tick.index
+        for hist in self.history.values():
+            hist.append(hist[-1] if wall else None)
+        check_types = k == 0 or not wall
+        done = {}
+        for (step, reads, publish), plan in zip(schedule, self.plan):
+            outs = step(tick, {port: (None if hist is None else hist[at]) for port, hist, at in reads})
+            publish(k, outs, check_types)
+            done[plan[0]] = outs
+        return done
+
     def step(self, tick: Tick, wall: bool = False) -> dict[str, dict]:
         """One tick of every node, in order; returns each node's outputs by node name.
         (dockhil.testing steps a single node this way, with the test's inputs.)"""
-        k = tick.index
-        for hist in self.history.values():  # a slot for this tick; stays None if nothing is sent
-            hist.append(hist[-1] if wall else None)
-        done = {}
-        for name, node, ins, outs_map, declared in self.plan:
-            inputs = {port: (None if hist is None else hist[-1 - lag]) for port, hist, lag in ins}
-            outs = node.step(tick, inputs)
-            if k == 0 or not wall:
-                check_outputs(name, declared, k, outs, sim=not wall)
-            for port, topic, hist in outs_map:
-                msg = outs.get(port)
-                if msg is not None:
-                    check_message(name, port, topic, k, msg)  # as a node process does before it sends
-                    hist[-1] = msg
-                    for tap in self.taps:
-                        tap(topic, msg)
-            done[name] = outs
-        return done
+        schedule = self._schedules.get(wall)
+        if schedule is None:
+            schedule = self._schedules[wall] = self.schedule(wall)
+        return self.step_tick(schedule, tick, wall)
 
     def run(self, n_ticks: int | None, *, wall: bool = False, stop: Stop | None = None,
             progress: Callable[[int], None] | None = None) -> int:
@@ -94,14 +133,26 @@ class ComposedGraph:
         stop = stop or Stop()
         dt = self.dt
         clock = self.clock
-        t0 = clock()
+        histories = list(self.history.values())
+        schedule = self.schedule(wall)
         timing = self.timing = LoopTiming([], period=dt, max_age=self.graph.wall_max_ages()) if wall else None
+        end = n_ticks if n_ticks is not None else -1
+        t0 = clock()
         k = 0
-        while (n_ticks is None or k < n_ticks) and not stop.requested:
+        while k != end and not stop.requested:
             if wall:
                 timing.started(clock() - (t0 + k * dt))
-            tick = Tick(k, (clock() - t0) if wall else k * dt, dt, stamp=time.time() if wall else None)
-            self.step(tick, wall)
+                tick = Tick(k, clock() - t0, dt, stamp=time.time())
+                for hist in histories:  # a slot for this tick, holding the latest value
+                    hist.append(hist[-1])
+            else:
+                tick = Tick(k, k * dt, dt)
+                for hist in histories:  # a slot for this tick; stays None if nothing is sent
+                    hist.append(None)
+            check_types = k == 0 or not wall
+            for step, reads, publish in schedule:
+                inputs = {port: (None if hist is None else hist[at]) for port, hist, at in reads}
+                publish(k, step(tick, inputs), check_types)
             k += 1
             if progress is not None:
                 progress(k)

@@ -126,7 +126,106 @@ def assign_endpoints(graph: Graph, transport: str = "ipc", advertise: str | None
     return Endpoints(run_id, run_dir, topics, types, binds, key_file)
 
 
-def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extra: list[ExtraProcess]) -> dict[str, RunSpec]:
+CONTAINER_TYPE = "dockhil.container:Container"
+
+
+def processes(graph: Graph) -> dict[str, list[str]]:
+    """Process name -> the nodes it runs, in step order: a node alone, or the nodes naming one
+    `container:`. Refused in one line: a malformed key, an isolated node in a container, a
+    container named like a node, a remote or respawned member, and a container that would
+    wait for itself (a same-tick path that leaves it and comes back)."""
+    import re
+
+    specs = {s.name: s for s in graph.scene.nodes}
+    unit: dict[str, str] = {}
+    for name in graph.order:
+        spec, where = specs.get(name), f"{graph.scene.path}: node {name!r}"
+        if spec is None:  # a graph assembled without a launch file: one process per node
+            unit[name] = name
+            continue
+        container, isolated = spec.container, spec.isolated
+        if not isinstance(isolated, bool):
+            raise LaunchError(f"{where}: `isolated` must be true or false, got {isolated!r}")
+        if not isinstance(container, str) or (container and not re.fullmatch(r"[A-Za-z0-9_.-]+", container)):
+            raise LaunchError(f"{where}: `container` must be a name of letters, digits and _ . -, got {container!r}")
+        if container and isolated:
+            raise LaunchError(f"{where}: `isolated: true` keeps it in a process of its own; remove "
+                              f"`container: {container}` or `isolated`")
+        if container and container in graph.nodes:
+            raise LaunchError(f"{where}: container {container!r} has the name of a node; name it otherwise")
+        if container and (spec.host or spec.respawn):
+            why = f"runs on {spec.host}" if spec.host else "is respawned on its own"
+            raise LaunchError(f"{where}: it {why}, so it cannot share container {container!r}; remove `container`")
+        unit[name] = container or name
+    out: dict[str, list[str]] = {}
+    for name in graph.order:
+        out.setdefault(unit[name], []).append(name)
+    _check_no_loop_through(graph, unit)
+    return out
+
+
+def _check_no_loop_through(graph: Graph, unit: dict[str, str]) -> None:
+    """A container steps its members together, so a same-tick path from it through other
+    processes back into it would wait forever: refuse it and name the path."""
+    edges: dict[str, set[str]] = {u: set() for u in unit.values()}
+    for gn in graph.nodes.values():
+        for ref in gn.inputs.values():
+            pub = graph.publishers.get(ref.topic)
+            if pub is not None and ref.lag == 0 and unit[pub.node] != unit[gn.name]:
+                edges[unit[pub.node]].add(unit[gn.name])
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(u: str) -> None:
+        state[u] = 1
+        stack.append(u)
+        for v in sorted(edges[u]):
+            if state.get(v) == 1:
+                path = " -> ".join(stack[stack.index(v):] + [v])
+                raise LaunchError(f"{graph.scene.path}: container processes {path} read each other at the same "
+                                  f"tick, so a container would wait for itself; put those nodes in one container "
+                                  f"or none")
+            if v not in state:
+                visit(v)
+        stack.pop()
+        state[u] = 2
+
+    for u in edges:
+        if u not in state:
+            visit(u)
+
+
+def check_composable(graph: Graph) -> None:
+    """--composed runs every node in one process: refused for a node that asks to be isolated."""
+    for spec in graph.scene.nodes:
+        if spec.isolated is True:
+            raise LaunchError(f"{graph.scene.path}: node {spec.name!r} is `isolated: true` (its own process), "
+                              f"so the graph cannot run --composed; run it without --composed")
+
+
+def _container_spec(graph: Graph, name: str, members: list[str], specs: dict[str, RunSpec]) -> RunSpec:
+    """One RunSpec for the nodes of a container: their outside inputs and all their outputs."""
+    inside = set(members)
+    described, inputs, outputs = [], {}, {}
+    for m in members:
+        gn, spec = graph.nodes[m], specs[m]
+        internal = {port: [ref.topic, ref.lag] for port, ref in gn.inputs.items()
+                    if ref.topic in graph.publishers and graph.publishers[ref.topic].node in inside}
+        external = {port: [ref.topic, ref.lag] for port, ref in gn.inputs.items()
+                    if port in spec.inputs and port not in internal}
+        described.append({"name": m, "type": gn.type_name, "params": gn.params, "internal": internal,
+                          "external": external, "outputs": {port: ref.topic for port, ref in gn.outputs.items()}})
+        inputs.update({f"{m}.{port}": spec.inputs[port] for port in external})
+        outputs.update({f"{m}.{port}": wire for port, wire in spec.outputs.items()})
+    first = specs[members[0]]
+    return RunSpec(name, CONTAINER_TYPE, {"members": described}, first.dt, first.clock, first.n_ticks, inputs,
+                   outputs, key_file=first.key_file, run_id=first.run_id)
+
+
+def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extra: list[ExtraProcess],
+              units: dict[str, list[str]] | None = None) -> dict[str, RunSpec]:
+    """One RunSpec per process (`units`, from processes(); default: one per node)."""
+    unit_of = {m: u for u, members in (units or {}).items() for m in members}
     extra_count: dict[str, int] = {}
     for proc in extra:
         for topic in proc.topics:
@@ -144,12 +243,20 @@ def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extr
         }
         outputs = {
             port: PortWire(ref.topic, ep.binds[ref.topic], ep.types[ref.topic],
-                           subscribers=len({s.node for s in graph.subscribers.get(ref.topic, [])})
+                           # One subscription per process: a container's members share one socket.
+                           subscribers=len({unit_of.get(s.node, s.node) for s in graph.subscribers.get(ref.topic, [])}
+                                           - {unit_of.get(name, name)})
                            + extra_count.get(ref.topic, 0))
             for port, ref in gn.outputs.items()
         }
         specs[name] = RunSpec(name, gn.type_name, gn.params, graph.scene.dt, clock, n_ticks, inputs, outputs,
                               key_file=str(ep.key_file or ""), run_id=ep.run_id)
+    for u, members in (units or {}).items():
+        if len(members) > 1 or u != members[0]:
+            container = _container_spec(graph, u, members, specs)
+            for m in members:
+                del specs[m]
+            specs[u] = container
     return specs
 
 
@@ -209,13 +316,16 @@ class Launcher:
         # Wall time: the launcher stops the whole graph at once when the duration is up, so no driver
         # sees its device (an emulator) stop first and mistakes that for a fault.
         self.wall_duration = duration if clock == "wall" else None
-        self.specs = run_specs(graph, self.endpoints, clock, self.n_ticks if clock == "sim" else None, self.extra)
+        self.units = processes(graph)
+        self.specs = run_specs(graph, self.endpoints, clock, self.n_ticks if clock == "sim" else None, self.extra,
+                               self.units)
         for name, spec in self.specs.items():
             spec.realtime = realtime
             # Wall time: every local node starts its fixed-rate loop when all are ready, so none runs
             # against nodes still importing or opening devices. (A node on another host cannot be told.)
-            gn = graph.nodes[name]
-            spec.wait_for_go = clock == "wall" and is_local(gn.host) and not gn.cls.free_running
+            members = [graph.nodes[m] for m in self.units[name]]
+            spec.wait_for_go = (clock == "wall" and all(is_local(gn.host) for gn in members)
+                                and not all(gn.cls.free_running for gn in members))
         self._all_ready_at: float | None = None
         self.progress = progress and clock == "sim" and self.n_ticks is not None
         self._print_lock = threading.Lock()
@@ -224,7 +334,7 @@ class Launcher:
         self.timings: dict[str, dict] = {}  # wall time: each node's loop figures, reported as it exits
         for name, spec in self.specs.items():
             argv = [sys.executable, "-m", "dockhil.process", msgspec.json.encode(spec).decode()]
-            gn = graph.nodes[name]
+            gn = graph.nodes[self.units[name][0]]  # a container's members are local and not respawned
             self.children.append(_Child(name, argv, respawn=gn.respawn and clock == "wall",
                                         respawn_delay=gn.respawn_delay, host="" if is_local(gn.host) else gn.host))
         for proc in self.extra:
@@ -253,6 +363,8 @@ class Launcher:
     # -- processes -------------------------------------------------------------
     def _start(self, child: _Child) -> None:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
+        # Nodes multiply matrices of a few elements: BLAS worker threads would only spin on the shared cores.
+        env.setdefault("OPENBLAS_NUM_THREADS", "1")
         child.ready = child.go_sent = False
         child.proc = subprocess.Popen(
             child.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
@@ -282,7 +394,8 @@ class Launcher:
             "clock": self.clock,
             "keys": str(self.endpoints.key_file),
             "nodes": {c.name: {"type": self.specs[c.name].type_name if c.name in self.specs else "process",
-                               "pid": c.proc.pid if c.proc else None} for c in self.children},
+                               "pid": c.proc.pid if c.proc else None, "members": self.units.get(c.name, [c.name])}
+                      for c in self.children},
             "topics": {t: {"type": self.endpoints.types[t], "endpoint": e,
                            "publisher": self.graph.publishers[t].node} for t, e in self.endpoints.topics.items()},
         }
@@ -290,6 +403,12 @@ class Launcher:
         tmp.write_text(json.dumps(info, indent=1))
         tmp.replace(path)
         return path
+
+    def devices(self) -> dict[str, bool]:
+        """Wall time: the local processes that report loop figures, each mapped to whether it
+        stands for a device emulator (a container: when all its members do)."""
+        return {name: all(self.graph.nodes[m].cls.free_running for m in self.units[name])
+                for name, child in zip(self.specs, self.children) if not child.host}
 
     def _on_signal(self, signum, frame) -> None:
         self._stop_signal = signum

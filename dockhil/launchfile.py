@@ -117,6 +117,8 @@ class NodeSpec:
     line: int = 0  # where the node is declared in `source`, for messages
     namespace: str = ""  # a group's: prefixes the default topics (/NS/...); the name is already NS.name
     max_age: dict[str, float] = field(default_factory=dict)  # input port -> wall-time maximum age [s]
+    container: str = ""  # run in this process with the nodes naming the same (checked by the launcher)
+    isolated: bool = False  # never in a container (a pinned hardware driver; checked by the launcher)
 
 
 @dataclass
@@ -275,7 +277,7 @@ def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: b
             raise SchemaError(at, f"more than {MAX_NODES} nodes in one scene")
         scene.nodes.append(NodeSpec(name, nd.node, _params(nd, at), _remaps(nd.remap, [*at, "remap"]), str(path),
                                     nd.respawn, nd.respawn_delay, nd.host, boundedyaml.line_of(root, at) or 0,
-                                    ns, dict(nd.max_age or {})))
+                                    ns, dict(nd.max_age or {}), nd.container, nd.isolated))
 
     for i, inc in enumerate(doc.include or []):
         keep, reason = _condition(inc.if_, inc.unless, data["include"][i], ["include", i])

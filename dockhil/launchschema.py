@@ -100,6 +100,9 @@ class NodeDecl(Struct, forbid_unknown_fields=True):
     respawn: bool = False
     respawn_delay: RespawnDelay = 1.0
     host: Host = ""
+    container: Annotated[str, Meta(max_length=64, description="run in one process with the nodes naming the "
+                                   "same container (in-process delivery)")] = ""
+    isolated: Annotated[bool, Meta(description="never contained: a hardware driver pinned to its own process")] = False
 
 
 class IncludeDecl(Struct, forbid_unknown_fields=True):

@@ -54,11 +54,13 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     started = time.perf_counter()
     reasons: list[str] = []
     if composed:
+        from dockhil.launcher import check_composable
+
+        check_composable(graph)
         code = _run_composed(graph, clock, n_ticks, progress, bag, collector, reasons, bridge)
     else:
         from dockhil import bag_live
         from dockhil.launcher import Launcher
-        from dockhil.launcher import is_local as launcher_is_local
         from dockhil.transport import GraphKeys
 
         if bag is None and want_summary:
@@ -75,8 +77,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
         code = launcher.run()
         if code == 0 and clock == "wall":
             # Nodes on other hosts report to nobody here; a free-running node is an emulated device.
-            devices = {name: gn.cls.free_running for name, gn in graph.nodes.items() if launcher_is_local(gn.host)}
-            reasons += validity.wall_time_reasons(launcher.timings, devices, dt)
+            reasons += validity.wall_time_reasons(launcher.timings, launcher.devices(), dt)
         elif code == 0:
             reasons += validity.sim_time_reasons(launcher.timings)
     elapsed = time.perf_counter() - started

@@ -67,6 +67,11 @@ def to_text(graph) -> str:
         changed = {k: v for k, v in gn.params.items() if v != gn.cls.params[k].default}
         if changed:
             lines.append("    params: " + ", ".join(f"{k}={v!r}" for k, v in changed.items()))
+    from dockhil.launcher import processes
+
+    units = processes(graph)
+    lines.append(f"processes ({len(units)}):")
+    lines += [f"  {name}: {', '.join(members)}" if members != [name] else f"  {name}" for name, members in units.items()]
     if scene.skipped:
         lines.append("left out by conditions:")
         for s in scene.skipped:

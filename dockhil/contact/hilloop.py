@@ -54,6 +54,9 @@ class Bodies:
         # A fixed target's state is kept relative to it, so a contact spring pulls toward the sheet.
         self.pen = Penetration([1.0]) if self.fixed_target else RELATIVE
         self.state = np.array([x1 - x2, v1]) if self.fixed_target else np.array([x1, x2, v1, v2])
+        if ideal is None and not self.fixed_target:  # free flight steps in scalar arithmetic on Python floats: see step
+            self.state = tuple(self.state.tolist())
+        self._rows: dict[float, tuple] = {}  # dt -> the free step's matrices as rows of Python floats
         self.in_contact = self._overlapping()
 
     def positions(self) -> tuple[float, float, float, float]:
@@ -61,6 +64,8 @@ class Bodies:
         s = self.state
         if self.fixed_target:
             return float(s[0]) + self.x2_fixed, self.x2_fixed, float(s[1]), 0.0
+        if type(s) is tuple:  # already Python floats
+            return s
         return float(s[0]), float(s[1]), float(s[2]), float(s[3])
 
     def touching(self) -> bool:
@@ -75,15 +80,32 @@ class Bodies:
     def step(self, f1: float, f2: float, dt: float) -> None:
         """Advance dt [s] with external forces f1, f2 [N] held constant; with the ideal
         contact inside, contact onsets and separations within the step are located."""
-        force = np.array([f1]) if self.fixed_target else np.array([f1, f2])
-        if self.contact is None:
-            self.state = self.free.step(self.state, force, dt)
+        if self.contact is None and not self.fixed_target:
+            # Free flight: phi @ state + gamma @ force in scalar arithmetic (numpy costs more than
+            # it saves on four values); each row summed left to right, as the matrix product does.
+            rows = self._rows.get(dt)
+            if rows is None:
+                phi, gamma = self.free.step_matrices(dt)
+                rows = self._rows[dt] = (tuple(map(tuple, phi.tolist())), tuple(map(tuple, gamma.tolist())))
+            phi, gamma = rows
+            (a0, a1, a2, a3), (b0, b1, b2, b3), (c0, c1, c2, c3), (d0, d1, d2, d3) = phi
+            (ga0, ga1), (gb0, gb1), (gc0, gc1), (gd0, gd1) = gamma
+            s0, s1, s2, s3 = self.state
+            self.state = (a0 * s0 + a1 * s1 + a2 * s2 + a3 * s3 + (ga0 * f1 + ga1 * f2),
+                          b0 * s0 + b1 * s1 + b2 * s2 + b3 * s3 + (gb0 * f1 + gb1 * f2),
+                          c0 * s0 + c1 * s1 + c2 * s2 + c3 * s3 + (gc0 * f1 + gc1 * f2),
+                          d0 * s0 + d1 * s1 + d2 * s2 + d3 * s3 + (gd0 * f1 + gd1 * f2))
+        elif self.contact is None:  # a fixed target: numpy's product of two values fuses differently
+            self.state = self.free.step(self.state, np.array([f1]), dt)
         else:
+            force = np.array([f1]) if self.fixed_target else np.array([f1, f2])
             self.state, self.in_contact, _ = step_with_events(self.free, self.contact, self.state, force, dt,
                                                               self.in_contact, self.pen, self.omega)
-        if not np.all(np.isfinite(self.state)):
+        s0, s1, *rest = self.state
+        if not (math.isfinite(s0) and math.isfinite(s1) and all(map(math.isfinite, rest))):
             raise ContactModelError(
-                f"the bodies' state diverged to {self.state.tolist()}; the loop is unstable or the step too large"
+                f"the bodies' state diverged to {[float(v) for v in self.state]}; the loop is unstable or the "
+                f"step too large"
             )
 
     def ideal_force(self) -> float:

@@ -1,0 +1,70 @@
+"""A node sends exactly what its readers accept, and a composed run, which screens the numbers of
+a message with a function generated from its type, refuses a number out of bounds with the same line."""
+
+import math
+
+import msgspec
+import pytest
+
+import msgs
+from dockhil.errors import DockhilError
+from dockhil.executor import check_message, checked_payload
+from msgs import (BodyState, BodyWrenches, Header, Pose, Quaternion, RobotState, SatelliteState, Twist, Vector3,
+                  Wrench, WrenchStamped)
+
+
+def reader_accepts(msg) -> bool:
+    """What a reader does, written with msgspec alone: decode the bytes as the message's type."""
+    try:
+        msgspec.msgpack.decode(msgspec.msgpack.encode(msg), type=type(msg))
+    except msgspec.ValidationError:
+        return False
+    return True
+
+
+CASES = [
+    *(msgs.TYPES[name](header=Header()) for name in msgs.TYPES),
+    WrenchStamped(header=Header(stamp=1.5, tick=3, seq=3), wrench=Wrench(force=Vector3(x=-2.0))),
+    WrenchStamped(header=Header(), wrench=Wrench(force=Vector3(x=1e308, y=1e308))),  # the sum overflows: fine
+    WrenchStamped(header=Header(), wrench=Wrench(force=Vector3(x=1))),  # an int where a float goes: accepted
+    WrenchStamped(header=Header(stamp=math.inf)),
+    WrenchStamped(header=Header(), wrench=Wrench(torque=Vector3(z=-math.inf))),
+    WrenchStamped(header=Header(), wrench=Wrench(force=Vector3(x="1.0"))),  # a string in a float field
+    WrenchStamped(header=Header(), wrench=Wrench(force=Vector3(x=True))),  # a bool in a float field
+    WrenchStamped(header=Header(frame=7)),  # an int in a string field
+    WrenchStamped(header=Header(tick=1.0)),  # a float in an int field
+    RobotState(header=Header(), pose=Pose(position=Quaternion())),  # a struct of another type
+    SatelliteState(header=Header(), bodies=[BodyState(mass=-1.0)]),
+    SatelliteState(header=Header(), bodies=(BodyState(),)),  # a tuple where a list goes: accepted
+    SatelliteState(header=Header(), bodies=[BodyState(twist=Twist(angular=Vector3(y=math.nan)))]),
+    BodyWrenches(header=Header(), wrenches=[Wrench(), Vector3()]),
+]
+
+
+@pytest.mark.parametrize("msg", CASES, ids=range(len(CASES)))
+def test_a_node_sends_exactly_what_a_reader_accepts(msg):
+    if reader_accepts(msg):
+        assert checked_payload("n", "p", "/t", 4, msg) == msgspec.msgpack.encode(msg)
+        return
+    with pytest.raises(DockhilError) as sent:
+        checked_payload("n", "p", "/t", 4, msg)
+    assert str(sent.value).startswith("node 'n' produced an invalid message at tick 4 on output 'p' (/t): ")
+
+
+OUT_OF_BOUNDS = [
+    WrenchStamped(header=Header(stamp=math.inf)),
+    WrenchStamped(header=Header(stamp=-1.0)),
+    WrenchStamped(header=Header(seq=-1)),
+    SatelliteState(header=Header(), bodies=[BodyState(), BodyState(twist=Twist(angular=Vector3(y=math.nan)))]),
+    SatelliteState(header=Header(), bodies=[BodyState(mass=-1.0)]),
+]
+
+
+@pytest.mark.parametrize("msg", OUT_OF_BOUNDS, ids=range(len(OUT_OF_BOUNDS)))
+def test_a_composed_run_refuses_a_number_out_of_bounds_with_the_same_line(msg):
+    assert not reader_accepts(msg)
+    with pytest.raises(DockhilError) as sent:
+        checked_payload("n", "p", "/t", 4, msg)
+    with pytest.raises(DockhilError) as composed:
+        check_message("n", "p", "/t", 4, msg)
+    assert str(composed.value) == str(sent.value)
