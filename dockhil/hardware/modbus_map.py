@@ -109,6 +109,10 @@ QUATERNION_COUNTS = 1_000_000_000  # per 1
 LINEAR_COUNTS = 1_000_000  # per m/s
 ANGULAR_COUNTS = 1_000_000  # per rad/s
 
+# |q| of an orientation may differ from 1 by this much: 1e-9 counts round a unit
+# quaternion to within ~2e-9 of unit length; more is not a rotation.
+UNIT_TOLERANCE = 1e-6
+
 FIELDS = (
     ("position.x", POSITION_COUNTS, "m"),
     ("position.y", POSITION_COUNTS, "m"),
