@@ -254,6 +254,7 @@ def verify_and_hold(client, device_id: int, heartbeat: int, claim: list[int] | N
     if rr.isError():
         raise mm.RegisterError(f"cannot read input registers 0-{mm.IR_COUNT - 1}: {rr}")
     reading = mm.decode_inputs(rr.registers)
+    _start_orientation(reading)  # a controller that reports no rotation is refused before anything is written
     if claim is not None:
         claim_controller(client, device_id, claim)
     wr = client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE | mm.CONTROL_HOLD, heartbeat),

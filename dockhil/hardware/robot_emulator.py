@@ -238,9 +238,19 @@ class ServoModel:
             self.linear = tuple((p - o) / span for p, o in zip(self.position, p_old))
             self.angular = tuple(float(w) / span for w in _rotation_between(q_old, self.orientation))
 
-    def teleport(self, position) -> None:
-        """Move the actual pose at once (tests: an encoder jump, a collision)."""
+    def teleport(self, position, orientation=None) -> None:
+        """Move the actual pose at once (tests: an encoder jump, a collision); the servo pulls it back."""
         self.position = list(position)
+        if orientation is not None:
+            self.orientation = _normalize(orientation)
+
+    def place(self, position, orientation) -> None:
+        """Put the robot at rest at this pose, where the servo holds it (tests: a robot that starts
+        away from the scene's start pose)."""
+        self.position = list(position)
+        self.orientation = _normalize(orientation)
+        self._target = self._actual_pose()
+        self._history.clear()
 
 
 _connection: contextvars.ContextVar = contextvars.ContextVar("modbus_connection", default=None)
