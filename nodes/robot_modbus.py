@@ -17,11 +17,22 @@ writing anything, a controller another graph owns. close() lets go.
 
 Safety: a limit violation requests a hold, waits briefly for the hold to
 be written, and raises SafetyStop (one line naming the limit and the value);
-from then on nothing is commanded. close() holds the robot.
+from then on nothing is commanded. close() holds the robot. The limits cover
+the full pose: position (workspace box, max_speed, max_following_error) and
+orientation (max_tilt, the rotation angle from the actual orientation at
+connect; max_angular_speed on the commanded angular velocity and on the
+rotation between setpoints; max_orientation_error; a quaternion that is not
+unit within modbus_map.UNIT_TOLERANCE trips "non-unit quaternion"), the
+measured twist (max_actual_speed, max_actual_angular_speed) and the measured
+wrench (max_force, max_torque). The defaults pass a one-axis scene, which
+commands the identity orientation and no angular velocity. Angles between
+orientations are those of the smallest rotation, 2 atan2(|v|, |w|) of
+q1 q0*, so q and -q are one orientation.
 
 Time: every watchdog and the setpoint speed are measured on the runtime's
-clock (`ctx.clock`), never on message stamps: a setpoint step is judged
-against the wall time since the previous setpoint was handed to the link,
+clock (`ctx.clock`), never on message stamps: a setpoint step (its distance
+and its rotation angle) is judged against the wall time since the previous
+setpoint was handed to the link,
 and any gap between two steps longer than `stall_timeout` (this process or
 the simulation stalled) holds the robot and stops. A NaN or Inf in a
 setpoint or a force trips "non-finite setpoint"/"non-finite force".
