@@ -352,14 +352,27 @@ def test_a_bad_limit_gives_one_line_and_nothing_moves(name, value, says):
     assert f"parameter '{name}'" in line and says in line, line
 
 
+def report_orientation(controller, q) -> None:
+    """Make the emulated controller report this orientation after every servo cycle (a broken controller)."""
+    registers = mm.encode_block((0.0,) * 3 + tuple(q) + (0.0,) * 6)[6:14]
+
+    def install():
+        servo, cycle = controller.servo, controller.servo.cycle
+
+        def broken_cycle(now):
+            cycle(now)
+            servo.inputs[mm.IR_ACTUAL + 6:mm.IR_ACTUAL + 14] = registers
+
+        servo.cycle = broken_cycle
+
+    controller.call(install)
+
+
 def test_a_controller_reporting_no_rotation_is_refused_at_setup(controller):
     from dockhil.errors import DeviceError
 
-    def broken():  # a controller that leaves its orientation registers at zero
-        controller.servo.inputs[mm.IR_ACTUAL + 6:mm.IR_ACTUAL + 14] = [0] * 8
-        controller.servo.cycle = lambda now: None  # and stops its servo there
-
-    controller.call(broken)
+    report_orientation(controller, (0.0, 0.0, 0.0, 0.0))  # orientation registers left at zero
+    wait_for(lambda: controller.call(lambda: controller.servo.inputs[mm.IR_ACTUAL + 12]) == 0, what="the zeros")
     node = RobotModbusDriver(NodeContext("robot", DT, sim_time=False, log=lambda line: None, clock=ManualClock(0.0)),
                              port=controller.port, ft_timeout=0.0)
     with pytest.raises(DeviceError) as err:
@@ -368,3 +381,12 @@ def test_a_controller_reporting_no_rotation_is_refused_at_setup(controller):
     assert "\n" not in text and "actual orientation with |q| = 0, not a unit quaternion" in text, text
     # refused before anything was written: no claim, no hold
     assert controller.call(lambda: (controller.servo.owner_session, controller.servo.holding[mm.HR_CONTROL])) == (0, 0)
+
+
+def test_a_non_unit_actual_orientation_trips_by_name(controller, make):
+    drive = make()
+    following(drive, controller)
+    report_orientation(controller, (0.0, 0.0, 0.0, 0.5))
+    stop = tripped(drive, controller, lambda: keep_stepping(drive, lambda d: {"command": command6(d)}),
+                   "non_unit_quaternion", "non-unit quaternion: actual orientation |q| = 0.5 ")
+    assert stop.value == pytest.approx(0.5)
