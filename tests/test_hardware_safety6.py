@@ -228,7 +228,8 @@ def test_a_non_finite_orientation_or_angular_velocity_trips_by_name(controller, 
     cmd = (command6(drive, (0.0, 0.0, 0.0, math.nan)) if field == "orientation"
            else command6(drive, w=(0.0, 0.0, -math.inf)))
     expect = "orientation.w = nan" if field == "orientation" else "angular velocity.z = -inf"
-    tripped(drive, controller, lambda: drive.step(command=cmd), "non_finite", f"non-finite setpoint: commanded {expect}")
+    tripped(drive, controller, lambda: drive.step(command=cmd),
+            "non_finite", f"non-finite setpoint: commanded {expect}")
     assert drive.node.link.writes == writes
 
 
