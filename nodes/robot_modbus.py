@@ -17,11 +17,22 @@ writing anything, a controller another graph owns. close() lets go.
 
 Safety: a limit violation requests a hold, waits briefly for the hold to
 be written, and raises SafetyStop (one line naming the limit and the value);
-from then on nothing is commanded. close() holds the robot.
+from then on nothing is commanded. close() holds the robot. The limits cover
+the full pose: position (workspace box, max_speed, max_following_error) and
+orientation (max_tilt, the rotation angle from the actual orientation at
+connect; max_angular_speed on the commanded angular velocity and on the
+rotation between setpoints; max_orientation_error; a quaternion that is not
+unit within modbus_map.UNIT_TOLERANCE trips "non-unit quaternion"), the
+measured twist (max_actual_speed, max_actual_angular_speed) and the measured
+wrench (max_force, max_torque). The defaults pass a one-axis scene, which
+commands the identity orientation and no angular velocity. Angles between
+orientations are those of the smallest rotation, 2 atan2(|v|, |w|) of
+q1 q0*, so q and -q are one orientation.
 
 Time: every watchdog and the setpoint speed are measured on the runtime's
-clock (`ctx.clock`), never on message stamps: a setpoint step is judged
-against the wall time since the previous setpoint was handed to the link,
+clock (`ctx.clock`), never on message stamps: a setpoint step (its distance
+and its rotation angle) is judged against the wall time since the previous
+setpoint was handed to the link,
 and any gap between two steps longer than `stall_timeout` (this process or
 the simulation stalled) holds the robot and stops. A NaN or Inf in a
 setpoint or a force trips "non-finite setpoint"/"non-finite force".
@@ -36,6 +47,7 @@ import threading
 import time
 
 from dockhil import ownership
+from dockhil.contact.rigid import quat_conjugate, quat_multiply
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import SafetyStop
 from dockhil.hardware import modbus_map as mm
@@ -53,6 +65,21 @@ def _key(msg) -> tuple:
 
 def _norm(v: Vector3) -> float:
     return math.sqrt(v.x * v.x + v.y * v.y + v.z * v.z)
+
+
+def _quat(q: Quaternion) -> tuple[float, float, float, float]:
+    return (q.x, q.y, q.z, q.w)
+
+
+def _quat_norm(q) -> float:
+    return math.sqrt(sum(c * c for c in q))
+
+
+def _angle_between(q0, q1) -> float:
+    """Angle [rad, 0..pi] of the smallest rotation that turns q0 into q1 (q and -q are one rotation;
+    the ratio of the parts makes it independent of |q|)."""
+    x, y, z, w = quat_multiply(q1, quat_conjugate(q0))
+    return 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), abs(w))
 
 
 def _command_values(cmd: RobotCommand) -> mm.PoseTwist:
@@ -238,6 +265,7 @@ def verify_and_hold(client, device_id: int, heartbeat: int, claim: list[int] | N
     if rr.isError():
         raise mm.RegisterError(f"cannot read input registers 0-{mm.IR_COUNT - 1}: {rr}")
     reading = mm.decode_inputs(rr.registers)
+    _start_orientation(reading)  # a controller that reports no rotation is refused before anything is written
     if claim is not None:
         claim_controller(client, device_id, claim)
     wr = client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE | mm.CONTROL_HOLD, heartbeat),
@@ -277,6 +305,17 @@ class RobotModbusDriver(Node):
                                   "for tracking transients and velocity noise (0: off)", ge=0.0),
         "max_following_error": Param(float, 0.02, unit="m", help="setpoint distance from the actual pose "
                                      "(catches a start far from the robot before it jumps; 0: off)", ge=0.0),
+        "max_torque": Param(float, 20.0, unit="N m", help="contact torque limit |T| (0: off)", ge=0.0),
+        "max_angular_speed": Param(float, 0.5, unit="rad/s", help="commanded angular speed limit: twist and "
+                                   "setpoint rotation steps (0: off)", ge=0.0),
+        "max_actual_angular_speed": Param(float, 1.0, unit="rad/s", help="measured angular speed limit; above "
+                                          "max_angular_speed as max_actual_speed is above max_speed (0: off)",
+                                          ge=0.0),
+        "max_tilt": Param(float, 0.5, unit="rad", help="orientation workspace: rotation angle of the commanded "
+                          "and the actual orientation from the orientation at start (0: off)", ge=0.0, le=math.pi),
+        "max_orientation_error": Param(float, 0.1, unit="rad", help="setpoint orientation's angle from the actual "
+                                       "orientation (catches a start turned away from the robot; 0: off)",
+                                       ge=0.0, le=math.pi),
         "x_min": Param(float, -0.5, unit="m", help="workspace lower bound, x"),
         "x_max": Param(float, 0.1, unit="m", help="workspace upper bound, x (x > 0 is penetration)"),
         "y_min": Param(float, -0.2, unit="m", help="workspace lower bound, y"),
@@ -316,7 +355,9 @@ class RobotModbusDriver(Node):
         self._first_t: float | None = None
         self._last_step_at: float | None = None
         self._last_cmd_at: float | None = None  # when the last fresh command arrived
-        self._sent: tuple[tuple[float, float, float], float] | None = None  # last setpoint handed over, when
+        # the last setpoint handed over (position, orientation) and when
+        self._sent: tuple[tuple[float, float, float], tuple[float, float, float, float], float] | None = None
+        self._start_q: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)  # set by _connect
         self._seen_readings = 0
         self._reconnects_seen = 0
         self._status_word = None
@@ -346,7 +387,8 @@ class RobotModbusDriver(Node):
             backoff = min(backoff * 2, p.reconnect_max)
         try:
             _nodelay(client)
-            verify_and_hold(client, p.device_id, 0, self._claim)
+            start = verify_and_hold(client, p.device_id, 0, self._claim)
+            self._start_q = _start_orientation(start)
         except mm.RegisterError as exc:
             client.close()
             raise DeviceError(f"{self.device}: {exc}") from None
@@ -406,9 +448,9 @@ class RobotModbusDriver(Node):
                 self._sent = None
             else:
                 values = _command_values(cmd)
-                self._check_jump(values[:3], now)  # never hand over a step a limit would refuse
+                self._check_jump(values[:3], values[3:7], now)  # never hand over a step a limit would refuse
                 link.submit(values)
-                self._sent = (values[:3], now)
+                self._sent = (values[:3], values[3:7], now)
         elif self._sent is not None and now - self._last_cmd_at > p.stall_timeout:
             age = now - self._last_cmd_at
             self._trip("stale_command", age, f"stale command: no new setpoint for {age:.3f} s > stall_timeout "
@@ -435,6 +477,10 @@ class RobotModbusDriver(Node):
             f = _norm(wrench.wrench.force)
             if p.max_force and f > p.max_force:
                 self._trip("max_force", f, f"max_force: contact force |F| = {f:.1f} N > {p.max_force:g} N")
+            torque = _norm(wrench.wrench.torque)
+            if p.max_torque and torque > p.max_torque:
+                self._trip("max_torque", torque,
+                           f"max_torque: contact torque |T| = {torque:.2f} N m > {p.max_torque:g} N m")
         if not p.ft_timeout:
             return True
         if self._last_wrench_t is None:
@@ -464,11 +510,17 @@ class RobotModbusDriver(Node):
                           ("linear velocity", cmd.twist.linear), ("angular velocity", cmd.twist.angular))
         if bad:
             self._trip("non_finite", bad, f"non-finite setpoint: commanded {bad}")
-        pos = cmd.pose.position
+        pos, q = cmd.pose.position, _quat(cmd.pose.orientation)
+        self._check_unit("commanded", q)
         self._check_position("commanded", pos.x, pos.y, pos.z)
+        self._check_tilt("commanded", q)
         speed = _norm(cmd.twist.linear)
         if p.max_speed and speed > p.max_speed:
             self._trip("max_speed", speed, f"max_speed: commanded speed {speed:.3f} m/s > {p.max_speed:g} m/s")
+        rate = _norm(cmd.twist.angular)
+        if p.max_angular_speed and rate > p.max_angular_speed:
+            self._trip("max_angular_speed", rate, f"max_angular_speed: commanded angular speed {rate:.3f} rad/s "
+                       f"> {p.max_angular_speed:g} rad/s")
         if p.max_following_error and reading is not None:
             a = reading.actual
             err = math.sqrt((pos.x - a[0]) ** 2 + (pos.y - a[1]) ** 2 + (pos.z - a[2]) ** 2)
@@ -476,29 +528,66 @@ class RobotModbusDriver(Node):
                 self._trip("max_following_error", err,
                            f"max_following_error: setpoint {err:.4f} m from the actual pose > "
                            f"{p.max_following_error:g} m (move the robot to the start pose first)")
+        if p.max_orientation_error and reading is not None:
+            turn = _angle_between(reading.actual[3:7], q)
+            if turn > p.max_orientation_error:
+                self._trip("max_orientation_error", turn,
+                           f"max_orientation_error: setpoint orientation {turn:.4f} rad from the actual "
+                           f"orientation > {p.max_orientation_error:g} rad (turn the robot to the start "
+                           f"orientation first)")
 
-    def _check_jump(self, position: tuple[float, float, float], now: float) -> None:
-        """A setpoint that moves faster than the limit is a too-fast command, whatever its twist says.
-        The speed is the step from the last setpoint handed over, over the wall time since then on the
-        runtime's clock (message stamps say when the sender ran, not when the robot will move); at least
-        one period, the rate at which the loop hands setpoints over."""
-        if self._sent is None or not self.p.max_speed:
+    def _check_unit(self, what: str, q) -> None:
+        """A quaternion that is not unit is no rotation: what it would command is undefined."""
+        n = _quat_norm(q)
+        if abs(n - 1.0) > mm.UNIT_TOLERANCE:
+            self._trip("non_unit_quaternion", n, f"non-unit quaternion: {what} orientation |q| = {n:.9g} "
+                       f"(x, y, z, w = {q[0]:g}, {q[1]:g}, {q[2]:g}, {q[3]:g}); a rotation needs |q| = 1 "
+                       f"within {mm.UNIT_TOLERANCE:g}")
+
+    def _check_tilt(self, what: str, q) -> None:
+        """Orientation workspace: the angle of the rotation from the orientation at start."""
+        tilt = _angle_between(self._start_q, q)
+        if self.p.max_tilt and tilt > self.p.max_tilt:
+            self._trip("max_tilt", tilt, f"max_tilt: {what} orientation {tilt:.4f} rad from the start "
+                       f"orientation > {self.p.max_tilt:g} rad")
+
+    def _check_jump(self, position: tuple[float, float, float], orientation, now: float) -> None:
+        """A setpoint that moves or turns faster than the limit is a too-fast command, whatever its twist
+        says. The speed is the step from the last setpoint handed over (distance, and the angle of the
+        rotation between the two orientations), over the wall time since then on the runtime's clock
+        (message stamps say when the sender ran, not when the robot will move); at least one period, the
+        rate at which the loop hands setpoints over."""
+        if self._sent is None:
             return
-        a, since = self._sent
+        p = self.p
+        a, q, since = self._sent
         dt = max(now - since, self.ctx.dt)
-        step = math.sqrt(sum((b - x) ** 2 for x, b in zip(a, position)))
-        speed = step / dt
-        if speed > self.p.max_speed * (1 + 1e-9):
-            self._trip("max_speed", speed, f"max_speed: setpoint moved {step:.4f} m in {dt:.4f} s "
-                       f"({speed:.3f} m/s) > {self.p.max_speed:g} m/s")
+        if p.max_speed:
+            step = math.sqrt(sum((b - x) ** 2 for x, b in zip(a, position)))
+            speed = step / dt
+            if speed > p.max_speed * (1 + 1e-9):
+                self._trip("max_speed", speed, f"max_speed: setpoint moved {step:.4f} m in {dt:.4f} s "
+                           f"({speed:.3f} m/s) > {p.max_speed:g} m/s")
+        if p.max_angular_speed:
+            turn = _angle_between(q, orientation)
+            rate = turn / dt
+            if rate > p.max_angular_speed * (1 + 1e-9):
+                self._trip("max_angular_speed", rate, f"max_angular_speed: setpoint turned {turn:.5f} rad in "
+                           f"{dt:.4f} s ({rate:.3f} rad/s) > {p.max_angular_speed:g} rad/s")
 
     def _check_actual(self, reading: mm.ControllerReading) -> None:
-        a = reading.actual
+        a, p = reading.actual, self.p
+        self._check_unit("actual", a[3:7])
         self._check_position("actual", a[0], a[1], a[2])
+        self._check_tilt("actual", a[3:7])
         speed = math.sqrt(a[7] ** 2 + a[8] ** 2 + a[9] ** 2)
-        if self.p.max_actual_speed and speed > self.p.max_actual_speed:
+        if p.max_actual_speed and speed > p.max_actual_speed:
             self._trip("max_actual_speed", speed,
-                       f"max_actual_speed: measured speed {speed:.3f} m/s > {self.p.max_actual_speed:g} m/s")
+                       f"max_actual_speed: measured speed {speed:.3f} m/s > {p.max_actual_speed:g} m/s")
+        rate = math.sqrt(a[10] ** 2 + a[11] ** 2 + a[12] ** 2)
+        if p.max_actual_angular_speed and rate > p.max_actual_angular_speed:
+            self._trip("max_actual_angular_speed", rate, f"max_actual_angular_speed: measured angular speed "
+                       f"{rate:.3f} rad/s > {p.max_actual_angular_speed:g} rad/s")
         if reading.status & mm.STATUS_FAULT:
             self.link.hold(HOLD_CONFIRM_TIMEOUT)
             raise DeviceError(f"{self.device}: controller reports a fault (status {reading.status:#06x}); holding")
@@ -543,6 +632,17 @@ class RobotModbusDriver(Node):
         if not held and self.tripped is None:
             self.log(f"{self.device}: could not hold the robot at close (not connected); "
                      f"the controller holds when our heartbeat stops")
+
+
+def _start_orientation(reading: mm.ControllerReading) -> tuple[float, float, float, float]:
+    """The actual orientation at connect, the reference of max_tilt; RegisterError if it is no rotation."""
+    q = reading.actual[3:7]
+    n = _quat_norm(q)
+    if abs(n - 1.0) > mm.UNIT_TOLERANCE:
+        raise mm.RegisterError(f"the controller reports an actual orientation with |q| = {n:.9g}, not a unit "
+                               f"quaternion; check its orientation registers (input {mm.IR_ACTUAL + 6}-"
+                               f"{mm.IR_ACTUAL + 13})")
+    return tuple(c / n for c in q)
 
 
 def _non_finite(*named: tuple[str, object]) -> str:

@@ -261,9 +261,10 @@ def test_lost_connection_reconnects_and_never_sends_a_stale_setpoint():
         n_before = len(drive.states)
         drive.until(lambda d: len(d.states) > n_before + 5 and d.last().status == "holding",
                     lambda d: {"command": held})
-        # Held at x = 0 (the new controller's first cycles may still miss our heartbeat: held too).
+        # Held at x = 0 (the new controller's first cycles may still miss our heartbeat: held too; and a
+        # reading taken before its first servo cycle since the hold was written still says disabled).
         after = [(s.status, s.pose.position.x) for _, s in drive.states[n_before:]]
-        assert all(status in ("holding", "heartbeat-lost") and x == 0.0 for status, x in after), after
+        assert all(status in ("holding", "heartbeat-lost", "disabled") and x == 0.0 for status, x in after), after
         assert read_holding(port).setpoint == mm.HOLD_POSE  # the restarted controller never got a setpoint
         assert any("reconnected after" in line for line in logs)
         drive.until(lambda d: d.last().status == "ok" and d.last().pose.position.x == pytest.approx(0.002, rel=0.05),

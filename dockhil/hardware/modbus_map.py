@@ -39,6 +39,16 @@ target's interface, x > 0 is penetration):
     +14  linear velocity x, y, z   [1e-6 m/s per count]
     +20  angular velocity x, y, z  [1e-6 rad/s per count]
 
+The full pose goes both ways: a setpoint commands position and orientation,
+the actual block reports both, with the measured twist. The orientation is a
+unit quaternion, scalar last, the rotation of the probe frame relative to the
+target's interface frame; its length must be 1 within UNIT_TOLERANCE (1e-6:
+whole 1e-9 counts round a unit quaternion to within 2e-9 of it). A controller
+refuses a setpoint whose quaternion is not unit (FAULT, hold until RESET):
+such a quaternion is no rotation. The angular velocity, like the linear one,
+is expressed in the target's interface frame (the rate of the rotation vector
+that carries the orientation on).
+
 The velocities of a setpoint are a feed-forward the controller may use.
 One FC 16 write of registers 0..27 sets control, heartbeat and setpoint in
 one transaction, so the controller never sees a half-written setpoint.
@@ -108,6 +118,10 @@ POSITION_COUNTS = 1_000_000  # per m
 QUATERNION_COUNTS = 1_000_000_000  # per 1
 LINEAR_COUNTS = 1_000_000  # per m/s
 ANGULAR_COUNTS = 1_000_000  # per rad/s
+
+# |q| of an orientation may differ from 1 by this much: 1e-9 counts round a unit
+# quaternion to within ~2e-9 of unit length; more is not a rotation.
+UNIT_TOLERANCE = 1e-6
 
 FIELDS = (
     ("position.x", POSITION_COUNTS, "m"),

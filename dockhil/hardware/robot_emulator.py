@@ -5,10 +5,18 @@ cycle, on its own clock as a real controller's, follows the setpoint
 through a pure delay and a first-order lag:
 
     target(t) = setpoint written at t - delay
-    d pose/dt = (target - pose) / tau            (tau = 0: pose = target)
+    d position/dt = (target - position) / tau            (tau = 0: pose = target)
+    orientation:  the same lag on the rotation from the actual orientation to
+                  the target's, the shortest way: per cycle of dt, a slerp by
+                  a = 1 - exp(-dt/tau), so the remaining angle decays as
+                  exp(-t/tau) about a fixed axis
 
 sampled once per servo cycle, so a setpoint takes effect up to one cycle
-after `delay` (a zero-order hold, as in a digital controller).
+after `delay` (a zero-order hold, as in a digital controller). The actual
+twist is the pose's change over the last VELOCITY_WINDOW_S: linear velocity
+[m/s], and angular velocity [rad/s] as the rotation vector of that change
+divided by its time, both in the reference frame of the pose (the target's
+interface frame).
 
 Controller rules the driver relies on:
 - FOLLOWING needs ENABLE, no HOLD, a live heartbeat, and a setpoint written
@@ -17,7 +25,8 @@ Controller rules the driver relies on:
 - A heartbeat that does not change for `heartbeat_timeout` holds the robot
   and sets HEARTBEAT_LOST, so a host that dies mid-motion stops the robot.
 - HOLD and DISABLED stop at the actual pose; the delay line is flushed.
-- FAULT (set by `inject_fault`, for tests) holds until CONTROL RESET.
+- FAULT (set by `inject_fault`, for tests, or by a setpoint whose quaternion
+  is not unit within modbus_map.UNIT_TOLERANCE) holds until CONTROL RESET.
 - One owner: while a host's claim (SESSION, OWNER_NAME) is alive, writes from
   any other connection are refused with exception 6 (device busy), so a
   second graph cannot move or hold the first one's robot; the claim dies
@@ -41,6 +50,7 @@ import threading
 import time
 from collections import deque
 
+from dockhil.contact.rigid import quat_conjugate, quat_from_rotvec, quat_multiply, quat_to_rotvec
 from dockhil.hardware import modbus_map as mm
 
 FOLLOW, HOLD, DISABLED = "follow", "hold", "disabled"
@@ -60,17 +70,14 @@ def _normalize(q):
     return tuple(c / n for c in q) if n > 0 else (0.0, 0.0, 0.0, 1.0)
 
 
-def _angular_velocity(q_old, q_new, dt):
-    """Body rate [rad/s] that turns q_old into q_new in dt (small-angle, x y z w order)."""
-    x1, y1, z1, w1 = q_new
-    x0, y0, z0, w0 = -q_old[0], -q_old[1], -q_old[2], q_old[3]  # conjugate of q_old
-    # q_new * conj(q_old)
-    x = w1 * x0 + x1 * w0 + y1 * z0 - z1 * y0
-    y = w1 * y0 - x1 * z0 + y1 * w0 + z1 * x0
-    z = w1 * z0 + x1 * y0 - y1 * x0 + z1 * w0
-    w = w1 * w0 - x1 * x0 - y1 * y0 - z1 * z0
-    s = 2.0 / dt if w >= 0 else -2.0 / dt  # shortest rotation
-    return (s * x, s * y, s * z)
+def _is_unit(q) -> bool:
+    return abs(math.sqrt(sum(c * c for c in q)) - 1.0) <= mm.UNIT_TOLERANCE
+
+
+def _rotation_between(q_old, q_new):
+    """Rotation vector [rad] (the shortest way, angle in [0, pi]) that turns q_old into q_new,
+    in the reference frame: q_new = exp(v) q_old."""
+    return quat_to_rotvec(quat_multiply(q_new, quat_conjugate(q_old)))
 
 
 VELOCITY_WINDOW_S = 0.01
@@ -182,6 +189,8 @@ class ServoModel:
         if host.control & mm.CONTROL_RESET:
             self.fault = False
             self.holding[mm.HR_CONTROL] &= ~mm.CONTROL_RESET  # a one-shot command
+        if self.setpoint_fresh and not _is_unit(host.setpoint[3:7]):
+            self.fault = True  # a setpoint orientation that is no rotation: refuse it, hold until RESET
         if not host.control & mm.CONTROL_ENABLE:
             mode = DISABLED
         elif host.control & mm.CONTROL_HOLD or self.heartbeat_lost or self.fault:
@@ -199,7 +208,7 @@ class ServoModel:
         # taken from the delay line.
         self._advance(now)
         if mode == FOLLOW:
-            self._line.append((now, host.setpoint[:7]))
+            self._line.append((now, host.setpoint[:3] + _normalize(host.setpoint[3:7])))
             while self._line and self._line[0][0] <= now - self.delay:
                 self._target = self._line.popleft()[1]
         self.cycles = (self.cycles + 1) & 0xFFFF
@@ -213,12 +222,11 @@ class ServoModel:
             a = 1.0 - math.exp(-dt / self.tau)
         else:
             a = 1.0 if self.tau == 0 else 0.0
-        old_q = self.orientation
         self.position = [p + a * (t - p) for p, t in zip(self.position, target[:3])]
-        tq = target[3:7]
-        if sum(c * d for c, d in zip(old_q, tq)) < 0:
-            tq = tuple(-c for c in tq)  # same rotation, shorter way
-        self.orientation = _normalize(tuple(q + a * (t - q) for q, t in zip(old_q, tq)))
+        # The same lag on the rotation: a slerp by `a` toward the target (the shortest way), so the
+        # remaining angle decays as the position error does, exp(-t/tau), about a fixed axis.
+        error = _rotation_between(self.orientation, target[3:7])
+        self.orientation = _normalize(quat_multiply(quat_from_rotvec(a * error), self.orientation))
         # Velocity over a window of VELOCITY_WINDOW_S, as a controller filters its encoders:
         # a per-cycle difference turns the host's write jitter into spurious speed spikes.
         self._history.append((now, list(self.position), self.orientation))
@@ -228,11 +236,21 @@ class ServoModel:
         span = now - t_old
         if span > 0:
             self.linear = tuple((p - o) / span for p, o in zip(self.position, p_old))
-            self.angular = _angular_velocity(q_old, self.orientation, span)
+            self.angular = tuple(float(w) / span for w in _rotation_between(q_old, self.orientation))
 
-    def teleport(self, position) -> None:
-        """Move the actual pose at once (tests: an encoder jump, a collision)."""
+    def teleport(self, position, orientation=None) -> None:
+        """Move the actual pose at once (tests: an encoder jump, a collision); the servo pulls it back."""
         self.position = list(position)
+        if orientation is not None:
+            self.orientation = _normalize(orientation)
+
+    def place(self, position, orientation) -> None:
+        """Put the robot at rest at this pose, where the servo holds it (tests: a robot that starts
+        away from the scene's start pose)."""
+        self.position = list(position)
+        self.orientation = _normalize(orientation)
+        self._target = self._actual_pose()
+        self._history.clear()
 
 
 _connection: contextvars.ContextVar = contextvars.ContextVar("modbus_connection", default=None)
