@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dockhil.errors import DockhilError
+from dockhil.figure_file import save_figure
 
 
 @dataclass
@@ -78,8 +79,4 @@ def plot6(bags: list[str], png: str, labels: list[str] | None = None) -> None:
     axes[-1].set_xlabel("time [s]")
     fig.suptitle("6-DOF contact: wrench, relative pose, angular rates")
     fig.tight_layout()
-    try:
-        fig.savefig(png, dpi=110)
-    except OSError as exc:
-        raise DockhilError(f"cannot write {png}: {exc.strerror or exc}") from None
-    plt.close(fig)
+    save_figure(fig, png)

@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from dockhil.errors import DockhilError
+from dockhil.figure_file import save_figure
 from dockhil.sweep import METADATA_KEY
 
 MAP_ARGS = ("k", "b", "delay", "m")  # the stability scene's names for K, b, h, m
@@ -147,10 +148,5 @@ def plot_results(path: str, png: str) -> list[str]:
         ax.set_title(f"{q} against {a}")
     fig.suptitle(f"{meta.get('path', path)}: {n} runs ({int(np.sum(status == 'ok'))} ok)")
     fig.tight_layout()
-    try:
-        fig.savefig(png, dpi=110)
-    except OSError as exc:
-        raise DockhilError(f"--png {png}: cannot write: {exc.strerror or exc}") from None
-    finally:
-        plt.close(fig)
+    save_figure(fig, png)
     return lines

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dockhil.argtypes import nonnegative
 from dockhil.errors import DockhilError
+from dockhil.figure_file import save_figure
 
 
 def add_arguments(p) -> None:
@@ -87,10 +88,7 @@ def run(args) -> int:
         ax.legend(fontsize=8)
     fig.suptitle("Contact force and velocity profiles")
     fig.tight_layout()
-    try:
-        fig.savefig(args.png, dpi=120)
-    except OSError as exc:
-        raise DockhilError(f"cannot write {args.png}: {exc.strerror or exc}") from None
+    save_figure(fig, args.png, dpi=120)
     print(f"wrote {args.png}")
     return 0
 

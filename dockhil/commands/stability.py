@@ -9,6 +9,7 @@ import math
 import time
 
 from dockhil.errors import DockhilError
+from dockhil.figure_file import save_figure
 
 _M_HELP = "free-floating mass [kg]: the reduced mass m1 m2 / (m1 + m2) of Eq. 8 (paper: 750)"
 _DAMPER_HELP = (
@@ -359,12 +360,7 @@ def _plot(path: str, m: float, b, h, pade1, exact, damper: str) -> None:
     ax2.set_ylabel("h [ms]")
     ax2.set_title(f"exact bound ({damper} damper); white: Eq. 12 excess [%]")
     fig.tight_layout()
-    try:
-        fig.savefig(path, dpi=100)
-    except OSError as exc:
-        raise DockhilError(f"--png {path}: cannot write the figure ({exc.strerror or exc})") from None
-    finally:
-        plt.close(fig)
+    save_figure(fig, path, dpi=100)
 
 
 def _scene_values(args) -> tuple[float, float, float, float, float, float, float]:
@@ -516,9 +512,4 @@ def _plot_hybrid(path, m, kcs, bcs, rate, ks, hs, exact, sampled, eq12) -> None:
     b.set_title("Eq. 12 on the paper's loop (all of kcs behind the delay)\ngreen: kcs < K_max(bcs, h)", fontsize=9)
     b.set_xlabel("passive stiffness k [N/m] (Eq. 12 does not depend on it)")
     fig.tight_layout()
-    try:
-        fig.savefig(path, dpi=100)
-    except OSError as exc:
-        raise DockhilError(f"--png {path}: cannot write the figure ({exc.strerror or exc})") from None
-    finally:
-        plt.close(fig)
+    save_figure(fig, path, dpi=100)
