@@ -158,11 +158,38 @@ def parse_overrides(items: list[str]) -> dict[str, str]:
     return out
 
 
-def load(path: str | Path | None, overrides: dict[str, Any] | None = None) -> Scene:
-    """Read a launch file, apply arguments, resolve includes and conditions."""
-    if path is None:
-        raise LaunchError("give a launch file, e.g. launch/hil.yaml (the scenes are in launch/)")
+def _shipped_dir() -> Path:
+    here = Path(__file__).resolve().parent
+    packaged = here / "launch"  # an installed wheel: the package data dockhil.launch
+    return packaged if packaged.is_dir() else here.parent / "launch"  # a source checkout
+
+
+SHIPPED_SCENES = _shipped_dir()
+
+
+def find_shipped(path: str | Path, kind: str = "launch file", folder: str = "") -> Path:
+    """`path` itself if it exists, else the shipped file of that name (`hil.yaml`,
+    `launch/hil.yaml`; with folder="campaigns" also `fig7.yaml`), so that a shipped
+    scene runs from any directory. A file in the current directory always wins."""
     path = Path(path)
+    if path.exists() or path.is_absolute():
+        return path
+    parts = path.parts[1:] if path.parts[:1] == ("launch",) else path.parts
+    if parts and ".." not in parts:
+        for candidate in (SHIPPED_SCENES / folder).joinpath(*parts), SHIPPED_SCENES.joinpath(*parts):
+            if candidate.is_file():
+                return candidate
+    shipped = ", ".join(sorted(p.name for p in (SHIPPED_SCENES / folder).glob("*.yaml"))) or "none"
+    raise LaunchError(f"{kind} {str(path)!r} not found: no such file here and no shipped one of that name "
+                      f"(shipped: {shipped})")
+
+
+def load(path: str | Path | None, overrides: dict[str, Any] | None = None) -> Scene:
+    """Read a launch file (a path, or a shipped scene by name), apply arguments,
+    resolve includes and conditions."""
+    if path is None:
+        raise LaunchError("give a launch file, e.g. hil.yaml (a shipped scene) or a path to your own")
+    path = find_shipped(path)
     scene = _load(path, overrides or {}, from_cli=True, stack=(), budget=_Budget())
     if not scene.nodes:
         raise LaunchError(f"{path}: no node to start after conditions; check the file's `nodes:` and `if:`")

@@ -199,7 +199,9 @@ def measure_all(types: list[str] | None = None, workers: int = 2, baselines: boo
         jobs = [(t, specs.get(t)) for t in types]
         if baselines:
             jobs = [(b, None) for b in BASELINES] + jobs
-            jobs += [(f"scene:{s}", None) for s in SCENES if (ROOT / s).exists()]
+            from dockhil.launchfile import SHIPPED_SCENES  # launch/ of a checkout, or of the wheel
+
+            jobs += [(f"scene:{s}", None) for s in SCENES if (SHIPPED_SCENES / Path(s).name).exists()]
         with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
             rows = list(pool.map(lambda job: measure(*job, repeats=repeats), jobs))
     for row in rows:

@@ -63,11 +63,12 @@ from dockhil.contact.scenario import (
     StepTooLargeError,
 )
 from dockhil.errors import DockhilError
+from dockhil.launchfile import SHIPPED_SCENES
 
 IVP_METHODS = ("RK45", "DOP853", "Radau", "LSODA")
 EXPLICIT = ("rk4", "symplectic_euler", "euler")
 ROOT = Path(__file__).resolve().parent.parent
-LAUNCH_DIR = ROOT / "launch"
+LAUNCH_DIR = SHIPPED_SCENES  # the shipped scenes, in a checkout or an installed wheel
 HIL_DELAY = 0.032  # [s] the paper's worst robot delay (Fig. 9)
 GRID = 1e-3  # [s] errors are taken on the scenes' 1 kHz tick grid
 

@@ -29,7 +29,7 @@ import msgspec
 
 from dockhil.errors import DockhilError
 
-SHIPPED_SCENES = Path(__file__).resolve().parent.parent / "launch"
+from dockhil.launchfile import SHIPPED_SCENES
 STATUSES = ("ok", "invalid", "failed")
 RETRIES = 2  # a batch whose worker was lost is sent again this many times
 METADATA_KEY = b"dockhil.campaign"
@@ -185,7 +185,10 @@ def load_campaign(path: str | Path) -> Campaign:
 
     from dockhil import launchfile
 
-    path = Path(path)
+    try:
+        path = launchfile.find_shipped(path, "campaign file", folder="campaigns")
+    except DockhilError as exc:
+        raise CampaignError(str(exc)) from None
     if not path.is_file():
         raise CampaignError(f"campaign file {str(path)!r} not found (or not a file)")
     try:

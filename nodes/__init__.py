@@ -1,5 +1,11 @@
 """Node types by name. Values are "module:Class" strings, imported only
-when a scene uses the node, so a scene loads only what it runs."""
+when a scene uses the node, so a scene loads only what it runs.
+
+Other installed distributions add node types through the entry-point group
+`dockhil.nodes` (in their pyproject.toml:
+`[project.entry-points."dockhil.nodes"] my_sensor = "my_pkg.sensor:MySensor"`).
+A built-in name always wins, and entry points are read only for a name that is
+not built in, so a broken third-party package never breaks the built-in types."""
 
 from __future__ import annotations
 
@@ -29,6 +35,27 @@ REGISTRY: dict[str, str] = {
 }
 
 
+ENTRY_POINT_GROUP = "dockhil.nodes"
+
+
+def plugins() -> dict[str, tuple[str, str]]:
+    """Node types of other installed distributions: name -> ("module:Class", "distribution version").
+    Names that are built in are left out (the built-in wins); the first distribution found wins."""
+    from importlib.metadata import entry_points
+
+    found: dict[str, tuple[str, str]] = {}
+    try:
+        eps = entry_points(group=ENTRY_POINT_GROUP)
+    except Exception as exc:  # a distribution's metadata that does not parse
+        raise LaunchError(f"cannot read the installed {ENTRY_POINT_GROUP} entry points "
+                          f"({type(exc).__name__}: {exc})") from None
+    for ep in eps:
+        dist = f"{ep.dist.name} {ep.dist.version}" if ep.dist is not None else "an unnamed distribution"
+        if ep.name not in REGISTRY and ep.name not in found:
+            found[ep.name] = (ep.value.strip(), dist)
+    return found
+
+
 _PATH = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*:[A-Za-z_][A-Za-z0-9_]*")
 
 
@@ -37,12 +64,23 @@ def load(type_name: str):
 
     A module is imported only if its source defines the class, so a path such as
     `antigravity:X` is refused before the module's import could do anything."""
+    if type_name in REGISTRY or ":" in type_name:
+        return _load(type_name, REGISTRY.get(type_name, type_name))
+    extra = plugins()
+    if type_name not in extra:
+        known = ", ".join(sorted([*REGISTRY, *extra])) or "none"
+        raise LaunchError(f"unknown node type {type_name!r}; known types: {known} (or give module:Class)")
+    target, dist = extra[type_name]
+    try:
+        return _load(type_name, target)
+    except LaunchError as exc:
+        raise LaunchError(f"{exc} (entry point {ENTRY_POINT_GROUP} {type_name} = {target!r} of {dist}; "
+                          f"fix or uninstall that package)") from None
+
+
+def _load(type_name: str, target: str):
     from dockhil.node import Node
 
-    target = REGISTRY.get(type_name, type_name)
-    if ":" not in target:
-        known = ", ".join(sorted(REGISTRY)) or "none"
-        raise LaunchError(f"unknown node type {type_name!r}; known types: {known} (or give module:Class)")
     if not _PATH.fullmatch(target):
         raise LaunchError(f"node type {type_name!r} is not of the form package.module:Class")
     module_name, _, class_name = target.partition(":")
@@ -54,6 +92,9 @@ def load(type_name: str):
         module = importlib.import_module(module_name)
     except ImportError as exc:
         raise LaunchError(f"node type {type_name!r}: cannot import {module_name!r} ({exc})") from None
+    except Exception as exc:  # the module's own code failed: still one line
+        raise LaunchError(f"node type {type_name!r}: importing {module_name!r} raised "
+                          f"{type(exc).__name__}: {exc}") from None
     cls = getattr(module, class_name, None)
     if cls is None:
         raise LaunchError(f"node type {type_name!r}: module {module_name!r} has no {class_name!r}")

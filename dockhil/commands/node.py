@@ -1,9 +1,11 @@
-"""`dockhil node list`: the nodes of running graphs."""
+"""`dockhil node list`: the nodes of running graphs; `dockhil node types`: the node types\ninstalled (built in, or added by another package through the `dockhil.nodes` entry points)."""
 
 from __future__ import annotations
 
 import os
 import sys
+
+from dockhil.errors import LaunchError
 
 
 def add_arguments(p) -> None:
@@ -43,10 +45,21 @@ def _types(name: str | None) -> int:
     import msgs
     import nodes
 
-    names = [name] if name else sorted(nodes.REGISTRY)
+    extra = nodes.plugins()
+    names = [name] if name else [*sorted(nodes.REGISTRY), *sorted(extra)]
+    refused = 0
     for type_name in names:
-        cls = nodes.load(type_name)
-        print(f"{type_name}: {cls.describe()}")
+        origin = f"  [from {extra[type_name][1]}]" if type_name in extra else ""
+        if name is None and origin:  # one broken package does not hide the other types
+            try:
+                cls = nodes.load(type_name)
+            except LaunchError as exc:
+                print(f"dockhil node types: error: {exc}", file=sys.stderr)
+                refused += 1
+                continue
+        else:
+            cls = nodes.load(type_name)
+        print(f"{type_name}: {cls.describe()}{origin}")
         if not name:
             continue
         for port, i in cls.inputs.items():
@@ -58,4 +71,4 @@ def _types(name: str | None) -> int:
         for pname, p in cls.params.items():
             unit = f" [{p.unit}]" if p.unit else ""
             print(f"  param {pname}: {p.type.__name__}{unit} = {p.default!r}  {p.help}")
-    return 0
+    return 1 if refused else 0
