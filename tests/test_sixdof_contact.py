@@ -69,13 +69,19 @@ def test_decoupled_axes_follow_their_own_closed_forms():
     assert np.max(np.abs(run.rate[inside, 3] - thd)) < 1e-9 * w_rel
 
 
-def off_axis_bodies():
+def off_axis_pair() -> tuple[RigidBody, RigidBody]:
+    """Two bodies with full inertias, an off-centre CoM and tilted interfaces (the off-axis cases)."""
     i1 = np.array([[40.0, 2, -1], [2, 50, 3], [-1, 3, 60]])
     i2 = np.array([[80.0, -4, 2], [-4, 70, 1], [2, 1, 90]])
     chaser = RigidBody(100.0, i1, com=[0.05, 0.02, 0], interface_position=[1.0, 0.1, -0.05],
                        interface_orientation=quat_from_rotvec([0, 0, 0.05]))
     target = RigidBody(200.0, i2, interface_position=[-1.0, 0.0, 0.0],
                        interface_orientation=quat_from_rotvec([0.02, 0, 0]))
+    return chaser, target
+
+
+def off_axis_bodies():
+    chaser, target = off_axis_pair()
     s1 = BodyState([-1.97, 0.3, 0.1], quat_from_rotvec([0.01, 0.02, -0.03]), [0.2, 0.01, 0], [0.05, -0.1, 0.2])
     s2 = BodyState([0.0, 0.3, 0.1], AT_REST, [0, 0, 0.0], [0, 0.02, 0])
     return chaser, target, s1, s2

@@ -10,6 +10,7 @@ from dockhil.contact.contact6 import Contact6, simulate_contact6
 from dockhil.contact.hybrid6 import fit_impedance6, impedance_closed_form6, interface_mobilities, simulate_hybrid6
 from dockhil.contact.rigid import BodyState, RigidBody, quat_from_rotvec
 from dockhil.contact.scenario import ContactModelError, FitError
+from tests.test_sixdof_contact import off_axis_pair
 
 AT_REST = (0.0, 0.0, 0.0, 1.0)
 
@@ -100,12 +101,7 @@ def test_two_time_fit_recovers_the_closed_form_along_the_axis():
 
 
 def off_axis_case():
-    i1 = np.array([[40.0, 2, -1], [2, 50, 3], [-1, 3, 60]])
-    i2 = np.array([[80.0, -4, 2], [-4, 70, 1], [2, 1, 90]])
-    chaser = RigidBody(100.0, i1, com=[0.05, 0.02, 0], interface_position=[1.0, 0.1, -0.05],
-                       interface_orientation=quat_from_rotvec([0, 0, 0.05]))
-    target = RigidBody(200.0, i2, interface_position=[-1.0, 0.0, 0.0],
-                       interface_orientation=quat_from_rotvec([0.02, 0, 0]))
+    chaser, target = off_axis_pair()
     s1 = BodyState([-1.951, 0.3, 0.1], quat_from_rotvec([0.01, 0.02, -0.03]), [0.05, 0.01, 0], [0.02, -0.03, 0.05])
     s2 = BodyState([0.0, 0.3, 0.1], AT_REST, [0, 0, 0.0], [0, 0.02, 0])
     k = np.diag([1000.0, 400, 500, 150, 120, 100])
