@@ -47,6 +47,7 @@ not a bag) raises `BagError` with one line that says what and where.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import errno
 import io
@@ -1031,18 +1032,8 @@ def export_csv(path: str | os.PathLike, topic: str, out: str | os.PathLike | IO[
         if hasattr(out, "write"):
             result = _write_csv(reader, topic, out)
         else:
-            out = os.fspath(out)
-            part = f"{out}.part"
-            try:
-                with open(part, "w", newline="") as fh:
-                    result = _write_csv(reader, topic, fh)
-                os.replace(part, out)
-            except OSError as exc:
-                _remove_quietly(part)
-                raise BagError(f"cannot write {out}: {_reason(exc)}") from None
-            except BaseException:
-                _remove_quietly(part)
-                raise
+            with _complete_or_nothing(os.fspath(out)) as part, open(part, "w", newline="") as fh:
+                result = _write_csv(reader, topic, fh)
         return ExportResult(*result, bool(reader.recovered), found["loss"])
 
 
@@ -1133,27 +1124,34 @@ def convert(src: str | os.PathLike, dst: str | os.PathLike, *, overwrite: bool =
         raise BagError(f"cannot create bag {dst}: it is a directory")
     if os.path.exists(dst) and not overwrite:
         raise BagError(f"bag {dst} already exists; choose another name or allow overwriting it")
-    part = f"{dst}.part"
     with BagReader(src) as reader:
         found = reader.summary()
-        try:
-            with BagWriter(part, overwrite=True) as out:
-                for topic, type_name in reader.topics.items():
-                    try:
-                        out.add_topic(topic, type_name)
-                    except BagError as exc:
-                        raise BagError(f"{src}: cannot convert: {str(exc).split(': ', 1)[1]}") from None
-                    reader._check_encoding(topic)
-                for topic, _, log_ns, publish_ns, data in reader.messages_with_publish_time():
-                    out.write(topic, log_ns, publish_ns, data)
-            os.replace(part, dst)
-        except OSError as exc:
-            _remove_quietly(part)
-            raise BagError(f"cannot write {dst}: {_reason(exc)}") from None
-        except BaseException:
-            _remove_quietly(part)
-            raise
+        with _complete_or_nothing(dst) as part, BagWriter(part, overwrite=True) as out:
+            for topic, type_name in reader.topics.items():
+                try:
+                    out.add_topic(topic, type_name)
+                except BagError as exc:
+                    raise BagError(f"{src}: cannot convert: {str(exc).split(': ', 1)[1]}") from None
+                reader._check_encoding(topic)
+            for topic, _, log_ns, publish_ns, data in reader.messages_with_publish_time():
+                out.write(topic, log_ns, publish_ns, data)
     return ConvertResult(out.messages_written, out.messages_unencodable, found["loss"])
+
+
+@contextlib.contextmanager
+def _complete_or_nothing(path: str):
+    """Yields `path`.part to write; it becomes `path` when the block ends well and is removed when
+    it does not, so `path` appears only complete. An OSError is one BagError line."""
+    part = f"{path}.part"
+    try:
+        yield part
+        os.replace(part, path)
+    except OSError as exc:
+        _remove_quietly(part)
+        raise BagError(f"cannot write {path}: {_reason(exc)}") from None
+    except BaseException:
+        _remove_quietly(part)
+        raise
 
 
 def _remove_quietly(path: str) -> None:
