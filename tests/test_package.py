@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-import nodes
+from dockhil import nodes
 from dockhil import launchfile
 from dockhil.errors import LaunchError
 from dockhil.sweep import CampaignError, load_campaign
@@ -88,7 +88,7 @@ def test_the_cli_finds_a_shipped_scene_from_another_directory(tmp_path):
 # -- node types from other packages ------------------------------------------------
 PLUGIN_MODULE = '''
 from dockhil.node import Node, Output, Param
-from msgs import Vector3, Wrench, WrenchStamped
+from dockhil.msgs import Vector3, Wrench, WrenchStamped
 
 
 class Ramp(Node):
@@ -145,7 +145,7 @@ def test_an_installed_package_adds_a_node_type(fake_distribution):
 
 def test_a_built_in_name_is_never_replaced_by_a_package(fake_distribution):
     assert "ft_sim" not in nodes.plugins()
-    assert nodes.load("ft_sim").__module__ == "nodes.ft_sim"
+    assert nodes.load("ft_sim").__module__ == "dockhil.nodes.ft_sim"
 
 
 @pytest.mark.parametrize("name, why", [
@@ -200,12 +200,14 @@ def test_node_types_lists_packages_and_a_launch_file_runs_their_node(fake_distri
 
 # -- the wheel ------------------------------------------------------------------
 def source_packages() -> set[str]:
-    """Every package directory of the source tree, as a wheel path."""
+    """Every package directory of the source tree, as a wheel path: msgs/ and nodes/ install
+    inside the dockhil namespace."""
     found = set()
-    for top in ("dockhil", "msgs", "nodes"):
+    for top, installed in (("dockhil", "dockhil"), ("msgs", "dockhil/msgs"), ("nodes", "dockhil/nodes")):
         for init in (REPO / top).rglob("__init__.py"):
             if "__pycache__" not in init.parts:
-                found.add(init.parent.relative_to(REPO).as_posix())
+                rel = init.parent.relative_to(REPO / top).as_posix()
+                found.add(installed if rel == "." else f"{installed}/{rel}")
     return found
 
 
@@ -224,13 +226,15 @@ def test_the_wheel_installs_into_a_fresh_venv_and_runs_from_another_directory(tm
         info = f"dockhil-{version}.dist-info"
         metadata = z.read(f"{info}/METADATA").decode()
         license_text = z.read(f"{info}/licenses/LICENSE")
+        top_level = z.read(f"{info}/top_level.txt").decode().split()
     assert {os.path.dirname(n) for n in names if n.endswith("/__init__.py")} == source_packages()
     assert {f"dockhil/launch/{s}" for s in SCENES} <= names and "dockhil/launch/campaigns/fig7.yaml" in names
     assert "dockhil/py.typed" in names
     assert license_text == (REPO / "LICENSE").read_bytes()
     assert re.search(rf"^Version: {re.escape(version)}$", metadata, re.M)
     assert re.search(r"^License-Expression: Apache-2.0$", metadata, re.M)
-    assert not any(n.startswith(("tests/", "bench/", "launch/")) for n in names)
+    assert not any(n.startswith(("tests/", "bench/", "launch/", "msgs/", "nodes/")) for n in names)
+    assert top_level == ["dockhil"]  # msgs and nodes are PyPI projects of their own: never top-level here
 
     venv = tmp_path / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True, timeout=120)
@@ -244,8 +248,8 @@ def test_the_wheel_installs_into_a_fresh_venv_and_runs_from_another_directory(tm
         return subprocess.run([str(exe), *argv], cwd=elsewhere, env=clean_env(), capture_output=True, text=True,
                               timeout=timeout)
 
-    where = subprocess.run([str(py), "-c", "import dockhil, nodes, msgs; from dockhil import launchfile; "
-                            "print(dockhil.__file__, nodes.__file__, msgs.__file__, launchfile.SHIPPED_SCENES)"],
+    where = subprocess.run([str(py), "-c", "import dockhil, dockhil.nodes, dockhil.msgs; from dockhil import launchfile; "
+                            "print(dockhil.__file__, dockhil.nodes.__file__, dockhil.msgs.__file__, launchfile.SHIPPED_SCENES)"],
                            cwd=elsewhere, env=clean_env(), capture_output=True, text=True, timeout=60)
     site = str(venv / "lib")
     assert where.returncode == 0 and all(p.startswith(site) for p in where.stdout.split()), where.stdout
