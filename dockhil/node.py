@@ -120,6 +120,10 @@ class Param:
     le: float | None = None
     lt: float | None = None
     choices: tuple | None = None
+    # (low, high): the magnitude of a nonzero value lies within this range, that of docking hardware,
+    # so no product or quotient the loop and its scene check form leaves floating point (1e-300 kg
+    # otherwise asks the scene check for a rate of 1e150 Hz).
+    scale: tuple[float, float] | None = None
 
     def check(self, node: str, name: str, value: Any) -> Any:
         """Return `value` converted to this type, or raise one clear ParamError."""
@@ -155,6 +159,10 @@ class Param:
         ):
             if bound is not None and not ok(bound):
                 raise ParamError(f"{where}: {value!r} is out of range, must be {sym} {bound}")
+        if self.scale is not None and value != 0 and not self.scale[0] <= abs(value) <= self.scale[1]:
+            unit = f" {self.unit}" if self.unit else ""
+            raise ParamError(f"{where}: {value!r}{unit} is outside {self.scale[0]:g} to {self.scale[1]:g}{unit} "
+                             f"in magnitude, the range of docking hardware; give a physical value")
         if self.choices is not None and value not in self.choices:
             raise ParamError(f"{where}: {value!r} is not one of {', '.join(map(str, self.choices))}")
         return value

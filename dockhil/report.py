@@ -817,16 +817,17 @@ def fine_rate_expected(scn: ContactScenario) -> float:
 
 
 def refused_launch_case(group: str, scene: str, args: dict, scn: ContactScenario, duration: float) -> dict:
-    """`dockhil launch` of a contact its step does not resolve: one line, exit 2, naming the rate."""
+    """`dockhil launch` of a contact its step does not resolve: one line, exit 2, naming the rate
+    (as `rate:=` when a scene can run at it, else as the rate it would need)."""
     want = fine_rate_expected(scn)
     result = launch_subprocess(LAUNCH_DIR / scene, duration, args)
     text = result["stderr"].strip()
-    named = re.search(r"rate:=([0-9.e+]+)", text)
-    named_rate = float(named.group(1)) if named else None
+    named = re.search(r"rate:=([0-9.e+]+)|needs a rate of ([0-9.e+]+) Hz", text)
+    named_rate = float(named.group(1) or named.group(2)) if named else None
     ok = result["code"] == 2 and len(text.splitlines()) == 1 and named_rate == want
-    return _case(group, f"{scene} at 1 kHz: refused before it runs", f"exit 2, one line naming rate:={want:g}",
+    return _case(group, f"{scene} at 1 kHz: refused before it runs", f"exit 2, one line naming {want:g} Hz",
                  f"exit {result['code']}, {len(text.splitlines())} line(s)"
-                 + (f", names rate:={named_rate:g}" if named_rate else ""), ok,
+                 + (f", names {named_rate:g} Hz" if named_rate else ""), ok,
                  params={**args, "scene": f"launch/{scene}", "duration": duration}, expected_value=want,
                  measured_value=named_rate)
 

@@ -23,6 +23,7 @@ import math
 
 from dockhil.contact import sampled
 from dockhil.errors import DockhilError
+from dockhil.launchschema import MAX_RATE
 
 
 def _first(graph, type_name: str):
@@ -116,9 +117,12 @@ def _analyse(info: dict, cont=None) -> dict:
 
 def _stable_rate(graph, info: dict, start: float, cont) -> float | None:
     """The lowest rate from `start` up (doubling) whose sampled loop agrees with the delay equation;
-    None when none does up to 256 times `start` (the integrator itself is the problem)."""
+    None when none does up to 256 times `start` (the integrator itself is the problem) or up to
+    the highest rate a scene runs at."""
     rate = start
     for _ in range(9):
+        if rate > MAX_RATE:
+            return None
         trial = scene_loop(graph, 1.0 / rate)
         a = _analyse(trial, cont)
         tol = 1e-9 * max(1.0, trial["omega"])
@@ -168,8 +172,11 @@ def scene_check(graph, refuse: bool = True) -> dict:
         numbers["suggested_rate_Hz"] = good
         if good is not None:
             line = f"{'; '.join(problems)}; run with rate:={good:g}"
+        elif start > MAX_RATE:
+            line = (f"{'; '.join(problems)}; resolving it needs a rate of {start:g} Hz, above the "
+                    f"{MAX_RATE:g} Hz a scene runs at: give a softer contact or heavier bodies")
         else:
-            line = (f"{'; '.join(problems)}; no rate up to {256 * start:g} Hz fixes it with method "
+            line = (f"{'; '.join(problems)}; no rate up to {min(256 * start, MAX_RATE):g} Hz fixes it with method "
                     f"{loop.method!r}: use method:=exact")
         if refuse and not allowed:
             raise DockhilError(f"{graph.scene.path}: refused: {line} (or allow_coarse:=true to run anyway)")

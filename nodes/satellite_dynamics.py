@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dockhil import physical
 from dockhil.node import Input, Node, Output, Param
 from dockhil.msgs import (BodyState, BodyWrenches, Pose, RobotCommand, SatelliteState, Twist, Vector3,
                   WrenchStamped)
@@ -20,13 +21,16 @@ class SatelliteDynamics(Node):
         "command": Output(RobotCommand, "/robot/command", help="probe pose relative to the target, x > 0 = contact"),
     }
     params = {
-        "m1": Param(float, 750.0, unit="kg", help="chaser mass", gt=0.0),
-        "m2": Param(float, 1e6, unit="kg", help="target mass; 0 fixes the target to the ground", ge=0.0),
-        "x1": Param(float, 0.0, unit="m", help="chaser initial position (contact point at 0)"),
-        "x2": Param(float, 0.0, unit="m", help="target initial position"),
-        "v1": Param(float, 0.03, unit="m/s", help="chaser initial velocity"),
-        "v2": Param(float, 0.0, unit="m/s", help="target initial velocity"),
-        "thrust": Param(float, 0.0, unit="N", help="constant thrust on the chaser along +x"),
+        "m1": Param(float, 750.0, unit="kg", help="chaser mass", gt=0.0, scale=physical.MASS),
+        "m2": Param(float, 1e6, unit="kg", help="target mass; 0 fixes the target to the ground", ge=0.0,
+                    scale=physical.MASS),
+        "x1": Param(float, 0.0, unit="m", help="chaser initial position (contact point at 0)",
+                    scale=physical.DISTANCE),
+        "x2": Param(float, 0.0, unit="m", help="target initial position", scale=physical.DISTANCE),
+        "v1": Param(float, 0.03, unit="m/s", help="chaser initial velocity", scale=physical.SPEED),
+        "v2": Param(float, 0.0, unit="m/s", help="target initial velocity", scale=physical.SPEED),
+        "thrust": Param(float, 0.0, unit="N", help="constant thrust on the chaser along +x",
+                        scale=physical.FORCE),
         "method": Param(str, "exact", help="integrator of the model tool",
                         choices=("exact", "rk4", "symplectic_euler", "euler")),
         "model": Param(str, "hybrid", help="hybrid: forces come from the F/T and impedance topics; "

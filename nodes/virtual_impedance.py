@@ -3,6 +3,7 @@ account, and optionally the passivity controller against the energy the delay ma
 
 from __future__ import annotations
 
+from dockhil import physical
 from dockhil.node import Input, Node, Output, Param
 from dockhil.msgs import BodyWrenches, Energy, SatelliteState, Vector3, Wrench, WrenchStamped
 
@@ -24,8 +25,8 @@ class VirtualImpedance(Node):
         "mode": Param(str, "determine", help="determine: k1..b2 from kcs, bcs, k at start (closed form, "
                       "checked against the two-time fit of Eqs. 5-6); given: use k1..b2 as set",
                       choices=("determine", "given")),
-        "m1": Param(float, 750.0, unit="kg", help="chaser mass", gt=0.0),
-        "m2": Param(float, 1e6, unit="kg", help="target mass; 0 = fixed target", ge=0.0),
+        "m1": Param(float, 750.0, unit="kg", help="chaser mass", gt=0.0, scale=physical.MASS),
+        "m2": Param(float, 1e6, unit="kg", help="target mass; 0 = fixed target", ge=0.0, scale=physical.MASS),
         "kcs": Param(float, 3000.0, unit="N/m", help="ideal contact stiffness to reproduce", ge=0.0),
         "bcs": Param(float, 40.0, unit="N s/m", help="ideal contact damping to reproduce", ge=0.0),
         "k": Param(float, 1000.0, unit="N/m", help="passive compliance on the robot", ge=0.0),

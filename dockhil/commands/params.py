@@ -9,6 +9,7 @@ import math
 import sys
 import warnings
 
+from dockhil import physical
 from dockhil.errors import DockhilError
 
 _SCENARIO_ARGS = (
@@ -116,8 +117,9 @@ MAX_STEPS = 1_000_000
 # Docking hardware spans a gram-scale probe to a space station, and a contact lasts from nanoseconds
 # (stiff metal) to years (a near-free drift): outside these the contact models are not the tool, and
 # the fit's solvers would take as long as the numbers are absurd.
-PLAUSIBLE = {"m1": (1e-6, 1e12, "kg"), "m2": (1e-6, 1e12, "kg"), "kcs": (0.0, 1e12, "N/m"),
-             "bcs": (0.0, 1e12, "N s/m"), "k": (0.0, 1e12, "N/m"), "v1": (-1e3, 1e3, "m/s"), "v2": (-1e3, 1e3, "m/s")}
+PLAUSIBLE = {"m1": (*physical.MASS, "kg"), "m2": (*physical.MASS, "kg"), "kcs": (*physical.STIFFNESS, "N/m"),
+             "bcs": (*physical.DAMPING, "N s/m"), "k": (*physical.STIFFNESS, "N/m"),
+             "v1": (-physical.SPEED[1], physical.SPEED[1], "m/s"), "v2": (-physical.SPEED[1], physical.SPEED[1], "m/s")}
 TIME_SCALE = (1e-9, 1e9)  # [s]
 
 
