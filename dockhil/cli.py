@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+import traceback
 
 from dockhil.errors import DockhilError, one_line
 
@@ -90,6 +92,14 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `dockhil graph FILE | head`: the reader left, nothing to report
         sys.stderr.close()
         return 0
+    except Exception as exc:  # a bug, not the user's input: still one line, naming where it happened
+        if os.environ.get("DOCKHIL_TRACEBACK"):
+            raise
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        print(f"dockhil {args.command}: internal error: {type(exc).__name__}: {one_line(str(exc))} "
+              f"(at {os.path.basename(where.filename)}:{where.lineno}); please report it with the command line "
+              f"(DOCKHIL_TRACEBACK=1 shows the traceback)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":
