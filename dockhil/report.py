@@ -48,6 +48,7 @@ from dockhil.contact.hilloop import simulate_hil, simulate_ideal
 from dockhil.contact.hybrid import VirtualImpedance
 from dockhil.contact.ideal import ideal_contact_summary, ideal_trajectory, relative_motion
 from dockhil.contact.impedance import impedance_closed_form, negative_stiffness_message
+from dockhil.contact.passivity import DEFAULT_MAX_DAMPING
 from dockhil.contact.integrators import (
     METHODS,
     Integrator,
@@ -1318,7 +1319,7 @@ def lean_scenes(cfg: ReportConfig, progress: TaskProgress) -> dict:
 
 
 PASSIVITY_DELAYS = (0.016, 0.032, 0.064, 0.1)  # [s] Table 1 with and without passivity compensation
-PASSIVITY_MAX_DAMPING = 200.0  # [N s/m] as the shipped scenes
+PASSIVITY_MAX_DAMPING = DEFAULT_MAX_DAMPING  # [N s/m] as the shipped scenes
 
 
 def passivity_compensation() -> dict:

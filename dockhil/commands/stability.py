@@ -55,8 +55,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--compensation", choices=("none", "passivity"), default="none",
                         help="passivity: also measure (simulated, 30 s) the loop of stability.yaml with the passivity"
                              " controller at 1, 2, 3, 5 and 10 times the exact bound (and at --K)")
-    parser.add_argument("--max-damping", type=float, default=200.0, metavar="NS_M",
-                        help="the passivity controller's largest damping [N s/m] (default 200, as the scenes)")
+    parser.add_argument("--max-damping", type=float, metavar="NS_M",
+                        help="the passivity controller's largest damping [N s/m] (default: the scenes', 1e5)")
     hyb = parser.add_argument_group(
         "the hybrid loop", "m s^2 + b_d s + k_d + (k_h + b_h s) e^(-sh) = 0: the virtual impedance acts on the"
         " simulator's state (direct), the passive compliance through the robot (delayed); with any of these,"
@@ -157,7 +157,10 @@ def run(args: argparse.Namespace) -> int:
     m, b, h = _loop_values(args)
     report = stability_report(m, b, h, K=args.K, damper=args.damper, pade_order=args.pade_order)
     if args.compensation == "passivity":
-        report["passivity"] = _compensated(m, b, h, args.K, args.max_damping)
+        from dockhil.contact.passivity import DEFAULT_MAX_DAMPING
+
+        max_damping = DEFAULT_MAX_DAMPING if args.max_damping is None else args.max_damping
+        report["passivity"] = _compensated(m, b, h, args.K, max_damping)
     if args.json:
         print(json.dumps(report))
         return 0
