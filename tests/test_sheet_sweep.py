@@ -93,3 +93,15 @@ def test_bad_sweep_arguments_give_one_line(tmp_path, args, words):
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and words in lines[0], r.stderr
+
+
+@pytest.mark.parametrize("args, words", [
+    (("stability", "map", "--m", 749.4, "--kcs", 3000, "--bcs", 40, "--png", "x.png", "--compensation", "passivity"),
+     "the hybrid map (--kcs, --bcs) has none"),
+    (("stability", "--scene", "launch/hil.yaml", "--compensation", "passivity"), "the hybrid loop (--scene"),
+])
+def test_compensation_on_the_hybrid_loop_is_refused_in_one_line(args, words):
+    r = subprocess.run(dockhil_cmd(*args), capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and words in lines[0], r.stderr

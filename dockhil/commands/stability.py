@@ -168,6 +168,9 @@ def run(args: argparse.Namespace) -> int:
 
         return stability_multi.run(args)
     if args.scene is not None or any(getattr(args, n) is not None for n in _HYBRID):
+        if args.compensation == "passivity":
+            raise DockhilError("--compensation passivity measures stability.yaml's loop (--m, --b, --h); the hybrid "
+                               "loop (--scene, --k-direct ...) has no compensated measurement: leave one of them out")
         return _run_hybrid(args)
     from dockhil.contact.stability import stability_report
 
@@ -299,6 +302,9 @@ def _run_map(args) -> int:
         raise DockhilError("missing --m (free-floating mass [kg])")
     m = check_positive("--m", _within("--m", args.m, MAX_MASS, "kg"), "kg")
     if args.kcs is not None or args.bcs is not None:
+        if getattr(args, "compensation", "none") == "passivity":
+            raise DockhilError("--compensation passivity draws its region on the Fig. 7 map over (b, h); the hybrid "
+                               "map (--kcs, --bcs) has none: leave one of them out")
         return _run_hybrid_map(args, m)
     b_lo, b_hi = _range("--b-range", args.b_range, positive=False, unit="N s/m")
     h_lo, h_hi = _range("--h-range", args.h_range, positive=True, most=MAX_DELAY, unit="s")
