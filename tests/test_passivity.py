@@ -158,7 +158,7 @@ def test_the_damping_stays_below_what_reverses_the_relative_velocity_within_a_ti
 def test_the_scenes_and_the_node_share_the_default_bound():
     import yaml
 
-    from nodes.virtual_impedance import VirtualImpedance as Node
+    from dockhil.nodes.virtual_impedance import VirtualImpedance as Node
 
     assert Node.params["max_damping"].default == DEFAULT_MAX_DAMPING
     for scene in ("launch/hil.yaml", "launch/stability.yaml"):
