@@ -159,8 +159,8 @@ class Energy(Message):
 
     port_work_J: work of the measured force on the simulated bodies (> 0: the hardware gave energy);
     port_spring_J: F^2 / (2 k), what the passive compliance k carrying the measured force F holds;
-    port_stored_J: what the port holds, F p - F^2 / (2 k): the spring's energy plus F (p - F/k),
-        the work still in flight while the delayed robot catches up with the simulation;
+    port_stored_J: what the delay-free compliance would hold at the simulated overlap, k p^2 / 2
+        (p > 0; 0 apart): the store against which the port's work counts as made energy;
     kinetic_J: kinetic energy of the simulated bodies;
     virtual_work_J, virtual_stored_J, virtual_dissipated_J: the virtual impedance's work on the
         bodies, what its springs hold, what its dampers dissipated;

@@ -37,7 +37,7 @@ class VirtualImpedance(Node):
         "compensation": Param(str, "none", help="passivity: add the damping that dissipates the energy the "
                               "delay and the sampling make (time-domain passivity, needs k); none: as published",
                               choices=("none", "passivity")),
-        "max_damping": Param(float, 200.0, unit="N s/m", help="largest damping the passivity controller adds; "
+        "max_damping": Param(float, 1e5, unit="N s/m", help="largest damping the passivity controller adds; "
                              "energy it cannot take out marks the run invalid", ge=0.0),
         "force_deadband": Param(float, 0.0, unit="N", help="passivity: once the bodies part, a measured force "
                                 "below this counts as none (set it above the sensor's noise)", ge=0.0),

@@ -11,6 +11,9 @@ import time
 from dockhil.errors import DockhilError
 from dockhil.figure_file import save_figure
 
+_THRUST, _SECONDS, _RATE = 10.0, 30.0, 1000.0  # stability.yaml's loop as the compensated runs simulate it
+_MULTIPLES = (1.0, 2.0, 3.0, 5.0, 10.0)  # of the exact bound: the stiffnesses the text output tries
+_MAP_MULTIPLES = (1.0, 3.0, 10.0, 30.0, 100.0)  # and the map: wide, since only max_damping limits the compensated loop
 _M_HELP = "free-floating mass [kg]: the reduced mass m1 m2 / (m1 + m2) of Eq. 8 (paper: 750)"
 _DAMPER_HELP = (
     "where the virtual damper acts: 'delayed' (default, the paper's loop m s^2 + (K + b s) e^(-sh) = 0)"
@@ -55,8 +58,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--compensation", choices=("none", "passivity"), default="none",
                         help="passivity: also measure (simulated, 30 s) the loop of stability.yaml with the passivity"
                              " controller at 1, 2, 3, 5 and 10 times the exact bound (and at --K)")
-    parser.add_argument("--max-damping", type=float, default=200.0, metavar="NS_M",
-                        help="the passivity controller's largest damping [N s/m] (default 200, as the scenes)")
+    parser.add_argument("--max-damping", type=float, metavar="NS_M",
+                        help="the passivity controller's largest damping [N s/m] (default: the scenes', 1e5)")
     hyb = parser.add_argument_group(
         "the hybrid loop", "m s^2 + b_d s + k_d + (k_h + b_h s) e^(-sh) = 0: the virtual impedance acts on the"
         " simulator's state (direct), the passive compliance through the robot (delayed); with any of these,"
@@ -96,6 +99,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                     help="hybrid map: passive stiffness range [N/m] (default 0 to 1.5 kcs)")
     mp.add_argument("--rate", type=float, metavar="HZ", default=1000.0,
                     help="hybrid map: tick rate of the sampled loop drawn beside the exact one (default 1000)")
+    comp = mp.add_argument_group(
+        "the compensated region", "with --compensation passivity, a third panel: over a coarse (b, h) grid, the"
+        " largest stiffness (in multiples of the exact bound) at which stability.yaml's loop with the passivity"
+        " controller, simulated, neither grows nor saturates")
+    comp.add_argument("--compensation", choices=("none", "passivity"), default=argparse.SUPPRESS,
+                      help="passivity: also simulate the compensated loop over the grid (default none)")
+    comp.add_argument("--max-damping", type=float, metavar="NS_M", default=argparse.SUPPRESS,
+                      help="the passivity controller's largest damping [N s/m] (default: the scenes', 1e5)")
+    comp.add_argument("--sim-n", type=int, metavar="N", default=6,
+                      help="simulated grid points per axis (default 6; the cost grows as N^2 x multiples)")
+    comp.add_argument("--multiples", type=float, nargs="+", metavar="X", default=list(_MAP_MULTIPLES),
+                      help="stiffnesses tried, in multiples of the exact bound (default 1 3 10 30 100)")
+    comp.add_argument("--seconds", type=float, metavar="S", default=_SECONDS,
+                      help=f"simulated time per point [s] (default {_SECONDS:g})")
     mp.add_argument("--png", metavar="FILE", required=True, help="where to write the figure (PNG)")
     mp.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help="print a JSON summary of the map")
     from dockhil.commands import stability_multi
@@ -151,13 +168,19 @@ def run(args: argparse.Namespace) -> int:
 
         return stability_multi.run(args)
     if args.scene is not None or any(getattr(args, n) is not None for n in _HYBRID):
+        if args.compensation == "passivity":
+            raise DockhilError("--compensation passivity measures stability.yaml's loop (--m, --b, --h); the hybrid "
+                               "loop (--scene, --k-direct ...) has no compensated measurement: leave one of them out")
         return _run_hybrid(args)
     from dockhil.contact.stability import stability_report
 
     m, b, h = _loop_values(args)
     report = stability_report(m, b, h, K=args.K, damper=args.damper, pade_order=args.pade_order)
     if args.compensation == "passivity":
-        report["passivity"] = _compensated(m, b, h, args.K, args.max_damping)
+        from dockhil.contact.passivity import DEFAULT_MAX_DAMPING
+
+        max_damping = DEFAULT_MAX_DAMPING if args.max_damping is None else args.max_damping
+        report["passivity"] = _compensated(m, b, h, args.K, max_damping)
     if args.json:
         print(json.dumps(report))
         return 0
@@ -167,7 +190,6 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-_THRUST, _SECONDS, _RATE = 10.0, 30.0, 1000.0
 
 
 def _compensated(m: float, b: float, h: float, K: float | None, max_damping: float) -> dict:
@@ -185,7 +207,7 @@ def _compensated(m: float, b: float, h: float, K: float | None, max_damping: flo
     if not (math.isfinite(max_damping) and max_damping > 0.0):
         raise DockhilError(f"--max-damping must be > 0 N s/m, got {max_damping:g}")
     bound = exact_bound(m, b, h, damper="undelayed").k_max
-    stiffnesses = [] if bound is None else [(f"{x:g}x exact", x * bound) for x in (1.0, 2.0, 3.0, 5.0, 10.0)]
+    stiffnesses = [] if bound is None else [(f"{x:g}x exact", x * bound) for x in _MULTIPLES]
     if K is not None:
         stiffnesses.append(("--K", K))
     rows = []
@@ -280,6 +302,9 @@ def _run_map(args) -> int:
         raise DockhilError("missing --m (free-floating mass [kg])")
     m = check_positive("--m", _within("--m", args.m, MAX_MASS, "kg"), "kg")
     if args.kcs is not None or args.bcs is not None:
+        if getattr(args, "compensation", "none") == "passivity":
+            raise DockhilError("--compensation passivity draws its region on the Fig. 7 map over (b, h); the hybrid "
+                               "map (--kcs, --bcs) has none: leave one of them out")
         return _run_hybrid_map(args, m)
     b_lo, b_hi = _range("--b-range", args.b_range, positive=False, unit="N s/m")
     h_lo, h_hi = _range("--h-range", args.h_range, positive=True, most=MAX_DELAY, unit="s")
@@ -293,7 +318,10 @@ def _run_map(args) -> int:
     pade1 = critical_stiffness_map(m, b, h, "pade1", damper)
     exact = critical_stiffness_map(m, b, h, "exact", damper)
     compute_seconds = time.perf_counter() - start
-    _plot(args.png, m, b, h, pade1, exact, damper)
+    compensated = None
+    if getattr(args, "compensation", "none") == "passivity":
+        compensated = _compensated_region(m, (b_lo, b_hi), (h_lo, h_hi), args)
+    _plot(args.png, m, b, h, pade1, exact, damper, compensated)
     with np.errstate(invalid="ignore"):
         overestimate = (pade1 - exact) / exact
     summary = {
@@ -311,6 +339,8 @@ def _run_map(args) -> int:
         "max_pade1_overestimate": _nanreduce(np.nanmax, overestimate),
         "points_without_stable_K": int(np.sum(np.isnan(exact))),
     }
+    if compensated is not None:
+        summary["passivity"] = compensated
     if getattr(args, "json", False):
         print(json.dumps(summary))
     else:
@@ -321,7 +351,70 @@ def _run_map(args) -> int:
             print(f"  Eq. 12 overestimates the exact bound by up to {100 * summary['max_pade1_overestimate']:.3g} %")
         if summary["points_without_stable_K"]:
             print(f"  {summary['points_without_stable_K']} grid points have no stabilizing K at all")
+        if compensated is not None:
+            _print_region(compensated)
     return 0
+
+
+def _compensated_region(m: float, b_range, h_range, args) -> dict:
+    """Over a coarse (b, h) grid, stability.yaml's loop with the passivity controller simulated at
+    multiples of the exact bound (undelayed damper: the loop the scene runs), all points at once."""
+    import numpy as np
+
+    from dockhil.contact.passivity import DEFAULT_MAX_DAMPING
+    from dockhil.contact.sheet_sweep import simulate_sheets
+    from dockhil.contact.stability import critical_stiffness_map
+    from dockhil.progress import Progress
+
+    max_damping = getattr(args, "max_damping", None)
+    max_damping = DEFAULT_MAX_DAMPING if max_damping is None else max_damping
+    if not (math.isfinite(max_damping) and max_damping > 0.0):
+        raise DockhilError(f"--max-damping must be > 0 N s/m, got {max_damping:g}")
+    if not 2 <= args.sim_n <= 40:
+        raise DockhilError(f"--sim-n must be between 2 and 40, got {args.sim_n}")
+    multiples = sorted(set(args.multiples))
+    if not all(math.isfinite(x) and 0.0 < x <= 1000.0 for x in multiples) or len(multiples) > 20:
+        raise DockhilError(f"--multiples must be 1 to 20 values in (0, 1000], got {' '.join(f'{x:g}' for x in args.multiples)}")
+    if not (math.isfinite(args.seconds) and 1.0 <= args.seconds <= 600.0):
+        raise DockhilError(f"--seconds must be between 1 and 600 s, got {args.seconds:g}")
+    bs, hs = np.linspace(*b_range, args.sim_n), np.linspace(*h_range, args.sim_n)
+    if hs[-1] * _RATE > 20000:
+        raise DockhilError(f"--h-range reaches {hs[-1] * _RATE:.0f} ticks of delay at {_RATE:g} Hz: the simulated sweep"
+                           f" goes up to 20000")
+    bound = critical_stiffness_map(m, bs, hs, "exact", "undelayed")  # [h, b]
+    hh, bb, xx = np.meshgrid(hs, bs, multiples, indexing="ij")
+    kk = bound[:, :, None] * xx
+    ok = np.isfinite(kk) & (kk > 0.0)
+    start, cpu = time.perf_counter(), time.process_time()
+    runs = simulate_sheets(m, bb[ok], kk[ok], hh[ok], max_damping, dt=1.0 / _RATE, seconds=args.seconds,
+                           thrust=_THRUST, progress=Progress(int(round(args.seconds * _RATE)) + 1, 1.0 / _RATE))
+    stable = np.zeros(kk.shape, bool)
+    stable[ok] = ~runs["grows"] & ~runs["saturated"]
+    saturated = np.zeros(kk.shape, bool)
+    saturated[ok] = runs["saturated"]
+    # The largest multiple up to which every multiple tried is stable (0: not even the smallest).
+    upto = np.cumprod(stable, axis=2).astype(bool)
+    largest = np.where(upto.any(axis=2), np.array(multiples)[np.argmax(~upto, axis=2) - 1], 0.0)
+    largest = np.where(upto.all(axis=2), multiples[-1], largest)
+    largest = np.where(np.isfinite(bound), largest, np.nan)
+    return {"loop": "m s^2 + b s + K e^(-sh) = 0 (stability.yaml: damper on the simulated velocity), sampled at "
+                    f"{_RATE:g} Hz, {_THRUST:g} N thrust, {args.seconds:g} s simulated per point",
+            "max_damping": max_damping, "grid": [args.sim_n, args.sim_n], "b": bs.tolist(), "h": hs.tolist(),
+            "multiples": multiples, "points": int(ok.sum()),
+            "largest_stable_multiple": [[None if math.isnan(x) else float(x) for x in row] for row in largest],
+            "stable_points": int(stable.sum()), "saturated_points": int(saturated.sum()),
+            "wall_seconds": time.perf_counter() - start, "cpu_seconds": time.process_time() - cpu}
+
+
+def _print_region(r: dict) -> None:
+    flat = [x for row in r["largest_stable_multiple"] for x in row if x is not None]
+    print(f"  with passivity compensation (max_damping {r['max_damping']:g} N s/m), simulated over {r['grid'][0]} x "
+          f"{r['grid'][1]} (b, h) points at {', '.join(f'{x:g}' for x in r['multiples'])} x the exact bound "
+          f"({r['points']} runs, {r['cpu_seconds']:.1f} s CPU):")
+    print(f"    stable (neither grows nor saturates) in {r['stable_points']} of {r['points']} runs; "
+          f"{r['saturated_points']} saturated")
+    if flat:
+        print(f"    largest stiffness stable at every point: {min(flat):g} x exact; at some point: {max(flat):g} x exact")
 
 
 def _nanreduce(fn, values) -> float | None:
@@ -333,7 +426,7 @@ def _nanreduce(fn, values) -> float | None:
     return None if math.isnan(out) else out
 
 
-def _plot(path: str, m: float, b, h, pade1, exact, damper: str) -> None:
+def _plot(path: str, m: float, b, h, pade1, exact, damper: str, compensated: dict | None = None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -341,14 +434,15 @@ def _plot(path: str, m: float, b, h, pade1, exact, damper: str) -> None:
     import numpy as np
 
     bb, hh = np.meshgrid(b, h * 1e3)
-    fig = plt.figure(figsize=(12, 5))
-    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    panels = 2 if compensated is None else 3
+    fig = plt.figure(figsize=(6 * panels, 5))
+    ax = fig.add_subplot(1, panels, 1, projection="3d")
     ax.plot_surface(bb, hh, pade1, cmap="viridis", linewidth=0, antialiased=False)
     ax.set_xlabel("b [N s/m]")
     ax.set_ylabel("h [ms]")
     ax.set_zlabel("K_max [N/m]")
     ax.set_title(f"Eq. 12 critical stiffness, m = {m:g} kg (Fig. 7)")
-    ax2 = fig.add_subplot(1, 2, 2)
+    ax2 = fig.add_subplot(1, panels, 2)
     filled = ax2.contourf(bb, hh, exact, levels=20, cmap="viridis")
     fig.colorbar(filled, ax=ax2, label="exact K_max [N/m]")
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -359,8 +453,43 @@ def _plot(path: str, m: float, b, h, pade1, exact, damper: str) -> None:
     ax2.set_xlabel("b [N s/m]")
     ax2.set_ylabel("h [ms]")
     ax2.set_title(f"exact bound ({damper} damper); white: Eq. 12 excess [%]")
+    if compensated is not None:
+        _plot_region(fig.add_subplot(1, panels, 3), compensated)
     fig.tight_layout()
     save_figure(fig, path, dpi=100)
+
+
+def _plot_region(ax, r: dict) -> None:
+    """The compensated region: per (b, h) point, the largest multiple of the exact bound stable."""
+    import numpy as np
+    from matplotlib.colors import BoundaryNorm, ListedColormap
+
+    largest = np.array([[np.nan if x is None else x for x in row] for row in r["largest_stable_multiple"]])
+    levels = [0.0, *r["multiples"]]
+    colors = ["#f4c7c3", *[_green(i, len(r["multiples"])) for i in range(len(r["multiples"]))]]
+    edges = [-0.5] + [(a + b) / 2 for a, b in zip(levels, levels[1:])] + [levels[-1] + 1.0]
+    mesh = ax.pcolormesh(np.array(r["b"]), np.array(r["h"]) * 1e3, largest, shading="nearest",
+                         cmap=ListedColormap(colors), norm=BoundaryNorm(edges, len(colors)))
+    bar = ax.figure.colorbar(mesh, ax=ax, ticks=levels, label="largest K stable [x exact bound]")
+    bar.ax.set_yticklabels(["none", *[f"{x:g}x" for x in r["multiples"]]])
+    if len(r["b"]) <= 12:
+        for i, h in enumerate(r["h"]):
+            for j, b in enumerate(r["b"]):
+                if not np.isnan(largest[i, j]):
+                    label = f"{largest[i, j]:g}x" if largest[i, j] > 0 else "none"
+                    ax.text(b, h * 1e3, label, ha="center", va="center", fontsize=7)
+    ax.set_xlabel("b [N s/m]")
+    ax.set_ylabel("h [ms]")
+    ax.set_title(f"passivity compensation (max_damping {r['max_damping']:g} N s/m), simulated:\n"
+                 "largest K that neither grows nor saturates (undelayed damper)", fontsize=9)
+
+
+def _green(i: int, n: int) -> str:
+    """The i-th of n greens, light to dark."""
+    from matplotlib import colormaps
+    from matplotlib.colors import to_hex
+
+    return to_hex(colormaps["Greens"](0.3 + 0.6 * i / max(1, n - 1)))
 
 
 def _scene_values(args) -> tuple[float, float, float, float, float, float, float]:

@@ -12,34 +12,52 @@ A port that is passive and free of delay gives back at most what it holds, so
 
 is the energy the port made out of nothing, for any store S that is zero when the port is
 unloaded: the same total over a contact, different timing. Hannaford and Ryu take S = 0 and learn
-of the energy once the contact is over. S = F^2 / (2 k), what the compliance k carrying F holds,
-sees it while it is made, at the rate k p_r (p_r' - p') (p_r = F/k, the robot's deflection):
-large where the simulated body turns (p' = 0) and the delayed robot still pushes, so the
-controller would need unbounded damping there (measured on Table 1 at 16 ms with max_damping
-1000: 3.6 N of extra peak force, against 0.08 N with the store below). We take
+of the energy once the contact is over. We take what the delay-free compliance k would hold at
+the simulated overlap,
 
-    S = F p - F^2 / (2 k) = F^2 / (2 k) + F (p - F/k),
+    S = k p^2 / 2 while p > 0 (else 0),
 
-the spring's energy plus the work its force does while the robot catches up with the
-simulation (p - F/k is the robot's lag). Then the generation rate is k p_r' (p - p_r), about
-k h p'^2 under a delay h: the delay acts as a negative damper -k h, and the damping that cancels
-its energy tick by tick is about k h, smooth through the contact; only its second-order part,
--3/2 k h^2 p' p'', still asks for more where p' -> 0 (at 32 ms it adds 0.19 N at the peak, which
-`max_damping` caps). S equals the spring's energy when the robot has caught up, and both are
-zero at the start and end of a contact.
+so the generation rate is p' (k p - F): the power of the force error k p - F, which the delay
+makes (F = k p(t - h) behind a delay h; k h p'^2 to first order: the delay is a negative damper
+-k h). Where p' and k p - F have the same sign the error makes energy, and a damper on p' can
+cancel it exactly: the controller dissipates over the next tick what the held force will make
+over it (predicted with p + p' dt), so the chaser feels k (p + p' dt / 2) from the port and the
+controller together, the delay-free spring at mid-tick: until the bodies first turn, the loop is
+the ideal contact, however long the delay. Where they have opposite signs (just past a turn of p,
+for about h / 2) the error dissipates by itself and no damper can undo it; the observer keeps
+that as credit against later generation, as Hannaford and Ryu's does, so over a contact the loop
+gives back what the ideal one does (on Table 1: exit velocity within 1.4e-5 m/s of the ideal's
+for any delay up to half the contact).
+
+Other stores see the energy at other times and ask the damper for more. F^2 / (2 k), what the
+measured compliance holds (an observer that counts the measured force against the robot's own
+motion), makes energy at the rate k p_r (p_r' - p') (p_r = F/k the robot's deflection);
+F p - F^2 / (2 k) at k p_r' (p - p_r). Both
+are about k h p'^2 too, but both go on where the simulated body turns (p' = 0) while the delayed
+robot still moves, so the damping they need grows as 1/p'^2 there, and a bound on it costs force:
+on Table 1 at 0.785 s of delay (half the contact) the second, with the energy taken one tick
+late, erred -2.8 N on the peak force with a bound of 200 N s/m (more than the loop without
+compensation) and +63 N with 1e4 (force spikes). With k p^2 / 2 and the prediction the added force
+is the force error itself (measured: never more than 0.05 N above |k p - F| on Table 1), which stays
+finite at a turn; only the damping coefficient grows there (as 1/p'), so a high bound costs no
+force spike.
 
 The virtual impedance is software, but its forces are held over a tick too: its springs make
 k_i (de_i)^2 / 2 per tick (e_i the deflection from its wall). That is counted the same way: work
-on the bodies + change of what its springs hold + what its dampers dissipate.
+on the bodies + change of what its springs hold + what its dampers dissipate; the controller
+takes it out the tick after.
 
 The controller (per axis) adds a damping force -alpha v on the chaser (+alpha v on the target)
-with alpha = E / (v^2 dt) when the net generated energy E is positive, so that over the next
-tick it dissipates E; alpha is bounded by `max_damping`. It only dissipates (alpha >= 0) and acts
-only while the port is loaded (the bodies touch, or the measured force exceeds `deadband`): it
-never makes energy, and no force of it acts once a contact is over. Where v is near 0 no damping can dissipate: the energy waits and
-is taken once the bodies move again. Energy still in the loop when the controller stops (the
-contact is over, or the run ends) beyond a tolerance means the bound was too low: the controller
-saturated and the run is not valid (`saturation`).
+with alpha = E / (v^2 dt), E the net generated energy plus what the port will make over the next
+tick, when E is positive. alpha is bounded by `max_damping` and by m_r / dt (m_r the reduced mass):
+a damper stronger than that would reverse the relative velocity within a tick, and past 2 m_r / dt
+it would make energy. It only dissipates (alpha >= 0) and acts only while the port is loaded (the
+bodies touch, or the measured force exceeds `deadband`): it never makes energy, and once a contact
+is over no force of it acts. After the bodies part while the delayed robot still pushes, it
+cancels that push (the delay-free compliance would carry none). Where v is near 0 no damping can
+dissipate: the energy waits and is taken once the bodies move again. Energy still in the loop when
+the controller stops (the contact is over, or the run ends) beyond a tolerance means the bound was
+too low: the controller saturated and the run is not valid (`saturation`).
 """
 
 from __future__ import annotations
@@ -50,6 +68,11 @@ from dataclasses import dataclass, fields
 from dockhil.contact.scenario import ContactModelError
 
 RESIDUAL_TOLERANCE = 1e-3  # of the largest energy the port's spring held: more left in the loop = saturated
+# [N s/m] the scenes' max_damping. The force added is the delay's force error, so the bound need not
+# hold the force down; it only has to clear the damping the error asks for: about k h, k tan(w h) / w
+# when the first delayed force arrives (w = sqrt(kcs / m_r): 342 N s/m on Table 1 at 0.3 s), and 1/v
+# near each turn. Below 3e4 it clips there and costs peak force on Table 1 at half the contact.
+DEFAULT_MAX_DAMPING = 1e5
 
 
 @dataclass(frozen=True)
@@ -98,22 +121,31 @@ ENERGY_FIELDS = tuple(f.name for f in fields(EnergyTick))
 
 def port_store(f: float, p: float, k: float) -> tuple[float, float]:
     """(spring, stored) [J] of a port whose compliance k carries the force f on the chaser
-    (F = -f compressive) while the simulated interfaces overlap by p: F^2/(2k) and F p - F^2/(2k)."""
+    (F = -f compressive) while the simulated interfaces overlap by p: F^2/(2k), what the measured
+    compliance holds, and k p^2/2 (p > 0), what the delay-free compliance would hold."""
     if k <= 0.0:
         return 0.0, 0.0
-    spring = f * f / (2.0 * k)
-    return spring, -f * p - spring
+    return f * f / (2.0 * k), (0.5 * k * p * p if p > 0.0 else 0.0)
 
 
-def damping_force(passivity: Passivity | None, net_generated: float, v: float, dt: float,
-                  active: bool) -> tuple[float, float, bool]:
+def port_generation(f: float, p: float, dp: float, k: float) -> float:
+    """[J] the energy the port makes over a tick in which the held force f on the chaser acts while
+    the overlap moves from p by dp: its work on the bodies plus the change of the store k p^2/2."""
+    q = p + dp
+    return f * dp + 0.5 * k * ((q * q if q > 0.0 else 0.0) - (p * p if p > 0.0 else 0.0))
+
+
+def damping_force(passivity: Passivity | None, energy: float, v: float, dt: float, active: bool,
+                  ceiling: float = math.inf) -> tuple[float, float, bool]:
     """One axis of the controller: (force on the chaser [N], damping [N s/m], at the bound) over
-    the next tick, so that it dissipates the net generated energy [J] at velocity v [m/s]."""
-    if passivity is None or not active or net_generated <= 0.0:
+    the next tick, so that it dissipates `energy` [J] at velocity v [m/s]; the damping is bounded by
+    max_damping and by `ceiling` (m_r / dt: no reversal of the relative velocity within a tick)."""
+    if passivity is None or not active or energy <= 0.0:
         return 0.0, 0.0, False
-    want = math.inf if v == 0.0 else net_generated / (v * v * dt)
-    alpha = min(want, passivity.max_damping)
-    return -alpha * v, alpha, want > passivity.max_damping
+    want = math.inf if v == 0.0 else energy / (v * v * dt)
+    bound = min(passivity.max_damping, ceiling)
+    alpha = min(want, bound)
+    return -alpha * v, alpha, want > bound
 
 
 class EnergyMonitor:
@@ -129,6 +161,7 @@ class EnergyMonitor:
         self.m1, self.m2, self.k = m1, m2, k
         self.imp = impedance
         self.s1, self.s2 = (1.0, 0.0) if m2 == 0.0 else (m2 / (m1 + m2), -m1 / (m1 + m2))
+        self.reduced = m1 if m2 == 0.0 else m1 * m2 / (m1 + m2)  # [kg] of the relative motion p
         self.passivity = passivity
         self.prev = None  # (x1, x2, p, pd, f, fc, fv1, fv2, touching) of the previous tick
         self.e = EnergyTick()
@@ -159,15 +192,20 @@ class EnergyMonitor:
         else:
             e.virtual_stored_J = 0.0
         if self.prev is None:
-            # A run may start in contact: a passive, delay-free port would hold k p^2 / 2 from the
-            # start (the delayed robot only reports it later), the virtual springs what they hold.
-            self.initial = (0.5 * self.k * p * p if p > 0.0 else 0.0) + e.virtual_stored_J
+            # A run may start in contact: what the stores hold then was not made by the loop (the
+            # delay-free port holds k p^2 / 2 from the start; the delayed robot reports it later).
+            self.initial = e.port_stored_J + e.virtual_stored_J
         e.generated_J = (e.port_work_J + e.port_stored_J + e.virtual_work_J + e.virtual_stored_J
                          + e.virtual_dissipated_J - self.initial)
         e.net_generated_J = e.generated_J - e.compensation_dissipated_J
         e.port_loaded = touching or abs(f) > (self.passivity.deadband if self.passivity is not None else 0.0)
-        fc, e.damping_Ns_m, e.at_max_damping = damping_force(self.passivity, e.net_generated_J, pd, dt,
-                                                             e.port_loaded)
+        if self.passivity is not None and e.port_loaded:
+            # What is left, and what the held force will make over the next tick (p moving at pd).
+            energy = e.net_generated_J + port_generation(f, p, pd * dt, self.k)
+            fc, e.damping_Ns_m, e.at_max_damping = damping_force(self.passivity, energy, pd, dt, True,
+                                                                 self.reduced / dt)
+        else:
+            fc, e.damping_Ns_m, e.at_max_damping = 0.0, 0.0, False
         self.prev = (x1, x2, p, pd, f, fc, fv1, fv2, touching)
         return fc, e
 
