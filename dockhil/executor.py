@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from dockhil.errors import DockhilError
+from dockhil.log import node_line
 from dockhil.node import NodeContext, Tick
 from msgs.codec import DecodeError, decode, decode_header, encode
 
@@ -214,7 +215,7 @@ class NodeExecutor:
         self.spec = spec
         self.stop = stop
         self.clock = clock
-        self.log = log or (lambda m: print(m, file=sys.stderr, flush=True))
+        self.log = log or (lambda m: node_line(spec.name, m))
         self.node = node_cls(NodeContext(spec.name, spec.dt, spec.clock == "sim", self.log, clock), **spec.params)
         ins, outs = node_cls.ports(vars(self.node.p))
         self.outputs = outs

@@ -39,7 +39,9 @@ DRAIN_MAX = 100_000  # frames taken from the socket in one pass, so that a pass 
 
 
 def _log(line: str) -> None:
-    print(line, file=sys.stderr, flush=True)
+    from dockhil.log import node_line
+
+    node_line("foxglove", line)  # "[foxglove] warning: ...": under its own name, at its level
 
 
 class FoxgloveBridge:
@@ -126,7 +128,7 @@ class FoxgloveBridge:
                 self.serve(burst)
         except DockhilError as exc:  # a peer failed the graph's authentication: serve nothing more from it
             self.error = str(exc)
-            self.log(f"[foxglove] live view stopped: {exc}")
+            self.log(f"[foxglove] warning: live view stopped: {exc}")
         finally:
             sub.close()
 

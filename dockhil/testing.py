@@ -167,7 +167,9 @@ class NodeHarness:
     def _log(self, name: str, line: str) -> None:
         self.logs.append(line)
         if self.echo_log:
-            print(f"[{name}] {line}", file=sys.stderr, flush=True)
+            from dockhil.log import node_line
+
+            node_line(name, line)
 
 
 # -- messages for tests (headers are stamped by the harness) ---------------------------
