@@ -23,7 +23,6 @@ The bridge observes; it never holds the graph back:
 from __future__ import annotations
 
 import json
-import sys
 import threading
 import time
 from typing import Any, Callable

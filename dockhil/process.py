@@ -41,7 +41,7 @@ def _ask_realtime(log) -> None:
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
     except (PermissionError, OSError, AttributeError) as exc:
-        log(f"real-time scheduling refused ({exc}); running at normal priority "
+        log(f"warning: real-time scheduling refused ({exc}); running at normal priority "
             f"(grant CAP_SYS_NICE or an rtprio limit to use --realtime)")
 
 
@@ -76,7 +76,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
             duration = None if spec.n_ticks is None else spec.n_ticks * spec.dt
             stats = executor.run_wall(duration)
             if stats["deadline_misses"]:
-                log(f"{stats['deadline_misses']} of {stats['ticks']} ticks missed their deadline")
+                log(f"warning: {stats['deadline_misses']} of {stats['ticks']} ticks missed their deadline")
     except DockhilError as exc:
         log(f"error: {exc}")
         return 2
@@ -100,7 +100,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
 
                 print(TIMING + json.dumps(timing.report(spec.name)), flush=True)
     if executor.dropped:
-        log(f"{executor.dropped} bad message(s) dropped")
+        log(f"warning: {executor.dropped} bad message(s) dropped")
     return 0
 
 

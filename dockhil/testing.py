@@ -32,7 +32,6 @@ Semantics, as in a launched graph:
 
 from __future__ import annotations
 
-import sys
 from types import SimpleNamespace
 from typing import Any, Callable
 

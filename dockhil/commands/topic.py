@@ -11,6 +11,7 @@ import os
 import time
 
 from dockhil.errors import DockhilError
+from dockhil.log import Log
 
 # How often echo and hz look whether their graph still runs [s].
 ALIVE_CHECK_S = 0.5
@@ -105,7 +106,6 @@ class _Watch:
 
 def run(args) -> int:
     from dockhil.launcher import graph_keys
-    from dockhil.log import Log
 
     if args.action == "list":
         graphs = select_graphs(args.graph)
