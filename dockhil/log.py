@@ -37,9 +37,9 @@ _logger.propagate = False  # dockhil's own handlers only: a record is printed on
 
 
 def format_line(record: logging.LogRecord, word_always: bool = False) -> str:
-    """`[source] level: message`, one line. A `tag` stands in for the level word: INVALID, or ""
-    for a line whose words already say it (`[launch] node 'x' exited ...; stopping the graph`);
-    word_always (a file) shows the level word there too."""
+    """`[source] level: message`, one line. A `tag` stands in for the level word; tag "" leaves it
+    out, for a line whose words already say it (`[launch] node 'x' exited ...; stopping the graph`,
+    `[launch] INVALID: ...`), except where word_always (a file) asks for it."""
     tag = getattr(record, "tag", None)
     word = WORDS.get(record.levelno) if tag is None or (tag == "" and word_always) else tag
     text = one_line(record.getMessage())
@@ -136,10 +136,8 @@ def level_name(text: str) -> int:
 def _level_arg(text: str) -> str:
     import argparse
 
-    try:
-        level_name(text)
-    except DockhilError as exc:
-        raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[1]) from None
+    if text.strip().lower() not in LEVELS:
+        raise argparse.ArgumentTypeError(f"not a level; give one of {', '.join(LEVELS)}")
     return text.strip().lower()
 
 

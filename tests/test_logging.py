@@ -107,6 +107,20 @@ def test_records_are_one_line_each_with_their_prefix():
     ]
 
 
+def test_the_file_gives_every_warning_and_error_its_level_word(tmp_path):
+    out, file = io.StringIO(), tmp_path / "x.log"
+    log.setup("info", file=str(file), stream=out)
+    log.Log("[launch]").error("node 'x' exited with code 3 while running; stopping the graph", tag="")
+    log.Log("[launch]").error("INVALID: late (exit 3)", tag="")
+    log.Log("[launch]").info("done")
+    log.setup()  # closes the file
+    assert out.getvalue().splitlines() == ["[launch] node 'x' exited with code 3 while running; stopping the graph",
+                                           "[launch] INVALID: late (exit 3)", "[launch] done"]
+    assert [line.split("Z ", 1)[1] for line in file.read_text().splitlines()] == [
+        "[launch] error: node 'x' exited with code 3 while running; stopping the graph",
+        "[launch] error: INVALID: late (exit 3)", "[launch] done"]
+
+
 # --------------------------------------------------------------------------- progress and records
 
 
