@@ -301,7 +301,6 @@ class _Child:
     finished: bool = False
     host: str = ""  # another machine: started there by hand, not watched from here
     reader: threading.Thread | None = None
-    lines: list[str] = field(default_factory=list)
 
 
 class Launcher:
@@ -355,7 +354,6 @@ class Launcher:
                 except ValueError:
                     pass
                 continue
-            child.lines.append(line)
             log.replay(line, f"[{child.name}]")
 
     # -- processes -------------------------------------------------------------

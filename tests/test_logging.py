@@ -3,8 +3,11 @@ their prefixes, the progress line and log records on one terminal, an unwritable
 the did-you-means for node types and parameters."""
 
 import io
+import json
+import os
 import re
 import subprocess
+import sys
 import threading
 
 import pytest
@@ -63,6 +66,34 @@ def test_the_level_filters_and_the_file_gets_the_node_processes_records_with_the
     # The launcher's own records follow the same level.
     assert ("[launch] debug: started 'alone'" in r.stderr) == (level == "debug")
     assert ("[launch] done: " in r.stderr) == (level == "debug")
+
+
+def node_process(tmp_path, env):
+    """One Chatty node process run as the launcher runs it, with `env` added."""
+    from dockhil.transport import GraphKeys
+
+    keys = GraphKeys.make().write(tmp_path / "graph.keys")
+    spec = {"name": "alone", "type_name": "tests.lognodes:Chatty", "dt": 0.01, "clock": "sim", "n_ticks": 3,
+            "params": {}, "key_file": str(keys),
+            "outputs": {"x": {"topic": "/x", "endpoint": f"ipc://{tmp_path}/x", "type": "dockhil/WrenchStamped"}}}
+    return subprocess.run([sys.executable, "-m", "dockhil.process", json.dumps(spec)], capture_output=True,
+                          text=True, env=dict(os.environ, **env), timeout=60)
+
+
+def test_a_node_process_sends_the_launcher_only_what_its_level_shows(tmp_path):
+    r = node_process(tmp_path, {log.LEVEL_ENV: "warning", log.FORWARD_ENV: "1"})
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    # split at \n alone, as the launcher reads: str.splitlines() also splits at FORWARD's \x1e
+    sent = [line for line in r.stdout.split("\n") if line.startswith(log.FORWARD)]
+    assert [json.loads(line[len(log.FORWARD):])[:3] for line in sent] == [
+        [30, "[alone]", "alone says warning"], [40, "[alone]", "alone says error"]]
+
+
+def test_a_node_process_started_by_hand_writes_its_lines_to_stderr(tmp_path):
+    r = node_process(tmp_path, {log.LEVEL_ENV: "", log.FORWARD_ENV: ""})  # as on another host
+    assert r.returncode == 0 and log.FORWARD not in r.stdout
+    assert node_lines(r.stderr) == {f"[alone] {w}alone says {n}" for w, n in
+                                    (("", "info"), ("warning: ", "warning"), ("error: ", "error"))}
 
 
 def test_a_composed_run_says_the_same_lines(write_launch):
