@@ -379,8 +379,10 @@ class Launcher:
         keys = self.endpoints.key_file
         argv = ["python3", "-m", "dockhil.process", "--keys", str(keys), *child.argv[3:]]
         command = " ".join(shlex.quote(a) for a in argv)
-        self.say.info(f"node {child.name!r} runs on {child.host}: copy the key file {keys} to the same path "
-                 f"there (mode 0600, over a private channel such as scp) and start it there with: {command}")
+        # Warning level: the graph waits for this node, so the line shows at any --log-level but error.
+        self.say.warning(f"node {child.name!r} runs on {child.host}: copy the key file {keys} to the same path "
+                         f"there (mode 0600, over a private channel such as scp) and start it there with: {command}",
+                         tag="")
 
     def _write_registry(self) -> Path:
         path = registry_dir() / f"{self.endpoints.run_id}.json"
