@@ -182,6 +182,32 @@ def setup_child() -> None:
     _install(number, [ForwardHandler() if forward else StderrHandler()])
 
 
+class _Source(logging.Filter):
+    """Gives another library's record the prefix of the process it happens in."""
+
+    def __init__(self, source: str):
+        super().__init__()
+        self.source = source
+
+    def filter(self, record):
+        if not getattr(record, "source", ""):
+            record.source = self.source
+        return True
+
+
+def capture_others(source: str) -> None:
+    """In a node process: other libraries' records and Python's warnings, from warning up, go
+    where dockhil's go, under `source` (the node's name) and with their level."""
+    number = max(logging.WARNING, _logger.getEffectiveLevel())
+    handler = ForwardHandler() if os.environ.get(FORWARD_ENV) == "1" else StderrHandler()
+    handler.addFilter(_Source(source))
+    handler.setLevel(number)
+    root = logging.getLogger()
+    root.addHandler(handler)
+    root.setLevel(min(root.level or logging.WARNING, number))
+    logging.captureWarnings(True)
+
+
 def _install(number: int, handlers: list[logging.Handler]) -> None:
     for old in list(_logger.handlers):
         _logger.removeHandler(old)

@@ -125,6 +125,7 @@ def main() -> int:
         return 2
     if key_file is not None:
         spec.key_file = key_file
+    log.capture_others(f"[{spec.name}]")
     profile_dir = os.environ.get("DOCKHIL_PROFILE")
     if profile_dir:  # developers: one cProfile dump per node, named after it
         import cProfile

@@ -18,3 +18,19 @@ class Chatty(Node):
                 lead = "" if word == "info" else f"{word}: "
                 self.log(f"{lead}{self.ctx.name} says {word}")
         return {"x": WrenchStamped(header=tick.header(), wrench=Wrench(force=Vector3(x=float(tick.index))))}
+
+
+class Library(Node):
+    """At tick 1, a library it uses logs a warning and Python warns."""
+
+    outputs = {"x": Output(WrenchStamped, "/x")}
+
+    def step(self, tick, inputs):
+        if tick.index == 1:
+            import logging
+            import warnings
+
+            logging.getLogger("somelib").warning("somelib says warning")
+            logging.getLogger("somelib").info("somelib says info")  # below warning: never shown
+            warnings.warn("python says warning", UserWarning, stacklevel=1)
+        return {"x": WrenchStamped(header=tick.header())}

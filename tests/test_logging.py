@@ -68,12 +68,12 @@ def test_the_level_filters_and_the_file_gets_the_node_processes_records_with_the
     assert ("[launch] done: " in r.stderr) == (level == "debug")
 
 
-def node_process(tmp_path, env):
-    """One Chatty node process run as the launcher runs it, with `env` added."""
+def node_process(tmp_path, env, node="Chatty"):
+    """One node process (tests.lognodes) run as the launcher runs it, with `env` added."""
     from dockhil.transport import GraphKeys
 
     keys = GraphKeys.make().write(tmp_path / "graph.keys")
-    spec = {"name": "alone", "type_name": "tests.lognodes:Chatty", "dt": 0.01, "clock": "sim", "n_ticks": 3,
+    spec = {"name": "alone", "type_name": f"tests.lognodes:{node}", "dt": 0.01, "clock": "sim", "n_ticks": 3,
             "params": {}, "key_file": str(keys),
             "outputs": {"x": {"topic": "/x", "endpoint": f"ipc://{tmp_path}/x", "type": "dockhil/WrenchStamped"}}}
     return subprocess.run([sys.executable, "-m", "dockhil.process", json.dumps(spec)], capture_output=True,
@@ -87,6 +87,15 @@ def test_a_node_process_sends_the_launcher_only_what_its_level_shows(tmp_path):
     sent = [line for line in r.stdout.split("\n") if line.startswith(log.FORWARD)]
     assert [json.loads(line[len(log.FORWARD):])[:3] for line in sent] == [
         [30, "[alone]", "alone says warning"], [40, "[alone]", "alone says error"]]
+
+
+def test_a_library_warning_in_a_node_process_is_a_warning_under_the_nodes_name(tmp_path):
+    r = node_process(tmp_path, {log.LEVEL_ENV: "info", log.FORWARD_ENV: "1"}, node="Library")
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    sent = [json.loads(line[len(log.FORWARD):]) for line in r.stdout.split("\n") if line.startswith(log.FORWARD)]
+    assert [s[:2] for s in sent] == [[30, "[alone]"], [30, "[alone]"]]
+    assert sent[0][2] == "somelib says warning"
+    assert "UserWarning: python says warning" in sent[1][2]
 
 
 def test_a_node_process_started_by_hand_writes_its_lines_to_stderr(tmp_path):
