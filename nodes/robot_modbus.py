@@ -598,7 +598,8 @@ class RobotModbusDriver(Node):
         if status & mm.STATUS_HEARTBEAT_LOST and old is not None and not old & mm.STATUS_HEARTBEAT_LOST:
             self.heartbeat_losses += 1
             if self.heartbeat_losses == 1:  # the first one tells the story; close() reports the count
-                self.log(f"{self.device}: controller lost our heartbeat and holds; resuming on the next command")
+                self.log(f"warning: {self.device}: controller lost our heartbeat and holds; "
+                         f"resuming on the next command")
 
     def _trip(self, limit: str, value, text: str) -> None:
         line = f"safety stop: {text}"
