@@ -111,7 +111,8 @@ def find_sources(topics: list[str] | None = None, graph_pid: int | None = None) 
         for topic, t in sorted(g.get("topics", {}).items()):
             other = found.get(topic)
             if other is not None:
-                _record_log(f"note: topic {topic} is published by two running graphs; recording the one of pid {other.graph_pid}")
+                _record_log(f"note: topic {topic} is published by two running graphs; recording the one of pid "
+                            f"{other.graph_pid}")
                 continue
             found[topic] = Source(topic, t["endpoint"], t["type"], g.get("clock") == "sim", g["pid"], g["run_id"],
                                   g.get("keys", ""))
