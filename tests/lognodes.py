@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dockhil.node import Node, Output, Param
-from msgs import Vector3, Wrench, WrenchStamped
+from dockhil.msgs import Vector3, Wrench, WrenchStamped
 
 
 class Chatty(Node):

@@ -4,7 +4,7 @@ whether `dockhil launch` would refuse its step (the same scene check, same one l
 from __future__ import annotations
 
 
-import msgs
+from dockhil import msgs
 
 
 def add_arguments(p) -> None:
