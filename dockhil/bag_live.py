@@ -52,6 +52,7 @@ from dockhil import msgs
 from dockhil.msgs.codec import decode_header
 from dockhil.bag import BagError, BagMessage, BagReader, BagWriter
 from dockhil.errors import DockhilError
+from dockhil.log import Log, setup_child
 
 RECORDER_NAME = "bag-recorder"
 FLUSH_EVERY_S = 0.5  # bounds what a SIGKILL loses when topics are quiet
@@ -60,8 +61,8 @@ DRAIN_MAX_S = 2.0
 FIND_GRAPH_TIMEOUT_S = 20.0  # as long as sim-time publishers wait for subscribers
 
 
-def _log(line: str) -> None:
-    print(line, file=sys.stderr, flush=True)
+_record_log = Log("dockhil bag record:").line  # lines whose first word may say their level
+_play_log = Log("dockhil bag play:").line
 
 
 def _alive(pid: int) -> bool:
@@ -110,7 +111,8 @@ def find_sources(topics: list[str] | None = None, graph_pid: int | None = None) 
         for topic, t in sorted(g.get("topics", {}).items()):
             other = found.get(topic)
             if other is not None:
-                _log(f"note: topic {topic} is published by two running graphs; recording the one of pid {other.graph_pid}")
+                _record_log(f"note: topic {topic} is published by two running graphs; recording the one of pid "
+                            f"{other.graph_pid}")
                 continue
             found[topic] = Source(topic, t["endpoint"], t["type"], g.get("clock") == "sim", g["pid"], g["run_id"],
                                   g.get("keys", ""))
@@ -147,7 +149,7 @@ class Recorder:
     """
 
     def __init__(self, path: str, sources: dict[str, Source], *, n_ticks: int | None = None,
-                 overwrite: bool = False, log: Callable[[str], None] = _log):
+                 overwrite: bool = False, log: Callable[[str], None] = _record_log):
         import zmq
 
         from dockhil.transport import Subscriber
@@ -331,15 +333,15 @@ def record(args: argparse.Namespace) -> int:
     stop.install()
     recorder = Recorder(args.path, sources, overwrite=args.overwrite)
     graphs = {(s.graph_pid, s.run_id) for s in sources.values()}
-    _log(f"recording {len(sources)} topics to {args.path} (Ctrl-C to stop)")
+    _record_log(f"recording {len(sources)} topics to {args.path} (Ctrl-C to stop)")
     try:
         why = recorder.run(stop, alive=lambda: any(_graph_running(*g) for g in graphs))
     finally:  # also on a publisher that failed authentication: what was recorded is kept
         recorder.close()
     if why == "the graph stopped":
-        _log("the recorded graph stopped")
+        _record_log("the recorded graph stopped")
     if recorder.lost:
-        _log(f"error: {recorder.lost} message(s) lost; the recording is incomplete")
+        _record_log(f"error: {recorder.lost} message(s) lost; the recording is incomplete")
         return RECORDER_LOST_EXIT
     return 0
 
@@ -368,7 +370,7 @@ class TapRecorder:
     def __init__(self, path: str, graph, *, sim: bool, log: Callable[[str], None] | None = None):
         self.path = path
         self.sim = sim
-        self.log = log or (lambda line: _log(f"[{RECORDER_NAME}] {line}"))
+        self.log = log or Log(f"[{RECORDER_NAME}]").line
         self.bag = BagWriter(path)
         for topic, ref in graph.publishers.items():
             self.bag.add_topic(topic, msgs.type_name(ref.type))
@@ -426,7 +428,8 @@ def _recorder_main(argv: list[str]) -> int:
     _die_with_parent()
     stop = Stop()
     stop.install()
-    out = lambda line: print(line, flush=True)  # noqa: E731 (the launcher prefixes and shows stdout)
+    setup_child()  # its records go to the launcher, which logs them
+    out = Log(f"[{RECORDER_NAME}]").line
     try:
         deadline = time.monotonic() + FIND_GRAPH_TIMEOUT_S
         while True:  # the launcher registers its graph just after starting its processes
@@ -504,7 +507,7 @@ class _Player:
         """Until every topic has `n` subscribers; False if stopped first."""
         if n <= 0:
             return True
-        _log(f"waiting for {n} subscriber(s) on each of {len(self.pubs)} topics (Ctrl-C to give up)")
+        _play_log(f"waiting for {n} subscriber(s) on each of {len(self.pubs)} topics (Ctrl-C to give up)")
         hint_at = time.monotonic() + 5.0
         while True:
             short = [t for t, pub in self.pubs.items() if pub.subscribers < n]
@@ -514,7 +517,7 @@ class _Player:
                 return False
             if hint_at is not None and time.monotonic() > hint_at:
                 hint_at = None
-                _log(f"still waiting for {short[0]}" + (f" and {len(short) - 1} more" if len(short) > 1 else "")
+                _play_log(f"still waiting for {short[0]}" + (f" and {len(short) - 1} more" if len(short) > 1 else "")
                      + "; to play fewer topics give --topics, to wait for fewer subscribers --subscribers")
             for topic in short:
                 sock = self.pubs[topic].sock
@@ -541,7 +544,7 @@ def play(args: argparse.Namespace) -> int:
     with BagReader(args.path) as reader:
         found = reader.summary()
     if found["loss"]:
-        _log(f"dockhil bag play: warning: {found['loss']}")
+        _play_log(f"warning: {found['loss']}")
     in_bag = {t["topic"]: t["type"] for t in found["topics"] if t["count"] > 0}
     if not in_bag:
         raise BagError(f"{args.path}: the bag holds no message; nothing to play")
@@ -586,7 +589,7 @@ def play(args: argparse.Namespace) -> int:
         player.close()
     how = "in tick order" if sim else f"at rate {args.rate:g}"
     loops = f" ({passes} passes)" if passes > 1 else ""
-    _log(f"played {sent} messages on {len(topics)} topics {how} in {elapsed:.3f} s{loops}")
+    _play_log(f"played {sent} messages on {len(topics)} topics {how} in {elapsed:.3f} s{loops}")
     return 130 if stop.requested else 0
 
 
@@ -718,7 +721,7 @@ def _play_sim(ordered, socks: dict, state: _TickShift, stop) -> int:
         complete_to(current)
     state.end_pass()
     if unplayable:
-        _log(f"note: {unplayable} messages could not be renumbered (not a valid message) and were not played")
+        _play_log(f"note: {unplayable} messages could not be renumbered (not a valid message) and were not played")
     return sent
 
 

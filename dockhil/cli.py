@@ -74,18 +74,20 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 0
     module = importlib.import_module(COMMANDS[args.command][0])
+    from dockhil import log
+
+    say = log.Log(f"dockhil {args.command}:")
     try:
+        log.setup(getattr(args, "log_level", None), getattr(args, "log_file", None))
         return int(module.run(args) or 0)
     except DockhilError as exc:
-        print(f"dockhil {args.command}: error: {one_line(str(exc))}", file=sys.stderr)
+        say.error(str(exc))
         return 2
     except RecursionError:  # input nested deeper than any check foresaw: still one line
-        print(f"dockhil {args.command}: error: the input is nested too deeply to process "
-              f"(Python's recursion limit); give a flatter one", file=sys.stderr)
+        say.error("the input is nested too deeply to process (Python's recursion limit); give a flatter one")
         return 2
     except MemoryError:
-        print(f"dockhil {args.command}: error: out of memory processing the input; give a smaller one",
-              file=sys.stderr)
+        say.error("out of memory processing the input; give a smaller one")
         return 2
     except KeyboardInterrupt:
         return 130

@@ -15,6 +15,7 @@ from typing import Any, Callable
 
 from dockhil.executor import LoopTiming, Stop, _bounds_check, _sleep_until, check_outputs, checked_payload
 from dockhil.graph import Graph
+from dockhil.log import node_line
 from dockhil.node import NodeContext, Tick
 
 Tap = Callable[[str, Any], None]  # (topic, message)
@@ -29,7 +30,7 @@ class ComposedGraph:
         self.graph = graph
         self.dt = graph.scene.dt
         self.taps = taps or []
-        self.log = log or (lambda name, msg: print(f"[{name}] {msg}", flush=True))
+        self.log = log or node_line  # (name, line): the line on stderr, under the node's name
         self.nodes = {}
         # The longest lag any reader needs of each topic: how much history to keep.
         depth: dict[str, int] = {}

@@ -17,6 +17,15 @@ class DeviceError(DockhilError):
     """A hardware device is missing, unreachable or misbehaving."""
 
 
+def suggest(name: str, known, what: str) -> str:
+    """`did you mean 'x'? (what: a, b, c)` when a known name is close to `name`, else `what: a, b, c`."""
+    import difflib
+
+    near = difflib.get_close_matches(name, list(known), n=1)
+    listed = f"{what}: {', '.join(sorted(known)) or 'none'}"
+    return f"did you mean {near[0]!r}? ({listed})" if near else listed
+
+
 _BREAKS = "\n\r\v\f\x1c\x1d\x1e\x85\u2028\u2029"  # every character str.splitlines() ends a line at
 
 

@@ -27,12 +27,12 @@ import json
 import math
 import os
 import signal
-import sys
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
 from dockhil.errors import DockhilError
+from dockhil.log import node_line
 from dockhil.node import NodeContext, Tick
 from dockhil.msgs.codec import DecodeError, decode, decode_header, encode
 
@@ -214,7 +214,7 @@ class NodeExecutor:
         self.spec = spec
         self.stop = stop
         self.clock = clock
-        self.log = log or (lambda m: print(m, file=sys.stderr, flush=True))
+        self.log = log or (lambda m: node_line(spec.name, m))
         self.node = node_cls(NodeContext(spec.name, spec.dt, spec.clock == "sim", self.log, clock), **spec.params)
         ins, outs = node_cls.ports(vars(self.node.p))
         self.outputs = outs
@@ -286,7 +286,7 @@ class NodeExecutor:
         if now - self._drop_logged > 0.1 or kind not in self._drop_reasons:
             self._drop_reasons.add(kind)
             self._drop_logged = now
-            self.log(f"dropped bad message on {topic}: {reason} ({self.dropped} dropped so far)")
+            self.log(f"warning: dropped bad message on {topic}: {reason} ({self.dropped} dropped so far)")
 
     # -- running -------------------------------------------------------------
     def start(self) -> None:
@@ -313,7 +313,7 @@ class NodeExecutor:
     def _lost_output(self, pub) -> None:
         # Wall time: a subscriber's queue is full (it stopped reading); the message is dropped, not queued.
         if pub.dropped == 1 or pub.dropped % 1000 == 0:
-            self.log(f"output {pub.topic}: a subscriber is not keeping up; {pub.dropped} message(s) dropped "
+            self.log(f"warning: output {pub.topic}: a subscriber is not keeping up; {pub.dropped} message(s) dropped "
                      f"(high-water mark reached)")
 
     @property
@@ -366,7 +366,7 @@ class NodeExecutor:
         if frames is None:
             if time.monotonic() - self._waited_since > 10 and self._warned_at != k:
                 self._warned_at = k
-                self.log(f"tick {k}: still waiting for {self.spec.inputs[waiting_for].topic} after 10 s")
+                self.log(f"warning: tick {k}: still waiting for {self.spec.inputs[waiting_for].topic} after 10 s")
             return
         for port, tick, msg, ok in self._decode(frames):
             if tick is None:

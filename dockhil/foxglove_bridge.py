@@ -23,7 +23,6 @@ The bridge observes; it never holds the graph back:
 from __future__ import annotations
 
 import json
-import sys
 import threading
 import time
 from typing import Any, Callable
@@ -39,7 +38,9 @@ DRAIN_MAX = 100_000  # frames taken from the socket in one pass, so that a pass 
 
 
 def _log(line: str) -> None:
-    print(line, file=sys.stderr, flush=True)
+    from dockhil.log import node_line
+
+    node_line("foxglove", line)  # "[foxglove] warning: ...": under its own name, at its level
 
 
 class FoxgloveBridge:
@@ -126,7 +127,7 @@ class FoxgloveBridge:
                 self.serve(burst)
         except DockhilError as exc:  # a peer failed the graph's authentication: serve nothing more from it
             self.error = str(exc)
-            self.log(f"[foxglove] live view stopped: {exc}")
+            self.log(f"[foxglove] warning: live view stopped: {exc}")
         finally:
             sub.close()
 

@@ -1,7 +1,8 @@
 """Start a validated graph as one process per node, watch it, stop it safely.
 
 The launcher assigns each topic an endpoint, hands each node its spec,
-prefixes every line a node prints with the node's name, forwards SIGINT and
+logs what each node says under the node's name (dockhil.log: its records,
+forwarded at the launcher's level, and any other line it prints), forwards SIGINT and
 SIGTERM, and when a node dies stops the rest of the graph and exits non-zero.
 While a graph runs, a small JSON file in the runtime directory describes it,
 so that `dockhil topic` and `dockhil node` can find it.
@@ -29,6 +30,7 @@ from pathlib import Path
 import msgspec
 
 from dockhil import msgs
+from dockhil import log
 from dockhil.errors import LaunchError
 from dockhil.executor import TIMING, PortWire, RunSpec
 from dockhil.graph import Graph
@@ -299,19 +301,17 @@ class _Child:
     finished: bool = False
     host: str = ""  # another machine: started there by hand, not watched from here
     reader: threading.Thread | None = None
-    lines: list[str] = field(default_factory=list)
 
 
 class Launcher:
     def __init__(self, graph: Graph, *, clock: str = "sim", duration: float | None = None,
-                 transport: str = "ipc", extra: list[ExtraProcess] | None = None, out=None,
+                 transport: str = "ipc", extra: list[ExtraProcess] | None = None,
                  progress: bool = False, realtime: bool = False):
         self.graph = graph
         self.clock = clock
         self.extra = extra or []
         dt = graph.scene.dt
         self.n_ticks = None if duration is None else int(round(duration / dt)) + 1
-        self.out = out or sys.stdout
         self.endpoints = assign_endpoints(graph, transport)
         # Wall time: the launcher stops the whole graph at once when the duration is up, so no driver
         # sees its device (an emulator) stop first and mistakes that for a fault.
@@ -328,7 +328,6 @@ class Launcher:
                                 and not all(gn.cls.free_running for gn in members))
         self._all_ready_at: float | None = None
         self.progress = progress and clock == "sim" and self.n_ticks is not None
-        self._print_lock = threading.Lock()
         self._stop_signal: int | None = None
         self.children: list[_Child] = []
         self.timings: dict[str, dict] = {}  # wall time: each node's loop figures, reported as it exits
@@ -341,9 +340,7 @@ class Launcher:
             self.children.append(_Child(proc.name, proc.argv))
 
     # -- output ----------------------------------------------------------------
-    def say(self, line: str) -> None:
-        with self._print_lock:
-            print(line, file=self.out, flush=True)
+    say = log.Log("[launch]")
 
     def _read(self, child: _Child, stream) -> None:
         for raw in stream:
@@ -357,12 +354,11 @@ class Launcher:
                 except ValueError:
                     pass
                 continue
-            child.lines.append(line)
-            self.say(f"[{child.name}] {line}")
+            log.replay(line, f"[{child.name}]")
 
     # -- processes -------------------------------------------------------------
     def _start(self, child: _Child) -> None:
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        env = log.child_env(dict(os.environ, PYTHONUNBUFFERED="1"))
         # Nodes multiply matrices of a few elements: BLAS worker threads would only spin on the shared cores.
         env.setdefault("OPENBLAS_NUM_THREADS", "1")
         child.ready = child.go_sent = False
@@ -372,6 +368,7 @@ class Launcher:
         )
         child.reader = threading.Thread(target=self._read, args=(child, child.proc.stdout), daemon=True)
         child.reader.start()
+        self.say.debug(f"started {child.name!r} (pid {child.proc.pid})")
 
     def _announce_remote(self, child: _Child) -> None:
         """A node on another machine: say how to start it there. Sim time waits for it as for any
@@ -382,8 +379,10 @@ class Launcher:
         keys = self.endpoints.key_file
         argv = ["python3", "-m", "dockhil.process", "--keys", str(keys), *child.argv[3:]]
         command = " ".join(shlex.quote(a) for a in argv)
-        self.say(f"[launch] node {child.name!r} runs on {child.host}: copy the key file {keys} to the same path "
-                 f"there (mode 0600, over a private channel such as scp) and start it there with: {command}")
+        # Warning level: the graph waits for this node, so the line shows at any --log-level but error.
+        self.say.warning(f"node {child.name!r} runs on {child.host}: copy the key file {keys} to the same path "
+                         f"there (mode 0600, over a private channel such as scp) and start it there with: {command}",
+                         tag="")
 
     def _write_registry(self) -> Path:
         path = registry_dir() / f"{self.endpoints.run_id}.json"
@@ -425,7 +424,7 @@ class Launcher:
             try:
                 c.proc.wait(max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
-                self.say(f"[launch] node {c.name!r} did not stop within {grace:.0f} s; killing it")
+                self.say.warning(f"node {c.name!r} did not stop within {grace:.0f} s; killing it")
                 c.proc.kill()
                 c.proc.wait()
 
@@ -516,7 +515,7 @@ class Launcher:
         self.stop_all()
         failed = [c for c in self.children if c.proc and c.proc.returncode not in (0, None)]
         for c in failed:
-            self.say(f"[launch] {c.name!r} exited with code {c.proc.returncode} while stopping")
+            self.say.error(f"{c.name!r} exited with code {c.proc.returncode} while stopping", tag="")
         return 1 if failed else 0
 
     def _watch_children(self, probe, bar) -> int:
@@ -527,7 +526,7 @@ class Launcher:
                 return self._stop_at_duration()
             if self._stop_signal is not None:
                 name = signal.Signals(self._stop_signal).name
-                self.say(f"[launch] {name}: stopping the graph")
+                self.say.info(f"{name}: stopping the graph")
                 self.stop_all()
                 return 128 + self._stop_signal
             nodes_running = 0
@@ -554,8 +553,8 @@ class Launcher:
                         return self._died(child, code)
                     continue
                 if child.respawn and child.ready:
-                    self.say(f"[launch] node {child.name!r} exited with code {code}; respawning in "
-                             f"{child.respawn_delay:g} s")
+                    self.say.warning(f"node {child.name!r} exited with code {code}; respawning in "
+                                     f"{child.respawn_delay:g} s", tag="")
                     child.respawn_at = time.monotonic() + child.respawn_delay
                     nodes_running += 1
                     continue
@@ -575,7 +574,7 @@ class Launcher:
             try:
                 code = child.proc.wait(max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
-                self.say(f"[launch] {child.name!r} did not finish within {timeout:.0f} s; stopping it")
+                self.say.error(f"{child.name!r} did not finish within {timeout:.0f} s; stopping it")
                 return 1
             child.finished = True
             if code != 0:
@@ -585,7 +584,7 @@ class Launcher:
     def _died(self, child: _Child, code: int) -> int:
         how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
         when = "while running" if child.ready else "at start"
-        self.say(f"[launch] node {child.name!r} {how} {when}; stopping the graph")
+        self.say.error(f"node {child.name!r} {how} {when}; stopping the graph", tag="")
         if not child.ready:
             # Let nodes still opening devices finish, so every missing device gets its own line.
             deadline = time.monotonic() + 5.0

@@ -37,7 +37,6 @@ dockhil.launchschema: every refusal is one line with file, line and field.
 
 from __future__ import annotations
 
-import difflib
 import math
 import re
 from dataclasses import dataclass, field
@@ -45,7 +44,7 @@ from pathlib import Path
 from typing import Any, Optional, Union
 
 from dockhil import boundedyaml
-from dockhil.errors import DockhilError, LaunchError
+from dockhil.errors import DockhilError, LaunchError, suggest
 from dockhil.launchschema import (MAX_INCLUDES, MAX_NODES, MAX_SUBSTITUTED, MAX_TEXT, ArgDecl, LaunchFile, Lets,
                                   NodeDecl, Scalar, SchemaError, convert)
 
@@ -261,8 +260,8 @@ def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: b
             lets = data.get("let") if isinstance(data.get("let"), list) else []
             if any(isinstance(d, dict) and d.get("name") == name for d in lets):
                 raise LaunchError(f"{path}: {name!r} is a `let` variable, made from the arguments: set those "
-                                  f"instead ({_suggest('', specs, 'known args')})")
-            raise LaunchError(f"{path}: unknown arg {name!r}; {_suggest(name, specs, 'known args')}")
+                                  f"instead ({suggest('', specs, 'known args')})")
+            raise LaunchError(f"{path}: unknown arg {name!r}; {suggest(name, specs, 'known args')}")
         where = f"{path}" if from_cli else f"{path} (included)"
         spec = specs[name]
         values[name] = spec.parse(value, where) if isinstance(value, str) and spec.type is not str else spec.check(value, where)
@@ -380,12 +379,6 @@ def _arg_spec(name: str, body: Any, where: str) -> ArgSpec:
     return spec
 
 
-def _suggest(name: str, known, what: str) -> str:
-    near = difflib.get_close_matches(name, list(known), n=1)
-    listed = f"{what}: {', '.join(sorted(known)) or 'none'}"
-    return f"did you mean {near[0]!r}? ({listed})" if near else listed
-
-
 def _subst(value: Any, values: dict[str, Any], at: list, budget: _Budget) -> Any:
     if isinstance(value, str):
         whole = _ARG.fullmatch(value.strip())
@@ -415,7 +408,7 @@ def _lookup(m: re.Match, values: dict[str, Any], at: list) -> Any:
     name = m.group(1)
     if name not in values:
         raise SchemaError(at, f"{m.group(0)} is not declared in `args:` or `let:`; "
-                              f"{_suggest(name, values, 'declared')}")
+                              f"{suggest(name, values, 'declared')}")
     return values[name]
 
 

@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 from types import SimpleNamespace
 from typing import Any, Callable, ClassVar
 
-from dockhil.errors import ParamError
+from dockhil.errors import ParamError, suggest
 from dockhil.msgs import Header
 
 
@@ -200,8 +200,10 @@ class NodeContext:
     clock: Callable[[], float] = time.monotonic
 
     def __post_init__(self):
-        if self.log is None:
-            self.log = lambda msg: print(msg, file=sys.stderr, flush=True)
+        if self.log is None:  # a line to the log under this node's name; `warning: ...` is a warning
+            from dockhil.log import node_line
+
+            self.log = lambda msg: node_line(self.name, msg)
 
 
 class Node:
@@ -223,10 +225,8 @@ class Node:
         """Defaults overlaid with `given`, each checked; unknown names refused."""
         unknown = sorted(set(given) - set(cls.params))
         if unknown:
-            known = ", ".join(sorted(cls.params)) or "none"
-            raise ParamError(
-                f"node {node_name!r} ({cls.__name__}): unknown parameter {unknown[0]!r}; known: {known}"
-            )
+            raise ParamError(f"node {node_name!r} ({cls.__name__}): unknown parameter {unknown[0]!r}; "
+                             f"{suggest(unknown[0], cls.params, 'known')}")
         values = {}
         for name, spec in cls.params.items():
             value = given.get(name, spec.default)

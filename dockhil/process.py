@@ -4,9 +4,11 @@ The spec names the graph's key file (mode 0600, checked when read); the
 keys never appear on the command line, which every user can read in /proc.
 --keys overrides the spec's key file (a node started by hand on another host).
 
-The launcher starts one of these per node. It prints one line per error,
-a READY line (read by the launcher, not shown) once its device is open, and
-exits 0 when its ticks are done or it is asked to stop.
+The launcher starts one of these per node. It logs one line per error
+(dockhil.log: forwarded to the launcher, which logs it under the node's name;
+on stderr when started by hand), prints a READY line (read by the launcher,
+not shown) once its device is open, and exits 0 when its ticks are done or
+it is asked to stop.
 """
 
 from __future__ import annotations
@@ -39,18 +41,19 @@ def _ask_realtime(log) -> None:
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
     except (PermissionError, OSError, AttributeError) as exc:
-        log(f"real-time scheduling refused ({exc}); running at normal priority "
+        log(f"warning: real-time scheduling refused ({exc}); running at normal priority "
             f"(grant CAP_SYS_NICE or an rtprio limit to use --realtime)")
 
 
 def run_node(spec, log=None, on_ready=None) -> int:
     """Set up and run one node until its ticks are done or a stop is requested."""
     from dockhil import nodes
+    from dockhil import log as logs
     from dockhil import ownership
     from dockhil.errors import DockhilError
     from dockhil.executor import TIMING, NodeExecutor, Stop
 
-    log = log or (lambda m: print(m, file=sys.stderr, flush=True))
+    log = log or (lambda m: logs.node_line(spec.name, m))
     ownership.set_graph(spec.run_id)
     stop = Stop()
     stop.install()
@@ -73,7 +76,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
             duration = None if spec.n_ticks is None else spec.n_ticks * spec.dt
             stats = executor.run_wall(duration)
             if stats["deadline_misses"]:
-                log(f"{stats['deadline_misses']} of {stats['ticks']} ticks missed their deadline")
+                log(f"warning: {stats['deadline_misses']} of {stats['ticks']} ticks missed their deadline")
     except DockhilError as exc:
         log(f"error: {exc}")
         return 2
@@ -97,28 +100,32 @@ def run_node(spec, log=None, on_ready=None) -> int:
 
                 print(TIMING + json.dumps(timing.report(spec.name)), flush=True)
     if executor.dropped:
-        log(f"{executor.dropped} bad message(s) dropped")
+        log(f"warning: {executor.dropped} bad message(s) dropped")
     return 0
 
 
 def main() -> int:
+    from dockhil import log
     from dockhil.executor import RunSpec
 
     _die_with_parent()
+    log.setup_child()
+    say = log.Log("[dockhil.process]")
     args = sys.argv[1:]
     key_file = None
     if len(args) == 3 and args[0] == "--keys":
         key_file, args = args[1], args[2:]
     if len(args) != 1:
-        print("usage: python -m dockhil.process [--keys KEY_FILE] SPEC_JSON", file=sys.stderr)
+        say.error("usage: python -m dockhil.process [--keys KEY_FILE] SPEC_JSON")
         return 2
     try:
         spec = msgspec.json.decode(args[0].encode(), type=RunSpec)
     except msgspec.DecodeError as exc:
-        print(f"error: node spec: {exc}", file=sys.stderr)
+        say.error(f"node spec: {exc}")
         return 2
     if key_file is not None:
         spec.key_file = key_file
+    log.capture_others(f"[{spec.name}]")
     profile_dir = os.environ.get("DOCKHIL_PROFILE")
     if profile_dir:  # developers: one cProfile dump per node, named after it
         import cProfile

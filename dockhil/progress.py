@@ -1,5 +1,7 @@
 """Progress on stderr for long runs: redrawn in place on a terminal, one line at a time in logs.
 
+Log records (dockhil.log) are written through write_between(), so they never run into the line.
+
 `Progress` follows a sim-time run (simulated time, share done, real-time
 factor); `TaskProgress` counts named steps (the report).
 """
@@ -7,7 +9,12 @@ factor); `TaskProgress` counts named steps (the report).
 from __future__ import annotations
 
 import sys
+import threading
 import time
+
+# One screen: the status line and log records (from any thread) take turns at it.
+_screen = threading.RLock()
+_active: "StatusLine | None" = None  # the status line now drawn on a terminal
 
 
 class StatusLine:
@@ -17,17 +24,42 @@ class StatusLine:
         self.stream = sys.stderr if stream is None else stream
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.shown = False
+        self.text = ""
 
     def show(self, text: str) -> None:
-        self.stream.write(("\r" + text + "\x1b[K") if self.tty else text + "\n")
-        self.stream.flush()
-        self.shown = True
+        global _active
+        with _screen:
+            self.text = text
+            self.stream.write(("\r" + text + "\x1b[K") if self.tty else text + "\n")
+            self.stream.flush()
+            self.shown = True
+            if self.tty:
+                _active = self
 
     def end(self, keep: bool = False) -> None:
         """Leave the line (keep=True) or erase it, on a terminal."""
-        if self.shown and self.tty:
-            self.stream.write("\n" if keep else "\r\x1b[K")
-            self.stream.flush()
+        global _active
+        with _screen:
+            if self.shown and self.tty:
+                self.stream.write("\n" if keep else "\r\x1b[K")
+                self.stream.flush()
+            if _active is self:
+                _active = None
+
+
+def write_between(stream, text: str) -> None:
+    """Write `text` (whole lines) so that it never shares a line with the status line on the
+    terminal: the status line is erased first and drawn again below it."""
+    with _screen:
+        line = _active
+        if line is not None:
+            line.stream.write("\r\x1b[K")
+            line.stream.flush()
+        stream.write(text)
+        stream.flush()
+        if line is not None:
+            line.stream.write("\r" + line.text + "\x1b[K")
+            line.stream.flush()
 
 
 def bar(fraction: float, width: int) -> str:

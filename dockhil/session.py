@@ -9,17 +9,19 @@ Exit 0 means the result is valid (dockhil/validity.py): a wall-time run
 that fell behind, or any run that lost messages, says INVALID in one line,
 carries "valid": false and its reasons in the summary, and exits with
 INVALID_EXIT (3).
+
+The summary table is the result (stdout); what the run says about itself is logged (stderr).
 """
 
 from __future__ import annotations
 
 import json
 import os
-import sys
 import tempfile
 import time
 
 from dockhil import validity
+from dockhil.log import Log
 from dockhil.errors import DockhilError
 from dockhil.graph import Graph
 
@@ -30,6 +32,8 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
               foxglove: tuple[str, int] | None = None) -> int:
     """foxglove: (host, port) to serve a live view of the run on (dockhil.foxglove_bridge)."""
     from dockhil import summary as summ
+
+    say = Log("[launch]")
 
     dt = graph.scene.dt
     n_ticks = None if duration is None else int(round(duration / dt)) + 1
@@ -43,7 +47,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
         _check_writable(summary)
     # The loop this scene will run: refused here (one line) when its step does not resolve the contact.
     for line in summ.scene_check(graph)["warnings"]:
-        print(f"[launch] warning: {line}", file=sys.stderr)
+        say.warning(line)
     collector = summ.SummaryCollector(graph) if want_summary else None
     tmp = None
     bridge = None
@@ -100,16 +104,15 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
             if summary is not None:
                 with open(summary, "w") as f:
                     json.dump(out, f, indent=1)
-                print(f"summary written to {summary}", file=sys.stderr)
+                say.info(f"summary written to {summary}")
         elif code == 0 and clock == "sim" and n_ticks:
             sim_s = (n_ticks - 1) * dt
-            print(f"[launch] done: {sim_s:g} s simulated in {elapsed:.2f} s "
-                  f"({sim_s / elapsed:.1f}x real time)", file=sys.stderr)
+            say.info(f"done: {sim_s:g} s simulated in {elapsed:.2f} s ({sim_s / elapsed:.1f}x real time)")
     finally:
         if tmp is not None:
             tmp.cleanup()
     if reasons and code == validity.INVALID_EXIT:  # one line, right under the summary table where there is one
-        print(f"[launch] {validity.invalid_line(reasons)} (exit {validity.INVALID_EXIT})", flush=True)
+        say.error(f"{validity.invalid_line(reasons)} (exit {validity.INVALID_EXIT})", tag="")  # it says INVALID
     return code
 
 
@@ -152,7 +155,7 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
         g.setup()
         g.run(n_ticks, wall=clock == "wall", stop=stop, progress=bar.update if bar else None)
     except DockhilError as exc:
-        print(f"[launch] error: {exc}", file=sys.stderr)
+        Log("[launch]").error(str(exc))
         return 1
     finally:
         if bar is not None:
@@ -165,8 +168,7 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
     if stop.requested:
         return 130
     if recorder is not None and recorder.lost:
-        print(f"[launch] error: the recorder lost {recorder.lost} message(s) ({bag}); the run is not complete",
-              file=sys.stderr)
+        Log("[launch]").error(f"the recorder lost {recorder.lost} message(s) ({bag}); the run is not complete")
         return 1
     if g.timing is not None:
         reasons += validity.node_reasons(g.timing.report("composed"), graph.scene.dt)

@@ -32,7 +32,6 @@ Semantics, as in a launched graph:
 
 from __future__ import annotations
 
-import sys
 from types import SimpleNamespace
 from typing import Any, Callable
 
@@ -167,7 +166,9 @@ class NodeHarness:
     def _log(self, name: str, line: str) -> None:
         self.logs.append(line)
         if self.echo_log:
-            print(f"[{name}] {line}", file=sys.stderr, flush=True)
+            from dockhil.log import node_line
+
+            node_line(name, line)
 
 
 # -- messages for tests (headers are stamped by the harness) ---------------------------

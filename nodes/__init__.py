@@ -15,7 +15,7 @@ import os
 import re
 import sys
 
-from dockhil.errors import LaunchError
+from dockhil.errors import LaunchError, suggest
 
 REGISTRY: dict[str, str] = {
     "satellite_dynamics": "dockhil.nodes.satellite_dynamics:SatelliteDynamics",
@@ -68,8 +68,8 @@ def load(type_name: str):
         return _load(type_name, REGISTRY.get(type_name, type_name))
     extra = plugins()
     if type_name not in extra:
-        known = ", ".join(sorted([*REGISTRY, *extra])) or "none"
-        raise LaunchError(f"unknown node type {type_name!r}; known types: {known} (or give module:Class)")
+        raise LaunchError(f"unknown node type {type_name!r}; "
+                          f"{suggest(type_name, [*REGISTRY, *extra], 'known types')} (or give module:Class)")
     target, dist = extra[type_name]
     try:
         return _load(type_name, target)

@@ -131,7 +131,7 @@ class FtCanDriver(Node):
                 self.bad_frames += 1
                 if self._bad_logged < 5:  # the first few tell the story; the count is logged at close
                     self._bad_logged += 1
-                    self.log(f"{self.device}: dropped a bad frame: {exc}")
+                    self.log(f"warning: {self.device}: dropped a bad frame: {exc}")
                 continue
             if half is None:
                 continue
@@ -223,7 +223,7 @@ class FtCanDriver(Node):
             (self.bad_frames, "bad frames"), (self.error_frames, "error frames"),
             (self.assembler.orphans, "unpaired frames")) if n]
         if problems:
-            self.log(f"{self.device}: {', '.join(problems)}")
+            self.log(f"warning: {self.device}: {', '.join(problems)}")
 
 
 def _fmt(v) -> str:

@@ -205,7 +205,7 @@ class ModbusLink(threading.Thread):
         self.last_error = " ".join(str(exc).split()) or type(exc).__name__
         with self.lock:
             self.pending = None  # a setpoint handed over before the loss is never written
-        self._note(f"{self.describe}: connection lost ({self.last_error}); reconnecting")
+        self._note(f"warning: {self.describe}: connection lost ({self.last_error}); reconnecting")
 
     def _reconnect(self) -> bool:
         if not self.client.connect():
@@ -598,7 +598,8 @@ class RobotModbusDriver(Node):
         if status & mm.STATUS_HEARTBEAT_LOST and old is not None and not old & mm.STATUS_HEARTBEAT_LOST:
             self.heartbeat_losses += 1
             if self.heartbeat_losses == 1:  # the first one tells the story; close() reports the count
-                self.log(f"{self.device}: controller lost our heartbeat and holds; resuming on the next command")
+                self.log(f"warning: {self.device}: controller lost our heartbeat and holds; "
+                         f"resuming on the next command")
 
     def _trip(self, limit: str, value, text: str) -> None:
         line = f"safety stop: {text}"
@@ -628,9 +629,9 @@ class RobotModbusDriver(Node):
         link.client.close()
         self._lock.release()
         if self.heartbeat_losses > 1:
-            self.log(f"{self.device}: the controller lost our heartbeat {self.heartbeat_losses} times")
+            self.log(f"warning: {self.device}: the controller lost our heartbeat {self.heartbeat_losses} times")
         if not held and self.tripped is None:
-            self.log(f"{self.device}: could not hold the robot at close (not connected); "
+            self.log(f"warning: {self.device}: could not hold the robot at close (not connected); "
                      f"the controller holds when our heartbeat stops")
 
 

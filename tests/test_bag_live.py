@@ -87,7 +87,7 @@ def test_launch_bag_round_trip_record_info_export_play(write_launch, tmp_path, c
     multi, composed = tmp_path / "multi.mcap", tmp_path / "composed.mcap"
     r = launch(scene, "--bag", multi)
     assert_ok(r)
-    assert f"[bag-recorder] recorded 843 messages on 3 topics to {multi}; 0 lost" in r.stdout
+    assert f"[bag-recorder] recorded 843 messages on 3 topics to {multi}; 0 lost" in r.stderr
     r = launch(scene, "--composed", "--bag", composed)
     assert_ok(r)
     assert f"[bag-recorder] recorded 843 messages on 3 topics to {composed}; 0 lost" in r.stderr

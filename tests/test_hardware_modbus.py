@@ -403,8 +403,8 @@ def test_driver_logs_when_the_controller_lost_its_heartbeat(controller):
         drive.until(lambda d: node.heartbeat_losses > 1, lambda d: {"command": d.command()})
         assert any(s.status == "heartbeat-lost" for _, s in drive.states)
         assert [line for line in logs if "heartbeat" in line] == [
-            f"robot controller (Modbus TCP 127.0.0.1:{controller.port}): controller lost our heartbeat and holds; "
-            "resuming on the next command"]  # once, however often it flickers
+            f"warning: robot controller (Modbus TCP 127.0.0.1:{controller.port}): controller lost our heartbeat and "
+            "holds; resuming on the next command"]  # once, however often it flickers
     finally:
         node.close()
     assert node.heartbeat_losses > 1 and f"lost our heartbeat {node.heartbeat_losses} times" in logs[-1]

@@ -58,7 +58,7 @@ def test_swap_runs_the_scene_through_the_drivers_and_lands_near_the_simulated_ru
     assert r.returncode == 0, r.stdout + r.stderr
     # 4 s of wall time: a busy machine skips ticks, and the 1.57 s contact must end within the run.
     r = wall_run(tmp_path, "rate:=250", "--duration", "4", "--summary", hw, done=lambda r: r.returncode == 0)
-    assert "tared over 100 samples" in r.stdout and "listening on 127.0.0.1" in r.stdout
+    assert "tared over 100 samples" in r.stderr and "listening on 127.0.0.1" in r.stderr
     s, h = json.loads(sim.read_text()), json.loads(hw.read_text())
     # Real protocols and wall-clock scheduling add a little delay on top of the emulated 32 ms.
     assert h["peak_force_N"] == pytest.approx(s["peak_force_N"], abs=2.0)

@@ -164,7 +164,8 @@ def test_a_broken_entry_point_is_refused_in_one_line_naming_its_package(fake_dis
 
 
 def test_an_unknown_name_lists_the_installed_types_too(fake_distribution):
-    with pytest.raises(LaunchError, match=r"unknown node type 'rampp'; known types: .*\bramp\b.*satellite_dynamics"):
+    with pytest.raises(LaunchError, match=r"unknown node type 'rampp'; did you mean 'ramp'\? "
+                                          r"\(known types: .*\bramp\b.*satellite_dynamics"):
         nodes.load("rampp")
 
 

@@ -207,7 +207,7 @@ def test_saturation_marks_the_run_invalid(tmp_path):
     s = json.loads(path.read_text())
     assert s["valid"] is False and s["energy"]["saturated"] is True
     assert "saturated at max_damping 40" in s["invalid_reasons"][0]
-    assert "INVALID: the passivity controller saturated" in r.stdout
+    assert "[launch] INVALID: the passivity controller saturated" in r.stderr
     ok = tmp_path / "ok.json"
     launch("launch/hil.yaml", "compensation:=passivity", "--composed", "--duration", "2", "--summary", ok)
     s = json.loads(ok.read_text())

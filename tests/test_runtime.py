@@ -63,7 +63,7 @@ def test_lockstep_has_no_hidden_delay(write_launch, tmp_path):
 def test_killed_node_stops_graph_nonzero(write_launch, tmp_path):
     r, _ = run_loop(write_launch, tmp_path, "e", die_at=100)
     assert r.returncode != 0
-    assert "[launch] node 'gain' exited with code 3 while running; stopping the graph" in r.stdout
+    assert "[launch] node 'gain' exited with code 3 while running; stopping the graph" in r.stderr
     assert "Traceback" not in r.stdout + r.stderr
 
 

@@ -342,7 +342,7 @@ def test_a_stopped_composed_wall_time_run_is_invalid_in_its_summary(tmp_path):
     p = subprocess.Popen(dockhil_cmd("launch", "launch/hil.yaml", "--composed", "--wall-time", "--duration", "3",
                                      "--summary", out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(iter(p.stdout.readline, "")), daemon=True)
+    reader = threading.Thread(target=lambda: lines.extend(iter(p.stderr.readline, "")), daemon=True)
     reader.start()
     try:
         deadline = time.monotonic() + 60
@@ -354,9 +354,9 @@ def test_a_stopped_composed_wall_time_run_is_invalid_in_its_summary(tmp_path):
         time.sleep(0.5)
         p.send_signal(signal.SIGCONT)
         p.wait(timeout=120)
-        stderr = p.stderr.read()
+        stdout = p.stdout.read()
         reader.join(10)
-        stdout = "".join(lines)
+        stderr = "".join(lines)
     finally:
         if p.poll() is None:
             p.kill()

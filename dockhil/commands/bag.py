@@ -11,6 +11,8 @@ import datetime
 import json
 import sys
 
+from dockhil import log
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.epilog = "Run 'dockhil bag SUBCOMMAND --help' for the options of one subcommand."
@@ -58,6 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("path", metavar="PATH", help="MCAP bag file to create")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to record (default: all)")
     p.add_argument("--overwrite", action="store_true", help="replace PATH if it exists (default: refuse)")
+    log.add_arguments(p)
 
     p = sub.add_parser(
         "play",
@@ -78,6 +81,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--subscribers", type=_non_negative_int, metavar="N",
                    help="wait until each topic has N subscribers before playing "
                         "(default 1 with --sim-time, 0 in wall time)")
+    log.add_arguments(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -154,14 +158,14 @@ def _export(args: argparse.Namespace) -> int:
     out = sys.stdout if args.csv == "-" else args.csv
     result = export_csv(args.path, args.topic, out)
     if result.loss:
-        print(f"dockhil bag export: warning: {result.loss}", file=sys.stderr)
+        log.Log("dockhil bag export:").warning(result.loss)
     notes = []
     if result.unvalidated:
         notes.append(f"{result.unvalidated} messages fail validation (e.g. NaN) and are exported as recorded")
     if result.skipped:
         notes.append(f"{result.skipped} messages are not msgpack (or nest too deeply) and were skipped")
     for note in notes:
-        print(f"dockhil bag export: note: {note}", file=sys.stderr)
+        log.Log("dockhil bag export:").info(f"note: {note}")
     if args.csv != "-":
         print(f"{result.rows} rows of {args.topic} written to {args.csv}")
     return 0
@@ -172,10 +176,10 @@ def _convert(args: argparse.Namespace) -> int:
 
     result = convert(args.path, args.out, overwrite=args.overwrite)
     if result.loss:
-        print(f"dockhil bag convert: warning: {result.loss}", file=sys.stderr)
+        log.Log("dockhil bag convert:").warning(result.loss)
     if result.unencodable:
-        print(f"dockhil bag convert: note: {result.unencodable} messages are not msgpack and were not converted",
-              file=sys.stderr)
+        log.Log("dockhil bag convert:").info(f"note: {result.unencodable} messages are not msgpack and were not "
+                                             f"converted")
     print(f"{result.messages} messages written to {args.out} (json)")
     return 0
 

@@ -3,7 +3,6 @@ whether `dockhil launch` would refuse its step (the same scene check, same one l
 
 from __future__ import annotations
 
-import sys
 
 from dockhil import msgs
 
@@ -32,8 +31,10 @@ def run(args) -> int:
     graph = build(scene)
     warnings = scene_check(graph)["warnings"]  # refused: one line, exit 2, as `dockhil launch` would
     print(to_dot(graph) if args.dot else to_text(graph))
+    from dockhil.log import Log
+
     for line in warnings:
-        print(f"[graph] warning: {line}", file=sys.stderr)
+        Log("[graph]").warning(line)
     return 0
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dockhil import log
 from dockhil.argtypes import seconds
 from dockhil.errors import LaunchError
 
@@ -47,6 +48,7 @@ def add_arguments(p) -> None:
                         "layout: docs/foxglove-layout.json")
     p.add_argument("--foxglove-host", metavar="HOST",
                    help="address the Foxglove server binds (default 127.0.0.1: this machine only)")
+    log.add_arguments(p)
 
 
 def _port(text: str) -> int:

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import os
-import sys
 
 from dockhil.errors import LaunchError
+from dockhil.log import Log
 
 
 def add_arguments(p) -> None:
@@ -31,7 +31,7 @@ def run(args) -> int:
 
     graphs = select_graphs(args.graph)
     if not graphs:
-        print("no running graph", file=sys.stderr)
+        Log("").info("no running graph")
         return 0
     for info in graphs:
         print(f"{info['run_id']}  {info['file']}  ({info['clock']} time)")
@@ -54,7 +54,7 @@ def _types(name: str | None) -> int:
             try:
                 cls = nodes.load(type_name)
             except LaunchError as exc:
-                print(f"dockhil node types: error: {exc}", file=sys.stderr)
+                Log("dockhil node types:").error(str(exc))
                 refused += 1
                 continue
         else:

@@ -202,6 +202,8 @@ def run(args: argparse.Namespace) -> int:
         f" fit and closed form {'agree' if fit.agrees else 'DIFFER'}"
         f" to {fit.max_relative_deviation:.2g} (relative)"
     )
+    from dockhil.log import Log
+
     for note in fit.warnings:
-        print(f"dockhil params: warning: {note}", file=sys.stderr)
+        Log("dockhil params:").warning(note)
     return 0

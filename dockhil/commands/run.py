@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 
+from dockhil import log
 from dockhil.argtypes import hertz, node_name, seconds
 from dockhil.errors import DockhilError
 
@@ -21,6 +22,7 @@ def add_arguments(p) -> None:
                    help="remap a port or topic to a topic (repeatable)")
     p.add_argument("--rate", type=hertz, default=100.0, metavar="HZ", help="loop rate (default 100)")
     p.add_argument("--duration", type=seconds, metavar="S", help="stop after S seconds")
+    log.add_arguments(p)
 
 
 def run(args) -> int:

@@ -4,9 +4,10 @@ launch arguments; `dockhil sweep plot RESULTS.parquet --png FILE`: what the camp
 from __future__ import annotations
 
 import argparse
-import sys
 
+from dockhil import log
 from dockhil.errors import DockhilError
+from dockhil.log import Log
 
 
 def add_arguments(p) -> None:
@@ -49,6 +50,7 @@ def add_arguments(p) -> None:
                    help="run on a Dask distributed scheduler (tcp://host:8786), or 'local' for a LocalCluster")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.add_argument("--png", metavar="FILE", help="with 'plot': where to write the figure")
+    log.add_arguments(p)
 
 
 def run(args) -> int:
@@ -78,8 +80,8 @@ def run(args) -> int:
     try:
         out = sweep.sweep(campaign, args.out, executor, progress=not args.quiet)
     except KeyboardInterrupt:
-        print(f"dockhil sweep: interrupted; the finished runs are in {args.out}: rerun the same command to resume",
-              file=sys.stderr)
+        Log("dockhil sweep:").info(f"interrupted; the finished runs are in {args.out}: rerun the same command "
+                                   f"to resume")
         return 130
     finally:
         executor.close()
@@ -96,5 +98,5 @@ def _plot(args) -> int:
 
     for line in plot_results(args.results, args.png):
         print(line)
-    print(f"figure written to {args.png}", file=sys.stderr)
+    Log("dockhil sweep plot:").info(f"figure written to {args.png}")
     return 0

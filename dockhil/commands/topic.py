@@ -8,10 +8,10 @@ exit 0, when their graph ends.
 from __future__ import annotations
 
 import os
-import sys
 import time
 
 from dockhil.errors import DockhilError
+from dockhil.log import Log
 
 # How often echo and hz look whether their graph still runs [s].
 ALIVE_CHECK_S = 0.5
@@ -100,7 +100,7 @@ class _Watch:
         self.next = now + ALIVE_CHECK_S
         if graph_alive(self.info):
             return False
-        print(f"[topic] graph {self.info['run_id']} ended", file=sys.stderr, flush=True)
+        Log("[topic]").info(f"graph {self.info['run_id']} ended")
         return True
 
 
@@ -110,7 +110,7 @@ def run(args) -> int:
     if args.action == "list":
         graphs = select_graphs(args.graph)
         if not graphs:
-            print("no running graph", file=sys.stderr)
+            Log("").info("no running graph")
             return 0
         for info in graphs:
             for topic, t in sorted(info["topics"].items()):
@@ -135,7 +135,7 @@ def run(args) -> int:
                     print(msgspec.json.encode(decode(frames[1], cls)).decode(), flush=True)
                     n += 1
                 except DecodeError as exc:
-                    print(f"# bad message: {exc}", file=sys.stderr)
+                    Log("[topic]").warning(f"bad message: {exc}")
             if watch.ended():
                 return 0
         return 0

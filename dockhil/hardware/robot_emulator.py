@@ -452,11 +452,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--heartbeat-timeout", type=float, default=0.2, help="hold when the heartbeat stops [s]")
     args = parser.parse_args(argv)
     from dockhil.errors import DockhilError
+    from dockhil.log import Log
 
+    say = Log("robot emulator:")
     try:
         lock = claim_port(args.host, args.port)  # held until this process ends
     except DockhilError as exc:
-        print(f"robot emulator: error: {exc}", file=sys.stderr)
+        say.error(str(exc))
         return 2
     emulator = RobotControllerEmulator(args.host, args.port, args.delay, args.tau, args.cycle, args.heartbeat_timeout)
 
@@ -469,8 +471,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         asyncio.run(run())
     except (OSError, RuntimeError):
-        print(f"robot emulator: error: cannot listen on {args.host}:{args.port}: {listen_problem(args.host, args.port)}",
-              file=sys.stderr)
+        say.error(f"cannot listen on {args.host}:{args.port}: {listen_problem(args.host, args.port)}")
         return 2
     finally:
         if lock is not None:

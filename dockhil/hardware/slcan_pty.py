@@ -325,14 +325,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("links", nargs="+", metavar="LINK", help="symlink to create for each adapter")
     args = parser.parse_args(argv)
     from dockhil.errors import DockhilError
+    from dockhil.log import Log
 
     try:
         bus = PtyCanBus(args.links)
     except OSError as exc:
-        print(f"slcan_pty: error: cannot create adapter: {exc}", file=sys.stderr)
+        Log("slcan_pty:").error(f"cannot create adapter: {exc}")
         return 2
     except DockhilError as exc:
-        print(f"slcan_pty: error: {exc}", file=sys.stderr)
+        Log("slcan_pty:").error(str(exc))
         return 2
 
     def _stop(signum, frame):
