@@ -121,7 +121,8 @@ class ContactMeter:
         else:
             out["peak_force_N"] = float(self.peak)
         if self.state == "in":
-            out["note"] = "the contact had not ended when the run stopped: run longer for its duration and exit"
+            out["note"] = ("the contact had not ended when the run stopped: its peak force so far is not compared "
+                           "with the ideal's; run longer for its peak, duration and exit")
             return out
         if "note" not in out:
             out["contact_duration_s"] = float(self.t_end - self.t_start)
@@ -230,6 +231,8 @@ def _summary(meter: ContactMeter, run_time_s: float | None, ideal: dict | None, 
         ref = {k: ideal.get(k) for k in _COMPARED}
         out["ideal"] = ref
         err = {k: (None if out[k] is None or ref[k] is None else out[k] - ref[k]) for k in ref}
+        if meter.state == "in":  # the peak so far need not be the contact's: no error to report
+            err["peak_force_N"] = None
         err["max_force_N"] = max_err
         out["error"] = {k: err.get(k) for k in ("peak_force_N", "max_force_N", "contact_duration_s",
                                                  "exit_velocity_mps", "restitution")}

@@ -226,6 +226,30 @@ def test_exit_velocity_is_withheld_while_a_force_still_acts():
     assert m["exit_velocity_mps"] is None and "still acted" in m["note"]
 
 
+def test_a_run_stopped_inside_the_contact_reports_no_peak_force_error():
+    from dockhil.summary import Samples, summarize
+
+    # The ideal contact of Table 1 (m1 750, m2 1e6, kcs 3000, bcs 40, 0.03 m/s), written out: a
+    # damped oscillation of the reduced mass from p = 0 (overlap until pi/wd), stopped at 0.2 s.
+    m, kcs, bcs, v0 = 750.0 * 1e6 / (750.0 + 1e6), 3000.0, 40.0, 0.03
+    sigma, wd = bcs / (2 * m), math.sqrt(kcs / m - (bcs / (2 * m)) ** 2)
+
+    def contact(t):
+        p = v0 / wd * np.exp(-sigma * t) * np.sin(wd * t)
+        pd = v0 * np.exp(-sigma * t) * (np.cos(wd * t) - sigma / wd * np.sin(wd * t))
+        return p, pd, kcs * p + bcs * pd
+
+    peak = float(np.max(contact(np.linspace(0, math.pi / wd, 100001))[2]))
+    t = np.arange(0, 0.2, 1e-3)
+    p, pd, f = contact(t)
+    s = summarize(Samples(t, p, pd, f), ideal={"peak_force_N": peak, "contact_duration_s": math.pi / wd,
+                                               "exit_velocity_mps": -v0 * math.exp(-sigma * math.pi / wd),
+                                               "restitution": None})
+    assert s["peak_force_N"] == pytest.approx(float(np.max(kcs * p + bcs * pd))) and s["peak_force_N"] < 0.5 * peak
+    assert s["error"]["peak_force_N"] is None and s["error"]["contact_duration_s"] is None
+    assert "had not ended" in s["note"] and "run longer" in s["note"]
+
+
 # -- the summary streams ------------------------------------------------------------------------------
 
 
