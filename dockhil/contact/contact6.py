@@ -47,8 +47,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dockhil.contact import rigid
-from dockhil.contact.rigid import BodyState, Motion, RigidBody, Wrench, check_symmetric, check_unit_quaternion, \
-    check_vector, cross, quat_conjugate, quat_multiply, quat_to_matrix, quat_to_rotvec
+from dockhil.contact.rigid import BodyState, Motion, RigidBody, Wrench, add3, check_symmetric, check_unit_quaternion, \
+    check_vector, cross, cross3, quat_conjugate, quat_multiply, quat_to_matrix, rotate, rotate_back, rotvec3, sub3
 from dockhil.contact.scenario import ContactModelError, check_nonnegative, check_positive
 
 AXES = ("x", "y", "z", "rx", "ry", "rz")
@@ -61,14 +61,77 @@ def skew(v) -> np.ndarray:
 
 def left_jacobian_inverse(theta) -> np.ndarray:
     """J_l(theta)^{-1} of SO(3): d theta = J_l^{-1} d psi for R -> exp([d psi]x) R."""
-    th = np.asarray(theta, float)
-    angle = float(np.linalg.norm(th))
-    k = skew(th)
+    return np.array(left_jacobian_inverse3(theta))
+
+
+def left_jacobian_inverse3(theta) -> tuple:
+    """`left_jacobian_inverse` as three rows of plain floats:
+    1 - [theta]x / 2 + c [theta]x^2, and [theta]x^2 = theta theta^T - |theta|^2 1."""
+    x, y, z = theta
+    sq = x * x + y * y + z * z
+    angle = math.sqrt(sq)
     if angle < 1e-5:
-        c = 1.0 / 12.0 + angle * angle / 720.0
+        c = 1.0 / 12.0 + sq / 720.0
     else:
-        c = 1.0 / angle**2 - (1.0 + math.cos(angle)) / (2.0 * angle * math.sin(angle))
-    return np.eye(3) - 0.5 * k + c * (k @ k)
+        c = 1.0 / sq - (1.0 + math.cos(angle)) / (2.0 * angle * math.sin(angle))
+    hx, hy, hz = 0.5 * x, 0.5 * y, 0.5 * z
+    cxy, cxz, cyz = c * x * y, c * x * z, c * y * z
+    return ((1.0 + c * (x * x - sq), hz + cxy, cxz - hy),
+            (cxy - hz, 1.0 + c * (y * y - sq), hx + cyz),
+            (hy + cxz, cyz - hx, 1.0 + c * (z * z - sq)))
+
+
+def mat3_vec(a, v) -> tuple[float, float, float]:
+    """a v for a 3x3 matrix given as rows, plain floats."""
+    r0, r1, r2 = a
+    v0, v1, v2 = v
+    return (r0[0] * v0 + r0[1] * v1 + r0[2] * v2, r1[0] * v0 + r1[1] * v1 + r1[2] * v2,
+            r2[0] * v0 + r2[1] * v1 + r2[2] * v2)
+
+
+def mat3t_vec(a, v) -> tuple[float, float, float]:
+    """a^T v for a 3x3 matrix given as rows, plain floats."""
+    r0, r1, r2 = a
+    v0, v1, v2 = v
+    return (r0[0] * v0 + r1[0] * v1 + r2[0] * v2, r0[1] * v0 + r1[1] * v1 + r2[1] * v2,
+            r0[2] * v0 + r1[2] * v1 + r2[2] * v2)
+
+
+def add6(a, b) -> tuple:
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3], a[4] + b[4], a[5] + b[5])
+
+
+def sub6(a, b) -> tuple:
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2], a[3] - b[3], a[4] - b[4], a[5] - b[5])
+
+
+class MatVec6:
+    """v -> A v for a fixed 6x6 matrix A on plain floats (the per-tick products of the
+    contact matrices). A diagonal A costs six products; a zero one, none."""
+
+    __slots__ = ("rows", "diagonal", "zero")
+
+    def __init__(self, a):
+        a = np.asarray(a, float)
+        self.rows = tuple(tuple(float(c) for c in row) for row in a)
+        off = a - np.diag(np.diag(a))
+        self.diagonal = tuple(float(c) for c in np.diag(a)) if not off.any() else None
+        self.zero = not a.any()
+
+    def __call__(self, v) -> tuple:
+        if self.zero:
+            return (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        v0, v1, v2, v3, v4, v5 = v
+        if self.diagonal is not None:
+            d = self.diagonal
+            return (d[0] * v0, d[1] * v1, d[2] * v2, d[3] * v3, d[4] * v4, d[5] * v5)
+        r0, r1, r2, r3, r4, r5 = self.rows
+        return (r0[0] * v0 + r0[1] * v1 + r0[2] * v2 + r0[3] * v3 + r0[4] * v4 + r0[5] * v5,
+                r1[0] * v0 + r1[1] * v1 + r1[2] * v2 + r1[3] * v3 + r1[4] * v4 + r1[5] * v5,
+                r2[0] * v0 + r2[1] * v1 + r2[2] * v2 + r2[3] * v3 + r2[4] * v4 + r2[5] * v5,
+                r3[0] * v0 + r3[1] * v1 + r3[2] * v2 + r3[3] * v3 + r3[4] * v4 + r3[5] * v5,
+                r4[0] * v0 + r4[1] * v1 + r4[2] * v2 + r4[3] * v3 + r4[4] * v4 + r4[5] * v5,
+                r5[0] * v0 + r5[1] * v1 + r5[2] * v2 + r5[3] * v3 + r5[4] * v4 + r5[5] * v5)
 
 
 def check_matrix6(name: str, value, unit: str) -> np.ndarray:
@@ -108,40 +171,49 @@ class InterfaceGeometry:
     """The pose-dependent part of the interface coordinates: e = [d, theta],
     the wrench point o_A, R_B, J_l(theta)^{-1}, and the lever arms."""
 
-    __slots__ = ("e", "point", "rot_b", "jinv", "r", "arm1", "arm2", "q_rel")
+    # Tuples of plain floats (the per-tick path); rot_b and jinv as matrices for analysis.
+    __slots__ = ("e", "point", "q_b", "jinv3", "r", "arm1", "arm2", "q_rel")
 
     def __init__(self, m1: Motion, m2: Motion):
-        r1, r2 = m1.rotation(), m2.rotation()
-        o_a = m1.x + r1 @ m1.body._r_p
-        o_b = m2.x + r2 @ m2.body._r_p
+        o_a = add3(m1.x, rotate(m1.q, m1.body._r_p))
+        o_b = add3(m2.x, rotate(m2.q, m2.body._r_p))
         q_a = quat_multiply(m1.q, m1.body._q_pi)
         q_b = quat_multiply(m2.q, m2.body._q_pi)
-        self.rot_b = quat_to_matrix(q_b)
-        self.r = o_a - o_b
+        self.q_b = q_b  # B -> world
+        self.r = sub3(o_a, o_b)
         self.q_rel = quat_multiply(quat_conjugate(q_b), q_a)  # A's attitude in B
-        theta = quat_to_rotvec(self.q_rel)
-        self.jinv = left_jacobian_inverse(theta)
-        self.e = np.concatenate([self.rot_b.T @ self.r, theta])
+        theta = rotvec3(self.q_rel)
+        self.jinv3 = left_jacobian_inverse3(theta)
+        self.e = rotate_back(q_b, self.r) + theta
         self.point = o_a
-        self.arm1 = o_a - m1.x  # CoM -> o_A
-        self.arm2 = o_b - m2.x  # CoM -> o_B
+        self.arm1 = sub3(o_a, m1.x)  # CoM -> o_A
+        self.arm2 = sub3(o_b, m2.x)  # CoM -> o_B
 
-    def rate(self, v1, w1, v2, w2) -> np.ndarray:
+    @property
+    def rot_b(self) -> np.ndarray:
+        """R_B (B -> world)."""
+        return quat_to_matrix(self.q_b)
+
+    @property
+    def jinv(self) -> np.ndarray:
+        return np.array(self.jinv3)
+
+    def rate(self, v1, w1, v2, w2) -> tuple:
         """e' from CoM velocities and world angular velocities of both bodies."""
-        v_a = v1 + cross(w1, self.arm1)
-        v_b = v2 + cross(w2, self.arm2)
-        d_rate = self.rot_b.T @ (v_a - v_b + cross(self.r, w2))
-        return np.concatenate([d_rate, self.jinv @ (self.rot_b.T @ (w1 - w2))])
+        v_a = add3(v1, cross3(w1, self.arm1))
+        v_b = add3(v2, cross3(w2, self.arm2))
+        d_rate = rotate_back(self.q_b, add3(sub3(v_a, v_b), cross3(self.r, w2)))
+        return d_rate + mat3_vec(self.jinv3, rotate_back(self.q_b, sub3(w1, w2)))
 
     @property
     def penetration(self) -> float:
         return float(self.e[0])
 
 
-def interface_state(m1: Motion, m2: Motion) -> tuple[InterfaceGeometry, np.ndarray]:
+def interface_state(m1: Motion, m2: Motion) -> tuple[InterfaceGeometry, tuple]:
     """(geometry, e') of the chaser's interface A in the target's B."""
     g = InterfaceGeometry(m1, m2)
-    return g, g.rate(m1.v, m1.omega_world(), m2.v, m2.omega_world())
+    return g, g.rate(m1.v, m1.omega3(), m2.v, m2.omega3())
 
 
 def generalized_to_wrench(g: InterfaceGeometry, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -152,7 +224,8 @@ def generalized_to_wrench(g: InterfaceGeometry, q: np.ndarray) -> tuple[np.ndarr
 def contact_wrench(model: Contact6, g: InterfaceGeometry, rate, anchor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(F, M, generalized force) on body 1 at o_A while touching; the springs
     pull toward `anchor` (the onset pose, normal axis 0)."""
-    q = model.stiffness @ (g.e - anchor) + model.damping @ rate
+    rate = np.asarray(rate, float)
+    q = model.stiffness @ (np.array(g.e) - anchor) + model.damping @ rate
     force, moment = generalized_to_wrench(g, q)
     if model.mu > 0.0:
         u = rate[1:3]
@@ -174,7 +247,7 @@ class IdealContactWrench(Wrench):
     def start(self, m1: Motion, m2: Motion) -> None:
         """Contact onset: the tangential and rotational springs rest at the pose of first touch."""
         self.touching = True
-        self.anchor = InterfaceGeometry(m1, m2).e.copy()
+        self.anchor = np.array(InterfaceGeometry(m1, m2).e)
         self.anchor[0] = 0.0
 
     def prepare(self, m1: Motion, m2: Motion):
@@ -214,22 +287,21 @@ def sensor_wrench_to_bodies(carrier: Motion, other: Motion, sensor_position, sen
     q_s = check_unit_quaternion("sensor_orientation", sensor_orientation)
     f_s = check_vector("force", force, unit="N")
     t_s = check_vector("torque", torque, unit="N m")
-    return sensor_wrench_checked(carrier, other, p_s, q_s, f_s, t_s)
+    return tuple(np.array(w) for w in sensor_wrench_checked(carrier, other, p_s, q_s, f_s, t_s))
 
 
 def sensor_wrench_checked(carrier: Motion, other: Motion, p_s, q_s, f_s, t_s):
-    """`sensor_wrench_to_bodies` for values already checked (float arrays, a unit quaternion):
-    the per-tick path of a sampled loop, whose mounting pose is checked once."""
+    """`sensor_wrench_to_bodies` for values already checked (3-vectors, a unit quaternion),
+    as tuples of floats: the per-tick path of a sampled loop, whose mounting pose is checked once."""
     b = carrier.body
     q_body = quat_multiply(carrier.q, quat_conjugate(b._q_bp))  # body frame -> world
-    rot_body = quat_to_matrix(q_body)
-    rot_s = rot_body @ quat_to_matrix(q_s)
-    origin = carrier.x + rot_body @ (p_s - b.com)
-    f = rot_s @ f_s
-    m = rot_s @ t_s
-    t_c = m + cross(origin - carrier.x, f)
-    t_o = -m - cross(origin - other.x, f)
-    return f, t_c, -f, t_o
+    q_sw = quat_multiply(q_body, q_s)  # sensor -> world
+    lever = rotate(q_body, sub3(p_s, b._com))  # CoM -> sensor origin
+    f = rotate(q_sw, f_s)
+    m = rotate(q_sw, t_s)
+    t_c = add3(m, cross3(lever, f))
+    t_o = sub3(cross3(sub3(other.x, add3(carrier.x, lever)), f), m)  # -m - (origin - x_o) x f
+    return f, t_c, (-f[0], -f[1], -f[2]), t_o
 
 
 # --- the contact run ------------------------------------------------------------------------
@@ -363,7 +435,7 @@ def _assign(dst: Motion, src: Motion) -> None:
 
 def potential_energy(model: Contact6, g: InterfaceGeometry, anchor, touching: bool) -> float:
     """1/2 (e - anchor)^T K (e - anchor) [J] while touching."""
-    de = g.e - anchor
+    de = np.array(g.e) - anchor
     return 0.5 * float(de @ model.stiffness @ de) if touching else 0.0
 
 
