@@ -200,10 +200,15 @@ class InterfaceGeometry:
 
     def rate(self, v1, w1, v2, w2) -> tuple:
         """e' from CoM velocities and world angular velocities of both bodies."""
+        return self.rates(v1, w1, v2, w2)[0]
+
+    def rates(self, v1, w1, v2, w2) -> tuple[tuple, tuple]:
+        """(e', relative angular velocity R_B^T (w1 - w2) in B axes)."""
         v_a = add3(v1, cross3(w1, self.arm1))
         v_b = add3(v2, cross3(w2, self.arm2))
         d_rate = rotate_back(self.q_b, add3(sub3(v_a, v_b), cross3(self.r, w2)))
-        return d_rate + mat3_vec(self.jinv3, rotate_back(self.q_b, sub3(w1, w2)))
+        spin = rotate_back(self.q_b, sub3(w1, w2))
+        return d_rate + mat3_vec(self.jinv3, spin), spin
 
     @property
     def penetration(self) -> float:

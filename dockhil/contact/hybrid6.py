@@ -242,8 +242,7 @@ def motion_from_published(body: RigidBody, position, orientation, velocity, omeg
 def relative_interface(m1: Motion, m2: Motion, omega1, omega2) -> tuple[InterfaceGeometry, tuple, RelativePose]:
     """(geometry, e', robot command) for published states; omega_i world angular velocities."""
     g = InterfaceGeometry(m1, m2)
-    rate = g.rate(m1.v, omega1, m2.v, omega2)
-    w_rel = rotate_back(g.q_b, sub3(omega1, omega2))
+    rate, w_rel = g.rates(m1.v, omega1, m2.v, omega2)
     return g, rate, RelativePose(g.e[:3], g.q_rel, rate[:3], w_rel)
 
 
