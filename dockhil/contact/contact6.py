@@ -161,6 +161,9 @@ class Contact6:
         object.__setattr__(self, "damping", check_matrix6("damping", self.damping, "N s/m, N m s/rad"))
         object.__setattr__(self, "mu", check_nonnegative("mu", self.mu))
         object.__setattr__(self, "slip_velocity", check_positive("slip_velocity", self.slip_velocity, "m/s"))
+        # The per-tick products K v and C v on plain floats.
+        object.__setattr__(self, "stiffness_of", MatVec6(self.stiffness))
+        object.__setattr__(self, "damping_of", MatVec6(self.damping))
 
     @property
     def dissipative(self) -> bool:
@@ -229,15 +232,20 @@ def generalized_to_wrench(g: InterfaceGeometry, q: np.ndarray) -> tuple[np.ndarr
 def contact_wrench(model: Contact6, g: InterfaceGeometry, rate, anchor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(F, M, generalized force) on body 1 at o_A while touching; the springs
     pull toward `anchor` (the onset pose, normal axis 0)."""
-    rate = np.asarray(rate, float)
-    q = model.stiffness @ (np.array(g.e) - anchor) + model.damping @ rate
-    force, moment = generalized_to_wrench(g, q)
-    if model.mu > 0.0:
-        u = rate[1:3]
-        normal = max(float(q[0]), 0.0)
-        scale = -model.mu * normal / math.sqrt(float(u @ u) + model.slip_velocity**2)
-        force = force + g.rot_b @ np.array([0.0, scale * u[0], scale * u[1]])
-    return force, moment, q
+    return tuple(np.array(v) for v in contact_wrench3(model, g, rate, anchor))
+
+
+def contact_wrench3(model: Contact6, g: InterfaceGeometry, rate, anchor) -> tuple[tuple, tuple, tuple]:
+    """`contact_wrench` on plain floats (the integrator's kicks): F = -R_B q_t, M = -R_B J^-T q_r."""
+    q = add6(model.stiffness_of(sub6(g.e, anchor)), model.damping_of(rate))
+    fx, fy, fz = rotate(g.q_b, q[:3])
+    if model.mu > 0.0:  # regularised Coulomb friction on A's sliding (u = e'_y, e'_z), in B's axes
+        u1, u2 = rate[1], rate[2]
+        scale = model.mu * max(q[0], 0.0) / math.sqrt(u1 * u1 + u2 * u2 + model.slip_velocity**2)
+        tx, ty, tz = rotate(g.q_b, (0.0, scale * u1, scale * u2))
+        fx, fy, fz = fx + tx, fy + ty, fz + tz
+    mx, my, mz = rotate(g.q_b, mat3t_vec(g.jinv3, q[3:]))
+    return (-fx, -fy, -fz), (-mx, -my, -mz), q
 
 
 class IdealContactWrench(Wrench):
@@ -247,23 +255,22 @@ class IdealContactWrench(Wrench):
         self.model = model
         self.velocity_dependent = model.dissipative
         self.touching = False
-        self.anchor = np.zeros(6)
+        self.anchor = (0.0,) * 6
 
     def start(self, m1: Motion, m2: Motion) -> None:
         """Contact onset: the tangential and rotational springs rest at the pose of first touch."""
         self.touching = True
-        self.anchor = np.array(InterfaceGeometry(m1, m2).e)
-        self.anchor[0] = 0.0
+        self.anchor = (0.0,) + InterfaceGeometry(m1, m2).e[1:]
 
     def prepare(self, m1: Motion, m2: Motion):
         g = InterfaceGeometry(m1, m2)
         if not self.touching:
-            zero = np.zeros(3)
+            zero = (0.0, 0.0, 0.0)
             return g.point, lambda v1, w1, v2, w2: (zero, zero)
         model, anchor = self.model, self.anchor
 
         def wrench_of(v1, w1, v2, w2):
-            force, moment, _ = contact_wrench(model, g, g.rate(v1, w1, v2, w2), anchor)
+            force, moment, _ = contact_wrench3(model, g, g.rate(v1, w1, v2, w2), anchor)
             return force, moment
 
         return g.point, wrench_of
@@ -392,9 +399,12 @@ class Recorder:
         self.energy[i] = m1.kinetic_energy() + m2.kinetic_energy() + potential
         self.flag[i] = touching
 
-    def run(self, onset, exit_time, final, anchor) -> Run6:
-        return Run6(self.t, self.pos, self.vel, self.quat, self.omega, self.force, self.torque, self.e, self.rate,
-                    self.p, self.l, self.energy, self.flag, onset, exit_time, final, self.q, anchor)
+    def run(self, onset, exit_time, final, anchor, n: int | None = None) -> Run6:
+        """The run of the first n samples (all by default)."""
+        k = slice(None, n)
+        return Run6(self.t[k], self.pos[k], self.vel[k], self.quat[k], self.omega[k], self.force[k], self.torque[k],
+                    self.e[k], self.rate[k], self.p[k], self.l[k], self.energy[k], self.flag[k], onset, exit_time,
+                    final, self.q[k], anchor)
 
 
 def _step_with_events(m1: Motion, m2: Motion, wrench: IdealContactWrench, h: float, order: int) -> list:
@@ -446,10 +456,12 @@ def potential_energy(model: Contact6, g: InterfaceGeometry, anchor, touching: bo
 
 def simulate_contact6(
     body1: RigidBody, body2: RigidBody, state1: BodyState, state2: BodyState, model: Contact6, *,
-    dt: float = 1e-3, t_end: float = 2.0, order: int = 4, substeps: int = 1,
+    dt: float = 1e-3, t_end: float = 2.0, order: int = 4, substeps: int = 1, until_exit: bool = False,
 ) -> Run6:
     """Fixed-step run of the ideal 6-DOF contact from the given states, samples
-    every dt [s]; each sample interval is `substeps` integrator steps."""
+    every dt [s]; each sample interval is `substeps` integrator steps. With
+    `until_exit` the run ends at the first sample after the contact ended (what
+    follows is free flight), so its length is the contact's, not t_end's."""
     dt = check_positive("dt", dt, "s")
     t_end = check_positive("t_end", t_end, "s")
     if int(substeps) != substeps or substeps < 1:
@@ -483,4 +495,6 @@ def simulate_contact6(
                 elif not now and exit_time is None and onset is not None:
                     exit_time = t_event
         sample(i + 1)
-    return rec.run(onset, exit_time, (m1.state(), m2.state()), wrench.anchor.copy())
+        if until_exit and exit_time is not None:
+            return rec.run(onset, exit_time, (m1.state(), m2.state()), np.array(wrench.anchor), n=i + 2)
+    return rec.run(onset, exit_time, (m1.state(), m2.state()), np.array(wrench.anchor))

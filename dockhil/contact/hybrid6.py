@@ -310,7 +310,6 @@ class PassiveSensor6:
         self.mount_position = tuple(check_vector("sensor_position", mount_position, unit="m").tolist())
         self.mount_orientation = check_unit_quaternion("sensor_orientation", mount_orientation)
         self.anchor: tuple | None = None
-        self._stiffness, self._damping = MatVec6(passive.stiffness), MatVec6(passive.damping)
 
     def read(self, pose: RelativePose | None) -> tuple[tuple, tuple, tuple]:
         """(force [N], torque [N m]) in the sensor frame and the generalized passive force (tuples)."""
@@ -322,7 +321,7 @@ class PassiveSensor6:
         rate = tuple(pose.velocity) + mat3_vec(jinv, pose.angular_velocity)
         if self.anchor is None:
             self.anchor = (0.0,) + e[1:]
-        q = add6(self._stiffness(sub6(e, self.anchor)), self._damping(rate))
+        q = add6(self.passive.stiffness_of(sub6(e, self.anchor)), self.passive.damping_of(rate))
         # The wrench on the target: +S q at o_A, i.e. in B's axes, moment about B's origin.
         force_b = q[:3]
         if self.passive.mu > 0.0:  # the hardware's friction opposes A sliding on B (contact6's law)

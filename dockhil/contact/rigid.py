@@ -461,22 +461,17 @@ class HeldWrench(Wrench):
 def _apply(m1: Motion, m2: Motion, w: Wrench, h: float) -> None:
     """Kick both bodies by the wrench for h, poses fixed: implicit midpoint on the momenta."""
     b1, b2 = m1.body, m2.body
-    if isinstance(w, HeldWrench):  # the sampled loop's hot path: plain floats
+    if isinstance(w, HeldWrench):  # the sampled loop's zero-order hold
         f1, t1, f2, t2 = w.f1, w.t1, w.f2, w.t2
     else:
-        r1, r2 = m1.rotation(), m2.rotation()
         point, wrench_of = w.prepare(m1, m2)
-        point = np.asarray(point, float)
-        arm1, arm2 = point - np.array(m1.x), point - np.array(m2.x)
-        inv1 = r1 / b1.principal_moments  # omega_world = inv1 @ L
-        inv2 = r2 / b2.principal_moments
-        v1, L1, v2, L2 = np.array(m1.v), np.array(m1.L), np.array(m2.v), np.array(m2.L)
-        f, mom = wrench_of(v1, inv1 @ L1, v2, inv2 @ L2)
+        arm1, arm2 = sub3(point, m1.x), sub3(point, m2.x)
+        f, mom = wrench_of(m1.v, m1.omega3(), m2.v, m2.omega3())
         if w.velocity_dependent:
-            f, mom = _midpoint_wrench(wrench_of, f, mom, m1, m2, r1, r2, inv1, inv2, arm1, arm2, h)
-        f1, f2 = f, -f
-        t1 = mom + cross(arm1, f)
-        t2 = -mom - cross(arm2, f)
+            f, mom = _midpoint_wrench(wrench_of, f, mom, m1, m2, arm1, arm2, h)
+        f1, f2 = f, (-f[0], -f[1], -f[2])
+        t1 = add3(mom, cross3(arm1, f))
+        t2 = sub3(cross3(f, arm2), mom)  # -mom - arm2 x f
     k1, k2 = h / b1.mass, h / b2.mass
     v, L, tb = m1.v, m1.L, rotate_back(m1.q, t1)
     m1.v = (v[0] + k1 * f1[0], v[1] + k1 * f1[1], v[2] + k1 * f1[2])
@@ -486,37 +481,43 @@ def _apply(m1: Motion, m2: Motion, w: Wrench, h: float) -> None:
     m2.L = (L[0] + h * tb[0], L[1] + h * tb[1], L[2] + h * tb[2])
 
 
-def _midpoint_wrench(wrench_of, f, mom, m1, m2, r1, r2, inv1, inv2, arm1, arm2, h):
+def _midpoint_wrench(wrench_of, f, mom, m1, m2, arm1, arm2, h):
     """The wrench at the midpoint momenta of a kick of h: z = Phi(z) for z = (F, M).
     Fixed-point iteration first (contracts when h c / m is small, c the damping);
     Newton with a finite-difference Jacobian when it does not (stiff friction)."""
     half = 0.5 * h
     b1, b2 = m1.body, m2.body
-    v1, L1, v2, L2 = np.array(m1.v), np.array(m1.L), np.array(m2.v), np.array(m2.L)
+    (i1, i2, i3), (j1, j2, j3) = b1._moments, b2._moments
+    q1, q2, v1, v2, L1, L2 = m1.q, m2.q, m1.v, m2.v, m1.L, m2.L
+    k1, k2 = half / b1.mass, half / b2.mass
 
     def phi(z):
         fz, mz = z[:3], z[3:]
-        t1 = r1.T @ (mz + cross(arm1, fz))
-        t2 = r2.T @ (-mz - cross(arm2, fz))
-        g, nm = wrench_of(v1 + (half / b1.mass) * fz, inv1 @ (L1 + half * t1),
-                          v2 - (half / b2.mass) * fz, inv2 @ (L2 + half * t2))
-        return np.concatenate([g, nm])
+        t1 = rotate_back(q1, add3(mz, cross3(arm1, fz)))  # body axes
+        t2 = rotate_back(q2, sub3(cross3(fz, arm2), mz))
+        omega1 = rotate(q1, ((L1[0] + half * t1[0]) / i1, (L1[1] + half * t1[1]) / i2, (L1[2] + half * t1[2]) / i3))
+        omega2 = rotate(q2, ((L2[0] + half * t2[0]) / j1, (L2[1] + half * t2[1]) / j2, (L2[2] + half * t2[2]) / j3))
+        g, nm = wrench_of((v1[0] + k1 * fz[0], v1[1] + k1 * fz[1], v1[2] + k1 * fz[2]), omega1,
+                          (v2[0] - k2 * fz[0], v2[1] - k2 * fz[1], v2[2] - k2 * fz[2]), omega2)
+        return tuple(g) + tuple(nm)
 
-    z = np.concatenate([f, mom])
+    z = tuple(f) + tuple(mom)
     for _ in range(12):
         nz = phi(z)
-        change = float(np.max(np.abs(nz - z)))
+        change = max(abs(a - b) for a, b in zip(nz, z))
         z = nz
-        if change <= 4e-16 * max(float(np.max(np.abs(z))), 1e-300):
+        if change <= 4e-16 * max(max(abs(c) for c in z), 1e-300):
             return z[:3], z[3:]
+    z = np.array(z)
     previous = math.inf
     for _ in range(40):
-        pz = phi(z)
+        pz = np.array(phi(tuple(z.tolist())))
         res = z - pz
         scale = max(float(np.max(np.abs(z))), 1e-300)
         size = float(np.max(np.abs(res)))
         # Converged: at round-off, or no longer shrinking once well below the solution's size.
         if size <= 64.0 * np.finfo(float).eps * scale or (size <= 1e-12 * scale and size >= previous):
+            z = tuple(z.tolist())
             return z[:3], z[3:]
         previous = size
         jac = np.eye(6)
@@ -524,7 +525,7 @@ def _midpoint_wrench(wrench_of, f, mom, m1, m2, r1, r2, inv1, inv2, arm1, arm2, 
             dz = 1e-7 * max(abs(z[k]), scale * 1e-3)
             zk = z.copy()
             zk[k] += dz
-            jac[:, k] -= (phi(zk) - pz) / dz
+            jac[:, k] -= (np.array(phi(tuple(zk.tolist()))) - pz) / dz
         try:
             z = z - np.linalg.solve(jac, res)
         except np.linalg.LinAlgError:
