@@ -180,8 +180,8 @@ class InterfaceGeometry:
     def __init__(self, m1: Motion, m2: Motion):
         o_a = add3(m1.x, rotate(m1.q, m1.body._r_p))
         o_b = add3(m2.x, rotate(m2.q, m2.body._r_p))
-        q_a = quat_multiply(m1.q, m1.body._q_pi)
-        q_b = quat_multiply(m2.q, m2.body._q_pi)
+        q_a = m1.q if m1.body._pi_identity else quat_multiply(m1.q, m1.body._q_pi)
+        q_b = m2.q if m2.body._pi_identity else quat_multiply(m2.q, m2.body._q_pi)
         self.q_b = q_b  # B -> world
         self.r = sub3(o_a, o_b)
         self.q_rel = quat_multiply(quat_conjugate(q_b), q_a)  # A's attitude in B

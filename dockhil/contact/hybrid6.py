@@ -228,12 +228,13 @@ ZERO6 = (0.0,) * 6
 def published_body(m: Motion) -> tuple:
     """(CoM position, body-frame attitude, CoM velocity, world angular velocity): what the
     dynamics publish for one body (tuples of floats)."""
-    return m.x, quat_multiply(m.q, quat_conjugate(m.body._q_bp)), m.v, m.omega3()
+    q = m.q if m.body._bp_identity else quat_multiply(m.q, quat_conjugate(m.body._q_bp))
+    return m.x, q, m.v, m.omega3()
 
 
 def motion_from_published(body: RigidBody, position, orientation, velocity, omega_world) -> Motion:
     """The integrator's variables rebuilt from a published body state (what a node downstream sees)."""
-    q_p = _normalised(quat_multiply(orientation, body._q_bp))
+    q_p = _normalised(orientation if body._bp_identity else quat_multiply(orientation, body._q_bp))
     i1, i2, i3 = body._moments
     w = rotate_back(q_p, omega_world)
     return Motion(body, tuple(position), tuple(velocity), q_p, (i1 * w[0], i2 * w[1], i3 * w[2]))
@@ -277,13 +278,19 @@ class VirtualWall6:
             if self.impedance is None:
                 self.impedance = impedance_closed_form6(self.ideal, self.passive, body_mobility(m1, g.point, g),
                                                         body_mobility(m2, g.point, g))
-            imp = self.impedance
-            self._products = tuple(MatVec6(a @ d) for a, d in ((imp.k1, imp.d1), (imp.c1, imp.d1),
-                                                               (imp.k2, imp.d2), (imp.c2, imp.d2)))
+                # The closed form makes K_i D_i = K - K_p and C_i D_i = C - C_p: take them as they are
+                # (the D_i cancel) rather than as products that carry the inverse's rounding.
+                dk = MatVec6(self.ideal.stiffness - self.passive.stiffness)
+                dc = MatVec6(self.ideal.damping - self.passive.damping)
+                self._products = (dk, dc, dk, dc)
+            else:
+                imp = self.impedance
+                self._products = tuple(MatVec6(a @ d) for a, d in ((imp.k1, imp.d1), (imp.c1, imp.d1),
+                                                                   (imp.k2, imp.d2), (imp.c2, imp.d2)))
         k1, c1, k2, c2 = self._products
         de = sub6(g.e, self.anchor)
         q1 = add6(k1(de), c1(rate))
-        q2 = add6(k2(de), c2(rate))
+        q2 = q1 if (k2, c2) == (k1, c1) else add6(k2(de), c2(rate))
         # W = -S q on body 1 and +S q on body 2 at o_A: force R_B q_t, moment R_B J^-T q_r.
         qb, jinv = g.q_b, g.jinv3
         f1 = rotate(qb, q1[:3])

@@ -43,6 +43,7 @@ import numpy as np
 from dockhil.contact.scenario import ContactModelError, StepTooLargeError, check_positive
 
 UNIT_TOLERANCE = 1e-9  # |q| may differ from 1 by this much in a parameter
+IDENTITY = (0.0, 0.0, 0.0, 1.0)
 
 
 # --- quaternions (x, y, z, w), plain floats -------------------------------------------------
@@ -274,6 +275,10 @@ class RigidBody:
         # The interface seen from the CoM, in principal axes.
         object.__setattr__(self, "_r_p", tuple(float(c) for c in axes.T @ (self.interface_position - self.com)))
         object.__setattr__(self, "_q_pi", quat_multiply(quat_conjugate(q_bp), q_bi))
+        # Most bodies have principal axes along the body axes and the interface along them: the
+        # per-tick frame changes then skip a product by the identity (the same numbers).
+        object.__setattr__(self, "_bp_identity", q_bp == IDENTITY)
+        object.__setattr__(self, "_pi_identity", self._q_pi == IDENTITY)
         object.__setattr__(self, "_com", tuple(float(c) for c in self.com))
 
     def interface_offset_body(self) -> np.ndarray:
