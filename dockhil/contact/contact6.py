@@ -48,7 +48,7 @@ import numpy as np
 
 from dockhil.contact import rigid
 from dockhil.contact.rigid import BodyState, Motion, RigidBody, Wrench, add3, check_symmetric, check_unit_quaternion, \
-    check_vector, cross, cross3, quat_conjugate, quat_multiply, quat_to_matrix, rotate, rotate_back, rotvec3, sub3
+    check_vector, cross3, quat_conjugate, quat_multiply, quat_to_matrix, rotate, rotate_back, rotvec3, sub3
 from dockhil.contact.scenario import ContactModelError, check_nonnegative, check_positive
 
 AXES = ("x", "y", "z", "rx", "ry", "rz")
