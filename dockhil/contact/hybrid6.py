@@ -295,10 +295,10 @@ class VirtualWall6:
         qb, jinv = g.q_b, g.jinv3
         f1 = rotate(qb, q1[:3])
         f1 = (-f1[0], -f1[1], -f1[2])
-        m1_ = rotate(qb, mat3t_vec(jinv, q1[3:]))
+        moment1 = rotate(qb, mat3t_vec(jinv, q1[3:]))  # its negative acts on body 1
         f2 = rotate(qb, q2[:3])
-        m2_ = rotate(qb, mat3t_vec(jinv, q2[3:]))
-        return (f1, sub3(cross3(g.arm1, f1), m1_), f2, add3(m2_, cross3(sub3(g.point, m2.x), f2)))
+        moment2 = rotate(qb, mat3t_vec(jinv, q2[3:]))
+        return (f1, sub3(cross3(g.arm1, f1), moment1), f2, add3(moment2, cross3(sub3(g.point, m2.x), f2)))
 
 
 class PassiveSensor6:
