@@ -178,19 +178,18 @@ class InterfaceGeometry:
     __slots__ = ("e", "point", "q_b", "jinv3", "r", "arm1", "arm2", "q_rel")
 
     def __init__(self, m1: Motion, m2: Motion):
-        o_a = add3(m1.x, rotate(m1.q, m1.body._r_p))
-        o_b = add3(m2.x, rotate(m2.q, m2.body._r_p))
+        self.arm1 = arm1 = rotate(m1.q, m1.body._r_p)  # CoM -> o_A, world
+        self.arm2 = arm2 = rotate(m2.q, m2.body._r_p)  # CoM -> o_B
+        x1, x2 = m1.x, m2.x
+        self.point = o_a = (x1[0] + arm1[0], x1[1] + arm1[1], x1[2] + arm1[2])
+        self.r = r = (o_a[0] - x2[0] - arm2[0], o_a[1] - x2[1] - arm2[1], o_a[2] - x2[2] - arm2[2])  # o_A - o_B
         q_a = m1.q if m1.body._pi_identity else quat_multiply(m1.q, m1.body._q_pi)
         q_b = m2.q if m2.body._pi_identity else quat_multiply(m2.q, m2.body._q_pi)
         self.q_b = q_b  # B -> world
-        self.r = sub3(o_a, o_b)
         self.q_rel = quat_multiply(quat_conjugate(q_b), q_a)  # A's attitude in B
         theta = rotvec3(self.q_rel)
         self.jinv3 = left_jacobian_inverse3(theta)
-        self.e = rotate_back(q_b, self.r) + theta
-        self.point = o_a
-        self.arm1 = sub3(o_a, m1.x)  # CoM -> o_A
-        self.arm2 = sub3(o_b, m2.x)  # CoM -> o_B
+        self.e = rotate_back(q_b, r) + theta
 
     @property
     def rot_b(self) -> np.ndarray:
@@ -207,11 +206,15 @@ class InterfaceGeometry:
 
     def rates(self, v1, w1, v2, w2) -> tuple[tuple, tuple]:
         """(e', relative angular velocity R_B^T (w1 - w2) in B axes)."""
-        v_a = add3(v1, cross3(w1, self.arm1))
-        v_b = add3(v2, cross3(w2, self.arm2))
-        d_rate = rotate_back(self.q_b, add3(sub3(v_a, v_b), cross3(self.r, w2)))
-        spin = rotate_back(self.q_b, sub3(w1, w2))
-        return d_rate + mat3_vec(self.jinv3, spin), spin
+        # v_A - v_B + r x w2, with v_A = v1 + w1 x arm1 and v_B = v2 + w2 x arm2 (written out: the hot path)
+        a, b, r = self.arm1, self.arm2, self.r
+        p0, p1, p2 = w1
+        s0, s1, s2 = w2
+        u = (v1[0] + p1 * a[2] - p2 * a[1] - v2[0] - s1 * b[2] + s2 * b[1] + r[1] * s2 - r[2] * s1,
+             v1[1] + p2 * a[0] - p0 * a[2] - v2[1] - s2 * b[0] + s0 * b[2] + r[2] * s0 - r[0] * s2,
+             v1[2] + p0 * a[1] - p1 * a[0] - v2[2] - s0 * b[1] + s1 * b[0] + r[0] * s1 - r[1] * s0)
+        spin = rotate_back(self.q_b, (p0 - s0, p1 - s1, p2 - s2))
+        return rotate_back(self.q_b, u) + mat3_vec(self.jinv3, spin), spin
 
     @property
     def penetration(self) -> float:
