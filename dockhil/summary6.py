@@ -25,7 +25,7 @@ import bisect
 import itertools
 import math
 
-import msgs
+from dockhil import msgs
 from dockhil.contact.rigid import cross3, rotate, sub3
 from dockhil.summary import ContactMeter, _TickMatcher, _first
 
