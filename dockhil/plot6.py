@@ -53,7 +53,8 @@ def series6(path: str) -> Series6:
                    state_a[:, 0], state_a[:, 1:].reshape(-1, 2, 3))
 
 
-def plot6(bags: list[str], png: str, labels: list[str] | None = None) -> None:
+def plot6(bags: list[str], png: str, labels: list[str] | None = None,
+          title: str = "6-DOF contact: wrench, relative pose, angular rates") -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -77,6 +78,6 @@ def plot6(bags: list[str], png: str, labels: list[str] | None = None) -> None:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=6, ncol=3)
     axes[-1].set_xlabel("time [s]")
-    fig.suptitle("6-DOF contact: wrench, relative pose, angular rates")
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     save_figure(fig, png)

@@ -351,6 +351,11 @@ class SummaryCollector:
         from dockhil.contact.passivity import EnergyMeter
 
         self.graph = graph
+        self.six = None
+        if _first(graph, "satellite_dynamics6") is not None:  # a 6-DOF scene: its own summary
+            from dockhil.summary6 import SummaryCollector6
+
+            self.six = SummaryCollector6(graph)
         ref = scene_reference(graph)
         growth = ref.get("growth")
         self.meter = ContactMeter(ideal=ref.get("ideal"), growth_about=None if growth is None else growth["about"])
@@ -358,12 +363,17 @@ class SummaryCollector:
         self.energy = EnergyMeter()
 
     def __call__(self, topic: str, msg) -> None:
+        if self.six is not None:
+            self.six(topic, msg)
+            return
         if topic == "/energy" and isinstance(msg, msgs.Energy):
             self.energy.add(msg)
             return
         self.match(topic, msg)
 
     def summary(self, run_time_s: float | None = None) -> dict:
+        if self.six is not None:
+            return self.six.summary(run_time_s)
         self.match.flush()
         out = scene_summary(self.graph, self.meter, run_time_s)
         energy_summary(out, self.graph, self.energy)
@@ -400,7 +410,8 @@ def _bag_messages(path: str):
     from dockhil.bag import BagReader
 
     with BagReader(path) as bag:
-        yield from bag.decoded(["/satellite/state", "/ft/wrench", "/impedance/wrench", "/energy"])
+        # /robot/command: the 6-DOF summary's ticks (dockhil/summary6.py); the 1-DOF one ignores it.
+        yield from bag.decoded(["/satellite/state", "/ft/wrench", "/impedance/wrench", "/energy", "/robot/command"])
 
 
 def samples_from_bag(path: str, ideal_force: tuple[float, float] | None = None, dt: float | None = None) -> Samples:
@@ -487,6 +498,11 @@ def scene_summary(graph, s, run_time_s: float | None) -> dict:
 
 def format_summary(out: dict) -> str:
     """A few readable lines of a summary."""
+    if out.get("dof") == 6:
+        from dockhil.summary6 import format_summary6
+
+        return format_summary6(out)
+
     def f(v, unit, fmt="{:.4g}"):
         return "-" if v is None else fmt.format(v) + f" {unit}"
 

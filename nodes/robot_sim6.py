@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dockhil.node import Input, Node, Output, Param
 from dockhil.msgs import Pose, RobotCommand, RobotState, Twist
-from dockhil.nodes.satellite_dynamics6 import array3, quaternion, vector
+from dockhil.nodes.satellite_dynamics6 import triple, quaternion, vector
 
 
 def relative_pose(msg):
@@ -12,8 +12,8 @@ def relative_pose(msg):
     from dockhil.contact.hybrid6 import RelativePose
 
     o = msg.pose.orientation
-    return RelativePose(array3(msg.pose.position), (o.x, o.y, o.z, o.w), array3(msg.twist.linear),
-                        array3(msg.twist.angular))
+    return RelativePose(triple(msg.pose.position), (o.x, o.y, o.z, o.w), triple(msg.twist.linear),
+                        triple(msg.twist.angular))
 
 
 class RobotSim6(Node):

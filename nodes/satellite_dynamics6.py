@@ -16,10 +16,9 @@ def quaternion(q) -> Quaternion:
     return Quaternion(float(q[0]), float(q[1]), float(q[2]), float(q[3]))
 
 
-def array3(v):
-    import numpy as np
-
-    return np.array((v.x, v.y, v.z))
+def triple(v) -> tuple[float, float, float]:
+    """(x, y, z) of a msgs.Vector3: the library's 3-vectors are tuples of floats."""
+    return (v.x, v.y, v.z)
 
 
 def attitude(q, rotvec, name):
@@ -83,8 +82,6 @@ class SatelliteDynamics6(Node):
         self.started = False
 
     def step(self, tick, inputs):
-        import numpy as np
-
         if not self.started:
             # Wall time with hardware: the simulated clock starts when the sensor answers (as the 1-DOF node).
             self.started = self.ctx.sim_time or inputs.get("ft") is not None
@@ -92,11 +89,11 @@ class SatelliteDynamics6(Node):
                 return {"command": self._publish(tick)["command"]}
         elif tick.index > 0:
             ft, imp = inputs.get("ft"), inputs.get("impedance")
-            zero = np.zeros(3)
-            force, torque = (array3(ft.wrench.force), array3(ft.wrench.torque)) if ft is not None else (zero, zero)
+            zero = (0.0, 0.0, 0.0)
+            force, torque = (triple(ft.wrench.force), triple(ft.wrench.torque)) if ft is not None else (zero, zero)
             if imp is not None and len(imp.wrenches) >= 2:
                 w1, w2 = imp.wrenches[0], imp.wrenches[1]
-                virtual = (array3(w1.force), array3(w1.torque), array3(w2.force), array3(w2.torque))
+                virtual = (triple(w1.force), triple(w1.torque), triple(w2.force), triple(w2.torque))
             else:
                 virtual = (zero, zero, zero, zero)
             wrench = self.lib.held_wrench(self.m1, self.m2, self.mount, force, torque, virtual)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dockhil.node import Input, Node, Output
 from dockhil.msgs import BodyWrenches, SatelliteState, Wrench
-from dockhil.nodes.satellite_dynamics6 import array3, vector
+from dockhil.nodes.satellite_dynamics6 import triple, vector
 from dockhil.nodes.sixdof_params import BODY_PARAMS, IDEAL_PARAMS, PASSIVE_PARAMS, bodies, checked, ideal_contact, \
     passive_contact
 
@@ -12,8 +12,8 @@ from dockhil.nodes.sixdof_params import BODY_PARAMS, IDEAL_PARAMS, PASSIVE_PARAM
 def published(body):
     """(position, orientation, velocity, world angular velocity) of a msgs.BodyState."""
     o = body.pose.orientation
-    return (array3(body.pose.position), (o.x, o.y, o.z, o.w), array3(body.twist.linear),
-            array3(body.twist.angular))
+    return (triple(body.pose.position), (o.x, o.y, o.z, o.w), triple(body.twist.linear),
+            triple(body.twist.angular))
 
 
 class VirtualImpedance6(Node):

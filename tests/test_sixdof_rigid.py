@@ -43,6 +43,32 @@ def test_quaternion_algebra_matches_rotation_matrices():
     assert np.allclose(quat_from_rotvec([0, 0, math.pi / 2]), [0, 0, math.sqrt(0.5), math.sqrt(0.5)])
 
 
+def test_the_plain_float_helpers_are_the_matrix_algebra():
+    # The per-tick path works on tuples of floats: each helper against the matrices it stands for.
+    from dockhil.contact.contact6 import MatVec6, left_jacobian_inverse3
+    from dockhil.contact.rigid import cross3, rotate, rotate_back
+
+    a, v = np.array([0.3, -1.1, 0.4]), (0.7, -0.2, 1.5)
+    q, r = quat_from_rotvec(a), rodrigues(a)
+    assert np.allclose(rotate(q, v), r @ v, rtol=0, atol=1e-15)
+    assert np.allclose(rotate_back(q, v), r.T @ v, rtol=0, atol=1e-15)
+    assert np.allclose(cross3(a, v), np.cross(a, v), rtol=0, atol=1e-15)
+    m = np.arange(36.0).reshape(6, 6) - 17.0
+    x = (0.1, -0.2, 0.3, 0.5, -0.7, 1.1)
+    assert np.allclose(MatVec6(m)(x), m @ x, rtol=1e-15) and MatVec6(np.diag(x))(x) == tuple(c * c for c in x)
+    assert MatVec6(np.zeros((6, 6)))(x) == (0.0,) * 6
+    # J_l(theta)^-1 maps a small spatial turn d psi (R -> exp(d psi) R) to d theta, by finite differences.
+    for theta in (np.array([0.4, -0.3, 0.9]), np.array([1e-7, 2e-7, -1e-7])):
+        jinv = np.array(left_jacobian_inverse3(theta))
+        eps = 1e-6
+        for k in range(3):
+            dpsi = np.zeros(3)
+            dpsi[k] = eps
+            turned = quat_to_rotvec(quat_multiply(quat_from_rotvec(dpsi), quat_from_rotvec(theta)))
+            back = quat_to_rotvec(quat_multiply(quat_from_rotvec(-dpsi), quat_from_rotvec(theta)))
+            assert np.allclose((turned - back) / (2 * eps), jinv[:, k], rtol=0, atol=1e-9)
+
+
 INERTIA = np.array([[1200.0, 30.0, -10.0], [30.0, 900.0, 20.0], [-10.0, 20.0, 1500.0]])
 
 

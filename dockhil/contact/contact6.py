@@ -47,8 +47,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dockhil.contact import rigid
-from dockhil.contact.rigid import BodyState, Motion, RigidBody, Wrench, check_symmetric, check_unit_quaternion, \
-    check_vector, cross, quat_conjugate, quat_multiply, quat_to_matrix, quat_to_rotvec
+from dockhil.contact.rigid import BodyState, Motion, RigidBody, Wrench, add3, check_symmetric, check_unit_quaternion, \
+    check_vector, cross3, quat_conjugate, quat_multiply, quat_to_matrix, rotate, rotate_back, rotvec3, sub3
 from dockhil.contact.scenario import ContactModelError, check_nonnegative, check_positive
 
 AXES = ("x", "y", "z", "rx", "ry", "rz")
@@ -61,14 +61,77 @@ def skew(v) -> np.ndarray:
 
 def left_jacobian_inverse(theta) -> np.ndarray:
     """J_l(theta)^{-1} of SO(3): d theta = J_l^{-1} d psi for R -> exp([d psi]x) R."""
-    th = np.asarray(theta, float)
-    angle = float(np.linalg.norm(th))
-    k = skew(th)
+    return np.array(left_jacobian_inverse3(theta))
+
+
+def left_jacobian_inverse3(theta) -> tuple:
+    """`left_jacobian_inverse` as three rows of plain floats:
+    1 - [theta]x / 2 + c [theta]x^2, and [theta]x^2 = theta theta^T - |theta|^2 1."""
+    x, y, z = theta
+    sq = x * x + y * y + z * z
+    angle = math.sqrt(sq)
     if angle < 1e-5:
-        c = 1.0 / 12.0 + angle * angle / 720.0
+        c = 1.0 / 12.0 + sq / 720.0
     else:
-        c = 1.0 / angle**2 - (1.0 + math.cos(angle)) / (2.0 * angle * math.sin(angle))
-    return np.eye(3) - 0.5 * k + c * (k @ k)
+        c = 1.0 / sq - (1.0 + math.cos(angle)) / (2.0 * angle * math.sin(angle))
+    hx, hy, hz = 0.5 * x, 0.5 * y, 0.5 * z
+    cxy, cxz, cyz = c * x * y, c * x * z, c * y * z
+    return ((1.0 + c * (x * x - sq), hz + cxy, cxz - hy),
+            (cxy - hz, 1.0 + c * (y * y - sq), hx + cyz),
+            (hy + cxz, cyz - hx, 1.0 + c * (z * z - sq)))
+
+
+def mat3_vec(a, v) -> tuple[float, float, float]:
+    """a v for a 3x3 matrix given as rows, plain floats."""
+    r0, r1, r2 = a
+    v0, v1, v2 = v
+    return (r0[0] * v0 + r0[1] * v1 + r0[2] * v2, r1[0] * v0 + r1[1] * v1 + r1[2] * v2,
+            r2[0] * v0 + r2[1] * v1 + r2[2] * v2)
+
+
+def mat3t_vec(a, v) -> tuple[float, float, float]:
+    """a^T v for a 3x3 matrix given as rows, plain floats."""
+    r0, r1, r2 = a
+    v0, v1, v2 = v
+    return (r0[0] * v0 + r1[0] * v1 + r2[0] * v2, r0[1] * v0 + r1[1] * v1 + r2[1] * v2,
+            r0[2] * v0 + r1[2] * v1 + r2[2] * v2)
+
+
+def add6(a, b) -> tuple:
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3], a[4] + b[4], a[5] + b[5])
+
+
+def sub6(a, b) -> tuple:
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2], a[3] - b[3], a[4] - b[4], a[5] - b[5])
+
+
+class MatVec6:
+    """v -> A v for a fixed 6x6 matrix A on plain floats (the per-tick products of the
+    contact matrices). A diagonal A costs six products; a zero one, none."""
+
+    __slots__ = ("rows", "diagonal", "zero")
+
+    def __init__(self, a):
+        a = np.asarray(a, float)
+        self.rows = tuple(tuple(float(c) for c in row) for row in a)
+        off = a - np.diag(np.diag(a))
+        self.diagonal = tuple(float(c) for c in np.diag(a)) if not off.any() else None
+        self.zero = not a.any()
+
+    def __call__(self, v) -> tuple:
+        if self.zero:
+            return (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        v0, v1, v2, v3, v4, v5 = v
+        if self.diagonal is not None:
+            d = self.diagonal
+            return (d[0] * v0, d[1] * v1, d[2] * v2, d[3] * v3, d[4] * v4, d[5] * v5)
+        r0, r1, r2, r3, r4, r5 = self.rows
+        return (r0[0] * v0 + r0[1] * v1 + r0[2] * v2 + r0[3] * v3 + r0[4] * v4 + r0[5] * v5,
+                r1[0] * v0 + r1[1] * v1 + r1[2] * v2 + r1[3] * v3 + r1[4] * v4 + r1[5] * v5,
+                r2[0] * v0 + r2[1] * v1 + r2[2] * v2 + r2[3] * v3 + r2[4] * v4 + r2[5] * v5,
+                r3[0] * v0 + r3[1] * v1 + r3[2] * v2 + r3[3] * v3 + r3[4] * v4 + r3[5] * v5,
+                r4[0] * v0 + r4[1] * v1 + r4[2] * v2 + r4[3] * v3 + r4[4] * v4 + r4[5] * v5,
+                r5[0] * v0 + r5[1] * v1 + r5[2] * v2 + r5[3] * v3 + r5[4] * v4 + r5[5] * v5)
 
 
 def check_matrix6(name: str, value, unit: str) -> np.ndarray:
@@ -98,6 +161,9 @@ class Contact6:
         object.__setattr__(self, "damping", check_matrix6("damping", self.damping, "N s/m, N m s/rad"))
         object.__setattr__(self, "mu", check_nonnegative("mu", self.mu))
         object.__setattr__(self, "slip_velocity", check_positive("slip_velocity", self.slip_velocity, "m/s"))
+        # The per-tick products K v and C v on plain floats.
+        object.__setattr__(self, "stiffness_of", MatVec6(self.stiffness))
+        object.__setattr__(self, "damping_of", MatVec6(self.damping))
 
     @property
     def dissipative(self) -> bool:
@@ -108,40 +174,57 @@ class InterfaceGeometry:
     """The pose-dependent part of the interface coordinates: e = [d, theta],
     the wrench point o_A, R_B, J_l(theta)^{-1}, and the lever arms."""
 
-    __slots__ = ("e", "point", "rot_b", "jinv", "r", "arm1", "arm2", "q_rel")
+    # Tuples of plain floats (the per-tick path); rot_b and jinv as matrices for analysis.
+    __slots__ = ("e", "point", "q_b", "jinv3", "r", "arm1", "arm2", "q_rel")
 
     def __init__(self, m1: Motion, m2: Motion):
-        r1, r2 = m1.rotation(), m2.rotation()
-        o_a = m1.x + r1 @ m1.body._r_p
-        o_b = m2.x + r2 @ m2.body._r_p
-        q_a = quat_multiply(m1.q, m1.body._q_pi)
-        q_b = quat_multiply(m2.q, m2.body._q_pi)
-        self.rot_b = quat_to_matrix(q_b)
-        self.r = o_a - o_b
+        self.arm1 = arm1 = rotate(m1.q, m1.body._r_p)  # CoM -> o_A, world
+        self.arm2 = arm2 = rotate(m2.q, m2.body._r_p)  # CoM -> o_B
+        x1, x2 = m1.x, m2.x
+        self.point = o_a = (x1[0] + arm1[0], x1[1] + arm1[1], x1[2] + arm1[2])
+        self.r = r = (o_a[0] - x2[0] - arm2[0], o_a[1] - x2[1] - arm2[1], o_a[2] - x2[2] - arm2[2])  # o_A - o_B
+        q_a = m1.q if m1.body._pi_identity else quat_multiply(m1.q, m1.body._q_pi)
+        q_b = m2.q if m2.body._pi_identity else quat_multiply(m2.q, m2.body._q_pi)
+        self.q_b = q_b  # B -> world
         self.q_rel = quat_multiply(quat_conjugate(q_b), q_a)  # A's attitude in B
-        theta = quat_to_rotvec(self.q_rel)
-        self.jinv = left_jacobian_inverse(theta)
-        self.e = np.concatenate([self.rot_b.T @ self.r, theta])
-        self.point = o_a
-        self.arm1 = o_a - m1.x  # CoM -> o_A
-        self.arm2 = o_b - m2.x  # CoM -> o_B
+        theta = rotvec3(self.q_rel)
+        self.jinv3 = left_jacobian_inverse3(theta)
+        self.e = rotate_back(q_b, r) + theta
 
-    def rate(self, v1, w1, v2, w2) -> np.ndarray:
+    @property
+    def rot_b(self) -> np.ndarray:
+        """R_B (B -> world)."""
+        return quat_to_matrix(self.q_b)
+
+    @property
+    def jinv(self) -> np.ndarray:
+        return np.array(self.jinv3)
+
+    def rate(self, v1, w1, v2, w2) -> tuple:
         """e' from CoM velocities and world angular velocities of both bodies."""
-        v_a = v1 + cross(w1, self.arm1)
-        v_b = v2 + cross(w2, self.arm2)
-        d_rate = self.rot_b.T @ (v_a - v_b + cross(self.r, w2))
-        return np.concatenate([d_rate, self.jinv @ (self.rot_b.T @ (w1 - w2))])
+        return self.rates(v1, w1, v2, w2)[0]
+
+    def rates(self, v1, w1, v2, w2) -> tuple[tuple, tuple]:
+        """(e', relative angular velocity R_B^T (w1 - w2) in B axes)."""
+        # v_A - v_B + r x w2, with v_A = v1 + w1 x arm1 and v_B = v2 + w2 x arm2 (written out: the hot path)
+        a, b, r = self.arm1, self.arm2, self.r
+        p0, p1, p2 = w1
+        s0, s1, s2 = w2
+        u = (v1[0] + p1 * a[2] - p2 * a[1] - v2[0] - s1 * b[2] + s2 * b[1] + r[1] * s2 - r[2] * s1,
+             v1[1] + p2 * a[0] - p0 * a[2] - v2[1] - s2 * b[0] + s0 * b[2] + r[2] * s0 - r[0] * s2,
+             v1[2] + p0 * a[1] - p1 * a[0] - v2[2] - s0 * b[1] + s1 * b[0] + r[0] * s1 - r[1] * s0)
+        spin = rotate_back(self.q_b, (p0 - s0, p1 - s1, p2 - s2))
+        return rotate_back(self.q_b, u) + mat3_vec(self.jinv3, spin), spin
 
     @property
     def penetration(self) -> float:
         return float(self.e[0])
 
 
-def interface_state(m1: Motion, m2: Motion) -> tuple[InterfaceGeometry, np.ndarray]:
+def interface_state(m1: Motion, m2: Motion) -> tuple[InterfaceGeometry, tuple]:
     """(geometry, e') of the chaser's interface A in the target's B."""
     g = InterfaceGeometry(m1, m2)
-    return g, g.rate(m1.v, m1.omega_world(), m2.v, m2.omega_world())
+    return g, g.rate(m1.v, m1.omega3(), m2.v, m2.omega3())
 
 
 def generalized_to_wrench(g: InterfaceGeometry, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -152,14 +235,20 @@ def generalized_to_wrench(g: InterfaceGeometry, q: np.ndarray) -> tuple[np.ndarr
 def contact_wrench(model: Contact6, g: InterfaceGeometry, rate, anchor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(F, M, generalized force) on body 1 at o_A while touching; the springs
     pull toward `anchor` (the onset pose, normal axis 0)."""
-    q = model.stiffness @ (g.e - anchor) + model.damping @ rate
-    force, moment = generalized_to_wrench(g, q)
-    if model.mu > 0.0:
-        u = rate[1:3]
-        normal = max(float(q[0]), 0.0)
-        scale = -model.mu * normal / math.sqrt(float(u @ u) + model.slip_velocity**2)
-        force = force + g.rot_b @ np.array([0.0, scale * u[0], scale * u[1]])
-    return force, moment, q
+    return tuple(np.array(v) for v in contact_wrench3(model, g, rate, anchor))
+
+
+def contact_wrench3(model: Contact6, g: InterfaceGeometry, rate, anchor) -> tuple[tuple, tuple, tuple]:
+    """`contact_wrench` on plain floats (the integrator's kicks): F = -R_B q_t, M = -R_B J^-T q_r."""
+    q = add6(model.stiffness_of(sub6(g.e, anchor)), model.damping_of(rate))
+    fx, fy, fz = rotate(g.q_b, q[:3])
+    if model.mu > 0.0:  # regularised Coulomb friction on A's sliding (u = e'_y, e'_z), in B's axes
+        u1, u2 = rate[1], rate[2]
+        scale = model.mu * max(q[0], 0.0) / math.sqrt(u1 * u1 + u2 * u2 + model.slip_velocity**2)
+        tx, ty, tz = rotate(g.q_b, (0.0, scale * u1, scale * u2))
+        fx, fy, fz = fx + tx, fy + ty, fz + tz
+    mx, my, mz = rotate(g.q_b, mat3t_vec(g.jinv3, q[3:]))
+    return (-fx, -fy, -fz), (-mx, -my, -mz), q
 
 
 class IdealContactWrench(Wrench):
@@ -169,23 +258,22 @@ class IdealContactWrench(Wrench):
         self.model = model
         self.velocity_dependent = model.dissipative
         self.touching = False
-        self.anchor = np.zeros(6)
+        self.anchor = (0.0,) * 6
 
     def start(self, m1: Motion, m2: Motion) -> None:
         """Contact onset: the tangential and rotational springs rest at the pose of first touch."""
         self.touching = True
-        self.anchor = InterfaceGeometry(m1, m2).e.copy()
-        self.anchor[0] = 0.0
+        self.anchor = (0.0,) + InterfaceGeometry(m1, m2).e[1:]
 
     def prepare(self, m1: Motion, m2: Motion):
         g = InterfaceGeometry(m1, m2)
         if not self.touching:
-            zero = np.zeros(3)
+            zero = (0.0, 0.0, 0.0)
             return g.point, lambda v1, w1, v2, w2: (zero, zero)
         model, anchor = self.model, self.anchor
 
         def wrench_of(v1, w1, v2, w2):
-            force, moment, _ = contact_wrench(model, g, g.rate(v1, w1, v2, w2), anchor)
+            force, moment, _ = contact_wrench3(model, g, g.rate(v1, w1, v2, w2), anchor)
             return force, moment
 
         return g.point, wrench_of
@@ -214,22 +302,21 @@ def sensor_wrench_to_bodies(carrier: Motion, other: Motion, sensor_position, sen
     q_s = check_unit_quaternion("sensor_orientation", sensor_orientation)
     f_s = check_vector("force", force, unit="N")
     t_s = check_vector("torque", torque, unit="N m")
-    return sensor_wrench_checked(carrier, other, p_s, q_s, f_s, t_s)
+    return tuple(np.array(w) for w in sensor_wrench_checked(carrier, other, p_s, q_s, f_s, t_s))
 
 
 def sensor_wrench_checked(carrier: Motion, other: Motion, p_s, q_s, f_s, t_s):
-    """`sensor_wrench_to_bodies` for values already checked (float arrays, a unit quaternion):
-    the per-tick path of a sampled loop, whose mounting pose is checked once."""
+    """`sensor_wrench_to_bodies` for values already checked (3-vectors, a unit quaternion),
+    as tuples of floats: the per-tick path of a sampled loop, whose mounting pose is checked once."""
     b = carrier.body
     q_body = quat_multiply(carrier.q, quat_conjugate(b._q_bp))  # body frame -> world
-    rot_body = quat_to_matrix(q_body)
-    rot_s = rot_body @ quat_to_matrix(q_s)
-    origin = carrier.x + rot_body @ (p_s - b.com)
-    f = rot_s @ f_s
-    m = rot_s @ t_s
-    t_c = m + cross(origin - carrier.x, f)
-    t_o = -m - cross(origin - other.x, f)
-    return f, t_c, -f, t_o
+    q_sw = quat_multiply(q_body, q_s)  # sensor -> world
+    lever = rotate(q_body, sub3(p_s, b._com))  # CoM -> sensor origin
+    f = rotate(q_sw, f_s)
+    m = rotate(q_sw, t_s)
+    t_c = add3(m, cross3(lever, f))
+    t_o = sub3(cross3(sub3(other.x, add3(carrier.x, lever)), f), m)  # -m - (origin - x_o) x f
+    return f, t_c, (-f[0], -f[1], -f[2]), t_o
 
 
 # --- the contact run ------------------------------------------------------------------------
@@ -315,9 +402,12 @@ class Recorder:
         self.energy[i] = m1.kinetic_energy() + m2.kinetic_energy() + potential
         self.flag[i] = touching
 
-    def run(self, onset, exit_time, final, anchor) -> Run6:
-        return Run6(self.t, self.pos, self.vel, self.quat, self.omega, self.force, self.torque, self.e, self.rate,
-                    self.p, self.l, self.energy, self.flag, onset, exit_time, final, self.q, anchor)
+    def run(self, onset, exit_time, final, anchor, n: int | None = None) -> Run6:
+        """The run of the first n samples (all by default)."""
+        k = slice(None, n)
+        return Run6(self.t[k], self.pos[k], self.vel[k], self.quat[k], self.omega[k], self.force[k], self.torque[k],
+                    self.e[k], self.rate[k], self.p[k], self.l[k], self.energy[k], self.flag[k], onset, exit_time,
+                    final, self.q[k], anchor)
 
 
 def _step_with_events(m1: Motion, m2: Motion, wrench: IdealContactWrench, h: float, order: int) -> list:
@@ -363,16 +453,18 @@ def _assign(dst: Motion, src: Motion) -> None:
 
 def potential_energy(model: Contact6, g: InterfaceGeometry, anchor, touching: bool) -> float:
     """1/2 (e - anchor)^T K (e - anchor) [J] while touching."""
-    de = g.e - anchor
+    de = np.array(g.e) - anchor
     return 0.5 * float(de @ model.stiffness @ de) if touching else 0.0
 
 
 def simulate_contact6(
     body1: RigidBody, body2: RigidBody, state1: BodyState, state2: BodyState, model: Contact6, *,
-    dt: float = 1e-3, t_end: float = 2.0, order: int = 4, substeps: int = 1,
+    dt: float = 1e-3, t_end: float = 2.0, order: int = 4, substeps: int = 1, until_exit: bool = False,
 ) -> Run6:
     """Fixed-step run of the ideal 6-DOF contact from the given states, samples
-    every dt [s]; each sample interval is `substeps` integrator steps."""
+    every dt [s]; each sample interval is `substeps` integrator steps. With
+    `until_exit` the run ends at the first sample after the contact ended (what
+    follows is free flight), so its length is the contact's, not t_end's."""
     dt = check_positive("dt", dt, "s")
     t_end = check_positive("t_end", t_end, "s")
     if int(substeps) != substeps or substeps < 1:
@@ -406,4 +498,6 @@ def simulate_contact6(
                 elif not now and exit_time is None and onset is not None:
                     exit_time = t_event
         sample(i + 1)
-    return rec.run(onset, exit_time, (m1.state(), m2.state()), wrench.anchor.copy())
+        if until_exit and exit_time is not None:
+            return rec.run(onset, exit_time, (m1.state(), m2.state()), np.array(wrench.anchor), n=i + 2)
+    return rec.run(onset, exit_time, (m1.state(), m2.state()), np.array(wrench.anchor))

@@ -52,15 +52,21 @@ from dockhil.contact.contact6 import (
     AXES,
     Contact6,
     InterfaceGeometry,
+    MatVec6,
+    add6,
     Recorder,
     Run6,
-    left_jacobian_inverse,
+    left_jacobian_inverse3,
+    mat3_vec,
+    mat3t_vec,
     sensor_wrench_checked,
     skew,
+    sub6,
 )
-from dockhil.contact.rigid import (BodyState, HeldWrench, Motion, RigidBody, _normalised, check_unit_quaternion,
-                                   check_vector, cross, quat_conjugate, quat_from_rotvec, quat_multiply,
-                                   quat_to_matrix, quat_to_rotvec)
+from dockhil.contact.rigid import (BodyState, HeldWrench, Motion, RigidBody, _normalised, add3,
+                                   check_unit_quaternion, check_vector, cross3, quat_conjugate, quat_from_rotvec,
+                                   quat_multiply, quat_to_matrix, rotate, rotate_back, rotvec3,
+                                   sub3)
 from dockhil.contact.scenario import ContactModelError, FitError, check_positive
 
 
@@ -207,34 +213,38 @@ IDENTITY = (0.0, 0.0, 0.0, 1.0)
 class RelativePose(NamedTuple):
     """The robot command: pose and twist of the chaser's interface A in the target's B.
     position d [m] and velocity d' [m/s] in B axes, attitude of A in B (x, y, z, w),
-    relative angular velocity R_B^T (omega_1 - omega_2) [rad/s] in B axes."""
+    relative angular velocity R_B^T (omega_1 - omega_2) [rad/s] in B axes. 3-tuples of floats."""
 
-    position: np.ndarray
+    position: tuple
     orientation: tuple
-    velocity: np.ndarray
-    angular_velocity: np.ndarray
+    velocity: tuple
+    angular_velocity: tuple
+
+
+ZERO3 = (0.0, 0.0, 0.0)
+ZERO6 = (0.0,) * 6
 
 
 def published_body(m: Motion) -> tuple:
     """(CoM position, body-frame attitude, CoM velocity, world angular velocity): what the
-    dynamics publish for one body."""
-    return m.x.copy(), quat_multiply(m.q, quat_conjugate(m.body._q_bp)), m.v.copy(), m.omega_world()
+    dynamics publish for one body (tuples of floats)."""
+    q = m.q if m.body._bp_identity else quat_multiply(m.q, quat_conjugate(m.body._q_bp))
+    return m.x, q, m.v, m.omega3()
 
 
 def motion_from_published(body: RigidBody, position, orientation, velocity, omega_world) -> Motion:
     """The integrator's variables rebuilt from a published body state (what a node downstream sees)."""
-    q_p = _normalised(quat_multiply(orientation, body._q_bp))
-    omega = np.asarray(omega_world, float)
-    return Motion(body, np.asarray(position, float), np.asarray(velocity, float), q_p,
-                  body.principal_moments * (quat_to_matrix(q_p).T @ omega))
+    q_p = _normalised(orientation if body._bp_identity else quat_multiply(orientation, body._q_bp))
+    i1, i2, i3 = body._moments
+    w = rotate_back(q_p, omega_world)
+    return Motion(body, tuple(position), tuple(velocity), q_p, (i1 * w[0], i2 * w[1], i3 * w[2]))
 
 
-def relative_interface(m1: Motion, m2: Motion, omega1, omega2) -> tuple[InterfaceGeometry, np.ndarray, RelativePose]:
+def relative_interface(m1: Motion, m2: Motion, omega1, omega2) -> tuple[InterfaceGeometry, tuple, RelativePose]:
     """(geometry, e', robot command) for published states; omega_i world angular velocities."""
     g = InterfaceGeometry(m1, m2)
-    rate = g.rate(m1.v, omega1, m2.v, omega2)
-    w_rel = g.rot_b.T @ (omega1 - omega2)
-    return g, rate, RelativePose(g.e[:3].copy(), g.q_rel, rate[:3].copy(), w_rel)
+    rate, w_rel = g.rates(m1.v, omega1, m2.v, omega2)
+    return g, rate, RelativePose(g.e[:3], g.q_rel, rate[:3], w_rel)
 
 
 def _touching(penetration: float, closing: float) -> bool:
@@ -254,27 +264,41 @@ class VirtualWall6:
     def __init__(self, ideal: Contact6, passive: Contact6, impedance: Impedance6 | None = None):
         _check_frictionless(ideal)
         self.ideal, self.passive, self.impedance = ideal, passive, impedance
-        self.anchor: np.ndarray | None = None
+        self.anchor: tuple | None = None
         self.touching = False
+        self._products = None  # K_i D_i, C_i D_i as MatVec6, fixed at the first tick in contact
 
-    def wrenches(self, m1: Motion, m2: Motion, g: InterfaceGeometry, rate: np.ndarray) -> tuple:
-        """(F_1, T_1, F_2, T_2): world forces [N] and torques [N m] about each CoM."""
+    def wrenches(self, m1: Motion, m2: Motion, g: InterfaceGeometry, rate) -> tuple:
+        """(F_1, T_1, F_2, T_2): world forces [N] and torques [N m] about each CoM (tuples)."""
         self.touching = _touching(g.e[0], rate[0])
-        zero = np.zeros(3)
         if not self.touching:
-            return zero, zero, zero, zero
+            return ZERO3, ZERO3, ZERO3, ZERO3
         if self.anchor is None:
-            self.anchor = g.e.copy()
-            self.anchor[0] = 0.0
+            self.anchor = (0.0,) + tuple(g.e[1:])
             if self.impedance is None:
                 self.impedance = impedance_closed_form6(self.ideal, self.passive, body_mobility(m1, g.point, g),
                                                         body_mobility(m2, g.point, g))
-        imp = self.impedance
-        s = wrench_map(g)
-        de = g.e - self.anchor
-        w1 = -(s @ (imp.k1 @ (imp.d1 @ de) + imp.c1 @ (imp.d1 @ rate)))
-        w2 = s @ (imp.k2 @ (imp.d2 @ de) + imp.c2 @ (imp.d2 @ rate))
-        return (w1[:3], w1[3:] + cross(g.arm1, w1[:3]), w2[:3], w2[3:] + cross(g.point - m2.x, w2[:3]))
+                # The closed form makes K_i D_i = K - K_p and C_i D_i = C - C_p: take them as they are
+                # (the D_i cancel) rather than as products that carry the inverse's rounding.
+                dk = MatVec6(self.ideal.stiffness - self.passive.stiffness)
+                dc = MatVec6(self.ideal.damping - self.passive.damping)
+                self._products = (dk, dc, dk, dc)
+            else:
+                imp = self.impedance
+                self._products = tuple(MatVec6(a @ d) for a, d in ((imp.k1, imp.d1), (imp.c1, imp.d1),
+                                                                   (imp.k2, imp.d2), (imp.c2, imp.d2)))
+        k1, c1, k2, c2 = self._products
+        de = sub6(g.e, self.anchor)
+        q1 = add6(k1(de), c1(rate))
+        q2 = q1 if (k2, c2) == (k1, c1) else add6(k2(de), c2(rate))
+        # W = -S q on body 1 and +S q on body 2 at o_A: force R_B q_t, moment R_B J^-T q_r.
+        qb, jinv = g.q_b, g.jinv3
+        f1 = rotate(qb, q1[:3])
+        f1 = (-f1[0], -f1[1], -f1[2])
+        moment1 = rotate(qb, mat3t_vec(jinv, q1[3:]))  # its negative acts on body 1
+        f2 = rotate(qb, q2[:3])
+        moment2 = rotate(qb, mat3t_vec(jinv, q2[3:]))
+        return (f1, sub3(cross3(g.arm1, f1), moment1), f2, add3(moment2, cross3(sub3(g.point, m2.x), f2)))
 
 
 class PassiveSensor6:
@@ -290,39 +314,39 @@ class PassiveSensor6:
 
     def __init__(self, passive: Contact6, mount_position=(0.0, 0.0, 0.0), mount_orientation=IDENTITY):
         self.passive = passive
-        self.mount_position = check_vector("sensor_position", mount_position, unit="m")
-        self.mount_rotation = quat_to_matrix(check_unit_quaternion("sensor_orientation", mount_orientation))
-        self.anchor: np.ndarray | None = None
+        self.mount_position = tuple(check_vector("sensor_position", mount_position, unit="m").tolist())
+        self.mount_orientation = check_unit_quaternion("sensor_orientation", mount_orientation)
+        self.anchor: tuple | None = None
 
-    def read(self, pose: RelativePose | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(force [N], torque [N m]) in the sensor frame and the generalized passive force."""
+    def read(self, pose: RelativePose | None) -> tuple[tuple, tuple, tuple]:
+        """(force [N], torque [N m]) in the sensor frame and the generalized passive force (tuples)."""
         if pose is None or not _touching(pose.position[0], pose.velocity[0]):
-            return np.zeros(3), np.zeros(3), np.zeros(6)
-        theta = quat_to_rotvec(pose.orientation)
-        jinv = left_jacobian_inverse(theta)
-        e = np.concatenate([pose.position, theta])
-        rate = np.concatenate([pose.velocity, jinv @ pose.angular_velocity])
+            return ZERO3, ZERO3, ZERO6
+        theta = rotvec3(pose.orientation)
+        jinv = left_jacobian_inverse3(theta)
+        e = tuple(pose.position) + theta
+        rate = tuple(pose.velocity) + mat3_vec(jinv, pose.angular_velocity)
         if self.anchor is None:
-            self.anchor = e.copy()
-            self.anchor[0] = 0.0
-        q = self.passive.stiffness @ (e - self.anchor) + self.passive.damping @ rate
+            self.anchor = (0.0,) + e[1:]
+        q = add6(self.passive.stiffness_of(sub6(e, self.anchor)), self.passive.damping_of(rate))
         # The wrench on the target: +S q at o_A, i.e. in B's axes, moment about B's origin.
         force_b = q[:3]
         if self.passive.mu > 0.0:  # the hardware's friction opposes A sliding on B (contact6's law)
-            u = pose.velocity[1:3]
-            scale = self.passive.mu * max(float(q[0]), 0.0) / math.sqrt(float(u @ u) + self.passive.slip_velocity**2)
-            force_b = force_b + np.array([0.0, scale * u[0], scale * u[1]])
-        moment_b = jinv.T @ q[3:] + cross(pose.position, force_b)
-        rot = self.mount_rotation
-        return rot.T @ force_b, rot.T @ (moment_b - cross(self.mount_position, force_b)), q
+            u1, u2 = pose.velocity[1], pose.velocity[2]
+            scale = self.passive.mu * max(q[0], 0.0) / math.sqrt(u1 * u1 + u2 * u2 + self.passive.slip_velocity**2)
+            force_b = (force_b[0], force_b[1] + scale * u1, force_b[2] + scale * u2)
+        moment_b = add3(mat3t_vec(jinv, q[3:]), cross3(pose.position, force_b))
+        qm = self.mount_orientation
+        return (rotate_back(qm, force_b), rotate_back(qm, sub3(moment_b, cross3(self.mount_position, force_b))),
+                q)
 
 
 def sensor_mount_in_body(body2: RigidBody, mount_position=(0.0, 0.0, 0.0), mount_orientation=IDENTITY) -> tuple:
     """The sensor's pose in the target's body frame, from its pose in the interface frame B."""
     p = check_vector("sensor_position", mount_position, unit="m")
     q = check_unit_quaternion("sensor_orientation", mount_orientation)
-    return (body2.interface_position + quat_to_matrix(body2.interface_orientation) @ p,
-            quat_multiply(body2.interface_orientation, q))
+    position = body2.interface_position + quat_to_matrix(body2.interface_orientation) @ p
+    return tuple(position.tolist()), quat_multiply(body2.interface_orientation, q)
 
 
 def held_wrench(m1: Motion, m2: Motion, mount: tuple, force, torque, virtual: tuple) -> HeldWrench:
@@ -330,10 +354,9 @@ def held_wrench(m1: Motion, m2: Motion, mount: tuple, force, torque, virtual: tu
     `mount`, body frame) moved to both CoMs, plus the virtual wrenches (about the CoMs)."""
     # The mount is checked by sensor_mount_in_body and the reading is finite floats (a message, or
     # PassiveSensor6): the per-tick path skips the checks, the numbers are the same.
-    f2, t2, f1, t1 = sensor_wrench_checked(m2, m1, mount[0], mount[1], np.asarray(force, float),
-                                           np.asarray(torque, float))
+    f2, t2, f1, t1 = sensor_wrench_checked(m2, m1, mount[0], mount[1], force, torque)
     fv1, tv1, fv2, tv2 = virtual
-    return HeldWrench(f1 + fv1, t1 + tv1, f2 + fv2, t2 + tv2)
+    return HeldWrench(add3(f1, fv1), add3(t1, tv1), add3(f2, fv2), add3(t2, tv2))
 
 
 class Servo6:
@@ -353,12 +376,16 @@ class Servo6:
         if p is None or a == 1.0:
             self.pose = target
         else:
-            turn = quat_to_rotvec(quat_multiply(quat_conjugate(p.orientation), target.orientation))
+            turn = rotvec3(quat_multiply(quat_conjugate(p.orientation), target.orientation))
+
+            def toward(now, goal):
+                return tuple(c + a * (g - c) for c, g in zip(now, goal))
+
             self.pose = RelativePose(
-                p.position + a * (target.position - p.position),
-                _normalised(quat_multiply(p.orientation, quat_from_rotvec(a * turn))),
-                p.velocity + a * (target.velocity - p.velocity),
-                p.angular_velocity + a * (target.angular_velocity - p.angular_velocity),
+                toward(p.position, target.position),
+                _normalised(quat_multiply(p.orientation, quat_from_rotvec(tuple(a * c for c in turn)))),
+                toward(p.velocity, target.velocity),
+                toward(p.angular_velocity, target.angular_velocity),
             )
         return self.pose
 
@@ -414,10 +441,11 @@ def simulate_hybrid6(
         if not wall.touching and onset is not None and exit_time is None and i * dt > onset:
             exit_time = i * dt
         # Record the state of tick i and the wrench held over the next tick.
-        rec.record(i, i * dt, m1, m2, wrench.f1, wrench.t1 - cross(g.arm1, wrench.f1), q_seen, 0.0, wall.touching)
+        rec.record(i, i * dt, m1, m2, wrench.f1, sub3(wrench.t1, cross3(g.arm1, wrench.f1)), q_seen, 0.0,
+                   wall.touching)
         if i < steps:
             rigid.step(m1, m2, wrench, dt, order)
     run = rec.run(onset, exit_time, (m1.state(), m2.state()),
-                  None if wall.anchor is None else wall.anchor.copy())
+                  None if wall.anchor is None else np.array(wall.anchor))
     run.impedance = wall.impedance
     return run

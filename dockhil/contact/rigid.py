@@ -43,6 +43,7 @@ import numpy as np
 from dockhil.contact.scenario import ContactModelError, StepTooLargeError, check_positive
 
 UNIT_TOLERANCE = 1e-9  # |q| may differ from 1 by this much in a parameter
+IDENTITY = (0.0, 0.0, 0.0, 1.0)
 
 
 # --- quaternions (x, y, z, w), plain floats -------------------------------------------------
@@ -106,13 +107,18 @@ def quat_from_rotvec(v) -> tuple[float, float, float, float]:
 
 def quat_to_rotvec(q) -> np.ndarray:
     """Rotation vector (axis times angle in [0, pi]) of a unit quaternion."""
+    return np.array(rotvec3(q))
+
+
+def rotvec3(q) -> tuple[float, float, float]:
+    """`quat_to_rotvec` as a tuple of floats."""
     x, y, z, w = q
     if w < 0.0:
         x, y, z, w = -x, -y, -z, -w
     s = math.sqrt(x * x + y * y + z * z)
     angle = 2.0 * math.atan2(s, w)
     scale = 2.0 / w * (1.0 + s * s / (3.0 * w * w)) if s < 1e-8 else angle / s
-    return np.array([scale * x, scale * y, scale * z])
+    return (scale * x, scale * y, scale * z)
 
 
 def cross(a, b) -> np.ndarray:
@@ -120,6 +126,43 @@ def cross(a, b) -> np.ndarray:
     a0, a1, a2 = a
     b0, b1, b2 = b
     return np.array((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0))
+
+
+# --- 3-vectors as tuples of floats: the per-tick arithmetic of the sampled loop ----------------
+# numpy costs about a microsecond per call on vectors this small; plain floats cost a fraction.
+
+def cross3(a, b) -> tuple[float, float, float]:
+    a0, a1, a2 = a
+    b0, b1, b2 = b
+    return (a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0)
+
+
+def add3(a, b) -> tuple[float, float, float]:
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
+
+
+def sub3(a, b) -> tuple[float, float, float]:
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def rotate(q, v) -> tuple[float, float, float]:
+    """R(q) v for a unit quaternion q (x, y, z, w): v + w t + u x t with t = 2 u x v, u = (x, y, z)."""
+    x, y, z, w = q
+    v0, v1, v2 = v
+    t0 = 2.0 * (y * v2 - z * v1)
+    t1 = 2.0 * (z * v0 - x * v2)
+    t2 = 2.0 * (x * v1 - y * v0)
+    return (v0 + w * t0 + y * t2 - z * t1, v1 + w * t1 + z * t0 - x * t2, v2 + w * t2 + x * t1 - y * t0)
+
+
+def rotate_back(q, v) -> tuple[float, float, float]:
+    """R(q)^T v (the inverse rotation)."""
+    x, y, z, w = q
+    v0, v1, v2 = v
+    t0 = 2.0 * (z * v1 - y * v2)
+    t1 = 2.0 * (x * v2 - z * v0)
+    t2 = 2.0 * (y * v0 - x * v1)
+    return (v0 + w * t0 - y * t2 + z * t1, v1 + w * t1 - z * t0 + x * t2, v2 + w * t2 - x * t1 + y * t0)
 
 
 def _normalised(q) -> tuple[float, float, float, float]:
@@ -230,8 +273,13 @@ class RigidBody:
         object.__setattr__(self, "principal_axes", axes)
         object.__setattr__(self, "_q_bp", q_bp)
         # The interface seen from the CoM, in principal axes.
-        object.__setattr__(self, "_r_p", axes.T @ (self.interface_position - self.com))
+        object.__setattr__(self, "_r_p", tuple(float(c) for c in axes.T @ (self.interface_position - self.com)))
         object.__setattr__(self, "_q_pi", quat_multiply(quat_conjugate(q_bp), q_bi))
+        # Most bodies have principal axes along the body axes and the interface along them: the
+        # per-tick frame changes then skip a product by the identity (the same numbers).
+        object.__setattr__(self, "_bp_identity", q_bp == IDENTITY)
+        object.__setattr__(self, "_pi_identity", self._q_pi == IDENTITY)
+        object.__setattr__(self, "_com", tuple(float(c) for c in self.com))
 
     def interface_offset_body(self) -> np.ndarray:
         """Interface origin relative to the CoM, body frame [m]."""
@@ -256,7 +304,10 @@ class BodyState:
 
 
 class Motion:
-    """A body's state in the integrator's variables: principal frame (x, v, q_p, L_p)."""
+    """A body's state in the integrator's variables: principal frame (x, v, q_p, L_p).
+
+    x, v [m, m/s] (world) and L [kg m^2/s] (principal axes) are 3-tuples of floats, q_p a
+    4-tuple: the integrator runs on plain floats (see `drift`)."""
 
     __slots__ = ("body", "x", "v", "q", "L")
 
@@ -267,44 +318,56 @@ class Motion:
     def from_state(cls, body: RigidBody, state: BodyState) -> "Motion":
         q_p = _normalised(quat_multiply(state.orientation, body._q_bp))
         omega_p = body.principal_axes.T @ state.angular_velocity
-        return cls(body, np.array(state.position, float), np.array(state.velocity, float), q_p,
-                   body.principal_moments * omega_p)
+        return cls(body, _floats3(state.position), _floats3(state.velocity), q_p,
+                   _floats3(body.principal_moments * omega_p))
 
     def copy(self) -> "Motion":
-        return Motion(self.body, self.x.copy(), self.v.copy(), self.q, self.L.copy())
+        return Motion(self.body, self.x, self.v, self.q, self.L)  # tuples: nothing shared can change
 
     def state(self) -> BodyState:
         b = self.body
         q_b = _normalised(quat_multiply(self.q, quat_conjugate(b._q_bp)))
-        return BodyState(self.x.copy(), q_b, self.v.copy(), b.principal_axes @ (self.L / b.principal_moments))
+        return BodyState(np.array(self.x), q_b, np.array(self.v),
+                         b.principal_axes @ (np.array(self.L) / b.principal_moments))
 
     # World-frame quantities used by contact models.
     def rotation(self) -> np.ndarray:
         return quat_to_matrix(self.q)
 
-    def omega_world(self, rot=None) -> np.ndarray:
-        rot = self.rotation() if rot is None else rot
-        return rot @ (self.L / self.body.principal_moments)
+    def omega3(self) -> tuple[float, float, float]:
+        """Angular velocity in world axes [rad/s], plain floats."""
+        i1, i2, i3 = self.body._moments
+        l1, l2, l3 = self.L
+        return rotate(self.q, (l1 / i1, l2 / i2, l3 / i3))
 
-    def interface_pose(self, rot=None) -> tuple[np.ndarray, np.ndarray]:
+    def omega_world(self) -> np.ndarray:
+        return np.array(self.omega3())
+
+    def interface_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """Interface origin [m] and rotation matrix (interface -> world)."""
-        rot = self.rotation() if rot is None else rot
-        return self.x + rot @ self.body._r_p, quat_to_matrix(quat_multiply(self.q, self.body._q_pi))
+        return (np.array(add3(self.x, rotate(self.q, self.body._r_p))),
+                quat_to_matrix(quat_multiply(self.q, self.body._q_pi)))
 
-    def point_velocity(self, point, rot=None) -> np.ndarray:
-        return self.v + cross(self.omega_world(rot), point - self.x)
+    def point_velocity(self, point) -> np.ndarray:
+        return np.array(add3(self.v, cross3(self.omega3(), sub3(point, self.x))))
 
     def momentum(self) -> np.ndarray:
-        return self.body.mass * self.v
+        return self.body.mass * np.array(self.v)
 
     def angular_momentum(self, about=None) -> np.ndarray:
         """World angular momentum [kg m^2/s] about the point `about` (the origin by default)."""
         ref = np.zeros(3) if about is None else np.asarray(about, float)
-        return cross(self.x - ref, self.body.mass * self.v) + self.rotation() @ self.L
+        return cross(np.array(self.x) - ref, self.momentum()) + self.rotation() @ np.array(self.L)
 
     def kinetic_energy(self) -> float:
         b = self.body
-        return 0.5 * b.mass * float(self.v @ self.v) + 0.5 * float(self.L @ (self.L / b.principal_moments))
+        v, L, i = self.v, self.L, b._moments
+        return (0.5 * b.mass * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+                + 0.5 * (L[0] * L[0] / i[0] + L[1] * L[1] / i[1] + L[2] * L[2] / i[2]))
+
+
+def _floats3(v) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))
 
 
 # --- the free flight: exact translation, rotation split about principal axes ----------------
@@ -313,33 +376,48 @@ def drift(m: Motion, t: float) -> None:
     """Free flight for t [s]: translation exact, rotation by the symmetric
     1-2-3-2-1 splitting. Each part is the exact flow of T_i = L_i^2 / (2 I_i):
     in body axes L' = L x omega turns L by -phi about axis i while the body
-    turns by +phi, phi = L_i t / I_i. Plain floats: this is the hot loop."""
-    m.x = m.x + t * m.v
+    turns by +phi, phi = L_i t / I_i. The hot loop: unrolled, plain floats, two
+    trigonometric calls a part (cos phi, sin phi from the half angle)."""
+    x, v = m.x, m.v
+    m.x = (x[0] + t * v[0], x[1] + t * v[1], x[2] + t * v[2])
     i1, i2, i3 = m.body._moments
-    l1, l2, l3 = m.L.tolist()
+    l1, l2, l3 = m.L
     qx, qy, qz, qw = m.q
-    for axis, tau in ((0, 0.5 * t), (1, 0.5 * t), (2, t), (1, 0.5 * t), (0, 0.5 * t)):
-        if axis == 0:
-            phi = l1 / i1 * tau
-            c, s = math.cos(phi), math.sin(phi)
-            l2, l3 = c * l2 + s * l3, c * l3 - s * l2
-            hs, hc = math.sin(0.5 * phi), math.cos(0.5 * phi)
-            qx, qy, qz, qw = qw * hs + qx * hc, qy * hc + qz * hs, qz * hc - qy * hs, qw * hc - qx * hs
-        elif axis == 1:
-            phi = l2 / i2 * tau
-            c, s = math.cos(phi), math.sin(phi)
-            l3, l1 = c * l3 + s * l1, c * l1 - s * l3
-            hs, hc = math.sin(0.5 * phi), math.cos(0.5 * phi)
-            qx, qy, qz, qw = qx * hc - qz * hs, qw * hs + qy * hc, qz * hc + qx * hs, qw * hc - qy * hs
-        else:
-            phi = l3 / i3 * tau
-            c, s = math.cos(phi), math.sin(phi)
-            l1, l2 = c * l1 + s * l2, c * l2 - s * l1
-            hs, hc = math.sin(0.5 * phi), math.cos(0.5 * phi)
-            qx, qy, qz, qw = qx * hc + qy * hs, qy * hc - qx * hs, qw * hs + qz * hc, qw * hc - qz * hs
+    half, quarter = 0.5 * t, 0.25 * t  # half angles of the t and t/2 parts, per unit rate
+    sin, cos = math.sin, math.cos
+    # axis 1 for t/2
+    a = l1 / i1 * quarter
+    hs, hc = sin(a), cos(a)
+    c, s = hc * hc - hs * hs, 2.0 * hs * hc
+    l2, l3 = c * l2 + s * l3, c * l3 - s * l2
+    qx, qy, qz, qw = qw * hs + qx * hc, qy * hc + qz * hs, qz * hc - qy * hs, qw * hc - qx * hs
+    # axis 2 for t/2
+    a = l2 / i2 * quarter
+    hs, hc = sin(a), cos(a)
+    c, s = hc * hc - hs * hs, 2.0 * hs * hc
+    l3, l1 = c * l3 + s * l1, c * l1 - s * l3
+    qx, qy, qz, qw = qx * hc - qz * hs, qw * hs + qy * hc, qz * hc + qx * hs, qw * hc - qy * hs
+    # axis 3 for t
+    a = l3 / i3 * half
+    hs, hc = sin(a), cos(a)
+    c, s = hc * hc - hs * hs, 2.0 * hs * hc
+    l1, l2 = c * l1 + s * l2, c * l2 - s * l1
+    qx, qy, qz, qw = qx * hc + qy * hs, qy * hc - qx * hs, qw * hs + qz * hc, qw * hc - qz * hs
+    # axis 2 for t/2
+    a = l2 / i2 * quarter
+    hs, hc = sin(a), cos(a)
+    c, s = hc * hc - hs * hs, 2.0 * hs * hc
+    l3, l1 = c * l3 + s * l1, c * l1 - s * l3
+    qx, qy, qz, qw = qx * hc - qz * hs, qw * hs + qy * hc, qz * hc + qx * hs, qw * hc - qy * hs
+    # axis 1 for t/2
+    a = l1 / i1 * quarter
+    hs, hc = sin(a), cos(a)
+    c, s = hc * hc - hs * hs, 2.0 * hs * hc
+    l2, l3 = c * l2 + s * l3, c * l3 - s * l2
+    qx, qy, qz, qw = qw * hs + qx * hc, qy * hc + qz * hs, qz * hc - qy * hs, qw * hc - qx * hs
     n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
     m.q = (qx / n, qy / n, qz / n, qw / n)
-    m.L = np.array((l1, l2, l3))
+    m.L = (l1, l2, l3)
 
 
 _CBRT2 = 2.0 ** (1.0 / 3.0)
@@ -387,59 +465,64 @@ class HeldWrench(Wrench):
 
 def _apply(m1: Motion, m2: Motion, w: Wrench, h: float) -> None:
     """Kick both bodies by the wrench for h, poses fixed: implicit midpoint on the momenta."""
-    r1, r2 = m1.rotation(), m2.rotation()
     b1, b2 = m1.body, m2.body
-    if isinstance(w, HeldWrench):
+    if isinstance(w, HeldWrench):  # the sampled loop's zero-order hold
         f1, t1, f2, t2 = w.f1, w.t1, w.f2, w.t2
     else:
         point, wrench_of = w.prepare(m1, m2)
-        arm1, arm2 = point - m1.x, point - m2.x
-        inv1 = r1 / b1.principal_moments  # omega_world = inv1 @ L
-        inv2 = r2 / b2.principal_moments
-        v1, L1, v2, L2 = m1.v, m1.L, m2.v, m2.L
-        f, mom = wrench_of(v1, inv1 @ L1, v2, inv2 @ L2)
+        arm1, arm2 = sub3(point, m1.x), sub3(point, m2.x)
+        f, mom = wrench_of(m1.v, m1.omega3(), m2.v, m2.omega3())
         if w.velocity_dependent:
-            f, mom = _midpoint_wrench(wrench_of, f, mom, m1, m2, r1, r2, inv1, inv2, arm1, arm2, h)
-        f1, f2 = f, -f
-        t1 = mom + cross(arm1, f)
-        t2 = -mom - cross(arm2, f)
-    m1.v = m1.v + (h / b1.mass) * f1
-    m1.L = m1.L + h * (r1.T @ t1)
-    m2.v = m2.v + (h / b2.mass) * f2
-    m2.L = m2.L + h * (r2.T @ t2)
+            f, mom = _midpoint_wrench(wrench_of, f, mom, m1, m2, arm1, arm2, h)
+        f1, f2 = f, (-f[0], -f[1], -f[2])
+        t1 = add3(mom, cross3(arm1, f))
+        t2 = sub3(cross3(f, arm2), mom)  # -mom - arm2 x f
+    k1, k2 = h / b1.mass, h / b2.mass
+    v, L, tb = m1.v, m1.L, rotate_back(m1.q, t1)
+    m1.v = (v[0] + k1 * f1[0], v[1] + k1 * f1[1], v[2] + k1 * f1[2])
+    m1.L = (L[0] + h * tb[0], L[1] + h * tb[1], L[2] + h * tb[2])
+    v, L, tb = m2.v, m2.L, rotate_back(m2.q, t2)
+    m2.v = (v[0] + k2 * f2[0], v[1] + k2 * f2[1], v[2] + k2 * f2[2])
+    m2.L = (L[0] + h * tb[0], L[1] + h * tb[1], L[2] + h * tb[2])
 
 
-def _midpoint_wrench(wrench_of, f, mom, m1, m2, r1, r2, inv1, inv2, arm1, arm2, h):
+def _midpoint_wrench(wrench_of, f, mom, m1, m2, arm1, arm2, h):
     """The wrench at the midpoint momenta of a kick of h: z = Phi(z) for z = (F, M).
     Fixed-point iteration first (contracts when h c / m is small, c the damping);
     Newton with a finite-difference Jacobian when it does not (stiff friction)."""
     half = 0.5 * h
     b1, b2 = m1.body, m2.body
-    v1, L1, v2, L2 = m1.v, m1.L, m2.v, m2.L
+    (i1, i2, i3), (j1, j2, j3) = b1._moments, b2._moments
+    q1, q2, v1, v2, L1, L2 = m1.q, m2.q, m1.v, m2.v, m1.L, m2.L
+    k1, k2 = half / b1.mass, half / b2.mass
 
     def phi(z):
         fz, mz = z[:3], z[3:]
-        t1 = r1.T @ (mz + cross(arm1, fz))
-        t2 = r2.T @ (-mz - cross(arm2, fz))
-        g, nm = wrench_of(v1 + (half / b1.mass) * fz, inv1 @ (L1 + half * t1),
-                          v2 - (half / b2.mass) * fz, inv2 @ (L2 + half * t2))
-        return np.concatenate([g, nm])
+        t1 = rotate_back(q1, add3(mz, cross3(arm1, fz)))  # body axes
+        t2 = rotate_back(q2, sub3(cross3(fz, arm2), mz))
+        omega1 = rotate(q1, ((L1[0] + half * t1[0]) / i1, (L1[1] + half * t1[1]) / i2, (L1[2] + half * t1[2]) / i3))
+        omega2 = rotate(q2, ((L2[0] + half * t2[0]) / j1, (L2[1] + half * t2[1]) / j2, (L2[2] + half * t2[2]) / j3))
+        g, nm = wrench_of((v1[0] + k1 * fz[0], v1[1] + k1 * fz[1], v1[2] + k1 * fz[2]), omega1,
+                          (v2[0] - k2 * fz[0], v2[1] - k2 * fz[1], v2[2] - k2 * fz[2]), omega2)
+        return tuple(g) + tuple(nm)
 
-    z = np.concatenate([f, mom])
+    z = tuple(f) + tuple(mom)
     for _ in range(12):
         nz = phi(z)
-        change = float(np.max(np.abs(nz - z)))
+        change = max(abs(a - b) for a, b in zip(nz, z))
         z = nz
-        if change <= 4e-16 * max(float(np.max(np.abs(z))), 1e-300):
+        if change <= 4e-16 * max(max(abs(c) for c in z), 1e-300):
             return z[:3], z[3:]
+    z = np.array(z)
     previous = math.inf
     for _ in range(40):
-        pz = phi(z)
+        pz = np.array(phi(tuple(z.tolist())))
         res = z - pz
         scale = max(float(np.max(np.abs(z))), 1e-300)
         size = float(np.max(np.abs(res)))
         # Converged: at round-off, or no longer shrinking once well below the solution's size.
         if size <= 64.0 * np.finfo(float).eps * scale or (size <= 1e-12 * scale and size >= previous):
+            z = tuple(z.tolist())
             return z[:3], z[3:]
         previous = size
         jac = np.eye(6)
@@ -447,7 +530,7 @@ def _midpoint_wrench(wrench_of, f, mom, m1, m2, r1, r2, inv1, inv2, arm1, arm2, 
             dz = 1e-7 * max(abs(z[k]), scale * 1e-3)
             zk = z.copy()
             zk[k] += dz
-            jac[:, k] -= (phi(zk) - pz) / dz
+            jac[:, k] -= (np.array(phi(tuple(zk.tolist()))) - pz) / dz
         try:
             z = z - np.linalg.solve(jac, res)
         except np.linalg.LinAlgError:
