@@ -32,6 +32,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+import msgspec
+
 from dockhil.errors import DockhilError
 from dockhil.node import NodeContext, Tick
 from msgs.codec import DecodeError, decode, decode_header, encode
@@ -209,7 +211,7 @@ class NodeExecutor:
     def __init__(self, spec: RunSpec, node_cls: type, stop: Stop, log=None, clock=time.monotonic):
         import zmq
 
-        from dockhil.transport import Publisher, Subscriber
+        from dockhil.transport import Publisher, Subscriber, separator
 
         self.spec = spec
         self.stop = stop
@@ -236,10 +238,13 @@ class NodeExecutor:
         self.ctx = zmq.Context.instance()
         keys = read_spec_keys(spec)
         self.sub = Subscriber(self.ctx)
-        self.by_topic: dict[bytes, list[str]] = {}
+        self._separator = separator
+        # Topic -> [(port, the decoder of its type)], resolved once: the receive path looks up nothing else.
+        self.routes: dict[bytes, list[tuple[str, Any]]] = {}
         for port, wire in spec.inputs.items():
             self.sub.connect(wire.endpoint, keys=keys)
-            self.by_topic.setdefault(wire.topic.encode(), []).append(port)
+            fast = msgspec.msgpack.Decoder(self.in_types[port]).decode  # errors: the codec's lines, below
+            self.routes.setdefault(wire.topic.encode(), []).append((port, fast))
         # Sim time loses nothing: a finished node waits (up to 60 s) until its slowest subscriber has all.
         linger = 60.0 if spec.clock == "sim" else 1.0
         self.pubs = {port: Publisher(self.ctx, wire.topic, wire.endpoint, linger, keys=keys,
@@ -251,28 +256,33 @@ class NodeExecutor:
         self.ticks_done = 0
 
     # -- receiving ---------------------------------------------------------
-    def _decode(self, frames: list[bytes]) -> list[tuple[str, int | None, Any, bool]]:
-        """[(port, tick, msg, ok)] for one received message; ok=False for a bad one,
+    def _decode(self, frame: bytes) -> list[tuple[str, int | None, Any, bool]]:
+        """[(port, tick, msg, ok)] for one received frame; ok=False for a bad message,
         (port, tick, None, True) for an empty tick."""
-        topic = frames[0] if frames else b""
-        ports = self.by_topic.get(topic)
-        if ports is None:
+        i, message = self._separator(frame)
+        topic = frame[:i] if i >= 0 else frame
+        routes = self.routes.get(topic)
+        if routes is None:
             self._drop(topic.decode(errors="replace"), "message on a topic this node does not subscribe")
             return []
-        if len(frames) == 3 and frames[1] == b"" and len(frames[2]) == 8:
-            tick = int.from_bytes(frames[2], "little")
-            return [(port, tick, None, True) for port in ports]
-        if len(frames) != 2:
-            self._drop(topic.decode(errors="replace"), "malformed frame: expected the topic, a NUL byte, then msgpack")
-            return []
-        payload = frames[1]
+        if not message:
+            if i < 0 or len(frame) - i != 9:
+                self._drop(topic.decode(errors="replace"),
+                           "malformed frame: expected the topic, a NUL byte, then msgpack")
+                return []
+            tick = int.from_bytes(frame[i + 1:], "little")
+            return [(port, tick, None, True) for port, _ in routes]
+        payload = frame[i + 1:]
         out = []
-        for port in ports:
+        for port, fast in routes:
             try:
-                msg = decode(payload, self.in_types[port])
+                msg = fast(payload)
                 out.append((port, msg.header.tick, msg, True))
-            except DecodeError as exc:
-                self._drop(topic.decode(), str(exc))
+            except (msgspec.ValidationError, msgspec.DecodeError, UnicodeDecodeError):
+                try:  # the codec's own call, for its one line naming the field and the reason
+                    decode(payload, self.in_types[port])
+                except DecodeError as exc:
+                    self._drop(topic.decode(), str(exc))
                 header = decode_header(payload)
                 tick = None if header is None else header.tick
                 out.append((port, tick, None, False))
@@ -362,7 +372,7 @@ class NodeExecutor:
 
     def _receive(self, k: int, waiting_for: str, keep: bool = True) -> None:
         """Take one message off the socket (or time out after 0.2 s), file it by tick."""
-        frames = self.sub.recv(0.2)
+        frames = self.sub.recv_frame(0.2)
         if frames is None:
             if time.monotonic() - self._waited_since > 10 and self._warned_at != k:
                 self._warned_at = k
@@ -399,7 +409,7 @@ class NodeExecutor:
                 if duration is not None and now - t0 >= duration:
                     break
                 timing.started(now - next_t)
-                while (frames := self.sub.recv_nowait()) is not None:
+                while (frames := self.sub.recv_frame_nowait()) is not None:
                     for port, _tick, msg, ok in self._decode(frames):
                         if msg is not None:
                             latest[port] = msg
