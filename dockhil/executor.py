@@ -38,7 +38,8 @@ from dockhil.errors import DockhilError
 from dockhil.node import NodeContext, Tick
 from msgs.codec import DecodeError, decode, decode_header, encode
 
-TIMING = "\x1edockhil-timing "  # a node process's line with its wall-time loop figures (JSON), read by the launcher
+TIMING = "\x1edockhil-timing "
+DEFERRED = 16  # sim time: frames an output holds at most while its node computes on without waiting  # a node process's line with its wall-time loop figures (JSON), read by the launcher
 
 
 @dataclass
@@ -50,6 +51,7 @@ class PortWire:
     subscribers: int = 0  # outputs: how many subscriptions to await in sim time
     unlimited_age: bool = False  # inputs: no maximum age (a publisher the launcher respawns may pause)
     max_age: float | None = None  # inputs: the launch file's maximum age [s], over the node's own
+    burst: int = 1  # outputs, sim time: ticks whose messages go out together (readers' slack: launcher.burst)
 
 
 @dataclass
@@ -247,9 +249,14 @@ class NodeExecutor:
             self.routes.setdefault(wire.topic.encode(), []).append((port, fast))
         # Sim time loses nothing: a finished node waits (up to 60 s) until its slowest subscriber has all.
         linger = 60.0 if spec.clock == "sim" else 1.0
-        self.pubs = {port: Publisher(self.ctx, wire.topic, wire.endpoint, linger, keys=keys,
-                                     lossy=spec.clock != "sim")
+        # Sim time sends in bursts: an output its readers take late (wire.burst > 1) every burst ticks;
+        # any other when the node is about to wait for input (or DEFERRED frames are held), so a
+        # node handed a burst passes one on. A node never waits holding a frame of the second kind.
+        sim = spec.clock == "sim"
+        self.pubs = {port: Publisher(self.ctx, wire.topic, wire.endpoint, linger, keys=keys, lossy=not sim,
+                                     burst=(wire.burst if wire.burst > 1 else DEFERRED) if sim else 1)
                      for port, wire in spec.outputs.items()}
+        self._deferred = [self.pubs[port] for port, wire in spec.outputs.items() if sim and wire.burst <= 1]
         self.dropped = 0
         self._drop_logged = 0.0
         self._drop_reasons: set[str] = set()
@@ -360,6 +367,8 @@ class NodeExecutor:
                 k += 1
                 self.ticks_done = k
                 self._waited_since = time.monotonic()
+        for pub in self.pubs.values():  # the last, incomplete bursts
+            pub.flush()
         # Stay subscribed until every input's last tick is in: a publisher waits for its subscribers
         # before tick 0, and a node that needs no input for its ticks (a long delay) must not leave first.
         while spec.n_ticks is not None and not self.stop.requested:
@@ -371,8 +380,13 @@ class NodeExecutor:
         self.timing.dropped_in = self.dropped
 
     def _receive(self, k: int, waiting_for: str, keep: bool = True) -> None:
-        """Take one message off the socket (or time out after 0.2 s), file it by tick."""
-        frames = self.sub.recv_frame(0.2)
+        """Take one message off the socket (or time out after 0.2 s), file it by tick; before
+        waiting, send what the deferred outputs hold."""
+        frames = self.sub.recv_frame_nowait()
+        if frames is None:
+            for pub in self._deferred:
+                pub.flush()
+            frames = self.sub.recv_frame(0.2)
         if frames is None:
             if time.monotonic() - self._waited_since > 10 and self._warned_at != k:
                 self._warned_at = k
