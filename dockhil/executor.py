@@ -124,7 +124,8 @@ def _bounds_check(cls: type):
     """A function true when every number in a message of type `cls` is finite and within its
     type's bounds. A screen, not the verdict: it may say False for a good message (a sum of finite
     values that overflows, a value of another type), and callers then run the full check. The
-    floats are gathered in one tuple: a NaN or Inf anywhere makes their sum non-finite."""
+    floats are added up as they are read (each struct read once): a NaN or Inf anywhere makes
+    the sum non-finite."""
     check = _SCREENS.get(cls)
     if check is None:
         import msgspec.inspect as mi
@@ -135,8 +136,8 @@ def _bounds_check(cls: type):
             _screen_lines(mi, mi.type_info(cls), "m", lines, "        ", scope)
         except _Unscreened:
             lines = ["        return False"]
-        src = ("def check(m):\n    f = ()\n    try:\n" + "".join(f"{line}\n" for line in lines)
-               + "        s = sum(f)\n    except Exception:\n        return False\n    return s - s == 0\n")
+        src = ("def check(m):\n    s = 0.0\n    try:\n" + "".join(f"{line}\n" for line in lines)
+               + "    except Exception:\n        return False\n    return s - s == 0\n")
         exec(compile(src, f"<screen of {cls.__name__}>", "exec"), scope)  # noqa: S102 - built from the type
         check = _SCREENS[cls] = scope["check"]
     return check
@@ -144,11 +145,11 @@ def _bounds_check(cls: type):
 
 def _screen_lines(mi, t, var: str, lines: list[str], indent: str, scope: dict) -> None:
     """Statements that return False when a number under `var` is out of its bounds, and add
-    its floats to the tuple f."""
+    its floats to the sum s."""
     floats: list[str] = []
     _screen_fields(mi, t, var, lines, indent, scope, floats)
     if floats:
-        lines.append(f"{indent}f += ({', '.join(floats)},)")
+        lines.append(f"{indent}s += {' + '.join(floats)}")
 
 
 def _screen_fields(mi, t, var, lines, indent, scope, floats) -> None:
@@ -164,6 +165,11 @@ def _screen_fields(mi, t, var, lines, indent, scope, floats) -> None:
         if isinstance(t, mi.FloatType):
             floats.append(var)
     elif isinstance(t, mi.StructType):
+        if "." in var:  # a nested struct: read once into a local, not once per field below it
+            local = f"_s{len(scope)}"
+            scope[local] = None
+            lines.append(f"{indent}{local} = {var}")
+            var = local
         for field_ in t.fields:
             _screen_fields(mi, field_.type, f"{var}.{field_.name}", lines, indent, scope, floats)
     elif isinstance(t, (mi.ListType, mi.VarTupleType)):
