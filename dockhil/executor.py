@@ -273,6 +273,10 @@ class NodeExecutor:
         """[(port, tick, msg, ok)] for one received frame; ok=False for a bad message,
         (port, tick, None, True) for an empty tick."""
         i, message = self._separator(frame)
+        if i < 0:
+            joined = self.sub.joined(frame)  # an envelope of frames, as `bag play` sends
+            if joined is not frame:
+                return self._decode(joined)
         topic = frame[:i] if i >= 0 else frame
         routes = self.routes.get(topic)
         if routes is None:

@@ -3,10 +3,12 @@
 On the wire each message is one ZeroMQ frame: the topic, a NUL byte, then
 the msgpack payload; in sim time a tick with no message is the topic, byte
 0x01 and the tick as 8 bytes little-endian. (One frame, not a [topic,
-payload] envelope: each frame sent costs a wake-up of ZeroMQ's I/O thread.)
+payload] envelope: each ZeroMQ message sent costs a wake-up of its I/O thread.)
 Topic names never hold those two bytes, so the first one ends the topic, and
 SUB prefix filtering on the topic still works. Receivers see [topic,
-payload] or [topic, b"", tick]. Publishers are XPUB sockets so
+payload] or [topic, b"", tick]. In sim time a publisher may send several
+ticks at once, a burst (Publisher.flush): one ZeroMQ message of several such
+frames, each frame one message, read one by one. Publishers are XPUB sockets so
 that they see subscriptions arrive: in sim time a publisher waits until every
 subscriber the launcher expects has joined before it sends tick 0, so the
 slow-joiner effect of PUB/SUB never loses a message.
@@ -308,10 +310,22 @@ class Publisher:
             self.flush()
 
     def flush(self) -> None:
-        """Send the frames a burst holds (sim time, which waits for room rather than drop)."""
-        for frame in self._held:
-            self.sock.send(frame)
-        self._held.clear()
+        """Send the frames a burst holds (sim time, which waits for room rather than drop) as one
+        ZeroMQ message of several frames, each frame still one message: ZeroMQ hands a message of
+        many frames to its I/O thread, and to the reader, in one wake-up. Messages and empty ticks
+        go in separate runs, as a reader may subscribe to only one kind (its prefix is matched
+        against the first frame)."""
+        held = self._held
+        n = len(self.topic_bytes)
+        start = 0
+        for i in range(1, len(held) + 1):
+            if i == len(held) or held[i][n] != held[start][n]:
+                if i - start == 1:
+                    self.sock.send(held[start])
+                else:
+                    self.sock.send_multipart(held[start:i])
+                start = i
+        held.clear()
 
     def close(self) -> None:
         try:  # a graph stopped early: what was computed still goes out, if there is room
@@ -373,22 +387,47 @@ class Subscriber:
             self.sock.setsockopt(zmq.RCVTIMEO, ms)
             self._timeout_ms = ms
         try:
-            return split(self.sock.recv_multipart())
+            return self._message(self.sock.recv())
         except zmq.Again:
             self.check_peers()
             return None
 
     def recv_nowait(self) -> list[bytes] | None:
         try:
-            return split(self.sock.recv_multipart(zmq.NOBLOCK))
+            return self._message(self.sock.recv(zmq.NOBLOCK))
         except zmq.Again:
             self._peers_now_and_then()
             return None
 
+    def _message(self, frame: bytes) -> list[bytes]:
+        """A frame read alone is one message (a burst's frames are read one by one); a frame with no
+        separator opens an envelope of frames ([topic, payload] or [topic, b"", tick], as `bag play`
+        sends), read whole."""
+        if separator(frame)[0] >= 0:
+            return split([frame])
+        return self._rest(frame)
+
+    def _rest(self, first: bytes) -> list[bytes]:
+        parts = [first]
+        while self.sock.getsockopt(zmq.RCVMORE):
+            parts.append(self.sock.recv())
+        return parts
+
+    def joined(self, frame: bytes) -> bytes:
+        """The one-frame form of a message whose first frame has no separator: an envelope of
+        frames (`bag play` sends [topic, payload] and [topic, b"", tick]) joined; anything else as
+        it came, for the reader to count as malformed."""
+        parts = self._rest(frame)
+        if len(parts) == 2:
+            return parts[0] + MESSAGE + parts[1]
+        if len(parts) == 3 and parts[1] == b"":
+            return parts[0] + EMPTY_TICK + parts[2]
+        return frame
+
     def recv_frame(self, timeout_s: float | None) -> bytes | None:
-        """One frame (a node's hot path: see `separator`), or None on time-out. A message of several
-        frames, which no graph member sends, arrives frame by frame, each without a separator.
-        (recv_multipart asks the socket after every frame whether more follow: 1.5 us a message.)"""
+        """One frame (a node's hot path: see `separator`), or None on time-out; a frame without a
+        separator is the first of an envelope: see `joined`. (recv_multipart asks the socket after
+        every frame whether more follow: 1.5 us a message.)"""
         ms = -1 if timeout_s is None else int(timeout_s * 1000)
         if ms != self._timeout_ms:
             self.sock.setsockopt(zmq.RCVTIMEO, ms)

@@ -301,3 +301,38 @@ def test_bursts_are_sim_time_only_and_follow_the_declared_delay(tmp_path):
         bursts = {w.topic: w.burst for spec in specs.values() for w in spec.outputs.values()}
         assert bursts.pop("/robot/command") == want
         assert set(bursts.values()) == {1}, bursts
+
+
+def test_a_burst_is_read_message_by_message_and_an_envelope_is_joined(tmp_path):
+    """A publisher holding 3 ticks sends them as one ZeroMQ message of 3 frames: a node's receive
+    path and an observer each see 3 messages (the empty tick sent apart), in order. A [topic,
+    payload] envelope of two frames, as `bag play` sends, reads as the same message."""
+    from dockhil.transport import EMPTY_TICK, MESSAGE, GraphKeys, Publisher, Subscriber
+
+    ctx = zmq.Context.instance()
+    endpoint = f"ipc://{tmp_path}/t"
+    keys = GraphKeys.make()
+    pub = Publisher(ctx, "/t", endpoint, keys=keys, burst=3)
+    member, observer = Subscriber(ctx), Subscriber(ctx, observer=True)
+    for sub in (member, observer):
+        sub.connect(endpoint, keys=keys)
+    joined, deadline = set(), time.monotonic() + 20  # both subscriptions in: the member's and the observer's
+    while joined != {b"\x01", b"\x01/"}:
+        assert time.monotonic() < deadline, joined
+        if pub.sock.poll(100):
+            joined.add(pub.sock.recv())
+    pub.send_empty(0)
+    pub.send(b"\x81\xa1a\x01")
+    assert member.recv_frame(0.05) is None  # held: two of three
+    pub.send(b"\x81\xa1a\x02")  # the third: out go the empty tick, then the two messages together
+    want = [b"/t" + EMPTY_TICK + (0).to_bytes(8, "little"), b"/t" + MESSAGE + b"\x81\xa1a\x01",
+            b"/t" + MESSAGE + b"\x81\xa1a\x02"]
+    assert [member.recv_frame(5.0) for _ in range(3)] == want
+    assert [observer.recv(5.0) for _ in range(3)] == [[b"/t", b"", (0).to_bytes(8, "little")],
+                                                       [b"/t", b"\x81\xa1a\x01"], [b"/t", b"\x81\xa1a\x02"]]
+    pub.sock.send_multipart([b"/t", b"\x81\xa1a\x03"])  # an envelope
+    first = member.recv_frame(5.0)
+    assert first == b"/t" and member.joined(first) == b"/t" + MESSAGE + b"\x81\xa1a\x03"
+    assert observer.recv(5.0) == [b"/t", b"\x81\xa1a\x03"]
+    for s in (pub, member, observer):
+        s.close()
