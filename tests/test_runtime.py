@@ -316,8 +316,13 @@ def test_a_burst_is_read_message_by_message_and_an_envelope_is_joined(tmp_path):
     member, observer = Subscriber(ctx), Subscriber(ctx, observer=True)
     for sub in (member, observer):
         sub.connect(endpoint, keys=keys)
-    joined, deadline = set(), time.monotonic() + 20  # both subscriptions in: the member's and the observer's
-    while joined != {b"\x01", b"\x01/"}:
+    raw = ctx.socket(zmq.SUB)  # plain pyzmq, as a foreign reader would
+    raw.curve_serverkey, raw.curve_publickey, raw.curve_secretkey = \
+        keys.server_public, keys.client_public, keys.client_secret
+    raw.setsockopt(zmq.SUBSCRIBE, b"/t\x00")
+    raw.connect(endpoint)
+    joined, deadline = set(), time.monotonic() + 20  # all three subscriptions in
+    while joined != {b"\x01", b"\x01/", b"\x01/t\x00"}:
         assert time.monotonic() < deadline, joined
         if pub.sock.poll(100):
             joined.add(pub.sock.recv())
@@ -330,6 +335,9 @@ def test_a_burst_is_read_message_by_message_and_an_envelope_is_joined(tmp_path):
     assert [member.recv_frame(5.0) for _ in range(3)] == want
     assert [observer.recv(5.0) for _ in range(3)] == [[b"/t", b"", (0).to_bytes(8, "little")],
                                                        [b"/t", b"\x81\xa1a\x01"], [b"/t", b"\x81\xa1a\x02"]]
+    assert raw.poll(5000)  # the two messages as one ZeroMQ message, each frame read by the reference msgpack
+    assert [msgpack.unpackb(f.split(b"\x00", 1)[1]) for f in raw.recv_multipart()] == [{"a": 1}, {"a": 2}]
+    raw.close(linger=0)
     pub.sock.send_multipart([b"/t", b"\x81\xa1a\x03"])  # an envelope
     first = member.recv_frame(5.0)
     assert first == b"/t" and member.joined(first) == b"/t" + MESSAGE + b"\x81\xa1a\x03"
