@@ -36,7 +36,7 @@ import msgspec
 
 from dockhil.errors import DockhilError
 from dockhil.node import NodeContext, Tick
-from msgs.codec import DecodeError, decode, decode_header, encode
+from dockhil.msgs.codec import DecodeError, decode, decode_header, encode
 
 TIMING = "\x1edockhil-timing "
 DEFERRED = 16  # sim time: frames an output holds at most while its node computes on without waiting  # a node process's line with its wall-time loop figures (JSON), read by the launcher

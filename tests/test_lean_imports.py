@@ -3,7 +3,7 @@ and the science and the CLI stay light. Each node type is measured in a fresh in
 
 import pytest
 
-import nodes
+from dockhil import nodes
 from dockhil import leanness
 
 SIMULATED = ("satellite_dynamics", "virtual_impedance", "ft_sim", "robot_sim", "delay_injector")
