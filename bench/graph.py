@@ -4,9 +4,12 @@ and the model library's bare loop, measured in one run.
 
 multiprocess_rtf and container_rtf count the whole launch (process start-up
 included); the *_ticking_rtf figures subtract a one-tick launch; composed
-and bare time the ticking only. CPU time per tick (all processes of a launch,
-less a one-tick launch; this process for composed and bare) is given too: a
-shared machine's load inflates it much less than wall time. Prints one JSON object as its last line.
+and bare time the ticking only. CPU time and context switches per tick
+(all processes and threads of a launch, less a one-tick launch; this
+process for composed and bare) are given too: a shared machine's load
+inflates them much less than wall time.
+The rings of bench/throughput.py give what each added process costs a tick.
+Prints one JSON object as its last line, with each goal and whether it is met.
 """
 
 from __future__ import annotations
@@ -22,10 +25,12 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "bench"))  # throughput.ring_costs
 HIL = os.path.join(ROOT, "launch", "hil.yaml")
 
 
 CPU: list[float] = []  # CPU seconds (user + system) of every process of each launch
+SWITCHES: list[int] = []  # context switches (voluntary + involuntary, all threads) of each launch
 
 
 def multiprocess(seconds: float, scene: str = HIL) -> float:
@@ -38,14 +43,16 @@ def multiprocess(seconds: float, scene: str = HIL) -> float:
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     CPU.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
+    SWITCHES.append(after.ru_nvcsw - before.ru_nvcsw + after.ru_nivcsw - before.ru_nivcsw)
     return wall
 
 
-def launches(seconds: float, scene: str, repeat: int) -> tuple[float, float]:
-    """Median wall time and median CPU time of `repeat` launches."""
+def launches(seconds: float, scene: str, repeat: int) -> tuple[float, float, float]:
+    """Median wall time, CPU time and context switches of `repeat` launches."""
     CPU.clear()
+    SWITCHES.clear()
     wall = statistics.median(multiprocess(seconds, scene) for _ in range(repeat))
-    return wall, statistics.median(CPU)
+    return wall, statistics.median(CPU), statistics.median(SWITCHES)
 
 
 def hardware_container(folder: str) -> str:
@@ -90,15 +97,18 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per run (default 10)")
     ap.add_argument("--repeat", type=int, default=3, help="runs per mode; medians are reported")
+    ap.add_argument("--ring-seconds", type=float, default=2.0,
+                    help="simulated seconds per ring run (rings of 2, 4 and 8 processes); 0 skips the rings")
     args = ap.parse_args()
     n = int(round(args.seconds * 1000)) + 1
     med = statistics.median
+    load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as folder:
         hw = hardware_container(folder)
-        start, start_cpu = launches(0.001, HIL, args.repeat)
-        mp, mp_cpu = launches(args.seconds, HIL, args.repeat)
-        hw_start, hw_start_cpu = launches(0.001, hw, args.repeat)
-        cont, cont_cpu = launches(args.seconds, hw, args.repeat)
+        start, start_cpu, start_sw = launches(0.001, HIL, args.repeat)
+        mp, mp_cpu, mp_sw = launches(args.seconds, HIL, args.repeat)
+        hw_start, hw_start_cpu, hw_start_sw = launches(0.001, hw, args.repeat)
+        cont, cont_cpu, cont_sw = launches(args.seconds, hw, args.repeat)
     comp_cpu: list[float] = []
     bare_cpu: list[float] = []
     comp = med(composed(n, comp_cpu) for _ in range(args.repeat))
@@ -110,16 +120,31 @@ def main() -> None:
         "multiprocess_ticking_rtf": round(args.seconds / (mp - start), 2),
         "multiprocess_startup_s": round(start, 3),
         "multiprocess_cpu_us_per_tick": round((mp_cpu - start_cpu) / (n - 1) * 1e6),
+        "multiprocess_switches_per_tick": round((mp_sw - start_sw) / (n - 1), 1),
         "container_rtf": round(args.seconds / cont, 2),
         "container_ticking_rtf": round(args.seconds / (cont - hw_start), 2),
         "container_cpu_us_per_tick": round((cont_cpu - hw_start_cpu) / (n - 1) * 1e6),
+        "container_switches_per_tick": round((cont_sw - hw_start_sw) / (n - 1), 1),
         "composed_rtf": round(args.seconds / comp, 1),
         "bare_rtf": round(args.seconds / bl, 1),
         "bare_over_composed": round(comp / bl, 2),
         "composed_cpu_us_per_tick": round(med(comp_cpu) / n * 1e6, 2),
         "bare_cpu_us_per_tick": round(med(bare_cpu) / n * 1e6, 2),
-        "load_average": os.getloadavg()[0],
     }
+    goals = {"multiprocess_rtf": (">=", 4.0), "container_rtf": (">=", 10.0), "composed_rtf": (">=", 100.0),
+             "bare_over_composed": ("<=", 1.5)}
+    if args.ring_seconds > 0:
+        from throughput import ring_costs
+
+        ticks = int(args.ring_seconds * 1000)
+        rings = ring_costs([2, 4, 8], args.ring_seconds, ticks, args.repeat)
+        out["ring_us_per_added_process_per_tick"] = rings["multiprocess_us_per_added_process_per_tick"]
+        out["ring_cpu_us_per_added_process_per_tick"] = rings["multiprocess_cpu_us_per_added_process_per_tick"]
+        goals["ring_us_per_added_process_per_tick"] = ("<=", round(114 * 0.7, 1))  # 30 % under 114 us
+    out["goals"] = {name: {"goal": f"{op} {bound:g}", "met": out[name] >= bound if op == ">=" else out[name] <= bound}
+                    for name, (op, bound) in goals.items()}
+    out["load_average_before"] = [round(x, 2) for x in load_before]
+    out["load_average_after"] = [round(x, 2) for x in os.getloadavg()]
     print(json.dumps(out))
 
 

@@ -95,6 +95,11 @@ def _slope(xs: list[float], ys: list[float]) -> float:
 
 
 def ring(sizes: list[int], seconds: float, n: int, repeat: int) -> None:
+    print(json.dumps(ring_costs(sizes, seconds, n, repeat)))
+
+
+def ring_costs(sizes: list[int], seconds: float, n: int, repeat: int) -> dict:
+    """Per-tick wall and CPU time of rings of each size, and what an added process costs (the slope)."""
     import tempfile
 
     mp_us, cpu_us, comp_us = {}, {}, {}
@@ -109,7 +114,7 @@ def ring(sizes: list[int], seconds: float, n: int, repeat: int) -> None:
             mp_us[size] = mp / n * 1e6
             cpu_us[size] = (statistics.median(CPU) - base_cpu) / n * 1e6
             comp_us[size] = statistics.median(composed_seconds(n, scene) for _ in range(repeat)) / n * 1e6
-    print(json.dumps({
+    return {
         "graph": "ring of N processes (integrator + N-1 gains, 1 kHz)",
         "ticks": n,
         "multiprocess_us_per_tick": {str(k): round(v, 1) for k, v in mp_us.items()},
@@ -120,7 +125,7 @@ def ring(sizes: list[int], seconds: float, n: int, repeat: int) -> None:
         "multiprocess_cpu_us_per_added_process_per_tick": round(_slope(list(cpu_us), list(cpu_us.values())), 1),
         "composed_us_per_added_node_per_tick": round(_slope(list(comp_us), list(comp_us.values())), 2),
         "load_average": os.getloadavg()[0],
-    }))
+    }
 
 
 if __name__ == "__main__":

@@ -31,12 +31,15 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+import msgspec
+
 from dockhil.errors import DockhilError
 from dockhil.log import node_line
 from dockhil.node import NodeContext, Tick
 from dockhil.msgs.codec import DecodeError, decode, decode_header, encode
 
-TIMING = "\x1edockhil-timing "  # a node process's line with its wall-time loop figures (JSON), read by the launcher
+TIMING = "\x1edockhil-timing "
+DEFERRED = 16  # sim time: frames an output holds at most while its node computes on without waiting  # a node process's line with its wall-time loop figures (JSON), read by the launcher
 
 
 @dataclass
@@ -48,6 +51,7 @@ class PortWire:
     subscribers: int = 0  # outputs: how many subscriptions to await in sim time
     unlimited_age: bool = False  # inputs: no maximum age (a publisher the launcher respawns may pause)
     max_age: float | None = None  # inputs: the launch file's maximum age [s], over the node's own
+    burst: int = 1  # outputs, sim time: ticks whose messages go out together (readers' slack: launcher.burst)
 
 
 @dataclass
@@ -120,7 +124,8 @@ def _bounds_check(cls: type):
     """A function true when every number in a message of type `cls` is finite and within its
     type's bounds. A screen, not the verdict: it may say False for a good message (a sum of finite
     values that overflows, a value of another type), and callers then run the full check. The
-    floats are gathered in one tuple: a NaN or Inf anywhere makes their sum non-finite."""
+    floats are added up as they are read (each struct read once): a NaN or Inf anywhere makes
+    the sum non-finite."""
     check = _SCREENS.get(cls)
     if check is None:
         import msgspec.inspect as mi
@@ -131,8 +136,8 @@ def _bounds_check(cls: type):
             _screen_lines(mi, mi.type_info(cls), "m", lines, "        ", scope)
         except _Unscreened:
             lines = ["        return False"]
-        src = ("def check(m):\n    f = ()\n    try:\n" + "".join(f"{line}\n" for line in lines)
-               + "        s = sum(f)\n    except Exception:\n        return False\n    return s - s == 0\n")
+        src = ("def check(m):\n    s = 0.0\n    try:\n" + "".join(f"{line}\n" for line in lines)
+               + "    except Exception:\n        return False\n    return s - s == 0\n")
         exec(compile(src, f"<screen of {cls.__name__}>", "exec"), scope)  # noqa: S102 - built from the type
         check = _SCREENS[cls] = scope["check"]
     return check
@@ -140,11 +145,11 @@ def _bounds_check(cls: type):
 
 def _screen_lines(mi, t, var: str, lines: list[str], indent: str, scope: dict) -> None:
     """Statements that return False when a number under `var` is out of its bounds, and add
-    its floats to the tuple f."""
+    its floats to the sum s."""
     floats: list[str] = []
     _screen_fields(mi, t, var, lines, indent, scope, floats)
     if floats:
-        lines.append(f"{indent}f += ({', '.join(floats)},)")
+        lines.append(f"{indent}s += {' + '.join(floats)}")
 
 
 def _screen_fields(mi, t, var, lines, indent, scope, floats) -> None:
@@ -160,6 +165,11 @@ def _screen_fields(mi, t, var, lines, indent, scope, floats) -> None:
         if isinstance(t, mi.FloatType):
             floats.append(var)
     elif isinstance(t, mi.StructType):
+        if "." in var:  # a nested struct: read once into a local, not once per field below it
+            local = f"_s{len(scope)}"
+            scope[local] = None
+            lines.append(f"{indent}{local} = {var}")
+            var = local
         for field_ in t.fields:
             _screen_fields(mi, field_.type, f"{var}.{field_.name}", lines, indent, scope, floats)
     elif isinstance(t, (mi.ListType, mi.VarTupleType)):
@@ -209,7 +219,7 @@ class NodeExecutor:
     def __init__(self, spec: RunSpec, node_cls: type, stop: Stop, log=None, clock=time.monotonic):
         import zmq
 
-        from dockhil.transport import Publisher, Subscriber
+        from dockhil.transport import Publisher, Subscriber, separator
 
         self.spec = spec
         self.stop = stop
@@ -236,43 +246,60 @@ class NodeExecutor:
         self.ctx = zmq.Context.instance()
         keys = read_spec_keys(spec)
         self.sub = Subscriber(self.ctx)
-        self.by_topic: dict[bytes, list[str]] = {}
+        self._separator = separator
+        # Topic -> [(port, the decoder of its type)], resolved once: the receive path looks up nothing else.
+        self.routes: dict[bytes, list[tuple[str, Any]]] = {}
         for port, wire in spec.inputs.items():
             self.sub.connect(wire.endpoint, keys=keys)
-            self.by_topic.setdefault(wire.topic.encode(), []).append(port)
+            fast = msgspec.msgpack.Decoder(self.in_types[port]).decode  # errors: the codec's lines, below
+            self.routes.setdefault(wire.topic.encode(), []).append((port, fast))
         # Sim time loses nothing: a finished node waits (up to 60 s) until its slowest subscriber has all.
         linger = 60.0 if spec.clock == "sim" else 1.0
-        self.pubs = {port: Publisher(self.ctx, wire.topic, wire.endpoint, linger, keys=keys,
-                                     lossy=spec.clock != "sim")
+        # Sim time sends in bursts: an output its readers take late (wire.burst > 1) every burst ticks;
+        # any other when the node is about to wait for input (or DEFERRED frames are held), so a
+        # node handed a burst passes one on. A node never waits holding a frame of the second kind.
+        sim = spec.clock == "sim"
+        self.pubs = {port: Publisher(self.ctx, wire.topic, wire.endpoint, linger, keys=keys, lossy=not sim,
+                                     burst=(wire.burst if wire.burst > 1 else DEFERRED) if sim else 1)
                      for port, wire in spec.outputs.items()}
+        self._deferred = [self.pubs[port] for port, wire in spec.outputs.items() if sim and wire.burst <= 1]
         self.dropped = 0
         self._drop_logged = 0.0
         self._drop_reasons: set[str] = set()
         self.ticks_done = 0
 
     # -- receiving ---------------------------------------------------------
-    def _decode(self, frames: list[bytes]) -> list[tuple[str, int | None, Any, bool]]:
-        """[(port, tick, msg, ok)] for one received message; ok=False for a bad one,
+    def _decode(self, frame: bytes) -> list[tuple[str, int | None, Any, bool]]:
+        """[(port, tick, msg, ok)] for one received frame; ok=False for a bad message,
         (port, tick, None, True) for an empty tick."""
-        topic = frames[0] if frames else b""
-        ports = self.by_topic.get(topic)
-        if ports is None:
+        i, message = self._separator(frame)
+        if i < 0:
+            joined = self.sub.joined(frame)  # an envelope of frames, as `bag play` sends
+            if joined is not frame:
+                return self._decode(joined)
+        topic = frame[:i] if i >= 0 else frame
+        routes = self.routes.get(topic)
+        if routes is None:
             self._drop(topic.decode(errors="replace"), "message on a topic this node does not subscribe")
             return []
-        if len(frames) == 3 and frames[1] == b"" and len(frames[2]) == 8:
-            tick = int.from_bytes(frames[2], "little")
-            return [(port, tick, None, True) for port in ports]
-        if len(frames) != 2:
-            self._drop(topic.decode(errors="replace"), "malformed frame: expected the topic, a NUL byte, then msgpack")
-            return []
-        payload = frames[1]
+        if not message:
+            if i < 0 or len(frame) - i != 9:
+                self._drop(topic.decode(errors="replace"),
+                           "malformed frame: expected the topic, a NUL byte, then msgpack")
+                return []
+            tick = int.from_bytes(frame[i + 1:], "little")
+            return [(port, tick, None, True) for port, _ in routes]
+        payload = frame[i + 1:]
         out = []
-        for port in ports:
+        for port, fast in routes:
             try:
-                msg = decode(payload, self.in_types[port])
+                msg = fast(payload)
                 out.append((port, msg.header.tick, msg, True))
-            except DecodeError as exc:
-                self._drop(topic.decode(), str(exc))
+            except (msgspec.ValidationError, msgspec.DecodeError, UnicodeDecodeError):
+                try:  # the codec's own call, for its one line naming the field and the reason
+                    decode(payload, self.in_types[port])
+                except DecodeError as exc:
+                    self._drop(topic.decode(), str(exc))
                 header = decode_header(payload)
                 tick = None if header is None else header.tick
                 out.append((port, tick, None, False))
@@ -350,6 +377,8 @@ class NodeExecutor:
                 k += 1
                 self.ticks_done = k
                 self._waited_since = time.monotonic()
+        for pub in self.pubs.values():  # the last, incomplete bursts
+            pub.flush()
         # Stay subscribed until every input's last tick is in: a publisher waits for its subscribers
         # before tick 0, and a node that needs no input for its ticks (a long delay) must not leave first.
         while spec.n_ticks is not None and not self.stop.requested:
@@ -361,8 +390,13 @@ class NodeExecutor:
         self.timing.dropped_in = self.dropped
 
     def _receive(self, k: int, waiting_for: str, keep: bool = True) -> None:
-        """Take one message off the socket (or time out after 0.2 s), file it by tick."""
-        frames = self.sub.recv(0.2)
+        """Take one message off the socket (or time out after 0.2 s), file it by tick; before
+        waiting, send what the deferred outputs hold."""
+        frames = self.sub.recv_frame_nowait()
+        if frames is None:
+            for pub in self._deferred:
+                pub.flush()
+            frames = self.sub.recv_frame(0.2)
         if frames is None:
             if time.monotonic() - self._waited_since > 10 and self._warned_at != k:
                 self._warned_at = k
@@ -399,7 +433,7 @@ class NodeExecutor:
                 if duration is not None and now - t0 >= duration:
                     break
                 timing.started(now - next_t)
-                while (frames := self.sub.recv_nowait()) is not None:
+                while (frames := self.sub.recv_frame_nowait()) is not None:
                     for port, _tick, msg, ok in self._decode(frames):
                         if msg is not None:
                             latest[port] = msg

@@ -224,6 +224,16 @@ def _container_spec(graph: Graph, name: str, members: list[str], specs: dict[str
                    outputs, key_file=first.key_file, run_id=first.run_id)
 
 
+def burst(graph: Graph, topic: str) -> int:
+    """Sim time: how many ticks of a topic its publisher may send together. A reader that reads it
+    `lag` ticks late leaves that much slack: holding fewer than lag/2 ticks keeps every cycle
+    through the topic, even with a burst on each of its delayed hops, from waiting for a held
+    message (the holds on a cycle add up to under half its lag), and leaves the other half of
+    the slack for pipelining. The messages and their ticks are the same; only when they leave."""
+    lags = [ref.lag for ref in graph.subscribers.get(topic, [])]
+    return max(1, min(lags) // 2) if lags else 1
+
+
 def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extra: list[ExtraProcess],
               units: dict[str, list[str]] | None = None) -> dict[str, RunSpec]:
     """One RunSpec per process (`units`, from processes(); default: one per node)."""
@@ -248,7 +258,8 @@ def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extr
                            # One subscription per process: a container's members share one socket.
                            subscribers=len({unit_of.get(s.node, s.node) for s in graph.subscribers.get(ref.topic, [])}
                                            - {unit_of.get(name, name)})
-                           + extra_count.get(ref.topic, 0))
+                           + extra_count.get(ref.topic, 0),
+                           burst=burst(graph, ref.topic) if clock == "sim" else 1)
             for port, ref in gn.outputs.items()
         }
         specs[name] = RunSpec(name, gn.type_name, gn.params, graph.scene.dt, clock, n_ticks, inputs, outputs,

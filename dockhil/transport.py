@@ -3,10 +3,12 @@
 On the wire each message is one ZeroMQ frame: the topic, a NUL byte, then
 the msgpack payload; in sim time a tick with no message is the topic, byte
 0x01 and the tick as 8 bytes little-endian. (One frame, not a [topic,
-payload] envelope: each frame sent costs a wake-up of ZeroMQ's I/O thread.)
+payload] envelope: each ZeroMQ message sent costs a wake-up of its I/O thread.)
 Topic names never hold those two bytes, so the first one ends the topic, and
 SUB prefix filtering on the topic still works. Receivers see [topic,
-payload] or [topic, b"", tick]. Publishers are XPUB sockets so
+payload] or [topic, b"", tick]. In sim time a publisher may send several
+ticks at once, a burst (Publisher.flush): one ZeroMQ message of several such
+frames, each frame one message, read one by one. Publishers are XPUB sockets so
 that they see subscriptions arrive: in sim time a publisher waits until every
 subscriber the launcher expects has joined before it sends tick 0, so the
 slow-joiner effect of PUB/SUB never loses a message.
@@ -47,17 +49,25 @@ MESSAGE = b"\x00"
 EMPTY_TICK = b"\x01"
 
 
+def separator(frame: bytes) -> tuple[int, bool]:
+    """(where the topic ends, whether a message follows) for one wire frame; -1 if it holds neither
+    separator. The first of the two bytes ends the topic: an 0x01 is looked for only before the
+    first NUL (the topic is short, a payload is not)."""
+    a = frame.find(MESSAGE)
+    b = frame.find(EMPTY_TICK, 0, a) if a >= 0 else frame.find(EMPTY_TICK)
+    return (b, False) if b >= 0 else (a, a >= 0)
+
+
 def split(frames: list[bytes]) -> list[bytes]:
     """One wire frame -> [topic, payload] or [topic, b"", tick]; anything else is passed on as it
     came, for the receiver to count as malformed."""
     if len(frames) != 1:
         return frames
     frame = frames[0]
-    a, b = frame.find(MESSAGE), frame.find(EMPTY_TICK)
-    i = a if b < 0 or 0 <= a < b else b
+    i, message = separator(frame)
     if i < 0:
         return frames
-    if frame[i:i + 1] == MESSAGE:
+    if message:
         return [frame[:i], frame[i + 1:]]
     return [frame[:i], b"", frame[i + 1:]]
 
@@ -221,8 +231,12 @@ class Publisher:
     """A topic's XPUB socket, a CURVE server with the graph's keys (None: plain, for benchmarks only)."""
 
     def __init__(self, ctx: zmq.Context, topic: str, endpoint: str, linger_s: float = 2.0, *,
-                 keys: GraphKeys | None, lossy: bool = False):
+                 keys: GraphKeys | None, lossy: bool = False, burst: int = 1):
         self.topic = topic
+        # Sim time, readers with slack (a declared delay): frames held and sent `burst` at a time, back
+        # to back, so that every process down the line wakes once a burst rather than once a message.
+        self.burst = burst
+        self._held: list[bytes] = []
         self.topic_bytes = topic.encode()
         self._message_prefix = self.topic_bytes + MESSAGE
         self._empty_prefix = self.topic_bytes + EMPTY_TICK
@@ -272,6 +286,9 @@ class Publisher:
 
     def send(self, payload: bytes) -> bool:
         """False if a subscriber's full queue refused it (wall time only; sim time waits for room)."""
+        if self.burst > 1:
+            self._hold(self._message_prefix + payload)
+            return True
         try:
             self.sock.send(self._message_prefix + payload, self._send_flags)
         except zmq.Again:
@@ -281,9 +298,42 @@ class Publisher:
 
     def send_empty(self, tick: int) -> None:
         """Sim time: this topic has no message at this tick."""
-        self.sock.send(self._empty_prefix + tick.to_bytes(8, "little"))
+        frame = self._empty_prefix + tick.to_bytes(8, "little")
+        if self.burst > 1:
+            self._hold(frame)
+        else:
+            self.sock.send(frame)
+
+    def _hold(self, frame: bytes) -> None:
+        self._held.append(frame)
+        if len(self._held) >= self.burst:
+            self.flush()
+
+    def flush(self) -> None:
+        """Send the frames a burst holds (sim time, which waits for room rather than drop) as one
+        ZeroMQ message of several frames, each frame still one message: ZeroMQ hands a message of
+        many frames to its I/O thread, and to the reader, in one wake-up. Messages and empty ticks
+        go in separate runs, as a reader may subscribe to only one kind (its prefix is matched
+        against the first frame)."""
+        held = self._held
+        n = len(self.topic_bytes)
+        start = 0
+        for i in range(1, len(held) + 1):
+            if i == len(held) or held[i][n] != held[start][n]:
+                if i - start == 1:
+                    self.sock.send(held[start])
+                else:
+                    self.sock.send_multipart(held[start:i])
+                start = i
+        held.clear()
 
     def close(self) -> None:
+        try:  # a graph stopped early: what was computed still goes out, if there is room
+            for frame in self._held:
+                self.sock.send(frame, zmq.NOBLOCK)
+        except zmq.ZMQError:
+            pass
+        self._held.clear()
         self.sock.close()
         if self._ctx is not None:
             _release_clients(self._ctx)
@@ -337,20 +387,69 @@ class Subscriber:
             self.sock.setsockopt(zmq.RCVTIMEO, ms)
             self._timeout_ms = ms
         try:
-            return split(self.sock.recv_multipart())
+            return self._message(self.sock.recv())
         except zmq.Again:
             self.check_peers()
             return None
 
     def recv_nowait(self) -> list[bytes] | None:
         try:
-            return split(self.sock.recv_multipart(zmq.NOBLOCK))
+            return self._message(self.sock.recv(zmq.NOBLOCK))
         except zmq.Again:
-            now = time.monotonic()
-            if now >= self._next_check:
-                self._next_check = now + PEER_CHECK_S
-                self.check_peers()
+            self._peers_now_and_then()
             return None
+
+    def _message(self, frame: bytes) -> list[bytes]:
+        """A frame read alone is one message (a burst's frames are read one by one); a frame with no
+        separator opens an envelope of frames ([topic, payload] or [topic, b"", tick], as `bag play`
+        sends), read whole."""
+        if separator(frame)[0] >= 0:
+            return split([frame])
+        return self._rest(frame)
+
+    def _rest(self, first: bytes) -> list[bytes]:
+        parts = [first]
+        while self.sock.getsockopt(zmq.RCVMORE):
+            parts.append(self.sock.recv())
+        return parts
+
+    def joined(self, frame: bytes) -> bytes:
+        """The one-frame form of a message whose first frame has no separator: an envelope of
+        frames (`bag play` sends [topic, payload] and [topic, b"", tick]) joined; anything else as
+        it came, for the reader to count as malformed."""
+        parts = self._rest(frame)
+        if len(parts) == 2:
+            return parts[0] + MESSAGE + parts[1]
+        if len(parts) == 3 and parts[1] == b"":
+            return parts[0] + EMPTY_TICK + parts[2]
+        return frame
+
+    def recv_frame(self, timeout_s: float | None) -> bytes | None:
+        """One frame (a node's hot path: see `separator`), or None on time-out; a frame without a
+        separator is the first of an envelope: see `joined`. (recv_multipart asks the socket after
+        every frame whether more follow: 1.5 us a message.)"""
+        ms = -1 if timeout_s is None else int(timeout_s * 1000)
+        if ms != self._timeout_ms:
+            self.sock.setsockopt(zmq.RCVTIMEO, ms)
+            self._timeout_ms = ms
+        try:
+            return self.sock.recv()
+        except zmq.Again:
+            self.check_peers()
+            return None
+
+    def recv_frame_nowait(self) -> bytes | None:
+        try:
+            return self.sock.recv(zmq.NOBLOCK)
+        except zmq.Again:
+            self._peers_now_and_then()
+            return None
+
+    def _peers_now_and_then(self) -> None:
+        now = time.monotonic()
+        if now >= self._next_check:
+            self._next_check = now + PEER_CHECK_S
+            self.check_peers()
 
     def check_peers(self) -> None:
         """DockhilError if a peer failed the handshake: it is not the graph's publisher."""

@@ -238,3 +238,109 @@ def test_observers_are_not_counted_as_subscribers(tmp_path):
     assert member.recv(5.0) == [b"/t", b"\x80"] and observer.recv(5.0) == [b"/t", b"\x80"]
     for s in (pub, observer, member):
         s.close()
+
+
+
+BURSTS = """
+rate: 1000
+duration: 0.3
+nodes:
+  - {{name: integ, node: "tests.graphnodes:Integrator", remap: {{u: /u2}}}}
+  - {{name: gain, node: "tests.graphnodes:Gain"}}
+  - {{name: d1, node: delay_injector, params: {{delay: 0.004, type: dockhil/WrenchStamped, input: /u, output: /u1}}}}
+  - {{name: d2, node: delay_injector, params: {{delay: 0.006, type: dockhil/WrenchStamped, input: /u1, output: /u2}}}}
+  - {{name: trace, node: "tests.graphnodes:Trace", params: {{path: "{trace}"}}, remap: {{u: /u2}}}}
+"""
+
+
+def test_delayed_hops_send_in_bursts_and_change_no_bit(write_launch, tmp_path):
+    """A loop through two delayed hops (4 and 6 ticks): their publishers send 2 and 3 ticks at a
+    time, the others as soon as their node would wait. The run still ends (no cycle waits for a
+    held message) and gives the plain loop's bits, as the composed run does."""
+    from dockhil import launchfile
+    from dockhil.graph import build
+    from dockhil.launcher import burst
+
+    traces = {}
+    for mode in ("processes", "composed"):
+        traces[mode] = tmp_path / f"trace-{mode}.txt"
+        scene = write_launch(BURSTS.format(trace=traces[mode]), f"bursts-{mode}.yaml")
+        r = subprocess.run(dockhil_cmd("launch", scene, "--quiet", *(["--composed"] if mode == "composed" else [])),
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stdout + r.stderr
+    graph = build(launchfile.load(scene))
+    # lag // 2 of the readers: /u by d1 (4 ticks), /u1 by d2 (6); /x and /u2 are read at once too.
+    assert {topic: burst(graph, topic) for topic in graph.publishers} == {"/x": 1, "/u": 2, "/u1": 3, "/u2": 1}
+    # x[k] = x[k-1] + dt u2[k-1], u2[k] = u[k-10] (none before tick 10), u[k] = -2 x[k] + 0.1 x[k]^2.
+    us, rows = [], []
+    x = 1.0
+    for k in range(301):
+        if k >= 11:
+            x += 0.001 * us[k - 11]
+        us.append(-2.0 * x + 0.1 * x * x)
+        rows.append(f"{k} {x.hex()} {us[k - 10].hex() if k >= 10 else '-'}")
+    assert traces["processes"].read_text().splitlines() == rows
+    assert traces["composed"].read_text() == traces["processes"].read_text()
+
+
+def test_bursts_are_sim_time_only_and_follow_the_declared_delay(tmp_path):
+    """hil.yaml: the robot command, which the delay injector reads 32 ticks late, goes out 16 ticks at
+    a time in sim time; in wall time every message leaves when it is made."""
+    from pathlib import Path
+
+    from dockhil import launchfile
+    from dockhil.graph import build
+    from dockhil.launcher import Endpoints, run_specs
+
+    graph = build(launchfile.load(Path(__file__).resolve().parent.parent / "launch" / "hil.yaml"))
+    types = {t: "t" for t in graph.publishers}
+    ends = {t: f"ipc://{tmp_path}/{t.strip('/').replace('/', '.')}" for t in types}
+    ep = Endpoints("r", tmp_path, ends, types, ends)
+    for clock, want in (("sim", 32 // 2), ("wall", 1)):
+        specs = run_specs(graph, ep, clock, None, [])
+        bursts = {w.topic: w.burst for spec in specs.values() for w in spec.outputs.values()}
+        assert bursts.pop("/robot/command") == want
+        assert set(bursts.values()) == {1}, bursts
+
+
+def test_a_burst_is_read_message_by_message_and_an_envelope_is_joined(tmp_path):
+    """A publisher holding 3 ticks sends them as one ZeroMQ message of 3 frames: a node's receive
+    path and an observer each see 3 messages (the empty tick sent apart), in order. A [topic,
+    payload] envelope of two frames, as `bag play` sends, reads as the same message."""
+    from dockhil.transport import EMPTY_TICK, MESSAGE, GraphKeys, Publisher, Subscriber
+
+    ctx = zmq.Context.instance()
+    endpoint = f"ipc://{tmp_path}/t"
+    keys = GraphKeys.make()
+    pub = Publisher(ctx, "/t", endpoint, keys=keys, burst=3)
+    member, observer = Subscriber(ctx), Subscriber(ctx, observer=True)
+    for sub in (member, observer):
+        sub.connect(endpoint, keys=keys)
+    raw = ctx.socket(zmq.SUB)  # plain pyzmq, as a foreign reader would
+    raw.curve_serverkey, raw.curve_publickey, raw.curve_secretkey = \
+        keys.server_public, keys.client_public, keys.client_secret
+    raw.setsockopt(zmq.SUBSCRIBE, b"/t\x00")
+    raw.connect(endpoint)
+    joined, deadline = set(), time.monotonic() + 20  # all three subscriptions in
+    while joined != {b"\x01", b"\x01/", b"\x01/t\x00"}:
+        assert time.monotonic() < deadline, joined
+        if pub.sock.poll(100):
+            joined.add(pub.sock.recv())
+    pub.send_empty(0)
+    pub.send(b"\x81\xa1a\x01")
+    assert member.recv_frame(0.05) is None  # held: two of three
+    pub.send(b"\x81\xa1a\x02")  # the third: out go the empty tick, then the two messages together
+    want = [b"/t" + EMPTY_TICK + (0).to_bytes(8, "little"), b"/t" + MESSAGE + b"\x81\xa1a\x01",
+            b"/t" + MESSAGE + b"\x81\xa1a\x02"]
+    assert [member.recv_frame(5.0) for _ in range(3)] == want
+    assert [observer.recv(5.0) for _ in range(3)] == [[b"/t", b"", (0).to_bytes(8, "little")],
+                                                       [b"/t", b"\x81\xa1a\x01"], [b"/t", b"\x81\xa1a\x02"]]
+    assert raw.poll(5000)  # the two messages as one ZeroMQ message, each frame read by the reference msgpack
+    assert [msgpack.unpackb(f.split(b"\x00", 1)[1]) for f in raw.recv_multipart()] == [{"a": 1}, {"a": 2}]
+    raw.close(linger=0)
+    pub.sock.send_multipart([b"/t", b"\x81\xa1a\x03"])  # an envelope
+    first = member.recv_frame(5.0)
+    assert first == b"/t" and member.joined(first) == b"/t" + MESSAGE + b"\x81\xa1a\x03"
+    assert observer.recv(5.0) == [b"/t", b"\x81\xa1a\x03"]
+    for s in (pub, member, observer):
+        s.close()
