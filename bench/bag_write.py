@@ -31,7 +31,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from dockhil.bag import BagReader, BagWriter  # noqa: E402
-from msgs import (  # noqa: E402
+from dockhil.msgs import (  # noqa: E402
     BodyState,
     Header,
     NodeStatus,
@@ -45,7 +45,7 @@ from msgs import (  # noqa: E402
     WrenchStamped,
     type_name,
 )
-from msgs.codec import encode  # noqa: E402
+from dockhil.msgs.codec import encode  # noqa: E402
 
 NODES = ("satellite-dynamics", "virtual-impedance", "ft-sensor", "robot-command", "delay-injector")
 

@@ -39,8 +39,8 @@ def _keys(kind: str, endpoint: str):
 def sender(kind: str, endpoint: str, n: int, period: float) -> None:
     import zmq
 
-    import msgs
-    from msgs.codec import encode
+    from dockhil import msgs
+    from dockhil.msgs.codec import encode
 
     ctx = zmq.Context.instance()
     if kind in ("runtime", "plain"):
@@ -74,9 +74,9 @@ def receiver(kind: str, endpoint: str, n: int) -> list[float]:
     ctx = zmq.Context.instance()
     out = []
     if kind in ("runtime", "plain"):
-        import msgs
+        from dockhil import msgs
         from dockhil.transport import Subscriber
-        from msgs.codec import decode
+        from dockhil.msgs.codec import decode
 
         sub = Subscriber(ctx)
         sub.connect(endpoint, keys=_keys(kind, endpoint))

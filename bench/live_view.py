@@ -80,7 +80,7 @@ def forward(ticks: int) -> dict:
     import msgspec
 
     from dockhil.foxglove_bridge import FoxgloveBridge
-    from msgs import BodyState, Header, SatelliteState, Vector3, Wrench, WrenchStamped
+    from dockhil.msgs import BodyState, Header, SatelliteState, Vector3, Wrench, WrenchStamped
 
     port = free_port()
     bridge = FoxgloveBridge({"/satellite/state": "dockhil/SatelliteState", "/ft/wrench": "dockhil/WrenchStamped"},

@@ -183,7 +183,7 @@ class BagWriter:
 
     def add_topic(self, topic: str, type_name: str) -> None:
         """Declare a topic and its message type (a key of msgs.TYPES); adding it again is a no-op."""
-        from msgs import TYPES
+        from dockhil.msgs import TYPES
 
         if not isinstance(topic, str) or not topic:
             raise BagError(f"bag {self.path}: a topic must be a non-empty string, got {topic!r}")
@@ -309,7 +309,7 @@ def channel_schema(cls: type) -> dict:
     inlined. A type that contains itself keeps $ref to "#/$defs/..." for the
     inner occurrences, with the $defs they need.
     """
-    from msgs.codec import schema
+    from dockhil.msgs.codec import schema
 
     found = schema(cls)
     defs = found.get("$defs", {})
@@ -366,8 +366,8 @@ class BagMessage(NamedTuple):
 
     def decode(self):
         """The message as its msgs Struct (typed, validated); DecodeError if it is not one."""
-        from msgs import type_by_name
-        from msgs.codec import decode
+        from dockhil.msgs import type_by_name
+        from dockhil.msgs.codec import decode
 
         return decode(self.data, type_by_name(self.type_name))
 
@@ -511,7 +511,7 @@ class BagReader:
 
     def decoded(self, topics: Iterable[str] | None = None, **bounds) -> Iterator[tuple[str, int, Any]]:
         """(topic, log_time_ns, msgs Struct) for each message; BagError if one does not decode."""
-        from msgs.codec import DecodeError
+        from dockhil.msgs.codec import DecodeError
 
         checked: set[str] = set()
         for message in self.messages(topics, **bounds):
@@ -1038,8 +1038,8 @@ def export_csv(path: str | os.PathLike, topic: str, out: str | os.PathLike | IO[
 
 
 def _write_csv(reader: BagReader, topic: str, fh: IO[str]) -> tuple[int, int, int]:
-    from msgs import TYPES
-    from msgs.codec import DecodeError, decode
+    from dockhil.msgs import TYPES
+    from dockhil.msgs.codec import DecodeError, decode
 
     type_name = reader.topics[topic]
     cls = TYPES.get(type_name)

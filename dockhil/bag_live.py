@@ -48,8 +48,8 @@ from typing import Any, Callable, Iterator
 
 import msgspec
 
-import msgs
-from msgs.codec import decode_header
+from dockhil import msgs
+from dockhil.msgs.codec import decode_header
 from dockhil.bag import BagError, BagMessage, BagReader, BagWriter
 from dockhil.errors import DockhilError
 
@@ -377,7 +377,7 @@ class TapRecorder:
         self._next_flush = time.monotonic() + FLUSH_EVERY_S
 
     def __call__(self, topic: str, msg: Any) -> None:
-        from msgs.codec import encode
+        from dockhil.msgs.codec import encode
 
         if self.error is not None:
             self.dropped += 1
@@ -655,7 +655,7 @@ def _tick_order(stream: Iterator[BagMessage], window: int = 4096) -> Iterator[tu
 
 def _retick(data: bytes, type_name: str, tick: int, stamp: float) -> bytes | None:
     """The message with its header moved to `tick`/`stamp`; None if it does not decode."""
-    from msgs.codec import DecodeError, decode, encode
+    from dockhil.msgs.codec import DecodeError, decode, encode
 
     try:
         msg = decode(data, msgs.type_by_name(type_name))

@@ -31,7 +31,7 @@ class Container(Node):
 
     @classmethod
     def ports(cls, params):
-        import nodes
+        from dockhil import nodes
 
         inputs, outputs = {}, {}
         for m in _members(params):
@@ -48,7 +48,7 @@ class Container(Node):
         return inputs, outputs
 
     def __init__(self, ctx: NodeContext, **params: Any):
-        import nodes
+        from dockhil import nodes
         from dockhil.composed import ComposedGraph
         from dockhil.graph import GraphNode, PortRef
 

@@ -34,7 +34,7 @@ from typing import Any
 
 from dockhil.errors import DockhilError
 from dockhil.node import NodeContext, Tick
-from msgs.codec import DecodeError, decode, decode_header, encode
+from dockhil.msgs.codec import DecodeError, decode, decode_header, encode
 
 TIMING = "\x1edockhil-timing "  # a node process's line with its wall-time loop figures (JSON), read by the launcher
 

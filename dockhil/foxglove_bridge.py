@@ -53,7 +53,7 @@ class FoxgloveBridge:
             import foxglove
         except ImportError:
             raise DockhilError("--foxglove needs the foxglove-sdk package: pip install 'dockhil[foxglove]'") from None
-        import msgs
+        from dockhil import msgs
         from dockhil.bag import SCHEMA_ENCODING, channel_schema
 
         self.sim = sim
@@ -178,7 +178,7 @@ class FoxgloveBridge:
 
 def start(graph, *, clock: str, host: str, port: int) -> FoxgloveBridge:
     """A bridge serving every topic of `graph` (checked before any node starts: a busy port fails here)."""
-    import msgs
+    from dockhil import msgs
 
     topics = {topic: msgs.type_name(ref.type) for topic, ref in graph.publishers.items()}
     return FoxgloveBridge(topics, sim=clock == "sim", host=host, port=port)

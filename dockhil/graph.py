@@ -13,8 +13,8 @@ import re
 from dataclasses import dataclass, field
 from typing import Any
 
-import msgs
-import nodes as node_registry
+from dockhil import msgs
+from dockhil import nodes as node_registry
 from dockhil.errors import LaunchError, ParamError
 from dockhil.launchfile import Scene
 from dockhil.launchschema import MAX_DURATION

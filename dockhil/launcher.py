@@ -28,7 +28,7 @@ from pathlib import Path
 
 import msgspec
 
-import msgs
+from dockhil import msgs
 from dockhil.errors import LaunchError
 from dockhil.executor import TIMING, PortWire, RunSpec
 from dockhil.graph import Graph
@@ -466,7 +466,7 @@ class Launcher:
         return sub
 
     def _show_progress(self, probe, bar) -> None:
-        from msgs.codec import decode_header
+        from dockhil.msgs.codec import decode_header
 
         tick = None
         while (frames := probe.recv_nowait()) is not None:

@@ -71,7 +71,7 @@ try:
         out["setup"] = "ok: " + ", ".join(n.type_name for n in graph.nodes.values())
         out["setup_s"] = time.perf_counter() - t1
     else:
-        import nodes
+        from dockhil import nodes
         from dockhil.node import NodeContext, Tick
         cls = nodes.load(type_name)
         out["import_s"] = time.perf_counter() - t0
@@ -117,9 +117,9 @@ def _closed_port() -> int:
 
 def _sample_bag(directory: str) -> str:
     """A one-message bag for the bag_source node to open."""
-    import msgs
+    from dockhil import msgs
     from dockhil.bag import BagWriter
-    from msgs.codec import encode
+    from dockhil.msgs.codec import encode
 
     path = os.path.join(directory, "sample.mcap")
     msg = msgs.WrenchStamped(header=msgs.Header(stamp=0.0, tick=0, seq=0, frame=""), wrench=msgs.Wrench())
@@ -191,7 +191,7 @@ def measure_all(types: list[str] | None = None, workers: int = 2, baselines: boo
     """Every registered node type (or `types`), plus baselines (a bare interpreter,
     the runtime every node process loads, `import dockhil.contact`, `import
     dockhil.cli`) and the simulated scenes composed in one process."""
-    import nodes
+    from dockhil import nodes
 
     types = sorted(nodes.REGISTRY) if types is None else list(types)
     with tempfile.TemporaryDirectory() as tmp:

@@ -50,7 +50,7 @@ from types import SimpleNamespace
 from typing import Any, Callable, ClassVar
 
 from dockhil.errors import ParamError
-from msgs import Header
+from dockhil.msgs import Header
 
 
 @dataclass(frozen=True)

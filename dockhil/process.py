@@ -45,7 +45,7 @@ def _ask_realtime(log) -> None:
 
 def run_node(spec, log=None, on_ready=None) -> int:
     """Set up and run one node until its ticks are done or a stop is requested."""
-    import nodes
+    from dockhil import nodes
     from dockhil import ownership
     from dockhil.errors import DockhilError
     from dockhil.executor import TIMING, NodeExecutor, Stop

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-import msgs
+from dockhil import msgs
 from dockhil.scenecheck import scene_check  # noqa: F401  (the summary's check, re-exported for the session)
 
 

@@ -43,7 +43,7 @@ from dockhil.errors import DockhilError
 from dockhil.executor import check_outputs
 from dockhil.graph import Graph, GraphNode, PortRef
 from dockhil.node import ManualClock, Node, Output, Tick
-from msgs import (BodyState, BodyWrenches, EStop, Header, Pose, RobotCommand, RobotState, SatelliteState, Twist,
+from dockhil.msgs import (BodyState, BodyWrenches, EStop, Header, Pose, RobotCommand, RobotState, SatelliteState, Twist,
                   Vector3, Wrench, WrenchStamped)
 
 FEEDER = "harness-inputs"  # name of the node that publishes the test's inputs
@@ -75,7 +75,7 @@ class NodeHarness:
     def __init__(self, node: str | type, *, dt: float = 0.001, sim_time: bool = True, name: str | None = None,
                  params: dict[str, Any] | None = None, echo_log: bool = False, **more_params: Any):
         if isinstance(node, str):
-            import nodes as registry
+            from dockhil import nodes as registry
 
             cls = registry.load(node)
         else:

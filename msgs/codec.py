@@ -12,7 +12,7 @@ import re
 
 import msgspec
 
-from msgs import Header
+from dockhil.msgs import Header
 
 _encoder = msgspec.msgpack.Encoder()
 encode = _encoder.encode

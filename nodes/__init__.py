@@ -18,20 +18,20 @@ import sys
 from dockhil.errors import LaunchError
 
 REGISTRY: dict[str, str] = {
-    "satellite_dynamics": "nodes.satellite_dynamics:SatelliteDynamics",
-    "virtual_impedance": "nodes.virtual_impedance:VirtualImpedance",
-    "ft_sim": "nodes.ft_sim:FtSensorSim",
-    "robot_sim": "nodes.robot_sim:RobotSim",
-    "delay_injector": "nodes.delay_injector:DelayInjector",
-    "ft_can": "nodes.ft_can:FtCanDriver",
-    "ft_emulator": "nodes.ft_emulator:FtSensorEmulator",
-    "robot_modbus": "nodes.robot_modbus:RobotModbusDriver",
-    "robot_emulator": "nodes.robot_emulator:RobotControllerEmulatorNode",
-    "bag_source": "nodes.bag_source:BagSource",
-    "satellite_dynamics6": "nodes.satellite_dynamics6:SatelliteDynamics6",
-    "virtual_impedance6": "nodes.virtual_impedance6:VirtualImpedance6",
-    "ft_sim6": "nodes.ft_sim6:FtSensorSim6",
-    "robot_sim6": "nodes.robot_sim6:RobotSim6",
+    "satellite_dynamics": "dockhil.nodes.satellite_dynamics:SatelliteDynamics",
+    "virtual_impedance": "dockhil.nodes.virtual_impedance:VirtualImpedance",
+    "ft_sim": "dockhil.nodes.ft_sim:FtSensorSim",
+    "robot_sim": "dockhil.nodes.robot_sim:RobotSim",
+    "delay_injector": "dockhil.nodes.delay_injector:DelayInjector",
+    "ft_can": "dockhil.nodes.ft_can:FtCanDriver",
+    "ft_emulator": "dockhil.nodes.ft_emulator:FtSensorEmulator",
+    "robot_modbus": "dockhil.nodes.robot_modbus:RobotModbusDriver",
+    "robot_emulator": "dockhil.nodes.robot_emulator:RobotControllerEmulatorNode",
+    "bag_source": "dockhil.nodes.bag_source:BagSource",
+    "satellite_dynamics6": "dockhil.nodes.satellite_dynamics6:SatelliteDynamics6",
+    "virtual_impedance6": "dockhil.nodes.virtual_impedance6:VirtualImpedance6",
+    "ft_sim6": "dockhil.nodes.ft_sim6:FtSensorSim6",
+    "robot_sim6": "dockhil.nodes.robot_sim6:RobotSim6",
 }
 
 

@@ -31,8 +31,8 @@ from typing import Any
 
 import msgspec
 
-import msgs
-from msgs.codec import decode_header
+from dockhil import msgs
+from dockhil.msgs.codec import decode_header
 from dockhil.bag import BagError, BagReader
 from dockhil.errors import DockhilError, ParamError
 from dockhil.node import Node, Output, Param

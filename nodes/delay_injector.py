@@ -8,7 +8,7 @@ from collections import deque
 
 import msgspec
 
-import msgs
+from dockhil import msgs
 from dockhil.node import Input, Node, Output, Param
 
 

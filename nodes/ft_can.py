@@ -16,7 +16,7 @@ from dockhil import ownership
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import ft_frames as ff
 from dockhil.node import Node, Output, Param
-from msgs import Vector3, Wrench, WrenchStamped
+from dockhil.msgs import Vector3, Wrench, WrenchStamped
 
 # A step reads at most this many frames, so a flooded bus cannot stall the loop.
 MAX_FRAMES_PER_STEP = 512

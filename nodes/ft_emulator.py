@@ -15,7 +15,7 @@ import random
 from dockhil.errors import DeviceError
 from dockhil.hardware import ft_frames as ff
 from dockhil.node import Input, Node, Param
-from msgs import RobotState
+from dockhil.msgs import RobotState
 
 
 class FtSensorEmulator(Node):
@@ -58,7 +58,7 @@ class FtSensorEmulator(Node):
             import can
 
             from dockhil import ownership
-            from nodes.ft_can import one_line
+            from dockhil.nodes.ft_can import one_line
 
             # One emulated sensor per channel: two would stream the same CAN IDs.
             self._lock = ownership.claim(f"can-emulator-{p.interface}-{p.channel}",

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dockhil.node import Input, Node, Output, Param
-from msgs import RobotState, Vector3, Wrench, WrenchStamped
+from dockhil.msgs import RobotState, Vector3, Wrench, WrenchStamped
 
 
 class FtSensorSim(Node):

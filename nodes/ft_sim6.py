@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 from dockhil.node import Input, Node, Output, Param
-from msgs import RobotState, Wrench, WrenchStamped
-from nodes.robot_sim6 import relative_pose
-from nodes.satellite_dynamics6 import vector
-from nodes.sixdof_params import MOUNT_PARAMS, PASSIVE_PARAMS, checked, passive_contact
+from dockhil.msgs import RobotState, Wrench, WrenchStamped
+from dockhil.nodes.robot_sim6 import relative_pose
+from dockhil.nodes.satellite_dynamics6 import vector
+from dockhil.nodes.sixdof_params import MOUNT_PARAMS, PASSIVE_PARAMS, checked, passive_contact
 
 
 class FtSensorSim6(Node):

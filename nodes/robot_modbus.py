@@ -52,7 +52,7 @@ from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import SafetyStop
 from dockhil.hardware import modbus_map as mm
 from dockhil.node import Input, Node, Output, Param
-from msgs import EStop, Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3, WrenchStamped
+from dockhil.msgs import EStop, Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3, WrenchStamped
 
 HOLD_CONFIRM_TIMEOUT = 0.25  # s: how long a safety stop waits for the hold to be written
 

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from dockhil.node import Input, Node, Output, Param
-from msgs import Pose, RobotCommand, RobotState, Twist
-from nodes.satellite_dynamics6 import array3, quaternion, vector
+from dockhil.msgs import Pose, RobotCommand, RobotState, Twist
+from dockhil.nodes.satellite_dynamics6 import array3, quaternion, vector
 
 
 def relative_pose(msg):

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dockhil.node import Input, Node, Output, Param
-from msgs import (BodyState, BodyWrenches, Pose, RobotCommand, SatelliteState, Twist, Vector3,
+from dockhil.msgs import (BodyState, BodyWrenches, Pose, RobotCommand, SatelliteState, Twist, Vector3,
                   WrenchStamped)
 
 

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from dockhil.node import Input, Node, Output, Param
-from msgs import (BodyState, BodyWrenches, Pose, Quaternion, RobotCommand, SatelliteState, Twist, Vector3,
+from dockhil.msgs import (BodyState, BodyWrenches, Pose, Quaternion, RobotCommand, SatelliteState, Twist, Vector3,
                   WrenchStamped)
-from nodes.sixdof_params import BODY_PARAMS, IDENTITY, MOUNT_PARAMS, bodies, checked
+from dockhil.nodes.sixdof_params import BODY_PARAMS, IDENTITY, MOUNT_PARAMS, bodies, checked
 
 
 def vector(v) -> Vector3:

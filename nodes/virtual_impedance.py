@@ -4,7 +4,7 @@ account, and optionally the passivity controller against the energy the delay ma
 from __future__ import annotations
 
 from dockhil.node import Input, Node, Output, Param
-from msgs import BodyWrenches, Energy, SatelliteState, Vector3, Wrench, WrenchStamped
+from dockhil.msgs import BodyWrenches, Energy, SatelliteState, Vector3, Wrench, WrenchStamped
 
 
 class VirtualImpedance(Node):

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from dockhil.node import Input, Node, Output
-from msgs import BodyWrenches, SatelliteState, Wrench
-from nodes.satellite_dynamics6 import array3, vector
-from nodes.sixdof_params import BODY_PARAMS, IDEAL_PARAMS, PASSIVE_PARAMS, bodies, checked, ideal_contact, \
+from dockhil.msgs import BodyWrenches, SatelliteState, Wrench
+from dockhil.nodes.satellite_dynamics6 import array3, vector
+from dockhil.nodes.sixdof_params import BODY_PARAMS, IDEAL_PARAMS, PASSIVE_PARAMS, bodies, checked, ideal_contact, \
     passive_contact
 
 

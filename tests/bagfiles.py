@@ -8,8 +8,8 @@ import json
 
 from mcap.writer import CompressionType, Writer
 
-from msgs import TYPES
-from msgs.codec import schema
+from dockhil.msgs import TYPES
+from dockhil.msgs.codec import schema
 
 
 def write_msgpack_bag(path, topics: dict[str, str], messages, *, per_chunk: int = 50) -> None:

@@ -11,7 +11,7 @@ import math
 import random
 
 from dockhil.node import Input, Node, Output, Param
-from msgs import Vector3, Wrench, WrenchStamped
+from dockhil.msgs import Vector3, Wrench, WrenchStamped
 
 
 def _w(tick, x, y=0.0):

@@ -6,7 +6,7 @@ import math
 import time
 
 from dockhil.node import Input, Node, Output, Param
-from msgs import Vector3, Wrench, WrenchStamped
+from dockhil.msgs import Vector3, Wrench, WrenchStamped
 
 
 def _w(tick, x):

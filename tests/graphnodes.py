@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 
 from dockhil.node import Input, Node, Output, Param
-from msgs import Vector3, Wrench, WrenchStamped
+from dockhil.msgs import Vector3, Wrench, WrenchStamped
 
 
 def _w(tick, x):
@@ -87,7 +87,7 @@ class Trace(Node):
 class StateSink(Node):
     """Expects a RobotState on /x: wiring it to a WrenchStamped publisher is a type error."""
 
-    from msgs import RobotState as _RS
+    from dockhil.msgs import RobotState as _RS
 
     inputs = {"x": Input(_RS, "/x")}
 
@@ -98,7 +98,7 @@ class StateSink(Node):
 class StateTrace(Node):
     """Writes the exact bits of chaser/target positions and velocities per tick, at close."""
 
-    from msgs import SatelliteState as _SS
+    from dockhil.msgs import SatelliteState as _SS
 
     inputs = {"state": Input(_SS, "/satellite/state")}
     params = {"path": Param(str, "", help="output file")}

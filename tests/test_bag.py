@@ -19,7 +19,7 @@ import pytest
 
 from dockhil import cli
 from dockhil.bag import BagError, BagReader, BagWriter, export_csv, flatten, info
-from msgs import (
+from dockhil.msgs import (
     BodyState,
     Header,
     Pose,
@@ -30,7 +30,7 @@ from msgs import (
     WrenchStamped,
     type_name,
 )
-from msgs.codec import encode, schema
+from dockhil.msgs.codec import encode, schema
 from tests.bagfiles import write_msgpack_bag
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -250,7 +250,7 @@ def test_every_message_type_has_a_self_contained_schema_its_messages_meet():
     import jsonschema
 
     from dockhil.bag import channel_schema
-    from msgs import TYPES
+    from dockhil.msgs import TYPES
 
     for name, cls in TYPES.items():
         found = channel_schema(cls)
@@ -274,8 +274,8 @@ _KILLED_WRITER = textwrap.dedent(
     """
     import sys
     from dockhil.bag import BagWriter
-    from msgs import Header, WrenchStamped
-    from msgs.codec import encode
+    from dockhil.msgs import Header, WrenchStamped
+    from dockhil.msgs.codec import encode
 
     bag = BagWriter(sys.argv[1], chunk_size=2048, chunk_seconds=3600)
     bag.add_topic("/ft/wrench", "dockhil/WrenchStamped")

@@ -19,8 +19,8 @@ import pytest
 
 from dockhil import cli
 from dockhil.bag import BagReader, BagWriter, format_size, info
-from msgs import Header, Vector3, Wrench, WrenchStamped
-from msgs.codec import encode
+from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped
+from dockhil.msgs.codec import encode
 
 PER_CHUNK = 150
 N_CHUNKS = 6
@@ -305,7 +305,7 @@ def test_export_of_a_deeply_nested_message_is_one_line(tmp_path, capsys):
 
 def test_bag_source_replays_around_a_damaged_chunk_and_warns_once(bag, tmp_path):
     from dockhil.node import NodeContext, Tick
-    from nodes.bag_source import BagSource
+    from dockhil.nodes.bag_source import BagSource
 
     chunk = 2
     path = tmp_path / "damaged.mcap"

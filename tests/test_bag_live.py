@@ -15,8 +15,8 @@ import pytest
 from dockhil import cli
 from dockhil.bag import BagReader, BagWriter, info
 from dockhil.errors import DockhilError
-from msgs import Header, Vector3, Wrench, WrenchStamped, type_name
-from msgs.codec import encode
+from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped, type_name
+from dockhil.msgs.codec import encode
 from tests.bagfiles import assert_messages_meet_their_channel_schemas
 from tests.conftest import Lines, dockhil_cmd, kill_child_and_expect_the_graph_to_stop, registered
 
@@ -176,7 +176,7 @@ def test_replay_as_source_reproduces_the_recorded_run(write_launch, tmp_path):
 
 def test_bag_source_steps_by_tick_or_by_time(tmp_path):
     from dockhil.node import NodeContext, Tick
-    from nodes.bag_source import BagSource
+    from dockhil.nodes.bag_source import BagSource
 
     bag = tmp_path / "100hz.mcap"
     write_wrench_bag(bag, 1.0, 100.0)  # ticks 0..100, force.x = 0.5 k, log times 10 ms apart

@@ -39,7 +39,7 @@ def free_port() -> int:
 
 def scene_topics() -> dict[str, str]:
     """topic -> message type name of the scene, from the launch file (not from the bridge)."""
-    import msgs
+    from dockhil import msgs
     from dockhil import launchfile
     from dockhil.graph import build
 
@@ -218,7 +218,7 @@ def wrench(k: int) -> bytes:
     """The wire bytes of a wrench at tick k of a 1 kHz graph, force x = k newtons."""
     import msgspec
 
-    from msgs import Header, Vector3, Wrench, WrenchStamped
+    from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped
 
     return msgspec.msgpack.encode(WrenchStamped(header=Header(stamp=k * 0.001, tick=k, seq=k),
                                                 wrench=Wrench(force=Vector3(x=float(k)))))
@@ -356,7 +356,7 @@ def _resolve(schema: dict, fields: list[str]) -> dict:
 def test_the_shipped_layout_plots_numbers_the_scene_publishes():
     """docs/foxglove-layout.json is a Foxglove layout (configById, layout tree, globalVariables,
     userNodes) whose every plotted message path is a number field of a topic of launch/hil.yaml."""
-    import msgs
+    from dockhil import msgs
     from dockhil.bag import channel_schema
 
     layout = json.loads((ROOT / "docs" / "foxglove-layout.json").read_text())

@@ -21,7 +21,7 @@ from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import ft_frames as ff
 from dockhil.hardware.slcan_pty import CanFrame, PtyCanBus, SlcanPort, parse_transmit
 from dockhil.node import NodeContext, Tick
-from nodes.ft_can import FtCanDriver
+from dockhil.nodes.ft_can import FtCanDriver
 
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -180,8 +180,8 @@ def test_python_can_slcan_talks_across_processes_through_the_pty_bus(tmp_path):
 EMULATOR = """
 import sys, threading, time
 from dockhil.node import NodeContext, Tick
-from msgs import Header, Pose, RobotState, Vector3
-from nodes.ft_emulator import FtSensorEmulator
+from dockhil.msgs import Header, Pose, RobotState, Vector3
+from dockhil.nodes.ft_emulator import FtSensorEmulator
 
 em = FtSensorEmulator(NodeContext("ft_emulator", 0.001, sim_time=False), channel=sys.argv[1],
                       k=float(sys.argv[2]), bias=float(sys.argv[3]), noise=0.0)

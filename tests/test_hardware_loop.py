@@ -12,10 +12,10 @@ import pytest
 from dockhil.hardware import SafetyStop
 from dockhil.hardware.robot_emulator import HOLD, RobotControllerEmulator
 from dockhil.node import ManualClock, NodeContext, Tick
-from msgs import Header, Pose, RobotCommand, Twist, Vector3
-from nodes.ft_can import FtCanDriver
-from nodes.ft_emulator import FtSensorEmulator
-from nodes.robot_modbus import RobotModbusDriver
+from dockhil.msgs import Header, Pose, RobotCommand, Twist, Vector3
+from dockhil.nodes.ft_can import FtCanDriver
+from dockhil.nodes.ft_emulator import FtSensorEmulator
+from dockhil.nodes.robot_modbus import RobotModbusDriver
 
 
 def test_pushing_into_the_compliance_measures_k_x_and_trips_the_force_limit(tmp_path):

@@ -25,8 +25,8 @@ from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import modbus_map as mm
 from dockhil.hardware.robot_emulator import FOLLOW, HOLD, RobotControllerEmulator, ServoModel
 from dockhil.node import NodeContext, Tick
-from msgs import Header, Pose, RobotCommand, Twist, Vector3
-from nodes.robot_modbus import RobotModbusDriver
+from dockhil.msgs import Header, Pose, RobotCommand, Twist, Vector3
+from dockhil.nodes.robot_modbus import RobotModbusDriver
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}

@@ -19,8 +19,8 @@ from dockhil.hardware import SafetyStop
 from dockhil.hardware import modbus_map as mm
 from dockhil.hardware.robot_emulator import FOLLOW, HOLD
 from dockhil.node import ManualClock, NodeContext, Tick
-from msgs import EStop, Header, Pose, RobotCommand, Twist, Vector3, Wrench, WrenchStamped
-from nodes.robot_modbus import RobotModbusDriver
+from dockhil.msgs import EStop, Header, Pose, RobotCommand, Twist, Vector3, Wrench, WrenchStamped
+from dockhil.nodes.robot_modbus import RobotModbusDriver
 from tests.test_hardware_modbus import read_holding
 
 DT = 0.001

@@ -243,7 +243,7 @@ def test_schema_is_printed_as_json_schema():
 
 
 def test_node_path_must_name_a_node_class(tmp_path, monkeypatch):
-    import nodes
+    from dockhil import nodes
     from dockhil.errors import LaunchError
 
     marker = tmp_path / "imported"

@@ -17,8 +17,8 @@ from dockhil.graph import build
 from dockhil.launcher import Endpoints, run_specs
 from dockhil.node import ManualClock, default_max_age
 from dockhil.transport import GraphKeys, Publisher
-from msgs import Header, Vector3, Wrench, WrenchStamped
-from msgs.codec import encode
+from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped
+from dockhil.msgs.codec import encode
 from tests.conftest import ROOT
 from tests.test_launch_refusals import run_main
 

@@ -3,7 +3,7 @@ and the science and the CLI stay light. Each node type is measured in a fresh in
 
 import pytest
 
-import nodes
+from dockhil import nodes
 from dockhil import leanness
 
 # One worker runs this file under pytest-xdist: every node type is measured once.

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import msgs
-from msgs.codec import DecodeError, decode, encode, schema
+from dockhil import msgs
+from dockhil.msgs.codec import DecodeError, decode, encode, schema
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 vec = st.builds(msgs.Vector3, finite, finite, finite)

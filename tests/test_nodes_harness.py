@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import pytest
 
-import msgs
+from dockhil import msgs
 from dockhil.bag import BagWriter
 from dockhil.errors import DockhilError, ParamError
 from dockhil.node import Input, Node, Output, Param
 from dockhil.testing import NodeHarness, robot_command, wrench
-from msgs import RobotCommand, Vector3, Wrench, WrenchStamped
-from msgs.codec import encode
+from dockhil.msgs import RobotCommand, Vector3, Wrench, WrenchStamped
+from dockhil.msgs.codec import encode
 
 
 class Probe(Node):

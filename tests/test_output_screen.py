@@ -6,10 +6,10 @@ import math
 import msgspec
 import pytest
 
-import msgs
+from dockhil import msgs
 from dockhil.errors import DockhilError
 from dockhil.executor import check_message, checked_payload
-from msgs import (BodyState, BodyWrenches, Header, Pose, Quaternion, RobotState, SatelliteState, Twist, Vector3,
+from dockhil.msgs import (BodyState, BodyWrenches, Header, Pose, Quaternion, RobotState, SatelliteState, Twist, Vector3,
                   Wrench, WrenchStamped)
 
 

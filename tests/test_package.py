@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-import nodes
+from dockhil import nodes
 from dockhil import launchfile
 from dockhil.errors import LaunchError
 from dockhil.sweep import CampaignError, load_campaign
@@ -88,7 +88,7 @@ def test_the_cli_finds_a_shipped_scene_from_another_directory(tmp_path):
 # -- node types from other packages ------------------------------------------------
 PLUGIN_MODULE = '''
 from dockhil.node import Node, Output, Param
-from msgs import Vector3, Wrench, WrenchStamped
+from dockhil.msgs import Vector3, Wrench, WrenchStamped
 
 
 class Ramp(Node):
@@ -145,7 +145,7 @@ def test_an_installed_package_adds_a_node_type(fake_distribution):
 
 def test_a_built_in_name_is_never_replaced_by_a_package(fake_distribution):
     assert "ft_sim" not in nodes.plugins()
-    assert nodes.load("ft_sim").__module__ == "nodes.ft_sim"
+    assert nodes.load("ft_sim").__module__ == "dockhil.nodes.ft_sim"
 
 
 @pytest.mark.parametrize("name, why", [

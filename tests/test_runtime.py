@@ -13,9 +13,9 @@ import msgpack
 import pytest
 import zmq
 
-import msgs
+from dockhil import msgs
 from dockhil.transport import split
-from msgs.codec import decode, encode
+from dockhil.msgs.codec import decode, encode
 from tests.conftest import dockhil_cmd, registered
 
 LOOP = """

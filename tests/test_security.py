@@ -18,10 +18,10 @@ from pathlib import Path
 import pytest
 import zmq
 
-import msgs
+from dockhil import msgs
 from dockhil.errors import DeviceError, DockhilError
 from dockhil.transport import GraphKeys, Publisher, Subscriber, runtime_dir
-from msgs.codec import decode, encode
+from dockhil.msgs.codec import decode, encode
 from tests.conftest import ROOT, dockhil_cmd, registered
 
 READY = "\x1edockhil-ready"

@@ -14,7 +14,7 @@ from dockhil.composed import ComposedGraph
 from dockhil.contact.contact6 import Contact6
 from dockhil.contact.hybrid6 import simulate_hybrid6
 from dockhil.contact.rigid import BodyState, RigidBody, quat_from_rotvec
-from msgs import SatelliteState, WrenchStamped
+from dockhil.msgs import SatelliteState, WrenchStamped
 from tests.conftest import ROOT, dockhil_cmd
 
 HIL6 = ROOT / "launch" / "hil6.yaml"

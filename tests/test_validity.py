@@ -21,8 +21,8 @@ from dockhil.errors import DockhilError
 from dockhil.executor import NodeExecutor, PortWire, RunSpec, StaleInput, Stop
 from dockhil.node import ManualClock, default_max_age
 from dockhil.transport import HWM, GraphKeys, Publisher, Subscriber
-from msgs import Header, Vector3, Wrench, WrenchStamped
-from msgs.codec import encode
+from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped
+from dockhil.msgs.codec import encode
 from tests.conftest import dockhil_cmd
 from tests.faultnodes import Follow, Hiccup, NanAt
 
@@ -374,9 +374,9 @@ def test_the_composed_bounds_check_refuses_what_a_reader_refuses():
     decodes what it sends. Both must refuse the same messages, with the same line."""
     import math
 
-    import msgs
+    from dockhil import msgs
     from dockhil.executor import check_message, checked_payload
-    from msgs import BodyState, BodyWrenches, Pose, SatelliteState, Twist
+    from dockhil.msgs import BodyState, BodyWrenches, Pose, SatelliteState, Twist
 
     def body(mass=1.0, vx=0.0):
         return BodyState(name="b", mass=mass, pose=Pose(), twist=Twist(linear=Vector3(x=vx)))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-import msgs
+from dockhil import msgs
 
 
 def add_arguments(p) -> None:

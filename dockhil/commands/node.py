@@ -42,8 +42,8 @@ def run(args) -> int:
 
 
 def _types(name: str | None) -> int:
-    import msgs
-    import nodes
+    from dockhil import msgs
+    from dockhil import nodes
 
     extra = nodes.plugins()
     names = [name] if name else [*sorted(nodes.REGISTRY), *sorted(extra)]

@@ -27,8 +27,8 @@ def run(args) -> int:
     import json
     import uuid
 
-    import msgs
-    import nodes
+    from dockhil import msgs
+    from dockhil import nodes
     from dockhil import boundedyaml
     from dockhil.executor import PortWire, RunSpec
     from dockhil.launcher import KEY_FILE, graph_keys, registry_dir, running_graphs

@@ -120,8 +120,8 @@ def run(args) -> int:
     t = info["topics"][args.topic]
     import msgspec
 
-    import msgs
-    from msgs.codec import DecodeError, decode
+    from dockhil import msgs
+    from dockhil.msgs.codec import DecodeError, decode
 
     cls = msgs.type_by_name(t["type"])
     sub = _subscribe(t["endpoint"], graph_keys(info))
