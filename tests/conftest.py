@@ -85,17 +85,19 @@ def registered(pid: int, timeout=20.0) -> dict:
 
 
 class Lines:
-    """Reads a process's text output in a thread, so a test can wait for a line with a deadline."""
+    """Reads a process's text output (stdout, or the `stream` given) in a thread, so a test can wait for a
+    line with a deadline."""
 
-    def __init__(self, proc: subprocess.Popen):
+    def __init__(self, proc: subprocess.Popen, stream=None):
         self.proc = proc
+        self.stream = proc.stdout if stream is None else stream
         self.lines: list[str] = []
         self._cond = threading.Condition()
         self._thread = threading.Thread(target=self._read, daemon=True)
         self._thread.start()
 
     def _read(self) -> None:
-        for line in self.proc.stdout:
+        for line in self.stream:
             with self._cond:
                 self.lines.append(line)
                 self._cond.notify_all()

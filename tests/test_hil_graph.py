@@ -1,5 +1,9 @@
 """The HIL graph of the paper, run as processes: identical to composed and to the model library,
-and the paper's experiments reproduced from its summaries."""
+and the paper's experiments reproduced from its summaries.
+
+The first test holds that a multi-process run and a composed one give the same bytes; the
+experiments after it run composed (the same nodes and ticks in one process, no bag to write
+and read back): 15 s of the stability scene cost 1.5 s of CPU time so, 22 s as processes."""
 
 import json
 import subprocess
@@ -44,7 +48,7 @@ def test_fig9_from_the_graph_summary(tmp_path):
     out = {}
     for delay in ("0.0", "0.032"):
         path = tmp_path / f"s{delay}.json"
-        r = launch("launch/hil.yaml", f"delay:={delay}", "--summary", path)
+        r = launch("launch/hil.yaml", f"delay:={delay}", "--composed", "--summary", path)
         assert "peak force" in r.stdout and "ideal" in r.stdout
         out[delay] = json.loads(path.read_text())
     undelayed, delayed = out["0.0"], out["0.032"]
@@ -69,7 +73,8 @@ def test_ideal_scene_matches_the_closed_form(tmp_path):
 @pytest.mark.parametrize("b, grows", [(20, True), (60, False)])
 def test_figs11_12_from_the_graph(tmp_path, b, grows):
     path = tmp_path / "st.json"
-    launch("launch/stability.yaml", f"b:={b}", "x0:=0.006", "--duration", "15", "--summary", path, "--quiet")
+    launch("launch/stability.yaml", f"b:={b}", "x0:=0.006", "--duration", "15", "--composed", "--summary", path,
+           "--quiet")
     s = json.loads(path.read_text())
     measured, predicted = s["growth_rate_1_s"], s["predicted_growth_rate_1_s"]
     assert (measured > 0) is grows and (predicted > 0) is grows

@@ -6,6 +6,9 @@ import pytest
 from dockhil import nodes
 from dockhil import leanness
 
+# One worker runs this file under pytest-xdist: every node type is measured once.
+pytestmark = pytest.mark.xdist_group("lean")
+
 SIMULATED = ("satellite_dynamics", "virtual_impedance", "ft_sim", "robot_sim", "delay_injector")
 
 

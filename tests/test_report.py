@@ -24,6 +24,8 @@ from dockhil.progress import TaskProgress
 from tests.conftest import dockhil_cmd
 
 QUICK = R.ReportConfig.quick_config()
+# One worker runs this file under pytest-xdist: the report and the solver below are built once.
+pytestmark = pytest.mark.xdist_group("report")
 
 
 @pytest.fixture(scope="module")

@@ -266,6 +266,19 @@ def test_a_running_graph_over_tcp_gives_nothing_to_an_unauthenticated_socket(wri
 # --------------------------------------------------------------------------- one graph per device
 
 
+@pytest.fixture
+def controller():
+    """The robot controller emulator, its heartbeat timeout 2 s instead of 0.2 s: the driver processes
+    here run on the real clock, and a busy 2-core machine can pause one for longer than 0.2 s, which
+    ends its claim before a test looks. The tests that need the claim to end wait for it (10 s)."""
+    from dockhil.hardware.robot_emulator import RobotControllerEmulator
+
+    em = RobotControllerEmulator(port=0, tau=0.005, heartbeat_timeout=2.0)
+    em.start_thread()
+    yield em
+    em.stop_thread()
+
+
 def start_driver(port: int, run_id: str, runtime: str | None = None, **params) -> subprocess.Popen:
     spec = {"name": "robot", "type_name": "robot_modbus", "dt": 0.01, "clock": "wall", "run_id": run_id,
             "params": {"port": port, "ft_timeout": 0.0, "connect_timeout": 2.0, **params}}
