@@ -284,6 +284,49 @@ def test_driver_reads_the_emulated_sensor_across_processes(tmp_path):
 # -- missing devices --------------------------------------------------------------
 
 
+def test_adapter_link_replaces_only_a_stale_link_of_its_own_kind(tmp_path):
+    """The link path is replaced only where an earlier emulated adapter left its link (to a
+    pseudo-terminal): a file, or a link to anything else (a real adapter's /dev/serial/by-id
+    name), is refused in one line and left as it was."""
+    precious = tmp_path / "summary.json"
+    precious.write_text("keep me")
+    real = tmp_path / "by-id-link"
+    real.symlink_to("/dev/ttyACM0")
+    for path, kind in ((precious, "a regular file"), (real, "a link to /dev/ttyACM0")):
+        with pytest.raises(DeviceError) as err:
+            SlcanPort(str(path))
+        text = str(err.value)
+        assert "\n" not in text
+        assert text.startswith(f"slcan adapter {path}: ") and kind in text, text
+    assert precious.read_text() == "keep me"
+    assert os.readlink(real) == "/dev/ttyACM0"
+    # a stale link from an earlier run (its pseudo-terminal gone) is replaced
+    stale = tmp_path / "stale.slcan"
+    stale.symlink_to("/dev/pts/987654")
+    port = SlcanPort(str(stale))
+    try:
+        assert os.readlink(stale) == port.path and port.path.startswith("/dev/pts/")
+    finally:
+        port.close()
+    assert not os.path.lexists(stale)
+    # and the claim was let go: the refused paths can be claimed once they are free
+    precious.unlink()
+    SlcanPort(str(precious)).close()
+
+
+def test_emulator_process_refuses_to_replace_a_file_in_one_line(tmp_path):
+    precious = tmp_path / "data.csv"
+    precious.write_text("1,2,3\n")
+    proc = subprocess.run([sys.executable, "-m", "dockhil.hardware.slcan_pty", str(precious)], cwd=ROOT,
+                          env=ENV, capture_output=True, text=True, timeout=30)
+    assert proc.returncode == 2
+    assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+    assert proc.stderr.startswith(f"slcan_pty: error: slcan adapter {precious}: ")
+    assert precious.read_text() == "1,2,3\n"
+
+
+
+
 def test_missing_serial_port_fails_fast_with_one_line(tmp_path):
     node = FtCanDriver(wall_ctx("ft", []), channel=str(tmp_path / "nothing"), open_timeout=0.5)
     t = time.monotonic()
