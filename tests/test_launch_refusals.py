@@ -1,5 +1,6 @@
 """Every launch refusal: one clear line, exit code 2, nothing started."""
 
+import json
 import subprocess
 
 import pytest
@@ -206,6 +207,35 @@ def test_summary_naming_a_directory_is_refused_before_the_run(tmp_path):
 def test_summary_in_a_missing_folder_is_refused(tmp_path):
     code, _, err = run_main("launch", "launch/ideal.yaml", "--composed", "--summary", tmp_path / "no" / "s.json")
     assert_one_line_refusal(code, err, "does not exist")
+
+
+def test_summary_never_replaces_the_bag_or_a_file_that_is_no_summary(tmp_path):
+    bag = tmp_path / "run.mcap"
+    # the same file for --bag and --summary: the summary would overwrite the recording
+    for spelling in (bag, tmp_path / "." / "run.mcap"):
+        code, out, err = run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--bag", bag,
+                                  "--summary", spelling)
+        assert_one_line_refusal(code, err, f"--summary {spelling}: is the file --bag records to")
+        assert not bag.exists()  # nothing ran
+    # an existing file that is not a summary (a bag, data, a script) is left alone
+    for name, content in (("old.mcap", b"\x89MCAP0\r\n" + bytes(100)), ("table.csv", b"a,b\n1,2\n"),
+                          ("other.json", b'{"name": "not a run summary"}')):
+        path = tmp_path / name
+        path.write_bytes(content)
+        code, out, err = run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--summary", path)
+        assert_one_line_refusal(code, err, f"--summary {path}: exists and is not the summary of a run")
+        assert path.read_bytes() == content
+    # the summary of an earlier run is replaced, complete
+    path = tmp_path / "s.json"
+    assert run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--duration", "0.05",
+                    "--summary", path)[0] == 0
+    first = json.loads(path.read_text())
+    code, _, err = run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--duration", "0.1",
+                            "--summary", path)
+    assert code == 0, err
+    second = json.loads(path.read_text())
+    assert (first["sim_time_s"], second["sim_time_s"]) == (0.05, 0.1)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.mcap", "other.json", "s.json", "table.csv"]
 
 
 def test_rate_from_an_argument_sets_the_step(write_launch):
