@@ -238,6 +238,43 @@ def test_summary_never_replaces_the_bag_or_a_file_that_is_no_summary(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["old.mcap", "other.json", "s.json", "table.csv"]
 
 
+def _ft_bag(path):
+    from dockhil.bag import BagWriter
+    from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped, type_name
+    from dockhil.msgs.codec import encode
+
+    with BagWriter(path) as bag:
+        bag.add_topic("/ft/wrench", type_name(WrenchStamped))
+        for k in range(10):
+            msg = WrenchStamped(Header(stamp=k * 1e-3, tick=k, seq=k), Wrench(Vector3(1.0, 0, 0), Vector3(0, 0, 0)))
+            bag.write("/ft/wrench", k * 1_000_000, k * 1_000_000, encode(msg))
+    return path
+
+
+@pytest.mark.parametrize("command", ["graph", "launch"])
+def test_a_real_robot_never_moves_on_a_replayed_recording(command, tmp_path, write_launch):
+    """robot:=modbus with ft:=bag: the driver's force limit and F/T watchdog would be fed by a file, and
+    the command it follows computed from forces of another run; refused before anything starts."""
+    bag = _ft_bag(tmp_path / "ft.mcap")
+    code, _, err = run_main(command, "launch/hil.yaml", "robot:=modbus", "ft:=bag", f"ft_bag:={bag}")
+    assert_one_line_refusal(code, err, "node 'robot' (robot_modbus) moves real hardware")
+    assert "from 'ft' (bag_source), which replays a recording" in err and "input 'wrench' (/ft/wrench)" in err, err
+    # a command that only depends on the recording, through other nodes, is refused as well
+    scene = write_launch(
+        "rate: 200\nduration: 1\nnodes:\n"
+        "  - {name: ft, node: bag_source, params: {path: %s, topics: [/ft/wrench]}}\n"
+        "  - {name: dynamics, node: satellite_dynamics}\n"
+        "  - {name: impedance, node: virtual_impedance}\n"
+        "  - {name: robot, node: robot_modbus, remap: {wrench: /unused}}\n" % bag)
+    code, _, err = run_main(command, scene)
+    assert_one_line_refusal(code, err, "input 'command' (/robot/command) depends on /ft/wrench")
+    assert "from 'ft' (bag_source), which replays a recording" in err, err
+    # replaying the sensor in front of the simulated robot stays possible
+    if command == "graph":
+        code, _, err = run_main("graph", "launch/hil.yaml", "ft:=bag", f"ft_bag:={bag}")
+        assert code == 0, err
+
+
 def test_rate_from_an_argument_sets_the_step(write_launch):
     path = write_launch("rate: $(arg rate)\nduration: $(arg T)\nargs:\n  rate: {default: 1000.0}\n  T: {default: 0.5}\n"
                         'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
