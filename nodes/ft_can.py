@@ -77,13 +77,29 @@ class FtCanDriver(Node):
         self._bad_logged = 0
         channel = os.path.abspath(p.channel) if p.interface == "slcan" else p.channel
         self._lock = ownership.claim(f"can-{p.interface}-{channel}", f"F/T adapter ({p.interface} {p.channel})")
+        # The bus itself is this graph's while the driver reads it: another graph's emulator would
+        # stream frames with the sensor's IDs (a serial slcan adapter is a point-to-point link: its
+        # path is the claim above).
+        self._bus_claim = None
+        if p.interface != "slcan":
+            try:
+                self._bus_claim = ownership.claim_for_graph(f"can-bus-{p.interface}-{channel}",
+                                                            f"CAN bus {p.interface} {p.channel}")
+            except BaseException:
+                self._lock.release()
+                raise
         try:
             self.bus = self._open_bus(time.monotonic() + p.open_timeout)
             self._tare()
         except BaseException:
             self._shutdown_bus()
-            self._lock.release()
+            self._release_claims()
             raise
+
+    def _release_claims(self) -> None:
+        self._lock.release()
+        if self._bus_claim is not None:
+            self._bus_claim.release()
 
     def _open_bus(self, deadline: float):
         can, p = self._can, self.p
@@ -217,7 +233,7 @@ class FtCanDriver(Node):
         if getattr(self, "bus", None) is None:
             return
         self._shutdown_bus()
-        self._lock.release()
+        self._release_claims()
         problems = [f"{n} {what}" for n, what in (
             (self.lost, "samples lost"), (self.repeated, "samples repeated"),
             (self.bad_frames, "bad frames"), (self.error_frames, "error frames"),
