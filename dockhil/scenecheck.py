@@ -76,7 +76,9 @@ def scene_loop(graph, dt: float | None = None) -> dict | None:
     h = delay.params["delay"] if delay is not None else 0.0
     loop = sampled.SampledLoop(m, kd, bd, kh, 0.0, delay_ticks=delay_ticks(h, dt),
                                lag=robot.params["lag"] if robot is not None else 0.0, **common)
-    info = dict(loop=loop, h=h, delay_known=delay is not None or robot is None, m=m, kd=kd, bd=bd, kh=kh, bh=0.0)
+    # A robot driver's delay is the hardware's, which no parameter of the scene gives.
+    hardware = any(gn.cls.moves_hardware for gn in graph.nodes.values())
+    info = dict(loop=loop, h=h, delay_known=delay is not None or not hardware, m=m, kd=kd, bd=bd, kh=kh, bh=0.0)
     if kcs is not None:
         return _with_target(info, p, free, kcs, bcs)
     return _with_target(info, p, False, kd + kh, bd)

@@ -509,6 +509,10 @@ def _scene_values(args) -> tuple[float, float, float, float, float, float, float
         raise DockhilError(f"{path}: no satellite_dynamics node, so no contact loop to analyse")
     if not info["loop"].held:
         raise DockhilError(f"{path}: the ideal model has no delay; its step is checked when it launches")
+    if not info["delay_known"]:
+        raise DockhilError(f"{path}: the robot's delay is the hardware's, which the scene does not give; "
+                           f"analyse the scene with its simulated robot at the measured delay (delay:=H), or "
+                           f"give it with --h and the loop's values")
     return info["m"], info["kd"], info["bd"], info["kh"], info["bh"], info["h"], graph.scene.rate
 
 
