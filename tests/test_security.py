@@ -516,6 +516,42 @@ def test_a_graph_claim_is_shared_within_its_graph_across_processes_and_dies_with
         ownership.set_graph("")
 
 
+def _fake_graph(name: str, **entry) -> Path:
+    graphs = runtime_dir() / "graphs"
+    graphs.mkdir(mode=0o700, parents=True, exist_ok=True)
+    path = graphs / f"{name}.json"
+    path.write_text(json.dumps({"run_id": name, "pid": os.getpid(), "file": "hil.yaml", "clock": "wall",
+                                "nodes": {}, "keys": "", "topics": {}, **entry}))
+    return path
+
+
+@pytest.mark.parametrize("entry, words", [
+    # a second publisher of a graph's topic: the graph's subscribers never connect to it
+    ({"topics": {"/x": {"type": "dockhil/WrenchStamped", "endpoint": "ipc:///nowhere", "publisher": "dynamics"}}},
+     ["topic /x is published by graph lab-graph (node 'dynamics')", "-r x:=/TOPIC"]),
+    # an input the launch left unconnected (an e-stop nobody published) does not start listening later
+    ({"unconnected": {"/x": ["robot.estop"]}},
+     ["graph lab-graph left input robot.estop (/x) unconnected at launch", "would not hear"]),
+])
+def test_a_node_run_alone_never_publishes_what_a_running_graph_would_not_hear(entry, words):
+    """`dockhil run` outputs are new topics: one that a running graph publishes, or that a node of it
+    reads but was left unconnected (the robot driver's /estop), is refused in one line; an e-stop sent
+    that way would never reach the driver, while the operator believes it would."""
+    from dockhil import cli
+
+    reg = _fake_graph("lab-graph", **entry)
+    try:
+        r = subprocess.run(dockhil_cmd("run", "tests.graphnodes:Source", "--rate", "100", "--duration", "0.05"),
+                           capture_output=True, text=True, timeout=60, env=env())
+    finally:
+        reg.unlink()
+    assert r.returncode == 2, r.stdout + r.stderr
+    line = one_line(r.stderr)
+    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
+    for word in words:
+        assert word in line, line
+
+
 def test_a_device_lock_dies_with_its_process(tmp_path):
     from dockhil import ownership
 
