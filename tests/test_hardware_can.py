@@ -422,6 +422,43 @@ def test_tare_removes_the_offset_and_sign_flips(virtual):
     assert w.header.tick == 1 and w.header.stamp == 0.001
 
 
+@pytest.mark.parametrize("force, torque, params, words", [
+    # a probe pressed at start: taring it away would hide a 150 N contact from every force limit
+    ((150.0, 0.0, 0.0), (0.0, 0.0, 0.0), {}, "tare: bias force |F| = 150.0 N > max_bias 50 N"),
+    ((0.0, 30.0, 40.1), (0.0, 0.0, 0.0), {}, "tare: bias force |F| = 50.1 N > max_bias 50 N"),
+    ((0.0, 0.0, 0.0), (3.0, 0.0, 4.001), {}, "tare: bias torque |T| = 5.00 N m > max_bias_torque 5 N m"),
+    ((30.0, 0.0, 0.0), (0.0, 0.0, 0.0), {"max_bias": 20.0}, "tare: bias force |F| = 30.0 N > max_bias 20 N"),
+])
+def test_a_loaded_probe_at_start_is_refused_not_tared_away(virtual, force, torque, params, words):
+    sensor, make, _ = virtual
+    sensor.force = force
+    sensor.torque = torque
+    sensor.stream()
+    node = make(tare_samples=20, **params)
+    try:
+        with pytest.raises(DeviceError) as err:
+            node.setup()
+    finally:
+        sensor.quiet()
+    text = str(err.value)
+    assert "\n" not in text and text.startswith("F/T sensor (virtual ") and words in text, text
+    assert "free the probe" in text
+
+
+def test_a_heavy_tools_offset_passes_with_a_raised_bound_or_none(virtual):
+    sensor, make, _ = virtual
+    sensor.force = (0.0, 0.0, -49.05 * 2)  # a 10 kg tool on the sensor
+    sensor.stream()
+    try:
+        for bound in (100.0, 0.0):  # 0: the check is off
+            node = make(tare_samples=20, max_bias=bound)
+            node.setup()
+            assert node.bias_force == pytest.approx((0.0, 0.0, -98.1))
+            node.close()
+    finally:
+        sensor.quiet()
+
+
 def test_newest_sample_wins_and_lost_samples_are_counted(virtual):
     sensor, make, logs = virtual
     node = started(sensor, make)
