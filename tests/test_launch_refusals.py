@@ -275,6 +275,15 @@ def test_a_real_robot_never_moves_on_a_replayed_recording(command, tmp_path, wri
         assert code == 0, err
 
 
+@pytest.mark.parametrize("command", ["graph", "launch"])
+@pytest.mark.parametrize("overrides, ticks", [(["delay:=30"], 30000), (["delay:=0.5", "rate:=100000"], 50000)])
+def test_a_delay_of_more_ticks_than_the_scene_check_resolves_is_refused_at_once(command, overrides, ticks):
+    """delay:=30 made the scene check build a 30000-tick polynomial: minutes and 11 GB before anything ran."""
+    code, _, err = run_main(command, "launch/hil.yaml", *overrides, "--composed" if command == "launch" else "--dot")
+    assert_one_line_refusal(code, err, f"is {ticks} ticks of delay")
+    assert "the scene check resolves up to 20000" in err
+
+
 def test_rate_from_an_argument_sets_the_step(write_launch):
     path = write_launch("rate: $(arg rate)\nduration: $(arg T)\nargs:\n  rate: {default: 1000.0}\n  T: {default: 0.5}\n"
                         'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
