@@ -172,6 +172,7 @@ def build(scene: Scene) -> Graph:
             subscribers.setdefault(ref.topic, []).append(ref)
 
     _refuse_replay_into_hardware(scene.path, gnodes, publishers)
+    _refuse_driver_past_its_emulator(scene.path, gnodes)
     order = _feedthrough_order(scene.path, gnodes, publishers)
     return Graph(scene, gnodes, order, publishers, subscribers, unconnected)
 
@@ -199,6 +200,31 @@ def _refuse_replay_into_hardware(path: str, gnodes: dict[str, GraphNode], publis
                     f"{ref.port!r} ({ref.topic}) {via} from {source.name!r} ({source.type_name}), which "
                     f"replays a recording, not this run; replay in front of a simulated robot instead")
             todo.extend((ref, r.topic) for r in source.inputs.values())
+
+
+_LOOPBACK = {"127.0.0.1", "localhost", "::1"}
+
+
+def _refuse_driver_past_its_emulator(path: str, gnodes: dict[str, GraphNode]) -> None:
+    """A graph that emulates the robot controller means its driver to command that emulator: a driver
+    pointed elsewhere (emulators:=true with modbus_host:= a lab machine) would move a real robot
+    while the operator believes it emulated."""
+    emulators = [gn for gn in gnodes.values() if gn.type_name == "robot_emulator" and gn.params["port"]]
+    if not emulators:
+        return
+
+    def where(params) -> tuple[str, int]:
+        host = params["host"]
+        return ("127.0.0.1" if host in _LOOPBACK else host), params["port"]
+
+    served = {where(em.params): em for em in emulators}
+    for gn in gnodes.values():
+        if gn.type_name == "robot_modbus" and where(gn.params) not in served:
+            em = emulators[0]
+            raise LaunchError(
+                f"{path}: node {gn.name!r} ({gn.type_name}) commands the controller at {gn.params['host']}:"
+                f"{gn.params['port']}, but node {em.name!r} emulates one at {em.params['host']}:{em.params['port']}: "
+                f"the driver would move a real robot; point it at the emulator, or drop the emulator")
 
 
 def _feedthrough_order(path: str, gnodes: dict[str, GraphNode], publishers: dict[str, PortRef]) -> list[str]:

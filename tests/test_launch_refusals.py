@@ -284,6 +284,19 @@ def test_a_delay_of_more_ticks_than_the_scene_check_resolves_is_refused_at_once(
     assert "the scene check resolves up to 20000" in err
 
 
+def test_a_driver_beside_a_robot_emulator_commands_that_emulator_only():
+    """emulators:=true with modbus_host:= another machine ran the emulator and drove the real robot there."""
+    code, _, err = run_main("graph", "launch/hil.yaml", "robot:=modbus", "emulators:=true", "modbus_host:=192.0.2.10")
+    assert_one_line_refusal(code, err, "node 'robot' (robot_modbus) commands the controller at 192.0.2.10:5020")
+    assert "node 'robot_emulator' emulates one at 127.0.0.1:5020" in err, err
+    code, _, err = run_main("graph", "launch/hil.yaml", "robot:=modbus", "emulators:=true", "modbus_port:=5999")
+    assert code == 0, err  # both follow modbus_port
+    code, _, err = run_main("graph", "launch/hil.yaml", "robot:=modbus", "emulators:=true", "modbus_host:=localhost")
+    assert code == 0, err  # the same machine by another name
+    code, _, err = run_main("graph", "launch/hil.yaml", "robot:=modbus", "modbus_host:=192.0.2.10")
+    assert code == 0, err  # no emulator: the lab's controller
+
+
 def test_rate_from_an_argument_sets_the_step(write_launch):
     path = write_launch("rate: $(arg rate)\nduration: $(arg T)\nargs:\n  rate: {default: 1000.0}\n  T: {default: 0.5}\n"
                         'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
