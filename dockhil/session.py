@@ -124,12 +124,17 @@ def _check_writable(path: str, bag: str | None) -> None:
     if existed and not _is_summary(path):
         raise DockhilError(f"--summary {path}: exists and is not the summary of a run (which it would replace); "
                            f"choose another name or remove it")
+    if existed:  # an earlier run's: from here on the file is this run's summary or nothing
+        try:
+            os.remove(path)
+        except OSError as exc:
+            raise DockhilError(f"--summary {path}: cannot replace the earlier summary ({exc.strerror})") from None
+        return
     try:  # opening it is the one test that holds for every user and file system
         open(path, "a").close()
     except OSError as exc:
         raise DockhilError(f"--summary {path}: not writable ({exc.strerror})") from None
-    if not existed:
-        os.remove(path)
+    os.remove(path)
 
 
 def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool, bag: str | None,

@@ -297,6 +297,18 @@ def test_a_driver_beside_a_robot_emulator_commands_that_emulator_only():
     assert code == 0, err  # no emulator: the lab's controller
 
 
+def test_a_run_that_writes_no_summary_leaves_no_earlier_one_behind(tmp_path):
+    """A valid summary of an earlier run at --summary PATH, then a run refused by its scene check: what is at
+    PATH afterwards must not say "valid" about a run that did not happen."""
+    path = tmp_path / "s.json"
+    assert run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--duration", "0.05",
+                    "--summary", path)[0] == 0
+    assert json.loads(path.read_text())["valid"] is True
+    code, _, err = run_main("launch", "launch/hil.yaml", "rate:=2", "--composed", "--quiet", "--summary", path)
+    assert_one_line_refusal(code, err, "refused: the step does not resolve the contact")
+    assert not path.exists()
+
+
 def test_rate_from_an_argument_sets_the_step(write_launch):
     path = write_launch("rate: $(arg rate)\nduration: $(arg T)\nargs:\n  rate: {default: 1000.0}\n  T: {default: 0.5}\n"
                         'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
