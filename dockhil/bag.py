@@ -1015,13 +1015,23 @@ class ExportResult(NamedTuple):
     loss: str | None  # the one line on what was unreadable or unfinished (see loss_line)
 
 
-def export_csv(path: str | os.PathLike, topic: str, out: str | os.PathLike | IO[str]) -> ExportResult:
+def export_csv(path: str | os.PathLike, topic: str, out: str | os.PathLike | IO[str], *,
+               overwrite: bool = False) -> ExportResult:
     """Write one CSV row per message on `topic`: log_time_ns, then the flattened fields.
 
-    A file `out` appears only when complete (written aside, then renamed).
+    A file `out` appears only when complete (written aside, then renamed); an
+    existing one is refused unless `overwrite`, and the bag itself always.
     Messages that fail typed validation (a recorded NaN, say) are exported as
     recorded; bytes that are not msgpack at all are skipped and counted.
     """
+    if not hasattr(out, "write"):
+        dst = os.fspath(out)
+        if os.path.exists(dst) and os.path.exists(path) and os.path.samefile(dst, path):
+            raise BagError(f"cannot write {dst}: it is the bag it reads; give the CSV another name")
+        if os.path.isdir(dst):
+            raise BagError(f"cannot write {dst}: it is a directory")
+        if os.path.exists(dst) and not overwrite:
+            raise BagError(f"{dst} already exists; choose another name or pass --overwrite to replace it")
     with BagReader(path) as reader:
         found = reader.summary()
         entry = next((t for t in found["topics"] if t["topic"] == topic), None)

@@ -8,6 +8,7 @@ loops (cycles whose every input is read at the same tick) are refused with one l
 
 from __future__ import annotations
 
+import collections
 import difflib
 import re
 from dataclasses import dataclass, field
@@ -170,8 +171,60 @@ def build(scene: Scene) -> Graph:
                 )
             subscribers.setdefault(ref.topic, []).append(ref)
 
+    _refuse_replay_into_hardware(scene.path, gnodes, publishers)
+    _refuse_driver_past_its_emulator(scene.path, gnodes)
     order = _feedthrough_order(scene.path, gnodes, publishers)
     return Graph(scene, gnodes, order, publishers, subscribers, unconnected)
+
+
+def _refuse_replay_into_hardware(path: str, gnodes: dict[str, GraphNode], publishers: dict[str, PortRef]) -> None:
+    """Only this graph's live run moves real hardware: a recording replayed anywhere upstream of a
+    hardware driver's input (the sensor the force limit watches, or the forces the command follows)
+    would move the robot on another run's data."""
+    for gn in gnodes.values():
+        if not gn.cls.moves_hardware:
+            continue
+        # Breadth first, so a recording that feeds an input directly is the one named.
+        todo, seen = collections.deque((ref, ref.topic) for ref in gn.inputs.values()), set()
+        while todo:
+            ref, topic = todo.popleft()
+            pub = publishers.get(topic)
+            if pub is None or topic in seen:
+                continue
+            seen.add(topic)
+            source = gnodes[pub.node]
+            if source.cls.replays_recording:
+                via = "comes" if topic == ref.topic else f"depends on {topic}"
+                raise LaunchError(
+                    f"{path}: node {gn.name!r} ({gn.type_name}) moves real hardware, but its input "
+                    f"{ref.port!r} ({ref.topic}) {via} from {source.name!r} ({source.type_name}), which "
+                    f"replays a recording, not this run; replay in front of a simulated robot instead")
+            todo.extend((ref, r.topic) for r in source.inputs.values())
+
+
+_LOOPBACK = {"127.0.0.1", "localhost", "::1"}
+
+
+def _refuse_driver_past_its_emulator(path: str, gnodes: dict[str, GraphNode]) -> None:
+    """A graph that emulates the robot controller means its driver to command that emulator: a driver
+    pointed elsewhere (emulators:=true with modbus_host:= a lab machine) would move a real robot
+    while the operator believes it emulated."""
+    emulators = [gn for gn in gnodes.values() if gn.type_name == "robot_emulator" and gn.params["port"]]
+    if not emulators:
+        return
+
+    def where(params) -> tuple[str, int]:
+        host = params["host"]
+        return ("127.0.0.1" if host in _LOOPBACK else host), params["port"]
+
+    served = {where(em.params): em for em in emulators}
+    for gn in gnodes.values():
+        if gn.type_name == "robot_modbus" and where(gn.params) not in served:
+            em = emulators[0]
+            raise LaunchError(
+                f"{path}: node {gn.name!r} ({gn.type_name}) commands the controller at {gn.params['host']}:"
+                f"{gn.params['port']}, but node {em.name!r} emulates one at {em.params['host']}:{em.params['port']}: "
+                f"the driver would move a real robot; point it at the emulator, or drop the emulator")
 
 
 def _feedthrough_order(path: str, gnodes: dict[str, GraphNode], publishers: dict[str, PortRef]) -> list[str]:

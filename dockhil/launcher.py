@@ -408,6 +408,9 @@ class Launcher:
                       for c in self.children},
             "topics": {t: {"type": self.endpoints.types[t], "endpoint": e,
                            "publisher": self.graph.publishers[t].node} for t, e in self.endpoints.topics.items()},
+            # Inputs with no publisher at launch (an e-stop): nothing started later reaches them.
+            "unconnected": {t: [f"{r.node}.{r.port}" for r in self.graph.unconnected if r.topic == t]
+                            for t in {r.topic for r in self.graph.unconnected}},
         }
         tmp = path.with_suffix(".tmp")
         tmp.write_text(json.dumps(info, indent=1))

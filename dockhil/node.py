@@ -215,6 +215,10 @@ class Node:
     # Wall time: a node stands for a device that runs from power-on (an emulator), so it does not
     # wait for the graph's common start; drivers may need it running to finish their own setup.
     free_running: ClassVar[bool] = False
+    # The node moves real hardware (a robot driver): it may act only on this graph's live run, so no
+    # input of it may come, directly or through other nodes, from a node that replays a recording.
+    moves_hardware: ClassVar[bool] = False
+    replays_recording: ClassVar[bool] = False
 
     def __init__(self, ctx: NodeContext, **params: Any):
         self.ctx = ctx

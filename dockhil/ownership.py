@@ -84,3 +84,44 @@ def claim(key: str, device: str) -> DeviceLock:
     os.ftruncate(fd, 0)
     os.pwrite(fd, owner().encode(), 0)
     return DeviceLock(fd, path)
+
+
+def claim_for_graph(key: str, device: str, timeout: float = 1.0) -> DeviceLock:
+    """Claim `device` for this process's graph: any of the graph's processes may hold it beside each
+    other (a driver and its graph's emulator on one CAN bus), no process of another graph (or of none).
+
+    A shared flock keeps the claim alive while any holder lives; the file names the graph. Who finds
+    the file held by nobody takes it exclusively, writes its graph and turns the lock shared; who
+    finds it held reads the graph in it. Of two graphs racing, the one whose name is not in the file
+    when its shared lock is taken refuses; both are never admitted."""
+    import time
+
+    path = lock_path(key)
+    mine = _graph or f"pid {os.getpid()}"
+    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+    deadline = time.monotonic() + timeout
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{mine}\n{owner()}".encode(), 0)
+        except BlockingIOError:
+            pass  # held: read whose it is below
+        while True:  # an exclusive holder is another claimant between its write and its downgrade
+            try:
+                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    raise DeviceError(f"{device}: its claim did not settle within {timeout:g} s; "
+                                      f"another graph is claiming it, try again") from None
+                time.sleep(0.01)
+        graph, _, held_by = os.pread(fd, 512, 0).decode(errors="replace").partition("\n")
+    except OSError as exc:
+        os.close(fd)
+        raise DeviceError(f"{device}: cannot lock {path}: {exc.strerror}") from None
+    if graph != mine:
+        os.close(fd)
+        raise DeviceError(f"{device} is in use by {held_by.strip() or 'another graph'}; stop it first, "
+                          f"or give this graph another device")
+    return DeviceLock(fd, path)

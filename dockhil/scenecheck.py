@@ -74,9 +74,15 @@ def scene_loop(graph, dt: float | None = None) -> dict | None:
     delay = _first(graph, "delay_injector")
     robot = _first(graph, "robot_sim")
     h = delay.params["delay"] if delay is not None else 0.0
+    if delay_ticks(h, dt) > sampled.MAX_DELAY_TICKS:
+        raise DockhilError(f"{graph.scene.path}: the delay h = {h:g} s at {1.0 / dt:g} Hz is {delay_ticks(h, dt)} "
+                           f"ticks of delay; the scene check resolves up to {sampled.MAX_DELAY_TICKS} ticks: give a "
+                           f"shorter delay or a lower rate")
     loop = sampled.SampledLoop(m, kd, bd, kh, 0.0, delay_ticks=delay_ticks(h, dt),
                                lag=robot.params["lag"] if robot is not None else 0.0, **common)
-    info = dict(loop=loop, h=h, delay_known=delay is not None or robot is None, m=m, kd=kd, bd=bd, kh=kh, bh=0.0)
+    # A robot driver's delay is the hardware's, which no parameter of the scene gives.
+    hardware = any(gn.cls.moves_hardware for gn in graph.nodes.values())
+    info = dict(loop=loop, h=h, delay_known=delay is not None or not hardware, m=m, kd=kd, bd=bd, kh=kh, bh=0.0)
     if kcs is not None:
         return _with_target(info, p, free, kcs, bcs)
     return _with_target(info, p, False, kd + kh, bd)
@@ -111,6 +117,9 @@ def _analyse(info: dict, cont=None) -> dict:
         rho = abs(complex(z))
     except OverflowError:  # a root so far right that exp(s dt) overflows: the sampled loop explodes
         rho = math.inf
+    except sampled.RootsNotResolved as exc:
+        raise DockhilError(f"the scene check cannot judge this loop: {exc}; give a shorter delay or a lower "
+                           f"rate") from None
     return dict(continuous=complex(cont[0]), roots=cont, rho=rho,
                 growth=(math.log(rho) / loop.dt) if 0 < rho < math.inf else (math.inf if rho else -math.inf))
 
@@ -119,12 +128,17 @@ def _stable_rate(graph, info: dict, start: float, cont) -> float | None:
     """The lowest rate from `start` up (doubling) whose sampled loop agrees with the delay equation;
     None when none does up to 256 times `start` (the integrator itself is the problem) or up to
     the highest rate a scene runs at."""
+    from dockhil.contact.hilloop import delay_ticks
+
     rate = start
     for _ in range(9):
-        if rate > MAX_RATE:
+        if rate > MAX_RATE or delay_ticks(info["h"], 1.0 / rate) > sampled.MAX_DELAY_TICKS:
             return None
         trial = scene_loop(graph, 1.0 / rate)
-        a = _analyse(trial, cont)
+        try:
+            a = _analyse(trial, cont)
+        except DockhilError:  # a rate this fine makes the delay too many ticks to judge
+            return None
         tol = 1e-9 * max(1.0, trial["omega"])
         if (a["growth"] > tol) == (a["continuous"].real > tol):
             return rate
@@ -140,7 +154,10 @@ def scene_check(graph, refuse: bool = True) -> dict:
         return {"loop": {}, "warnings": []}
     loop = info["loop"]
     res = sampled.Resolution(info["omega"], loop.dt, info["span"], info["span_name"])
-    a = _analyse(info)
+    try:
+        a = _analyse(info)
+    except DockhilError as exc:
+        raise DockhilError(f"{graph.scene.path}: {exc}") from None
     cont, rho, growth = a["continuous"], a["rho"], a["growth"]
     rate = 1.0 / loop.dt
     numbers = {

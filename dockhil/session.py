@@ -44,7 +44,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     compensated = any(gn.params.get("compensation") == "passivity" for gn in graph.nodes.values())
     want_summary = has_dynamics and n_ticks is not None and (summary is not None or show_summary or compensated)
     if summary is not None:
-        _check_writable(summary)
+        _check_writable(summary, bag)
     # The loop this scene will run: refused here (one line) when its step does not resolve the contact.
     for line in summ.scene_check(graph)["warnings"]:
         say.warning(line)
@@ -102,8 +102,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
             if show_summary:
                 print(summ.format_summary(out), flush=True)
             if summary is not None:
-                with open(summary, "w") as f:
-                    json.dump(out, f, indent=1)
+                _write_complete(summary, json.dumps(out, indent=1))
                 say.info(f"summary written to {summary}")
         elif code == 0 and clock == "sim" and n_ticks:
             sim_s = (n_ticks - 1) * dt
@@ -116,19 +115,29 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     return code
 
 
-def _check_writable(path: str) -> None:
+def _check_writable(path: str, bag: str | None) -> None:
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise DockhilError(f"--summary {path}: folder {folder} does not exist")
     if os.path.isdir(path):
         raise DockhilError(f"--summary {path}: is a directory; name a file, e.g. {os.path.join(path, 'summary.json')}")
+    if bag is not None and os.path.realpath(path) == os.path.realpath(bag):
+        raise DockhilError(f"--summary {path}: is the file --bag records to; give the summary another name")
     existed = os.path.exists(path)
+    if existed and not _is_summary(path):
+        raise DockhilError(f"--summary {path}: exists and is not the summary of a run (which it would replace); "
+                           f"choose another name or remove it")
+    if existed:  # an earlier run's: from here on the file is this run's summary or nothing
+        try:
+            os.remove(path)
+        except OSError as exc:
+            raise DockhilError(f"--summary {path}: cannot replace the earlier summary ({exc.strerror})") from None
+        return
     try:  # opening it is the one test that holds for every user and file system
         open(path, "a").close()
     except OSError as exc:
         raise DockhilError(f"--summary {path}: not writable ({exc.strerror})") from None
-    if not existed:
-        os.remove(path)
+    os.remove(path)
 
 
 def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool, bag: str | None,
@@ -173,3 +182,31 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
     if g.timing is not None:
         reasons += validity.node_reasons(g.timing.report("composed"), graph.scene.dt)
     return 0
+
+
+def _is_summary(path: str) -> bool:
+    """An earlier run's summary (replaced by this run's), or an empty file; anything else is kept."""
+    try:
+        with open(path, "rb") as f:
+            text = f.read(1 << 20)
+        if not text:
+            return True
+        found = json.loads(text)
+    except (OSError, ValueError):
+        return False
+    return isinstance(found, dict) and "sim_time_s" in found and "valid" in found
+
+
+def _write_complete(path: str, text: str) -> None:
+    """The summary appears whole or not at all: written aside, then moved into place."""
+    part = f"{path}.part"
+    try:
+        with open(part, "w") as f:
+            f.write(text)
+        os.replace(part, path)
+    except BaseException:
+        try:
+            os.remove(part)
+        except OSError:
+            pass
+        raise

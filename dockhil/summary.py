@@ -531,7 +531,8 @@ def format_summary(out: dict) -> str:
         per = next((k for k in loop if k.startswith("samples_per_")), None)
         lines.append(f"{'sampled loop':18}{loop['rate_Hz']:g} Hz, omega*dt {loop['omega_dt']:.3g}"
                      + (f", {loop[per]:.4g} {per.replace('_', ' ')}" if per and loop[per] is not None else "")
-                     + f", spectral radius {loop['spectral_radius']:.9g}")
+                     + f", spectral radius {loop['spectral_radius']:.9g}"
+                     + (f" ({loop['note']})" if "note" in loop else ""))
     energy = out.get("energy")
     if energy:
         taken = (f", compensation took {energy['compensation_dissipated_J']:.4g} J, net "

@@ -80,6 +80,8 @@ def _selected(params: dict[str, Any]) -> dict[str, str]:
 class BagSource(Node):
     """Replays recorded topics from an MCAP bag: in sim time tick by tick, in wall time by time."""
 
+    replays_recording = True
+
     params = {
         "path": Param(str, "", help="MCAP bag to replay"),
         "topics": Param(list, [], help="topics to replay (default: every topic in the bag)"),

@@ -9,6 +9,7 @@ naming the owner) before it opens anything; close() lets go.
 
 from __future__ import annotations
 
+import math
 import os
 import time
 
@@ -43,6 +44,11 @@ class FtCanDriver(Node):
         "sign": Param(float, 1.0, help="-1 if the sensor reports the force on the target side", choices=(1.0, -1.0)),
         "tare_samples": Param(int, 100, help="samples averaged into the bias at start (0: no tare); "
                               "nothing may touch the probe meanwhile", ge=0),
+        # A tare takes whatever loads the probe at start for the sensor's offset, and every force limit
+        # downstream would then miss it: a bias this large means the probe is pressed, not offset.
+        "max_bias": Param(float, 50.0, unit="N", help="largest tare bias |F| accepted; more means something "
+                          "loads the probe at start (raise it for a heavy tool; 0: off)", ge=0.0),
+        "max_bias_torque": Param(float, 5.0, unit="N m", help="largest tare bias |T| accepted (0: off)", ge=0.0),
         "stale_timeout": Param(float, 0.1, unit="s", help="no new sample for this long is an error", gt=0.0),
         "open_timeout": Param(float, 2.0, unit="s", help="time for the device to appear and start streaming",
                               gt=0.0),
@@ -77,13 +83,29 @@ class FtCanDriver(Node):
         self._bad_logged = 0
         channel = os.path.abspath(p.channel) if p.interface == "slcan" else p.channel
         self._lock = ownership.claim(f"can-{p.interface}-{channel}", f"F/T adapter ({p.interface} {p.channel})")
+        # The bus itself is this graph's while the driver reads it: another graph's emulator would
+        # stream frames with the sensor's IDs (a serial slcan adapter is a point-to-point link: its
+        # path is the claim above).
+        self._bus_claim = None
+        if p.interface != "slcan":
+            try:
+                self._bus_claim = ownership.claim_for_graph(f"can-bus-{p.interface}-{channel}",
+                                                            f"CAN bus {p.interface} {p.channel}")
+            except BaseException:
+                self._lock.release()
+                raise
         try:
             self.bus = self._open_bus(time.monotonic() + p.open_timeout)
             self._tare()
         except BaseException:
             self._shutdown_bus()
-            self._lock.release()
+            self._release_claims()
             raise
+
+    def _release_claims(self) -> None:
+        self._lock.release()
+        if self._bus_claim is not None:
+            self._bus_claim.release()
 
     def _open_bus(self, deadline: float):
         can, p = self._can, self.p
@@ -182,6 +204,14 @@ class FtCanDriver(Node):
             n = len(got)
             self.bias_force = tuple(sum(s.force[i] for s in got) / n for i in range(3))
             self.bias_torque = tuple(sum(s.torque[i] for s in got) / n for i in range(3))
+            f, t = math.sqrt(sum(v * v for v in self.bias_force)), math.sqrt(sum(v * v for v in self.bias_torque))
+            for value, bound, what in ((f, p.max_bias, f"bias force |F| = {f:.1f} N > max_bias {p.max_bias:g} N"),
+                                       (t, p.max_bias_torque, f"bias torque |T| = {t:.2f} N m > max_bias_torque "
+                                                              f"{p.max_bias_torque:g} N m")):
+                if bound and value > bound:
+                    raise DeviceError(f"{self.device}: tare: {what}: something loads the probe (taring it away would "
+                                      f"hide that force from every limit); free the probe and start again, or raise "
+                                      f"the bound for a heavy tool")
             self.log(f"{self.device}: tared over {n} samples: bias force {_fmt(self.bias_force)} N, "
                      f"torque {_fmt(self.bias_torque)} N m")
 
@@ -217,7 +247,7 @@ class FtCanDriver(Node):
         if getattr(self, "bus", None) is None:
             return
         self._shutdown_bus()
-        self._lock.release()
+        self._release_claims()
         problems = [f"{n} {what}" for n, what in (
             (self.lost, "samples lost"), (self.repeated, "samples repeated"),
             (self.bad_frames, "bad frames"), (self.error_frames, "error frames"),

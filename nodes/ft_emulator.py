@@ -61,12 +61,21 @@ class FtSensorEmulator(Node):
             from dockhil.nodes.ft_can import one_line
 
             # One emulated sensor per channel: two would stream the same CAN IDs.
-            self._lock = ownership.claim(f"can-emulator-{p.interface}-{p.channel}",
-                                         f"F/T sensor emulator on {p.interface} {p.channel}")
+            # The bus is its graph's: a driver of another graph reading it would take our frames for
+            # its sensor's. Claimed first, so a refused emulator never holds the emulator claim.
+            bus_claim = ownership.claim_for_graph(f"can-bus-{p.interface}-{p.channel}",
+                                                  f"CAN bus {p.interface} {p.channel}")
+            try:
+                self._lock = ownership.claim(f"can-emulator-{p.interface}-{p.channel}",
+                                             f"F/T sensor emulator on {p.interface} {p.channel}")
+            except BaseException:
+                bus_claim.release()
+                raise
+            self._bus_claim = bus_claim
             try:
                 self._can_bus = can.Bus(interface=p.interface, channel=p.channel, bitrate=p.bitrate)
             except (can.CanError, OSError, ValueError) as exc:
-                self._lock.release()
+                self._release_claims()
                 raise DeviceError(f"F/T sensor emulator ({p.interface} {p.channel}): {one_line(exc)}") from None
             self._message = can.Message
 
@@ -106,4 +115,8 @@ class FtSensorEmulator(Node):
         if self._can_bus is not None:
             self._can_bus.shutdown()
             self._can_bus = None
-            self._lock.release()
+            self._release_claims()
+
+    def _release_claims(self) -> None:
+        self._lock.release()
+        self._bus_claim.release()

@@ -287,6 +287,7 @@ class RobotModbusDriver(Node):
         "estop": Input(EStop, "/estop", feedthrough=False, required=False, max_age=math.inf, help="emergency stop"),
     }
     outputs = {"state": Output(RobotState, "/robot/state", help="actual pose read from the controller")}
+    moves_hardware = True
     params = {
         "host": Param(str, "127.0.0.1", help="controller address"),
         "port": Param(int, 5020, help="controller Modbus TCP port", ge=1, le=65535),

@@ -155,14 +155,15 @@ class VirtualFtSensor:
         self.bus = can.Bus(interface="virtual", channel=channel)
         self.seq = 0
         self.force = (0.0, 0.0, 0.0)
+        self.torque = (0.0, 0.0, 0.0)
         self._run = False
         self._thread = None
 
-    def send(self, force=None, torque=(0.0, 0.0, 0.0), seq=None, status=0, advance=True):
+    def send(self, force=None, torque=None, seq=None, status=0, advance=True):
         from dockhil.hardware import ft_frames as ff
 
         seq = self.seq if seq is None else seq
-        for fid, data in ff.encode_sample(force or self.force, torque, seq, status=status):
+        for fid, data in ff.encode_sample(force or self.force, torque or self.torque, seq, status=status):
             self.bus.send(self._can.Message(arbitration_id=fid, data=data, is_extended_id=False))
         if advance:
             self.seq = (seq + 1) & 0xFF

@@ -485,6 +485,28 @@ def test_export_errors_name_the_topic_or_the_output(tmp_path, capsys):
     assert_one_line_error(code, err, "cannot write", "No such file or directory")
 
 
+def test_export_never_replaces_its_own_bag_nor_an_existing_file_unasked(tmp_path, capsys):
+    path = tmp_path / "run.mcap"
+    write_run(path, n_wrench=20, n_state=2)
+    bag_bytes = path.read_bytes()
+    # --csv naming the bag it reads (by another spelling too) would replace the recording with a CSV
+    for same in (path, tmp_path / "." / "run.mcap"):
+        for extra in ((), ("--overwrite",)):
+            code, _, err = run_cli(capsys, "export", path, "--topic", "/ft/wrench", "--csv", same, *extra)
+            assert_one_line_error(code, err, "is the bag it reads")
+    assert path.read_bytes() == bag_bytes
+    # an existing file is refused unless --overwrite, as bag convert and bag record do
+    existing = tmp_path / "notes.csv"
+    existing.write_text("mine\n")
+    code, _, err = run_cli(capsys, "export", path, "--topic", "/ft/wrench", "--csv", existing)
+    assert_one_line_error(code, err, str(existing), "already exists", "--overwrite")
+    assert existing.read_text() == "mine\n"
+    code, out, err = run_cli(capsys, "export", path, "--topic", "/ft/wrench", "--csv", existing, "--overwrite")
+    assert code == 0 and err == ""
+    with open(existing, newline="") as fh:
+        assert len(list(csv.DictReader(fh))) == 20
+
+
 def test_record_and_play_parse_their_options():
     parser = cli.build_parser("bag")
     args = parser.parse_args(["bag", "play", "run.mcap", "--rate", "10", "--loop", "--topics", "/a", "/b", "--start", "2.5", "--sim-time"])

@@ -284,6 +284,49 @@ def test_driver_reads_the_emulated_sensor_across_processes(tmp_path):
 # -- missing devices --------------------------------------------------------------
 
 
+def test_adapter_link_replaces_only_a_stale_link_of_its_own_kind(tmp_path):
+    """The link path is replaced only where an earlier emulated adapter left its link (to a
+    pseudo-terminal): a file, or a link to anything else (a real adapter's /dev/serial/by-id
+    name), is refused in one line and left as it was."""
+    precious = tmp_path / "summary.json"
+    precious.write_text("keep me")
+    real = tmp_path / "by-id-link"
+    real.symlink_to("/dev/ttyACM0")
+    for path, kind in ((precious, "a regular file"), (real, "a link to /dev/ttyACM0")):
+        with pytest.raises(DeviceError) as err:
+            SlcanPort(str(path))
+        text = str(err.value)
+        assert "\n" not in text
+        assert text.startswith(f"slcan adapter {path}: ") and kind in text, text
+    assert precious.read_text() == "keep me"
+    assert os.readlink(real) == "/dev/ttyACM0"
+    # a stale link from an earlier run (its pseudo-terminal gone) is replaced
+    stale = tmp_path / "stale.slcan"
+    stale.symlink_to("/dev/pts/987654")
+    port = SlcanPort(str(stale))
+    try:
+        assert os.readlink(stale) == port.path and port.path.startswith("/dev/pts/")
+    finally:
+        port.close()
+    assert not os.path.lexists(stale)
+    # and the claim was let go: the refused paths can be claimed once they are free
+    precious.unlink()
+    SlcanPort(str(precious)).close()
+
+
+def test_emulator_process_refuses_to_replace_a_file_in_one_line(tmp_path):
+    precious = tmp_path / "data.csv"
+    precious.write_text("1,2,3\n")
+    proc = subprocess.run([sys.executable, "-m", "dockhil.hardware.slcan_pty", str(precious)], cwd=ROOT,
+                          env=ENV, capture_output=True, text=True, timeout=30)
+    assert proc.returncode == 2
+    assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+    assert proc.stderr.startswith(f"slcan_pty: error: slcan adapter {precious}: ")
+    assert precious.read_text() == "1,2,3\n"
+
+
+
+
 def test_missing_serial_port_fails_fast_with_one_line(tmp_path):
     node = FtCanDriver(wall_ctx("ft", []), channel=str(tmp_path / "nothing"), open_timeout=0.5)
     t = time.monotonic()
@@ -377,6 +420,43 @@ def test_tare_removes_the_offset_and_sign_flips(virtual):
     assert (w.wrench.force.x, w.wrench.force.y, w.wrench.force.z) == pytest.approx((-10.0, 0.0, 0.0))
     assert w.wrench.torque.z == pytest.approx(-0.125)
     assert w.header.tick == 1 and w.header.stamp == 0.001
+
+
+@pytest.mark.parametrize("force, torque, params, words", [
+    # a probe pressed at start: taring it away would hide a 150 N contact from every force limit
+    ((150.0, 0.0, 0.0), (0.0, 0.0, 0.0), {}, "tare: bias force |F| = 150.0 N > max_bias 50 N"),
+    ((0.0, 30.0, 40.1), (0.0, 0.0, 0.0), {}, "tare: bias force |F| = 50.1 N > max_bias 50 N"),
+    ((0.0, 0.0, 0.0), (3.0, 0.0, 4.001), {}, "tare: bias torque |T| = 5.00 N m > max_bias_torque 5 N m"),
+    ((30.0, 0.0, 0.0), (0.0, 0.0, 0.0), {"max_bias": 20.0}, "tare: bias force |F| = 30.0 N > max_bias 20 N"),
+])
+def test_a_loaded_probe_at_start_is_refused_not_tared_away(virtual, force, torque, params, words):
+    sensor, make, _ = virtual
+    sensor.force = force
+    sensor.torque = torque
+    sensor.stream()
+    node = make(tare_samples=20, **params)
+    try:
+        with pytest.raises(DeviceError) as err:
+            node.setup()
+    finally:
+        sensor.quiet()
+    text = str(err.value)
+    assert "\n" not in text and text.startswith("F/T sensor (virtual ") and words in text, text
+    assert "free the probe" in text
+
+
+def test_a_heavy_tools_offset_passes_with_a_raised_bound_or_none(virtual):
+    sensor, make, _ = virtual
+    sensor.force = (0.0, 0.0, -49.05 * 2)  # a 10 kg tool on the sensor
+    sensor.stream()
+    try:
+        for bound in (100.0, 0.0):  # 0: the check is off
+            node = make(tare_samples=20, max_bias=bound)
+            node.setup()
+            assert node.bias_force == pytest.approx((0.0, 0.0, -98.1))
+            node.close()
+    finally:
+        sensor.quiet()
 
 
 def test_newest_sample_wins_and_lost_samples_are_counted(virtual):

@@ -1,5 +1,6 @@
 """Every launch refusal: one clear line, exit code 2, nothing started."""
 
+import json
 import subprocess
 
 import pytest
@@ -206,6 +207,106 @@ def test_summary_naming_a_directory_is_refused_before_the_run(tmp_path):
 def test_summary_in_a_missing_folder_is_refused(tmp_path):
     code, _, err = run_main("launch", "launch/ideal.yaml", "--composed", "--summary", tmp_path / "no" / "s.json")
     assert_one_line_refusal(code, err, "does not exist")
+
+
+def test_summary_never_replaces_the_bag_or_a_file_that_is_no_summary(tmp_path):
+    bag = tmp_path / "run.mcap"
+    # the same file for --bag and --summary: the summary would overwrite the recording
+    for spelling in (bag, tmp_path / "." / "run.mcap"):
+        code, out, err = run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--bag", bag,
+                                  "--summary", spelling)
+        assert_one_line_refusal(code, err, f"--summary {spelling}: is the file --bag records to")
+        assert not bag.exists()  # nothing ran
+    # an existing file that is not a summary (a bag, data, a script) is left alone
+    for name, content in (("old.mcap", b"\x89MCAP0\r\n" + bytes(100)), ("table.csv", b"a,b\n1,2\n"),
+                          ("other.json", b'{"name": "not a run summary"}')):
+        path = tmp_path / name
+        path.write_bytes(content)
+        code, out, err = run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--summary", path)
+        assert_one_line_refusal(code, err, f"--summary {path}: exists and is not the summary of a run")
+        assert path.read_bytes() == content
+    # the summary of an earlier run is replaced, complete
+    path = tmp_path / "s.json"
+    assert run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--duration", "0.05",
+                    "--summary", path)[0] == 0
+    first = json.loads(path.read_text())
+    code, _, err = run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--duration", "0.1",
+                            "--summary", path)
+    assert code == 0, err
+    second = json.loads(path.read_text())
+    assert (first["sim_time_s"], second["sim_time_s"]) == (0.05, 0.1)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.mcap", "other.json", "s.json", "table.csv"]
+
+
+def _ft_bag(path):
+    from dockhil.bag import BagWriter
+    from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped, type_name
+    from dockhil.msgs.codec import encode
+
+    with BagWriter(path) as bag:
+        bag.add_topic("/ft/wrench", type_name(WrenchStamped))
+        for k in range(10):
+            msg = WrenchStamped(Header(stamp=k * 1e-3, tick=k, seq=k), Wrench(Vector3(1.0, 0, 0), Vector3(0, 0, 0)))
+            bag.write("/ft/wrench", k * 1_000_000, k * 1_000_000, encode(msg))
+    return path
+
+
+@pytest.mark.parametrize("command", ["graph", "launch"])
+def test_a_real_robot_never_moves_on_a_replayed_recording(command, tmp_path, write_launch):
+    """robot:=modbus with ft:=bag: the driver's force limit and F/T watchdog would be fed by a file, and
+    the command it follows computed from forces of another run; refused before anything starts."""
+    bag = _ft_bag(tmp_path / "ft.mcap")
+    code, _, err = run_main(command, "launch/hil.yaml", "robot:=modbus", "ft:=bag", f"ft_bag:={bag}")
+    assert_one_line_refusal(code, err, "node 'robot' (robot_modbus) moves real hardware")
+    assert "from 'ft' (bag_source), which replays a recording" in err and "input 'wrench' (/ft/wrench)" in err, err
+    # a command that only depends on the recording, through other nodes, is refused as well
+    scene = write_launch(
+        "rate: 200\nduration: 1\nnodes:\n"
+        "  - {name: ft, node: bag_source, params: {path: %s, topics: [/ft/wrench]}}\n"
+        "  - {name: dynamics, node: satellite_dynamics}\n"
+        "  - {name: impedance, node: virtual_impedance}\n"
+        "  - {name: robot, node: robot_modbus, remap: {wrench: /unused}}\n" % bag)
+    code, _, err = run_main(command, scene)
+    assert_one_line_refusal(code, err, "input 'command' (/robot/command) depends on /ft/wrench")
+    assert "from 'ft' (bag_source), which replays a recording" in err, err
+    # replaying the sensor in front of the simulated robot stays possible
+    if command == "graph":
+        code, _, err = run_main("graph", "launch/hil.yaml", "ft:=bag", f"ft_bag:={bag}")
+        assert code == 0, err
+
+
+@pytest.mark.parametrize("command", ["graph", "launch"])
+@pytest.mark.parametrize("overrides, ticks", [(["delay:=30"], 30000), (["delay:=0.5", "rate:=100000"], 50000)])
+def test_a_delay_of_more_ticks_than_the_scene_check_resolves_is_refused_at_once(command, overrides, ticks):
+    """delay:=30 made the scene check build a 30000-tick polynomial: minutes and 11 GB before anything ran."""
+    code, _, err = run_main(command, "launch/hil.yaml", *overrides, "--composed" if command == "launch" else "--dot")
+    assert_one_line_refusal(code, err, f"is {ticks} ticks of delay")
+    assert "the scene check resolves up to 20000" in err
+
+
+def test_a_driver_beside_a_robot_emulator_commands_that_emulator_only():
+    """emulators:=true with modbus_host:= another machine ran the emulator and drove the real robot there."""
+    code, _, err = run_main("graph", "launch/hil.yaml", "robot:=modbus", "emulators:=true", "modbus_host:=192.0.2.10")
+    assert_one_line_refusal(code, err, "node 'robot' (robot_modbus) commands the controller at 192.0.2.10:5020")
+    assert "node 'robot_emulator' emulates one at 127.0.0.1:5020" in err, err
+    code, _, err = run_main("graph", "launch/hil.yaml", "robot:=modbus", "emulators:=true", "modbus_port:=5999")
+    assert code == 0, err  # both follow modbus_port
+    code, _, err = run_main("graph", "launch/hil.yaml", "robot:=modbus", "emulators:=true", "modbus_host:=localhost")
+    assert code == 0, err  # the same machine by another name
+    code, _, err = run_main("graph", "launch/hil.yaml", "robot:=modbus", "modbus_host:=192.0.2.10")
+    assert code == 0, err  # no emulator: the lab's controller
+
+
+def test_a_run_that_writes_no_summary_leaves_no_earlier_one_behind(tmp_path):
+    """A valid summary of an earlier run at --summary PATH, then a run refused by its scene check: what is at
+    PATH afterwards must not say "valid" about a run that did not happen."""
+    path = tmp_path / "s.json"
+    assert run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--duration", "0.05",
+                    "--summary", path)[0] == 0
+    assert json.loads(path.read_text())["valid"] is True
+    code, _, err = run_main("launch", "launch/hil.yaml", "rate:=2", "--composed", "--quiet", "--summary", path)
+    assert_one_line_refusal(code, err, "refused: the step does not resolve the contact")
+    assert not path.exists()
 
 
 def test_rate_from_an_argument_sets_the_step(write_launch):

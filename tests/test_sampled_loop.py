@@ -316,3 +316,14 @@ def test_a_delay_rounded_to_whole_ticks_is_warned(tmp_path):
     w = json.loads(out.read_text())["warnings"]
     # 16 ms at 300 Hz is 4.8 ticks: it runs as 5 ticks, 16.67 ms.
     assert len(w) == 1 and "runs as 5 ticks = 0.0166667 s" in w[0] and r.stderr.count("warning:") == 1
+
+
+def test_all_roots_of_a_long_delay_are_refused_not_computed():
+    """Degree 5001 without guesses would be a 5001 x 5001 companion matrix: refused at once."""
+    from dockhil.contact.sampled import DENSE_FALLBACK_DEGREE, RootsNotResolved, SampledLoop, sampled_roots
+
+    loop = SampledLoop(750.0, 2000.0, 40.0, 1000.0, 0.0, dt=1e-3, delay_ticks=5000)
+    with pytest.raises(RootsNotResolved, match=f"beyond the {DENSE_FALLBACK_DEGREE}"):
+        sampled_roots(loop)
+    short = SampledLoop(750.0, 2000.0, 40.0, 1000.0, 0.0, dt=1e-3, delay_ticks=32)
+    assert len(sampled_roots(short)) == 32 + 3  # below the bound: every root, as before

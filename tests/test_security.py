@@ -443,6 +443,128 @@ def test_a_second_slcan_adapter_or_driver_on_the_same_path_is_refused(tmp_path):
     PtyCanBus([link]).stop()
 
 
+def test_another_graphs_emulator_cannot_join_the_can_bus_a_driver_reads(request):
+    """A CAN bus (python-can interface and channel) read by one graph's F/T driver takes that graph's
+    emulator (hil.yaml with emulators:=true on a virtual bus), never another graph's: it would stream
+    forged frames with the sensor's IDs, and the robot would move on them."""
+    from dockhil import ownership
+    from dockhil.node import NodeContext
+    from dockhil.nodes.ft_can import FtCanDriver
+    from dockhil.nodes.ft_emulator import FtSensorEmulator
+    from tests.conftest import VirtualFtSensor
+
+    channel = f"bus-{request.node.name}"
+    sensor = VirtualFtSensor(channel).stream()
+    ctx = lambda name: NodeContext(name, 0.001, sim_time=False, log=lambda line: None)  # noqa: E731
+    ownership.set_graph("graph-one")
+    try:
+        driver = FtCanDriver(ctx("ft"), interface="virtual", channel=channel, open_timeout=5.0)
+        driver.setup()
+    finally:
+        ownership.set_graph("")
+        sensor.quiet()
+        sensor.bus.shutdown()
+    try:
+        ownership.set_graph("graph-two")
+        try:
+            stranger = FtSensorEmulator(ctx("ft_emulator"), interface="virtual", channel=channel)
+            with pytest.raises(DeviceError) as err:
+                stranger.setup()
+        finally:
+            ownership.set_graph("")
+        text = str(err.value)
+        assert "\n" not in text
+        assert text.startswith(f"CAN bus virtual {channel} is in use by graph graph-one (pid {os.getpid()} "), text
+        # a process that belongs to no graph is a stranger too
+        with pytest.raises(DeviceError, match="is in use by graph graph-one"):
+            FtSensorEmulator(ctx("ft_emulator"), interface="virtual", channel=channel).setup()
+        # the graph's own emulator shares the bus with its driver
+        ownership.set_graph("graph-one")
+        try:
+            own = FtSensorEmulator(ctx("ft_emulator"), interface="virtual", channel=channel)
+            own.setup()
+        finally:
+            ownership.set_graph("")
+        own.close()
+    finally:
+        driver.close()
+    # once graph one has let go, another graph may use the bus
+    ownership.set_graph("graph-two")
+    try:
+        later = FtSensorEmulator(ctx("ft_emulator"), interface="virtual", channel=channel)
+        later.setup()
+        later.close()
+    finally:
+        ownership.set_graph("")
+
+
+def test_a_graph_claim_is_shared_within_its_graph_across_processes_and_dies_with_them():
+    from dockhil import ownership
+
+    code = ("import time; from dockhil import ownership; ownership.set_graph('graph-one'); "
+            "ownership.claim_for_graph('bus', 'the bus'); print('held', flush=True); time.sleep(60)")
+    holder = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env())
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        for graph in ("graph-two", ""):
+            ownership.set_graph(graph)
+            try:
+                with pytest.raises(DeviceError, match=r"^the bus is in use by graph graph-one \(pid \d+ on "):
+                    ownership.claim_for_graph("bus", "the bus")
+            finally:
+                ownership.set_graph("")
+        ownership.set_graph("graph-one")
+        try:
+            ownership.claim_for_graph("bus", "the bus").release()  # another process of the same graph
+        finally:
+            ownership.set_graph("")
+    finally:
+        holder.kill()
+        holder.wait()
+        holder.stdout.close()
+    ownership.set_graph("graph-two")
+    try:
+        ownership.claim_for_graph("bus", "the bus").release()
+    finally:
+        ownership.set_graph("")
+
+
+def _fake_graph(name: str, **entry) -> Path:
+    graphs = runtime_dir() / "graphs"
+    graphs.mkdir(mode=0o700, parents=True, exist_ok=True)
+    path = graphs / f"{name}.json"
+    path.write_text(json.dumps({"run_id": name, "pid": os.getpid(), "file": "hil.yaml", "clock": "wall",
+                                "nodes": {}, "keys": "", "topics": {}, **entry}))
+    return path
+
+
+@pytest.mark.parametrize("entry, words", [
+    # a second publisher of a graph's topic: the graph's subscribers never connect to it
+    ({"topics": {"/x": {"type": "dockhil/WrenchStamped", "endpoint": "ipc:///nowhere", "publisher": "dynamics"}}},
+     ["topic /x is published by graph lab-graph (node 'dynamics')", "-r x:=/TOPIC"]),
+    # an input the launch left unconnected (an e-stop nobody published) does not start listening later
+    ({"unconnected": {"/x": ["robot.estop"]}},
+     ["graph lab-graph left input robot.estop (/x) unconnected at launch", "would not hear"]),
+])
+def test_a_node_run_alone_never_publishes_what_a_running_graph_would_not_hear(entry, words):
+    """`dockhil run` outputs are new topics: one that a running graph publishes, or that a node of it
+    reads but was left unconnected (the robot driver's /estop), is refused in one line; an e-stop sent
+    that way would never reach the driver, while the operator believes it would."""
+    from dockhil import cli
+
+    reg = _fake_graph("lab-graph", **entry)
+    try:
+        r = subprocess.run(dockhil_cmd("run", "tests.graphnodes:Source", "--rate", "100", "--duration", "0.05"),
+                           capture_output=True, text=True, timeout=60, env=env())
+    finally:
+        reg.unlink()
+    assert r.returncode == 2, r.stdout + r.stderr
+    line = one_line(r.stderr)
+    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
+    for word in words:
+        assert word in line, line
+
+
 def test_a_device_lock_dies_with_its_process(tmp_path):
     from dockhil import ownership
 

@@ -126,6 +126,11 @@ def test_scene_values_are_read_from_the_launch_file(capsys):
     (["--m", "750", "--b", "20", "--h", "0.016", "--K", "1e308"], "--K must be at most"),
     (["--scene", "launch/hil.yaml", "--m", "3"], "--m and --scene do not go together"),
     (["--scene", "launch/hil.yaml", "bogus:=1"], "unknown arg 'bogus'"),
+    # a real robot's delay is the hardware's: the scene does not know it, so no verdict at h = 0
+    (["--scene", "launch/hil.yaml", "robot:=modbus"], "the robot's delay is the hardware's"),
+    (["--scene", "launch/hil.yaml", "robot:=modbus", "emulators:=true"], "give it with --h"),
+    # 15000 ticks of delay: the roots are refused, not found by a 3.6 GB companion matrix
+    (["--scene", "launch/hil.yaml", "delay:=15"], "could not be verified"),
     (["map", "--m", "750", "--h-range", "0.01", "1e308", "--png", "x.png"], "--h-range HI must be at most 10 s"),
     (["map", "--m", "750", "--b-range", "0", "1e308", "--png", "x.png"], "--b-range HI must be at most"),
     (["map", "--m", "750", "--kcs", "3000", "--png", "x.png"], "needs both --kcs and --bcs"),
@@ -136,6 +141,20 @@ def test_bad_input_gives_one_line_and_exit_2(argv, message):
     r = subprocess.run(dockhil_cmd("stability", *argv), capture_output=True, text=True, timeout=60)
     assert r.returncode == 2, r.stdout + r.stderr
     assert r.stderr.count("\n") == 1 and message in r.stderr and "Traceback" not in r.stderr
+
+
+def test_the_launch_scene_check_says_a_hardware_robots_delay_is_not_in_its_numbers():
+    from dockhil import launchfile
+    from dockhil.graph import build
+    from dockhil.scenecheck import scene_check
+
+    def check(*overrides):
+        return scene_check(build(launchfile.load("launch/hil.yaml", launchfile.parse_overrides(list(overrides)))))
+
+    assert "note" not in check()["loop"]
+    hw = check("robot:=modbus")["loop"]
+    assert hw["note"] == "the robot's delay is the hardware's: the loop is analysed without it"
+    assert hw["delay_ticks"] == 0
 
 
 def test_hybrid_map_draws_both_regions(capsys, tmp_path):

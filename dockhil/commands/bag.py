@@ -39,6 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("path", metavar="PATH", help="MCAP bag file")
     p.add_argument("--topic", "-t", required=True, metavar="T", help="topic to export, e.g. /ft/wrench")
     p.add_argument("--csv", required=True, metavar="OUT", help="CSV file to write ('-' for standard output)")
+    p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists (default: refuse)")
 
     p = sub.add_parser(
         "convert",
@@ -156,7 +157,7 @@ def _export(args: argparse.Namespace) -> int:
     from dockhil.bag import export_csv
 
     out = sys.stdout if args.csv == "-" else args.csv
-    result = export_csv(args.path, args.topic, out)
+    result = export_csv(args.path, args.topic, out, overwrite=args.overwrite)
     if result.loss:
         log.Log("dockhil bag export:").warning(result.loss)
     notes = []

@@ -64,6 +64,8 @@ def run(args) -> int:
         if t["type"] != msgs.type_name(i.type):
             raise DockhilError(f"topic {topic} carries {t['type']}, but {name}.{port} expects {msgs.type_name(i.type)}")
         inputs[port] = PortWire(topic, t["endpoint"], t["type"], i.lag_ticks(1.0 / args.rate))
+    for port, o in outs.items():
+        _refuse_unheard(name, port, topic_of(port, o.topic))
     # One key file: the graph's keys when wired to one, which this node's own outputs then share.
     graphs = {published[w.topic]["graph"]["run_id"]: published[w.topic]["graph"] for w in inputs.values()}
     if len(graphs) > 1:
@@ -92,3 +94,21 @@ def run(args) -> int:
         for f in run_dir.iterdir():
             f.unlink(missing_ok=True)
         run_dir.rmdir()
+
+
+def _refuse_unheard(name: str, port: str, topic: str) -> None:
+    """An output of a node run alone is a new topic. A running graph's subscribers connect only to the
+    publishers the launch wired them to: a second publisher of one of its topics, or of a topic one of
+    its inputs was left without (the robot driver's /estop), would not be heard, however urgent."""
+    from dockhil.launcher import running_graphs
+
+    for info in running_graphs():
+        t = info.get("topics", {}).get(topic)
+        if t is not None:
+            raise DockhilError(f"topic {topic} is published by graph {info['run_id']} (node {t['publisher']!r}); "
+                               f"{name}.{port} would be a second publisher its subscribers never hear: remap it "
+                               f"with -r {port}:=/TOPIC")
+        readers = info.get("unconnected", {}).get(topic)
+        if readers:
+            raise DockhilError(f"graph {info['run_id']} left input {readers[0]} ({topic}) unconnected at launch, so it "
+                               f"would not hear {name}.{port}; publish {topic} from a node of the launch file")

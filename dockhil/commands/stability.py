@@ -509,6 +509,10 @@ def _scene_values(args) -> tuple[float, float, float, float, float, float, float
         raise DockhilError(f"{path}: no satellite_dynamics node, so no contact loop to analyse")
     if not info["loop"].held:
         raise DockhilError(f"{path}: the ideal model has no delay; its step is checked when it launches")
+    if not info["delay_known"]:
+        raise DockhilError(f"{path}: the robot's delay is the hardware's, which the scene does not give; "
+                           f"analyse the scene with its simulated robot at the measured delay (delay:=H), or "
+                           f"give it with --h and the loop's values")
     return info["m"], info["kd"], info["bd"], info["kh"], info["bh"], info["h"], graph.scene.rate
 
 
@@ -525,9 +529,11 @@ def _hybrid_values(args) -> tuple[float, float, float, float, float, float, floa
                                   "N/m" if n.startswith("k") else "N s/m") for n in _HYBRID)
         rate = 1000.0 if args.rate is None else args.rate
     rate = check_positive("--rate", _within("--rate", rate, MAX_RATE, "Hz"), "Hz")
-    if h * rate > 20000:
+    from dockhil.contact.sampled import MAX_DELAY_TICKS
+
+    if h * rate > MAX_DELAY_TICKS:
         raise DockhilError(f"--rate {rate:g} Hz with h = {h:g} s is {h * rate:.0f} ticks of delay; the sampled "
-                           f"loop is analysed up to 20000 ticks: lower --rate")
+                           f"loop is analysed up to {MAX_DELAY_TICKS} ticks: lower --rate")
     if args.pade_order is not None and not 1 <= args.pade_order <= 20:
         raise DockhilError(f"--pade-order must be between 1 and 20, got {args.pade_order}")
     return m, kd, bd, kh, bh, h, rate
@@ -536,8 +542,13 @@ def _hybrid_values(args) -> tuple[float, float, float, float, float, float, floa
 def _run_hybrid(args) -> int:
     from dockhil.contact.stability import hybrid_report
 
+    from dockhil.contact.sampled import RootsNotResolved
+
     m, kd, bd, kh, bh, h, rate = _hybrid_values(args)
-    r = hybrid_report(m, kd, bd, kh, bh, h, rate=rate, pade_order=args.pade_order)
+    try:
+        r = hybrid_report(m, kd, bd, kh, bh, h, rate=rate, pade_order=args.pade_order)
+    except RootsNotResolved as exc:
+        raise DockhilError(f"{exc}; give a lower --rate") from None
     if args.json:
         print(json.dumps(r))
         return 0

@@ -35,6 +35,14 @@ from dockhil.contact.integrators import LinearSecondOrderSystem, step_matrices
 from dockhil.contact.scenario import ContactModelError, check_finite, check_positive
 
 DENSE_DEGREE = 600  # up to this degree the roots come from the companion matrix (all of them)
+# The companion matrix is degree^2 complex numbers and its eigenvalues cost degree^3: at 15000 ticks
+# of delay 3.6 GB and a minute. Above this degree, a loop whose dominant roots Newton cannot verify
+# is refused (RootsNotResolved) instead.
+DENSE_FALLBACK_DEGREE = 4000
+
+
+class RootsNotResolved(ValueError):
+    """The dominant roots of a long-delay loop could not be verified, and all of them cost too much."""
 
 # The resolution criterion. Forces held over a step act on average dt/2 late, so the peak force of
 # a contact errs by about 0.4 omega dt (measured from 1 to 200 kHz on the stiff case of issue 12:
@@ -79,6 +87,11 @@ class SampledLoop:
     def alpha(self) -> float:
         return 1.0 if self.lag == 0.0 else -math.expm1(-self.dt / self.lag)
 
+
+
+# The longest delay, in ticks, whose sampled loop is analysed: its characteristic polynomial has
+# that degree, and the root finding grows with it (30000 ticks took minutes and 11 GB).
+MAX_DELAY_TICKS = 20000
 
 def _tick_matrices(loop: SampledLoop, system: LinearSecondOrderSystem) -> tuple[np.ndarray, np.ndarray]:
     """Phi, Gamma of one tick made of `substeps` integrator steps with the input held."""
@@ -171,8 +184,7 @@ def sampled_roots(loop: SampledLoop, guesses=()) -> np.ndarray:
     q = characteristic_polynomial(loop)
     q = np.trim_zeros(q, "b")
     if len(q) - 1 <= DENSE_DEGREE or not len(guesses):
-        roots = np.roots(q[::-1])
-        return roots[np.argsort(-np.abs(roots))]
+        return _all_roots(q)
     found = []
     for z0 in guesses:
         z = complex(z0)
@@ -195,6 +207,15 @@ def sampled_roots(loop: SampledLoop, guesses=()) -> np.ndarray:
         if (_zeros_outside(q, rho * (1.0 + VERIFY_MARGIN)) == 0
                 and _zeros_outside(q, rho * (1.0 - VERIFY_MARGIN)) == near):
             return np.array(found)
+    return _all_roots(q)
+
+
+def _all_roots(q: np.ndarray) -> np.ndarray:
+    deg = len(q) - 1
+    if deg > DENSE_FALLBACK_DEGREE:
+        raise RootsNotResolved(f"the sampled loop's dominant roots at degree {deg} (its ticks of delay) could not "
+                               f"be verified, and finding all {deg} roots is beyond the {DENSE_FALLBACK_DEGREE} "
+                               f"this check computes")
     roots = np.roots(q[::-1])
     return roots[np.argsort(-np.abs(roots))]
 

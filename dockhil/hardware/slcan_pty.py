@@ -88,6 +88,28 @@ def parse_transmit(line: bytes) -> CanFrame | None:
     return CanFrame(arbitration_id, data, kind == "T")
 
 
+def _check_replaceable(link: str) -> None:
+    """The link may replace only a link an earlier emulated adapter left (to a pseudo-terminal):
+    a file or a real adapter's name given by mistake is refused, not destroyed."""
+    if not os.path.lexists(link):
+        return
+    if os.path.islink(link):
+        target = os.readlink(link)
+        if target.startswith("/dev/pts/"):
+            return
+        what = f"a link to {target}"
+    elif os.path.isdir(link):
+        what = "a directory"
+    elif os.path.isfile(link):
+        what = "a regular file"
+    else:
+        what = "a device or other special file"
+    from dockhil.errors import DeviceError
+
+    raise DeviceError(f"slcan adapter {link}: the path exists and is {what}, not the link of an emulated "
+                      f"adapter; it was left as it is: give the emulator a path of its own")
+
+
 class SlcanPort:
     """One emulated slcan adapter: the master end of a pseudo-terminal.
 
@@ -105,6 +127,11 @@ class SlcanPort:
             from dockhil import ownership
 
             self._claim = ownership.claim(f"slcan-adapter-{os.path.abspath(link)}", f"slcan adapter {link}")
+            try:
+                _check_replaceable(link)
+            except BaseException:
+                self._release()
+                raise
         try:
             self._master, self._slave = os.openpty()
         except OSError:
