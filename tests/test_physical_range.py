@@ -48,3 +48,13 @@ def test_a_bug_ends_in_one_line_naming_where(monkeypatch, capsys):
     monkeypatch.setenv("DOCKHIL_TRACEBACK", "1")
     with pytest.raises(ValueError):
         cli.main(["params"])
+
+
+@pytest.mark.parametrize("argv", [["stability", "--m", "1e-300", "--b", "20", "--h", "0.016"],
+                                  ["stability", "map", "--m", "1e-9", "--png", "never.png"]])
+def test_the_stability_tool_holds_its_mass_to_the_same_range(argv, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "kg is below 1e-06 kg, the range of docking hardware" in err
+    assert not (tmp_path / "never.png").exists()

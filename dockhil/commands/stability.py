@@ -129,7 +129,19 @@ def _need(args, name: str, what: str) -> float:
 
 
 # What the tool resolves: beyond these a value is a typo, and the numbers would overflow.
-MAX_MASS, MAX_COEFF, MAX_DELAY, MAX_RATE = 1e12, 1e12, 10.0, 1e7
+MAX_COEFF, MAX_DELAY, MAX_RATE = 1e12, 10.0, 1e7
+
+
+def _mass(value: float) -> float:
+    """--m within the range of docking hardware (dockhil/physical.py), as a scene's masses are."""
+    from dockhil import physical
+    from dockhil.contact.scenario import check_positive
+
+    m = check_positive("--m", _within("--m", value, physical.MASS[1], "kg"), "kg")
+    if m < physical.MASS[0]:
+        raise DockhilError(f"--m {m:g} kg is below {physical.MASS[0]:g} kg, the range of docking hardware; "
+                           f"give a physical mass")
+    return m
 
 
 def _within(name: str, value: float, hi: float, unit: str) -> float:
@@ -144,7 +156,7 @@ def _within(name: str, value: float, hi: float, unit: str) -> float:
 def _loop_values(args) -> tuple[float, float, float]:
     from dockhil.contact.scenario import check_nonnegative, check_positive
 
-    m = check_positive("--m", _within("--m", _need(args, "m", "free-floating mass [kg]"), MAX_MASS, "kg"), "kg")
+    m = _mass(_need(args, "m", "free-floating mass [kg]"))
     b = check_nonnegative("--b", _within("--b", _need(args, "b", "virtual damping [N s/m]"), MAX_COEFF, "N s/m"),
                           "N s/m")
     h = check_nonnegative("--h", _within("--h", _need(args, "h", "robot delay [s]"), MAX_DELAY, "s"), "s")
@@ -300,7 +312,7 @@ def _run_map(args) -> int:
 
     if getattr(args, "m", None) is None:
         raise DockhilError("missing --m (free-floating mass [kg])")
-    m = check_positive("--m", _within("--m", args.m, MAX_MASS, "kg"), "kg")
+    m = _mass(args.m)
     if args.kcs is not None or args.bcs is not None:
         if getattr(args, "compensation", "none") == "passivity":
             raise DockhilError("--compensation passivity draws its region on the Fig. 7 map over (b, h); the hybrid "
@@ -523,7 +535,7 @@ def _hybrid_values(args) -> tuple[float, float, float, float, float, float, floa
         m, kd, bd, kh, bh, h, rate = _scene_values(args)
         rate = rate if args.rate is None else args.rate
     else:
-        m = check_positive("--m", _within("--m", _need(args, "m", "reduced mass [kg]"), MAX_MASS, "kg"), "kg")
+        m = _mass(_need(args, "m", "reduced mass [kg]"))
         h = check_nonnegative("--h", _within("--h", _need(args, "h", "robot delay [s]"), MAX_DELAY, "s"), "s")
         kd, bd, kh, bh = (_within(f"--{n.replace('_', '-')}", getattr(args, n) or 0.0, MAX_COEFF,
                                   "N/m" if n.startswith("k") else "N s/m") for n in _HYBRID)
