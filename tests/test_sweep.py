@@ -357,27 +357,38 @@ def test_ctrl_c_ends_the_workers_keeps_the_rows_and_the_rerun_does_only_the_rest
     campaign = write(tmp_path, """
         scene: stability.yaml
         args: {m: 20.0, delay: 0.016, b: 150}
-        duration: 1.0
+        duration: 3.0
         grid:
           k: {range: [6000, 9000], num: 60}
         """)  # 60 runs: several seconds of work, so the Ctrl-C lands mid-campaign also on a busy machine
-    out = tmp_path / "r.parquet"
-    proc = subprocess.Popen(dockhil_cmd("sweep", campaign, "--out", out, "--workers", "1", "--quiet"),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 120
-        journal = sweep.journal_path(out)
-        while not (journal.exists() and journal.read_text().count("\n") >= 1):
-            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
-            time.sleep(0.05)
-        workers = psutil.Process(proc.pid).children(recursive=True)
-        assert workers
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 130, err
+
+    def interrupted(out):
+        """Start the campaign, Ctrl-C it once its first row is journaled: (exit code, stderr, workers)."""
+        proc = subprocess.Popen(dockhil_cmd("sweep", campaign, "--out", out, "--workers", "1", "--quiet"),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 120
+            journal = sweep.journal_path(out)
+            while not (journal.exists() and journal.read_text().count("\n") >= 1):
+                assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+                time.sleep(0.05)
+            workers = psutil.Process(proc.pid).children(recursive=True)
+            proc.send_signal(signal.SIGINT)
+            _, err = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        return proc.returncode, err, workers
+
+    # A machine that paused this test for the whole campaign let it finish before the Ctrl-C: that
+    # run shows nothing of the interrupt, and a fresh one is tried.
+    for attempt in range(3):
+        out = tmp_path / f"r{attempt}.parquet"
+        code, err, workers = interrupted(out)
+        if not (code == 0 and len(rows_of(out)) == 60):
+            break
+    assert workers
+    assert code == 130, err
     assert "rerun the same command to resume" in err and "Traceback" not in err
     gone, alive = psutil.wait_procs(workers, timeout=30)
     assert not alive
