@@ -67,16 +67,17 @@ def test_swap_runs_the_scene_through_the_drivers_and_lands_near_the_simulated_ru
 
 
 def test_passivity_compensation_works_through_the_drivers(tmp_path):
-    # Through the real protocols the robot answers 32 ms late plus what the links add; the
-    # uncompensated run errs by about 0.7 N in peak force and 1e-3 m/s in exit velocity
-    # (README, Table 1). The controller sees the energy those delays make, whatever made it.
+    # Through the real protocols the robot answers 32 ms late plus what the links and a busy
+    # machine add; uncompensated, the bodies leave faster than the ideal contact lets them
+    # (restitution 0.993 against 0.959, README). The controller takes out the energy those delays
+    # make, whatever made it: the bodies leave no faster than ideal, to the links' jitter.
     hw = tmp_path / "hw.json"
     r = wall_run(tmp_path, "rate:=250", "compensation:=passivity", "--duration", "4", "--summary", hw,
                  done=lambda r: r.returncode == 0)
     h = json.loads(hw.read_text())
     assert h["valid"] is True and h["energy"]["compensation"] == "passivity"
-    assert abs(h["error"]["peak_force_N"]) < 0.3 and abs(h["error"]["exit_velocity_mps"]) < 4e-4, h["error"]
-    assert h["energy"]["net_generated_J"] <= 1e-3 * h["energy"]["generated_J"]
+    assert h["energy"]["generated_J"] > 0 and h["energy"]["net_generated_J"] <= 1e-3 * h["energy"]["generated_J"]
+    assert h["restitution"] < h["ideal"]["restitution"] + 0.02, (h["restitution"], h["ideal"]["restitution"])
 
 
 def test_missing_devices_fail_fast_with_one_line_each(tmp_path):

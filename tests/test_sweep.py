@@ -364,8 +364,11 @@ def test_ctrl_c_ends_the_workers_keeps_the_rows_and_the_rerun_does_only_the_rest
 
     def interrupted(out):
         """Start the campaign, Ctrl-C it once its first row is journaled: (exit code, stderr, workers)."""
+        # Ctrl-C as a terminal sends it: the sweep gets SIGINT's default disposition even where this
+        # test runs with SIGINT ignored (a background job of a script), which Python would inherit.
         proc = subprocess.Popen(dockhil_cmd("sweep", campaign, "--out", out, "--workers", "1", "--quiet"),
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         try:
             deadline = time.monotonic() + 120
             journal = sweep.journal_path(out)
