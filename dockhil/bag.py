@@ -47,9 +47,7 @@ not a bag) raises `BagError` with one line that says what and where.
 
 from __future__ import annotations
 
-import contextlib
 import csv
-import errno
 import io
 import json
 import operator
@@ -64,6 +62,7 @@ from typing import IO, Any, Iterable, Iterator, NamedTuple
 import msgspec
 
 from dockhil.errors import DockhilError
+from dockhil.files import complete_or_nothing, os_reason
 
 MAGIC = b"\x89MCAP0\r\n"
 MESSAGE_ENCODING = "json"  # what BagWriter records
@@ -92,13 +91,6 @@ _MESSAGE_OVERHEAD = 9 + _MESSAGE_HEAD.size
 
 class BagError(DockhilError):
     """A bag cannot be written or read: the message names the file and the reason."""
-
-
-def _reason(exc: OSError) -> str:
-    """'No space left on device (ENOSPC)': the words and the name people search for."""
-    text = exc.strerror or str(exc)
-    name = errno.errorcode.get(exc.errno or 0)
-    return f"{text} ({name})" if name else text
 
 
 # --------------------------------------------------------------------------- writing
@@ -174,7 +166,7 @@ class BagWriter:
             self._file.flush()
         except OSError as exc:
             self._release()
-            raise BagError(f"cannot start bag {self.path}: {_reason(exc)}") from None
+            raise BagError(f"cannot start bag {self.path}: {os_reason(exc)}") from None
 
     @property
     def topics(self) -> dict[str, str]:
@@ -287,7 +279,7 @@ class BagWriter:
 
     def _stop(self, exc: OSError, doing: str) -> BagError:
         self._failed = BagError(
-            f"bag {self.path}: {doing} failed: {_reason(exc)}; recording stopped, "
+            f"bag {self.path}: {doing} failed: {os_reason(exc)}; recording stopped, "
             f"{self.messages_flushed} of {self.messages_written} messages are on disk"
         )
         return self._failed
@@ -350,7 +342,7 @@ def _open_for_writing(path: str, overwrite: bool):
     except IsADirectoryError:
         raise BagError(f"cannot create bag {path}: it is a directory") from None
     except OSError as exc:
-        raise BagError(f"cannot create bag {path}: {_reason(exc)}") from None
+        raise BagError(f"cannot create bag {path}: {os_reason(exc)}") from None
 
 
 # --------------------------------------------------------------------------- reading
@@ -443,7 +435,7 @@ class BagReader:
         except IsADirectoryError:
             raise BagError(f"{self.path}: is a directory, not an MCAP bag") from None
         except OSError as exc:
-            raise BagError(f"{self.path}: cannot open: {_reason(exc)}") from None
+            raise BagError(f"{self.path}: cannot open: {os_reason(exc)}") from None
         # One snapshot of the size: a bag still being recorded reads as unfinished up to here.
         self.size_bytes = os.fstat(self._file.fileno()).st_size
         self._channels: dict[int, _Channel] = {}
@@ -1042,7 +1034,7 @@ def export_csv(path: str | os.PathLike, topic: str, out: str | os.PathLike | IO[
         if hasattr(out, "write"):
             result = _write_csv(reader, topic, out)
         else:
-            with _complete_or_nothing(os.fspath(out)) as part, open(part, "w", newline="") as fh:
+            with complete_or_nothing(os.fspath(out), BagError) as part, open(part, "w", newline="") as fh:
                 result = _write_csv(reader, topic, fh)
         return ExportResult(*result, bool(reader.recovered), found["loss"])
 
@@ -1136,7 +1128,7 @@ def convert(src: str | os.PathLike, dst: str | os.PathLike, *, overwrite: bool =
         raise BagError(f"bag {dst} already exists; choose another name or allow overwriting it")
     with BagReader(src) as reader:
         found = reader.summary()
-        with _complete_or_nothing(dst) as part, BagWriter(part, overwrite=True) as out:
+        with complete_or_nothing(dst, BagError) as part, BagWriter(part, overwrite=True) as out:
             for topic, type_name in reader.topics.items():
                 try:
                     out.add_topic(topic, type_name)
@@ -1146,29 +1138,6 @@ def convert(src: str | os.PathLike, dst: str | os.PathLike, *, overwrite: bool =
             for topic, _, log_ns, publish_ns, data in reader.messages_with_publish_time():
                 out.write(topic, log_ns, publish_ns, data)
     return ConvertResult(out.messages_written, out.messages_unencodable, found["loss"])
-
-
-@contextlib.contextmanager
-def _complete_or_nothing(path: str):
-    """Yields `path`.part to write; it becomes `path` when the block ends well and is removed when
-    it does not, so `path` appears only complete. An OSError is one BagError line."""
-    part = f"{path}.part"
-    try:
-        yield part
-        os.replace(part, path)
-    except OSError as exc:
-        _remove_quietly(part)
-        raise BagError(f"cannot write {path}: {_reason(exc)}") from None
-    except BaseException:
-        _remove_quietly(part)
-        raise
-
-
-def _remove_quietly(path: str) -> None:
-    try:
-        os.remove(path)
-    except OSError:
-        pass
 
 
 __all__ = [

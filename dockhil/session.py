@@ -23,6 +23,7 @@ import time
 from dockhil import validity
 from dockhil.log import Log
 from dockhil.errors import DockhilError
+from dockhil.files import complete_or_nothing
 from dockhil.graph import Graph
 
 
@@ -102,7 +103,8 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
             if show_summary:
                 print(summ.format_summary(out), flush=True)
             if summary is not None:
-                _write_complete(summary, json.dumps(out, indent=1))
+                with complete_or_nothing(summary) as part, open(part, "w") as f:
+                    f.write(json.dumps(out, indent=1))
                 say.info(f"summary written to {summary}")
         elif code == 0 and clock == "sim" and n_ticks:
             sim_s = (n_ticks - 1) * dt
@@ -195,18 +197,3 @@ def _is_summary(path: str) -> bool:
     except (OSError, ValueError):
         return False
     return isinstance(found, dict) and "sim_time_s" in found and "valid" in found
-
-
-def _write_complete(path: str, text: str) -> None:
-    """The summary appears whole or not at all: written aside, then moved into place."""
-    part = f"{path}.part"
-    try:
-        with open(part, "w") as f:
-            f.write(text)
-        os.replace(part, path)
-    except BaseException:
-        try:
-            os.remove(part)
-        except OSError:
-            pass
-        raise
