@@ -208,8 +208,10 @@ def read_holding(port: int) -> mm.HostWrite:
 def test_driver_follows_through_the_emulator_across_processes():
     proc, port = start_emulator(0, "--delay", "0.02", "--tau", "0.01")
     # A busy machine hands the controller late setpoints in bursts, and the servo jumps: the
-    # measured-speed limit would rightly stop the run. It is tested in test_hardware_safety.py.
-    node = driver(port, max_actual_speed=0.0)
+    # measured-speed limit would rightly stop the run; and this test's real-clock steps make
+    # setpoint steps over jittered intervals (0.1 mm in 1.2 ms read as 0.116 m/s), which the
+    # commanded-speed limit would. Both are tested on a controlled clock in test_hardware_safety.py.
+    node = driver(port, max_actual_speed=0.0, max_speed=0.0)
     try:
         node.setup()
         drive = Drive(node)
