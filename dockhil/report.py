@@ -29,6 +29,7 @@ method's observed order.
 from __future__ import annotations
 
 import bisect
+import functools
 import math
 import os
 import re
@@ -96,13 +97,16 @@ class ReportConfig:
 
     @classmethod
     def quick_config(cls) -> "ReportConfig":
+        """Every section, case and check of the full report, on less work: three steps that
+        divide the 32 ms delay (an order needs two; steps that round the delay distort it),
+        shorter long runs, and fewer processes (`quick` in graph_cost and stiff_graph_cases)."""
         return cls(
-            steps=(1e-2, 1e-3, 1e-4),
+            steps=(4e-3, 2e-3, 1e-3),
             rtols=(1e-4, 1e-8),
             ivp_methods=("RK45", "Radau"),
             graph_duration=0.5,
             energy_t_end=50.0,
-            energy_ivp_t_end=5.0,
+            energy_ivp_t_end=2.0,
             stability_dt=1e-3,
             min_timing_s=0.0,
             quick=True,
@@ -357,12 +361,18 @@ REFERENCE_DT = 1e-4  # [s] largest step of the independent reference (its error:
 def hybrid_reference(cfg: ReportConfig, scenario: ContactScenario = TABLE1, delay: float = HIL_DELAY,
                      dt: float = REFERENCE_DT, t_end: float | None = None):
     """The continuous delayed hybrid loop by the independent method-of-steps solver."""
+    return _delay_reference(scenario, float(delay), float(dt), float(cfg.contact_t_end if t_end is None else t_end))
+
+
+@functools.lru_cache(maxsize=8)
+def _delay_reference(scenario: ContactScenario, delay: float, dt: float, t_end: float):
+    # A pure function of its arguments, and the dearest one here: solved once per process
+    # (the returned reference is only read).
     from dockhil.contact.delayref import DelayedContactReference
 
     imp = hybrid_impedance(scenario)
     ref = DelayedContactReference(m1=scenario.m1, m2=scenario.m2, k1=imp.k1, b1=imp.b1, k2=imp.k2, b2=imp.b2,
-                                  k=scenario.k, h=delay, v0=scenario.closing_velocity,
-                                  t_end=cfg.contact_t_end if t_end is None else t_end, dt=dt)
+                                  k=scenario.k, h=delay, v0=scenario.closing_velocity, t_end=t_end, dt=dt)
     ref.impedance = imp
     return ref
 
@@ -513,15 +523,18 @@ def _hil_library(duration: float, dt: float = 1e-3):
     return Samples(r.t, r.x1 - r.x2, r.v1 - r.v2, r.force)
 
 
-def _hil_composed(duration: float):
+def composed_samples(scene_file: str, duration: float, args: dict | None = None, ideal_force=None):
+    """A shipped scene composed in this process (what `dockhil launch --composed` runs), its
+    per-tick series collected by a tap; `args` as `name:=value` on the command line."""
     from dockhil import launchfile
     from dockhil.composed import ComposedGraph
     from dockhil.graph import build
     from dockhil.summary import Collector
 
-    scene = launchfile.load(LAUNCH_DIR / "hil.yaml")
+    overrides = launchfile.parse_overrides([f"{k}:={v}" for k, v in (args or {}).items()])
+    scene = launchfile.load(LAUNCH_DIR / scene_file, overrides)
     n = int(round(duration / scene.dt)) + 1
-    collect = Collector()
+    collect = Collector(ideal_force)
     g = ComposedGraph(build(scene), log=lambda name, msg: None, taps=[collect])
     g.setup()
     try:
@@ -568,22 +581,27 @@ def graph_cost(cfg: ReportConfig, progress: TaskProgress | None = None) -> dict:
     lib, t_lib = _best_time(lambda: _hil_library(duration), cfg.min_timing_s)
     runs["library"] = (lib, t_lib, "dockhil.contact.hilloop.simulate_hil")
     say("graph cost: composed graph")
-    comp, t_comp = _best_time(lambda: _hil_composed(duration), cfg.min_timing_s)
+    comp, t_comp = _best_time(lambda: composed_samples("hil.yaml", duration), cfg.min_timing_s)
     runs["composed"] = (comp, t_comp, "ComposedGraph(hil.yaml), one process, a tap collecting the series")
     say("graph cost: multi-process graph")
-    timed = launch_subprocess(LAUNCH_DIR / "hil.yaml", duration)
-    if timed["code"] != 0:
-        raise DockhilError(f"dockhil launch launch/hil.yaml failed: {_last_line(timed)}")
-    startup = launch_subprocess(LAUNCH_DIR / "hil.yaml", 0.001)
     multi = None
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "hil.mcap")
-        recorded = launch_subprocess(LAUNCH_DIR / "hil.yaml", duration, bag=path)
+        if cfg.quick:  # one run, timed while it records (the recorder is one more process)
+            timed = recorded = launch_subprocess(LAUNCH_DIR / "hil.yaml", duration, bag=path)
+            when = "in the timed run (its time includes the recorder)"
+        else:
+            timed = launch_subprocess(LAUNCH_DIR / "hil.yaml", duration)
+            recorded = None if timed["code"] != 0 else launch_subprocess(LAUNCH_DIR / "hil.yaml", duration, bag=path)
+            when = "in a second run"
+        if timed["code"] != 0:
+            raise DockhilError(f"dockhil launch launch/hil.yaml failed: {_last_line(timed)}")
         if recorded["code"] == 0 and os.path.exists(path):
             multi = bag_samples(path)
-            how = "recorded with --bag in a second run and read back through the same Collector"
+            how = f"recorded with --bag {when} and read back through the same Collector"
         else:
             how = f"not compared: the --bag run failed ({_last_line(recorded)})"
+    startup = launch_subprocess(LAUNCH_DIR / "hil.yaml", 0.001)
     ideal = ideal_reference(m1=TABLE1.m1, m2=TABLE1.m2, kcs=TABLE1.kcs, bcs=TABLE1.bcs, v1=TABLE1.v1, v2=TABLE1.v2,
                             t=lib.t)
     out = {"scene": "launch/hil.yaml (Table 1, delay 32 ms, 1 kHz, sim time)", "sim_time_s": duration, "modes": []}
@@ -761,46 +779,65 @@ def stiff_contact_cases(cfg: ReportConfig) -> list[dict]:
 
 
 def stiff_graph_cases(cfg: ReportConfig) -> list[dict]:
-    """The stiffest contact through the multi-process graph: launch/ideal.yaml,
-    where satellite_dynamics runs the ideal model inside the node."""
+    """The stiffest contact through the graph: launch/ideal.yaml, where satellite_dynamics runs the
+    ideal model inside the node; as separate processes, or composed in this process in the quick
+    configuration (whose one multi-process run is graph_cost's)."""
     group = "kcs = 1e9 N/m, m = 1 kg, 1 ms step"
     scn = STIFF
     ref = ideal_contact_summary(scn)
     args = {"kcs": scn.kcs, "bcs": scn.bcs, "m1": scn.m1, "m2": scn.m2, "v1": scn.v1, "v2": scn.v2}
     duration = 5 * STIFF_DT
-    params = {**args, "scene": "launch/ideal.yaml", "duration": duration}
+    mode = "composed" if cfg.quick else "multi-process"
+    params = {**args, "scene": "launch/ideal.yaml", "duration": duration, "mode": mode}
     cases = [refused_launch_case(group, "ideal.yaml", args, scn, duration)]
     args = {**args, "allow_coarse": "true"}  # below: what the graph computes when told to run anyway
-    with tempfile.TemporaryDirectory() as tmp:
-        path = os.path.join(tmp, "stiff.mcap")
-        result = launch_subprocess(LAUNCH_DIR / "ideal.yaml", duration, args, bag=path)
-        if result["code"] != 0 or not os.path.exists(path):
-            cases.append(_case(group, "multi-process graph (launch/ideal.yaml)", "runs",
-                               f"failed: {_last_line(result)}", False, params=params))
-        else:
-            s = bag_samples(path, (scn.kcs, scn.bcs))
-            exit_v = float(s.pd[-1])
-            cases.append(_case(group, "multi-process graph (launch/ideal.yaml), exact",
-                               f"exit {ref.exit_relative_velocity:.9g} m/s",
-                               f"exit {exit_v:.9g} m/s" + ("" if s.p[-1] < 0 else " (bodies still touching)"),
-                               _rel(exit_v, ref.exit_relative_velocity) < 1e-6 and s.p[-1] < 0.0,
-                               params=params, tolerance=1e-6, expected_value=ref.exit_relative_velocity,
-                               measured_value=exit_v))
-            lib = simulate_ideal(m1=scn.m1, m2=scn.m2, kcs=scn.kcs, bcs=scn.bcs, v1=scn.v1, v2=scn.v2,
-                                 dt=STIFF_DT, n_ticks=len(s.t))
-            same = np.array_equal(s.p, lib.x1 - lib.x2) and np.array_equal(s.pd, lib.v1 - lib.v2)
-            cases.append(_case(group, "multi-process graph equals the library loop",
-                               "bit-identical to simulate_ideal", "bit-identical" if same else
-                               f"differs by {np.max(np.abs(s.pd - (lib.v1 - lib.v2))):.3g} m/s", same, params=params))
+    s, failed = None, None
+    if cfg.quick:
+        try:
+            s = composed_samples("ideal.yaml", duration, args, (scn.kcs, scn.bcs))
+        except DockhilError as exc:
+            failed = str(exc)
+    else:
+        with tempfile.TemporaryDirectory() as tmp:
+            path = os.path.join(tmp, "stiff.mcap")
+            result = launch_subprocess(LAUNCH_DIR / "ideal.yaml", duration, args, bag=path)
+            if result["code"] != 0 or not os.path.exists(path):
+                failed = _last_line(result)
+            else:
+                s = bag_samples(path, (scn.kcs, scn.bcs))
+    if s is None:
+        cases.append(_case(group, f"{mode} graph (launch/ideal.yaml)", "runs", f"failed: {failed}", False,
+                           params=params))
+    else:
+        exit_v = float(s.pd[-1])
+        cases.append(_case(group, f"{mode} graph (launch/ideal.yaml), exact",
+                           f"exit {ref.exit_relative_velocity:.9g} m/s",
+                           f"exit {exit_v:.9g} m/s" + ("" if s.p[-1] < 0 else " (bodies still touching)"),
+                           _rel(exit_v, ref.exit_relative_velocity) < 1e-6 and s.p[-1] < 0.0,
+                           params=params, tolerance=1e-6, expected_value=ref.exit_relative_velocity,
+                           measured_value=exit_v))
+        lib = simulate_ideal(m1=scn.m1, m2=scn.m2, kcs=scn.kcs, bcs=scn.bcs, v1=scn.v1, v2=scn.v2,
+                             dt=STIFF_DT, n_ticks=len(s.t))
+        same = np.array_equal(s.p, lib.x1 - lib.x2) and np.array_equal(s.pd, lib.v1 - lib.v2)
+        cases.append(_case(group, f"{mode} graph equals the library loop",
+                           "bit-identical to simulate_ideal", "bit-identical" if same else
+                           f"differs by {np.max(np.abs(s.pd - (lib.v1 - lib.v2))):.3g} m/s", same, params=params))
     limit = max_stable_step(LinearSecondOrderSystem.ideal_contact(scn), "rk4")
-    result = launch_subprocess(LAUNCH_DIR / "ideal.yaml", duration, {**args, "method": "rk4"})
-    text = result["stdout"] + result["stderr"]
+    if cfg.quick:
+        try:
+            composed_samples("ideal.yaml", duration, {**args, "method": "rk4"})
+            code, text = 0, ""
+        except DockhilError as exc:
+            code, text = 1, f"error: {exc}"
+    else:
+        result = launch_subprocess(LAUNCH_DIR / "ideal.yaml", duration, {**args, "method": "rk4"})
+        code, text = result["code"], result["stdout"] + result["stderr"]
     named = named_stable_step(text)
     error_lines = [ln for ln in text.splitlines() if "error:" in ln]
-    ok = result["code"] != 0 and named is not None and _rel(named, limit) < 1e-5 and len(error_lines) == 1
-    cases.append(_case(group, "multi-process graph, method rk4",
-                       f"launch fails with one error line naming {limit:.6g} s",
-                       f"exit code {result['code']}, {len(error_lines)} error line(s)"
+    ok = code != 0 and named is not None and _rel(named, limit) < 1e-5 and len(error_lines) == 1
+    cases.append(_case(group, f"{mode} graph, method rk4",
+                       f"fails with one error line naming {limit:.6g} s",
+                       f"exit code {code}, {len(error_lines)} error line(s)"
                        + (f", names {named:.6g} s" if named else ""), ok,
                        params={**params, "method": "rk4"}, expected_value=limit, measured_value=named))
     return cases
@@ -821,13 +858,15 @@ def refused_launch_case(group: str, scene: str, args: dict, scn: ContactScenario
     """`dockhil launch` of a contact its step does not resolve: one line, exit 2, naming the rate
     (as `rate:=` when a scene can run at it, else as the rate it would need)."""
     want = fine_rate_expected(scn)
-    result = launch_subprocess(LAUNCH_DIR / scene, duration, args)
-    text = result["stderr"].strip()
+    # The refusal comes before any node starts: the command runs in this process.
+    code, err = _cli(["launch", str(LAUNCH_DIR / scene), "--duration", repr(duration), "--quiet"]
+                     + [f"{k}:={v}" for k, v in args.items()])
+    text = err.strip()
     named = re.search(r"rate:=([0-9.e+]+)|needs a rate of ([0-9.e+]+) Hz", text)
     named_rate = float(named.group(1) or named.group(2)) if named else None
-    ok = result["code"] == 2 and len(text.splitlines()) == 1 and named_rate == want
+    ok = code == 2 and len(text.splitlines()) == 1 and named_rate == want
     return _case(group, f"{scene} at 1 kHz: refused before it runs", f"exit 2, one line naming {want:g} Hz",
-                 f"exit {result['code']}, {len(text.splitlines())} line(s)"
+                 f"exit {code}, {len(text.splitlines())} line(s)"
                  + (f", names {named_rate:g} Hz" if named_rate else ""), ok,
                  params={**args, "scene": f"launch/{scene}", "duration": duration}, expected_value=want,
                  measured_value=named_rate)
@@ -1543,6 +1582,16 @@ def write_plots(report: dict, out_dir: Path) -> dict[str, str]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    quick = report["config"]["quick"]
+
+    def save(fig, name: str) -> None:
+        # The quick configuration's figures skip the layout pass (measuring every tick label:
+        # a third of the plotting time) and are drawn at a lower resolution.
+        if not quick:
+            fig.tight_layout()
+        fig.savefig(out_dir / name, dpi=72 if quick else 110)
+        plt.close(fig)
+
     plots = {}
     floor = 1e-16  # errors at round-off are drawn here on the log scale
     fig, axes = plt.subplots(1, 3, figsize=(17, 4.8))
@@ -1564,9 +1613,7 @@ def write_plots(report: dict, out_dir: Path) -> dict[str, str]:
         ax.set_title(title)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out_dir / "work_precision.png", dpi=110)
-    plt.close(fig)
+    save(fig, "work_precision.png")
     plots["work_precision"] = "work_precision.png"
 
     fig, ax = plt.subplots(figsize=(8, 4.5))
@@ -1578,9 +1625,7 @@ def write_plots(report: dict, out_dir: Path) -> dict[str, str]:
     ax.set_title("energy of an undamped contact over a long run")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out_dir / "energy_drift.png", dpi=110)
-    plt.close(fig)
+    save(fig, "energy_drift.png")
     plots["energy_drift"] = "energy_drift.png"
 
     if "passivity" in report:
@@ -1594,9 +1639,7 @@ def write_plots(report: dict, out_dir: Path) -> dict[str, str]:
         ax.set_title("Table 1 contact, 32 ms robot delay")
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(out_dir / "passivity.png", dpi=110)
-        plt.close(fig)
+        save(fig, "passivity.png")
         plots["passivity"] = "passivity.png"
 
     if "lean" in report:
@@ -1611,8 +1654,6 @@ def write_plots(report: dict, out_dir: Path) -> dict[str, str]:
         for ax in axes:
             ax.invert_yaxis()
             ax.grid(True, axis="x", alpha=0.3)
-        fig.tight_layout()
-        fig.savefig(out_dir / "lean.png", dpi=110)
-        plt.close(fig)
+        save(fig, "lean.png")
         plots["lean"] = "lean.png"
     return plots
