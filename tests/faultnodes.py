@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import math
+import os
 import time
 
 from dockhil.node import Input, Node, Output, Param
-from dockhil.msgs import Vector3, Wrench, WrenchStamped
+from dockhil.msgs import SatelliteState, Vector3, Wrench, WrenchStamped
 
 
 def _w(tick, x):
@@ -52,3 +53,20 @@ class Hiccup(Node):
             else:
                 time.sleep(self.p.seconds)
         return {"x": _w(tick, float(tick.index))}
+
+
+class Gate(Node):
+    """Reads /satellite/state; with `hold`, its step at tick 1 waits until the file `path` exists
+    (a run a test can keep in progress for as long as it needs, at no CPU cost)."""
+
+    inputs = {"state": Input(SatelliteState, "/satellite/state", required=False)}
+    params = {"hold": Param(bool, False, help="wait at tick 1 for the file"),
+              "path": Param(str, "", help="the file that opens the gate"),
+              "give_up": Param(float, 120.0, unit="s", help="go on after this long (no worker waits forever)", gt=0.0)}
+
+    def step(self, tick, inputs):
+        if self.p.hold and tick.index == 1:
+            deadline = time.monotonic() + self.p.give_up
+            while not os.path.exists(self.p.path) and time.monotonic() < deadline:
+                time.sleep(0.01)
+        return {}

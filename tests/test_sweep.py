@@ -354,53 +354,62 @@ def test_ctrl_c_ends_the_workers_keeps_the_rows_and_the_rerun_does_only_the_rest
 
     from tests.conftest import dockhil_cmd
 
-    campaign = write(tmp_path, """
-        scene: stability.yaml
-        args: {m: 20.0, delay: 0.016, b: 150}
-        duration: 3.0
+    # The stability scene with a gate: runs with hold=true wait at their second tick until the gate
+    # file exists, so the Ctrl-C lands mid-campaign however fast or busy the machine is.
+    gate = tmp_path / "gate"
+    write(tmp_path, f"""
+        args:
+          m: {{default: 20.0}}
+          delay: {{default: 0.016}}
+          b: {{default: 150.0}}
+          k: {{default: 6000.0}}
+          hold: {{default: false}}
+          gate: {{default: ""}}
+        include:
+          - file: {SCENE}
+            args: {{m: $(arg m), delay: $(arg delay), b: $(arg b), k: $(arg k)}}
+        nodes:
+          - {{name: gate, node: "tests.faultnodes:Gate", params: {{hold: $(arg hold), path: $(arg gate)}}}}
+        """, "gated.yaml")
+    campaign = write(tmp_path, f"""
+        scene: gated.yaml
+        args: {{m: 20.0, delay: 0.016, b: 150, gate: "{gate}"}}
+        duration: 0.5
         grid:
-          k: {range: [6000, 9000], num: 60}
-        """)  # 60 runs: several seconds of work, so the Ctrl-C lands mid-campaign also on a busy machine
-
-    def interrupted(out):
-        """Start the campaign, Ctrl-C it once its first row is journaled: (exit code, stderr, workers)."""
-        # Ctrl-C as a terminal sends it: the sweep gets SIGINT's default disposition even where this
-        # test runs with SIGINT ignored (a background job of a script), which Python would inherit.
-        proc = subprocess.Popen(dockhil_cmd("sweep", campaign, "--out", out, "--workers", "1", "--quiet"),
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-        try:
-            deadline = time.monotonic() + 120
-            journal = sweep.journal_path(out)
-            while not (journal.exists() and journal.read_text().count("\n") >= 1):
-                assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
-                time.sleep(0.05)
-            workers = psutil.Process(proc.pid).children(recursive=True)
-            proc.send_signal(signal.SIGINT)
-            _, err = proc.communicate(timeout=60)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-        return proc.returncode, err, workers
-
-    # A machine that paused this test for the whole campaign let it finish before the Ctrl-C: that
-    # run shows nothing of the interrupt, and a fresh one is tried.
-    for attempt in range(3):
-        out = tmp_path / f"r{attempt}.parquet"
-        code, err, workers = interrupted(out)
-        if not (code == 0 and len(rows_of(out)) == 60):
-            break
+          hold: [false, true]
+          k: [6000, 9000]
+        """)  # runs 0 and 1 finish; run 2 waits at the gate until the interrupt
+    out = tmp_path / "r.parquet"
+    # Ctrl-C as a terminal sends it: the sweep gets SIGINT's default disposition even where this
+    # test runs with SIGINT ignored (a background job of a script), which Python would inherit.
+    proc = subprocess.Popen(dockhil_cmd("sweep", campaign, "--out", out, "--workers", "1", "--quiet"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        deadline = time.monotonic() + 120
+        journal = sweep.journal_path(out)
+        while not (journal.exists() and journal.read_text().count("\n") >= 2):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.02)
+        workers = psutil.Process(proc.pid).children(recursive=True)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
     assert workers
-    assert code == 130, err
+    assert proc.returncode == 130, err
     assert "rerun the same command to resume" in err and "Traceback" not in err
     gone, alive = psutil.wait_procs(workers, timeout=30)
-    assert not alive
-    done = {r["run"] for r in rows_of(out)}
-    assert 1 <= len(done) < 60 and all(r["status"] == "ok" for r in rows_of(out)), (done, rows_of(out))
+    assert not alive  # the worker waiting at the gate was ended, not left to finish its batch
+    rows = rows_of(out)
+    assert sorted(r["run"] for r in rows) == [0, 1] and all(r["status"] == "ok" for r in rows), rows
+    gate.touch()
     rerun = Counting(LocalPool(1))
     result = sweep.sweep(sweep.load_campaign(campaign), out, rerun, progress=False)
-    assert sorted(rerun.executed) == sorted(set(range(60)) - done)
-    assert result["skipped"] == len(done) and len(rows_of(out)) == 60
+    assert sorted(rerun.executed) == [2, 3]
+    assert result["skipped"] == 2 and sorted(r["run"] for r in rows_of(out)) == [0, 1, 2, 3]
+    assert all(r["status"] == "ok" for r in rows_of(out))
 
 
 def test_the_shipped_fig7_campaign_brackets_the_boundary_at_every_point():

@@ -4,12 +4,12 @@ and each says in one line when its own graph ends."""
 import json
 import signal
 import subprocess
-import time
+from types import SimpleNamespace
 
 import pytest
 
-from dockhil.commands.topic import ALIVE_CHECK_S
-from tests.conftest import dockhil_cmd, registered
+from dockhil import cli
+from tests.conftest import Lines, dockhil_cmd, registered
 
 pytestmark = pytest.mark.wall_time
 
@@ -21,19 +21,12 @@ def launch(m1: float, log):
                             stdout=log, stderr=subprocess.STDOUT)
 
 
-def dockhil(*args, timeout=30):
-    return subprocess.run(dockhil_cmd(*args), capture_output=True, text=True, timeout=timeout)
-
-
-def first_line(proc, deadline_s=30.0):
-    """The first stdout line of a running command, or an AssertionError after the deadline."""
-    import selectors
-
-    sel = selectors.DefaultSelector()
-    sel.register(proc.stdout, selectors.EVENT_READ)
-    if not sel.select(deadline_s):
-        raise AssertionError("no output within the deadline")
-    return proc.stdout.readline()
+def dockhil(capsys, *args):
+    """A short `dockhil` command, run in this process (no interpreter start-up): exit code and output."""
+    capsys.readouterr()
+    code = cli.main(list(args))
+    out = capsys.readouterr()
+    return SimpleNamespace(returncode=code, stdout=out.out, stderr=out.err)
 
 
 def chaser_mass(line: str) -> float:
@@ -50,7 +43,7 @@ def stop(proc):
         proc.wait()
 
 
-def test_graph_is_chosen_refused_when_ambiguous_and_its_end_is_said(tmp_path):
+def test_graph_is_chosen_refused_when_ambiguous_and_its_end_is_said(tmp_path, capsys):
     logs = [open(tmp_path / name, "w") for name in ("a.log", "b.log")]
     a, b = launch(700.0, logs[0]), launch(750.0, logs[1])
     watchers = []
@@ -58,27 +51,27 @@ def test_graph_is_chosen_refused_when_ambiguous_and_its_end_is_said(tmp_path):
         ida, idb = registered(a.pid, timeout=30)["run_id"], registered(b.pid, timeout=30)["run_id"]
 
         for action in ("echo", "hz"):  # none chosen: one line naming both graphs, nothing read
-            r = dockhil("topic", action, "/satellite/state", "-n", "1")
+            r = dockhil(capsys, "topic", action, "/satellite/state", "-n", "1")
             lines = r.stderr.strip().splitlines()
             assert r.returncode == 2 and len(lines) == 1 and r.stdout == "", r.stderr
             assert ida in lines[0] and idb in lines[0] and "--graph ID" in lines[0]
 
         # Each graph's messages, and only its: the chasers differ in mass.
         for run_id, mass in ((ida, 700.0), (idb, 750.0)):
-            r = dockhil("topic", "echo", "/satellite/state", "-n", "2", "--graph", run_id)
+            r = dockhil(capsys, "topic", "echo", "/satellite/state", "-n", "2", "--graph", run_id)
             rows = r.stdout.splitlines()
             assert r.returncode == 0 and len(rows) == 2, r.stderr
             assert [chaser_mass(x) for x in rows] == [mass, mass]
 
-        listed = dockhil("topic", "list", "--graph", ida).stdout.splitlines()
+        listed = dockhil(capsys, "topic", "list", "--graph", ida).stdout.splitlines()
         assert listed and all(line.endswith(f"({ida})") for line in listed)
-        nodes = dockhil("node", "list", "--graph", idb).stdout
+        nodes = dockhil(capsys, "node", "list", "--graph", idb).stdout
         assert nodes.startswith(idb) and ida not in nodes and "dynamics  satellite_dynamics" in nodes
 
-        r = dockhil("topic", "echo", "/satellite/state", "--graph", "no-such-run")
+        r = dockhil(capsys, "topic", "echo", "/satellite/state", "--graph", "no-such-run")
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
         assert "--graph no-such-run: no such running graph" in r.stderr and ida in r.stderr and idb in r.stderr
-        r = dockhil("topic", "hz", "/nope", "--graph", ida)
+        r = dockhil(capsys, "topic", "hz", "/nope", "--graph", ida)
         assert r.returncode == 2 and f"topic /nope is not published by graph {ida}" in r.stderr
 
         # Echo on A and hz on B, without a count: each ends, exit 0, when its own graph ends.
@@ -87,18 +80,22 @@ def test_graph_is_chosen_refused_when_ambiguous_and_its_end_is_said(tmp_path):
         hz = subprocess.Popen(dockhil_cmd("topic", "hz", "/satellite/state", "--graph", idb, "--window", "0.5"),
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         watchers = [echo, hz]
-        assert chaser_mass(first_line(echo)) == 700.0
-        assert "Hz over" in first_line(hz)
+        echoed, rates = Lines(echo), Lines(hz)
+        assert chaser_mass(echoed.wait_for("{", timeout=30).splitlines()[0]) == 700.0
+        rates.wait_for("Hz over", timeout=30)
 
         stop(a)
-        _, err = echo.communicate(timeout=30)
+        echoed.rest(timeout=30)
+        err = echo.stderr.read()
         assert echo.returncode == 0 and err.strip().splitlines()[-1] == f"[topic] graph {ida} ended", err
-        # B runs on, so does its watcher: it looks every ALIVE_CHECK_S; give it three looks at the registry.
-        time.sleep(3 * ALIVE_CHECK_S)
+        # B runs on, so does its watcher: three more reports of 0.5 s after A ended, while it looks
+        # at the registry every ALIVE_CHECK_S (0.5 s).
+        rates.wait_for("Hz over", count=sum("Hz over" in line for line in rates.lines) + 3, timeout=30)
         assert hz.poll() is None
 
         stop(b)
-        _, err = hz.communicate(timeout=30)
+        rates.rest(timeout=30)
+        err = hz.stderr.read()
         assert hz.returncode == 0 and err.strip().splitlines()[-1] == f"[topic] graph {idb} ended", err
     finally:
         for p in watchers + [a, b]:

@@ -205,7 +205,8 @@ nodes:
 @pytest.mark.wall_time
 def test_a_wall_time_run_that_stalled_says_invalid_and_exits_3(write_launch):
     scene = write_launch(HICCUP_SCENE)
-    r = subprocess.run(dockhil_cmd("launch", scene, "--wall-time", "--duration", "1.5"),
+    # The stall is recorded once tick 40 (0.2 s) has begun before the 1 s run ends.
+    r = subprocess.run(dockhil_cmd("launch", scene, "--wall-time", "--duration", "1"),
                        capture_output=True, text=True, timeout=120)
     text = r.stdout + r.stderr
     assert r.returncode == validity.INVALID_EXIT == 3, text
@@ -339,7 +340,7 @@ def test_a_stopped_composed_wall_time_run_is_invalid_in_its_summary(tmp_path):
     import threading
 
     out = tmp_path / "s.json"
-    p = subprocess.Popen(dockhil_cmd("launch", "launch/hil.yaml", "--composed", "--wall-time", "--duration", "3",
+    p = subprocess.Popen(dockhil_cmd("launch", "launch/hil.yaml", "--composed", "--wall-time", "--duration", "2",
                                      "--summary", out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(iter(p.stderr.readline, "")), daemon=True)
@@ -349,7 +350,7 @@ def test_a_stopped_composed_wall_time_run_is_invalid_in_its_summary(tmp_path):
         while not any("impedance (closed form" in line for line in lines):  # the last line of set-up
             assert time.monotonic() < deadline and p.poll() is None, lines
             time.sleep(0.02)
-        time.sleep(0.3)  # in the loop, which runs 3 s
+        time.sleep(0.3)  # in the loop, which runs 2 s
         p.send_signal(signal.SIGSTOP)
         time.sleep(0.5)
         p.send_signal(signal.SIGCONT)

@@ -118,14 +118,21 @@ def run(args) -> int:
         return 0
     info = choose_graph(args.topic, args.graph)
     t = info["topics"][args.topic]
-    import msgspec
-
     from dockhil import msgs
-    from dockhil.msgs.codec import DecodeError, decode
 
     cls = msgs.type_by_name(t["type"])
     sub = _subscribe(t["endpoint"], graph_keys(info))
-    watch = _Watch(info)
+    try:  # closed: a command run inside another Python program (a test) leaves no socket behind
+        return _read(args, sub, cls, _Watch(info))
+    finally:
+        sub.close()
+
+
+def _read(args, sub, cls, watch) -> int:
+    import msgspec
+
+    from dockhil.msgs.codec import DecodeError, decode
+
     if args.action == "echo":
         n = 0
         while args.count is None or n < args.count:
