@@ -89,7 +89,7 @@ def test_coupled_planar_bound_separates_growth_from_decay():
     for factor in (0.85, 1.15):
         scaled = loop.scaled(factor * margin.alpha)
         predicted = rightmost(scaled).s.real
-        measured = simulated_growth(scaled, 30.0, steps_per_delay=16)
+        measured = simulated_growth(scaled, 20.0, steps_per_delay=16)  # within 7 % and 16 % (30 s: 10 %, 20 %)
         assert np.sign(measured) == np.sign(predicted) == (1 if factor > 1 else -1)
         assert measured == pytest.approx(predicted, rel=0.3)
 
