@@ -8,6 +8,7 @@ import subprocess
 import numpy as np
 import pytest
 
+from dockhil.cli import main
 from dockhil.contact.hilloop import simulate_hil
 from dockhil.contact.hybrid import VirtualImpedance
 from dockhil.contact.passivity import DEFAULT_MAX_DAMPING, Passivity, left_in_loop
@@ -57,29 +58,34 @@ def test_verdicts_agree_with_the_exact_bound_and_the_damping_the_delay_needs():
     assert r["growth_rate"][3] == pytest.approx(-b / (2 * M), rel=0.15)
 
 
+def map_args(tmp_path, *extra):
+    return ["stability", "map", "--m", M, "--png", tmp_path / "m.png", "--n", 20, "--compensation", "passivity",
+            "--sim-n", 2, "--seconds", 20, *extra]
+
+
 def map_cmd(tmp_path, *extra):
-    return dockhil_cmd("stability", "map", "--m", M, "--png", tmp_path / "m.png", "--n", 20, "--compensation",
-                       "passivity", "--sim-n", 2, "--seconds", 20, *extra)
+    return dockhil_cmd(*map_args(tmp_path, *extra))
 
 
-def test_the_map_draws_the_compensated_region(tmp_path):
-    r = subprocess.run(map_cmd(tmp_path, "--multiples", 0.5, 10, "--json"), capture_output=True, text=True,
-                       timeout=300)
-    assert r.returncode == 0, r.stderr
-    s = json.loads(r.stdout)["passivity"]
+def run_map(capsys, tmp_path, *extra) -> str:
+    """The map command in this process (the test_bad_sweep_arguments run it as a command): its stdout."""
+    capsys.readouterr()
+    assert main([str(a) for a in map_args(tmp_path, *extra)]) == 0
+    return capsys.readouterr().out
+
+
+def test_the_map_draws_the_compensated_region(tmp_path, capsys):
+    s = json.loads(run_map(capsys, tmp_path, "--multiples", 0.5, 10, "--json"))["passivity"]
     assert s["grid"] == [2, 2] and s["multiples"] == [0.5, 10.0] and s["points"] == 8
     assert s["largest_stable_multiple"] == [[10.0, 10.0], [10.0, 10.0]]
     assert (tmp_path / "m.png").stat().st_size > 10000
     # A bound far below K h: the delay's energy stays in the loop (even inside the bound, where the
     # damper b outweighs it: the controller takes out what the delay makes, not the net), so every run
     # saturates and none counts as stable.
-    r = subprocess.run(map_cmd(tmp_path, "--multiples", 0.5, 10, "--max-damping", 1, "--json"), capture_output=True,
-                       text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
-    s = json.loads(r.stdout)["passivity"]
+    s = json.loads(run_map(capsys, tmp_path, "--multiples", 0.5, 10, "--max-damping", 1, "--json"))["passivity"]
     assert s["largest_stable_multiple"] == [[0.0, 0.0], [0.0, 0.0]] and s["saturated_points"] == 8
-    r = subprocess.run(map_cmd(tmp_path, "--multiples", 0.5), capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0 and "stable (neither grows nor saturates) in 4 of 4 runs" in r.stdout, r.stdout
+    out = run_map(capsys, tmp_path, "--multiples", 0.5)
+    assert "stable (neither grows nor saturates) in 4 of 4 runs" in out, out
 
 
 @pytest.mark.parametrize("args, words", [

@@ -128,7 +128,7 @@ def _errors(ideal_run, hybrid_run):
 def test_hybrid_loop_without_delay_reproduces_the_ideal_off_axis_contact():
     chaser, target, s1, s2, ideal, passive = off_axis_case()
     worst = {}
-    for dt in (1e-3, 5e-4):
+    for dt in (2e-3, 1e-3):
         ref = simulate_contact6(chaser, target, s1, s2, ideal, dt=dt, t_end=1.0)
         hyb = simulate_hybrid6(chaser, target, s1, s2, ideal, passive, dt=dt, t_end=1.0)
         assert ref.exit is not None and hyb.exit is not None and ref.peak("torque") > 1.0
@@ -136,7 +136,7 @@ def test_hybrid_loop_without_delay_reproduces_the_ideal_off_axis_contact():
         worst[dt] = max(errors.values())
         if dt == 1e-3:
             assert all(e < 5e-3 for e in errors.values()), errors
-    assert worst[5e-4] < 0.75 * worst[1e-3]  # tightens with rate
+    assert worst[1e-3] < 0.75 * worst[2e-3]  # tightens with rate (0.64 here; 1 to 2 kHz: 0.39)
 
 
 def test_hybrid_refuses_an_ideal_contact_with_friction():

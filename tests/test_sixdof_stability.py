@@ -41,6 +41,24 @@ def test_one_axis_is_the_1dof_exact_bound():
     assert rightmost(loop).s == pytest.approx(hybrid_rightmost(m, 800.0, 30.0, 1200.0, b, h), rel=1e-9)
 
 
+def test_the_narrow_bracket_follows_the_crossing_root_and_is_checked_with_all_the_roots():
+    from dockhil.contact.stability6 import _bisect_on_crossing_roots
+
+    m, b, h = 750.0, 60.0, 0.016
+    loop = MultiAxisLoop([[m]], [[0.0]], [[0.0]], [[1000.0]], [[b]], h, ("x",))
+    alpha = exact_k_max(m, b, h) / 1000.0
+
+    def grows(a):
+        return rightmost(loop.scaled(a)).s.real > 0.0
+
+    lo, hi = _bisect_on_crossing_roots(loop, 0.99 * alpha, 1.01 * alpha, 1e-9, grows)
+    assert lo < hi <= lo * (1 + 1e-9) and lo == pytest.approx(alpha, rel=1e-8)
+    # Should all the roots say the loop grows below where the followed root crosses (another root
+    # crossed first), the bisection is redone with them: here a stand-in that grows from 0.995 alpha.
+    lo, hi = _bisect_on_crossing_roots(loop, 0.99 * alpha, 1.01 * alpha, 1e-9, lambda a: a > 0.995 * alpha)
+    assert lo <= 0.995 * alpha < hi <= lo * (1 + 1e-9)
+
+
 def test_decoupled_axes_take_the_smallest_bound_and_name_its_axis():
     h = 0.016
     masses, dampers, k = [750.0, 300.0, 120.0], [20.0, 60.0, 10.0], [1000.0, 1000.0, 1000.0]
@@ -89,7 +107,7 @@ def test_coupled_planar_bound_separates_growth_from_decay():
     for factor in (0.85, 1.15):
         scaled = loop.scaled(factor * margin.alpha)
         predicted = rightmost(scaled).s.real
-        measured = simulated_growth(scaled, 30.0, steps_per_delay=16)
+        measured = simulated_growth(scaled, 20.0, steps_per_delay=16)  # within 7 % and 16 % (30 s: 10 %, 20 %)
         assert np.sign(measured) == np.sign(predicted) == (1 if factor > 1 else -1)
         assert measured == pytest.approx(predicted, rel=0.3)
 

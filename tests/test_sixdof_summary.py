@@ -8,6 +8,7 @@ import math
 import subprocess
 
 import numpy as np
+import pytest
 
 from dockhil import graph as graphmod
 from dockhil import launchfile
@@ -88,9 +89,18 @@ def _relative_spin(run, target_interface=(0.0, 0.0, 0.0, 1.0)):
     return rb.inv().apply(run.omegas[:, 0] - run.omegas[:, 1])
 
 
-def test_off_axis_summary_is_the_librarys_hybrid_run_against_its_ideal_run():
-    n = 1800
-    six = summary_of(HIL6, {}, n)  # defaults: offset 0.05 m, tilt 0.02 rad, spin 0.01 rad/s, 32 ms
+N_LIVE = 1801  # ticks of the scene's default run: its whole contact (1.57 s) and after
+
+
+@pytest.fixture(scope="module")
+def live():
+    """hil6.yaml's defaults (offset 0.05 m, tilt 0.02 rad, spin 0.01 rad/s, 32 ms), composed: its summary."""
+    return summary_of(HIL6, {}, N_LIVE)
+
+
+def test_off_axis_summary_is_the_librarys_hybrid_run_against_its_ideal_run(live):
+    n = N_LIVE
+    six = live
     hyb = library_run(0.05, 0.02, 0.01, 0.032, n)
     acting = np.any(hyb.force != 0.0, axis=1) | np.any(hyb.generalized != 0.0, axis=1)
     want = _first_contact_metrics(hyb.t, hyb.e[:, 0], hyb.rate[:, 0], hyb.force, hyb.torque, hyb.rate[:, :3],
@@ -133,13 +143,12 @@ def hyb_bodies():
             RigidBody(1e6, np.diag([4e6, 5e6, 6e6]), interface_position=[-2.0, 0.0, 0.0]))
 
 
-def test_a_recorded_run_gives_the_live_runs_summary(tmp_path):
+def test_a_recorded_run_gives_the_live_runs_summary(tmp_path, live):
     path = tmp_path / "summary.json"
     r = subprocess.run(dockhil_cmd("launch", HIL6, "--duration", "1.8", "--summary", path, "--quiet"),
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
     recorded = json.loads(path.read_text())
-    live = summary_of(HIL6, {}, 1801)
     for key in ("peak_force_N", "peak_torque_Nm", "contact_duration_s", "exit_relative_velocity_mps",
                 "exit_relative_angular_velocity_radps"):
         assert recorded[key] == live[key], key

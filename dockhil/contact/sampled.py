@@ -167,12 +167,14 @@ def _zeros_outside(q: np.ndarray, radius: float, margin: float = VERIFY_MARGIN) 
     least `margin` * radius away from the circle cannot slip between two samples."""
     deg = len(q) - 1
     n = int(max(8192, 64 * deg, 40.0 * math.pi / margin))
-    theta = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    # e^{i k theta_j} is the table's entry (k j mod n): one exp for all powers, and exact arguments.
+    unit = np.exp((2.0j * math.pi / n) * np.arange(n))
+    j = np.arange(n, dtype=np.int64)
     vals = np.zeros(n, complex)
     for i in np.nonzero(q)[0]:
-        vals += q[i] * radius ** int(i) * np.exp(1j * int(i) * theta)
-    phase = np.unwrap(np.angle(np.append(vals, vals[0])))
-    inside = int(round((phase[-1] - phase[0]) / (2.0 * math.pi)))
+        vals += (q[i] * radius ** int(i)) * unit[(int(i) * j) % n]
+    # The winding number: the phase steps between neighbouring samples (each below pi), summed.
+    inside = int(round(float(np.sum(np.angle(np.roll(vals, -1) * np.conj(vals)))) / (2.0 * math.pi)))
     return deg - inside
 
 

@@ -546,11 +546,12 @@ def hybrid_report(m: float, k_direct: float, b_direct: float, k_delayed: float, 
     """Everything `dockhil stability` prints for the hybrid loop, as a JSON-ready dict: the
     closed-form crossings and critical delay, Pade critical delays, the rightmost root, the
     paper's verdict when the whole contact is delayed, and the sampled loop at `rate`."""
-    from dockhil.contact.sampled import SampledLoop, sampled_roots
-
     m, kd, bd, kh, bh, h = _check_hybrid(m, k_direct, b_direct, k_delayed, b_delayed, h)
-    crossings = delay_crossings(m, kd, bd, kh, bh)
     h_star, w_star = critical_delay(m, kd, bd, kh, bh)
+    # The sampled loop first: a long delay whose roots cannot be verified is refused (RootsNotResolved)
+    # before the rest is computed.
+    sampled = None if rate is None else _sampled_report(m, kd, bd, kh, bh, h, rate, h_star)
+    crossings = delay_crossings(m, kd, bd, kh, bh)
     root = hybrid_rightmost(m, kd, bd, kh, bh, h)
     whole = hybrid_rightmost(m, 0.0, 0.0, kd + kh, bd + bh, h)
     fin = lambda v: None if v is None or not math.isfinite(v) else v  # noqa: E731
@@ -569,26 +570,34 @@ def hybrid_report(m: float, k_direct: float, b_direct: float, k_delayed: float, 
     if pade_order is not None:
         out["pade_order"] = int(pade_order)
         out["pade_n_critical_delay"] = fin(pade_critical_delay(m, kd, bd, kh, bh, pade_order))
-    if rate is not None:
-        dt = 1.0 / rate
-        d = int(round(h / dt))
-        guesses = [np.exp(s * dt) for s in hybrid_roots(m, kd, bd, kh, bh, h, count=4)]
-
-        def radius(ticks: int) -> float:
-            z = sampled_roots(SampledLoop(m, kd, bd, kh, bh, dt=dt, delay_ticks=ticks), guesses)[0]
-            return float(abs(z))
-
-        rho = radius(d)
-        sampled = {"rate": rate, "dt": dt, "delay_ticks": d, "spectral_radius": rho,
-                   "growth_rate": math.log(rho) * rate if rho > 0 else None, "stable": bool(rho < 1.0)}
-        # The smallest delay in whole ticks at which the sampled loop grows, near the exact one.
-        if h_star is not None and math.isfinite(h_star) and h_star * rate < 20000:
-            start = max(0, int(h_star * rate) - 6)
-            if radius(start) < 1.0:
-                ticks = start
-                while ticks < start + 40 and radius(ticks) < 1.0:
-                    ticks += 1
-                sampled["critical_delay_ticks"] = ticks
-                sampled["critical_delay"] = ticks * dt
+    if sampled is not None:
         out["sampled"] = sampled
     return out
+
+
+def _sampled_report(m, kd, bd, kh, bh, h, rate, h_star) -> dict:
+    """The hybrid loop sampled at `rate`: its spectral radius at round(h rate) ticks and the smallest
+    delay in whole ticks at which it grows (near the exact critical delay h_star)."""
+    from dockhil.contact.sampled import SampledLoop, sampled_roots
+
+    dt = 1.0 / rate
+    d = int(round(h / dt))
+    guesses = [np.exp(s * dt) for s in hybrid_roots(m, kd, bd, kh, bh, h, count=4)]
+
+    def radius(ticks: int) -> float:
+        z = sampled_roots(SampledLoop(m, kd, bd, kh, bh, dt=dt, delay_ticks=ticks), guesses)[0]
+        return float(abs(z))
+
+    rho = radius(d)
+    sampled = {"rate": rate, "dt": dt, "delay_ticks": d, "spectral_radius": rho,
+               "growth_rate": math.log(rho) * rate if rho > 0 else None, "stable": bool(rho < 1.0)}
+    # The smallest delay in whole ticks at which the sampled loop grows, near the exact one.
+    if h_star is not None and math.isfinite(h_star) and h_star * rate < 20000:
+        start = max(0, int(h_star * rate) - 6)
+        if radius(start) < 1.0:
+            ticks = start
+            while ticks < start + 40 and radius(ticks) < 1.0:
+                ticks += 1
+            sampled["critical_delay_ticks"] = ticks
+            sampled["critical_delay"] = ticks * dt
+    return sampled

@@ -40,6 +40,8 @@ from dockhil.contact.scenario import ContactModelError, check_nonnegative, check
 from dockhil.contact.stability import _cheb
 
 MAX_NODES = 120
+TRACK_WIDTH = 0.02  # relative bracket of the stiffness margin below which bisection follows the crossing roots
+TRACK_ROOTS = 12  # at most this many of them (more: all the roots, every step)
 
 
 @dataclass(frozen=True)
@@ -197,18 +199,38 @@ def stiffness_margin(loop: MultiAxisLoop, rel_tol: float = 1e-7) -> Margin:
             hi = probe
             probe *= 0.5
         lo = max(lo, probe)
-    while hi - lo > rel_tol * hi:
-        mid = 0.5 * (lo + hi)
-        if grows(mid):
-            hi = mid
-        else:
-            lo = mid
+    while hi - lo > max(rel_tol, TRACK_WIDTH) * hi:
+        lo, hi = (lo, mid) if grows(mid := 0.5 * (lo + hi)) else (mid, hi)
+    if hi - lo > rel_tol * hi:
+        lo, hi = _bisect_on_crossing_roots(loop, lo, hi, rel_tol, grows)
     root = rightmost(loop.scaled(hi))
     reason = (
         f"the rightmost root crosses the imaginary axis at s = +-j {root.s.imag:.6g} rad/s when the delayed"
         f" stiffness is {lo:.6g} times the given one; the crossing mode is led by axis {root.axis}"
     )
     return Margin(lo, root.s.imag, root, reason)
+
+
+def _bisect_on_crossing_roots(loop: MultiAxisLoop, lo: float, hi: float, rel_tol: float, grows) -> tuple[float, float]:
+    """The bisection of `stiffness_margin` inside a narrow bracket (lo stable, hi not), on the roots
+    alone that are unstable at hi (those that cross in between), each followed by Newton from its
+    value at the previous alpha: a few n x n solves per step instead of the 2n x nodes eigenvalue
+    problem. Both ends found are checked with all the roots; should they disagree (a root jumped
+    to another branch), the bisection is done with all the roots instead."""
+    crossing = [r.s for r in roots(loop.scaled(hi), count=TRACK_ROOTS) if r.s.real > 0.0]
+    a, b = lo, hi
+    while crossing and len(crossing) < TRACK_ROOTS and b - a > rel_tol * b:
+        mid = 0.5 * (a + b)
+        moved = [_newton(loop.scaled(mid), z) for z in crossing]
+        if any(z is None for z in moved):
+            break
+        crossing = moved
+        a, b = (a, mid) if any(z.real > 0.0 for z in moved) else (mid, b)
+    if b - a <= rel_tol * b and (a == lo or not grows(a)) and (b == hi or grows(b)):
+        return a, b
+    while hi - lo > rel_tol * hi:
+        lo, hi = (lo, mid) if grows(mid := 0.5 * (lo + hi)) else (mid, hi)
+    return lo, hi
 
 
 def modal_loops(loop: MultiAxisLoop, tol: float = 1e-9) -> list[dict] | None:
