@@ -320,8 +320,8 @@ class NodeExecutor:
         self.node.setup()
         # What start-up made (imports, devices) lives for the whole run: keep the collector from
         # walking it again on every full collection of the loop's garbage (measured: a quarter of
-        # a ring's CPU per tick).
-        gc.collect()
+        # a ring's CPU per tick). No collection first: what little garbage the imports left is kept,
+        # and a full collection of everything they made would cost each process 10-30 ms.
         gc.freeze()
 
     def wait_for_subscribers(self) -> None:
