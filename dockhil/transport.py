@@ -385,6 +385,7 @@ _HANDSHAKE_EVENTS = (zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_HANDSHAKE_FAILED_
                      | zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL)
 # A handshake cut short without detail may be a publisher closing mid-handshake: stop on the third in a row.
 NO_DETAIL_FAILURES = 3
+RECONNECT_MS = 10  # a subscriber's wait before it tries a refused endpoint again
 PEER_CHECK_S = 0.1  # recv_nowait looks at handshake failures at most this often
 
 
@@ -403,6 +404,9 @@ class Subscriber:
         self.sock.setsockopt(zmq.RCVHWM, HWM)
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.setsockopt(zmq.SUBSCRIBE, b"/" if observer else b"")
+        # A node's publishers bind while it starts, often after its readers connect: retry a refused
+        # connect every 10 ms, not ZeroMQ's default 100 ms, which sim time waits out before tick 0.
+        self.sock.setsockopt(zmq.RECONNECT_IVL, RECONNECT_MS)
         self._monitor = self.sock.get_monitor_socket(_HANDSHAKE_EVENTS)
         self._failures: dict[str, int] = {}
         self._next_check = 0.0
