@@ -1,5 +1,6 @@
 """What a launch costs before its first tick and after its last: a one-tick launch of
-launch/hil.yaml (sim time), multi-process and composed, and what one node process
+launch/hil.yaml (sim time), multi-process and composed, a one-tick launch of two small
+nodes (tests/graphnodes.py, as most runtime tests launch), and what one node process
 costs on its own, from interpreter start to exit.
 
 Each figure is the median of --repeat runs: wall time, and CPU time (user + system
@@ -41,9 +42,24 @@ def timed(argv: list[str], repeat: int, env: dict | None = None) -> dict:
     return {"wall_s": round(statistics.median(walls), 3), "cpu_s": round(statistics.median(cpus), 3)}
 
 
-def launch(repeat: int, *extra: str) -> dict:
-    return timed([sys.executable, "-m", "dockhil.cli", "launch", HIL, "--duration", "0.001", "--quiet", *extra],
+SMALL = """rate: 1000
+nodes:
+  - {name: integ, node: "tests.graphnodes:Integrator"}
+  - {name: gain, node: "tests.graphnodes:Gain"}
+"""
+
+
+def launch(repeat: int, scene: str = HIL, *extra: str) -> dict:
+    return timed([sys.executable, "-m", "dockhil.cli", "launch", scene, "--duration", "0.001", "--quiet", *extra],
                  repeat)
+
+
+def small_graph(repeat: int) -> dict:
+    with tempfile.TemporaryDirectory(prefix="dockhil-startup-") as folder:
+        scene = os.path.join(folder, "small.yaml")
+        with open(scene, "w") as f:
+            f.write(SMALL)
+        return launch(repeat, scene)
 
 
 def node_spec(type_name: str, folder: str, key_file: str) -> str:
@@ -88,7 +104,8 @@ def main() -> None:
         "bytecode_cache_written": not sys.dont_write_bytecode,
         "interpreter": timed([sys.executable, "-c", "pass"], args.repeat),
         "multiprocess_one_tick": launch(args.repeat),
-        "composed_one_tick": launch(args.repeat, "--composed"),
+        "composed_one_tick": launch(args.repeat, HIL, "--composed"),
+        "small_graph_one_tick": small_graph(args.repeat),
         "node_process": node_processes(args.repeat),
         "load_average_before": [round(x, 2) for x in load_before],
         "load_average_after": [round(x, 2) for x in os.getloadavg()],
