@@ -38,6 +38,7 @@ from dockhil.process import READY
 from dockhil.transport import GraphKeys, ipc_endpoint, new_run_dir, private_dir, runtime_dir
 
 KEY_FILE = "graph.keys"
+POLL_S = 0.05  # the watch loop's longest sleep when no child speaks or exits
 
 
 @dataclass
@@ -338,6 +339,9 @@ class Launcher:
             spec.wait_for_go = (clock == "wall" and all(is_local(gn.host) for gn in members)
                                 and not all(gn.cls.free_running for gn in members))
         self._all_ready_at: float | None = None
+        # Set by a child's reader when it says READY or its output ends (it exits): the watch loop
+        # wakes at once rather than at its next poll, so a run's end and a wall-time start wait for nothing.
+        self._wake = threading.Event()
         self.progress = progress and clock == "sim" and self.n_ticks is not None
         self._stop_signal: int | None = None
         self.children: list[_Child] = []
@@ -353,11 +357,12 @@ class Launcher:
     # -- output ----------------------------------------------------------------
     say = log.Log("[launch]")
 
-    def _read(self, child: _Child, stream) -> None:
-        for raw in stream:
+    def _read(self, child: _Child, proc: subprocess.Popen) -> None:
+        for raw in proc.stdout:
             line = raw.rstrip("\n")
             if line == READY:
                 child.ready = True
+                self._wake.set()
                 continue
             if line.startswith(TIMING):
                 try:
@@ -366,6 +371,11 @@ class Launcher:
                     pass
                 continue
             log.replay(line, f"[{child.name}]")
+        try:  # its output ends as it exits: reap it, so the watch loop it wakes sees the exit code
+            proc.wait(timeout=1.0)
+        except subprocess.TimeoutExpired:
+            pass
+        self._wake.set()
 
     # -- processes -------------------------------------------------------------
     def _start(self, child: _Child) -> None:
@@ -377,7 +387,7 @@ class Launcher:
             child.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
             text=True, bufsize=1, start_new_session=True, env=env,
         )
-        child.reader = threading.Thread(target=self._read, args=(child, child.proc.stdout), daemon=True)
+        child.reader = threading.Thread(target=self._read, args=(child, child.proc), daemon=True)
         child.reader.start()
         self.say.debug(f"started {child.name!r} (pid {child.proc.pid})")
 
@@ -534,6 +544,7 @@ class Launcher:
 
     def _watch_children(self, probe, bar) -> int:
         while True:
+            self._wake.clear()  # before looking: what happens from here on wakes the wait below
             if probe is not None:
                 self._show_progress(probe, bar)
             if self._duration_over():
@@ -575,7 +586,7 @@ class Launcher:
                 return self._died(child, code)
             if nodes_running == 0:
                 return self._finish_extras()
-            time.sleep(0.05)
+            self._wake.wait(POLL_S)  # signals, respawns, progress and the wall-time duration: every POLL_S
 
     def _finish_extras(self, timeout: float = 10.0) -> int:
         """Nodes are done: give helper processes (a recorder draining its queue) time to exit."""

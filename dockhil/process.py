@@ -17,7 +17,6 @@ import ctypes
 import os
 import signal
 import sys
-import time
 
 import msgspec
 
@@ -45,6 +44,25 @@ def _ask_realtime(log) -> None:
             f"(grant CAP_SYS_NICE or an rtprio limit to use --realtime)")
 
 
+def _wait_for_go(go: list, stop) -> None:
+    """Sleep until the launcher's go (SIGUSR1, whose handler fills `go`) or a stop. The signal's
+    byte on the wake-up fd ends the wait at once, on whichever thread the signal lands; the
+    time-out only bounds a signal that came just before the fd was set."""
+    import select
+
+    r, w = os.pipe()
+    os.set_blocking(w, False)
+    old = signal.set_wakeup_fd(w, warn_on_full_buffer=False)
+    try:
+        while not go and not stop.requested:
+            if select.select([r], [], [], 0.1)[0]:
+                os.read(r, 512)
+    finally:
+        signal.set_wakeup_fd(old)
+        os.close(r)
+        os.close(w)
+
+
 def run_node(spec, log=None, on_ready=None) -> int:
     """Set up and run one node until its ticks are done or a stop is requested."""
     from dockhil import nodes
@@ -68,8 +86,8 @@ def run_node(spec, log=None, on_ready=None) -> int:
         executor.start()
         if on_ready:
             on_ready()
-        while spec.wait_for_go and not go and not stop.requested:
-            time.sleep(0.005)  # the other nodes are still opening their devices
+        if spec.wait_for_go:  # the other nodes are still opening their devices
+            _wait_for_go(go, stop)
         if spec.clock == "sim":
             executor.run_sim()
         else:

@@ -21,7 +21,6 @@ from __future__ import annotations
 import cmath
 import math
 
-from dockhil.contact import sampled
 from dockhil.errors import DockhilError
 from dockhil.launchschema import MAX_RATE
 
@@ -33,11 +32,12 @@ def _first(graph, type_name: str):
 def scene_loop(graph, dt: float | None = None) -> dict | None:
     """The loop of a scene at tick dt (default: the scene's): SampledLoop, the delay h [s], the
     target contact (m, k, b) and its span (contact duration or period); None without dynamics."""
+    dyn = _first(graph, "satellite_dynamics")
+    if dyn is None:  # no loop to check: nothing of the science (numpy) is loaded
+        return None
+    from dockhil.contact import sampled
     from dockhil.contact.hilloop import delay_ticks
 
-    dyn = _first(graph, "satellite_dynamics")
-    if dyn is None:
-        return None
     p = dyn.params
     dt = graph.scene.dt if dt is None else dt
     m1, m2 = p["m1"], p["m2"]
@@ -89,6 +89,7 @@ def scene_loop(graph, dt: float | None = None) -> dict | None:
 
 
 def _with_target(info: dict, p: dict, free: bool, k: float, b: float) -> dict:
+    from dockhil.contact import sampled
     from dockhil.contact.ideal import contact_duration
 
     m = info["m"]
@@ -104,6 +105,7 @@ def _with_target(info: dict, p: dict, free: bool, k: float, b: float) -> dict:
 
 def _analyse(info: dict, cont=None) -> dict:
     """Dominant root of the sampled loop, and the delay equation's roots `cont` (computed when not given)."""
+    from dockhil.contact import sampled
     from dockhil.contact.stability import hybrid_roots
 
     loop = info["loop"]
@@ -128,6 +130,7 @@ def _stable_rate(graph, info: dict, start: float, cont) -> float | None:
     """The lowest rate from `start` up (doubling) whose sampled loop agrees with the delay equation;
     None when none does up to 256 times `start` (the integrator itself is the problem) or up to
     the highest rate a scene runs at."""
+    from dockhil.contact import sampled
     from dockhil.contact.hilloop import delay_ticks
 
     rate = start
@@ -152,6 +155,8 @@ def scene_check(graph, refuse: bool = True) -> dict:
     info = scene_loop(graph)
     if info is None:
         return {"loop": {}, "warnings": []}
+    from dockhil.contact import sampled
+
     loop = info["loop"]
     res = sampled.Resolution(info["omega"], loop.dt, info["span"], info["span_name"])
     try:

@@ -32,7 +32,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
               progress: bool = False, show_summary: bool = True, realtime: bool = False,
               foxglove: tuple[str, int] | None = None) -> int:
     """foxglove: (host, port) to serve a live view of the run on (dockhil.foxglove_bridge)."""
-    from dockhil import summary as summ
+    from dockhil.scenecheck import scene_check
 
     say = Log("[launch]")
 
@@ -47,9 +47,13 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     if summary is not None:
         _check_writable(summary, bag)
     # The loop this scene will run: refused here (one line) when its step does not resolve the contact.
-    for line in summ.scene_check(graph)["warnings"]:
+    for line in scene_check(graph)["warnings"]:
         say.warning(line)
-    collector = summ.SummaryCollector(graph) if want_summary else None
+    collector = None
+    if want_summary:  # numpy and the models: only for a run that has a summary
+        from dockhil import summary as summ
+
+        collector = summ.SummaryCollector(graph)
     tmp = None
     bridge = None
     if foxglove is not None:  # before any node starts: a busy port is refused here
@@ -64,7 +68,6 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
         check_composable(graph)
         code = _run_composed(graph, clock, n_ticks, progress, bag, collector, reasons, bridge)
     else:
-        from dockhil import bag_live
         from dockhil.launcher import Launcher
         from dockhil.transport import GraphKeys
 
@@ -72,7 +75,9 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
             tmp = tempfile.TemporaryDirectory(prefix="dockhil-summary-")
             bag = os.path.join(tmp.name, "run.mcap")
         extra = []
-        if bag is not None:
+        if bag is not None:  # the recorder runs in a process of its own: here, only its checks
+            from dockhil import bag_live
+
             bag_live.check_bag_path(bag)  # a bag that cannot be written fails the launch before any node runs
             extra.append(bag_live.recorder_process(bag, graph, clock, n_ticks))
         launcher = Launcher(graph, clock=clock, duration=duration, transport=transport, extra=extra,

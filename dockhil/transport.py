@@ -180,18 +180,66 @@ class GraphKeys:
         return keys
 
 
-class _ClientKeys:
-    """ZAP credentials: the client keys of the graphs whose publishers live in this process."""
+ZAP_ENDPOINT = "inproc://zeromq.zap.01"  # where libzmq asks a context's ZAP handler (RFC 27)
 
-    def __init__(self) -> None:
+
+class _ZapHandler:
+    """A context's ZAP handler: a thread that answers every CURVE handshake of the context's
+    publishers, admitting a client only if its public key is one of `allowed` (Z85), the client
+    keys of the graphs whose publishers live in this process. Any other mechanism or key is
+    refused. (pyzmq's ThreadAuthenticator does the same through an asyncio event loop, whose
+    import alone costs each node process about 50 ms of CPU.)"""
+
+    def __init__(self, ctx: zmq.Context) -> None:
         self.allowed: set[bytes] = set()
+        self._zap = ctx.socket(zmq.REP)
+        self._zap.linger = 0
+        self._zap.bind(ZAP_ENDPOINT)
+        wake = f"inproc://dockhil-zap-stop-{id(self)}"
+        self._stop = ctx.socket(zmq.PAIR)
+        self._stop.linger = 0
+        self._stop.bind(wake)
+        woken = ctx.socket(zmq.PAIR)
+        woken.linger = 0
+        woken.connect(wake)
+        self._thread = threading.Thread(target=self._serve, args=(woken,), name="dockhil-zap", daemon=True)
+        self._thread.start()
 
-    def callback(self, domain: str, key: bytes) -> bool:
-        return key in self.allowed
+    def _serve(self, woken) -> None:
+        poller = zmq.Poller()
+        poller.register(self._zap, zmq.POLLIN)
+        poller.register(woken, zmq.POLLIN)
+        try:
+            while True:
+                ready = dict(poller.poll())
+                if woken in ready:
+                    return
+                if self._zap in ready:
+                    self._zap.send_multipart(self.reply(self._zap.recv_multipart()))
+        finally:
+            woken.close()
+            self._zap.close()
+
+    def reply(self, request: list[bytes]) -> list[bytes]:
+        """The answer to one ZAP request: [version, request id, domain, address, routing id,
+        mechanism, credentials...]; for CURVE the credential is the client's 32-byte public key."""
+        from zmq.utils import z85
+
+        request_id = request[1] if len(request) > 1 else b""
+        admitted = (len(request) == 7 and request[0] == b"1.0" and request[5] == b"CURVE"
+                    and len(request[6]) == 32 and z85.encode(request[6]) in self.allowed)
+        if admitted:
+            return [b"1.0", request_id, b"200", b"OK", b"graph", b""]
+        return [b"1.0", request_id, b"400", b"not a client of this graph", b"", b""]
+
+    def stop(self) -> None:
+        self._stop.send(b"")
+        self._thread.join()
+        self._stop.close()
 
 
 _auth_lock = threading.Lock()
-_auth: dict[int, tuple] = {}  # id(context) -> (authenticator, credentials, publishers using it)
+_auth: dict[int, list] = {}  # id(context) -> [its ZAP handler, publishers using it]
 
 
 def _allow_clients(ctx, keys: GraphKeys) -> None:
@@ -199,16 +247,9 @@ def _allow_clients(ctx, keys: GraphKeys) -> None:
     with _auth_lock:
         entry = _auth.get(id(ctx))
         if entry is None:
-            from zmq.auth.thread import ThreadAuthenticator
-
-            auth = ThreadAuthenticator(ctx)
-            auth.log.disabled = True  # a refused stranger is not our log's business
-            auth.start()
-            creds = _ClientKeys()
-            auth.configure_curve_callback("*", creds)
-            entry = _auth[id(ctx)] = [auth, creds, 0]
-        entry[1].allowed.add(keys.client_public)
-        entry[2] += 1
+            entry = _auth[id(ctx)] = [_ZapHandler(ctx), 0]
+        entry[0].allowed.add(keys.client_public)
+        entry[1] += 1
 
 
 def _release_clients(ctx) -> None:
@@ -216,8 +257,8 @@ def _release_clients(ctx) -> None:
         entry = _auth.get(id(ctx))
         if entry is None:
             return
-        entry[2] -= 1
-        if entry[2] <= 0:
+        entry[1] -= 1
+        if entry[1] <= 0:
             del _auth[id(ctx)]
             entry[0].stop()
 
@@ -344,6 +385,7 @@ _HANDSHAKE_EVENTS = (zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_HANDSHAKE_FAILED_
                      | zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL)
 # A handshake cut short without detail may be a publisher closing mid-handshake: stop on the third in a row.
 NO_DETAIL_FAILURES = 3
+RECONNECT_MS = 10  # a subscriber's wait before it tries a refused endpoint again
 PEER_CHECK_S = 0.1  # recv_nowait looks at handshake failures at most this often
 
 
@@ -362,6 +404,9 @@ class Subscriber:
         self.sock.setsockopt(zmq.RCVHWM, HWM)
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.setsockopt(zmq.SUBSCRIBE, b"/" if observer else b"")
+        # A node's publishers bind while it starts, often after its readers connect: retry a refused
+        # connect every 10 ms, not ZeroMQ's default 100 ms, which sim time waits out before tick 0.
+        self.sock.setsockopt(zmq.RECONNECT_IVL, RECONNECT_MS)
         self._monitor = self.sock.get_monitor_socket(_HANDSHAKE_EVENTS)
         self._failures: dict[str, int] = {}
         self._next_check = 0.0

@@ -97,3 +97,33 @@ def test_violations_names_the_node_and_the_package():
     assert any("ft_sim" in v and "scipy" in v and "import" in v for v in found)
     assert any("ft_sim" in v and "can" in v and "setup" in v for v in found)
     assert not any(v.startswith("ft_can") for v in found)
+
+
+def test_a_node_processs_authentication_and_loop_report_load_neither_asyncio_nor_numpy(tmp_path):
+    # What every node process runs besides its node: a publisher's CURVE check (a ZAP handler
+    # thread; pyzmq's ThreadAuthenticator would load asyncio) and its loop report at exit (numpy
+    # would cost a node that does not compute with it 0.1 s of CPU).
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, zmq\n"
+        "from dockhil.executor import LoopTiming\n"
+        "from dockhil.transport import GraphKeys, Publisher, Subscriber\n"
+        "keys = GraphKeys.make()\n"
+        "ctx = zmq.Context.instance()\n"
+        "pub = Publisher(ctx, '/x', 'ipc://' + sys.argv[1] + '/x', keys=keys)\n"
+        "sub = Subscriber(ctx)\n"
+        "sub.connect(pub.endpoint, keys=keys)\n"
+        "pub.wait_subscribers(1, 20.0)\n"  # a handshake the ZAP handler admitted
+        "timing = LoopTiming(['u'], period=1e-3)\n"
+        "for late in (1e-4, 3e-4, 2e-4):\n"
+        "    timing.started(late)\n"
+        "timing.report('n')\n"
+        "sub.close(); pub.close(); ctx.term()\n"
+        "print(sorted(m for m in ('asyncio', 'numpy') if m in sys.modules))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=60,
+                          cwd=str(leanness.ROOT))
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]", done.stdout

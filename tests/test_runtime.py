@@ -346,3 +346,29 @@ def test_a_burst_is_read_message_by_message_and_an_envelope_is_joined(tmp_path):
     assert observer.recv(5.0) == [b"/t", b"\x81\xa1a\x03"]
     for s in (pub, member, observer):
         s.close()
+
+
+def test_loop_figures_are_numpys_percentiles_without_numpy():
+    """A node's loop report (jitter, input ages) gives numpy.percentile's figures, bit for bit,
+    though the node process that writes it need not import numpy."""
+    import random
+
+    import numpy as np
+
+    from dockhil.executor import LoopTiming
+
+    rng = random.Random(7)
+    for n in (2, 3, 10, 1001):
+        timing = LoopTiming(["ft"], period=1e-3)
+        for _ in range(n):
+            timing.started(rng.uniform(-2e-4, 3e-3))
+            timing.ages["ft"].append(rng.uniform(0.0, 5e-3))
+        out = timing.report("node")
+        late = np.abs(np.asarray(timing.lateness[1:]))
+        for figures, values in ((out["jitter_us"], late), (out["input_age_us"]["ft"], np.asarray(timing.ages["ft"]))):
+            us = np.abs(values) * 1e6
+            assert figures == {"p50": float(np.percentile(us, 50)), "p99": float(np.percentile(us, 99)),
+                               "max": float(us.max())}
+        assert out["worst_tick"] == int(np.argmax(late)) + 1
+        assert out["worst_late_s"] == float(late.max())
+    assert LoopTiming([], period=1e-3).report("idle")["jitter_us"] == {}

@@ -203,6 +203,33 @@ def test_strangers_on_a_publishers_port_receive_nothing_and_are_not_counted(tmp_
         pub.close()
 
 
+def test_the_zap_handler_admits_the_graphs_client_key_and_nothing_else():
+    """Each ZAP request a publisher's handshake makes: only CURVE with the graph's client key gets 200."""
+    from zmq.utils import z85
+
+    from dockhil.transport import _ZapHandler
+
+    keys, other = GraphKeys.make(), GraphKeys.make()
+    handler = _ZapHandler(zmq.Context())
+    try:
+        handler.allowed.add(keys.client_public)
+
+        def status(mechanism, *credentials, version=b"1.0"):
+            reply = handler.reply([version, b"id7", b"", b"127.0.0.1", b"", mechanism, *credentials])
+            assert reply[:2] == [b"1.0", b"id7"]  # answers the request it was asked
+            return reply[2]
+
+        assert status(b"CURVE", z85.decode(keys.client_public)) == b"200"
+        assert status(b"CURVE", z85.decode(other.client_public)) == b"400"
+        assert status(b"CURVE", z85.decode(keys.server_public)) == b"400"
+        assert status(b"CURVE", z85.decode(keys.client_public), version=b"2.0") == b"400"
+        assert status(b"NULL") == b"400"
+        assert status(b"PLAIN", b"user", b"password") == b"400"
+        assert handler.reply([b"1.0"])[2] == b"400"
+    finally:
+        handler.stop()
+
+
 WALL_TCP = """
 rate: 200
 nodes:
