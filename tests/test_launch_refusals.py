@@ -6,6 +6,7 @@ import subprocess
 import pytest
 
 from tests.conftest import ROOT, dockhil_cmd
+from tests.inprocess import run_main
 
 # The line each node of the shipped hil.yaml is declared on, read from the file (a refusal names it).
 HIL_LINE = {line.split("name:", 1)[1].strip(): n
@@ -100,8 +101,8 @@ def test_include_and_conditions(write_launch, tmp_path):
     assert [s.name for s in g.scene.skipped] == ["tr"]
     g = build(launchfile.load(path, {"trace": "on"}))
     assert "tr" in g.nodes
-    r = subprocess.run(dockhil_cmd("graph", path, "trace:=maybe"), capture_output=True, text=True)
-    assert r.returncode == 2 and "must be one of on, off" in r.stderr
+    code, _, err = run_main("graph", path, "trace:=maybe")
+    assert code == 2 and "must be one of on, off" in err
 
 
 def test_graph_shows_what_conditions_left_out(write_launch):
@@ -110,7 +111,8 @@ def test_graph_shows_what_conditions_left_out(write_launch):
     assert r.returncode == 0
     assert "left out by conditions:\n  trace (if: $(arg use_trace) is false)" in r.stdout
     assert "in  u: /u dockhil/WrenchStamped <- gain.u, previous tick" in r.stdout
-    dot = subprocess.run(dockhil_cmd("graph", path, "--dot"), capture_output=True, text=True).stdout
+    code, dot, _ = run_main("graph", path, "--dot")
+    assert code == 0
     assert dot.startswith("digraph") and '"integ" -> "gain" [label="/x"]' in dot
 
 
@@ -162,22 +164,6 @@ BAD_INPUTS = {
                      ["rate:=2e6"], "scene.yaml:1: rate: expected a number <= 1000000.0, got 2000000.0"),
     "recursive alias": ("graph", "nodes: &n [*n]\n", [], "scene.yaml:1: alias *n refers to the value that contains it"),
 }
-
-
-def run_main(*argv):
-    """The CLI's main in this process: (exit code, stdout, stderr)."""
-    import contextlib
-    import io
-
-    from dockhil import cli
-
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            code = cli.main([str(a) for a in argv])
-        except SystemExit as exc:
-            code = exc.code
-    return code, out.getvalue(), err.getvalue()
 
 
 def assert_one_line_refusal(code, err, expected):
