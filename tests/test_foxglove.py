@@ -168,11 +168,13 @@ def test_a_viewer_sees_every_topic_with_its_schema_and_receives_valid_wrenches(t
 
 def test_a_watched_run_gives_the_same_bag_and_summary_as_an_unwatched_one(tmp_path):
     """The bridge observes: sim time does not wait for it, and a viewer that stops reading
-    slows nothing. Same bag bit for bit, same summary."""
+    slows nothing. Same bag bit for bit, same summary. The unwatched run is composed (one process,
+    a quarter of the CPU time): a multi-process run gives a composed run's bytes (test_hil_graph.py
+    holds that), so the watched multi-process run must give them too."""
     from dockhil.bag import BagReader
 
     args = ["--duration", "1.5"]
-    plain = subprocess.run(dockhil_cmd("launch", SCENE, "--quiet", *args, "--bag", tmp_path / "plain.mcap",
+    plain = subprocess.run(dockhil_cmd("launch", SCENE, "--quiet", *args, "--composed", "--bag", tmp_path / "plain.mcap",
                                        "--summary", tmp_path / "plain.json"),
                            cwd=ROOT, capture_output=True, text=True, timeout=DEADLINE_S)
     assert plain.returncode == 0, plain.stderr
