@@ -44,6 +44,13 @@ def launch(scene, *args, timeout=60, **kw):
     return subprocess.run(dockhil_cmd("launch", scene, *args), capture_output=True, text=True, timeout=timeout, **kw)
 
 
+def launch_here(scene, *args):
+    """A composed launch through dockhil.cli.main in this process (no interpreter start-up),
+    returned as subprocess.run's result is."""
+    code, out, err = run_main("launch", scene, *args)
+    return subprocess.CompletedProcess(["dockhil", "launch", str(scene), *map(str, args)], code, out, err)
+
+
 def by_topic(path) -> dict[str, list[tuple[int, bytes]]]:
     """topic -> [(log time ns, wire bytes)] in file order."""
     out: dict[str, list[tuple[int, bytes]]] = {}
@@ -100,7 +107,7 @@ def test_launch_bag_round_trip_record_info_export_play(write_launch, tmp_path, c
     r = launch(scene, "--bag", multi)
     assert_ok(r)
     assert f"[bag-recorder] recorded 843 messages on 3 topics to {multi}; 0 lost" in r.stderr
-    r = launch(scene, "--composed", "--bag", composed)
+    r = launch_here(scene, "--composed", "--bag", composed)
     assert_ok(r)
     assert f"[bag-recorder] recorded 843 messages on 3 topics to {composed}; 0 lost" in r.stderr
 
@@ -152,27 +159,28 @@ def test_launch_bag_round_trip_record_info_export_play(write_launch, tmp_path, c
 def test_replay_as_source_reproduces_the_recorded_run(write_launch, tmp_path):
     scene = write_launch(SCENE)
     recorded = tmp_path / "recorded.mcap"
-    assert_ok(launch(scene, "--bag", recorded))
+    # Recorded composed: its bag has the multi-process run's bytes (the round trip above holds that).
+    assert_ok(launch_here(scene, "--composed", "--bag", recorded))
     want = by_topic(recorded)
 
     # /drive from the bag instead of its source node: every topic, bit for bit, multi-process and composed.
     for mode in ([], ["--composed"]):
         out = tmp_path / f"replay{len(mode)}.mcap"
-        r = launch(scene, "drive:=bag", f"bag:={recorded}", "--bag", out, *mode)
+        r = (launch_here if mode else launch)(scene, "drive:=bag", f"bag:={recorded}", "--bag", out, *mode)
         assert_ok(r)
         assert by_topic(out) == want, mode
 
     # The bag is what drives the replay: another seed gives another run.
     other = tmp_path / "other.mcap"
-    assert_ok(launch(scene, "seed:=8", "--composed", "--bag", other))
+    assert_ok(launch_here(scene, "seed:=8", "--composed", "--bag", other))
     assert by_topic(other)["/x"] != want["/x"]
 
     # A run longer than the bag stops at the first tick the bag does not hold, in one line.
-    r = launch(scene, "drive:=bag", f"bag:={recorded}", "--duration", "0.5", "--composed")
+    r = launch_here(scene, "drive:=bag", f"bag:={recorded}", "--duration", "0.5", "--composed")
     assert r.returncode != 0
     assert "has no tick 301: it ends at tick 300" in r.stderr and "Traceback" not in r.stderr
-    r = launch(scene, "drive:=bag", f"bag:={tmp_path / 'missing.mcap'}")
-    assert r.returncode == 2 and "missing.mcap: no such file" in one_line(r.stderr)
+    code, out, err = run_main("launch", scene, "drive:=bag", f"bag:={tmp_path / 'missing.mcap'}")
+    assert code == 2 and "missing.mcap: no such file" in one_line(err) and out == ""
 
 
 def test_bag_source_steps_by_tick_or_by_time(tmp_path):
