@@ -24,6 +24,7 @@ import pytest
 import websockets
 
 from tests.conftest import ROOT, dockhil_cmd
+from tests.inprocess import run_main
 
 SCENE = "launch/hil.yaml"
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # foxglove-sdk 0.30; older servers
@@ -312,13 +313,13 @@ def test_a_busy_port_is_refused_in_one_line_before_any_node_starts(tmp_path):
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        r = subprocess.run(dockhil_cmd("launch", SCENE, "--foxglove", port), cwd=ROOT, capture_output=True,
-                           text=True, timeout=DEADLINE_S)
-    assert r.returncode != 0
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+        # In this process: a refusal needs no interpreter of its own.
+        code, out, err = run_main("launch", SCENE, "--foxglove", port)
+    assert code != 0
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
     assert f"127.0.0.1:{port}" in lines[0] and "in use" in lines[0] and "--foxglove PORT" in lines[0]
-    assert "[impedance]" not in r.stdout  # no node ran
+    assert "[impedance]" not in out + err  # no node ran
 
 
 @pytest.mark.parametrize("args, says", [
@@ -328,12 +329,11 @@ def test_a_busy_port_is_refused_in_one_line_before_any_node_starts(tmp_path):
     (["--foxglove", "1", "--foxglove-host", "no-such-host.invalid"], "no-such-host.invalid"),
 ])
 def test_bad_live_view_options_get_one_line(args, says):
-    r = subprocess.run(dockhil_cmd("launch", SCENE, *args), cwd=ROOT, capture_output=True, text=True,
-                       timeout=DEADLINE_S)
-    assert r.returncode == 2
-    assert "Traceback" not in r.stderr
-    errors = [line for line in r.stderr.splitlines() if "error:" in line]
-    assert len(errors) == 1 and says in errors[0], r.stderr
+    code, _, err = run_main("launch", SCENE, *args)
+    assert code == 2
+    assert "Traceback" not in err
+    errors = [line for line in err.splitlines() if "error:" in line]
+    assert len(errors) == 1 and says in errors[0], err
 
 
 def test_a_launch_without_the_live_view_does_not_import_foxglove():
