@@ -554,14 +554,13 @@ def test_a_node_run_alone_never_publishes_what_a_running_graph_would_not_hear(en
     from dockhil import cli
 
     reg = _fake_graph("lab-graph", **entry)
-    try:
-        r = subprocess.run(dockhil_cmd("run", "tests.graphnodes:Source", "--rate", "100", "--duration", "0.05"),
-                           capture_output=True, text=True, timeout=60, env=env())
+    try:  # a refusal: in this process, no interpreter of its own
+        code, out, err = run_main("run", "tests.graphnodes:Source", "--rate", "100", "--duration", "0.05")
     finally:
         reg.unlink()
-    assert r.returncode == 2, r.stdout + r.stderr
-    line = one_line(r.stderr)
-    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
+    assert code == 2, out + err
+    line = one_line(err)
+    assert err.count("\n") == 1 and "Traceback" not in err, err
     for word in words:
         assert word in line, line
 
