@@ -32,8 +32,6 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
               progress: bool = False, show_summary: bool = True, realtime: bool = False,
               foxglove: tuple[str, int] | None = None) -> int:
     """foxglove: (host, port) to serve a live view of the run on (dockhil.foxglove_bridge)."""
-    from dockhil.scenecheck import scene_check
-
     say = Log("[launch]")
 
     dt = graph.scene.dt
@@ -41,11 +39,19 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     has_dynamics = "/satellite/state" in graph.publishers
     if summary is not None and not has_dynamics:
         raise DockhilError(f"{graph.scene.path}: --summary needs a scene that publishes /satellite/state")
+    # Files that cannot be written fail the launch first, in one line: before the summary's
+    # analysis is imported (numpy) and before any node is made, composed or as a process.
+    if summary is not None:
+        _check_writable(summary, bag)
+    if bag is not None:
+        from dockhil.bag_live import check_bag_path
+
+        check_bag_path(bag)
+    from dockhil.scenecheck import scene_check
+
     # A compensated scene's validity (the controller saturated) is in its summary: always compute it.
     compensated = any(gn.params.get("compensation") == "passivity" for gn in graph.nodes.values())
     want_summary = has_dynamics and n_ticks is not None and (summary is not None or show_summary or compensated)
-    if summary is not None:
-        _check_writable(summary, bag)
     # The loop this scene will run: refused here (one line) when its step does not resolve the contact.
     for line in scene_check(graph)["warnings"]:
         say.warning(line)
@@ -75,10 +81,9 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
             tmp = tempfile.TemporaryDirectory(prefix="dockhil-summary-")
             bag = os.path.join(tmp.name, "run.mcap")
         extra = []
-        if bag is not None:  # the recorder runs in a process of its own: here, only its checks
+        if bag is not None:  # the recorder runs in a process of its own
             from dockhil import bag_live
 
-            bag_live.check_bag_path(bag)  # a bag that cannot be written fails the launch before any node runs
             extra.append(bag_live.recorder_process(bag, graph, clock, n_ticks))
         launcher = Launcher(graph, clock=clock, duration=duration, transport=transport, extra=extra,
                             progress=progress, realtime=realtime)

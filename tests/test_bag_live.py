@@ -19,6 +19,7 @@ from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped, type_name
 from dockhil.msgs.codec import encode
 from tests.bagfiles import assert_messages_meet_their_channel_schemas
 from tests.conftest import Lines, dockhil_cmd, kill_child_and_expect_the_graph_to_stop, registered
+from tests.inprocess import run_main
 
 # A driven loop: /drive (a seeded noisy source, silent at every 5th tick) feeds
 # the plant at the same tick; plant and gain close a loop through /x and /u.
@@ -41,6 +42,13 @@ TICKS = 301  # 0..300 at 1 kHz for 0.3 s
 
 def launch(scene, *args, timeout=60, **kw):
     return subprocess.run(dockhil_cmd("launch", scene, *args), capture_output=True, text=True, timeout=timeout, **kw)
+
+
+def launch_here(scene, *args):
+    """A composed launch through dockhil.cli.main in this process (no interpreter start-up),
+    returned as subprocess.run's result is."""
+    code, out, err = run_main("launch", scene, *args)
+    return subprocess.CompletedProcess(["dockhil", "launch", str(scene), *map(str, args)], code, out, err)
 
 
 def by_topic(path) -> dict[str, list[tuple[int, bytes]]]:
@@ -99,7 +107,7 @@ def test_launch_bag_round_trip_record_info_export_play(write_launch, tmp_path, c
     r = launch(scene, "--bag", multi)
     assert_ok(r)
     assert f"[bag-recorder] recorded 843 messages on 3 topics to {multi}; 0 lost" in r.stderr
-    r = launch(scene, "--composed", "--bag", composed)
+    r = launch_here(scene, "--composed", "--bag", composed)
     assert_ok(r)
     assert f"[bag-recorder] recorded 843 messages on 3 topics to {composed}; 0 lost" in r.stderr
 
@@ -151,27 +159,28 @@ def test_launch_bag_round_trip_record_info_export_play(write_launch, tmp_path, c
 def test_replay_as_source_reproduces_the_recorded_run(write_launch, tmp_path):
     scene = write_launch(SCENE)
     recorded = tmp_path / "recorded.mcap"
-    assert_ok(launch(scene, "--bag", recorded))
+    # Recorded composed: its bag has the multi-process run's bytes (the round trip above holds that).
+    assert_ok(launch_here(scene, "--composed", "--bag", recorded))
     want = by_topic(recorded)
 
     # /drive from the bag instead of its source node: every topic, bit for bit, multi-process and composed.
     for mode in ([], ["--composed"]):
         out = tmp_path / f"replay{len(mode)}.mcap"
-        r = launch(scene, "drive:=bag", f"bag:={recorded}", "--bag", out, *mode)
+        r = (launch_here if mode else launch)(scene, "drive:=bag", f"bag:={recorded}", "--bag", out, *mode)
         assert_ok(r)
         assert by_topic(out) == want, mode
 
     # The bag is what drives the replay: another seed gives another run.
     other = tmp_path / "other.mcap"
-    assert_ok(launch(scene, "seed:=8", "--composed", "--bag", other))
+    assert_ok(launch_here(scene, "seed:=8", "--composed", "--bag", other))
     assert by_topic(other)["/x"] != want["/x"]
 
     # A run longer than the bag stops at the first tick the bag does not hold, in one line.
-    r = launch(scene, "drive:=bag", f"bag:={recorded}", "--duration", "0.5", "--composed")
+    r = launch_here(scene, "drive:=bag", f"bag:={recorded}", "--duration", "0.5", "--composed")
     assert r.returncode != 0
     assert "has no tick 301: it ends at tick 300" in r.stderr and "Traceback" not in r.stderr
-    r = launch(scene, "drive:=bag", f"bag:={tmp_path / 'missing.mcap'}")
-    assert r.returncode == 2 and "missing.mcap: no such file" in one_line(r.stderr)
+    code, out, err = run_main("launch", scene, "drive:=bag", f"bag:={tmp_path / 'missing.mcap'}")
+    assert code == 2 and "missing.mcap: no such file" in one_line(err) and out == ""
 
 
 def test_bag_source_steps_by_tick_or_by_time(tmp_path):
@@ -245,27 +254,28 @@ def test_unwritable_bag_fails_the_launch_in_one_line_before_any_node_runs(write_
     for bag, words in [(tmp_path / "no" / "run.mcap", "No such file or directory"),
                        (existing, "already exists"), (tmp_path, "directory")]:
         for mode in ([], ["--composed"]):
-            r = launch(scene, "--bag", bag, *mode)
-            assert r.returncode == 2, (bag, mode, r.stdout + r.stderr)
-            line = one_line(r.stderr)
+            # In this process: a refusal needs no interpreter of its own (a node it started would
+            # still print here, through the launcher's log).
+            code, out, err = run_main("launch", scene, "--bag", bag, *mode)
+            assert code == 2, (bag, mode, out + err)
+            line = one_line(err)
             assert line.startswith("dockhil launch: error: ") and str(bag) in line and words in line
-            assert r.stdout == ""  # no node started
+            assert out == ""  # no node started
     assert existing.read_bytes() == b"keep me"
 
     # `bag record` of a running graph: the same, one line.
-    r = subprocess.run(dockhil_cmd("bag", "record", tmp_path / "x.mcap"), capture_output=True, text=True)
-    assert r.returncode == 2 and "no running graph found" in one_line(r.stderr)
+    code, _, err = run_main("bag", "record", tmp_path / "x.mcap")
+    assert code == 2 and "no running graph found" in one_line(err)
     graphs = Path(os.environ["DOCKHIL_RUNTIME_DIR"]) / "graphs"
     graphs.mkdir(exist_ok=True)
     (graphs / "fake.json").write_text(json.dumps({
         "run_id": "fake", "pid": os.getpid(), "file": "test", "clock": "wall", "nodes": {},
         "topics": {"/x": {"type": "dockhil/WrenchStamped", "endpoint": "tcp://127.0.0.1:9", "publisher": "t"}}}))
     try:
-        r = subprocess.run(dockhil_cmd("bag", "record", tmp_path / "no" / "x.mcap"), capture_output=True, text=True)
-        assert r.returncode == 2 and "No such file or directory" in one_line(r.stderr)
-        r = subprocess.run(dockhil_cmd("bag", "record", tmp_path / "x.mcap", "--topics", "/nope"),
-                           capture_output=True, text=True)
-        assert r.returncode == 2 and "topic /nope is not published by any running graph; topics: /x" in one_line(r.stderr)
+        code, _, err = run_main("bag", "record", tmp_path / "no" / "x.mcap")
+        assert code == 2 and "No such file or directory" in one_line(err)
+        code, _, err = run_main("bag", "record", tmp_path / "x.mcap", "--topics", "/nope")
+        assert code == 2 and "topic /nope is not published by any running graph; topics: /x" in one_line(err)
     finally:
         (graphs / "fake.json").unlink()
 

@@ -9,13 +9,12 @@ Blocks marked `sh` are shown, not run (hardware, a running graph, minutes of wor
 import os
 import re
 import shlex
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from tests.conftest import ROOT
+from tests.inprocess import run_main
 
 PAGES = sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
 # Pages being written elsewhere, linked from the index already: remove each once it exists.
@@ -88,15 +87,18 @@ def test_the_docs_have_runnable_examples():
 
 
 @pytest.mark.parametrize("page", [p for p in PAGES if commands(p.read_text())], ids=lambda p: str(p.relative_to(ROOT)))
-def test_every_console_example_runs(page, tmp_path):
+def test_every_console_example_runs(page, tmp_path, monkeypatch):
     (tmp_path / "launch").symlink_to(ROOT / "launch")
     for lang, attrs, body in blocks(page.read_text()):
         if "file" in attrs:
             (tmp_path / attrs["file"]).write_text(body)
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
+    # Each command runs through the `dockhil` entry point's main() in this process, from the scratch
+    # folder: a process per command would cost a Python start-up and the imports again, 0.3-0.5 CPU-s
+    # each. A multi-process example still starts its node processes; the entry point as a process
+    # of its own is held by test_missing_file (test_launch_refusals.py) and the wheel's test.
+    monkeypatch.chdir(tmp_path)
     for line in commands(page.read_text()):
         argv = shlex.split(line)
         assert argv[0] == "dockhil" and not _SHELL & set(line), f"{page.name}: not a plain dockhil command: {line}"
-        r = subprocess.run([sys.executable, "-m", "dockhil.cli", *argv[1:]], cwd=tmp_path, env=env,
-                           capture_output=True, text=True, timeout=120)
-        assert r.returncode == 0 and "Traceback" not in r.stderr, f"{page.name}: $ {line}\n{r.stderr[-2000:]}"
+        code, _, err = run_main(*argv[1:])
+        assert code == 0 and "Traceback" not in err, f"{page.name}: $ {line}\n{err[-2000:]}"

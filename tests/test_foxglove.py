@@ -24,6 +24,7 @@ import pytest
 import websockets
 
 from tests.conftest import ROOT, dockhil_cmd
+from tests.inprocess import run_main
 
 SCENE = "launch/hil.yaml"
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # foxglove-sdk 0.30; older servers
@@ -168,11 +169,13 @@ def test_a_viewer_sees_every_topic_with_its_schema_and_receives_valid_wrenches(t
 
 def test_a_watched_run_gives_the_same_bag_and_summary_as_an_unwatched_one(tmp_path):
     """The bridge observes: sim time does not wait for it, and a viewer that stops reading
-    slows nothing. Same bag bit for bit, same summary."""
+    slows nothing. Same bag bit for bit, same summary. The unwatched run is composed (one process,
+    a quarter of the CPU time): a multi-process run gives a composed run's bytes (test_hil_graph.py
+    holds that), so the watched multi-process run must give them too."""
     from dockhil.bag import BagReader
 
     args = ["--duration", "1.5"]
-    plain = subprocess.run(dockhil_cmd("launch", SCENE, "--quiet", *args, "--bag", tmp_path / "plain.mcap",
+    plain = subprocess.run(dockhil_cmd("launch", SCENE, "--quiet", *args, "--composed", "--bag", tmp_path / "plain.mcap",
                                        "--summary", tmp_path / "plain.json"),
                            cwd=ROOT, capture_output=True, text=True, timeout=DEADLINE_S)
     assert plain.returncode == 0, plain.stderr
@@ -310,13 +313,13 @@ def test_a_busy_port_is_refused_in_one_line_before_any_node_starts(tmp_path):
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        r = subprocess.run(dockhil_cmd("launch", SCENE, "--foxglove", port), cwd=ROOT, capture_output=True,
-                           text=True, timeout=DEADLINE_S)
-    assert r.returncode != 0
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+        # In this process: a refusal needs no interpreter of its own.
+        code, out, err = run_main("launch", SCENE, "--foxglove", port)
+    assert code != 0
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
     assert f"127.0.0.1:{port}" in lines[0] and "in use" in lines[0] and "--foxglove PORT" in lines[0]
-    assert "[impedance]" not in r.stdout  # no node ran
+    assert "[impedance]" not in out + err  # no node ran
 
 
 @pytest.mark.parametrize("args, says", [
@@ -326,12 +329,11 @@ def test_a_busy_port_is_refused_in_one_line_before_any_node_starts(tmp_path):
     (["--foxglove", "1", "--foxglove-host", "no-such-host.invalid"], "no-such-host.invalid"),
 ])
 def test_bad_live_view_options_get_one_line(args, says):
-    r = subprocess.run(dockhil_cmd("launch", SCENE, *args), cwd=ROOT, capture_output=True, text=True,
-                       timeout=DEADLINE_S)
-    assert r.returncode == 2
-    assert "Traceback" not in r.stderr
-    errors = [line for line in r.stderr.splitlines() if "error:" in line]
-    assert len(errors) == 1 and says in errors[0], r.stderr
+    code, _, err = run_main("launch", SCENE, *args)
+    assert code == 2
+    assert "Traceback" not in err
+    errors = [line for line in err.splitlines() if "error:" in line]
+    assert len(errors) == 1 and says in errors[0], err
 
 
 def test_a_launch_without_the_live_view_does_not_import_foxglove():

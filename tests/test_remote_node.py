@@ -7,6 +7,7 @@ import sys
 import time
 
 from tests.conftest import dockhil_cmd
+from tests.inprocess import run_main
 
 SCENE = """
 rate: 1000
@@ -20,9 +21,11 @@ nodes:
 
 def test_remote_node_runs_from_the_printed_command_and_changes_no_bit(write_launch, tmp_path):
     local = tmp_path / "local.txt"
-    r = subprocess.run(dockhil_cmd("launch", write_launch(SCENE.format(host="", trace=local), "local.yaml"),
-                                   "--quiet"), capture_output=True, text=True, timeout=60)
-    assert r.returncode == 0, r.stdout + r.stderr
+    # The reference runs composed, in this process: a graph's processes give a composed run's bits
+    # (test_runtime.py holds that), so the graph with its remote node must give them too.
+    code, out, err = run_main("launch", write_launch(SCENE.format(host="", trace=local), "local.yaml"), "--quiet",
+                              "--composed")
+    assert code == 0, out + err
 
     remote = tmp_path / "remote.txt"
     scene = write_launch(SCENE.format(host=", host: 127.0.0.2", trace=remote), "remote.yaml")
@@ -46,5 +49,5 @@ def test_remote_node_runs_from_the_printed_command_and_changes_no_bit(write_laun
 
 def test_bad_host_is_refused(write_launch):
     scene = write_launch('nodes:\n  - {name: a, node: "tests.graphnodes:Source", host: "lab pc"}\n')
-    r = subprocess.run(dockhil_cmd("graph", scene), capture_output=True, text=True)
-    assert r.returncode == 2 and "`host` must be a host name or address, got 'lab pc'" in r.stderr
+    code, _, err = run_main("graph", scene)
+    assert code == 2 and "`host` must be a host name or address, got 'lab pc'" in err

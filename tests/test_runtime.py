@@ -17,6 +17,7 @@ from dockhil import msgs
 from dockhil.transport import split
 from dockhil.msgs.codec import decode, encode
 from tests.conftest import dockhil_cmd, registered
+from tests.inprocess import run_main
 
 LOOP = """
 rate: 1000
@@ -31,8 +32,16 @@ nodes:
 def run_loop(write_launch, tmp_path, tag, *extra, die_at=-1, timeout=60):
     trace = tmp_path / f"trace-{tag}.txt"
     path = write_launch(LOOP.format(trace=trace, die_at=die_at), f"loop-{tag}.yaml")
-    r = subprocess.run(dockhil_cmd("launch", path, *extra), capture_output=True, text=True, timeout=timeout)
-    return r, trace
+    return launch(path, *extra, timeout=timeout), trace
+
+
+def launch(path, *args, timeout=60):
+    """`dockhil launch PATH ARGS`; a composed run needs no process of its own, so it runs through
+    dockhil.cli.main in this process (no interpreter start-up)."""
+    if "--composed" in args:
+        code, out, err = run_main("launch", path, *args)
+        return subprocess.CompletedProcess(["dockhil", "launch", str(path), *args], code, out, err)
+    return subprocess.run(dockhil_cmd("launch", path, *args), capture_output=True, text=True, timeout=timeout)
 
 
 def test_multiprocess_runs_are_identical_and_equal_composed(write_launch, tmp_path):
@@ -47,8 +56,9 @@ def test_multiprocess_runs_are_identical_and_equal_composed(write_launch, tmp_pa
 
 
 def test_lockstep_has_no_hidden_delay(write_launch, tmp_path):
-    """x[k] = x[k-1] + dt u[k-1] and u[k] = f(x[k]) exactly: the trace matches a plain loop."""
-    r, trace = run_loop(write_launch, tmp_path, "d")
+    """x[k] = x[k-1] + dt u[k-1] and u[k] = f(x[k]) exactly: the trace matches a plain loop.
+    Composed: multi-process runs give the composed run's trace, bit for bit (the test above)."""
+    r, trace = run_loop(write_launch, tmp_path, "d", "--composed")
     assert r.returncode == 0
     x, rows = 1.0, []
     u = None
@@ -267,8 +277,7 @@ def test_delayed_hops_send_in_bursts_and_change_no_bit(write_launch, tmp_path):
     for mode in ("processes", "composed"):
         traces[mode] = tmp_path / f"trace-{mode}.txt"
         scene = write_launch(BURSTS.format(trace=traces[mode]), f"bursts-{mode}.yaml")
-        r = subprocess.run(dockhil_cmd("launch", scene, "--quiet", *(["--composed"] if mode == "composed" else [])),
-                           capture_output=True, text=True, timeout=120)
+        r = launch(scene, "--quiet", *(["--composed"] if mode == "composed" else []), timeout=120)
         assert r.returncode == 0, r.stdout + r.stderr
     graph = build(launchfile.load(scene))
     # lag // 2 of the readers: /u by d1 (4 ticks), /u1 by d2 (6); /x and /u2 are read at once too.

@@ -23,6 +23,7 @@ from dockhil.errors import DeviceError, DockhilError
 from dockhil.transport import GraphKeys, Publisher, Subscriber, runtime_dir
 from dockhil.msgs.codec import decode, encode
 from tests.conftest import ROOT, dockhil_cmd, registered
+from tests.inprocess import run_main
 
 READY = "\x1edockhil-ready"
 
@@ -86,10 +87,10 @@ def test_a_runtime_directory_others_could_write_is_refused_in_one_line(monkeypat
     monkeypatch.setenv("DOCKHIL_RUNTIME_DIR", str(d))
     with pytest.raises(DockhilError, match=re.escape(expected)):
         runtime_dir()
-    if bad != "other-owner" or os.getuid() == 0:  # the CLI too: one line, exit 2, nothing started
-        r = subprocess.run(dockhil_cmd("topic", "list"), capture_output=True, text=True, env=env(), timeout=30)
-        assert r.returncode == 2 and expected.split(":")[0].replace("\\", "") in one_line(r.stderr), r.stderr
-        assert "DOCKHIL_RUNTIME_DIR" in r.stderr or "chmod 700" in r.stderr
+    # The CLI too (in this process, so it sees the same directory and uid): one line, exit 2, nothing started.
+    code, out, err = run_main("topic", "list")
+    assert code == 2 and out == "" and expected.split(":")[0].replace("\\", "") in one_line(err), err
+    assert "DOCKHIL_RUNTIME_DIR" in err or "chmod 700" in err
 
 
 def test_key_files_other_users_could_read_are_refused(tmp_path):
@@ -580,14 +581,13 @@ def test_a_node_run_alone_never_publishes_what_a_running_graph_would_not_hear(en
     from dockhil import cli
 
     reg = _fake_graph("lab-graph", **entry)
-    try:
-        r = subprocess.run(dockhil_cmd("run", "tests.graphnodes:Source", "--rate", "100", "--duration", "0.05"),
-                           capture_output=True, text=True, timeout=60, env=env())
+    try:  # a refusal: in this process, no interpreter of its own
+        code, out, err = run_main("run", "tests.graphnodes:Source", "--rate", "100", "--duration", "0.05")
     finally:
         reg.unlink()
-    assert r.returncode == 2, r.stdout + r.stderr
-    line = one_line(r.stderr)
-    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
+    assert code == 2, out + err
+    line = one_line(err)
+    assert err.count("\n") == 1 and "Traceback" not in err, err
     for word in words:
         assert word in line, line
 
@@ -680,8 +680,7 @@ def test_a_remote_node_that_could_not_reach_a_loopback_bind_is_refused_before_an
         pytest.skip(f"{here} resolves to a network address here")
     scene = write_launch('nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
                          '  - {name: gain, node: "tests.graphnodes:Gain", host: 192.0.2.7}\n')
-    r = subprocess.run(dockhil_cmd("launch", scene, "--duration", "0.1"), capture_output=True, text=True,
-                       env=env(), timeout=60)
-    assert r.returncode == 2 and r.stdout == ""
+    code, out, err = run_main("launch", scene, "--duration", "0.1")  # a refusal: no process of its own
+    assert code == 2 and out == ""
     assert (f"node 'gain' runs on 192.0.2.7 (192.0.2.7), but this machine's name '{here}' resolves to "
-            in one_line(r.stderr))
+            in one_line(err))

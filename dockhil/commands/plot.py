@@ -46,21 +46,23 @@ def load_energy(path: str):
 
 
 def run(args) -> int:
+    # A refused command line is refused before matplotlib is imported (half a CPU-second).
+    if args.labels and len(args.labels) != len(args.bags):
+        raise DockhilError(f"--labels has {len(args.labels)} labels for {len(args.bags)} bags; give one per bag")
+    six = getattr(args, "six", False)
+    if not six and (args.kcs is None) != (args.bcs is None):
+        raise DockhilError("--kcs and --bcs go together (the ideal contact force is kcs p + bcs p')")
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    if args.labels and len(args.labels) != len(args.bags):
-        raise DockhilError(f"--labels has {len(args.labels)} labels for {len(args.bags)} bags; give one per bag")
-    if getattr(args, "six", False):
+    if six:
         from dockhil.plot6 import plot6
 
         plot6(args.bags, args.png, args.labels)
         print(f"wrote {args.png}")
         return 0
-    if (args.kcs is None) != (args.bcs is None):
-        raise DockhilError("--kcs and --bcs go together (the ideal contact force is kcs p + bcs p')")
     ideal = (args.kcs, args.bcs) if args.kcs is not None else None
     energies = [load_energy(path) for path in args.bags]
     has_energy = any(e is not None for e in energies)
