@@ -10,8 +10,12 @@ import threading
 import time
 from pathlib import Path
 
-import pytest
-from hypothesis import settings
+# As the `dockhil` command does (dockhil/cli.py), for the tests that call the library in this process
+# and the processes they start: BLAS worker threads only spin on small matrices and a busy machine.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import pytest  # noqa: E402
+from hypothesis import settings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 
