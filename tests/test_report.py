@@ -325,7 +325,7 @@ def test_stiff_graph_is_refused_and_runs_bit_identical_when_allowed(quick_report
     scale = 10 ** (math.floor(math.log10(want)) - 1)
     assert refused["measured_value"] == math.ceil(want / scale - 1e-9) * scale
     _, _, exit_v = ideal_closed_form(sc.m1, sc.m2, sc.kcs, sc.bcs, sc.v1 - sc.v2)
-    # The quick report composes the graph (its one multi-process run is the graph cost's).
+    # The quick report composes the graph here (its multi-process runs are the graph cost's).
     graph = by["composed graph (launch/ideal.yaml), exact"]
     assert graph["measured_value"] == pytest.approx(exit_v, rel=1e-6) and graph["params"]["mode"] == "composed"
     assert by["composed graph equals the library loop"]["measured"] == "bit-identical"
