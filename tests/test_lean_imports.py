@@ -101,8 +101,9 @@ def test_violations_names_the_node_and_the_package():
 
 def test_a_node_processs_authentication_and_loop_report_load_neither_asyncio_nor_numpy(tmp_path):
     # What every node process runs besides its node: a publisher's CURVE check (a ZAP handler
-    # thread; pyzmq's ThreadAuthenticator would load asyncio) and its loop report at exit (numpy
-    # would cost a node that does not compute with it 0.1 s of CPU).
+    # thread; pyzmq's ThreadAuthenticator would load asyncio), a subscriber's handshake events
+    # (zmq.utils.monitor would too) and its loop report at exit (numpy would cost a node that
+    # does not compute with it 0.1 s of CPU).
     import subprocess
     import sys
 
@@ -116,6 +117,7 @@ def test_a_node_processs_authentication_and_loop_report_load_neither_asyncio_nor
         "sub = Subscriber(ctx)\n"
         "sub.connect(pub.endpoint, keys=keys)\n"
         "pub.wait_subscribers(1, 20.0)\n"  # a handshake the ZAP handler admitted
+        "sub.check_peers()\n"  # the subscriber reads its handshake events off the socket monitor
         "timing = LoopTiming(['u'], period=1e-3)\n"
         "for late in (1e-4, 3e-4, 2e-4):\n"
         "    timing.started(late)\n"
