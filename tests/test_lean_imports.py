@@ -46,6 +46,13 @@ def test_the_simulated_scenes_and_the_cli_stay_within_their_memory_budget(rows):
     assert over_bare_interpreter(rows, "import dockhil.cli") <= CLI_BUDGET_MB, rows["import dockhil.cli"]
 
 
+@pytest.mark.parametrize("type_name", ["robot_sim", "ft_sim", "delay_injector"])
+def test_the_servo_sensor_and_delay_nodes_do_without_numpy(rows, type_name):
+    # They step on Python floats; numpy (0.13 s of CPU a process) comes only with sensor noise or
+    # delay jitter and loss, which draw from its generator. Their defaults draw nothing.
+    assert "numpy" not in rows[type_name]["after_setup"], rows[type_name]
+
+
 def test_the_budget_would_catch_scipy_or_matplotlib_in_a_node(rows):
     # The budget holds its meaning: a node process that also loaded scipy would exceed it.
     heavy = leanness.measure("module:numpy,msgspec,scipy.linalg")
