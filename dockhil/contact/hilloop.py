@@ -19,10 +19,7 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from dockhil.contact.hybrid import VirtualImpedance, passive_force, virtual_forces
-from dockhil.contact.integrators import RELATIVE, Integrator, LinearSecondOrderSystem, Penetration, step_with_events
 from dockhil.contact.passivity import ENERGY_FIELDS, EnergyMonitor, Passivity
 from dockhil.contact.scenario import ContactModelError, ContactScenario
 
@@ -35,6 +32,12 @@ class Bodies:
 
     def __init__(self, m1: float, m2: float, x1: float, x2: float, v1: float, v2: float,
                  method: str = "exact", ideal: tuple[float, float] | None = None, on_unstable: str = "raise"):
+        # numpy and the integrators here, not at the top: the nodes that use only the pieces below
+        # (servo, sensor, delay) do not load them.
+        import numpy as np
+
+        from dockhil.contact.integrators import RELATIVE, Integrator, LinearSecondOrderSystem, Penetration
+
         self.fixed_target = m2 == 0.0
         self.m1, self.m2 = m1, m2
         self.x2_fixed = x2
@@ -96,8 +99,14 @@ class Bodies:
                           c0 * s0 + c1 * s1 + c2 * s2 + c3 * s3 + (gc0 * f1 + gc1 * f2),
                           d0 * s0 + d1 * s1 + d2 * s2 + d3 * s3 + (gd0 * f1 + gd1 * f2))
         elif self.contact is None:  # a fixed target: numpy's product of two values fuses differently
+            import numpy as np
+
             self.state = self.free.step(self.state, np.array([f1]), dt)
         else:
+            import numpy as np
+
+            from dockhil.contact.integrators import step_with_events
+
             force = np.array([f1]) if self.fixed_target else np.array([f1, f2])
             self.state, self.in_contact, _ = step_with_events(self.free, self.contact, self.state, force, dt,
                                                               self.in_contact, self.pen, self.omega)
@@ -190,6 +199,8 @@ def simulate_hil(*, m1: float, m2: float, k: float, impedance: VirtualImpedance,
     the virtual impedance adds the passivity controller's force (as the node does). With
     `energy` or `passivity`, `extra` holds the energy account per tick (the fields of
     `EnergyTick`, as the node publishes on /energy); without, the loop runs at full speed."""
+    import numpy as np
+
     bodies = Bodies(m1, m2, x1, x2, v1, v2, method)
     line = DelayLine(delay_ticks(delay, dt))
     servo = Servo(lag, dt)
@@ -221,6 +232,8 @@ def simulate_ideal(*, m1: float, m2: float, kcs: float, bcs: float, dt: float, n
                    x1: float = 0.0, x2: float = 0.0, v1: float = 0.0, v2: float = 0.0,
                    thrust: float = 0.0, method: str = "exact") -> HilRun:
     """The ideal model (Eq. 1) sampled as the satellite-dynamics node runs it in ideal.yaml."""
+    import numpy as np
+
     bodies = Bodies(m1, m2, x1, x2, v1, v2, method, ideal=(kcs, bcs))
     out = np.empty((6, n_ticks))
     for tick in range(n_ticks):
