@@ -31,6 +31,7 @@ logs it and the run is judged on it.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import stat
@@ -184,6 +185,9 @@ class GraphKeys:
 ZAP_ENDPOINT = "inproc://zeromq.zap.01"  # where libzmq asks a context's ZAP handler (RFC 27)
 
 
+_ZAP_WAKES = itertools.count()
+
+
 class _ZapHandler:
     """A context's ZAP handler: a thread that answers every CURVE handshake of the context's
     publishers, admitting a client only if its public key is one of `allowed` (Z85), the client
@@ -195,8 +199,18 @@ class _ZapHandler:
         self.allowed: set[bytes] = set()
         self._zap = ctx.socket(zmq.REP)
         self._zap.linger = 0
-        self._zap.bind(ZAP_ENDPOINT)
-        wake = f"inproc://dockhil-zap-stop-{id(self)}"
+        # The handler a context had before (its last publisher closed) lets go of the address only
+        # when libzmq's reaper gets to its socket: wait for that rather than fail a new graph's start.
+        deadline = time.monotonic() + 2.0
+        while True:
+            try:
+                self._zap.bind(ZAP_ENDPOINT)
+                break
+            except zmq.ZMQError as exc:
+                if exc.errno != zmq.EADDRINUSE or time.monotonic() > deadline:
+                    raise
+                time.sleep(0.001)
+        wake = f"inproc://dockhil-zap-stop-{next(_ZAP_WAKES)}"  # never an address a closed handler may still hold
         self._stop = ctx.socket(zmq.PAIR)
         self._stop.linger = 0
         self._stop.bind(wake)

@@ -204,6 +204,15 @@ def test_strangers_on_a_publishers_port_receive_nothing_and_are_not_counted(tmp_
         pub.close()
 
 
+def test_publishers_opened_and_closed_in_turn_on_one_context_each_get_a_zap_handler():
+    """The last publisher's close stops the context's ZAP handler, and libzmq frees its address
+    later: a publisher opened right after must still start (it failed with 'Address already in use')."""
+    ctx = zmq.Context.instance()
+    keys = GraphKeys.make()
+    for _ in range(200):
+        Publisher(ctx, "/x", "tcp://127.0.0.1:0", keys=keys).close()
+
+
 def test_the_zap_handler_admits_the_graphs_client_key_and_nothing_else():
     """Each ZAP request a publisher's handshake makes: only CURVE with the graph's client key gets 200."""
     from zmq.utils import z85
