@@ -331,12 +331,13 @@ def test_play_rate_scales_the_recorded_timing(tmp_path):
     # Well under the bag's own 3 s: from the recorder taking messages (play waits for it) to play's exit,
     # the two interpreters' start-ups left out.
     assert timing["ended"] - timing["recording"] < 3.0
+    # 0.3 s at --rate 10; the 3 s of --rate 1 stays far above the bound a busy machine may need.
     played_s = float(play_err.split(" in ")[-1].split(" s")[0])
-    assert 0.29 <= played_s < 0.6, play_err
+    assert 0.29 <= played_s < 1.5, play_err
     got = by_topic(out)["/ft/wrench"]
     assert [d for _, d in got] == sent
     span = (got[-1][0] - got[0][0]) / 1e9  # receive times in the new bag
-    assert 0.25 < span < 0.6
+    assert 0.25 < span < 1.5
 
 
 def test_play_refuses_bad_files_and_topics_in_one_line(tmp_path, capsys):
