@@ -450,6 +450,10 @@ class RobotModbusDriver(Node):
             else:
                 values = _command_values(cmd)
                 self._check_jump(values[:3], values[3:7], now)  # never hand over a step a limit would refuse
+                try:  # here, not in the link's thread, where a failed write reads as a lost connection
+                    mm.encode_block(values)
+                except mm.RegisterError as exc:
+                    self._trip("register_range", str(exc), f"register map: {exc}")
                 link.submit(values)
                 self._sent = (values[:3], values[3:7], now)
         elif self._sent is not None and now - self._last_cmd_at > p.stall_timeout:

@@ -254,6 +254,16 @@ def test_workspace_refuses_a_commanded_pose_before_it_is_written(controller, mak
     assert read_holding(controller.port).setpoint[0] == 0.0
 
 
+def test_a_setpoint_the_register_map_cannot_carry_holds_the_robot_in_one_line(controller, make):
+    # Workspace and speed limits opened past the map's +-2147 m: the map itself refuses the setpoint.
+    drive = make(x_max=1e4, max_speed=0.0, max_following_error=0.0)
+    following(drive, controller)
+    stop = tripped(drive, controller, lambda: drive.step(command=drive.command(x=3000.0)), "register_range",
+                   "register map: setpoint position.x = 3000 m does not fit the register map")
+    assert "connection lost" not in str(stop)
+    assert read_holding(controller.port).setpoint[0] == 0.0
+
+
 def test_workspace_of_the_actual_pose(controller, make):
     drive = make(y_min=-0.01, max_actual_speed=0.0, max_following_error=0.0)  # only the workspace watches
     following(drive, controller)
