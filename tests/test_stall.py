@@ -127,21 +127,27 @@ def test_a_stalled_robot_driver_holds_and_stops_the_graph(tmp_path):
     stall_timeout and holds (or a reader of its state stopped the graph first); never exit 0."""
     import socket
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    p, lines = start(["launch", "launch/hil.yaml", "ft:=can", "robot:=modbus", "emulators:=true",
-                      f"can_channel:={tmp_path / 'ft.slcan'}", f"modbus_port:={port}",
-                      "--wall-time", "--duration", "30", "--quiet"])
-    try:
-        pid = registered(p.pid)["nodes"]["robot"]["pid"]
-        wait_line(lines, "tared over", 30)
-        time.sleep(0.5)
-        stop_for(pid, 0.5)
-        code = finish(p)
-    finally:
-        if p.poll() is None:
-            p.kill()
-    text = "".join(lines)
-    assert code != 0 and "Traceback" not in text, text
-    assert "safety stop: stall: no step for" in text or STALE.search(text), text
+    for _attempt in range(3):
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        p, lines = start(["launch", "launch/hil.yaml", "ft:=can", "robot:=modbus", "emulators:=true",
+                          f"can_channel:={tmp_path / 'ft.slcan'}", f"modbus_port:={port}",
+                          "--wall-time", "--duration", "30", "--quiet"])
+        try:
+            pid = registered(p.pid)["nodes"]["robot"]["pid"]
+            wait_line(lines, "tared over", 30)
+            time.sleep(0.5)
+            stop_for(pid, 0.5)
+            code = finish(p)
+        finally:
+            if p.poll() is None:
+                p.kill()
+        text = "".join(lines)
+        assert code != 0 and "Traceback" not in text, text
+        stalled = "safety stop: stall: no step for" in text or STALE.search(text)
+        # The F/T driver's own watchdog (0.1 s) may stop the graph first when the machine holds the
+        # emulated sensor that long: a valid stop, but not the one under test. Run again.
+        if stalled or "[ft] error:" not in text or "stale data: no new sample" not in text:
+            break
+    assert stalled, text
