@@ -12,6 +12,7 @@ import contextlib
 import io
 import logging
 import signal
+import subprocess
 
 
 def run_main(*argv) -> tuple[int, str, str]:
@@ -39,3 +40,19 @@ def run_main(*argv) -> tuple[int, str, str]:
         for s, h in signals.items():
             signal.signal(s, h)
     return code, out.getvalue(), err.getvalue()
+
+
+def completed(*argv) -> subprocess.CompletedProcess:
+    """run_main's result as subprocess.run gives it (text output)."""
+    code, out, err = run_main(*argv)
+    return subprocess.CompletedProcess(["dockhil", *map(str, argv)], code, out, err)
+
+
+def launch_here_or_process(*args, timeout: float = 120) -> subprocess.CompletedProcess:
+    """`dockhil launch ARGS`: a composed run needs no process of its own and runs in this process;
+    any other as a process of its own."""
+    if "--composed" in args:
+        return completed("launch", *args)
+    from tests.conftest import dockhil_cmd
+
+    return subprocess.run(dockhil_cmd("launch", *args), capture_output=True, text=True, timeout=timeout)

@@ -19,7 +19,7 @@ from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped, type_name
 from dockhil.msgs.codec import encode
 from tests.bagfiles import assert_messages_meet_their_channel_schemas
 from tests.conftest import Lines, dockhil_cmd, kill_child_and_expect_the_graph_to_stop, registered
-from tests.inprocess import run_main
+from tests.inprocess import run_main, completed
 
 # A driven loop: /drive (a seeded noisy source, silent at every 5th tick) feeds
 # the plant at the same tick; plant and gain close a loop through /x and /u.
@@ -47,8 +47,7 @@ def launch(scene, *args, timeout=60, **kw):
 def launch_here(scene, *args):
     """A composed launch through dockhil.cli.main in this process (no interpreter start-up),
     returned as subprocess.run's result is."""
-    code, out, err = run_main("launch", scene, *args)
-    return subprocess.CompletedProcess(["dockhil", "launch", str(scene), *map(str, args)], code, out, err)
+    return completed("launch", scene, *args)
 
 
 def by_topic(path) -> dict[str, list[tuple[int, bytes]]]:

@@ -8,7 +8,7 @@ import pytest
 
 from dockhil.bag import BagReader
 from tests.conftest import dockhil_cmd
-from tests.inprocess import run_main
+from tests.inprocess import completed
 
 HIL = Path(__file__).resolve().parent.parent / "launch" / "hil.yaml"
 
@@ -35,8 +35,7 @@ def run(*args, timeout=180):
 
 def run_here(*args):
     """A command that starts no process (`graph`, a refusal, a composed run) through dockhil.cli.main here."""
-    code, out, err = run_main(*args)
-    return subprocess.CompletedProcess(["dockhil", *map(str, args)], code, out, err)
+    return completed(*args)
 
 
 def messages(path):

@@ -6,7 +6,6 @@ experiments after it run composed (the same nodes and ticks in one process, no b
 and read back): 15 s of the stability scene cost 1.5 s of CPU time so, 22 s as processes."""
 
 import json
-import subprocess
 
 import numpy as np
 import pytest
@@ -16,18 +15,13 @@ from dockhil.contact.hilloop import simulate_hil
 from dockhil.contact.impedance import impedance_closed_form
 from dockhil.contact.scenario import TABLE1
 from dockhil.summary import samples_from_bag
-from tests.conftest import dockhil_cmd
-from tests.inprocess import run_main
+from tests.inprocess import run_main, launch_here_or_process
 
 
 def launch(*args, timeout=180):
     """`dockhil launch ARGS`, which must succeed. A composed run needs no process of its own: it runs
     through dockhil.cli.main in this process (no interpreter start-up, the imports paid once)."""
-    if "--composed" in args:
-        code, out, err = run_main("launch", *args)
-        r = subprocess.CompletedProcess(["dockhil", "launch", *map(str, args)], code, out, err)
-    else:
-        r = subprocess.run(dockhil_cmd("launch", *args), capture_output=True, text=True, timeout=timeout)
+    r = launch_here_or_process(*args, timeout=timeout)
     assert r.returncode == 0, r.stdout + r.stderr
     return r
 

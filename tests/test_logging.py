@@ -15,7 +15,7 @@ import pytest
 from dockhil import cli, log
 from dockhil.progress import Progress, StatusLine
 from tests.conftest import dockhil_cmd
-from tests.inprocess import run_main
+from tests.inprocess import launch_here_or_process
 
 WORDS = ("debug", "info", "warning", "error")
 
@@ -49,10 +49,7 @@ def node_lines(text):
 def launch(*args):
     """`dockhil launch ARGS`; a composed run needs no process of its own, so it runs through
     dockhil.cli.main in this process (no interpreter start-up)."""
-    if "--composed" in args:
-        code, out, err = run_main("launch", *args)
-        return subprocess.CompletedProcess(["dockhil", "launch", *map(str, args)], code, out, err)
-    return subprocess.run(dockhil_cmd("launch", *args), capture_output=True, text=True, timeout=120)
+    return launch_here_or_process(*args)
 
 
 @pytest.mark.parametrize("level, shown", [("warning", ("warning", "error")), ("debug", WORDS)])

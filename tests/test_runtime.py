@@ -17,7 +17,7 @@ from dockhil import msgs
 from dockhil.transport import split
 from dockhil.msgs.codec import decode, encode
 from tests.conftest import dockhil_cmd, registered
-from tests.inprocess import run_main
+from tests.inprocess import launch_here_or_process
 
 LOOP = """
 rate: 1000
@@ -38,10 +38,7 @@ def run_loop(write_launch, tmp_path, tag, *extra, die_at=-1, timeout=60):
 def launch(path, *args, timeout=60):
     """`dockhil launch PATH ARGS`; a composed run needs no process of its own, so it runs through
     dockhil.cli.main in this process (no interpreter start-up)."""
-    if "--composed" in args:
-        code, out, err = run_main("launch", path, *args)
-        return subprocess.CompletedProcess(["dockhil", "launch", str(path), *args], code, out, err)
-    return subprocess.run(dockhil_cmd("launch", path, *args), capture_output=True, text=True, timeout=timeout)
+    return launch_here_or_process(path, *args, timeout=timeout)
 
 
 def test_multiprocess_runs_are_identical_and_equal_composed(write_launch, tmp_path):
