@@ -56,6 +56,15 @@ def _runtime_dir(monkeypatch):
     shutil.rmtree(d, ignore_errors=True)
 
 
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago (for a server a test starts)."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 def dockhil_cmd(*args):
     return [sys.executable, "-m", "dockhil.cli", *map(str, args)]
 

@@ -23,19 +23,13 @@ import jsonschema
 import pytest
 import websockets
 
-from tests.conftest import ROOT, dockhil_cmd
+from tests.conftest import ROOT, dockhil_cmd, free_port
 from tests.inprocess import run_main
 
 SCENE = "launch/hil.yaml"
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # foxglove-sdk 0.30; older servers
 MESSAGE_DATA = 0x01
 DEADLINE_S = 60.0  # generous: the machine may be busy; every wait ends on its condition first
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def scene_topics() -> dict[str, str]:

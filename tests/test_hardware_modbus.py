@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import pymodbus  # noqa: F401  - a hard dependency: missing, the tests fail
 
-from tests.conftest import node_process_error
+from tests.conftest import free_port, node_process_error
 
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import modbus_map as mm
@@ -108,12 +108,6 @@ def test_fault_holds_until_reset():
 
 
 # -- helpers ----------------------------------------------------------------------
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def start_emulator(port: int = 0, *args: str) -> tuple[subprocess.Popen, int]:

@@ -7,22 +7,15 @@ test is about, so a busy machine's scheduling gaps do not stop the run; the watc
 itself is tested on the tick clock (test_hardware_safety.py, test_nodes_hardware.py)."""
 
 import json
-import socket
 import subprocess
 import time
 from pathlib import Path
 
 import pytest
 
-from tests.conftest import Lines, dockhil_cmd, kill_child_and_expect_the_graph_to_stop
+from tests.conftest import Lines, dockhil_cmd, free_port, kill_child_and_expect_the_graph_to_stop
 
 pytestmark = pytest.mark.wall_time
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def hardware_args(tmp_path, emulators=True):

@@ -22,7 +22,7 @@ from dockhil import msgs
 from dockhil.errors import DeviceError, DockhilError
 from dockhil.transport import GraphKeys, Publisher, Subscriber, runtime_dir
 from dockhil.msgs.codec import decode, encode
-from tests.conftest import ROOT, dockhil_cmd, registered
+from tests.conftest import ROOT, dockhil_cmd, free_port, registered
 from tests.inprocess import run_main
 
 READY = "\x1edockhil-ready"
@@ -442,11 +442,7 @@ def test_the_controller_refuses_a_host_that_ignores_the_claim_until_the_owner_di
 
 
 def test_a_second_emulator_on_the_same_port_names_the_graph_that_owns_it():
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     spec = {"name": "em", "type_name": "robot_emulator", "dt": 0.01, "clock": "wall", "params": {"port": port}}
     first = subprocess.Popen([sys.executable, "-m", "dockhil.process", json.dumps({**spec, "run_id": "graph-one"})],
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env())

@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from tests.conftest import dockhil_cmd, registered
+from tests.conftest import dockhil_cmd, free_port, registered
 
 STALE = re.compile(r"error: node '(\w+)': input '(\w+)' \((/[\w/]+)\) is (\d+\.\d+) s old > max_age ([\d.]+) s")
 
@@ -125,12 +125,8 @@ def test_duration_ends_a_run_while_a_node_waits_to_respawn(write_launch):
 def test_a_stalled_robot_driver_holds_and_stops_the_graph(tmp_path):
     """SIGSTOP of the Modbus robot driver for 0.5 s: on waking it finds the gap longer than its
     stall_timeout and holds (or a reader of its state stopped the graph first); never exit 0."""
-    import socket
-
     for _attempt in range(3):
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            port = s.getsockname()[1]
+        port = free_port()
         p, lines = start(["launch", "launch/hil.yaml", "ft:=can", "robot:=modbus", "emulators:=true",
                           f"can_channel:={tmp_path / 'ft.slcan'}", f"modbus_port:={port}",
                           "--wall-time", "--duration", "30", "--quiet"])
