@@ -67,61 +67,24 @@ class ComposedGraph:
         if first:
             raise first
 
-    def _publisher(self, name: str, declared: dict, outs_map, wall: bool):
-        """The one function a node's outputs go through each tick: what check_outputs and
-        check_message check (the same lines), with the types, topics and histories looked up once."""
-        taps = self.taps
-        ports = {}
-        for port, out in declared.items():
-            hist = next((h for p, _, h in outs_map if p == port), None)
-            topic = next((t for p, t, _ in outs_map if p == port), out.topic)
-            ports[port] = (out.type, _bounds_check(out.type), topic, hist)
+    def schedule(self, wall: bool, collect: bool = False):
+        """The whole tick as one function, resolved once (see `tick_function`)."""
+        return tick_function(self.plan, self.taps, wall, collect)
 
-        def publish(k: int, outs: dict, check_types: bool) -> None:
-            for port, msg in outs.items():
-                entry = ports.get(port)
-                if entry is None or msg is None:
-                    if entry is None:
-                        check_outputs(name, declared, k, {port: msg}, sim=not wall)  # its line
-                    continue
-                cls, bounds, topic, hist = entry
-                if check_types and (type(msg) is not cls or (not wall and msg.header.tick != k)):
-                    check_outputs(name, declared, k, {port: msg}, sim=not wall)  # its line
-                if not bounds(msg):
-                    checked_payload(name, port, topic, k, msg)  # as a node process does before it sends
-                if hist is not None:
-                    hist[-1] = msg
-                    for tap in taps:
-                        tap(topic, msg)
-
-        return publish
-
-    def schedule(self, wall: bool) -> list:
-        """The schedule, resolved once: each node's step, how it reads its inputs, where its outputs go."""
-        return [(node.step, tuple((port, hist, -1 - lag) for port, hist, lag in ins),
-                 self._publisher(name, declared, outs_map, wall))
-                for name, node, ins, outs_map, declared in self.plan]
-
-    def step_tick(self, schedule: list, tick: Tick, wall: bool) -> dict[str, dict]:
-        """One tick of every node (a container's step; `run` inlines the same for speed); returns
-        each node's outputs by node name."""
+    def step_tick(self, schedule: Callable, tick: Tick, wall: bool) -> dict[str, dict] | None:
+        """One tick of every node (a container's step; `run` inlines the same for speed); with a
+        schedule made with collect=True, returns each node's outputs by node name."""
         k = tick.index
         for hist in self.history.values():
             hist.append(hist[-1] if wall else None)
-        check_types = k == 0 or not wall
-        done = {}
-        for (step, reads, publish), plan in zip(schedule, self.plan):
-            outs = step(tick, {port: (None if hist is None else hist[at]) for port, hist, at in reads})
-            publish(k, outs, check_types)
-            done[plan[0]] = outs
-        return done
+        return schedule(tick, k, k == 0 or not wall)
 
     def step(self, tick: Tick, wall: bool = False) -> dict[str, dict]:
         """One tick of every node, in order; returns each node's outputs by node name.
         (dockhil.testing steps a single node this way, with the test's inputs.)"""
         schedule = self._schedules.get(wall)
         if schedule is None:
-            schedule = self._schedules[wall] = self.schedule(wall)
+            schedule = self._schedules[wall] = self.schedule(wall, collect=True)
         return self.step_tick(schedule, tick, wall)
 
     def run(self, n_ticks: int | None, *, wall: bool = False, stop: Stop | None = None,
@@ -150,10 +113,7 @@ class ComposedGraph:
                 tick = Tick(k, k * dt, dt)
                 for hist in histories:  # a slot for this tick; stays None if nothing is sent
                     hist.append(None)
-            check_types = k == 0 or not wall
-            for step, reads, publish in schedule:
-                inputs = {port: (None if hist is None else hist[at]) for port, hist, at in reads}
-                publish(k, step(tick, inputs), check_types)
+            schedule(tick, k, k == 0 or not wall)
             k += 1
             if progress is not None:
                 progress(k)
@@ -165,3 +125,48 @@ class ComposedGraph:
         if wall:
             timing.ticks, timing.elapsed = k, clock() - t0
         return k
+
+
+def tick_function(plan: list, taps: list[Tap], wall: bool, collect: bool):
+    """One tick of every node in `plan`, written out as one function and compiled once per run:
+    `f(tick, k, check_types)`. Each node's inputs are read from the histories, its step called, and
+    each declared output checked as check_outputs and check_message check it (the same lines) and
+    stored; with collect, f returns each node's outputs by node name. Written out rather than
+    looped over, since the loop's own bookkeeping cost more than the checks it ran (bench/graph.py)."""
+    scope: dict[str, Any] = {"check_outputs": check_outputs, "checked_payload": checked_payload, "taps": taps}
+    lines = ["def tick_function(tick, k, check_types):"]
+    if collect:
+        lines.append("    done = {}")
+    for i, (name, node, ins, outs_map, declared) in enumerate(plan):
+        scope[f"step{i}"], scope[f"declared{i}"], scope[f"names{i}"] = node.step, declared, frozenset(declared)
+        reads = []
+        for j, (port, hist, lag) in enumerate(ins):
+            if hist is None:  # no publisher of that topic in this graph
+                reads.append(f"{port!r}: None")
+            else:
+                scope[f"in{i}_{j}"] = hist
+                reads.append(f"{port!r}: in{i}_{j}[{-1 - lag}]")
+        lines += [f"    o = step{i}(tick, {{{', '.join(reads)}}})",
+                  f"    if not o.keys() <= names{i}:",
+                  f"        check_outputs({name!r}, declared{i}, k, o, sim={not wall})  # its line"]
+        for j, (port, out) in enumerate(declared.items()):
+            hist = next((h for p, _, h in outs_map if p == port), None)
+            topic = next((t for p, t, _ in outs_map if p == port), out.topic)
+            v = f"{i}_{j}"
+            scope[f"type{v}"], scope[f"screen{v}"] = out.type, _bounds_check(out.type)
+            header = "" if wall else " or m.header.tick != k"
+            lines += [f"    m = o.get({port!r})",
+                      "    if m is not None:",
+                      f"        if check_types and (type(m) is not type{v}{header}):",
+                      f"            check_outputs({name!r}, declared{i}, k, {{{port!r}: m}}, sim={not wall})",
+                      f"        if not screen{v}(m):",
+                      f"            checked_payload({name!r}, {port!r}, {topic!r}, k, m)  # as a node process"]
+            if hist is not None:
+                scope[f"out{v}"] = hist
+                lines.append(f"        out{v}[-1] = m")
+                lines += ["        for tap in taps:", f"            tap({topic!r}, m)"] if taps else []
+        if collect:
+            lines.append(f"    done[{name!r}] = o")
+    lines.append("    return done" if collect else "    return None")
+    exec(compile("\n".join(lines) + "\n", "<composed tick>", "exec"), scope)  # noqa: S102 - built from the graph
+    return scope["tick_function"]
