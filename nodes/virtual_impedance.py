@@ -60,9 +60,11 @@ class VirtualImpedance(Node):
     def setup(self):
         import warnings
 
+        from dockhil.contact.hilloop import virtual_wrench
         from dockhil.contact.hybrid import VirtualImpedance as Impedance
         from dockhil.contact.passivity import EnergyMonitor, Passivity
 
+        self.virtual_wrench = virtual_wrench  # bound once: an import statement in step costs every tick
         p = self.p
         if p.mode == "given":
             self.impedance = Impedance(p.k1, p.b1, p.k2, p.b2)
@@ -92,15 +94,13 @@ class VirtualImpedance(Node):
                  f"k2={imp.k2:.6g} N/m b2={imp.b2:.6g} N s/m")
 
     def step(self, tick, inputs):
-        from dockhil.contact.hilloop import virtual_wrench
-
         state, ft = inputs["state"], inputs.get("ft")
         f1 = f2 = 0.0
         out = {}
         if state is not None and len(state.bodies) >= 2:
             c, t = state.bodies[0], state.bodies[1]
             x1, x2, v1, v2 = c.pose.position.x, t.pose.position.x, c.twist.linear.x, t.twist.linear.x
-            f1, f2 = virtual_wrench(x1, x2, v1, v2, self.p.m1, self.p.m2, self.impedance)
+            f1, f2 = self.virtual_wrench(x1, x2, v1, v2, self.p.m1, self.p.m2, self.impedance)
             # The force the dynamics apply over the next tick; as dockhil.contact.hilloop.simulate_hil.
             fs = ft.wrench.force.x if ft is not None else 0.0
             fc, account = self.monitor.step(x1, x2, v1, v2, fs, f1, f2, tick.dt)
