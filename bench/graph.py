@@ -8,7 +8,9 @@ and bare time the ticking only. CPU time and context switches per tick
 (all processes and threads of a launch, less a one-tick launch; this
 process for composed and bare) are given too: a shared machine's load
 inflates them much less than wall time.
-The rings of bench/throughput.py give what each added process costs a tick.
+The rings of bench/throughput.py give what each added process costs a tick. The composed
+floor is the bare loop plus what the tick's messages cost to screen and build
+(bench/message_floor.py): the most a composed run of these messages can reach.
 Prints one JSON object as its last line, with each goal and whether it is met.
 """
 
@@ -23,6 +25,9 @@ import sys
 import tempfile
 import time
 
+# As the dockhil command does: BLAS worker threads only spin on the models' small problems, and
+# process time would count them (before numpy is imported).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "bench"))  # throughput.ring_costs
@@ -131,6 +136,16 @@ def main() -> None:
         "composed_cpu_us_per_tick": round(med(comp_cpu) / n * 1e6, 2),
         "bare_cpu_us_per_tick": round(med(bare_cpu) / n * 1e6, 2),
     }
+    # The floor of a composed tick: the bare loop's physics plus screening and building the tick's
+    # messages (bench/message_floor.py); no runner or node logic can go below it.
+    from message_floor import cost_us_per_tick, messages_of
+
+    messages = cost_us_per_tick(messages_of(HIL, 3000))
+    floor = out["bare_cpu_us_per_tick"] + messages["screen_us_per_tick"] + messages["build_us_per_tick"]
+    out.update({f"messages_{name}": value for name, value in messages.items()})
+    out["composed_floor_us_per_tick"] = round(floor, 2)
+    out["composed_floor_rtf"] = round(1e6 / floor / 1000.0, 1)  # 1 kHz: a tick is 1000 us of sim time
+    out["composed_over_floor"] = round(out["composed_cpu_us_per_tick"] / floor, 2)
     goals = {"multiprocess_rtf": (">=", 4.0), "container_rtf": (">=", 10.0), "composed_rtf": (">=", 100.0),
              "bare_over_composed": ("<=", 1.5)}
     if args.ring_seconds > 0:
