@@ -343,7 +343,13 @@ def run_one(spec: dict) -> dict:
     try:
         dt = graph.scene.dt
         collector = summ.SummaryCollector(graph)
-        g = ComposedGraph(graph, sim_time=True, log=lambda name, msg: None, taps=[collector])
+        said: list[str] = []  # the nodes' warnings (a row has no log): the row's warnings column carries them
+
+        def node_log(name: str, line: str) -> None:
+            if line.startswith("warning:"):
+                said.append(f"{name}: {line[len('warning:'):].strip()}")
+
+        g = ComposedGraph(graph, sim_time=True, log=node_log, taps=[collector])
         recorder = None
         if spec.get("bag"):
             from dockhil.bag_live import TapRecorder
@@ -369,7 +375,8 @@ def run_one(spec: dict) -> dict:
         with warnings.catch_warnings():  # a diverging loop's prediction warns; its row says what happened
             warnings.simplefilter("ignore", RuntimeWarning)
             out = collector.summary(time.perf_counter() - sim_started)
-            out["warnings"] = "; ".join(out.get("warnings") or check["warnings"]) or None  # one Parquet column
+            lines = [*(out.get("warnings") or check["warnings"]), *said]
+            out["warnings"] = "; ".join(dict.fromkeys(lines)) or None  # one Parquet column, each line once
             fields = flatten(out)
     except Diverged as exc:
         row.update(status="failed", error=str(exc), run_time_s=time.perf_counter() - started)

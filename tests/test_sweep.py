@@ -424,3 +424,18 @@ def test_the_shipped_fig7_campaign_brackets_the_boundary_at_every_point():
             below = [k for k in ks if k < k_max]
             above = [k for k in ks if k > k_max]
             assert len(below) >= 2 and len(above) >= 2, (b, h, k_max)
+
+
+def test_a_rows_warnings_carry_what_its_nodes_warned():
+    """A row has no log: a node's warning (here the virtual impedance's negative virtual
+    stiffness, kcs below the passive k) lands in the row's warnings column, and a row whose
+    nodes said nothing has none."""
+    def row(kcs: str) -> dict:
+        return sweep.run_one({"run": 0, "sample": 0, "args": {"kcs": kcs}, "args_hash": "h",
+                              "scene": str(ROOT / "launch" / "hil.yaml"), "duration": 0.05, "bag": None,
+                              "outputs": None})
+
+    soft, stiff = row("500"), row("3000")
+    assert soft["status"] == "ok" and stiff["status"] == "ok"
+    assert soft["warnings"].startswith("impedance: kcs = 500 N/m is below the passive stiffness k = 1000 N/m")
+    assert stiff["warnings"] is None
