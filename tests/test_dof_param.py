@@ -136,6 +136,18 @@ def test_a_bad_dof_or_a_parameter_of_the_other_dof_is_one_line(tmp_path, source,
     assert len(lines) == 1 and "Traceback" not in lines[0] and line in lines[0], lines
 
 
+@pytest.mark.parametrize("params, line", [
+    (["dof:=3"], "node 'satellite_dynamics' (satellite_dynamics): dof must be the integer 1 or 6, got 3"),
+    (["dof:=6", "kcs:=1.0"], "node 'satellite_dynamics' (satellite_dynamics, dof 6): unknown parameter 'kcs', a "
+     "parameter of the 1-DOF node; set dof: 1 for the 1-DOF node"),
+])
+def test_dockhil_run_takes_dof_as_a_launch_file_does(params, line):
+    code, out, err = run_main("run", "satellite_dynamics", *params)
+    assert code not in (0, None)
+    lines = [s for s in (out + err).splitlines() if s.strip()]
+    assert len(lines) == 1 and line in lines[0], lines
+
+
 def test_node_types_shows_dof():
     code, out, _ = run_main("node", "types", "satellite_dynamics")
     assert code == 0
