@@ -95,12 +95,10 @@ def build(scene: Scene) -> Graph:
     for spec in scene.nodes:
         declared = f"{spec.source}:{spec.line}" if spec.line else spec.source
         where = f"{declared}: node {spec.name!r}"
-        try:
-            cls = node_registry.load(spec.type)
+        try:  # the class that runs, by its registered name (`dof: 6` names the 6-DOF type)
+            type_name, cls, params = node_registry.resolve(spec.type, spec.name, spec.params)
         except LaunchError as exc:
             raise LaunchError(f"{where}: {exc}") from None
-        try:
-            params = cls.resolve_params(spec.name, spec.params)
         except ParamError as exc:
             raise LaunchError(f"{declared}: {exc}") from None
         ins, outs = cls.ports(params)
@@ -132,7 +130,7 @@ def build(scene: Scene) -> Graph:
         }
         outputs = {name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap, where, ns), p.type)
                    for name, p in outs.items()}
-        gnodes[spec.name] = GraphNode(spec.name, spec.type, cls, params, inputs, outputs, spec.respawn,
+        gnodes[spec.name] = GraphNode(spec.name, type_name, cls, params, inputs, outputs, spec.respawn,
                                       spec.respawn_delay, spec.host)
 
     publishers: dict[str, PortRef] = {}

@@ -352,7 +352,8 @@ class SummaryCollector:
 
         self.graph = graph
         self.six = None
-        if _first(graph, "satellite_dynamics6") is not None:  # a 6-DOF scene: its own summary
+        # A 6-DOF scene (dof: 6, or the *6 name: the graph records the registered one): its own summary.
+        if _first(graph, "satellite_dynamics6") is not None:
             from dockhil.summary6 import SummaryCollector6
 
             self.six = SummaryCollector6(graph)

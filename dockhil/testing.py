@@ -82,12 +82,16 @@ class NodeHarness:
         if not (isinstance(cls, type) and issubclass(cls, Node)):
             raise DockhilError(f"NodeHarness: {node!r} is not a Node subclass")
         self.name = name or (node if isinstance(node, str) and ":" not in node else cls.__name__)
+        given = {**(params or {}), **more_params}
+        if isinstance(node, str):  # as a launch file's node: `dof` picks the class
+            _, cls, resolved = registry.resolve(node, self.name, given)
+        else:
+            resolved = cls.resolve_params(self.name, given)
         self.cls = cls
         self.dt = dt
         self.sim_time = sim_time
         self.logs: list[str] = []
         self.echo_log = echo_log
-        resolved = cls.resolve_params(self.name, {**(params or {}), **more_params})
         ins, outs = cls.ports(resolved)
         self.input_ports = dict(ins)
         self.output_ports = dict(outs)

@@ -5,7 +5,13 @@ Other installed distributions add node types through the entry-point group
 `dockhil.nodes` (in their pyproject.toml:
 `[project.entry-points."dockhil.nodes"] my_sensor = "my_pkg.sensor:MySensor"`).
 A built-in name always wins, and entry points are read only for a name that is
-not built in, so a broken third-party package never breaks the built-in types."""
+not built in, so a broken third-party package never breaks the built-in types.
+
+The parameter `dof` of the simulated loop's types (SIX_DOF) picks their class: 1 (the
+default) the type itself, along x; 6 its 6-DOF type (docs/sixdof.md), whose own name stays
+an alias. `resolve` turns a declared node into what runs: the registered name of the class,
+the class, its checked parameters (without `dof`, which the class does not take). A graph
+records that name, so whatever looks a node up by type sees one name for both spellings."""
 
 from __future__ import annotations
 
@@ -13,9 +19,10 @@ import importlib
 import importlib.util
 import os
 import re
+import reprlib
 import sys
 
-from dockhil.errors import LaunchError, suggest
+from dockhil.errors import LaunchError, ParamError, suggest
 
 REGISTRY: dict[str, str] = {
     "satellite_dynamics": "dockhil.nodes.satellite_dynamics:SatelliteDynamics",
@@ -33,6 +40,90 @@ REGISTRY: dict[str, str] = {
     "ft_sim6": "dockhil.nodes.ft_sim6:FtSensorSim6",
     "robot_sim6": "dockhil.nodes.robot_sim6:RobotSim6",
 }
+
+
+# The types `dof` picks between: 1-DOF type -> its 6-DOF type.
+SIX_DOF = {
+    "satellite_dynamics": "satellite_dynamics6",
+    "virtual_impedance": "virtual_impedance6",
+    "ft_sim": "ft_sim6",
+    "robot_sim": "robot_sim6",
+}
+ONE_DOF = {six: one for one, six in SIX_DOF.items()}
+
+
+def dof_param(type_name: str):
+    """The `dof` parameter of a type that takes one (its default and help, as a Param), else None.
+    `resolve` checks it: it picks the class, so no class declares it."""
+    if type_name not in SIX_DOF and type_name not in ONE_DOF:
+        return None
+    from dockhil.node import Param
+
+    if type_name in ONE_DOF:
+        return Param(int, 6, help=f"degrees of freedom: 6, this node ({ONE_DOF[type_name]} with dof: 6); "
+                                  f"for 1 write node: {ONE_DOF[type_name]}")
+    return Param(int, 1, help=f"degrees of freedom: 1, this node (along x); 6, the 6-DOF node "
+                              f"({SIX_DOF[type_name]}, docs/sixdof.md)")
+
+
+def resolve(type_name: str, node_name: str, given: dict) -> tuple[str, type, dict]:
+    """A declared node as it runs: (registered type name, class, checked parameters).
+
+    `dof` picks the class of a type that takes it and is not passed on; a parameter that only
+    the other dof's node takes is refused in one line that says which dof takes it."""
+    spec = dof_param(type_name)
+    dof = spec.default if spec is not None else None
+    if spec is not None and "dof" in given:
+        given = dict(given)
+        dof = given.pop("dof")
+        if type(dof) is not int or dof not in (1, 6):  # not True (== 1) nor 6.0
+            raise ParamError(f"node {node_name!r} ({type_name}): dof must be the integer 1 or 6, got "
+                             f"{reprlib.repr(dof)}; give dof: 1 (along x) or dof: 6 (the 6-DOF node)")
+        if type_name in ONE_DOF and dof != 6:
+            raise ParamError(f"node {node_name!r} ({type_name}): dof {dof}, but {type_name} is the 6-DOF node; "
+                             f"write node: {ONE_DOF[type_name]} for the {dof}-DOF one")
+    registered = SIX_DOF[type_name] if type_name in SIX_DOF and dof == 6 else type_name
+    cls = load(registered)
+    try:
+        return registered, cls, cls.resolve_params(node_name, given)
+    except ParamError:
+        if dof is None:
+            raise
+        line = _other_dof_line(type_name, registered, dof, node_name, cls, given)
+        if line is None:
+            raise
+        raise ParamError(line) from None
+
+
+def _other_dof_line(type_name: str, registered: str, dof: int, node_name: str, cls, given: dict) -> str | None:
+    """The refusal of a parameter that the node of the other dof takes and this one does not,
+    or None (then the class's own refusal stands)."""
+    other_dof = 1 if dof == 6 else 6
+    other = load(ONE_DOF[registered] if dof == 6 else SIX_DOF[registered])  # only on this error path
+    if type_name in ONE_DOF:
+        label, fix = type_name, f"write node: {ONE_DOF[type_name]} for the 1-DOF node"
+    else:
+        label, fix = f"{type_name}, dof {dof}", f"set dof: {other_dof} for the {other_dof}-DOF node"
+    for name in sorted(given):
+        value, theirs, mine = given[name], other.params.get(name), cls.params.get(name)
+        if theirs is None or not _accepts(theirs, name, value):
+            continue
+        if mine is None:
+            return (f"node {node_name!r} ({label}): unknown parameter {name!r}, a parameter of the "
+                    f"{other_dof}-DOF node; {fix}")
+        if mine.type is not theirs.type and not _accepts(mine, name, value):
+            return (f"node {node_name!r} ({label}): parameter {name!r} is a {type(value).__name__} "
+                    f"{reprlib.repr(value)}, as the {other_dof}-DOF node takes it, not a {mine.type.__name__}; "
+                    f"{fix}, or give a {mine.type.__name__}")
+    return None
+
+
+def _accepts(param, name: str, value) -> bool:
+    try:
+        param.check("", name, value)
+        return True
+    except ParamError:
+        return False
 
 
 ENTRY_POINT_GROUP = "dockhil.nodes"

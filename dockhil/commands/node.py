@@ -59,7 +59,8 @@ def _types(name: str | None) -> int:
                 continue
         else:
             cls = nodes.load(type_name)
-        print(f"{type_name}: {cls.describe()}{origin}")
+        alias = f"  [{nodes.ONE_DOF[type_name]} with dof: 6]" if type_name in nodes.ONE_DOF else ""
+        print(f"{type_name}: {cls.describe()}{origin}{alias}")
         if not name:
             continue
         for port, i in cls.inputs.items():
@@ -68,7 +69,8 @@ def _types(name: str | None) -> int:
             print(f"  in  {port}: {i.topic} {msgs.type_name(i.type)}{ft}{opt}  {i.help}")
         for port, o in cls.outputs.items():
             print(f"  out {port}: {o.topic} {msgs.type_name(o.type)}  {o.help}")
-        for pname, p in cls.params.items():
+        dof = nodes.dof_param(type_name)  # picks the class, so it is the registry's, not the class's
+        for pname, p in {**({"dof": dof} if dof else {}), **cls.params}.items():
             unit = f" [{p.unit}]" if p.unit else ""
             print(f"  param {pname}: {p.type.__name__}{unit} = {p.default!r}  {p.help}")
     return 1 if refused else 0

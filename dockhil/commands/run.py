@@ -38,10 +38,9 @@ def run(args) -> int:
     from dockhil.process import run_node
     from dockhil.transport import GraphKeys, ipc_endpoint, new_run_dir
 
-    cls = nodes.load(args.node)
     name = args.name or args.node.rsplit(":", 1)[-1]
     params = {k: boundedyaml.load(v, f"parameter {k}:={v}")[0] for k, v in parse_overrides(args.params).items()}
-    params = cls.resolve_params(name, params)
+    type_name, cls, params = nodes.resolve(args.node, name, params)  # dof:=6 picks the 6-DOF type
     remap = parse_overrides(args.remap)
     ins, outs = cls.ports(params)
     topic_of = lambda port, default: remap.get(port, remap.get(default, default))  # noqa: E731
@@ -78,13 +77,13 @@ def run(args) -> int:
     outputs = {port: PortWire(topic_of(port, o.topic), ipc_endpoint(run_dir, topic_of(port, o.topic)),
                               msgs.type_name(o.type)) for port, o in outs.items()}
     n_ticks = None if args.duration is None else int(round(args.duration * args.rate))
-    spec = RunSpec(name, args.node, params, 1.0 / args.rate, "wall", n_ticks, inputs, outputs,
+    spec = RunSpec(name, type_name, params, 1.0 / args.rate, "wall", n_ticks, inputs, outputs,
                    key_file=str(key_file), run_id=run_id)
     reg = registry_dir() / f"{run_id}.json"
     reg.write_text(json.dumps({
         "run_id": run_id, "pid": os.getpid(), "file": f"dockhil run {args.node}", "clock": "wall",
         "keys": str(key_file),
-        "nodes": {name: {"type": args.node, "pid": os.getpid()}},
+        "nodes": {name: {"type": type_name, "pid": os.getpid()}},
         "topics": {w.topic: {"type": w.type, "endpoint": w.endpoint, "publisher": name} for w in outputs.values()},
     }))
     try:

@@ -24,7 +24,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                 " --b-normal 60 --k-rot 300 --b-rot 4 --h 0.016")
     # SUPPRESS: names shared with `dockhil stability` keep a value given before 'multi'.
     p.add_argument("--scene", nargs="+", metavar="FILE [NAME:=VALUE", default=argparse.SUPPRESS,
-                   help="a 6-DOF launch file (satellite_dynamics6, virtual_impedance6, delay_injector) and its"
+                   help="a 6-DOF launch file (satellite_dynamics and virtual_impedance with dof: 6, a delay_injector)"
+                        " and its"
                         " launch arguments ...]")
     p.add_argument("--planar", action="store_true", help="the 2-D case: --m --inertia --lever --k-normal --b-normal"
                    " [--k-rot --b-rot --direct] --h")
@@ -44,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _scene_loop(items: list[str]):
     """(loop, description) of a 6-DOF scene at its start configuration."""
     from dockhil import graph as graphmod
-    from dockhil import launchfile
+    from dockhil import launchfile, nodes
     from dockhil.contact.contact6 import InterfaceGeometry
     from dockhil.contact.hybrid6 import body_mobility
     from dockhil.contact.stability6 import hybrid_loop6
@@ -55,7 +56,8 @@ def _scene_loop(items: list[str]):
     by_type = {gn.type_name: gn for gn in graph.nodes.values()}
     missing = [t for t in ("satellite_dynamics6", "virtual_impedance6") if t not in by_type]
     if missing:
-        raise DockhilError(f"{path}: not a 6-DOF hybrid scene (no {' and no '.join(missing)} node);"
+        named = [f"{nodes.ONE_DOF[t]} with dof: 6" for t in missing]
+        raise DockhilError(f"{path}: not a 6-DOF hybrid scene (no {' and no '.join(named)});"
                            " for a 1-DOF scene run `dockhil stability --scene`")
 
     def made(type_name):
