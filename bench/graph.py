@@ -11,6 +11,8 @@ inflates them much less than wall time.
 The rings of bench/throughput.py give what each added process costs a tick. The composed
 floor is the bare loop plus what the tick's messages cost to screen and build
 (bench/message_floor.py): the most a composed run of these messages can reach.
+sixdof_composed_rtf is launch/hil6.yaml composed (at most 3 s of it; bench/hil6.py
+gives its details).
 Prints one JSON object as its last line, with each goal and whether it is met.
 """
 
@@ -32,6 +34,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "bench"))  # throughput.ring_costs
 HIL = os.path.join(ROOT, "launch", "hil.yaml")
+HIL6 = os.path.join(ROOT, "launch", "hil6.yaml")
 
 
 CPU: list[float] = []  # CPU seconds (user + system) of every process of each launch
@@ -73,12 +76,12 @@ def hardware_container(folder: str) -> str:
     return path
 
 
-def composed(n_ticks: int, cpu: list[float]) -> float:
+def composed(n_ticks: int, cpu: list[float], scene: str = HIL) -> float:
     from dockhil import launchfile
     from dockhil.composed import ComposedGraph
     from dockhil.graph import build
 
-    g = ComposedGraph(build(launchfile.load(HIL)), log=lambda n, m: None)
+    g = ComposedGraph(build(launchfile.load(scene)), log=lambda n, m: None)
     g.setup()
     t0, c0 = time.perf_counter(), time.process_time()
     g.run(n_ticks)
@@ -136,6 +139,11 @@ def main() -> None:
         "composed_cpu_us_per_tick": round(med(comp_cpu) / n * 1e6, 2),
         "bare_cpu_us_per_tick": round(med(bare_cpu) / n * 1e6, 2),
     }
+    # Issue 13's figure beside them: the 6-DOF scene composed (bench/hil6.py gives its details).
+    six_cpu: list[float] = []
+    six_n = min(n, 3001)
+    out["sixdof_composed_rtf"] = round((six_n - 1) * 1e-3 / med(composed(six_n, six_cpu, HIL6) for _ in range(args.repeat)), 1)
+    out["sixdof_composed_cpu_us_per_tick"] = round(med(six_cpu) / six_n * 1e6, 1)
     # The floor of a composed tick: the bare loop's physics plus screening and building the tick's
     # messages (bench/message_floor.py); no runner or node logic can go below it.
     from message_floor import cost_us_per_tick, messages_of
@@ -147,7 +155,7 @@ def main() -> None:
     out["composed_floor_rtf"] = round(1e6 / floor / 1000.0, 1)  # 1 kHz: a tick is 1000 us of sim time
     out["composed_over_floor"] = round(out["composed_cpu_us_per_tick"] / floor, 2)
     goals = {"multiprocess_rtf": (">=", 4.0), "container_rtf": (">=", 10.0), "composed_rtf": (">=", 100.0),
-             "bare_over_composed": ("<=", 1.5)}
+             "bare_over_composed": ("<=", 1.5), "sixdof_composed_rtf": (">=", 20.0)}
     if args.ring_seconds > 0:
         from throughput import ring_costs
 
