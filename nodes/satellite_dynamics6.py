@@ -102,20 +102,20 @@ class SatelliteDynamics6(Node):
 
     def _publish(self, tick):
         lib = self.lib
-        x1, q1, v1, w1 = lib.published_body(self.m1)
-        x2, q2, v2, w2 = lib.published_body(self.m2)
-        s1 = lib.motion_from_published(self.b1, x1, q1, v1, w1)
-        s2 = lib.motion_from_published(self.b2, x2, q2, v2, w2)
-        g, rate, cmd = lib.relative_interface(s1, s2, w1, w2)
+        pub1, pub2 = lib.published_body(self.m1), lib.published_body(self.m2)
+        (d, q_rel, d_rate, w_rel), touching = lib.robot_command(self.b1, pub1, self.b2, pub2)
+        x1, q1, v1, w1 = pub1
+        x2, q2, v2, w2 = pub2
+        # The library's values are tuples of floats: Vector3(*v) is vector(v) without the float() calls.
         state = SatelliteState(
             header=tick.header("world"),
             bodies=[
-                BodyState("chaser", self.p.m1, Pose(vector(x1), quaternion(q1)), Twist(vector(v1), vector(w1))),
-                BodyState("target", self.p.m2, Pose(vector(x2), quaternion(q2)), Twist(vector(v2), vector(w2))),
+                BodyState("chaser", self.p.m1, Pose(Vector3(*x1), Quaternion(*q1)), Twist(Vector3(*v1), Vector3(*w1))),
+                BodyState("target", self.p.m2, Pose(Vector3(*x2), Quaternion(*q2)), Twist(Vector3(*v2), Vector3(*w2))),
             ],
-            in_contact=bool(g.e[0] > 0.0 or (g.e[0] == 0.0 and rate[0] > 0.0)),
+            in_contact=touching,
         )
         command = RobotCommand(header=tick.header("target_interface"),
-                               pose=Pose(vector(cmd.position), quaternion(cmd.orientation)),
-                               twist=Twist(vector(cmd.velocity), vector(cmd.angular_velocity)))
+                               pose=Pose(Vector3(*d), Quaternion(*q_rel)),
+                               twist=Twist(Vector3(*d_rate), Vector3(*w_rel)))
         return {"state": state, "command": command}

@@ -232,9 +232,14 @@ def published_body(m: Motion) -> tuple:
     return m.x, q, m.v, m.omega3()
 
 
+def principal_attitude(body: RigidBody, orientation) -> tuple:
+    """The integrator's (principal-frame) attitude of a published body-frame attitude."""
+    return _normalised(orientation if body._bp_identity else quat_multiply(orientation, body._q_bp))
+
+
 def motion_from_published(body: RigidBody, position, orientation, velocity, omega_world) -> Motion:
     """The integrator's variables rebuilt from a published body state (what a node downstream sees)."""
-    q_p = _normalised(orientation if body._bp_identity else quat_multiply(orientation, body._q_bp))
+    q_p = principal_attitude(body, orientation)
     i1, i2, i3 = body._moments
     w = rotate_back(q_p, omega_world)
     return Motion(body, tuple(position), tuple(velocity), q_p, (i1 * w[0], i2 * w[1], i3 * w[2]))
@@ -245,6 +250,17 @@ def relative_interface(m1: Motion, m2: Motion, omega1, omega2) -> tuple[Interfac
     g = InterfaceGeometry(m1, m2)
     rate, w_rel = g.rates(m1.v, omega1, m2.v, omega2)
     return g, rate, RelativePose(g.e[:3], g.q_rel, rate[:3], w_rel)
+
+
+def robot_command(body1: RigidBody, published1: tuple, body2: RigidBody, published2: tuple) -> tuple[tuple, bool]:
+    """(robot command as (d, attitude, d', angular velocity), touching) of two published body states
+    (`published_body`): `relative_interface`'s command and contact test, without the momenta and
+    the rotation vector the command does not carry (the dynamics' per-tick path)."""
+    x1, q1, v1, w1 = published1
+    x2, q2, v2, w2 = published2
+    g = InterfaceGeometry.between(body1, x1, principal_attitude(body1, q1), body2, x2, principal_attitude(body2, q2))
+    velocity, w_rel = g.rates3(v1, w1, v2, w2)
+    return (g.d, g.q_rel, velocity, w_rel), _touching(g.d[0], velocity[0])
 
 
 def _touching(penetration: float, closing: float) -> bool:
