@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 from dockhil.node import Input, Node, Output, Param
-from dockhil.msgs import RobotState, Wrench, WrenchStamped
+from dockhil.msgs import RobotState, Vector3, Wrench, WrenchStamped
 from dockhil.nodes.robot_sim6 import relative_pose
-from dockhil.nodes.satellite_dynamics6 import vector
 from dockhil.nodes.sixdof_params import MOUNT_PARAMS, PASSIVE_PARAMS, checked, passive_contact
 
 
@@ -33,4 +32,6 @@ class FtSensorSim6(Node):
     def step(self, tick, inputs):
         robot = inputs["robot"]
         force, torque, _ = self.sensor.read(None if robot is None else relative_pose(robot))
-        return {"wrench": WrenchStamped(header=tick.header("ft_sensor"), wrench=Wrench(vector(force), vector(torque)))}
+        # The sensor's values are tuples of floats: Vector3(*v) is vector(v) without the float() calls.
+        return {"wrench": WrenchStamped(header=tick.header("ft_sensor"),
+                                        wrench=Wrench(Vector3(*force), Vector3(*torque)))}

@@ -177,7 +177,8 @@ class InterfaceGeometry:
     # Tuples of plain floats (the per-tick path); rot_b and jinv as matrices for analysis.
     # theta, jinv3 and e are computed on first use (__getattr__): the robot command needs only
     # d and the relative attitude, and the trigonometry of theta is a large part of a tick.
-    __slots__ = ("d", "point", "q_b", "r", "arm1", "arm2", "q_rel", "theta", "jinv3", "e")
+    # pose1, pose2: (body, CoM position, principal-frame attitude) the geometry is between.
+    __slots__ = ("d", "point", "q_b", "r", "arm1", "arm2", "q_rel", "pose1", "pose2", "theta", "jinv3", "e")
 
     def __init__(self, m1: Motion, m2: Motion):
         self._place(m1.body, m1.x, m1.q, m2.body, m2.x, m2.q)
@@ -190,6 +191,7 @@ class InterfaceGeometry:
         return g
 
     def _place(self, body1, x1, q1, body2, x2, q2) -> None:
+        self.pose1, self.pose2 = (body1, x1, q1), (body2, x2, q2)
         self.arm1 = arm1 = rotate(q1, body1._r_p)  # CoM -> o_A, world
         self.arm2 = arm2 = rotate(q2, body2._r_p)  # CoM -> o_B
         self.point = o_a = (x1[0] + arm1[0], x1[1] + arm1[1], x1[2] + arm1[2])
@@ -225,7 +227,11 @@ class InterfaceGeometry:
     def rates(self, v1, w1, v2, w2) -> tuple[tuple, tuple]:
         """(e', relative angular velocity R_B^T (w1 - w2) in B axes)."""
         velocity, spin = self.rates3(v1, w1, v2, w2)
-        return velocity + mat3_vec(self.jinv3, spin), spin
+        return self.rate_from(velocity, spin), spin
+
+    def rate_from(self, velocity, spin) -> tuple:
+        """e' from the two parts `rates3` returns."""
+        return velocity + mat3_vec(self.jinv3, spin)
 
     def rates3(self, v1, w1, v2, w2) -> tuple[tuple, tuple]:
         """(d' = e'[:3], relative angular velocity R_B^T (w1 - w2) in B axes): the robot command's
