@@ -90,7 +90,11 @@ class SatelliteDynamics6(Node):
         elif tick.index > 0:
             ft, imp = inputs.get("ft"), inputs.get("impedance")
             zero = (0.0, 0.0, 0.0)
-            force, torque = (triple(ft.wrench.force), triple(ft.wrench.torque)) if ft is not None else (zero, zero)
+            if ft is not None:
+                f, t = ft.wrench.force, ft.wrench.torque
+                force, torque = (f.x, f.y, f.z), (t.x, t.y, t.z)
+            else:
+                force, torque = zero, zero
             if imp is not None and len(imp.wrenches) >= 2:
                 w1, w2 = imp.wrenches[0], imp.wrenches[1]
                 virtual = (triple(w1.force), triple(w1.torque), triple(w2.force), triple(w2.torque))

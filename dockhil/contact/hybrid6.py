@@ -361,10 +361,12 @@ class PassiveSensor6:
         theta = rotvec3(orientation)
         jinv = left_jacobian_inverse3(theta)
         e = tuple(position) + theta
-        rate = tuple(velocity) + mat3_vec(jinv, angular_velocity)
         if self.anchor is None:
             self.anchor = (0.0,) + e[1:]
-        q = add6(self.passive.stiffness_of(sub6(e, self.anchor)), self.passive.damping_of(rate))
+        damping = self.passive.damping_of
+        # e' only where a damping reads it (a zero one returns zeros whatever e' is)
+        rate = ZERO6 if damping.zero else tuple(velocity) + mat3_vec(jinv, angular_velocity)
+        q = add6(self.passive.stiffness_of(sub6(e, self.anchor)), damping(rate))
         # The wrench on the target: +S q at o_A, i.e. in B's axes, moment about B's origin.
         force_b = q[:3]
         if self.passive.mu > 0.0:  # the hardware's friction opposes A sliding on B (contact6's law)

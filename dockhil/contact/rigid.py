@@ -545,12 +545,13 @@ def step(m1: Motion, m2: Motion, wrench: Wrench | None, h: float, order: int = 4
     """Advance both bodies by h [s] under `wrench` (None: free flight), in place."""
     for w in _weights(order):
         hw = w * h
-        drift(m1, 0.5 * hw)
-        drift(m2, 0.5 * hw)
+        half = 0.5 * hw
+        drift(m1, half)
+        drift(m2, half)
         if wrench is not None:
             _apply(m1, m2, wrench, hw)
-        drift(m1, 0.5 * hw)
-        drift(m2, 0.5 * hw)
+        drift(m1, half)
+        drift(m2, half)
 
 
 def total_momentum(m1: Motion, m2: Motion) -> np.ndarray:
