@@ -32,6 +32,6 @@ class FtSensorSim6(Node):
     def step(self, tick, inputs):
         robot = inputs["robot"]
         force, torque, _ = self.sensor.read(None if robot is None else relative_pose(robot))
-        # The sensor's values are tuples of floats: Vector3(*v) is vector(v) without the float() calls.
+        # The sensor's values are plain floats already (tuples): they go into the message as they are.
         return {"wrench": WrenchStamped(header=tick.header("ft_sensor"),
                                         wrench=Wrench(Vector3(*force), Vector3(*torque)))}

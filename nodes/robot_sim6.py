@@ -33,7 +33,7 @@ class RobotSim6(Node):
         if cmd is None:  # no command yet (the delay has not passed): report no pose
             return {}
         position, orientation, velocity, angular_velocity = self.servo.step(relative_pose(cmd))
-        # Tuples of floats (a message's, or Servo6's): Vector3(*v) is vector(v) without the float() calls.
+        # Plain floats already (a message's, or Servo6's): they go into the message as they are.
         return {"state": RobotState(header=tick.header("target_interface"),
                                     pose=Pose(Vector3(*position), Quaternion(*orientation)),
                                     twist=Twist(Vector3(*velocity), Vector3(*angular_velocity)))}

@@ -8,19 +8,6 @@ from dockhil.msgs import (BodyState, BodyWrenches, Pose, Quaternion, RobotComman
 from dockhil.nodes.sixdof_params import BODY_PARAMS, IDENTITY, MOUNT_PARAMS, bodies, checked
 
 
-def vector(v) -> Vector3:
-    return Vector3(float(v[0]), float(v[1]), float(v[2]))
-
-
-def quaternion(q) -> Quaternion:
-    return Quaternion(float(q[0]), float(q[1]), float(q[2]), float(q[3]))
-
-
-def triple(v) -> tuple[float, float, float]:
-    """(x, y, z) of a msgs.Vector3: the library's 3-vectors are tuples of floats."""
-    return (v.x, v.y, v.z)
-
-
 def attitude(q, rotvec, name):
     """exp(rotvec) q: a tilt given in radians on top of a quaternion (unit, checked)."""
     from dockhil.contact import rigid
@@ -97,7 +84,8 @@ class SatelliteDynamics6(Node):
                 force, torque = zero, zero
             if imp is not None and len(imp.wrenches) >= 2:
                 w1, w2 = imp.wrenches[0], imp.wrenches[1]
-                virtual = (triple(w1.force), triple(w1.torque), triple(w2.force), triple(w2.torque))
+                f1, t1, f2, t2 = w1.force, w1.torque, w2.force, w2.torque
+                virtual = ((f1.x, f1.y, f1.z), (t1.x, t1.y, t1.z), (f2.x, f2.y, f2.z), (t2.x, t2.y, t2.z))
             else:
                 virtual = (zero, zero, zero, zero)
             wrench = self.lib.held_wrench(self.m1, self.m2, self.mount, force, torque, virtual)
@@ -110,7 +98,7 @@ class SatelliteDynamics6(Node):
         (d, q_rel, d_rate, w_rel), touching = lib.robot_command(self.b1, pub1, self.b2, pub2)
         x1, q1, v1, w1 = pub1
         x2, q2, v2, w2 = pub2
-        # The library's values are tuples of floats: Vector3(*v) is vector(v) without the float() calls.
+        # The library's values are plain floats already (tuples): they go into the messages as they are.
         state = SatelliteState(
             header=tick.header("world"),
             bodies=[

@@ -4,16 +4,15 @@ from __future__ import annotations
 
 from dockhil.node import Input, Node, Output
 from dockhil.msgs import BodyWrenches, SatelliteState, Vector3, Wrench
-from dockhil.nodes.satellite_dynamics6 import triple
 from dockhil.nodes.sixdof_params import BODY_PARAMS, IDEAL_PARAMS, PASSIVE_PARAMS, bodies, checked, ideal_contact, \
     passive_contact
 
 
 def published(body):
     """(position, orientation, velocity, world angular velocity) of a msgs.BodyState."""
-    o = body.pose.orientation
-    return (triple(body.pose.position), (o.x, o.y, o.z, o.w), triple(body.twist.linear),
-            triple(body.twist.angular))
+    pose, twist = body.pose, body.twist
+    p, o, v, w = pose.position, pose.orientation, twist.linear, twist.angular
+    return (p.x, p.y, p.z), (o.x, o.y, o.z, o.w), (v.x, v.y, v.z), (w.x, w.y, w.z)
 
 
 class VirtualImpedance6(Node):
@@ -51,6 +50,6 @@ class VirtualImpedance6(Node):
         if forces is None:
             return {"wrench": BodyWrenches(header=tick.header("world"), wrenches=[Wrench(), Wrench()])}
         f1, t1, f2, t2 = forces
-        # The wall's values are tuples of floats: Vector3(*v) is vector(v) without the float() calls.
+        # The wall's values are plain floats already (tuples): they go into the message as they are.
         return {"wrench": BodyWrenches(header=tick.header("world"), wrenches=[
             Wrench(Vector3(*f1), Vector3(*t1)), Wrench(Vector3(*f2), Vector3(*t2))])}
