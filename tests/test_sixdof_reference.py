@@ -16,8 +16,8 @@ import pytest
 
 from dockhil import graph as graphmod
 from dockhil import launchfile
-from dockhil.composed import ComposedGraph
 from tests.conftest import ROOT
+from tests.test_sixdof_graph import run_taps
 
 HIL6 = ROOT / "launch" / "hil6.yaml"
 TILT_Z = [0.0, 0.0, 0.009999833334166664, 0.9999500004166653]  # 0.02 rad about z
@@ -58,12 +58,7 @@ def digest(args: dict, params: dict, n_ticks: int = 3001) -> tuple[int, str]:
         count += 1
         h.update(topic.encode() + b"\0" + encode(msg))
 
-    run = ComposedGraph(g, taps=[tap], log=lambda name, line: None)
-    run.setup()
-    try:
-        run.run(n_ticks)
-    finally:
-        run.close()
+    run_taps(g, [tap], n_ticks)
     return count, h.hexdigest()
 
 
