@@ -8,6 +8,9 @@ from dockhil.nodes.sixdof_params import BODY_PARAMS, IDEAL_PARAMS, PASSIVE_PARAM
     passive_contact
 
 
+NO_WRENCH = Wrench()  # msgs are frozen: one zero wrench serves every message that carries one
+
+
 def published(body):
     """(position, orientation, velocity, world angular velocity) of a msgs.BodyState."""
     pose, twist = body.pose, body.twist
@@ -47,8 +50,8 @@ class VirtualImpedance6(Node):
                 per_axis = self.wall.impedance.per_axis()
                 self.log("impedance (closed form at first contact), diagonal: " + " ".join(
                     f"{a}: k1={v['k1']:.6g} c1={v['c1']:.6g}" for a, v in per_axis.items()))
-        if forces is None:
-            return {"wrench": BodyWrenches(header=tick.header("world"), wrenches=[Wrench(), Wrench()])}
+        if forces is None or not self.wall.touching:  # the wall's wrenches are zero: one frozen Wrench() for them
+            return {"wrench": BodyWrenches(header=tick.header("world"), wrenches=[NO_WRENCH, NO_WRENCH])}
         f1, t1, f2, t2 = forces
         # The wall's values are plain floats already (tuples): they go into the message as they are.
         return {"wrench": BodyWrenches(header=tick.header("world"), wrenches=[
