@@ -8,6 +8,9 @@ from dockhil.nodes.robot_sim6 import relative_pose
 from dockhil.nodes.sixdof_params import MOUNT_PARAMS, PASSIVE_PARAMS, checked, passive_contact
 
 
+NO_WRENCH = Wrench()  # msgs are frozen: one zero wrench serves every message that carries one
+
+
 class FtSensorSim6(Node):
     """The passive 6x6 compliance (and friction) at the robot's pose, read by an F/T sensor on the target.
 
@@ -32,6 +35,7 @@ class FtSensorSim6(Node):
     def step(self, tick, inputs):
         robot = inputs["robot"]
         force, torque, _ = self.sensor.read(None if robot is None else relative_pose(robot))
-        # The sensor's values are plain floats already (tuples): they go into the message as they are.
-        return {"wrench": WrenchStamped(header=tick.header("ft_sensor"),
-                                        wrench=Wrench(Vector3(*force), Vector3(*torque)))}
+        # The sensor's values are plain floats already (tuples): they go into the message as they are;
+        # out of contact they are zero, and one frozen Wrench() carries them.
+        wrench = Wrench(Vector3(*force), Vector3(*torque)) if self.sensor.touching else NO_WRENCH
+        return {"wrench": WrenchStamped(header=tick.header("ft_sensor"), wrench=wrench)}

@@ -32,8 +32,11 @@ class RobotSim6(Node):
         cmd = inputs["command"]
         if cmd is None:  # no command yet (the delay has not passed): report no pose
             return {}
-        position, orientation, velocity, angular_velocity = self.servo.step(relative_pose(cmd))
-        # Plain floats already (a message's, or Servo6's): they go into the message as they are.
-        return {"state": RobotState(header=tick.header("target_interface"),
-                                    pose=Pose(Vector3(*position), Quaternion(*orientation)),
-                                    twist=Twist(Vector3(*velocity), Vector3(*angular_velocity)))}
+        if self.servo.alpha == 1.0:  # no lag: Servo6 returns the command itself, so its (frozen) pose and twist serve
+            pose, twist = cmd.pose, cmd.twist
+        else:
+            position, orientation, velocity, angular_velocity = self.servo.step(relative_pose(cmd))
+            # Plain floats already (Servo6's): they go into the message as they are.
+            pose = Pose(Vector3(*position), Quaternion(*orientation))
+            twist = Twist(Vector3(*velocity), Vector3(*angular_velocity))
+        return {"state": RobotState(header=tick.header("target_interface"), pose=pose, twist=twist)}

@@ -349,15 +349,18 @@ class PassiveSensor6:
         self.mount_position = tuple(check_vector("sensor_position", mount_position, unit="m").tolist())
         self.mount_orientation = check_unit_quaternion("sensor_orientation", mount_orientation)
         self.anchor: tuple | None = None
+        self.touching = False  # at the last reading
 
     def read(self, pose: RelativePose | None) -> tuple[tuple, tuple, tuple]:
-        """(force [N], torque [N m]) in the sensor frame and the generalized passive force (tuples).
-        pose: a RelativePose, or a plain tuple of its four fields."""
+        """(force [N], torque [N m]) in the sensor frame and the generalized passive force (tuples),
+        all zero when not touching. pose: a RelativePose, or a plain tuple of its four fields."""
+        self.touching = False
         if pose is None:
             return ZERO3, ZERO3, ZERO6
         position, orientation, velocity, angular_velocity = pose
         if not _touching(position[0], velocity[0]):
             return ZERO3, ZERO3, ZERO6
+        self.touching = True
         theta = rotvec3(orientation)
         jinv = left_jacobian_inverse3(theta)
         e = tuple(position) + theta
