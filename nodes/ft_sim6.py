@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from dockhil.node import Input, Node, Output, Param
-from dockhil.msgs import RobotState, Wrench, WrenchStamped
+from dockhil.msgs import RobotState, Vector3, Wrench, WrenchStamped
 from dockhil.nodes.robot_sim6 import relative_pose
-from dockhil.nodes.satellite_dynamics6 import vector
 from dockhil.nodes.sixdof_params import MOUNT_PARAMS, PASSIVE_PARAMS, checked, passive_contact
+
+
+NO_WRENCH = Wrench()  # msgs are frozen: one zero wrench serves every message that carries one
 
 
 class FtSensorSim6(Node):
@@ -33,4 +35,7 @@ class FtSensorSim6(Node):
     def step(self, tick, inputs):
         robot = inputs["robot"]
         force, torque, _ = self.sensor.read(None if robot is None else relative_pose(robot))
-        return {"wrench": WrenchStamped(header=tick.header("ft_sensor"), wrench=Wrench(vector(force), vector(torque)))}
+        # The sensor's values are plain floats already (tuples): they go into the message as they are;
+        # out of contact they are zero, and one frozen Wrench() carries them.
+        wrench = Wrench(Vector3(*force), Vector3(*torque)) if self.sensor.touching else NO_WRENCH
+        return {"wrench": WrenchStamped(header=tick.header("ft_sensor"), wrench=wrench)}

@@ -3,17 +3,15 @@
 from __future__ import annotations
 
 from dockhil.node import Input, Node, Output, Param
-from dockhil.msgs import Pose, RobotCommand, RobotState, Twist
-from dockhil.nodes.satellite_dynamics6 import triple, quaternion, vector
+from dockhil.msgs import Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3
 
 
-def relative_pose(msg):
-    """hybrid6.RelativePose of a RobotCommand or RobotState."""
-    from dockhil.contact.hybrid6 import RelativePose
-
-    o = msg.pose.orientation
-    return RelativePose(triple(msg.pose.position), (o.x, o.y, o.z, o.w), triple(msg.twist.linear),
-                        triple(msg.twist.angular))
+def relative_pose(msg) -> tuple:
+    """The fields of a hybrid6.RelativePose (position, orientation, velocity, angular velocity) of a
+    RobotCommand or RobotState, as a plain tuple (what Servo6 and PassiveSensor6 take)."""
+    pose, twist = msg.pose, msg.twist
+    p, o, v, w = pose.position, pose.orientation, twist.linear, twist.angular
+    return (p.x, p.y, p.z), (o.x, o.y, o.z, o.w), (v.x, v.y, v.z), (w.x, w.y, w.z)
 
 
 class RobotSim6(Node):
@@ -34,7 +32,11 @@ class RobotSim6(Node):
         cmd = inputs["command"]
         if cmd is None:  # no command yet (the delay has not passed): report no pose
             return {}
-        pose = self.servo.step(relative_pose(cmd))
-        return {"state": RobotState(header=tick.header("target_interface"),
-                                    pose=Pose(vector(pose.position), quaternion(pose.orientation)),
-                                    twist=Twist(vector(pose.velocity), vector(pose.angular_velocity)))}
+        if self.servo.alpha == 1.0:  # no lag: Servo6 returns the command itself, so its (frozen) pose and twist serve
+            pose, twist = cmd.pose, cmd.twist
+        else:
+            position, orientation, velocity, angular_velocity = self.servo.step(relative_pose(cmd))
+            # Plain floats already (Servo6's): they go into the message as they are.
+            pose = Pose(Vector3(*position), Quaternion(*orientation))
+            twist = Twist(Vector3(*velocity), Vector3(*angular_velocity))
+        return {"state": RobotState(header=tick.header("target_interface"), pose=pose, twist=twist)}

@@ -8,19 +8,6 @@ from dockhil.msgs import (BodyState, BodyWrenches, Pose, Quaternion, RobotComman
 from dockhil.nodes.sixdof_params import BODY_PARAMS, IDENTITY, MOUNT_PARAMS, bodies, checked
 
 
-def vector(v) -> Vector3:
-    return Vector3(float(v[0]), float(v[1]), float(v[2]))
-
-
-def quaternion(q) -> Quaternion:
-    return Quaternion(float(q[0]), float(q[1]), float(q[2]), float(q[3]))
-
-
-def triple(v) -> tuple[float, float, float]:
-    """(x, y, z) of a msgs.Vector3: the library's 3-vectors are tuples of floats."""
-    return (v.x, v.y, v.z)
-
-
 def attitude(q, rotvec, name):
     """exp(rotvec) q: a tilt given in radians on top of a quaternion (unit, checked)."""
     from dockhil.contact import rigid
@@ -90,10 +77,15 @@ class SatelliteDynamics6(Node):
         elif tick.index > 0:
             ft, imp = inputs.get("ft"), inputs.get("impedance")
             zero = (0.0, 0.0, 0.0)
-            force, torque = (triple(ft.wrench.force), triple(ft.wrench.torque)) if ft is not None else (zero, zero)
+            if ft is not None:
+                f, t = ft.wrench.force, ft.wrench.torque
+                force, torque = (f.x, f.y, f.z), (t.x, t.y, t.z)
+            else:
+                force, torque = zero, zero
             if imp is not None and len(imp.wrenches) >= 2:
                 w1, w2 = imp.wrenches[0], imp.wrenches[1]
-                virtual = (triple(w1.force), triple(w1.torque), triple(w2.force), triple(w2.torque))
+                f1, t1, f2, t2 = w1.force, w1.torque, w2.force, w2.torque
+                virtual = ((f1.x, f1.y, f1.z), (t1.x, t1.y, t1.z), (f2.x, f2.y, f2.z), (t2.x, t2.y, t2.z))
             else:
                 virtual = (zero, zero, zero, zero)
             wrench = self.lib.held_wrench(self.m1, self.m2, self.mount, force, torque, virtual)
@@ -102,20 +94,20 @@ class SatelliteDynamics6(Node):
 
     def _publish(self, tick):
         lib = self.lib
-        x1, q1, v1, w1 = lib.published_body(self.m1)
-        x2, q2, v2, w2 = lib.published_body(self.m2)
-        s1 = lib.motion_from_published(self.b1, x1, q1, v1, w1)
-        s2 = lib.motion_from_published(self.b2, x2, q2, v2, w2)
-        g, rate, cmd = lib.relative_interface(s1, s2, w1, w2)
+        pub1, pub2 = lib.published_body(self.m1), lib.published_body(self.m2)
+        (d, q_rel, d_rate, w_rel), touching = lib.robot_command(self.b1, pub1, self.b2, pub2)
+        x1, q1, v1, w1 = pub1
+        x2, q2, v2, w2 = pub2
+        # The library's values are plain floats already (tuples): they go into the messages as they are.
         state = SatelliteState(
             header=tick.header("world"),
             bodies=[
-                BodyState("chaser", self.p.m1, Pose(vector(x1), quaternion(q1)), Twist(vector(v1), vector(w1))),
-                BodyState("target", self.p.m2, Pose(vector(x2), quaternion(q2)), Twist(vector(v2), vector(w2))),
+                BodyState("chaser", self.p.m1, Pose(Vector3(*x1), Quaternion(*q1)), Twist(Vector3(*v1), Vector3(*w1))),
+                BodyState("target", self.p.m2, Pose(Vector3(*x2), Quaternion(*q2)), Twist(Vector3(*v2), Vector3(*w2))),
             ],
-            in_contact=bool(g.e[0] > 0.0 or (g.e[0] == 0.0 and rate[0] > 0.0)),
+            in_contact=touching,
         )
         command = RobotCommand(header=tick.header("target_interface"),
-                               pose=Pose(vector(cmd.position), quaternion(cmd.orientation)),
-                               twist=Twist(vector(cmd.velocity), vector(cmd.angular_velocity)))
+                               pose=Pose(Vector3(*d), Quaternion(*q_rel)),
+                               twist=Twist(Vector3(*d_rate), Vector3(*w_rel)))
         return {"state": state, "command": command}

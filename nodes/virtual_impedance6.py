@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 from dockhil.node import Input, Node, Output
-from dockhil.msgs import BodyWrenches, SatelliteState, Wrench
-from dockhil.nodes.satellite_dynamics6 import triple, vector
+from dockhil.msgs import BodyWrenches, SatelliteState, Vector3, Wrench
 from dockhil.nodes.sixdof_params import BODY_PARAMS, IDEAL_PARAMS, PASSIVE_PARAMS, bodies, checked, ideal_contact, \
     passive_contact
 
 
+NO_WRENCH = Wrench()  # msgs are frozen: one zero wrench serves every message that carries one
+
+
 def published(body):
     """(position, orientation, velocity, world angular velocity) of a msgs.BodyState."""
-    o = body.pose.orientation
-    return (triple(body.pose.position), (o.x, o.y, o.z, o.w), triple(body.twist.linear),
-            triple(body.twist.angular))
+    pose, twist = body.pose, body.twist
+    p, o, v, w = pose.position, pose.orientation, twist.linear, twist.angular
+    return (p.x, p.y, p.z), (o.x, o.y, o.z, o.w), (v.x, v.y, v.z), (w.x, w.y, w.z)
 
 
 class VirtualImpedance6(Node):
@@ -37,23 +39,20 @@ class VirtualImpedance6(Node):
         self.logged = False
 
     def step(self, tick, inputs):
-        lib = self.lib
         state = inputs["state"]
         forces = None
         if state is not None and len(state.bodies) >= 2:
-            x1, q1, v1, w1 = published(state.bodies[0])
-            x2, q2, v2, w2 = published(state.bodies[1])
-            s1 = lib.motion_from_published(self.b1, x1, q1, v1, w1)
-            s2 = lib.motion_from_published(self.b2, x2, q2, v2, w2)
-            g, rate, _ = lib.relative_interface(s1, s2, w1, w2)
-            forces = self.wall.wrenches(s1, s2, g, rate)
+            g, velocity, spin = self.lib.published_interface(self.b1, published(state.bodies[0]),
+                                                             self.b2, published(state.bodies[1]))
+            forces = self.wall.wrenches(g, velocity, spin)
             if self.wall.impedance is not None and not self.logged:
                 self.logged = True
                 per_axis = self.wall.impedance.per_axis()
                 self.log("impedance (closed form at first contact), diagonal: " + " ".join(
                     f"{a}: k1={v['k1']:.6g} c1={v['c1']:.6g}" for a, v in per_axis.items()))
-        if forces is None:
-            return {"wrench": BodyWrenches(header=tick.header("world"), wrenches=[Wrench(), Wrench()])}
+        if forces is None or not self.wall.touching:  # the wall's wrenches are zero: one frozen Wrench() for them
+            return {"wrench": BodyWrenches(header=tick.header("world"), wrenches=[NO_WRENCH, NO_WRENCH])}
         f1, t1, f2, t2 = forces
-        return {"wrench": BodyWrenches(header=tick.header("world"),
-                                       wrenches=[Wrench(vector(f1), vector(t1)), Wrench(vector(f2), vector(t2))])}
+        # The wall's values are plain floats already (tuples): they go into the message as they are.
+        return {"wrench": BodyWrenches(header=tick.header("world"), wrenches=[
+            Wrench(Vector3(*f1), Vector3(*t1)), Wrench(Vector3(*f2), Vector3(*t2))])}

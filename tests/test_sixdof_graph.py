@@ -21,17 +21,21 @@ HIL6 = ROOT / "launch" / "hil6.yaml"
 DT = 1e-3
 
 
-def run_composed(path, args: dict, n_ticks: int) -> dict:
-    """Messages by topic, in tick order, of a composed sim-time run."""
-    scene = launchfile.load(path, {k: str(v) for k, v in args.items()})
-    seen: dict = {}
-    g = ComposedGraph(graphmod.build(scene), taps=[lambda topic, msg: seen.setdefault(topic, []).append(msg)],
-                      log=lambda name, msg: None)
+def run_taps(graph, taps: list, n_ticks: int) -> None:
+    """A composed sim-time run of `graph` for n_ticks; every message goes to `taps`."""
+    g = ComposedGraph(graph, taps=taps, log=lambda name, msg: None)
     g.setup()
     try:
         g.run(n_ticks)
     finally:
         g.close()
+
+
+def run_composed(path, args: dict, n_ticks: int) -> dict:
+    """Messages by topic, in tick order, of a composed sim-time run."""
+    scene = launchfile.load(path, {k: str(v) for k, v in args.items()})
+    seen: dict = {}
+    run_taps(graphmod.build(scene), [lambda topic, msg: seen.setdefault(topic, []).append(msg)], n_ticks)
     return seen
 
 

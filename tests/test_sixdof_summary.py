@@ -12,13 +12,12 @@ import pytest
 
 from dockhil import graph as graphmod
 from dockhil import launchfile
-from dockhil.composed import ComposedGraph
 from dockhil.contact.contact6 import Contact6, simulate_contact6
 from dockhil.contact.ideal import ideal_contact_summary
 from dockhil.contact.scenario import ContactScenario
 from dockhil.summary import SummaryCollector, format_summary
 from tests.conftest import ROOT, dockhil_cmd
-from tests.test_sixdof_graph import DT, library_run
+from tests.test_sixdof_graph import DT, library_run, run_taps
 
 HIL6 = ROOT / "launch" / "hil6.yaml"
 
@@ -27,12 +26,7 @@ def summary_of(path, args: dict, n_ticks: int) -> dict:
     """The summary of a composed sim-time run, as `dockhil launch --composed` makes it."""
     graph = graphmod.build(launchfile.load(path, {k: str(v) for k, v in args.items()}))
     collector = SummaryCollector(graph)
-    g = ComposedGraph(graph, taps=[collector], log=lambda name, msg: None)
-    g.setup()
-    try:
-        g.run(n_ticks)
-    finally:
-        g.close()
+    run_taps(graph, [collector], n_ticks)
     return collector.summary(1.0)
 
 

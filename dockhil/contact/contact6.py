@@ -175,21 +175,41 @@ class InterfaceGeometry:
     the wrench point o_A, R_B, J_l(theta)^{-1}, and the lever arms."""
 
     # Tuples of plain floats (the per-tick path); rot_b and jinv as matrices for analysis.
-    __slots__ = ("e", "point", "q_b", "jinv3", "r", "arm1", "arm2", "q_rel")
+    # theta, jinv3 and e are computed on first use (__getattr__): the robot command needs only
+    # d and the relative attitude, and the trigonometry of theta is a large part of a tick.
+    # pose1, pose2: (body, CoM position, principal-frame attitude) the geometry is between.
+    __slots__ = ("d", "point", "q_b", "r", "arm1", "arm2", "q_rel", "pose1", "pose2", "theta", "jinv3", "e")
 
     def __init__(self, m1: Motion, m2: Motion):
-        self.arm1 = arm1 = rotate(m1.q, m1.body._r_p)  # CoM -> o_A, world
-        self.arm2 = arm2 = rotate(m2.q, m2.body._r_p)  # CoM -> o_B
-        x1, x2 = m1.x, m2.x
+        self._place(m1.body, m1.x, m1.q, m2.body, m2.x, m2.q)
+
+    @classmethod
+    def between(cls, body1: RigidBody, x1, q1, body2: RigidBody, x2, q2) -> "InterfaceGeometry":
+        """The geometry of two CoM positions and principal-frame attitudes (no Motion needed)."""
+        g = cls.__new__(cls)
+        g._place(body1, x1, q1, body2, x2, q2)
+        return g
+
+    def _place(self, body1, x1, q1, body2, x2, q2) -> None:
+        self.pose1, self.pose2 = (body1, x1, q1), (body2, x2, q2)
+        self.arm1 = arm1 = rotate(q1, body1._r_p)  # CoM -> o_A, world
+        self.arm2 = arm2 = rotate(q2, body2._r_p)  # CoM -> o_B
         self.point = o_a = (x1[0] + arm1[0], x1[1] + arm1[1], x1[2] + arm1[2])
         self.r = r = (o_a[0] - x2[0] - arm2[0], o_a[1] - x2[1] - arm2[1], o_a[2] - x2[2] - arm2[2])  # o_A - o_B
-        q_a = m1.q if m1.body._pi_identity else quat_multiply(m1.q, m1.body._q_pi)
-        q_b = m2.q if m2.body._pi_identity else quat_multiply(m2.q, m2.body._q_pi)
+        q_a = q1 if body1._pi_identity else quat_multiply(q1, body1._q_pi)
+        q_b = q2 if body2._pi_identity else quat_multiply(q2, body2._q_pi)
         self.q_b = q_b  # B -> world
         self.q_rel = quat_multiply(quat_conjugate(q_b), q_a)  # A's attitude in B
-        theta = rotvec3(self.q_rel)
+        self.d = rotate_back(q_b, r)  # o_A - o_B in B's axes: e[:3]
+
+    def __getattr__(self, name):
+        # Only for the slots not yet set: theta, jinv3, e (the same numbers, computed once, when asked).
+        if name not in ("theta", "jinv3", "e"):
+            raise AttributeError(name)
+        self.theta = theta = rotvec3(self.q_rel)
         self.jinv3 = left_jacobian_inverse3(theta)
-        self.e = rotate_back(q_b, r) + theta
+        self.e = self.d + theta
+        return getattr(self, name)
 
     @property
     def rot_b(self) -> np.ndarray:
@@ -206,6 +226,16 @@ class InterfaceGeometry:
 
     def rates(self, v1, w1, v2, w2) -> tuple[tuple, tuple]:
         """(e', relative angular velocity R_B^T (w1 - w2) in B axes)."""
+        velocity, spin = self.rates3(v1, w1, v2, w2)
+        return self.rate_from(velocity, spin), spin
+
+    def rate_from(self, velocity, spin) -> tuple:
+        """e' from the two parts `rates3` returns."""
+        return velocity + mat3_vec(self.jinv3, spin)
+
+    def rates3(self, v1, w1, v2, w2) -> tuple[tuple, tuple]:
+        """(d' = e'[:3], relative angular velocity R_B^T (w1 - w2) in B axes): the robot command's
+        rates, without J_l(theta)^{-1}."""
         # v_A - v_B + r x w2, with v_A = v1 + w1 x arm1 and v_B = v2 + w2 x arm2 (written out: the hot path)
         a, b, r = self.arm1, self.arm2, self.r
         p0, p1, p2 = w1
@@ -213,8 +243,8 @@ class InterfaceGeometry:
         u = (v1[0] + p1 * a[2] - p2 * a[1] - v2[0] - s1 * b[2] + s2 * b[1] + r[1] * s2 - r[2] * s1,
              v1[1] + p2 * a[0] - p0 * a[2] - v2[1] - s2 * b[0] + s0 * b[2] + r[2] * s0 - r[0] * s2,
              v1[2] + p0 * a[1] - p1 * a[0] - v2[2] - s0 * b[1] + s1 * b[0] + r[0] * s1 - r[1] * s0)
-        spin = rotate_back(self.q_b, (p0 - s0, p1 - s1, p2 - s2))
-        return rotate_back(self.q_b, u) + mat3_vec(self.jinv3, spin), spin
+        q_b = self.q_b
+        return rotate_back(q_b, u), rotate_back(q_b, (p0 - s0, p1 - s1, p2 - s2))
 
     @property
     def penetration(self) -> float:

@@ -80,11 +80,16 @@ def wrench_map(g: InterfaceGeometry) -> np.ndarray:
 
 def body_mobility(m: Motion, point, g: InterfaceGeometry) -> np.ndarray:
     """G_i (6x6, symmetric positive definite) of one body at `point`, generalized coordinates."""
-    rot = m.rotation()
-    inv_inertia = (rot / m.body.principal_moments) @ rot.T
-    rho = skew(np.asarray(point) - m.x)
+    return _mobility(m.body, m.x, m.q, point, g)
+
+
+def _mobility(body: RigidBody, x, q, point, g: InterfaceGeometry) -> np.ndarray:
+    """`body_mobility` of a body at CoM x with principal-frame attitude q."""
+    rot = quat_to_matrix(q)
+    inv_inertia = (rot / body.principal_moments) @ rot.T
+    rho = skew(np.asarray(point) - x)
     spatial = np.block([
-        [np.eye(3) / m.body.mass - rho @ inv_inertia @ rho, -rho @ inv_inertia],
+        [np.eye(3) / body.mass - rho @ inv_inertia @ rho, -rho @ inv_inertia],
         [inv_inertia @ rho, inv_inertia],
     ])
     pt = np.zeros((6, 6))
@@ -232,9 +237,14 @@ def published_body(m: Motion) -> tuple:
     return m.x, q, m.v, m.omega3()
 
 
+def principal_attitude(body: RigidBody, orientation) -> tuple:
+    """The integrator's (principal-frame) attitude of a published body-frame attitude."""
+    return _normalised(orientation if body._bp_identity else quat_multiply(orientation, body._q_bp))
+
+
 def motion_from_published(body: RigidBody, position, orientation, velocity, omega_world) -> Motion:
     """The integrator's variables rebuilt from a published body state (what a node downstream sees)."""
-    q_p = _normalised(orientation if body._bp_identity else quat_multiply(orientation, body._q_bp))
+    q_p = principal_attitude(body, orientation)
     i1, i2, i3 = body._moments
     w = rotate_back(q_p, omega_world)
     return Motion(body, tuple(position), tuple(velocity), q_p, (i1 * w[0], i2 * w[1], i3 * w[2]))
@@ -245,6 +255,24 @@ def relative_interface(m1: Motion, m2: Motion, omega1, omega2) -> tuple[Interfac
     g = InterfaceGeometry(m1, m2)
     rate, w_rel = g.rates(m1.v, omega1, m2.v, omega2)
     return g, rate, RelativePose(g.e[:3], g.q_rel, rate[:3], w_rel)
+
+
+def published_interface(body1: RigidBody, published1: tuple, body2: RigidBody, published2: tuple):
+    """(geometry, d', relative angular velocity in B) of two published body states (`published_body`):
+    `relative_interface` without rebuilding the momenta, which neither the command nor the wall
+    reads (the per-tick path of the sampled loop; e' is `g.rate_from(d', angular velocity)`)."""
+    x1, q1, v1, w1 = published1
+    x2, q2, v2, w2 = published2
+    g = InterfaceGeometry.between(body1, x1, principal_attitude(body1, q1), body2, x2, principal_attitude(body2, q2))
+    velocity, spin = g.rates3(v1, w1, v2, w2)
+    return g, velocity, spin
+
+
+def robot_command(body1: RigidBody, published1: tuple, body2: RigidBody, published2: tuple) -> tuple[tuple, bool]:
+    """(robot command as RelativePose's fields (d, attitude, d', angular velocity), touching) of two
+    published body states: what the dynamics publish besides the states."""
+    g, velocity, spin = published_interface(body1, published1, body2, published2)
+    return (g.d, g.q_rel, velocity, spin), _touching(g.d[0], velocity[0])
 
 
 def _touching(penetration: float, closing: float) -> bool:
@@ -268,16 +296,18 @@ class VirtualWall6:
         self.touching = False
         self._products = None  # K_i D_i, C_i D_i as MatVec6, fixed at the first tick in contact
 
-    def wrenches(self, m1: Motion, m2: Motion, g: InterfaceGeometry, rate) -> tuple:
-        """(F_1, T_1, F_2, T_2): world forces [N] and torques [N m] about each CoM (tuples)."""
-        self.touching = _touching(g.e[0], rate[0])
+    def wrenches(self, g: InterfaceGeometry, velocity, spin) -> tuple:
+        """(F_1, T_1, F_2, T_2): world forces [N] and torques [N m] about each CoM (tuples), for the
+        geometry between the published states and its rates (`published_interface`)."""
+        self.touching = _touching(g.d[0], velocity[0])
         if not self.touching:
             return ZERO3, ZERO3, ZERO3, ZERO3
+        rate = g.rate_from(velocity, spin)
         if self.anchor is None:
             self.anchor = (0.0,) + tuple(g.e[1:])
             if self.impedance is None:
-                self.impedance = impedance_closed_form6(self.ideal, self.passive, body_mobility(m1, g.point, g),
-                                                        body_mobility(m2, g.point, g))
+                self.impedance = impedance_closed_form6(self.ideal, self.passive, _mobility(*g.pose1, g.point, g),
+                                                        _mobility(*g.pose2, g.point, g))
                 # The closed form makes K_i D_i = K - K_p and C_i D_i = C - C_p: take them as they are
                 # (the D_i cancel) rather than as products that carry the inverse's rounding.
                 dk = MatVec6(self.ideal.stiffness - self.passive.stiffness)
@@ -290,15 +320,17 @@ class VirtualWall6:
         k1, c1, k2, c2 = self._products
         de = sub6(g.e, self.anchor)
         q1 = add6(k1(de), c1(rate))
-        q2 = q1 if (k2, c2) == (k1, c1) else add6(k2(de), c2(rate))
         # W = -S q on body 1 and +S q on body 2 at o_A: force R_B q_t, moment R_B J^-T q_r.
         qb, jinv = g.q_b, g.jinv3
-        f1 = rotate(qb, q1[:3])
-        f1 = (-f1[0], -f1[1], -f1[2])
-        moment1 = rotate(qb, mat3t_vec(jinv, q1[3:]))  # its negative acts on body 1
-        f2 = rotate(qb, q2[:3])
-        moment2 = rotate(qb, mat3t_vec(jinv, q2[3:]))
-        return (f1, sub3(cross3(g.arm1, f1), moment1), f2, add3(moment2, cross3(sub3(g.point, m2.x), f2)))
+        f2 = rotate(qb, q1[:3])
+        moment2 = rotate(qb, mat3t_vec(jinv, q1[3:]))
+        f1 = (-f2[0], -f2[1], -f2[2])
+        t1 = sub3(cross3(g.arm1, f1), moment2)  # the negative of body 1's moment acts on it
+        if k2 is not k1 or c2 is not c1:  # the closed form gives both bodies the same products
+            q2 = add6(k2(de), c2(rate))
+            f2 = rotate(qb, q2[:3])
+            moment2 = rotate(qb, mat3t_vec(jinv, q2[3:]))
+        return f1, t1, f2, add3(moment2, cross3(sub3(g.point, g.pose2[1]), f2))
 
 
 class PassiveSensor6:
@@ -317,25 +349,34 @@ class PassiveSensor6:
         self.mount_position = tuple(check_vector("sensor_position", mount_position, unit="m").tolist())
         self.mount_orientation = check_unit_quaternion("sensor_orientation", mount_orientation)
         self.anchor: tuple | None = None
+        self.touching = False  # at the last reading
 
     def read(self, pose: RelativePose | None) -> tuple[tuple, tuple, tuple]:
-        """(force [N], torque [N m]) in the sensor frame and the generalized passive force (tuples)."""
-        if pose is None or not _touching(pose.position[0], pose.velocity[0]):
+        """(force [N], torque [N m]) in the sensor frame and the generalized passive force (tuples),
+        all zero when not touching. pose: a RelativePose, or a plain tuple of its four fields."""
+        self.touching = False
+        if pose is None:
             return ZERO3, ZERO3, ZERO6
-        theta = rotvec3(pose.orientation)
+        position, orientation, velocity, angular_velocity = pose
+        if not _touching(position[0], velocity[0]):
+            return ZERO3, ZERO3, ZERO6
+        self.touching = True
+        theta = rotvec3(orientation)
         jinv = left_jacobian_inverse3(theta)
-        e = tuple(pose.position) + theta
-        rate = tuple(pose.velocity) + mat3_vec(jinv, pose.angular_velocity)
+        e = tuple(position) + theta
         if self.anchor is None:
             self.anchor = (0.0,) + e[1:]
-        q = add6(self.passive.stiffness_of(sub6(e, self.anchor)), self.passive.damping_of(rate))
+        damping = self.passive.damping_of
+        # e' only where a damping reads it (a zero one returns zeros whatever e' is)
+        rate = ZERO6 if damping.zero else tuple(velocity) + mat3_vec(jinv, angular_velocity)
+        q = add6(self.passive.stiffness_of(sub6(e, self.anchor)), damping(rate))
         # The wrench on the target: +S q at o_A, i.e. in B's axes, moment about B's origin.
         force_b = q[:3]
         if self.passive.mu > 0.0:  # the hardware's friction opposes A sliding on B (contact6's law)
-            u1, u2 = pose.velocity[1], pose.velocity[2]
+            u1, u2 = velocity[1], velocity[2]
             scale = self.passive.mu * max(q[0], 0.0) / math.sqrt(u1 * u1 + u2 * u2 + self.passive.slip_velocity**2)
             force_b = (force_b[0], force_b[1] + scale * u1, force_b[2] + scale * u2)
-        moment_b = add3(mat3t_vec(jinv, q[3:]), cross3(pose.position, force_b))
+        moment_b = add3(mat3t_vec(jinv, q[3:]), cross3(position, force_b))
         qm = self.mount_orientation
         return (rotate_back(qm, force_b), rotate_back(qm, sub3(moment_b, cross3(self.mount_position, force_b))),
                 q)
@@ -372,22 +413,26 @@ class Servo6:
         self.pose: RelativePose | None = None
 
     def step(self, target: RelativePose) -> RelativePose:
+        """The pose reached this tick (with no lag, `target` itself); target: a RelativePose, or a
+        plain tuple of its four fields."""
         a, p = self.alpha, self.pose
         if p is None or a == 1.0:
             self.pose = target
-        else:
-            turn = rotvec3(quat_multiply(quat_conjugate(p.orientation), target.orientation))
-
-            def toward(now, goal):
-                return tuple(c + a * (g - c) for c, g in zip(now, goal))
-
-            self.pose = RelativePose(
-                toward(p.position, target.position),
-                _normalised(quat_multiply(p.orientation, quat_from_rotvec(tuple(a * c for c in turn)))),
-                toward(p.velocity, target.velocity),
-                toward(p.angular_velocity, target.angular_velocity),
-            )
+            return target
+        position, orientation, velocity, angular_velocity = target
+        turn = rotvec3(quat_multiply(quat_conjugate(p[1]), orientation))
+        self.pose = RelativePose(
+            _toward(p[0], position, a),
+            _normalised(quat_multiply(p[1], quat_from_rotvec((a * turn[0], a * turn[1], a * turn[2])))),
+            _toward(p[2], velocity, a),
+            _toward(p[3], angular_velocity, a),
+        )
         return self.pose
+
+
+def _toward(now, goal, a: float) -> tuple:
+    """now + a (goal - now), per component."""
+    return (now[0] + a * (goal[0] - now[0]), now[1] + a * (goal[1] - now[1]), now[2] + a * (goal[2] - now[2]))
 
 
 def simulate_hybrid6(
@@ -425,13 +470,10 @@ def simulate_hybrid6(
     onset = exit_time = None
     for i in range(steps + 1):
         # dynamics -> state, command; virtual impedance on the published state
-        x1, q1, v1, w1 = published_body(m1)
-        x2, q2, v2, w2 = published_body(m2)
-        s1, s2 = motion_from_published(body1, x1, q1, v1, w1), motion_from_published(body2, x2, q2, v2, w2)
-        g, rate, command = relative_interface(s1, s2, w1, w2)
-        virtual = wall.wrenches(s1, s2, g, rate)
+        g, velocity, spin = published_interface(body1, published_body(m1), body2, published_body(m2))
+        virtual = wall.wrenches(g, velocity, spin)
         # delay injector -> robot -> F/T sensor
-        commands.append(command)
+        commands.append(RelativePose(g.d, g.q_rel, velocity, spin))
         delayed = commands[0]
         actual = None if delayed is None else servo.step(delayed)
         force_s, torque_s, q_seen = sensor.read(actual)

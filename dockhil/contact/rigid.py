@@ -76,20 +76,20 @@ def quat_to_matrix(q) -> np.ndarray:
 
 def matrix_to_quat(r) -> tuple[float, float, float, float]:
     """Unit quaternion (w >= 0) of a proper rotation matrix (Shepperd's method)."""
-    r = np.asarray(r, float)
-    tr = r[0, 0] + r[1, 1] + r[2, 2]
-    if tr > max(r[0, 0], r[1, 1], r[2, 2]):
+    r = np.asarray(r, float).tolist()  # plain floats: a numpy scalar here would slow every later product with q
+    tr = r[0][0] + r[1][1] + r[2][2]
+    if tr > max(r[0][0], r[1][1], r[2][2]):
         s = 2.0 * math.sqrt(1.0 + tr)
-        q = ((r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s, 0.25 * s)
-    elif r[0, 0] >= r[1, 1] and r[0, 0] >= r[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-        q = (0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s, (r[2, 1] - r[1, 2]) / s)
-    elif r[1, 1] >= r[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
-        q = ((r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s, (r[0, 2] - r[2, 0]) / s)
+        q = ((r[2][1] - r[1][2]) / s, (r[0][2] - r[2][0]) / s, (r[1][0] - r[0][1]) / s, 0.25 * s)
+    elif r[0][0] >= r[1][1] and r[0][0] >= r[2][2]:
+        s = 2.0 * math.sqrt(1.0 + r[0][0] - r[1][1] - r[2][2])
+        q = (0.25 * s, (r[0][1] + r[1][0]) / s, (r[0][2] + r[2][0]) / s, (r[2][1] - r[1][2]) / s)
+    elif r[1][1] >= r[2][2]:
+        s = 2.0 * math.sqrt(1.0 + r[1][1] - r[0][0] - r[2][2])
+        q = ((r[0][1] + r[1][0]) / s, 0.25 * s, (r[1][2] + r[2][1]) / s, (r[0][2] - r[2][0]) / s)
     else:
-        s = 2.0 * math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
-        q = ((r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s, (r[1, 0] - r[0, 1]) / s)
+        s = 2.0 * math.sqrt(1.0 + r[2][2] - r[0][0] - r[1][1])
+        q = ((r[0][2] + r[2][0]) / s, (r[1][2] + r[2][1]) / s, 0.25 * s, (r[1][0] - r[0][1]) / s)
     q = _normalised(q)
     return q if q[3] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
 
@@ -545,12 +545,13 @@ def step(m1: Motion, m2: Motion, wrench: Wrench | None, h: float, order: int = 4
     """Advance both bodies by h [s] under `wrench` (None: free flight), in place."""
     for w in _weights(order):
         hw = w * h
-        drift(m1, 0.5 * hw)
-        drift(m2, 0.5 * hw)
+        half = 0.5 * hw
+        drift(m1, half)
+        drift(m2, half)
         if wrench is not None:
             _apply(m1, m2, wrench, hw)
-        drift(m1, 0.5 * hw)
-        drift(m2, 0.5 * hw)
+        drift(m1, half)
+        drift(m2, half)
 
 
 def total_momentum(m1: Motion, m2: Motion) -> np.ndarray:
