@@ -10,6 +10,7 @@ new ones and says why.
 """
 
 import hashlib
+import platform
 
 import msgspec
 import pytest
@@ -62,6 +63,12 @@ def digest(args: dict, params: dict, n_ticks: int = 3001) -> tuple[int, str]:
     return count, h.hexdigest()
 
 
+# Another maths library may round a sin or an atan2 the other way in the last bit: there the
+# digests say nothing, and the library-against-graph tests still hold the numbers together.
+RECORDED_PLATFORM = platform.machine() in ("x86_64", "AMD64") and platform.libc_ver()[0] == "glibc"
+
+
+@pytest.mark.skipif(not RECORDED_PLATFORM, reason="digests recorded on x86-64 with glibc's libm")
 @pytest.mark.parametrize("case", CASES)
 def test_composed_hil6_run_is_bit_for_bit_the_recorded_one(case):
     args, params, messages, expected = CASES[case]
