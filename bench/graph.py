@@ -166,6 +166,9 @@ def main() -> None:
         goals["ring_us_per_added_process_per_tick"] = ("<=", round(114 * 0.7, 1))  # 30 % under 114 us
     out["goals"] = {name: {"goal": f"{op} {bound:g}", "met": out[name] >= bound if op == ">=" else out[name] <= bound}
                     for name, (op, bound) in goals.items()}
+    from machine_speed import python_loop_s
+
+    out["python_loop_3M_s"] = python_loop_s()  # the machine's speed at the time (bench/machine_speed.py)
     out["load_average_before"] = [round(x, 2) for x in load_before]
     out["load_average_after"] = [round(x, 2) for x in os.getloadavg()]
     print(json.dumps(out))

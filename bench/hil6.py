@@ -16,6 +16,12 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "bench"))  # machine_speed
+# As the dockhil command does: BLAS worker threads only spin on the models' small problems, and
+# process time would count them (before numpy is imported).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+from machine_speed import python_loop_s  # noqa: E402
 HIL6 = os.path.join(ROOT, "launch", "hil6.yaml")
 
 
@@ -120,6 +126,7 @@ def main() -> None:
         "per_node_cpu_us_per_tick": {k: round(v, 1) for k, v in sorted(per_node.items(), key=lambda kv: -kv[1])},
         "runtime_only_cpu_us_per_tick": round(runtime, 1),
         "cpus": os.cpu_count(), "load_avg_1min": os.getloadavg()[0],
+        "python_loop_3M_s": python_loop_s(),  # the machine's speed at the time (bench/machine_speed.py)
     }))
 
 
