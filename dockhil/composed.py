@@ -69,14 +69,12 @@ class ComposedGraph:
 
     def schedule(self, wall: bool, collect: bool = False):
         """The whole tick as one function, resolved once (see `tick_function`)."""
-        return tick_function(self.plan, self.taps, wall, collect)
+        return tick_function(self.plan, list(self.history.values()), self.taps, wall, collect)
 
     def step_tick(self, schedule: Callable, tick: Tick, wall: bool) -> dict[str, dict] | None:
-        """One tick of every node (a container's step; `run` inlines the same for speed); with a
+        """One tick of every node (a container's step, and `step`); with a
         schedule made with collect=True, returns each node's outputs by node name."""
         k = tick.index
-        for hist in self.history.values():
-            hist.append(hist[-1] if wall else None)
         return schedule(tick, k, k == 0 or not wall)
 
     def step(self, tick: Tick, wall: bool = False) -> dict[str, dict]:
@@ -97,7 +95,6 @@ class ComposedGraph:
         stop = stop or Stop()
         dt = self.dt
         clock = self.clock
-        histories = list(self.history.values())
         schedule = self.schedule(wall)
         timing = self.timing = LoopTiming([], period=dt, max_age=self.graph.wall_max_ages()) if wall else None
         end = n_ticks if n_ticks is not None else -1
@@ -107,12 +104,8 @@ class ComposedGraph:
             if wall:
                 timing.started(clock() - (t0 + k * dt))
                 tick = Tick(k, clock() - t0, dt, stamp=time.time())
-                for hist in histories:  # a slot for this tick, holding the latest value
-                    hist.append(hist[-1])
             else:
                 tick = Tick(k, k * dt, dt)
-                for hist in histories:  # a slot for this tick; stays None if nothing is sent
-                    hist.append(None)
             schedule(tick, k, k == 0 or not wall)
             k += 1
             if progress is not None:
@@ -127,14 +120,19 @@ class ComposedGraph:
         return k
 
 
-def tick_function(plan: list, taps: list[Tap], wall: bool, collect: bool):
+def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, collect: bool):
     """One tick of every node in `plan`, written out as one function and compiled once per run:
-    `f(tick, k, check_types)`. Each node's inputs are read from the histories, its step called, and
+    `f(tick, k, check_types)`. Each topic's history gets this tick's slot (in wall time holding
+    the latest value, in sim time None until a message is sent); each node's inputs are read
+    from the histories, its step called, and
     each declared output checked as check_outputs and check_message check it (the same lines) and
     stored; with collect, f returns each node's outputs by node name. Written out rather than
     looped over, since the loop's own bookkeeping cost more than the checks it ran (bench/graph.py)."""
     scope: dict[str, Any] = {"check_outputs": check_outputs, "checked_payload": checked_payload, "taps": taps}
     lines = ["def tick_function(tick, k, check_types):"]
+    for i, hist in enumerate(histories):
+        scope[f"topic{i}"] = hist
+        lines.append(f"    topic{i}.append({f'topic{i}[-1]' if wall else 'None'})")
     if collect:
         lines.append("    done = {}")
     for i, (name, node, ins, outs_map, declared) in enumerate(plan):
