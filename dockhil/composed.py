@@ -13,6 +13,7 @@ import time
 from collections import deque
 from typing import Any, Callable
 
+from dockhil.errors import DockhilError
 from dockhil.executor import LoopTiming, Stop, _bounds_check, _sleep_until, check_outputs, checked_payload
 from dockhil.graph import Graph
 from dockhil.log import node_line
@@ -53,9 +54,16 @@ class ComposedGraph:
             outs_map = [(p, r.topic, self.history[r.topic]) for p, r in gn.outputs.items()]
             self.plan.append((name, node, ins, outs_map, outs))
 
-    def setup(self) -> None:
-        for node in self.nodes.values():
-            node.setup()
+    def setup(self, name_failures: bool = True) -> None:
+        """Each node's setup. A node's own exception becomes one line naming the node, as a node
+        process says it (name_failures=False, for tests of a node, keeps the exception itself)."""
+        for name, node in self.nodes.items():
+            try:
+                node.setup()
+            except Exception as exc:
+                if not name_failures or isinstance(exc, DockhilError):
+                    raise
+                raise DockhilError(f"node {name!r} failed at setup: {type(exc).__name__}: {exc}") from exc
 
     def close(self) -> None:
         first = None
@@ -106,7 +114,10 @@ class ComposedGraph:
                 tick = Tick(k, clock() - t0, dt, stamp=time.time())
             else:
                 tick = Tick(k, k * dt, dt)
-            schedule(tick, k, k == 0 or not wall)
+            try:
+                schedule(tick, k, k == 0 or not wall)
+            except Exception as exc:
+                raise node_failure(exc, k)  # noqa: B904 - node_failure chains it
             k += 1
             if progress is not None:
                 progress(k)
@@ -135,7 +146,9 @@ def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, coll
         lines.append(f"    topic{i}.append({f'topic{i}[-1]' if wall else 'None'})")
     if collect:
         lines.append("    done = {}")
+    owners: dict[int, str] = {}  # line number -> the node whose step or outputs that line handles
     for i, (name, node, ins, outs_map, declared) in enumerate(plan):
+        first = len(lines) + 1
         scope[f"step{i}"], scope[f"declared{i}"], scope[f"names{i}"] = node.step, declared, frozenset(declared)
         reads = []
         for j, (port, hist, lag) in enumerate(ins):
@@ -145,7 +158,7 @@ def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, coll
                 scope[f"in{i}_{j}"] = hist
                 reads.append(f"{port!r}: in{i}_{j}[{-1 - lag}]")
         lines += [f"    o = step{i}(tick, {{{', '.join(reads)}}})",
-                  f"    if not o.keys() <= names{i}:",
+                  f"    if type(o) is not dict or not o.keys() <= names{i}:",
                   f"        check_outputs({name!r}, declared{i}, k, o, sim={not wall})  # its line"]
         for j, (port, out) in enumerate(declared.items()):
             hist = next((h for p, _, h in outs_map if p == port), None)
@@ -165,6 +178,34 @@ def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, coll
                 lines += ["        for tap in taps:", f"            tap({topic!r}, m)"] if taps else []
         if collect:
             lines.append(f"    done[{name!r}] = o")
+        owners.update(dict.fromkeys(range(first, len(lines) + 1), name))
     lines.append("    return done" if collect else "    return None")
-    exec(compile("\n".join(lines) + "\n", "<composed tick>", "exec"), scope)  # noqa: S102 - built from the graph
+    exec(compile("\n".join(lines) + "\n", TICK_SOURCE, "exec"), scope)  # noqa: S102 - built from the graph
+    scope["tick_function"].owners = owners
     return scope["tick_function"]
+
+
+TICK_SOURCE = "<composed tick>"
+
+
+def node_failure(exc: Exception, k: int) -> Exception:
+    """`exc` as one line naming the node whose step (or outputs) raised it at tick k, as a node
+    process says it; `exc` itself when it is a check's line already or not a node's."""
+    failed = None if isinstance(exc, DockhilError) else failed_node(exc)
+    if failed is None:
+        return exc
+    line = DockhilError(f"node {failed!r} failed at tick {k}: {type(exc).__name__}: {exc}")
+    line.__cause__ = exc
+    return line
+
+
+def failed_node(exc: BaseException) -> str | None:
+    """The node whose step (or whose outputs) raised `exc` inside a written-out tick, read from the
+    traceback's line in it (no bookkeeping on the tick's path); None if the tick did not raise it."""
+    tb = exc.__traceback__
+    while tb is not None:
+        code = tb.tb_frame.f_code
+        if code.co_filename == TICK_SOURCE:
+            return tb.tb_frame.f_globals["tick_function"].owners.get(tb.tb_lineno)
+        tb = tb.tb_next
+    return None

@@ -88,7 +88,12 @@ class Container(Node):
         for port, box in self.reads:
             box[0] = inputs[port]
         self.sent = {}
-        self.members.step_tick(self._schedule, tick, wall=not self.ctx.sim_time)
+        try:
+            self.members.step_tick(self._schedule, tick, wall=not self.ctx.sim_time)
+        except Exception as exc:
+            from dockhil.composed import node_failure
+
+            raise node_failure(exc, tick.index)  # noqa: B904 - names the member that failed, chained
         return self.sent
 
     def close(self) -> None:

@@ -184,6 +184,9 @@ def _screen_fields(mi, t, var, lines, indent, scope, floats) -> None:
 
 def check_outputs(name: str, declared: dict, k: int, outs: dict, sim: bool) -> None:
     """Refuse outputs a node did not declare, of the wrong type, or stamped with another tick."""
+    if not isinstance(outs, dict):
+        raise DockhilError(f"node {name!r} returned {type(outs).__name__} from step at tick {k}; step returns "
+                           f"a dict of its outputs (port -> message), {{}} for none")
     for port, msg in outs.items():
         if port not in declared:
             raise DockhilError(f"node {name!r} returned undeclared output {port!r} at tick {k}")

@@ -101,7 +101,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
     except Exception as exc:  # a bug in a node: one line, traceback only on request
         tick = executor.ticks_done if executor else 0
         log(f"error: node {spec.name!r} failed at tick {tick}: {type(exc).__name__}: {exc}")
-        if os.environ.get("DOCKHIL_DEBUG"):
+        if os.environ.get("DOCKHIL_TRACEBACK"):  # as the dockhil command shows its own
             import traceback
 
             traceback.print_exc()

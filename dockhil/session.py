@@ -177,6 +177,10 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
         g.run(n_ticks, wall=clock == "wall", stop=stop, progress=bar.update if bar else None)
     except DockhilError as exc:
         Log("[launch]").error(str(exc))
+        if os.environ.get("DOCKHIL_TRACEBACK") and exc.__cause__ is not None:  # a node's own exception
+            import traceback
+
+            traceback.print_exception(exc.__cause__)
         return 1
     finally:
         if bar is not None:

@@ -122,7 +122,7 @@ class NodeHarness:
 
     # -- life cycle ------------------------------------------------------------------
     def setup(self) -> "NodeHarness":
-        self.graph.setup()
+        self.graph.setup(name_failures=False)  # a test of the node sees its own exception
         self._set_up = True
         return self
 

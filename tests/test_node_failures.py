@@ -1,0 +1,100 @@
+"""A node that fails (raises in setup or step, returns something other than a dict) stops the
+graph with one line naming the node and the tick, the same line whether it runs composed, as a
+process of its own, or in a container with others; never as the runtime's own internal error."""
+
+from __future__ import annotations
+
+import pytest
+
+from dockhil.executor import check_outputs
+from dockhil.msgs import WrenchStamped
+from dockhil.node import Node, Output
+from tests.conftest import dockhil_cmd
+from tests.inprocess import run_main
+
+HERE = "tests.test_node_failures"
+
+
+class RaisesAtTick2(Node):
+    """raises in step at tick 2"""
+
+    outputs = {"w": Output(WrenchStamped, "/w")}
+
+    def step(self, tick, inputs):
+        if tick.index == 2:
+            raise ValueError("boom")
+        return {}
+
+
+class ReturnsNone(Node):
+    """returns None from step"""
+
+    outputs = {"w": Output(WrenchStamped, "/w")}
+
+    def step(self, tick, inputs):
+        return None
+
+
+class FailsAtSetup(Node):
+    """raises in setup"""
+
+    outputs = {"w": Output(WrenchStamped, "/w")}
+
+    def setup(self):
+        raise KeyError("calibration")
+
+    def step(self, tick, inputs):
+        return {}
+
+
+def scene(tmp_path, cls: str, container: bool = False) -> str:
+    """The failing node, after a node that runs fine (in one container with it if asked)."""
+    box = "\n    container: box" if container else ""
+    path = tmp_path / "scene.yaml"
+    path.write_text(f"""rate: 100
+duration: 0.05
+nodes:
+  - name: good
+    node: delay_injector{box}
+    params: {{delay: 0.0, input: /w, output: /w2, type: dockhil/WrenchStamped}}
+  - name: bad
+    node: {HERE}:{cls}{box}
+""")
+    return str(path)
+
+
+@pytest.mark.parametrize("cls, line", [
+    ("RaisesAtTick2", "node 'bad' failed at tick 2: ValueError: boom"),
+    ("ReturnsNone", "node 'bad' returned NoneType from step at tick 0; step returns a dict of its outputs"),
+    ("FailsAtSetup", "node 'bad' failed at setup: KeyError: 'calibration'"),
+])
+def test_a_composed_run_names_the_failing_node_and_tick(tmp_path, cls, line):
+    code, out, err = run_main("launch", scene(tmp_path, cls), "--composed")
+    assert code == 1
+    assert f"[launch] error: {line}" in err
+    assert "internal error" not in err and "Traceback" not in err
+
+
+def test_a_node_process_says_the_same_of_a_step_that_returns_no_dict():
+    declared = ReturnsNone.outputs
+    for returned in (None, [1], "w"):
+        with pytest.raises(Exception, match=rf"node 'bad' returned {type(returned).__name__} from step at tick 7; "
+                                            r"step returns a dict of its outputs \(port -> message\), \{\} for none"):
+            check_outputs("bad", declared, 7, returned, sim=True)
+
+
+def test_a_container_names_the_member_that_failed(tmp_path):
+    import subprocess
+
+    run = subprocess.run(dockhil_cmd("launch", scene(tmp_path, "RaisesAtTick2", container=True)),
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 1
+    assert "[box] error: node 'bad' failed at tick 2: ValueError: boom" in run.stderr
+
+
+def test_dockhil_traceback_shows_where_the_node_raised(tmp_path, monkeypatch):
+    monkeypatch.setenv("DOCKHIL_TRACEBACK", "1")
+    code, out, err = run_main("launch", scene(tmp_path, "RaisesAtTick2"), "--composed")
+    assert code == 1
+    assert "node 'bad' failed at tick 2: ValueError: boom" in err
+    assert 'raise ValueError("boom")' in err and "test_node_failures.py" in err
