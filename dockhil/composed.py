@@ -41,7 +41,7 @@ class ComposedGraph:
         self.history = {topic: deque([None] * (depth.get(topic, 0) + 1), maxlen=depth.get(topic, 0) + 1)
                         for topic in graph.publishers}
         self.timing: LoopTiming | None = None  # wall time: the one loop's figures, for validity
-        self._schedules: dict[bool, list] = {}  # step(): the schedule, resolved once per clock
+        self._schedules: dict[bool, Callable] = {}  # step(): the tick function, made once per clock
         self.plan = []  # (name, node, [(port, history, lag)], [(port, topic, history)], declared outputs)
         for name in graph.order:
             gn = graph.nodes[name]
@@ -135,10 +135,11 @@ def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, coll
     """One tick of every node in `plan`, written out as one function and compiled once per run:
     `f(tick, k, check_types)`. Each topic's history gets this tick's slot (in wall time holding
     the latest value, in sim time None until a message is sent); each node's inputs are read
-    from the histories, its step called, and
-    each declared output checked as check_outputs and check_message check it (the same lines) and
-    stored; with collect, f returns each node's outputs by node name. Written out rather than
-    looped over, since the loop's own bookkeeping cost more than the checks it ran (bench/graph.py)."""
+    from the histories, its step called, and each declared output checked as check_outputs and
+    check_message check it (the same lines) and stored; with collect, f returns each node's
+    outputs by node name. Written out rather than looped over, since the loop's own bookkeeping
+    cost more than the checks it ran (bench/graph.py). `f.owners` maps each line of it to its
+    node, for failed_node."""
     scope: dict[str, Any] = {"check_outputs": check_outputs, "checked_payload": checked_payload, "taps": taps}
     lines = ["def tick_function(tick, k, check_types):"]
     for i, hist in enumerate(histories):
@@ -204,8 +205,7 @@ def failed_node(exc: BaseException) -> str | None:
     traceback's line in it (no bookkeeping on the tick's path); None if the tick did not raise it."""
     tb = exc.__traceback__
     while tb is not None:
-        code = tb.tb_frame.f_code
-        if code.co_filename == TICK_SOURCE:
+        if tb.tb_frame.f_code.co_filename == TICK_SOURCE:
             return tb.tb_frame.f_globals["tick_function"].owners.get(tb.tb_lineno)
         tb = tb.tb_next
     return None
