@@ -60,18 +60,22 @@ class ComposedGraph:
         for name, node in self.nodes.items():
             try:
                 node.setup()
-            except Exception as exc:
+            except (Exception, SystemExit) as exc:
                 if not name_failures or isinstance(exc, DockhilError):
                     raise
-                raise DockhilError(f"node {name!r} failed at setup: {type(exc).__name__}: {exc}") from exc
+                raise DockhilError(failure_line(name, "setup", exc)) from exc
 
     def close(self) -> None:
+        """Every node's close, even after one failed; then the first failure, as one line naming
+        its node (a driver holds the robot in close: its failure fails the run)."""
         first = None
-        for node in self.nodes.values():
+        for name, node in self.nodes.items():
             try:
                 node.close()
             except Exception as exc:  # close every node even if one fails
-                first = first or exc
+                if first is None:
+                    first = exc if isinstance(exc, DockhilError) else DockhilError(failure_line(name, "close", exc))
+                    first.__cause__ = exc if first is not exc else None
         if first:
             raise first
 
@@ -116,7 +120,7 @@ class ComposedGraph:
                 tick = Tick(k, k * dt, dt)
             try:
                 schedule(tick, k, k == 0 or not wall)
-            except Exception as exc:
+            except (Exception, SystemExit) as exc:
                 raise node_failure(exc, k)  # noqa: B904 - node_failure chains it
             k += 1
             if progress is not None:
@@ -189,15 +193,24 @@ def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, coll
 TICK_SOURCE = "<composed tick>"
 
 
-def node_failure(exc: Exception, k: int) -> Exception:
+def node_failure(exc: BaseException, k: int) -> BaseException:
     """`exc` as one line naming the node whose step (or outputs) raised it at tick k, as a node
     process says it; `exc` itself when it is a check's line already or not a node's."""
     failed = None if isinstance(exc, DockhilError) else failed_node(exc)
     if failed is None:
         return exc
-    line = DockhilError(f"node {failed!r} failed at tick {k}: {type(exc).__name__}: {exc}")
+    line = DockhilError(failure_line(failed, f"tick {k}", exc))
     line.__cause__ = exc
     return line
+
+
+def failure_line(name: str, where: str, exc: BaseException) -> str:
+    """What a node did at `where` (a tick, setup), as a node process says it."""
+    if isinstance(exc, SystemExit):
+        from dockhil.process import SYS_EXIT_HINT
+
+        return f"node {name!r} called sys.exit({exc.code!r}) at {where}; {SYS_EXIT_HINT}"
+    return f"node {name!r} failed at {where}: {type(exc).__name__}: {exc}"
 
 
 def failed_node(exc: BaseException) -> str | None:

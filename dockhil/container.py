@@ -90,7 +90,7 @@ class Container(Node):
         self.sent = {}
         try:
             self.members.step_tick(self._schedule, tick, wall=not self.ctx.sim_time)
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:
             from dockhil.composed import node_failure
 
             raise node_failure(exc, tick.index)  # noqa: B904 - names the member that failed, chained

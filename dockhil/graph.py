@@ -133,6 +133,10 @@ def build(scene: Scene) -> Graph:
         gnodes[spec.name] = GraphNode(spec.name, type_name, cls, params, inputs, outputs, spec.respawn,
                                       spec.respawn_delay, spec.host)
 
+    mixed = node_registry.mixed_dof({name: gn.type_name for name, gn in gnodes.items()})
+    if mixed:
+        raise LaunchError(f"{scene.path}: {mixed}")
+
     publishers: dict[str, PortRef] = {}
     for gn in gnodes.values():
         for ref in gn.outputs.values():

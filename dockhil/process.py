@@ -21,6 +21,7 @@ import sys
 import msgspec
 
 READY = "\x1edockhil-ready"  # a line the launcher intercepts
+SYS_EXIT_HINT = "a node ends with its graph: return from step, or raise to stop the graph with a line"
 
 
 def _die_with_parent() -> None:
@@ -79,11 +80,13 @@ def run_node(spec, log=None, on_ready=None) -> int:
     if spec.wait_for_go:  # installed before READY is said, so the launcher's go cannot be missed
         signal.signal(signal.SIGUSR1, lambda signum, frame: go.append(True))
     executor = None
+    ticking = close_failed = False
     if spec.realtime and spec.clock == "wall":
         _ask_realtime(log)
     try:
         executor = NodeExecutor(spec, nodes.load(spec.type_name), stop, log)
         executor.start()
+        ticking = True  # past setup: a failure from here on is at a tick
         if on_ready:
             on_ready()
         if spec.wait_for_go:  # the other nodes are still opening their devices
@@ -98,9 +101,13 @@ def run_node(spec, log=None, on_ready=None) -> int:
     except DockhilError as exc:
         log(f"error: {exc}")
         return 2
+    except SystemExit as exc:  # a node's own sys.exit: the graph would wait for its ticks forever
+        where = f"tick {executor.ticks_done}" if ticking else "setup"
+        log(f"error: node {spec.name!r} called sys.exit({exc.code!r}) at {where}; {SYS_EXIT_HINT}")
+        return 1
     except Exception as exc:  # a bug in a node: one line, traceback only on request
-        tick = executor.ticks_done if executor else 0
-        log(f"error: node {spec.name!r} failed at tick {tick}: {type(exc).__name__}: {exc}")
+        where = f"tick {executor.ticks_done}" if ticking else "setup"
+        log(f"error: node {spec.name!r} failed at {where}: {type(exc).__name__}: {exc}")
         if os.environ.get("DOCKHIL_TRACEBACK"):  # as the dockhil command shows its own
             import traceback
 
@@ -111,7 +118,8 @@ def run_node(spec, log=None, on_ready=None) -> int:
             try:
                 executor.close()
             except Exception as exc:  # closing must not hide the first error
-                log(f"error while closing: {type(exc).__name__}: {exc}")
+                log(f"error: node {spec.name!r} failed at close: {type(exc).__name__}: {exc}")
+                close_failed = True  # a driver holds the robot in close: its failure fails the run
             timing = getattr(executor, "timing", None)
             if timing is not None:  # the launcher judges the run's validity on these figures
                 import json
@@ -119,7 +127,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
                 print(TIMING + json.dumps(timing.report(spec.name)), flush=True)
     if executor.dropped:
         log(f"warning: {executor.dropped} bad message(s) dropped")
-    return 0
+    return 1 if close_failed else 0
 
 
 def main() -> int:

@@ -149,12 +149,72 @@ def _stable_rate(graph, info: dict, start: float, cont) -> float | None:
     return None
 
 
+def scene_loop6(graph):
+    """The linearised loop (stability6.MultiAxisLoop) of a 6-DOF scene at its start configuration,
+    and the delay h [s]; None without the 6-DOF dynamics and virtual impedance."""
+    by_type = {gn.type_name: gn for gn in graph.nodes.values()}
+    if "satellite_dynamics6" not in by_type or "virtual_impedance6" not in by_type:
+        return None
+    from dockhil.contact.contact6 import InterfaceGeometry
+    from dockhil.contact.hybrid6 import body_mobility
+    from dockhil.contact.stability6 import hybrid_loop6
+    from dockhil.node import NodeContext
+
+    def made(type_name):
+        gn = by_type[type_name]
+        node = gn.cls(NodeContext(gn.name, graph.scene.dt, log=lambda m: None), **gn.params)
+        node.setup()
+        return node
+
+    dyn, imp = made("satellite_dynamics6"), made("virtual_impedance6")
+    h = float(by_type["delay_injector"].params.get("delay", 0.032)) if "delay_injector" in by_type else 0.0
+    g = InterfaceGeometry(dyn.m1, dyn.m2)
+    return hybrid_loop6(imp.wall.ideal, imp.wall.passive, body_mobility(dyn.m1, g.point, g),
+                        body_mobility(dyn.m2, g.point, g), h)
+
+
+def _check6(graph, loop, refuse: bool) -> dict:
+    """A 6-DOF scene's step against its contact: the fastest pole of M s^2 + B s + K with the
+    whole contact (virtual and passive, undelayed) at the start configuration, judged as the
+    1-DOF check judges its contact (per oscillation period)."""
+    import numpy as np
+
+    from dockhil.contact import sampled
+
+    n = loop.n
+    m_inv = np.linalg.inv(loop.mass)
+    k, b = loop.k_direct + loop.k_delayed, loop.b_direct + loop.b_delayed
+    poles = np.linalg.eigvals(np.block([[np.zeros((n, n)), np.eye(n)], [-m_inv @ k, -m_inv @ b]]))
+    omega = float(np.max(np.abs(poles)))
+    if omega == 0.0:
+        return {"loop": {}, "warnings": []}
+    dt = graph.scene.dt
+    res = sampled.Resolution(omega, dt, 2.0 * math.pi / omega, "period")
+    numbers = {"rate_Hz": 1.0 / dt, "omega_rad_s": omega, "omega_dt": res.omega_dt,
+               "samples_per_period": res.samples, "suggested_rate_Hz": None}
+    warnings = []
+    if res.refused or res.coarse:
+        good = numbers["suggested_rate_Hz"] = res.fine_rate()
+        if res.refused:
+            fix = (f"run with rate:={good:g}" if good <= MAX_RATE else f"resolving it needs a rate of {good:g} Hz, "
+                   f"above the {MAX_RATE:g} Hz a scene runs at: give a softer contact or heavier bodies")
+            line = f"the step does not resolve the contact: {res.describe()}; {fix}"
+            if refuse:
+                raise DockhilError(f"{graph.scene.path}: refused: {line}")
+            warnings.append(f"not resolved: {line}")
+        else:
+            warnings.append(f"coarse step: {res.describe()}; the peak force errs by about "
+                            f"{40 * res.omega_dt:.2g} %; rate:={good:g} resolves it")
+    return {"loop": numbers, "warnings": warnings}
+
+
 def scene_check(graph, refuse: bool = True) -> dict:
     """{"loop": numbers, "warnings": [one line each]}; raises DockhilError (one line) when the
     scene must not run (and `refuse`), unless the dynamics' allow_coarse is set."""
     info = scene_loop(graph)
     if info is None:
-        return {"loop": {}, "warnings": []}
+        loop6 = scene_loop6(graph)
+        return {"loop": {}, "warnings": []} if loop6 is None else _check6(graph, loop6, refuse)
     from dockhil.contact import sampled
 
     loop = info["loop"]

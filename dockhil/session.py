@@ -172,24 +172,24 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
     if bridge is not None:
         g.taps.append(bridge.tap)
     bar = Progress(n_ticks, graph.scene.dt) if progress and clock == "sim" else None
+    failed = False
     try:
         g.setup()
         g.run(n_ticks, wall=clock == "wall", stop=stop, progress=bar.update if bar else None)
     except DockhilError as exc:
-        Log("[launch]").error(str(exc))
-        if os.environ.get("DOCKHIL_TRACEBACK") and exc.__cause__ is not None:  # a node's own exception
-            import traceback
-
-            traceback.print_exception(exc.__cause__)
-        return 1
+        failed = _said(exc)
     finally:
         if bar is not None:
             bar.done()
         try:
             g.close()
+        except DockhilError as exc:  # a driver holds the robot in close: its failure fails the run
+            failed = _said(exc)
         finally:
             if recorder is not None:
                 recorder.close()
+    if failed:
+        return 1
     if stop.requested:
         return 130
     if recorder is not None and recorder.lost:
@@ -198,6 +198,16 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
     if g.timing is not None:
         reasons += validity.node_reasons(g.timing.report("composed"), graph.scene.dt)
     return 0
+
+
+def _said(exc: DockhilError) -> bool:
+    """A composed run's failure, said in its one line (with DOCKHIL_TRACEBACK=1, the node's traceback)."""
+    Log("[launch]").error(str(exc))
+    if os.environ.get("DOCKHIL_TRACEBACK") and exc.__cause__ is not None:  # a node's own exception
+        import traceback
+
+        traceback.print_exception(exc.__cause__)
+    return True
 
 
 def _is_summary(path: str) -> bool:

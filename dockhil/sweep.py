@@ -343,11 +343,13 @@ def run_one(spec: dict) -> dict:
     try:
         dt = graph.scene.dt
         collector = summ.SummaryCollector(graph)
-        said: list[str] = []  # the nodes' warnings (a row has no log): the row's warnings column carries them
+        said: list[str] = []  # the nodes' warnings and errors (a row has no log): its warnings column carries them
 
         def node_log(name: str, line: str) -> None:
             if line.startswith("warning:"):
                 said.append(f"{name}: {line[len('warning:'):].strip()}")
+            elif line.startswith("error:"):
+                said.append(f"{name}: {line}")
 
         g = ComposedGraph(graph, sim_time=True, log=node_log, taps=[collector])
         recorder = None

@@ -95,6 +95,19 @@ def resolve(type_name: str, node_name: str, given: dict) -> tuple[str, type, dic
         raise ParamError(line) from None
 
 
+def mixed_dof(types: dict[str, str]) -> str | None:
+    """The refusal of a graph whose simulated loop mixes 1-DOF and 6-DOF nodes (node name -> its
+    registered type), else None. Their messages have the same types, so the graph would connect
+    and run, each node reading what the other kind writes for something else."""
+    one = [name for name, t in types.items() if t in SIX_DOF]
+    six = [name for name, t in types.items() if t in ONE_DOF]
+    if not one or not six:
+        return None
+    return (f"node {one[0]!r} ({types[one[0]]}) is 1-DOF and node {six[0]!r} ({ONE_DOF[types[six[0]]]} with dof: 6) "
+            f"is 6-DOF: the nodes of one loop take one dof; give {', '.join(map(repr, one))} dof: 6, or "
+            f"{', '.join(map(repr, six))} dof: 1")
+
+
 def _other_dof_line(type_name: str, registered: str, dof: int, node_name: str, cls, given: dict) -> str | None:
     """The refusal of a parameter that the node of the other dof takes and this one does not,
     or None (then the class's own refusal stands)."""

@@ -123,6 +123,17 @@ DYNAMICS6 = "    node: satellite_dynamics\n    params:\n      dof: 6\n"
     (HIL6, DYNAMICS6, "    node: satellite_dynamics6\n    params:\n      kcs: 3000.0\n",
      "node 'dynamics' (satellite_dynamics6): unknown parameter 'kcs', a parameter of the 1-DOF node; write "
      "node: satellite_dynamics for the 1-DOF node"),
+    # One loop, two dofs: the messages have the same types, so it would connect and run on nonsense.
+    (HIL6, "    node: virtual_impedance\n    params:\n      dof: 6\n      m1: $(arg m1)\n      m2: $(arg m2)\n"
+     "      stiffness: [$(arg kcs), $(arg kcs), $(arg kcs), $(arg kr), $(arg kr), $(arg kr)]\n"
+     "      damping: [$(arg bcs), $(arg bcs), $(arg bcs), $(arg br), $(arg br), $(arg br)]\n"
+     "      passive_stiffness: [$(arg k), $(arg k), $(arg k), $(arg kp_r), $(arg kp_r), $(arg kp_r)]\n",
+     "    node: virtual_impedance\n    params:\n      m1: $(arg m1)\n      m2: $(arg m2)\n",
+     "scene.yaml: node 'impedance' (virtual_impedance) is 1-DOF and node 'dynamics' (satellite_dynamics with "
+     "dof: 6) is 6-DOF: the nodes of one loop take one dof; give 'impedance' dof: 6, or 'dynamics', 'robot', "
+     "'ft' dof: 1"),
+    (HIL, "params: {k: $(arg k), noise: $(arg ft_noise)}", "params: {dof: 6}",
+     "node 'dynamics' (satellite_dynamics) is 1-DOF and node 'ft' (ft_sim with dof: 6) is 6-DOF"),
     # A parameter neither dof takes keeps the node's own refusal; a type without dof refuses dof.
     (HIL6, DYNAMICS6, DYNAMICS6 + "      kcss: 1.0\n",
      "node 'dynamics' (SatelliteDynamics6): unknown parameter 'kcss'; "),
@@ -186,3 +197,22 @@ def test_a_container_runs_the_dof_6_nodes(tmp_path):
         got = sorted((m.topic, m.data) for m in reader)
     _, composed, _ = composed_run(launchfile.load(HIL6), 51)
     assert len(got) > 4 * 51 and got == sorted((topic, data) for topic, _, data in composed)
+
+
+def test_the_scene_check_judges_a_6dof_scenes_step_against_its_contact(tmp_path):
+    """As for a 1-DOF scene: a contact the 1 kHz step cannot resolve is refused, naming the rate
+    that would; a coarse one is a warning in the summary. The fastest pole is checked against
+    the closed form of the stiffest mode: the lateral contact (along z) at the chaser's interface,
+    1 m ahead of its CoM, so the force also turns the chaser about y (moment 400 kg m^2); the
+    target's share (1e6 kg, 5e6 kg m^2 at 2 m) and the damping move it by well under 1 %."""
+    code, out, err = run_main("launch", HIL6, "--composed", "--duration", "0.01", "kcs:=3e9")
+    assert code == 2
+    assert "refused: the step does not resolve the contact: omega*dt = " in err and "rate:=" in err
+    summary = tmp_path / "s.json"
+    code, out, err = run_main("launch", HIL6, "--composed", "--duration", "0.01", "--quiet", "kcs:=3e6",
+                              "--summary", summary)
+    assert code == 0
+    found = json.loads(summary.read_text())
+    assert found["warnings"] and found["warnings"][0].startswith("coarse step: omega*dt = ")
+    mobility = 1 / 750.0 + 1.0**2 / 400.0 + 1 / 1e6 + 2.0**2 / 5e6  # [1/kg] at the interface, along z
+    assert found["loop"]["omega_rad_s"] == pytest.approx((3e6 * mobility) ** 0.5, rel=0.01)

@@ -47,6 +47,31 @@ class FailsAtSetup(Node):
         return {}
 
 
+class ExitsAtTick2(Node):
+    """calls sys.exit(0) in step: as processes, the graph waited for its ticks forever"""
+
+    outputs = {"w": Output(WrenchStamped, "/w")}
+
+    def step(self, tick, inputs):
+        if tick.index == 2:
+            import sys
+
+            sys.exit(0)
+        return {}
+
+
+class FailsAtClose(Node):
+    """raises in close, where a driver holds the robot"""
+
+    outputs = {"w": Output(WrenchStamped, "/w")}
+
+    def step(self, tick, inputs):
+        return {}
+
+    def close(self):
+        raise RuntimeError("could not hold")
+
+
 def scene(tmp_path, cls: str, container: bool = False) -> str:
     """The failing node, after a node that runs fine (in one container with it if asked)."""
     box = "\n    container: box" if container else ""
@@ -67,6 +92,8 @@ nodes:
     ("RaisesAtTick2", "node 'bad' failed at tick 2: ValueError: boom"),
     ("ReturnsNone", "node 'bad' returned NoneType from step at tick 0; step returns a dict of its outputs"),
     ("FailsAtSetup", "node 'bad' failed at setup: KeyError: 'calibration'"),
+    ("ExitsAtTick2", "node 'bad' called sys.exit(0) at tick 2; a node ends with its graph"),
+    ("FailsAtClose", "node 'bad' failed at close: RuntimeError: could not hold"),
 ])
 def test_a_composed_run_names_the_failing_node_and_tick(tmp_path, cls, line):
     code, out, err = run_main("launch", scene(tmp_path, cls), "--composed")
@@ -81,6 +108,19 @@ def test_a_node_process_says_the_same_of_a_step_that_returns_no_dict():
         with pytest.raises(Exception, match=rf"node 'bad' returned {type(returned).__name__} from step at tick 7; "
                                             r"step returns a dict of its outputs \(port -> message\), \{\} for none"):
             check_outputs("bad", declared, 7, returned, sim=True)
+
+
+@pytest.mark.parametrize("cls, line", [
+    ("ExitsAtTick2", "[bad] error: node 'bad' called sys.exit(0) at tick 2; a node ends with its graph"),
+    ("FailsAtClose", "[bad] error: node 'bad' failed at close: RuntimeError: could not hold"),
+    ("FailsAtSetup", "[bad] error: node 'bad' failed at setup: KeyError: 'calibration'"),
+])
+def test_a_node_process_says_the_same_and_fails_the_run(tmp_path, cls, line):
+    import subprocess
+
+    run = subprocess.run(dockhil_cmd("launch", scene(tmp_path, cls)), capture_output=True, text=True, timeout=120)
+    assert run.returncode == 1
+    assert line in run.stderr
 
 
 def test_a_container_names_the_member_that_failed(tmp_path):

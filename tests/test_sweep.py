@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from dockhil import cli, sweep
+from dockhil.node import Node
 from dockhil.sweep import LocalPool
 
 import pyarrow.parquet as pq
@@ -439,3 +440,28 @@ def test_a_rows_warnings_carry_what_its_nodes_warned():
     assert soft["status"] == "ok" and stiff["status"] == "ok"
     assert soft["warnings"].startswith("impedance: kcs = 500 N/m is below the passive stiffness k = 1000 N/m")
     assert stiff["warnings"] is None
+
+
+
+class LogsAnError(Node):
+    """says an error line once and goes on (a driver that lost a reading, say)"""
+
+    def step(self, tick, inputs):
+        if tick.index == 1:
+            self.log("error: lost its sensor")
+        return {}
+
+
+def test_a_rows_warnings_carry_its_nodes_error_lines_too(tmp_path):
+    scene = write(tmp_path, f"""
+        rate: 1000
+        include:
+          - file: {ROOT / "launch" / "hil.yaml"}
+        nodes:
+          - name: talker
+            node: tests.test_sweep:LogsAnError
+        """, "scene.yaml")
+    row = sweep.run_one({"run": 0, "sample": 0, "args": {}, "args_hash": "h", "scene": str(scene),
+                         "duration": 0.01, "bag": None, "outputs": None})
+    assert row["status"] == "ok"
+    assert row["warnings"] == "talker: error: lost its sensor"

@@ -46,32 +46,18 @@ def _scene_loop(items: list[str]):
     """(loop, description) of a 6-DOF scene at its start configuration."""
     from dockhil import graph as graphmod
     from dockhil import launchfile, nodes
-    from dockhil.contact.contact6 import InterfaceGeometry
-    from dockhil.contact.hybrid6 import body_mobility
-    from dockhil.contact.stability6 import hybrid_loop6
-    from dockhil.node import NodeContext
+    from dockhil.scenecheck import scene_loop6
 
     path, overrides = items[0], launchfile.parse_overrides(items[1:])
     graph = graphmod.build(launchfile.load(path, overrides))
-    by_type = {gn.type_name: gn for gn in graph.nodes.values()}
-    missing = [t for t in ("satellite_dynamics6", "virtual_impedance6") if t not in by_type]
-    if missing:
-        named = [f"{nodes.ONE_DOF[t]} with dof: 6" for t in missing]
+    loop = scene_loop6(graph)
+    if loop is None:
+        types = {gn.type_name for gn in graph.nodes.values()}
+        named = [f"{nodes.ONE_DOF[t]} with dof: 6" for t in ("satellite_dynamics6", "virtual_impedance6")
+                 if t not in types]
         raise DockhilError(f"{path}: not a 6-DOF hybrid scene (no {' and no '.join(named)});"
                            " for a 1-DOF scene run `dockhil stability --scene`")
-
-    def made(type_name):
-        gn = by_type[type_name]
-        node = gn.cls(NodeContext(gn.name, graph.scene.dt, log=lambda m: None), **gn.params)
-        node.setup()
-        return node
-
-    dyn, imp = made("satellite_dynamics6"), made("virtual_impedance6")
-    h = float(by_type["delay_injector"].params.get("delay", 0.032)) if "delay_injector" in by_type else 0.0
-    g = InterfaceGeometry(dyn.m1, dyn.m2)
-    loop = hybrid_loop6(imp.wall.ideal, imp.wall.passive, body_mobility(dyn.m1, g.point, g),
-                        body_mobility(dyn.m2, g.point, g), h)
-    return loop, f"6-DOF hybrid loop of {path} at its start configuration, delay h = {h:g} s"
+    return loop, f"6-DOF hybrid loop of {path} at its start configuration, delay h = {loop.h:g} s"
 
 
 def run(args: argparse.Namespace) -> int:
