@@ -258,8 +258,9 @@ def scene_check(graph, refuse: bool = True) -> dict:
             line = (f"{'; '.join(problems)}; resolving it needs a rate of {start:g} Hz, above the "
                     f"{MAX_RATE:g} Hz a scene runs at: give a softer contact or heavier bodies")
         else:
+            fix = ("give a softer contact or heavier bodies" if loop.method == "exact" else "use method:=exact")
             line = (f"{'; '.join(problems)}; no rate up to {min(256 * start, MAX_RATE):g} Hz fixes it with method "
-                    f"{loop.method!r}: use method:=exact")
+                    f"{loop.method!r}: {fix}")
         if refuse and not allowed:
             raise DockhilError(f"{graph.scene.path}: refused: {line} (or allow_coarse:=true to run anyway)")
         warnings.append(f"ran although not resolved (allow_coarse): {line}")

@@ -327,3 +327,14 @@ def test_all_roots_of_a_long_delay_are_refused_not_computed():
         sampled_roots(loop)
     short = SampledLoop(750.0, 2000.0, 40.0, 1000.0, 0.0, dt=1e-3, delay_ticks=32)
     assert len(sampled_roots(short)) == 32 + 3  # below the bound: every root, as before
+
+
+def test_a_contact_no_rate_resolves_gets_advice_that_changes_something():
+    """kcs 3e9 N/m on hil.yaml: with its delay no rate makes the sampled loop agree with the delay
+    equation; the advice names what would help, not the method the scene already uses (it said
+    'use method:=exact' to a scene using it)."""
+    from tests.inprocess import run_main
+
+    code, out, err = run_main("launch", "launch/hil.yaml", "--composed", "kcs:=3e9")
+    assert code == 2
+    assert "fixes it with method 'exact': give a softer contact or heavier bodies" in err
