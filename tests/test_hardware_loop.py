@@ -61,7 +61,9 @@ def test_pushing_into_the_compliance_measures_k_x_and_trips_the_force_limit(tmp_
         with pytest.raises(SafetyStop) as err:
             for k in range(3000):
                 t = clock.advance(0.001)
-                x = 0.01 * t  # press on at 10 mm/s (of the drivers' time)
+                # 20 ms out of contact first, then press on at 10 mm/s (of the drivers' time): free
+                # samples whatever the controller's servo did in real time before the first read
+                x = 0.01 * (t - 0.02)
                 cmd = RobotCommand(header=Header(stamp=t, tick=k, seq=k), pose=Pose(position=Vector3(x=x)),
                                    twist=Twist(linear=Vector3(x=0.01)))
                 out = robot.step(Tick(k, t, 0.001), {"command": cmd, "wrench": wrench, "estop": None})
