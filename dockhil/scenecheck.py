@@ -150,8 +150,8 @@ def _stable_rate(graph, info: dict, start: float, cont) -> float | None:
 
 
 def scene_loop6(graph):
-    """The linearised loop (stability6.MultiAxisLoop) of a 6-DOF scene at its start configuration,
-    and the delay h [s]; None without the 6-DOF dynamics and virtual impedance."""
+    """The linearised loop (stability6.MultiAxisLoop, its delay h the delay injector's) of a 6-DOF
+    scene at its start configuration; None without the 6-DOF dynamics and virtual impedance."""
     by_type = {gn.type_name: gn for gn in graph.nodes.values()}
     if "satellite_dynamics6" not in by_type or "virtual_impedance6" not in by_type:
         return None
