@@ -13,6 +13,8 @@ import time
 from collections import deque
 from typing import Any, Callable
 
+import msgspec
+
 from dockhil.errors import DockhilError
 from dockhil.executor import LoopTiming, Stop, _bounds_check, _sleep_until, check_outputs, checked_payload
 from dockhil.graph import Graph
@@ -144,7 +146,8 @@ def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, coll
     outputs by node name. Written out rather than looped over, since the loop's own bookkeeping
     cost more than the checks it ran (bench/graph.py). `f.owners` maps each line of it to its
     node, for failed_node."""
-    scope: dict[str, Any] = {"check_outputs": check_outputs, "checked_payload": checked_payload, "taps": taps}
+    scope: dict[str, Any] = {"check_outputs": check_outputs, "checked_payload": checked_payload, "taps": taps,
+                             "replace": msgspec.structs.replace}
     lines = ["def tick_function(tick, k, check_types):"]
     for i, hist in enumerate(histories):
         scope[f"topic{i}"] = hist
@@ -174,8 +177,11 @@ def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, coll
             lines += [f"    m = o.get({port!r})",
                       "    if m is not None:",
                       f"        if check_types and (type(m) is not type{v}{header}):",
-                      f"            check_outputs({name!r}, declared{i}, k, {{{port!r}: m}}, sim={not wall})",
-                      f"        if not screen{v}(m):",
+                      f"            check_outputs({name!r}, declared{i}, k, {{{port!r}: m}}, sim={not wall})"]
+            for field in _sequence_fields(out.type):  # a list a node built: a tuple, as a reader decodes it
+                lines += [f"        if type(m.{field}) is not tuple:",
+                          f"            m = o[{port!r}] = replace(m, {field}=tuple(m.{field}))"]
+            lines += [f"        if not screen{v}(m):",
                       f"            checked_payload({name!r}, {port!r}, {topic!r}, k, m)  # as a node process"]
             if hist is not None:
                 scope[f"out{v}"] = hist
@@ -191,6 +197,15 @@ def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, coll
 
 
 TICK_SOURCE = "<composed tick>"
+
+
+def _sequence_fields(cls: type) -> list[str]:
+    """The top-level fields of a message type that hold a sequence (tuples in msgs): a reader in
+    the same process must not be able to change them under another reader."""
+    import msgspec.inspect as mi
+
+    info = mi.type_info(cls)
+    return [f.name for f in info.fields if isinstance(f.type, (mi.VarTupleType, mi.ListType))]
 
 
 def node_failure(exc: BaseException, k: int) -> BaseException:

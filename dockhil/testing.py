@@ -190,15 +190,15 @@ def wrench(fx: float = 0.0, fy: float = 0.0, fz: float = 0.0, tx: float = 0.0, t
 
 def body_wrenches(*forces_x: float, frame: str = "world") -> BodyWrenches:
     """One wrench per body, force along x [N], in the order of SatelliteState.bodies."""
-    return BodyWrenches(header=Header(frame=frame), wrenches=[Wrench(vector(f)) for f in forces_x])
+    return BodyWrenches(header=Header(frame=frame), wrenches=tuple(Wrench(vector(f)) for f in forces_x))
 
 
 def satellite_state(x1: float = 0.0, v1: float = 0.0, x2: float = 0.0, v2: float = 0.0, m1: float = 750.0,
                     m2: float = 1e6, in_contact: bool = False) -> SatelliteState:
     """Chaser and target on the x axis: positions [m], velocities [m/s], masses [kg]."""
-    return SatelliteState(header=Header(frame="world"), in_contact=in_contact, bodies=[
+    return SatelliteState(header=Header(frame="world"), in_contact=in_contact, bodies=(
         BodyState("chaser", m1, Pose(vector(x1)), Twist(vector(v1))),
-        BodyState("target", m2, Pose(vector(x2)), Twist(vector(v2)))])
+        BodyState("target", m2, Pose(vector(x2)), Twist(vector(v2)))))
 
 
 def robot_command(x: float = 0.0, v: float = 0.0, y: float = 0.0, z: float = 0.0,

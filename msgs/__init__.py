@@ -84,10 +84,11 @@ class BodyState(_Field):
 
 
 class SatelliteState(Message):
-    """The bodies the satellite-dynamics node integrates, chaser first."""
+    """The bodies the satellite-dynamics node integrates, chaser first (a tuple: a message is
+    frozen all through, so a reader in the same process cannot change what another reads)."""
 
     header: Header
-    bodies: list[BodyState] = []
+    bodies: tuple[BodyState, ...] = ()
     in_contact: bool = False
 
 
@@ -99,10 +100,10 @@ class WrenchStamped(Message):
 
 
 class BodyWrenches(Message):
-    """One wrench per body, in the order of SatelliteState.bodies."""
+    """One wrench per body, in the order of SatelliteState.bodies (a tuple, as bodies)."""
 
     header: Header
-    wrenches: list[Wrench] = []
+    wrenches: tuple[Wrench, ...] = ()
 
 
 class RobotCommand(Message):

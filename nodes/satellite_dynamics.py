@@ -86,10 +86,10 @@ class SatelliteDynamics(Node):
         header = tick.header("world")
         state = SatelliteState(
             header=header,
-            bodies=[
+            bodies=(
                 BodyState("chaser", p.m1, Pose(Vector3(x1)), Twist(Vector3(v1))),
                 BodyState("target", p.m2, Pose(Vector3(x2)), Twist(Vector3(v2))),
-            ],
+            ),
             in_contact=self.bodies.touching(),
         )
         command = RobotCommand(header=tick.header("target"), pose=Pose(Vector3(x1 - x2)),

@@ -101,10 +101,10 @@ class SatelliteDynamics6(Node):
         # The library's values are plain floats already (tuples): they go into the messages as they are.
         state = SatelliteState(
             header=tick.header("world"),
-            bodies=[
+            bodies=(
                 BodyState("chaser", self.p.m1, Pose(Vector3(*x1), Quaternion(*q1)), Twist(Vector3(*v1), Vector3(*w1))),
                 BodyState("target", self.p.m2, Pose(Vector3(*x2), Quaternion(*q2)), Twist(Vector3(*v2), Vector3(*w2))),
-            ],
+            ),
             in_contact=touching,
         )
         command = RobotCommand(header=tick.header("target_interface"),

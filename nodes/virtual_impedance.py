@@ -114,5 +114,5 @@ class VirtualImpedance(Node):
             if self.passivity is not None:
                 f1, f2 = f1 + fc, f2 - fc
             out["energy"] = Energy(tick.header("world"), *self.energy_values(account))
-        out["wrench"] = BodyWrenches(header=tick.header("world"), wrenches=[Wrench(Vector3(f1)), Wrench(Vector3(f2))])
+        out["wrench"] = BodyWrenches(header=tick.header("world"), wrenches=(Wrench(Vector3(f1)), Wrench(Vector3(f2))))
         return out

@@ -51,8 +51,8 @@ class VirtualImpedance6(Node):
                 self.log("impedance (closed form at first contact), diagonal: " + " ".join(
                     f"{a}: k1={v['k1']:.6g} c1={v['c1']:.6g}" for a, v in per_axis.items()))
         if forces is None or not self.wall.touching:  # the wall's wrenches are zero: one frozen Wrench() for them
-            return {"wrench": BodyWrenches(header=tick.header("world"), wrenches=[NO_WRENCH, NO_WRENCH])}
+            return {"wrench": BodyWrenches(header=tick.header("world"), wrenches=(NO_WRENCH, NO_WRENCH))}
         f1, t1, f2, t2 = forces
         # The wall's values are plain floats already (tuples): they go into the message as they are.
-        return {"wrench": BodyWrenches(header=tick.header("world"), wrenches=[
-            Wrench(Vector3(*f1), Vector3(*t1)), Wrench(Vector3(*f2), Vector3(*t2))])}
+        return {"wrench": BodyWrenches(header=tick.header("world"), wrenches=(
+            Wrench(Vector3(*f1), Vector3(*t1)), Wrench(Vector3(*f2), Vector3(*t2))))}

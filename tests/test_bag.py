@@ -49,7 +49,8 @@ def state(k: int) -> SatelliteState:
     bodies = [BodyState(name="chaser", mass=120.0, pose=Pose(position=Vector3(x=0.01 * k)), twist=Twist(linear=Vector3(x=0.02)))]
     if k >= 5:
         bodies.append(BodyState(name="target", mass=300.0, pose=Pose(position=Vector3(x=1.0 - 0.001 * k))))
-    return SatelliteState(header=Header(stamp=k * 1e-2, tick=10 * k, seq=k), bodies=bodies, in_contact=k % 2 == 0)
+    return SatelliteState(header=Header(stamp=k * 1e-2, tick=10 * k, seq=k), bodies=tuple(bodies),
+                          in_contact=k % 2 == 0)
 
 
 def write_run(path, n_wrench=500, n_state=50, **writer_options):
@@ -224,7 +225,7 @@ def test_reference_mcap_reader_reads_json_that_validates_against_the_channel_sch
         assert message.log_time == ns
         assert message.publish_time == (ns + 7 if topic == "/ft/wrench" else ns)
         value = json.loads(message.data)
-        assert value == msgspec.to_builtins(msg)
+        assert value == msgspec.json.decode(msgspec.json.encode(msg))  # the message as JSON, sequences as arrays
         if schema_rec.name not in validators:
             found = json.loads(schema_rec.data)
             # What viewers need: the message's own object at the top, no $ref to follow.
@@ -257,7 +258,9 @@ def test_every_message_type_has_a_self_contained_schema_its_messages_meet():
         assert found["type"] == "object" and "$ref" not in json.dumps(found) and "$defs" not in found, name
         jsonschema.Draft202012Validator.check_schema(found)
         # Same meaning as msgspec's own schema: the default message is valid under both.
-        default = msgspec.to_builtins(cls(header=Header()) if "header" in cls.__struct_fields__ else cls())
+        # (as JSON, which is what a schema describes and what a viewer gets: sequences are arrays)
+        default = msgspec.json.decode(msgspec.json.encode(cls(header=Header()) if "header" in cls.__struct_fields__
+                                                          else cls()))
         jsonschema.validate(default, found)
         jsonschema.validate(default, schema(cls))
 

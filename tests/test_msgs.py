@@ -17,10 +17,10 @@ vec = st.builds(msgs.Vector3, finite, finite, finite)
 def sample(cls):
     if cls is msgs.SatelliteState:
         return cls(header=msgs.Header(stamp=1.5, tick=3, seq=3, frame="com"),
-                   bodies=[msgs.BodyState("chaser", 750.0, msgs.Pose(msgs.Vector3(0.1, 0, 0)),
-                                          msgs.Twist(msgs.Vector3(0.03, 0, 0)))])
+                   bodies=(msgs.BodyState("chaser", 750.0, msgs.Pose(msgs.Vector3(0.1, 0, 0)),
+                                          msgs.Twist(msgs.Vector3(0.03, 0, 0))),))
     if cls is msgs.BodyWrenches:
-        return cls(header=msgs.Header(tick=1), wrenches=[msgs.Wrench(msgs.Vector3(1, 2, 3), msgs.Vector3(4, 5, 6))])
+        return cls(header=msgs.Header(tick=1), wrenches=(msgs.Wrench(msgs.Vector3(1, 2, 3), msgs.Vector3(4, 5, 6)),))
     return cls(header=msgs.Header(stamp=0.25, tick=7, seq=7, frame="probe"))
 
 

@@ -7,8 +7,8 @@ from __future__ import annotations
 import pytest
 
 from dockhil.executor import check_outputs
-from dockhil.msgs import WrenchStamped
-from dockhil.node import Node, Output
+from dockhil.msgs import BodyWrenches, Wrench, WrenchStamped
+from dockhil.node import Input, Node, Output
 from tests.conftest import dockhil_cmd
 from tests.inprocess import run_main
 
@@ -138,3 +138,51 @@ def test_dockhil_traceback_shows_where_the_node_raised(tmp_path, monkeypatch):
     assert code == 1
     assert "node 'bad' failed at tick 2: ValueError: boom" in err
     assert 'raise ValueError("boom")' in err and "test_node_failures.py" in err
+
+
+
+class BuildsAList(Node):
+    """publishes its wrenches as a list, as a node may build them"""
+
+    outputs = {"w": Output(BodyWrenches, "/bw")}
+
+    def step(self, tick, inputs):
+        return {"w": BodyWrenches(header=tick.header("world"), wrenches=[Wrench(), Wrench()])}
+
+
+class ChangesWhatItReads(Node):
+    """writes into the message it was given: in one process that would change what every other reader sees"""
+
+    inputs = {"w": Input(BodyWrenches, "/bw")}
+
+    def step(self, tick, inputs):
+        inputs["w"].wrenches[0] = Wrench()
+        return {}
+
+
+def mutation_scene(tmp_path) -> str:
+    path = tmp_path / "mutation.yaml"
+    path.write_text(f"""rate: 100
+duration: 0.05
+nodes:
+  - name: writer
+    node: {HERE}:BuildsAList
+  - name: reader
+    node: {HERE}:ChangesWhatItReads
+""")
+    return str(path)
+
+
+LINE = "node 'reader' failed at tick 0: TypeError: 'tuple' object does not support item assignment"
+
+
+def test_a_reader_cannot_change_a_message_composed_as_it_cannot_across_processes(tmp_path):
+    """A message's sequences are tuples when decoded, and a composed run turns a list a node built
+    into one before any reader sees it: the same refusal, in one line, either way."""
+    import subprocess
+
+    code, out, err = run_main("launch", mutation_scene(tmp_path), "--composed")
+    assert code == 1 and f"[launch] error: {LINE}" in err
+    run = subprocess.run(dockhil_cmd("launch", mutation_scene(tmp_path)), capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode == 1 and f"[reader] error: {LINE}" in run.stderr
