@@ -149,25 +149,34 @@ def _stable_rate(graph, info: dict, start: float, cont) -> float | None:
     return None
 
 
-def scene_loop6(graph):
-    """The linearised loop (stability6.MultiAxisLoop, its delay h the delay injector's) of a 6-DOF
-    scene at its start configuration; None without the 6-DOF dynamics and virtual impedance."""
-    by_type = {gn.type_name: gn for gn in graph.nodes.values()}
-    if "satellite_dynamics6" not in by_type or "virtual_impedance6" not in by_type:
-        return None
-    from dockhil.contact.contact6 import InterfaceGeometry
-    from dockhil.contact.hybrid6 import body_mobility
-    from dockhil.contact.stability6 import hybrid_loop6
+def sixdof_nodes(graph) -> tuple:
+    """The scene's 6-DOF dynamics and virtual-impedance nodes, set up (bodies, start, mount,
+    contact); None for one the scene does not have."""
     from dockhil.node import NodeContext
 
     def made(type_name):
-        gn = by_type[type_name]
+        gn = _first(graph, type_name)
+        if gn is None:
+            return None
         node = gn.cls(NodeContext(gn.name, graph.scene.dt, log=lambda m: None), **gn.params)
         node.setup()
         return node
 
-    dyn, imp = made("satellite_dynamics6"), made("virtual_impedance6")
-    h = float(by_type["delay_injector"].params.get("delay", 0.032)) if "delay_injector" in by_type else 0.0
+    return made("satellite_dynamics6"), made("virtual_impedance6")
+
+
+def scene_loop6(graph):
+    """The linearised loop (stability6.MultiAxisLoop, its delay h the delay injector's) of a 6-DOF
+    scene at its start configuration; None without the 6-DOF dynamics and virtual impedance."""
+    dyn, imp = sixdof_nodes(graph)
+    if dyn is None or imp is None:
+        return None
+    from dockhil.contact.contact6 import InterfaceGeometry
+    from dockhil.contact.hybrid6 import body_mobility
+    from dockhil.contact.stability6 import hybrid_loop6
+
+    delay = _first(graph, "delay_injector")
+    h = float(delay.params.get("delay", 0.032)) if delay is not None else 0.0
     g = InterfaceGeometry(dyn.m1, dyn.m2)
     return hybrid_loop6(imp.wall.ideal, imp.wall.passive, body_mobility(dyn.m1, g.point, g),
                         body_mobility(dyn.m2, g.point, g), h)

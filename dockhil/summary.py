@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dockhil import msgs
-from dockhil.scenecheck import scene_check  # noqa: F401  (the summary's check, re-exported for the session)
+from dockhil.scenecheck import _first, scene_check  # noqa: F401  (the summary's check, re-exported for the session)
 
 
 @dataclass
@@ -428,10 +428,6 @@ def feed_from_bag(path: str, collector: SummaryCollector) -> SummaryCollector:
     for topic, _t, msg in _bag_messages(path):
         collector(topic, msg)
     return collector
-
-
-def _first(graph, type_name: str):
-    return next((gn for gn in graph.nodes.values() if gn.type_name == type_name), None)
 
 
 def scene_reference(graph) -> dict:

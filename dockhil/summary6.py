@@ -27,7 +27,8 @@ import math
 
 from dockhil import msgs
 from dockhil.contact.rigid import cross3, rotate, sub3
-from dockhil.summary import ContactMeter, _TickMatcher, _first
+from dockhil.scenecheck import sixdof_nodes
+from dockhil.summary import ContactMeter, _TickMatcher
 
 VECTORS = ("relative_velocity_mps", "relative_angular_velocity_radps")
 
@@ -138,21 +139,6 @@ def _published(body) -> tuple:
     return _triple(body.pose.position), (o.x, o.y, o.z, o.w), _triple(body.twist.linear), _triple(body.twist.angular)
 
 
-def _nodes(graph):
-    """The scene's dynamics and virtual-impedance nodes, set up (bodies, start, mount, contact)."""
-    from dockhil.node import NodeContext
-
-    def made(type_name):
-        gn = _first(graph, type_name)
-        if gn is None:
-            return None
-        node = gn.cls(NodeContext(gn.name, graph.scene.dt, log=lambda m: None), **gn.params)
-        node.setup()
-        return node
-
-    return made("satellite_dynamics6"), made("virtual_impedance6")
-
-
 def ideal_metrics6(dyn, ideal, dt: float, t_end: float) -> dict:
     """`ContactMeter6.result()` of the ideal 6-DOF contact from the dynamics' start, run until the
     contact has ended (at most t_end), sampled every dt."""
@@ -189,7 +175,7 @@ class SummaryCollector6:
 
     def __init__(self, graph):
         self.graph = graph
-        self.dyn, self.imp = _nodes(graph)
+        self.dyn, self.imp = sixdof_nodes(graph)
         self.meter = ContactMeter6()
         self.match = TickMatcher6(self.meter.add, self.dyn, graph.scene.dt)
 
