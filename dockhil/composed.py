@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import msgspec
 
-from dockhil.errors import DockhilError
+from dockhil.errors import DockhilError, failure_line
 from dockhil.executor import LoopTiming, Stop, _bounds_check, _sleep_until, check_outputs, checked_payload
 from dockhil.graph import Graph
 from dockhil.log import node_line
@@ -217,15 +217,6 @@ def node_failure(exc: BaseException, k: int) -> BaseException:
     line = DockhilError(failure_line(failed, f"tick {k}", exc))
     line.__cause__ = exc
     return line
-
-
-def failure_line(name: str, where: str, exc: BaseException) -> str:
-    """What a node did at `where` (a tick, setup), as a node process says it."""
-    if isinstance(exc, SystemExit):
-        from dockhil.process import SYS_EXIT_HINT
-
-        return f"node {name!r} called sys.exit({exc.code!r}) at {where}; {SYS_EXIT_HINT}"
-    return f"node {name!r} failed at {where}: {type(exc).__name__}: {exc}"
 
 
 def failed_node(exc: BaseException) -> str | None:

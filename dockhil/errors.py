@@ -33,3 +33,12 @@ def one_line(text: str) -> str:
     """`text` with each character that would end a line written as its escape: a message quoting
     input (a name with a line break, say) stays one line."""
     return text.translate({ord(c): repr(c)[1:-1] for c in _BREAKS})
+
+
+def failure_line(name: str, where: str, exc: BaseException) -> str:
+    """What node `name` did at `where` (a tick, setup, close): the one line a node process, a
+    composed run and a container all give for a node's own exception or sys.exit."""
+    if isinstance(exc, SystemExit):
+        return (f"node {name!r} called sys.exit({exc.code!r}) at {where}; a node ends with its graph: "
+                f"return from step, or raise to stop the graph with a line")
+    return f"node {name!r} failed at {where}: {type(exc).__name__}: {exc}"

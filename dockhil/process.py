@@ -21,7 +21,6 @@ import sys
 import msgspec
 
 READY = "\x1edockhil-ready"  # a line the launcher intercepts
-SYS_EXIT_HINT = "a node ends with its graph: return from step, or raise to stop the graph with a line"
 
 
 def _die_with_parent() -> None:
@@ -69,7 +68,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
     from dockhil import nodes
     from dockhil import log as logs
     from dockhil import ownership
-    from dockhil.errors import DockhilError
+    from dockhil.errors import DockhilError, failure_line
     from dockhil.executor import TIMING, NodeExecutor, Stop
 
     log = log or (lambda m: logs.node_line(spec.name, m))
@@ -101,13 +100,8 @@ def run_node(spec, log=None, on_ready=None) -> int:
     except DockhilError as exc:
         log(f"error: {exc}")
         return 2
-    except SystemExit as exc:  # a node's own sys.exit: the graph would wait for its ticks forever
-        where = f"tick {executor.ticks_done}" if ticking else "setup"
-        log(f"error: node {spec.name!r} called sys.exit({exc.code!r}) at {where}; {SYS_EXIT_HINT}")
-        return 1
-    except Exception as exc:  # a bug in a node: one line, traceback only on request
-        where = f"tick {executor.ticks_done}" if ticking else "setup"
-        log(f"error: node {spec.name!r} failed at {where}: {type(exc).__name__}: {exc}")
+    except (Exception, SystemExit) as exc:  # a bug in a node (a sys.exit would leave the graph waiting): one line
+        log(f"error: {failure_line(spec.name, f'tick {executor.ticks_done}' if ticking else 'setup', exc)}")
         if os.environ.get("DOCKHIL_TRACEBACK"):  # as the dockhil command shows its own
             import traceback
 
@@ -118,7 +112,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
             try:
                 executor.close()
             except Exception as exc:  # closing must not hide the first error
-                log(f"error: node {spec.name!r} failed at close: {type(exc).__name__}: {exc}")
+                log(f"error: {failure_line(spec.name, 'close', exc)}")
                 close_failed = True  # a driver holds the robot in close: its failure fails the run
             timing = getattr(executor, "timing", None)
             if timing is not None:  # the launcher judges the run's validity on these figures
