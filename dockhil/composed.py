@@ -75,9 +75,11 @@ class ComposedGraph:
             try:
                 node.close()
             except Exception as exc:  # close every node even if one fails
-                if first is None:
-                    first = exc if isinstance(exc, DockhilError) else DockhilError(failure_line(name, "close", exc))
-                    first.__cause__ = exc if first is not exc else None
+                if first is None and isinstance(exc, DockhilError):
+                    first = exc
+                elif first is None:
+                    first = DockhilError(failure_line(name, "close", exc))
+                    first.__cause__ = exc
         if first:
             raise first
 

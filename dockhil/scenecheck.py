@@ -182,6 +182,20 @@ def scene_loop6(graph):
                         body_mobility(dyn.m2, g.point, g), h)
 
 
+SOFTER = "give a softer contact or heavier bodies"
+
+
+def _too_fast(rate: float) -> str:
+    """The advice for a contact only a rate above what a scene runs at would resolve."""
+    return f"resolving it needs a rate of {rate:g} Hz, above the {MAX_RATE:g} Hz a scene runs at: {SOFTER}"
+
+
+def _coarse(res, good: float) -> str:
+    """The warning of a resolved but coarse step."""
+    return (f"coarse step: {res.describe()}; the peak force errs by about {40 * res.omega_dt:.2g} %; "
+            f"rate:={good:g} resolves it")
+
+
 def _check6(graph, loop, refuse: bool) -> dict:
     """A 6-DOF scene's step against its contact: the fastest pole of M s^2 + B s + K with the
     whole contact (virtual and passive, undelayed) at the start configuration, judged as the
@@ -205,15 +219,13 @@ def _check6(graph, loop, refuse: bool) -> dict:
     if res.refused or res.coarse:
         good = numbers["suggested_rate_Hz"] = res.fine_rate()
         if res.refused:
-            fix = (f"run with rate:={good:g}" if good <= MAX_RATE else f"resolving it needs a rate of {good:g} Hz, "
-                   f"above the {MAX_RATE:g} Hz a scene runs at: give a softer contact or heavier bodies")
+            fix = f"run with rate:={good:g}" if good <= MAX_RATE else _too_fast(good)
             line = f"the step does not resolve the contact: {res.describe()}; {fix}"
             if refuse:
                 raise DockhilError(f"{graph.scene.path}: refused: {line}")
             warnings.append(f"not resolved: {line}")
         else:
-            warnings.append(f"coarse step: {res.describe()}; the peak force errs by about "
-                            f"{40 * res.omega_dt:.2g} %; rate:={good:g} resolves it")
+            warnings.append(_coarse(res, good))
     return {"loop": numbers, "warnings": warnings}
 
 
@@ -264,10 +276,9 @@ def scene_check(graph, refuse: bool = True) -> dict:
         if good is not None:
             line = f"{'; '.join(problems)}; run with rate:={good:g}"
         elif start > MAX_RATE:
-            line = (f"{'; '.join(problems)}; resolving it needs a rate of {start:g} Hz, above the "
-                    f"{MAX_RATE:g} Hz a scene runs at: give a softer contact or heavier bodies")
+            line = f"{'; '.join(problems)}; {_too_fast(start)}"
         else:
-            fix = ("give a softer contact or heavier bodies" if loop.method == "exact" else "use method:=exact")
+            fix = SOFTER if loop.method == "exact" else "use method:=exact"
             line = (f"{'; '.join(problems)}; no rate up to {min(256 * start, MAX_RATE):g} Hz fixes it with method "
                     f"{loop.method!r}: {fix}")
         if refuse and not allowed:
@@ -276,8 +287,7 @@ def scene_check(graph, refuse: bool = True) -> dict:
     elif res.coarse:
         good = res.fine_rate()
         numbers["suggested_rate_Hz"] = good
-        warnings.append(f"coarse step: {res.describe()}; the peak force errs by about "
-                        f"{40 * res.omega_dt:.2g} %; rate:={good:g} resolves it")
+        warnings.append(_coarse(res, good))
     h = info["h"]
     if loop.held and h > 0.0 and abs(loop.delay_ticks * loop.dt - h) > 1e-9 * h:
         warnings.append(f"the delay h = {h:g} s runs as {loop.delay_ticks} ticks = {loop.delay_ticks * loop.dt:g} s "
