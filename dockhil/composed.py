@@ -9,6 +9,7 @@ taps see every message for recording.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections import deque
 from typing import Any, Callable
@@ -201,13 +202,15 @@ def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, coll
 TICK_SOURCE = "<composed tick>"
 
 
-def _sequence_fields(cls: type) -> list[str]:
+@functools.lru_cache(maxsize=None)
+def _sequence_fields(cls: type) -> tuple[str, ...]:
     """The top-level fields of a message type that hold a sequence (tuples in msgs): a reader in
-    the same process must not be able to change them under another reader."""
+    the same process must not be able to change them under another reader. Cached: inspecting a
+    type costs milliseconds, and a run writes its tick anew."""
     import msgspec.inspect as mi
 
     info = mi.type_info(cls)
-    return [f.name for f in info.fields if isinstance(f.type, (mi.VarTupleType, mi.ListType))]
+    return tuple(f.name for f in info.fields if isinstance(f.type, (mi.VarTupleType, mi.ListType)))
 
 
 def node_failure(exc: BaseException, k: int) -> BaseException:
