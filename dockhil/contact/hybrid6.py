@@ -228,6 +228,8 @@ class RelativePose(NamedTuple):
 
 ZERO3 = (0.0, 0.0, 0.0)
 ZERO6 = (0.0,) * 6
+NO_VIRTUAL = (ZERO3,) * 4  # the virtual wall's wrenches out of contact
+FREE_FLIGHT = HeldWrench(ZERO3, ZERO3, ZERO3, ZERO3)
 
 
 def published_body(m: Motion) -> tuple:
@@ -393,6 +395,8 @@ def sensor_mount_in_body(body2: RigidBody, mount_position=(0.0, 0.0, 0.0), mount
 def held_wrench(m1: Motion, m2: Motion, mount: tuple, force, torque, virtual: tuple) -> HeldWrench:
     """The dynamics' wrench for the next tick: the F/T reading (sensor on the target at
     `mount`, body frame) moved to both CoMs, plus the virtual wrenches (about the CoMs)."""
+    if force == torque == ZERO3 and virtual == NO_VIRTUAL:  # out of contact: a free flight
+        return FREE_FLIGHT
     # The mount is checked by sensor_mount_in_body and the reading is finite floats (a message, or
     # PassiveSensor6): the per-tick path skips the checks, the numbers are the same.
     f2, t2, f1, t1 = sensor_wrench_checked(m2, m1, mount[0], mount[1], force, torque)
