@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dockhil.contact import rigid
-from dockhil.contact.rigid import BodyState, Motion, RigidBody, Wrench, add3, check_symmetric, check_unit_quaternion, \
+from dockhil.contact.rigid import IDENTITY, BodyState, Motion, RigidBody, Wrench, add3, check_symmetric, check_unit_quaternion, \
     check_vector, cross3, quat_conjugate, quat_multiply, quat_to_matrix, rotate, rotate_back, rotvec3, sub3
 from dockhil.contact.scenario import ContactModelError, check_nonnegative, check_positive
 
@@ -339,8 +339,10 @@ def sensor_wrench_checked(carrier: Motion, other: Motion, p_s, q_s, f_s, t_s):
     """`sensor_wrench_to_bodies` for values already checked (3-vectors, a unit quaternion),
     as tuples of floats: the per-tick path of a sampled loop, whose mounting pose is checked once."""
     b = carrier.body
-    q_body = quat_multiply(carrier.q, quat_conjugate(b._q_bp))  # body frame -> world
-    q_sw = quat_multiply(q_body, q_s)  # sensor -> world
+    # A product by the identity (principal axes along the body's, a sensor along the body axes)
+    # changes no value: it is skipped (it may only turn a -0.0 into 0.0).
+    q_body = carrier.q if b._bp_identity else quat_multiply(carrier.q, quat_conjugate(b._q_bp))  # body -> world
+    q_sw = q_body if q_s == IDENTITY else quat_multiply(q_body, q_s)  # sensor -> world
     lever = rotate(q_body, sub3(p_s, b._com))  # CoM -> sensor origin
     f = rotate(q_sw, f_s)
     m = rotate(q_sw, t_s)

@@ -352,6 +352,8 @@ class PassiveSensor6:
         self.mount_orientation = check_unit_quaternion("sensor_orientation", mount_orientation)
         self.anchor: tuple | None = None
         self.touching = False  # at the last reading
+        # At B's origin along B's axes (the default) the frame change is the identity, skipped.
+        self._at_b = self.mount_position == ZERO3 and self.mount_orientation == IDENTITY
 
     def read(self, pose: RelativePose | None) -> tuple[tuple, tuple, tuple]:
         """(force [N], torque [N m]) in the sensor frame and the generalized passive force (tuples),
@@ -379,6 +381,8 @@ class PassiveSensor6:
             scale = self.passive.mu * max(q[0], 0.0) / math.sqrt(u1 * u1 + u2 * u2 + self.passive.slip_velocity**2)
             force_b = (force_b[0], force_b[1] + scale * u1, force_b[2] + scale * u2)
         moment_b = add3(mat3t_vec(jinv, q[3:]), cross3(position, force_b))
+        if self._at_b:
+            return force_b, moment_b, q
         qm = self.mount_orientation
         return (rotate_back(qm, force_b), rotate_back(qm, sub3(moment_b, cross3(self.mount_position, force_b))),
                 q)
