@@ -165,3 +165,34 @@ def test_one_axis_hybrid_loop_is_the_1dof_hil_loop(delay):
     assert np.max(np.abs(six.velocities[:, 1, 0] - one.v2)) < 1e-9 * scn.v1 * scn.m1 / scn.m2
     assert np.max(np.abs(-six.force[:, 0] - one.force)) < 1e-9 * np.max(np.abs(one.force))
     assert np.max(np.abs(six.positions[:, 0, 0] + 1.0 - one.x1)) < 1e-9 * np.max(np.abs(one.x1))
+
+
+def test_published_interface_answers_equal_questions_alike_and_never_another_bodys():
+    # It remembers its last answer (the dynamics and the virtual impedance ask the same each tick):
+    # an equal body built anew gets the numbers of a fresh computation, a body that differs in
+    # any value the geometry or the mobilities read gets its own.
+    from dockhil.contact import hybrid6
+    from dockhil.contact.hybrid6 import published_body, published_interface
+    from dockhil.contact.rigid import Motion
+
+    chaser, target, s1, s2 = table1_bodies()
+    s1 = BodyState([-1.0, 0.05, 0.0], quat_from_rotvec([0.0, 0.0, 0.02]), [0.03, 0.0, 0.0], [0.01, 0.0, 0.0])
+    p1, p2 = published_body(Motion.from_state(chaser, s1)), published_body(Motion.from_state(target, s2))
+
+    def fresh(b1, b2):
+        hybrid6._LAST_INTERFACE[0] = None
+        g, velocity, spin = published_interface(b1, p1, b2, p2)
+        return g.d, g.q_rel, g.point, g.e, velocity, spin, g.pose1[0].mass, g.pose2[0].mass
+
+    def asked(b1, b2):
+        g, velocity, spin = published_interface(b1, p1, b2, p2)
+        return g.d, g.q_rel, g.point, g.e, velocity, spin, g.pose1[0].mass, g.pose2[0].mass
+
+    first = fresh(chaser, target)
+    again = RigidBody(chaser.mass, np.diag([500.0, 600.0, 700.0]), interface_position=[1.0, 0, 0])
+    assert asked(again, target) == first
+    heavier = RigidBody(2.0 * chaser.mass, np.diag([500.0, 600.0, 700.0]), interface_position=[1.0, 0, 0])
+    longer = RigidBody(chaser.mass, np.diag([500.0, 600.0, 700.0]), interface_position=[1.5, 0, 0])
+    for other in (heavier, longer):
+        published_interface(chaser, p1, target, p2)  # remembered for the first body
+        assert asked(other, target) == fresh(other, target) != first

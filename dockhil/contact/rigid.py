@@ -284,6 +284,9 @@ class RigidBody:
         object.__setattr__(self, "_bp_identity", q_bp == IDENTITY)
         object.__setattr__(self, "_pi_identity", self._q_pi == IDENTITY)
         object.__setattr__(self, "_com", tuple(float(c) for c in self.com))
+        # What the per-tick geometry and mobilities read of the body: two bodies with equal keys
+        # give them equal numbers (hybrid6.published_interface remembers its last answer by it).
+        object.__setattr__(self, "_key", (self.mass, self._moments, self._com, self._r_p, q_bp, self._q_pi))
 
     def interface_offset_body(self) -> np.ndarray:
         """Interface origin relative to the CoM, body frame [m]."""
