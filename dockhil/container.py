@@ -15,6 +15,7 @@ import math
 from types import SimpleNamespace
 from typing import Any
 
+from dockhil.errors import NODE_RAISES, node_error
 from dockhil.node import Input, Node, NodeContext, Output
 
 
@@ -80,7 +81,10 @@ class Container(Node):
         self.sent[self.out_port[topic]] = msg
 
     def setup(self) -> None:
-        self.members.setup()
+        try:
+            self.members.setup()
+        except KeyboardInterrupt as exc:  # passed on as it came: the member's line
+            raise node_error(exc, self.members.nodes)  # noqa: B904 - chained
 
     def step(self, tick, inputs):
         if self._schedule is None:
@@ -90,11 +94,14 @@ class Container(Node):
         self.sent = {}
         try:
             self.members.step_tick(self._schedule, tick, wall=not self.ctx.sim_time)
-        except (Exception, SystemExit) as exc:
+        except NODE_RAISES as exc:
             from dockhil.composed import node_failure
 
             raise node_failure(exc, tick.index)  # noqa: B904 - names the member that failed, chained
         return self.sent
 
     def close(self) -> None:
-        self.members.close()
+        try:
+            self.members.close()
+        except (SystemExit, KeyboardInterrupt) as exc:  # passed on as it came: the member's line
+            raise node_error(exc, self.members.nodes)  # noqa: B904 - chained

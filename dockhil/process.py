@@ -68,7 +68,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
     from dockhil import nodes
     from dockhil import log as logs
     from dockhil import ownership
-    from dockhil.errors import DockhilError, failure_line
+    from dockhil.errors import NODE_RAISES, DockhilError, failure_line
     from dockhil.executor import TIMING, NodeExecutor, Stop
 
     log = log or (lambda m: logs.node_line(spec.name, m))
@@ -100,7 +100,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
     except DockhilError as exc:
         log(f"error: {exc}")
         return 2
-    except (Exception, SystemExit) as exc:  # a bug in a node (a sys.exit would leave the graph waiting): one line
+    except NODE_RAISES as exc:  # a bug in a node (a sys.exit would leave the graph waiting): one line
         log(f"error: {failure_line(spec.name, f'tick {executor.ticks_done}' if ticking else 'setup', exc)}")
         if os.environ.get("DOCKHIL_TRACEBACK"):  # as the dockhil command shows its own
             import traceback
@@ -111,8 +111,9 @@ def run_node(spec, log=None, on_ready=None) -> int:
         if executor is not None:
             try:
                 executor.close()
-            except Exception as exc:  # closing must not hide the first error
-                log(f"error: {failure_line(spec.name, 'close', exc)}")
+            except NODE_RAISES as exc:  # closing must not hide the first error
+                # A DockhilError says where itself (a container's names its member).
+                log(f"error: {exc if isinstance(exc, DockhilError) else failure_line(spec.name, 'close', exc)}")
                 close_failed = True  # a driver holds the robot in close: its failure fails the run
             timing = getattr(executor, "timing", None)
             if timing is not None:  # the launcher judges the run's validity on these figures
