@@ -68,7 +68,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
     from dockhil import nodes
     from dockhil import log as logs
     from dockhil import ownership
-    from dockhil.errors import DockhilError, failure_line
+    from dockhil.errors import NODE_RAISES, DockhilError, failure_line
     from dockhil.executor import TIMING, NodeExecutor, Stop
 
     log = log or (lambda m: logs.node_line(spec.name, m))
@@ -98,9 +98,9 @@ def run_node(spec, log=None, on_ready=None) -> int:
             if stats["deadline_misses"]:
                 log(f"warning: {stats['deadline_misses']} of {stats['ticks']} ticks missed their deadline")
     except DockhilError as exc:
-        log(f"error: {exc}")
+        log(f"error: {_in_member_terms(executor, exc)}")
         return 2
-    except (Exception, SystemExit) as exc:  # a bug in a node (a sys.exit would leave the graph waiting): one line
+    except NODE_RAISES as exc:  # a bug in a node (a sys.exit would leave the graph waiting): one line
         log(f"error: {failure_line(spec.name, f'tick {executor.ticks_done}' if ticking else 'setup', exc)}")
         if os.environ.get("DOCKHIL_TRACEBACK"):  # as the dockhil command shows its own
             import traceback
@@ -111,8 +111,9 @@ def run_node(spec, log=None, on_ready=None) -> int:
         if executor is not None:
             try:
                 executor.close()
-            except Exception as exc:  # closing must not hide the first error
-                log(f"error: {failure_line(spec.name, 'close', exc)}")
+            except NODE_RAISES as exc:  # closing must not hide the first error
+                # A DockhilError says where itself (a container's names its member).
+                log(f"error: {exc if isinstance(exc, DockhilError) else failure_line(spec.name, 'close', exc)}")
                 close_failed = True  # a driver holds the robot in close: its failure fails the run
             timing = getattr(executor, "timing", None)
             if timing is not None:  # the launcher judges the run's validity on these figures
@@ -122,6 +123,15 @@ def run_node(spec, log=None, on_ready=None) -> int:
     if executor.dropped:
         log(f"warning: {executor.dropped} bad message(s) dropped")
     return 1 if close_failed else 0
+
+
+def _in_member_terms(executor, exc: Exception) -> Exception:
+    """A container's output refused on its way out, said as its member's own process says it
+    (the runtime knows only the container and its port "member.port"); any other error as it is."""
+    from dockhil.container import Container
+
+    node = getattr(executor, "node", None)
+    return (node.refused_output() or exc) if isinstance(node, Container) else exc
 
 
 def main() -> int:

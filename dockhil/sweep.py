@@ -314,8 +314,28 @@ def flatten(summary: dict) -> dict:
     return out
 
 
-class Diverged(Exception):
-    """The simulated state left the finite numbers."""
+class RunFailed(Exception):
+    """A run stopped with one line: a node's own, or the divergence it was the sign of."""
+
+
+def failure_label(line: str, state) -> str:
+    """What a run that stopped with a node's `line` failed of. A node's output that left the finite
+    numbers is the physics diverging when the bodies' last state (`state`, a SatelliteState) had
+    already left the range of docking hardware, where the loop's products leave floating point
+    (dockhil/physical.py): 'diverged (...): line'. Otherwise the NaN or Inf is the node's own
+    failure (a 0/0, a bug), and so is any other line: the line as the node said it."""
+    if "NaN or Inf" not in line or state is None:
+        return line
+    from dockhil import physical
+
+    for body in state.bodies:
+        for what, vec, limit, unit in (("at", body.pose.position, physical.DISTANCE[1], "m"),
+                                       ("moving at", body.twist.linear, physical.SPEED[1], "m/s")):
+            size = max(abs(vec.x), abs(vec.y), abs(vec.z))
+            if size > limit:
+                return (f"diverged (at tick {state.header.tick} {body.name or 'a body'} was {what} {size:.3g} {unit}, "
+                        f"beyond the {limit:g} {unit} of docking hardware): {line}")
+    return line
 
 
 def run_one(spec: dict) -> dict:
@@ -351,7 +371,8 @@ def run_one(spec: dict) -> dict:
             elif line.startswith("error:"):
                 said.append(f"{name}: {line}")
 
-        g = ComposedGraph(graph, sim_time=True, log=node_log, taps=[collector])
+        last: dict[str, Any] = {}  # each topic's latest message that passed its checks (a failure's label)
+        g = ComposedGraph(graph, sim_time=True, log=node_log, taps=[collector, last.__setitem__])
         recorder = None
         if spec.get("bag"):
             from dockhil.bag_live import TapRecorder
@@ -364,10 +385,8 @@ def run_one(spec: dict) -> dict:
         try:
             g.setup()
             g.run(int(round(spec["duration"] / dt)) + 1)
-        except DockhilError as exc:
-            if "NaN or Inf" in str(exc):  # a node's output left the finite numbers: the loop diverged
-                raise Diverged(f"diverged: {exc}") from None
-            raise
+        except DockhilError as exc:  # a node's line, or the divergence it shows
+            raise RunFailed(failure_label(str(exc), last.get("/satellite/state"))) from None
         finally:
             try:
                 g.close()
@@ -380,7 +399,7 @@ def run_one(spec: dict) -> dict:
             lines = [*(out.get("warnings") or check["warnings"]), *said]
             out["warnings"] = "; ".join(dict.fromkeys(lines)) or None  # one Parquet column, each line once
             fields = flatten(out)
-    except Diverged as exc:
+    except RunFailed as exc:
         row.update(status="failed", error=str(exc), run_time_s=time.perf_counter() - started)
         return row
     except Exception as exc:  # a diverging or failing run is a row, never the end of the campaign

@@ -24,6 +24,17 @@ class NanAt(Node):
         return {"x": _w(tick, math.nan if tick.index >= self.p.at else 0.1 * tick.index)}
 
 
+class BoolAt(Node):
+    """Publishes a ramp on /x, and from tick `at` on a bool where the float belongs (a composed
+    run's screen judges only numbers and lets it through; the wire refuses it)."""
+
+    outputs = {"x": Output(WrenchStamped, "/x")}
+    params = {"at": Param(int, 5, help="first tick with the bool")}
+
+    def step(self, tick, inputs):
+        return {"x": _w(tick, True if tick.index >= self.p.at else 0.1 * tick.index)}
+
+
 class Follow(Node):
     """Reads /x, publishes /u = -x: a consumer."""
 

@@ -85,3 +85,29 @@ def test_an_isolated_node_runs_alone_and_the_rest_may_share(tmp_path):
     r = run_here("graph", hil_with(tmp_path, {"delay": "hw", "robot": "hw"}, "ft"))
     assert r.returncode == 0, r.stderr
     assert "  hw: delay, robot\n" in r.stdout and "  ft\n" in r.stdout
+
+
+def test_a_member_s_refused_output_is_said_as_the_member_s_own_process_says_it(tmp_path):
+    """A message that leaves the container and is refused on the way out names the member and its
+    port, as a composed run and node processes do; not the container and "member.port"."""
+    lines = {}
+    for box in ("", "\n    container: box"):
+        path = tmp_path / "scene.yaml"
+        path.write_text(f"""rate: 100
+duration: 0.1
+nodes:
+  - name: source
+    node: tests.faultnodes:BoolAt{box}
+  - name: other
+    node: tests.faultnodes:NanAt{box}
+    params: {{at: 1000}}
+    remap: {{x: /y}}
+  - name: follow
+    node: tests.faultnodes:Follow
+""")
+        r = run("launch", path)
+        assert r.returncode == 1, r.stderr
+        lines[box] = [line.split("] ", 1)[1] for line in r.stderr.splitlines() if "invalid message" in line]
+    want = ("error: node 'source' produced an invalid message at tick 5 on output 'x' (/x): WrenchStamped: "
+            "Expected `float`, got `bool` - at `$.wrench.force.x`; stopping the graph")
+    assert lines == {"": [want], "\n    container: box": [want]}

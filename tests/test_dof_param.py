@@ -83,6 +83,23 @@ def test_the_6dof_names_take_dof_6_too():
     assert "dof" not in graph.nodes["robot"].params  # dof picks the class; the class takes no dof
 
 
+def test_dockhil_graph_shows_the_type_as_the_file_writes_it_with_its_dof(tmp_path):
+    """`dynamics [satellite_dynamics, dof 6]`, as hil6.yaml declares it (not the registered
+    satellite_dynamics6, a name the file does not hold); a 1-DOF scene's types as they were."""
+    code, out, _ = run_main("graph", HIL6)
+    assert code == 0
+    section = out.split("\nnodes (", 1)[1].split("\nprocesses (", 1)[0].splitlines()[1:]
+    shown = dict(line[2:].split("]", 1)[0].split(" [") for line in section if not line.startswith("   "))
+    assert shown == {"delay": "delay_injector", "robot": "robot_sim, dof 6", "ft": "ft_sim, dof 6",
+                     "dynamics": "satellite_dynamics, dof 6", "impedance": "virtual_impedance, dof 6"}
+    code, dot, _ = run_main("graph", HIL6, "--dot")
+    assert '"dynamics" [label="dynamics\\nsatellite_dynamics, dof 6"];' in dot
+    six = edited(tmp_path, HIL6, DYNAMICS6, "    node: satellite_dynamics6\n    params:\n")  # the 6-DOF name itself
+    assert "  dynamics [satellite_dynamics6] " in run_main("graph", six)[1]
+    code, out, _ = run_main("graph", HIL)
+    assert "  dynamics [satellite_dynamics] " in out and "  impedance [virtual_impedance] " in out and ", dof" not in out
+
+
 def edited(tmp_path, source, old: str, new: str):
     text = source.read_text()
     assert old in text

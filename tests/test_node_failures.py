@@ -8,7 +8,7 @@ import pytest
 
 from dockhil.executor import check_outputs
 from dockhil.msgs import BodyWrenches, Wrench, WrenchStamped
-from dockhil.node import Input, Node, Output
+from dockhil.node import Input, Node, Output, Param
 from tests.conftest import dockhil_cmd
 from tests.inprocess import run_main
 
@@ -60,6 +60,71 @@ class ExitsAtTick2(Node):
         return {}
 
 
+class InterruptsAtTick2(Node):
+    """raises KeyboardInterrupt in step at tick 2: as a process of its own, a traceback and 'killed by SIGINT'"""
+
+    outputs = {"w": Output(WrenchStamped, "/w")}
+
+    def step(self, tick, inputs):
+        if tick.index == 2:
+            raise KeyboardInterrupt
+        return {}
+
+
+class InterruptsAtSetup(Node):
+    """raises KeyboardInterrupt in setup"""
+
+    outputs = {"w": Output(WrenchStamped, "/w")}
+
+    def setup(self):
+        raise KeyboardInterrupt
+
+    def step(self, tick, inputs):
+        return {}
+
+
+class InterruptsAtClose(Node):
+    """raises KeyboardInterrupt in close"""
+
+    outputs = {"w": Output(WrenchStamped, "/w")}
+
+    def step(self, tick, inputs):
+        return {}
+
+    def close(self):
+        raise KeyboardInterrupt
+
+
+class ExitsAtClose(Node):
+    """calls sys.exit(0) in close: the run exited 0, valid, with the close not done"""
+
+    outputs = {"w": Output(WrenchStamped, "/w")}
+
+    def step(self, tick, inputs):
+        return {}
+
+    def close(self):
+        import sys
+
+        sys.exit(0)
+
+
+class CtrlCAtTick2(Node):
+    """at tick 2 sends SIGINT where a user's Ctrl-C arrives: the dockhil command's process (with
+    `parent`, the launcher of this node's process; else this process, a composed run)"""
+
+    outputs = {"w": Output(WrenchStamped, "/w")}
+    params = {"parent": Param(bool, False, help="signal the parent process")}
+
+    def step(self, tick, inputs):
+        if tick.index == 2:
+            import os
+            import signal
+
+            os.kill(os.getppid() if self.p.parent else os.getpid(), signal.SIGINT)
+        return {"w": WrenchStamped(header=tick.header())}
+
+
 class FailsAtClose(Node):
     """raises in close, where a driver holds the robot"""
 
@@ -72,18 +137,19 @@ class FailsAtClose(Node):
         raise RuntimeError("could not hold")
 
 
-def scene(tmp_path, cls: str, container: bool = False) -> str:
+def scene(tmp_path, cls: str, container: bool = False, duration: float = 0.05, params: str = "{}") -> str:
     """The failing node, after a node that runs fine (in one container with it if asked)."""
     box = "\n    container: box" if container else ""
     path = tmp_path / "scene.yaml"
     path.write_text(f"""rate: 100
-duration: 0.05
+duration: {duration}
 nodes:
   - name: good
     node: delay_injector{box}
     params: {{delay: 0.0, input: /w, output: /w2, type: dockhil/WrenchStamped}}
   - name: bad
     node: {HERE}:{cls}{box}
+    params: {params}
 """)
     return str(path)
 
@@ -94,6 +160,10 @@ nodes:
     ("FailsAtSetup", "node 'bad' failed at setup: KeyError: 'calibration'"),
     ("ExitsAtTick2", "node 'bad' called sys.exit(0) at tick 2; a node ends with its graph"),
     ("FailsAtClose", "node 'bad' failed at close: RuntimeError: could not hold"),
+    ("InterruptsAtTick2", "node 'bad' raised KeyboardInterrupt at tick 2 (not a Ctrl-C"),
+    ("InterruptsAtSetup", "node 'bad' raised KeyboardInterrupt at setup (not a Ctrl-C"),
+    ("InterruptsAtClose", "node 'bad' raised KeyboardInterrupt at close (not a Ctrl-C"),
+    ("ExitsAtClose", "node 'bad' called sys.exit(0) at close; a node ends with its graph"),
 ])
 def test_a_composed_run_names_the_failing_node_and_tick(tmp_path, cls, line):
     code, out, err = run_main("launch", scene(tmp_path, cls), "--composed")
@@ -114,6 +184,8 @@ def test_a_node_process_says_the_same_of_a_step_that_returns_no_dict():
     ("ExitsAtTick2", "[bad] error: node 'bad' called sys.exit(0) at tick 2; a node ends with its graph"),
     ("FailsAtClose", "[bad] error: node 'bad' failed at close: RuntimeError: could not hold"),
     ("FailsAtSetup", "[bad] error: node 'bad' failed at setup: KeyError: 'calibration'"),
+    ("InterruptsAtTick2", "[bad] error: node 'bad' raised KeyboardInterrupt at tick 2 (not a Ctrl-C"),
+    ("ExitsAtClose", "[bad] error: node 'bad' called sys.exit(0) at close; a node ends with its graph"),
 ])
 def test_a_node_process_says_the_same_and_fails_the_run(tmp_path, cls, line):
     import subprocess
@@ -121,15 +193,40 @@ def test_a_node_process_says_the_same_and_fails_the_run(tmp_path, cls, line):
     run = subprocess.run(dockhil_cmd("launch", scene(tmp_path, cls)), capture_output=True, text=True, timeout=120)
     assert run.returncode == 1
     assert line in run.stderr
+    assert "Traceback" not in run.stderr and "SIGINT" not in run.stderr
 
 
-def test_a_container_names_the_member_that_failed(tmp_path):
+@pytest.mark.parametrize("cls, line", [
+    ("RaisesAtTick2", "[box] error: node 'bad' failed at tick 2: ValueError: boom"),
+    ("InterruptsAtTick2", "[box] error: node 'bad' raised KeyboardInterrupt at tick 2 (not a Ctrl-C"),
+    ("InterruptsAtClose", "[box] error: node 'bad' raised KeyboardInterrupt at close (not a Ctrl-C"),
+    ("FailsAtClose", "[box] error: node 'bad' failed at close: RuntimeError: could not hold"),  # not 'box' failed
+])
+def test_a_container_names_the_member_that_failed(tmp_path, cls, line):
     import subprocess
 
-    run = subprocess.run(dockhil_cmd("launch", scene(tmp_path, "RaisesAtTick2", container=True)),
+    run = subprocess.run(dockhil_cmd("launch", scene(tmp_path, cls, container=True)),
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 1
-    assert "[box] error: node 'bad' failed at tick 2: ValueError: boom" in run.stderr
+    assert line in run.stderr
+    assert "node 'box'" not in run.stderr.split("[launch]")[0] and "Traceback" not in run.stderr
+
+
+def test_a_ctrl_c_of_a_composed_run_still_stops_it_cleanly(tmp_path):
+    """The user's Ctrl-C is not a node's KeyboardInterrupt: the run stops with 130 and no error line."""
+    code, out, err = run_main("launch", scene(tmp_path, "CtrlCAtTick2"), "--composed")
+    assert code == 130
+    assert "error" not in err and "Traceback" not in err
+
+
+def test_a_ctrl_c_of_a_launch_still_stops_the_graph_cleanly(tmp_path):
+    import subprocess
+
+    path = scene(tmp_path, "CtrlCAtTick2", duration=1000.0, params="{parent: true}")  # stopped long before its end
+    run = subprocess.run(dockhil_cmd("launch", path, "--quiet"), capture_output=True, text=True, timeout=120)
+    assert run.returncode == 130
+    assert "[launch] SIGINT: stopping the graph" in run.stderr
+    assert "error" not in run.stderr and "Traceback" not in run.stderr
 
 
 def test_dockhil_traceback_shows_where_the_node_raised(tmp_path, monkeypatch):

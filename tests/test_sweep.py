@@ -465,3 +465,33 @@ def test_a_rows_warnings_carry_its_nodes_error_lines_too(tmp_path):
                          "duration": 0.01, "bag": None, "outputs": None})
     assert row["status"] == "ok"
     assert row["warnings"] == "talker: error: lost its sensor"
+
+
+def test_a_node_s_nan_is_its_own_failure_and_a_diverging_loop_is_labelled_diverged(tmp_path):
+    """A NaN a node produces while the bodies are where docking hardware can be is that node's
+    failure: the row carries its line. The loop diverging shows as a NaN or Inf too, once the
+    bodies have left that range: that row says diverged, and where the bodies were."""
+    scene = write(tmp_path, f"""
+        rate: 1000
+        include:
+          - file: {ROOT / "launch" / "hil.yaml"}
+        nodes:
+          - name: nan
+            node: tests.faultnodes:NanAt
+            params: {{at: 5}}
+        """, "scene.yaml")
+
+    def row(scene, args) -> dict:
+        return sweep.run_one({"run": 0, "sample": 0, "args": args, "args_hash": "h", "scene": str(scene),
+                              "duration": 0.1, "bag": None, "outputs": None})
+
+    node = row(scene, {})
+    assert node["status"] == "failed"
+    assert node["error"] == ("node 'nan' produced an invalid message at tick 5 on output 'x' (/x): WrenchStamped: "
+                             "NaN or Inf refused (physical fields must be finite) - at `$.wrench.force.x`; "
+                             "stopping the graph")
+    diverged = row(ROOT / "launch" / "hil.yaml", {"k": 1e15})  # a virtual stiffness of -1e18 N/m
+    assert diverged["status"] == "failed"
+    head, line = diverged["error"].split("): ", 1)
+    assert head.startswith("diverged (at tick ") and "beyond the 1e+06 m of docking hardware" in head
+    assert line.startswith("node 'impedance' produced an invalid message at tick ") and "NaN or Inf refused" in line

@@ -52,10 +52,11 @@ def to_text(graph) -> str:
         lines.append("let:")
         lines.extend(f"  {name} = {value!r}" for name, value in scene.lets.items())
     lines.append(f"nodes ({len(graph.nodes)}, in step order):")
+    declared = declared_types(graph)
     for name in graph.order:
         gn = graph.nodes[name]
         where = f" (on {gn.host})" if gn.host else ""
-        lines.append(f"  {name} [{gn.type_name}]{where} {gn.cls.describe()}")
+        lines.append(f"  {name} [{declared[name]}]{where} {gn.cls.describe()}")
         for port, ref in gn.inputs.items():
             src = graph.publishers.get(ref.topic)
             frm = f"<- {src.node}.{src.port}" if src else "(unconnected, optional)"
@@ -80,6 +81,16 @@ def to_text(graph) -> str:
     return "\n".join(lines)
 
 
+def declared_types(graph) -> dict[str, str]:
+    """Each node's type as its launch file writes it, with the dof it gives: `satellite_dynamics,
+    dof 6`, not the registered satellite_dynamics6 that runs (a name the file does not show)."""
+    out = {}
+    for spec in graph.scene.nodes:
+        dof = spec.params.get("dof")
+        out[spec.name] = spec.type if dof is None else f"{spec.type}, dof {dof}"
+    return out
+
+
 def _q(text: str) -> str:
     """A DOT string's inside: quotes and backslashes escaped (an include's file name is free text)."""
     return text.replace("\\", "\\\\").replace('"', '\\"')
@@ -87,8 +98,9 @@ def _q(text: str) -> str:
 
 def to_dot(graph) -> str:
     out = ["digraph dockhil {", "  rankdir=LR;", "  node [shape=box];"]
+    declared = declared_types(graph)
     for name in graph.order:
-        out.append(f'  "{name}" [label="{name}\\n{graph.nodes[name].type_name}"];')
+        out.append(f'  "{name}" [label="{name}\\n{_q(declared[name])}"];')
     for topic, subs in graph.subscribers.items():
         pub = graph.publishers[topic]
         for s in subs:
