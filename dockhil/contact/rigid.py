@@ -40,6 +40,7 @@ with one free flight a composition instead of two.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -52,8 +53,8 @@ IDENTITY = (0.0, 0.0, 0.0, 1.0)
 
 # --- quaternions (x, y, z, w), plain floats -------------------------------------------------
 
-def quat_multiply(a, b) -> tuple[float, float, float, float]:
-    """Hamilton product a b (scalar last)."""
+def quat_multiply_python(a, b) -> tuple[float, float, float, float]:
+    """Hamilton product a b (scalar last); `quat_multiply` is it compiled where built (see `COMPILED`)."""
     ax, ay, az, aw = a
     bx, by, bz, bw = b
     return (
@@ -149,8 +150,9 @@ def sub3(a, b) -> tuple[float, float, float]:
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
-def rotate(q, v) -> tuple[float, float, float]:
-    """R(q) v for a unit quaternion q (x, y, z, w): v + w t + u x t with t = 2 u x v, u = (x, y, z)."""
+def rotate_python(q, v) -> tuple[float, float, float]:
+    """R(q) v for a unit quaternion q (x, y, z, w): v + w t + u x t with t = 2 u x v, u = (x, y, z);
+    `rotate` is it compiled where built (see `COMPILED`)."""
     x, y, z, w = q
     v0, v1, v2 = v
     t0 = 2.0 * (y * v2 - z * v1)
@@ -159,8 +161,8 @@ def rotate(q, v) -> tuple[float, float, float]:
     return (v0 + w * t0 + y * t2 - z * t1, v1 + w * t1 + z * t0 - x * t2, v2 + w * t2 + x * t1 - y * t0)
 
 
-def rotate_back(q, v) -> tuple[float, float, float]:
-    """R(q)^T v (the inverse rotation)."""
+def rotate_back_python(q, v) -> tuple[float, float, float]:
+    """R(q)^T v (the inverse rotation); `rotate_back` is it compiled where built."""
     x, y, z, w = q
     v0, v1, v2 = v
     t0 = 2.0 * (z * v1 - y * v2)
@@ -286,11 +288,16 @@ class RigidBody:
         object.__setattr__(self, "_com", tuple(float(c) for c in self.com))
         # What the per-tick geometry and mobilities read of the body: two bodies with equal keys
         # give them equal numbers (hybrid6.published_interface remembers its last answer by it).
-        object.__setattr__(self, "_key", (self.mass, self._moments, self._com, self._r_p, q_bp, self._q_pi))
+        # Equal keys are one object, so that comparing them is an identity check.
+        key = (self.mass, self._moments, self._com, self._r_p, q_bp, self._q_pi)
+        object.__setattr__(self, "_key", _BODY_KEYS.setdefault(key, key))
 
     def interface_offset_body(self) -> np.ndarray:
         """Interface origin relative to the CoM, body frame [m]."""
         return self.interface_position - self.com
+
+
+_BODY_KEYS: dict = {}  # RigidBody._key by value: one object for equal bodies
 
 
 @dataclass
@@ -379,12 +386,14 @@ def _floats3(v) -> tuple[float, float, float]:
 
 # --- the free flight: exact translation, rotation split about principal axes ----------------
 
-def drift(m: Motion, t: float) -> None:
+def drift_python(m: Motion, t: float) -> None:
     """Free flight for t [s]: translation exact, rotation by the symmetric
     1-2-3-2-1 splitting. Each part is the exact flow of T_i = L_i^2 / (2 I_i):
     in body axes L' = L x omega turns L by -phi about axis i while the body
     turns by +phi, phi = L_i t / I_i. The hot loop: unrolled, plain floats, two
-    trigonometric calls a part (cos phi, sin phi from the half angle)."""
+    trigonometric calls a part (cos phi, sin phi from the half angle).
+
+    `drift` is it compiled where built (see `COMPILED`)."""
     x, v = m.x, m.v
     m.x = (x[0] + t * v[0], x[1] + t * v[1], x[2] + t * v[2])
     i1, i2, i3 = m.body._moments
@@ -479,11 +488,12 @@ def _apply(m1: Motion, m2: Motion, w: Wrench, h: float) -> None:
     f, mom = wrench_of(m1.v, m1.omega3(), m2.v, m2.omega3())
     if w.velocity_dependent:
         f, mom = _midpoint_wrench(wrench_of, f, mom, m1, m2, arm1, arm2, h)
-    _kick(m1, m2, f, add3(mom, cross3(arm1, f)), (-f[0], -f[1], -f[2]), sub3(cross3(f, arm2), mom), h)
+    kick(m1, m2, f, add3(mom, cross3(arm1, f)), (-f[0], -f[1], -f[2]), sub3(cross3(f, arm2), mom), h)
 
 
-def _kick(m1: Motion, m2: Motion, f1, t1, f2, t2, h: float) -> None:
-    """Momenta += h (force, torque) for forces and torques about each CoM (world)."""
+def kick_python(m1: Motion, m2: Motion, f1, t1, f2, t2, h: float) -> None:
+    """Momenta += h (force, torque) for forces and torques about each CoM (world); `kick` is it
+    compiled where built."""
     b1, b2 = m1.body, m2.body
     k1, k2 = h / b1.mass, h / b2.mass
     v, L, tb = m1.v, m1.L, rotate_back(m1.q, t1)
@@ -592,8 +602,32 @@ def held_step(m1: Motion, m2: Motion, w: HeldWrench, h: float, order: int = 4) -
     carried = 0.0
     for c in _weights(order):
         hw = c * h
-        _kick(m1, m2, f1, t1, f2, t2, carried + 0.5 * hw)
+        kick(m1, m2, f1, t1, f2, t2, carried + 0.5 * hw)
         drift(m1, hw)
         drift(m2, hw)
         carried = 0.5 * hw
-    _kick(m1, m2, f1, t1, f2, t2, carried)
+    kick(m1, m2, f1, t1, f2, t2, carried)
+
+
+# --- compiled twins --------------------------------------------------------------------------
+
+def _compiled():
+    """dockhil/contact/_rigid.c: drift, kick, rotate, rotate_back and quat_multiply in C, the same
+    IEEE operations in the same order as their *_python twins here (the same bits, several times
+    faster); None where it was not built (no C compiler at install) or DOCKHIL_PURE_PYTHON is set,
+    and the twins run."""
+    if os.environ.get("DOCKHIL_PURE_PYTHON"):
+        return None
+    try:
+        from dockhil.contact import _rigid
+    except ImportError:
+        return None
+    return _rigid
+
+
+COMPILED = _compiled()
+drift = COMPILED.drift if COMPILED else drift_python
+kick = COMPILED.kick if COMPILED else kick_python
+rotate = COMPILED.rotate if COMPILED else rotate_python
+rotate_back = COMPILED.rotate_back if COMPILED else rotate_back_python
+quat_multiply = COMPILED.quat_multiply if COMPILED else quat_multiply_python

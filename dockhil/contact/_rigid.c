@@ -1,0 +1,283 @@
+/* rigid.py's per-tick arithmetic, compiled: the free flight (drift_python), the held wrench's
+   kick (kick_python) and the rotations and quaternion product (rotate_python, ...).
+
+   The same IEEE operations in the same order as the Python functions (which stay the reference
+   and run where this module is not built), so both give the same bits: products and sums
+   left to right as Python evaluates them, no fused multiply-add (-ffp-contract=off) and sin and
+   cos called one by one from the C library Python's math module calls (-fno-builtin, so the
+   compiler neither merges them into sincos nor evaluates them its own way).
+   tests/test_sixdof_reference.py holds both to the same digests. */
+
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+
+static PyObject *s_x, *s_v, *s_q, *s_L, *s_body, *s_moments, *s_mass;
+
+/* n floats of a tuple attribute into out; -1 with a Python error if it is not one. */
+static int read_floats(PyObject *obj, PyObject *name, double *out, Py_ssize_t n)
+{
+    PyObject *t = PyObject_GetAttr(obj, name);
+    if (t == NULL)
+        return -1;
+    if (!PyTuple_Check(t) || PyTuple_GET_SIZE(t) != n) {
+        PyErr_Format(PyExc_TypeError, "drift: %U must be a tuple of %zd floats", name, n);
+        Py_DECREF(t);
+        return -1;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        out[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(t, i));
+        if (out[i] == -1.0 && PyErr_Occurred()) {
+            Py_DECREF(t);
+            return -1;
+        }
+    }
+    Py_DECREF(t);
+    return 0;
+}
+
+/* n floats of any sequence (a tuple, a list, an array) into out, as the Python twins unpack it. */
+static int seq_floats(PyObject *seq, double *out, Py_ssize_t n, const char *what)
+{
+    PyObject *fast = PySequence_Fast(seq, what);
+    if (fast == NULL)
+        return -1;
+    if (PySequence_Fast_GET_SIZE(fast) != n) {
+        PyErr_Format(PyExc_ValueError, "%s: expected %zd values, got %zd", what, n, PySequence_Fast_GET_SIZE(fast));
+        Py_DECREF(fast);
+        return -1;
+    }
+    PyObject **items = PySequence_Fast_ITEMS(fast);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        out[i] = PyFloat_AsDouble(items[i]);
+        if (out[i] == -1.0 && PyErr_Occurred()) {
+            Py_DECREF(fast);
+            return -1;
+        }
+    }
+    Py_DECREF(fast);
+    return 0;
+}
+
+static PyObject *float_tuple(const double *v, Py_ssize_t n)
+{
+    PyObject *t = PyTuple_New(n);
+    if (t == NULL)
+        return NULL;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *f = PyFloat_FromDouble(v[i]);
+        if (f == NULL) {
+            Py_DECREF(t);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(t, i, f);
+    }
+    return t;
+}
+
+static int write_floats(PyObject *obj, PyObject *name, const double *v, Py_ssize_t n)
+{
+    PyObject *t = float_tuple(v, n);
+    if (t == NULL)
+        return -1;
+    int r = PyObject_SetAttr(obj, name, t);
+    Py_DECREF(t);
+    return r;
+}
+
+/* R(q) v and R(q)^T v for a unit quaternion (x, y, z, w): rotate_python, rotate_back_python. */
+static void rotate3(const double *q, const double *v, double *out)
+{
+    double x = q[0], y = q[1], z = q[2], w = q[3], v0 = v[0], v1 = v[1], v2 = v[2];
+    double t0 = 2.0 * (y * v2 - z * v1), t1 = 2.0 * (z * v0 - x * v2), t2 = 2.0 * (x * v1 - y * v0);
+    out[0] = v0 + w * t0 + y * t2 - z * t1;
+    out[1] = v1 + w * t1 + z * t0 - x * t2;
+    out[2] = v2 + w * t2 + x * t1 - y * t0;
+}
+
+static void rotate_back3(const double *q, const double *v, double *out)
+{
+    double x = q[0], y = q[1], z = q[2], w = q[3], v0 = v[0], v1 = v[1], v2 = v[2];
+    double t0 = 2.0 * (z * v1 - y * v2), t1 = 2.0 * (x * v2 - z * v0), t2 = 2.0 * (y * v0 - x * v1);
+    out[0] = v0 + w * t0 - y * t2 + z * t1;
+    out[1] = v1 + w * t1 - z * t0 + x * t2;
+    out[2] = v2 + w * t2 - x * t1 + y * t0;
+}
+
+static PyObject *rotation(PyObject *const *args, Py_ssize_t nargs, int back)
+{
+    double q[4], v[3], out[3];
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "rotate(q, v) takes a quaternion and a 3-vector");
+        return NULL;
+    }
+    if (seq_floats(args[0], q, 4, "a quaternion (x, y, z, w)") || seq_floats(args[1], v, 3, "a 3-vector"))
+        return NULL;
+    (back ? rotate_back3 : rotate3)(q, v, out);
+    return float_tuple(out, 3);
+}
+
+static PyObject *rotate(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    return rotation(args, nargs, 0);
+}
+
+static PyObject *rotate_back(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    return rotation(args, nargs, 1);
+}
+
+/* The Hamilton product a b (scalar last): quat_multiply_python. */
+static PyObject *quat_multiply(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    double a[4], b[4];
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "quat_multiply(a, b) takes two quaternions");
+        return NULL;
+    }
+    if (seq_floats(args[0], a, 4, "a quaternion (x, y, z, w)") || seq_floats(args[1], b, 4, "a quaternion (x, y, z, w)"))
+        return NULL;
+    double ax = a[0], ay = a[1], az = a[2], aw = a[3], bx = b[0], by = b[1], bz = b[2], bw = b[3];
+    double out[4] = {
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
+    };
+    return float_tuple(out, 4);
+}
+
+/* Momenta += h (force, torque) of one body, torque (world) turned into its principal axes. */
+static int kick_body(PyObject *m, PyObject *force, PyObject *torque, double h)
+{
+    double v[3], L[3], q[4], f[3], t[3], tb[3];
+    PyObject *body = PyObject_GetAttr(m, s_body);
+    if (body == NULL)
+        return -1;
+    PyObject *mass_obj = PyObject_GetAttr(body, s_mass);
+    Py_DECREF(body);
+    if (mass_obj == NULL)
+        return -1;
+    double mass = PyFloat_AsDouble(mass_obj);
+    Py_DECREF(mass_obj);
+    if (mass == -1.0 && PyErr_Occurred())
+        return -1;
+    if (read_floats(m, s_v, v, 3) || read_floats(m, s_L, L, 3) || read_floats(m, s_q, q, 4) ||
+        seq_floats(force, f, 3, "a force") || seq_floats(torque, t, 3, "a torque"))
+        return -1;
+    double k = h / mass;
+    rotate_back3(q, t, tb);
+    double nv[3] = {v[0] + k * f[0], v[1] + k * f[1], v[2] + k * f[2]};
+    double nL[3] = {L[0] + h * tb[0], L[1] + h * tb[1], L[2] + h * tb[2]};
+    return write_floats(m, s_v, nv, 3) || write_floats(m, s_L, nL, 3) ? -1 : 0;
+}
+
+static PyObject *kick(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 7) {
+        PyErr_SetString(PyExc_TypeError, "kick(m1, m2, f1, t1, f2, t2, h)");
+        return NULL;
+    }
+    double h = PyFloat_AsDouble(args[6]);
+    if (h == -1.0 && PyErr_Occurred())
+        return NULL;
+    if (kick_body(args[0], args[2], args[3], h) || kick_body(args[1], args[4], args[5], h))
+        return NULL;
+    Py_RETURN_NONE;
+}
+
+/* One part of the splitting: the exact flow of L_a^2 / (2 I_a) for the time whose half angle per
+   unit rate is `per` (a = L_a / I_a * per), as drift_python writes it for axis 1, 2 or 3. */
+#define HALF_ANGLE(la, ia, per) \
+    a = la / ia * per; \
+    hs = sin(a); \
+    hc = cos(a); \
+    c = hc * hc - hs * hs; \
+    s = 2.0 * hs * hc;
+
+static PyObject *drift(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "drift(m, t) takes a Motion and a time");
+        return NULL;
+    }
+    PyObject *m = args[0];
+    double t = PyFloat_AsDouble(args[1]);
+    if (t == -1.0 && PyErr_Occurred())
+        return NULL;
+    double x[3], v[3], q[4], L[3], I[3];
+    PyObject *body = PyObject_GetAttr(m, s_body);
+    if (body == NULL)
+        return NULL;
+    int bad = read_floats(body, s_moments, I, 3);
+    Py_DECREF(body);
+    if (bad || read_floats(m, s_x, x, 3) || read_floats(m, s_v, v, 3) || read_floats(m, s_q, q, 4) ||
+        read_floats(m, s_L, L, 3))
+        return NULL;
+
+    double nx[3] = {x[0] + t * v[0], x[1] + t * v[1], x[2] + t * v[2]};
+    double i1 = I[0], i2 = I[1], i3 = I[2];
+    double l1 = L[0], l2 = L[1], l3 = L[2];
+    double qx = q[0], qy = q[1], qz = q[2], qw = q[3];
+    double half = 0.5 * t, quarter = 0.25 * t;
+    double a, hs, hc, c, s, u, w, px, py, pz, pw;
+
+    /* axis 1 for t/2 */
+    HALF_ANGLE(l1, i1, quarter)
+    u = c * l2 + s * l3; w = c * l3 - s * l2; l2 = u; l3 = w;
+    px = qw * hs + qx * hc; py = qy * hc + qz * hs; pz = qz * hc - qy * hs; pw = qw * hc - qx * hs;
+    qx = px; qy = py; qz = pz; qw = pw;
+    /* axis 2 for t/2 */
+    HALF_ANGLE(l2, i2, quarter)
+    u = c * l3 + s * l1; w = c * l1 - s * l3; l3 = u; l1 = w;
+    px = qx * hc - qz * hs; py = qw * hs + qy * hc; pz = qz * hc + qx * hs; pw = qw * hc - qy * hs;
+    qx = px; qy = py; qz = pz; qw = pw;
+    /* axis 3 for t */
+    HALF_ANGLE(l3, i3, half)
+    u = c * l1 + s * l2; w = c * l2 - s * l1; l1 = u; l2 = w;
+    px = qx * hc + qy * hs; py = qy * hc - qx * hs; pz = qw * hs + qz * hc; pw = qw * hc - qz * hs;
+    qx = px; qy = py; qz = pz; qw = pw;
+    /* axis 2 for t/2 */
+    HALF_ANGLE(l2, i2, quarter)
+    u = c * l3 + s * l1; w = c * l1 - s * l3; l3 = u; l1 = w;
+    px = qx * hc - qz * hs; py = qw * hs + qy * hc; pz = qz * hc + qx * hs; pw = qw * hc - qy * hs;
+    qx = px; qy = py; qz = pz; qw = pw;
+    /* axis 1 for t/2 */
+    HALF_ANGLE(l1, i1, quarter)
+    u = c * l2 + s * l3; w = c * l3 - s * l2; l2 = u; l3 = w;
+    px = qw * hs + qx * hc; py = qy * hc + qz * hs; pz = qz * hc - qy * hs; pw = qw * hc - qx * hs;
+    qx = px; qy = py; qz = pz; qw = pw;
+
+    double n = sqrt(qx * qx + qy * qy + qz * qz + qw * qw);
+    double nq[4] = {qx / n, qy / n, qz / n, qw / n};
+    double nL[3] = {l1, l2, l3};
+    if (write_floats(m, s_x, nx, 3) || write_floats(m, s_q, nq, 4) || write_floats(m, s_L, nL, 3))
+        return NULL;
+    Py_RETURN_NONE;
+}
+
+static PyMethodDef methods[] = {
+    {"drift", (PyCFunction)(void (*)(void))drift, METH_FASTCALL,
+     "drift(m, t): rigid.drift_python, compiled (the same bits)."},
+    {"kick", (PyCFunction)(void (*)(void))kick, METH_FASTCALL,
+     "kick(m1, m2, f1, t1, f2, t2, h): rigid.kick_python, compiled (the same bits)."},
+    {"rotate", (PyCFunction)(void (*)(void))rotate, METH_FASTCALL,
+     "rotate(q, v): rigid.rotate_python, compiled (the same bits)."},
+    {"rotate_back", (PyCFunction)(void (*)(void))rotate_back, METH_FASTCALL,
+     "rotate_back(q, v): rigid.rotate_back_python, compiled (the same bits)."},
+    {"quat_multiply", (PyCFunction)(void (*)(void))quat_multiply, METH_FASTCALL,
+     "quat_multiply(a, b): rigid.quat_multiply_python, compiled (the same bits)."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_rigid", NULL, -1, methods, NULL, NULL, NULL, NULL};
+
+PyMODINIT_FUNC PyInit__rigid(void)
+{
+    if (!(s_x = PyUnicode_InternFromString("x")) || !(s_v = PyUnicode_InternFromString("v")) ||
+        !(s_q = PyUnicode_InternFromString("q")) || !(s_L = PyUnicode_InternFromString("L")) ||
+        !(s_body = PyUnicode_InternFromString("body")) || !(s_moments = PyUnicode_InternFromString("_moments")) ||
+        !(s_mass = PyUnicode_InternFromString("mass")))
+        return NULL;
+    return PyModule_Create(&module);
+}
