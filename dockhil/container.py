@@ -15,7 +15,7 @@ import math
 from types import SimpleNamespace
 from typing import Any
 
-from dockhil.errors import NODE_RAISES, DockhilError, node_error
+from dockhil.errors import NODE_RAISES, node_error
 from dockhil.node import Input, Node, NodeContext, Output
 
 
@@ -73,8 +73,6 @@ class Container(Node):
                                 order=[m["name"] for m in _members(params)], publishers=publishers)
         self.sent: dict[str, Any] = {}
         self.out_port = {topic: f"{ref.node}.{ref.port}" for topic, ref in publishers.items()}
-        self.owner = {f"{ref.node}.{ref.port}": ref for ref in publishers.values()}  # container port -> member's
-        self.sent_tick: int | None = None  # the tick whose messages `sent` holds, once they are complete
         self.members = ComposedGraph(graph, sim_time=ctx.sim_time, clock=ctx.clock, boxes=self.boxes,
                                      log=lambda name, msg: ctx.log(f"[{name}] {msg}"), taps=[self._sent])
         self._schedule = None
@@ -93,33 +91,14 @@ class Container(Node):
             self._schedule = self.members.schedule(wall=not self.ctx.sim_time)
         for port, box in self.reads:
             box[0] = inputs[port]
-        self.sent, self.sent_tick = {}, None
+        self.sent = {}
         try:
             self.members.step_tick(self._schedule, tick, wall=not self.ctx.sim_time)
         except NODE_RAISES as exc:
             from dockhil.composed import node_failure
 
             raise node_failure(exc, tick.index)  # noqa: B904 - names the member that failed, chained
-        self.sent_tick = tick.index
         return self.sent
-
-    def refused_output(self) -> DockhilError | None:
-        """The line of the first message of the last tick that the transport refuses, naming the
-        member that produced it as that member's own process does; None if every one is valid.
-        (The tick's own screen judges only numbers: a bool in a float field passes it and is
-        refused on the way out, where the runtime knows only the container and "member.port".)
-        Asked only once the run has failed, so the messages are checked only then."""
-        from dockhil.executor import checked_payload
-
-        if self.sent_tick is None:
-            return None
-        for port, msg in self.sent.items():
-            ref = self.owner[port]
-            try:
-                checked_payload(ref.node, ref.port, ref.topic, self.sent_tick, msg)
-            except DockhilError as exc:
-                return exc
-        return None
 
     def close(self) -> None:
         try:

@@ -121,11 +121,13 @@ class _Unscreened(Exception):
 
 
 def _bounds_check(cls: type):
-    """A function true when every number in a message of type `cls` is finite and within its
-    type's bounds. A screen, not the verdict: it may say False for a good message (a sum of finite
-    values that overflows, a value of another type), and callers then run the full check. The
-    floats are added up as they are read (each struct read once): a NaN or Inf anywhere makes
-    the sum non-finite."""
+    """A function true when a message of type `cls` holds what its decoding would accept: every
+    number finite and within its type's bounds, and every value of its field's own type (a float,
+    a str, a bool, an int, the declared struct, a tuple), as a node process's encoding and decoding
+    would check it. A screen, not the verdict: it may say False for a good message (a sum of finite
+    values that overflows, an int where a float goes, a numpy float), and callers then run the full
+    check. The floats are added up as they are read (each struct read once): a NaN or Inf anywhere
+    makes the sum non-finite; the types are compared a struct's fields at a time."""
     check = _SCREENS.get(cls)
     if check is None:
         import msgspec.inspect as mi
@@ -143,43 +145,59 @@ def _bounds_check(cls: type):
     return check
 
 
+# The Python type a field's value has where its decoding would accept it without conversion.
+_LEAF_TYPES = {"FloatType": float, "IntType": int, "BoolType": bool, "StrType": str}
+
+
 def _screen_lines(mi, t, var: str, lines: list[str], indent: str, scope: dict) -> None:
-    """Statements that return False when a number under `var` is out of its bounds, and add
-    its floats to the sum s."""
-    floats: list[str] = []
-    _screen_fields(mi, t, var, lines, indent, scope, floats)
-    if floats:
-        lines.append(f"{indent}s += {' + '.join(floats)}")
+    """Statements that return False when a value under `var` is out of its bounds or not of its
+    field's type, and add its floats to the sum s."""
+    leaves: dict[type, list[str]] = {}
+    _screen_fields(mi, t, var, lines, indent, scope, leaves)
+    for kind, names in leaves.items():  # builtins: float, int, bool, str
+        lines.append(f"{indent}if not ({' is '.join(f'type({n})' for n in names)} is {kind.__name__}): return False")
+    if leaves.get(float):
+        lines.append(f"{indent}s += {' + '.join(leaves[float])}")
 
 
-def _screen_fields(mi, t, var, lines, indent, scope, floats) -> None:
+def _screen_fields(mi, t, var, lines, indent, scope, leaves) -> None:
     if isinstance(t, mi.Metadata):
         t = t.type
-    if isinstance(t, (mi.FloatType, mi.IntType)):
-        if t.multiple_of is not None:
+    kind = _LEAF_TYPES.get(type(t).__name__)
+    if kind is not None:
+        if isinstance(t, (mi.FloatType, mi.IntType)):
+            if t.multiple_of is not None:
+                raise _Unscreened
+            conds = [f"{var} {op} {bound!r}" for op, bound in ((">=", t.ge), (">", t.gt), ("<=", t.le), ("<", t.lt))
+                     if bound is not None and abs(bound) != _MAX_FLOAT]
+            if conds:  # a NaN fails a bound too
+                lines.append(f"{indent}if not ({' and '.join(conds)}): return False")
+        elif isinstance(t, mi.StrType) and (t.min_length or t.max_length is not None or t.pattern):
             raise _Unscreened
-        conds = [f"{var} {op} {bound!r}" for op, bound in ((">=", t.ge), (">", t.gt), ("<=", t.le), ("<", t.lt))
-                 if bound is not None and abs(bound) != _MAX_FLOAT]
-        if conds:  # a NaN fails a bound too
-            lines.append(f"{indent}if not ({' and '.join(conds)}): return False")
-        if isinstance(t, mi.FloatType):
-            floats.append(var)
+        leaves.setdefault(kind, []).append(var)
     elif isinstance(t, mi.StructType):
-        if "." in var:  # a nested struct: read once into a local, not once per field below it
-            local = f"_s{len(scope)}"
-            scope[local] = None
-            lines.append(f"{indent}{local} = {var}")
-            var = local
+        if "." in var or var.startswith("_i"):  # a nested struct (or a tuple's item): its type checked
+            cls_name = f"_T{len(scope)}"
+            scope[cls_name] = t.cls
+            if "." in var:  # read once into a local, not once per field below it
+                local = f"_s{len(scope)}"
+                scope[local] = None
+                lines.append(f"{indent}{local} = {var}")
+                var = local
+            lines.append(f"{indent}if type({var}) is not {cls_name}: return False")
         for field_ in t.fields:
-            _screen_fields(mi, field_.type, f"{var}.{field_.name}", lines, indent, scope, floats)
+            _screen_fields(mi, field_.type, f"{var}.{field_.name}", lines, indent, scope, leaves)
     elif isinstance(t, (mi.ListType, mi.VarTupleType)):
         item = f"_i{len(scope)}"
         scope[item] = None
         body: list[str] = []
         _screen_lines(mi, t.item_type, item, body, indent + "    ", scope)
+        lines.append(f"{indent}if type({var}) is not {'tuple' if isinstance(t, mi.VarTupleType) else 'list'}: return False")
         if body:
             lines.append(f"{indent}for {item} in {var}:")
             lines.extend(body)
+    else:  # a type the screen does not know (none in msgs today): every message of it gets the full check
+        raise _Unscreened
 
 
 def check_outputs(name: str, declared: dict, k: int, outs: dict, sim: bool) -> None:

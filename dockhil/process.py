@@ -98,7 +98,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
             if stats["deadline_misses"]:
                 log(f"warning: {stats['deadline_misses']} of {stats['ticks']} ticks missed their deadline")
     except DockhilError as exc:
-        log(f"error: {_in_member_terms(executor, exc)}")
+        log(f"error: {exc}")
         return 2
     except NODE_RAISES as exc:  # a bug in a node (a sys.exit would leave the graph waiting): one line
         log(f"error: {failure_line(spec.name, f'tick {executor.ticks_done}' if ticking else 'setup', exc)}")
@@ -123,15 +123,6 @@ def run_node(spec, log=None, on_ready=None) -> int:
     if executor.dropped:
         log(f"warning: {executor.dropped} bad message(s) dropped")
     return 1 if close_failed else 0
-
-
-def _in_member_terms(executor, exc: Exception) -> Exception:
-    """A container's output refused on its way out, said as its member's own process says it
-    (the runtime knows only the container and its port "member.port"); any other error as it is."""
-    from dockhil.container import Container
-
-    node = getattr(executor, "node", None)
-    return (node.refused_output() or exc) if isinstance(node, Container) else exc
 
 
 def main() -> int:

@@ -88,8 +88,9 @@ def test_an_isolated_node_runs_alone_and_the_rest_may_share(tmp_path):
 
 
 def test_a_member_s_refused_output_is_said_as_the_member_s_own_process_says_it(tmp_path):
-    """A message that leaves the container and is refused on the way out names the member and its
-    port, as a composed run and node processes do; not the container and "member.port"."""
+    """A member's message that its readers would refuse (a bool in a float field) names the member
+    and its port, as a composed run and node processes do; not the container and "member.port":
+    the container's tick refuses it, as its screen judges the values' types too."""
     lines = {}
     for box in ("", "\n    container: box"):
         path = tmp_path / "scene.yaml"
