@@ -40,7 +40,8 @@ def rebuilder(cls: type):
         if isinstance(t, (mi.ListType, mi.VarTupleType)):
             item = f"i{len(scope)}"
             scope[item] = None
-            return f"[{expr(t.item_type, item)} for {item} in {var}]"
+            items = f"[{expr(t.item_type, item)} for {item} in {var}]"
+            return f"tuple({items})" if isinstance(t, mi.VarTupleType) else items  # as msgs build them
         return var
 
     def field(f, var: str) -> str:
