@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 import msgspec
 
-from dockhil.errors import DockhilError, failure_line
+from dockhil.errors import NODE_RAISES, DockhilError, failure_line
 from dockhil.executor import LoopTiming, Stop, _bounds_check, _sleep_until, check_outputs, checked_payload
 from dockhil.graph import Graph
 from dockhil.log import node_line
@@ -63,7 +63,7 @@ class ComposedGraph:
         for name, node in self.nodes.items():
             try:
                 node.setup()
-            except (Exception, SystemExit) as exc:
+            except NODE_RAISES as exc:
                 if not name_failures or isinstance(exc, DockhilError):
                     raise
                 raise DockhilError(failure_line(name, "setup", exc)) from exc
@@ -75,7 +75,7 @@ class ComposedGraph:
         for name, node in self.nodes.items():
             try:
                 node.close()
-            except Exception as exc:  # close every node even if one fails
+            except NODE_RAISES as exc:  # close every node even if one fails (a driver holds the robot there)
                 if first is None and isinstance(exc, DockhilError):
                     first = exc
                 elif first is None:
@@ -125,7 +125,7 @@ class ComposedGraph:
                 tick = Tick(k, k * dt, dt)
             try:
                 schedule(tick, k, k == 0 or not wall)
-            except (Exception, SystemExit) as exc:
+            except NODE_RAISES as exc:
                 raise node_failure(exc, k)  # noqa: B904 - node_failure chains it
             k += 1
             if progress is not None:

@@ -15,7 +15,7 @@ import math
 from types import SimpleNamespace
 from typing import Any
 
-from dockhil.errors import NODE_RAISES, node_error
+from dockhil.errors import NODE_RAISES
 from dockhil.node import Input, Node, NodeContext, Output
 
 
@@ -81,10 +81,7 @@ class Container(Node):
         self.sent[self.out_port[topic]] = msg
 
     def setup(self) -> None:
-        try:
-            self.members.setup()
-        except KeyboardInterrupt as exc:  # passed on as it came: the member's line
-            raise node_error(exc, self.members.nodes)  # noqa: B904 - chained
+        self.members.setup()
 
     def step(self, tick, inputs):
         if self._schedule is None:
@@ -101,7 +98,4 @@ class Container(Node):
         return self.sent
 
     def close(self) -> None:
-        try:
-            self.members.close()
-        except (SystemExit, KeyboardInterrupt) as exc:  # passed on as it came: the member's line
-            raise node_error(exc, self.members.nodes)  # noqa: B904 - chained
+        self.members.close()

@@ -51,31 +51,3 @@ def failure_line(name: str, where: str, exc: BaseException) -> str:
         return (f"node {name!r} raised KeyboardInterrupt at {where} (not a Ctrl-C, which stops the graph without one); "
                 f"a node ends with its graph: return from step, or raise an Exception to stop the graph with a line")
     return f"node {name!r} failed at {where}: {type(exc).__name__}: {exc}"
-
-
-def node_error(exc: BaseException, nodes: dict) -> DockhilError:
-    """`exc`, which a node's own method raised and the runtime received as it came (a
-    KeyboardInterrupt; a sys.exit in close), as that node's line: the node and where are read
-    from the traceback (nodes: name -> node), as a node process would say them."""
-    name, where = _raised_in(exc, nodes) or ("?", "an unknown place")
-    line = DockhilError(failure_line(name, where, exc))
-    line.__cause__ = exc
-    return line
-
-
-def _raised_in(exc: BaseException, nodes: dict) -> tuple[str, str] | None:
-    """(node name, where): the outermost frame of the traceback that is a method of one of
-    `nodes` names the node; where is that method ('setup', 'close'), or for step the tick it was
-    given. None if no node's method raised `exc`."""
-    names = {id(node): name for name, node in nodes.items()}
-    tb = exc.__traceback__
-    while tb is not None:
-        frame, code = tb.tb_frame, tb.tb_frame.f_code
-        name = names.get(id(frame.f_locals.get(code.co_varnames[0]))) if code.co_argcount else None
-        if name is not None:
-            if code.co_name != "step":
-                return name, code.co_name
-            tick = frame.f_locals.get(code.co_varnames[1]) if code.co_argcount > 1 else None
-            return name, f"tick {tick.index}" if hasattr(tick, "index") else "step"
-        tb = tb.tb_next
-    return None

@@ -22,7 +22,7 @@ import time
 
 from dockhil import validity
 from dockhil.log import Log
-from dockhil.errors import DockhilError, node_error
+from dockhil.errors import DockhilError
 from dockhil.files import complete_or_nothing
 from dockhil.graph import Graph
 
@@ -178,8 +178,6 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
         g.run(n_ticks, wall=clock == "wall", stop=stop, progress=bar.update if bar else None)
     except DockhilError as exc:
         failed = _said(exc)
-    except KeyboardInterrupt as exc:  # a Ctrl-C only sets `stop`: a node raised this one itself
-        failed = _said(node_error(exc, g.nodes))
     finally:
         if bar is not None:
             bar.done()
@@ -187,8 +185,6 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
             g.close()
         except DockhilError as exc:  # a driver holds the robot in close: its failure fails the run
             failed = _said(exc)
-        except (SystemExit, KeyboardInterrupt) as exc:  # a node's, passed on by the close as it came
-            failed = _said(node_error(exc, g.nodes))
         finally:
             if recorder is not None:
                 recorder.close()

@@ -283,3 +283,32 @@ def test_a_reader_cannot_change_a_message_composed_as_it_cannot_across_processes
     run = subprocess.run(dockhil_cmd("launch", mutation_scene(tmp_path)), capture_output=True, text=True,
                          timeout=120)
     assert run.returncode == 1 and f"[reader] error: {LINE}" in run.stderr
+
+
+@pytest.mark.parametrize("bad", ["InterruptsAtClose", "ExitsAtClose", "FailsAtClose"])
+def test_a_node_failing_at_close_does_not_keep_the_others_from_closing(bad):
+    # A driver holds the robot in its close: the nodes after a failing one close all the same.
+    from types import SimpleNamespace
+
+    from dockhil.composed import ComposedGraph
+    from dockhil.errors import DockhilError
+
+    closed = []
+
+    class Driver(Node):
+        outputs = {"w": Output(WrenchStamped, "/d")}
+
+        def step(self, tick, inputs):
+            return {}
+
+        def close(self):
+            closed.append(self.ctx.name)
+
+    nodes = {name: SimpleNamespace(cls=cls, params={}, inputs={}, outputs={})
+             for name, cls in (("bad", globals()[bad]), ("driver", Driver))}
+    graph = SimpleNamespace(scene=SimpleNamespace(dt=0.01), nodes=nodes, order=["bad", "driver"], publishers={})
+    g = ComposedGraph(graph, log=lambda n, m: None)
+    g.setup()
+    with pytest.raises(DockhilError, match="node 'bad' .* at close"):
+        g.close()
+    assert closed == ["driver"]
