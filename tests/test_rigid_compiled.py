@@ -92,3 +92,24 @@ def test_the_python_twins_alone_give_the_recorded_6dof_runs():
     assert r.returncode == 0, r.stderr
     lines = r.stdout.split("\n")
     assert [line.rsplit(" ", 1)[1] for line in lines if line] == ["True"] * 3, r.stdout
+
+
+@compiled
+def test_the_interface_geometry_equals_its_twin_bit_for_bit():
+    from dockhil.contact import hybrid6
+    from dockhil.contact.contact6 import InterfaceGeometry
+
+    rng = random.Random(5)
+    inertia = [[300.0, 20.0, 0.0], [20.0, 400.0, 10.0], [0.0, 10.0, 500.0]]  # principal axes off the body's
+    tilted = quat_from_rotvec([0.0, 0.0, 0.02])
+    for frames in ((np.diag([300.0, 400.0, 500.0]), (0.0, 0.0, 0.0, 1.0)), (inertia, tilted)):
+        b1 = RigidBody(750.0, frames[0], interface_position=[1.0, 0.1, 0.0], interface_orientation=frames[1])
+        b2 = RigidBody(1e6, np.diag([4e6, 5e6, 6e6]), interface_position=[-2.0, 0.0, 0.3], interface_orientation=frames[1])
+        for _ in range(500):
+            p1 = (_vec(rng), _quat(rng), _vec(rng), _vec(rng))
+            p2 = (_vec(rng), _quat(rng), _vec(rng), _vec(rng))
+            q1, q2 = hybrid6.principal_attitude(b1, p1[1]), hybrid6.principal_attitude(b2, p2[1])
+            want = InterfaceGeometry.between(b1, p1[0], q1, b2, p2[0], q2)
+            velocity, spin = want.rates3(p1[2], p1[3], p2[2], p2[3])
+            got = rigid.COMPILED.interface(b1._frames, b2._frames, *p1, *p2)
+            assert got == (q1, q2, want.arm1, want.arm2, want.point, want.r, want.q_b, want.q_rel, want.d, velocity, spin)

@@ -11,6 +11,7 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <math.h>
+#include <string.h>
 
 static PyObject *s_x, *s_v, *s_q, *s_L, *s_body, *s_moments, *s_mass;
 
@@ -256,6 +257,94 @@ static PyObject *drift(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     Py_RETURN_NONE;
 }
 
+/* q / |q| (rigid._normalised). */
+static void normalised4(const double *q, double *out)
+{
+    double n = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    out[0] = q[0] / n; out[1] = q[1] / n; out[2] = q[2] / n; out[3] = q[3] / n;
+}
+
+static void multiply4(const double *a, const double *b, double *out)
+{
+    double ax = a[0], ay = a[1], az = a[2], aw = a[3], bx = b[0], by = b[1], bz = b[2], bw = b[3];
+    out[0] = aw * bx + ax * bw + ay * bz - az * by;
+    out[1] = aw * by - ax * bz + ay * bw + az * bx;
+    out[2] = aw * bz + ax * by - ay * bx + az * bw;
+    out[3] = aw * bw - ax * bx - ay * by - az * bz;
+}
+
+/* A body's frames (RigidBody._frames): its interface from the CoM in principal axes, and the
+   interface and principal attitudes (None where they are the identity, whose product is skipped). */
+static int read_frames(PyObject *frames, double *r_p, double *q_pi, int *pi_id, double *q_bp, int *bp_id)
+{
+    if (!PyTuple_Check(frames) || PyTuple_GET_SIZE(frames) != 3) {
+        PyErr_SetString(PyExc_TypeError, "interface: a body's frames are (r_p, q_pi or None, q_bp or None)");
+        return -1;
+    }
+    PyObject *pi = PyTuple_GET_ITEM(frames, 1), *bp = PyTuple_GET_ITEM(frames, 2);
+    *pi_id = pi == Py_None;
+    *bp_id = bp == Py_None;
+    return seq_floats(PyTuple_GET_ITEM(frames, 0), r_p, 3, "an interface position") ||
+           (!*pi_id && seq_floats(pi, q_pi, 4, "a quaternion (x, y, z, w)")) ||
+           (!*bp_id && seq_floats(bp, q_bp, 4, "a quaternion (x, y, z, w)")) ? -1 : 0;
+}
+
+/* hybrid6.published_interface's arithmetic: the principal attitudes of two published states
+   (hybrid6.principal_attitude), InterfaceGeometry._place between them and its rates3. Returns
+   (q1, q2, arm1, arm2, point, r, q_b, q_rel, d, d', relative angular velocity in B). */
+static PyObject *interface(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    double rp1[3], qpi1[4], qbp1[4], rp2[3], qpi2[4], qbp2[4];
+    double x1[3], o1[4], v1[3], w1[3], x2[3], o2[4], v2[3], w2[3];
+    int pi1, bp1, pi2, bp2;
+    if (nargs != 10) {
+        PyErr_SetString(PyExc_TypeError, "interface(frames1, frames2, x1, q1, v1, w1, x2, q2, v2, w2)");
+        return NULL;
+    }
+    if (read_frames(args[0], rp1, qpi1, &pi1, qbp1, &bp1) || read_frames(args[1], rp2, qpi2, &pi2, qbp2, &bp2) ||
+        seq_floats(args[2], x1, 3, "a position") || seq_floats(args[3], o1, 4, "a quaternion (x, y, z, w)") ||
+        seq_floats(args[4], v1, 3, "a velocity") || seq_floats(args[5], w1, 3, "an angular velocity") ||
+        seq_floats(args[6], x2, 3, "a position") || seq_floats(args[7], o2, 4, "a quaternion (x, y, z, w)") ||
+        seq_floats(args[8], v2, 3, "a velocity") || seq_floats(args[9], w2, 3, "an angular velocity"))
+        return NULL;
+    double q1[4], q2[4], t[4];
+    if (bp1) normalised4(o1, q1); else { multiply4(o1, qbp1, t); normalised4(t, q1); }
+    if (bp2) normalised4(o2, q2); else { multiply4(o2, qbp2, t); normalised4(t, q2); }
+    double a[3], b[3], point[3], r[3], qa[4], qb[4], cb[4], qrel[4], d[3], u[3], rel[3], vel[3], spin[3];
+    rotate3(q1, rp1, a);
+    rotate3(q2, rp2, b);
+    for (int i = 0; i < 3; i++)
+        point[i] = x1[i] + a[i];
+    for (int i = 0; i < 3; i++)
+        r[i] = point[i] - x2[i] - b[i];
+    if (pi1) memcpy(qa, q1, sizeof qa); else multiply4(q1, qpi1, qa);
+    if (pi2) memcpy(qb, q2, sizeof qb); else multiply4(q2, qpi2, qb);
+    cb[0] = -qb[0]; cb[1] = -qb[1]; cb[2] = -qb[2]; cb[3] = qb[3];
+    multiply4(cb, qa, qrel);
+    rotate_back3(qb, r, d);
+    double p0 = w1[0], p1 = w1[1], p2 = w1[2], s0 = w2[0], s1 = w2[1], s2 = w2[2];
+    u[0] = v1[0] + p1 * a[2] - p2 * a[1] - v2[0] - s1 * b[2] + s2 * b[1] + r[1] * s2 - r[2] * s1;
+    u[1] = v1[1] + p2 * a[0] - p0 * a[2] - v2[1] - s2 * b[0] + s0 * b[2] + r[2] * s0 - r[0] * s2;
+    u[2] = v1[2] + p0 * a[1] - p1 * a[0] - v2[2] - s0 * b[1] + s1 * b[0] + r[0] * s1 - r[1] * s0;
+    rotate_back3(qb, u, vel);
+    rel[0] = p0 - s0; rel[1] = p1 - s1; rel[2] = p2 - s2;
+    rotate_back3(qb, rel, spin);
+    const double *parts[] = {q1, q2, a, b, point, r, qb, qrel, d, vel, spin};
+    const Py_ssize_t sizes[] = {4, 4, 3, 3, 3, 3, 4, 4, 3, 3, 3};
+    PyObject *out = PyTuple_New(11);
+    if (out == NULL)
+        return NULL;
+    for (int i = 0; i < 11; i++) {
+        PyObject *item = float_tuple(parts[i], sizes[i]);
+        if (item == NULL) {
+            Py_DECREF(out);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(out, i, item);
+    }
+    return out;
+}
+
 static PyMethodDef methods[] = {
     {"drift", (PyCFunction)(void (*)(void))drift, METH_FASTCALL,
      "drift(m, t): rigid.drift_python, compiled (the same bits)."},
@@ -265,6 +354,8 @@ static PyMethodDef methods[] = {
      "rotate(q, v): rigid.rotate_python, compiled (the same bits)."},
     {"rotate_back", (PyCFunction)(void (*)(void))rotate_back, METH_FASTCALL,
      "rotate_back(q, v): rigid.rotate_back_python, compiled (the same bits)."},
+    {"interface", (PyCFunction)(void (*)(void))interface, METH_FASTCALL,
+     "interface(frames1, frames2, x1, q1, v1, w1, x2, q2, v2, w2): hybrid6.published_interface's arithmetic."},
     {"quat_multiply", (PyCFunction)(void (*)(void))quat_multiply, METH_FASTCALL,
      "quat_multiply(a, b): rigid.quat_multiply_python, compiled (the same bits)."},
     {NULL, NULL, 0, NULL},

@@ -63,7 +63,7 @@ from dockhil.contact.contact6 import (
     skew,
     sub6,
 )
-from dockhil.contact.rigid import (BodyState, HeldWrench, Motion, RigidBody, _normalised, add3,
+from dockhil.contact.rigid import (COMPILED, BodyState, HeldWrench, Motion, RigidBody, _normalised, add3,
                                    check_unit_quaternion, check_vector, cross3, quat_conjugate, quat_from_rotvec,
                                    quat_multiply, quat_to_matrix, rotate, rotate_back, rotvec3,
                                    sub3)
@@ -274,8 +274,15 @@ def published_interface(body1: RigidBody, published1: tuple, body2: RigidBody, p
         return last[1]
     x1, q1, v1, w1 = published1
     x2, q2, v2, w2 = published2
-    g = InterfaceGeometry.between(body1, x1, principal_attitude(body1, q1), body2, x2, principal_attitude(body2, q2))
-    velocity, spin = g.rates3(v1, w1, v2, w2)
+    if COMPILED is not None:  # the same arithmetic in C (rigid.COMPILED), the same bits
+        g = InterfaceGeometry.__new__(InterfaceGeometry)
+        q1, q2, g.arm1, g.arm2, g.point, g.r, g.q_b, g.q_rel, g.d, velocity, spin = COMPILED.interface(
+            body1._frames, body2._frames, x1, q1, v1, w1, x2, q2, v2, w2)
+        g.pose1, g.pose2 = (body1, x1, q1), (body2, x2, q2)
+    else:
+        g = InterfaceGeometry.between(body1, x1, principal_attitude(body1, q1), body2, x2,
+                                      principal_attitude(body2, q2))
+        velocity, spin = g.rates3(v1, w1, v2, w2)
     answer = (g, velocity, spin)
     _LAST_INTERFACE[0] = (key, answer)
     return answer

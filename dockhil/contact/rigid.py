@@ -286,6 +286,9 @@ class RigidBody:
         object.__setattr__(self, "_bp_identity", q_bp == IDENTITY)
         object.__setattr__(self, "_pi_identity", self._q_pi == IDENTITY)
         object.__setattr__(self, "_com", tuple(float(c) for c in self.com))
+        # What the compiled interface geometry reads (None: the identity, whose product is skipped).
+        object.__setattr__(self, "_frames", (self._r_p, None if self._pi_identity else self._q_pi,
+                                             None if self._bp_identity else q_bp))
         # What the per-tick geometry and mobilities read of the body: two bodies with equal keys
         # give them equal numbers (hybrid6.published_interface remembers its last answer by it).
         # Equal keys are one object, so that comparing them is an identity check.
