@@ -1,8 +1,8 @@
-"""The compiled per-tick arithmetic of dockhil.contact.rigid (dockhil/contact/_rigid.c); the rest is in
-pyproject.toml.
+"""The compiled per-tick arithmetic of dockhil.contact.rigid (dockhil/contact/_rigid.c) and message
+screen (dockhil/_screen.c); the rest is in pyproject.toml.
 
-Optional: where it does not build (no C compiler), dockhil runs its Python twin, which gives the
-same numbers, more slowly."""
+Optional: where they do not build (no C compiler), dockhil runs their Python twins, which give the
+same answers, more slowly."""
 
 from setuptools import Extension, setup
 
@@ -10,5 +10,8 @@ from setuptools import Extension, setup
 # one (see the file's head).
 FLAGS = ["-O2", "-ffp-contract=off", "-fno-builtin", "-fno-fast-math"]
 
-setup(ext_modules=[Extension("dockhil.contact._rigid", ["dockhil/contact/_rigid.c"], extra_compile_args=FLAGS,
-                             optional=True)])
+setup(ext_modules=[
+    Extension("dockhil.contact._rigid", ["dockhil/contact/_rigid.c"], extra_compile_args=FLAGS, optional=True),
+    # A composed run's message screen (dockhil/_screen.c; executor._bounds_check is its twin).
+    Extension("dockhil._screen", ["dockhil/_screen.c"], extra_compile_args=FLAGS, optional=True),
+])

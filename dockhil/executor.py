@@ -22,6 +22,7 @@ line, the same in a multi-process and a composed run.
 
 from __future__ import annotations
 
+import functools
 import gc
 import json
 import math
@@ -126,23 +127,78 @@ def _bounds_check(cls: type):
     a str, a bool, an int, the declared struct, a tuple), as a node process's encoding and decoding
     would check it. A screen, not the verdict: it may say False for a good message (a sum of finite
     values that overflows, an int where a float goes, a numpy float), and callers then run the full
-    check. The floats are added up as they are read (each struct read once): a NaN or Inf anywhere
-    makes the sum non-finite; the types are compared a struct's fields at a time."""
+    check. Compiled (dockhil/_screen.c) where built, else `python_screen`."""
     check = _SCREENS.get(cls)
     if check is None:
         import msgspec.inspect as mi
 
-        lines: list[str] = []
-        scope: dict[str, Any] = {}
-        try:
-            _screen_lines(mi, mi.type_info(cls), "m", lines, "        ", scope)
-        except _Unscreened:
-            lines = ["        return False"]
-        src = ("def check(m):\n    s = 0.0\n    try:\n" + "".join(f"{line}\n" for line in lines)
-               + "    except Exception:\n        return False\n    return s - s == 0\n")
-        exec(compile(src, f"<screen of {cls.__name__}>", "exec"), scope)  # noqa: S102 - built from the type
-        check = _SCREENS[cls] = scope["check"]
+        check = python_screen(cls)
+        compiled = _compiled_screen()
+        if compiled is not None:  # the same judgement in C (dockhil/_screen.c), several times faster
+            try:
+                check = functools.partial(compiled, _screen_spec(mi, mi.type_info(cls)))
+            except _Unscreened:
+                pass
+        _SCREENS[cls] = check
     return check
+
+
+def python_screen(cls: type):
+    """`_bounds_check`'s screen of `cls` as a generated Python function (the compiled one's twin).
+    The floats are added up as they are read (each struct read once): a NaN or Inf anywhere makes
+    the sum non-finite; the types are compared a struct's fields at a time."""
+    import msgspec.inspect as mi
+
+    lines: list[str] = []
+    scope: dict[str, Any] = {}
+    try:
+        _screen_lines(mi, mi.type_info(cls), "m", lines, "        ", scope)
+    except _Unscreened:
+        lines = ["        return False"]
+    src = ("def check(m):\n    s = 0.0\n    try:\n" + "".join(f"{line}\n" for line in lines)
+           + "    except Exception:\n        return False\n    return s - s == 0\n")
+    exec(compile(src, f"<screen of {cls.__name__}>", "exec"), scope)  # noqa: S102 - built from the type
+    return scope["check"]
+
+
+def _compiled_screen():
+    """dockhil._screen.screen, or None where it was not built or DOCKHIL_PURE_PYTHON is set (the
+    generated Python screen then runs)."""
+    if os.environ.get("DOCKHIL_PURE_PYTHON"):
+        return None
+    try:
+        from dockhil._screen import screen
+    except ImportError:
+        return None
+    return screen
+
+
+_SPEC_KINDS = {"FloatType": 0, "IntType": 1, "BoolType": 2, "StrType": 3}
+
+
+def _screen_spec(mi, t) -> tuple:
+    """(cls, fields) of a struct type for dockhil/_screen.c (the kinds and bounds it reads are
+    described there); _Unscreened where the Python screen would not judge either."""
+    return (t.cls, tuple(_field_spec(mi, f.type, f.name) for f in t.fields))
+
+
+def _field_spec(mi, t, name) -> tuple:
+    if isinstance(t, mi.Metadata):
+        t = t.type
+    kind = _SPEC_KINDS.get(type(t).__name__)
+    if kind in (0, 1):
+        if t.multiple_of is not None:
+            raise _Unscreened
+        return (name, kind, *(None if b is None else float(b) for b in (t.ge, t.gt, t.le, t.lt)))
+    if kind == 3 and (t.min_length or t.max_length is not None or t.pattern):
+        raise _Unscreened
+    if kind is not None:
+        return (name, kind)
+    if isinstance(t, mi.StructType):
+        return (name, 4, _screen_spec(mi, t))
+    if isinstance(t, (mi.ListType, mi.VarTupleType)):
+        return (name, 5 if isinstance(t, mi.VarTupleType) else 6, _field_spec(mi, t.item_type, None))
+    raise _Unscreened
 
 
 # The Python type a field's value has where its decoding would accept it without conversion.
