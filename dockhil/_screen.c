@@ -5,9 +5,10 @@
 
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <structmember.h>
 #include <math.h>
 
-/* spec of a struct: (cls, fields); a field: (name, kind, ...) with kind
+/* spec of a struct: (cls, fields); a field: (member, kind, ...), member its descriptor in cls, with kind
    0 float (ge, gt, le, lt: a float or None each), 1 int (the same bounds, as floats),
    2 bool, 3 str, 4 struct (a struct's spec), 5 tuple or 6 list (an item's field spec, name None).
    True when every value is of its field's exact type, finite and within its bounds; False
@@ -29,15 +30,16 @@ static int screen_struct(PyObject *obj, PyObject *spec)
         return 0;
     PyObject *fields = PyTuple_GET_ITEM(spec, 1);
     for (Py_ssize_t i = 0; i < PyTuple_GET_SIZE(fields); i++) {
-        PyObject *field = PyTuple_GET_ITEM(fields, i);
-        PyObject *v = PyObject_GetAttr(obj, PyTuple_GET_ITEM(field, 0));
-        if (v == NULL) {
-            PyErr_Clear();
+        PyObject *field = PyTuple_GET_ITEM(fields, i), *member = PyTuple_GET_ITEM(field, 0);
+        /* The field's slot read where the descriptor is a plain object slot of cls (obj is of
+           exactly cls, checked above): no attribute lookup. */
+        if (!Py_IS_TYPE(member, &PyMemberDescr_Type))
             return 0;
-        }
-        int ok = screen_value(v, field);
-        Py_DECREF(v);
-        if (!ok)
+        PyMemberDef *def = ((PyMemberDescrObject *)member)->d_member;
+        if (def->type != T_OBJECT_EX)
+            return 0;
+        PyObject *v = *(PyObject **)((char *)obj + def->offset);
+        if (v == NULL || !screen_value(v, field))
             return 0;
     }
     return 1;

@@ -178,8 +178,16 @@ _SPEC_KINDS = {"FloatType": 0, "IntType": 1, "BoolType": 2, "StrType": 3}
 
 def _screen_spec(mi, t) -> tuple:
     """(cls, fields) of a struct type for dockhil/_screen.c (the kinds and bounds it reads are
-    described there); _Unscreened where the Python screen would not judge either."""
-    return (t.cls, tuple(_field_spec(mi, f.type, f.name) for f in t.fields))
+    described there; a field is named by its member descriptor, whose slot it reads); _Unscreened
+    where the Python screen would not judge either."""
+    return (t.cls, tuple(_field_spec(mi, f.type, _member(t.cls, f.name)) for f in t.fields))
+
+
+def _member(cls: type, name: str):
+    for klass in cls.__mro__:
+        if name in vars(klass):
+            return vars(klass)[name]
+    raise _Unscreened
 
 
 def _field_spec(mi, t, name) -> tuple:
