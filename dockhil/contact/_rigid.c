@@ -187,14 +187,30 @@ static PyObject *kick(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     Py_RETURN_NONE;
 }
 
+/* The rotation state of a drift: L in principal axes and the attitude q (x, y, z, w). */
+typedef struct {
+    double l1, l2, l3, qx, qy, qz, qw;
+} Spin;
+
 /* One part of the splitting: the exact flow of L_a^2 / (2 I_a) for the time whose half angle per
-   unit rate is `per` (a = L_a / I_a * per), as drift_python writes it for axis 1, 2 or 3. */
-#define HALF_ANGLE(la, ia, per) \
-    a = la / ia * per; \
-    hs = sin(a); \
-    hc = cos(a); \
-    c = hc * hc - hs * hs; \
-    s = 2.0 * hs * hc;
+   unit rate is `per` (a = L_a / I_a * per), about axis 1, 2 or 3, as drift_python writes it. */
+static void part(Spin *p, int axis, double i, double per)
+{
+    double a = (axis == 1 ? p->l1 : axis == 2 ? p->l2 : p->l3) / i * per;
+    double hs = sin(a), hc = cos(a);
+    double c = hc * hc - hs * hs, s = 2.0 * hs * hc;
+    double qx = p->qx, qy = p->qy, qz = p->qz, qw = p->qw, u, w;
+    if (axis == 1) {
+        u = c * p->l2 + s * p->l3; w = c * p->l3 - s * p->l2; p->l2 = u; p->l3 = w;
+        p->qx = qw * hs + qx * hc; p->qy = qy * hc + qz * hs; p->qz = qz * hc - qy * hs; p->qw = qw * hc - qx * hs;
+    } else if (axis == 2) {
+        u = c * p->l3 + s * p->l1; w = c * p->l1 - s * p->l3; p->l3 = u; p->l1 = w;
+        p->qx = qx * hc - qz * hs; p->qy = qw * hs + qy * hc; p->qz = qz * hc + qx * hs; p->qw = qw * hc - qy * hs;
+    } else {
+        u = c * p->l1 + s * p->l2; w = c * p->l2 - s * p->l1; p->l1 = u; p->l2 = w;
+        p->qx = qx * hc + qy * hs; p->qy = qy * hc - qx * hs; p->qz = qw * hs + qz * hc; p->qw = qw * hc - qz * hs;
+    }
+}
 
 static PyObject *drift(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
@@ -217,41 +233,16 @@ static PyObject *drift(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
         return NULL;
 
     double nx[3] = {x[0] + t * v[0], x[1] + t * v[1], x[2] + t * v[2]};
-    double i1 = I[0], i2 = I[1], i3 = I[2];
-    double l1 = L[0], l2 = L[1], l3 = L[2];
-    double qx = q[0], qy = q[1], qz = q[2], qw = q[3];
     double half = 0.5 * t, quarter = 0.25 * t;
-    double a, hs, hc, c, s, u, w, px, py, pz, pw;
-
-    /* axis 1 for t/2 */
-    HALF_ANGLE(l1, i1, quarter)
-    u = c * l2 + s * l3; w = c * l3 - s * l2; l2 = u; l3 = w;
-    px = qw * hs + qx * hc; py = qy * hc + qz * hs; pz = qz * hc - qy * hs; pw = qw * hc - qx * hs;
-    qx = px; qy = py; qz = pz; qw = pw;
-    /* axis 2 for t/2 */
-    HALF_ANGLE(l2, i2, quarter)
-    u = c * l3 + s * l1; w = c * l1 - s * l3; l3 = u; l1 = w;
-    px = qx * hc - qz * hs; py = qw * hs + qy * hc; pz = qz * hc + qx * hs; pw = qw * hc - qy * hs;
-    qx = px; qy = py; qz = pz; qw = pw;
-    /* axis 3 for t */
-    HALF_ANGLE(l3, i3, half)
-    u = c * l1 + s * l2; w = c * l2 - s * l1; l1 = u; l2 = w;
-    px = qx * hc + qy * hs; py = qy * hc - qx * hs; pz = qw * hs + qz * hc; pw = qw * hc - qz * hs;
-    qx = px; qy = py; qz = pz; qw = pw;
-    /* axis 2 for t/2 */
-    HALF_ANGLE(l2, i2, quarter)
-    u = c * l3 + s * l1; w = c * l1 - s * l3; l3 = u; l1 = w;
-    px = qx * hc - qz * hs; py = qw * hs + qy * hc; pz = qz * hc + qx * hs; pw = qw * hc - qy * hs;
-    qx = px; qy = py; qz = pz; qw = pw;
-    /* axis 1 for t/2 */
-    HALF_ANGLE(l1, i1, quarter)
-    u = c * l2 + s * l3; w = c * l3 - s * l2; l2 = u; l3 = w;
-    px = qw * hs + qx * hc; py = qy * hc + qz * hs; pz = qz * hc - qy * hs; pw = qw * hc - qx * hs;
-    qx = px; qy = py; qz = pz; qw = pw;
-
-    double n = sqrt(qx * qx + qy * qy + qz * qz + qw * qw);
-    double nq[4] = {qx / n, qy / n, qz / n, qw / n};
-    double nL[3] = {l1, l2, l3};
+    Spin p = {L[0], L[1], L[2], q[0], q[1], q[2], q[3]};
+    part(&p, 1, I[0], quarter); /* 1-2-3-2-1: axes 1 and 2 for t/2, axis 3 for t */
+    part(&p, 2, I[1], quarter);
+    part(&p, 3, I[2], half);
+    part(&p, 2, I[1], quarter);
+    part(&p, 1, I[0], quarter);
+    double n = sqrt(p.qx * p.qx + p.qy * p.qy + p.qz * p.qz + p.qw * p.qw);
+    double nq[4] = {p.qx / n, p.qy / n, p.qz / n, p.qw / n};
+    double nL[3] = {p.l1, p.l2, p.l3};
     if (write_floats(m, s_x, nx, 3) || write_floats(m, s_q, nq, 4) || write_floats(m, s_L, nL, 3))
         return NULL;
     Py_RETURN_NONE;
