@@ -267,7 +267,8 @@ def published_interface(body1: RigidBody, published1: tuple, body2: RigidBody, p
     It remembers its last answer: each tick, the dynamics (for the robot command) and the virtual
     impedance (for its wall) ask it the same question, and in one process the second is answered
     without the arithmetic. Equal bodies (their `_key`) and equal states give equal numbers, so the
-    answer is the one it would compute; the geometry it returns is only read, never changed."""
+    answer is the one it would compute; its readers only read the geometry (what it computes on
+    first use, theta and J_l^-1, is the same whoever asks first)."""
     key = (body1._key, published1, body2._key, published2)
     last = _LAST_INTERFACE[0]
     if last is not None and last[0] == key:

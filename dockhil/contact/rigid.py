@@ -474,8 +474,8 @@ class Wrench:
 
 class HeldWrench(Wrench):
     """A wrench held constant over a step (a sampled loop's zero-order hold):
-    forces and torques about each body's CoM fixed in world. `step` applies it
-    as K D K (see there); `zero` says it is all zeros, a free flight."""
+    forces and torques about each body's CoM fixed in world, 3-tuples of floats. `step`
+    applies it as K D K (see there); `zero` says it is all zeros, a free flight."""
 
     velocity_dependent = False
 
