@@ -235,7 +235,9 @@ def scene_check(graph, refuse: bool = True) -> dict:
     info = scene_loop(graph)
     if info is None:
         loop6 = scene_loop6(graph)
-        return {"loop": {}, "warnings": []} if loop6 is None else _check6(graph, loop6, refuse)
+        check = {"loop": {}, "warnings": []} if loop6 is None else _check6(graph, loop6, refuse)
+        check["warnings"] += body_mismatches(graph)
+        return check
     from dockhil.contact import sampled
 
     loop = info["loop"]
@@ -295,4 +297,26 @@ def scene_check(graph, refuse: bool = True) -> dict:
     if physics_unstable and sampled_unstable:
         warnings.append(f"the loop is unstable: it grows at {growth:+.4g} 1/s (spectral radius {rho:.6g}), as "
                         f"the delay equation predicts ({cont.real:+.4g} 1/s)")
-    return {"loop": numbers, "warnings": warnings}
+    return {"loop": numbers, "warnings": warnings + body_mismatches(graph)}
+
+
+BODY_PARAMS = ("m1", "m2", "inertia1", "inertia2", "interface1", "interface2", "interface_orientation1",
+               "interface_orientation2")
+
+
+def body_mismatches(graph) -> list[str]:
+    """One warning per body parameter that the virtual impedance and the dynamics both take and
+    are given differently: the impedance is then tuned for other bodies than those that fly (its
+    closed form, its wall split, its mobilities), so the loop does not make the contact it is
+    meant to reproduce. A warning, not a refusal: a mistuned impedance can be the experiment."""
+    dyn = _first(graph, "satellite_dynamics") or _first(graph, "satellite_dynamics6")
+    imp = _first(graph, "virtual_impedance") or _first(graph, "virtual_impedance6")
+    if dyn is None or imp is None:
+        return []
+    def said(gn, name):
+        unit = getattr(gn.cls.params.get(name), "unit", "")
+        return f"{name} = {gn.params[name]!r}{' ' + unit if unit else ''}"
+
+    return [f"node {imp.name!r} is tuned for {said(imp, name)} but node {dyn.name!r} integrates {said(dyn, name)}: "
+            f"the virtual impedance does not make the ideal contact for these bodies; give both the same {name}"
+            for name in BODY_PARAMS if name in imp.params and name in dyn.params and imp.params[name] != dyn.params[name]]
