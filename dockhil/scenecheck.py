@@ -226,6 +226,16 @@ def _check6(graph, loop, refuse: bool) -> dict:
             warnings.append(f"not resolved: {line}")
         else:
             warnings.append(_coarse(res, good))
+    # The delayed loop as the 1-DOF check judges it (a warning: Fig. 11's scenes are unstable on
+    # purpose): the rightmost root of det(M s^2 + B s + K_direct + K_delayed e^{-sh}), about 0.1 s.
+    from dockhil.contact import stability6
+
+    root = stability6.rightmost(loop)
+    numbers["rightmost_root_1_s"], numbers["rightmost_axis"] = [root.s.real, root.s.imag], root.axis
+    if root.s.real > 1e-9 * max(1.0, omega):
+        warnings.append(f"the loop is unstable: linearised at the start, the delayed loop grows at "
+                        f"{root.s.real:+.4g} 1/s (rightmost root {root.s.real:+.4g} {root.s.imag:+.4g}j, led by axis "
+                        f"{root.axis}); `dockhil stability multi --scene` on it gives the stable stiffness")
     return {"loop": numbers, "warnings": warnings}
 
 

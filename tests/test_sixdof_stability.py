@@ -132,3 +132,25 @@ def test_bad_loops_are_refused_with_one_line():
         MultiAxisLoop(np.eye(2), np.zeros((2, 2)), np.zeros((2, 2)), np.eye(3), np.eye(2), 0.01)
     with pytest.raises(ContactModelError, match="h must be >= 0"):
         MultiAxisLoop(np.eye(2), np.zeros((2, 2)), np.zeros((2, 2)), np.eye(2), np.eye(2), -0.01)
+
+
+def test_the_6dof_scene_check_warns_of_an_unstable_delayed_loop_as_the_1dof_one_does():
+    # hil6.yaml at its 32 ms is (just) stable; at 64 ms the linearised loop grows, led by the normal
+    # axis: the launch says so in its warnings, as hil.yaml's check does for its loop.
+    from dockhil import graph as graphmod
+    from dockhil import launchfile
+    from dockhil.scenecheck import scene_check
+    from tests.conftest import ROOT
+
+    def check(args):
+        return scene_check(graphmod.build(launchfile.load(ROOT / "launch" / "hil6.yaml", args)))
+
+    calm, growing = check({}), check({"delay": "0.064"})
+    assert calm["loop"]["rightmost_root_1_s"][0] < 0.0
+    assert not [w for w in calm["warnings"] if "unstable" in w]
+    root = growing["loop"]["rightmost_root_1_s"]
+    assert root[0] > 0.0 and growing["loop"]["rightmost_axis"] == "z"
+    assert [w for w in growing["warnings"] if w.startswith("the loop is unstable")] == [
+        f"the loop is unstable: linearised at the start, the delayed loop grows at {root[0]:+.4g} 1/s (rightmost root "
+        f"{root[0]:+.4g} {root[1]:+.4g}j, led by axis z); `dockhil stability multi --scene` on it gives the stable "
+        "stiffness"]
