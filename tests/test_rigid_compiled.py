@@ -113,3 +113,17 @@ def test_the_interface_geometry_equals_its_twin_bit_for_bit():
             velocity, spin = want.rates3(p1[2], p1[3], p2[2], p2[3])
             got = rigid.COMPILED.interface(b1._frames, b2._frames, *p1, *p2)
             assert got == (q1, q2, want.arm1, want.arm2, want.point, want.r, want.q_b, want.q_rel, want.d, velocity, spin)
+
+
+@compiled
+def test_rotation_vectors_and_jacobians_equal_their_twins_bit_for_bit():
+    from dockhil.contact import contact6
+
+    rng = random.Random(13)
+    quats = [_quat(rng) for _ in range(2000)] + [(0.0, 0.0, 0.0, 1.0), (1e-9, 0.0, 0.0, -1.0), (0.0, 0.0, 1.0, 0.0)]
+    for q in quats:
+        theta = rigid.COMPILED.rotvec3(q)
+        assert theta == rigid.rotvec3_python(q)
+        small = tuple(c * 1e-6 for c in theta)  # the series branch of J_l^-1 too
+        for t in (theta, small):
+            assert rigid.COMPILED.left_jacobian_inverse3(t) == contact6.left_jacobian_inverse3_python(t)

@@ -336,6 +336,60 @@ static PyObject *interface(PyObject *self, PyObject *const *args, Py_ssize_t nar
     return out;
 }
 
+/* The rotation vector of a unit quaternion (rigid.rotvec3_python). */
+static PyObject *rotvec3(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    double q[4];
+    if (nargs != 1) {
+        PyErr_SetString(PyExc_TypeError, "rotvec3(q) takes a quaternion");
+        return NULL;
+    }
+    if (seq_floats(args[0], q, 4, "a quaternion (x, y, z, w)"))
+        return NULL;
+    double x = q[0], y = q[1], z = q[2], w = q[3];
+    if (w < 0.0) {
+        x = -x; y = -y; z = -z; w = -w;
+    }
+    double s = sqrt(x * x + y * y + z * z);
+    double angle = 2.0 * atan2(s, w);
+    double scale = s < 1e-8 ? 2.0 / w * (1.0 + s * s / (3.0 * w * w)) : angle / s;
+    double out[3] = {scale * x, scale * y, scale * z};
+    return float_tuple(out, 3);
+}
+
+/* J_l(theta)^-1 as three rows (contact6.left_jacobian_inverse3_python). */
+static PyObject *left_jacobian_inverse3(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    double t[3];
+    if (nargs != 1) {
+        PyErr_SetString(PyExc_TypeError, "left_jacobian_inverse3(theta) takes a 3-vector");
+        return NULL;
+    }
+    if (seq_floats(args[0], t, 3, "a 3-vector"))
+        return NULL;
+    double x = t[0], y = t[1], z = t[2];
+    double sq = x * x + y * y + z * z;
+    double angle = sqrt(sq);
+    double c = angle < 1e-5 ? 1.0 / 12.0 + sq / 720.0 : 1.0 / sq - (1.0 + cos(angle)) / (2.0 * angle * sin(angle));
+    double hx = 0.5 * x, hy = 0.5 * y, hz = 0.5 * z;
+    double cxy = c * x * y, cxz = c * x * z, cyz = c * y * z;
+    double rows[3][3] = {{1.0 + c * (x * x - sq), hz + cxy, cxz - hy},
+                         {cxy - hz, 1.0 + c * (y * y - sq), hx + cyz},
+                         {hy + cxz, cyz - hx, 1.0 + c * (z * z - sq)}};
+    PyObject *out = PyTuple_New(3);
+    if (out == NULL)
+        return NULL;
+    for (int i = 0; i < 3; i++) {
+        PyObject *row = float_tuple(rows[i], 3);
+        if (row == NULL) {
+            Py_DECREF(out);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(out, i, row);
+    }
+    return out;
+}
+
 static PyMethodDef methods[] = {
     {"drift", (PyCFunction)(void (*)(void))drift, METH_FASTCALL,
      "drift(m, t): rigid.drift_python, compiled (the same bits)."},
@@ -345,6 +399,10 @@ static PyMethodDef methods[] = {
      "rotate(q, v): rigid.rotate_python, compiled (the same bits)."},
     {"rotate_back", (PyCFunction)(void (*)(void))rotate_back, METH_FASTCALL,
      "rotate_back(q, v): rigid.rotate_back_python, compiled (the same bits)."},
+    {"rotvec3", (PyCFunction)(void (*)(void))rotvec3, METH_FASTCALL,
+     "rotvec3(q): rigid.rotvec3_python, compiled (the same bits)."},
+    {"left_jacobian_inverse3", (PyCFunction)(void (*)(void))left_jacobian_inverse3, METH_FASTCALL,
+     "left_jacobian_inverse3(theta): contact6.left_jacobian_inverse3_python, compiled (the same bits)."},
     {"interface", (PyCFunction)(void (*)(void))interface, METH_FASTCALL,
      "interface(frames1, frames2, x1, q1, v1, w1, x2, q2, v2, w2): hybrid6.published_interface's arithmetic."},
     {"quat_multiply", (PyCFunction)(void (*)(void))quat_multiply, METH_FASTCALL,

@@ -64,8 +64,9 @@ def left_jacobian_inverse(theta) -> np.ndarray:
     return np.array(left_jacobian_inverse3(theta))
 
 
-def left_jacobian_inverse3(theta) -> tuple:
-    """`left_jacobian_inverse` as three rows of plain floats:
+def left_jacobian_inverse3_python(theta) -> tuple:
+    """`left_jacobian_inverse` as three rows of plain floats (`left_jacobian_inverse3` is it
+    compiled where built, rigid.COMPILED):
     1 - [theta]x / 2 + c [theta]x^2, and [theta]x^2 = theta theta^T - |theta|^2 1."""
     x, y, z = theta
     sq = x * x + y * y + z * z
@@ -533,3 +534,6 @@ def simulate_contact6(
         if until_exit and exit_time is not None:
             return rec.run(onset, exit_time, (m1.state(), m2.state()), np.array(wrench.anchor), n=i + 2)
     return rec.run(onset, exit_time, (m1.state(), m2.state()), np.array(wrench.anchor))
+
+
+left_jacobian_inverse3 = rigid.COMPILED.left_jacobian_inverse3 if rigid.COMPILED else left_jacobian_inverse3_python

@@ -115,8 +115,8 @@ def quat_to_rotvec(q) -> np.ndarray:
     return np.array(rotvec3(q))
 
 
-def rotvec3(q) -> tuple[float, float, float]:
-    """`quat_to_rotvec` as a tuple of floats."""
+def rotvec3_python(q) -> tuple[float, float, float]:
+    """`quat_to_rotvec` as a tuple of floats; `rotvec3` is it compiled where built."""
     x, y, z, w = q
     if w < 0.0:
         x, y, z, w = -x, -y, -z, -w
@@ -615,7 +615,8 @@ def held_step(m1: Motion, m2: Motion, w: HeldWrench, h: float, order: int = 4) -
 # --- compiled twins --------------------------------------------------------------------------
 
 def _compiled():
-    """dockhil/contact/_rigid.c: drift, kick, rotate, rotate_back and quat_multiply in C, the same
+    """dockhil/contact/_rigid.c: drift, kick, rotate, rotate_back, quat_multiply, rotvec3 (and
+    contact6's left_jacobian_inverse3, hybrid6's interface geometry) in C, the same
     IEEE operations in the same order as their *_python twins here (the same bits, several times
     faster); None where it was not built (no C compiler at install) or DOCKHIL_PURE_PYTHON is set,
     and the twins run."""
@@ -634,3 +635,4 @@ kick = COMPILED.kick if COMPILED else kick_python
 rotate = COMPILED.rotate if COMPILED else rotate_python
 rotate_back = COMPILED.rotate_back if COMPILED else rotate_back_python
 quat_multiply = COMPILED.quat_multiply if COMPILED else quat_multiply_python
+rotvec3 = COMPILED.rotvec3 if COMPILED else rotvec3_python
