@@ -130,57 +130,61 @@ def _bounds_check(cls: type):
     check. Compiled (dockhil/_screen.c) where built, else `python_screen`."""
     check = _SCREENS.get(cls)
     if check is None:
-        import msgspec.inspect as mi
+        from dockhil.compiled import twin
 
-        check = python_screen(cls)
-        compiled = _compiled_screen()
-        if compiled is not None:  # the same judgement in C (dockhil/_screen.c), several times faster
-            try:
-                check = functools.partial(compiled, _screen_spec(mi, mi.type_info(cls)))
-            except _Unscreened:
-                pass
+        compiled = twin("dockhil._screen")
+        try:
+            spec = _screen_spec(cls)
+        except _Unscreened:  # a type neither screen judges: every message of it gets the full check
+            check = _never
+        else:  # the same judgement in C (dockhil/_screen.c), several times faster, or its Python twin
+            check = functools.partial(compiled.screen, spec) if compiled else _python_screen(cls.__name__, spec)
         _SCREENS[cls] = check
     return check
 
 
 def python_screen(cls: type):
-    """`_bounds_check`'s screen of `cls` as a generated Python function (the compiled one's twin).
-    The floats are added up as they are read (each struct read once): a NaN or Inf anywhere makes
-    the sum non-finite; the types are compared a struct's fields at a time."""
+    """`_bounds_check`'s screen of `cls` as a generated Python function (the compiled one's twin)."""
+    try:
+        return _python_screen(cls.__name__, _screen_spec(cls))
+    except _Unscreened:
+        return _never
+
+
+def _never(m) -> bool:
+    return False
+
+
+def _screen_spec(cls: type) -> tuple:
+    """(cls, fields): what a screen judges of a message type, read once from its type; each field
+    (member, kind, ...), member its descriptor in cls (the C screen reads the slot through it),
+    kind 0 float and 1 int (with ge, gt, le, lt: a float or None each), 2 bool, 3 str, 4 struct (its
+    spec), 5 tuple and 6 list (an item's field, member None). _Unscreened for a type no screen
+    judges (a multiple_of, a constrained str, a type msgs do not use)."""
     import msgspec.inspect as mi
 
-    lines: list[str] = []
-    scope: dict[str, Any] = {}
-    try:
-        _screen_lines(mi, mi.type_info(cls), "m", lines, "        ", scope)
-    except _Unscreened:
-        lines = ["        return False"]
-    src = ("def check(m):\n    s = 0.0\n    try:\n" + "".join(f"{line}\n" for line in lines)
-           + "    except Exception:\n        return False\n    return s - s == 0\n")
-    exec(compile(src, f"<screen of {cls.__name__}>", "exec"), scope)  # noqa: S102 - built from the type
-    return scope["check"]
+    def struct(t) -> tuple:
+        return (t.cls, tuple(field(f.type, _member(t.cls, f.name)) for f in t.fields))
 
+    def field(t, member) -> tuple:
+        if isinstance(t, mi.Metadata):
+            t = t.type
+        kind = _LEAF_KINDS.get(type(t).__name__)
+        if kind in (0, 1):
+            if t.multiple_of is not None:
+                raise _Unscreened
+            return (member, kind, *(None if b is None else float(b) for b in (t.ge, t.gt, t.le, t.lt)))
+        if kind == 3 and (t.min_length or t.max_length is not None or t.pattern):
+            raise _Unscreened
+        if kind is not None:
+            return (member, kind)
+        if isinstance(t, mi.StructType):
+            return (member, 4, struct(t))
+        if isinstance(t, (mi.ListType, mi.VarTupleType)):
+            return (member, 5 if isinstance(t, mi.VarTupleType) else 6, field(t.item_type, None))
+        raise _Unscreened
 
-def _compiled_screen():
-    """dockhil._screen.screen, or None where it was not built or DOCKHIL_PURE_PYTHON is set (the
-    generated Python screen then runs)."""
-    if os.environ.get("DOCKHIL_PURE_PYTHON"):
-        return None
-    try:
-        from dockhil._screen import screen
-    except ImportError:
-        return None
-    return screen
-
-
-_SPEC_KINDS = {"FloatType": 0, "IntType": 1, "BoolType": 2, "StrType": 3}
-
-
-def _screen_spec(mi, t) -> tuple:
-    """(cls, fields) of a struct type for dockhil/_screen.c (the kinds and bounds it reads are
-    described there; a field is named by its member descriptor, whose slot it reads); _Unscreened
-    where the Python screen would not judge either."""
-    return (t.cls, tuple(_field_spec(mi, f.type, _member(t.cls, f.name)) for f in t.fields))
+    return struct(mi.type_info(cls))
 
 
 def _member(cls: type, name: str):
@@ -190,78 +194,66 @@ def _member(cls: type, name: str):
     raise _Unscreened
 
 
-def _field_spec(mi, t, name) -> tuple:
-    if isinstance(t, mi.Metadata):
-        t = t.type
-    kind = _SPEC_KINDS.get(type(t).__name__)
-    if kind in (0, 1):
-        if t.multiple_of is not None:
-            raise _Unscreened
-        return (name, kind, *(None if b is None else float(b) for b in (t.ge, t.gt, t.le, t.lt)))
-    if kind == 3 and (t.min_length or t.max_length is not None or t.pattern):
-        raise _Unscreened
-    if kind is not None:
-        return (name, kind)
-    if isinstance(t, mi.StructType):
-        return (name, 4, _screen_spec(mi, t))
-    if isinstance(t, (mi.ListType, mi.VarTupleType)):
-        return (name, 5 if isinstance(t, mi.VarTupleType) else 6, _field_spec(mi, t.item_type, None))
-    raise _Unscreened
+# A leaf's kind in a screen's spec, and the Python type its value has where its decoding would
+# accept it without conversion (the kind indexes _LEAF_TYPES).
+_LEAF_KINDS = {"FloatType": 0, "IntType": 1, "BoolType": 2, "StrType": 3}
+_LEAF_TYPES = (float, int, bool, str)
 
 
-# The Python type a field's value has where its decoding would accept it without conversion.
-_LEAF_TYPES = {"FloatType": float, "IntType": int, "BoolType": bool, "StrType": str}
+def _python_screen(name: str, spec: tuple):
+    """A screen's spec written out as a Python function. The floats are added up as they are read
+    (each struct read once): a NaN or Inf anywhere makes the sum non-finite; the types are compared
+    a struct's fields at a time."""
+    lines: list[str] = []
+    scope: dict[str, Any] = {}
+    _screen_lines((None, 4, spec), "m", lines, "        ", scope)
+    src = ("def check(m):\n    s = 0.0\n    try:\n" + "".join(f"{line}\n" for line in lines)
+           + "    except Exception:\n        return False\n    return s - s == 0\n")
+    exec(compile(src, f"<screen of {name}>", "exec"), scope)  # noqa: S102 - built from the type
+    return scope["check"]
 
 
-def _screen_lines(mi, t, var: str, lines: list[str], indent: str, scope: dict) -> None:
+def _screen_lines(field: tuple, var: str, lines: list[str], indent: str, scope: dict) -> None:
     """Statements that return False when a value under `var` is out of its bounds or not of its
     field's type, and add its floats to the sum s."""
     leaves: dict[type, list[str]] = {}
-    _screen_fields(mi, t, var, lines, indent, scope, leaves)
+    _screen_field(field, var, lines, indent, scope, leaves)
     for kind, names in leaves.items():  # builtins: float, int, bool, str
         lines.append(f"{indent}if not ({' is '.join(f'type({n})' for n in names)} is {kind.__name__}): return False")
     if leaves.get(float):
         lines.append(f"{indent}s += {' + '.join(leaves[float])}")
 
 
-def _screen_fields(mi, t, var, lines, indent, scope, leaves) -> None:
-    if isinstance(t, mi.Metadata):
-        t = t.type
-    kind = _LEAF_TYPES.get(type(t).__name__)
-    if kind is not None:
-        if isinstance(t, (mi.FloatType, mi.IntType)):
-            if t.multiple_of is not None:
-                raise _Unscreened
-            conds = [f"{var} {op} {bound!r}" for op, bound in ((">=", t.ge), (">", t.gt), ("<=", t.le), ("<", t.lt))
-                     if bound is not None and abs(bound) != _MAX_FLOAT]
-            if conds:  # a NaN fails a bound too
-                lines.append(f"{indent}if not ({' and '.join(conds)}): return False")
-        elif isinstance(t, mi.StrType) and (t.min_length or t.max_length is not None or t.pattern):
-            raise _Unscreened
-        leaves.setdefault(kind, []).append(var)
-    elif isinstance(t, mi.StructType):
+def _screen_field(field: tuple, var: str, lines: list[str], indent: str, scope: dict, leaves: dict) -> None:
+    kind = field[1]
+    if kind < 4:
+        conds = [f"{var} {op} {bound!r}" for op, bound in zip((">=", ">", "<=", "<"), field[2:])
+                 if bound is not None and abs(bound) != _MAX_FLOAT]
+        if conds:  # a NaN fails a bound too
+            lines.append(f"{indent}if not ({' and '.join(conds)}): return False")
+        leaves.setdefault(_LEAF_TYPES[kind], []).append(var)
+    elif kind == 4:
+        cls, fields = field[2]
         if "." in var or var.startswith("_i"):  # a nested struct (or a tuple's item): its type checked
             cls_name = f"_T{len(scope)}"
-            scope[cls_name] = t.cls
+            scope[cls_name] = cls
             if "." in var:  # read once into a local, not once per field below it
                 local = f"_s{len(scope)}"
                 scope[local] = None
                 lines.append(f"{indent}{local} = {var}")
                 var = local
             lines.append(f"{indent}if type({var}) is not {cls_name}: return False")
-        for field_ in t.fields:
-            _screen_fields(mi, field_.type, f"{var}.{field_.name}", lines, indent, scope, leaves)
-    elif isinstance(t, (mi.ListType, mi.VarTupleType)):
+        for f in fields:
+            _screen_field(f, f"{var}.{f[0].__name__}", lines, indent, scope, leaves)
+    else:  # a tuple or a list of items
         item = f"_i{len(scope)}"
         scope[item] = None
         body: list[str] = []
-        _screen_lines(mi, t.item_type, item, body, indent + "    ", scope)
-        lines.append(f"{indent}if type({var}) is not {'tuple' if isinstance(t, mi.VarTupleType) else 'list'}: return False")
+        _screen_lines(field[2], item, body, indent + "    ", scope)
+        lines.append(f"{indent}if type({var}) is not {'tuple' if kind == 5 else 'list'}: return False")
         if body:
             lines.append(f"{indent}for {item} in {var}:")
             lines.extend(body)
-    else:  # a type the screen does not know (none in msgs today): every message of it gets the full check
-        raise _Unscreened
 
 
 def check_outputs(name: str, declared: dict, k: int, outs: dict, sim: bool) -> None:

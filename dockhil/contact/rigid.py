@@ -40,11 +40,11 @@ with one free flight a composition instead of two.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from dockhil.compiled import twin
 from dockhil.contact.scenario import ContactModelError, StepTooLargeError, check_positive
 
 UNIT_TOLERANCE = 1e-9  # |q| may differ from 1 by this much in a parameter
@@ -614,22 +614,10 @@ def held_step(m1: Motion, m2: Motion, w: HeldWrench, h: float, order: int = 4) -
 
 # --- compiled twins --------------------------------------------------------------------------
 
-def _compiled():
-    """dockhil/contact/_rigid.c: drift, kick, rotate, rotate_back, quat_multiply, rotvec3 (and
-    contact6's left_jacobian_inverse3, hybrid6's interface geometry) in C, the same
-    IEEE operations in the same order as their *_python twins here (the same bits, several times
-    faster); None where it was not built (no C compiler at install) or DOCKHIL_PURE_PYTHON is set,
-    and the twins run."""
-    if os.environ.get("DOCKHIL_PURE_PYTHON"):
-        return None
-    try:
-        from dockhil.contact import _rigid
-    except ImportError:
-        return None
-    return _rigid
-
-
-COMPILED = _compiled()
+# dockhil/contact/_rigid.c: drift, kick, rotate, rotate_back, quat_multiply, rotvec3 (and contact6's
+# left_jacobian_inverse3, hybrid6's interface geometry) in C, the same IEEE operations in the same
+# order as their *_python twins here; None where not built (dockhil.compiled.twin).
+COMPILED = twin("dockhil.contact._rigid")
 drift = COMPILED.drift if COMPILED else drift_python
 kick = COMPILED.kick if COMPILED else kick_python
 rotate = COMPILED.rotate if COMPILED else rotate_python
