@@ -15,28 +15,6 @@
 
 static PyObject *s_x, *s_v, *s_q, *s_L, *s_body, *s_moments, *s_mass;
 
-/* n floats of a tuple attribute into out; -1 with a Python error if it is not one. */
-static int read_floats(PyObject *obj, PyObject *name, double *out, Py_ssize_t n)
-{
-    PyObject *t = PyObject_GetAttr(obj, name);
-    if (t == NULL)
-        return -1;
-    if (!PyTuple_Check(t) || PyTuple_GET_SIZE(t) != n) {
-        PyErr_Format(PyExc_TypeError, "drift: %U must be a tuple of %zd floats", name, n);
-        Py_DECREF(t);
-        return -1;
-    }
-    for (Py_ssize_t i = 0; i < n; i++) {
-        out[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(t, i));
-        if (out[i] == -1.0 && PyErr_Occurred()) {
-            Py_DECREF(t);
-            return -1;
-        }
-    }
-    Py_DECREF(t);
-    return 0;
-}
-
 /* n floats of any sequence (a tuple, a list, an array) into out, as the Python twins unpack it. */
 static int seq_floats(PyObject *seq, double *out, Py_ssize_t n, const char *what)
 {
@@ -58,6 +36,17 @@ static int seq_floats(PyObject *seq, double *out, Py_ssize_t n, const char *what
     }
     Py_DECREF(fast);
     return 0;
+}
+
+/* n floats of an attribute of obj (a Motion's x, v, q or L, a body's moments) into out. */
+static int read_floats(PyObject *obj, PyObject *name, double *out, Py_ssize_t n)
+{
+    PyObject *t = PyObject_GetAttr(obj, name);
+    if (t == NULL)
+        return -1;
+    int r = seq_floats(t, out, n, PyUnicode_AsUTF8(name));
+    Py_DECREF(t);
+    return r;
 }
 
 static PyObject *float_tuple(const double *v, Py_ssize_t n)
