@@ -427,16 +427,28 @@ def test_the_shipped_fig7_campaign_brackets_the_boundary_at_every_point():
             assert len(below) >= 2 and len(above) >= 2, (b, h, k_max)
 
 
+def one_row(scene: Path, args: dict, duration: float) -> dict:
+    """The row of one run of `scene` with `args`, as a campaign's worker makes it."""
+    return sweep.run_one({"run": 0, "sample": 0, "args": args, "args_hash": "h", "scene": str(scene),
+                          "duration": duration, "bag": None, "outputs": None})
+
+
+def hil_with(tmp_path: Path, node: str) -> Path:
+    """launch/hil.yaml with one more node (its YAML, as a list entry of `nodes:`)."""
+    return write(tmp_path, f"""
+        rate: 1000
+        include:
+          - file: {ROOT / "launch" / "hil.yaml"}
+        nodes:
+          {node}
+        """, "scene.yaml")
+
+
 def test_a_rows_warnings_carry_what_its_nodes_warned():
     """A row has no log: a node's warning (here the virtual impedance's negative virtual
     stiffness, kcs below the passive k) lands in the row's warnings column, and a row whose
     nodes said nothing has none."""
-    def row(kcs: str) -> dict:
-        return sweep.run_one({"run": 0, "sample": 0, "args": {"kcs": kcs}, "args_hash": "h",
-                              "scene": str(ROOT / "launch" / "hil.yaml"), "duration": 0.05, "bag": None,
-                              "outputs": None})
-
-    soft, stiff = row("500"), row("3000")
+    soft, stiff = (one_row(ROOT / "launch" / "hil.yaml", {"kcs": kcs}, 0.05) for kcs in ("500", "3000"))
     assert soft["status"] == "ok" and stiff["status"] == "ok"
     assert soft["warnings"].startswith("impedance: kcs = 500 N/m is below the passive stiffness k = 1000 N/m")
     assert stiff["warnings"] is None
@@ -453,16 +465,7 @@ class LogsAnError(Node):
 
 
 def test_a_rows_warnings_carry_its_nodes_error_lines_too(tmp_path):
-    scene = write(tmp_path, f"""
-        rate: 1000
-        include:
-          - file: {ROOT / "launch" / "hil.yaml"}
-        nodes:
-          - name: talker
-            node: tests.test_sweep:LogsAnError
-        """, "scene.yaml")
-    row = sweep.run_one({"run": 0, "sample": 0, "args": {}, "args_hash": "h", "scene": str(scene),
-                         "duration": 0.01, "bag": None, "outputs": None})
+    row = one_row(hil_with(tmp_path, "- {name: talker, node: 'tests.test_sweep:LogsAnError'}"), {}, 0.01)
     assert row["status"] == "ok"
     assert row["warnings"] == "talker: error: lost its sensor"
 
@@ -471,26 +474,12 @@ def test_a_node_s_nan_is_its_own_failure_and_a_diverging_loop_is_labelled_diverg
     """A NaN a node produces while the bodies are where docking hardware can be is that node's
     failure: the row carries its line. The loop diverging shows as a NaN or Inf too, once the
     bodies have left that range: that row says diverged, and where the bodies were."""
-    scene = write(tmp_path, f"""
-        rate: 1000
-        include:
-          - file: {ROOT / "launch" / "hil.yaml"}
-        nodes:
-          - name: nan
-            node: tests.faultnodes:NanAt
-            params: {{at: 5}}
-        """, "scene.yaml")
-
-    def row(scene, args) -> dict:
-        return sweep.run_one({"run": 0, "sample": 0, "args": args, "args_hash": "h", "scene": str(scene),
-                              "duration": 0.1, "bag": None, "outputs": None})
-
-    node = row(scene, {})
+    node = one_row(hil_with(tmp_path, "- {name: nan, node: 'tests.faultnodes:NanAt', params: {at: 5}}"), {}, 0.1)
     assert node["status"] == "failed"
     assert node["error"] == ("node 'nan' produced an invalid message at tick 5 on output 'x' (/x): WrenchStamped: "
                              "NaN or Inf refused (physical fields must be finite) - at `$.wrench.force.x`; "
                              "stopping the graph")
-    diverged = row(ROOT / "launch" / "hil.yaml", {"k": 1e15})  # a virtual stiffness of -1e18 N/m
+    diverged = one_row(ROOT / "launch" / "hil.yaml", {"k": 1e15}, 0.1)  # a virtual stiffness of -1e18 N/m
     assert diverged["status"] == "failed"
     head, line = diverged["error"].split("): ", 1)
     assert head.startswith("diverged (at tick ") and "beyond the 1e+06 m of docking hardware" in head
