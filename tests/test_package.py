@@ -7,6 +7,7 @@ from __future__ import annotations
 import ast
 import os
 import re
+import site
 import subprocess
 import sys
 import textwrap
@@ -29,6 +30,18 @@ def source_version() -> str:
     tree = ast.parse((REPO / "dockhil" / "__init__.py").read_text())
     return next(n.value.value for n in tree.body if isinstance(n, ast.Assign)
                 and [t.id for t in n.targets] == ["__version__"])
+
+
+def see_this_environment(py: Path) -> None:
+    """Lets the venv of `py` import what this test's environment has (pip, msgspec, ...).
+
+    A venv made from inside another venv is based on the base interpreter, so its
+    --system-site-packages are the base's, not this environment's. A plain path in a .pth file
+    adds a directory without running its own .pth files: an editable dockhil installed here
+    stays out of sight, and the venv's own site-packages (the wheel) come first."""
+    site_dir = subprocess.run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                              capture_output=True, text=True, check=True, timeout=60).stdout.strip()
+    Path(site_dir, "outer_environment.pth").write_text("\n".join(site.getsitepackages()) + "\n")
 
 
 def clean_env(**extra) -> dict:
@@ -242,6 +255,7 @@ def test_the_wheel_installs_into_a_fresh_venv_and_runs_from_another_directory(tm
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", "--system-site-packages", str(venv)], check=True,
                    timeout=120)
     py, exe = venv / "bin" / "python", venv / "bin" / "dockhil"
+    see_this_environment(py)
     subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-deps", str(wheel)], check=True, timeout=300,
                    env=clean_env())
     elsewhere = tmp_path / "elsewhere"
