@@ -62,19 +62,23 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+def parse(argv: list[str]) -> tuple[argparse.ArgumentParser, argparse.Namespace]:
+    """The parser and the parsed command line; ROS 2 style `name:=value` may stand anywhere."""
     # Find the subcommand first so that only its module is imported.
     only = next((a for a in argv if not a.startswith("-")), None)
     if only is not None and only not in COMMANDS:
         only = None
     parser = build_parser(only)
     args, unknown = parser.parse_known_args(argv)
-    # ROS 2 style `name:=value` may come after options: gather them wherever they stand.
     if unknown and hasattr(args, "overrides") and all(":=" in u and not u.startswith("-") for u in unknown):
         args.overrides = list(args.overrides or []) + unknown
     elif unknown:
         parser.error(f"unrecognized arguments: {' '.join(unknown)}")
+    return parser, args
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser, args = parse(sys.argv[1:] if argv is None else argv)
     if args.command is None:
         parser.print_help()
         return 0

@@ -16,7 +16,7 @@ from dockhil.errors import DockhilError
 
 def add_arguments(p) -> None:
     p.add_argument("node", help="node type (see 'dockhil node types') or module:Class")
-    p.add_argument("params", nargs="*", metavar="param:=value", help="node parameters")
+    p.add_argument("overrides", nargs="*", metavar="param:=value", help="node parameters (anywhere on the line)")
     p.add_argument("--name", type=node_name, help="node name (default: the type name)")
     p.add_argument("-r", "--remap", action="append", default=[], metavar="FROM:=TO",
                    help="remap a port or topic to a topic (repeatable)")
@@ -39,7 +39,7 @@ def run(args) -> int:
     from dockhil.transport import GraphKeys, ipc_endpoint, new_run_dir
 
     name = args.name or args.node.rsplit(":", 1)[-1]
-    params = {k: boundedyaml.load(v, f"parameter {k}:={v}")[0] for k, v in parse_overrides(args.params).items()}
+    params = {k: boundedyaml.load(v, f"parameter {k}:={v}")[0] for k, v in parse_overrides(args.overrides).items()}
     type_name, cls, params = nodes.resolve(args.node, name, params)  # dof:=6 picks the 6-DOF type
     remap = parse_overrides(args.remap)
     ins, outs = cls.ports(params)
