@@ -50,15 +50,10 @@ class FtSensorEmulator(Node):
         self._pty_bus = None
         self._can_bus = None
         if p.interface == "pty":
-            from dockhil.hardware.device_path import private_link, untrusted
+            from dockhil.hardware.device_path import private_link
             from dockhil.hardware.slcan_pty import CanFrame, PtyCanBus
 
             p.channel = p.channel or private_link("ft.slcan")
-            # The driver refuses a link others could replace; say so here, where the link is made.
-            why = untrusted(p.channel)
-            if why:
-                raise DeviceError(f"F/T sensor emulator: refused to make its slcan adapter at {p.channel}: {why}; "
-                                  f"give it a path in a directory only you can write (or leave channel empty)")
             self._frame = CanFrame
             try:  # PtyCanBus claims the link: one graph per adapter path
                 self._pty_bus = PtyCanBus([p.channel]).start()

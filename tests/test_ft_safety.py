@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import stat
+import subprocess
 import sys
 import threading
 import time
@@ -244,14 +245,18 @@ def test_a_planted_channel_is_refused_before_a_sample_is_read(tmp_path):
         port.close()
 
 
-def test_a_channel_in_a_directory_anyone_may_write_is_refused_and_the_emulator_will_not_make_it(tmp_path):
+def test_a_channel_in_a_directory_anyone_may_write_is_refused_and_no_adapter_is_made_there(tmp_path):
     open_dir = shared_dir(tmp_path / "open", 0o777)
     link = str(open_dir / "ft.slcan")
     em = FtSensorEmulator(ctx([]), channel=link)
-    with pytest.raises(DeviceError, match=rf"^F/T sensor emulator: refused to make its slcan adapter at {link}: "
-                                          rf"directory {open_dir} \(mode 0777\) is writable by others"):
+    with pytest.raises(DeviceError, match=rf"^slcan adapter {link}: refused: directory {open_dir} \(mode 0777\) "
+                                          rf"is writable by others"):
         em.setup()
     assert not os.path.lexists(link)
+    proc = subprocess.run([sys.executable, "-m", "dockhil.hardware.slcan_pty", link], cwd=ROOT, env=ENV,
+                          capture_output=True, text=True, timeout=30)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1
+    assert proc.stderr.startswith(f"slcan_pty: error: slcan adapter {link}: refused: directory {open_dir}")
     node = FtCanDriver(ctx([]), channel=link, open_timeout=0.5)
     with pytest.raises(DeviceError, match=r"refused: directory .* writable by others without the sticky bit"):
         node.setup()
@@ -306,8 +311,6 @@ def test_every_parameter_out_of_its_range_is_refused(node, name, value):
 
 
 def test_a_node_process_with_a_parameter_out_of_range_exits_2_in_one_line():
-    import subprocess
-
     spec = {"name": "ft", "type_name": "ft_can", "dt": 0.001, "clock": "wall", "params": {"bitrate": 2_000_000}}
     proc = subprocess.run([sys.executable, "-m", "dockhil.process", json.dumps(spec)], cwd=ROOT, env=ENV,
                           capture_output=True, text=True, timeout=30)
