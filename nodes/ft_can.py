@@ -4,7 +4,10 @@ The frame layout is in dockhil/hardware/ft_frames.py. The stale-data
 watchdog runs on the runtime's clock (tick.t), never on time.*. python-can is imported
 in setup(), so a scene that does not use this driver never loads it.
 One graph per adapter: setup claims the interface and channel (a lock file
-naming the owner) before it opens anything; close() lets go.
+naming the owner) before it opens anything; close() lets go. A serial channel
+another user could plant or replace is refused before a sample is read
+(dockhil/hardware/device_path.py), and a restart within the graph keeps the
+graph's first tare (dockhil/hardware/tare.py): it may come back in contact.
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ def one_line(exc: BaseException) -> str:
 
 
 class FtCanDriver(Node):
-    """F/T sensor over CAN: tare at start, stale-data and bus-error detection."""
+    """F/T sensor over CAN: tare at the graph's first start, stale-data and bus-error detection."""
 
     outputs = {"wrench": Output(WrenchStamped, "/ft/wrench", help="wrench the contact exerts on the chaser")}
     params = {
