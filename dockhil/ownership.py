@@ -29,6 +29,14 @@ def set_graph(run_id: str) -> None:
     _graph = run_id
 
 
+def graph_dir():
+    """This graph's private run directory (0700, owner checked; the launcher removes it when the graph
+    ends), where a node keeps what must outlive its own restarts; None outside a graph."""
+    from dockhil.transport import private_dir, runtime_dir
+
+    return private_dir(runtime_dir() / _graph, "run directory") if _graph else None
+
+
 def owner() -> str:
     """Who claims a device from this process: the graph's run id, pid and host."""
     where = f"pid {os.getpid()} on {socket.gethostname()}"

@@ -4,18 +4,22 @@ The frame layout is in dockhil/hardware/ft_frames.py. The stale-data
 watchdog runs on the runtime's clock (tick.t), never on time.*. python-can is imported
 in setup(), so a scene that does not use this driver never loads it.
 One graph per adapter: setup claims the interface and channel (a lock file
-naming the owner) before it opens anything; close() lets go.
+naming the owner) before it opens anything; close() lets go. A serial channel
+another user could plant or replace is refused before a sample is read
+(dockhil/hardware/device_path.py), and a restart within the graph keeps the
+graph's first tare (dockhil/hardware/tare.py): it may come back in contact.
 """
 
 from __future__ import annotations
 
-import math
 import os
 import time
 
 from dockhil import ownership
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import ft_frames as ff
+from dockhil.hardware import tare
+from dockhil.hardware.device_path import private_link, untrusted
 from dockhil.node import Node, Output, Param
 from dockhil.msgs import Vector3, Wrench, WrenchStamped
 
@@ -33,29 +37,37 @@ def one_line(exc: BaseException) -> str:
 
 
 class FtCanDriver(Node):
-    """F/T sensor over CAN: tare at start, stale-data and bus-error detection."""
+    """F/T sensor over CAN: tare at the graph's first start, stale-data and bus-error detection."""
 
     outputs = {"wrench": Output(WrenchStamped, "/ft/wrench", help="wrench the contact exerts on the chaser")}
     params = {
         "interface": Param(str, "slcan", help="python-can interface: slcan, socketcan, pcan, virtual, ..."),
-        "channel": Param(str, "/tmp/dockhil-ft.slcan", help="python-can channel: serial port, can0, ..."),
-        "bitrate": Param(int, 1_000_000, unit="bit/s", help="CAN bitrate", gt=0),
+        "channel": Param(str, "", help="python-can channel: serial port, can0, ... (slcan, empty: the emulator's "
+                         "link ft.slcan in the graph's private run directory)"),
+        "bitrate": Param(int, 1_000_000, unit="bit/s", help="CAN bitrate", gt=0, le=1_000_000),
         **ff.frame_params(),
         "sign": Param(float, 1.0, help="-1 if the sensor reports the force on the target side", choices=(1.0, -1.0)),
-        "tare_samples": Param(int, 100, help="samples averaged into the bias at start (0: no tare); "
-                              "nothing may touch the probe meanwhile", ge=0),
-        # A tare takes whatever loads the probe at start for the sensor's offset, and every force limit
-        # downstream would then miss it: a bias this large means the probe is pressed, not offset.
+        "tare_samples": Param(int, 100, help="samples averaged into the bias at the graph's first start (0: no "
+                              "tare); nothing may touch the probe meanwhile. A restart keeps the first tare",
+                              ge=0, le=100_000),
+        # A tare takes whatever loads the probe at start for the sensor's offset, and every force limit downstream
+        # would then miss it: a large bias means the probe is pressed, a large spread that it moved while taring.
         "max_bias": Param(float, 50.0, unit="N", help="largest tare bias |F| accepted; more means something "
-                          "loads the probe at start (raise it for a heavy tool; 0: off)", ge=0.0),
-        "max_bias_torque": Param(float, 5.0, unit="N m", help="largest tare bias |T| accepted (0: off)", ge=0.0),
-        "stale_timeout": Param(float, 0.1, unit="s", help="no new sample for this long is an error", gt=0.0),
+                          "loads the probe at start (raise it for a heavy tool; 0: off)", ge=0.0, le=10_000.0),
+        "max_bias_torque": Param(float, 5.0, unit="N m", help="largest tare bias |T| accepted (0: off)",
+                                 ge=0.0, le=1_000.0),
+        "max_tare_spread": Param(float, 2.0, unit="N", help="largest standard deviation of a force axis over the "
+                                 "tare samples (the noise band); more means the probe moved or was touched while "
+                                 "taring (0: off)", ge=0.0, le=1_000.0),
+        "max_tare_spread_torque": Param(float, 0.2, unit="N m", help="largest standard deviation of a torque axis "
+                                        "over the tare samples (0: off)", ge=0.0, le=100.0),
+        "stale_timeout": Param(float, 0.1, unit="s", help="no new sample for this long is an error", gt=0.0, le=10.0),
         "open_timeout": Param(float, 2.0, unit="s", help="time for the device to appear and start streaming",
-                              gt=0.0),
+                              gt=0.0, le=120.0),
         "max_bus_errors": Param(int, 10, help="error frames in a row without a valid sample that are an error",
-                                ge=1),
+                                ge=1, le=100_000),
         "open_delay": Param(float, 0.0, unit="s", help="slcan only: wait after opening the serial port "
-                            "(adapters that reset on open need ~2 s)", ge=0.0),
+                            "(adapters that reset on open need ~2 s)", ge=0.0, le=30.0),
         "frame": Param(str, "", help="header frame id of the published wrench"),
     }
 
@@ -68,6 +80,10 @@ class FtCanDriver(Node):
         import can  # here, not at module import: only scenes with this driver load python-can
 
         self._can = can
+        if not p.channel and p.interface == "slcan":
+            p.channel = private_link("ft.slcan")
+        # A path others could plant or replace would feed us their forces: checked before and after each open.
+        self._path = p.channel.split("@")[0] if p.interface == "slcan" or "/" in p.channel else None
         self.device = f"F/T sensor ({p.interface} {p.channel}, CAN ID {p.can_id:#05x})"
         self.scaling = ff.FtScaling(p.force_resolution, p.torque_resolution)
         self.assembler = ff.SampleAssembler()
@@ -114,10 +130,11 @@ class FtCanDriver(Node):
             # Non-blocking serial reads: recv(0) must not wait a serial timeout per step.
             kwargs = {"sleep_after_open": p.open_delay, "timeout": 0.0}
         while True:
+            self._check_path()
             try:
                 # No ID filters: several interfaces filter error frames with them,
                 # and foreign frames cost only a comparison in decode_frame.
-                return can.Bus(interface=p.interface, channel=p.channel, bitrate=p.bitrate, **kwargs)
+                bus = can.Bus(interface=p.interface, channel=p.channel, bitrate=p.bitrate, **kwargs)
             except (can.CanInterfaceNotImplementedError, ValueError, TypeError) as exc:
                 raise DeviceError(f"{self.device}: cannot open: {one_line(exc)}") from None
             except (can.CanError, OSError) as exc:
@@ -125,6 +142,20 @@ class FtCanDriver(Node):
                 if time.monotonic() >= deadline:
                     raise DeviceError(f"{self.device}: cannot open: {one_line(exc)}") from None
                 time.sleep(0.05)
+                continue
+            try:  # planted between the check and the open: refused before a sample is read
+                self._check_path()
+            except BaseException:
+                bus.shutdown()
+                raise
+            return bus
+
+    def _check_path(self) -> None:
+        why = untrusted(self._path) if self._path else None
+        if why:
+            raise DeviceError(f"{self.device}: refused: {why}; whoever can plant or replace it feeds this driver "
+                              f"its forces: use a device in /dev, or a path in a directory only you can write "
+                              f"(leave channel empty for the emulator's link in the graph's private run directory)")
 
     def _read_samples(self) -> list[ff.FtSample]:
         """New samples on the bus, oldest first; raises DeviceError on bus and sensor faults."""
@@ -176,11 +207,43 @@ class FtCanDriver(Node):
         return samples
 
     def _tare(self) -> None:
+        """Tare at the graph's first start; a restart keeps that tare (it may come back in contact)."""
         p = self.p
-        first_deadline = time.monotonic() + p.open_timeout
+        store = tare.graph_store(self.ctx.name) if p.tare_samples else None
+        try:
+            first = store.load() if store else None
+        except DeviceError as exc:
+            raise DeviceError(f"{self.device}: {exc}") from None
+        want = p.tare_samples if p.tare_samples and first is None else 1  # 1: the sensor streams
+        got = self._first_samples(want)
+        if first is not None:
+            self.bias_force, self.bias_torque = first.force, first.torque
+            now = tare.measure([(s.force, s.torque) for s in got])
+            off = tare.norm([a - b for a, b in zip(now.force, first.force)])
+            self.log(f"{self.device}: restarted: kept the graph's first tare, bias force {_fmt(first.force)} N, "
+                     f"torque {_fmt(first.torque)} N m (the probe reads {off:.2f} N from it now)")
+            return
+        if not p.tare_samples:
+            return
+        bias = tare.measure([(s.force, s.torque) for s in got])
+        limits = tare.TareLimits(p.max_bias, p.max_bias_torque, p.max_tare_spread, p.max_tare_spread_torque)
+        why = tare.refusal(bias, limits)
+        if why:
+            raise DeviceError(f"{self.device}: tare: {why}")
+        if store is not None:
+            try:
+                store.save(bias)
+            except OSError as exc:
+                raise DeviceError(f"{self.device}: cannot keep the tare in {store.path}: {exc.strerror}") from None
+        self.bias_force, self.bias_torque = bias.force, bias.torque
+        self.log(f"{self.device}: tared over {bias.samples} samples: bias force {_fmt(bias.force)} N, "
+                 f"torque {_fmt(bias.torque)} N m")
+
+    def _first_samples(self, want: int) -> list[ff.FtSample]:
+        """The first `want` samples the sensor streams, within open_timeout (each budget)."""
+        p = self.p
         got: list[ff.FtSample] = []
-        want = max(1, p.tare_samples)
-        deadline = first_deadline
+        deadline = time.monotonic() + p.open_timeout
         while len(got) < want:
             new = self._read_samples()
             if new and not got:
@@ -199,21 +262,7 @@ class FtCanDriver(Node):
                     f"{self.device}: only {len(got)} of {want} tare samples within {p.open_timeout:g} s"
                 )
             time.sleep(0.0005)
-        if p.tare_samples:
-            got = got[:want]
-            n = len(got)
-            self.bias_force = tuple(sum(s.force[i] for s in got) / n for i in range(3))
-            self.bias_torque = tuple(sum(s.torque[i] for s in got) / n for i in range(3))
-            f, t = math.sqrt(sum(v * v for v in self.bias_force)), math.sqrt(sum(v * v for v in self.bias_torque))
-            for value, bound, what in ((f, p.max_bias, f"bias force |F| = {f:.1f} N > max_bias {p.max_bias:g} N"),
-                                       (t, p.max_bias_torque, f"bias torque |T| = {t:.2f} N m > max_bias_torque "
-                                                              f"{p.max_bias_torque:g} N m")):
-                if bound and value > bound:
-                    raise DeviceError(f"{self.device}: tare: {what}: something loads the probe (taring it away would "
-                                      f"hide that force from every limit); free the probe and start again, or raise "
-                                      f"the bound for a heavy tool")
-            self.log(f"{self.device}: tared over {n} samples: bias force {_fmt(self.bias_force)} N, "
-                     f"torque {_fmt(self.bias_torque)} N m")
+        return got[:want]
 
     def step(self, tick, inputs):
         samples = self._read_samples()

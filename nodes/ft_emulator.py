@@ -27,14 +27,18 @@ class FtSensorEmulator(Node):
     params = {
         "interface": Param(str, "pty", help="pty: be an slcan adapter on a pseudo-terminal; "
                            "else a python-can interface to send through"),
-        "channel": Param(str, "/tmp/dockhil-ft.slcan", help="pty: symlink to create; else the python-can channel"),
-        "bitrate": Param(int, 1_000_000, unit="bit/s", help="CAN bitrate (python-can interfaces)", gt=0),
+        "channel": Param(str, "", help="pty: symlink to create (empty: ft.slcan in the graph's private run "
+                         "directory, the driver's default); else the python-can channel"),
+        "bitrate": Param(int, 1_000_000, unit="bit/s", help="CAN bitrate (python-can interfaces)", gt=0,
+                         le=1_000_000),
         **ff.frame_params(),
-        "k": Param(float, 1000.0, unit="N/m", help="stiffness of the passive compliance", ge=0.0),
-        "noise": Param(float, 0.0, unit="N", help="standard deviation of force noise, each axis", ge=0.0),
-        "torque_noise": Param(float, 0.0, unit="N m", help="standard deviation of torque noise, each axis", ge=0.0),
-        "bias": Param(float, 0.0, unit="N", help="constant offset on Fx (the driver's tare removes it)"),
-        "seed": Param(int, 0, help="noise seed"),
+        "k": Param(float, 1000.0, unit="N/m", help="stiffness of the passive compliance", ge=0.0, le=1e8),
+        "noise": Param(float, 0.0, unit="N", help="standard deviation of force noise, each axis", ge=0.0, le=1_000.0),
+        "torque_noise": Param(float, 0.0, unit="N m", help="standard deviation of torque noise, each axis",
+                              ge=0.0, le=100.0),
+        "bias": Param(float, 0.0, unit="N", help="constant offset on Fx (the driver's tare removes it)",
+                      ge=-1_000.0, le=1_000.0),
+        "seed": Param(int, 0, help="noise seed", ge=0, le=2**63 - 1),
     }
 
     def setup(self) -> None:
@@ -46,8 +50,10 @@ class FtSensorEmulator(Node):
         self._pty_bus = None
         self._can_bus = None
         if p.interface == "pty":
+            from dockhil.hardware.device_path import private_link
             from dockhil.hardware.slcan_pty import CanFrame, PtyCanBus
 
+            p.channel = p.channel or private_link("ft.slcan")
             self._frame = CanFrame
             try:  # PtyCanBus claims the link: one graph per adapter path
                 self._pty_bus = PtyCanBus([p.channel]).start()

@@ -6,7 +6,7 @@ master end of a pseudo-terminal and behaves like a USB slcan adapter
 slave path, or a stable symlink to it, with python-can's `slcan` interface
 exactly as it would open /dev/ttyACM0:
 
-    can.Bus(interface="slcan", channel="/tmp/dockhil-ft.slcan", bitrate=1_000_000)
+    can.Bus(interface="slcan", channel="/run/user/1000/ft.slcan", bitrate=1_000_000)
 
 What sits behind the adapter decides what the host talks to:
 
@@ -90,7 +90,15 @@ def parse_transmit(line: bytes) -> CanFrame | None:
 
 def _check_replaceable(link: str) -> None:
     """The link may replace only a link an earlier emulated adapter left (to a pseudo-terminal):
-    a file or a real adapter's name given by mistake is refused, not destroyed."""
+    a file or a real adapter's name given by mistake is refused, not destroyed. Nor is it made
+    where another user could replace it (the driver would refuse it: dockhil/hardware/device_path.py)."""
+    from dockhil.errors import DeviceError
+    from dockhil.hardware.device_path import untrusted
+
+    why = untrusted(link)
+    if why:
+        raise DeviceError(f"slcan adapter {link}: refused: {why}; give the adapter a path in a directory only "
+                          f"you can write")
     if not os.path.lexists(link):
         return
     if os.path.islink(link):
@@ -104,8 +112,6 @@ def _check_replaceable(link: str) -> None:
         what = "a regular file"
     else:
         what = "a device or other special file"
-    from dockhil.errors import DeviceError
-
     raise DeviceError(f"slcan adapter {link}: the path exists and is {what}, not the link of an emulated "
                       f"adapter; it was left as it is: give the emulator a path of its own")
 
