@@ -1,15 +1,22 @@
 """Robot-command driver over Modbus TCP (pymodbus): setpoints out, actual pose in, safety limits.
 
 The register map is in dockhil/hardware/modbus_map.py. A link thread owns
-the Modbus connection: one Modbus round trip takes a few hundred
-microseconds, too long to block a 1 kHz step. step() hands it the newest
-fresh setpoint and picks up the newest reading; the thread writes each
-setpoint once, keeps the heartbeat going, and reconnects with backoff.
+the Modbus connection and runs the device cycle: one Modbus round trip takes
+a few hundred microseconds, too long to block a 1 kHz step. step() hands it
+the latest fresh setpoint (replacing one not yet sent: never a queue) and
+picks up the newest reading; the thread, on each cycle, writes a setpoint
+moved from the last value sent by at most one cycle's travel at max_speed
+and max_angular_speed (the cycle's time on the link's clock, capped at
+max_cycle; SetpointLimiter), keeps the heartbeat going, and reconnects with
+backoff. Late or bunched graph ticks thus neither trip a speed limit nor
+become a jump.
 
-Never a stale setpoint: a setpoint is written only in the connection it was
-handed over in; after a reconnect the robot holds until a command that
-arrived after the reconnect. (The controller enforces the same: it
-resumes only on a setpoint written after it stopped.)
+Never a stale setpoint, never a jump on resuming: a setpoint is written only
+in the connection it was handed over in; after a reconnect the robot holds
+until a command that arrived after the reconnect, and after any hold,
+reconnect or stall the setpoint sent starts from the actual pose read back.
+(The controller enforces the same: it resumes only on a setpoint written
+after it stopped, and only from the connection holding a live claim.)
 
 One graph per controller: setup claims it, on this host by a lock file and
 on the controller by its owner registers (modbus_map.py), and refuses, before
@@ -21,7 +28,7 @@ from then on nothing is commanded. close() holds the robot. The limits cover
 the full pose: position (workspace box, max_speed, max_following_error) and
 orientation (max_tilt, the rotation angle from the actual orientation at
 connect; max_angular_speed on the commanded angular velocity and on the
-rotation between setpoints; max_orientation_error; a quaternion that is not
+rotation of the setpoint sent per device cycle; max_orientation_error; a quaternion that is not
 unit within modbus_map.UNIT_TOLERANCE trips "non-unit quaternion"), the
 measured twist (max_actual_speed, max_actual_angular_speed) and the measured
 wrench (max_force, max_torque). The defaults pass a one-axis scene, which
@@ -29,12 +36,12 @@ commands the identity orientation and no angular velocity. Angles between
 orientations are those of the smallest rotation, 2 atan2(|v|, |w|) of
 q1 q0*, so q and -q are one orientation.
 
-Time: every watchdog and the setpoint speed are measured on the runtime's
-clock (`ctx.clock`), never on message stamps: a setpoint step (its distance
-and its rotation angle) is judged against the wall time since the previous
-setpoint was handed to the link,
-and any gap between two steps longer than `stall_timeout` (this process or
-the simulation stalled) holds the robot and stops. A NaN or Inf in a
+Time: every watchdog and the device cycle are timed on the runtime's clock
+(`ctx.clock`), never on message stamps. A command that runs further ahead
+of the setpoint sent than stall_timeout's travel at max_speed (or than the
+following error, after a resume) moves faster than the limit and stops; any
+gap between two steps longer than `stall_timeout` (this process or the
+simulation stalled) holds the robot and stops. A NaN or Inf in a
 setpoint or a force trips "non-finite setpoint"/"non-finite force".
 pymodbus is imported in setup(), so a scene without this driver never loads it.
 """
