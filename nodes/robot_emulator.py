@@ -33,7 +33,8 @@ class RobotControllerEmulatorNode(Node):
         p = self.p
         self._lock = claim_port(p.host, p.port)  # one graph per emulator port, named when refused
         self.emulator = RobotControllerEmulator(p.host, p.port, p.delay, p.tau, p.cycle, p.heartbeat_timeout,
-                                                log=lambda line: self.log(f"warning: robot controller emulator: {line}"))
+                                                log=lambda line: self.log(f"warning: robot controller emulator: "
+                                                                          f"{line}"))
         try:
             self.emulator.start_thread()
         except (OSError, RuntimeError):

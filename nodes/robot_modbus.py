@@ -28,8 +28,9 @@ from then on nothing is commanded. close() holds the robot. The limits cover
 the full pose: position (workspace box, max_speed, max_following_error) and
 orientation (max_tilt, the rotation angle from the actual orientation at
 connect; max_angular_speed on the commanded angular velocity and on the
-rotation of the setpoint sent per device cycle; max_orientation_error; a quaternion that is not
-unit within modbus_map.UNIT_TOLERANCE trips "non-unit quaternion"), the
+rotation of the setpoint sent per device cycle; max_orientation_error; a
+quaternion that is not unit within modbus_map.UNIT_TOLERANCE trips
+"non-unit quaternion"), the
 measured twist (max_actual_speed, max_actual_angular_speed) and the measured
 wrench (max_force, max_torque). The defaults pass a one-axis scene, which
 commands the identity orientation and no angular velocity. Angles between
@@ -180,6 +181,7 @@ class ModbusLink(threading.Thread):
         self.hold_written = threading.Event()
         self.connected = True  # setup hands over a connected, verified client
         self.lost_since: float | None = None
+        self._backoff = p.reconnect_min  # the wait after the next failed reconnect (doubles)
         self.cycle_at: float = clock()  # when the previous device cycle ran
         self.last_error = ""
         self.reading: mm.ControllerReading | None = reading
@@ -187,7 +189,7 @@ class ModbusLink(threading.Thread):
         self.heartbeat = 0
         self.writes = 0
         self.setpoint_heartbeat = 0  # the heartbeat written with the last setpoint
-        self.largest_step = 0.0  # m: the largest step between two setpoints sent while the robot followed
+        self.largest_step = 0.0  # m: the largest step between two setpoints sent in a row (not across a resume)
         self.reconnects = 0
         self.fatal: str | None = None
         self.notes: list[str] = []  # log lines for the node thread to emit
@@ -257,8 +259,6 @@ class ModbusLink(threading.Thread):
             return 0.0
         return self.p.poll_period
 
-    _backoff = 0.0
-
     def _cycle(self, target: mm.PoseTwist | None, fresh: bool, hold: bool) -> None:
         client, dev = self.client, self.p.device_id
         now = self.clock()
@@ -282,7 +282,7 @@ class ModbusLink(threading.Thread):
                 self.hold_written.set()
         elif fresh or limiter.lag(target) not in (None, (0.0, 0.0)):
             before = limiter.sent
-            setpoint = limiter.next(target, self.reading.actual, dt)
+            setpoint = limiter.next(target, reading.actual, dt)
             if before is not None:
                 step = math.sqrt(sum((b - a) ** 2 for a, b in zip(before[:3], setpoint[:3])))
                 self.largest_step = max(self.largest_step, step)

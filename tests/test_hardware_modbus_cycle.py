@@ -12,6 +12,8 @@ from __future__ import annotations
 import math
 import os
 import signal
+import subprocess
+import sys
 import time
 from types import SimpleNamespace
 
@@ -19,9 +21,9 @@ import pytest
 
 from dockhil.hardware import modbus_map as mm
 from dockhil.hardware.robot_emulator import FOLLOW, ServoModel
-from dockhil.node import ManualClock, ParamError
+from dockhil.node import ManualClock, NodeContext, ParamError
 from dockhil.nodes.robot_modbus import ModbusLink, RobotModbusDriver, SetpointLimiter, verify_and_hold
-from tests.test_hardware_modbus import Drive, driver, end, start_emulator
+from tests.test_hardware_modbus import ENV, ROOT, Drive, driver, end, start_emulator
 from tests.test_hardware_safety import (DT, Recorded, following, largest_step, make, mode,  # noqa: F401
                                         read_holding)
 
@@ -269,8 +271,6 @@ def test_bunched_ticks_do_not_trip_the_driver(controller, make):
 
 
 def test_the_link_parameters_have_physical_ranges():
-    from dockhil.node import NodeContext
-
     for name, value in (("max_cycle", 0.0), ("max_cycle", 1.0), ("poll_period", 5.0), ("x_max", 1e4),
                         ("max_speed", 100.0), ("timeout", 60.0)):
         with pytest.raises(ParamError, match=f"parameter '{name}'"):
@@ -319,3 +319,12 @@ def test_a_sigstopped_controller_resumes_without_a_jump(stall):
     finally:
         node.close()
         end(proc)
+
+
+@pytest.mark.parametrize("arg, value", [("--cycle", "0"), ("--delay", "-0.1"), ("--heartbeat-timeout", "nan")])
+def test_the_emulator_refuses_a_parameter_outside_its_range_before_it_listens(arg, value):
+    proc = subprocess.run([sys.executable, "-m", "dockhil.hardware.robot_emulator", "--port", "0", arg, value],
+                          cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=30)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.strip().startswith(f"robot emulator: error: {arg} {float(value)} is outside its range ")
+    assert len(proc.stderr.strip().splitlines()) == 1
