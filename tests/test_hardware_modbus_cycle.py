@@ -27,7 +27,7 @@ from tests.test_hardware_modbus import ENV, ROOT, Drive, driver, end, start_emul
 from tests.test_hardware_safety import (DT, Recorded, following, largest_step, make, mode,  # noqa: F401
                                         read_holding)
 
-MAX_SPEED, MAX_CYCLE, MAX_ACTUAL_SPEED = 0.1, 0.01, 0.2
+MAX_SPEED, MAX_CYCLE, MAX_ACTUAL_SPEED = 0.1, 0.005, 0.2  # the driver's defaults
 COUNT = 1.0 / mm.POSITION_COUNTS  # one register count of position
 SESSION = 0x1234
 # The servo reports its speed over a window of about 10 ms (VELOCITY_WINDOW_S); a robot moving in
@@ -47,8 +47,9 @@ def test_the_limiter_starts_from_the_actual_pose_and_moves_one_cycle_at_a_time()
     lim = SetpointLimiter(MAX_SPEED, 0.5, MAX_CYCLE)
     assert lim.next(pose(0.05), pose(0.01), 0.002)[0] == pytest.approx(0.01 + 0.1 * 0.002)  # from the actual
     assert lim.next(pose(0.05), pose(0.0), 0.004)[0] == pytest.approx(0.0102 + 0.1 * 0.004)  # from the last sent
-    assert lim.next(pose(0.05), pose(0.0), 1.0)[0] == pytest.approx(0.0106 + 0.1 * MAX_CYCLE)  # a late cycle: one
-    assert lim.lag(pose(0.05)) == pytest.approx((0.05 - 0.0116, 0.0))
+    late = 0.0106 + 0.1 * MAX_CYCLE
+    assert lim.next(pose(0.05), pose(0.0), 1.0)[0] == pytest.approx(late)  # a late cycle: credited one
+    assert lim.lag(pose(0.05)) == pytest.approx((0.05 - late, 0.0))
     lim.reset()
     assert lim.lag(pose(0.05)) is None and lim.next(pose(0.05), pose(0.02), 0.001)[0] == pytest.approx(0.0201)
     # A turn likewise: 0.5 rad/s for 2 ms about z toward a 0.3 rad turn.
@@ -315,7 +316,7 @@ def test_a_sigstopped_controller_resumes_without_a_jump(stall):
               f"reconnects {link.reconnects}")
         assert node.tripped is None
         assert speed <= MAX_ACTUAL_SPEED
-        assert step <= MAX_SPEED * MAX_CYCLE + COUNT
+        assert step <= MAX_SPEED * node.p.max_cycle + COUNT
     finally:
         node.close()
         end(proc)

@@ -309,8 +309,8 @@ def test_a_turn_after_a_short_gap_is_sent_at_max_angular_speed(controller, make)
     t0 = drive.now()
     drive.step(command=command6(drive, q), dt=0.15)  # 0.06 rad after 0.15 s
     settled(drive, lambda d: {"command": command6(d, q)})  # reached on the driver's clock, at 0.5 rad/s
-    # The gap is credited as one device cycle at most (max_cycle 10 ms), the rest turned at 0.5 rad/s.
-    assert drive.now() - t0 >= 0.15 + (0.06 - 0.5 * 0.01) / 0.5 - 0.002
+    # The gap is credited as one device cycle at most (max_cycle), the rest turned at 0.5 rad/s.
+    assert drive.now() - t0 >= 0.15 + (0.06 - 0.5 * drive.node.p.max_cycle) / 0.5 - 0.002
     wait_for(lambda: read_holding(controller.port).setpoint[3:7] == pytest.approx(q, abs=1e-9), what="the write")
 
 
