@@ -1,15 +1,22 @@
 """Robot-command driver over Modbus TCP (pymodbus): setpoints out, actual pose in, safety limits.
 
 The register map is in dockhil/hardware/modbus_map.py. A link thread owns
-the Modbus connection: one Modbus round trip takes a few hundred
-microseconds, too long to block a 1 kHz step. step() hands it the newest
-fresh setpoint and picks up the newest reading; the thread writes each
-setpoint once, keeps the heartbeat going, and reconnects with backoff.
+the Modbus connection and runs the device cycle: one Modbus round trip takes
+a few hundred microseconds, too long to block a 1 kHz step. step() hands it
+the latest fresh setpoint (replacing one not yet sent: never a queue) and
+picks up the newest reading; the thread, on each cycle, writes a setpoint
+moved from the last value sent by at most one cycle's travel at max_speed
+and max_angular_speed (the cycle's time on the link's clock, capped at
+max_cycle; SetpointLimiter), keeps the heartbeat going, and reconnects with
+backoff. Late or bunched graph ticks thus neither trip a speed limit nor
+become a jump.
 
-Never a stale setpoint: a setpoint is written only in the connection it was
-handed over in; after a reconnect the robot holds until a command that
-arrived after the reconnect. (The controller enforces the same: it
-resumes only on a setpoint written after it stopped.)
+Never a stale setpoint, never a jump on resuming: a setpoint is written only
+in the connection it was handed over in; after a reconnect the robot holds
+until a command that arrived after the reconnect, and after any hold,
+reconnect or stall the setpoint sent starts from the actual pose read back.
+(The controller enforces the same: it resumes only on a setpoint written
+after it stopped, and only from the connection holding a live claim.)
 
 One graph per controller: setup claims it, on this host by a lock file and
 on the controller by its owner registers (modbus_map.py), and refuses, before
@@ -21,20 +28,21 @@ from then on nothing is commanded. close() holds the robot. The limits cover
 the full pose: position (workspace box, max_speed, max_following_error) and
 orientation (max_tilt, the rotation angle from the actual orientation at
 connect; max_angular_speed on the commanded angular velocity and on the
-rotation between setpoints; max_orientation_error; a quaternion that is not
-unit within modbus_map.UNIT_TOLERANCE trips "non-unit quaternion"), the
+rotation of the setpoint sent per device cycle; max_orientation_error; a
+quaternion that is not unit within modbus_map.UNIT_TOLERANCE trips
+"non-unit quaternion"), the
 measured twist (max_actual_speed, max_actual_angular_speed) and the measured
 wrench (max_force, max_torque). The defaults pass a one-axis scene, which
 commands the identity orientation and no angular velocity. Angles between
 orientations are those of the smallest rotation, 2 atan2(|v|, |w|) of
 q1 q0*, so q and -q are one orientation.
 
-Time: every watchdog and the setpoint speed are measured on the runtime's
-clock (`ctx.clock`), never on message stamps: a setpoint step (its distance
-and its rotation angle) is judged against the wall time since the previous
-setpoint was handed to the link,
-and any gap between two steps longer than `stall_timeout` (this process or
-the simulation stalled) holds the robot and stops. A NaN or Inf in a
+Time: every watchdog and the device cycle are timed on the runtime's clock
+(`ctx.clock`), never on message stamps. A command that runs further ahead
+of the setpoint sent than stall_timeout's travel at max_speed (or than the
+following error, after a resume) moves faster than the limit and stops; any
+gap between two steps longer than `stall_timeout` (this process or the
+simulation stalled) holds the robot and stops. A NaN or Inf in a
 setpoint or a force trips "non-finite setpoint"/"non-finite force".
 pymodbus is imported in setup(), so a scene without this driver never loads it.
 """
@@ -47,13 +55,15 @@ import threading
 import time
 
 from dockhil import ownership
-from dockhil.contact.rigid import quat_conjugate, quat_multiply
+from dockhil.contact.rigid import quat_conjugate, quat_from_rotvec, quat_multiply, rotvec3
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import SafetyStop
 from dockhil.hardware import modbus_map as mm
 from dockhil.node import Input, Node, Output, Param
 from dockhil.msgs import EStop, Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3, WrenchStamped
 
+# The workspace bounds reach at most as far as the register map carries a position (+-2147.48 m).
+_MAP_M = (2**31 - 1) / mm.POSITION_COUNTS
 HOLD_CONFIRM_TIMEOUT = 0.25  # s: how long a safety stop waits for the hold to be written
 
 
@@ -87,10 +97,69 @@ def _command_values(cmd: RobotCommand) -> mm.PoseTwist:
     return (p.x, p.y, p.z, q.x, q.y, q.z, q.w, lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
 
 
-class ModbusLink(threading.Thread):
-    """Owns the Modbus client: writes setpoints, heartbeat and holds; reads the actual pose."""
+def _toward(origin, target, travel: float) -> tuple[float, ...]:
+    """The point at most `travel` from origin on the straight line to target."""
+    d = math.sqrt(sum((b - a) ** 2 for a, b in zip(origin, target)))
+    if d <= travel:
+        return tuple(target)
+    f = travel / d
+    return tuple(a + f * (b - a) for a, b in zip(origin, target))
 
-    def __init__(self, client, describe: str, p, probe, claim: list[int] | None = None, clock=time.monotonic):
+
+def _turn_toward(origin, target, angle: float) -> tuple[float, ...]:
+    """The orientation at most `angle` [rad] from origin on the shortest rotation to target."""
+    rotvec = rotvec3(quat_multiply(target, quat_conjugate(origin)))
+    turn = math.sqrt(sum(c * c for c in rotvec))
+    if turn <= angle:
+        return tuple(target)
+    f = angle / turn
+    return tuple(quat_multiply(quat_from_rotvec(tuple(f * c for c in rotvec)), origin))
+
+
+class SetpointLimiter:
+    """What the device is sent on one of its cycles: the latest commanded setpoint, approached from the
+    previous value sent (or, after a hold, a reconnect or a stall, from the actual pose read back) by at
+    most max_speed and max_angular_speed times the cycle's time, that time capped at max_cycle. A late
+    or bunched command, a stalled link or controller thus never becomes a jump. No I/O: the caller gives
+    each cycle's time."""
+
+    def __init__(self, max_speed: float, max_angular_speed: float, max_cycle: float):
+        self.max_speed = max_speed  # m/s, 0: off
+        self.max_angular_speed = max_angular_speed  # rad/s, 0: off
+        self.max_cycle = max_cycle  # s
+        self.sent: mm.PoseTwist | None = None  # the last value sent; None: start from the actual pose
+
+    def reset(self) -> None:
+        """The controller stopped following: the next setpoint starts from the actual pose."""
+        self.sent = None
+
+    def next(self, target: mm.PoseTwist, actual: mm.PoseTwist, dt: float) -> mm.PoseTwist:
+        """The setpoint for a device cycle `dt` seconds after the previous one."""
+        dt = min(max(dt, 0.0), self.max_cycle)
+        origin = self.sent if self.sent is not None else actual
+        position = _toward(origin[:3], target[:3], self.max_speed * dt) if self.max_speed else target[:3]
+        orientation = (_turn_toward(origin[3:7], target[3:7], self.max_angular_speed * dt)
+                       if self.max_angular_speed else target[3:7])
+        self.sent = tuple(position) + tuple(orientation) + tuple(target[7:])
+        return self.sent
+
+    def lag(self, target: mm.PoseTwist) -> tuple[float, float] | None:
+        """How far (m, rad) the commanded setpoint is ahead of the last value sent; None: nothing sent
+        since the robot last stopped."""
+        if self.sent is None:
+            return None
+        if self.sent[:7] == tuple(target[:7]):
+            return 0.0, 0.0  # reached (the angle formula leaves a rounding residue)
+        step = math.sqrt(sum((b - a) ** 2 for a, b in zip(self.sent[:3], target[:3])))
+        return step, _angle_between(self.sent[3:7], target[3:7])
+
+
+class ModbusLink(threading.Thread):
+    """Owns the Modbus client: on each of its cycles writes the rate-limited setpoint (or a hold, or the
+    heartbeat) and reads the actual pose. The device's cycle is this thread's, on `clock`."""
+
+    def __init__(self, client, describe: str, p, probe, claim: list[int] | None = None, clock=time.monotonic,
+                 reading: mm.ControllerReading | None = None):
         super().__init__(name="robot-modbus-link", daemon=True)
         self.clock = clock
         self.client = client
@@ -102,32 +171,43 @@ class ModbusLink(threading.Thread):
         self.wake = threading.Event()
         self.stop_event = threading.Event()
         self.stopping = False
-        self.pending: tuple[str, mm.PoseTwist | None] | None = None  # ("set", setpoint) or ("hold", None)
+        self.target: mm.PoseTwist | None = None  # the latest commanded setpoint; None: hold
+        self.fresh = False  # a command (or hold) was handed over since the last cycle took one
+        self.limiter = SetpointLimiter(p.max_speed, p.max_angular_speed, p.max_cycle)
+        # (m, rad) the commanded setpoint is ahead of the one sent; None: not known (a cycle under way, or
+        # nothing sent since the robot last stopped)
+        self.lag: tuple[float, float] | None = (0.0, 0.0)
         self.hold_latched = False
         self.hold_written = threading.Event()
         self.connected = True  # setup hands over a connected, verified client
         self.lost_since: float | None = None
+        self._backoff = p.reconnect_min  # the wait after the next failed reconnect (doubles)
+        self.cycle_at: float = clock()  # when the previous device cycle ran
         self.last_error = ""
-        self.reading: mm.ControllerReading | None = None
+        self.reading: mm.ControllerReading | None = reading
         self.readings = 0
         self.heartbeat = 0
         self.writes = 0
+        self.setpoint_heartbeat = 0  # the heartbeat written with the last setpoint
+        self.largest_step = 0.0  # m: the largest step between two setpoints sent in a row (not across a resume)
         self.reconnects = 0
         self.fatal: str | None = None
         self.notes: list[str] = []  # log lines for the node thread to emit
 
     # -- from the node thread -------------------------------------------------
     def submit(self, setpoint: mm.PoseTwist | None) -> None:
-        """Write this setpoint next (None: hold until the next one)."""
+        """Make this the latest setpoint (None: hold until the next one). Never queued: the link's next
+        cycle takes the latest."""
         with self.lock:
-            self.pending = ("set", setpoint) if setpoint is not None else ("hold", None)
+            self.target = setpoint
+            self.fresh = True
         self.wake.set()
 
     def hold(self, timeout: float) -> bool:
         """Hold from now on; True once a hold has been written to the controller."""
         with self.lock:
             self.hold_latched = True
-            self.pending = None
+            self.target = None
             self.hold_written.clear()
         self.wake.set()
         return self.hold_written.wait(timeout)
@@ -153,44 +233,72 @@ class ModbusLink(threading.Thread):
             self.notes.append(line)
 
     def run(self) -> None:
-        backoff = self.p.reconnect_min
         while not self.stopping:
+            wait = self.cycle_once()
             if not self.connected:
-                if not self._reconnect():
-                    self.stop_event.wait(backoff)  # commands do not shorten the backoff; close() does
-                    backoff = min(backoff * 2, self.p.reconnect_max)
-                    continue
-                backoff = self.p.reconnect_min
-            self.wake.clear()
-            with self.lock:
-                pending, self.pending = self.pending, None
-                hold = self.hold_latched
-            try:
-                self._cycle(pending, hold)
-            except Exception as exc:  # noqa: BLE001 - any failure of the link is a lost connection
-                self._lost(exc)
-                continue
-            self.wake.wait(self.p.poll_period)
+                self.stop_event.wait(wait)  # commands do not shorten the backoff; close() does
+            else:
+                self.wake.wait(wait)
 
-    def _cycle(self, pending, hold: bool) -> None:
+    def cycle_once(self) -> float:
+        """One device cycle (or one reconnect attempt); the time to wait before the next."""
+        if not self.connected:
+            if not self._reconnect():
+                wait, self._backoff = self._backoff, min(self._backoff * 2, self.p.reconnect_max)
+                return wait
+        self._backoff = self.p.reconnect_min
+        self.wake.clear()
+        with self.lock:
+            target, fresh, self.fresh = self.target, self.fresh, False
+            hold = self.hold_latched
+            self.lag = None  # until this cycle has sent toward the target
+        try:
+            self._cycle(target, fresh, hold)
+        except Exception as exc:  # noqa: BLE001 - any failure of the link is a lost connection
+            self._lost(exc)
+            return 0.0
+        return self.p.poll_period
+
+    def _cycle(self, target: mm.PoseTwist | None, fresh: bool, hold: bool) -> None:
         client, dev = self.client, self.p.device_id
+        now = self.clock()
+        dt, self.cycle_at = now - self.cycle_at, now
         self.heartbeat = (self.heartbeat + 1) & 0xFFFF
-        if hold or (pending is not None and pending[0] == "hold"):
-            self._check(client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE | mm.CONTROL_HOLD,
-                                                                   self.heartbeat), device_id=dev))
+        limiter = self.limiter
+        reading = self.reading
+        if (reading is not None and not reading.status & mm.STATUS_FOLLOWING
+                and (reading.heartbeat - self.setpoint_heartbeat) & 0xFFFF < 0x8000):
+            # The controller saw our last setpoint and does not follow (it holds, e.g. it lost our heartbeat):
+            # it stands at the actual pose, and the next setpoint starts from there.
+            limiter.reset()
+        if hold or target is None:
+            limiter.reset()
+            if hold or fresh:
+                self._check(client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE | mm.CONTROL_HOLD,
+                                                                       self.heartbeat), device_id=dev))
+            else:
+                self._check(client.write_register(mm.HR_HEARTBEAT, self.heartbeat, device_id=dev))
             if hold:
                 self.hold_written.set()
-        elif pending is not None:
-            self._check(client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE, self.heartbeat, pending[1]),
+        elif fresh or limiter.lag(target) not in (None, (0.0, 0.0)):
+            before = limiter.sent
+            setpoint = limiter.next(target, reading.actual, dt)
+            if before is not None:
+                step = math.sqrt(sum((b - a) ** 2 for a, b in zip(before[:3], setpoint[:3])))
+                self.largest_step = max(self.largest_step, step)
+            self._check(client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE, self.heartbeat, setpoint),
                                                device_id=dev))
             self.writes += 1
+            self.setpoint_heartbeat = self.heartbeat
         else:
             self._check(client.write_register(mm.HR_HEARTBEAT, self.heartbeat, device_id=dev))
+        lag = limiter.lag(target) if target is not None and not hold else (0.0, 0.0)
         rr = self._check(client.read_input_registers(0, count=mm.IR_COUNT, device_id=dev))
         reading = mm.decode_inputs(rr.registers)
         with self.lock:
             self.reading = reading
             self.readings += 1
+            self.lag = lag
 
     @staticmethod
     def _check(response):
@@ -203,8 +311,11 @@ class ModbusLink(threading.Thread):
         self.connected = False
         self.lost_since = self.clock()
         self.last_error = " ".join(str(exc).split()) or type(exc).__name__
+        self.limiter.reset()
         with self.lock:
-            self.pending = None  # a setpoint handed over before the loss is never written
+            self.target = None  # a setpoint handed over before the loss is never written
+            self.fresh = False
+            self.lag = (0.0, 0.0)
         self._note(f"warning: {self.describe}: connection lost ({self.last_error}); reconnecting")
 
     def _reconnect(self) -> bool:
@@ -212,7 +323,7 @@ class ModbusLink(threading.Thread):
             self.last_error = self.probe()
             return False
         try:
-            verify_and_hold(self.client, self.p.device_id, self.heartbeat, self.claim)
+            reading = verify_and_hold(self.client, self.p.device_id, self.heartbeat, self.claim)
         except mm.RegisterError as exc:
             self.fatal = f"{self.describe}: {exc}"
             self.stopping = True
@@ -221,16 +332,21 @@ class ModbusLink(threading.Thread):
             self.client.close()
             self.last_error = " ".join(str(exc).split())
             return False
+        now = self.clock()
         with self.lock:
-            self.pending = None  # commands from before the reconnect are stale
+            self.target = None  # commands from before the reconnect are stale
+            self.fresh = False
+            self.reading = reading  # the actual pose the next setpoint starts from
             if self.hold_latched:
                 self.hold_written.set()
-        now = self.clock()
+        self.limiter.reset()
         gap = now - (self.lost_since or now)
+        self.cycle_at = now
         self.connected = True
         self.lost_since = None
         self.reconnects += 1
-        self._note(f"{self.describe}: reconnected after {gap:.2f} s; holding until a fresh command")
+        self._note(f"{self.describe}: reconnected after {gap:.2f} s; holding until a fresh command, then "
+                   f"moving on from the actual pose")
         return True
 
 
@@ -270,8 +386,8 @@ def verify_and_hold(client, device_id: int, heartbeat: int, claim: list[int] | N
         claim_controller(client, device_id, claim)
     wr = client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE | mm.CONTROL_HOLD, heartbeat),
                                 device_id=device_id)
-    if wr.isError():
-        raise mm.RegisterError(f"cannot write holding registers 0-1: {wr}")
+    if wr.isError():  # e.g. our claim lapsed in between: try again, as after any failed connect
+        raise ConnectionError(f"cannot write holding registers 0-1: {wr}")
     return reading
 
 
@@ -292,44 +408,53 @@ class RobotModbusDriver(Node):
         "host": Param(str, "127.0.0.1", help="controller address"),
         "port": Param(int, 5020, help="controller Modbus TCP port", ge=1, le=65535),
         "device_id": Param(int, 1, help="Modbus unit id", ge=0, le=255),
-        "timeout": Param(float, 0.1, unit="s", help="connect and per-request timeout", gt=0.0),
-        "connect_timeout": Param(float, 2.0, unit="s", help="setup fails if no connection within this", gt=0.0),
-        "reconnect_min": Param(float, 0.05, unit="s", help="first reconnect backoff (doubles)", gt=0.0),
-        "reconnect_max": Param(float, 1.0, unit="s", help="longest reconnect backoff", gt=0.0),
-        "reconnect_timeout": Param(float, 5.0, unit="s", help="connection lost this long is an error (0: never)",
-                                   ge=0.0),
-        "poll_period": Param(float, 0.002, unit="s", help="read the actual pose at least this often", gt=0.0),
-        "max_force": Param(float, 200.0, unit="N", help="contact force limit |F| (0: off)", ge=0.0),
-        "max_speed": Param(float, 0.1, unit="m/s", help="commanded speed limit: twist and setpoint steps (0: off)",
-                           ge=0.0),
+        "timeout": Param(float, 0.1, unit="s", help="connect and per-request timeout", gt=0.0, le=10.0),
+        "connect_timeout": Param(float, 2.0, unit="s", help="setup fails if no connection within this", gt=0.0,
+                                 le=600.0),
+        "reconnect_min": Param(float, 0.05, unit="s", help="first reconnect backoff (doubles)", gt=0.0, le=10.0),
+        "reconnect_max": Param(float, 1.0, unit="s", help="longest reconnect backoff", gt=0.0, le=60.0),
+        "reconnect_timeout": Param(float, 5.0, unit="s", help="connection lost (the controller did not answer) "
+                                   "this long stops the graph (0: never)", ge=0.0, le=3600.0),
+        "poll_period": Param(float, 0.002, unit="s", help="device cycle: read the actual pose and write the "
+                             "latest setpoint at least this often", gt=0.0, le=0.1),
+        # Within a velocity window of 10 ms the setpoint moves at most max_speed x (10 ms + max_cycle): 5 ms
+        # keeps that 1.5 max_speed, under max_actual_speed, however the link's cycles bunch.
+        "max_cycle": Param(float, 0.005, unit="s", help="longest device cycle the speed limits credit: one "
+                           "write moves the setpoint at most max_speed x min(time since the previous cycle, "
+                           "max_cycle), so a late cycle never catches up in a jump", gt=0.0, le=0.1),
+        "max_force": Param(float, 200.0, unit="N", help="contact force limit |F| (0: off)", ge=0.0, le=1e5),
+        "max_speed": Param(float, 0.1, unit="m/s", help="setpoint speed limit: the commanded twist, and the "
+                           "setpoint sent per device cycle (0: off)", ge=0.0, le=10.0),
         "max_actual_speed": Param(float, 0.2, unit="m/s", help="measured speed limit; above max_speed to allow "
-                                  "for tracking transients and velocity noise (0: off)", ge=0.0),
+                                  "for tracking transients and velocity noise (0: off)", ge=0.0, le=10.0),
         "max_following_error": Param(float, 0.02, unit="m", help="setpoint distance from the actual pose "
-                                     "(catches a start far from the robot before it jumps; 0: off)", ge=0.0),
-        "max_torque": Param(float, 20.0, unit="N m", help="contact torque limit |T| (0: off)", ge=0.0),
-        "max_angular_speed": Param(float, 0.5, unit="rad/s", help="commanded angular speed limit: twist and "
-                                   "setpoint rotation steps (0: off)", ge=0.0),
+                                     "(catches a start far from the robot before it jumps; 0: off)", ge=0.0, le=10.0),
+        "max_torque": Param(float, 20.0, unit="N m", help="contact torque limit |T| (0: off)", ge=0.0, le=1e4),
+        "max_angular_speed": Param(float, 0.5, unit="rad/s", help="setpoint angular speed limit: the commanded "
+                                   "twist, and the setpoint sent per device cycle (0: off)", ge=0.0, le=10.0),
         "max_actual_angular_speed": Param(float, 1.0, unit="rad/s", help="measured angular speed limit; above "
                                           "max_angular_speed as max_actual_speed is above max_speed (0: off)",
-                                          ge=0.0),
+                                          ge=0.0, le=10.0),
         "max_tilt": Param(float, 0.5, unit="rad", help="orientation workspace: rotation angle of the commanded "
                           "and the actual orientation from the orientation at start (0: off)", ge=0.0, le=math.pi),
         "max_orientation_error": Param(float, 0.1, unit="rad", help="setpoint orientation's angle from the actual "
                                        "orientation (catches a start turned away from the robot; 0: off)",
                                        ge=0.0, le=math.pi),
-        "x_min": Param(float, -0.5, unit="m", help="workspace lower bound, x"),
-        "x_max": Param(float, 0.1, unit="m", help="workspace upper bound, x (x > 0 is penetration)"),
-        "y_min": Param(float, -0.2, unit="m", help="workspace lower bound, y"),
-        "y_max": Param(float, 0.2, unit="m", help="workspace upper bound, y"),
-        "z_min": Param(float, -0.2, unit="m", help="workspace lower bound, z"),
-        "z_max": Param(float, 0.2, unit="m", help="workspace upper bound, z"),
+        "x_min": Param(float, -0.5, unit="m", help="workspace lower bound, x", ge=-_MAP_M, le=_MAP_M),
+        "x_max": Param(float, 0.1, unit="m", help="workspace upper bound, x (x > 0 is penetration)", ge=-_MAP_M,
+                       le=_MAP_M),
+        "y_min": Param(float, -0.2, unit="m", help="workspace lower bound, y", ge=-_MAP_M, le=_MAP_M),
+        "y_max": Param(float, 0.2, unit="m", help="workspace upper bound, y", ge=-_MAP_M, le=_MAP_M),
+        "z_min": Param(float, -0.2, unit="m", help="workspace lower bound, z", ge=-_MAP_M, le=_MAP_M),
+        "z_max": Param(float, 0.2, unit="m", help="workspace upper bound, z", ge=-_MAP_M, le=_MAP_M),
         "ft_timeout": Param(float, 0.05, unit="s", help="F/T watchdog: no new wrench this long stops (0: off)",
-                            ge=0.0),
+                            ge=0.0, le=10.0),
         "stall_timeout": Param(float, 0.2, unit="s", help="longest gap between two steps of this driver, or "
                                "between two fresh setpoints while moving, before it holds and stops (a stalled "
-                               "process or simulation); the controller's own heartbeat timeout is 0.2 s", gt=0.0),
+                               "process or simulation); the controller's own heartbeat timeout is 0.2 s", gt=0.0,
+                               le=60.0),
         "ft_grace": Param(float, 2.0, unit="s", help="time from the first tick for the first wrench; "
-                          "commands are held until it arrives", ge=0.0),
+                          "commands are held until it arrives", ge=0.0, le=600.0),
         "frame": Param(str, "", help="header frame id of the published state"),
     }
 
@@ -356,8 +481,7 @@ class RobotModbusDriver(Node):
         self._first_t: float | None = None
         self._last_step_at: float | None = None
         self._last_cmd_at: float | None = None  # when the last fresh command arrived
-        # the last setpoint handed over (position, orientation) and when
-        self._sent: tuple[tuple[float, float, float], tuple[float, float, float, float], float] | None = None
+        self._moving = False  # a setpoint was handed over since the last hold
         self._start_q: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)  # set by _connect
         self._seen_readings = 0
         self._reconnects_seen = 0
@@ -396,7 +520,8 @@ class RobotModbusDriver(Node):
         except Exception as exc:  # noqa: BLE001 - e.g. the server closed on us
             client.close()
             raise DeviceError(f"{self.device}: {' '.join(str(exc).split())}") from None
-        self.link = ModbusLink(_NoDelayClient(client), self.device, p, self._probe, self._claim, self.ctx.clock)
+        self.link = ModbusLink(_NoDelayClient(client), self.device, p, self._probe, self._claim, self.ctx.clock,
+                               start)
         self.link.start()
 
     def _probe(self) -> str:
@@ -436,30 +561,30 @@ class RobotModbusDriver(Node):
         ft_fresh = self._check_wrench(inputs.get("wrench"), t)
 
         if not link.connected or link.reconnects != self._reconnects_seen:
-            # After a loss the controller holds until a fresh setpoint: the next step is judged from
-            # where the robot stands (max_following_error), not from a setpoint of the old connection.
+            # After a loss the controller holds until a fresh setpoint, and the link starts it from the
+            # actual pose: nothing of the old connection is written.
             self._reconnects_seen = link.reconnects
-            self._sent = None
+            self._moving = False
         cmd = inputs.get("command")
         if cmd is not None and (self._last_cmd is None or _key(cmd) != _key(self._last_cmd)):
             self._check_command(cmd, link.latest()[1])
             self._last_cmd, self._last_cmd_at = cmd, now
             if not ft_fresh or not cmd.enable:
                 link.submit(None)  # no F/T data yet: hold rather than move blind
-                self._sent = None
+                self._moving = False
             else:
                 values = _command_values(cmd)
-                self._check_jump(values[:3], values[3:7], now)  # never hand over a step a limit would refuse
                 try:  # here, not in the link's thread, where a failed write reads as a lost connection
                     mm.encode_block(values)
                 except mm.RegisterError as exc:
                     self._trip("register_range", str(exc), f"register map: {exc}")
                 link.submit(values)
-                self._sent = (values[:3], values[3:7], now)
-        elif self._sent is not None and now - self._last_cmd_at > p.stall_timeout:
+                self._moving = True
+        elif self._moving and now - self._last_cmd_at > p.stall_timeout:
             age = now - self._last_cmd_at
             self._trip("stale_command", age, f"stale command: no new setpoint for {age:.3f} s > stall_timeout "
                        f"{p.stall_timeout:g} s while moving (the simulation stalled)")
+        self._check_lag(link.lag)
 
         count, reading = link.latest()
         if reading is None or count == self._seen_readings:
@@ -556,29 +681,24 @@ class RobotModbusDriver(Node):
             self._trip("max_tilt", tilt, f"max_tilt: {what} orientation {tilt:.4f} rad from the start "
                        f"orientation > {self.p.max_tilt:g} rad")
 
-    def _check_jump(self, position: tuple[float, float, float], orientation, now: float) -> None:
-        """A setpoint that moves or turns faster than the limit is a too-fast command, whatever its twist
-        says. The speed is the step from the last setpoint handed over (distance, and the angle of the
-        rotation between the two orientations), over the wall time since then on the runtime's clock
-        (message stamps say when the sender ran, not when the robot will move); at least one period, the
-        rate at which the loop hands setpoints over."""
-        if self._sent is None:
+    def _check_lag(self, lag: tuple[float, float] | None) -> None:
+        """The link sends each device cycle at most one cycle's travel at max_speed (max_angular_speed)
+        toward the commanded setpoint, so late or bunched commands only put the command briefly ahead of
+        what is sent. A command further ahead than stall_timeout's travel moves faster than the limit."""
+        if lag is None:
             return
         p = self.p
-        a, q, since = self._sent
-        dt = max(now - since, self.ctx.dt)
-        if p.max_speed:
-            step = math.sqrt(sum((b - x) ** 2 for x, b in zip(a, position)))
-            speed = step / dt
-            if speed > p.max_speed * (1 + 1e-9):
-                self._trip("max_speed", speed, f"max_speed: setpoint moved {step:.4f} m in {dt:.4f} s "
-                           f"({speed:.3f} m/s) > {p.max_speed:g} m/s")
-        if p.max_angular_speed:
-            turn = _angle_between(q, orientation)
-            rate = turn / dt
-            if rate > p.max_angular_speed * (1 + 1e-9):
-                self._trip("max_angular_speed", rate, f"max_angular_speed: setpoint turned {turn:.5f} rad in "
-                           f"{dt:.4f} s ({rate:.3f} rad/s) > {p.max_angular_speed:g} rad/s")
+        distance, turn = lag
+        # After a resume from the actual pose the command may be as far ahead as the following errors allow.
+        if p.max_speed and distance > max(p.max_speed * p.stall_timeout, p.max_following_error):
+            self._trip("max_speed", distance, f"max_speed: the command ran {distance:.4f} m ahead of the setpoint "
+                       f"sent at {p.max_speed:g} m/s (more than stall_timeout {p.stall_timeout:g} s of travel and "
+                       f"max_following_error): it moves faster than max_speed")
+        if p.max_angular_speed and turn > max(p.max_angular_speed * p.stall_timeout, p.max_orientation_error):
+            self._trip("max_angular_speed", turn, f"max_angular_speed: the command turned {turn:.4f} rad ahead of "
+                       f"the setpoint sent at {p.max_angular_speed:g} rad/s (more than stall_timeout "
+                       f"{p.stall_timeout:g} s of turning and max_orientation_error): it turns faster than "
+                       f"max_angular_speed")
 
     def _check_actual(self, reading: mm.ControllerReading) -> None:
         a, p = reading.actual, self.p

@@ -37,11 +37,17 @@ SETPOINT = (0.004, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 def write(model: ServoModel, control: int, heartbeat: int, setpoint=None) -> None:
-    model.host_wrote(0, mm.encode_write(control, heartbeat, setpoint))
+    assert model.host_wrote(0, mm.encode_write(control, heartbeat, setpoint)), "refused"
+
+
+def claimed(model: ServoModel) -> ServoModel:
+    """The model claimed by a host (the test's writes, connection None), as the driver does first."""
+    assert model.host_wrote(mm.HR_SESSION, mm.encode_owner(1, "test"))
+    return model
 
 
 def test_servo_follows_after_the_delay_with_first_order_lag():
-    model = ServoModel(delay=0.02, tau=0.01, heartbeat_timeout=1.0)
+    model = claimed(ServoModel(delay=0.02, tau=0.01, heartbeat_timeout=1.0))
     write(model, mm.CONTROL_ENABLE, 1, SETPOINT)
     xs = {}
     for i in range(0, 101):  # 1 ms cycles for 0.1 s
@@ -64,7 +70,7 @@ def test_servo_follows_after_the_delay_with_first_order_lag():
 
 
 def test_controller_holds_on_heartbeat_loss_and_resumes_only_on_a_fresh_setpoint():
-    model = ServoModel(heartbeat_timeout=0.1)  # no delay, no lag: the pose is the target of the last cycle
+    model = claimed(ServoModel(heartbeat_timeout=0.1))  # no delay, no lag: the pose is the target of the last cycle
     write(model, mm.CONTROL_ENABLE, 1, SETPOINT)
     model.cycle(0.0)
     model.cycle(0.001)
@@ -72,6 +78,10 @@ def test_controller_holds_on_heartbeat_loss_and_resumes_only_on_a_fresh_setpoint
     model.cycle(0.15)  # the host went quiet
     assert model.mode == HOLD and model.heartbeat_lost
     assert mm.decode_inputs(model.inputs).status & mm.STATUS_HEARTBEAT_LOST
+    assert model.owner_session == 0  # the claim lapsed with the heartbeat: nothing moves the robot until a claim
+    assert not model.host_wrote(0, mm.encode_write(mm.CONTROL_ENABLE, 2, SETPOINT))
+    assert model.unclaimed == 1
+    claimed(model)
     write(model, mm.CONTROL_ENABLE, 2)  # heartbeat back, but no setpoint since the stop
     for i in range(5):
         model.cycle(0.16 + i * 0.001)
@@ -95,7 +105,7 @@ def test_controller_holds_on_heartbeat_loss_and_resumes_only_on_a_fresh_setpoint
 
 
 def test_fault_holds_until_reset():
-    model = ServoModel()
+    model = claimed(ServoModel())
     write(model, mm.CONTROL_ENABLE, 1, SETPOINT)
     model.cycle(0.0)
     model.fault = True

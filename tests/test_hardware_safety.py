@@ -98,12 +98,16 @@ def following(drive: ClockedDrive, controller, make=lambda d: {"command": d.comm
         time.sleep(0.002)
 
 
-def settled(drive: ClockedDrive) -> int:
-    """The link's write count once every setpoint handed over is written (the link writes in real time)."""
+def settled(drive: ClockedDrive, make=None) -> int:
+    """The link's write count once the last setpoint handed over is written and reached. The link moves
+    the setpoint at most one device cycle's travel per write, its cycles timed on the driver's clock, so
+    `make` (inputs for a step) keeps the clock moving until the setpoint sent has caught up."""
     link = drive.node.link
     deadline = time.monotonic() + 5.0
-    while link.pending is not None:
-        assert time.monotonic() < deadline, "the link never took the last setpoint"
+    while link.fresh or link.lag != (0.0, 0.0):  # None: a cycle under way
+        assert time.monotonic() < deadline, "the link never took or reached the last setpoint"
+        if make is not None:
+            drive.step(**make(drive))
         time.sleep(0.001)
     seen = link.readings
     while link.readings < seen + 2:  # a whole cycle begun after the hand-over: its write is counted
@@ -160,22 +164,59 @@ def test_max_speed_of_the_commanded_twist(controller, make):
             "max_speed", "max_speed: commanded speed 0.080 m/s > 0.05 m/s", 0.08)
 
 
-def test_setpoint_speed_is_judged_on_the_wall_time_between_setpoints_not_their_stamps(controller, make):
-    drive = make(max_speed=0.05, max_following_error=0.0)
-    following(drive, controller)
-    drive.step(command=drive.command(x=0.00004))  # 0.04 mm in 1 ms: 0.04 m/s, whatever the (zero) twist says
-    # Stamps 0.15 s apart (a stalled sender's backlog) do not make a 0.1 mm step in 1 ms slow.
-    late = drive.command(x=0.00014, stamp=drive.now() + 0.15)
-    tripped(drive, controller, lambda: drive.step(command=late),
-            "max_speed", "max_speed: setpoint moved 0.0001 m in 0.0010 s (0.100 m/s) > 0.05 m/s", 0.1)
-    assert read_holding(controller.port).setpoint[0] != pytest.approx(0.00014)  # the step was never written
+class Recorded:
+    """The link's Modbus client, recording every setpoint written (position x)."""
+
+    def __init__(self, client):
+        self.client = client
+        self.xs: list[float] = []
+
+    def write_registers(self, address, values, **kw):
+        if address == 0 and len(values) == mm.HR_COUNT:
+            self.xs.append(mm.decode_holding(values).setpoint[0])
+        return self.client.write_registers(address, values, **kw)
+
+    def __getattr__(self, name):
+        return getattr(self.client, name)
 
 
-def test_a_step_after_a_short_gap_is_judged_over_the_gap(controller, make):
-    drive = make(max_speed=0.05, max_following_error=0.0)
+def recorded(drive: ClockedDrive) -> Recorded:
+    link = drive.node.link
+    link.client = Recorded(link.client)
+    return link.client
+
+
+def largest_step(xs: list[float]) -> float:
+    return max((abs(b - a) for a, b in zip(xs, xs[1:])), default=0.0)
+
+
+def test_a_command_faster_than_max_speed_is_sent_at_max_speed_then_stops(controller, make):
+    drive = make(max_speed=0.05, max_following_error=0.0, stall_timeout=0.2, max_cycle=0.01)
     following(drive, controller)
-    drive.step(command=drive.command(x=0.006), dt=0.15)  # 6 mm over 0.15 s: 0.04 m/s, below the stall timeout
+    rec = recorded(drive)
+    # 0.2 m/s, whatever the stamps say: the setpoint sent moves at most 0.05 m/s on the driver's clock, one
+    # device cycle (at most max_cycle) at a time; the command runs ahead until it is 0.05 m/s x 0.2 s ahead.
+    def run():
+        for _ in range(1000):
+            drive.step(command=drive.command(x=0.0002 * drive.k, stamp=0.0))
+            time.sleep(0.001)
+
+    stop = tripped(drive, controller, run, "max_speed", "max_speed: the command ran 0.0")
+    assert "m ahead of the setpoint sent at 0.05 m/s" in str(stop) and stop.value > 0.01
+    assert rec.xs and largest_step(rec.xs) <= 0.05 * 0.01 + 1e-6  # one count of rounding
+    # Never more than max_speed over the driver's time: the command went 0.2 m/s for the time it took.
+    assert max(rec.xs) <= 0.05 * drive.k * DT + 1e-6
+
+
+def test_a_step_after_a_short_gap_is_sent_at_max_speed(controller, make):
+    drive = make(max_speed=0.05, max_following_error=0.0, max_cycle=0.01)
+    following(drive, controller)
+    rec = recorded(drive)
+    drive.step(command=drive.command(x=0.006), dt=0.15)  # 6 mm after 0.15 s: below the stall timeout
+    settled(drive, lambda d: {"command": d.command(x=0.006)})
     wait_for(lambda: read_holding(controller.port).setpoint[0] == pytest.approx(0.006), what="the write")
+    # The gap is not credited as travel: at most one cycle's (max_cycle 10 ms at 0.05 m/s) per write.
+    assert largest_step(rec.xs) <= 0.05 * 0.01 + 1e-6 and len(rec.xs) >= 12
 
 
 def test_a_gap_longer_than_the_stall_timeout_holds_and_stops(controller, make):
@@ -255,11 +296,11 @@ def test_workspace_refuses_a_commanded_pose_before_it_is_written(controller, mak
 
 
 def test_a_setpoint_the_register_map_cannot_carry_holds_the_robot_in_one_line(controller, make):
-    # Workspace and speed limits opened past the map's +-2147 m: the map itself refuses the setpoint.
-    drive = make(x_max=1e4, max_speed=0.0, max_following_error=0.0)
+    # The speed limit off: the map itself refuses a twist past its +-2147 m/s.
+    drive = make(max_speed=0.0, max_following_error=0.0)
     following(drive, controller)
-    stop = tripped(drive, controller, lambda: drive.step(command=drive.command(x=3000.0)), "register_range",
-                   "register map: setpoint position.x = 3000 m does not fit the register map")
+    stop = tripped(drive, controller, lambda: drive.step(command=drive.command(v=3000.0)), "register_range",
+                   "register map: setpoint linear.x = 3000 m/s does not fit the register map")
     assert "connection lost" not in str(stop)
     assert read_holding(controller.port).setpoint[0] == 0.0
 

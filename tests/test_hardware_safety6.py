@@ -84,6 +84,7 @@ class Servo:
 
     def __init__(self, delay: float, tau: float):
         self.model = ServoModel(delay=delay, tau=tau)
+        assert self.model.host_wrote(mm.HR_SESSION, mm.encode_owner(1, "test"))  # a host claims before it writes
         self.k = 0
         self.heartbeat = 0
 
@@ -169,7 +170,7 @@ def test_the_driver_commands_and_reads_an_orientation_through_the_controller(con
     for i in range(1, turns + 1):
         drive.step(command=command6(drive, rotation(axis, rate * DT * i)))
     final = rotation(axis, rate * DT * turns)
-    settled(drive)
+    settled(drive, lambda d: {"command": command6(d, final)})
     assert read_holding(controller.port).setpoint[3:7] == pytest.approx(final, abs=1e-9)
     wait_for(lambda: controller.call(lambda: controller.servo.orientation) == pytest.approx(final, abs=1e-9),
              what="the servo at the final orientation")
@@ -239,7 +240,7 @@ def test_max_tilt_of_the_commanded_orientation(controller, make):
     axis = (1.0, 2.0, 2.0)
     for i in range(1, 25):  # 0.4 rad/s, under max_angular_speed, up to 0.0096 rad: under the limit
         drive.step(command=command6(drive, rotation(axis, 0.0004 * i)))
-    settled(drive)  # the last of them written
+    settled(drive, lambda d: {"command": command6(d, rotation(axis, 0.0096))})  # the last of them written
     tripped(drive, controller, lambda: drive.step(command=command6(drive, rotation(axis, 0.0104))),
             "max_tilt", "max_tilt: commanded orientation 0.0104 rad from the start orientation > 0.01 rad", 0.0104)
     assert read_holding(controller.port).setpoint[3:7] == pytest.approx(rotation(axis, 0.0096), abs=1e-9)
@@ -285,23 +286,31 @@ def test_max_angular_speed_of_the_commanded_twist(controller, make):
             math.hypot(0.3, 0.45))
 
 
-def test_setpoint_rotation_speed_is_judged_on_the_driver_clock_between_setpoints(controller, make):
-    drive = make(max_angular_speed=0.5)
+def test_a_turn_faster_than_max_angular_speed_is_sent_at_that_speed_then_stops(controller, make):
+    drive = make(max_angular_speed=0.5, max_orientation_error=0.0, max_tilt=0.0, stall_timeout=0.2)
     following(drive, controller)
     axis = (0.0, 0.0, 1.0)
-    drive.step(command=command6(drive, rotation(axis, 0.0004)))  # 0.4 rad/s
-    # A stamp 0.15 s later (a stalled sender's backlog) does not make a 0.6 mrad turn in 1 ms slow.
-    late = command6(drive, rotation(axis, 0.001), stamp=drive.now() + 0.15)
-    tripped(drive, controller, lambda: drive.step(command=late), "max_angular_speed",
-            "max_angular_speed: setpoint turned 0.00060 rad in 0.0010 s (0.600 rad/s) > 0.5 rad/s", 0.6)
-    assert read_holding(controller.port).setpoint[3:7] != pytest.approx(rotation(axis, 0.001), abs=1e-9)
+
+    def run():  # 2 rad/s: the setpoint sent turns at most 0.5 rad/s, until the command is 0.1 rad ahead
+        for _ in range(1000):
+            drive.step(command=command6(drive, rotation(axis, 0.002 * drive.k), stamp=0.0))
+            time.sleep(0.001)
+
+    stop = tripped(drive, controller, run, "max_angular_speed", "max_angular_speed: the command turned 0.")
+    assert "rad ahead of the setpoint sent at 0.5 rad/s" in str(stop) and stop.value > 0.1
+    sent = read_holding(controller.port).setpoint[3:7]
+    assert 2 * math.atan2(abs(sent[2]), sent[3]) <= 0.5 * drive.k * DT + 1e-6
 
 
-def test_a_turn_after_a_short_gap_is_judged_over_the_gap(controller, make):
+def test_a_turn_after_a_short_gap_is_sent_at_max_angular_speed(controller, make):
     drive = make(max_angular_speed=0.5)
     following(drive, controller)
     q = rotation((0.0, 1.0, 0.0), 0.06)
-    drive.step(command=command6(drive, q), dt=0.15)  # 0.06 rad over 0.15 s: 0.4 rad/s
+    t0 = drive.now()
+    drive.step(command=command6(drive, q), dt=0.15)  # 0.06 rad after 0.15 s
+    settled(drive, lambda d: {"command": command6(d, q)})  # reached on the driver's clock, at 0.5 rad/s
+    # The gap is credited as one device cycle at most (max_cycle), the rest turned at 0.5 rad/s.
+    assert drive.now() - t0 >= 0.15 + (0.06 - 0.5 * drive.node.p.max_cycle) / 0.5 - 0.002
     wait_for(lambda: read_holding(controller.port).setpoint[3:7] == pytest.approx(q, abs=1e-9), what="the write")
 
 
@@ -334,7 +343,7 @@ def test_the_limits_hold_nothing_in_a_one_dof_motion(controller, make):
     for i in range(1, 101):  # 0.05 m/s along x, a contact force and zero torque
         drive.step(command=command6(drive, x=0.00005 * i), wrench=wrench6(drive, fx=-20.0))
         time.sleep(0.001)  # no faster than real time: the controller follows in real time
-    settled(drive)
+    settled(drive, lambda d: {"command": command6(d, x=0.005), "wrench": wrench6(d, fx=-20.0)})
     assert read_holding(controller.port).setpoint[0] == pytest.approx(0.005)
     assert drive.node.tripped is None and mode(controller) == FOLLOW
 

@@ -59,9 +59,13 @@ FC 16 write of SESSION and OWNER_NAME (registers 28..45). While the claim is
 alive the controller answers every write to its holding registers from
 any other connection with exception 6 (device busy), a second claim
 included; only the owner's session may claim again (its driver
-reconnecting). The claim dies when the owner writes SESSION 0, or when its
-heartbeat has not changed for the heartbeat timeout (the owner died or
-lost the link): then the controller holds and another host may claim it.
+reconnecting). Without a live claim nothing moves the robot: a write of
+CONTROL, HEARTBEAT or SETPOINT (registers 0..27) from a connection that holds
+no live claim (a host that never claimed, or the owner after its claim
+lapsed) is refused with exception 6 too, and counted; a host claims first.
+The claim dies when the owner writes SESSION 0, or when its heartbeat has
+not changed for the heartbeat timeout (the owner died or lost the link):
+then the controller holds and another host may claim it.
 """
 
 from __future__ import annotations

@@ -31,6 +31,11 @@ Controller rules the driver relies on:
   any other connection are refused with exception 6 (device busy), so a
   second graph cannot move or hold the first one's robot; the claim dies
   with the owner's heartbeat or when it writes SESSION 0.
+- No claim, no motion: a write of CONTROL, HEARTBEAT or SETPOINT (registers
+  0..27) from a connection that holds no live claim is refused the same way
+  (exception 6), counted (`unclaimed`) and logged once per connection; it
+  never moves the robot. A host whose claim lapsed (it stalled past the
+  heartbeat timeout) claims again before it writes anything.
 
 Run alone: python -m dockhil.hardware.robot_emulator --port 5020 [--delay S --tau S]
 It prints "listening HOST:PORT" once it accepts connections.
@@ -112,7 +117,10 @@ class ServoModel:
         self.owner_name = ""
         self.owner_client = None
         self.claim = mm.encode_owner(0, "")  # holding registers 28..45 as last written
-        self.refused = 0  # writes refused because another host owns the controller
+        self.refused = 0  # writes refused: another host owns the controller, or no live claim
+        self.unclaimed = 0  # of those, writes of control, heartbeat or setpoint without a live claim
+        self.log = None  # callable(line): says once per connection that its writes are refused
+        self._told: set = set()  # connections already told of
         self._claim_new = False
         self._claimed_at: float | None = None
 
@@ -133,6 +141,16 @@ class ServoModel:
         session = None if claim is None else (claim[0] << 16) | claim[1]
         if self.owner_session and client != self.owner_client and session != self.owner_session:
             self.refused += 1
+            return False
+        if address < mm.HR_COUNT and (not self.owner_session or client != self.owner_client):
+            # Control, heartbeat and setpoint move the robot: only the live claim's connection may write them.
+            self.refused += 1
+            self.unclaimed += 1
+            if self.log is not None and client not in self._told:
+                self._told.add(client)
+                self.log(f"refused a write of holding registers {address}-{end - 1} from connection {client}: "
+                         f"it holds no live claim (claim SESSION and OWNER_NAME, registers {mm.HR_SESSION}-"
+                         f"{mm.HR_END - 1}, first); counting, not logging, the rest")
             return False
         if claim is not None:
             if session == 0:
@@ -284,12 +302,13 @@ class RobotControllerEmulator:
     and a servo cycle never interleave)."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = 5020, delay: float = 0.0, tau: float = 0.0,
-                 cycle: float = 0.001, heartbeat_timeout: float = 0.2, clock=time.monotonic):
+                 cycle: float = 0.001, heartbeat_timeout: float = 0.2, clock=time.monotonic, log=None):
         self.clock = clock  # the servo's time (monotonic seconds); ServoModel itself takes `now` per cycle
         self.host = host
         self.port = port
         self.period = cycle
         self.servo = ServoModel(delay, tau, heartbeat_timeout)
+        self.servo.log = log
         self.requests = 0
         self._server = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -398,7 +417,7 @@ class RobotControllerEmulator:
         if self._loop is None:
             return fn(*args)
         fut = asyncio.run_coroutine_threadsafe(self._call(fn, *args), self._loop)
-        return fut.result(timeout=5.0)
+        return fut.result(timeout=5.0 + (args[0] if fn is time.sleep else 0.0))
 
     @staticmethod
     async def _call(fn, *args):
@@ -411,6 +430,10 @@ class RobotControllerEmulator:
 
     def inject_fault(self) -> None:
         self.call(setattr, self.servo, "fault", True)
+
+    def stall(self, seconds: float) -> None:
+        """Stop the controller for `seconds`, as a SIGSTOP would: no request answered, no servo cycle."""
+        self.call(time.sleep, seconds)
 
 
 def claim_port(host: str, port: int):
@@ -455,12 +478,19 @@ def main(argv: list[str] | None = None) -> int:
     from dockhil.log import Log
 
     say = Log("robot emulator:")
+    for name, value, lo, hi in (("--port", args.port, 0, 65535), ("--delay", args.delay, 0.0, 1.0),
+                                ("--tau", args.tau, 0.0, 10.0), ("--cycle", args.cycle, 1e-5, 0.1),
+                                ("--heartbeat-timeout", args.heartbeat_timeout, 1e-3, 10.0)):
+        if not lo <= value <= hi:  # NaN too
+            say.error(f"{name} {value} is outside its range [{lo:g}, {hi:g}]")
+            return 2
     try:
         lock = claim_port(args.host, args.port)  # held until this process ends
     except DockhilError as exc:
         say.error(str(exc))
         return 2
-    emulator = RobotControllerEmulator(args.host, args.port, args.delay, args.tau, args.cycle, args.heartbeat_timeout)
+    emulator = RobotControllerEmulator(args.host, args.port, args.delay, args.tau, args.cycle, args.heartbeat_timeout,
+                                       log=say.warning)
 
     async def run():
         loop = asyncio.get_running_loop()
