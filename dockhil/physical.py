@@ -33,3 +33,4 @@ RUN_ENERGY_FACTOR = 100.0  # the bodies' kinetic energy > 100 x (entry energy + 
 RUN_FORCE = 1e7  # [N] or, with no scale to judge by, |F| beyond what any docking hardware bears
 RUN_DISTANCE = 1e4  # [m] a body more than 10 km from where it started: it flew away
 RUN_SPEED = 50.0  # [m/s] a body ten times faster than the fastest contact speed a scene may give
+RUN_SPEED_FLOOR = 0.01  # [m/s] a scene whose bodies start at rest is judged as if they closed in at 1 cm/s
