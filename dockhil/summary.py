@@ -151,6 +151,10 @@ class RangeMeter:
 
     def __init__(self, inertia: tuple | None = None):
         self.inertia = None if inertia is None else tuple(np.asarray(i, float).tolist() for i in inertia)
+        if inertia is not None:
+            from dockhil.contact.rigid import rotate_back
+
+            self.rotate_back = rotate_back
         self.start = None  # positions at the first state
         self.frame = None  # velocity of the frame of the start
         self.m_red = 0.0  # reduced mass of the relative motion [kg] (the chaser's alone, for a fixed target)
@@ -178,26 +182,26 @@ class RangeMeter:
         ke = self._kinetic(bodies, velocities)
         if not ke <= self.ke_max:  # an Inf or NaN too
             self.ke_max, self.tick = ke, msg.header.tick
-        for b, x0, v in zip(bodies, self.start, velocities):
-            far = _distance(_xyz(b.pose.position), x0)
-            fast = _distance(v, self.frame)
-            if not far <= self.far:
-                self.far = far
-            if not fast <= self.fast:
-                self.fast = fast
+        (x1, x2), (v1, v2) = self.start, velocities
+        p1, p2 = bodies[0].pose.position, bodies[1].pose.position
+        far = max(math.hypot(p1.x - x1[0], p1.y - x1[1], p1.z - x1[2]), math.hypot(p2.x - x2[0], p2.y - x2[1], p2.z - x2[2]))
+        fast = max(_distance(v1, self.frame), _distance(v2, self.frame))
+        if not far <= self.far:
+            self.far = far
+        if not fast <= self.fast:
+            self.fast = fast
 
     def _kinetic(self, bodies, velocities) -> float:
         ke = 0.0
+        f = self.frame
         for i, (b, v) in enumerate(zip(bodies, velocities)):
-            speed = _distance(v, self.frame)
-            ke += 0.5 * b.mass * speed * speed  # not ** 2: an exploded speed overflows to Inf, not an exception
+            dx, dy, dz = v[0] - f[0], v[1] - f[1], v[2] - f[2]
+            ke += 0.5 * b.mass * (dx * dx + dy * dy + dz * dz)  # not ** 2: an exploded speed overflows to Inf
             if self.inertia is not None:
-                from dockhil.contact.rigid import rotate_back
-
-                o = b.pose.orientation
-                w = rotate_back((o.x, o.y, o.z, o.w), _xyz(b.twist.angular))  # body axes
-                inertia = self.inertia[i]
-                ke += 0.5 * sum(w[r] * sum(inertia[r][c] * w[c] for c in range(3)) for r in range(3))
+                o, w = b.pose.orientation, b.twist.angular
+                x, y, z = self.rotate_back((o.x, o.y, o.z, o.w), (w.x, w.y, w.z))  # body axes
+                (a, b_, c), (d, e, g), (h, k, m) = self.inertia[i]
+                ke += 0.5 * (x * (a * x + b_ * y + c * z) + y * (d * x + e * y + g * z) + z * (h * x + k * y + m * z))
         return ke
 
     def reasons(self, largest_force: float | None, force_scale: list[tuple[float, str]], energy_extra: float,
