@@ -16,6 +16,7 @@ import yaml
 
 from dockhil.errors import DockhilError
 
+
 class YamlError(DockhilError):
     """A document refused: one line naming the source; `line` where it went wrong (None: unknown)."""
 

@@ -40,14 +40,14 @@ from __future__ import annotations
 import difflib
 import math
 import re
-
-import msgspec
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Union
 
+import msgspec
+
 from dockhil import boundedyaml
-from dockhil.errors import DockhilError, LaunchError, suggest
+from dockhil.errors import LaunchError, suggest
 from dockhil.launchschema import (MAX_INCLUDES, MAX_NODES, MAX_SUBSTITUTED, MAX_TEXT, ArgDecl, LaunchFile, Lets,
                                   NodeDecl, Scalar, SchemaError, convert)
 

@@ -184,7 +184,8 @@ class RangeMeter:
             self.ke_max, self.tick = ke, msg.header.tick
         (x1, x2), (v1, v2) = self.start, velocities
         p1, p2 = bodies[0].pose.position, bodies[1].pose.position
-        far = max(math.hypot(p1.x - x1[0], p1.y - x1[1], p1.z - x1[2]), math.hypot(p2.x - x2[0], p2.y - x2[1], p2.z - x2[2]))
+        far = max(math.hypot(p1.x - x1[0], p1.y - x1[1], p1.z - x1[2]),
+                  math.hypot(p2.x - x2[0], p2.y - x2[1], p2.z - x2[2]))
         fast = max(_distance(v1, self.frame), _distance(v2, self.frame))
         if not far <= self.far:
             self.far = far
