@@ -16,6 +16,15 @@ import yaml
 
 from dockhil.errors import DockhilError
 
+
+class YamlError(DockhilError):
+    """A document refused: one line naming the source; `line` where it went wrong (None: unknown)."""
+
+    def __init__(self, message: str, line: int | None = None):
+        super().__init__(message)
+        self.line = line
+
+
 MAX_BYTES = 1 << 20  # a launch file is a page or two of text
 MAX_DEPTH = 32  # mappings and lists nested in each other
 MAX_NODES = 100_000  # scalars, lists and mappings, every alias expanded
@@ -29,14 +38,15 @@ class _Loader(yaml.SafeLoader):
             event = self.peek_event()
             node = super().compose_node(parent, index)
             if not hasattr(node, "expanded"):  # named before it is complete: it contains itself
-                raise DockhilError(f"{self.name}:{event.start_mark.line + 1}: alias *{event.anchor} refers to the "
-                                   f"value that contains it (a recursive document); write the value out")
+                raise YamlError(f"{self.name}:{event.start_mark.line + 1}: alias *{event.anchor} refers to the "
+                                f"value that contains it (a recursive document); write the value out",
+                                event.start_mark.line + 1)
             return node
         self.depth += 1
         try:
             if self.depth > MAX_DEPTH:
-                raise DockhilError(f"{self.name}:{self.peek_event().start_mark.line + 1}: "
-                                   f"nested deeper than {MAX_DEPTH} levels")
+                line = self.peek_event().start_mark.line + 1
+                raise YamlError(f"{self.name}:{line}: nested deeper than {MAX_DEPTH} levels", line)
             node = super().compose_node(parent, index)
         finally:
             self.depth -= 1
@@ -48,11 +58,11 @@ class _Loader(yaml.SafeLoader):
         node.nesting = 1 + max((k.nesting for k in kids), default=0)
         line = node.start_mark.line + 1
         if node.expanded > MAX_NODES:
-            raise DockhilError(f"{self.name}:{line}: expands to more than {MAX_NODES} values "
-                               f"(each alias repeats what it names); write a smaller file")
+            raise YamlError(f"{self.name}:{line}: expands to more than {MAX_NODES} values "
+                            f"(each alias repeats what it names); write a smaller file", line)
         if node.nesting > MAX_DEPTH:
-            raise DockhilError(f"{self.name}:{line}: nested deeper than {MAX_DEPTH} levels once its aliases "
-                               f"are expanded")
+            raise YamlError(f"{self.name}:{line}: nested deeper than {MAX_DEPTH} levels once its aliases "
+                            f"are expanded", line)
         return node
 
 
@@ -64,10 +74,10 @@ _Loader.add_implicit_resolver(
 
 
 def load(text: str, source: str):
-    """(data, root node) of one YAML document; DockhilError, one line naming `source`, if refused.
+    """(data, root node) of one YAML document; YamlError, one line naming `source`, if refused.
     The root node's marks give line numbers for later messages (see `line_of`)."""
     if len(text) > MAX_BYTES:
-        raise DockhilError(f"{source}: {len(text)} characters; a launch file may have at most {MAX_BYTES}")
+        raise YamlError(f"{source}: {len(text)} characters; a launch file may have at most {MAX_BYTES}")
     loader = None
     try:
         loader = _Loader(text)  # its reader refuses control characters here
@@ -80,9 +90,9 @@ def load(text: str, source: str):
         mark = getattr(exc, "problem_mark", None)
         where = f"{source}:{mark.line + 1}" if mark else source
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise DockhilError(f"{where}: not valid YAML: {problem}") from None
+        raise YamlError(f"{where}: not valid YAML: {problem}", mark.line + 1 if mark else None) from None
     except ValueError as exc:  # a number too long to convert (Python limits int digits)
-        raise DockhilError(f"{source}: not valid YAML: {exc}") from None
+        raise YamlError(f"{source}: not valid YAML: {exc}") from None
     finally:
         if loader is not None:
             loader.dispose()

@@ -37,14 +37,17 @@ dockhil.launchschema: every refusal is one line with file, line and field.
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Union
 
+import msgspec
+
 from dockhil import boundedyaml
-from dockhil.errors import DockhilError, LaunchError, suggest
+from dockhil.errors import LaunchError, suggest
 from dockhil.launchschema import (MAX_INCLUDES, MAX_NODES, MAX_SUBSTITUTED, MAX_TEXT, ArgDecl, LaunchFile, Lets,
                                   NodeDecl, Scalar, SchemaError, convert)
 
@@ -204,7 +207,9 @@ class _Budget:
     text: int = 0  # characters built by substitution inside longer strings
 
 
-def _read_yaml(path: Path, budget: _Budget) -> tuple[dict, Any]:
+def _read_yaml(path: Path, budget: _Budget, included_from: Path | None = None) -> tuple[dict, Any]:
+    """The file's document. An included file that is not a launch file (a YAML mapping of launch-file
+    keys) is refused naming it, never with what it holds: an include can name any file the user reads."""
     budget.files += 1
     if budget.files > MAX_INCLUDES:
         raise LaunchError(f"{path}: more than {MAX_INCLUDES} launch files read for one scene; "
@@ -217,15 +222,33 @@ def _read_yaml(path: Path, budget: _Budget) -> tuple[dict, Any]:
         if len(raw) > boundedyaml.MAX_BYTES:
             raise LaunchError(f"{path}: larger than {boundedyaml.MAX_BYTES} bytes; a launch file is a page or two")
         text = raw.decode("utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise LaunchError(f"{path}: cannot read: {exc}") from None
+    except UnicodeDecodeError:
+        raise LaunchError(_not_launch_file(path, included_from, "not UTF-8 text")) from None
+    except OSError as exc:
+        raise LaunchError(f"{path}: cannot read: {exc.strerror or exc}") from None
     try:
         data, root = boundedyaml.load(text, str(path))
-    except DockhilError as exc:
+    except boundedyaml.YamlError as exc:
+        if included_from is not None:
+            at = f" at line {exc.line}" if exc.line else ""
+            raise LaunchError(_not_launch_file(path, included_from, f"not valid YAML{at}")) from None
         raise LaunchError(str(exc)) from None
+    if isinstance(data, dict) and included_from is None and data and not any(
+            isinstance(k, str) and difflib.get_close_matches(k, LAUNCH_KEYS, n=1) for k in data):
+        # Not one key is, or is close to, a launch file's: some other file, whose keys are its content.
+        raise LaunchError(f"{path}: not a launch file (a YAML mapping of {', '.join(LAUNCH_KEYS)})")
+    if included_from is not None and (not isinstance(data, dict) or not set(data) <= LAUNCH_KEYS):
+        raise LaunchError(_not_launch_file(path, included_from, f"not a YAML mapping of {', '.join(LAUNCH_KEYS)}"))
     if not isinstance(data, dict):
         raise LaunchError(f"{path}: a launch file is a YAML mapping with `nodes:`; got {type(data).__name__}")
     return data, root
+
+
+LAUNCH_KEYS = {f.encode_name: None for f in msgspec.structs.fields(LaunchFile)}.keys()
+
+
+def _not_launch_file(path: Path, included_from: Path, why: str) -> str:
+    return f"{path} (included from {included_from}): not a launch file ({why})"
 
 
 def _where(path: Path, root: Any, at: list) -> str:
@@ -243,7 +266,7 @@ def _load(path: Path, given: dict[str, Any], from_cli: bool, stack: tuple, budge
     if resolved in stack:
         chain = " -> ".join(str(p) for p in (*stack, resolved))
         raise LaunchError(f"include cycle: {chain}")
-    data, root = _read_yaml(path, budget)
+    data, root = _read_yaml(path, budget, stack[-1] if stack else None)
     try:
         return _scene(path, data, root, given, from_cli, stack, budget)
     except SchemaError as exc:

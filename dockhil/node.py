@@ -120,9 +120,9 @@ class Param:
     le: float | None = None
     lt: float | None = None
     choices: tuple | None = None
-    # (low, high): the magnitude of a nonzero value lies within this range, that of docking hardware,
-    # so no product or quotient the loop and its scene check form leaves floating point (1e-300 kg
-    # otherwise asks the scene check for a rate of 1e150 Hz).
+    # (low, high): the magnitude of a nonzero value (of each number of a list) lies within this range,
+    # that of docking hardware (dockhil.physical), so no product or quotient the loop and its scene
+    # check form leaves floating point (1e-300 kg otherwise asks the scene check for a rate of 1e150 Hz).
     scale: tuple[float, float] | None = None
 
     def check(self, node: str, name: str, value: Any) -> Any:
@@ -159,10 +159,15 @@ class Param:
         ):
             if bound is not None and not ok(bound):
                 raise ParamError(f"{where}: {value!r} is out of range, must be {sym} {bound}")
-        if self.scale is not None and value != 0 and not self.scale[0] <= abs(value) <= self.scale[1]:
-            unit = f" {self.unit}" if self.unit else ""
-            raise ParamError(f"{where}: {value!r}{unit} is outside {self.scale[0]:g} to {self.scale[1]:g}{unit} "
-                             f"in magnitude, the range of docking hardware; give a physical value")
+        if self.scale is not None:
+            for at, number in _numbers(value):  # a list parameter: each of its numbers
+                if isinstance(number, float) and not math.isfinite(number):
+                    raise ParamError(f"{where}{at}: {number!r} is not a finite number ({self._describe()})")
+                if number != 0 and not self.scale[0] <= abs(number) <= self.scale[1]:
+                    unit = f" {self.unit}" if self.unit else ""
+                    raise ParamError(f"{where}{at}: {number!r}{unit} is outside {self.scale[0]:g} to "
+                                     f"{self.scale[1]:g}{unit} in magnitude, the range of docking hardware; "
+                                     f"give a physical value")
         if self.choices is not None and value not in self.choices:
             raise ParamError(f"{where}: {value!r} is not one of {', '.join(map(str, self.choices))}")
         return value
@@ -170,6 +175,16 @@ class Param:
     def _describe(self) -> str:
         unit = f" [{self.unit}]" if self.unit else ""
         return f"{self.type.__name__}{unit}, default {self.default!r}: {self.help}".rstrip(": ")
+
+
+def _numbers(value: Any, at: str = ""):
+    """(where, number) of a number or of each number in nested lists (`[1]`, `[0][2]`); what is not
+    a number is left to the node's own check of the list's shape."""
+    if isinstance(value, list):
+        for i, item in enumerate(value):
+            yield from _numbers(item, f"{at}[{i}]")
+    elif isinstance(value, (int, float)) and not isinstance(value, bool):
+        yield at, value
 
 
 @dataclass

@@ -23,7 +23,7 @@ import time
 from dockhil import validity
 from dockhil.log import Log
 from dockhil.errors import DockhilError
-from dockhil.files import complete_or_nothing
+from dockhil.files import _remove_quietly, complete_or_nothing, os_reason
 from dockhil.graph import Graph
 
 
@@ -49,9 +49,9 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
         check_bag_path(bag)
     from dockhil.scenecheck import scene_check
 
-    # A compensated scene's validity (the controller saturated) is in its summary: always compute it.
-    compensated = any(gn.params.get("compensation") == "passivity" for gn in graph.nodes.values())
-    want_summary = has_dynamics and n_ticks is not None and (summary is not None or show_summary or compensated)
+    # A run's validity is in its summary too (it left the physical range, a compensation saturated):
+    # a run with dynamics always has one, printed or not.
+    want_summary = has_dynamics and n_ticks is not None
     # The loop this scene will run: refused here (one line) when its step does not resolve the contact.
     for line in scene_check(graph)["warnings"]:
         say.warning(line)
@@ -113,9 +113,13 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
             if show_summary:
                 print(summ.format_summary(out), flush=True)
             if summary is not None:
-                with complete_or_nothing(summary) as part, open(part, "w") as f:
-                    f.write(json.dumps(out, indent=1))
-                say.info(f"summary written to {summary}")
+                try:
+                    with complete_or_nothing(summary) as part, open(part, "w") as f:
+                        f.write(json.dumps(out, indent=1))
+                    say.info(f"summary written to {summary}")
+                except DockhilError as exc:  # the disk filled during the run: the run is not complete
+                    say.error(f"--summary: {exc}; the run's summary is lost")
+                    code = 1
         elif code == 0 and clock == "sim" and n_ticks:
             sim_s = (n_ticks - 1) * dt
             say.info(f"done: {sim_s:g} s simulated in {elapsed:.2f} s ({sim_s / elapsed:.1f}x real time)")
@@ -125,6 +129,9 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     if reasons and code == validity.INVALID_EXIT:  # one line, right under the summary table where there is one
         say.error(f"{validity.invalid_line(reasons)} (exit {validity.INVALID_EXIT})", tag="")  # it says INVALID
     return code
+
+
+SUMMARY_RESERVE = 64 * 1024  # [bytes] written before the run: a summary takes a few kB
 
 
 def _check_writable(path: str, bag: str | None) -> None:
@@ -144,12 +151,18 @@ def _check_writable(path: str, bag: str | None) -> None:
             os.remove(path)
         except OSError as exc:
             raise DockhilError(f"--summary {path}: cannot replace the earlier summary ({exc.strerror})") from None
-        return
-    try:  # opening it is the one test that holds for every user and file system
-        open(path, "a").close()
+    # Writing as much as a summary takes, to the disk, is the one test that holds for every user and
+    # file system, and a full disk fails it now rather than after the run.
+    try:
+        with open(path, "wb") as f:
+            f.write(b" " * SUMMARY_RESERVE)
+            f.flush()
+            os.fsync(f.fileno())
     except OSError as exc:
-        raise DockhilError(f"--summary {path}: not writable ({exc.strerror})") from None
-    os.remove(path)
+        raise DockhilError(f"--summary {path}: cannot be written ({os_reason(exc)}); free some space or "
+                           f"give another path") from None
+    finally:
+        _remove_quietly(path)
 
 
 def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool, bag: str | None,

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dockhil import msgs
+from dockhil import msgs, physical
 from dockhil.scenecheck import _first, scene_check  # noqa: F401  (the summary's check, re-exported for the session)
 
 
@@ -58,7 +58,8 @@ class ContactMeter:
         self.t_start = self.t_end = None
         self.entry = None
         self.samples_in = 0
-        self.peak = -math.inf
+        self.peak = -math.inf  # the first contact's largest compressive force
+        self.largest = 0.0  # the run's largest |force|, whatever happened to the contact
         self.exit = None  # relative velocity after the last acting tick seen so far
         self.ideal = ideal
         self.max_err = 0.0
@@ -85,6 +86,8 @@ class ContactMeter:
             self.t_end = _crossing(prev[0], prev[1], t, p)
         elif self.state == "after" and touching:
             self.state = "done"
+        if not abs(force) <= self.largest:  # an Inf or NaN too: it is what the run reached
+            self.largest = abs(force)
         if self.state == "in":
             self.samples_in += 1
             self.peak = max(self.peak, force)
@@ -106,20 +109,18 @@ class ContactMeter:
         self.chunk_f.clear()
 
     def result(self) -> dict:
-        """peak_force_N, contact_duration_s, entry_velocity_mps, exit_velocity_mps,
-        restitution, contact_start_s (None where absent), and a `note` when something is not
-        resolved or not over."""
-        out = {"peak_force_N": None, "contact_duration_s": None, "entry_velocity_mps": None,
-               "exit_velocity_mps": None, "restitution": None, "contact_start_s": None}
+        """peak_force_N (the largest |force| of the run, whatever happened to the contact),
+        contact_duration_s, entry_velocity_mps, exit_velocity_mps, restitution, contact_start_s
+        (None where absent), and a `note` when something is not resolved or not over."""
+        out = {"peak_force_N": float(self.largest) if self.n else None, "contact_duration_s": None,
+               "entry_velocity_mps": None, "exit_velocity_mps": None, "restitution": None, "contact_start_s": None}
         if self.state == "before":
             return out
         out["contact_start_s"] = float(self.t_start)
         out["entry_velocity_mps"] = float(self.entry)
         if self.state != "in" and self.samples_in <= 1:
-            out["note"] = ("the contact lasted less than one sample: its peak force and duration are not "
-                           "resolved at this rate")
-        else:
-            out["peak_force_N"] = float(self.peak)
+            out["note"] = ("the contact lasted less than one sample: its duration is not resolved at this rate, "
+                           "nor its peak force compared")
         if self.state == "in":
             out["note"] = ("the contact had not ended when the run stopped: its peak force so far is not compared "
                            "with the ideal's; run longer for its peak, duration and exit")
@@ -139,6 +140,110 @@ class ContactMeter:
     def max_force_error(self) -> float:
         self._compare()
         return self.max_err
+
+
+class RangeMeter:
+    """How far a run's bodies went from the scene's own scale, fed the published states one at a
+    time; O(1) memory. Kinetic energy [J] is taken in the frame of the start: the fixed target's
+    (a body of mass 0), else the bodies' centre of mass; `inertia` (the two bodies' 3x3 inertias
+    in body axes, 6-DOF) adds the rotation's. What the loop may give the bodies is judged by
+    `reasons` (docs/summary.md, "A run that leaves the physical range")."""
+
+    def __init__(self, inertia: tuple | None = None):
+        self.inertia = None if inertia is None else tuple(np.asarray(i, float).tolist() for i in inertia)
+        if inertia is not None:
+            from dockhil.contact.rigid import rotate_back
+
+            self.rotate_back = rotate_back
+        self.start = None  # positions at the first state
+        self.frame = None  # velocity of the frame of the start
+        self.m_red = 0.0  # reduced mass of the relative motion [kg] (the chaser's alone, for a fixed target)
+        self.p0 = 0.0  # penetration x1 - x2 along x at the start (1-DOF) [m]
+        self.ke0 = self.ke_max = 0.0
+        self.far = self.fast = 0.0  # [m], [m/s]: the largest distance from the start and speed in the frame
+        self.tick = None  # tick of the largest kinetic energy
+
+    def __call__(self, msg) -> None:
+        bodies = msg.bodies[:2]
+        if len(bodies) < 2:
+            return
+        velocities = [_xyz(b.twist.linear) for b in bodies]
+        if self.start is None:
+            self.start = [_xyz(b.pose.position) for b in bodies]
+            masses = [b.mass for b in bodies]
+            fixed = next((v for m, v in zip(masses, velocities) if m == 0.0), None)
+            total = sum(masses)
+            self.frame = fixed if fixed is not None else [sum(m * v[i] for m, v in zip(masses, velocities)) / total
+                                                          for i in range(3)]
+            m1, m2 = masses
+            self.m_red = m1 if m2 == 0.0 else m2 if m1 == 0.0 else m1 * m2 / (m1 + m2)
+            self.p0 = self.start[0][0] - self.start[1][0]
+            self.ke0 = self._kinetic(bodies, velocities)
+        ke = self._kinetic(bodies, velocities)
+        if not ke <= self.ke_max:  # an Inf or NaN too
+            self.ke_max, self.tick = ke, msg.header.tick
+        (x1, x2), (v1, v2) = self.start, velocities
+        p1, p2 = bodies[0].pose.position, bodies[1].pose.position
+        far = max(math.hypot(p1.x - x1[0], p1.y - x1[1], p1.z - x1[2]),
+                  math.hypot(p2.x - x2[0], p2.y - x2[1], p2.z - x2[2]))
+        fast = max(_distance(v1, self.frame), _distance(v2, self.frame))
+        if not far <= self.far:
+            self.far = far
+        if not fast <= self.fast:
+            self.fast = fast
+
+    def _kinetic(self, bodies, velocities) -> float:
+        ke = 0.0
+        f = self.frame
+        for i, (b, v) in enumerate(zip(bodies, velocities)):
+            dx, dy, dz = v[0] - f[0], v[1] - f[1], v[2] - f[2]
+            ke += 0.5 * b.mass * (dx * dx + dy * dy + dz * dz)  # not ** 2: an exploded speed overflows to Inf
+            if self.inertia is not None:
+                o, w = b.pose.orientation, b.twist.angular
+                x, y, z = self.rotate_back((o.x, o.y, o.z, o.w), (w.x, w.y, w.z))  # body axes
+                (a, b_, c), (d, e, g), (h, k, m) = self.inertia[i]
+                ke += 0.5 * (x * (a * x + b_ * y + c * z) + y * (d * x + e * y + g * z) + z * (h * x + k * y + m * z))
+        return ke
+
+    def reasons(self, largest_force: float | None, force_scale: list[tuple[float, str]], energy_extra: float,
+                stiffness: float = 0.0) -> list[str]:
+        """Why the run left the physical range (dockhil.physical), or nothing. force_scale: the scene's
+        forces to judge the largest by, as (newtons, what); energy_extra [J]: what else than the bodies'
+        start gives them energy (a thrust); stiffness [N/m]: the stiffest spring a starting penetration
+        compresses."""
+        out = []
+        scale = max(force_scale, default=(0.0, ""))
+        if largest_force is not None:
+            if scale[0] > 0.0 and not largest_force <= physical.RUN_FORCE_FACTOR * scale[0]:
+                out.append(f"the force reached {largest_force:.3g} N, {largest_force / scale[0]:.3g} times "
+                           f"{scale[1]} ({scale[0]:.4g} N; more than {physical.RUN_FORCE_FACTOR:g} times is "
+                           f"beyond the physical range): the loop exploded or its input is not physical")
+            elif scale[0] == 0.0 and not largest_force <= physical.RUN_FORCE:
+                out.append(f"the force reached {largest_force:.3g} N, beyond the {physical.RUN_FORCE:g} N any "
+                           f"docking hardware bears: the loop exploded or its input is not physical")
+        if self.start is None:
+            return out
+        floor = 0.5 * self.m_red * physical.RUN_SPEED_FLOOR ** 2
+        given = self.ke0 + energy_extra + (0.5 * stiffness * self.p0 ** 2 if self.p0 > 0.0 else 0.0)
+        budget = max(given, floor)
+        if not self.ke_max <= physical.RUN_ENERGY_FACTOR * budget:
+            out.append(f"the bodies' kinetic energy reached {self.ke_max:.3g} J at tick {self.tick}, "
+                       f"{self.ke_max / budget:.3g} times the {budget:.3g} J the scene gave them (more than "
+                       f"{physical.RUN_ENERGY_FACTOR:g} times): the loop made the energy")
+        if not self.far <= physical.RUN_DISTANCE:
+            out.append(f"a body went {self.far:.3g} m from where it started, beyond {physical.RUN_DISTANCE:g} m")
+        if not self.fast <= physical.RUN_SPEED:
+            out.append(f"a body reached {self.fast:.3g} m/s, beyond the {physical.RUN_SPEED:g} m/s of docking "
+                       f"hardware")
+        return out
+
+
+def _xyz(v) -> list[float]:
+    return [v.x, v.y, v.z]
+
+
+def _distance(a, b) -> float:
+    return math.hypot(a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
 def _crossing(t0: float, p0: float, t1: float, p1: float) -> float:
@@ -231,7 +336,7 @@ def _summary(meter: ContactMeter, run_time_s: float | None, ideal: dict | None, 
         ref = {k: ideal.get(k) for k in _COMPARED}
         out["ideal"] = ref
         err = {k: (None if out[k] is None or ref[k] is None else out[k] - ref[k]) for k in ref}
-        if meter.state == "in":  # the peak so far need not be the contact's: no error to report
+        if meter.state == "in" or meter.samples_in <= 1:  # the peak so far, or of no resolved contact: no error
             err["peak_force_N"] = None
         err["max_force_N"] = max_err
         out["error"] = {k: err.get(k) for k in ("peak_force_N", "max_force_N", "contact_duration_s",
@@ -362,6 +467,7 @@ class SummaryCollector:
         self.meter = ContactMeter(ideal=ref.get("ideal"), growth_about=None if growth is None else growth["about"])
         self.match = _TickMatcher(self.meter.add, ref.get("ideal_force"), graph.scene.dt)
         self.energy = EnergyMeter()
+        self.ranges = RangeMeter()
 
     def __call__(self, topic: str, msg) -> None:
         if self.six is not None:
@@ -370,6 +476,8 @@ class SummaryCollector:
         if topic == "/energy" and isinstance(msg, msgs.Energy):
             self.energy.add(msg)
             return
+        if isinstance(msg, msgs.SatelliteState):
+            self.ranges(msg)
         self.match(topic, msg)
 
     def summary(self, run_time_s: float | None = None) -> dict:
@@ -378,7 +486,34 @@ class SummaryCollector:
         self.match.flush()
         out = scene_summary(self.graph, self.meter, run_time_s)
         energy_summary(out, self.graph, self.energy)
+        range_summary(out, self.graph, self.ranges, self.meter.largest if self.meter.n else None)
         return out
+
+
+def range_summary(out: dict, graph, ranges: RangeMeter, largest_force: float | None) -> None:
+    """Mark a summary invalid, with its reasons, where the run left the physical range: its forces,
+    its bodies' energy, distance or speed (RangeMeter.reasons), judged by the scene's own scale."""
+    scale = []
+    ideal_peak = (out.get("ideal") or {}).get("peak_force_N")
+    if ideal_peak:
+        scale.append((ideal_peak, "the ideal contact's peak"))
+    dyn, ft, imp = _first(graph, "satellite_dynamics"), _first(graph, "ft_sim"), _first(graph, "virtual_impedance")
+    thrust = abs(dyn.params["thrust"]) if dyn is not None else 0.0
+    if thrust:
+        scale.append((thrust, "the thrust"))
+    for gn in graph.nodes.values():
+        if gn.type_name == "robot_modbus" and gn.params.get("max_force"):
+            scale.append((gn.params["max_force"], f"node {gn.name!r}'s max_force"))
+    k = ft.params["k"] if ft is not None else 0.0
+    # What a thrust gives the bodies: pressed on a spring k from rest, at most thrust^2 / 2k of motion;
+    # with nothing to press on, its work over the farthest a body may go.
+    extra = 0.0 if not thrust else thrust * thrust / (2.0 * k) if k > 0.0 else thrust * physical.RUN_DISTANCE
+    springs = [k, imp.params["kcs"] if imp is not None else 0.0,
+               dyn.params["kcs"] if dyn is not None and dyn.params["model"] == "ideal" else 0.0]
+    reasons = ranges.reasons(largest_force, scale, extra, max(springs))
+    if reasons:
+        out["invalid_reasons"] = [*(out.get("invalid_reasons") or []), *reasons]
+        out["valid"] = False
 
 
 def energy_summary(out: dict, graph, meter) -> None:

@@ -28,7 +28,7 @@ import math
 from dockhil import msgs
 from dockhil.contact.rigid import cross3, rotate, sub3
 from dockhil.scenecheck import sixdof_nodes
-from dockhil.summary import ContactMeter, _TickMatcher
+from dockhil.summary import ContactMeter, RangeMeter, _TickMatcher, range_summary
 
 VECTORS = ("relative_velocity_mps", "relative_angular_velocity_radps")
 
@@ -58,8 +58,9 @@ class ContactMeter6:
         m.add(t, p, pd, _norm(force), acting)
         if before == "before" and m.state == "in":
             self.entry = (tuple(velocity), tuple(angular_velocity))
-        if m.state == "in":
-            self.peak_torque = max(self.peak_torque, _norm(torque))
+        torque_norm = _norm(torque)
+        if not torque_norm <= self.peak_torque:  # the run's largest, as the peak force (an Inf or NaN too)
+            self.peak_torque = torque_norm
 
     def result(self) -> dict:
         """ContactMeter's keys (peak_force_N is max |F|, velocities their normal components) and
@@ -178,8 +179,11 @@ class SummaryCollector6:
         self.dyn, self.imp = sixdof_nodes(graph)
         self.meter = ContactMeter6()
         self.match = TickMatcher6(self.meter.add, self.dyn, graph.scene.dt)
+        self.ranges = RangeMeter(inertia=(self.dyn.b1.inertia, self.dyn.b2.inertia))
 
     def __call__(self, topic: str, msg) -> None:
+        if isinstance(msg, msgs.SatelliteState):
+            self.ranges(msg)
         self.match(topic, msg)
 
     def summary(self, run_time_s: float | None = None) -> dict:
@@ -203,6 +207,7 @@ class SummaryCollector6:
         check = scene_check(self.graph, refuse=False)
         out["loop"] = check["loop"]
         out["warnings"] = check["warnings"]
+        range_summary(out, self.graph, self.ranges, m.largest if m.n else None)
         return out
 
 

@@ -35,6 +35,7 @@ from dockhil import msgs
 from dockhil.msgs.codec import decode_header
 from dockhil.bag import BagError, BagReader
 from dockhil.errors import DockhilError, ParamError
+from dockhil.launchschema import MAX_DURATION
 from dockhil.node import Node, Output, Param
 
 _summaries: dict[tuple, dict] = {}
@@ -85,7 +86,7 @@ class BagSource(Node):
     params = {
         "path": Param(str, "", help="MCAP bag to replay"),
         "topics": Param(list, [], help="topics to replay (default: every topic in the bag)"),
-        "start": Param(float, 0.0, unit="s", ge=0.0,
+        "start": Param(float, 0.0, unit="s", ge=0.0, le=MAX_DURATION,
                        help="skip the first S seconds of the bag (sim time: S/dt ticks)"),
     }
 

@@ -8,7 +8,7 @@ from collections import deque
 
 import msgspec
 
-from dockhil import msgs
+from dockhil import msgs, physical
 from dockhil.node import Input, Node, Output, Param
 
 
@@ -16,8 +16,10 @@ class DelayInjector(Node):
     """Re-publishes its input `delay` seconds later (exact in ticks in sim time); jitter and loss optional."""
 
     params = {
-        "delay": Param(float, 0.032, unit="s", help="fixed delay (rounded to whole ticks)", ge=0.0),
-        "jitter": Param(float, 0.0, unit="s", help="extra delay, uniform in [0, jitter], per message", ge=0.0),
+        "delay": Param(float, 0.032, unit="s", help="fixed delay (rounded to whole ticks)", ge=0.0,
+                       scale=physical.TIME),
+        "jitter": Param(float, 0.0, unit="s", help="extra delay, uniform in [0, jitter], per message", ge=0.0,
+                        scale=physical.TIME),
         "loss": Param(float, 0.0, help="probability that a message is lost (the last one is held)", ge=0.0, le=1.0),
         "seed": Param(int, 0, help="seed of jitter and loss: the same seed, the same run"),
         "type": Param(str, "dockhil/RobotCommand", help="message type of the delayed topic",

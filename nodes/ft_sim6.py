@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dockhil import physical
 from dockhil.node import Input, Node, Output, Param
 from dockhil.msgs import RobotState, Vector3, Wrench, WrenchStamped
 from dockhil.nodes.robot_sim6 import relative_pose
@@ -20,8 +21,10 @@ class FtSensorSim6(Node):
     outputs = {"wrench": Output(WrenchStamped, "/ft/wrench", help="wrench on the target, sensor frame")}
     params = {
         **PASSIVE_PARAMS,
-        "mu": Param(float, 0.0, help="tangential Coulomb friction of the hardware contact", ge=0.0),
-        "slip_velocity": Param(float, 1e-3, unit="m/s", help="friction regularising sliding speed", gt=0.0),
+        "mu": Param(float, 0.0, help="tangential Coulomb friction of the hardware contact", ge=0.0,
+                    scale=physical.FRICTION),
+        "slip_velocity": Param(float, 1e-3, unit="m/s", help="friction regularising sliding speed", gt=0.0,
+                               scale=physical.SPEED),
         **MOUNT_PARAMS,
     }
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dockhil import physical
 from dockhil.node import Input, Node, Output, Param
 from dockhil.msgs import Pose, RobotCommand, RobotState, Twist, Vector3
 
@@ -11,7 +12,8 @@ class RobotSim(Node):
 
     inputs = {"command": Input(RobotCommand, "/robot/command", help="probe pose setpoint")}
     outputs = {"state": Output(RobotState, "/robot/state", help="actual probe pose")}
-    params = {"lag": Param(float, 0.0, unit="s", help="servo time constant (0: follows exactly)", ge=0.0)}
+    params = {"lag": Param(float, 0.0, unit="s", help="servo time constant (0: follows exactly)", ge=0.0,
+                        scale=physical.TIME)}
 
     def setup(self):
         from dockhil.contact.hilloop import Servo

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dockhil import physical
 from dockhil.node import Input, Node, Output, Param
 from dockhil.msgs import Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3
 
@@ -21,7 +22,8 @@ class RobotSim6(Node):
 
     inputs = {"command": Input(RobotCommand, "/robot/command", help="interface pose setpoint, in B")}
     outputs = {"state": Output(RobotState, "/robot/state", help="actual interface pose, in B")}
-    params = {"lag": Param(float, 0.0, unit="s", help="servo time constant (0: follows exactly)", ge=0.0)}
+    params = {"lag": Param(float, 0.0, unit="s", help="servo time constant (0: follows exactly)", ge=0.0,
+                        scale=physical.TIME)}
 
     def setup(self):
         from dockhil.contact.hybrid6 import Servo6

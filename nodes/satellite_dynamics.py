@@ -35,10 +35,12 @@ class SatelliteDynamics(Node):
                         choices=("exact", "rk4", "symplectic_euler", "euler")),
         "model": Param(str, "hybrid", help="hybrid: forces come from the F/T and impedance topics; "
                        "ideal: the ideal spring-dashpot (kcs, bcs) acts inside the node", choices=("hybrid", "ideal")),
-        "kcs": Param(float, 3000.0, unit="N/m", help="ideal contact stiffness (model=ideal)", ge=0.0),
-        "bcs": Param(float, 40.0, unit="N s/m", help="ideal contact damping (model=ideal)", ge=0.0),
+        "kcs": Param(float, 3000.0, unit="N/m", help="ideal contact stiffness (model=ideal)", ge=0.0,
+                     scale=physical.STIFFNESS),
+        "bcs": Param(float, 40.0, unit="N s/m", help="ideal contact damping (model=ideal)", ge=0.0,
+                     scale=physical.DAMPING),
         "substeps": Param(int, 1, help="integrator steps per tick (forces held over the tick; the ideal "
-                          "contact is integrated inside each)", ge=1),
+                          "contact is integrated inside each)", ge=1, le=1000),
         "allow_coarse": Param(bool, False, help="run even where the step does not resolve the contact "
                               "(the summary then carries the warning)"),
     }

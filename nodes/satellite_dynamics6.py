@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dockhil import physical
 from dockhil.node import Input, Node, Output, Param
 from dockhil.msgs import (BodyState, BodyWrenches, Pose, Quaternion, RobotCommand, SatelliteState, Twist, Vector3,
                   WrenchStamped)
@@ -36,18 +37,22 @@ class SatelliteDynamics6(Node):
     }
     params = {
         **BODY_PARAMS,
-        "x1": Param(list, [-1.0, 0.0, 0.0], unit="m", help="chaser CoM, world"),
-        "x2": Param(list, [2.0, 0.0, 0.0], unit="m", help="target CoM, world"),
+        "x1": Param(list, [-1.0, 0.0, 0.0], unit="m", help="chaser CoM, world", scale=physical.DISTANCE),
+        "x2": Param(list, [2.0, 0.0, 0.0], unit="m", help="target CoM, world", scale=physical.DISTANCE),
         "q1": Param(list, IDENTITY, help="chaser attitude, body -> world (x, y, z, w)"),
         "q2": Param(list, IDENTITY, help="target attitude, body -> world (x, y, z, w)"),
         "attitude1": Param(list, [0.0, 0.0, 0.0], unit="rad",
-                           help="chaser attitude change as a rotation vector, applied after q1 (world axes)"),
+                           help="chaser attitude change as a rotation vector, applied after q1 (world axes)",
+                           scale=physical.ANGLE),
         "attitude2": Param(list, [0.0, 0.0, 0.0], unit="rad",
-                           help="target attitude change as a rotation vector, applied after q2 (world axes)"),
-        "v1": Param(list, [0.03, 0.0, 0.0], unit="m/s", help="chaser CoM velocity, world"),
-        "v2": Param(list, [0.0, 0.0, 0.0], unit="m/s", help="target CoM velocity, world"),
-        "w1": Param(list, [0.0, 0.0, 0.0], unit="rad/s", help="chaser angular velocity, body axes"),
-        "w2": Param(list, [0.0, 0.0, 0.0], unit="rad/s", help="target angular velocity, body axes"),
+                           help="target attitude change as a rotation vector, applied after q2 (world axes)",
+                           scale=physical.ANGLE),
+        "v1": Param(list, [0.03, 0.0, 0.0], unit="m/s", help="chaser CoM velocity, world", scale=physical.SPEED),
+        "v2": Param(list, [0.0, 0.0, 0.0], unit="m/s", help="target CoM velocity, world", scale=physical.SPEED),
+        "w1": Param(list, [0.0, 0.0, 0.0], unit="rad/s", help="chaser angular velocity, body axes",
+                    scale=physical.ANGULAR_SPEED),
+        "w2": Param(list, [0.0, 0.0, 0.0], unit="rad/s", help="target angular velocity, body axes",
+                    scale=physical.ANGULAR_SPEED),
         **MOUNT_PARAMS,
         "order": Param(int, 4, help="integrator order (2 or 4)", choices=(2, 4)),
     }

@@ -27,20 +27,29 @@ class VirtualImpedance(Node):
                       choices=("determine", "given")),
         "m1": Param(float, 750.0, unit="kg", help="chaser mass", gt=0.0, scale=physical.MASS),
         "m2": Param(float, 1e6, unit="kg", help="target mass; 0 = fixed target", ge=0.0, scale=physical.MASS),
-        "kcs": Param(float, 3000.0, unit="N/m", help="ideal contact stiffness to reproduce", ge=0.0),
-        "bcs": Param(float, 40.0, unit="N s/m", help="ideal contact damping to reproduce", ge=0.0),
-        "k": Param(float, 1000.0, unit="N/m", help="passive compliance on the robot", ge=0.0),
-        "k1": Param(float, 0.0, unit="N/m", help="chaser virtual stiffness (mode=given)"),
-        "b1": Param(float, 0.0, unit="N s/m", help="chaser virtual damping (mode=given)"),
-        "k2": Param(float, 0.0, unit="N/m", help="target virtual stiffness (mode=given)"),
-        "b2": Param(float, 0.0, unit="N s/m", help="target virtual damping (mode=given)"),
+        "kcs": Param(float, 3000.0, unit="N/m", help="ideal contact stiffness to reproduce", ge=0.0,
+                     scale=physical.STIFFNESS),
+        "bcs": Param(float, 40.0, unit="N s/m", help="ideal contact damping to reproduce", ge=0.0,
+                     scale=physical.DAMPING),
+        "k": Param(float, 1000.0, unit="N/m", help="passive compliance on the robot", ge=0.0,
+                   scale=physical.STIFFNESS),
+        "k1": Param(float, 0.0, unit="N/m", help="chaser virtual stiffness (mode=given)",
+                    scale=physical.STIFFNESS),
+        "b1": Param(float, 0.0, unit="N s/m", help="chaser virtual damping (mode=given)",
+                    scale=physical.DAMPING),
+        "k2": Param(float, 0.0, unit="N/m", help="target virtual stiffness (mode=given)",
+                    scale=physical.STIFFNESS),
+        "b2": Param(float, 0.0, unit="N s/m", help="target virtual damping (mode=given)",
+                    scale=physical.DAMPING),
         "compensation": Param(str, "none", help="passivity: add the damping that dissipates the energy the "
                               "delay and the sampling make (time-domain passivity, needs k); none: as published",
                               choices=("none", "passivity")),
         "max_damping": Param(float, 1e5, unit="N s/m", help="largest damping the passivity controller adds; "
-                             "energy it cannot take out marks the run invalid", ge=0.0),
+                             "energy it cannot take out marks the run invalid", ge=0.0,
+                             scale=physical.DAMPING),
         "force_deadband": Param(float, 0.0, unit="N", help="passivity: once the bodies part, a measured force "
-                                "below this counts as none (set it above the sensor's noise)", ge=0.0),
+                                "below this counts as none (set it above the sensor's noise)", ge=0.0,
+                                scale=physical.FORCE),
     }
 
     @classmethod

@@ -10,11 +10,13 @@ from dockhil.errors import LaunchError
 EXIT_STATUS = """exit status:
   0  the run completed and its result is valid
   1  a node failed or a safety stop held the robot (the line above says which and why),
-     or the recorder lost messages
-  2  bad input: launch file, arguments or parameters (nothing ran)
+     the recorder lost messages, or the summary could not be written after the run
+  2  bad input: launch file, arguments or parameters outside the range of docking
+     hardware, an unwritable --summary (nothing ran)
   3  INVALID: the run completed but its result is not valid (a wall-time run fell
-     behind real time, or messages were lost); the reasons are printed in one line
-     and in the summary JSON ("valid": false, "invalid_reasons")
+     behind real time, messages were lost, or the run left the physical range: its
+     force, energy, distance or speed); the reasons are printed in one line and in
+     the summary JSON ("valid": false, "invalid_reasons")
   128+N  stopped by signal N (130: Ctrl-C)"""
 
 
