@@ -26,14 +26,14 @@ def complete_or_nothing(path: str, error: type[DockhilError] = DockhilError):
         yield part
         os.replace(part, path)
     except OSError as exc:
-        _remove_quietly(part)
+        remove_quietly(part)
         raise error(f"cannot write {path}: {os_reason(exc)}") from None
     except BaseException:
-        _remove_quietly(part)
+        remove_quietly(part)
         raise
 
 
-def _remove_quietly(path: str) -> None:
+def remove_quietly(path: str) -> None:
     try:
         os.remove(path)
     except OSError:

@@ -23,7 +23,7 @@ import time
 from dockhil import validity
 from dockhil.log import Log
 from dockhil.errors import DockhilError
-from dockhil.files import _remove_quietly, complete_or_nothing, os_reason
+from dockhil.files import remove_quietly, complete_or_nothing, os_reason
 from dockhil.graph import Graph
 
 
@@ -162,7 +162,7 @@ def _check_writable(path: str, bag: str | None) -> None:
         raise DockhilError(f"--summary {path}: cannot be written ({os_reason(exc)}); free some space or "
                            f"give another path") from None
     finally:
-        _remove_quietly(path)
+        remove_quietly(path)
 
 
 def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool, bag: str | None,
