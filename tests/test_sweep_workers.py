@@ -1,0 +1,106 @@
+"""A sweep's workers end with it, however it ends: SIGKILL (no clean-up runs: the kernel ends
+them), SIGTERM (ended as Ctrl-C ends them, the finished rows written); on a local pool and
+on a Dask LocalCluster."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import textwrap
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+from dockhil import sweep
+from tests.conftest import dockhil_cmd
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENE = ROOT / "launch" / "stability.yaml"
+GONE_WITHIN_S = 5.0  # "a couple of seconds", with room for a machine whose both cores are busy
+
+
+def gated_campaign(tmp_path: Path) -> tuple[Path, Path]:
+    """A campaign whose runs 0 and 1 finish and whose runs 2 and 3 wait at a gate (a file that never
+    appears here), so that the workers are mid-run when the sweep is killed."""
+    gate = tmp_path / "gate"
+    (tmp_path / "gated.yaml").write_text(textwrap.dedent(f"""
+        args:
+          k: {{default: 6000.0}}
+          hold: {{default: false}}
+          gate: {{default: ""}}
+        include:
+          - file: {SCENE}
+            args: {{m: 20.0, delay: 0.016, b: 150.0, k: $(arg k)}}
+        nodes:
+          - {{name: gate, node: "tests.faultnodes:Gate", params: {{hold: $(arg hold), path: $(arg gate)}}}}
+        """))
+    campaign = tmp_path / "campaign.yaml"
+    campaign.write_text(textwrap.dedent(f"""
+        scene: gated.yaml
+        args: {{gate: "{gate}"}}
+        duration: 0.2
+        grid:
+          hold: [false, true]
+          k: [6000, 7000]
+        """))
+    return campaign, gate
+
+
+def start_and_kill(tmp_path: Path, sig: int, *extra: str):
+    """Start the gated sweep, wait until runs 0 and 1 are journaled and the workers hold runs, send `sig`
+    to the sweep alone (not its process group), and return (its workers, the process, stderr)."""
+    campaign, _gate = gated_campaign(tmp_path)
+    out = tmp_path / "r.parquet"
+    stderr = tmp_path / "stderr.txt"
+    with open(stderr, "w") as err:  # a file, not a pipe: a worker left behind would hold a pipe open
+        proc = subprocess.Popen(dockhil_cmd("sweep", campaign, "--out", out, "--quiet", *extra),
+                                stdout=subprocess.DEVNULL, stderr=err, cwd=ROOT)
+    workers = []
+    try:
+        deadline = time.monotonic() + 120
+        journal = sweep.journal_path(out)
+        while not (journal.exists() and journal.read_text().count("\n") >= 2):
+            assert proc.poll() is None and time.monotonic() < deadline, stderr.read_text()
+            time.sleep(0.05)
+        time.sleep(0.5)  # the workers take the held runs
+        workers = psutil.Process(proc.pid).children(recursive=True)
+        assert workers
+        proc.send_signal(sig)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return workers, proc, stderr.read_text()
+
+
+def assert_gone(workers) -> None:
+    started = time.monotonic()
+    _gone, alive = psutil.wait_procs(workers, timeout=GONE_WITHIN_S)
+    for p in alive:  # leave nothing behind, whatever the verdict
+        p.kill()
+    assert not alive, f"{len(alive)} of {len(workers)} workers still there {time.monotonic() - started:.1f} s later"
+
+
+@pytest.mark.wall_time
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_a_killed_sweep_leaves_no_worker(tmp_path, sig):
+    workers, proc, err = start_and_kill(tmp_path, sig, "--workers", "2")
+    assert proc.returncode == -sig if sig == signal.SIGKILL else 128 + sig, err
+    assert_gone(workers)
+    if sig == signal.SIGTERM:  # ended as Ctrl-C ends it: one line, and the finished rows kept
+        assert "stopped by SIGTERM" in err and "rerun the same command" in err and "Traceback" not in err, err
+        import pyarrow.parquet as pq
+
+        assert sorted(r["run"] for r in pq.read_table(tmp_path / "r.parquet").to_pylist()) == [0, 1]
+
+
+@pytest.mark.wall_time
+def test_a_killed_sweep_on_a_dask_local_cluster_leaves_no_worker(tmp_path):
+    import dask.distributed  # noqa: F401  (a dev dependency: fails, never skips)
+
+    workers, proc, err = start_and_kill(tmp_path, signal.SIGKILL, "--dask", "local", "--workers", "2")
+    assert proc.returncode == -signal.SIGKILL, err
+    assert_gone(workers)
