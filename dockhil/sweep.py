@@ -190,8 +190,8 @@ def _distribution(raw: Any, where: str) -> tuple[str, float, float]:
     kind, (a, b) = given[0]
     if not (math.isfinite(a) and math.isfinite(b)):
         raise CampaignError(f"{where}: {kind} parameters must be finite, got [{a}, {b}]")
-    if kind == "uniform" and not a <= b:
-        raise CampaignError(f"{where}: uniform [a, b] needs a <= b, got [{a}, {b}]")
+    if kind == "uniform" and not (a <= b and math.isfinite(b - a)):
+        raise CampaignError(f"{where}: uniform [a, b] needs a <= b, b - a finite, got [{a}, {b}]")
     if kind == "normal" and not b >= 0:
         raise CampaignError(f"{where}: normal [mean, std] needs std >= 0, got {b}")
     if kind == "loguniform" and not 0 < a <= b:
