@@ -503,7 +503,7 @@ def run_one(spec: dict) -> dict:
                 Path(spec["bag"]).unlink(missing_ok=True)  # left by an interrupted run of this index
                 recorder = TapRecorder(spec["bag"], graph, sim=True, log=lambda line: None)
             except OSError as exc:
-                raise cannot_write(spec["bag"], exc) from None
+                raise cannot_write(exc.filename or spec["bag"], exc) from None
             except BagError as exc:
                 raise WriteError(str(exc)) from None
             g.taps.append(recorder)
@@ -807,7 +807,14 @@ def read_done(results: str | Path) -> dict[int, dict]:
                                 f"give another --out or remove it") from None
     jp = journal_path(results)
     if jp.exists():
-        for line in jp.read_text().splitlines():
+        try:
+            text = jp.read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            from dockhil.files import os_reason
+
+            reason = os_reason(exc) if isinstance(exc, OSError) else exc
+            raise CampaignError(f"{jp}: cannot read: {reason}; give another --out, or remove it to start over") from None
+        for line in text.splitlines():
             try:
                 row = json.loads(line)
             except ValueError:

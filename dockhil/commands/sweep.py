@@ -90,8 +90,8 @@ def run(args) -> int:
         say.info(f"{signals.what}; the finished runs are in {args.out}: rerun the same command to resume")
         return 128 + signals.number
     except sweep.WriteError as exc:
-        say.error(f"{exc}; the runs finished before are kept in {args.out} and {sweep.journal_path(args.out).name}: "
-                  f"make room on that disk (or make it writable) and rerun the same command to resume")
+        say.error(f"{exc}; the rows written before stay: make room on that disk (or make it writable) and rerun "
+                  f"the same command to resume")
         return 1
     finally:
         signals.restore()
