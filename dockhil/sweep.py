@@ -128,7 +128,7 @@ def _convert(data: Any, typ, where: str):
         unknown = re.match(r"Object contains unknown field `(.+?)`", text)
         missing = re.match(r"Object missing required field `(.+?)`", text)
         at = re.search(r" - at `\$(.*)`", text)
-        place = where + (at.group(1) if at else "")
+        place = f"{where}: {at.group(1).lstrip('.')}" if at and at.group(1) else where
         if unknown:
             raise CampaignError(f"{place}: unknown key {unknown.group(1)!r}; allowed: {_field_list(typ)}") from None
         if missing:

@@ -98,9 +98,10 @@ def test_a_killed_sweep_leaves_no_worker(tmp_path, sig):
 
 
 @pytest.mark.wall_time
-def test_a_killed_sweep_on_a_dask_local_cluster_leaves_no_worker(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_a_killed_sweep_on_a_dask_local_cluster_leaves_no_worker(tmp_path, sig):
     import dask.distributed  # noqa: F401  (a dev dependency: fails, never skips)
 
-    workers, proc, err = start_and_kill(tmp_path, signal.SIGKILL, "--dask", "local", "--workers", "2")
-    assert proc.returncode == -signal.SIGKILL, err
+    workers, proc, err = start_and_kill(tmp_path, sig, "--dask", "local", "--workers", "2")
+    assert proc.returncode == -sig if sig == signal.SIGKILL else 128 + sig, err
     assert_gone(workers)
