@@ -15,6 +15,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from dockhil import cli, sweep
+from tests.test_sweep import Counting
 
 CAMPAIGN = """
 scene: stability.yaml
@@ -79,12 +80,9 @@ def test_a_full_disk_under_the_journal_stops_the_campaign_keeps_its_rows_and_the
     kept = sorted(r["run"] for r in pq.read_table(out).to_pylist())
     assert kept == [0, 1]  # the second row reached the Parquet file, not the full journal
     monkeypatch.undo()
-    executed = []
-    real_map = sweep.LocalPool.map
-    monkeypatch.setattr(sweep.LocalPool, "map", lambda self, b: (executed.extend(r["run"] for r in rows) or rows
-                                                                 for rows in real_map(self, b)))
-    code, err = sweep_cli(path, out, capsys)
-    assert code == 0 and sorted(executed) == [2, 3]
+    rerun = Counting(sweep.LocalPool(1))
+    result = sweep.sweep(sweep.load_campaign(path), out, rerun, progress=False)
+    assert sorted(rerun.executed) == [2, 3] and result["ok"] == 4
     assert sorted(r["run"] for r in pq.read_table(out).to_pylist()) == [0, 1, 2, 3]
     assert not sweep.journal_path(out).exists()
 

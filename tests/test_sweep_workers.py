@@ -1,6 +1,6 @@
-"""A sweep's workers end with it, however it ends: SIGKILL (no clean-up runs: the kernel ends
-them), SIGTERM (ended as Ctrl-C ends them, the finished rows written); on a local pool and
-on a Dask LocalCluster."""
+"""A sweep's workers end with it, however it ends: Ctrl-C and SIGTERM (the workers ended now, not
+after their runs, the finished rows written, and the rerun does only the rest), SIGKILL (no
+clean-up runs: the kernel ends them); on a local pool and on a Dask LocalCluster."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ import pytest
 
 from dockhil import sweep
 from tests.conftest import dockhil_cmd
+from tests.test_sweep import Counting
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENE = ROOT / "launch" / "stability.yaml"
@@ -54,9 +55,13 @@ def start_and_kill(tmp_path: Path, sig: int, *extra: str):
     campaign, _gate = gated_campaign(tmp_path)
     out = tmp_path / "r.parquet"
     stderr = tmp_path / "stderr.txt"
-    with open(stderr, "w") as err:  # a file, not a pipe: a worker left behind would hold a pipe open
+    # A file, not a pipe: a worker left behind would hold a pipe open. SIGINT as a terminal sends it:
+    # the default disposition, even where this test runs with SIGINT ignored (a script's background
+    # job), which Python would inherit.
+    with open(stderr, "w") as err:
         proc = subprocess.Popen(dockhil_cmd("sweep", campaign, "--out", out, "--quiet", *extra),
-                                stdout=subprocess.DEVNULL, stderr=err, cwd=ROOT)
+                                stdout=subprocess.DEVNULL, stderr=err, cwd=ROOT,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     workers = []
     try:
         deadline = time.monotonic() + 120
@@ -85,16 +90,31 @@ def assert_gone(workers) -> None:
 
 
 @pytest.mark.wall_time
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
-def test_a_killed_sweep_leaves_no_worker(tmp_path, sig):
-    workers, proc, err = start_and_kill(tmp_path, sig, "--workers", "2")
-    assert proc.returncode == -sig if sig == signal.SIGKILL else 128 + sig, err
-    assert_gone(workers)
-    if sig == signal.SIGTERM:  # ended as Ctrl-C ends it: one line, and the finished rows kept
-        assert "stopped by SIGTERM" in err and "rerun the same command" in err and "Traceback" not in err, err
-        import pyarrow.parquet as pq
+@pytest.mark.parametrize("sig, said", [(signal.SIGINT, "interrupted"), (signal.SIGTERM, "stopped by SIGTERM")])
+def test_ctrl_c_or_sigterm_ends_the_workers_keeps_the_rows_and_the_rerun_does_only_the_rest(tmp_path, sig, said):
+    import pyarrow.parquet as pq
 
-        assert sorted(r["run"] for r in pq.read_table(tmp_path / "r.parquet").to_pylist()) == [0, 1]
+    workers, proc, err = start_and_kill(tmp_path, sig, "--workers", "1")
+    assert proc.returncode == 128 + sig, err
+    assert f"{said}; the finished runs are in" in err and "rerun the same command to resume" in err, err
+    assert "Traceback" not in err
+    assert_gone(workers)  # the worker waiting at the gate was ended, not left to finish its batch
+    out = tmp_path / "r.parquet"
+    rows = pq.read_table(out).to_pylist()
+    assert sorted(r["run"] for r in rows) == [0, 1] and all(r["status"] == "ok" for r in rows), rows
+    (tmp_path / "gate").touch()
+    rerun = Counting(sweep.LocalPool(1))
+    result = sweep.sweep(sweep.load_campaign(tmp_path / "campaign.yaml"), out, rerun, progress=False)
+    assert sorted(rerun.executed) == [2, 3] and result["skipped"] == 2
+    assert sorted(r["run"] for r in pq.read_table(out).to_pylist()) == [0, 1, 2, 3]
+    assert all(r["status"] == "ok" for r in pq.read_table(out).to_pylist())
+
+
+@pytest.mark.wall_time
+def test_a_sweep_killed_outright_leaves_no_worker(tmp_path):
+    workers, proc, err = start_and_kill(tmp_path, signal.SIGKILL, "--workers", "2")
+    assert proc.returncode == -signal.SIGKILL, err
+    assert_gone(workers)  # no clean-up ran: the kernel ended them
 
 
 @pytest.mark.wall_time
