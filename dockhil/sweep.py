@@ -10,6 +10,11 @@ finished batch's rows are appended to a journal next to the results at once
 (`RESULTS.parquet.partial`, JSON lines), and the Parquet file is written from
 all rows every minute, at the end and on interruption. A rerun reads both and skips every
 run whose index and argument hash are already there.
+
+A campaign is checked whole before any run is expanded or started: the file through the
+launch reader's bounds, its counts, seed and run length against stated ranges, its size
+from the axes' lengths, and each argument's values through the scene's own checks. A
+result that cannot be written stops it (WriteError); a local worker dies with the sweep.
 """
 
 from __future__ import annotations
