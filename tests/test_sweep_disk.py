@@ -41,8 +41,14 @@ def enospc() -> OSError:
     return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
 
-def assert_no_worker_left() -> None:
-    _gone, alive = psutil.wait_procs(psutil.Process().children(recursive=True), timeout=5)
+def children() -> set:
+    return set(psutil.Process().children(recursive=True))
+
+
+def assert_no_worker_left(before: set) -> None:
+    """No child of this process that was not there `before` (a resource tracker an earlier test
+    started lives as long as this process) is left after a few seconds."""
+    _gone, alive = psutil.wait_procs(children() - before, timeout=5)
     assert not alive
 
 
@@ -70,12 +76,13 @@ def test_a_full_disk_under_the_journal_stops_the_campaign_keeps_its_rows_and_the
     path, out = campaign(tmp_path), tmp_path / "r.parquet"
     real = sweep._open_journal
     monkeypatch.setattr(sweep, "_open_journal", lambda results, c: FullAfter(real(results, c), 1))
+    before = children()
     code, err = sweep_cli(path, out, capsys)
     assert code == 1 and len(err) == 1, err
     assert err[0] == (f"dockhil sweep: error: cannot write {out}.partial: No space left on device (ENOSPC); the rows "
                       f"written before stay: make room on that disk (or make it writable) and rerun the same command "
                       f"to resume")
-    assert_no_worker_left()
+    assert_no_worker_left(before)
     assert len(sweep.journal_path(out).read_text().splitlines()) == 1
     kept = sorted(r["run"] for r in pq.read_table(out).to_pylist())
     assert kept == [0, 1]  # the second row reached the Parquet file, not the full journal
@@ -180,12 +187,13 @@ def small_disk(tmp_path):
 
 def test_a_real_full_disk_is_one_line_and_the_rerun_resumes(tmp_path, capsys, small_disk):
     path, out = campaign(tmp_path, runs=12), small_disk / "r.parquet"
+    before = children()
     code, err = sweep_cli(path, out, capsys)
     assert code == 1 and len(err) == 1, err
     assert f"cannot write {out}" in err[0] and "No space left on device (ENOSPC)" in err[0], err
     kept = sweep.read_done(out)
     assert 0 < len(kept) < 12
-    assert_no_worker_left()
+    assert_no_worker_left(before)
     (small_disk / "filler").unlink()
     code, err = sweep_cli(path, out, capsys)
     assert code == 0, err
