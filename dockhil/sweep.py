@@ -10,6 +10,11 @@ finished batch's rows are appended to a journal next to the results at once
 (`RESULTS.parquet.partial`, JSON lines), and the Parquet file is written from
 all rows every minute, at the end and on interruption. A rerun reads both and skips every
 run whose index and argument hash are already there.
+
+A campaign is checked whole before any run is expanded or started: the file through the
+launch reader's bounds, its counts, seed and run length against stated ranges, its size
+from the axes' lengths, and each argument's values through the scene's own checks. A
+result that cannot be written stops it (WriteError); a local worker dies with the sweep.
 """
 
 from __future__ import annotations
@@ -27,17 +32,34 @@ from typing import Any, Iterator
 
 import msgspec
 
+from dockhil import boundedyaml
 from dockhil.errors import DockhilError
-
 from dockhil.launchfile import SHIPPED_SCENES
+from dockhil.launchschema import MAX_DURATION
+
 STATUSES = ("ok", "invalid", "failed")
 RETRIES = 2  # a batch whose worker was lost is sent again this many times
 METADATA_KEY = b"dockhil.campaign"
 PARQUET_EVERY_S = 60.0  # the Parquet file is rewritten this often during a campaign (the journal at once)
+# Runs in one campaign (grid points x samples): some CPU-days of one-second runs, and the runs'
+# list stays near 100 MB and 2 s to expand. A larger study is several campaigns.
+MAX_RUNS = 100_000
+MAX_SEED = 2**32 - 1  # numpy seeds from 32-bit words; a larger one is no more random
 
 
 class CampaignError(DockhilError):
     """The campaign file or the results file is refused."""
+
+
+class WriteError(DockhilError):
+    """A result (the journal, the Parquet file, a bag) cannot be written while the campaign runs:
+    a full disk, a folder made read-only. The campaign stops; the rows written stay."""
+
+
+def cannot_write(path: str | Path, exc: OSError) -> WriteError:
+    from dockhil.files import os_reason
+
+    return WriteError(f"cannot write {path}: {os_reason(exc)}")
 
 
 # ---------------------------------------------------------------- the campaign file
@@ -111,7 +133,7 @@ def _convert(data: Any, typ, where: str):
         unknown = re.match(r"Object contains unknown field `(.+?)`", text)
         missing = re.match(r"Object missing required field `(.+?)`", text)
         at = re.search(r" - at `\$(.*)`", text)
-        place = where + (at.group(1) if at else "")
+        place = f"{where}: {at.group(1).lstrip('.')}" if at and at.group(1) else where
         if unknown:
             raise CampaignError(f"{place}: unknown key {unknown.group(1)!r}; allowed: {_field_list(typ)}") from None
         if missing:
@@ -119,7 +141,8 @@ def _convert(data: Any, typ, where: str):
         raise CampaignError(f"{place}: {text.split(' - at ')[0]}") from None
 
 
-def _axis_values(name: str, raw: Any, where: str) -> list[Any]:
+def _axis(raw: Any, where: str) -> Axis:
+    """A grid axis checked, not yet expanded: `values`, or a `range` whose `num` is bounded."""
     if isinstance(raw, list):
         axis = Axis(values=raw)
     elif isinstance(raw, dict):
@@ -133,16 +156,27 @@ def _axis_values(name: str, raw: Any, where: str) -> list[Any]:
             raise CampaignError(f"{where}: `num` and `log` go with `range`, not with `values`")
         if not axis.values:
             raise CampaignError(f"{where}: empty grid axis: give at least one value")
-        return list(axis.values)
+        return axis
     a, b = axis.range
-    if axis.num is None or axis.num < 1:
-        raise CampaignError(f"{where}: `range` needs `num:` >= 1 points, got {axis.num!r}")
+    if axis.num is None or not 1 <= axis.num <= MAX_RUNS:
+        raise CampaignError(f"{where}: `range` needs `num:` from 1 to {MAX_RUNS:,} points, got {axis.num!r}")
     if not (math.isfinite(a) and math.isfinite(b)):
         raise CampaignError(f"{where}: range ends must be finite numbers, got [{a}, {b}]")
     if axis.log and not (a > 0 and b > 0):
         raise CampaignError(f"{where}: a `log: true` range needs positive ends, got [{a}, {b}]")
+    return axis
+
+
+def _axis_len(axis: Axis) -> int:
+    return len(axis.values) if axis.values is not None else axis.num
+
+
+def _axis_points(axis: Axis) -> list[Any]:
+    if axis.values is not None:
+        return list(axis.values)
     import numpy as np
 
+    a, b = axis.range
     points = np.geomspace(a, b, axis.num) if axis.log else np.linspace(a, b, axis.num)
     return [float(v) for v in points]
 
@@ -161,8 +195,8 @@ def _distribution(raw: Any, where: str) -> tuple[str, float, float]:
     kind, (a, b) = given[0]
     if not (math.isfinite(a) and math.isfinite(b)):
         raise CampaignError(f"{where}: {kind} parameters must be finite, got [{a}, {b}]")
-    if kind == "uniform" and not a <= b:
-        raise CampaignError(f"{where}: uniform [a, b] needs a <= b, got [{a}, {b}]")
+    if kind == "uniform" and not (a <= b and math.isfinite(b - a)):
+        raise CampaignError(f"{where}: uniform [a, b] needs a <= b, b - a finite, got [{a}, {b}]")
     if kind == "normal" and not b >= 0:
         raise CampaignError(f"{where}: normal [mean, std] needs std >= 0, got {b}")
     if kind == "loguniform" and not 0 < a <= b:
@@ -179,10 +213,38 @@ def resolve_scene(name: str, campaign_dir: Path) -> Path:
     raise CampaignError(f"scene {name!r} not found (as a path, next to the campaign file, or shipped: {shipped})")
 
 
-def load_campaign(path: str | Path) -> Campaign:
-    """Read and check a campaign file; every refusal is one CampaignError line."""
-    import yaml
+def _read(path: Path) -> tuple[Any, Any]:
+    """(data, root node) of the campaign file, read with the launch reader's bounds: size,
+    nesting depth, aliases."""
+    try:
+        with open(path, "rb") as f:
+            raw = f.read(boundedyaml.MAX_BYTES + 1)
+    except OSError as exc:
+        raise CampaignError(f"{path}: cannot read: {exc}") from None
+    if len(raw) > boundedyaml.MAX_BYTES:
+        raise CampaignError(f"{path}: larger than {boundedyaml.MAX_BYTES} bytes; a campaign file is a page or two")
+    try:
+        return boundedyaml.load(raw.decode("utf-8"), str(path))
+    except UnicodeDecodeError as exc:
+        raise CampaignError(f"{path}: cannot read: {exc}") from None
+    except DockhilError as exc:
+        raise CampaignError(str(exc)) from None
 
+
+def _shown(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _whole(data: dict, key: str, low: int, high: int, at: str) -> None:
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise CampaignError(f"{at}: `{key}` must be a whole number from {low:,} to {high:,}, got {_shown(value)}")
+
+
+def load_campaign(path: str | Path) -> Campaign:
+    """Read and check a campaign file; every refusal is one CampaignError line, before any run
+    is expanded or started."""
     from dockhil import launchfile
 
     try:
@@ -191,16 +253,23 @@ def load_campaign(path: str | Path) -> Campaign:
         raise CampaignError(str(exc)) from None
     if not path.is_file():
         raise CampaignError(f"campaign file {str(path)!r} not found (or not a file)")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{path}:{mark.line + 1}" if mark else str(path)
-        raise CampaignError(f"{where}: not valid YAML: {getattr(exc, 'problem', None) or exc}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CampaignError(f"{path}: cannot read: {exc}") from None
+    data, root = _read(path)
     if not isinstance(data, dict):
         raise CampaignError(f"{path}: a campaign file is a YAML mapping with `scene:`; got {type(data).__name__}")
+
+    def at(key: str) -> str:
+        line = boundedyaml.line_of(root, [key])
+        return f"{path}:{line}" if line else str(path)
+
+    if "samples" in data:
+        _whole(data, "samples", 1, MAX_RUNS, at("samples"))
+    if "seed" in data:
+        _whole(data, "seed", 0, MAX_SEED, at("seed"))
+    if data.get("duration") is not None:
+        d = data["duration"]
+        if isinstance(d, bool) or not isinstance(d, (int, float)) or not 0 < d <= MAX_DURATION:  # NaN fails too
+            raise CampaignError(f"{at('duration')}: `duration` must be simulated seconds per run, > 0 and at most "
+                                f"{MAX_DURATION:g}, got {_shown(d)}")
     raw = _convert(data, CampaignFile, str(path))
     scene_path = resolve_scene(raw.scene, path.parent)
     scene = launchfile.load(scene_path)
@@ -211,27 +280,18 @@ def load_campaign(path: str | Path) -> Campaign:
             raise CampaignError(f"{where}: {raw.scene} has no arg {name!r}; its args: {', '.join(sorted(specs)) or 'none'}")
         return name
 
-    def check_value(name: str, value: Any, where: str) -> Any:
-        try:
-            return specs[name].check(value, where)
-        except DockhilError as exc:
-            if isinstance(value, str) and re.fullmatch(r"[-+]?[0-9.]+[eE][0-9]+", value):
-                raise CampaignError(f"{exc} (YAML reads {value} as text: write {value.replace('e', 'e+').replace('E', 'E+')})") from None
-            raise
-
     seen: dict[str, str] = {}
     fixed = {}
     for name, value in raw.args.items():
         check_name(name, f"{path}: args")
-        fixed[name] = check_value(name, value, f"{path}: args.{name}")
+        fixed[name] = specs[name].check(value, f"{path}: args.{name}")
         seen[name] = "args"
-    grid = {}
+    axes = {}
     for name, axis in raw.grid.items():
         check_name(name, f"{path}: grid")
         if name in seen:
             raise CampaignError(f"{path}: grid.{name}: {name!r} is already in `{seen[name]}:`; give it once")
-        where = f"{path}: grid.{name}"
-        grid[name] = [check_value(name, v, where) for v in _axis_values(name, axis, where)]
+        axes[name] = _axis(axis, f"{path}: grid.{name}")
         seen[name] = "grid"
     random = {}
     for name, dist in raw.random.items():
@@ -242,18 +302,94 @@ def load_campaign(path: str | Path) -> Campaign:
             raise CampaignError(f"{path}: random.{name}: {name!r} is a {specs[name].type.__name__}; only float args are drawn")
         random[name] = _distribution(dist, f"{path}: random.{name}")
         seen[name] = "random"
-    if "grid" in data and not grid:
+    if "grid" in data and not axes:
         raise CampaignError(f"{path}: empty grid: give at least one axis under `grid:`, or drop the key")
-    if not grid and not random:
+    if not axes and not random:
         raise CampaignError(f"{path}: nothing to sweep: give `grid:` and/or `random:`")
-    if raw.samples < 1:
-        raise CampaignError(f"{path}: `samples` must be >= 1, got {raw.samples}")
+    sizes = [_axis_len(axis) for axis in axes.values()]
+    total = math.prod(sizes) * raw.samples  # from the axes' lengths: nothing is expanded yet
+    if total > MAX_RUNS:
+        raise CampaignError(f"{path}: {' x '.join(map(str, sizes)) or 1} grid points x {raw.samples} samples = "
+                            f"{total:,} runs; a campaign has at most {MAX_RUNS:,}: coarsen the grid, or split it "
+                            f"into several campaigns")
+    grid = {name: [specs[name].check(v, f"{path}: grid.{name}") for v in _axis_points(axis)]
+            for name, axis in axes.items()}
     duration = raw.duration if raw.duration is not None else scene.duration
-    if duration is None or not (math.isfinite(duration) and duration > 0):
+    if duration is None:
         raise CampaignError(f"{path}: give a positive `duration:` in seconds (simulated, per run)")
-    return Campaign(str(path), str(scene_path), hashlib.sha256(scene_path.read_bytes()).hexdigest(), scene.rate,
-                    float(duration), fixed, grid, random, raw.samples, raw.seed, raw.outputs, raw.bags,
-                    [*fixed, *grid, *random])
+    c = Campaign(str(path), str(scene_path), hashlib.sha256(scene_path.read_bytes()).hexdigest(), scene.rate,
+                 float(duration), fixed, grid, random, raw.samples, raw.seed, raw.outputs, raw.bags,
+                 [*fixed, *grid, *random])
+    c.rate = _check_in_scene(c)
+    return c
+
+
+def _run_args(c: Campaign) -> Iterator[tuple[int, int, dict[str, Any]]]:
+    """(run index, sample, args) of every run, in run-index order: grid point-major, then sample.
+    The random draws of run i come from the generator seeded by (seed, i) alone."""
+    import numpy as np
+
+    names = list(c.grid)
+    for point_index, point in enumerate(itertools.product(*c.grid.values())):
+        for sample in range(c.samples):
+            index = point_index * c.samples + sample
+            args = {**c.fixed, **dict(zip(names, point))}
+            if c.random:
+                rng = np.random.default_rng([c.seed, index])
+                for name, (kind, a, b) in c.random.items():
+                    args[name] = draw(kind, a, b, rng)
+            yield index, sample, {name: args[name] for name in c.arg_names}
+
+
+def _check_in_scene(c: Campaign) -> float:
+    """Refuse, before anything runs, a campaign with a run the scene refuses, by the path
+    `dockhil launch` takes (launch arguments, then every node's parameters): the first run, the
+    first run with each grid argument at each end of its axis (each value of a non-numeric one),
+    and the runs holding each random argument's least and greatest draw. A parameter's physical
+    range is an interval, so the ends stand for the values between; what only a combination of
+    arguments refuses is that run's `invalid` row. Returns the first run's rate [Hz]."""
+    from dockhil import launchfile
+    from dockhil.graph import build
+
+    first: dict[str, Any] = {}
+    ends: dict[str, list] = {}  # random arg -> [(least, run, args), (greatest, run, args)]
+    for index, _sample, args in _run_args(c):
+        if index == 0:
+            first = args
+        if not c.random:
+            break
+        for name in c.random:
+            value = args[name]
+            if not math.isfinite(value):
+                raise CampaignError(f"{c.path}: random.{name}: run {index} draws {value}; give a narrower distribution")
+            low, high = ends.setdefault(name, [(value, index, args), (value, index, args)])
+            if value < low[0]:
+                ends[name][0] = (value, index, args)
+            if value > high[0]:
+                ends[name][1] = (value, index, args)
+    probes = {"run 0": first}
+    for name, values in c.grid.items():
+        numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+        for v in (min(values), max(values)) if numeric else dict.fromkeys(values):
+            probes.setdefault(f"grid.{name} = {v!r}", {**first, name: v})
+    for name, pair in ends.items():
+        for value, index, args in pair:
+            probes.setdefault(f"random.{name} = {value:g} (run {index})", args)
+    rate = c.rate
+    tried = set()
+    for label, args in probes.items():
+        key = json.dumps(args, sort_keys=True)
+        if key in tried:
+            continue
+        tried.add(key)
+        try:
+            scene = launchfile.load(c.scene, dict(args))
+            build(scene)
+        except DockhilError as exc:
+            raise CampaignError(f"{c.path}: {label}: refused by the scene: {exc}") from None
+        if label == "run 0":
+            rate = scene.rate
+    return rate
 
 
 def draw(kind: str, a: float, b: float, rng) -> float:
@@ -265,25 +401,14 @@ def draw(kind: str, a: float, b: float, rng) -> float:
 
 
 def runs(c: Campaign, results: str | Path | None = None) -> list[dict]:
-    """Every run of the campaign, in run-index order: grid point-major, then sample.
-    The random draws of run i come from the generator seeded by (seed, i) alone."""
-    import numpy as np
-
+    """Every run of the campaign, in run-index order (see _run_args)."""
     bag_dir = None if not (c.bags and results) else Path(os.path.abspath(str(results) + ".bags"))  # workers' cwd may differ
     out = []
-    names = list(c.grid)
-    for point_index, point in enumerate(itertools.product(*c.grid.values())):
-        for sample in range(c.samples):
-            index = point_index * c.samples + sample
-            rng = np.random.default_rng([c.seed, index])
-            args = {**c.fixed, **dict(zip(names, point))}
-            for name, (kind, a, b) in c.random.items():
-                args[name] = draw(kind, a, b, rng)
-            args = {name: args[name] for name in c.arg_names}
-            key = json.dumps({"scene": c.scene_sha, "duration": c.duration, "args": args}, sort_keys=True)
-            out.append({"run": index, "sample": sample, "args": args, "args_hash": hashlib.sha256(key.encode()).hexdigest()[:16],
-                        "scene": c.scene, "duration": c.duration, "outputs": c.outputs,
-                        "bag": None if bag_dir is None else str(bag_dir / f"run-{index:06d}.mcap")})
+    for index, sample, args in _run_args(c):
+        key = json.dumps({"scene": c.scene_sha, "duration": c.duration, "args": args}, sort_keys=True)
+        out.append({"run": index, "sample": sample, "args": args, "args_hash": hashlib.sha256(key.encode()).hexdigest()[:16],
+                    "scene": c.scene, "duration": c.duration, "outputs": c.outputs,
+                    "bag": None if bag_dir is None else str(bag_dir / f"run-{index:06d}.mcap")})
     return out
 
 
@@ -375,10 +500,17 @@ def run_one(spec: dict) -> dict:
         g = ComposedGraph(graph, sim_time=True, log=node_log, taps=[collector, last.__setitem__])
         recorder = None
         if spec.get("bag"):
+            from dockhil.bag import BagError
             from dockhil.bag_live import TapRecorder
 
-            os.makedirs(os.path.dirname(spec["bag"]), exist_ok=True)
-            recorder = TapRecorder(spec["bag"], graph, sim=True, log=lambda line: None)
+            try:
+                os.makedirs(os.path.dirname(spec["bag"]), exist_ok=True)
+                Path(spec["bag"]).unlink(missing_ok=True)  # left by an interrupted run of this index
+                recorder = TapRecorder(spec["bag"], graph, sim=True, log=lambda line: None)
+            except OSError as exc:
+                raise cannot_write(exc.filename or spec["bag"], exc) from None
+            except BagError as exc:
+                raise WriteError(str(exc)) from None
             g.taps.append(recorder)
             row["bag"] = spec["bag"]
         sim_started = time.perf_counter()
@@ -393,6 +525,8 @@ def run_one(spec: dict) -> dict:
             finally:
                 if recorder is not None:
                     recorder.close()
+                    if recorder.error:  # a full disk is no result of the run: the campaign stops
+                        raise WriteError(recorder.error)
         with warnings.catch_warnings():  # a diverging loop's prediction warns; its row says what happened
             warnings.simplefilter("ignore", RuntimeWarning)
             out = collector.summary(time.perf_counter() - sim_started)
@@ -402,6 +536,8 @@ def run_one(spec: dict) -> dict:
     except RunFailed as exc:
         row.update(status="failed", error=str(exc), run_time_s=time.perf_counter() - started)
         return row
+    except WriteError:
+        raise
     except Exception as exc:  # a diverging or failing run is a row, never the end of the campaign
         row.update(status="failed", error=_one_line(exc), run_time_s=time.perf_counter() - started)
         return row
@@ -422,8 +558,9 @@ def check_outputs(c: Campaign) -> None:
     shows the scene's fields (skipped when the scene refuses that run's args)."""
     if not c.outputs:
         return
-    spec = {**runs(c)[0], "duration": 3.0 / c.rate, "outputs": None, "bag": None}
-    probe = run_one(spec)
+    _index, _sample, args = next(_run_args(c))
+    probe = run_one({"run": 0, "sample": 0, "args": args, "args_hash": "", "scene": c.scene,
+                     "duration": 3.0 / c.rate, "outputs": None, "bag": None})
     if probe["status"] != "ok":
         return
     fields = [k for k in probe if k not in ("run", "sample", "args_hash", "status", "error", "run_time_s", *c.arg_names)]
@@ -444,10 +581,40 @@ def failed_row(spec: dict, error: str) -> dict:
 
 # ---------------------------------------------------------------- executors
 
-def _ignore_sigint() -> None:
+def _worker_start(parent: int) -> None:
+    """A local worker's start. Ctrl-C is the parent's to handle (it ends the workers itself), and
+    a worker ends with its parent however the parent ends, a SIGKILL included: the kernel kills
+    it then (PR_SET_PDEATHSIG, Linux), else a thread that watches the parent does. A sim-time run
+    has nothing to save: the parent keeps the rows."""
     import signal
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the parent's handler, inherited by fork
+    try:
+        import ctypes
+
+        if ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0) != 0:  # PR_SET_PDEATHSIG
+            raise OSError
+    except (OSError, AttributeError):  # not Linux
+        import threading
+
+        threading.Thread(target=_watch_parent, args=(parent,), daemon=True).start()
+    if not _alive(parent):  # it died before the prctl
+        os._exit(1)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except OSError:  # gone, or its number now another user's
+        return False
+    return True
+
+
+def _watch_parent(parent: int) -> None:
+    while _alive(parent):
+        time.sleep(0.5)
+    os._exit(1)
 
 
 class Batcher:
@@ -507,7 +674,7 @@ class LocalPool:
         from concurrent.futures.process import BrokenProcessPool
 
         while batcher:
-            pool = ProcessPoolExecutor(self.workers, initializer=_ignore_sigint)
+            pool = ProcessPoolExecutor(self.workers, initializer=_worker_start, initargs=(os.getpid(),))
             in_flight: dict = {}
             finished = False
             try:
@@ -523,6 +690,8 @@ class LocalPool:
                         except BrokenProcessPool:
                             broken = True
                             rows = batcher.lost(batch, tries)
+                        except WriteError:
+                            raise
                         except Exception as exc:
                             rows = [failed_row(spec, f"batch failed: {_one_line(exc)}") for spec in batch]
                         if rows is not None:
@@ -594,6 +763,8 @@ class DaskExecutor:
                 batch = in_flight.pop(fut)
                 try:
                     rows = fut.result()
+                except WriteError:
+                    raise
                 except Exception as exc:  # e.g. KilledWorker after the retries
                     rows = [failed_row(spec, f"task failed: {_one_line(exc)}") for spec in batch]
                 batcher.finished(rows)
@@ -641,7 +812,14 @@ def read_done(results: str | Path) -> dict[int, dict]:
                                 f"give another --out or remove it") from None
     jp = journal_path(results)
     if jp.exists():
-        for line in jp.read_text().splitlines():
+        try:
+            text = jp.read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            from dockhil.files import os_reason
+
+            reason = os_reason(exc) if isinstance(exc, OSError) else exc
+            raise CampaignError(f"{jp}: cannot read: {reason}; give another --out, or remove it to start over") from None
+        for line in text.splitlines():
             try:
                 row = json.loads(line)
             except ValueError:
@@ -663,6 +841,8 @@ def write_parquet(results: str | Path, rows: list[dict], c: Campaign) -> None:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    from dockhil.files import complete_or_nothing
+
     rows = sorted(rows, key=lambda r: r["run"])
     names = column_order(rows, c.arg_names)
     columns = {}
@@ -676,9 +856,8 @@ def write_parquet(results: str | Path, rows: list[dict], c: Campaign) -> None:
     meta = {"path": c.path, "scene": c.scene, "rate": c.rate, "duration": c.duration, "fixed": c.fixed,
             "grid": list(c.grid), "random": list(c.random), "total": c.total}
     table = pa.table(columns).replace_schema_metadata({METADATA_KEY: json.dumps(meta).encode()})
-    tmp = Path(str(results) + ".tmp")
-    pq.write_table(table, tmp)
-    os.replace(tmp, results)
+    with complete_or_nothing(str(results), WriteError) as part:  # a full disk leaves the last file whole
+        pq.write_table(table, part)
 
 
 class SweepProgress:
@@ -711,9 +890,29 @@ class SweepProgress:
         self.line.end()
 
 
+def _open_journal(results: str | Path, c: Campaign):
+    """The journal, open to append, and the bags' folder made: refused before anything runs
+    when they cannot be written. A line a crash or a full disk cut short is ended first."""
+    jp = journal_path(results)
+    try:
+        if c.bags:
+            os.makedirs(str(results) + ".bags", exist_ok=True)
+        journal = open(jp, "a")
+        if journal.tell():
+            with open(jp, "rb") as f:
+                f.seek(-1, os.SEEK_END)
+                if f.read(1) != b"\n":
+                    journal.write("\n")
+        return journal
+    except OSError as exc:
+        raise CampaignError(f"{cannot_write(jp, exc)}; give --out in a folder with room that you can write") from None
+
+
 def sweep(campaign: Campaign, results: str | Path, executor, *, progress: bool = True, stream=None) -> dict:
     """Run every run not yet in `results`; returns counts. Rows are journaled per batch;
-    the Parquet file is written at the end, and on interruption before it is re-raised."""
+    the Parquet file is written at the end, and on interruption before it is re-raised.
+    A result that cannot be written (a full disk) stops the campaign with a WriteError;
+    the rows already journaled stay, and a rerun resumes from them."""
     import sys
 
     stream = sys.stderr if stream is None else stream
@@ -728,32 +927,52 @@ def sweep(campaign: Campaign, results: str | Path, executor, *, progress: bool =
     todo = [s for s in specs if s["run"] not in done]
     counts = Counter(r["status"] for r in done.values())
     skipped = len(done)
+    journal = _open_journal(results, campaign) if todo else None
     bar = SweepProgress(len(specs), skipped, stream) if progress else None
     started = time.perf_counter()
     executed = 0
     written = started
+    batches = executor.map(Batcher(todo, executor.workers)) if todo else None
+    stopped: BaseException | None = None
     try:
-        if todo:
-            with open(journal_path(results), "a") as journal:
-                for rows in executor.map(Batcher(todo, executor.workers)):
-                    for row in rows:
-                        journal.write(json.dumps(row) + "\n")
-                        done[row["run"]] = row
-                        counts[row["status"]] += 1
-                    journal.flush()
-                    executed += len(rows)
-                    if time.perf_counter() - written > PARQUET_EVERY_S:  # readable while the campaign runs
-                        write_parquet(results, list(done.values()), campaign)
-                        written = time.perf_counter()
-                    if bar is not None:
-                        bar.update(len(done), counts["failed"])
+        for rows in batches or ():
+            for row in rows:
+                done[row["run"]] = row
+                counts[row["status"]] += 1
+            try:
+                journal.write("".join(json.dumps(row) + "\n" for row in rows))
+                journal.flush()
+            except OSError as exc:
+                raise cannot_write(journal.name, exc) from None
+            executed += len(rows)
+            if time.perf_counter() - written > PARQUET_EVERY_S:  # readable while the campaign runs
+                write_parquet(results, list(done.values()), campaign)
+                written = time.perf_counter()
+            if bar is not None:
+                bar.update(len(done), counts["failed"])
+    except BaseException as exc:
+        stopped = exc
+        raise
     finally:
+        if batches is not None:
+            batches.close()  # on an interruption or an error: the workers end now, not after their batches
+        if journal is not None:
+            try:
+                journal.close()
+            except OSError:  # its last rows did not reach the disk: they run again on the rerun
+                pass
         if bar is not None:
             bar.done()
         if done:
-            write_parquet(results, list(done.values()), campaign)
-            if len(done) == len(specs):
-                journal_path(results).unlink(missing_ok=True)
+            try:
+                write_parquet(results, list(done.values()), campaign)
+            except WriteError:
+                if stopped is None or isinstance(stopped, KeyboardInterrupt):
+                    raise
+                # else the first failure (often the same full disk) is the one said; the journal keeps the rows
+            else:
+                if len(done) == len(specs):
+                    journal_path(results).unlink(missing_ok=True)
     elapsed = time.perf_counter() - started
     stable = Counter(r.get("stable") for r in done.values() if r["status"] == "ok")
     errors = Counter(r["error"] for r in done.values() if r["status"] != "ok" and r.get("error"))

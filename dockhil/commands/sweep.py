@@ -22,19 +22,24 @@ def add_arguments(p) -> None:
         "campaign file:\n"
         "  scene: stability.yaml          # shipped scene by name, or a path\n"
         "  args: {m: 750, delay: 0.016}   # fixed launch args\n"
-        "  duration: 40                   # simulated seconds per run (default: the scene's)\n"
+        "  duration: 40                   # simulated seconds per run, at most 1e6 (default: the scene's)\n"
         "  grid:                          # the product of all axes\n"
         "    b: [20, 60]                  # values, or {values: [...]}\n"
         "    k: {range: [500, 6000], num: 12}   # add log: true for a geometric range\n"
         "  random:                        # per run: uniform [a, b], normal [mean, std], loguniform [a, b]\n"
         "    thrust: {uniform: [8, 12]}\n"
-        "  samples: 1                     # runs per grid point\n"
-        "  seed: 0\n"
+        "  samples: 1                     # runs per grid point; at most 100,000 runs in all\n"
+        "  seed: 0                        # 0 to 2**32 - 1\n"
         "  outputs: [peak_force_N, growth_rate_per_s, stable]   # summary columns to keep (default all)\n"
         "  bags: false                    # true: one MCAP bag per run in RESULTS.parquet.bags/\n"
         "\n"
+        "Before anything runs, each argument's values (each grid axis's ends, the least and\n"
+        "greatest draw) go through the scene's own checks, as in 'dockhil launch'.\n"
+        "\n"
         "exit status: 0 every run ok or invalid (refused by the scene), 1 some run failed\n"
-        "(its row says why), 2 a bad campaign or results file, 130 interrupted (rerun to resume).\n"
+        "(its row says why) or a result could not be written (a full disk: rerun to resume),\n"
+        "2 a bad campaign or results file (nothing ran), 128+N stopped by signal N (130: Ctrl-C;\n"
+        "rerun to resume).\n"
         "\n"
         "examples:\n"
         "  dockhil sweep launch/campaigns/fig7.yaml --out fig7.parquet\n"
@@ -73,20 +78,57 @@ def run(args) -> int:
 
     campaign = sweep.load_campaign(args.campaign)
     sweep.check_outputs(campaign)
-    if args.dask:
-        executor = sweep.DaskExecutor(args.dask, args.workers)
-    else:
-        executor = sweep.LocalPool(args.workers or sweep._cpu_count())
+    say = Log("dockhil sweep:")
+    signals = _StopOnSignal()
     try:
-        out = sweep.sweep(campaign, args.out, executor, progress=not args.quiet)
+        if args.dask:
+            executor = sweep.DaskExecutor(args.dask, args.workers)
+        else:
+            executor = sweep.LocalPool(args.workers or sweep._cpu_count())
+        try:
+            out = sweep.sweep(campaign, args.out, executor, progress=not args.quiet)
+        finally:
+            executor.close()
     except KeyboardInterrupt:
-        Log("dockhil sweep:").info(f"interrupted; the finished runs are in {args.out}: rerun the same command "
-                                   f"to resume")
-        return 130
+        say.info(f"{signals.what}; the finished runs are in {args.out}: rerun the same command to resume")
+        return 128 + signals.number
+    except sweep.WriteError as exc:
+        say.error(f"{exc}; the rows written before stay: make room on that disk (or make it writable) and rerun "
+                  f"the same command to resume")
+        return 1
     finally:
-        executor.close()
+        signals.restore()
     print(sweep.format_report(out, args.out, executor.name), flush=True)
     return 1 if out["failed"] else 0
+
+
+class _StopOnSignal:
+    """SIGTERM and SIGHUP end a sweep as Ctrl-C does (a KeyboardInterrupt): the workers are ended
+    and the finished rows written, where Python's default would exit at once and leave both."""
+
+    def __init__(self):
+        import signal
+        import threading
+
+        self.number = signal.SIGINT
+        self.what = "interrupted"
+        self.old = {}
+        if threading.current_thread() is threading.main_thread():  # where Python runs handlers
+            self.old = {sig: signal.signal(sig, self._stop) for sig in (signal.SIGTERM, signal.SIGHUP)}
+
+    def _stop(self, signum, frame) -> None:
+        import signal
+
+        if self.number != signal.SIGINT:  # ending already: a second signal must not cut that short
+            return
+        self.number, self.what = signum, f"stopped by {signal.Signals(signum).name}"
+        raise KeyboardInterrupt
+
+    def restore(self) -> None:
+        import signal
+
+        for sig, handler in self.old.items():
+            signal.signal(sig, handler)
 
 
 def _plot(args) -> int:
