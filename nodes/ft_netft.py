@@ -180,13 +180,25 @@ class FtNetFtDriver(Node):
             if all(given.values()):
                 calibration = rdt.Calibration(**given)
             else:
-                fields = rdt.fetch_netftapi2(p.host, p.http_port, p.http_timeout)
-                calibration = rdt.calibration_from(fields, given)
+                calibration = rdt.calibration_from(self._netftapi2(), given)
         except rdt.RdtError as exc:
             raise DeviceError(f"{self.device}: {exc} (or give counts_per_force, counts_per_torque, force_unit "
                               f"and torque_unit)") from None
         self.log(f"{self.device}: {calibration.describe()}")
         return calibration
+
+    def _netftapi2(self) -> dict[str, str]:
+        """The box's configuration page; asked again until open_timeout while nothing answers (the
+        box, or its emulator, may still be starting)."""
+        p = self.p
+        deadline = time.monotonic() + p.open_timeout
+        while True:
+            try:
+                return rdt.fetch_netftapi2(p.host, p.http_port, p.http_timeout)
+            except rdt.Unreachable:
+                if time.monotonic() >= deadline:
+                    raise
+                time.sleep(0.05)
 
     def _send(self, command: int) -> None:
         try:

@@ -71,6 +71,10 @@ class RdtError(ValueError):
     """A request, record or configuration page that breaks the protocol; one line."""
 
 
+class Unreachable(RdtError):
+    """The box's web server did not answer (yet): refused, timed out, no route."""
+
+
 @dataclass(frozen=True)
 class Record:
     rdt_sequence: int
@@ -228,7 +232,7 @@ def fetch_netftapi2(host: str, http_port: int, timeout: float) -> dict[str, str]
         raise RdtError(f"{url}: HTTP {exc.code} {exc.reason}") from None
     except (urllib.error.URLError, OSError, ValueError) as exc:
         reason = getattr(exc, "reason", None) or exc
-        raise RdtError(f"{url}: {' '.join(str(reason).split()) or type(exc).__name__}") from None
+        raise Unreachable(f"{url}: {' '.join(str(reason).split()) or type(exc).__name__}") from None
     try:
         return parse_netftapi2(body)
     except RdtError as exc:

@@ -216,6 +216,9 @@ class NetFtBox:
                 self._held = None
             elif command == rdt.CMD_STOP:
                 self.counts["stops"] += 1
+                if self._held is not None:  # a record the network held back still arrives
+                    heapq.heappush(self._late, (time.monotonic(), self._seq, *self._held))
+                    self._held = None
                 self._client = None
             elif command == rdt.CMD_BIAS:
                 self.counts["biases"] += 1
