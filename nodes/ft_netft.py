@@ -163,6 +163,9 @@ class FtNetFtDriver(Node):
             self.force_scale = self.calibration.newtons_per_count
             self.torque_scale = self.calibration.newton_metres_per_count
             self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            # Room for a stall of the receive thread at 7000 records a second (the kernel caps it at
+            # net.core.rmem_max): what overflows the buffer is lost, and counted as such.
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
             self.sock.bind(("", 0))
             self.sock.settimeout(0.05)
             self.receiver = _Receiver(self.sock, self.box)

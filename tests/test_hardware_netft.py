@@ -516,30 +516,36 @@ def test_a_second_graph_naming_the_same_box_is_refused(fake):
 @pytest.mark.parametrize("fault, box_count, driver_count", [
     ("loss", "lost", "lost"), ("duplicate", "duplicated", "duplicates"), ("reorder", "reordered", "reordered")])
 def test_driver_counts_what_the_emulator_injected(box, fault, box_count, driver_count):
-    b = box(k=1000.0, position=0.01, rate=4000.0, seed=11, bias=1.5, **{fault: 5.0})
-    d = FtNetFtDriver(ctx([]), host="127.0.0.1", port=b.port, http_port=b.http_port, stale_timeout=1.0)
-    d.setup()
-    try:
-        assert d.bias_force == pytest.approx((-8.5, 0.0, 0.0))  # the contact's -10 N was there at start too
-        forces = []
-        for k in range(1, 200):  # the box streams in real time; the ticks are the test's
-            time.sleep(0.002)
-            out = d.step(Tick(k, k * 0.001, 0.001), {})
-            if out:
-                forces.append(out["wrench"].wrench.force.x)
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as c:
-            c.sendto(request(0x0000), ("127.0.0.1", b.port))  # any client may stop the box
-        wait_for(lambda: b.counts["stops"] == 1, what="stop")
-        time.sleep(0.1)  # the datagrams under way
-        stats, counters = b.stats(), d.counters()
-        assert counters["records"] == stats["sent"]
-        assert counters[driver_count] == stats[box_count] > 0, (counters, stats)
-        others = {"lost", "duplicates", "reordered"} - {driver_count}
-        assert all(counters[o] == 0 for o in others), counters
-        assert forces and all(f == pytest.approx(0.0, abs=1e-9) for f in forces)  # tared, constant contact
-        assert d.averaged > 1.5 * d.ticks_with_data  # 4 records a ms, several a tick
-    finally:
-        d.close()
+    # A run in which the kernel dropped datagrams (the receive thread starved on a busy machine and
+    # its socket buffer overflowed) counts those as lost too; it is tried again, for exact counts.
+    for attempt in range(3):
+        b = box(k=1000.0, position=0.01, rate=2000.0, seed=11 + attempt, bias=1.5, **{fault: 5.0})
+        d = FtNetFtDriver(ctx([]), host="127.0.0.1", port=b.port, http_port=b.http_port, stale_timeout=1.0)
+        d.setup()
+        try:
+            assert d.bias_force == pytest.approx((-8.5, 0.0, 0.0))  # the contact's -10 N was there at start too
+            forces = []
+            for k in range(1, 200):  # the box streams in real time; the ticks are the test's
+                time.sleep(0.002)
+                out = d.step(Tick(k, k * 0.001, 0.001), {})
+                if out:
+                    forces.append(out["wrench"].wrench.force.x)
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as c:
+                c.sendto(request(0x0000), ("127.0.0.1", b.port))  # any client may stop the box
+            wait_for(lambda: b.counts["stops"] == 1, what="stop")
+            time.sleep(0.1)  # the datagrams under way
+            stats, counters = b.stats(), d.counters()
+        finally:
+            d.close()
+        if counters["records"] == stats["sent"]:
+            break
+    else:
+        pytest.fail(f"the kernel dropped datagrams in 3 runs: {counters}, {stats}")
+    assert counters[driver_count] == stats[box_count] > 0, (counters, stats)
+    others = {"lost", "duplicates", "reordered"} - {driver_count}
+    assert all(counters[o] == 0 for o in others), counters
+    assert forces and all(f == pytest.approx(0.0, abs=1e-9) for f in forces)  # tared, constant contact
+    assert d.averaged > 1.5 * d.ticks_with_data  # 2 records a ms, several a tick
 
 
 def test_emulator_status_fault_reaches_the_driver(box):
