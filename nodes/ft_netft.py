@@ -108,9 +108,9 @@ class FtNetFtDriver(Node):
         "http_timeout": Param(float, 2.0, unit="s", help="time for the box's web server to answer", gt=0.0,
                               le=60.0),
         "counts_per_force": Param(float, 0.0, help="counts per force unit (0: cfgcpf of the box's netftapi2.xml)",
-                                  ge=0.0),
+                                  ge=0.0, scale=(1e-3, 1e12)),
         "counts_per_torque": Param(float, 0.0, help="counts per torque unit (0: cfgcpt of netftapi2.xml)",
-                                   ge=0.0),
+                                   ge=0.0, scale=(1e-3, 1e12)),
         "force_unit": Param(str, "", help="the box's force unit: N, lbf, klbf, kN, kgf, gf ('': scfgfu of "
                             "netftapi2.xml)"),
         "torque_unit": Param(str, "", help="the box's torque unit: Nm, Nmm, lbf-in, lbf-ft, kgf-cm, kNm ('': "

@@ -124,6 +124,7 @@ def test_the_boxs_page_gives_counts_per_unit_and_units():
     (("<cfgcpf>1000000</cfgcpf>", "<cfgcpf>0</cfgcpf>"), "counts_per_force must be a finite positive number"),
     (("<cfgcpf>1000000</cfgcpf>", "<cfgcpf>nan</cfgcpf>"), "counts_per_force must be a finite positive number"),
     (("<scfgfu>lbf</scfgfu>", "<scfgfu>stone</scfgfu>"), "unknown force unit 'stone'"),
+    (("<cfgcpt>1000000</cfgcpt>", "<cfgcpt>1e-300</cfgcpt>"), "not the resolution of a sensor"),
     (("</netft>", ""), "not XML"),
 ])
 def test_a_broken_page_is_one_line(change, words):
@@ -151,6 +152,8 @@ def test_an_unknown_unit_parameter_is_refused_before_anything_runs():
         FtNetFtDriver(ctx([]), force_unit="newtons")
     with pytest.raises(ParamError, match=r"parameter 'torque_unit': unknown torque unit 'N'"):
         FtNetFtDriver(ctx([]), torque_unit="N")
+    with pytest.raises(ParamError, match=r"parameter 'counts_per_force': 1e-300 is outside 0.001 to 1e\+12"):
+        FtNetFtDriver(ctx([]), counts_per_force=1e-300)
 
 
 def test_sequence_gaps_late_records_repeats_and_restarts_are_told_apart():
@@ -162,6 +165,7 @@ def test_sequence_gaps_late_records_repeats_and_restarts_are_told_apart():
     assert [s.accept(n) for n in (2**32 - 2, 2**32 - 1, 1)] == [True, True, True]  # wraps: 0 was lost
     assert s.lost == 1
     assert s.accept(5_000) and s.accept(1) and s.restarts == 1  # a new stream starts again at 1
+    assert s.accept(2) and s.accept(3_000) and s.accept(2_990) is False  # 10 behind: a late one
 
 
 # -- the emulator, answered by a raw client ------------------------------------------------
@@ -514,7 +518,8 @@ def test_a_second_graph_naming_the_same_box_is_refused(fake):
 
 
 @pytest.mark.parametrize("fault, box_count, driver_count", [
-    ("loss", "lost", "lost"), ("duplicate", "duplicated", "duplicates"), ("reorder", "reordered", "reordered")])
+    ("loss", "lost", "lost"), ("duplicate", "duplicated", "duplicates"), ("reorder", "reordered", "reordered"),
+    ("late", "late", "reordered")])
 def test_driver_counts_what_the_emulator_injected(box, fault, box_count, driver_count):
     # A run in which the kernel dropped datagrams (the receive thread starved on a busy machine and
     # its socket buffer overflowed) counts those as lost too; it is tried again, for exact counts.
@@ -546,6 +551,31 @@ def test_driver_counts_what_the_emulator_injected(box, fault, box_count, driver_
     assert all(counters[o] == 0 for o in others), counters
     assert forces and all(f == pytest.approx(0.0, abs=1e-9) for f in forces)  # tared, constant contact
     assert d.averaged > 1.5 * d.ticks_with_data  # 2 records a ms, several a tick
+
+
+def test_driver_publishes_what_the_simulated_sensor_does_for_the_same_contact(box):
+    from dockhil.msgs import Header, Pose, RobotState, Vector3
+    from dockhil.nodes.ft_sim import FtSensorSim
+
+    b = box(k=1500.0, rate=2000.0, jitter=0.002, seed=5)  # no pose yet: no contact while the driver tares
+    d = FtNetFtDriver(ctx([]), host="127.0.0.1", port=b.port, http_port=b.http_port, stale_timeout=1.0)
+    d.setup()
+    try:
+        for k, x in enumerate((0.012, -0.003, 0.0004)):  # pressed, apart, barely touching
+            b.model.set_pose(x)
+            time.sleep(0.05)
+            d.step(Tick(2 * k, k * 0.1, 0.001), {})  # the records of the pose before
+            time.sleep(0.05)
+            got = d.step(Tick(2 * k + 1, k * 0.1 + 0.05, 0.001), {})["wrench"]
+            sim = FtSensorSim(NodeContext("sim", 0.001), k=1500.0)
+            sim.setup()
+            want = sim.step(Tick(0, 0.0, 0.001), {"robot": RobotState(header=Header(), pose=Pose(Vector3(x=x)))})
+            assert got.wrench.force.x == pytest.approx(want["wrench"].wrench.force.x, abs=1e-6)
+            assert got.header.frame == want["wrench"].header.frame == "probe"
+        c = d.counters()
+        assert (c["lost"], c["reordered"], c["duplicates"]) == (0, 0, 0)  # jitter delays, never reorders
+    finally:
+        d.close()
 
 
 def test_emulator_status_fault_reaches_the_driver(box):

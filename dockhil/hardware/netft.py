@@ -151,8 +151,12 @@ class Calibration:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise RdtError(f"{name} must be a finite positive number, got {value!r}")
-        force_factor(self.force_unit)
-        torque_factor(self.torque_unit)
+        # a full-scale count must stay a number: 1e-300 counts per N would make it infinite
+        for name, scale in (("counts_per_force", self.newtons_per_count),
+                            ("counts_per_torque", self.newton_metres_per_count)):
+            if not 0.0 < scale * 2.0**31 < 1e15:
+                raise RdtError(f"{name} {getattr(self, name)!r}: a count would be {scale:g} N or N m, "
+                               f"not the resolution of a sensor")
 
     @property
     def newtons_per_count(self) -> float:
@@ -244,8 +248,8 @@ class SequenceCheck:
 
     A gap counts its records as lost; one that turns up late fills its gap (reordered, then not
     lost) and is not used, being older than one already used; a number seen before is a
-    duplicate. A number far behind (more than WINDOW) is a new stream (the box restarted it):
-    counted, and followed from there."""
+    duplicate. A number far behind (more than WINDOW), or 1 (the first record of a stream), is a
+    new stream (the box restarted it): counted, and followed from there."""
 
     WINDOW = 1024
 
@@ -273,7 +277,7 @@ class SequenceCheck:
                 del self._missing[next(iter(self._missing))]
             self.last = seq
             return True
-        if SEQ_MOD - ahead > self.WINDOW:
+        if SEQ_MOD - ahead > self.WINDOW or seq == 1:  # far behind, or a stream's first record
             self.restarts += 1
             self._missing.clear()
             self.last = seq

@@ -249,12 +249,16 @@ class NetFtBox:
                     self._remaining -= 1
                     if self._remaining == 0:
                         self._client = None
+        sent = 0
         for datagram, address in sends:
             try:
                 self.udp.sendto(datagram, address)
-                self.counts["sent"] += 1
+                sent += 1
             except OSError:  # nobody listening there (yet): a box keeps streaming
                 pass
+        if sent:
+            with self._lock:
+                self.counts["sent"] += sent
 
     def _record(self, now: float, due: float) -> list:
         """The next record of the stream; the datagrams to send now (faults applied)."""
