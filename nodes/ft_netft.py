@@ -22,6 +22,7 @@ from dockhil.errors import DeviceError, LaunchError, ParamError
 from dockhil.hardware import netft as rdt
 from dockhil.node import Node, Output, Param
 from dockhil.msgs import Vector3, Wrench, WrenchStamped
+from dockhil.nodes.ft_can import FtCanDriver
 
 RESEND_START_S = 0.25  # a start request is one datagram: ask again while the box says nothing
 
@@ -115,13 +116,8 @@ class FtNetFtDriver(Node):
                             "netftapi2.xml)"),
         "torque_unit": Param(str, "", help="the box's torque unit: Nm, Nmm, lbf-in, lbf-ft, kgf-cm, kNm ('': "
                              "scfgtu of netftapi2.xml)"),
-        "sign": Param(float, 1.0, help="-1 if the sensor is mounted to report the force on the target side",
-                      choices=(1.0, -1.0)),
-        "tare_samples": Param(int, 100, help="records averaged into the bias at start (0: no tare); "
-                              "nothing may touch the probe meanwhile", ge=0),
-        "max_bias": Param(float, 50.0, unit="N", help="largest tare bias |F| accepted; more means something "
-                          "loads the probe at start (raise it for a heavy tool; 0: off)", ge=0.0),
-        "max_bias_torque": Param(float, 5.0, unit="N m", help="largest tare bias |T| accepted (0: off)", ge=0.0),
+        # the tare and the mounting as for the CAN sensor (tare_samples counts records here)
+        **{name: FtCanDriver.params[name] for name in ("sign", "tare_samples", "max_bias", "max_bias_torque")},
         "stale_timeout": Param(float, 0.1, unit="s", help="no new record for this long is an error", gt=0.0),
         "open_timeout": Param(float, 2.0, unit="s", help="time for the box to start streaming", gt=0.0),
         "frame": Param(str, "probe", help="header frame id of the published wrench"),
