@@ -44,6 +44,8 @@ class _Receiver:
         self.foreign = 0
         self.foreign_from = None
         self._last_ft = None
+        self.collected: list[tuple[int, ...]] | None = None  # while taring: each usable record's counts
+        self._collect = 0
         self._run = True
         self.thread = threading.Thread(target=self._loop, name="netft-receive", daemon=True)
         self.thread.start()
@@ -85,6 +87,13 @@ class _Receiver:
                 s, c = self.sums, record.counts
                 for i in range(6):
                     s[i] += c[i]
+                if self.collected is not None and len(self.collected) < self._collect:
+                    self.collected.append(c)
+
+    def collect(self, n: int) -> None:
+        """Keep the counts of the next n usable records (for the tare) in `collected`."""
+        with self.lock:
+            self.collected, self._collect = [], n
 
     def take(self) -> tuple[int, list[int], rdt.Record | None]:
         """(records, their summed counts, the first faulty record) since the last take."""
@@ -207,23 +216,23 @@ class FtNetFtDriver(Node):
                               f"{exc.strerror or exc}") from None
 
     def _tare(self) -> None:
+        """Wait for the stream; tare over the first tare_samples records (at least one must come)."""
         p, receiver = self.p, self.receiver
         want = max(1, p.tare_samples)
-        n, sums, first = 0, [0] * 6, time.monotonic()
-        deadline, asked = first + p.open_timeout, 0.0
-        while n < want:
+        receiver.collect(want)
+        deadline, asked, streaming = time.monotonic() + p.open_timeout, 0.0, False
+        while True:
             now = time.monotonic()
             if not receiver.records and now - asked >= RESEND_START_S:
                 self._send(rdt.CMD_START)
                 asked = now
-            got, more, fault = receiver.take()
+            with receiver.lock:
+                n, fault = len(receiver.collected), receiver.fault
             self._refuse_fault(fault)
-            if got and not n:
-                deadline = now + p.open_timeout  # streaming: the tare has its own time from the first record
-            n += got
-            sums = [a + b for a, b in zip(sums, more)]
             if n >= want:
                 break
+            if n and not streaming:
+                streaming, deadline = True, now + p.open_timeout  # the tare's own time from the first record
             if now >= deadline:
                 if not n:
                     raise DeviceError(
@@ -232,12 +241,14 @@ class FtNetFtDriver(Node):
                         + self._foreign_note())
                 raise DeviceError(f"{self.device}: only {n} of {want} tare records within {p.open_timeout:g} s")
             time.sleep(0.002)
-        self._last_fresh_t = None
+        with receiver.lock:
+            records, receiver.collected = receiver.collected, None
+        receiver.take()  # the graph's ticks start from here
         if p.tare_samples:
-            force = tuple(sums[i] * self.force_scale / n for i in range(3))
-            torque = tuple(sums[3 + i] * self.torque_scale / n for i in range(3))
-            self.bias_force, self.bias_torque = tare_bias(force, torque, n, p.max_bias, p.max_bias_torque,
-                                                          self.device, self.log)
+            fs, ts = self.force_scale, self.torque_scale
+            samples = [(tuple(c[i] * fs for i in range(3)), tuple(c[3 + i] * ts for i in range(3))) for c in records]
+            self.bias_force, self.bias_torque = tare_bias(samples, p.max_bias, p.max_bias_torque, self.device,
+                                                          self.log)
 
     def _foreign_note(self) -> str:
         r = self.receiver
@@ -316,9 +327,12 @@ class FtNetFtDriver(Node):
             self.log(f"warning: {self.device}: {', '.join(problems)}")
 
 
-def tare_bias(force, torque, n: int, max_bias: float, max_bias_torque: float, device: str, log):
-    """The bias of a tare over n records (mean force [N] and torque [N m] of the unloaded probe),
+def tare_bias(samples, max_bias: float, max_bias_torque: float, device: str, log):
+    """The bias (mean force [N], mean torque [N m]) of the unloaded probe's (force, torque) samples,
     refused when it is so large that something loads the probe."""
+    n = len(samples)
+    force = tuple(sum(s[0][i] for s in samples) / n for i in range(3))
+    torque = tuple(sum(s[1][i] for s in samples) / n for i in range(3))
     f, t = math.sqrt(sum(v * v for v in force)), math.sqrt(sum(v * v for v in torque))
     for value, bound, what in ((f, max_bias, f"bias force |F| = {f:.1f} N > max_bias {max_bias:g} N"),
                                (t, max_bias_torque, f"bias torque |T| = {t:.2f} N m > max_bias_torque "
@@ -328,7 +342,7 @@ def tare_bias(force, torque, n: int, max_bias: float, max_bias_torque: float, de
                               f"force from every limit); free the probe and start again, or raise the bound for a "
                               f"heavy tool")
     log(f"{device}: tared over {n} records: bias force {_fmt(force)} N, torque {_fmt(torque)} N m")
-    return tuple(force), tuple(torque)
+    return force, torque
 
 
 def _fmt(v) -> str:
