@@ -80,6 +80,11 @@ class NetFtBox:
                  fault_status: int = 0x80020000, maxima: str = ""):
         if not 0.0 < rate <= rdt.MAX_RDT_RATE:
             raise ValueError(f"rate {rate!r} Hz: the box streams at most {rdt.MAX_RDT_RATE:g} Hz")
+        for name, value in (("loss", loss), ("duplicate", duplicate), ("reorder", reorder), ("late", late)):
+            if not 0.0 <= value <= 100.0:
+                raise ValueError(f"{name} {value!r}: a percentage, 0 to 100")
+        if not (late_delay >= 0.0 and jitter >= 0.0):
+            raise ValueError(f"late_delay {late_delay!r} s and jitter {jitter!r} s must be >= 0")
         self.calibration = rdt.Calibration(counts_per_force, counts_per_torque, force_unit, torque_unit)
         self.model = model
         self.host, self.port, self.http_port, self.rate = host, port, http_port, rate
@@ -94,7 +99,6 @@ class NetFtBox:
         self._seq = 0
         self._next_due = 0.0
         self._bias_counts = (0,) * 6
-        self._last_counts = (0,) * 6
         self._held = None  # a record held back to be sent after the next (reordering)
         self._late: list = []  # heap of (send time, n, datagram, address)
         self._jitter_t = 0.0
@@ -339,10 +343,14 @@ def main(argv: list[str] | None = None) -> int:
         box = NetFtBox(model, args.host, args.port, args.http_port, args.rate, args.counts_per_force,
                        args.counts_per_torque, args.force_unit, args.torque_unit, args.seed, args.loss,
                        args.duplicate, args.reorder, args.late, args.late_delay, args.jitter, args.fault_after,
-                       maxima=args.maxima).start()
-    except (ValueError, OSError) as exc:
-        say.error(f"cannot start on {args.host} (udp {args.port}, http {args.http_port}): "
-                  f"{getattr(exc, 'strerror', None) or exc}")
+                       maxima=args.maxima)
+    except ValueError as exc:  # an argument out of its range (rdt.RdtError too: units, counts per unit)
+        say.error(str(exc))
+        return 2
+    try:
+        box.start()
+    except OSError as exc:
+        say.error(f"cannot listen on {args.host} (udp {args.port}, http {args.http_port}): {exc.strerror or exc}")
         return 2
     print(f"listening udp {box.host}:{box.port} http {box.host}:{box.http_port}", flush=True)
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated box still writes its maxima
