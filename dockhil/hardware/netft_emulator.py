@@ -220,9 +220,10 @@ class NetFtBox:
                 self._held = None
             elif command == rdt.CMD_STOP:
                 self.counts["stops"] += 1
-                if self._held is not None:  # a record the network held back still arrives
+                if self._held is not None:  # the record held back goes now, the last: in order after all
                     heapq.heappush(self._late, (time.monotonic(), self._seq, *self._held))
                     self._held = None
+                    self.counts["reordered"] -= 1
                 self._client = None
             elif command == rdt.CMD_BIAS:
                 self.counts["biases"] += 1
