@@ -11,7 +11,7 @@ that the driver's tare and a calibration must find.
 
 Faults, each drawn from one seeded generator: loss (records never sent),
 duplicates (sent twice), reordering (sent after the next one), late records
-(held back `late_delay` s, so newer ones overtake them), jitter (each send up to
+(held back `late_delay` s, so newer ones overtake them; counted when they did), jitter (each send up to
 `jitter` s after its due time) and a status word set from `fault_after` s into
 the stream on. What the box did is counted in `stats()`, with the largest
 force and torque it reported, and written as JSON to `maxima` at stop.
@@ -100,7 +100,9 @@ class NetFtBox:
         self._next_due = 0.0
         self._bias_counts = (0,) * 6
         self._held = None  # a record held back to be sent after the next (reordering)
-        self._late: list = []  # heap of (send time, n, datagram, address)
+        self._later: list = []  # heap of (send time, rdt_sequence, late?, datagram, address)
+        self._sent_seq = 0  # the newest rdt_sequence sent in this stream
+        self._lost_tail = 0  # records lost since the last one that went out
         self._jitter_t = 0.0
         self._boot = time.monotonic()
         self._running = False
@@ -165,7 +167,8 @@ class NetFtBox:
 
     def stats(self) -> dict:
         with self._lock:
-            return {**self.counts, "max_abs_force_N": list(self.max_force), "max_abs_torque_Nm": list(self.max_torque),
+            # lost_unseen: the lost records after the last one sent, which no sequence can show
+            return {**self.counts, "lost_unseen": self._lost_tail, "max_abs_force_N": list(self.max_force), "max_abs_torque_Nm": list(self.max_torque),
                     "rate_Hz": self.rate, "calibration": self.calibration.describe()}
 
     def xml(self) -> str:
@@ -215,13 +218,13 @@ class NetFtBox:
             if command == rdt.CMD_START:
                 self.counts["starts"] += 1
                 self._client, self._remaining = address, count
-                self._seq = 0  # rdt_sequence starts again with every stream
+                self._seq = self._sent_seq = 0  # rdt_sequence starts again with every stream
                 self._stream_t0 = self._next_due = time.monotonic()
                 self._held = None
             elif command == rdt.CMD_STOP:
                 self.counts["stops"] += 1
                 if self._held is not None:  # the record held back goes now, the last: in order after all
-                    heapq.heappush(self._late, (time.monotonic(), self._seq, *self._held))
+                    heapq.heappush(self._later, (time.monotonic(), self._seq, False, *self._held))
                     self._held = None
                     self.counts["reordered"] -= 1
                 self._client = None
@@ -245,10 +248,17 @@ class NetFtBox:
     def _send_due(self, now: float) -> None:
         sends = []
         with self._lock:
-            while self._late and self._late[0][0] <= now:
-                sends.append(heapq.heappop(self._late)[2:])
+            while self._later and self._later[0][0] <= now:
+                _, seq, late, datagram, address = heapq.heappop(self._later)
+                if late and seq < self._sent_seq:
+                    self.counts["late"] += 1  # it did arrive after newer ones
+                self._sent_seq = max(self._sent_seq, seq)
+                sends.append((datagram, address))
             while self._client is not None and self._next_due <= now:
-                sends.extend(self._record(now, self._next_due))
+                out = self._record(now, self._next_due)
+                if out:  # the newest record went out (a held one may go with it)
+                    self._sent_seq = max(self._sent_seq, self._seq)
+                sends.extend(out)
                 self._next_due += 1.0 / self.rate
                 if self._remaining:
                     self._remaining -= 1
@@ -284,10 +294,11 @@ class NetFtBox:
         draw = self.rng.random
         if self.loss and draw() < self.loss:
             self.counts["lost"] += 1
+            self._lost_tail += 1
             return []
+        self._lost_tail = 0
         if self.late and draw() < self.late:
-            self.counts["late"] += 1
-            heapq.heappush(self._late, (now + self.late_delay, self._seq, *datagram))
+            heapq.heappush(self._later, (now + self.late_delay, self._seq, True, *datagram))
             return []
         out = [datagram]
         if self.duplicate and draw() < self.duplicate:
@@ -304,7 +315,7 @@ class NetFtBox:
             # sent up to `jitter` late, in order: a late send delays those after it, never swaps them
             self._jitter_t = max(self._jitter_t, now + draw() * self.jitter)
             for item in out:
-                heapq.heappush(self._late, (self._jitter_t, self._seq, *item))
+                heapq.heappush(self._later, (self._jitter_t, self._seq, False, *item))
             return []
         return out
 
