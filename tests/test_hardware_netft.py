@@ -488,6 +488,19 @@ def test_a_silent_box_and_a_box_without_a_page_fail_fast_in_one_line():
     assert f"http://127.0.0.1:{port}/netftapi2.xml: " in str(err.value) and "\n" not in str(err.value)
 
 
+def test_node_process_exits_non_zero_with_one_line_when_the_box_is_missing():
+    from tests.conftest import node_process_error
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    spec = {"name": "ft", "type_name": "ft_netft", "dt": 0.001, "clock": "wall",
+            "params": {"host": "127.0.0.1", "http_port": port, "open_timeout": 0.3}}
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    line = node_process_error(spec, env)
+    assert "Net F/T box 127.0.0.1:49152" in line and "netftapi2.xml" in line, line
+
+
 def test_sim_time_is_refused():
     with pytest.raises(LaunchError, match="runs only in wall time"):
         FtNetFtDriver(NodeContext("ft", 0.001, sim_time=True)).setup()

@@ -168,7 +168,8 @@ class NetFtBox:
     def stats(self) -> dict:
         with self._lock:
             # lost_unseen: the lost records after the last one sent, which no sequence can show
-            return {**self.counts, "lost_unseen": self._lost_tail, "max_abs_force_N": list(self.max_force), "max_abs_torque_Nm": list(self.max_torque),
+            return {**self.counts, "lost_unseen": self._lost_tail, "max_abs_force_N": list(self.max_force),
+                    "max_abs_torque_Nm": list(self.max_torque),
                     "rate_Hz": self.rate, "calibration": self.calibration.describe()}
 
     def xml(self) -> str:
