@@ -139,6 +139,10 @@ def setup_specs(directory: str) -> dict[str, dict]:
                                                         "reconnect_min": 0.01}},
         "ft_emulator": {"sim_time": False, "params": {"channel": os.path.join(directory, "ft.slcan")}},
         "robot_emulator": {"sim_time": False, "params": {"port": 0}},
+        "ft_netft": {"sim_time": False, "params": {"host": "127.0.0.1", "port": _closed_port(), "open_timeout": 0.05,
+                                                    "counts_per_force": 1e6, "counts_per_torque": 1e6,
+                                                    "force_unit": "N", "torque_unit": "Nm", "tare_samples": 0}},
+        "netft_emulator": {"sim_time": False, "params": {"port": 0, "http_port": 0}},
     }
     try:
         specs["bag_source"] = {"sim_time": True, "params": {"path": _sample_bag(directory)}}

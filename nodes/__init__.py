@@ -32,6 +32,8 @@ REGISTRY: dict[str, str] = {
     "delay_injector": "dockhil.nodes.delay_injector:DelayInjector",
     "ft_can": "dockhil.nodes.ft_can:FtCanDriver",
     "ft_emulator": "dockhil.nodes.ft_emulator:FtSensorEmulator",
+    "ft_netft": "dockhil.nodes.ft_netft:FtNetFtDriver",
+    "netft_emulator": "dockhil.nodes.netft_emulator:NetFtEmulator",
     "robot_modbus": "dockhil.nodes.robot_modbus:RobotModbusDriver",
     "robot_emulator": "dockhil.nodes.robot_emulator:RobotControllerEmulatorNode",
     "bag_source": "dockhil.nodes.bag_source:BagSource",
