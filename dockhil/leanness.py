@@ -176,7 +176,7 @@ def _measure_once(type_name: str, spec: dict | None, timeout: float) -> dict:
     return {"node": type_name, "setup": f"measurement failed: {tail}", "startup_s": wall}
 
 
-RUNTIME = "module:msgs,dockhil.node,dockhil.executor,dockhil.transport,dockhil.process,nodes"
+RUNTIME = "module:dockhil.msgs,dockhil.node,dockhil.executor,dockhil.transport,dockhil.process,dockhil.nodes"
 BASELINES = {
     "module:json": "python, nothing of dockhil",
     RUNTIME: "node process runtime (transport, executor)",

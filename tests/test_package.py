@@ -201,10 +201,9 @@ def test_node_types_lists_packages_and_a_launch_file_runs_their_node(fake_distri
 
 # -- the wheel ------------------------------------------------------------------
 def source_packages() -> set[str]:
-    """Every package directory of the source tree, as a wheel path: msgs/ and nodes/ install
-    inside the dockhil namespace."""
+    """Every package directory of the source tree, as a wheel path."""
     found = set()
-    for top, installed in (("dockhil", "dockhil"), ("msgs", "dockhil/msgs"), ("nodes", "dockhil/nodes")):
+    for top, installed in (("dockhil", "dockhil"),):
         for init in (REPO / top).rglob("__init__.py"):
             if "__pycache__" not in init.parts:
                 rel = init.parent.relative_to(REPO / top).as_posix()
