@@ -59,9 +59,9 @@ def rebuilder(cls: type):
 
 def messages_of(scene: str, n_ticks: int, args: dict | None = None) -> list[list]:
     """Every message a composed run of `scene` publishes, per tick."""
-    from dockhil import launchfile
+    from dockhil.scene import launchfile
     from dockhil.composed import ComposedGraph
-    from dockhil.graph import build
+    from dockhil.scene.graph import build
 
     ticks: list[list] = [[] for _ in range(n_ticks)]
     g = ComposedGraph(build(launchfile.load(scene, args or {})), log=lambda n, m: None,

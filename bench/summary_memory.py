@@ -15,9 +15,9 @@ sys.path.insert(0, ROOT)
 
 
 def peak_bytes(seconds: float) -> tuple[int, dict]:
-    from dockhil import launchfile
+    from dockhil.scene import launchfile
     from dockhil.composed import ComposedGraph
-    from dockhil.graph import build
+    from dockhil.scene.graph import build
     from dockhil.summary import SummaryCollector
 
     graph = build(launchfile.load(os.path.join(ROOT, "launch", "hil.yaml"), {"delay": "0.032"}))

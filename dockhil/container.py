@@ -51,7 +51,7 @@ class Container(Node):
     def __init__(self, ctx: NodeContext, **params: Any):
         from dockhil import nodes
         from dockhil.composed import ComposedGraph
-        from dockhil.graph import GraphNode, PortRef
+        from dockhil.scene.graph import GraphNode, PortRef
 
         self.ctx = ctx
         self.p = SimpleNamespace(**params)

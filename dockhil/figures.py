@@ -76,10 +76,10 @@ SIXDOF_SECONDS = 2.0  # the off-axis contact lasts 1.6 s; the delayed passive fo
 def sixdof(bag_path: str, delay: float = 0.032, seconds: float = SIXDOF_SECONDS) -> dict:
     """Run launch/hil6.yaml (off-axis defaults, robot delay `delay`) for `seconds`, composed in
     sim time, recording every topic to bag_path; return its 6-DOF summary (run, ideal, error)."""
-    from dockhil import launchfile
+    from dockhil.scene import launchfile
     from dockhil.bag_live import TapRecorder
     from dockhil.composed import ComposedGraph
-    from dockhil.graph import build
+    from dockhil.scene.graph import build
     from dockhil.summary import SummaryCollector
 
     graph = build(launchfile.load(launchfile.SHIPPED_SCENES / "hil6.yaml", {"delay": repr(float(delay))}))

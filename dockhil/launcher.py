@@ -38,7 +38,7 @@ from dockhil.process import READY
 from dockhil.transport import GraphKeys, ipc_endpoint, new_run_dir, private_dir, runtime_dir
 
 if TYPE_CHECKING:  # the graph module loads the launch-file parser (yaml): a recorder or `dockhil topic` needs neither
-    from dockhil.graph import Graph
+    from dockhil.scene.graph import Graph
 
 KEY_FILE = "graph.keys"
 POLL_S = 0.05  # the watch loop's longest sleep when no child speaks or exits

@@ -57,9 +57,9 @@ try:
         out["after_import"] = loaded()
         out["setup"] = "no node"
     elif type_name.startswith("scene:"):
-        from dockhil import launchfile
+        from dockhil.scene import launchfile
         from dockhil.composed import ComposedGraph
-        from dockhil.graph import build
+        from dockhil.scene.graph import build
         graph = build(launchfile.load(type_name[len("scene:"):]))
         out["import_s"] = time.perf_counter() - t0
         out["after_import"] = loaded()
@@ -199,7 +199,7 @@ def measure_all(types: list[str] | None = None, workers: int = 2, baselines: boo
         jobs = [(t, specs.get(t)) for t in types]
         if baselines:
             jobs = [(b, None) for b in BASELINES] + jobs
-            from dockhil.launchfile import SHIPPED_SCENES  # launch/ of a checkout, or of the wheel
+            from dockhil.scene.launchfile import SHIPPED_SCENES# launch/ of a checkout, or of the wheel
 
             jobs += [(f"scene:{s}", None) for s in SCENES if (SHIPPED_SCENES / Path(s).name).exists()]
         with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:

@@ -66,7 +66,7 @@ from dockhil.contact.scenario import (
     StepTooLargeError,
 )
 from dockhil.errors import DockhilError
-from dockhil.launchfile import SHIPPED_SCENES
+from dockhil.scene.launchfile import SHIPPED_SCENES
 
 IVP_METHODS = ("RK45", "DOP853", "Radau", "LSODA")
 EXPLICIT = ("rk4", "symplectic_euler", "euler")
@@ -531,9 +531,9 @@ def _hil_library(duration: float, dt: float = 1e-3):
 def composed_samples(scene_file: str, duration: float, args: dict | None = None, ideal_force=None):
     """A shipped scene composed in this process (what `dockhil launch --composed` runs), its
     per-tick series collected by a tap; `args` as `name:=value` on the command line."""
-    from dockhil import launchfile
+    from dockhil.scene import launchfile
     from dockhil.composed import ComposedGraph
-    from dockhil.graph import build
+    from dockhil.scene.graph import build
     from dockhil.summary import Collector
 
     overrides = launchfile.parse_overrides([f"{k}:={v}" for k, v in (args or {}).items()])

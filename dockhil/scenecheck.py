@@ -22,7 +22,7 @@ import cmath
 import math
 
 from dockhil.errors import DockhilError
-from dockhil.launchschema import MAX_RATE
+from dockhil.scene.schema import MAX_RATE
 
 
 def _first(graph, type_name: str):

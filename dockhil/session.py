@@ -24,7 +24,7 @@ from dockhil import validity
 from dockhil.log import Log
 from dockhil.errors import DockhilError
 from dockhil.files import complete_or_nothing
-from dockhil.graph import Graph
+from dockhil.scene.graph import Graph
 
 
 def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None, composed: bool = False,

@@ -29,7 +29,7 @@ import msgspec
 
 from dockhil.errors import DockhilError
 
-from dockhil.launchfile import SHIPPED_SCENES
+from dockhil.scene.launchfile import SHIPPED_SCENES
 STATUSES = ("ok", "invalid", "failed")
 RETRIES = 2  # a batch whose worker was lost is sent again this many times
 METADATA_KEY = b"dockhil.campaign"
@@ -183,7 +183,7 @@ def load_campaign(path: str | Path) -> Campaign:
     """Read and check a campaign file; every refusal is one CampaignError line."""
     import yaml
 
-    from dockhil import launchfile
+    from dockhil.scene import launchfile
 
     try:
         path = launchfile.find_shipped(path, "campaign file", folder="campaigns")
@@ -344,9 +344,10 @@ def run_one(spec: dict) -> dict:
 
     import numpy as np
 
-    from dockhil import launchfile, summary as summ
+    from dockhil.scene import launchfile
+    from dockhil import summary as summ
     from dockhil.composed import ComposedGraph
-    from dockhil.graph import build
+    from dockhil.scene.graph import build
     from dockhil.scenecheck import scene_check
 
     started = time.perf_counter()

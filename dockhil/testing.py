@@ -40,7 +40,7 @@ import msgspec
 from dockhil.composed import ComposedGraph
 from dockhil.errors import DockhilError
 from dockhil.executor import check_outputs
-from dockhil.graph import Graph, GraphNode, PortRef
+from dockhil.scene.graph import Graph, GraphNode, PortRef
 from dockhil.node import ManualClock, Node, Output, Tick
 from dockhil.msgs import (BodyState, BodyWrenches, EStop, Header, Pose, RobotCommand, RobotState, SatelliteState, Twist,
                   Vector3, Wrench, WrenchStamped)

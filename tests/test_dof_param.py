@@ -7,8 +7,8 @@ import subprocess
 
 import pytest
 
-from dockhil import graph as graphmod
-from dockhil import launchfile
+from dockhil.scene import graph as graphmod
+from dockhil.scene import launchfile
 from dockhil.composed import ComposedGraph
 from dockhil.msgs.codec import encode
 from dockhil.summary import SummaryCollector

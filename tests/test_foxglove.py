@@ -35,8 +35,8 @@ DEADLINE_S = 60.0  # generous: the machine may be busy; every wait ends on its c
 def scene_topics() -> dict[str, str]:
     """topic -> message type name of the scene, from the launch file (not from the bridge)."""
     from dockhil import msgs
-    from dockhil import launchfile
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
 
     graph = build(launchfile.load(SCENE, {}))
     return {topic: msgs.type_name(ref.type) for topic, ref in graph.publishers.items()}

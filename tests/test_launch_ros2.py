@@ -9,11 +9,12 @@ import re
 import pytest
 import zmq
 
-from dockhil import launchfile, validity
+from dockhil.scene import launchfile
+from dockhil import validity
 from dockhil.composed import ComposedGraph
 from dockhil.errors import DockhilError, LaunchError
 from dockhil.executor import NodeExecutor, PortWire, RunSpec, StaleInput, Stop
-from dockhil.graph import build
+from dockhil.scene.graph import build
 from dockhil.launcher import Endpoints, run_specs
 from dockhil.node import ManualClock, default_max_age
 from dockhil.transport import GraphKeys, Publisher

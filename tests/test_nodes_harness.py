@@ -186,9 +186,9 @@ def test_the_node_writing_guides_example_node_scene_and_test_work(tmp_path, monk
     import re
     import sys
 
-    from dockhil import launchfile
+    from dockhil.scene import launchfile
     from dockhil.composed import ComposedGraph
-    from dockhil.graph import build
+    from dockhil.scene.graph import build
     from tests.conftest import ROOT
 
     text = (ROOT / "docs" / "writing-a-node.md").read_text()

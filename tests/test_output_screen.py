@@ -100,8 +100,8 @@ def test_the_shipped_scenes_messages_pass_the_screen_as_they_are(scene, monkeypa
     # Each message the screen turns down costs an encode and a decode: the built-in nodes build
     # plain floats, strs and ints, so none of theirs is.
     import dockhil.composed as composed
-    from dockhil import graph as graphmod
-    from dockhil import launchfile
+    from dockhil.scene import graph as graphmod
+    from dockhil.scene import launchfile
     from tests.conftest import ROOT
 
     full = []

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from dockhil import nodes
-from dockhil import launchfile
+from dockhil.scene import launchfile
 from dockhil.errors import LaunchError
 from dockhil.sweep import CampaignError, load_campaign
 
@@ -250,7 +250,7 @@ def test_the_wheel_installs_into_a_fresh_venv_and_runs_from_another_directory(tm
         return subprocess.run([str(exe), *argv], cwd=elsewhere, env=clean_env(), capture_output=True, text=True,
                               timeout=timeout)
 
-    where = subprocess.run([str(py), "-c", "import dockhil, dockhil.nodes, dockhil.msgs; from dockhil import launchfile; "
+    where = subprocess.run([str(py), "-c", "import dockhil, dockhil.nodes, dockhil.msgs; from dockhil.scene import launchfile; "
                             "print(dockhil.__file__, dockhil.nodes.__file__, dockhil.msgs.__file__, launchfile.SHIPPED_SCENES)"],
                            cwd=elsewhere, env=clean_env(), capture_output=True, text=True, timeout=60)
     site = str(venv / "lib")

@@ -266,8 +266,8 @@ def test_delayed_hops_send_in_bursts_and_change_no_bit(write_launch, tmp_path):
     """A loop through two delayed hops (4 and 6 ticks): their publishers send 2 and 3 ticks at a
     time, the others as soon as their node would wait. The run still ends (no cycle waits for a
     held message) and gives the plain loop's bits, as the composed run does."""
-    from dockhil import launchfile
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
     from dockhil.launcher import burst
 
     traces = {}
@@ -296,8 +296,8 @@ def test_bursts_are_sim_time_only_and_follow_the_declared_delay(tmp_path):
     a time in sim time; in wall time every message leaves when it is made."""
     from pathlib import Path
 
-    from dockhil import launchfile
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
     from dockhil.launcher import Endpoints, run_specs
 
     graph = build(launchfile.load(Path(__file__).resolve().parent.parent / "launch" / "hil.yaml"))

@@ -7,8 +7,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from dockhil import graph as graphmod
-from dockhil import launchfile
+from dockhil.scene import graph as graphmod
+from dockhil.scene import launchfile
 from dockhil.bag import BagReader
 from dockhil.composed import ComposedGraph
 from dockhil.contact.contact6 import Contact6

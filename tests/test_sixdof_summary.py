@@ -10,8 +10,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from dockhil import graph as graphmod
-from dockhil import launchfile
+from dockhil.scene import graph as graphmod
+from dockhil.scene import launchfile
 from dockhil.contact.contact6 import Contact6, simulate_contact6
 from dockhil.contact.ideal import ideal_contact_summary
 from dockhil.contact.scenario import ContactScenario

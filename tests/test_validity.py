@@ -403,9 +403,9 @@ def test_the_composed_bounds_check_refuses_what_a_reader_refuses():
 
 
 def test_a_composed_wall_time_loop_on_a_controlled_clock_reports_the_stall_exactly(write_launch):
-    from dockhil import launchfile
+    from dockhil.scene import launchfile
     from dockhil.composed import ComposedGraph
-    from dockhil.graph import build
+    from dockhil.scene.graph import build
 
     scene = write_launch("rate: 1024\nnodes:\n  - {name: source, node: 'tests.faultnodes:Hiccup', "
                          "params: {at: 50, seconds: 0.25}}\n  - {name: follow, node: 'tests.faultnodes:Follow'}\n")

@@ -15,13 +15,13 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from dockhil import launchfile
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
 
     if args.schema:
         import json
 
-        from dockhil.launchschema import json_schema
+        from dockhil.scene.schema import json_schema
 
         print(json.dumps(json_schema(), indent=1))
         return 0

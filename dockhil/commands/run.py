@@ -31,10 +31,10 @@ def run(args) -> int:
 
     from dockhil import msgs
     from dockhil import nodes
-    from dockhil import boundedyaml
+    from dockhil.scene import boundedyaml
     from dockhil.executor import PortWire, RunSpec
     from dockhil.launcher import KEY_FILE, graph_keys, registry_dir, running_graphs
-    from dockhil.launchfile import parse_overrides
+    from dockhil.scene.launchfile import parse_overrides
     from dockhil.process import run_node
     from dockhil.transport import GraphKeys, ipc_endpoint, new_run_dir
 

@@ -506,8 +506,8 @@ def _green(i: int, n: int) -> str:
 
 def _scene_values(args) -> tuple[float, float, float, float, float, float, float]:
     """m, k_d, b_d, k_h, b_h, h, rate of a scene's loop, as the graph will run it."""
-    from dockhil import launchfile
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
     from dockhil.scenecheck import scene_loop
 
     given = [f"--{n.replace('_', '-')}" for n in ("m", "h", *_HYBRID) if getattr(args, n, None) is not None]

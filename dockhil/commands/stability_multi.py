@@ -44,8 +44,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _scene_loop(items: list[str]):
     """(loop, description) of a 6-DOF scene at its start configuration."""
-    from dockhil import graph as graphmod
-    from dockhil import launchfile, nodes
+    from dockhil.scene import graph as graphmod
+    from dockhil.scene import launchfile
+    from dockhil import nodes
     from dockhil.scenecheck import scene_loop6
 
     path, overrides = items[0], launchfile.parse_overrides(items[1:])

@@ -17,8 +17,8 @@ from typing import Any
 from dockhil import msgs
 from dockhil import nodes as node_registry
 from dockhil.errors import LaunchError, ParamError
-from dockhil.launchfile import Scene
-from dockhil.launchschema import MAX_DURATION
+from dockhil.scene.launchfile import Scene
+from dockhil.scene.schema import MAX_DURATION
 
 
 @dataclass

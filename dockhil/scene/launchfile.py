@@ -30,9 +30,9 @@ variable. Standing alone it keeps the value's type; inside a longer
 string it is replaced by its text. A condition is true/false, or
 `A == B` / `A != B` compared as text after substitution.
 
-The file is read with bounds (dockhil.boundedyaml), its arguments are
+The file is read with bounds (dockhil.scene.boundedyaml), its arguments are
 substituted, and the result is checked against the schema in
-dockhil.launchschema: every refusal is one line with file, line and field.
+dockhil.scene.schema: every refusal is one line with file, line and field.
 """
 
 from __future__ import annotations
@@ -43,10 +43,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Union
 
-from dockhil import boundedyaml
+from dockhil.scene import boundedyaml
 from dockhil.errors import DockhilError, LaunchError, suggest
-from dockhil.launchschema import (MAX_INCLUDES, MAX_NODES, MAX_SUBSTITUTED, MAX_TEXT, ArgDecl, LaunchFile, Lets,
-                                  NodeDecl, Scalar, SchemaError, convert)
+from dockhil.scene.schema import (MAX_INCLUDES, MAX_NODES, MAX_SUBSTITUTED, MAX_TEXT, ArgDecl, LaunchFile,
+                                  Lets, NodeDecl, Scalar, SchemaError, convert)
 
 _ARG = re.compile(r"\$\((?:arg|var) ([A-Za-z_][A-Za-z0-9_]*)\)")
 _ARG_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
