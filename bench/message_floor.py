@@ -60,7 +60,7 @@ def rebuilder(cls: type):
 def messages_of(scene: str, n_ticks: int, args: dict | None = None) -> list[list]:
     """Every message a composed run of `scene` publishes, per tick."""
     from dockhil.scene import launchfile
-    from dockhil.composed import ComposedGraph
+    from dockhil.runtime.composed import ComposedGraph
     from dockhil.scene.graph import build
 
     ticks: list[list] = [[] for _ in range(n_ticks)]
@@ -74,7 +74,7 @@ def messages_of(scene: str, n_ticks: int, args: dict | None = None) -> list[list
 
 def cost_us_per_tick(ticks: list[list], repeat: int = 5) -> dict[str, float]:
     """Median CPU [us] per tick of screening the tick's messages, and of building them."""
-    from dockhil.executor import _bounds_check
+    from dockhil.runtime.executor import _bounds_check
 
     screens = {t: _bounds_check(t) for t in {type(m) for msgs in ticks for m in msgs}}
     builds = {t: rebuilder(t) for t in screens}

@@ -16,7 +16,7 @@ sys.path.insert(0, ROOT)
 
 def peak_bytes(seconds: float) -> tuple[int, dict]:
     from dockhil.scene import launchfile
-    from dockhil.composed import ComposedGraph
+    from dockhil.runtime.composed import ComposedGraph
     from dockhil.scene.graph import build
     from dockhil.summary import SummaryCollector
 

@@ -94,14 +94,14 @@ class Source:
 def _graph_running(pid: int, run_id: str) -> bool:
     """A graph runs while its registry entry exists and its process lives (an exited
     child not yet reaped by its parent still answers to kill(pid, 0); the entry does not)."""
-    from dockhil.launcher import registry_dir
+    from dockhil.runtime.launcher import registry_dir
 
     return _alive(pid) and (registry_dir() / f"{run_id}.json").exists()
 
 
 def find_sources(topics: list[str] | None = None, graph_pid: int | None = None) -> dict[str, Source]:
     """Topics of running graphs (of the one launched by `graph_pid` if given), or a one-line error."""
-    from dockhil.launcher import running_graphs
+    from dockhil.runtime.launcher import running_graphs
 
     graphs = [g for g in running_graphs() if graph_pid is None or g.get("pid") == graph_pid]
     if not graphs:
@@ -152,7 +152,7 @@ class Recorder:
                  overwrite: bool = False, log: Callable[[str], None] = _record_log):
         import zmq
 
-        from dockhil.transport import Subscriber
+        from dockhil.runtime.transport import Subscriber
 
         self.path = path
         self.log = log
@@ -164,7 +164,7 @@ class Recorder:
         except BagError:
             self.bag.close()
             raise
-        from dockhil.launcher import graph_keys
+        from dockhil.runtime.launcher import graph_keys
 
         self.sub = Subscriber(zmq.Context.instance())
         try:
@@ -326,7 +326,7 @@ class Recorder:
 
 def record(args: argparse.Namespace) -> int:
     """`dockhil bag record PATH [--topics ...] [--overwrite]`: record running graphs until Ctrl-C."""
-    from dockhil.executor import Stop
+    from dockhil.runtime.executor import Stop
 
     sources = find_sources(args.topics)
     stop = Stop()
@@ -356,7 +356,7 @@ def check_bag_path(path: str) -> None:
 
 def recorder_process(path: str, graph, clock: str, n_ticks: int | None):
     """The recorder as a launcher helper process, subscribed to every topic of `graph`."""
-    from dockhil.launcher import ExtraProcess
+    from dockhil.runtime.launcher import ExtraProcess
 
     argv = [sys.executable, "-m", "dockhil.bag_live", "record", path, "--graph-pid", str(os.getpid())]
     if clock == "sim" and n_ticks is not None:
@@ -415,8 +415,8 @@ RECORDER_LOST_EXIT = 4  # the recorder process: it ran, but messages are missing
 
 def _recorder_main(argv: list[str]) -> int:
     """The launcher's helper process: find the graph, subscribe, say ready, record."""
-    from dockhil.executor import Stop
-    from dockhil.process import READY, _die_with_parent
+    from dockhil.runtime.executor import Stop
+    from dockhil.runtime.process import READY, _die_with_parent
 
     p = argparse.ArgumentParser(prog="python -m dockhil.bag_live record")
     p.add_argument("path")
@@ -469,8 +469,8 @@ class _Player:
     def __init__(self, path: str, topics: dict[str, str], sim: bool):
         import zmq
 
-        from dockhil.launcher import KEY_FILE, registry_dir
-        from dockhil.transport import GraphKeys, Publisher, ipc_endpoint, new_run_dir
+        from dockhil.runtime.launcher import KEY_FILE, registry_dir
+        from dockhil.runtime.transport import GraphKeys, Publisher, ipc_endpoint, new_run_dir
 
         self.run_id = f"play-{uuid.uuid4().hex[:6]}"
         self.run_dir = new_run_dir(self.run_id)
@@ -539,7 +539,7 @@ class _Player:
 
 def play(args: argparse.Namespace) -> int:
     """`dockhil bag play PATH [--rate R] [--loop] [--topics ...] [--start S] [--sim-time] [--subscribers N]`."""
-    from dockhil.executor import Stop
+    from dockhil.runtime.executor import Stop
 
     with BagReader(args.path) as reader:
         found = reader.summary()

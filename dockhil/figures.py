@@ -78,7 +78,7 @@ def sixdof(bag_path: str, delay: float = 0.032, seconds: float = SIXDOF_SECONDS)
     sim time, recording every topic to bag_path; return its 6-DOF summary (run, ideal, error)."""
     from dockhil.scene import launchfile
     from dockhil.bag_live import TapRecorder
-    from dockhil.composed import ComposedGraph
+    from dockhil.runtime.composed import ComposedGraph
     from dockhil.scene.graph import build
     from dockhil.summary import SummaryCollector
 

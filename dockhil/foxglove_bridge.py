@@ -93,7 +93,7 @@ class FoxgloveBridge:
         The nodes need not have bound yet: the subscriber connects when they do."""
         import zmq
 
-        from dockhil.transport import Subscriber
+        from dockhil.runtime.transport import Subscriber
 
         sub = Subscriber(zmq.Context.instance(), observer=True)
         # An observer subscribes to "/" (everything); this one only to the topics viewers want.
@@ -107,7 +107,7 @@ class FoxgloveBridge:
     def _run(self, sub) -> None:
         import zmq
 
-        from dockhil.transport import MESSAGE
+        from dockhil.runtime.transport import MESSAGE
 
         wanted: set[str] = set()
         try:

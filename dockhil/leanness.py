@@ -58,7 +58,7 @@ try:
         out["setup"] = "no node"
     elif type_name.startswith("scene:"):
         from dockhil.scene import launchfile
-        from dockhil.composed import ComposedGraph
+        from dockhil.runtime.composed import ComposedGraph
         from dockhil.scene.graph import build
         graph = build(launchfile.load(type_name[len("scene:"):]))
         out["import_s"] = time.perf_counter() - t0
@@ -176,7 +176,7 @@ def _measure_once(type_name: str, spec: dict | None, timeout: float) -> dict:
     return {"node": type_name, "setup": f"measurement failed: {tail}", "startup_s": wall}
 
 
-RUNTIME = "module:dockhil.msgs,dockhil.node,dockhil.executor,dockhil.transport,dockhil.process,dockhil.nodes"
+RUNTIME = "module:dockhil.msgs,dockhil.node,dockhil.runtime.executor,dockhil.runtime.transport,dockhil.runtime.process,dockhil.nodes"
 BASELINES = {
     "module:json": "python, nothing of dockhil",
     RUNTIME: "node process runtime (transport, executor)",

@@ -532,7 +532,7 @@ def composed_samples(scene_file: str, duration: float, args: dict | None = None,
     """A shipped scene composed in this process (what `dockhil launch --composed` runs), its
     per-tick series collected by a tap; `args` as `name:=value` on the command line."""
     from dockhil.scene import launchfile
-    from dockhil.composed import ComposedGraph
+    from dockhil.runtime.composed import ComposedGraph
     from dockhil.scene.graph import build
     from dockhil.summary import Collector
 

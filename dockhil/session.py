@@ -5,7 +5,7 @@ A sim-time run of a scene with satellite dynamics ends with its summary
 the scene has one). In a multi-process run the summary is read back from
 the run's bag: the one asked for with --bag, or a temporary one.
 
-Exit 0 means the result is valid (dockhil/validity.py): a wall-time run
+Exit 0 means the result is valid (dockhil/runtime/validity.py): a wall-time run
 that fell behind, or any run that lost messages, says INVALID in one line,
 carries "valid": false and its reasons in the summary, and exits with
 INVALID_EXIT (3).
@@ -20,7 +20,7 @@ import os
 import tempfile
 import time
 
-from dockhil import validity
+from dockhil.runtime import validity
 from dockhil.log import Log
 from dockhil.errors import DockhilError
 from dockhil.files import complete_or_nothing
@@ -69,13 +69,13 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     started = time.perf_counter()
     reasons: list[str] = []
     if composed:
-        from dockhil.launcher import check_composable
+        from dockhil.runtime.launcher import check_composable
 
         check_composable(graph)
         code = _run_composed(graph, clock, n_ticks, progress, bag, collector, reasons, bridge)
     else:
-        from dockhil.launcher import Launcher
-        from dockhil.transport import GraphKeys
+        from dockhil.runtime.launcher import Launcher
+        from dockhil.runtime.transport import GraphKeys
 
         if bag is None and want_summary:
             tmp = tempfile.TemporaryDirectory(prefix="dockhil-summary-")
@@ -154,8 +154,8 @@ def _check_writable(path: str, bag: str | None) -> None:
 
 def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool, bag: str | None,
                   collector, reasons: list[str], bridge=None) -> int:
-    from dockhil.composed import ComposedGraph
-    from dockhil.executor import Stop
+    from dockhil.runtime.composed import ComposedGraph
+    from dockhil.runtime.executor import Stop
     from dockhil.progress import Progress
 
     stop = Stop()

@@ -346,7 +346,7 @@ def run_one(spec: dict) -> dict:
 
     from dockhil.scene import launchfile
     from dockhil import summary as summ
-    from dockhil.composed import ComposedGraph
+    from dockhil.runtime.composed import ComposedGraph
     from dockhil.scene.graph import build
     from dockhil.scenecheck import scene_check
 

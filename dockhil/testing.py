@@ -2,7 +2,7 @@
 
 No processes, no sockets, no wall clock: the node runs in a one-node graph
 whose inputs come from the test, scheduled exactly as in a launched graph
-(dockhil.composed), so the node sees what it would see there. Drake's
+(dockhil.runtime.composed), so the node sees what it would see there. Drake's
 FixInputPort + CalcOutput and dora's MockNode are the models.
 
     from dockhil.testing import NodeHarness, wrench
@@ -37,9 +37,9 @@ from typing import Any, Callable
 
 import msgspec
 
-from dockhil.composed import ComposedGraph
+from dockhil.runtime.composed import ComposedGraph
 from dockhil.errors import DockhilError
-from dockhil.executor import check_outputs
+from dockhil.runtime.executor import check_outputs
 from dockhil.scene.graph import Graph, GraphNode, PortRef
 from dockhil.node import ManualClock, Node, Output, Tick
 from dockhil.msgs import (BodyState, BodyWrenches, EStop, Header, Pose, RobotCommand, RobotState, SatelliteState, Twist,

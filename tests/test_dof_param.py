@@ -9,7 +9,7 @@ import pytest
 
 from dockhil.scene import graph as graphmod
 from dockhil.scene import launchfile
-from dockhil.composed import ComposedGraph
+from dockhil.runtime.composed import ComposedGraph
 from dockhil.msgs.codec import encode
 from dockhil.summary import SummaryCollector
 from dockhil.testing import NodeHarness

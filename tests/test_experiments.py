@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from dockhil.scene import launchfile
-from dockhil.composed import ComposedGraph
+from dockhil.runtime.composed import ComposedGraph
 from dockhil.contact import stability
 from dockhil.contact.hilloop import simulate_hil, simulate_ideal
 from dockhil.contact.hybrid import VirtualImpedance

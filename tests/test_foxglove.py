@@ -229,7 +229,7 @@ def test_the_bridge_joins_a_publisher_as_an_observer_and_serves_what_it_sends():
 
     from dockhil.errors import DockhilError
     from dockhil.foxglove_bridge import FoxgloveBridge
-    from dockhil.transport import GraphKeys, Publisher, ipc_endpoint, new_run_dir
+    from dockhil.runtime.transport import GraphKeys, Publisher, ipc_endpoint, new_run_dir
 
     keys = GraphKeys.make()
     endpoint = ipc_endpoint(new_run_dir("fox"), "/ft/wrench")
@@ -331,7 +331,7 @@ def test_bad_live_view_options_get_one_line(args, says):
 
 
 def test_a_launch_without_the_live_view_does_not_import_foxglove():
-    code = ("import sys; from dockhil.commands import launch; from dockhil import session, launcher, composed; "
+    code = ("import sys; from dockhil.commands import launch; from dockhil import session; from dockhil.runtime import launcher, composed; "
             "print('foxglove' in sys.modules)")
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=DEADLINE_S)
     assert r.stdout.strip() == "False", r.stderr

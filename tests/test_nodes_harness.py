@@ -187,7 +187,7 @@ def test_the_node_writing_guides_example_node_scene_and_test_work(tmp_path, monk
     import sys
 
     from dockhil.scene import launchfile
-    from dockhil.composed import ComposedGraph
+    from dockhil.runtime.composed import ComposedGraph
     from dockhil.scene.graph import build
     from tests.conftest import ROOT
 

@@ -255,7 +255,7 @@ def test_a_run_stopped_inside_the_contact_reports_no_peak_force_error():
 
 def test_summary_collector_keeps_bounded_buffers_over_a_long_run():
     from dockhil.scene import launchfile
-    from dockhil.composed import ComposedGraph
+    from dockhil.runtime.composed import ComposedGraph
     from dockhil.scene.graph import build
     from dockhil.summary import ContactMeter, SummaryCollector, _TickMatcher
 

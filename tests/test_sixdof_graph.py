@@ -10,7 +10,7 @@ import pytest
 from dockhil.scene import graph as graphmod
 from dockhil.scene import launchfile
 from dockhil.bag import BagReader
-from dockhil.composed import ComposedGraph
+from dockhil.runtime.composed import ComposedGraph
 from dockhil.contact.contact6 import Contact6
 from dockhil.contact.hybrid6 import simulate_hybrid6
 from dockhil.contact.rigid import BodyState, RigidBody, quat_from_rotvec

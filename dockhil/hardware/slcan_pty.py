@@ -124,7 +124,7 @@ class SlcanPort:
     def __init__(self, link: str | None = None):
         self._claim = None  # this process's claim on the link path
         if link:
-            from dockhil import ownership
+            from dockhil.runtime import ownership
 
             self._claim = ownership.claim(f"slcan-adapter-{os.path.abspath(link)}", f"slcan adapter {link}")
             try:

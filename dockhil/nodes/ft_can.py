@@ -13,7 +13,7 @@ import math
 import os
 import time
 
-from dockhil import ownership
+from dockhil.runtime import ownership
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import ft_frames as ff
 from dockhil.node import Node, Output, Param

@@ -57,7 +57,7 @@ class FtSensorEmulator(Node):
         else:
             import can
 
-            from dockhil import ownership
+            from dockhil.runtime import ownership
             from dockhil.nodes.ft_can import one_line
 
             # One emulated sensor per channel: two would stream the same CAN IDs.

@@ -46,7 +46,7 @@ import socket
 import threading
 import time
 
-from dockhil import ownership
+from dockhil.runtime import ownership
 from dockhil.contact.rigid import quat_conjugate, quat_multiply
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import SafetyStop

@@ -127,17 +127,17 @@ def _bounds_check(cls: type):
     a str, a bool, an int, the declared struct, a tuple), as a node process's encoding and decoding
     would check it. A screen, not the verdict: it may say False for a good message (a sum of finite
     values that overflows, an int where a float goes, a numpy float), and callers then run the full
-    check. Compiled (dockhil/_screen.c) where built, else `python_screen`."""
+    check. Compiled (dockhil/runtime/_screen.c) where built, else `python_screen`."""
     check = _SCREENS.get(cls)
     if check is None:
         from dockhil.compiled import twin
 
-        compiled = twin("dockhil._screen")
+        compiled = twin("dockhil.runtime._screen")
         try:
             spec = _screen_spec(cls)
         except _Unscreened:  # a type neither screen judges: every message of it gets the full check
             check = _never
-        else:  # the same judgement in C (dockhil/_screen.c), several times faster, or its Python twin
+        else:  # the same judgement in C (dockhil/runtime/_screen.c), several times faster, or its Python twin
             check = functools.partial(compiled.screen, spec) if compiled else _python_screen(cls.__name__, spec)
         _SCREENS[cls] = check
     return check
@@ -280,7 +280,7 @@ def check_outputs(name: str, declared: dict, k: int, outs: dict, sim: bool) -> N
 
 def read_spec_keys(spec: RunSpec):
     """The graph's keys, which every endpoint needs; a node without endpoints needs none."""
-    from dockhil.transport import GraphKeys
+    from dockhil.runtime.transport import GraphKeys
 
     if not spec.inputs and not spec.outputs:
         return None
@@ -296,7 +296,7 @@ class NodeExecutor:
     def __init__(self, spec: RunSpec, node_cls: type, stop: Stop, log=None, clock=time.monotonic):
         import zmq
 
-        from dockhil.transport import Publisher, Subscriber, separator
+        from dockhil.runtime.transport import Publisher, Subscriber, separator
 
         self.spec = spec
         self.stop = stop
@@ -614,7 +614,7 @@ class LoopTiming:
         out = {"node": name, "ticks": self.ticks, "deadline_misses": self.misses,
                "jitter_us": pct(late), "worst_tick": late.index(worst) + 1 if late else None,
                "input_age_us": {port: pct(a) for port, a in self.ages.items()},
-               # What validity is judged on (dockhil/validity.py):
+               # What validity is judged on (dockhil/runtime/validity.py):
                "period_s": self.period, "elapsed_s": self.elapsed, "covered_s": self.ticks * self.period,
                "worst_late_s": max(worst, self.worst_overrun),
                "max_age_s": {p: (None if math.isinf(a) else a) for p, a in self.max_age.items()},

@@ -61,7 +61,7 @@ class DeviceLock:
 
 
 def lock_path(key: str) -> str:
-    from dockhil.transport import private_dir, runtime_dir
+    from dockhil.runtime.transport import private_dir, runtime_dir
 
     name = re.sub(r"[^A-Za-z0-9_.-]", "_", key).strip("._")[:200] or "device"
     return str(private_dir(runtime_dir() / "devices", "device lock directory") / f"{name}.lock")

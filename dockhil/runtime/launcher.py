@@ -33,9 +33,9 @@ import msgspec
 from dockhil import msgs
 from dockhil import log
 from dockhil.errors import LaunchError
-from dockhil.executor import TIMING, PortWire, RunSpec
-from dockhil.process import READY
-from dockhil.transport import GraphKeys, ipc_endpoint, new_run_dir, private_dir, runtime_dir
+from dockhil.runtime.executor import TIMING, PortWire, RunSpec
+from dockhil.runtime.process import READY
+from dockhil.runtime.transport import GraphKeys, ipc_endpoint, new_run_dir, private_dir, runtime_dir
 
 if TYPE_CHECKING:  # the graph module loads the launch-file parser (yaml): a recorder or `dockhil topic` needs neither
     from dockhil.scene.graph import Graph
@@ -132,7 +132,7 @@ def assign_endpoints(graph: Graph, transport: str = "ipc", advertise: str | None
     return Endpoints(run_id, run_dir, topics, types, binds, key_file)
 
 
-CONTAINER_TYPE = "dockhil.container:Container"
+CONTAINER_TYPE = "dockhil.runtime.container:Container"
 
 
 def processes(graph: Graph) -> dict[str, list[str]]:
@@ -482,7 +482,7 @@ class Launcher:
         """A subscriber on one topic whose header ticks tell how far the graph is."""
         import zmq
 
-        from dockhil.transport import Subscriber
+        from dockhil.runtime.transport import Subscriber
 
         topic = next(iter(self.endpoints.topics), None)
         if topic is None:

@@ -17,7 +17,8 @@ from typing import Any, Callable
 import msgspec
 
 from dockhil.errors import NODE_RAISES, DockhilError, failure_line
-from dockhil.executor import LoopTiming, Stop, _bounds_check, _sleep_until, check_outputs, checked_payload
+from dockhil.runtime.executor import (LoopTiming, Stop, _bounds_check, _sleep_until, check_outputs,
+                                      checked_payload)
 from dockhil.scene.graph import Graph
 from dockhil.log import node_line
 from dockhil.node import NodeContext, Tick

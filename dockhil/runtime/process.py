@@ -67,9 +67,9 @@ def run_node(spec, log=None, on_ready=None) -> int:
     """Set up and run one node until its ticks are done or a stop is requested."""
     from dockhil import nodes
     from dockhil import log as logs
-    from dockhil import ownership
+    from dockhil.runtime import ownership
     from dockhil.errors import NODE_RAISES, DockhilError, failure_line
-    from dockhil.executor import TIMING, NodeExecutor, Stop
+    from dockhil.runtime.executor import TIMING, NodeExecutor, Stop
 
     log = log or (lambda m: logs.node_line(spec.name, m))
     ownership.set_graph(spec.run_id)
@@ -127,7 +127,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
 
 def main() -> int:
     from dockhil import log
-    from dockhil.executor import RunSpec
+    from dockhil.runtime.executor import RunSpec
 
     _die_with_parent()
     log.setup_child()

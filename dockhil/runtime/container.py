@@ -50,7 +50,7 @@ class Container(Node):
 
     def __init__(self, ctx: NodeContext, **params: Any):
         from dockhil import nodes
-        from dockhil.composed import ComposedGraph
+        from dockhil.runtime.composed import ComposedGraph
         from dockhil.scene.graph import GraphNode, PortRef
 
         self.ctx = ctx
@@ -92,7 +92,7 @@ class Container(Node):
         try:
             self.members.step_tick(self._schedule, tick, wall=not self.ctx.sim_time)
         except NODE_RAISES as exc:
-            from dockhil.composed import node_failure
+            from dockhil.runtime.composed import node_failure
 
             raise node_failure(exc, tick.index)  # noqa: B904 - names the member that failed, chained
         return self.sent
