@@ -77,7 +77,7 @@ def sixdof(bag_path: str, delay: float = 0.032, seconds: float = SIXDOF_SECONDS)
     """Run launch/hil6.yaml (off-axis defaults, robot delay `delay`) for `seconds`, composed in
     sim time, recording every topic to bag_path; return its 6-DOF summary (run, ideal, error)."""
     from dockhil.scene import launchfile
-    from dockhil.bag_live import TapRecorder
+    from dockhil.bags.live import TapRecorder
     from dockhil.runtime.composed import ComposedGraph
     from dockhil.scene.graph import build
     from dockhil.summary import SummaryCollector

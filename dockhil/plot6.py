@@ -29,7 +29,7 @@ class Series6:
 
 
 def series6(path: str) -> Series6:
-    from dockhil.bag import BagReader
+    from dockhil.bags.reader import BagReader
     from dockhil.contact.rigid import quat_to_rotvec
 
     ft, pose, state = [], [], []

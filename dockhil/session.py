@@ -31,7 +31,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
               transport: str = "ipc", bag: str | None = None, summary: str | None = None,
               progress: bool = False, show_summary: bool = True, realtime: bool = False,
               foxglove: tuple[str, int] | None = None) -> int:
-    """foxglove: (host, port) to serve a live view of the run on (dockhil.foxglove_bridge)."""
+    """foxglove: (host, port) to serve a live view of the run on (dockhil.bags.foxglove)."""
     say = Log("[launch]")
 
     dt = graph.scene.dt
@@ -44,7 +44,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     if summary is not None:
         _check_writable(summary, bag)
     if bag is not None:
-        from dockhil.bag_live import check_bag_path
+        from dockhil.bags.live import check_bag_path
 
         check_bag_path(bag)
     from dockhil.scenecheck import scene_check
@@ -63,7 +63,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     tmp = None
     bridge = None
     if foxglove is not None:  # before any node starts: a busy port is refused here
-        from dockhil.foxglove_bridge import start
+        from dockhil.bags.foxglove import start
 
         bridge = start(graph, clock=clock, host=foxglove[0], port=foxglove[1])
     started = time.perf_counter()
@@ -82,7 +82,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
             bag = os.path.join(tmp.name, "run.mcap")
         extra = []
         if bag is not None:  # the recorder runs in a process of its own
-            from dockhil import bag_live
+            from dockhil.bags import live as bag_live
 
             extra.append(bag_live.recorder_process(bag, graph, clock, n_ticks))
         launcher = Launcher(graph, clock=clock, duration=duration, transport=transport, extra=extra,
@@ -163,7 +163,7 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
     g = ComposedGraph(graph, sim_time=clock == "sim")
     recorder = None
     if bag is not None:
-        from dockhil.bag_live import TapRecorder
+        from dockhil.bags.live import TapRecorder
 
         recorder = TapRecorder(bag, graph, sim=clock == "sim")
         g.taps.append(recorder)

@@ -408,7 +408,7 @@ def energy_summary(out: dict, graph, meter) -> None:
 
 
 def _bag_messages(path: str):
-    from dockhil.bag import BagReader
+    from dockhil.bags.reader import BagReader
 
     with BagReader(path) as bag:
         # /robot/command: the 6-DOF summary's ticks (dockhil/summary6.py); the 1-DOF one ignores it.

@@ -376,7 +376,7 @@ def run_one(spec: dict) -> dict:
         g = ComposedGraph(graph, sim_time=True, log=node_log, taps=[collector, last.__setitem__])
         recorder = None
         if spec.get("bag"):
-            from dockhil.bag_live import TapRecorder
+            from dockhil.bags.live import TapRecorder
 
             os.makedirs(os.path.dirname(spec["bag"]), exist_ok=True)
             recorder = TapRecorder(spec["bag"], graph, sim=True, log=lambda line: None)

@@ -18,7 +18,7 @@ import msgspec
 import pytest
 
 from dockhil import cli
-from dockhil.bag import BagError, BagReader, BagWriter, export_csv, flatten, info
+from dockhil.bags.reader import BagError, BagReader, BagWriter, export_csv, flatten, info
 from dockhil.msgs import (
     BodyState,
     Header,
@@ -250,7 +250,7 @@ class Tree(msgspec.Struct):
 def test_every_message_type_has_a_self_contained_schema_its_messages_meet():
     import jsonschema
 
-    from dockhil.bag import channel_schema
+    from dockhil.bags.reader import channel_schema
     from dockhil.msgs import TYPES
 
     for name, cls in TYPES.items():
@@ -276,7 +276,7 @@ def test_every_message_type_has_a_self_contained_schema_its_messages_meet():
 _KILLED_WRITER = textwrap.dedent(
     """
     import sys
-    from dockhil.bag import BagWriter
+    from dockhil.bags.reader import BagWriter
     from dockhil.msgs import Header, WrenchStamped
     from dockhil.msgs.codec import encode
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from dockhil import cli
-from dockhil.bag import BagReader, BagWriter, info
+from dockhil.bags.reader import BagReader, BagWriter, info
 from dockhil.errors import DockhilError
 from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped, type_name
 from dockhil.msgs.codec import encode

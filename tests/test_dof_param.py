@@ -208,7 +208,7 @@ def test_a_container_runs_the_dof_6_nodes(tmp_path):
     r = subprocess.run(dockhil_cmd("launch", scene, "--duration", "0.05", "--bag", bag, "--quiet"),
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
-    from dockhil.bag import BagReader
+    from dockhil.bags.reader import BagReader
 
     with BagReader(str(bag)) as reader:
         got = sorted((m.topic, m.data) for m in reader)

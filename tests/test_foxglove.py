@@ -166,7 +166,7 @@ def test_a_watched_run_gives_the_same_bag_and_summary_as_an_unwatched_one(tmp_pa
     slows nothing. Same bag bit for bit, same summary. The unwatched run is composed (one process,
     a quarter of the CPU time): a multi-process run gives a composed run's bytes (test_hil_graph.py
     holds that), so the watched multi-process run must give them too."""
-    from dockhil.bag import BagReader
+    from dockhil.bags.reader import BagReader
 
     args = ["--duration", "1.5"]
     plain = subprocess.run(dockhil_cmd("launch", SCENE, "--quiet", *args, "--composed", "--bag", tmp_path / "plain.mcap",
@@ -228,7 +228,7 @@ def test_the_bridge_joins_a_publisher_as_an_observer_and_serves_what_it_sends():
     import zmq
 
     from dockhil.errors import DockhilError
-    from dockhil.foxglove_bridge import FoxgloveBridge
+    from dockhil.bags.foxglove import FoxgloveBridge
     from dockhil.runtime.transport import GraphKeys, Publisher, ipc_endpoint, new_run_dir
 
     keys = GraphKeys.make()
@@ -273,7 +273,7 @@ def test_the_bridge_joins_a_publisher_as_an_observer_and_serves_what_it_sends():
 
 
 def test_a_bridge_that_falls_behind_drops_the_oldest_and_counts_them():
-    from dockhil.foxglove_bridge import FoxgloveBridge
+    from dockhil.bags.foxglove import FoxgloveBridge
 
     lines = []
     port = free_port()
@@ -353,7 +353,7 @@ def test_the_shipped_layout_plots_numbers_the_scene_publishes():
     """docs/foxglove-layout.json is a Foxglove layout (configById, layout tree, globalVariables,
     userNodes) whose every plotted message path is a number field of a topic of launch/hil.yaml."""
     from dockhil import msgs
-    from dockhil.bag import channel_schema
+    from dockhil.bags.reader import channel_schema
 
     layout = json.loads((ROOT / "docs" / "foxglove-layout.json").read_text())
     assert {"configById", "layout", "globalVariables", "userNodes"} <= set(layout)

@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from dockhil.bag import BagReader
+from dockhil.bags.reader import BagReader
 from dockhil.contact.hilloop import simulate_hil
 from dockhil.contact.impedance import impedance_closed_form
 from dockhil.contact.scenario import TABLE1

@@ -192,7 +192,7 @@ def test_node_types_lists_packages_and_a_launch_file_runs_their_node(fake_distri
                         "--composed", "--quiet", "--bag", "ramp.mcap"], cwd=tmp_path, env=env,
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
-    from dockhil.bag import BagReader
+    from dockhil.bags.reader import BagReader
 
     with BagReader(tmp_path / "ramp.mcap") as bag:
         forces = [(m.header.stamp, m.wrench.force.x) for m in (b.decode() for b in bag.messages(["/ramp"]))]

@@ -8,7 +8,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from dockhil.bag import BagReader
+from dockhil.bags.reader import BagReader
 from dockhil.contact.hilloop import Bodies, DelayLine, Servo, sensor_force, simulate_hil, virtual_wrench
 from dockhil.contact.hybrid import VirtualImpedance
 from dockhil.contact.impedance import impedance_closed_form

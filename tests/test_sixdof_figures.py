@@ -3,7 +3,7 @@ library's 6-DOF hybrid loop, the figure is drawn from that bag, and its numbers 
 
 import numpy as np
 
-from dockhil.bag import BagReader
+from dockhil.bags.reader import BagReader
 from tests.test_sixdof_graph import assert_equals_library, library_run
 
 

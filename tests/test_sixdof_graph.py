@@ -9,7 +9,7 @@ import pytest
 
 from dockhil.scene import graph as graphmod
 from dockhil.scene import launchfile
-from dockhil.bag import BagReader
+from dockhil.bags.reader import BagReader
 from dockhil.runtime.composed import ComposedGraph
 from dockhil.contact.contact6 import Contact6
 from dockhil.contact.hybrid6 import simulate_hybrid6

@@ -325,7 +325,7 @@ def test_outputs_keep_only_the_named_summary_columns(tmp_path):
 
 
 def test_bags_true_keeps_one_readable_bag_per_run(tmp_path):
-    from dockhil.bag import BagReader
+    from dockhil.bags.reader import BagReader
 
     campaign = write(tmp_path, """
         scene: stability.yaml

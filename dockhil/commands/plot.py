@@ -33,7 +33,7 @@ def load_energy(path: str):
     """(t [s], generated_J, net_generated_J) arrays of a bag's /energy, or None without it."""
     import numpy as np
 
-    from dockhil.bag import BagReader
+    from dockhil.bags.reader import BagReader
 
     rows = []
     with BagReader(path) as bag:
@@ -96,7 +96,7 @@ def run(args) -> int:
 
 
 def _plot_topics(ax, path, topics, label) -> None:
-    from dockhil.bag import BagReader, flatten
+    from dockhil.bags.reader import BagReader, flatten
 
     with BagReader(path) as bag:
         series: dict[str, tuple[list, list]] = {}

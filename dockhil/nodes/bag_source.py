@@ -33,7 +33,7 @@ import msgspec
 
 from dockhil import msgs
 from dockhil.msgs.codec import decode_header
-from dockhil.bag import BagError, BagReader
+from dockhil.bags.reader import BagError, BagReader
 from dockhil.errors import DockhilError, ParamError
 from dockhil.node import Node, Output, Param
 

@@ -7,7 +7,7 @@ the message's header stamp, so a sim-time bag carries sim times and the same
 run recorded twice gives the same bag. It runs in three ways:
 
 - `dockhil launch FILE --bag PATH`: the launcher starts it as a helper
-  process (`python -m dockhil.bag_live record PATH --graph-pid PID
+  process (`python -m dockhil.bags.live record PATH --graph-pid PID
   [--n-ticks N]`) counted as a subscriber of every topic, so sim time waits
   for it before tick 0. In sim time it exits by itself once it holds tick
   N-1 of every topic.
@@ -50,7 +50,7 @@ import msgspec
 
 from dockhil import msgs
 from dockhil.msgs.codec import decode_header
-from dockhil.bag import BagError, BagMessage, BagReader, BagWriter
+from dockhil.bags.reader import BagError, BagMessage, BagReader, BagWriter
 from dockhil.errors import DockhilError
 from dockhil.log import Log, setup_child
 
@@ -358,7 +358,7 @@ def recorder_process(path: str, graph, clock: str, n_ticks: int | None):
     """The recorder as a launcher helper process, subscribed to every topic of `graph`."""
     from dockhil.runtime.launcher import ExtraProcess
 
-    argv = [sys.executable, "-m", "dockhil.bag_live", "record", path, "--graph-pid", str(os.getpid())]
+    argv = [sys.executable, "-m", "dockhil.bags.live", "record", path, "--graph-pid", str(os.getpid())]
     if clock == "sim" and n_ticks is not None:
         argv += ["--n-ticks", str(n_ticks)]
     return ExtraProcess(RECORDER_NAME, argv, list(graph.publishers))
@@ -418,7 +418,7 @@ def _recorder_main(argv: list[str]) -> int:
     from dockhil.runtime.executor import Stop
     from dockhil.runtime.process import READY, _die_with_parent
 
-    p = argparse.ArgumentParser(prog="python -m dockhil.bag_live record")
+    p = argparse.ArgumentParser(prog="python -m dockhil.bags.live record")
     p.add_argument("path")
     p.add_argument("--graph-pid", type=int, required=True, help="pid of the launcher whose graph to record")
     p.add_argument("--n-ticks", type=int, help="sim time: stop after tick N-1 of every topic")
@@ -728,7 +728,7 @@ def _play_sim(ordered, socks: dict, state: _TickShift, stop) -> int:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] != ["record"]:
-        print("usage: python -m dockhil.bag_live record PATH --graph-pid PID [--n-ticks N]", file=sys.stderr)
+        print("usage: python -m dockhil.bags.live record PATH --graph-pid PID [--n-ticks N]", file=sys.stderr)
         return 2
     return _recorder_main(argv[1:])
 
