@@ -158,7 +158,7 @@ def parse_overrides(items: list[str]) -> dict[str, str]:
 
 
 def _shipped_dir() -> Path:
-    here = Path(__file__).resolve().parent
+    here = Path(__file__).resolve().parent.parent  # the dockhil package
     packaged = here / "launch"  # an installed wheel: the package data dockhil.launch
     return packaged if packaged.is_dir() else here.parent / "launch"  # a source checkout
 
