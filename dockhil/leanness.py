@@ -118,7 +118,7 @@ def _closed_port() -> int:
 def _sample_bag(directory: str) -> str:
     """A one-message bag for the bag_source node to open."""
     from dockhil import msgs
-    from dockhil.bags.reader import BagWriter
+    from dockhil.bags.writer import BagWriter
     from dockhil.msgs.codec import encode
 
     path = os.path.join(directory, "sample.mcap")

@@ -18,7 +18,10 @@ import msgspec
 import pytest
 
 from dockhil import cli
-from dockhil.bags.reader import BagError, BagReader, BagWriter, export_csv, flatten, info
+from dockhil.bags.format import BagError
+from dockhil.bags.reader import BagReader
+from dockhil.bags.writer import BagWriter
+from dockhil.bags.tools import export_csv, flatten, info
 from dockhil.msgs import (
     BodyState,
     Header,
@@ -250,7 +253,7 @@ class Tree(msgspec.Struct):
 def test_every_message_type_has_a_self_contained_schema_its_messages_meet():
     import jsonschema
 
-    from dockhil.bags.reader import channel_schema
+    from dockhil.bags.writer import channel_schema
     from dockhil.msgs import TYPES
 
     for name, cls in TYPES.items():
@@ -276,7 +279,7 @@ def test_every_message_type_has_a_self_contained_schema_its_messages_meet():
 _KILLED_WRITER = textwrap.dedent(
     """
     import sys
-    from dockhil.bags.reader import BagWriter
+    from dockhil.bags.writer import BagWriter
     from dockhil.msgs import Header, WrenchStamped
     from dockhil.msgs.codec import encode
 

@@ -353,7 +353,7 @@ def test_the_shipped_layout_plots_numbers_the_scene_publishes():
     """docs/foxglove-layout.json is a Foxglove layout (configById, layout tree, globalVariables,
     userNodes) whose every plotted message path is a number field of a topic of launch/hil.yaml."""
     from dockhil import msgs
-    from dockhil.bags.reader import channel_schema
+    from dockhil.bags.writer import channel_schema
 
     layout = json.loads((ROOT / "docs" / "foxglove-layout.json").read_text())
     assert {"configById", "layout", "globalVariables", "userNodes"} <= set(layout)

@@ -223,7 +223,7 @@ def test_summary_never_replaces_the_bag_or_a_file_that_is_no_summary(tmp_path):
 
 
 def _ft_bag(path):
-    from dockhil.bags.reader import BagWriter
+    from dockhil.bags.writer import BagWriter
     from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped, type_name
     from dockhil.msgs.codec import encode
 

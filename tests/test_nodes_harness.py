@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from dockhil import msgs
-from dockhil.bags.reader import BagWriter
+from dockhil.bags.writer import BagWriter
 from dockhil.errors import DockhilError, ParamError
 from dockhil.node import Input, Node, Output, Param
 from dockhil.testing import NodeHarness, robot_command, wrench

@@ -4,7 +4,7 @@
 (127.0.0.1:8765 unless told otherwise) with one channel per topic, the same
 channels a bag records: message encoding "json", schema encoding
 "jsonschema", the message type's self-contained JSON Schema
-(`dockhil.bags.reader.channel_schema`). Times are those of bags: in sim time the log
+(`dockhil.bags.writer.channel_schema`). Times are those of bags: in sim time the log
 time is the message's sim time t * 1e9 ns after the Unix epoch, in wall time
 the time the bridge received it.
 
@@ -55,7 +55,8 @@ class FoxgloveBridge:
         except ImportError:
             raise DockhilError("--foxglove needs the foxglove-sdk package: pip install 'dockhil[foxglove]'") from None
         from dockhil import msgs
-        from dockhil.bags.reader import SCHEMA_ENCODING, channel_schema
+        from dockhil.bags.format import SCHEMA_ENCODING
+        from dockhil.bags.writer import channel_schema
 
         self.sim = sim
         self.log = log

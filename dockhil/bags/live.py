@@ -50,7 +50,9 @@ import msgspec
 
 from dockhil import msgs
 from dockhil.msgs.codec import decode_header
-from dockhil.bags.reader import BagError, BagMessage, BagReader, BagWriter
+from dockhil.bags.format import BagError, BagMessage
+from dockhil.bags.reader import BagReader
+from dockhil.bags.writer import BagWriter
 from dockhil.errors import DockhilError
 from dockhil.log import Log, setup_child
 

@@ -1,74 +1,21 @@
-"""MCAP bags: record the messages of topics, read them back, even unfinished or damaged.
-
-A bag is an MCAP file (https://mcap.dev) that standard MCAP tools and viewers
-(Foxglove, PlotJuggler) open:
-
-- one schema per message type: name "dockhil/WrenchStamped" etc., encoding
-  "jsonschema", data a self-contained JSON Schema of the msgspec Struct
-  (top-level "type": "object", every $ref inlined: `channel_schema`);
-- one channel per topic, message encoding "json";
-- each message is its wire msgpack transcoded to JSON (msgspec, field for
-  field; a non-finite float, which JSON cannot hold, becomes null). Bytes
-  that are not msgpack cannot be JSON: they are counted
-  (`BagWriter.messages_unencodable`), not written.
-
-The bus stays msgpack, and `BagReader` hands back msgpack wire bytes whatever
-the bag holds, so replay sends what was recorded. Bags recorded before (channels
-encoded "msgpack") are read as they are; `dockhil bag convert` rewrites one.
-
-Times: log and publish times are integer nanoseconds since the Unix epoch
-(1970-01-01T00:00:00Z), as MCAP expects. A wall-time run logs the receive time
-(time.time_ns()). A sim-time run logs the message's sim time: sim time t [s]
-is t * 1e9 ns after the epoch, so a sim-time bag starts at 1970-01-01
-00:00:00 in a viewer and the same run recorded twice gives the same bag.
-
-Chunks are small (64 KiB or 0.5 s, whichever comes first) and each is handed
-to the OS as soon as it is complete. A recorder killed with SIGKILL therefore
-leaves a file without footer or summary whose complete chunks `BagReader`
-reads back; only the chunk being filled at the moment of the kill is lost.
-
-    with BagWriter("run.mcap") as bag:
-        bag.add_topic("/ft/wrench", "dockhil/WrenchStamped")
-        bag.write("/ft/wrench", log_time_ns, publish_time_ns, wire_bytes)
-
-    for topic, type_name, log_time_ns, data in BagReader("run.mcap"):
-        ...
-    info("run.mcap")  # topics, counts, start/end, duration, rates, recovered, lost
-
-A damaged bag (a bad CRC, zeros over a chunk, a bad opcode or length, a
-chunk torn by a power cut) is read all the same: the reader skips the
-damaged record or chunk, resumes at the next valid one and keeps every
-intact message; `info` lists the regions skipped with the log times around
-them and `loss_line` says it in one line.
-
-Every failure a user can cause (unwritable path, full disk, a file that is
-not a bag) raises `BagError` with one line that says what and where.
-"""
+"""Reading a bag front to back: finished, unfinished or damaged (see BagReader; the format is
+described in dockhil.bags.writer)."""
 
 from __future__ import annotations
 
-import csv
 import io
-import json
-import operator
 import os
 import re
 import struct
-import time
 import zlib
 from dataclasses import dataclass
-from typing import IO, Any, Iterable, Iterator, NamedTuple
+from typing import Any, Iterable, Iterator
 
 import msgspec
 
-from dockhil.errors import DockhilError
-from dockhil.files import complete_or_nothing, os_reason
-
-MAGIC = b"\x89MCAP0\r\n"
-MESSAGE_ENCODING = "json"  # what BagWriter records
-READ_ENCODINGS = ("json", "msgpack")  # what BagReader decodes; msgpack: bags recorded before json
-SCHEMA_ENCODING = "jsonschema"
-COMPRESSIONS = ("zstd", "lz4", "none")
+from dockhil.bags.format import (MAGIC, MESSAGE_HEAD, READ_ENCODINGS, RECORD_HEAD, U64_MAX, BagError, BagMessage,
+                                 LostRegion, loss_line)
+from dockhil.files import os_reason
 
 # MCAP opcodes (spec "Records"); 0x80-0xFF are reserved for user records.
 _HEADER, _FOOTER, _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _MESSAGE_INDEX, _DATA_END = (
@@ -81,287 +28,7 @@ _CANDIDATE = re.compile(rb"(?=[\x02-\x0f][\x00-\xff]{5}\x00\x00\x00)")
 _COMPRESSIONS_READ = {b"zstd": "zstd", b"lz4": "lz4", b"": ""}
 _MAX_CHUNK = 1 << 30  # uncompressed bytes; a larger size field is damage
 _MAX_DEFINITION = 1 << 24  # a schema or channel found while scanning damaged bytes
-_RECORD_HEAD = struct.Struct("<BQ")  # opcode, body length
-_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 _CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
-_U64 = 2**64 - 1
-# Size of a message record in a chunk besides its data: opcode, length, _MESSAGE_HEAD.
-_MESSAGE_OVERHEAD = 9 + _MESSAGE_HEAD.size
-
-
-class BagError(DockhilError):
-    """A bag cannot be written or read: the message names the file and the reason."""
-
-
-# --------------------------------------------------------------------------- writing
-
-
-class BagWriter:
-    """Writes an MCAP bag: call `add_topic` once per topic, then `write` the wire bytes.
-
-    `chunk_size` [bytes] and `chunk_seconds` [s, wall clock] bound a chunk, and so
-    what a crash of the recording process can lose. `flush()` closes the chunk
-    being filled now (a logger with a quiet topic may call it on a timer).
-    An existing file is refused unless `overwrite` is true.
-
-    Any OSError while writing (full disk, removed device) raises BagError once
-    and leaves the writer stopped: later `write` calls raise the same error and
-    `close()` only releases the file. What reached the disk before stays
-    readable by `BagReader` as an unfinished bag.
-    """
-
-    def __init__(
-        self,
-        path: str | os.PathLike | IO[bytes],
-        *,
-        chunk_size: int = 64 * 1024,
-        chunk_seconds: float = 0.5,
-        compression: str = "zstd",
-        overwrite: bool = False,
-    ):
-        from mcap.writer import CompressionType, Writer
-
-        from dockhil import __version__
-
-        if compression not in COMPRESSIONS:
-            raise BagError(f"unknown bag compression {compression!r}; choose one of {', '.join(COMPRESSIONS)}")
-        if not chunk_size > 0 or not chunk_seconds > 0:
-            raise BagError(f"chunk_size and chunk_seconds must be > 0, got {chunk_size!r} and {chunk_seconds!r}")
-        if hasattr(path, "write"):
-            self.path = str(getattr(path, "name", "<stream>"))
-            self._file = path
-            self._owns_file = False
-        else:
-            self.path = os.fspath(path)
-            self._file = _open_for_writing(self.path, overwrite)
-            self._owns_file = True
-        self._chunk_size = int(chunk_size)
-        self._chunk_seconds = float(chunk_seconds)
-        self._chunk_opened: float | None = None  # monotonic time of the first message of the open chunk
-        self._pending = 0  # bytes in the open chunk
-        self._channels: dict[str, tuple[int, str]] = {}  # topic -> (channel id, type name)
-        self._schemas: dict[str, int] = {}  # type name -> schema id
-        self._sequence: dict[int, int] = {}
-        self._from_wire = msgspec.msgpack.Decoder().decode
-        self._to_json = msgspec.json.Encoder().encode
-        self._failed: BagError | None = None
-        self._closed = False
-        self.messages_written = 0
-        self.messages_flushed = 0  # in complete chunks handed to the OS: they survive a kill
-        self.messages_unencodable = 0  # not msgpack (or no JSON for them): not written
-        self._writer = Writer(
-            self._file,
-            # Chunks are closed here, by bytes and by time, so that each one is
-            # flushed to the OS; the library's own size limit is never reached.
-            chunk_size=2**62,
-            compression={
-                "zstd": CompressionType.ZSTD,
-                "lz4": CompressionType.LZ4,
-                "none": CompressionType.NONE,
-            }[compression],
-        )
-        try:
-            self._writer.start(profile="", library=f"dockhil {__version__}")
-            # The header on disk at once: a bag killed before its first chunk is still a bag.
-            self._file.flush()
-        except OSError as exc:
-            self._release()
-            raise BagError(f"cannot start bag {self.path}: {os_reason(exc)}") from None
-
-    @property
-    def topics(self) -> dict[str, str]:
-        """topic -> type name of the topics added so far."""
-        return {topic: type_name for topic, (_, type_name) in self._channels.items()}
-
-    def add_topic(self, topic: str, type_name: str) -> None:
-        """Declare a topic and its message type (a key of msgs.TYPES); adding it again is a no-op."""
-        from dockhil.msgs import TYPES
-
-        if not isinstance(topic, str) or not topic:
-            raise BagError(f"bag {self.path}: a topic must be a non-empty string, got {topic!r}")
-        known = self._channels.get(topic)
-        if known is not None:
-            if known[1] != type_name:
-                raise BagError(f"bag {self.path}: topic {topic} is already recorded as {known[1]}, not {type_name}")
-            return
-        cls = TYPES.get(type_name)
-        if cls is None:
-            raise BagError(
-                f"bag {self.path}: topic {topic} has unknown message type {type_name!r}; "
-                f"known: {', '.join(sorted(TYPES))}"
-            )
-        schema_id = self._schemas.get(type_name)
-        if schema_id is None:
-            data = json.dumps(channel_schema(cls), separators=(",", ":")).encode()
-            schema_id = self._writer.register_schema(name=type_name, encoding=SCHEMA_ENCODING, data=data)
-            self._schemas[type_name] = schema_id
-            self._pending += len(data)
-        channel_id = self._writer.register_channel(topic=topic, message_encoding=MESSAGE_ENCODING, schema_id=schema_id)
-        self._channels[topic] = (channel_id, type_name)
-        self._sequence[channel_id] = 0
-
-    def write(self, topic: str, log_time_ns: int, publish_time_ns: int, data: bytes) -> None:
-        """Append one message given as its wire (msgpack) bytes, times in integer ns.
-
-        Bytes that are not msgpack, or hold what JSON cannot (msgpack extension
-        types), are counted in `messages_unencodable` and not written."""
-        if self._failed is not None:
-            raise self._failed
-        if self._closed:
-            raise BagError(f"bag {self.path} is closed")
-        known = self._channels.get(topic)
-        if known is None:
-            raise BagError(f"bag {self.path}: topic {topic} was not added; call add_topic(topic, type) first")
-        # Checked before the library sees them: a bad value mid-record would corrupt the chunk.
-        try:
-            log_time_ns = operator.index(log_time_ns)
-            publish_time_ns = operator.index(publish_time_ns)
-        except TypeError:
-            log_time_ns = -1
-        if not (0 <= log_time_ns <= _U64 and 0 <= publish_time_ns <= _U64):
-            raise BagError(f"bag {self.path}: topic {topic}: times must be integer ns in [0, 2**64), got {log_time_ns!r}")
-        try:
-            data = self._to_json(self._from_wire(data))
-        except (msgspec.DecodeError, msgspec.EncodeError, TypeError, ValueError, RecursionError):
-            self.messages_unencodable += 1
-            return
-        channel_id = known[0]
-        sequence = self._sequence[channel_id]
-        self._sequence[channel_id] = (sequence + 1) & 0xFFFFFFFF
-        self._writer.add_message(channel_id, log_time_ns, data, publish_time_ns, sequence)
-        self.messages_written += 1
-        if self._chunk_opened is None:
-            self._chunk_opened = time.monotonic()
-        self._pending += _MESSAGE_OVERHEAD + len(data)
-        if self._pending >= self._chunk_size or time.monotonic() - self._chunk_opened >= self._chunk_seconds:
-            self.flush()
-
-    def flush(self) -> None:
-        """Close the open chunk and hand it to the OS (not fsync: it survives a crash
-        of this process, not a power cut)."""
-        if self._failed is not None:
-            raise self._failed
-        if self._closed:
-            return
-        try:
-            self._writer.flush()
-        except OSError as exc:
-            raise self._stop(exc, "writing") from None
-        self._pending = 0
-        self._chunk_opened = None
-        self.messages_flushed = self.messages_written
-
-    def close(self) -> None:
-        """Write the last chunk, the summary and the footer; then fsync and close."""
-        if self._closed:
-            return
-        self._closed = True
-        if self._failed is not None:
-            self._release()
-            return
-        try:
-            self._writer.finish()
-            self._file.flush()
-            if self._owns_file:
-                os.fsync(self._file.fileno())
-                self._file.close()
-        except OSError as exc:
-            error = self._stop(exc, "finishing")
-            self._release()
-            raise error from None
-        self.messages_flushed = self.messages_written
-
-    def __enter__(self) -> "BagWriter":
-        return self
-
-    def __exit__(self, *exc_info) -> None:
-        self.close()
-
-    def _stop(self, exc: OSError, doing: str) -> BagError:
-        self._failed = BagError(
-            f"bag {self.path}: {doing} failed: {os_reason(exc)}; recording stopped, "
-            f"{self.messages_flushed} of {self.messages_written} messages are on disk"
-        )
-        return self._failed
-
-    def _release(self) -> None:
-        # The writer has failed: closing may retry a write that fails again.
-        if self._owns_file:
-            try:
-                self._file.close()
-            except OSError:
-                pass
-
-
-def channel_schema(cls: type) -> dict:
-    """The JSON Schema of a message type, self-contained for a bag's channel.
-
-    msgspec gives {"$ref": "#/$defs/X", "$defs": {...}}; viewers want the
-    message's own object at the top ("type": "object"), so every $ref is
-    inlined. A type that contains itself keeps $ref to "#/$defs/..." for the
-    inner occurrences, with the $defs they need.
-    """
-    from dockhil.msgs.codec import schema
-
-    found = schema(cls)
-    defs = found.get("$defs", {})
-    kept: dict[str, bool] = {}  # definitions referred to from inside themselves
-
-    def inline(node: Any, path: tuple[str, ...]) -> Any:
-        if isinstance(node, list):
-            return [inline(item, path) for item in node]
-        if not isinstance(node, dict):
-            return node
-        ref = node.get("$ref")
-        if isinstance(ref, str) and ref.startswith("#/$defs/"):
-            name = ref[len("#/$defs/"):]
-            siblings = {k: inline(v, path) for k, v in node.items() if k not in ("$ref", "$defs")}
-            if name in path:  # recursion: leave a reference
-                kept[name] = True
-                return node
-            return {**inline(defs[name], path + (name,)), **siblings}
-        return {key: inline(value, path) for key, value in node.items() if key != "$defs"}
-
-    out = inline(found, ())
-    if kept:
-        done: dict[str, Any] = {}
-        while len(done) < len(kept):  # inlining a kept definition may keep another
-            for name in [n for n in kept if n not in done]:
-                done[name] = inline(defs[name], (name,))
-        out["$defs"] = done
-    return out
-
-
-def _open_for_writing(path: str, overwrite: bool):
-    try:
-        return open(path, "wb" if overwrite else "xb")
-    except FileExistsError:
-        if os.path.isdir(path):
-            raise BagError(f"cannot create bag {path}: it is a directory") from None
-        raise BagError(f"bag {path} already exists; choose another name or allow overwriting it") from None
-    except IsADirectoryError:
-        raise BagError(f"cannot create bag {path}: it is a directory") from None
-    except OSError as exc:
-        raise BagError(f"cannot create bag {path}: {os_reason(exc)}") from None
-
-
-# --------------------------------------------------------------------------- reading
-
-
-class BagMessage(NamedTuple):
-    """One recorded message: its topic, type name, log time [ns] and wire bytes."""
-
-    topic: str
-    type_name: str
-    log_time_ns: int
-    data: bytes
-
-    def decode(self):
-        """The message as its msgs Struct (typed, validated); DecodeError if it is not one."""
-        from dockhil.msgs import type_by_name
-        from dockhil.msgs.codec import decode
-
-        return decode(self.data, type_by_name(self.type_name))
 
 
 @dataclass
@@ -383,16 +50,6 @@ def _json_to_wire() -> Any:
             return data  # not JSON: handed on as it is, and fails to decode later with one line
 
     return to_wire
-
-
-class LostRegion(NamedTuple):
-    """Bytes of a bag that could not be read: a damaged record or chunk, or a cut end."""
-
-    offset: int  # first byte skipped
-    length: int  # bytes skipped
-    after_ns: int | None  # largest log time read before it (None: no message before)
-    before_ns: int | None  # smallest log time of the first chunk read after it (None: no message after)
-    at_end: bool  # nothing readable follows: the recorder stopped while writing, or a power cut
 
 
 class _Pass:
@@ -481,7 +138,7 @@ class BagReader:
         selected: dict[int, bool] = {}
         channels = self._channels
         lo = 0 if start_ns is None else start_ns
-        hi = _U64 if end_ns is None else end_ns
+        hi = U64_MAX if end_ns is None else end_ns
         for channel_id, log_time, _, data in self._raw_messages(with_data=True):
             keep = selected.get(channel_id)
             if keep is None:
@@ -604,7 +261,7 @@ class BagReader:
         if size < len(MAGIC) + 9:
             raise BagError(f"{self.path}: truncated: {size} bytes end inside the MCAP header; nothing was recorded")
         f.seek(len(MAGIC))
-        opcode, length = _RECORD_HEAD.unpack(f.read(9))
+        opcode, length = RECORD_HEAD.unpack(f.read(9))
         problem = None
         if opcode != _HEADER:
             problem = f"corrupt: the first record is opcode 0x{opcode:02x}, not the MCAP header"
@@ -673,7 +330,7 @@ class BagReader:
         head = f.read(9)
         if len(head) < 9:
             return None
-        opcode, length = _RECORD_HEAD.unpack(head)
+        opcode, length = RECORD_HEAD.unpack(head)
         if length > size - pos - 9 or opcode == _HEADER:
             return None
         if not (opcode in _KNOWN_OPCODES or (opcode >= 0x80 and not resync)):
@@ -688,11 +345,11 @@ class BagReader:
                     return None
                 content = f.read(length)
                 if opcode == _MESSAGE:
-                    if length < _MESSAGE_HEAD.size:
+                    if length < MESSAGE_HEAD.size:
                         return None
                     # Unless the file is known to be unchunked, a bare message found by
                     # scanning is one of a damaged (uncompressed) chunk's own records.
-                    known = _MESSAGE_HEAD.unpack_from(content)[0] in self._channels
+                    known = MESSAGE_HEAD.unpack_from(content)[0] in self._channels
                     if resync and (run.chunks or not run.bare or not known):
                         return None
                 else:
@@ -719,7 +376,7 @@ class BagReader:
         head = f.read(9)
         if len(head) < 9:  # the end of the file, or a cut record head
             return True
-        next_opcode, length = _RECORD_HEAD.unpack(head)
+        next_opcode, length = RECORD_HEAD.unpack(head)
         return next_opcode in _KNOWN_OPCODES and next_opcode != _HEADER and length <= size - pos - 9
 
     def _resync(self, start: int, run: _Pass) -> int:
@@ -773,7 +430,7 @@ class BagReader:
         if crc != 0 and zlib.crc32(records) != crc:
             raise ValueError("chunk checksum mismatch")
         index: list[tuple[int, Any, int]] = []
-        unpack_head = _RECORD_HEAD.unpack_from
+        unpack_head = RECORD_HEAD.unpack_from
         i = 0
         while i < size:
             op, n = unpack_head(records, i)
@@ -781,7 +438,7 @@ class BagReader:
             if b > size:
                 raise ValueError("a record runs past the chunk end")
             if op == _MESSAGE:
-                if n < _MESSAGE_HEAD.size:
+                if n < MESSAGE_HEAD.size:
                     raise ValueError("a message record is too short")
                 index.append((op, a, b))
             elif op == _SCHEMA or op == _CHANNEL:
@@ -792,7 +449,7 @@ class BagReader:
     def _raw_messages(self, with_data: bool) -> Iterator[tuple[int, int, int, bytes | None]]:
         """(channel id, log time, publish time, data as stored) in file order; registers
         schemas and channels on the way."""
-        unpack_head = _MESSAGE_HEAD.unpack_from
+        unpack_head = MESSAGE_HEAD.unpack_from
         channels = self._channels
         run = _Pass()
         for _pos, opcode, content in self._records(run):
@@ -876,7 +533,7 @@ class BagReader:
         pos = summary_start
         while pos < footer_at:
             f.seek(pos)
-            opcode, length = _RECORD_HEAD.unpack(f.read(9))
+            opcode, length = RECORD_HEAD.unpack(f.read(9))
             if length > footer_at - pos - 9:
                 return
             if opcode == _SCHEMA or opcode == _CHANNEL:
@@ -900,259 +557,9 @@ def _parse_definition(opcode: int, body: bytes):
     return record
 
 
-def loss_line(found: dict) -> str | None:
-    """What `info` found unreadable or unfinished, in one line; None for an intact, finished bag."""
-    lost, orphaned = found["lost"], found["orphaned"]
-    parts = []
-    if lost:
-        total = sum(r["bytes"] for r in lost)
-        where = "; ".join(_describe_region(r) for r in lost[:3])
-        if len(lost) > 3:
-            where += f"; and {len(lost) - 3} more"
-        places = "1 place" if len(lost) == 1 else f"{len(lost)} places"
-        parts.append(f"{format_size(total)} unreadable, skipped in {places}: {where}")
-    if orphaned:
-        parts.append(f"{orphaned} messages skipped: their channel was defined in a damaged chunk")
-    if found["recovered"]:
-        parts.append("the bag is unfinished (the recorder stopped without closing it)")
-    if not parts:
-        return None
-    if lost or orphaned:
-        parts.append("every other message was read")
-    return f"{found['path']}: " + "; ".join(parts)
-
-
-def _describe_region(region: dict) -> str:
-    end = region["offset"] + region["bytes"]
-    after, before = region["after"], region["before"]
-    if region["at_end"]:
-        when = "the end" + (f", after log time {after:.6f} s" if after is not None else ", no message before it")
-    elif after is not None and before is not None:
-        when = f"log time {after:.6f} s to {before:.6f} s"
-    elif before is not None:
-        when = f"before log time {before:.6f} s"
-    elif after is not None:
-        when = f"after log time {after:.6f} s"
-    else:
-        when = "no message before or after it"
-    return f"bytes {region['offset']}-{end} ({when})"
-
-
-def format_size(n: float) -> str:
-    """1536 -> '1.5 KiB'."""
-    for unit in ("B", "KiB", "MiB", "GiB"):
-        if n < 1024 or unit == "GiB":
-            return f"{n} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1024
-    return f"{n} B"
-
-
 def _guess_format(head: bytes) -> str:
     if head.startswith(b"#ROSBAG"):
         return "it is a ROS 1 bag"
     if head.startswith(b"SQLite format 3"):
         return "it is an SQLite database, e.g. a ROS 2 .db3 bag"
     return "it does not start with the MCAP magic bytes"
-
-
-def info(path: str | os.PathLike) -> dict:
-    """What a bag holds, read in one pass (finished, unfinished or damaged bag).
-
-    Keys: path, size_bytes, recovered (True: no footer, the recorder stopped
-    without closing), skipped_bytes (all bytes that could not be read),
-    lost: a list of {offset, bytes, after, before [s]: the largest log time
-    read before the region and the smallest of the first chunk after it (None:
-    no message there), at_end (nothing readable follows)}, orphaned (messages
-    skipped: their channel was defined in a damaged chunk), loss (one line on
-    all of it, None for an intact, finished bag), library, messages, chunks,
-    start and end [s] (log times of the first and last message, None if
-    empty), duration_s, and topics: a list of {topic, type, encoding, count,
-    first, last [s], rate_hz (mean over the topic's span)}.
-    """
-    with BagReader(path) as reader:
-        return reader.summary()
-
-
-# --------------------------------------------------------------------------- export
-
-
-def flatten(value: Any, prefix: str = "") -> dict[str, Any]:
-    """Nested Struct/dict/list -> {"header.stamp": .., "bodies.0.pose.position.x": ..}.
-
-    Iterative, not recursive: a recorded message may nest as deeply as msgpack allows.
-    """
-    out: dict[str, Any] = {}
-    stack = [(prefix, value)]
-    while stack:
-        prefix, value = stack.pop()
-        if isinstance(value, msgspec.Struct):
-            items = [(name, getattr(value, name)) for name in value.__struct_fields__]
-        elif isinstance(value, dict):
-            items = list(value.items())
-        elif isinstance(value, (list, tuple)):
-            items = list(enumerate(value))
-        else:
-            out[prefix or "value"] = value
-            continue
-        # Pushed in reverse so that fields come out in their order.
-        stack.extend((f"{prefix}.{key}" if prefix else str(key), item) for key, item in reversed(items))
-    return out
-
-
-class ExportResult(NamedTuple):
-    rows: int
-    unvalidated: int  # msgpack that failed typed validation (e.g. NaN): exported as recorded
-    skipped: int  # not msgpack at all, or nested too deeply to decode: no row
-    recovered: bool
-    loss: str | None  # the one line on what was unreadable or unfinished (see loss_line)
-
-
-def export_csv(path: str | os.PathLike, topic: str, out: str | os.PathLike | IO[str], *,
-               overwrite: bool = False) -> ExportResult:
-    """Write one CSV row per message on `topic`: log_time_ns, then the flattened fields.
-
-    A file `out` appears only when complete (written aside, then renamed); an
-    existing one is refused unless `overwrite`, and the bag itself always.
-    Messages that fail typed validation (a recorded NaN, say) are exported as
-    recorded; bytes that are not msgpack at all are skipped and counted.
-    """
-    if not hasattr(out, "write"):
-        dst = os.fspath(out)
-        if os.path.exists(dst) and os.path.exists(path) and os.path.samefile(dst, path):
-            raise BagError(f"cannot write {dst}: it is the bag it reads; give the CSV another name")
-        if os.path.isdir(dst):
-            raise BagError(f"cannot write {dst}: it is a directory")
-        if os.path.exists(dst) and not overwrite:
-            raise BagError(f"{dst} already exists; choose another name or pass --overwrite to replace it")
-    with BagReader(path) as reader:
-        found = reader.summary()
-        entry = next((t for t in found["topics"] if t["topic"] == topic), None)
-        if entry is None:
-            have = ", ".join(t["topic"] for t in found["topics"]) or "none"
-            raise BagError(f"{reader.path}: no topic {topic}; topics in the bag: {have}")
-        reader._check_encoding(topic)
-        if hasattr(out, "write"):
-            result = _write_csv(reader, topic, out)
-        else:
-            with complete_or_nothing(os.fspath(out), BagError) as part, open(part, "w", newline="") as fh:
-                result = _write_csv(reader, topic, fh)
-        return ExportResult(*result, bool(reader.recovered), found["loss"])
-
-
-def _write_csv(reader: BagReader, topic: str, fh: IO[str]) -> tuple[int, int, int]:
-    from dockhil.msgs import TYPES
-    from dockhil.msgs.codec import DecodeError, decode
-
-    type_name = reader.topics[topic]
-    cls = TYPES.get(type_name)
-    untyped = msgspec.msgpack.Decoder()
-    # A tagged Struct carries its type name in the map; a typed row has no such column.
-    tag_field = getattr(getattr(cls, "__struct_config__", None), "tag_field", None)
-    counts = {"unvalidated": 0, "skipped": 0}
-
-    def rows() -> Iterator[dict[str, Any]]:
-        for message in reader.messages([topic]):
-            value = None
-            if cls is not None:
-                try:
-                    value = decode(message.data, cls)
-                except (DecodeError, RecursionError):
-                    pass
-            if value is None:
-                try:
-                    value = untyped.decode(message.data)
-                except (msgspec.DecodeError, RecursionError):
-                    counts["skipped"] += 1
-                    continue
-                if cls is not None:
-                    counts["unvalidated"] += 1
-                if tag_field is not None and isinstance(value, dict):
-                    value.pop(tag_field, None)
-            row = {"log_time_ns": message.log_time_ns}
-            row.update(flatten(value))
-            yield row
-
-    # One pass when every row has the columns of the first (fixed-shape
-    # messages); a second pass with the union when lists change length.
-    columns: list[str] | None = None
-    known: set[str] = set()
-    reshaped = False
-    written = 0
-    writer = csv.writer(fh)
-    for row in rows():
-        if columns is None:
-            columns = list(row)
-            known = set(columns)
-            writer.writerow(columns)
-        if not reshaped and row.keys() <= known:
-            writer.writerow([row.get(c, "") for c in columns])
-            written += 1
-            continue
-        reshaped = True
-        for key in row:
-            if key not in known:
-                known.add(key)
-                columns.append(key)
-    if reshaped:
-        if not fh.seekable():
-            raise BagError(f"{reader.path}: messages on {topic} change shape; export to a file, not a stream")
-        fh.seek(0)
-        fh.truncate()
-        counts = {"unvalidated": 0, "skipped": 0}
-        writer.writerow(columns)
-        written = 0
-        for row in rows():
-            writer.writerow([row.get(c, "") for c in columns])
-            written += 1
-    if columns is None:
-        writer.writerow(["log_time_ns"])
-    return written, counts["unvalidated"], counts["skipped"]
-
-
-class ConvertResult(NamedTuple):
-    messages: int  # written to the new bag
-    unencodable: int  # not msgpack in the old bag: no JSON for them, not written
-    loss: str | None  # what of the old bag was unreadable or unfinished (see loss_line)
-
-
-def convert(src: str | os.PathLike, dst: str | os.PathLike, *, overwrite: bool = False) -> ConvertResult:
-    """Rewrite the bag `src` (msgpack channels, as recorded before json) as a json bag `dst`.
-
-    Topics, types, log and publish times and the order stay; what `src` holds
-    in damaged chunks stays lost. `dst` appears only when complete.
-    """
-    src, dst = os.fspath(src), os.fspath(dst)
-    if os.path.isdir(dst):
-        raise BagError(f"cannot create bag {dst}: it is a directory")
-    if os.path.exists(dst) and not overwrite:
-        raise BagError(f"bag {dst} already exists; choose another name or allow overwriting it")
-    with BagReader(src) as reader:
-        found = reader.summary()
-        with complete_or_nothing(dst, BagError) as part, BagWriter(part, overwrite=True) as out:
-            for topic, type_name in reader.topics.items():
-                try:
-                    out.add_topic(topic, type_name)
-                except BagError as exc:
-                    raise BagError(f"{src}: cannot convert: {str(exc).split(': ', 1)[1]}") from None
-                reader._check_encoding(topic)
-            for topic, _, log_ns, publish_ns, data in reader.messages_with_publish_time():
-                out.write(topic, log_ns, publish_ns, data)
-    return ConvertResult(out.messages_written, out.messages_unencodable, found["loss"])
-
-
-__all__ = [
-    "BagError",
-    "BagMessage",
-    "BagReader",
-    "BagWriter",
-    "ConvertResult",
-    "ExportResult",
-    "LostRegion",
-    "channel_schema",
-    "convert",
-    "export_csv",
-    "flatten",
-    "format_size",
-    "info",
-    "loss_line",
-]

@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _info(args: argparse.Namespace) -> int:
-    from dockhil.bags.reader import info
+    from dockhil.bags.tools import info
 
     found = info(args.path)
     if args.json:
@@ -104,7 +104,7 @@ def _info(args: argparse.Namespace) -> int:
 
 def format_info(found: dict) -> str:
     """The table `dockhil bag info` prints."""
-    from dockhil.bags.reader import format_size
+    from dockhil.bags.format import format_size
 
     if found["recovered"]:
         state = "unfinished, recovered (the recorder stopped without closing the bag)"
@@ -154,7 +154,7 @@ def _time(seconds: float | None) -> str:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from dockhil.bags.reader import export_csv
+    from dockhil.bags.tools import export_csv
 
     out = sys.stdout if args.csv == "-" else args.csv
     result = export_csv(args.path, args.topic, out, overwrite=args.overwrite)
@@ -173,7 +173,7 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _convert(args: argparse.Namespace) -> int:
-    from dockhil.bags.reader import convert
+    from dockhil.bags.tools import convert
 
     result = convert(args.path, args.out, overwrite=args.overwrite)
     if result.loss:

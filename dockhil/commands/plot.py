@@ -96,7 +96,8 @@ def run(args) -> int:
 
 
 def _plot_topics(ax, path, topics, label) -> None:
-    from dockhil.bags.reader import BagReader, flatten
+    from dockhil.bags.reader import BagReader
+    from dockhil.bags.tools import flatten
 
     with BagReader(path) as bag:
         series: dict[str, tuple[list, list]] = {}

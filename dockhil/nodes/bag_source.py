@@ -33,7 +33,8 @@ import msgspec
 
 from dockhil import msgs
 from dockhil.msgs.codec import decode_header
-from dockhil.bags.reader import BagError, BagReader
+from dockhil.bags.format import BagError
+from dockhil.bags.reader import BagReader
 from dockhil.errors import DockhilError, ParamError
 from dockhil.node import Node, Output, Param
 
