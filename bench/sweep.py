@@ -25,7 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from dockhil import sweep  # noqa: E402
+from dockhil.analysis import sweep# noqa: E402
 
 
 def campaign_file(folder: str, runs: int, duration: float) -> str:

@@ -47,7 +47,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
         from dockhil.bags.live import check_bag_path
 
         check_bag_path(bag)
-    from dockhil.scenecheck import scene_check
+    from dockhil.analysis.scenecheck import scene_check
 
     # A compensated scene's validity (the controller saturated) is in its summary: always compute it.
     compensated = any(gn.params.get("compensation") == "passivity" for gn in graph.nodes.values())
@@ -57,7 +57,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
         say.warning(line)
     collector = None
     if want_summary:  # numpy and the models: only for a run that has a summary
-        from dockhil import summary as summ
+        from dockhil.analysis import summary as summ
 
         collector = summ.SummaryCollector(graph)
     tmp = None

@@ -6,7 +6,7 @@ import pytest
 
 from dockhil.scene import graph as graphmod
 from dockhil.scene import launchfile
-from dockhil.scenecheck import scene_check
+from dockhil.analysis.scenecheck import scene_check
 from tests.conftest import ROOT
 
 

@@ -11,7 +11,7 @@ from dockhil.scene import graph as graphmod
 from dockhil.scene import launchfile
 from dockhil.runtime.composed import ComposedGraph
 from dockhil.msgs.codec import encode
-from dockhil.summary import SummaryCollector
+from dockhil.analysis.summary import SummaryCollector
 from dockhil.testing import NodeHarness
 from tests.conftest import ROOT, dockhil_cmd
 from tests.inprocess import run_main

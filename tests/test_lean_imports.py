@@ -4,7 +4,7 @@ and the science and the CLI stay light. Each node type is measured in a fresh in
 import pytest
 
 from dockhil import nodes
-from dockhil import leanness
+from dockhil.analysis import leanness
 
 # One worker runs this file under pytest-xdist: every node type is measured once.
 pytestmark = pytest.mark.xdist_group("lean")

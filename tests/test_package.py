@@ -18,7 +18,7 @@ import pytest
 from dockhil import nodes
 from dockhil.scene import launchfile
 from dockhil.errors import LaunchError
-from dockhil.sweep import CampaignError, load_campaign
+from dockhil.analysis.sweep import CampaignError, load_campaign
 
 REPO = Path(__file__).resolve().parent.parent
 SCENES = sorted(p.name for p in (REPO / "launch").glob("*.yaml"))

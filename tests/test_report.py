@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 
-from dockhil import report as R
+from dockhil.analysis import report as R
 from dockhil.cli import main
 from dockhil.contact.hilloop import simulate_hil
 from dockhil.contact.scenario import TABLE1, ContactModelError, ContactScenario

@@ -139,7 +139,7 @@ def test_the_6dof_scene_check_warns_of_an_unstable_delayed_loop_as_the_1dof_one_
     # axis: the launch says so in its warnings, as hil.yaml's check does for its loop.
     from dockhil.scene import graph as graphmod
     from dockhil.scene import launchfile
-    from dockhil.scenecheck import scene_check
+    from dockhil.analysis.scenecheck import scene_check
     from tests.conftest import ROOT
 
     def check(args):

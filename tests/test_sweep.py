@@ -12,9 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from dockhil import cli, sweep
+from dockhil import cli
+from dockhil.analysis import sweep
 from dockhil.node import Node
-from dockhil.sweep import LocalPool
+from dockhil.analysis.sweep import LocalPool
 
 import pyarrow.parquet as pq
 

@@ -5,7 +5,7 @@ which is bit-identical to the node graph (tests hold that), so a figure
 takes seconds. Returns the numbers; `plot_*` draw them.
 
 And the off-axis 6-DOF docking of launch/hil6.yaml (`sixdof`): the scene run
-as a composed graph and recorded to a bag, drawn by dockhil/plot6.py as
+as a composed graph and recorded to a bag, drawn by dockhil/analysis/plot6.py as
 `dockhil plot --6dof` draws any 6-DOF bag, with its 6-DOF summary against the
 ideal 6-DOF contact."""
 
@@ -20,7 +20,7 @@ from dockhil.contact.sampled import SampledLoop, sampled_growth_rate
 from dockhil.contact.scenario import TABLE1, ContactScenario
 from dockhil.contact.stability import growth_rate as predicted_growth_rate
 from dockhil.contact.stability import pade1_bound
-from dockhil.summary import Samples, contact_metrics, growth_rate
+from dockhil.analysis.summary import Samples, contact_metrics, growth_rate
 
 DT = 1e-3
 
@@ -80,7 +80,7 @@ def sixdof(bag_path: str, delay: float = 0.032, seconds: float = SIXDOF_SECONDS)
     from dockhil.bags.live import TapRecorder
     from dockhil.runtime.composed import ComposedGraph
     from dockhil.scene.graph import build
-    from dockhil.summary import SummaryCollector
+    from dockhil.analysis.summary import SummaryCollector
 
     graph = build(launchfile.load(launchfile.SHIPPED_SCENES / "hil6.yaml", {"delay": repr(float(delay))}))
     collector = SummaryCollector(graph)
@@ -164,7 +164,7 @@ def plot_all(out_dir, delay: float = 0.032) -> dict:
     fig.savefig(f"{out_dir}/fig7.png", dpi=110)
     plt.close(fig)
 
-    from dockhil.plot6 import plot6
+    from dockhil.analysis.plot6 import plot6
 
     bag = f"{out_dir}/sixdof.mcap"
     six = sixdof(bag, delay)

@@ -8,7 +8,7 @@ setup fails with a one-line DeviceError after loading what it needs, which is
 what is measured. The child reports, after import and after setup, which of
 the heavy packages are in `sys.modules`.
 
-    from dockhil.leanness import measure_all
+    from dockhil.analysis.leanness import measure_all
     for row in measure_all(): print(row["node"], row["startup_s"], row["after_setup"])
 """
 
@@ -24,7 +24,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]  # the repository (a source checkout)
 
 # Packages reported per node: numpy and zmq for what they cost, the rest
 # because a scene should load them only where a node uses them.

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dockhil.errors import DockhilError
-from dockhil.figure_file import save_figure
+from dockhil.analysis.figure_file import save_figure
 
 
 @dataclass

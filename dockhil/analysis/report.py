@@ -12,7 +12,7 @@ Everything here returns plain JSON-ready dicts; the command writes them out
 * stiff and extreme cases, each with an expectation computed from the
   model (closed form, stability analysis, the integrators' stability limits);
 * lean scenes: per node type, start-up time, memory and heavy imports
-  (measured in `dockhil.leanness`).
+  (measured in `dockhil.analysis.leanness`).
 
 The reference of the delayed hybrid loop is the continuous delay system the
 sampled loop converges to as the step shrinks, solved by an independent
@@ -70,7 +70,7 @@ from dockhil.scene.launchfile import SHIPPED_SCENES
 
 IVP_METHODS = ("RK45", "DOP853", "Radau", "LSODA")
 EXPLICIT = ("rk4", "symplectic_euler", "euler")
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]  # the repository (a source checkout)
 LAUNCH_DIR = SHIPPED_SCENES  # the shipped scenes, in a checkout or an installed wheel
 HIL_DELAY = 0.032  # [s] the paper's worst robot delay (Fig. 9)
 GRID = 1e-3  # [s] errors are taken on the scenes' 1 kHz tick grid
@@ -519,7 +519,7 @@ def energy_run_ivp(method: str, rtol: float, t_end: float, scn: ContactScenario 
 
 
 def _hil_library(duration: float, dt: float = 1e-3):
-    from dockhil.summary import Samples
+    from dockhil.analysis.summary import Samples
 
     imp = hybrid_impedance(TABLE1)
     n = int(round(duration / dt)) + 1
@@ -534,7 +534,7 @@ def composed_samples(scene_file: str, duration: float, args: dict | None = None,
     from dockhil.scene import launchfile
     from dockhil.runtime.composed import ComposedGraph
     from dockhil.scene.graph import build
-    from dockhil.summary import Collector
+    from dockhil.analysis.summary import Collector
 
     overrides = launchfile.parse_overrides([f"{k}:={v}" for k, v in (args or {}).items()])
     scene = launchfile.load(LAUNCH_DIR / scene_file, overrides)
@@ -577,7 +577,7 @@ def bag_samples(path: str, ideal_force=None):
 def graph_cost(cfg: ReportConfig, progress: TaskProgress | None = None) -> dict:
     """hil.yaml run three ways: the model library's loop, composed in one process,
     separate processes. Run times side by side; trajectories compared bit for bit."""
-    from dockhil.summary import ideal_reference, summarize
+    from dockhil.analysis.summary import ideal_reference, summarize
 
     say = progress.step if progress else (lambda label: None)
     duration = cfg.graph_duration
@@ -885,7 +885,7 @@ HIL_LATE = ContactScenario(m1=300.0, m2=1100.0, kcs=22000.0, bcs=45.0, k=9000.0,
 
 
 def _hil_metrics(scn: ContactScenario, dt: float, t_end: float, delay: float) -> dict:
-    from dockhil.summary import Samples, contact_metrics
+    from dockhil.analysis.summary import Samples, contact_metrics
 
     r = simulate_hil(m1=scn.m1, m2=scn.m2, k=scn.k, impedance=hybrid_impedance(scn), dt=dt,
                      n_ticks=int(round(t_end / dt)) + 1, v1=scn.v1, v2=scn.v2, delay=delay)
@@ -1064,7 +1064,7 @@ def delay_cases(cfg: ReportConfig) -> list[dict]:
     """Delay 0 (the hybrid loop is the ideal contact) and a delay much longer
     than the contact (during it only the virtual part acts, kcs - k; the
     stale robot pose then pushes the separated bodies)."""
-    from dockhil.summary import Samples, contact_metrics
+    from dockhil.analysis.summary import Samples, contact_metrics
 
     group = "robot delay"
     scn, dt = TABLE1, 1e-3
@@ -1149,7 +1149,7 @@ def stability_boundary_cases(cfg: ReportConfig) -> list[dict]:
     envelope is fitted about the true equilibrium thrust / K."""
     from dockhil.contact.sampled import SampledLoop, sampled_growth_rate
     from dockhil.contact.stability import exact_bound
-    from dockhil.summary import growth_rate as measured_growth
+    from dockhil.analysis.summary import growth_rate as measured_growth
 
     group = "exact stability boundary"
     m, b, h, thrust, dt = 750.0, 60.0, 0.016, 10.0, cfg.stability_dt
@@ -1359,7 +1359,7 @@ def stiff_cases(cfg: ReportConfig, progress: TaskProgress) -> list[dict]:
 
 
 def lean_scenes(cfg: ReportConfig, progress: TaskProgress) -> dict:
-    from dockhil import leanness
+    from dockhil.analysis import leanness
 
     progress.step("lean scenes: one interpreter per node type")
     rows = leanness.measure_all(repeats=2 if not cfg.quick else 1)
@@ -1377,7 +1377,7 @@ def passivity_compensation() -> dict:
     """Table 1 at 1 kHz with and without the passivity controller: errors against the ideal contact,
     restitution, energy made and left; and the energy over the contact at 32 ms (every 10th tick)."""
     from dockhil.contact.passivity import Passivity, left_in_loop
-    from dockhil.summary import Samples, contact_metrics, ideal_summary
+    from dockhil.analysis.summary import Samples, contact_metrics, ideal_summary
 
     t = TABLE1
     ideal = ideal_summary(m1=t.m1, m2=t.m2, kcs=t.kcs, bcs=t.bcs, v1=t.v1, v2=t.v2)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dockhil import msgs
-from dockhil.scenecheck import _first, scene_check  # noqa: F401  (the summary's check, re-exported for the session)
+from dockhil.analysis.scenecheck import _first, scene_check# noqa: F401  (the summary's check, re-exported for the session)
 
 
 @dataclass
@@ -354,7 +354,7 @@ class SummaryCollector:
         self.six = None
         # A 6-DOF scene (dof: 6, or the *6 name: the graph records the registered one): its own summary.
         if _first(graph, "satellite_dynamics6") is not None:
-            from dockhil.summary6 import SummaryCollector6
+            from dockhil.analysis.summary6 import SummaryCollector6
 
             self.six = SummaryCollector6(graph)
         ref = scene_reference(graph)
@@ -411,7 +411,7 @@ def _bag_messages(path: str):
     from dockhil.bags.reader import BagReader
 
     with BagReader(path) as bag:
-        # /robot/command: the 6-DOF summary's ticks (dockhil/summary6.py); the 1-DOF one ignores it.
+        # /robot/command: the 6-DOF summary's ticks (dockhil/analysis/summary6.py); the 1-DOF one ignores it.
         yield from bag.decoded(["/satellite/state", "/ft/wrench", "/impedance/wrench", "/energy", "/robot/command"])
 
 
@@ -496,7 +496,7 @@ def scene_summary(graph, s, run_time_s: float | None) -> dict:
 def format_summary(out: dict) -> str:
     """A few readable lines of a summary."""
     if out.get("dof") == 6:
-        from dockhil.summary6 import format_summary6
+        from dockhil.analysis.summary6 import format_summary6
 
         return format_summary6(out)
 

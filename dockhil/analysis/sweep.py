@@ -345,10 +345,10 @@ def run_one(spec: dict) -> dict:
     import numpy as np
 
     from dockhil.scene import launchfile
-    from dockhil import summary as summ
+    from dockhil.analysis import summary as summ
     from dockhil.runtime.composed import ComposedGraph
     from dockhil.scene.graph import build
-    from dockhil.scenecheck import scene_check
+    from dockhil.analysis.scenecheck import scene_check
 
     started = time.perf_counter()
     row = {"run": spec["run"], "sample": spec["sample"], **spec["args"], "args_hash": spec["args_hash"],

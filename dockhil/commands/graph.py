@@ -25,7 +25,7 @@ def run(args) -> int:
 
         print(json.dumps(json_schema(), indent=1))
         return 0
-    from dockhil.scenecheck import scene_check
+    from dockhil.analysis.scenecheck import scene_check
 
     scene = launchfile.load(args.file, launchfile.parse_overrides(args.overrides))
     graph = build(scene)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dockhil.argtypes import nonnegative
 from dockhil.errors import DockhilError
-from dockhil.figure_file import save_figure
+from dockhil.analysis.figure_file import save_figure
 
 
 def add_arguments(p) -> None:
@@ -21,7 +21,7 @@ def add_arguments(p) -> None:
 
 
 def load_samples(path: str, ideal_force=None):
-    from dockhil.summary import samples_from_bag
+    from dockhil.analysis.summary import samples_from_bag
 
     s = samples_from_bag(path, ideal_force)
     if not len(s.t):
@@ -58,7 +58,7 @@ def run(args) -> int:
     import matplotlib.pyplot as plt
 
     if six:
-        from dockhil.plot6 import plot6
+        from dockhil.analysis.plot6 import plot6
 
         plot6(args.bags, args.png, args.labels)
         print(f"wrote {args.png}")

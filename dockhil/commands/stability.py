@@ -9,7 +9,7 @@ import math
 import time
 
 from dockhil.errors import DockhilError
-from dockhil.figure_file import save_figure
+from dockhil.analysis.figure_file import save_figure
 
 _THRUST, _SECONDS, _RATE = 10.0, 30.0, 1000.0  # stability.yaml's loop as the compensated runs simulate it
 _MULTIPLES = (1.0, 2.0, 3.0, 5.0, 10.0)  # of the exact bound: the stiffnesses the text output tries
@@ -214,7 +214,7 @@ def _compensated(m: float, b: float, h: float, K: float | None, max_damping: flo
     from dockhil.contact.passivity import Passivity, left_in_loop
     from dockhil.contact.scenario import ContactModelError
     from dockhil.contact.stability import exact_bound
-    from dockhil.summary import growth_rate
+    from dockhil.analysis.summary import growth_rate
 
     if not (math.isfinite(max_damping) and max_damping > 0.0):
         raise DockhilError(f"--max-damping must be > 0 N s/m, got {max_damping:g}")
@@ -508,7 +508,7 @@ def _scene_values(args) -> tuple[float, float, float, float, float, float, float
     """m, k_d, b_d, k_h, b_h, h, rate of a scene's loop, as the graph will run it."""
     from dockhil.scene import launchfile
     from dockhil.scene.graph import build
-    from dockhil.scenecheck import scene_loop
+    from dockhil.analysis.scenecheck import scene_loop
 
     given = [f"--{n.replace('_', '-')}" for n in ("m", "h", *_HYBRID) if getattr(args, n, None) is not None]
     if given:

@@ -47,7 +47,7 @@ def _scene_loop(items: list[str]):
     from dockhil.scene import graph as graphmod
     from dockhil.scene import launchfile
     from dockhil import nodes
-    from dockhil.scenecheck import scene_loop6
+    from dockhil.analysis.scenecheck import scene_loop6
 
     path, overrides = items[0], launchfile.parse_overrides(items[1:])
     graph = graphmod.build(launchfile.load(path, overrides))

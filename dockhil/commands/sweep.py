@@ -69,7 +69,7 @@ def run(args) -> int:
         raise DockhilError(f"--out {args.out}: folder {folder} does not exist or is not writable")
     if os.path.isdir(args.out):
         raise DockhilError(f"--out {args.out}: is a folder; give a file name, e.g. {os.path.join(args.out, 'results.parquet')}")
-    from dockhil import sweep
+    from dockhil.analysis import sweep
 
     campaign = sweep.load_campaign(args.campaign)
     sweep.check_outputs(campaign)
@@ -94,7 +94,7 @@ def _plot(args) -> int:
         raise DockhilError("sweep plot: give the results file: dockhil sweep plot RESULTS.parquet --png FILE")
     if not args.png:
         raise DockhilError("sweep plot: give --png FILE (where to write the figure)")
-    from dockhil.sweep_plot import plot_results
+    from dockhil.analysis.sweep_plot import plot_results
 
     for line in plot_results(args.results, args.png):
         print(line)
