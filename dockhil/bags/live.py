@@ -96,14 +96,14 @@ class Source:
 def _graph_running(pid: int, run_id: str) -> bool:
     """A graph runs while its registry entry exists and its process lives (an exited
     child not yet reaped by its parent still answers to kill(pid, 0); the entry does not)."""
-    from dockhil.runtime.launcher import registry_dir
+    from dockhil.runtime.registry import registry_dir
 
     return _alive(pid) and (registry_dir() / f"{run_id}.json").exists()
 
 
 def find_sources(topics: list[str] | None = None, graph_pid: int | None = None) -> dict[str, Source]:
     """Topics of running graphs (of the one launched by `graph_pid` if given), or a one-line error."""
-    from dockhil.runtime.launcher import running_graphs
+    from dockhil.runtime.registry import running_graphs
 
     graphs = [g for g in running_graphs() if graph_pid is None or g.get("pid") == graph_pid]
     if not graphs:
@@ -166,7 +166,7 @@ class Recorder:
         except BagError:
             self.bag.close()
             raise
-        from dockhil.runtime.launcher import graph_keys
+        from dockhil.runtime.registry import graph_keys
 
         self.sub = Subscriber(zmq.Context.instance())
         try:
@@ -471,7 +471,7 @@ class _Player:
     def __init__(self, path: str, topics: dict[str, str], sim: bool):
         import zmq
 
-        from dockhil.runtime.launcher import KEY_FILE, registry_dir
+        from dockhil.runtime.registry import KEY_FILE, registry_dir
         from dockhil.runtime.transport import GraphKeys, Publisher, ipc_endpoint, new_run_dir
 
         self.run_id = f"play-{uuid.uuid4().hex[:6]}"

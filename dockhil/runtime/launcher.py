@@ -35,12 +35,12 @@ from dockhil import log
 from dockhil.errors import LaunchError
 from dockhil.runtime.executor import TIMING, PortWire, RunSpec
 from dockhil.runtime.process import READY
-from dockhil.runtime.transport import GraphKeys, ipc_endpoint, new_run_dir, private_dir, runtime_dir
+from dockhil.runtime.registry import KEY_FILE, registry_dir
+from dockhil.runtime.transport import GraphKeys, ipc_endpoint, new_run_dir
 
 if TYPE_CHECKING:  # the graph module loads the launch-file parser (yaml): a recorder or `dockhil topic` needs neither
     from dockhil.scene.graph import Graph
 
-KEY_FILE = "graph.keys"
 POLL_S = 0.05  # the watch loop's longest sleep when no child speaks or exits
 
 
@@ -275,32 +275,6 @@ def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extr
                 del specs[m]
             specs[u] = container
     return specs
-
-
-def registry_dir() -> Path:
-    return private_dir(runtime_dir() / "graphs", "registry directory")
-
-
-def graph_keys(info: dict) -> GraphKeys:
-    """The CURVE keys of a registered graph, for an observer (`topic echo`, a recorder)."""
-    path = info.get("keys")
-    if not path:
-        raise LaunchError(f"graph {info.get('run_id')} names no key file; it was started by an older dockhil: "
-                          f"restart it")
-    return GraphKeys.read(path)
-
-
-def running_graphs() -> list[dict]:
-    """Descriptions of graphs whose launcher is still alive."""
-    out = []
-    for f in sorted(registry_dir().glob("*.json")):
-        try:
-            info = json.loads(f.read_text())
-            os.kill(info["pid"], 0)
-        except (OSError, ValueError, KeyError):
-            continue
-        out.append(info)
-    return out
 
 
 @dataclass
