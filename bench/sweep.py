@@ -55,7 +55,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=200)
     ap.add_argument("--duration", type=float, default=1.0, help="simulated seconds per run")
     args = ap.parse_args()
-    out: dict = {"runs": args.runs, "duration_s": args.duration, "cpus": sweep._cpu_count(),
+    out: dict = {"runs": args.runs, "duration_s": args.duration, "cpus": sweep.usable_cpus(),
                  "loadavg_1min": round(os.getloadavg()[0], 2)}
     with tempfile.TemporaryDirectory(prefix="dockhil-bench-sweep-") as folder:
         campaign = sweep.load_campaign(campaign_file(folder, args.runs, args.duration))

@@ -257,7 +257,7 @@ def test_summary_collector_keeps_bounded_buffers_over_a_long_run():
     from dockhil.scene import launchfile
     from dockhil.runtime.composed import ComposedGraph
     from dockhil.scene.graph import build
-    from dockhil.analysis.summary import ContactMeter, SummaryCollector, _TickMatcher
+    from dockhil.analysis.summary import ContactMeter, SummaryCollector, TickMatcher
 
     graph = build(launchfile.load("launch/stability.yaml", {"b": "60"}))
     collect = SummaryCollector(graph)
@@ -270,8 +270,8 @@ def test_summary_collector_keeps_bounded_buffers_over_a_long_run():
     finally:
         g.close()
     s = collect.summary()
-    assert max(x[0] for x in sizes) <= _TickMatcher.WINDOW + 1
-    assert max(max(x[1], x[2]) for x in sizes) <= _TickMatcher.WINDOW + 2
+    assert max(x[0] for x in sizes) <= TickMatcher.WINDOW + 1
+    assert max(max(x[1], x[2]) for x in sizes) <= TickMatcher.WINDOW + 2
     assert isinstance(collect.meter, ContactMeter) and s["sim_time_s"] == pytest.approx(5.0)
 
 

@@ -25,14 +25,14 @@ from dockhil.errors import DockhilError
 from dockhil.scene.schema import MAX_RATE
 
 
-def _first(graph, type_name: str):
+def first_node(graph, type_name: str):
     return next((gn for gn in graph.nodes.values() if gn.type_name == type_name), None)
 
 
 def scene_loop(graph, dt: float | None = None) -> dict | None:
     """The loop of a scene at tick dt (default: the scene's): SampledLoop, the delay h [s], the
     target contact (m, k, b) and its span (contact duration or period); None without dynamics."""
-    dyn = _first(graph, "satellite_dynamics")
+    dyn = first_node(graph, "satellite_dynamics")
     if dyn is None:  # no loop to check: nothing of the science (numpy) is loaded
         return None
     from dockhil.contact import sampled
@@ -48,7 +48,7 @@ def scene_loop(graph, dt: float | None = None) -> dict | None:
         loop = sampled.SampledLoop(m, p["kcs"], p["bcs"], held=False, **common)
         return _with_target(dict(loop=loop, h=0.0, delay_known=True, m=m, kd=p["kcs"], bd=p["bcs"], kh=0.0, bh=0.0),
                             p, free, p["kcs"], p["bcs"])
-    imp, ft = _first(graph, "virtual_impedance"), _first(graph, "ft_sim")
+    imp, ft = first_node(graph, "virtual_impedance"), first_node(graph, "ft_sim")
     k1 = b1 = k2 = b2 = 0.0
     kcs = bcs = None
     passive = ft.params["k"] if ft is not None else None
@@ -71,8 +71,8 @@ def scene_loop(graph, dt: float | None = None) -> dict | None:
         w1, w2 = (m2 / (m1 + m2)) ** 2, (m1 / (m1 + m2)) ** 2
         kd, bd = w1 * k1 + w2 * k2, w1 * b1 + w2 * b2
     kh = passive or 0.0
-    delay = _first(graph, "delay_injector")
-    robot = _first(graph, "robot_sim")
+    delay = first_node(graph, "delay_injector")
+    robot = first_node(graph, "robot_sim")
     h = delay.params["delay"] if delay is not None else 0.0
     if delay_ticks(h, dt) > sampled.MAX_DELAY_TICKS:
         raise DockhilError(f"{graph.scene.path}: the delay h = {h:g} s at {1.0 / dt:g} Hz is {delay_ticks(h, dt)} "
@@ -155,7 +155,7 @@ def sixdof_nodes(graph) -> tuple:
     from dockhil.node import NodeContext
 
     def made(type_name):
-        gn = _first(graph, type_name)
+        gn = first_node(graph, type_name)
         if gn is None:
             return None
         node = gn.cls(NodeContext(gn.name, graph.scene.dt, log=lambda m: None), **gn.params)
@@ -175,7 +175,7 @@ def scene_loop6(graph):
     from dockhil.contact.hybrid6 import body_mobility
     from dockhil.contact.stability6 import hybrid_loop6
 
-    delay = _first(graph, "delay_injector")
+    delay = first_node(graph, "delay_injector")
     h = float(delay.params.get("delay", 0.032)) if delay is not None else 0.0
     g = InterfaceGeometry(dyn.m1, dyn.m2)
     return hybrid_loop6(imp.wall.ideal, imp.wall.passive, body_mobility(dyn.m1, g.point, g),
@@ -279,7 +279,7 @@ def scene_check(graph, refuse: bool = True) -> dict:
             f"{growth:+.4g} 1/s) while the delay equation it stands for "
             f"{'grows' if physics_unstable else 'does not'} (rightmost root {cont.real + 0.0:+.4g} 1/s)")
     warnings = []
-    dyn = _first(graph, "satellite_dynamics")
+    dyn = first_node(graph, "satellite_dynamics")
     allowed = bool(dyn.params.get("allow_coarse", False))
     if problems:
         start = max(rate, res.fine_rate())
@@ -319,8 +319,8 @@ def body_mismatches(graph) -> list[str]:
     are given differently: the impedance is then tuned for other bodies than those that fly (its
     closed form, its wall split, its mobilities), so the loop does not make the contact it is
     meant to reproduce. A warning, not a refusal: a mistuned impedance can be the experiment."""
-    dyn = _first(graph, "satellite_dynamics") or _first(graph, "satellite_dynamics6")
-    imp = _first(graph, "virtual_impedance") or _first(graph, "virtual_impedance6")
+    dyn = first_node(graph, "satellite_dynamics") or first_node(graph, "satellite_dynamics6")
+    imp = first_node(graph, "virtual_impedance") or first_node(graph, "virtual_impedance6")
     if dyn is None or imp is None:
         return []
     def said(gn, name):

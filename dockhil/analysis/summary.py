@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dockhil import msgs
-from dockhil.analysis.scenecheck import _first, scene_check# noqa: F401  (the summary's check, re-exported for the session)
+from dockhil.analysis.scenecheck import first_node, scene_check# noqa: F401  (the summary's check, re-exported for the session)
 
 
 @dataclass
@@ -261,7 +261,7 @@ def ideal_reference(*, m1: float, m2: float, kcs: float, bcs: float, v1: float, 
     return out
 
 
-class _TickMatcher:
+class TickMatcher:
     """Turns published messages into per-tick samples (t, p, pd, force, acting), in time order,
     with bounded buffers: a state waits in a window of WINDOW states for the forces of its tick.
 
@@ -331,7 +331,7 @@ class Collector:
 
     def __init__(self, ideal_force: tuple[float, float] | None = None, dt: float | None = None):
         self.rows: list[tuple] = []
-        self.match = _TickMatcher(lambda *row: self.rows.append(row), ideal_force, dt)
+        self.match = TickMatcher(lambda *row: self.rows.append(row), ideal_force, dt)
 
     def __call__(self, topic: str, msg) -> None:
         self.match(topic, msg)
@@ -353,14 +353,14 @@ class SummaryCollector:
         self.graph = graph
         self.six = None
         # A 6-DOF scene (dof: 6, or the *6 name: the graph records the registered one): its own summary.
-        if _first(graph, "satellite_dynamics6") is not None:
+        if first_node(graph, "satellite_dynamics6") is not None:
             from dockhil.analysis.summary6 import SummaryCollector6
 
             self.six = SummaryCollector6(graph)
         ref = scene_reference(graph)
         growth = ref.get("growth")
         self.meter = ContactMeter(ideal=ref.get("ideal"), growth_about=None if growth is None else growth["about"])
-        self.match = _TickMatcher(self.meter.add, ref.get("ideal_force"), graph.scene.dt)
+        self.match = TickMatcher(self.meter.add, ref.get("ideal_force"), graph.scene.dt)
         self.energy = EnergyMeter()
 
     def __call__(self, topic: str, msg) -> None:
@@ -392,7 +392,7 @@ def energy_summary(out: dict, graph, meter) -> None:
     out["energy"] = {"generated_J": e.generated_J, "compensation_dissipated_J": e.compensation_dissipated_J,
                      "net_generated_J": e.net_generated_J, "virtual_dissipated_J": e.virtual_dissipated_J,
                      "port_work_J": e.port_work_J}
-    imp = _first(graph, "virtual_impedance")
+    imp = first_node(graph, "virtual_impedance")
     if imp is None or imp.params["compensation"] != "passivity":
         out["energy"]["compensation"] = "none"
         return
@@ -435,7 +435,7 @@ def scene_reference(graph) -> dict:
     `ideal_force` (kcs, bcs) when the dynamics run the ideal model, `ideal` (the ideal
     contact's parameters) for a free contact, `growth` (m, K, b, h, about) for a body pushed
     against a fixed sheet through a delay (Figs. 11-12); `about` is its equilibrium."""
-    dyn = _first(graph, "satellite_dynamics")
+    dyn = first_node(graph, "satellite_dynamics")
     if dyn is None:
         return {}
     p = dyn.params
@@ -444,14 +444,14 @@ def scene_reference(graph) -> dict:
         out["ideal_force"] = (p["kcs"], p["bcs"])
         kcs, bcs = p["kcs"], p["bcs"]
     else:
-        imp = _first(graph, "virtual_impedance")
+        imp = first_node(graph, "virtual_impedance")
         kcs = bcs = None
         if imp is not None and imp.params["mode"] == "determine":
             kcs, bcs = imp.params["kcs"], imp.params["bcs"]
     free_contact = p["thrust"] == 0.0 and p["m2"] > 0.0 and p["v1"] > p["v2"]
     if kcs is not None and free_contact:
         out["ideal"] = dict(m1=p["m1"], m2=p["m2"], kcs=kcs, bcs=bcs, v1=p["v1"], v2=p["v2"], x1=p["x1"], x2=p["x2"])
-    ft, imp, delay = _first(graph, "ft_sim"), _first(graph, "virtual_impedance"), _first(graph, "delay_injector")
+    ft, imp, delay = first_node(graph, "ft_sim"), first_node(graph, "virtual_impedance"), first_node(graph, "delay_injector")
     if p["m2"] == 0.0 and p["thrust"] != 0.0 and ft and imp and delay and imp.params["mode"] == "given":
         K = ft.params["k"]
         out["growth"] = dict(m=p["m1"], K=K, b=imp.params["b1"], h=delay.params["delay"],
@@ -471,7 +471,7 @@ def scene_summary(graph, s, run_time_s: float | None) -> dict:
         meter = s
     ideal = ideal_summary(**ref["ideal"]) if "ideal" in ref and meter.n else None
     out = _summary(meter, run_time_s, ideal, meter.max_force_error() if ideal is not None else None)
-    dyn = _first(graph, "satellite_dynamics")
+    dyn = first_node(graph, "satellite_dynamics")
     if dyn is None:  # no 1-DOF dynamics (the 6-DOF scene): its CoM x is not the contact axis
         out.update(dict.fromkeys(("peak_force_N", "contact_duration_s", "entry_velocity_mps", "exit_velocity_mps",
                                   "restitution")))

@@ -28,7 +28,7 @@ import math
 from dockhil import msgs
 from dockhil.contact.rigid import cross3, rotate, sub3
 from dockhil.analysis.scenecheck import sixdof_nodes
-from dockhil.analysis.summary import ContactMeter, _TickMatcher
+from dockhil.analysis.summary import ContactMeter, TickMatcher
 
 VECTORS = ("relative_velocity_mps", "relative_angular_velocity_radps")
 
@@ -73,7 +73,7 @@ class ContactMeter6:
         return out
 
 
-class TickMatcher6(_TickMatcher):
+class TickMatcher6(TickMatcher):
     """Per-tick 6-DOF samples from published messages, with the 1-DOF matcher's bounded buffers and
     its rule (the newest state, F/T reading and virtual wrench at or before each tick's stamp).
 

@@ -566,7 +566,7 @@ class DaskExecutor:
         self.cluster = None
         try:
             if address == "local":
-                self.cluster = LocalCluster(n_workers=workers or _cpu_count(), processes=True, threads_per_worker=1,
+                self.cluster = LocalCluster(n_workers=workers or usable_cpus(), processes=True, threads_per_worker=1,
                                             dashboard_address=None, silence_logs=logging.ERROR)
                 self.client = Client(self.cluster)
             else:
@@ -613,7 +613,7 @@ class DaskExecutor:
                     pass
 
 
-def _cpu_count() -> int:
+def usable_cpus() -> int:
     try:
         return len(os.sched_getaffinity(0))
     except AttributeError:

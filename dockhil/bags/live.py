@@ -1,7 +1,7 @@
 """Bags and a running graph: the recorder (the logger) and `bag play`.
 
 Recorder. Subscribes to topics of a running graph and writes each message's
-wire bytes as they came (no re-encoding) to an MCAP bag (`dockhil.bag`).
+wire bytes as they came (no re-encoding) to an MCAP bag (`dockhil.bags`).
 The log time of a message is its receive time in wall time; in sim time it is
 the message's header stamp, so a sim-time bag carries sim times and the same
 run recorded twice gives the same bag. It runs in three ways:
@@ -418,7 +418,7 @@ RECORDER_LOST_EXIT = 4  # the recorder process: it ran, but messages are missing
 def _recorder_main(argv: list[str]) -> int:
     """The launcher's helper process: find the graph, subscribe, say ready, record."""
     from dockhil.runtime.executor import Stop
-    from dockhil.runtime.process import READY, _die_with_parent
+    from dockhil.runtime.process import READY, die_with_parent
 
     p = argparse.ArgumentParser(prog="python -m dockhil.bags.live record")
     p.add_argument("path")
@@ -427,7 +427,7 @@ def _recorder_main(argv: list[str]) -> int:
     p.add_argument("--topics", nargs="+")
     p.add_argument("--overwrite", action="store_true")
     args = p.parse_args(argv)
-    _die_with_parent()
+    die_with_parent()
     stop = Stop()
     stop.install()
     setup_child()  # its records go to the launcher, which logs them

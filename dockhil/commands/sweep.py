@@ -76,7 +76,7 @@ def run(args) -> int:
     if args.dask:
         executor = sweep.DaskExecutor(args.dask, args.workers)
     else:
-        executor = sweep.LocalPool(args.workers or sweep._cpu_count())
+        executor = sweep.LocalPool(args.workers or sweep.usable_cpus())
     try:
         out = sweep.sweep(campaign, args.out, executor, progress=not args.quiet)
     except KeyboardInterrupt:

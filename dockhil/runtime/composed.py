@@ -17,7 +17,7 @@ from typing import Any, Callable
 import msgspec
 
 from dockhil.errors import NODE_RAISES, DockhilError, failure_line
-from dockhil.runtime.executor import (LoopTiming, Stop, _bounds_check, _sleep_until, check_outputs,
+from dockhil.runtime.executor import (LoopTiming, Stop, bounds_check, sleep_until, check_outputs,
                                       checked_payload)
 from dockhil.scene.graph import Graph
 from dockhil.log import node_line
@@ -135,7 +135,7 @@ class ComposedGraph:
                 over = clock() - (t0 + k * dt)
                 if over > 0:
                     timing.missed(over if k > 1 else 0.0)  # the first tick has no schedule to keep
-                _sleep_until(t0 + k * dt, clock)
+                sleep_until(t0 + k * dt, clock)
         if wall:
             timing.ticks, timing.elapsed = k, clock() - t0
         return k
@@ -176,7 +176,7 @@ def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, coll
             hist = next((h for p, _, h in outs_map if p == port), None)
             topic = next((t for p, t, _ in outs_map if p == port), out.topic)
             v = f"{i}_{j}"
-            scope[f"type{v}"], scope[f"screen{v}"] = out.type, _bounds_check(out.type)
+            scope[f"type{v}"], scope[f"screen{v}"] = out.type, bounds_check(out.type)
             header = "" if wall else " or m.header.tick != k"
             lines += [f"    m = o.get({port!r})",
                       "    if m is not None:",

@@ -109,7 +109,7 @@ def check_message(name: str, port: str, topic: str, k: int, msg) -> None:
     """What checked_payload checks, for a message that is not sent (composed runs): the numbers'
     screen first (several times faster than encoding and decoding; the message is handed on as
     the object it is); on a failure, the same check and line as a node process gives."""
-    if not _bounds_check(type(msg))(msg):
+    if not bounds_check(type(msg))(msg):
         checked_payload(name, port, topic, k, msg)
 
 
@@ -121,7 +121,7 @@ class _Unscreened(Exception):
     """A number the screen does not judge (multiple_of): every message of that type gets the full check."""
 
 
-def _bounds_check(cls: type):
+def bounds_check(cls: type):
     """A function true when a message of type `cls` holds what its decoding would accept: every
     number finite and within its type's bounds, and every value of its field's own type (a float,
     a str, a bool, an int, the declared struct, a tuple), as a node process's encoding and decoding
@@ -144,7 +144,7 @@ def _bounds_check(cls: type):
 
 
 def python_screen(cls: type):
-    """`_bounds_check`'s screen of `cls` as a generated Python function (the compiled one's twin)."""
+    """`bounds_check`'s screen of `cls` as a generated Python function (the compiled one's twin)."""
     try:
         return _python_screen(cls.__name__, _screen_spec(cls))
     except _Unscreened:
@@ -530,7 +530,7 @@ class NodeExecutor:
                     if late > period:  # fell far behind: skip, do not burst to catch up
                         next_t = clock() + period
                 else:
-                    _sleep_until(next_t, clock)
+                    sleep_until(next_t, clock)
         finally:
             timing.ticks = k
             timing.elapsed = clock() - t0
@@ -636,7 +636,7 @@ def percentile(ordered: list[float], p: float) -> float:
 SPIN_S = float(os.environ.get("DOCKHIL_SPIN_S", "0.0002"))
 
 
-def _sleep_until(deadline: float, clock=time.monotonic) -> None:
+def sleep_until(deadline: float, clock=time.monotonic) -> None:
     # Sleep most of the way, then spin the last SPIN_S: time.sleep alone overshoots by ~60-150 us,
     # but every microsecond spun is CPU the other nodes on the machine do not get.
     if clock is not time.monotonic:  # a test's clock: its time moves when the test says, never by waiting

@@ -23,7 +23,7 @@ import msgspec
 READY = "\x1edockhil-ready"  # a line the launcher intercepts
 
 
-def _die_with_parent() -> None:
+def die_with_parent() -> None:
     # If the launcher is killed outright, the kernel sends us SIGTERM: no orphans.
     try:
         libc = ctypes.CDLL("libc.so.6", use_errno=True)
@@ -129,7 +129,7 @@ def main() -> int:
     from dockhil import log
     from dockhil.runtime.executor import RunSpec
 
-    _die_with_parent()
+    die_with_parent()
     log.setup_child()
     say = log.Log("[dockhil.process]")
     args = sys.argv[1:]
