@@ -110,7 +110,8 @@ class NodeHarness:
         subscribers = {ref.topic: [ref] for ref in target.inputs.values()}
         # Only graph.scene.dt is read: a namespace keeps dt exactly as given (1/(1/dt) need not be dt).
         scene = SimpleNamespace(path=f"<NodeHarness {self.name}>", dt=dt)
-        graph = Graph(scene, {FEEDER: feeder, self.name: target}, [FEEDER, self.name], publishers, subscribers)
+        graph = Graph(scene, {FEEDER: feeder, self.name: target}, [FEEDER, self.name],  # type: ignore[arg-type]
+                      publishers, subscribers)
         # The node's clock (NodeContext.clock: watchdogs, speed checks) is the tick time: it moves only
         # when the test steps, so a verdict does not depend on how fast the machine runs the test.
         self.clock = ManualClock()

@@ -21,7 +21,7 @@ from dockhil import cli
 from dockhil.bags.format import BagError
 from dockhil.bags.reader import BagReader
 from dockhil.bags.writer import BagWriter
-from dockhil.bags.tools import export_csv, flatten, info
+from dockhil.bags.tools import flatten, info
 from dockhil.msgs import (
     BodyState,
     Header,
@@ -515,7 +515,8 @@ def test_export_never_replaces_its_own_bag_nor_an_existing_file_unasked(tmp_path
 
 def test_record_and_play_parse_their_options():
     parser = cli.build_parser("bag")
-    args = parser.parse_args(["bag", "play", "run.mcap", "--rate", "10", "--loop", "--topics", "/a", "/b", "--start", "2.5", "--sim-time"])
+    args = parser.parse_args(["bag", "play", "run.mcap", "--rate", "10", "--loop", "--topics", "/a", "/b", "--start", "2.5",
+                              "--sim-time"])
     assert (args.bag_command, args.path, args.rate, args.loop, args.topics, args.start, args.sim_time) == (
         "play", "run.mcap", 10.0, True, ["/a", "/b"], 2.5, True
     )

@@ -39,7 +39,7 @@ def simulate_delay_equation(m, kd, bd, kh, h, t_end, dt=1e-3):
         return p[i] * (1 - f) + p[min(i + 1, n)] * f
 
     for i in range(n):
-        def acc(x, xd, s):
+        def acc(x, xd, s, i=i):
             return -(kd * x + bd * xd + kh * past(i + s - n_delay)) / m
         k1x, k1v = v[i], acc(p[i], v[i], 0.0)
         k2x, k2v = v[i] + 0.5 * dt * k1v, acc(p[i] + 0.5 * dt * k1x, v[i] + 0.5 * dt * k1v, 0.5)

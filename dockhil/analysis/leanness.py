@@ -176,7 +176,8 @@ def _measure_once(type_name: str, spec: dict | None, timeout: float) -> dict:
     return {"node": type_name, "setup": f"measurement failed: {tail}", "startup_s": wall}
 
 
-RUNTIME = "module:dockhil.msgs,dockhil.node,dockhil.runtime.executor,dockhil.runtime.transport,dockhil.runtime.process,dockhil.nodes"
+RUNTIME = ("module:dockhil.msgs,dockhil.node,dockhil.runtime.executor,dockhil.runtime.transport,"
+           "dockhil.runtime.process,dockhil.nodes")
 BASELINES = {
     "module:json": "python, nothing of dockhil",
     RUNTIME: "node process runtime (transport, executor)",

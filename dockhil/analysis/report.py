@@ -332,7 +332,8 @@ def render_markdown(report: dict, plots: dict[str, str]) -> str:
     ref = report["reference"]
     out.append("Ideal contact: Table 1 (m1 = 750 kg, m2 = 1e6 kg, kcs = 3000 N/m, bcs = 40 N s/m, v1 = 0.03 m/s); "
                "ideal_stiff: the same with kcs = 3e6 N/m (63 rad/s, contact 50 ms), where explicit methods reach"
-               f" their stability limits; reference {ref['ideal']}. Hybrid loop: Table 1 with k = 1000 N/m and a 32 ms robot delay, reference "
+               f" their stability limits; reference {ref['ideal']}. Hybrid loop: Table 1 with k = 1000 N/m and a 32 ms "
+               f"robot delay, reference "
                f"{ref['hybrid_delay']}; {ref['hybrid_delay_check']}. Errors are the largest force error on the "
                f"{1 / ref['error_grid_s']:g} Hz grid ({ref['force_compared']}). Fixed-step runs of the hybrid loop are "
                "`simulate_hil`, the arithmetic every node of hil.yaml does; a step that does not divide 32 ms "

@@ -11,7 +11,8 @@ from dockhil.errors import DockhilError
 
 def add_arguments(p) -> None:
     p.add_argument("--out", default="figures", metavar="DIR", help="folder for the PNGs and figures.json (default: figures)")
-    p.add_argument("--delay", type=float, default=0.032, metavar="S", help="robot delay for Figs. 9-10 and the 6-DOF docking [s] (default 0.032)")
+    p.add_argument("--delay", type=float, default=0.032, metavar="S",
+                   help="robot delay for Figs. 9-10 and the 6-DOF docking [s] (default 0.032)")
 
 
 def run(args) -> int:

@@ -101,7 +101,7 @@ def _plot_topics(ax, path, topics, label) -> None:
 
     with BagReader(path) as bag:
         series: dict[str, tuple[list, list]] = {}
-        for topic, t_ns, msg in bag.decoded(topics):
+        for topic, _t_ns, msg in bag.decoded(topics):
             for name, value in flatten(msg).items():
                 if isinstance(value, float) and not name.startswith("header."):
                     xs, ys = series.setdefault(f"{topic} {name}", ([], []))
