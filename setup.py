@@ -1,5 +1,5 @@
 """The compiled per-tick arithmetic of dockhil.contact.rigid (dockhil/contact/_rigid.c) and message
-screen (dockhil/_screen.c); the rest is in pyproject.toml.
+screen (dockhil/runtime/_screen.c); the rest is in pyproject.toml.
 
 Optional: where they do not build (no C compiler), dockhil runs their Python twins, which give the
 same answers, more slowly."""
@@ -12,6 +12,6 @@ FLAGS = ["-O2", "-ffp-contract=off", "-fno-builtin", "-fno-fast-math"]
 
 setup(ext_modules=[
     Extension("dockhil.contact._rigid", ["dockhil/contact/_rigid.c"], extra_compile_args=FLAGS, optional=True),
-    # A composed run's message screen (dockhil/_screen.c; executor._bounds_check is its twin).
-    Extension("dockhil._screen", ["dockhil/_screen.c"], extra_compile_args=FLAGS, optional=True),
+    # A composed run's message screen (dockhil/runtime/_screen.c; executor.bounds_check is its twin).
+    Extension("dockhil.runtime._screen", ["dockhil/runtime/_screen.c"], extra_compile_args=FLAGS, optional=True),
 ])

@@ -40,7 +40,8 @@ def dockhil(*args: str) -> list[str]:
 
 
 def record_graph(tmp: str, seconds: float) -> dict:
-    from dockhil.bag import BagReader, info
+    from dockhil.bags.reader import BagReader
+    from dockhil.bags.tools import info
 
     path = os.path.join(tmp, "hil.mcap")
     r = subprocess.run(dockhil("launch", "launch/hil.yaml", "--wall-time", "--duration", str(seconds), "--bag", path),
@@ -72,7 +73,8 @@ def record_graph(tmp: str, seconds: float) -> dict:
 def play_bag(tmp: str, seconds: float, rate: float) -> dict:
     from bag_write import graph_messages
 
-    from dockhil.bag import BagWriter, info
+    from dockhil.bags.writer import BagWriter
+    from dockhil.bags.tools import info
 
     path = os.path.join(tmp, "long.mcap")
     messages, topics = graph_messages(seconds)

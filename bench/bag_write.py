@@ -30,7 +30,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from dockhil.bag import BagReader, BagWriter  # noqa: E402
+from dockhil.bags.reader import BagReader
+from dockhil.bags.writer import BagWriter# noqa: E402
 from dockhil.msgs import (  # noqa: E402
     BodyState,
     Header,

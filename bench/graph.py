@@ -77,9 +77,9 @@ def hardware_container(folder: str) -> str:
 
 
 def composed(n_ticks: int, cpu: list[float], scene: str = HIL) -> float:
-    from dockhil import launchfile
-    from dockhil.composed import ComposedGraph
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene.graph import build
 
     g = ComposedGraph(build(launchfile.load(scene)), log=lambda n, m: None)
     g.setup()

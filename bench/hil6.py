@@ -27,9 +27,9 @@ HIL6 = os.path.join(ROOT, "launch", "hil6.yaml")
 
 def composed(n_ticks: int, per_node: bool = False, order: int | None = None) -> tuple[float, float, dict]:
     """(wall [s], CPU [s], CPU per node [us/tick]) of one composed run of n_ticks; order None: the scene's."""
-    from dockhil import launchfile
-    from dockhil.composed import ComposedGraph
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene.graph import build
 
     args = {} if order is None else {"order": str(order)}
     g = ComposedGraph(build(launchfile.load(HIL6, args)), log=lambda n, m: None)
@@ -57,9 +57,9 @@ def runtime_only(n_ticks: int) -> float:
     the runner (inputs, output checks, histories) and the headers, not the nodes' arithmetic."""
     import msgspec
 
-    from dockhil import launchfile
-    from dockhil.composed import ComposedGraph
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene.graph import build
 
     g = ComposedGraph(build(launchfile.load(HIL6)), log=lambda n, m: None)
     g.setup()

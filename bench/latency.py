@@ -28,7 +28,7 @@ def _keys(kind: str, endpoint: str):
         return None
     from pathlib import Path
 
-    from dockhil.transport import GraphKeys
+    from dockhil.runtime.transport import GraphKeys
 
     path = Path(endpoint[len("ipc://"):] + ".keys")
     if not path.exists():
@@ -44,7 +44,7 @@ def sender(kind: str, endpoint: str, n: int, period: float) -> None:
 
     ctx = zmq.Context.instance()
     if kind in ("runtime", "plain"):
-        from dockhil.transport import Publisher
+        from dockhil.runtime.transport import Publisher
 
         pub = Publisher(ctx, "/ft/wrench", endpoint, keys=_keys(kind, endpoint))
         pub.wait_subscribers(1, 10)
@@ -75,7 +75,7 @@ def receiver(kind: str, endpoint: str, n: int) -> list[float]:
     out = []
     if kind in ("runtime", "plain"):
         from dockhil import msgs
-        from dockhil.transport import Subscriber
+        from dockhil.runtime.transport import Subscriber
         from dockhil.msgs.codec import decode
 
         sub = Subscriber(ctx)

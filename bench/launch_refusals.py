@@ -53,8 +53,8 @@ def refuse(text: str, folder: str) -> dict:
 
 
 def hil_load_ms(repeats: int = 50) -> float:
-    from dockhil import launchfile
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
 
     path = os.path.join(ROOT, "launch", "hil.yaml")
     build(launchfile.load(path))  # imports done once

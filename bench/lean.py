@@ -1,5 +1,5 @@
 """Per node type: start-up time, peak resident memory and heavy packages loaded,
-each measured in a fresh interpreter (see dockhil/leanness.py). Prints one JSON
+each measured in a fresh interpreter (see dockhil/analysis/leanness.py). Prints one JSON
 object as its last line."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3, help="runs per node type; the fastest is reported")
     args = ap.parse_args()
-    from dockhil import leanness
+    from dockhil.analysis import leanness
 
     rows = leanness.measure_all(repeats=args.repeat)
     out = {

@@ -79,7 +79,7 @@ class Viewer(threading.Thread):
 def forward(ticks: int) -> dict:
     import msgspec
 
-    from dockhil.foxglove_bridge import FoxgloveBridge
+    from dockhil.bags.foxglove import FoxgloveBridge
     from dockhil.msgs import BodyState, Header, SatelliteState, Vector3, Wrench, WrenchStamped
 
     port = free_port()

@@ -59,9 +59,9 @@ def rebuilder(cls: type):
 
 def messages_of(scene: str, n_ticks: int, args: dict | None = None) -> list[list]:
     """Every message a composed run of `scene` publishes, per tick."""
-    from dockhil import launchfile
-    from dockhil.composed import ComposedGraph
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene.graph import build
 
     ticks: list[list] = [[] for _ in range(n_ticks)]
     g = ComposedGraph(build(launchfile.load(scene, args or {})), log=lambda n, m: None,
@@ -74,9 +74,9 @@ def messages_of(scene: str, n_ticks: int, args: dict | None = None) -> list[list
 
 def cost_us_per_tick(ticks: list[list], repeat: int = 5) -> dict[str, float]:
     """Median CPU [us] per tick of screening the tick's messages, and of building them."""
-    from dockhil.executor import _bounds_check
+    from dockhil.runtime.executor import bounds_check
 
-    screens = {t: _bounds_check(t) for t in {type(m) for msgs in ticks for m in msgs}}
+    screens = {t: bounds_check(t) for t in {type(m) for msgs in ticks for m in msgs}}
     builds = {t: rebuilder(t) for t in screens}
     checks = [(screens[type(m)], m) for msgs in ticks for m in msgs]
     makes = [(builds[type(m)], m) for msgs in ticks for m in msgs]

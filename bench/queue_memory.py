@@ -41,7 +41,7 @@ def main() -> None:
     sys.path.insert(0, ROOT)
     import zmq
 
-    from dockhil.transport import HWM, Publisher
+    from dockhil.runtime.transport import HWM, Publisher
 
     with tempfile.TemporaryDirectory() as tmp:
         endpoint = f"ipc://{tmp}/q"

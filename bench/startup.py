@@ -67,8 +67,8 @@ def node_spec(type_name: str, folder: str, key_file: str) -> str:
     import msgspec
 
     from dockhil import msgs, nodes
-    from dockhil.executor import PortWire, RunSpec
-    from dockhil.transport import ipc_endpoint
+    from dockhil.runtime.executor import PortWire, RunSpec
+    from dockhil.runtime.transport import ipc_endpoint
 
     cls = nodes.load(type_name)
     params = cls.resolve_params(type_name, {})
@@ -81,7 +81,7 @@ def node_spec(type_name: str, folder: str, key_file: str) -> str:
 
 
 def node_processes(repeat: int) -> dict:
-    from dockhil.transport import GraphKeys
+    from dockhil.runtime.transport import GraphKeys
 
     out = {}
     with tempfile.TemporaryDirectory(prefix="dockhil-startup-") as folder:

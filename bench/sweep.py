@@ -25,7 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from dockhil import sweep  # noqa: E402
+from dockhil.analysis import sweep# noqa: E402
 
 
 def campaign_file(folder: str, runs: int, duration: float) -> str:
@@ -55,7 +55,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=200)
     ap.add_argument("--duration", type=float, default=1.0, help="simulated seconds per run")
     args = ap.parse_args()
-    out: dict = {"runs": args.runs, "duration_s": args.duration, "cpus": sweep._cpu_count(),
+    out: dict = {"runs": args.runs, "duration_s": args.duration, "cpus": sweep.usable_cpus(),
                  "loadavg_1min": round(os.getloadavg()[0], 2)}
     with tempfile.TemporaryDirectory(prefix="dockhil-bench-sweep-") as folder:
         campaign = sweep.load_campaign(campaign_file(folder, args.runs, args.duration))

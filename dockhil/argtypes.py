@@ -6,7 +6,7 @@ import argparse
 import math
 import re
 
-from dockhil.launchschema import MAX_DURATION, MAX_RATE, MIN_RATE, NODE_NAME
+from dockhil.scene.schema import MAX_DURATION, MAX_RATE, MIN_RATE, NODE_NAME
 
 
 def _number(text: str) -> float:

@@ -10,7 +10,7 @@ before anything runs.
 A run (docs/summary.md, "A run that leaves the physical range"): its largest force, its bodies'
 positions and speeds, and the kinetic energy the loop gave them, each against the scene's own
 scale (its ideal contact, thrust and force limits, its start). A run beyond any of them exploded
-or means nothing, whatever else it says: it is INVALID (dockhil.summary.range_reasons)."""
+or means nothing, whatever else it says: it is INVALID (dockhil.analysis.summary.range_reasons)."""
 
 import math
 
@@ -27,7 +27,7 @@ DISTANCE = (0.0, 1e3)  # [m] an initial position, an interface or sensor offset
 TIME = (0.0, 60.0)  # [s] a robot's delay, jitter or servo time constant
 FRICTION = (0.0, 10.0)  # [1] a Coulomb friction coefficient
 
-# A run leaves the physical range when (each against the scene's own scale, dockhil.summary):
+# A run leaves the physical range when (each against the scene's own scale, dockhil.analysis.summary):
 RUN_FORCE_FACTOR = 100.0  # |F| > 100 x (ideal peak, thrust, a driver's max_force)
 RUN_ENERGY_FACTOR = 100.0  # the bodies' kinetic energy > 100 x (entry energy + thrust's share)
 RUN_FORCE = 1e7  # [N] or, with no scale to judge by, |F| beyond what any docking hardware bears

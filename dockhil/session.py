@@ -5,7 +5,7 @@ A sim-time run of a scene with satellite dynamics ends with its summary
 the scene has one). In a multi-process run the summary is read back from
 the run's bag: the one asked for with --bag, or a temporary one.
 
-Exit 0 means the result is valid (dockhil/validity.py): a wall-time run
+Exit 0 means the result is valid (dockhil/runtime/validity.py): a wall-time run
 that fell behind, or any run that lost messages, says INVALID in one line,
 carries "valid": false and its reasons in the summary, and exits with
 INVALID_EXIT (3).
@@ -20,18 +20,18 @@ import os
 import tempfile
 import time
 
-from dockhil import validity
+from dockhil.runtime import validity
 from dockhil.log import Log
 from dockhil.errors import DockhilError
 from dockhil.files import remove_quietly, complete_or_nothing, os_reason
-from dockhil.graph import Graph
+from dockhil.scene.graph import Graph
 
 
 def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None, composed: bool = False,
               transport: str = "ipc", bag: str | None = None, summary: str | None = None,
               progress: bool = False, show_summary: bool = True, realtime: bool = False,
               foxglove: tuple[str, int] | None = None) -> int:
-    """foxglove: (host, port) to serve a live view of the run on (dockhil.foxglove_bridge)."""
+    """foxglove: (host, port) to serve a live view of the run on (dockhil.bags.foxglove)."""
     say = Log("[launch]")
 
     dt = graph.scene.dt
@@ -44,10 +44,10 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
     if summary is not None:
         _check_writable(summary, bag)
     if bag is not None:
-        from dockhil.bag_live import check_bag_path
+        from dockhil.bags.live import check_bag_path
 
         check_bag_path(bag)
-    from dockhil.scenecheck import scene_check
+    from dockhil.analysis.scenecheck import scene_check
 
     # A run's validity is in its summary too (it left the physical range, a compensation saturated):
     # a run with dynamics always has one, printed or not.
@@ -57,32 +57,32 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
         say.warning(line)
     collector = None
     if want_summary:  # numpy and the models: only for a run that has a summary
-        from dockhil import summary as summ
+        from dockhil.analysis import summary as summ
 
         collector = summ.SummaryCollector(graph)
     tmp = None
     bridge = None
     if foxglove is not None:  # before any node starts: a busy port is refused here
-        from dockhil.foxglove_bridge import start
+        from dockhil.bags.foxglove import start
 
         bridge = start(graph, clock=clock, host=foxglove[0], port=foxglove[1])
     started = time.perf_counter()
     reasons: list[str] = []
     if composed:
-        from dockhil.launcher import check_composable
+        from dockhil.runtime.launcher import check_composable
 
         check_composable(graph)
         code = _run_composed(graph, clock, n_ticks, progress, bag, collector, reasons, bridge)
     else:
-        from dockhil.launcher import Launcher
-        from dockhil.transport import GraphKeys
+        from dockhil.runtime.launcher import Launcher
+        from dockhil.runtime.transport import GraphKeys
 
         if bag is None and want_summary:
             tmp = tempfile.TemporaryDirectory(prefix="dockhil-summary-")
             bag = os.path.join(tmp.name, "run.mcap")
         extra = []
         if bag is not None:  # the recorder runs in a process of its own
-            from dockhil import bag_live
+            from dockhil.bags import live as bag_live
 
             extra.append(bag_live.recorder_process(bag, graph, clock, n_ticks))
         launcher = Launcher(graph, clock=clock, duration=duration, transport=transport, extra=extra,
@@ -167,8 +167,8 @@ def _check_writable(path: str, bag: str | None) -> None:
 
 def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool, bag: str | None,
                   collector, reasons: list[str], bridge=None) -> int:
-    from dockhil.composed import ComposedGraph
-    from dockhil.executor import Stop
+    from dockhil.runtime.composed import ComposedGraph
+    from dockhil.runtime.executor import Stop
     from dockhil.progress import Progress
 
     stop = Stop()
@@ -176,7 +176,7 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
     g = ComposedGraph(graph, sim_time=clock == "sim")
     recorder = None
     if bag is not None:
-        from dockhil.bag_live import TapRecorder
+        from dockhil.bags.live import TapRecorder
 
         recorder = TapRecorder(bag, graph, sim=clock == "sim")
         g.taps.append(recorder)

@@ -2,7 +2,7 @@
 
 No processes, no sockets, no wall clock: the node runs in a one-node graph
 whose inputs come from the test, scheduled exactly as in a launched graph
-(dockhil.composed), so the node sees what it would see there. Drake's
+(dockhil.runtime.composed), so the node sees what it would see there. Drake's
 FixInputPort + CalcOutput and dora's MockNode are the models.
 
     from dockhil.testing import NodeHarness, wrench
@@ -37,10 +37,10 @@ from typing import Any, Callable
 
 import msgspec
 
-from dockhil.composed import ComposedGraph
+from dockhil.runtime.composed import ComposedGraph
 from dockhil.errors import DockhilError
-from dockhil.executor import check_outputs
-from dockhil.graph import Graph, GraphNode, PortRef
+from dockhil.runtime.executor import check_outputs
+from dockhil.scene.graph import Graph, GraphNode, PortRef
 from dockhil.node import ManualClock, Node, Output, Tick
 from dockhil.msgs import (BodyState, BodyWrenches, EStop, Header, Pose, RobotCommand, RobotState, SatelliteState, Twist,
                   Vector3, Wrench, WrenchStamped)
@@ -110,7 +110,8 @@ class NodeHarness:
         subscribers = {ref.topic: [ref] for ref in target.inputs.values()}
         # Only graph.scene.dt is read: a namespace keeps dt exactly as given (1/(1/dt) need not be dt).
         scene = SimpleNamespace(path=f"<NodeHarness {self.name}>", dt=dt)
-        graph = Graph(scene, {FEEDER: feeder, self.name: target}, [FEEDER, self.name], publishers, subscribers)
+        graph = Graph(scene, {FEEDER: feeder, self.name: target}, [FEEDER, self.name],  # type: ignore[arg-type]
+                      publishers, subscribers)
         # The node's clock (NodeContext.clock: watchdogs, speed checks) is the tick time: it moves only
         # when the test steps, so a verdict does not depend on how fast the machine runs the test.
         self.clock = ManualClock()

@@ -32,7 +32,7 @@ def pytest_configure(config):
     if not hasattr(config, "workerinput"):
         import compileall
 
-        for folder in ("dockhil", "msgs", "nodes", "tests"):
+        for folder in ("dockhil", "tests"):
             compileall.compile_dir(str(ROOT / folder), quiet=1)
 
 

@@ -18,7 +18,10 @@ import msgspec
 import pytest
 
 from dockhil import cli
-from dockhil.bag import BagError, BagReader, BagWriter, export_csv, flatten, info
+from dockhil.bags.format import BagError
+from dockhil.bags.reader import BagReader
+from dockhil.bags.writer import BagWriter
+from dockhil.bags.tools import flatten, info
 from dockhil.msgs import (
     BodyState,
     Header,
@@ -250,7 +253,7 @@ class Tree(msgspec.Struct):
 def test_every_message_type_has_a_self_contained_schema_its_messages_meet():
     import jsonschema
 
-    from dockhil.bag import channel_schema
+    from dockhil.bags.writer import channel_schema
     from dockhil.msgs import TYPES
 
     for name, cls in TYPES.items():
@@ -276,7 +279,7 @@ def test_every_message_type_has_a_self_contained_schema_its_messages_meet():
 _KILLED_WRITER = textwrap.dedent(
     """
     import sys
-    from dockhil.bag import BagWriter
+    from dockhil.bags.writer import BagWriter
     from dockhil.msgs import Header, WrenchStamped
     from dockhil.msgs.codec import encode
 
@@ -512,7 +515,8 @@ def test_export_never_replaces_its_own_bag_nor_an_existing_file_unasked(tmp_path
 
 def test_record_and_play_parse_their_options():
     parser = cli.build_parser("bag")
-    args = parser.parse_args(["bag", "play", "run.mcap", "--rate", "10", "--loop", "--topics", "/a", "/b", "--start", "2.5", "--sim-time"])
+    args = parser.parse_args(["bag", "play", "run.mcap", "--rate", "10", "--loop", "--topics", "/a", "/b", "--start", "2.5",
+                              "--sim-time"])
     assert (args.bag_command, args.path, args.rate, args.loop, args.topics, args.start, args.sim_time) == (
         "play", "run.mcap", 10.0, True, ["/a", "/b"], 2.5, True
     )

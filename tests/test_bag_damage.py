@@ -18,7 +18,10 @@ from pathlib import Path
 import pytest
 
 from dockhil import cli
-from dockhil.bag import BagReader, BagWriter, format_size, info
+from dockhil.bags.reader import BagReader
+from dockhil.bags.writer import BagWriter
+from dockhil.bags.format import format_size
+from dockhil.bags.tools import info
 from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped
 from dockhil.msgs.codec import encode
 
@@ -287,7 +290,7 @@ def test_export_of_a_deeply_nested_message_is_one_line(tmp_path, capsys):
     assert rows[1][".".join(["a"] * 500)] == "1"
 
     # Reading it typed gives one line too.
-    from dockhil.bag import BagError
+    from dockhil.bags.format import BagError
 
     with BagReader(path) as reader, pytest.raises(BagError) as caught:
         list(reader.decoded())

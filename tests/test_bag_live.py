@@ -13,7 +13,9 @@ from pathlib import Path
 import pytest
 
 from dockhil import cli
-from dockhil.bag import BagReader, BagWriter, info
+from dockhil.bags.reader import BagReader
+from dockhil.bags.writer import BagWriter
+from dockhil.bags.tools import info
 from dockhil.errors import DockhilError
 from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped, type_name
 from dockhil.msgs.codec import encode

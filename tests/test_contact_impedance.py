@@ -177,7 +177,8 @@ def test_recommended_times_in_fit_result():
     fit = fit_impedance(TABLE1)
     assert fit.t1 == pytest.approx(fit.contact_duration / 4)
     assert fit.t2 == pytest.approx(3 * fit.contact_duration / 4)
-    assert fit.contact_duration == pytest.approx(math.pi / math.sqrt(3000 / TABLE1.reduced_mass - (40 / (2 * TABLE1.reduced_mass)) ** 2))
+    m = TABLE1.reduced_mass
+    assert fit.contact_duration == pytest.approx(math.pi / math.sqrt(3000 / m - (40 / (2 * m)) ** 2))
 
 
 from hypothesis import given, settings  # noqa: E402

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from dockhil.bag import BagReader
+from dockhil.bags.reader import BagReader
 from tests.conftest import dockhil_cmd
 from tests.inprocess import completed
 

@@ -89,7 +89,7 @@ def test_the_docs_have_runnable_examples():
 @pytest.mark.parametrize("page", [p for p in PAGES if commands(p.read_text())], ids=lambda p: str(p.relative_to(ROOT)))
 def test_every_console_example_runs(page, tmp_path, monkeypatch):
     (tmp_path / "launch").symlink_to(ROOT / "launch")
-    for lang, attrs, body in blocks(page.read_text()):
+    for _lang, attrs, body in blocks(page.read_text()):
         if "file" in attrs:
             (tmp_path / attrs["file"]).write_text(body)
     # Each command runs through the `dockhil` entry point's main() in this process, from the scratch

@@ -7,11 +7,11 @@ import subprocess
 
 import pytest
 
-from dockhil import graph as graphmod
-from dockhil import launchfile
-from dockhil.composed import ComposedGraph
+from dockhil.scene import graph as graphmod
+from dockhil.scene import launchfile
+from dockhil.runtime.composed import ComposedGraph
 from dockhil.msgs.codec import encode
-from dockhil.summary import SummaryCollector
+from dockhil.analysis.summary import SummaryCollector
 from dockhil.testing import NodeHarness
 from tests.conftest import ROOT, dockhil_cmd
 from tests.inprocess import run_main
@@ -208,7 +208,7 @@ def test_a_container_runs_the_dof_6_nodes(tmp_path):
     r = subprocess.run(dockhil_cmd("launch", scene, "--duration", "0.05", "--bag", bag, "--quiet"),
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
-    from dockhil.bag import BagReader
+    from dockhil.bags.reader import BagReader
 
     with BagReader(str(bag)) as reader:
         got = sorted((m.topic, m.data) for m in reader)

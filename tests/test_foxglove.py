@@ -35,8 +35,8 @@ DEADLINE_S = 60.0  # generous: the machine may be busy; every wait ends on its c
 def scene_topics() -> dict[str, str]:
     """topic -> message type name of the scene, from the launch file (not from the bridge)."""
     from dockhil import msgs
-    from dockhil import launchfile
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
 
     graph = build(launchfile.load(SCENE, {}))
     return {topic: msgs.type_name(ref.type) for topic, ref in graph.publishers.items()}
@@ -166,7 +166,7 @@ def test_a_watched_run_gives_the_same_bag_and_summary_as_an_unwatched_one(tmp_pa
     slows nothing. Same bag bit for bit, same summary. The unwatched run is composed (one process,
     a quarter of the CPU time): a multi-process run gives a composed run's bytes (test_hil_graph.py
     holds that), so the watched multi-process run must give them too."""
-    from dockhil.bag import BagReader
+    from dockhil.bags.reader import BagReader
 
     args = ["--duration", "1.5"]
     plain = subprocess.run(dockhil_cmd("launch", SCENE, "--quiet", *args, "--composed", "--bag", tmp_path / "plain.mcap",
@@ -228,8 +228,8 @@ def test_the_bridge_joins_a_publisher_as_an_observer_and_serves_what_it_sends():
     import zmq
 
     from dockhil.errors import DockhilError
-    from dockhil.foxglove_bridge import FoxgloveBridge
-    from dockhil.transport import GraphKeys, Publisher, ipc_endpoint, new_run_dir
+    from dockhil.bags.foxglove import FoxgloveBridge
+    from dockhil.runtime.transport import GraphKeys, Publisher, ipc_endpoint, new_run_dir
 
     keys = GraphKeys.make()
     endpoint = ipc_endpoint(new_run_dir("fox"), "/ft/wrench")
@@ -273,7 +273,7 @@ def test_the_bridge_joins_a_publisher_as_an_observer_and_serves_what_it_sends():
 
 
 def test_a_bridge_that_falls_behind_drops_the_oldest_and_counts_them():
-    from dockhil.foxglove_bridge import FoxgloveBridge
+    from dockhil.bags.foxglove import FoxgloveBridge
 
     lines = []
     port = free_port()
@@ -331,7 +331,7 @@ def test_bad_live_view_options_get_one_line(args, says):
 
 
 def test_a_launch_without_the_live_view_does_not_import_foxglove():
-    code = ("import sys; from dockhil.commands import launch; from dockhil import session, launcher, composed; "
+    code = ("import sys; from dockhil.commands import launch; from dockhil import session; from dockhil.runtime import launcher, composed; "
             "print('foxglove' in sys.modules)")
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=DEADLINE_S)
     assert r.stdout.strip() == "False", r.stderr
@@ -353,7 +353,7 @@ def test_the_shipped_layout_plots_numbers_the_scene_publishes():
     """docs/foxglove-layout.json is a Foxglove layout (configById, layout tree, globalVariables,
     userNodes) whose every plotted message path is a number field of a topic of launch/hil.yaml."""
     from dockhil import msgs
-    from dockhil.bag import channel_schema
+    from dockhil.bags.writer import channel_schema
 
     layout = json.loads((ROOT / "docs" / "foxglove-layout.json").read_text())
     assert {"configById", "layout", "globalVariables", "userNodes"} <= set(layout)

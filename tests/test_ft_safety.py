@@ -16,7 +16,7 @@ import pytest
 
 from tests.conftest import ROOT, VirtualFtSensor, node_process_error
 
-from dockhil import ownership
+from dockhil.runtime import ownership
 from dockhil.errors import DeviceError, ParamError
 from dockhil.hardware import tare
 from dockhil.hardware.device_path import private_link, untrusted

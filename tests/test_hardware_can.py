@@ -374,7 +374,7 @@ def test_node_process_exits_non_zero_with_one_line_when_the_sensor_is_missing(tm
 
 
 def test_modules_do_not_import_python_can_until_setup():
-    code = ("import sys, nodes.ft_can, nodes.ft_emulator, dockhil.hardware.slcan_pty; "
+    code = ("import sys, dockhil.nodes.ft_can, dockhil.nodes.ft_emulator, dockhil.hardware.slcan_pty; "
             "print(sorted(m for m in ('can', 'serial', 'pymodbus') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=30)
     assert out.stdout.strip() == "[]", out.stderr

@@ -362,7 +362,7 @@ def test_sim_time_and_an_empty_workspace_are_refused():
 
 
 def test_modules_do_not_import_pymodbus_until_setup():
-    code = ("import sys, nodes.robot_modbus, nodes.robot_emulator, dockhil.hardware.robot_emulator; "
+    code = ("import sys, dockhil.nodes.robot_modbus, dockhil.nodes.robot_emulator, dockhil.hardware.robot_emulator; "
             "print(sorted(m for m in ('can', 'serial', 'pymodbus') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=30)
     assert out.stdout.strip() == "[]", out.stderr

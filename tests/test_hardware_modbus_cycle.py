@@ -256,7 +256,7 @@ def test_an_unclaimed_client_is_refused_over_modbus_tcp(controller):
 # -- the driver, on its clock ------------------------------------------------------------------------
 
 
-def test_bunched_ticks_do_not_trip_the_driver(controller, make):
+def test_bunched_ticks_do_not_trip_the_driver(controller, make):  # noqa: F811 - the fixture
     drive = make(max_speed=0.1, max_following_error=0.0)
     following(drive, controller)
     link = drive.node.link

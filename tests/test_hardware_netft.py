@@ -24,7 +24,7 @@ import pytest
 
 from tests.conftest import dockhil_cmd
 
-from dockhil import ownership
+from dockhil.runtime import ownership
 from dockhil.errors import DeviceError, LaunchError, ParamError
 from dockhil.hardware import netft as rdt
 from dockhil.hardware.netft_emulator import ContactModel, NetFtBox
@@ -549,7 +549,7 @@ def test_driver_counts_what_the_emulator_injected(box, fault, box_count, driver_
                     forces.append(out["wrench"].wrench.force.x)
             with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as c:
                 c.sendto(request(0x0000), ("127.0.0.1", b.port))  # any client may stop the box
-            wait_for(lambda: b.counts["stops"] == 1, what="stop")
+            wait_for(lambda b=b: b.counts["stops"] == 1, what="stop")
             time.sleep(0.1)  # the datagrams under way
             stats, counters = b.stats(), d.counters()
         finally:

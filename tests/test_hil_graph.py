@@ -10,11 +10,11 @@ import json
 import numpy as np
 import pytest
 
-from dockhil.bag import BagReader
+from dockhil.bags.reader import BagReader
 from dockhil.contact.hilloop import simulate_hil
 from dockhil.contact.impedance import impedance_closed_form
 from dockhil.contact.scenario import TABLE1
-from dockhil.summary import samples_from_bag
+from dockhil.analysis.summary import samples_from_bag
 from tests.inprocess import run_main, launch_here_or_process
 
 

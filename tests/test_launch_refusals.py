@@ -92,8 +92,8 @@ def test_include_and_conditions(write_launch, tmp_path):
         'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
         '  - {name: tr, node: "tests.graphnodes:Trace", if: $(arg trace) == on}\n'
         'include:\n  - {file: child.yaml, args: {g: $(arg g)}}\n')
-    from dockhil import launchfile
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
 
     g = build(launchfile.load(path, {"g": "7"}))
     assert sorted(g.nodes) == ["gain", "integ"]
@@ -223,7 +223,7 @@ def test_summary_never_replaces_the_bag_or_a_file_that_is_no_summary(tmp_path):
 
 
 def _ft_bag(path):
-    from dockhil.bag import BagWriter
+    from dockhil.bags.writer import BagWriter
     from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped, type_name
     from dockhil.msgs.codec import encode
 
@@ -297,7 +297,7 @@ def test_rate_from_an_argument_sets_the_step(write_launch):
     path = write_launch("rate: $(arg rate)\nduration: $(arg T)\nargs:\n  rate: {default: 1000.0}\n  T: {default: 0.5}\n"
                         'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
                         '  - {name: gain, node: "tests.graphnodes:Gain"}\n')
-    from dockhil import launchfile
+    from dockhil.scene import launchfile
 
     scene = launchfile.load(path, {"rate": "250", "T": "2"})
     assert (scene.rate, scene.dt, scene.duration) == (250.0, 1 / 250, 2.0)
@@ -308,7 +308,7 @@ def test_aliases_within_bounds_still_work(write_launch):
     path = write_launch('nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
                         '  - {name: gain, node: "tests.graphnodes:Gain", params: &p {gain: 3.0}}\n'
                         '  - {name: g2, node: "tests.graphnodes:Gain", params: *p, remap: {x: /u, u: /y}}\n')
-    from dockhil import launchfile
+    from dockhil.scene import launchfile
 
     scene = launchfile.load(path)
     assert [n.params for n in scene.nodes[1:]] == [{"gain": 3.0}, {"gain": 3.0}]

@@ -9,14 +9,15 @@ import re
 import pytest
 import zmq
 
-from dockhil import launchfile, validity
-from dockhil.composed import ComposedGraph
+from dockhil.scene import launchfile
+from dockhil.runtime import validity
+from dockhil.runtime.composed import ComposedGraph
 from dockhil.errors import DockhilError, LaunchError
-from dockhil.executor import NodeExecutor, PortWire, RunSpec, StaleInput, Stop
-from dockhil.graph import build
-from dockhil.launcher import Endpoints, run_specs
+from dockhil.runtime.executor import NodeExecutor, PortWire, RunSpec, StaleInput, Stop
+from dockhil.scene.graph import build
+from dockhil.runtime.launcher import Endpoints, run_specs
 from dockhil.node import ManualClock, default_max_age
-from dockhil.transport import GraphKeys, Publisher
+from dockhil.runtime.transport import GraphKeys, Publisher
 from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped
 from dockhil.msgs.codec import encode
 from tests.conftest import ROOT

@@ -4,7 +4,7 @@ and the science and the CLI stay light. Each node type is measured in a fresh in
 import pytest
 
 from dockhil import nodes
-from dockhil import leanness
+from dockhil.analysis import leanness
 
 # One worker runs this file under pytest-xdist: every node type is measured once.
 pytestmark = pytest.mark.xdist_group("lean")
@@ -116,8 +116,8 @@ def test_a_node_processs_authentication_and_loop_report_load_neither_asyncio_nor
 
     code = (
         "import sys, zmq\n"
-        "from dockhil.executor import LoopTiming\n"
-        "from dockhil.transport import GraphKeys, Publisher, Subscriber\n"
+        "from dockhil.runtime.executor import LoopTiming\n"
+        "from dockhil.runtime.transport import GraphKeys, Publisher, Subscriber\n"
         "keys = GraphKeys.make()\n"
         "ctx = zmq.Context.instance()\n"
         "pub = Publisher(ctx, '/x', 'ipc://' + sys.argv[1] + '/x', keys=keys)\n"

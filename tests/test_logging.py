@@ -72,7 +72,7 @@ def test_the_level_filters_and_the_file_gets_the_node_processes_records_with_the
 
 def node_process(tmp_path, env, node="Chatty"):
     """One node process (tests.lognodes) run as the launcher runs it, with `env` added."""
-    from dockhil.transport import GraphKeys
+    from dockhil.runtime.transport import GraphKeys
 
     keys = GraphKeys.make().write(tmp_path / "graph.keys")
     spec = {"name": "alone", "type_name": f"tests.lognodes:{node}", "dt": 0.01, "clock": "sim", "n_ticks": 3,

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from dockhil import msgs
-from dockhil.bag import BagWriter
+from dockhil.bags.writer import BagWriter
 from dockhil.errors import DockhilError, ParamError
 from dockhil.node import Input, Node, Output, Param
 from dockhil.testing import NodeHarness, robot_command, wrench
@@ -186,9 +186,9 @@ def test_the_node_writing_guides_example_node_scene_and_test_work(tmp_path, monk
     import re
     import sys
 
-    from dockhil import launchfile
-    from dockhil.composed import ComposedGraph
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene.graph import build
     from tests.conftest import ROOT
 
     text = (ROOT / "docs" / "writing-a-node.md").read_text()

@@ -17,9 +17,9 @@ from pathlib import Path
 import pytest
 
 from dockhil import nodes
-from dockhil import launchfile
+from dockhil.scene import launchfile
 from dockhil.errors import LaunchError
-from dockhil.sweep import CampaignError, load_campaign
+from dockhil.analysis.sweep import CampaignError, load_campaign
 
 REPO = Path(__file__).resolve().parent.parent
 SCENES = sorted(p.name for p in (REPO / "launch").glob("*.yaml"))
@@ -205,7 +205,7 @@ def test_node_types_lists_packages_and_a_launch_file_runs_their_node(fake_distri
                         "--composed", "--quiet", "--bag", "ramp.mcap"], cwd=tmp_path, env=env,
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
-    from dockhil.bag import BagReader
+    from dockhil.bags.reader import BagReader
 
     with BagReader(tmp_path / "ramp.mcap") as bag:
         forces = [(m.header.stamp, m.wrench.force.x) for m in (b.decode() for b in bag.messages(["/ramp"]))]
@@ -214,10 +214,9 @@ def test_node_types_lists_packages_and_a_launch_file_runs_their_node(fake_distri
 
 # -- the wheel ------------------------------------------------------------------
 def source_packages() -> set[str]:
-    """Every package directory of the source tree, as a wheel path: msgs/ and nodes/ install
-    inside the dockhil namespace."""
+    """Every package directory of the source tree, as a wheel path."""
     found = set()
-    for top, installed in (("dockhil", "dockhil"), ("msgs", "dockhil/msgs"), ("nodes", "dockhil/nodes")):
+    for top, installed in (("dockhil", "dockhil"),):
         for init in (REPO / top).rglob("__init__.py"):
             if "__pycache__" not in init.parts:
                 rel = init.parent.relative_to(REPO / top).as_posix()
@@ -265,7 +264,7 @@ def test_the_wheel_installs_into_a_fresh_venv_and_runs_from_another_directory(tm
         return subprocess.run([str(exe), *argv], cwd=elsewhere, env=clean_env(), capture_output=True, text=True,
                               timeout=timeout)
 
-    where = subprocess.run([str(py), "-c", "import dockhil, dockhil.nodes, dockhil.msgs; from dockhil import launchfile; "
+    where = subprocess.run([str(py), "-c", "import dockhil, dockhil.nodes, dockhil.msgs; from dockhil.scene import launchfile; "
                             "print(dockhil.__file__, dockhil.nodes.__file__, dockhil.msgs.__file__, launchfile.SHIPPED_SCENES)"],
                            cwd=elsewhere, env=clean_env(), capture_output=True, text=True, timeout=60)
     site = str(venv / "lib")

@@ -8,13 +8,13 @@ import subprocess
 import numpy as np
 import pytest
 
-from dockhil.bag import BagReader
+from dockhil.bags.reader import BagReader
 from dockhil.contact.hilloop import Bodies, DelayLine, Servo, sensor_force, simulate_hil, virtual_wrench
 from dockhil.contact.hybrid import VirtualImpedance
 from dockhil.contact.impedance import impedance_closed_form
 from dockhil.contact.passivity import DEFAULT_MAX_DAMPING, ENERGY_FIELDS, Passivity, left_in_loop
 from dockhil.contact.scenario import TABLE1
-from dockhil.summary import Samples, contact_metrics, growth_rate, ideal_summary
+from dockhil.analysis.summary import Samples, contact_metrics, growth_rate, ideal_summary
 from tests.conftest import dockhil_cmd
 
 DT = 1e-3
@@ -294,7 +294,7 @@ def test_stability_measures_the_compensated_loop(capsys):
 
 
 def test_the_report_section_compares_each_delay_with_and_without_compensation():
-    from dockhil.report import passivity_compensation
+    from dockhil.analysis.report import passivity_compensation
 
     out = passivity_compensation()
     rows = {(r["delay_s"], r["compensation"]): r for r in out["rows"]}

@@ -16,7 +16,7 @@ import time
 
 import pytest
 
-from dockhil.bag import BagReader
+from dockhil.bags.reader import BagReader
 from tests.conftest import ROOT, dockhil_cmd
 from tests.inprocess import run_main
 

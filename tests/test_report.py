@@ -15,13 +15,14 @@ import math
 import numpy as np
 import pytest
 
-from dockhil import report as R
+from dockhil.analysis import report_cases
+from dockhil.analysis import report_precision
 from dockhil.cli import main
 from dockhil.contact.hilloop import simulate_hil
 from dockhil.contact.scenario import TABLE1, ContactModelError, ContactScenario
 from dockhil.progress import TaskProgress
 
-QUICK = R.ReportConfig.quick_config()
+QUICK = report_precision.ReportConfig.quick_config()
 # One worker runs this file under pytest-xdist: the report and the solver below are built once.
 pytestmark = pytest.mark.xdist_group("report")
 
@@ -174,7 +175,7 @@ def test_progress_redraws_in_place_on_a_terminal():
 
 def test_the_reports_reference_agrees_with_the_independent_solver_written_here(table1_delay_solution):
     t, p, pd, fs, heun_spread = table1_delay_solution
-    ref = R.hybrid_reference(R.ReportConfig(min_timing_s=0.0))
+    ref = report_precision.hybrid_reference(report_precision.ReportConfig(min_timing_s=0.0))
     grid = np.arange(2001) * 1e-3
     idx = np.round(grid / (0.032 / 640)).astype(int)
     s = ref.sample(grid)
@@ -190,7 +191,8 @@ def test_reference_check_is_stated_and_no_row_compares_with_itself(quick_report)
     ref = json.loads((out / "report.json").read_text())["reference"]
     assert "method-of-steps" in ref["hybrid_delay"] and "solve_ivp" not in ref["hybrid_delay"]
     # The quick report checks its reference against the same solver at twice the step.
-    assert ref["hybrid_delay_step_check_dt_s"] == 2 * R.REFERENCE_DT and "twice the step" in ref["hybrid_delay_check"]
+    assert ref["hybrid_delay_step_check_dt_s"] == 2 * report_precision.REFERENCE_DT
+    assert "twice the step" in ref["hybrid_delay_check"]
     assert ref["hybrid_delay_step_check_N"] < 1e-8 and ref["hybrid_delay_dop853_N"] < 1e-6
     entries = json.loads((out / "report.json").read_text())["work_precision"]
     dop = [e for e in entries if e["model"] == "hybrid_delay" and e["method"] == "solve_ivp RK45"]
@@ -204,7 +206,7 @@ def test_hybrid_work_precision_error_is_the_one_computed_here(quick_report, tabl
     entries = json.loads((out / "report.json").read_text())["work_precision"]
     entry = next(e for e in entries if e["model"] == "hybrid_delay" and e["method"] == "exact" and e["step_s"] == 1e-3)
     t, p, pd, fs, _ = table1_delay_solution
-    run = simulate_hil(m1=TABLE1.m1, m2=TABLE1.m2, k=TABLE1.k, impedance=R.hybrid_impedance(TABLE1), dt=1e-3,
+    run = simulate_hil(m1=TABLE1.m1, m2=TABLE1.m2, k=TABLE1.k, impedance=report_precision.hybrid_impedance(TABLE1), dt=1e-3,
                        n_ticks=2001, v1=TABLE1.v1, delay=0.032)
     idx = np.round(run.t / (0.032 / 640)).astype(int)
     rp, rpd = run.x1 - run.x2, run.v1 - run.v2
@@ -246,7 +248,7 @@ def test_work_precision_entries(quick_report):
     assert error("ideal", "exact", 1e-3) < 1e-9
     # Explicit Euler on the stiff contact is refused above |R(lambda dt)| = 1, which the entry names:
     # for Euler, R(z) = 1 + z on the contact's poles lambda, so dt_max = -2 Re(lambda) / |lambda|^2.
-    stiff = R.IDEAL_MODELS["ideal_stiff"][0]
+    stiff = report_precision.IDEAL_MODELS["ideal_stiff"][0]
     lam = np.roots([stiff.reduced_mass, stiff.bcs, stiff.kcs])[0]
     limit = -2 * lam.real / abs(lam) ** 2
     refused = [e for e in entries if e["model"] == "ideal_stiff" and e["method"] == "euler" and "refused" in e]
@@ -288,7 +290,7 @@ def fine_rate(m1, m2, kcs, bcs):
 
 def test_hil_stiff_contact_cases(quick_report):
     by = {c["name"]: c for c in cases_of(quick_report, "HIL loop: stiff")}
-    sc = R.HIL_STIFF
+    sc = report_cases.HIL_STIFF
     peak, _, exit_v = ideal_closed_form(sc.m1, sc.m2, sc.kcs, sc.bcs, sc.v1 - sc.v2)
     assert peak == pytest.approx(559.0, abs=0.5) and exit_v == pytest.approx(-0.141, abs=5e-4)
     coarse = by["at 1 kHz (what the graph would run)"]
@@ -302,7 +304,7 @@ def test_hil_stiff_contact_cases(quick_report):
 
 
 def test_hil_late_contact_exit_against_the_solver_written_here(quick_report):
-    sc = R.HIL_LATE
+    sc = report_cases.HIL_LATE
     cases = cases_of(quick_report, "HIL loop: 0.1 s delay")
     a = heun_delay(sc.m1, sc.m2, sc.kcs, sc.bcs, sc.k, 0.1, sc.v1 - sc.v2, 0.7, 2000)
     b = heun_delay(sc.m1, sc.m2, sc.kcs, sc.bcs, sc.k, 0.1, sc.v1 - sc.v2, 0.7, 4000)
@@ -317,7 +319,7 @@ def test_hil_late_contact_exit_against_the_solver_written_here(quick_report):
 
 def test_stiff_graph_is_refused_and_runs_bit_identical_when_allowed(quick_report):
     by = {c["name"]: c for c in cases_of(quick_report, "kcs = 1e9")}
-    sc = R.STIFF
+    sc = report_cases.STIFF
     refused = by["ideal.yaml at 1 kHz: refused before it runs"]
     m = sc.m1 * sc.m2 / (sc.m1 + sc.m2)
     lam = np.roots([m, sc.bcs, sc.kcs])
@@ -354,22 +356,23 @@ def method_limit(scn, method):
     return lo
 
 
-@pytest.mark.parametrize("method", R.EXPLICIT)
+@pytest.mark.parametrize("method", report_precision.EXPLICIT)
 def test_explicit_method_refuses_and_names_the_largest_stable_step(method):
-    case = R.explicit_refusal_case("t", R.STIFF, method, 1e-3)
-    limit = method_limit(R.STIFF, method)
+    case = report_cases.explicit_refusal_case("t", report_cases.STIFF, method, 1e-3)
+    limit = method_limit(report_cases.STIFF, method)
     assert case["measured"].startswith("refused") and case["measured_value"] == pytest.approx(limit, rel=1e-5)
-    R.simulate_contact(R.STIFF, method=method, dt=0.99 * limit, t_end=0.99 * limit)  # just inside, it runs
+    report_cases.simulate_contact(report_cases.STIFF, method=method, dt=0.99 * limit, t_end=0.99 * limit)  # just inside, it runs
 
 
-@pytest.mark.parametrize("method", R.EXPLICIT)
+@pytest.mark.parametrize("method", report_precision.EXPLICIT)
 def test_named_step_separates_decay_from_growth(method):
-    limit = method_limit(R.STIFF, method)
-    assert R.energy_growth(R.STIFF, method, 0.9 * limit) <= 0.0 < R.energy_growth(R.STIFF, method, 1.1 * limit)
+    limit = method_limit(report_cases.STIFF, method)
+    growth = report_cases.energy_growth
+    assert growth(report_cases.STIFF, method, 0.9 * limit) <= 0.0 < growth(report_cases.STIFF, method, 1.1 * limit)
 
 
 def test_stiff_contact_exit_at_every_onset_phase_and_with_implicit_solvers(quick_report):
-    sc = R.STIFF
+    sc = report_cases.STIFF
     _, _, exit_v = ideal_closed_form(sc.m1, sc.m2, sc.kcs, sc.bcs, sc.v1 - sc.v2)
     by = {c["name"]: c for c in cases_of(quick_report, "kcs = 1e9")}
     assert all(v == pytest.approx(exit_v, rel=1e-6) for v in by["exact step, onset at tenths of a step"]["measured_value"])
@@ -379,7 +382,7 @@ def test_stiff_contact_exit_at_every_onset_phase_and_with_implicit_solvers(quick
 
 def test_mass_ratios_against_the_closed_form_peak(quick_report):
     cases = cases_of(quick_report, "mass ratio")
-    assert [c["params"]["m2"] / c["params"]["m1"] for c in cases] == pytest.approx(list(R.MASS_RATIOS))
+    assert [c["params"]["m2"] / c["params"]["m1"] for c in cases] == pytest.approx(list(report_cases.MASS_RATIOS))
     for c in cases:
         p = c["params"]
         m = p["m1"] * p["m2"] / (p["m1"] + p["m2"])
@@ -393,7 +396,7 @@ def test_zero_damping_restitution_and_rk4_loss(quick_report):
     by = {c["name"]: c for c in cases_of(quick_report, "zero damping")}
     assert by["unilateral contact, exact step: restitution"]["measured_value"] == pytest.approx(1.0, abs=1e-9)
     rk4 = next(c for c in by.values() if c["name"].startswith("rk4"))
-    scn = R.undamped_scenario()
+    scn = report_precision.undamped_scenario()
     dt, n = rk4["params"]["dt"], round(rk4["params"]["t_end"] / rk4["params"]["dt"])
     z = 1j * math.sqrt(scn.kcs / scn.reduced_mass) * dt  # RK4's amplification on the undamped pole
     rho = abs(1 + z + z * z / 2 + z ** 3 / 6 + z ** 4 / 24)

@@ -14,7 +14,7 @@ import pytest
 import zmq
 
 from dockhil import msgs
-from dockhil.transport import split
+from dockhil.runtime.transport import split
 from dockhil.msgs.codec import decode, encode
 from tests.conftest import dockhil_cmd, registered
 from tests.inprocess import launch_here_or_process
@@ -139,7 +139,7 @@ def test_launcher_killed_outright_leaves_no_orphans(write_launch):
 @pytest.mark.wall_time
 def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
     """`dockhil run` wires a node to a (fake) running graph; garbage on its input is dropped and counted."""
-    from dockhil.transport import GraphKeys
+    from dockhil.runtime.transport import GraphKeys
 
     ctx = zmq.Context.instance()
     keys = GraphKeys.make()
@@ -228,9 +228,9 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
 def test_observers_are_not_counted_as_subscribers(tmp_path):
     """A progress probe or `topic echo` joining first must not let sim time start early."""
     from dockhil.errors import DockhilError
-    from dockhil.transport import Publisher, Subscriber
+    from dockhil.runtime.transport import Publisher, Subscriber
 
-    from dockhil.transport import GraphKeys
+    from dockhil.runtime.transport import GraphKeys
 
     ctx = zmq.Context.instance()
     endpoint = f"ipc://{tmp_path}/t"
@@ -266,9 +266,9 @@ def test_delayed_hops_send_in_bursts_and_change_no_bit(write_launch, tmp_path):
     """A loop through two delayed hops (4 and 6 ticks): their publishers send 2 and 3 ticks at a
     time, the others as soon as their node would wait. The run still ends (no cycle waits for a
     held message) and gives the plain loop's bits, as the composed run does."""
-    from dockhil import launchfile
-    from dockhil.graph import build
-    from dockhil.launcher import burst
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
+    from dockhil.runtime.launcher import burst
 
     traces = {}
     for mode in ("processes", "composed"):
@@ -296,9 +296,9 @@ def test_bursts_are_sim_time_only_and_follow_the_declared_delay(tmp_path):
     a time in sim time; in wall time every message leaves when it is made."""
     from pathlib import Path
 
-    from dockhil import launchfile
-    from dockhil.graph import build
-    from dockhil.launcher import Endpoints, run_specs
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
+    from dockhil.runtime.launcher import Endpoints, run_specs
 
     graph = build(launchfile.load(Path(__file__).resolve().parent.parent / "launch" / "hil.yaml"))
     types = {t: "t" for t in graph.publishers}
@@ -315,7 +315,7 @@ def test_a_burst_is_read_message_by_message_and_an_envelope_is_joined(tmp_path):
     """A publisher holding 3 ticks sends them as one ZeroMQ message of 3 frames: a node's receive
     path and an observer each see 3 messages (the empty tick sent apart), in order. A [topic,
     payload] envelope of two frames, as `bag play` sends, reads as the same message."""
-    from dockhil.transport import EMPTY_TICK, MESSAGE, GraphKeys, Publisher, Subscriber
+    from dockhil.runtime.transport import EMPTY_TICK, MESSAGE, GraphKeys, Publisher, Subscriber
 
     ctx = zmq.Context.instance()
     endpoint = f"ipc://{tmp_path}/t"
@@ -361,7 +361,7 @@ def test_loop_figures_are_numpys_percentiles_without_numpy():
 
     import numpy as np
 
-    from dockhil.executor import LoopTiming
+    from dockhil.runtime.executor import LoopTiming
 
     rng = random.Random(7)
     for n in (2, 3, 10, 1001):

@@ -218,7 +218,7 @@ def test_exit_velocity_is_read_after_the_last_force_through_the_delay(tmp_path):
 
 
 def test_exit_velocity_is_withheld_while_a_force_still_acts():
-    from dockhil.summary import Samples, contact_metrics
+    from dockhil.analysis.summary import Samples, contact_metrics
 
     rows = plain_hil(**LATE, dt=1e-3, n=400, delay_ticks=100)  # stops while the delayed spring pushes
     p, pd, f, acting = (np.array(c) for c in zip(*rows))
@@ -227,7 +227,7 @@ def test_exit_velocity_is_withheld_while_a_force_still_acts():
 
 
 def test_a_run_stopped_inside_the_contact_reports_no_peak_force_error():
-    from dockhil.summary import Samples, summarize
+    from dockhil.analysis.summary import Samples, summarize
 
     # The ideal contact of Table 1 (m1 750, m2 1e6, kcs 3000, bcs 40, 0.03 m/s), written out: a
     # damped oscillation of the reduced mass from p = 0 (overlap until pi/wd), stopped at 0.2 s.
@@ -254,10 +254,10 @@ def test_a_run_stopped_inside_the_contact_reports_no_peak_force_error():
 
 
 def test_summary_collector_keeps_bounded_buffers_over_a_long_run():
-    from dockhil import launchfile
-    from dockhil.composed import ComposedGraph
-    from dockhil.graph import build
-    from dockhil.summary import ContactMeter, SummaryCollector, _TickMatcher
+    from dockhil.scene import launchfile
+    from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene.graph import build
+    from dockhil.analysis.summary import ContactMeter, SummaryCollector, TickMatcher
 
     graph = build(launchfile.load("launch/stability.yaml", {"b": "60"}))
     collect = SummaryCollector(graph)
@@ -270,8 +270,8 @@ def test_summary_collector_keeps_bounded_buffers_over_a_long_run():
     finally:
         g.close()
     s = collect.summary()
-    assert max(x[0] for x in sizes) <= _TickMatcher.WINDOW + 1
-    assert max(max(x[1], x[2]) for x in sizes) <= _TickMatcher.WINDOW + 2
+    assert max(x[0] for x in sizes) <= TickMatcher.WINDOW + 1
+    assert max(max(x[1], x[2]) for x in sizes) <= TickMatcher.WINDOW + 2
     assert isinstance(collect.meter, ContactMeter) and s["sim_time_s"] == pytest.approx(5.0)
 
 
@@ -280,7 +280,7 @@ def test_summary_collector_keeps_bounded_buffers_over_a_long_run():
 
 @pytest.mark.parametrize("b", [20.0, 60.0])
 def test_growth_rate_matches_the_sampled_loop_root_within_one_percent(b):
-    from dockhil.figures import fig11_12
+    from dockhil.analysis.figures import fig11_12
 
     case = next(c for c in fig11_12(dampers=(b,))["cases"])
     # The sampled loop built here: a body on a sheet, damper on the current velocity, spring 16 ticks late.

@@ -20,7 +20,7 @@ import zmq
 
 from dockhil import msgs
 from dockhil.errors import DeviceError, DockhilError
-from dockhil.transport import GraphKeys, Publisher, Subscriber, runtime_dir
+from dockhil.runtime.transport import GraphKeys, Publisher, Subscriber, runtime_dir
 from dockhil.msgs.codec import decode, encode
 from tests.conftest import ROOT, dockhil_cmd, free_port, registered
 from tests.inprocess import run_main
@@ -217,7 +217,7 @@ def test_the_zap_handler_admits_the_graphs_client_key_and_nothing_else():
     """Each ZAP request a publisher's handshake makes: only CURVE with the graph's client key gets 200."""
     from zmq.utils import z85
 
-    from dockhil.transport import _ZapHandler
+    from dockhil.runtime.transport import _ZapHandler
 
     keys, other = GraphKeys.make(), GraphKeys.make()
     handler = _ZapHandler(zmq.Context())
@@ -245,7 +245,7 @@ def test_socket_monitor_events_read_as_pyzmq_reads_them():
 
     from zmq.utils.monitor import parse_monitor_message
 
-    from dockhil.transport import monitor_event
+    from dockhil.runtime.transport import monitor_event
 
     for event in (zmq.EVENT_HANDSHAKE_SUCCEEDED, zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL,
                   zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL, zmq.EVENT_HANDSHAKE_FAILED_AUTH):
@@ -461,7 +461,7 @@ def test_a_second_emulator_on_the_same_port_names_the_graph_that_owns_it():
 
 
 def test_a_second_slcan_adapter_or_driver_on_the_same_path_is_refused(tmp_path):
-    from dockhil import ownership
+    from dockhil.runtime import ownership
     from dockhil.hardware.slcan_pty import PtyCanBus
 
     link = str(tmp_path / "ft.slcan")
@@ -496,7 +496,7 @@ def test_another_graphs_emulator_cannot_join_the_can_bus_a_driver_reads(request)
     """A CAN bus (python-can interface and channel) read by one graph's F/T driver takes that graph's
     emulator (hil.yaml with emulators:=true on a virtual bus), never another graph's: it would stream
     forged frames with the sensor's IDs, and the robot would move on them."""
-    from dockhil import ownership
+    from dockhil.runtime import ownership
     from dockhil.node import NodeContext
     from dockhil.nodes.ft_can import FtCanDriver
     from dockhil.nodes.ft_emulator import FtSensorEmulator
@@ -548,9 +548,9 @@ def test_another_graphs_emulator_cannot_join_the_can_bus_a_driver_reads(request)
 
 
 def test_a_graph_claim_is_shared_within_its_graph_across_processes_and_dies_with_them():
-    from dockhil import ownership
+    from dockhil.runtime import ownership
 
-    code = ("import time; from dockhil import ownership; ownership.set_graph('graph-one'); "
+    code = ("import time; from dockhil.runtime import ownership; ownership.set_graph('graph-one'); "
             "ownership.claim_for_graph('bus', 'the bus'); print('held', flush=True); time.sleep(60)")
     holder = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env())
     try:
@@ -614,9 +614,9 @@ def test_a_node_run_alone_never_publishes_what_a_running_graph_would_not_hear(en
 
 
 def test_a_device_lock_dies_with_its_process(tmp_path):
-    from dockhil import ownership
+    from dockhil.runtime import ownership
 
-    code = ("import time; from dockhil import ownership; ownership.set_graph('graph-one'); "
+    code = ("import time; from dockhil.runtime import ownership; ownership.set_graph('graph-one'); "
             "ownership.claim('dev', 'the device'); print('held', flush=True); time.sleep(60)")
     holder = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env())
     try:

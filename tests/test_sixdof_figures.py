@@ -3,13 +3,13 @@ library's 6-DOF hybrid loop, the figure is drawn from that bag, and its numbers 
 
 import numpy as np
 
-from dockhil.bag import BagReader
+from dockhil.bags.reader import BagReader
 from tests.test_sixdof_graph import assert_equals_library, library_run
 
 
 def test_sixdof_figure_draws_the_recorded_scene_and_gives_its_summary(tmp_path):
-    from dockhil.figures import sixdof
-    from dockhil.plot6 import plot6, series6
+    from dockhil.analysis.figures import sixdof
+    from dockhil.analysis.plot6 import plot6, series6
 
     bag, png = tmp_path / "sixdof.mcap", tmp_path / "sixdof.png"
     seconds, delay = 1.7, 0.01

@@ -7,10 +7,10 @@ import subprocess
 import numpy as np
 import pytest
 
-from dockhil import graph as graphmod
-from dockhil import launchfile
-from dockhil.bag import BagReader
-from dockhil.composed import ComposedGraph
+from dockhil.scene import graph as graphmod
+from dockhil.scene import launchfile
+from dockhil.bags.reader import BagReader
+from dockhil.runtime.composed import ComposedGraph
 from dockhil.contact.contact6 import Contact6
 from dockhil.contact.hybrid6 import simulate_hybrid6
 from dockhil.contact.rigid import BodyState, RigidBody, quat_from_rotvec
@@ -155,7 +155,7 @@ def test_bad_6dof_parameters_stop_the_launch_with_one_line(tmp_path, old, new, l
 
 
 def test_plot_6dof_draws_the_recorded_pose_and_rates(tmp_path):
-    from dockhil.plot6 import series6
+    from dockhil.analysis.plot6 import series6
 
     bag, png = tmp_path / "hil6.mcap", tmp_path / "hil6.png"
     for args in (("launch", HIL6, "--composed", "--duration", "0.3", "--bag", bag, "--quiet", "delay:=0.01"),

@@ -40,7 +40,7 @@ def test_closed_form_per_axis_when_the_axes_decouple():
     assert imp.c1[0, 0] == pytest.approx(40.03, rel=1e-12)
     assert imp.k2[0, 0] == pytest.approx((3000 - 1000) * (1 + m2 / m1), rel=1e-12)
     assert imp.c2[0, 0] == pytest.approx(40 * (1 + m2 / m1), rel=1e-12)
-    for j, (k, kp, c) in enumerate([(2000, 500, 10), (2000, 500, 10)], start=1):
+    for j, (k, kp, _c) in enumerate([(2000, 500, 10), (2000, 500, 10)], start=1):
         assert imp.k1[j, j] == pytest.approx((k - kp) * (1 + m1 / m2), rel=1e-12)
     for j in range(3):  # rotations: inertias instead of masses
         assert imp.k1[3 + j, 3 + j] == pytest.approx((300 - 100) * (1 + i1[j] / i2[j]), rel=1e-12)

@@ -18,8 +18,8 @@ import platform
 import msgspec
 import pytest
 
-from dockhil import graph as graphmod
-from dockhil import launchfile
+from dockhil.scene import graph as graphmod
+from dockhil.scene import launchfile
 from tests.conftest import ROOT
 from tests.test_sixdof_graph import run_taps
 

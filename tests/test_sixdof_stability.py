@@ -137,9 +137,9 @@ def test_bad_loops_are_refused_with_one_line():
 def test_the_6dof_scene_check_warns_of_an_unstable_delayed_loop_as_the_1dof_one_does():
     # hil6.yaml at its 32 ms is (just) stable; at 64 ms the linearised loop grows, led by the normal
     # axis: the launch says so in its warnings, as hil.yaml's check does for its loop.
-    from dockhil import graph as graphmod
-    from dockhil import launchfile
-    from dockhil.scenecheck import scene_check
+    from dockhil.scene import graph as graphmod
+    from dockhil.scene import launchfile
+    from dockhil.analysis.scenecheck import scene_check
     from tests.conftest import ROOT
 
     def check(args):

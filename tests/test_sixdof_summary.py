@@ -1,4 +1,4 @@
-"""The run summary of the 6-DOF scene (dockhil/summary6.py): along the axis it is the 1-DOF
+"""The run summary of the 6-DOF scene (dockhil/analysis/summary6.py): along the axis it is the 1-DOF
 summary of hil.yaml and its ideal the 1-DOF closed form; off the axis its numbers are those of the
 library's own hybrid and ideal runs, computed here from their arrays; a recorded run's summary is
 the live one's."""
@@ -10,12 +10,12 @@ import subprocess
 import numpy as np
 import pytest
 
-from dockhil import graph as graphmod
-from dockhil import launchfile
+from dockhil.scene import graph as graphmod
+from dockhil.scene import launchfile
 from dockhil.contact.contact6 import Contact6, simulate_contact6
 from dockhil.contact.ideal import ideal_contact_summary
 from dockhil.contact.scenario import ContactScenario
-from dockhil.summary import SummaryCollector, format_summary
+from dockhil.analysis.summary import SummaryCollector, format_summary
 from tests.conftest import ROOT, dockhil_cmd
 from tests.test_sixdof_graph import DT, library_run, run_taps
 

@@ -39,7 +39,7 @@ def simulate_delay_equation(m, kd, bd, kh, h, t_end, dt=1e-3):
         return p[i] * (1 - f) + p[min(i + 1, n)] * f
 
     for i in range(n):
-        def acc(x, xd, s):
+        def acc(x, xd, s, i=i):
             return -(kd * x + bd * xd + kh * past(i + s - n_delay)) / m
         k1x, k1v = v[i], acc(p[i], v[i], 0.0)
         k2x, k2v = v[i] + 0.5 * dt * k1v, acc(p[i] + 0.5 * dt * k1x, v[i] + 0.5 * dt * k1v, 0.5)
@@ -145,9 +145,9 @@ def test_bad_input_gives_one_line_and_exit_2(argv, message):
 
 
 def test_the_launch_scene_check_says_a_hardware_robots_delay_is_not_in_its_numbers():
-    from dockhil import launchfile
-    from dockhil.graph import build
-    from dockhil.scenecheck import scene_check
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
+    from dockhil.analysis.scenecheck import scene_check
 
     def check(*overrides):
         return scene_check(build(launchfile.load("launch/hil.yaml", launchfile.parse_overrides(list(overrides)))))

@@ -12,9 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from dockhil import cli, sweep
+from dockhil import cli
+from dockhil.analysis import sweep
 from dockhil.node import Node
-from dockhil.sweep import LocalPool
+from dockhil.analysis.sweep import LocalPool
 
 import pyarrow.parquet as pq
 
@@ -325,7 +326,7 @@ def test_outputs_keep_only_the_named_summary_columns(tmp_path):
 
 
 def test_bags_true_keeps_one_readable_bag_per_run(tmp_path):
-    from dockhil.bag import BagReader
+    from dockhil.bags.reader import BagReader
 
     campaign = write(tmp_path, """
         scene: stability.yaml

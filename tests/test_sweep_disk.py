@@ -14,7 +14,8 @@ import psutil
 import pyarrow.parquet as pq
 import pytest
 
-from dockhil import cli, sweep
+from dockhil import cli
+from dockhil.analysis import sweep
 from tests.test_sweep import Counting
 
 CAMPAIGN = """
@@ -137,7 +138,7 @@ def test_a_journal_line_cut_short_is_ended_before_the_next_row(tmp_path):
 
 
 def test_a_bag_that_cannot_be_written_stops_the_campaign(tmp_path, monkeypatch):
-    from dockhil.bag_live import TapRecorder
+    from dockhil.bags.live import TapRecorder
 
     c = sweep.load_campaign(campaign(tmp_path))
     spec = {**sweep.runs(c, tmp_path / "r.parquet")[0], "bag": str(tmp_path / "a-file" / "run-000000.mcap")}

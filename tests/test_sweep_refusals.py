@@ -13,7 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from dockhil import cli, sweep
+from dockhil import cli
+from dockhil.analysis import sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 HEAD = "scene: stability.yaml\nargs: {m: 20.0, delay: 0.016}\n"
@@ -36,7 +37,8 @@ def refused(tmp_path: Path, capsys, text: str | None = None, path: Path | None =
 
 
 @pytest.mark.parametrize("text, expect", [
-    ("grid: {k: [6000.0]}\nduration: 0.1\nsamples: 1e12\n", "`samples` must be a whole number from 1 to 100,000, got 1000000000000.0"),
+    ("grid: {k: [6000.0]}\nduration: 0.1\nsamples: 1e12\n",
+     "`samples` must be a whole number from 1 to 100,000, got 1000000000000.0"),
     ("grid: {k: [6000.0]}\nduration: 0.1\nsamples: 1000000000000\n", "`samples` must be a whole number from 1 to"),
     ("grid: {k: [6000.0]}\nduration: 0.1\nsamples: 0\n", "`samples` must be a whole number from 1 to"),
     ("grid: {k: [6000.0]}\nduration: 0.1\nsamples: 2.5\n", "`samples` must be a whole number"),

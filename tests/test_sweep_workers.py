@@ -13,7 +13,7 @@ from pathlib import Path
 import psutil
 import pytest
 
-from dockhil import sweep
+from dockhil.analysis import sweep
 from tests.conftest import dockhil_cmd
 from tests.test_sweep import Counting
 

@@ -16,11 +16,11 @@ from pathlib import Path
 import pytest
 import zmq
 
-from dockhil import validity
+from dockhil.runtime import validity
 from dockhil.errors import DockhilError
-from dockhil.executor import NodeExecutor, PortWire, RunSpec, StaleInput, Stop
+from dockhil.runtime.executor import NodeExecutor, PortWire, RunSpec, StaleInput, Stop
 from dockhil.node import ManualClock, default_max_age
-from dockhil.transport import HWM, GraphKeys, Publisher, Subscriber
+from dockhil.runtime.transport import HWM, GraphKeys, Publisher, Subscriber
 from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped
 from dockhil.msgs.codec import encode
 from tests.conftest import dockhil_cmd
@@ -377,7 +377,7 @@ def test_the_composed_bounds_check_refuses_what_a_reader_refuses():
     import math
 
     from dockhil import msgs
-    from dockhil.executor import check_message, checked_payload
+    from dockhil.runtime.executor import check_message, checked_payload
     from dockhil.msgs import BodyState, BodyWrenches, Pose, SatelliteState, Twist
 
     def body(mass=1.0, vx=0.0):
@@ -404,9 +404,9 @@ def test_the_composed_bounds_check_refuses_what_a_reader_refuses():
 
 
 def test_a_composed_wall_time_loop_on_a_controlled_clock_reports_the_stall_exactly(write_launch):
-    from dockhil import launchfile
-    from dockhil.composed import ComposedGraph
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene.graph import build
 
     scene = write_launch("rate: 1024\nnodes:\n  - {name: source, node: 'tests.faultnodes:Hiccup', "
                          "params: {at: 50, seconds: 0.25}}\n  - {name: follow, node: 'tests.faultnodes:Follow'}\n")

@@ -1,7 +1,7 @@
 """`dockhil bag`: inspect, export, record and replay MCAP bags.
 
 `info`, `export` and `convert` read and write files only. `record` and `play` talk to a running
-graph; they live in `dockhil.bag_live`, imported only when they run.
+graph; they live in `dockhil.bags.live`, imported only when they run.
 """
 
 from __future__ import annotations
@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _info(args: argparse.Namespace) -> int:
-    from dockhil.bag import info
+    from dockhil.bags.tools import info
 
     found = info(args.path)
     if args.json:
@@ -104,7 +104,7 @@ def _info(args: argparse.Namespace) -> int:
 
 def format_info(found: dict) -> str:
     """The table `dockhil bag info` prints."""
-    from dockhil.bag import format_size
+    from dockhil.bags.format import format_size
 
     if found["recovered"]:
         state = "unfinished, recovered (the recorder stopped without closing the bag)"
@@ -154,7 +154,7 @@ def _time(seconds: float | None) -> str:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from dockhil.bag import export_csv
+    from dockhil.bags.tools import export_csv
 
     out = sys.stdout if args.csv == "-" else args.csv
     result = export_csv(args.path, args.topic, out, overwrite=args.overwrite)
@@ -173,7 +173,7 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _convert(args: argparse.Namespace) -> int:
-    from dockhil.bag import convert
+    from dockhil.bags.tools import convert
 
     result = convert(args.path, args.out, overwrite=args.overwrite)
     if result.loss:
@@ -199,11 +199,11 @@ def _live():
     from dockhil.errors import DockhilError
 
     try:
-        bag_live = importlib.import_module("dockhil.bag_live")
+        bag_live = importlib.import_module("dockhil.bags.live")
     except ModuleNotFoundError as exc:
-        if exc.name != "dockhil.bag_live":
+        if exc.name != "dockhil.bags.live":
             raise
-        raise DockhilError("recording and playback need the dockhil runtime (dockhil.bag_live), not found") from None
+        raise DockhilError("recording and playback need the dockhil runtime (dockhil.bags.live), not found") from None
     return bag_live
 
 

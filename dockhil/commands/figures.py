@@ -11,7 +11,8 @@ from dockhil.errors import DockhilError
 
 def add_arguments(p) -> None:
     p.add_argument("--out", default="figures", metavar="DIR", help="folder for the PNGs and figures.json (default: figures)")
-    p.add_argument("--delay", type=float, default=0.032, metavar="S", help="robot delay for Figs. 9-10 and the 6-DOF docking [s] (default 0.032)")
+    p.add_argument("--delay", type=float, default=0.032, metavar="S",
+                   help="robot delay for Figs. 9-10 and the 6-DOF docking [s] (default 0.032)")
 
 
 def run(args) -> int:
@@ -21,7 +22,7 @@ def run(args) -> int:
         os.makedirs(args.out, exist_ok=True)
     except OSError as exc:
         raise DockhilError(f"--out {args.out}: cannot create the folder ({exc.strerror})") from None
-    from dockhil.figures import plot_all
+    from dockhil.analysis.figures import plot_all
 
     numbers = plot_all(args.out, args.delay)
     with open(os.path.join(args.out, "figures.json"), "w") as f:

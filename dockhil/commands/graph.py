@@ -15,17 +15,17 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from dockhil import launchfile
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
 
     if args.schema:
         import json
 
-        from dockhil.launchschema import json_schema
+        from dockhil.scene.schema import json_schema
 
         print(json.dumps(json_schema(), indent=1))
         return 0
-    from dockhil.scenecheck import scene_check
+    from dockhil.analysis.scenecheck import scene_check
 
     scene = launchfile.load(args.file, launchfile.parse_overrides(args.overrides))
     graph = build(scene)
@@ -69,7 +69,7 @@ def to_text(graph) -> str:
         changed = {k: v for k, v in gn.params.items() if v != gn.cls.params[k].default}
         if changed:
             lines.append("    params: " + ", ".join(f"{k}={v!r}" for k, v in changed.items()))
-    from dockhil.launcher import processes
+    from dockhil.runtime.launcher import processes
 
     units = processes(graph)
     lines.append(f"processes ({len(units)}):")

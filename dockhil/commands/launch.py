@@ -63,8 +63,8 @@ def _port(text: str) -> int:
 
 
 def run(args) -> int:
-    from dockhil import launchfile
-    from dockhil.graph import build
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
 
     scene = launchfile.load(args.file, launchfile.parse_overrides(args.overrides))
     duration = args.duration if args.duration is not None else scene.duration  # both checked, > 0 and bounded

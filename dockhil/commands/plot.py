@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dockhil.argtypes import nonnegative
 from dockhil.errors import DockhilError
-from dockhil.figure_file import save_figure
+from dockhil.analysis.figure_file import save_figure
 
 
 def add_arguments(p) -> None:
@@ -21,7 +21,7 @@ def add_arguments(p) -> None:
 
 
 def load_samples(path: str, ideal_force=None):
-    from dockhil.summary import samples_from_bag
+    from dockhil.analysis.summary import samples_from_bag
 
     s = samples_from_bag(path, ideal_force)
     if not len(s.t):
@@ -33,7 +33,7 @@ def load_energy(path: str):
     """(t [s], generated_J, net_generated_J) arrays of a bag's /energy, or None without it."""
     import numpy as np
 
-    from dockhil.bag import BagReader
+    from dockhil.bags.reader import BagReader
 
     rows = []
     with BagReader(path) as bag:
@@ -58,7 +58,7 @@ def run(args) -> int:
     import matplotlib.pyplot as plt
 
     if six:
-        from dockhil.plot6 import plot6
+        from dockhil.analysis.plot6 import plot6
 
         plot6(args.bags, args.png, args.labels)
         print(f"wrote {args.png}")
@@ -96,11 +96,12 @@ def run(args) -> int:
 
 
 def _plot_topics(ax, path, topics, label) -> None:
-    from dockhil.bag import BagReader, flatten
+    from dockhil.bags.reader import BagReader
+    from dockhil.bags.tools import flatten
 
     with BagReader(path) as bag:
         series: dict[str, tuple[list, list]] = {}
-        for topic, t_ns, msg in bag.decoded(topics):
+        for topic, _t_ns, msg in bag.decoded(topics):
             for name, value in flatten(msg).items():
                 if isinstance(value, float) and not name.startswith("header."):
                     xs, ys = series.setdefault(f"{topic} {name}", ([], []))

@@ -27,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from dockhil import report
+    from dockhil.analysis import report
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():

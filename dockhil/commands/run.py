@@ -31,12 +31,12 @@ def run(args) -> int:
 
     from dockhil import msgs
     from dockhil import nodes
-    from dockhil import boundedyaml
-    from dockhil.executor import PortWire, RunSpec
-    from dockhil.launcher import KEY_FILE, graph_keys, registry_dir, running_graphs
-    from dockhil.launchfile import parse_overrides
-    from dockhil.process import run_node
-    from dockhil.transport import GraphKeys, ipc_endpoint, new_run_dir
+    from dockhil.scene import boundedyaml
+    from dockhil.runtime.executor import PortWire, RunSpec
+    from dockhil.runtime.registry import KEY_FILE, graph_keys, registry_dir, running_graphs
+    from dockhil.scene.launchfile import parse_overrides
+    from dockhil.runtime.process import run_node
+    from dockhil.runtime.transport import GraphKeys, ipc_endpoint, new_run_dir
 
     name = args.name or args.node.rsplit(":", 1)[-1]
     params = {k: boundedyaml.load(v, f"parameter {k}:={v}")[0] for k, v in parse_overrides(args.overrides).items()}
@@ -99,7 +99,7 @@ def _refuse_unheard(name: str, port: str, topic: str) -> None:
     """An output of a node run alone is a new topic. A running graph's subscribers connect only to the
     publishers the launch wired them to: a second publisher of one of its topics, or of a topic one of
     its inputs was left without (the robot driver's /estop), would not be heard, however urgent."""
-    from dockhil.launcher import running_graphs
+    from dockhil.runtime.registry import running_graphs
 
     for info in running_graphs():
         t = info.get("topics", {}).get(topic)

@@ -1,5 +1,7 @@
 """`dockhil stability`: how stiff a contact the robot's delay lets through
-(paper Sec. 4: Eq. 12 and the exact boundary), and `stability map`: Fig. 7."""
+(paper Sec. 4: Eq. 12 and the exact boundary), `stability map`: Fig. 7, and `stability multi`: the
+multi-axis delayed loop of a 6-DOF scene. Parse, call (dockhil.contact.stability_maps and the
+analyses it names; the plots in dockhil.analysis.stability_plot) and print."""
 
 from __future__ import annotations
 
@@ -8,11 +10,9 @@ import json
 import math
 import time
 
+from dockhil.contact.stability_maps import SECONDS
 from dockhil.errors import DockhilError
-from dockhil.figure_file import save_figure
 
-_THRUST, _SECONDS, _RATE = 10.0, 30.0, 1000.0  # stability.yaml's loop as the compensated runs simulate it
-_MULTIPLES = (1.0, 2.0, 3.0, 5.0, 10.0)  # of the exact bound: the stiffnesses the text output tries
 _MAP_MULTIPLES = (1.0, 3.0, 10.0, 30.0, 100.0)  # and the map: wide, since only max_damping limits the compensated loop
 _M_HELP = "free-floating mass [kg]: the reduced mass m1 m2 / (m1 + m2) of Eq. 8 (paper: 750)"
 _DAMPER_HELP = (
@@ -111,13 +111,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help="simulated grid points per axis (default 6; the cost grows as N^2 x multiples)")
     comp.add_argument("--multiples", type=float, nargs="+", metavar="X", default=list(_MAP_MULTIPLES),
                       help="stiffnesses tried, in multiples of the exact bound (default 1 3 10 30 100)")
-    comp.add_argument("--seconds", type=float, metavar="S", default=_SECONDS,
-                      help=f"simulated time per point [s] (default {_SECONDS:g})")
+    comp.add_argument("--seconds", type=float, metavar="S", default=SECONDS,
+                      help=f"simulated time per point [s] (default {SECONDS:g})")
     mp.add_argument("--png", metavar="FILE", required=True, help="where to write the figure (PNG)")
     mp.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help="print a JSON summary of the map")
-    from dockhil.commands import stability_multi
-
-    stability_multi.add_arguments(sub.add_parser(
+    _add_multi_arguments(sub.add_parser(
         "multi", help="the multi-axis delayed loop (6-DOF scene or planar case): which axis limits the stiffness"))
 
 
@@ -154,7 +152,7 @@ def _within(name: str, value: float, hi: float, unit: str) -> float:
 
 
 def _loop_values(args) -> tuple[float, float, float]:
-    from dockhil.contact.scenario import check_nonnegative, check_positive
+    from dockhil.contact.scenario import check_nonnegative
 
     m = _mass(_need(args, "m", "free-floating mass [kg]"))
     b = check_nonnegative("--b", _within("--b", _need(args, "b", "virtual damping [N s/m]"), MAX_COEFF, "N s/m"),
@@ -176,9 +174,7 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "action", None) == "map":
         return _run_map(args)
     if getattr(args, "action", None) == "multi":
-        from dockhil.commands import stability_multi
-
-        return stability_multi.run(args)
+        return _run_multi(args)
     if args.scene is not None or any(getattr(args, n) is not None for n in _HYBRID):
         if args.compensation == "passivity":
             raise DockhilError("--compensation passivity measures stability.yaml's loop (--m, --b, --h); the hybrid "
@@ -192,7 +188,11 @@ def run(args: argparse.Namespace) -> int:
         from dockhil.contact.passivity import DEFAULT_MAX_DAMPING
 
         max_damping = DEFAULT_MAX_DAMPING if args.max_damping is None else args.max_damping
-        report["passivity"] = _compensated(m, b, h, args.K, max_damping)
+        if not (math.isfinite(max_damping) and max_damping > 0.0):
+            raise DockhilError(f"--max-damping must be > 0 N s/m, got {max_damping:g}")
+        from dockhil.contact.stability_maps import compensated_runs
+
+        report["passivity"] = compensated_runs(m, b, h, args.K, max_damping)
     if args.json:
         print(json.dumps(report))
         return 0
@@ -202,51 +202,6 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-
-
-def _compensated(m: float, b: float, h: float, K: float | None, max_damping: float) -> dict:
-    """The loop of stability.yaml (10 N thrust against a sheet K, damper b on the simulated velocity,
-    delay h) with the passivity controller, simulated: growth rate and saturation per K."""
-    import numpy as np
-
-    from dockhil.contact.hilloop import simulate_hil
-    from dockhil.contact.hybrid import VirtualImpedance
-    from dockhil.contact.passivity import Passivity, left_in_loop
-    from dockhil.contact.scenario import ContactModelError
-    from dockhil.contact.stability import exact_bound
-    from dockhil.summary import growth_rate
-
-    if not (math.isfinite(max_damping) and max_damping > 0.0):
-        raise DockhilError(f"--max-damping must be > 0 N s/m, got {max_damping:g}")
-    bound = exact_bound(m, b, h, damper="undelayed").k_max
-    stiffnesses = [] if bound is None else [(f"{x:g}x exact", x * bound) for x in _MULTIPLES]
-    if K is not None:
-        stiffnesses.append(("--K", K))
-    rows = []
-    for label, k in stiffnesses:
-        row = {"label": label, "K": k, "growth_rate": None, "saturated": None, "diverged": False}
-        try:
-            run = simulate_hil(m1=m, m2=0.0, k=k, impedance=VirtualImpedance(0.0, b, 0.0, 0.0), dt=1 / _RATE,
-                               n_ticks=int(_SECONDS * _RATE) + 1, delay=h, thrust=_THRUST, x1=2 * _THRUST / k,
-                               passivity=Passivity(k, max_damping))
-        except ContactModelError:
-            row["diverged"] = True
-            rows.append(row)
-            continue
-        left, allowed = left_in_loop(run.extra)
-        row["saturated"] = bool(left > allowed)
-        try:
-            row["growth_rate"] = growth_rate(run.t, run.x1 - run.x2, about=_THRUST / k)
-        except ValueError:  # settled within a few periods
-            row["growth_rate"] = None
-            row["settled"] = bool(np.ptp((run.x1 - run.x2)[-1000:]) < 1e-6)
-        rows.append(row)
-    ok = [r["K"] for r in rows if not r["diverged"] and not r["saturated"]
-          and (r["growth_rate"] is not None and r["growth_rate"] < 0 or r.get("settled"))]
-    return {"loop": "m s^2 + b s + K e^(-sh) = 0 (stability.yaml: damper on the simulated velocity), "
-                    f"sampled at {_RATE:g} Hz, {_THRUST:g} N thrust, {_SECONDS:g} s simulated",
-            "max_damping": max_damping, "exact_undelayed": bound, "runs": rows,
-            "largest_decaying_K": max(ok) if ok else None}
 
 
 def _print_compensated(r: dict) -> None:
@@ -307,7 +262,8 @@ def _range(name: str, pair, positive: bool, most: float = MAX_COEFF, unit: str =
 def _run_map(args) -> int:
     import numpy as np
 
-    from dockhil.contact.scenario import check_positive
+    from dockhil.contact.stability_maps import nan_extreme
+
     from dockhil.contact.stability import critical_stiffness_map
 
     if getattr(args, "m", None) is None:
@@ -333,7 +289,9 @@ def _run_map(args) -> int:
     compensated = None
     if getattr(args, "compensation", "none") == "passivity":
         compensated = _compensated_region(m, (b_lo, b_hi), (h_lo, h_hi), args)
-    _plot(args.png, m, b, h, pade1, exact, damper, compensated)
+    from dockhil.analysis.stability_plot import plot_map
+
+    plot_map(args.png, m, b, h, pade1, exact, damper, compensated)
     with np.errstate(invalid="ignore"):
         overestimate = (pade1 - exact) / exact
     summary = {
@@ -344,11 +302,11 @@ def _run_map(args) -> int:
         "b_range": [b_lo, b_hi],
         "h_range": [h_lo, h_hi],
         "compute_seconds": compute_seconds,
-        "pade1_min": _nanreduce(np.nanmin, pade1),
-        "pade1_max": _nanreduce(np.nanmax, pade1),
-        "exact_min": _nanreduce(np.nanmin, exact),
-        "exact_max": _nanreduce(np.nanmax, exact),
-        "max_pade1_overestimate": _nanreduce(np.nanmax, overestimate),
+        "pade1_min": nan_extreme(np.nanmin, pade1),
+        "pade1_max": nan_extreme(np.nanmax, pade1),
+        "exact_min": nan_extreme(np.nanmin, exact),
+        "exact_max": nan_extreme(np.nanmax, exact),
+        "max_pade1_overestimate": nan_extreme(np.nanmax, overestimate),
         "points_without_stable_K": int(np.sum(np.isnan(exact))),
     }
     if compensated is not None:
@@ -369,13 +327,9 @@ def _run_map(args) -> int:
 
 
 def _compensated_region(m: float, b_range, h_range, args) -> dict:
-    """Over a coarse (b, h) grid, stability.yaml's loop with the passivity controller simulated at
-    multiples of the exact bound (undelayed damper: the loop the scene runs), all points at once."""
-    import numpy as np
-
+    """The compensated region of the map (dockhil.contact.compensated), its arguments checked first."""
     from dockhil.contact.passivity import DEFAULT_MAX_DAMPING
-    from dockhil.contact.sheet_sweep import simulate_sheets
-    from dockhil.contact.stability import critical_stiffness_map
+    from dockhil.contact.stability_maps import MAX_DELAY_TICKS, RATE, compensated_region
     from dockhil.progress import Progress
 
     max_damping = getattr(args, "max_damping", None)
@@ -389,33 +343,11 @@ def _compensated_region(m: float, b_range, h_range, args) -> dict:
         raise DockhilError(f"--multiples must be 1 to 20 values in (0, 1000], got {' '.join(f'{x:g}' for x in args.multiples)}")
     if not (math.isfinite(args.seconds) and 1.0 <= args.seconds <= 600.0):
         raise DockhilError(f"--seconds must be between 1 and 600 s, got {args.seconds:g}")
-    bs, hs = np.linspace(*b_range, args.sim_n), np.linspace(*h_range, args.sim_n)
-    if hs[-1] * _RATE > 20000:
-        raise DockhilError(f"--h-range reaches {hs[-1] * _RATE:.0f} ticks of delay at {_RATE:g} Hz: the simulated sweep"
-                           f" goes up to 20000")
-    bound = critical_stiffness_map(m, bs, hs, "exact", "undelayed")  # [h, b]
-    hh, bb, xx = np.meshgrid(hs, bs, multiples, indexing="ij")
-    kk = bound[:, :, None] * xx
-    ok = np.isfinite(kk) & (kk > 0.0)
-    start, cpu = time.perf_counter(), time.process_time()
-    runs = simulate_sheets(m, bb[ok], kk[ok], hh[ok], max_damping, dt=1.0 / _RATE, seconds=args.seconds,
-                           thrust=_THRUST, progress=Progress(int(round(args.seconds * _RATE)) + 1, 1.0 / _RATE))
-    stable = np.zeros(kk.shape, bool)
-    stable[ok] = ~runs["grows"] & ~runs["saturated"]
-    saturated = np.zeros(kk.shape, bool)
-    saturated[ok] = runs["saturated"]
-    # The largest multiple up to which every multiple tried is stable (0: not even the smallest).
-    upto = np.cumprod(stable, axis=2).astype(bool)
-    largest = np.where(upto.any(axis=2), np.array(multiples)[np.argmax(~upto, axis=2) - 1], 0.0)
-    largest = np.where(upto.all(axis=2), multiples[-1], largest)
-    largest = np.where(np.isfinite(bound), largest, np.nan)
-    return {"loop": "m s^2 + b s + K e^(-sh) = 0 (stability.yaml: damper on the simulated velocity), sampled at "
-                    f"{_RATE:g} Hz, {_THRUST:g} N thrust, {args.seconds:g} s simulated per point",
-            "max_damping": max_damping, "grid": [args.sim_n, args.sim_n], "b": bs.tolist(), "h": hs.tolist(),
-            "multiples": multiples, "points": int(ok.sum()),
-            "largest_stable_multiple": [[None if math.isnan(x) else float(x) for x in row] for row in largest],
-            "stable_points": int(stable.sum()), "saturated_points": int(saturated.sum()),
-            "wall_seconds": time.perf_counter() - start, "cpu_seconds": time.process_time() - cpu}
+    if h_range[1] * RATE > MAX_DELAY_TICKS:
+        raise DockhilError(f"--h-range reaches {h_range[1] * RATE:.0f} ticks of delay at {RATE:g} Hz: the simulated "
+                           f"sweep goes up to {MAX_DELAY_TICKS}")
+    return compensated_region(m, b_range, h_range, args.sim_n, multiples, max_damping, args.seconds,
+                              progress=Progress(int(round(args.seconds * RATE)) + 1, 1.0 / RATE))
 
 
 def _print_region(r: dict) -> None:
@@ -429,86 +361,11 @@ def _print_region(r: dict) -> None:
         print(f"    largest stiffness stable at every point: {min(flat):g} x exact; at some point: {max(flat):g} x exact")
 
 
-def _nanreduce(fn, values) -> float | None:
-    import numpy as np
-
-    if np.all(np.isnan(values)):
-        return None
-    out = float(fn(values))
-    return None if math.isnan(out) else out
-
-
-def _plot(path: str, m: float, b, h, pade1, exact, damper: str, compensated: dict | None = None) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    bb, hh = np.meshgrid(b, h * 1e3)
-    panels = 2 if compensated is None else 3
-    fig = plt.figure(figsize=(6 * panels, 5))
-    ax = fig.add_subplot(1, panels, 1, projection="3d")
-    ax.plot_surface(bb, hh, pade1, cmap="viridis", linewidth=0, antialiased=False)
-    ax.set_xlabel("b [N s/m]")
-    ax.set_ylabel("h [ms]")
-    ax.set_zlabel("K_max [N/m]")
-    ax.set_title(f"Eq. 12 critical stiffness, m = {m:g} kg (Fig. 7)")
-    ax2 = fig.add_subplot(1, panels, 2)
-    filled = ax2.contourf(bb, hh, exact, levels=20, cmap="viridis")
-    fig.colorbar(filled, ax=ax2, label="exact K_max [N/m]")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        percent = 100.0 * (pade1 - exact) / exact
-    if np.any(np.isfinite(percent)):
-        lines = ax2.contour(bb, hh, percent, colors="white", linewidths=0.8, levels=6)
-        ax2.clabel(lines, fmt="%.2g %%", fontsize=7)
-    ax2.set_xlabel("b [N s/m]")
-    ax2.set_ylabel("h [ms]")
-    ax2.set_title(f"exact bound ({damper} damper); white: Eq. 12 excess [%]")
-    if compensated is not None:
-        _plot_region(fig.add_subplot(1, panels, 3), compensated)
-    fig.tight_layout()
-    save_figure(fig, path, dpi=100)
-
-
-def _plot_region(ax, r: dict) -> None:
-    """The compensated region: per (b, h) point, the largest multiple of the exact bound stable."""
-    import numpy as np
-    from matplotlib.colors import BoundaryNorm, ListedColormap
-
-    largest = np.array([[np.nan if x is None else x for x in row] for row in r["largest_stable_multiple"]])
-    levels = [0.0, *r["multiples"]]
-    colors = ["#f4c7c3", *[_green(i, len(r["multiples"])) for i in range(len(r["multiples"]))]]
-    edges = [-0.5] + [(a + b) / 2 for a, b in zip(levels, levels[1:])] + [levels[-1] + 1.0]
-    mesh = ax.pcolormesh(np.array(r["b"]), np.array(r["h"]) * 1e3, largest, shading="nearest",
-                         cmap=ListedColormap(colors), norm=BoundaryNorm(edges, len(colors)))
-    bar = ax.figure.colorbar(mesh, ax=ax, ticks=levels, label="largest K stable [x exact bound]")
-    bar.ax.set_yticklabels(["none", *[f"{x:g}x" for x in r["multiples"]]])
-    if len(r["b"]) <= 12:
-        for i, h in enumerate(r["h"]):
-            for j, b in enumerate(r["b"]):
-                if not np.isnan(largest[i, j]):
-                    label = f"{largest[i, j]:g}x" if largest[i, j] > 0 else "none"
-                    ax.text(b, h * 1e3, label, ha="center", va="center", fontsize=7)
-    ax.set_xlabel("b [N s/m]")
-    ax.set_ylabel("h [ms]")
-    ax.set_title(f"passivity compensation (max_damping {r['max_damping']:g} N s/m), simulated:\n"
-                 "largest K that neither grows nor saturates (undelayed damper)", fontsize=9)
-
-
-def _green(i: int, n: int) -> str:
-    """The i-th of n greens, light to dark."""
-    from matplotlib import colormaps
-    from matplotlib.colors import to_hex
-
-    return to_hex(colormaps["Greens"](0.3 + 0.6 * i / max(1, n - 1)))
-
-
 def _scene_values(args) -> tuple[float, float, float, float, float, float, float]:
     """m, k_d, b_d, k_h, b_h, h, rate of a scene's loop, as the graph will run it."""
-    from dockhil import launchfile
-    from dockhil.graph import build
-    from dockhil.scenecheck import scene_loop
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
+    from dockhil.analysis.scenecheck import scene_loop
 
     given = [f"--{n.replace('_', '-')}" for n in ("m", "h", *_HYBRID) if getattr(args, n, None) is not None]
     if given:
@@ -598,9 +455,7 @@ def _run_hybrid_map(args, m: float) -> int:
     crossings) and sampled at --rate, beside Eq. 12's verdict on the paper's loop (the whole kcs delayed)."""
     import numpy as np
 
-    from dockhil.contact.sampled import SampledLoop, spectral_radius
     from dockhil.contact.scenario import check_nonnegative, check_positive
-    from dockhil.contact.stability import pade1_bound, unstable_root_count
 
     if args.kcs is None or args.bcs is None:
         raise DockhilError("the hybrid map needs both --kcs and --bcs (the target contact)")
@@ -616,18 +471,15 @@ def _run_hybrid_map(args, m: float) -> int:
     args.n = 60 if args.n is None else args.n
     if not 2 <= args.n <= 400:
         raise DockhilError(f"--n must be between 2 and 400 for the hybrid map, got {args.n}")
+    from dockhil.contact.stability_maps import hybrid_map
+
     ks, hs = np.linspace(k_lo, k_hi, args.n), np.linspace(h_lo, h_hi, args.n)
     start = time.perf_counter()
-    exact = np.zeros((hs.size, ks.size), bool)
-    sampled = np.zeros_like(exact)
-    for i, h in enumerate(hs):
-        for j, k in enumerate(ks):
-            exact[i, j] = unstable_root_count(m, kcs - k, bcs, k, 0.0, h) == 0
-            loop = SampledLoop(m, kcs - k, bcs, k, 0.0, dt=1.0 / rate, delay_ticks=int(round(h * rate)))
-            sampled[i, j] = spectral_radius(loop) < 1.0
-    eq12 = np.array([(lambda kb: kb is not None and kcs < kb)(pade1_bound(m, bcs, h)) for h in hs])
+    exact, sampled, eq12 = hybrid_map(m, kcs, bcs, rate, ks, hs)
     seconds = time.perf_counter() - start
-    _plot_hybrid(args.png, m, kcs, bcs, rate, ks, hs, exact, sampled, eq12)
+    from dockhil.analysis.stability_plot import plot_hybrid
+
+    plot_hybrid(args.png, m, kcs, bcs, rate, ks, hs, exact, sampled, eq12)
     summary = {"png": args.png, "m": m, "kcs": kcs, "bcs": bcs, "rate": rate, "grid": [args.n, args.n],
                "k_range": [k_lo, k_hi], "h_range": [h_lo, h_hi], "compute_seconds": seconds,
                "exact_stable_fraction": float(exact.mean()), "sampled_stable_fraction": float(sampled.mean()),
@@ -643,25 +495,106 @@ def _run_hybrid_map(args, m: float) -> int:
     return 0
 
 
-def _plot_hybrid(path, m, kcs, bcs, rate, ks, hs, exact, sampled, eq12) -> None:
-    import matplotlib
+# -- `dockhil stability multi`: the multi-axis delayed loop (dockhil.contact.stability6) ------------------
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
+_MULTI_DOC = """The linearised 6-DOF hybrid loop det(M s^2 + B_d s + K_d + (B_h s + K_h) e^{-sh}) = 0 of a
+6-DOF scene (read from its launch file, at its start configuration) or the paper's planar
+case (normal x and rotation rz of a body touched off its CoM); prints the rightmost root and
+the axis leading its mode, and the stiffness margin with the axis or mode that limits it."""
 
-    kk, hh = np.meshgrid(ks, hs * 1e3)
-    fig, (a, b) = plt.subplots(1, 2, figsize=(12, 5), sharey=True)
-    a.contourf(kk, hh, exact.astype(float), levels=[-0.5, 0.5, 1.5], colors=["#f4c7c3", "#b7e1cd"])
-    if sampled.any() and not sampled.all():
-        a.contour(kk, hh, sampled.astype(float), levels=[0.5], colors="k", linewidths=1.2)
-    a.set_title(f"hybrid loop, kcs = {kcs:g} N/m, bcs = {bcs:g} N s/m, m = {m:g} kg\n"
-                f"green: stable (exact); black: sampled boundary at {rate:g} Hz", fontsize=9)
-    a.set_xlabel("passive stiffness k [N/m] (virtual: kcs - k)")
-    a.set_ylabel("delay h [ms]")
-    b.contourf(kk, hh, np.repeat(eq12[:, None], ks.size, axis=1).astype(float), levels=[-0.5, 0.5, 1.5],
-               colors=["#f4c7c3", "#b7e1cd"])
-    b.set_title("Eq. 12 on the paper's loop (all of kcs behind the delay)\ngreen: kcs < K_max(bcs, h)", fontsize=9)
-    b.set_xlabel("passive stiffness k [N/m] (Eq. 12 does not depend on it)")
-    fig.tight_layout()
-    save_figure(fig, path, dpi=100)
+
+def _add_multi_arguments(p: argparse.ArgumentParser) -> None:
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.description = _MULTI_DOC
+    p.epilog = ("examples:\n"
+                "  dockhil stability multi --scene launch/hil6.yaml delay:=0.016\n"
+                "  dockhil stability multi --planar --m 750 --inertia 500 --lever 0.5 --k-normal 2510"
+                " --b-normal 60 --k-rot 300 --b-rot 4 --h 0.016")
+    # SUPPRESS: names shared with `dockhil stability` keep a value given before 'multi'.
+    p.add_argument("--scene", nargs="+", metavar="FILE [NAME:=VALUE", default=argparse.SUPPRESS,
+                   help="a 6-DOF launch file (satellite_dynamics and virtual_impedance with dof: 6, a delay_injector)"
+                        " and its"
+                        " launch arguments ...]")
+    p.add_argument("--planar", action="store_true", help="the 2-D case: --m --inertia --lever --k-normal --b-normal"
+                   " [--k-rot --b-rot --direct] --h")
+    p.add_argument("--m", type=float, metavar="KG", default=argparse.SUPPRESS, help="planar: body mass [kg]")
+    p.add_argument("--inertia", type=float, metavar="KG_M2", help="planar: inertia about z [kg m^2]")
+    p.add_argument("--lever", type=float, default=0.0, metavar="M", help="planar: contact point off the CoM [m]")
+    p.add_argument("--k-normal", type=float, metavar="N_M", help="planar: normal stiffness [N/m]")
+    p.add_argument("--b-normal", type=float, metavar="NS_M", help="planar: normal damping [N s/m]")
+    p.add_argument("--k-rot", type=float, default=0.0, metavar="NM_RAD", help="planar: rotational stiffness")
+    p.add_argument("--b-rot", type=float, default=0.0, metavar="NMS_RAD", help="planar: rotational damping")
+    p.add_argument("--direct", type=float, default=0.0, metavar="F",
+                   help="planar: fraction of stiffness and damping on the undelayed (virtual) side, 0 to 1")
+    p.add_argument("--h", type=float, metavar="S", default=argparse.SUPPRESS, help="planar: robot delay [s]")
+    p.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help="print one JSON object")
+
+
+def _scene_loop6(items: list[str]):
+    """(loop, description) of a 6-DOF scene at its start configuration."""
+    from dockhil.scene import graph as graphmod
+    from dockhil.scene import launchfile
+    from dockhil import nodes
+    from dockhil.analysis.scenecheck import scene_loop6
+
+    path, overrides = items[0], launchfile.parse_overrides(items[1:])
+    graph = graphmod.build(launchfile.load(path, overrides))
+    loop = scene_loop6(graph)
+    if loop is None:
+        types = {gn.type_name for gn in graph.nodes.values()}
+        named = [f"{nodes.ONE_DOF[t]} with dof: 6" for t in ("satellite_dynamics6", "virtual_impedance6")
+                 if t not in types]
+        raise DockhilError(f"{path}: not a 6-DOF hybrid scene (no {' and no '.join(named)});"
+                           " for a 1-DOF scene run `dockhil stability --scene`")
+    return loop, f"6-DOF hybrid loop of {path} at its start configuration, delay h = {loop.h:g} s"
+
+
+def _run_multi(args: argparse.Namespace) -> int:
+    from dockhil.contact import stability6
+
+    scene = getattr(args, "scene", None)
+    if bool(scene) == bool(args.planar):
+        raise DockhilError("give either --scene FILE [NAME:=VALUE ...] or --planar with its values")
+    if scene:
+        loop, what = _scene_loop6(scene)
+    else:
+        values = {}
+        for name in ("m", "inertia", "k_normal", "b_normal", "h"):
+            v = getattr(args, name, None)
+            if v is None:
+                raise DockhilError(f"--planar needs --{name.replace('_', '-')}")
+            values[name] = v
+        if not 0.0 <= args.direct <= 1.0:
+            raise DockhilError(f"--direct must be between 0 and 1, got {args.direct:g}")
+        loop = stability6.planar_loop(values["m"], values["inertia"], args.lever, values["k_normal"], values["b_normal"],
+                                      values["h"], args.k_rot, args.b_rot, args.direct)
+        what = f"planar loop (x at the contact point, rz), lever {args.lever:g} m, delay h = {values['h']:g} s"
+    root = stability6.rightmost(loop)
+    margin = stability6.stiffness_margin(loop)
+    modes = stability6.modal_loops(loop)
+    out = {
+        "loop": what, "axes": list(loop.axes), "h_s": loop.h,
+        "rightmost_root_1_s": [root.s.real, root.s.imag], "rightmost_axis": root.axis,
+        "rightmost_mode": [abs(c) for c in root.mode], "stable": root.s.real < 0.0,
+        "stiffness_margin": None if margin.alpha is None or math.isinf(margin.alpha) else margin.alpha,
+        "crossing_rad_s": margin.omega, "limiting_axis": None if margin.root is None else margin.root.axis,
+        "limiting_mode": None if margin.root is None else [abs(c) for c in margin.root.mode],
+        "reason": margin.reason, "decoupled_modes": modes is not None,
+    }
+    if getattr(args, "json", False):
+        print(json.dumps(out))
+        return 0
+    print(what)
+    print(f"rightmost root   {root.s.real:+.6g} {root.s.imag:+.6g}j 1/s, led by axis {root.axis}: "
+          + ("stable (decays)" if out["stable"] else "UNSTABLE (grows)"))
+    print("its mode         " + "  ".join(f"{a} {abs(c):.3g}" for a, c in zip(loop.axes, root.mode)))
+    if out["stiffness_margin"] is not None:
+        print(f"stiffness margin stable up to {margin.alpha:.6g} times the delayed (passive) stiffness; there the"
+              f" mode led by axis {out['limiting_axis']} crosses at {margin.omega:.6g} rad/s")
+        print("crossing mode    " + "  ".join(f"{a} {abs(c):.3g}" for a, c in zip(loop.axes, margin.root.mode)))
+    else:
+        print(f"stiffness margin {margin.reason}")
+    print("modes: " + ("the loop splits into independent 1-DOF modal loops" if modes is not None else
+                       "the axes couple (the bound is not one axis's 1-DOF bound)")
+          + "; translations [m] and rotations [rad] are compared as numbers in the mode shapes")
+    return 0

@@ -74,7 +74,7 @@ def run(args) -> int:
         raise DockhilError(f"--out {args.out}: folder {folder} does not exist or is not writable")
     if os.path.isdir(args.out):
         raise DockhilError(f"--out {args.out}: is a folder; give a file name, e.g. {os.path.join(args.out, 'results.parquet')}")
-    from dockhil import sweep
+    from dockhil.analysis import sweep
 
     campaign = sweep.load_campaign(args.campaign)
     sweep.check_outputs(campaign)
@@ -84,7 +84,7 @@ def run(args) -> int:
         if args.dask:
             executor = sweep.DaskExecutor(args.dask, args.workers)
         else:
-            executor = sweep.LocalPool(args.workers or sweep._cpu_count())
+            executor = sweep.LocalPool(args.workers or sweep.usable_cpus())
         try:
             out = sweep.sweep(campaign, args.out, executor, progress=not args.quiet)
         finally:
@@ -136,7 +136,7 @@ def _plot(args) -> int:
         raise DockhilError("sweep plot: give the results file: dockhil sweep plot RESULTS.parquet --png FILE")
     if not args.png:
         raise DockhilError("sweep plot: give --png FILE (where to write the figure)")
-    from dockhil.sweep_plot import plot_results
+    from dockhil.analysis.sweep_plot import plot_results
 
     for line in plot_results(args.results, args.png):
         print(line)

@@ -38,7 +38,7 @@ def _describe(info: dict) -> str:
 
 def select_graphs(graph_id: str | None) -> list[dict]:
     """The running graphs, or only the one with run id `graph_id`; DockhilError (one line) if it does not run."""
-    from dockhil.launcher import running_graphs
+    from dockhil.runtime.registry import running_graphs
 
     graphs = running_graphs()
     if graph_id is None:
@@ -68,7 +68,7 @@ def choose_graph(topic: str, graph_id: str | None) -> dict:
 
 def graph_alive(info: dict) -> bool:
     """Whether the graph's launcher still runs (it removes its registry entry when it ends)."""
-    from dockhil.launcher import registry_dir
+    from dockhil.runtime.registry import registry_dir
 
     try:
         os.kill(info["pid"], 0)
@@ -78,7 +78,7 @@ def graph_alive(info: dict) -> bool:
 
 
 def _subscribe(endpoint: str, keys):
-    from dockhil.transport import Subscriber
+    from dockhil.runtime.transport import Subscriber
     import zmq
 
     sub = Subscriber(zmq.Context.instance(), observer=True)
@@ -105,7 +105,7 @@ class _Watch:
 
 
 def run(args) -> int:
-    from dockhil.launcher import graph_keys
+    from dockhil.runtime.registry import graph_keys
 
     if args.action == "list":
         graphs = select_graphs(args.graph)

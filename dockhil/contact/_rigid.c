@@ -237,7 +237,7 @@ static PyObject *drift(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     Py_RETURN_NONE;
 }
 
-/* q / |q| (rigid._normalised). */
+/* q / |q| (rigid.normalised). */
 static void normalised4(const double *q, double *out)
 {
     double n = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);

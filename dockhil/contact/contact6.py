@@ -137,7 +137,7 @@ class MatVec6:
 
 def check_matrix6(name: str, value, unit: str) -> np.ndarray:
     """A 6x6 symmetric PSD matrix; a 6-vector means its diagonal."""
-    arr = np.asarray(value, dtype=float) if rigid._numeric(value) else None
+    arr = np.asarray(value, dtype=float) if rigid.is_numeric(value) else None
     if arr is not None and arr.shape == (6,):
         if not np.all(np.isfinite(arr)) or np.any(arr < 0.0):
             raise ContactModelError(f"{name} diagonal must be 6 finite numbers >= 0 [{unit}], got {arr.tolist()}")

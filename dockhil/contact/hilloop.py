@@ -18,10 +18,14 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from dockhil.contact.hybrid import VirtualImpedance, passive_force, virtual_forces
 from dockhil.contact.passivity import ENERGY_FIELDS, EnergyMonitor, Passivity
 from dockhil.contact.scenario import ContactModelError, ContactScenario
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 class Bodies:

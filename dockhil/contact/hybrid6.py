@@ -63,7 +63,7 @@ from dockhil.contact.contact6 import (
     skew,
     sub6,
 )
-from dockhil.contact.rigid import (COMPILED, BodyState, HeldWrench, Motion, RigidBody, _normalised, add3,
+from dockhil.contact.rigid import (COMPILED, BodyState, HeldWrench, Motion, RigidBody, normalised, add3,
                                    check_unit_quaternion, check_vector, cross3, quat_conjugate, quat_from_rotvec,
                                    quat_multiply, quat_to_matrix, rotate, rotate_back, rotvec3,
                                    sub3)
@@ -241,7 +241,7 @@ def published_body(m: Motion) -> tuple:
 
 def principal_attitude(body: RigidBody, orientation) -> tuple:
     """The integrator's (principal-frame) attitude of a published body-frame attitude."""
-    return _normalised(orientation if body._bp_identity else quat_multiply(orientation, body._q_bp))
+    return normalised(orientation if body._bp_identity else quat_multiply(orientation, body._q_bp))
 
 
 def motion_from_published(body: RigidBody, position, orientation, velocity, omega_world) -> Motion:
@@ -453,7 +453,7 @@ class Servo6:
         turn = rotvec3(quat_multiply(quat_conjugate(p[1]), orientation))
         self.pose = RelativePose(
             _toward(p[0], position, a),
-            _normalised(quat_multiply(p[1], quat_from_rotvec((a * turn[0], a * turn[1], a * turn[2])))),
+            normalised(quat_multiply(p[1], quat_from_rotvec((a * turn[0], a * turn[1], a * turn[2])))),
             _toward(p[2], velocity, a),
             _toward(p[3], angular_velocity, a),
         )

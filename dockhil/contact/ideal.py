@@ -49,7 +49,7 @@ class _Modes:
         return self.omega_d > 0.0
 
 
-def _modes(m: float, kcs: float, bcs: float) -> _Modes:
+def modes(m: float, kcs: float, bcs: float) -> _Modes:
     sigma = bcs / (2.0 * m)
     disc = kcs / m - sigma * sigma
     if disc > 0.0:
@@ -62,7 +62,7 @@ def relative_motion(m: float, kcs: float, bcs: float, closing_velocity: float, t
     (p(0) = 0, p'(0) = closing_velocity), valid while the contact lasts."""
     t = np.asarray(t, dtype=float)
     v0 = closing_velocity
-    mo = _modes(m, kcs, bcs)
+    mo = modes(m, kcs, bcs)
     if mo.underdamped:
         decay = np.exp(-mo.sigma * t)
         s = np.sin(mo.omega_d * t) / mo.omega_d
@@ -79,7 +79,7 @@ def relative_motion(m: float, kcs: float, bcs: float, closing_velocity: float, t
 def contact_duration(m: float, kcs: float, bcs: float) -> float:
     """Time [s] from onset until the penetration returns to zero: pi / omega_d,
     or inf when the contact is critically or over-damped (p never returns)."""
-    mo = _modes(m, kcs, bcs)
+    mo = modes(m, kcs, bcs)
     return math.pi / mo.omega_d if mo.underdamped else math.inf
 
 
@@ -90,7 +90,7 @@ def _force_stationary_time(m: float, kcs: float, bcs: float) -> float | None:
     """
     a = kcs - bcs * bcs / m
     c = bcs * kcs / m
-    mo = _modes(m, kcs, bcs)
+    mo = modes(m, kcs, bcs)
     if mo.underdamped:
         # a cos(wt) - (a sigma + c) sin(wt) / w = 0
         phase = math.atan2(a * mo.omega_d, a * mo.sigma + c) % math.pi
@@ -144,7 +144,7 @@ def ideal_contact_summary(scenario: ContactScenario) -> ContactSummary:
             f"no contact: the chaser does not close in (v1 - v2 = {v0!r} m/s, needs > 0)"
         )
     m = scn.reduced_mass
-    mo = _modes(m, scn.kcs, scn.bcs)
+    mo = modes(m, scn.kcs, scn.bcs)
     duration = contact_duration(m, scn.kcs, scn.bcs)
     candidates = [0.0]
     t_star = _force_stationary_time(m, scn.kcs, scn.bcs)

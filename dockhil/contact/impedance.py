@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dockhil.contact.hybrid import VirtualImpedance
-from dockhil.contact.ideal import _modes, contact_duration, ideal_trajectory
+from dockhil.contact.ideal import modes, contact_duration, ideal_trajectory
 from dockhil.contact.integrators import METHODS, Integrator, LinearSecondOrderSystem, simulate_reference
 from dockhil.contact.scenario import (
     ContactModelError,
@@ -79,7 +79,7 @@ def negative_stiffness_message(scenario: ContactScenario) -> str | None:
 
 def _deepest_penetration_time(scenario: ContactScenario) -> float:
     """Time [s] after onset at which p' = 0 (inf for a pure damper)."""
-    mo = _modes(scenario.reduced_mass, scenario.kcs, scenario.bcs)
+    mo = modes(scenario.reduced_mass, scenario.kcs, scenario.bcs)
     if mo.underdamped:
         return math.atan2(mo.omega_d, mo.sigma) / mo.omega_d
     if mo.mu == 0.0:

@@ -95,7 +95,7 @@ def matrix_to_quat(r) -> tuple[float, float, float, float]:
     else:
         s = 2.0 * math.sqrt(1.0 + r[2][2] - r[0][0] - r[1][1])
         q = ((r[0][2] + r[2][0]) / s, (r[1][2] + r[2][1]) / s, 0.25 * s, (r[1][0] - r[0][1]) / s)
-    q = _normalised(q)
+    q = normalised(q)
     return q if q[3] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
 
 
@@ -105,7 +105,7 @@ def quat_from_rotvec(v) -> tuple[float, float, float, float]:
     angle = math.sqrt(x * x + y * y + z * z)
     if angle < 1e-8:
         half = 0.5 - angle * angle / 48.0  # sin(a/2)/a
-        return _normalised((half * x, half * y, half * z, 1.0 - angle * angle / 8.0))
+        return normalised((half * x, half * y, half * z, 1.0 - angle * angle / 8.0))
     s = math.sin(0.5 * angle) / angle
     return (s * x, s * y, s * z, math.cos(0.5 * angle))
 
@@ -171,7 +171,7 @@ def rotate_back_python(q, v) -> tuple[float, float, float]:
     return (v0 + w * t0 - y * t2 + z * t1, v1 + w * t1 - z * t0 + x * t2, v2 + w * t2 - x * t1 + y * t0)
 
 
-def _normalised(q) -> tuple[float, float, float, float]:
+def normalised(q) -> tuple[float, float, float, float]:
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
@@ -190,18 +190,18 @@ def check_unit_quaternion(name: str, q) -> tuple[float, float, float, float]:
             f"{name} must be a unit quaternion (x, y, z, w), got norm {norm:.12g};"
             f" divide it by its norm or give (0, 0, 0, 1) for no rotation"
         )
-    return _normalised(values)
+    return normalised(values)
 
 
 def check_vector(name: str, v, size: int = 3, unit: str = "") -> np.ndarray:
-    arr = np.asarray(v, dtype=float) if _numeric(v) else None
+    arr = np.asarray(v, dtype=float) if is_numeric(v) else None
     if arr is None or arr.shape != (size,) or not np.all(np.isfinite(arr)):
         unit_text = f" [{unit}]" if unit else ""
         raise ContactModelError(f"{name} must be {size} finite numbers{unit_text}, got {v!r}")
     return arr
 
 
-def _numeric(v) -> bool:
+def is_numeric(v) -> bool:
     try:
         np.asarray(v, dtype=float)
     except (TypeError, ValueError):
@@ -212,7 +212,7 @@ def _numeric(v) -> bool:
 def check_symmetric(name: str, matrix, size: int, definite: bool, unit: str = "") -> np.ndarray:
     """A size x size symmetric matrix, positive definite (definite) or
     semi-definite, or one clear ContactModelError."""
-    arr = np.asarray(matrix, dtype=float) if _numeric(matrix) else None
+    arr = np.asarray(matrix, dtype=float) if is_numeric(matrix) else None
     if arr is None or arr.shape != (size, size) or not np.all(np.isfinite(arr)):
         shape = None if arr is None else arr.shape
         raise ContactModelError(f"{name} must be a finite {size}x{size} matrix [{unit}], got shape {shape}")
@@ -333,7 +333,7 @@ class Motion:
 
     @classmethod
     def from_state(cls, body: RigidBody, state: BodyState) -> "Motion":
-        q_p = _normalised(quat_multiply(state.orientation, body._q_bp))
+        q_p = normalised(quat_multiply(state.orientation, body._q_bp))
         omega_p = body.principal_axes.T @ state.angular_velocity
         return cls(body, _floats3(state.position), _floats3(state.velocity), q_p,
                    _floats3(body.principal_moments * omega_p))
@@ -343,7 +343,7 @@ class Motion:
 
     def state(self) -> BodyState:
         b = self.body
-        q_b = _normalised(quat_multiply(self.q, quat_conjugate(b._q_bp)))
+        q_b = normalised(quat_multiply(self.q, quat_conjugate(b._q_bp)))
         return BodyState(np.array(self.x), q_b, np.array(self.v),
                          b.principal_axes @ (np.array(self.L) / b.principal_moments))
 

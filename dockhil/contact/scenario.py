@@ -12,8 +12,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, replace
+from typing import TYPE_CHECKING
 
 from dockhil.errors import DockhilError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 class ContactModelError(DockhilError):

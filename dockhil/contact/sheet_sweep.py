@@ -47,7 +47,7 @@ def simulate_sheets(m, b, K, h, max_damping, *, dt: float = 1e-3, seconds: float
     initial = 0.5 * K * np.maximum(p, 0.0) ** 2
     spring_max = np.zeros(lanes)
     left = np.full(lanes, -np.inf)
-    prev = None
+    prev = prev_loaded = None
     equilibrium = thrust / K
     windows = (n_ticks // 5, 2 * n_ticks // 5), (4 * n_ticks // 5, n_ticks)
     amplitude = np.zeros((2, lanes))

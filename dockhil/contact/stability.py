@@ -246,7 +246,7 @@ def critical_stiffness_map(
     raise ContactModelError(f"bound must be 'pade1' or 'exact', got {bound!r}")
 
 
-def _cheb(n: int) -> tuple[np.ndarray, np.ndarray]:
+def chebyshev(n: int) -> tuple[np.ndarray, np.ndarray]:
     """Chebyshev points x_j = cos(j pi / n) and differentiation matrix (Trefethen)."""
     x = np.cos(np.pi * np.arange(n + 1) / n)
     c = np.ones(n + 1)
@@ -294,7 +294,7 @@ def characteristic_roots(
     kappa = K * h * h / m
     # Enough nodes to resolve the loop's frequencies over one delay.
     nodes = int(min(400, 32 + 3.0 * math.sqrt(abs(kappa)) + 2.0 * beta))
-    x, d = _cheb(nodes)
+    x, d = chebyshev(nodes)
     gen = np.kron(2.0 * d, np.eye(2))  # d/dtheta on theta = (x - 1) / 2 in [-1, 0]
     if damper == "delayed":
         now = np.array([[0.0, 1.0], [0.0, 0.0]])
@@ -412,7 +412,7 @@ def hybrid_roots(m: float, k_direct: float, b_direct: float, k_delayed: float, b
     kd_, kh_ = kd * h * h / m, kh * h * h / m
     bd_, bh_ = bd * h / m, bh * h / m
     nodes = int(min(400, 32 + 3.0 * math.sqrt(abs(kd_) + abs(kh_)) + 2.0 * (abs(bd_) + abs(bh_))))
-    x, d = _cheb(nodes)
+    x, d = chebyshev(nodes)
     gen = np.kron(2.0 * d, np.eye(2))
     gen[:2, :] = 0.0
     gen[:2, :2] = [[0.0, 1.0], [-kd_, -bd_]]

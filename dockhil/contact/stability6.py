@@ -37,7 +37,7 @@ import numpy as np
 from dockhil.contact.contact6 import AXES
 from dockhil.contact.rigid import check_symmetric
 from dockhil.contact.scenario import ContactModelError, check_nonnegative, check_positive
-from dockhil.contact.stability import _cheb
+from dockhil.contact.stability import chebyshev
 
 MAX_NODES = 120
 TRACK_WIDTH = 0.02  # relative bracket of the stiffness margin below which bisection follows the crossing roots
@@ -139,7 +139,7 @@ def roots(loop: MultiAxisLoop, count: int = 6) -> list[Root]:
         speed = float(np.max(np.abs(np.linalg.eigvals(minv @ (np.abs(loop.k_direct) + np.abs(loop.k_delayed))))))
         damp = float(np.max(np.abs(np.linalg.eigvals(minv @ (np.abs(loop.b_direct) + np.abs(loop.b_delayed))))))
         nodes = int(min(MAX_NODES, 24 + 3.0 * math.sqrt(speed) * h + 2.0 * damp * h))
-        _, d = _cheb(nodes)
+        _, d = chebyshev(nodes)
         size = 2 * n
         gen = np.kron(2.0 * d, np.eye(size))
         gen[:size, :] = 0.0

@@ -63,7 +63,7 @@ def untrusted(path: str) -> str | None:
 def private_link(name: str) -> str:
     """`name` in the graph's private run directory (outside a graph: the private runtime directory),
     where nobody else can plant a device: the default path of an emulated adapter's link."""
-    from dockhil import ownership
-    from dockhil.transport import runtime_dir
+    from dockhil.runtime import ownership
+    from dockhil.runtime.transport import runtime_dir
 
     return str((ownership.graph_dir() or runtime_dir()) / name)

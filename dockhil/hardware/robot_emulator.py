@@ -442,7 +442,7 @@ def claim_port(host: str, port: int):
         return None
     import socket
 
-    from dockhil import ownership
+    from dockhil.runtime import ownership
 
     try:
         address = socket.gethostbyname(host)

@@ -14,7 +14,7 @@ What sits behind the adapter decides what the host talks to:
   one port sends reaches the hosts of all other open ports. Run it as a
   process, `python -m dockhil.hardware.slcan_pty LINK [LINK ...]`, and two
   programs that each open one link with python-can talk CAN to each other.
-- A device emulator (nodes/ft_emulator.py) owns one port and is the only
+- A device emulator (dockhil/nodes/ft_emulator.py) owns one port and is the only
   other node on that bus.
 
 Protocol subset (each command ends with CR; the adapter answers CR for OK,
@@ -130,7 +130,7 @@ class SlcanPort:
     def __init__(self, link: str | None = None):
         self._claim = None  # this process's claim on the link path
         if link:
-            from dockhil import ownership
+            from dockhil.runtime import ownership
 
             self._claim = ownership.claim(f"slcan-adapter-{os.path.abspath(link)}", f"slcan adapter {link}")
             try:

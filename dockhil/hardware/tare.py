@@ -142,7 +142,7 @@ def _vec(v) -> Vec:
 def graph_store(node: str) -> TareStore | None:
     """The tare store of `node` in this graph's private run directory; None outside a graph (no
     restart within a graph to outlive: every start tares)."""
-    from dockhil import ownership
+    from dockhil.runtime import ownership
 
     directory = ownership.graph_dir()
     return TareStore(directory, node) if directory is not None else None

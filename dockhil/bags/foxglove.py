@@ -1,0 +1,186 @@
+"""A live view in Foxglove: every topic of a running graph served over the Foxglove WebSocket protocol.
+
+`dockhil launch FILE --foxglove [PORT]` starts foxglove-sdk's WebSocket server
+(127.0.0.1:8765 unless told otherwise) with one channel per topic, the same
+channels a bag records: message encoding "json", schema encoding
+"jsonschema", the message type's self-contained JSON Schema
+(`dockhil.bags.writer.channel_schema`). Times are those of bags: in sim time the log
+time is the message's sim time t * 1e9 ns after the Unix epoch, in wall time
+the time the bridge received it.
+
+The bridge observes; it never holds the graph back:
+
+- multi-process: one observer subscriber (prefix subscriptions, which the
+  sim-time start barrier does not wait for), subscribed only to the topics a
+  viewer subscribes to, so a topic nobody looks at costs nothing. It empties
+  its socket at each pass; when more came in than it can forward, it drops
+  the oldest of the burst and counts them, so no queue grows in a publisher.
+- composed: a tap that encodes a message only when a viewer wants its topic.
+- a viewer too slow for the stream loses the oldest messages in the server's
+  per-client queue (foxglove-sdk); the graph does not wait for it.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from typing import Any, Callable
+
+import msgspec
+
+from dockhil.errors import DockhilError
+
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8765
+BURST = 4096  # messages forwarded per pass at most; the older ones of a larger burst are dropped
+DRAIN_MAX = 100_000  # frames taken from the socket in one pass, so that a pass ends
+
+
+def _log(line: str) -> None:
+    from dockhil.log import node_line
+
+    node_line("foxglove", line)  # "[foxglove] warning: ...": under its own name, at its level
+
+
+class FoxgloveBridge:
+    """A Foxglove WebSocket server with one json channel per topic (topic -> wire type name).
+
+    Serving starts at once; `observe` feeds it from a multi-process graph, `tap` from a composed one."""
+
+    def __init__(self, topics: dict[str, str], *, sim: bool, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
+                 log: Callable[[str], None] = _log, burst: int = BURST):
+        try:
+            import foxglove
+        except ImportError:
+            raise DockhilError("--foxglove needs the foxglove-sdk package: pip install 'dockhil[foxglove]'") from None
+        from dockhil import msgs
+        from dockhil.bags.format import SCHEMA_ENCODING
+        from dockhil.bags.writer import channel_schema
+
+        self.sim = sim
+        self.log = log
+        self.burst = burst
+        self.sent = 0  # messages handed to the server
+        self.dropped = 0  # messages the bridge could not keep up with
+        self.unencodable = 0  # not msgpack of a message with a header: not served
+        self._from_wire = msgspec.msgpack.Decoder().decode
+        self._to_json = msgspec.json.Encoder().encode
+        self._context = foxglove.Context()  # channels of this bridge only, not the process-wide default
+        try:
+            self._server = foxglove.start_server(name="dockhil", host=host, port=port, context=self._context)
+        except RuntimeError as exc:
+            reason = str(exc).removeprefix("FoxgloveError: ")
+            todo = ("choose a free port with --foxglove PORT" if "in use" in reason
+                    else "give --foxglove-host an address of this machine")
+            raise DockhilError(f"--foxglove: cannot serve on {host}:{port}: {reason}; {todo}") from None
+        self.host, self.port = host, self._server.port
+        schemas = {}
+        for type_name in set(topics.values()):
+            data = json.dumps(channel_schema(msgs.type_by_name(type_name)), separators=(",", ":")).encode()
+            schemas[type_name] = foxglove.Schema(name=type_name, encoding=SCHEMA_ENCODING, data=data)
+        self.channels = {topic: foxglove.Channel(topic, schema=schemas[type_name], message_encoding="json",
+                                                 context=self._context)
+                         for topic, type_name in sorted(topics.items())}
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.error: str | None = None
+        log(f"[foxglove] live view of {len(self.channels)} topics on ws://{host}:{self.port} "
+            f"(Foxglove: Open connection, Foxglove WebSocket; layout: docs/foxglove-layout.json)")
+
+    # -- a multi-process graph ---------------------------------------------------
+    def observe(self, endpoints: dict[str, str], keys) -> None:
+        """Serve the topics of a multi-process graph: topic -> endpoint, with the graph's CURVE keys.
+        The nodes need not have bound yet: the subscriber connects when they do."""
+        import zmq
+
+        from dockhil.runtime.transport import Subscriber
+
+        sub = Subscriber(zmq.Context.instance(), observer=True)
+        # An observer subscribes to "/" (everything); this one only to the topics viewers want.
+        sub.sock.setsockopt(zmq.UNSUBSCRIBE, b"/")
+        for topic in self.channels:
+            if topic in endpoints:
+                sub.connect(endpoints[topic], keys=keys)
+        self._thread = threading.Thread(target=self._run, args=(sub,), name="foxglove-bridge", daemon=True)
+        self._thread.start()
+
+    def _run(self, sub) -> None:
+        import zmq
+
+        from dockhil.runtime.transport import MESSAGE
+
+        wanted: set[str] = set()
+        try:
+            while not self._stop.is_set():
+                now = {topic for topic, channel in self.channels.items() if channel.has_sinks()}
+                for topic in now - wanted:  # the topic's messages, not its empty sim-time ticks
+                    sub.sock.setsockopt(zmq.SUBSCRIBE, topic.encode() + MESSAGE)
+                for topic in wanted - now:
+                    sub.sock.setsockopt(zmq.UNSUBSCRIBE, topic.encode() + MESSAGE)
+                wanted = now
+                frames = sub.recv(0.1)
+                if frames is None:
+                    continue
+                burst = [frames]
+                while len(burst) < DRAIN_MAX and (frames := sub.recv_nowait()) is not None:
+                    burst.append(frames)
+                self.serve(burst)
+        except DockhilError as exc:  # a peer failed the graph's authentication: serve nothing more from it
+            self.error = str(exc)
+            self.log(f"[foxglove] warning: live view stopped: {exc}")
+        finally:
+            sub.close()
+
+    def serve(self, burst: list[list[bytes]]) -> None:
+        """Forward the messages ([topic, payload]) that came in since the last pass; of more than
+        `self.burst`, the oldest are dropped and counted: the bridge catches up instead of lagging."""
+        if len(burst) > self.burst:
+            self.dropped += len(burst) - self.burst
+            burst = burst[-self.burst:]
+        for frames in burst:
+            if len(frames) == 2:
+                self._forward(frames[0].decode(errors="replace"), frames[1])
+
+    def _forward(self, topic: str, payload: bytes) -> None:
+        channel = self.channels.get(topic)
+        if channel is None:
+            return
+        try:
+            message = self._from_wire(payload)
+            log_ns = round(message["header"]["stamp"] * 1e9) if self.sim else time.time_ns()
+            if not 0 <= log_ns < 2**64:
+                raise ValueError(log_ns)
+            data = self._to_json(message)
+        except (msgspec.DecodeError, msgspec.EncodeError, TypeError, KeyError, ValueError, OverflowError):
+            self.unencodable += 1
+            return
+        channel.log(data, log_time=log_ns)
+        self.sent += 1
+
+    # -- a composed graph ----------------------------------------------------------
+    def tap(self, topic: str, message: Any) -> None:
+        """ComposedGraph tap: encode only what a viewer subscribed to."""
+        channel = self.channels.get(topic)
+        if channel is None or not channel.has_sinks():
+            return
+        log_ns = round(message.header.stamp * 1e9) if self.sim else time.time_ns()
+        channel.log(self._to_json(message), log_time=log_ns)
+        self.sent += 1
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        self._server.stop()
+        lost = f"; dropped {self.dropped} it could not keep up with" if self.dropped else ""
+        bad = f"; {self.unencodable} not encodable as JSON" if self.unencodable else ""
+        self.log(f"[foxglove] served {self.sent} messages{lost}{bad}")
+
+
+def start(graph, *, clock: str, host: str, port: int) -> FoxgloveBridge:
+    """A bridge serving every topic of `graph` (checked before any node starts: a busy port fails here)."""
+    from dockhil import msgs
+
+    topics = {topic: msgs.type_name(ref.type) for topic, ref in graph.publishers.items()}
+    return FoxgloveBridge(topics, sim=clock == "sim", host=host, port=port)

@@ -1,0 +1,739 @@
+"""Bags and a running graph: the recorder (the logger) and `bag play`.
+
+Recorder. Subscribes to topics of a running graph and writes each message's
+wire bytes as they came (no re-encoding) to an MCAP bag (`dockhil.bags`).
+The log time of a message is its receive time in wall time; in sim time it is
+the message's header stamp, so a sim-time bag carries sim times and the same
+run recorded twice gives the same bag. It runs in three ways:
+
+- `dockhil launch FILE --bag PATH`: the launcher starts it as a helper
+  process (`python -m dockhil.bags.live record PATH --graph-pid PID
+  [--n-ticks N]`) counted as a subscriber of every topic, so sim time waits
+  for it before tick 0. In sim time it exits by itself once it holds tick
+  N-1 of every topic.
+- `dockhil launch FILE --composed --bag PATH`: a tap in the one process
+  (`TapRecorder`) encodes each message and writes it; the bytes are the same.
+- `dockhil bag record PATH [--topics ...]`: joins graphs that are already
+  running (found in the registry), until Ctrl-C or until they stop.
+
+Chunks are closed by size, by age and on a 0.5 s timer, so a recorder killed
+with SIGKILL loses at most the chunk it was filling. On SIGTERM or SIGINT it
+drains what its socket holds, then closes the bag.
+
+Exit status: 2 (one line, nothing recorded) when the bag cannot be created;
+the launcher checks the path before any node starts. 0 otherwise, also when
+writing fails mid-run (full disk): the recorder says in one line that
+recording stopped and why, keeps draining its socket so the graph runs on,
+and at exit says how many messages are lost.
+
+Play. Binds one publisher per recorded topic and registers them like
+`dockhil run`, so `dockhil topic echo` and `dockhil bag record` find them.
+Wall time keeps the recorded spacing scaled by --rate. Sim time publishes in
+tick order, as fast as the subscribers take the messages, after waiting for
+them; ticks count from 0 at the first message played (--start and --loop
+renumber the headers; otherwise the bytes are sent as recorded).
+"""
+
+from __future__ import annotations
+
+import argparse
+import heapq
+import json
+import os
+import sys
+import time
+import uuid
+from dataclasses import dataclass
+from typing import Any, Callable, Iterator
+
+import msgspec
+
+from dockhil import msgs
+from dockhil.msgs.codec import decode_header
+from dockhil.bags.format import BagError, BagMessage
+from dockhil.bags.reader import BagReader
+from dockhil.bags.writer import BagWriter
+from dockhil.errors import DockhilError
+from dockhil.log import Log, setup_child
+
+RECORDER_NAME = "bag-recorder"
+FLUSH_EVERY_S = 0.5  # bounds what a SIGKILL loses when topics are quiet
+DRAIN_QUIET_S = 0.2  # at stop: what still arrives within this is recorded
+DRAIN_MAX_S = 2.0
+FIND_GRAPH_TIMEOUT_S = 20.0  # as long as sim-time publishers wait for subscribers
+
+
+_record_log = Log("dockhil bag record:").line  # lines whose first word may say their level
+_play_log = Log("dockhil bag play:").line
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+    return True
+
+
+# --------------------------------------------------------------------------- recording
+
+
+@dataclass
+class Source:
+    """A topic to record: where it is published and how its times are read."""
+
+    topic: str
+    endpoint: str
+    type_name: str
+    sim: bool  # the publishing graph runs in sim time: log time = header stamp
+    graph_pid: int
+    run_id: str
+    key_file: str = ""  # the publishing graph's key file
+
+
+def _graph_running(pid: int, run_id: str) -> bool:
+    """A graph runs while its registry entry exists and its process lives (an exited
+    child not yet reaped by its parent still answers to kill(pid, 0); the entry does not)."""
+    from dockhil.runtime.registry import registry_dir
+
+    return _alive(pid) and (registry_dir() / f"{run_id}.json").exists()
+
+
+def find_sources(topics: list[str] | None = None, graph_pid: int | None = None) -> dict[str, Source]:
+    """Topics of running graphs (of the one launched by `graph_pid` if given), or a one-line error."""
+    from dockhil.runtime.registry import running_graphs
+
+    graphs = [g for g in running_graphs() if graph_pid is None or g.get("pid") == graph_pid]
+    if not graphs:
+        raise DockhilError("no running graph found; start one with 'dockhil launch FILE'")
+    found: dict[str, Source] = {}
+    for g in graphs:
+        for topic, t in sorted(g.get("topics", {}).items()):
+            other = found.get(topic)
+            if other is not None:
+                _record_log(f"note: topic {topic} is published by two running graphs; recording the one of pid "
+                            f"{other.graph_pid}")
+                continue
+            found[topic] = Source(topic, t["endpoint"], t["type"], g.get("clock") == "sim", g["pid"], g["run_id"],
+                                  g.get("keys", ""))
+    if topics is None:
+        return found
+    missing = [t for t in topics if t not in found]
+    if missing:
+        raise DockhilError(
+            f"topic {missing[0]} is not published by any running graph; topics: {', '.join(sorted(found)) or 'none'}"
+        )
+    return {t: found[t] for t in topics}
+
+
+class _TopicState:
+    __slots__ = ("topic", "sim", "last_log", "last_index", "done")
+
+    def __init__(self, topic: str, sim: bool):
+        self.topic = topic
+        self.sim = sim
+        self.last_log = 0  # ns; a message without a readable header reuses it in sim time
+        self.last_index: int | None = None  # last header.tick (sim) or header.seq (wall)
+        self.done = False
+
+
+class Recorder:
+    """Subscribes to `sources` and writes what arrives to a new bag at `path`.
+
+    `n_ticks` (sim time): finished once tick n_ticks-1 of every topic is in.
+    Counts: `lost` messages (received but not on disk, or in sim time
+    missing ticks), `skipped` header.seq numbers in wall time (a publisher
+    that skips outputs, or messages that never arrived), `unreadable`
+    messages (without a header to read; recorded if they are msgpack,
+    counted in the bag's `messages_unencodable` if not).
+    """
+
+    def __init__(self, path: str, sources: dict[str, Source], *, n_ticks: int | None = None,
+                 overwrite: bool = False, log: Callable[[str], None] = _record_log):
+        import zmq
+
+        from dockhil.runtime.transport import Subscriber
+
+        self.path = path
+        self.log = log
+        self.n_ticks = n_ticks
+        self.bag = BagWriter(path, overwrite=overwrite)
+        try:
+            for source in sources.values():
+                self.bag.add_topic(source.topic, source.type_name)
+        except BagError:
+            self.bag.close()
+            raise
+        from dockhil.runtime.registry import graph_keys
+
+        self.sub = Subscriber(zmq.Context.instance())
+        try:
+            for source in sources.values():
+                keys = graph_keys({"run_id": source.run_id, "keys": source.key_file})
+                self.sub.connect(source.endpoint, keys=keys)
+        except DockhilError:
+            self.sub.close()
+            self.bag.close()
+            raise
+        self._state = {s.topic.encode(): _TopicState(s.topic, s.sim) for s in sources.values()}
+        self._pending_topics = len(self._state) if n_ticks is not None else -1
+        self.received = 0
+        self.dropped = 0  # received while writing had stopped
+        self.tick_gaps = 0
+        self.skipped = 0
+        self.unreadable = 0
+        self.error: str | None = None
+        self._next_flush = time.monotonic() + FLUSH_EVERY_S
+
+    @property
+    def finished(self) -> bool:
+        """Sim time with n_ticks: every topic has delivered its last tick."""
+        return self._pending_topics == 0
+
+    @property
+    def lost(self) -> int:
+        return self.dropped + self.tick_gaps + (self.bag.messages_written - self.bag.messages_flushed)
+
+    def handle(self, frames: list[bytes]) -> None:
+        st = self._state.get(frames[0]) if frames else None
+        if st is None:  # cannot happen with one endpoint per topic; counted, not guessed at
+            self.received += 1
+            self.dropped += 1
+            return
+        if len(frames) == 3 and not frames[1] and len(frames[2]) == 8:
+            # Sim time: this tick has no message on the topic. Nothing to record, but the tick counts.
+            self._tick(st, int.from_bytes(frames[2], "little"))
+            return
+        self.received += 1
+        data = frames[1] if len(frames) == 2 else b"".join(frames[1:])
+        header = decode_header(data)
+        if header is None:
+            self.unreadable += 1
+            log_ns = st.last_log if st.sim else time.time_ns()
+        elif st.sim:
+            log_ns = round(header.stamp * 1e9)
+            if not 0 <= log_ns < 2**64:
+                log_ns = st.last_log
+            self._tick(st, header.tick)
+        else:
+            log_ns = time.time_ns()
+            seq = header.seq
+            if st.last_index is not None and seq > st.last_index + 1:
+                self.skipped += seq - st.last_index - 1
+            st.last_index = seq  # a smaller seq: the publisher restarted (respawn)
+        st.last_log = log_ns
+        if self.error is not None:
+            self.dropped += 1
+            return
+        try:
+            self.bag.write(st.topic, log_ns, log_ns, data)
+        except BagError as exc:
+            self._stopped(exc)
+
+    def _tick(self, st: _TopicState, k: int) -> None:
+        if st.last_index is not None and k > st.last_index + 1:
+            self.tick_gaps += k - st.last_index - 1
+        st.last_index = k
+        if self.n_ticks is not None and not st.done and k >= self.n_ticks - 1:
+            st.done = True
+            self._pending_topics -= 1
+
+    def _stopped(self, exc: BagError) -> None:
+        self.error = str(exc)
+        self.log(f"error: {exc}; the graph keeps running")
+
+    def flush_if_due(self, now: float) -> None:
+        if now < self._next_flush:
+            return
+        self._next_flush = now + FLUSH_EVERY_S
+        if self.error is None and self.bag.messages_written > self.bag.messages_flushed:
+            try:
+                self.bag.flush()
+            except BagError as exc:
+                self._stopped(exc)
+
+    def _burst(self) -> int:
+        """Handle what is queued now, without waiting; returns how many."""
+        n = 0
+        recv = self.sub.recv_nowait
+        while n < 2000:  # bounded, so the flush timer still runs under load
+            frames = recv()
+            if frames is None:
+                break
+            self.handle(frames)
+            n += 1
+        return n
+
+    def run(self, stop, alive: Callable[[], bool] | None = None) -> str:
+        """Record until finished (sim time), stopped by a signal, or `alive()` turns false.
+        Returns why it ended."""
+        next_check = time.monotonic() + 0.5
+        why = "stopped"
+        while not stop.requested:
+            frames = self.sub.recv(0.1)
+            if frames is not None:
+                self.handle(frames)
+                self._burst()
+            if self.finished:
+                return "finished"
+            now = time.monotonic()
+            self.flush_if_due(now)
+            if alive is not None and now >= next_check:
+                next_check = now + 0.5
+                if not alive():
+                    why = "the graph stopped"
+                    break
+        self.drain()
+        return why
+
+    def drain(self) -> None:
+        """Record what is still in flight: until quiet for a moment, at most DRAIN_MAX_S."""
+        end = time.monotonic() + DRAIN_MAX_S
+        quiet_until = time.monotonic() + DRAIN_QUIET_S
+        while not self.finished:
+            now = time.monotonic()
+            if now >= end or now >= quiet_until:
+                break
+            if self._burst():
+                quiet_until = time.monotonic() + DRAIN_QUIET_S
+            else:
+                frames = self.sub.recv(min(0.02, max(0.0, quiet_until - now)))
+                if frames is not None:
+                    self.handle(frames)
+                    quiet_until = time.monotonic() + DRAIN_QUIET_S
+
+    def close(self) -> str:
+        """Close the bag; returns the one-line report (also logged)."""
+        self.sub.close()
+        try:
+            self.bag.close()
+        except BagError as exc:
+            self._stopped(exc)
+        on_disk = self.bag.messages_flushed
+        line = (f"recorded {on_disk} messages on {len(self._state)} topics to {self.path}; "
+                f"{self.lost} lost")
+        if self.error is not None:
+            line += " (recording stopped early, see above)"
+        if self.skipped:
+            line += f"; header.seq skipped {self.skipped} numbers (a publisher skipped outputs, or they never arrived)"
+        if self.unreadable:
+            line += f"; {self.unreadable} without a readable header"
+        if self.bag.messages_unencodable:
+            line += f"; {self.bag.messages_unencodable} not recorded: not msgpack, so no JSON for them"
+        self.log(line)
+        return line
+
+
+def record(args: argparse.Namespace) -> int:
+    """`dockhil bag record PATH [--topics ...] [--overwrite]`: record running graphs until Ctrl-C."""
+    from dockhil.runtime.executor import Stop
+
+    sources = find_sources(args.topics)
+    stop = Stop()
+    stop.install()
+    recorder = Recorder(args.path, sources, overwrite=args.overwrite)
+    graphs = {(s.graph_pid, s.run_id) for s in sources.values()}
+    _record_log(f"recording {len(sources)} topics to {args.path} (Ctrl-C to stop)")
+    try:
+        why = recorder.run(stop, alive=lambda: any(_graph_running(*g) for g in graphs))
+    finally:  # also on a publisher that failed authentication: what was recorded is kept
+        recorder.close()
+    if why == "the graph stopped":
+        _record_log("the recorded graph stopped")
+    if recorder.lost:
+        _record_log(f"error: {recorder.lost} message(s) lost; the recording is incomplete")
+        return RECORDER_LOST_EXIT
+    return 0
+
+
+def check_bag_path(path: str) -> None:
+    """Refuse, with one line, a bag path the recorder could not create (before any node starts)."""
+    if os.path.lexists(path) and not os.path.isdir(path):
+        raise BagError(f"bag {path} already exists; choose another name or remove it")
+    BagWriter(path).close()  # raises BagError: no such directory, permission, disk full
+    os.remove(path)
+
+
+def recorder_process(path: str, graph, clock: str, n_ticks: int | None):
+    """The recorder as a launcher helper process, subscribed to every topic of `graph`."""
+    from dockhil.runtime.launcher import ExtraProcess
+
+    argv = [sys.executable, "-m", "dockhil.bags.live", "record", path, "--graph-pid", str(os.getpid())]
+    if clock == "sim" and n_ticks is not None:
+        argv += ["--n-ticks", str(n_ticks)]
+    return ExtraProcess(RECORDER_NAME, argv, list(graph.publishers))
+
+
+class TapRecorder:
+    """The recorder of a composed run: a tap that encodes each message and writes it."""
+
+    def __init__(self, path: str, graph, *, sim: bool, log: Callable[[str], None] | None = None):
+        self.path = path
+        self.sim = sim
+        self.log = log or Log(f"[{RECORDER_NAME}]").line
+        self.bag = BagWriter(path)
+        for topic, ref in graph.publishers.items():
+            self.bag.add_topic(topic, msgs.type_name(ref.type))
+        self.dropped = 0
+        self.error: str | None = None
+        self._next_flush = time.monotonic() + FLUSH_EVERY_S
+
+    def __call__(self, topic: str, msg: Any) -> None:
+        from dockhil.msgs.codec import encode
+
+        if self.error is not None:
+            self.dropped += 1
+            return
+        log_ns = round(msg.header.stamp * 1e9) if self.sim else time.time_ns()
+        try:
+            self.bag.write(topic, log_ns, log_ns, encode(msg))
+            now = time.monotonic()
+            if now >= self._next_flush:
+                self._next_flush = now + FLUSH_EVERY_S
+                self.bag.flush()
+        except BagError as exc:
+            self.error = str(exc)
+            self.log(f"error: {exc}; the graph keeps running")
+
+    def close(self) -> None:
+        try:
+            self.bag.close()
+        except BagError as exc:
+            self.error = str(exc)
+            self.log(f"error: {exc}")
+        self.log(f"recorded {self.bag.messages_flushed} messages on {len(self.bag.topics)} topics to {self.path}; "
+                 f"{self.lost} lost" + (" (recording stopped early, see above)" if self.error else ""))
+
+    @property
+    def lost(self) -> int:
+        """Messages handed to the recorder that are not on disk."""
+        return self.dropped + self.bag.messages_written - self.bag.messages_flushed
+
+
+RECORDER_LOST_EXIT = 4  # the recorder process: it ran, but messages are missing from the bag
+
+
+def _recorder_main(argv: list[str]) -> int:
+    """The launcher's helper process: find the graph, subscribe, say ready, record."""
+    from dockhil.runtime.executor import Stop
+    from dockhil.runtime.process import READY, die_with_parent
+
+    p = argparse.ArgumentParser(prog="python -m dockhil.bags.live record")
+    p.add_argument("path")
+    p.add_argument("--graph-pid", type=int, required=True, help="pid of the launcher whose graph to record")
+    p.add_argument("--n-ticks", type=int, help="sim time: stop after tick N-1 of every topic")
+    p.add_argument("--topics", nargs="+")
+    p.add_argument("--overwrite", action="store_true")
+    args = p.parse_args(argv)
+    die_with_parent()
+    stop = Stop()
+    stop.install()
+    setup_child()  # its records go to the launcher, which logs them
+    out = Log(f"[{RECORDER_NAME}]").line
+    try:
+        deadline = time.monotonic() + FIND_GRAPH_TIMEOUT_S
+        while True:  # the launcher registers its graph just after starting its processes
+            try:
+                sources = find_sources(args.topics, args.graph_pid)
+                break
+            except DockhilError:
+                if time.monotonic() > deadline or stop.requested or not _alive(args.graph_pid):
+                    raise
+                time.sleep(0.02)
+        recorder = Recorder(args.path, sources, n_ticks=args.n_ticks, overwrite=args.overwrite, log=out)
+    except DockhilError as exc:
+        out(f"error: {exc}")
+        return 2
+    print(READY, flush=True)
+    out(f"recording {len(sources)} topics to {args.path}")
+    run_id = next(iter(sources.values())).run_id if sources else None
+    try:
+        recorder.run(stop, alive=lambda: _alive(args.graph_pid) and (run_id is None or _graph_running(args.graph_pid, run_id)))
+    except DockhilError as exc:  # a publisher that failed authentication: what was recorded is kept
+        out(f"error: {exc}")
+        recorder.close()
+        return 2
+    recorder.close()
+    if recorder.lost:  # a recording that misses messages is not the run: fail, with the count
+        out(f"error: {recorder.lost} message(s) lost; the recording of this run is incomplete")
+        return RECORDER_LOST_EXIT
+    return 0
+
+
+# --------------------------------------------------------------------------- playing
+
+
+class _Player:
+    """Publishers for the played topics, registered so that other commands find them."""
+
+    def __init__(self, path: str, topics: dict[str, str], sim: bool):
+        import zmq
+
+        from dockhil.runtime.registry import KEY_FILE, registry_dir
+        from dockhil.runtime.transport import GraphKeys, Publisher, ipc_endpoint, new_run_dir
+
+        self.run_id = f"play-{uuid.uuid4().hex[:6]}"
+        self.run_dir = new_run_dir(self.run_id)
+        ctx = zmq.Context.instance()
+        self.pubs: dict[str, Any] = {}
+        try:
+            keys = GraphKeys.make()
+            self.key_file = keys.write(self.run_dir / KEY_FILE)
+            for topic in topics:
+                pub = Publisher(ctx, topic, ipc_endpoint(self.run_dir, topic), keys=keys)
+                if sim:
+                    # Bounded queues that block instead of dropping: sends go as fast as subscribers take them.
+                    pub.sock.setsockopt(zmq.SNDHWM, 1000)
+                    pub.sock.setsockopt(zmq.XPUB_NODROP, 1)
+                    pub.sock.setsockopt(zmq.SNDTIMEO, 200)
+                    pub.sock.setsockopt(zmq.LINGER, 10_000)
+                self.pubs[topic] = pub
+        except BaseException:
+            self.close()
+            raise
+        self.socks = {topic: pub.sock for topic, pub in self.pubs.items()}
+        self.registry = registry_dir() / f"{self.run_id}.json"
+        tmp = self.registry.with_suffix(".tmp")
+        tmp.write_text(json.dumps({
+            "run_id": self.run_id, "pid": os.getpid(), "file": f"dockhil bag play {path}",
+            "clock": "sim" if sim else "wall", "keys": str(self.key_file),
+            "nodes": {"bag-play": {"type": "bag play", "pid": os.getpid()}},
+            "topics": {t: {"type": topics[t], "endpoint": p.endpoint, "publisher": "bag-play"}
+                       for t, p in self.pubs.items()},
+        }, indent=1))
+        tmp.replace(self.registry)
+
+    def wait_subscribers(self, n: int, stop) -> bool:
+        """Until every topic has `n` subscribers; False if stopped first."""
+        if n <= 0:
+            return True
+        _play_log(f"waiting for {n} subscriber(s) on each of {len(self.pubs)} topics (Ctrl-C to give up)")
+        hint_at = time.monotonic() + 5.0
+        while True:
+            short = [t for t, pub in self.pubs.items() if pub.subscribers < n]
+            if not short:
+                return True
+            if stop.requested:
+                return False
+            if hint_at is not None and time.monotonic() > hint_at:
+                hint_at = None
+                _play_log(f"still waiting for {short[0]}" + (f" and {len(short) - 1} more" if len(short) > 1 else "")
+                     + "; to play fewer topics give --topics, to wait for fewer subscribers --subscribers")
+            for topic in short:
+                sock = self.pubs[topic].sock
+                # A subscription is a frame starting with 1 (XPUB_VERBOSE). Unlike a graph's
+                # publishers, a player counts observers (`topic echo`) too: they may be its audience.
+                while sock.poll(0) and sock.recv()[:1] == b"\x01":
+                    self.pubs[topic].subscribers += 1
+            time.sleep(0.01)
+
+    def close(self) -> None:
+        for pub in self.pubs.values():
+            pub.close()
+        if getattr(self, "registry", None) is not None:
+            self.registry.unlink(missing_ok=True)
+        for f in self.run_dir.iterdir():
+            f.unlink(missing_ok=True)
+        self.run_dir.rmdir()
+
+
+def play(args: argparse.Namespace) -> int:
+    """`dockhil bag play PATH [--rate R] [--loop] [--topics ...] [--start S] [--sim-time] [--subscribers N]`."""
+    from dockhil.runtime.executor import Stop
+
+    with BagReader(args.path) as reader:
+        found = reader.summary()
+    if found["loss"]:
+        _play_log(f"warning: {found['loss']}")
+    in_bag = {t["topic"]: t["type"] for t in found["topics"] if t["count"] > 0}
+    if not in_bag:
+        raise BagError(f"{args.path}: the bag holds no message; nothing to play")
+    if args.topics:
+        missing = [t for t in args.topics if t not in in_bag]
+        if missing:
+            raise BagError(f"{args.path}: no messages on {missing[0]}; topics in the bag: {', '.join(sorted(in_bag))}")
+        topics = {t: in_bag[t] for t in args.topics}
+    else:
+        topics = in_bag
+    # info() gives seconds; exact enough to skip S > 0 seconds, and no threshold at all for S = 0.
+    first_s = min(t["first"] for t in found["topics"] if t["count"])
+    last_s = max(t["last"] for t in found["topics"] if t["topic"] in topics and t["count"])
+    if first_s + args.start > last_s:
+        raise BagError(f"{args.path}: no message after --start {args.start:g} s; the bag lasts {found['duration_s']:.3f} s")
+    start_ns = None if args.start == 0 else int(round(first_s * 1e9)) + int(round(args.start * 1e9))
+    sim = args.sim_time
+    wait_for = getattr(args, "subscribers", None)
+    wait_for = (1 if sim else 0) if wait_for is None else wait_for
+    stop = Stop()
+    stop.install()
+    player = _Player(args.path, topics, sim)
+    try:
+        if not player.wait_subscribers(wait_for, stop):
+            return 130
+        started = time.perf_counter()
+        passes = 0
+        sent = 0
+        state = _TickShift()
+        while not stop.requested:
+            with BagReader(args.path) as reader:
+                stream = reader.messages(list(topics), start_ns=start_ns)
+                if sim:
+                    sent += _play_sim(_tick_order(stream), player.socks, state, stop)
+                else:
+                    sent += _play_wall(stream, player.socks, args.rate, stop)
+            passes += 1
+            if not args.loop or sent == 0:
+                break
+        elapsed = time.perf_counter() - started
+    finally:
+        player.close()
+    how = "in tick order" if sim else f"at rate {args.rate:g}"
+    loops = f" ({passes} passes)" if passes > 1 else ""
+    _play_log(f"played {sent} messages on {len(topics)} topics {how} in {elapsed:.3f} s{loops}")
+    return 130 if stop.requested else 0
+
+
+def _play_wall(stream: Iterator[BagMessage], socks: dict, rate: float, stop) -> int:
+    sent = 0
+    t0 = time.monotonic()
+    origin = None
+    scale = 1e-9 / rate
+    sleep, monotonic = time.sleep, time.monotonic
+    for topic, _type, log_ns, data in stream:
+        if origin is None:
+            origin = log_ns
+        due = t0 + (log_ns - origin) * scale
+        ahead = due - monotonic()
+        while ahead > 0.001:  # batches the rest: sleeping per message would cost more than it spaces
+            if stop.requested:
+                return sent
+            sleep(min(ahead, 0.1))
+            ahead = due - monotonic()
+        socks[topic].send_multipart((topic.encode(), data), copy=len(data) > 4096)
+        sent += 1
+        if stop.requested:
+            break
+    return sent
+
+
+class _TickShift:
+    """Renumbers ticks so that the played run starts at tick 0 and a loop continues counting."""
+
+    def __init__(self) -> None:
+        self.base_tick = 0  # tick the current pass starts at
+        self.base_stamp = 0.0
+        self.first: tuple[int, float] | None = None
+        self.last: tuple[int, float] | None = None
+
+    def end_pass(self) -> None:
+        if self.first is None or self.last is None:
+            return
+        (t0, s0), (t1, s1) = self.first, self.last
+        dt = (s1 - s0) / (t1 - t0) if t1 > t0 else 0.0
+        self.base_tick += t1 - t0 + 1
+        self.base_stamp += s1 - s0 + dt
+        self.first = self.last = None
+
+
+def _tick_order(stream: Iterator[BagMessage], window: int = 4096) -> Iterator[tuple[int, float, str, str, bytes]]:
+    """(tick, stamp, topic, type, data) by tick. Within one tick, and for messages
+    without a header, file order is kept. The window covers the skew between topics
+    of a lock-step run (a few ticks), not arbitrary disorder."""
+    heap: list = []
+    n = 0
+    last = (0, 0.0)
+    for topic, type_name, _log_ns, data in stream:
+        header = decode_header(data)
+        key = (header.tick, header.stamp) if header is not None else last
+        last = key
+        heapq.heappush(heap, (key[0], n, key[1], topic, type_name, data))
+        n += 1
+        if len(heap) > window:
+            tick, _, stamp, topic, type_name, data = heapq.heappop(heap)
+            yield tick, stamp, topic, type_name, data
+    while heap:
+        tick, _, stamp, topic, type_name, data = heapq.heappop(heap)
+        yield tick, stamp, topic, type_name, data
+
+
+def _retick(data: bytes, type_name: str, tick: int, stamp: float) -> bytes | None:
+    """The message with its header moved to `tick`/`stamp`; None if it does not decode."""
+    from dockhil.msgs.codec import DecodeError, decode, encode
+
+    try:
+        msg = decode(data, msgs.type_by_name(type_name))
+    except (DecodeError, KeyError):
+        return None
+    h = msg.header
+    header = msgspec.structs.replace(h, tick=tick, seq=max(0, h.seq + tick - h.tick), stamp=max(0.0, stamp))
+    return encode(msgspec.structs.replace(msg, header=header))
+
+
+def _play_sim(ordered, socks: dict, state: _TickShift, stop) -> int:
+    """Send in tick order. Before tick k starts, every topic is complete up to k-1: a
+    topic with no message at a tick gets the transport's empty-tick frame, so that
+    lock-step subscribers never wait for a tick that has no message."""
+    import zmq
+
+    def send(sock, frames) -> bool:
+        while True:
+            try:
+                sock.send_multipart(frames)
+                return True
+            except zmq.Again:  # the subscriber's queue is full: wait for it, or for Ctrl-C
+                if stop.requested:
+                    return False
+
+    def complete_to(k: int) -> bool:
+        for topic, sock in socks.items():
+            for empty in range(done[topic] + 1, k + 1):
+                if not send(sock, (topic.encode(), b"", empty.to_bytes(8, "little"))):
+                    return False
+            done[topic] = max(done[topic], k)
+        return True
+
+    done = {topic: state.base_tick - 1 for topic in socks}  # last tick sent per topic
+    current = None
+    sent = 0
+    unplayable = 0
+    for tick, stamp, topic, type_name, data in ordered:
+        if state.first is None:
+            state.first = (tick, stamp)
+        state.last = (tick, stamp)
+        shift = state.base_tick - state.first[0]
+        played_tick = tick + shift
+        if played_tick != current:
+            if not complete_to(played_tick - 1):
+                return sent
+            current = played_tick
+        if shift:
+            data = _retick(data, type_name, played_tick, stamp - state.first[1] + state.base_stamp)
+            if data is None:
+                unplayable += 1
+                continue
+        if not send(socks[topic], (topic.encode(), data)):
+            return sent
+        done[topic] = max(done[topic], played_tick)
+        sent += 1
+        if stop.requested:
+            return sent
+    if current is not None:
+        complete_to(current)
+    state.end_pass()
+    if unplayable:
+        _play_log(f"note: {unplayable} messages could not be renumbered (not a valid message) and were not played")
+    return sent
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] != ["record"]:
+        print("usage: python -m dockhil.bags.live record PATH --graph-pid PID [--n-ticks N]", file=sys.stderr)
+        return 2
+    return _recorder_main(argv[1:])
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,128 @@
+"""F/T sensor emulator: the sensor's CAN frames from a passive compliance against the robot pose.
+
+It stands in for the sensor on the far side of the CAN bus, so the real
+driver (dockhil/nodes/ft_can.py) runs unchanged. With interface "pty" (the default)
+the emulator is itself an slcan adapter on a pseudo-terminal, symlinked at
+`channel`; the driver opens that path with python-can's slcan interface.
+Any other interface sends through python-can (virtual, socketcan on vcan,
+a second slcan adapter, ...).
+"""
+
+from __future__ import annotations
+
+import random
+
+from dockhil.errors import DeviceError
+from dockhil.hardware import ft_frames as ff
+from dockhil.node import Input, Node, Param
+from dockhil.msgs import RobotState
+
+
+class FtSensorEmulator(Node):
+    """Emulated F/T sensor on CAN: force = -k * penetration (unilateral), noise and bias."""
+
+    free_running = True  # a device: it runs from power-on, the drivers' setup needs it
+
+    inputs = {"state": Input(RobotState, "/robot/state", help="robot pose: probe relative to the target interface")}
+    params = {
+        "interface": Param(str, "pty", help="pty: be an slcan adapter on a pseudo-terminal; "
+                           "else a python-can interface to send through"),
+        "channel": Param(str, "", help="pty: symlink to create (empty: ft.slcan in the graph's private run "
+                         "directory, the driver's default); else the python-can channel"),
+        "bitrate": Param(int, 1_000_000, unit="bit/s", help="CAN bitrate (python-can interfaces)", gt=0,
+                         le=1_000_000),
+        **ff.frame_params(),
+        "k": Param(float, 1000.0, unit="N/m", help="stiffness of the passive compliance", ge=0.0, le=1e8),
+        "noise": Param(float, 0.0, unit="N", help="standard deviation of force noise, each axis", ge=0.0, le=1_000.0),
+        "torque_noise": Param(float, 0.0, unit="N m", help="standard deviation of torque noise, each axis",
+                              ge=0.0, le=100.0),
+        "bias": Param(float, 0.0, unit="N", help="constant offset on Fx (the driver's tare removes it)",
+                      ge=-1_000.0, le=1_000.0),
+        "seed": Param(int, 0, help="noise seed", ge=0, le=2**63 - 1),
+    }
+
+    def setup(self) -> None:
+        p = self.p
+        self.scaling = ff.FtScaling(p.force_resolution, p.torque_resolution)
+        self.rng = random.Random(p.seed)
+        self.seq = 0
+        self.sent = 0
+        self._pty_bus = None
+        self._can_bus = None
+        if p.interface == "pty":
+            from dockhil.hardware.device_path import private_link
+            from dockhil.hardware.slcan_pty import CanFrame, PtyCanBus
+
+            p.channel = p.channel or private_link("ft.slcan")
+            self._frame = CanFrame
+            try:  # PtyCanBus claims the link: one graph per adapter path
+                self._pty_bus = PtyCanBus([p.channel]).start()
+            except OSError as exc:
+                raise DeviceError(f"F/T sensor emulator: cannot create slcan adapter at {p.channel}: {exc}") from None
+            self.log(f"F/T sensor emulator: slcan adapter at {p.channel} -> {self._pty_bus.ports[0].path}")
+        else:
+            import can
+
+            from dockhil.runtime import ownership
+            from dockhil.nodes.ft_can import one_line
+
+            # One emulated sensor per channel: two would stream the same CAN IDs.
+            # The bus is its graph's: a driver of another graph reading it would take our frames for
+            # its sensor's. Claimed first, so a refused emulator never holds the emulator claim.
+            bus_claim = ownership.claim_for_graph(f"can-bus-{p.interface}-{p.channel}",
+                                                  f"CAN bus {p.interface} {p.channel}")
+            try:
+                self._lock = ownership.claim(f"can-emulator-{p.interface}-{p.channel}",
+                                             f"F/T sensor emulator on {p.interface} {p.channel}")
+            except BaseException:
+                bus_claim.release()
+                raise
+            self._bus_claim = bus_claim
+            try:
+                self._can_bus = can.Bus(interface=p.interface, channel=p.channel, bitrate=p.bitrate)
+            except (can.CanError, OSError, ValueError) as exc:
+                self._release_claims()
+                raise DeviceError(f"F/T sensor emulator ({p.interface} {p.channel}): {one_line(exc)}") from None
+            self._message = can.Message
+
+    def wrench(self, state: RobotState | None) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """Force on the chaser [N] and torque [N m] for a robot pose (None: no contact)."""
+        p = self.p
+        x = state.pose.position.x if state is not None else 0.0
+        fx = -p.k * x if x > 0.0 else 0.0  # unilateral: the sheet pushes, never pulls
+        force = (fx + p.bias + self._noise(p.noise), self._noise(p.noise), self._noise(p.noise))
+        torque = (self._noise(p.torque_noise), self._noise(p.torque_noise), self._noise(p.torque_noise))
+        return force, torque
+
+    def _noise(self, sd: float) -> float:
+        return self.rng.gauss(0.0, sd) if sd else 0.0
+
+    def step(self, tick, inputs):
+        force, torque = self.wrench(inputs.get("state"))
+        frames = ff.encode_sample(force, torque, self.seq, self.scaling, self.p.can_id)
+        self.seq = (self.seq + 1) & 0xFF
+        if self._pty_bus is not None:
+            port = self._pty_bus.ports[0]
+            for arbitration_id, data in frames:
+                port.deliver(self._frame(arbitration_id, data))
+        else:
+            for arbitration_id, data in frames:
+                try:
+                    self._can_bus.send(self._message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
+                except Exception:  # nobody acknowledging on a real bus; a sensor keeps streaming
+                    pass
+        self.sent += 1
+        return {}
+
+    def close(self) -> None:
+        if self._pty_bus is not None:
+            self._pty_bus.stop()
+            self._pty_bus = None
+        if self._can_bus is not None:
+            self._can_bus.shutdown()
+            self._can_bus = None
+            self._release_claims()
+
+    def _release_claims(self) -> None:
+        self._lock.release()
+        self._bus_claim.release()

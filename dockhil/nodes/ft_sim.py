@@ -1,0 +1,55 @@
+"""F/T sensor (simulated): the passive compliance k pressed by the robot's probe."""
+
+from __future__ import annotations
+
+from dockhil import physical
+from dockhil.scene.schema import MAX_RATE
+from dockhil.node import Input, Node, Output, Param
+from dockhil.msgs import RobotState, Vector3, Wrench, WrenchStamped
+
+
+class FtSensorSim(Node):
+    """Force of the passive compliance k against the robot pose, unilateral, with optional sensor defects."""
+
+    inputs = {"robot": Input(RobotState, "/robot/state", help="actual probe pose relative to the target")}
+    outputs = {"wrench": Output(WrenchStamped, "/ft/wrench", help="contact force on the chaser (+x)")}
+    params = {
+        "k": Param(float, 1000.0, unit="N/m", help="passive compliance stiffness (metal sheet, sensor)", ge=0.0,
+                   scale=physical.STIFFNESS),
+        "noise": Param(float, 0.0, unit="N", help="standard deviation of white force noise", ge=0.0,
+                       scale=physical.FORCE),
+        "bias": Param(float, 0.0, unit="N", help="constant offset added to the force", scale=physical.FORCE),
+        "rate": Param(float, 0.0, unit="Hz", help="sample rate, held between samples (0: every tick)", ge=0.0,
+                      le=MAX_RATE),
+        "quantization": Param(float, 0.0, unit="N", help="force resolution (0: none)", ge=0.0,
+                              scale=physical.FORCE),
+        "seed": Param(int, 0, help="noise seed: the same seed gives the same noise in every run"),
+    }
+
+    def setup(self):
+        from dockhil.contact.hilloop import sensor_force
+
+        self.sensor_force = sensor_force  # bound once: an import statement in step costs every tick
+        self.rng = None
+        if self.p.noise:  # numpy only for a noisy sensor (a node process without it starts 0.1 s faster)
+            import numpy as np
+
+            self.rng = np.random.default_rng(self.p.seed)
+        self.held = None
+        self.next_sample = 0.0
+
+    def step(self, tick, inputs):
+        p = self.p
+        if self.held is None or p.rate == 0.0 or tick.t >= self.next_sample - 1e-12:
+            robot = inputs["robot"]
+            force = self.sensor_force(None if robot is None else robot.pose.position.x, p.k)
+            if p.noise:
+                force += float(self.rng.normal(0.0, p.noise))
+            if p.bias:
+                force += p.bias
+            if p.quantization:
+                force = p.quantization * round(force / p.quantization)
+            self.held = force
+            if p.rate:
+                self.next_sample += 1.0 / p.rate
+        return {"wrench": WrenchStamped(header=tick.header("probe"), wrench=Wrench(Vector3(self.held)))}

@@ -1,0 +1,598 @@
+"""Start a validated graph as one process per node, watch it, stop it safely.
+
+The launcher assigns each topic an endpoint, hands each node its spec,
+logs what each node says under the node's name (dockhil.log: its records,
+forwarded at the launcher's level, and any other line it prints), forwards SIGINT and
+SIGTERM, and when a node dies stops the rest of the graph and exits non-zero.
+While a graph runs, a small JSON file in the runtime directory describes it,
+so that `dockhil topic` and `dockhil node` can find it.
+
+Each run gets a private directory (0700) holding its ipc sockets and the
+graph's CURVE key file (0600); nodes receive the key file's path in their
+spec, never the keys themselves on a command line.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import msgspec
+
+from dockhil import msgs
+from dockhil import log
+from dockhil.errors import LaunchError
+from dockhil.runtime.executor import TIMING, PortWire, RunSpec
+from dockhil.runtime.process import READY
+from dockhil.runtime.registry import KEY_FILE, registry_dir
+from dockhil.runtime.transport import GraphKeys, ipc_endpoint, new_run_dir
+
+if TYPE_CHECKING:  # the graph module loads the launch-file parser (yaml): a recorder or `dockhil topic` needs neither
+    from dockhil.scene.graph import Graph
+
+POLL_S = 0.05  # the watch loop's longest sleep when no child speaks or exits
+
+
+@dataclass
+class ExtraProcess:
+    """A helper process that subscribes to topics (a recorder): it counts as
+    a subscriber so that sim time waits for it before tick 0."""
+
+    name: str
+    argv: list[str]
+    topics: list[str]
+
+
+@dataclass
+class Endpoints:
+    run_id: str
+    run_dir: Path
+    topics: dict[str, str]  # topic -> endpoint subscribers connect to
+    types: dict[str, str]  # topic -> wire type name
+    binds: dict[str, str] = field(default_factory=dict)  # topic -> endpoint the publisher binds
+    key_file: Path | None = None  # the graph's CURVE keys, mode 0600, in run_dir
+
+
+def _free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def is_local(host: str) -> bool:
+    return host in ("", "localhost", "127.0.0.1", socket.gethostname(), socket.getfqdn())
+
+
+def bind_address(host: str) -> str:
+    """The address of the one interface a publisher on `host` binds (ZeroMQ binds addresses, not names)."""
+    try:
+        return socket.gethostbyname(host)
+    except OSError as exc:
+        raise LaunchError(f"host {host!r}: cannot resolve its address to bind ({exc.strerror or exc}); "
+                          f"give the node's host as an address") from None
+
+
+def _check_reachable(graph: Graph, here: str, addresses: dict[str, str]) -> None:
+    """Publishers bind one address, not every interface: the one this machine is reached by must not be
+    loopback when a node on another machine is to reach it."""
+    import ipaddress
+
+    local = addresses.get(here) or bind_address(here)
+    if not ipaddress.ip_address(local).is_loopback:
+        return
+    for gn in graph.nodes.values():
+        if is_local(gn.host):
+            continue
+        address = addresses.get(gn.host) or bind_address(gn.host)
+        if not ipaddress.ip_address(address).is_loopback:
+            raise LaunchError(f"node {gn.name!r} runs on {gn.host} ({address}), but this machine's name {here!r} "
+                              f"resolves to {local}, a loopback address it could not reach; map {here} to this "
+                              f"machine's network address (/etc/hosts or DNS)")
+
+
+def assign_endpoints(graph: Graph, transport: str = "ipc", advertise: str | None = None) -> Endpoints:
+    """ipc sockets on one host; tcp when asked or when a node runs on another host. Over tcp a
+    publisher binds only the interface the others reach it by, its host: the node's `host`, or
+    for nodes started here `advertise` (default: this machine's name, 127.0.0.1 if all is local).
+    Every endpoint speaks CURVE with keys made here for this graph alone."""
+    run_id = time.strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:6]
+    remote = any(not is_local(gn.host) for gn in graph.nodes.values())
+    here = advertise or (socket.gethostname() if remote else "127.0.0.1")
+    topics, binds = {}, {}
+    addresses: dict[str, str] = {}
+    for topic, ref in graph.publishers.items():
+        if transport == "ipc" and not remote:
+            continue
+        host = graph.nodes[ref.node].host
+        host = host if not is_local(host) else here
+        if host not in addresses:
+            addresses[host] = bind_address(host)
+        port = _free_tcp_port()
+        binds[topic] = f"tcp://{addresses[host]}:{port}"
+        topics[topic] = f"tcp://{host}:{port}"
+    if remote:
+        _check_reachable(graph, here, addresses)
+    run_dir = new_run_dir(run_id)
+    for topic in graph.publishers:
+        if topic not in topics:
+            topics[topic] = binds[topic] = ipc_endpoint(run_dir, topic)
+    key_file = GraphKeys.make().write(run_dir / KEY_FILE)
+    types = {topic: msgs.type_name(ref.type) for topic, ref in graph.publishers.items()}
+    return Endpoints(run_id, run_dir, topics, types, binds, key_file)
+
+
+CONTAINER_TYPE = "dockhil.runtime.container:Container"
+
+
+def processes(graph: Graph) -> dict[str, list[str]]:
+    """Process name -> the nodes it runs, in step order: a node alone, or the nodes naming one
+    `container:`. Refused in one line: a malformed key, an isolated node in a container, a
+    container named like a node, a remote or respawned member, and a container that would
+    wait for itself (a same-tick path that leaves it and comes back)."""
+    import re
+
+    specs = {s.name: s for s in graph.scene.nodes}
+    unit: dict[str, str] = {}
+    for name in graph.order:
+        spec, where = specs.get(name), f"{graph.scene.path}: node {name!r}"
+        if spec is None:  # a graph assembled without a launch file: one process per node
+            unit[name] = name
+            continue
+        container, isolated = spec.container, spec.isolated
+        if not isinstance(isolated, bool):
+            raise LaunchError(f"{where}: `isolated` must be true or false, got {isolated!r}")
+        if not isinstance(container, str) or (container and not re.fullmatch(r"[A-Za-z0-9_.-]+", container)):
+            raise LaunchError(f"{where}: `container` must be a name of letters, digits and _ . -, got {container!r}")
+        if container and isolated:
+            raise LaunchError(f"{where}: `isolated: true` keeps it in a process of its own; remove "
+                              f"`container: {container}` or `isolated`")
+        if container and container in graph.nodes:
+            raise LaunchError(f"{where}: container {container!r} has the name of a node; name it otherwise")
+        if container and (spec.host or spec.respawn):
+            why = f"runs on {spec.host}" if spec.host else "is respawned on its own"
+            raise LaunchError(f"{where}: it {why}, so it cannot share container {container!r}; remove `container`")
+        unit[name] = container or name
+    out: dict[str, list[str]] = {}
+    for name in graph.order:
+        out.setdefault(unit[name], []).append(name)
+    _check_no_loop_through(graph, unit)
+    return out
+
+
+def _check_no_loop_through(graph: Graph, unit: dict[str, str]) -> None:
+    """A container steps its members together, so a same-tick path from it through other
+    processes back into it would wait forever: refuse it and name the path."""
+    edges: dict[str, set[str]] = {u: set() for u in unit.values()}
+    for gn in graph.nodes.values():
+        for ref in gn.inputs.values():
+            pub = graph.publishers.get(ref.topic)
+            if pub is not None and ref.lag == 0 and unit[pub.node] != unit[gn.name]:
+                edges[unit[pub.node]].add(unit[gn.name])
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(u: str) -> None:
+        state[u] = 1
+        stack.append(u)
+        for v in sorted(edges[u]):
+            if state.get(v) == 1:
+                path = " -> ".join(stack[stack.index(v):] + [v])
+                raise LaunchError(f"{graph.scene.path}: container processes {path} read each other at the same "
+                                  f"tick, so a container would wait for itself; put those nodes in one container "
+                                  f"or none")
+            if v not in state:
+                visit(v)
+        stack.pop()
+        state[u] = 2
+
+    for u in edges:
+        if u not in state:
+            visit(u)
+
+
+def check_composable(graph: Graph) -> None:
+    """--composed runs every node in one process: refused for a node that asks to be isolated."""
+    for spec in graph.scene.nodes:
+        if spec.isolated is True:
+            raise LaunchError(f"{graph.scene.path}: node {spec.name!r} is `isolated: true` (its own process), "
+                              f"so the graph cannot run --composed; run it without --composed")
+
+
+def _container_spec(graph: Graph, name: str, members: list[str], specs: dict[str, RunSpec]) -> RunSpec:
+    """One RunSpec for the nodes of a container: their outside inputs and all their outputs."""
+    inside = set(members)
+    described, inputs, outputs = [], {}, {}
+    for m in members:
+        gn, spec = graph.nodes[m], specs[m]
+        internal = {port: [ref.topic, ref.lag] for port, ref in gn.inputs.items()
+                    if ref.topic in graph.publishers and graph.publishers[ref.topic].node in inside}
+        external = {port: [ref.topic, ref.lag] for port, ref in gn.inputs.items()
+                    if port in spec.inputs and port not in internal}
+        described.append({"name": m, "type": gn.type_name, "params": gn.params, "internal": internal,
+                          "external": external, "outputs": {port: ref.topic for port, ref in gn.outputs.items()}})
+        inputs.update({f"{m}.{port}": spec.inputs[port] for port in external})
+        outputs.update({f"{m}.{port}": wire for port, wire in spec.outputs.items()})
+    first = specs[members[0]]
+    return RunSpec(name, CONTAINER_TYPE, {"members": described}, first.dt, first.clock, first.n_ticks, inputs,
+                   outputs, key_file=first.key_file, run_id=first.run_id)
+
+
+def burst(graph: Graph, topic: str) -> int:
+    """Sim time: how many ticks of a topic its publisher may send together. A reader that reads it
+    `lag` ticks late leaves that much slack: holding fewer than lag/2 ticks keeps every cycle
+    through the topic, even with a burst on each of its delayed hops, from waiting for a held
+    message (the holds on a cycle add up to under half its lag), and leaves the other half of
+    the slack for pipelining. The messages and their ticks are the same; only when they leave."""
+    lags = [ref.lag for ref in graph.subscribers.get(topic, [])]
+    return max(1, min(lags) // 2) if lags else 1
+
+
+def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extra: list[ExtraProcess],
+              units: dict[str, list[str]] | None = None) -> dict[str, RunSpec]:
+    """One RunSpec per process (`units`, from processes(); default: one per node)."""
+    unit_of = {m: u for u, members in (units or {}).items() for m in members}
+    extra_count: dict[str, int] = {}
+    for proc in extra:
+        for topic in proc.topics:
+            extra_count[topic] = extra_count.get(topic, 0) + 1
+    specs = {}
+    # A topic from a node the launcher respawns may pause while it restarts: no maximum age there.
+    respawned = {topic for topic, ref in graph.publishers.items() if graph.nodes[ref.node].respawn}
+    for name in graph.order:
+        gn = graph.nodes[name]
+        inputs = {
+            port: PortWire(ref.topic, ep.topics[ref.topic], ep.types[ref.topic], ref.lag,
+                           unlimited_age=ref.topic in respawned, max_age=ref.max_age)
+            for port, ref in gn.inputs.items()
+            if ref.topic in ep.topics
+        }
+        outputs = {
+            port: PortWire(ref.topic, ep.binds[ref.topic], ep.types[ref.topic],
+                           # One subscription per process: a container's members share one socket.
+                           subscribers=len({unit_of.get(s.node, s.node) for s in graph.subscribers.get(ref.topic, [])}
+                                           - {unit_of.get(name, name)})
+                           + extra_count.get(ref.topic, 0),
+                           burst=burst(graph, ref.topic) if clock == "sim" else 1)
+            for port, ref in gn.outputs.items()
+        }
+        specs[name] = RunSpec(name, gn.type_name, gn.params, graph.scene.dt, clock, n_ticks, inputs, outputs,
+                              key_file=str(ep.key_file or ""), run_id=ep.run_id)
+    for u, members in (units or {}).items():
+        if len(members) > 1 or u != members[0]:
+            container = _container_spec(graph, u, members, specs)
+            for m in members:
+                del specs[m]
+            specs[u] = container
+    return specs
+
+
+@dataclass
+class _Child:
+    name: str
+    argv: list[str]
+    proc: subprocess.Popen | None = None
+    ready: bool = False
+    go_sent: bool = False
+    respawn: bool = False
+    respawn_delay: float = 1.0
+    respawn_at: float | None = None  # when a scheduled respawn is due (monotonic)
+    finished: bool = False
+    host: str = ""  # another machine: started there by hand, not watched from here
+    reader: threading.Thread | None = None
+
+
+class Launcher:
+    def __init__(self, graph: Graph, *, clock: str = "sim", duration: float | None = None,
+                 transport: str = "ipc", extra: list[ExtraProcess] | None = None,
+                 progress: bool = False, realtime: bool = False):
+        self.graph = graph
+        self.clock = clock
+        self.extra = extra or []
+        dt = graph.scene.dt
+        self.n_ticks = None if duration is None else int(round(duration / dt)) + 1
+        self.endpoints = assign_endpoints(graph, transport)
+        # Wall time: the launcher stops the whole graph at once when the duration is up, so no driver
+        # sees its device (an emulator) stop first and mistakes that for a fault.
+        self.wall_duration = duration if clock == "wall" else None
+        self.units = processes(graph)
+        self.specs = run_specs(graph, self.endpoints, clock, self.n_ticks if clock == "sim" else None, self.extra,
+                               self.units)
+        for name, spec in self.specs.items():
+            spec.realtime = realtime
+            # Wall time: every local node starts its fixed-rate loop when all are ready, so none runs
+            # against nodes still importing or opening devices. (A node on another host cannot be told.)
+            members = [graph.nodes[m] for m in self.units[name]]
+            spec.wait_for_go = (clock == "wall" and all(is_local(gn.host) for gn in members)
+                                and not all(gn.cls.free_running for gn in members))
+        self._all_ready_at: float | None = None
+        # Set by a child's reader when it says READY or its output ends (it exits): the watch loop
+        # wakes at once rather than at its next poll, so a run's end and a wall-time start wait for nothing.
+        self._wake = threading.Event()
+        self.progress = progress and clock == "sim" and self.n_ticks is not None
+        self._stop_signal: int | None = None
+        self.children: list[_Child] = []
+        self.timings: dict[str, dict] = {}  # wall time: each node's loop figures, reported as it exits
+        for name, spec in self.specs.items():
+            argv = [sys.executable, "-m", "dockhil.process", msgspec.json.encode(spec).decode()]
+            gn = graph.nodes[self.units[name][0]]  # a container's members are local and not respawned
+            self.children.append(_Child(name, argv, respawn=gn.respawn and clock == "wall",
+                                        respawn_delay=gn.respawn_delay, host="" if is_local(gn.host) else gn.host))
+        for proc in self.extra:
+            self.children.append(_Child(proc.name, proc.argv))
+
+    # -- output ----------------------------------------------------------------
+    say = log.Log("[launch]")
+
+    def _read(self, child: _Child, proc: subprocess.Popen) -> None:
+        for raw in proc.stdout:
+            line = raw.rstrip("\n")
+            if line == READY:
+                child.ready = True
+                self._wake.set()
+                continue
+            if line.startswith(TIMING):
+                try:
+                    self.timings[child.name] = json.loads(line[len(TIMING):])
+                except ValueError:
+                    pass
+                continue
+            log.replay(line, f"[{child.name}]")
+        try:  # its output ends as it exits: reap it, so the watch loop it wakes sees the exit code
+            proc.wait(timeout=1.0)
+        except subprocess.TimeoutExpired:
+            pass
+        self._wake.set()
+
+    # -- processes -------------------------------------------------------------
+    def _start(self, child: _Child) -> None:
+        env = log.child_env(dict(os.environ, PYTHONUNBUFFERED="1"))
+        # Nodes multiply matrices of a few elements: BLAS worker threads would only spin on the shared cores.
+        env.setdefault("OPENBLAS_NUM_THREADS", "1")
+        child.ready = child.go_sent = False
+        child.proc = subprocess.Popen(
+            child.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            text=True, bufsize=1, start_new_session=True, env=env,
+        )
+        child.reader = threading.Thread(target=self._read, args=(child, child.proc), daemon=True)
+        child.reader.start()
+        self.say.debug(f"started {child.name!r} (pid {child.proc.pid})")
+
+    def _announce_remote(self, child: _Child) -> None:
+        """A node on another machine: say how to start it there. Sim time waits for it as for any
+        subscriber; its exit is not seen from here."""
+        import shlex
+
+        child.ready = child.finished = True
+        keys = self.endpoints.key_file
+        argv = ["python3", "-m", "dockhil.process", "--keys", str(keys), *child.argv[3:]]
+        command = " ".join(shlex.quote(a) for a in argv)
+        # Warning level: the graph waits for this node, so the line shows at any --log-level but error.
+        self.say.warning(f"node {child.name!r} runs on {child.host}: copy the key file {keys} to the same path "
+                         f"there (mode 0600, over a private channel such as scp) and start it there with: {command}",
+                         tag="")
+
+    def _write_registry(self) -> Path:
+        path = registry_dir() / f"{self.endpoints.run_id}.json"
+        info = {
+            "run_id": self.endpoints.run_id,
+            "pid": os.getpid(),
+            "file": self.graph.scene.path,
+            "clock": self.clock,
+            "keys": str(self.endpoints.key_file),
+            "nodes": {c.name: {"type": self.specs[c.name].type_name if c.name in self.specs else "process",
+                               "pid": c.proc.pid if c.proc else None, "members": self.units.get(c.name, [c.name])}
+                      for c in self.children},
+            "topics": {t: {"type": self.endpoints.types[t], "endpoint": e,
+                           "publisher": self.graph.publishers[t].node} for t, e in self.endpoints.topics.items()},
+            # Inputs with no publisher at launch (an e-stop): nothing started later reaches them.
+            "unconnected": {t: [f"{r.node}.{r.port}" for r in self.graph.unconnected if r.topic == t]
+                            for t in {r.topic for r in self.graph.unconnected}},
+        }
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(info, indent=1))
+        tmp.replace(path)
+        return path
+
+    def devices(self) -> dict[str, bool]:
+        """Wall time: the local processes that report loop figures, each mapped to whether it
+        stands for a device emulator (a container: when all its members do)."""
+        return {name: all(self.graph.nodes[m].cls.free_running for m in self.units[name])
+                for name, child in zip(self.specs, self.children) if not child.host}
+
+    def _on_signal(self, signum, frame) -> None:
+        self._stop_signal = signum
+
+    def stop_all(self, grace: float = 3.0) -> None:
+        live = [c for c in self.children if c.proc and c.proc.poll() is None]
+        for c in live:
+            try:
+                c.proc.send_signal(signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + grace
+        for c in live:
+            try:
+                c.proc.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self.say.warning(f"node {c.name!r} did not stop within {grace:.0f} s; killing it")
+                c.proc.kill()
+                c.proc.wait()
+
+    def run(self) -> int:
+        """Run until every node finishes, a node dies, or a signal arrives. Returns the exit code."""
+        old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        registry = None
+        try:
+            for child in self.children:
+                if child.host:
+                    self._announce_remote(child)
+                else:
+                    self._start(child)
+            registry = self._write_registry()
+            return self._watch()
+        finally:
+            self.stop_all()
+            for child in self.children:
+                if child.reader:
+                    child.reader.join(timeout=1.0)
+            for s, h in old.items():
+                signal.signal(s, h)
+            if registry is not None:
+                registry.unlink(missing_ok=True)
+            shutil.rmtree(self.endpoints.run_dir, ignore_errors=True)
+
+    def _progress_probe(self):
+        """A subscriber on one topic whose header ticks tell how far the graph is."""
+        import zmq
+
+        from dockhil.runtime.transport import Subscriber
+
+        topic = next(iter(self.endpoints.topics), None)
+        if topic is None:
+            return None
+        sub = Subscriber(zmq.Context.instance(), observer=True)
+        sub.connect(self.endpoints.topics[topic], keys=GraphKeys.read(self.endpoints.key_file))
+        return sub
+
+    def _show_progress(self, probe, bar) -> None:
+        from dockhil.msgs.codec import decode_header
+
+        tick = None
+        while (frames := probe.recv_nowait()) is not None:
+            header = decode_header(frames[1]) if len(frames) == 2 else None
+            if header is not None:
+                tick = header.tick
+        if tick is not None:
+            bar.update(tick + 1)
+
+    def _watch(self) -> int:
+        probe = bar = None
+        if self.progress:
+            from dockhil.progress import Progress
+
+            probe, bar = self._progress_probe(), Progress(self.n_ticks, self.graph.scene.dt)
+        try:
+            return self._watch_children(probe, bar)
+        finally:
+            if bar is not None:
+                bar.done()
+            if probe is not None:
+                probe.close()
+
+    def _send_go(self) -> None:
+        """Wall time: once every node is ready, tell each waiting one to start (again, after a respawn)."""
+        nodes = [c for c in self.children if c.name in self.specs]
+        if not all(c.ready for c in nodes):
+            return
+        for c in nodes:
+            if c.proc is not None and not c.go_sent and self.specs[c.name].wait_for_go:
+                c.go_sent = True
+                try:
+                    c.proc.send_signal(signal.SIGUSR1)
+                except ProcessLookupError:
+                    pass
+        if self._all_ready_at is None:
+            self._all_ready_at = time.monotonic()
+
+    def _duration_over(self) -> bool:
+        if self.clock == "wall":
+            self._send_go()
+        if self.wall_duration is None or self._all_ready_at is None:
+            return False
+        return time.monotonic() - self._all_ready_at >= self.wall_duration
+
+    def _stop_at_duration(self) -> int:
+        self.stop_all()
+        failed = [c for c in self.children if c.proc and c.proc.returncode not in (0, None)]
+        for c in failed:
+            self.say.error(f"{c.name!r} exited with code {c.proc.returncode} while stopping", tag="")
+        return 1 if failed else 0
+
+    def _watch_children(self, probe, bar) -> int:
+        while True:
+            self._wake.clear()  # before looking: what happens from here on wakes the wait below
+            if probe is not None:
+                self._show_progress(probe, bar)
+            if self._duration_over():
+                return self._stop_at_duration()
+            if self._stop_signal is not None:
+                name = signal.Signals(self._stop_signal).name
+                self.say.info(f"{name}: stopping the graph")
+                self.stop_all()
+                return 128 + self._stop_signal
+            nodes_running = 0
+            for child in self.children:
+                if child.finished:
+                    continue
+                if child.respawn_at is not None:  # waiting to respawn: supervision goes on meanwhile
+                    nodes_running += 1
+                    if time.monotonic() >= child.respawn_at:
+                        child.respawn_at = None
+                        self._start(child)
+                    continue
+                code = child.proc.poll()
+                is_node = child.name in self.specs
+                if code is None:
+                    nodes_running += is_node
+                    continue
+                if child.reader:
+                    child.reader.join(timeout=1.0)
+                if code == 0:
+                    child.finished = True
+                    if is_node and self.clock == "wall":
+                        # In wall time nodes run until the launcher stops them; an exit is a death.
+                        return self._died(child, code)
+                    continue
+                if child.respawn and child.ready:
+                    self.say.warning(f"node {child.name!r} exited with code {code}; respawning in "
+                                     f"{child.respawn_delay:g} s", tag="")
+                    child.respawn_at = time.monotonic() + child.respawn_delay
+                    nodes_running += 1
+                    continue
+                return self._died(child, code)
+            if nodes_running == 0:
+                return self._finish_extras()
+            self._wake.wait(POLL_S)  # signals, respawns, progress and the wall-time duration: every POLL_S
+
+    def _finish_extras(self, timeout: float = 10.0) -> int:
+        """Nodes are done: give helper processes (a recorder draining its queue) time to exit."""
+        deadline = time.monotonic() + timeout
+        for child in self.children:
+            if child.name in self.specs or child.finished:
+                continue
+            if self.clock == "wall":
+                child.proc.send_signal(signal.SIGTERM)  # wall-time helpers run until told
+            try:
+                code = child.proc.wait(max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self.say.error(f"{child.name!r} did not finish within {timeout:.0f} s; stopping it")
+                return 1
+            child.finished = True
+            if code != 0:
+                return self._died(child, code)
+        return 0
+
+    def _died(self, child: _Child, code: int) -> int:
+        how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
+        when = "while running" if child.ready else "at start"
+        self.say.error(f"node {child.name!r} {how} {when}; stopping the graph", tag="")
+        if not child.ready:
+            # Let nodes still opening devices finish, so every missing device gets its own line.
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline and any(
+                c.proc and c.proc.poll() is None and not c.ready for c in self.children if c is not child
+            ):
+                time.sleep(0.05)
+        self.stop_all()
+        return 1
