@@ -27,6 +27,17 @@ a full queue blocks the publisher (XPUB_NODROP), so a slow subscriber slows
 the graph and lock-step loses nothing. Wall time: a message that a full
 queue cannot take is dropped and counted (`Publisher.dropped`); the node
 logs it and the run is judged on it.
+
+Observers (`topic echo` and `hz`, `bag record` from outside, the Foxglove
+bridge, the launcher's progress probe) are not the graph's: each publisher
+binds a second socket for them, at `observer_endpoint(endpoint)`, that never
+waits and never refuses. XPUB_NODROP judges all of a socket's pipes at once (one
+full queue refuses the message to every subscriber), so an observer on the
+graph's socket that stops reading (a pager left open) would stop the graph's
+deliveries too; on its own socket, a full queue (OBSERVER_HWM) drops that
+observer's messages alone. Its frames carry the publisher's count of messages
+(topic, 0x02, the count as 8 bytes little-endian, the payload), from which the
+observer counts what it lost (`Subscriber.lost`) and says so.
 """
 
 from __future__ import annotations
@@ -47,8 +58,12 @@ from dockhil.errors import DockhilError
 
 
 HWM = 20_000  # messages queued per subscriber, each way: bounded memory; far above any lock-step lead
+OBSERVER_HWM = 1_000  # per observer, each way: one that stops reading loses messages, it does not hoard them
 MESSAGE = b"\x00"
 EMPTY_TICK = b"\x01"
+OBSERVER_LINGER_MS = 500
+OBSERVED = b"\x02"  # an observer's frame: the topic, this byte, the publisher's message count, the payload
+OBSERVER_SUFFIX = "+observers"  # an ipc observer endpoint's path: a topic's name never holds "+"
 
 
 def separator(frame: bytes) -> tuple[int, bool]:
@@ -72,6 +87,15 @@ def split(frames: list[bytes]) -> list[bytes]:
     if message:
         return [frame[:i], frame[i + 1:]]
     return [frame[:i], b"", frame[i + 1:]]
+
+
+def observer_endpoint(endpoint: str) -> str:
+    """Where a publisher bound at `endpoint` serves observers: the ipc path with OBSERVER_SUFFIX, or
+    over tcp the next port (the launcher picks the two together); a random port stays random."""
+    if endpoint.startswith("tcp://"):
+        base, port = endpoint.rsplit(":", 1)
+        return endpoint if port in ("0", "*") else f"{base}:{int(port) + 1}"
+    return endpoint + OBSERVER_SUFFIX
 
 
 def _check_private_dir(path: Path, what: str) -> None:
@@ -304,23 +328,35 @@ class Publisher:
         self.sock.setsockopt(zmq.XPUB_VERBOSE, 1)
         # On close, queued messages still go out for up to linger_s (a slow recorder in sim time).
         self.sock.setsockopt(zmq.LINGER, int(linger_s * 1000))
+        # Observers' socket: no XPUB_NODROP, so a full queue drops that observer's message alone, and
+        # a send never waits; on close, what they have not taken lingers a moment only.
+        self.observers = ctx.socket(zmq.XPUB)
+        self.observers.setsockopt(zmq.SNDHWM, OBSERVER_HWM)
+        self.observers.setsockopt(zmq.LINGER, OBSERVER_LINGER_MS)
+        self.observers.setsockopt(zmq.XPUB_VERBOSE, 1)  # `bag play` counts its observers as audience
+        self.sent = 0  # messages offered to observers, counted in their frames
+        self._observed_prefix = self.topic_bytes + OBSERVED
         self._ctx = ctx if keys is not None else None
         if keys is not None:
             _allow_clients(ctx, keys)  # before bind: no handshake may happen without the check
-            self.sock.curve_server = True
-            self.sock.curve_secretkey = keys.server_secret
-            self.sock.curve_publickey = keys.server_public
+            for sock in (self.sock, self.observers):
+                sock.curve_server = True
+                sock.curve_secretkey = keys.server_secret
+                sock.curve_publickey = keys.server_public
+        self.endpoint = self._bind(self.sock, endpoint)
+        self.observer_endpoint = self._bind(self.observers, observer_endpoint(endpoint))
+        self.subscribers = 0
+
+    def _bind(self, sock, endpoint: str) -> str:
         try:
             if endpoint.startswith("tcp://") and endpoint.endswith(":0"):
-                port = self.sock.bind_to_random_port(endpoint.rsplit(":", 1)[0])
-                endpoint = endpoint.rsplit(":", 1)[0] + f":{port}"
-            else:
-                self.sock.bind(endpoint)
+                port = sock.bind_to_random_port(endpoint.rsplit(":", 1)[0])
+                return endpoint.rsplit(":", 1)[0] + f":{port}"
+            sock.bind(endpoint)
+            return endpoint
         except zmq.ZMQError as exc:
             self.close()
-            raise DockhilError(f"topic {topic}: cannot bind {endpoint}: {exc}; is another graph using it?") from None
-        self.endpoint = endpoint
-        self.subscribers = 0
+            raise DockhilError(f"topic {self.topic}: cannot bind {endpoint}: {exc}; is another graph using it?") from None
 
     def wait_subscribers(self, expected: int, timeout: float, should_stop=lambda: False) -> None:
         """Block until `expected` subscriptions have arrived (sim-time start barrier)."""
@@ -342,6 +378,7 @@ class Publisher:
 
     def send(self, payload: bytes) -> bool:
         """False if a subscriber's full queue refused it (wall time only; sim time waits for room)."""
+        self._observe(payload)
         if self.burst > 1:
             self._hold(self._message_prefix + payload)
             return True
@@ -352,9 +389,24 @@ class Publisher:
             return False
         return True
 
+    def send_multipart(self, frames, copy: bool = True) -> None:
+        """Send an envelope of frames ([topic, payload] or [topic, b"", tick], as `bag play` sends)
+        on the graph's socket as it is (zmq.Again if a full queue refused it), then to the observers."""
+        self.sock.send_multipart(frames, copy=copy)
+        if len(frames) == 2:
+            self._observe(frames[1])
+        else:
+            self.observers.send(frames[0] + EMPTY_TICK + frames[2], zmq.NOBLOCK)
+
+    def _observe(self, payload: bytes) -> None:
+        """Offer a message to the observers; never waits (0.4 us when none listens)."""
+        self.sent += 1
+        self.observers.send(self._observed_prefix + self.sent.to_bytes(8, "little") + payload, zmq.NOBLOCK)
+
     def send_empty(self, tick: int) -> None:
         """Sim time: this topic has no message at this tick."""
         frame = self._empty_prefix + tick.to_bytes(8, "little")
+        self.observers.send(frame, zmq.NOBLOCK)
         if self.burst > 1:
             self._hold(frame)
         else:
@@ -391,6 +443,7 @@ class Publisher:
             pass
         self._held.clear()
         self.sock.close()
+        self.observers.close()
         if self._ctx is not None:
             _release_clients(self._ctx)
             self._ctx = None
@@ -426,7 +479,11 @@ class Subscriber:
 
     def __init__(self, ctx: zmq.Context, observer: bool = False):
         self.sock = ctx.socket(zmq.SUB)
-        self.sock.setsockopt(zmq.RCVHWM, HWM)
+        self.sock.setsockopt(zmq.RCVHWM, OBSERVER_HWM if observer else HWM)
+        self.observer = observer
+        self.lost = 0  # an observer's: messages its publishers sent it that never arrived (it fell behind)
+        self.lost_on: dict[bytes, int] = {}  # topic -> of these
+        self._count: dict[bytes, int] = {}  # topic -> the publisher's count in the last frame read
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.setsockopt(zmq.SUBSCRIBE, b"/" if observer else b"")
         # A node's publishers bind while it starts, often after its readers connect: retry a refused
@@ -446,7 +503,7 @@ class Subscriber:
                 self.sock.curve_serverkey = keys.server_public
                 self.sock.curve_publickey = keys.client_public
                 self.sock.curve_secretkey = keys.client_secret
-            self.sock.connect(endpoint)
+            self.sock.connect(observer_endpoint(endpoint) if self.observer else endpoint)
             self._connected.add(endpoint)
 
     def recv(self, timeout_s: float | None) -> list[bytes] | None:
@@ -473,9 +530,26 @@ class Subscriber:
         """A frame read alone is one message (a burst's frames are read one by one); a frame with no
         separator opens an envelope of frames ([topic, payload] or [topic, b"", tick], as `bag play`
         sends), read whole."""
+        if self.observer:
+            return self._observed(frame)
         if separator(frame)[0] >= 0:
             return split([frame])
         return self._rest(frame)
+
+    def _observed(self, frame: bytes) -> list[bytes]:
+        """An observer's frame as [topic, payload] (or [topic, b"", tick]); a gap in the publisher's
+        count is what this observer lost."""
+        i = frame.find(OBSERVED)
+        j = separator(frame)[0]
+        if i < 0 or 0 <= j < i:
+            return split([frame]) if j >= 0 else self._rest(frame)
+        topic, count = frame[:i], int.from_bytes(frame[i + 1:i + 9], "little")
+        last = self._count.get(topic)
+        if last is not None and count > last + 1:  # a smaller count: the publisher started again
+            self.lost += count - last - 1
+            self.lost_on[topic] = self.lost_on.get(topic, 0) + count - last - 1
+        self._count[topic] = count
+        return [topic, frame[i + 9:]]
 
     def _rest(self, first: bytes) -> list[bytes]:
         parts = [first]

@@ -3,6 +3,9 @@
 When several graphs run, `--graph ID` (the run id `dockhil node list` shows) picks one; echo and
 hz refuse to guess between graphs that publish the same topic. They stop, with one line and
 exit 0, when their graph ends.
+
+Echo and hz are observers (`dockhil.transport`): one whose output is not read (a pager left
+open) never slows the graph; it loses its own messages, and says at the end how many.
 """
 
 from __future__ import annotations
@@ -126,6 +129,10 @@ def run(args) -> int:
         return _read(args, sub, cls, _Watch(info))
     finally:
         sub.close()
+        if sub.lost:
+            Log("[topic]").warning(f"{args.topic}: {sub.lost} message(s) lost by this {args.action}, which did not "
+                                   f"keep up (its output was not read in time); the graph's own deliveries are "
+                                   f"unaffected")
 
 
 def _read(args, sub, cls, watch) -> int:
