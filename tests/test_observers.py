@@ -1,0 +1,157 @@
+"""An observer (`topic echo` and `hz`, `bag record` from outside, the Foxglove bridge) may lose its
+own messages, never the graph's: one that stops reading (a pager left open) neither slows nor
+drops the graph's deliveries to its members; it loses its own, counts them and says so."""
+
+import os
+import signal
+import subprocess
+import time
+
+import pytest
+import zmq
+
+from dockhil import transport
+from dockhil.transport import GraphKeys, Publisher, Subscriber
+from tests.conftest import dockhil_cmd, registered
+
+
+@pytest.fixture
+def small_queues(monkeypatch):
+    """Small queues, so that an unread reader fills its own in a second, not in 45 s. (A graph
+    member's may not be much smaller: a publisher sending in a burst learns of what was read only
+    about every millisecond.)"""
+    monkeypatch.setattr(transport, "HWM", 1000)
+    monkeypatch.setattr(transport, "OBSERVER_HWM", 20)
+
+
+def joined(pub: Publisher, member: bool, observer: bool, timeout: float = 20.0) -> None:
+    """Until the publisher has seen the member's and the observer's subscriptions (on its two sockets)."""
+    deadline = time.monotonic() + timeout
+    seen = set()
+    want = {s for s, on in ((pub.sock, member), (pub.observers, observer)) if on}
+    while seen != want:
+        assert time.monotonic() < deadline, "a subscriber never joined"
+        for sock in want - seen:
+            if sock.poll(20) and sock.recv()[:1] == b"\x01":
+                seen.add(sock)
+
+
+def flood(pub: Publisher, member: Subscriber, n: int) -> list[bytes]:
+    """Publish n messages, the member reading as it goes and never more than a quarter of its queue
+    behind (a node that keeps up, as a graph's does: a publisher learns of what was read only every
+    half queue); what it read."""
+    got = []
+    for k in range(n):
+        pub.send(k.to_bytes(4, "little") + bytes(60))
+        while (frames := member.recv_nowait()) is not None:
+            got.append(frames[1][:4])
+        while k + 1 - pub.dropped - len(got) > transport.HWM // 4 and (frames := member.recv(2.0)) is not None:
+            got.append(frames[1][:4])
+    while len(got) < n - pub.dropped and (frames := member.recv(2.0)) is not None:
+        got.append(frames[1][:4])
+    return got
+
+
+@pytest.mark.parametrize("lossy", [True, False], ids=["wall-time", "sim-time"])
+def test_an_unread_observer_loses_its_own_messages_and_the_graph_none(tmp_path, small_queues, lossy):
+    ctx = zmq.Context.instance()
+    keys = GraphKeys.make()
+    endpoint = f"ipc://{tmp_path}/t"
+    pub = Publisher(ctx, "/t", endpoint, keys=keys, lossy=lossy)
+    pub.sock.setsockopt(zmq.SNDTIMEO, 10_000)  # sim time: a send that waited for the observer fails, not hangs
+    member, observer = Subscriber(ctx), Subscriber(ctx, observer=True)
+    try:
+        for sub in (member, observer):
+            sub.connect(endpoint, keys=keys)
+        joined(pub, member=True, observer=True)
+        n = 20_000  # far more than the observer's queues and its socket's kernel buffer hold
+        got = flood(pub, member, n)
+        assert pub.dropped == 0 and got == [k.to_bytes(4, "little") for k in range(n)]
+        read = 0
+        while observer.recv(0.5) is not None:  # now it reads: what its queues kept, then nothing
+            read += 1
+        pub.send(n.to_bytes(4, "little") + bytes(60))  # one more, so the gap before it shows
+        assert observer.recv(5.0)[1][:4] == n.to_bytes(4, "little")
+        read += 1
+        assert 0 < read < n / 2 and observer.lost == n + 1 - read and observer.lost_on == {b"/t": observer.lost}
+        print(f"graph member: {len(got)} of {n} delivered, publisher dropped {pub.dropped}; "
+              f"observer read {read}, lost {observer.lost}")
+    finally:
+        for s in (pub, member, observer):
+            s.close()
+
+
+def test_an_unread_member_is_the_graphs_business(tmp_path, small_queues):
+    """The contrast that makes the observer's socket necessary: a graph member that stops reading
+    (wall time) makes its publisher drop, counted, so the run is judged on it."""
+    ctx = zmq.Context.instance()
+    keys = GraphKeys.make()
+    endpoint = f"ipc://{tmp_path}/t"
+    pub = Publisher(ctx, "/t", endpoint, keys=keys, lossy=True)
+    member, stuck = Subscriber(ctx), Subscriber(ctx)
+    try:
+        for sub in (member, stuck):
+            sub.connect(endpoint, keys=keys)
+        pub.wait_subscribers(2, 20.0)
+        got = flood(pub, member, 20_000)
+        assert pub.dropped > 0 and len(got) == 20_000 - pub.dropped
+    finally:
+        for s in (pub, member, stuck):
+            s.close()
+
+
+def test_an_observer_frame_carries_the_count_and_reads_as_the_message(tmp_path):
+    """[topic, payload] as a member reads it; a count that starts again (a respawned publisher) is no loss."""
+    ctx = zmq.Context.instance()
+    observer = Subscriber(ctx, observer=True)
+    try:
+        frame = b"/a/b" + transport.OBSERVED
+        assert observer._message(frame + (7).to_bytes(8, "little") + b"\x81\xa1a\x01") == [b"/a/b", b"\x81\xa1a\x01"]
+        assert observer._message(frame + (10).to_bytes(8, "little") + b"\x80") == [b"/a/b", b"\x80"]
+        assert observer.lost == 2
+        assert observer._message(frame + (1).to_bytes(8, "little") + b"\x80") == [b"/a/b", b"\x80"]
+        assert observer._message(b"/a/b" + transport.EMPTY_TICK + (2).to_bytes(8, "little")) == \
+            [b"/a/b", b"", (2).to_bytes(8, "little")]
+        assert observer.lost == 2
+    finally:
+        observer.close()
+
+
+def test_observer_endpoints_never_meet_a_topics():
+    assert transport.observer_endpoint("ipc:///run/x/a.b") == "ipc:///run/x/a.b+observers"
+    assert transport.observer_endpoint("tcp://10.0.0.2:5601") == "tcp://10.0.0.2:5602"
+    assert transport.observer_endpoint("tcp://127.0.0.1:0") == "tcp://127.0.0.1:0"
+
+
+@pytest.mark.wall_time
+def test_a_topic_echo_nobody_reads_leaves_a_wall_time_run_valid(tmp_path):
+    """`dockhil launch launch/hil.yaml --wall-time` beside `dockhil topic echo /satellite/state`
+    whose stdout pipe is never read: the run ends valid (exit 0), and the echo, when its reader
+    leaves, says how many messages it lost (its pipe, its own queues and its socket's buffer hold
+    about 3000: 20 s at 250 Hz, the rate a busy 2-core machine keeps in real time, overflow them)."""
+    log = open(tmp_path / "launch.log", "w")
+    run = subprocess.Popen(dockhil_cmd("launch", "launch/hil.yaml", "--wall-time", "--duration", "20", "rate:=250",
+                                       "--bag", tmp_path / "run.mcap"),
+                           stdout=log, stderr=subprocess.STDOUT)
+    echo = None
+    try:
+        run_id = registered(run.pid, timeout=30)["run_id"]
+        echo_err = open(tmp_path / "echo.err", "w")
+        echo = subprocess.Popen(dockhil_cmd("topic", "echo", "/satellite/state", "--graph", run_id),
+                                stdout=subprocess.PIPE, stderr=echo_err)
+        assert run.wait(timeout=90) == 0, (tmp_path / "launch.log").read_text()
+        recorded = next(line for line in (tmp_path / "launch.log").read_text().splitlines() if "recorded" in line)
+        assert recorded.endswith("; 0 lost"), recorded  # the graph's own recorder, a member, got everything
+        assert echo.wait(timeout=30) == 0  # its output blocked, it still sees the graph end
+        said = (tmp_path / "echo.err").read_text()
+        assert "ended" in said and "message(s) lost by this echo" in said, said
+        lost = int(said.split("/satellite/state: ")[1].split()[0])
+        print(f"graph valid, {recorded}; echo lost {lost}")
+        assert lost > 0
+    finally:
+        for p in (run, echo):
+            if p is not None and p.poll() is None:
+                os.kill(p.pid, signal.SIGKILL)
+                p.wait()
+        if echo is not None:
+            echo.stdout.close()
