@@ -132,11 +132,32 @@ def private_dir(path: Path, what: str = "runtime directory") -> Path:
     return path
 
 
+def _check_ancestors(path: Path, what: str) -> None:
+    """Refuse, in one line, a directory whose parent (or one of its parents) another user could
+    rename or replace mid-run (with a directory of theirs): each must belong to this user or to
+    root, and be writable by no one else unless sticky (as /tmp, where only an entry's owner may
+    remove or rename it)."""
+    uid = os.getuid()
+    for parent in path.parent.resolve().parents[::-1] + (path.parent.resolve(),):
+        st = parent.stat()
+        mode = stat.S_IMODE(st.st_mode)
+        if st.st_uid not in (uid, 0):
+            why = f"belongs to uid {st.st_uid}, not to you (uid {uid}) or root"
+        elif mode & 0o022 and not mode & stat.S_ISVTX:
+            why = f"has mode {mode:04o}: other users may write to it"
+        else:
+            continue
+        raise DockhilError(f"{what} {path}: its parent {parent} {why}, and could swap your graph's sockets "
+                           f"mid-run; set DOCKHIL_RUNTIME_DIR to a directory under one that only you or root own")
+
+
 def runtime_dir() -> Path:
-    """Where ipc sockets, key files, device locks and the registry of running graphs live: private."""
+    """Where ipc sockets, key files, device locks and the registry of running graphs live: private,
+    in a parent no other user can change."""
     base = Path(os.environ.get("DOCKHIL_RUNTIME_DIR") or f"/tmp/dockhil-{os.getuid()}")
     if not base.parent.exists():
         base.parent.mkdir(parents=True, mode=0o700)
+    _check_ancestors(base, "runtime directory")
     return private_dir(base)
 
 
