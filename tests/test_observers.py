@@ -155,3 +155,60 @@ def test_a_topic_echo_nobody_reads_leaves_a_wall_time_run_valid(tmp_path):
                 p.wait()
         if echo is not None:
             echo.stdout.close()
+
+
+def _recorder(tmp_path, observer: bool):
+    """A Recorder of /ft/wrench from a wall-time publisher in this process, as a graph member or an observer."""
+    from dockhil.bag_live import Recorder, Source
+
+    keys = GraphKeys.make()
+    key_file = keys.write(tmp_path / f"graph-{observer}.keys")
+    endpoint = f"ipc://{tmp_path}/ft.wrench"
+    pub = Publisher(zmq.Context.instance(), "/ft/wrench", endpoint, keys=keys, lossy=True)
+    lines: list[str] = []
+    source = Source("/ft/wrench", endpoint, "dockhil/WrenchStamped", False, os.getpid(), "r", str(key_file))
+    rec = Recorder(str(tmp_path / f"rec-{observer}.mcap"), {"/ft/wrench": source}, log=lines.append, observer=observer)
+    joined(pub, member=not observer, observer=observer)
+    return pub, rec, lines
+
+
+def wrench(k: int) -> bytes:
+    from dockhil.msgs import Header, WrenchStamped
+    from dockhil.msgs.codec import encode
+
+    return encode(WrenchStamped(header=Header(stamp=1.0 + k * 0.001, tick=k, seq=k)))
+
+
+def test_a_wall_time_node_that_publishes_every_other_tick_loses_nothing(tmp_path):
+    """header.seq is the tick: an F/T driver with no new sample at a tick publishes nothing (as
+    ft_can does), so its seq skips numbers though every message arrives. No loss is claimed."""
+    pub, rec, lines = _recorder(tmp_path, observer=False)
+    try:
+        for k in range(0, 200, 2):
+            pub.send(wrench(k))
+        while rec.received < 100 and (frames := rec.sub.recv(5.0)) is not None:
+            rec.handle(frames)
+    finally:
+        line = rec.close()
+        pub.close()
+    assert rec.received == 100 and rec.lost == 0
+    assert line.endswith("on 1 topics to " + str(tmp_path / "rec-False.mcap") + "; 0 lost"), line
+
+
+def test_a_recorder_from_outside_that_falls_behind_counts_what_it_lost(tmp_path, small_queues):
+    pub, rec, lines = _recorder(tmp_path, observer=True)
+    n = 20_000
+    try:
+        for k in range(n):  # the recorder reads none of them yet
+            pub.send(wrench(k))
+        rec.drain()
+        pub.send(wrench(n))  # the gap before it shows
+        while (frames := rec.sub.recv(5.0)) is not None:
+            rec.handle(frames)
+            if rec.received + rec.sub.lost == n + 1:
+                break
+    finally:
+        line = rec.close()
+        pub.close()
+    assert pub.dropped == 0 and 0 < rec.received < n / 2 and rec.lost == rec.sub.lost == n + 1 - rec.received
+    assert f"; {rec.lost} lost ({rec.lost} not taken in time: recording from outside the graph" in line, line
