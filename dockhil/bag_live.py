@@ -523,9 +523,10 @@ class _Player:
             for topic in short:
                 # A subscription is a frame starting with 1 (XPUB_VERBOSE). Unlike a graph's
                 # publishers, a player counts observers (`topic echo`) too: they may be its audience.
-                for sock in (self.pubs[topic].sock, self.pubs[topic].observers):
-                    while sock.poll(0) and sock.recv()[:1] == b"\x01":
-                        self.pubs[topic].subscribers += 1
+                pub = self.pubs[topic]
+                while pub.sock.poll(0) and pub.sock.recv()[:1] == b"\x01":
+                    pub.subscribers += 1
+                pub.subscribers += pub.look()
             time.sleep(0.01)
 
     def close(self) -> None:

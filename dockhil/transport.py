@@ -62,6 +62,7 @@ OBSERVER_HWM = 1_000  # per observer, each way: one that stops reading loses mes
 MESSAGE = b"\x00"
 EMPTY_TICK = b"\x01"
 OBSERVER_LINGER_MS = 500
+LOOK_EVERY = 64  # wall time: messages between looks for observers (64 ms at 1 kHz)
 OBSERVED = b"\x02"  # an observer's frame: the topic, this byte, the publisher's message count, the payload
 OBSERVER_SUFFIX = "+observers"  # an ipc observer endpoint's path: a topic's name never holds "+"
 
@@ -338,6 +339,7 @@ class Publisher:
         # to back, so that every process down the line wakes once a burst rather than once a message.
         self.burst = burst
         self._held: list[bytes] = []
+        self._held_observed: list[bytes] = []  # the observers' frames of the same messages
         self.topic_bytes = topic.encode()
         self._message_prefix = self.topic_bytes + MESSAGE
         self._empty_prefix = self.topic_bytes + EMPTY_TICK
@@ -354,7 +356,9 @@ class Publisher:
         self.observers = ctx.socket(zmq.XPUB)
         self.observers.setsockopt(zmq.SNDHWM, OBSERVER_HWM)
         self.observers.setsockopt(zmq.LINGER, OBSERVER_LINGER_MS)
-        self.observers.setsockopt(zmq.XPUB_VERBOSE, 1)  # `bag play` counts its observers as audience
+        # Every subscription and unsubscription reaches `look`: frames for observers are made only while one listens.
+        self.observers.setsockopt(zmq.XPUB_VERBOSER, 1)
+        self.watchers = 0  # observers' subscriptions in (see `look`)
         self.sent = 0  # messages offered to observers, counted in their frames
         self._observed_prefix = self.topic_bytes + OBSERVED
         self._ctx = ctx if keys is not None else None
@@ -382,6 +386,7 @@ class Publisher:
     def wait_subscribers(self, expected: int, timeout: float, should_stop=lambda: False) -> None:
         """Block until `expected` subscriptions have arrived (sim-time start barrier)."""
         deadline = time.monotonic() + timeout
+        self.look()  # observers already there get the first tick too
         while self.subscribers < expected:
             if should_stop():
                 return
@@ -415,22 +420,45 @@ class Publisher:
         on the graph's socket as it is (zmq.Again if a full queue refused it), then to the observers."""
         self.sock.send_multipart(frames, copy=copy)
         if len(frames) == 2:
-            self._observe(frames[1])
-        else:
+            self._observe(frames[1], hold=False)
+        elif self.watchers > 0:
             self.observers.send(frames[0] + EMPTY_TICK + frames[2], zmq.NOBLOCK)
 
-    def _observe(self, payload: bytes) -> None:
-        """Offer a message to the observers; never waits (0.4 us when none listens)."""
+    def look(self) -> int:
+        """Take in the observers' subscriptions and unsubscriptions; how many subscriptions came."""
+        came = 0
+        try:
+            while True:
+                joined = self.observers.recv(zmq.NOBLOCK)[:1] == b"\x01"
+                came += joined
+                self.watchers += 1 if joined else -1
+        except zmq.Again:
+            return came
+
+    def _observe(self, payload: bytes, hold: bool = True) -> None:
+        """Offer a message to the observers (with a burst's, when it goes out); never waits. Whether
+        one listens is looked at every burst, or every LOOK_EVERY messages: a new observer may miss
+        the first few, and none costs 0.1 us a message."""
         self.sent += 1
-        self.observers.send(self._observed_prefix + self.sent.to_bytes(8, "little") + payload, zmq.NOBLOCK)
+        if self.burst == 1 and self.sent % LOOK_EVERY == 0:
+            self.look()
+        if self.watchers > 0:
+            frame = self._observed_prefix + self.sent.to_bytes(8, "little") + payload
+            if self.burst > 1 and hold:
+                self._held_observed.append(frame)
+            else:
+                self.observers.send(frame, zmq.NOBLOCK)
 
     def send_empty(self, tick: int) -> None:
         """Sim time: this topic has no message at this tick."""
         frame = self._empty_prefix + tick.to_bytes(8, "little")
-        self.observers.send(frame, zmq.NOBLOCK)
         if self.burst > 1:
+            if self.watchers > 0:
+                self._held_observed.append(frame)
             self._hold(frame)
         else:
+            if self.watchers > 0:
+                self.observers.send(frame, zmq.NOBLOCK)
             self.sock.send(frame)
 
     def _hold(self, frame: bytes) -> None:
@@ -443,16 +471,20 @@ class Publisher:
         ZeroMQ message of several frames, each frame still one message: ZeroMQ hands a message of
         many frames to its I/O thread, and to the reader, in one wake-up. Messages and empty ticks
         go in separate runs, as a reader may subscribe to only one kind (its prefix is matched
-        against the first frame)."""
-        held = self._held
+        against the first frame). The observers get theirs the same way, after, without waiting."""
+        self._send_runs(self.sock, self._held, 0)
+        self._send_runs(self.observers, self._held_observed, zmq.NOBLOCK)
+        self.look()
+
+    def _send_runs(self, sock, held: list[bytes], flags: int) -> None:
         n = len(self.topic_bytes)
         start = 0
         for i in range(1, len(held) + 1):
             if i == len(held) or held[i][n] != held[start][n]:
                 if i - start == 1:
-                    self.sock.send(held[start])
+                    sock.send(held[start], flags)
                 else:
-                    self.sock.send_multipart(held[start:i])
+                    sock.send_multipart(held[start:i], flags)
                 start = i
         held.clear()
 
@@ -463,6 +495,7 @@ class Publisher:
         except zmq.ZMQError:
             pass
         self._held.clear()
+        self._send_runs(self.observers, self._held_observed, zmq.NOBLOCK)
         self.sock.close()
         self.observers.close()
         if self._ctx is not None:

@@ -250,6 +250,7 @@ def test_the_bridge_joins_a_publisher_as_an_observer_and_serves_what_it_sends():
                 assert time.monotonic() < deadline, "the bridge never subscribed"
                 await asyncio.sleep(0)
             assert pub.observers.recv() == b"\x01/ft/wrench" + OBSERVED
+            pub.watchers += 1  # as `look` would have, had it read the subscription
             with pytest.raises(DockhilError, match="0 of 1 subscribers"):
                 pub.wait_subscribers(1, timeout=0.3)
             pub.observers.send(b"/ft/wrench" + OBSERVED + (0).to_bytes(8, "little") + b"not msgpack")
