@@ -121,28 +121,20 @@ def test_observer_endpoints_never_meet_a_topics():
     assert transport.observer_endpoint("tcp://127.0.0.1:0") == "tcp://127.0.0.1:0"
 
 
-@pytest.mark.wall_time
-def test_a_topic_echo_nobody_reads_leaves_a_wall_time_run_valid(tmp_path):
-    """`dockhil launch launch/hil.yaml --wall-time` beside `dockhil topic echo /satellite/state`
-    whose stdout pipe is never read: the run ends valid (exit 0), and the echo, when its reader
-    leaves, says how many messages it lost (its pipe, its own queues and its socket's buffer hold
-    about 3000: 20 s at 250 Hz, the rate a busy 2-core machine keeps in real time, overflow them)."""
-    log = open(tmp_path / "launch.log", "w")
+def echo_beside_a_wall_time_run(tmp_path, attempt: int) -> tuple[int, str, int | None, str]:
+    """hil.yaml in wall time with an echo of /satellite/state whose stdout nobody reads: the run's
+    exit code and log, the echo's exit code and what it said."""
+    log_path, err_path = tmp_path / f"launch-{attempt}.log", tmp_path / f"echo-{attempt}.err"
     run = subprocess.Popen(dockhil_cmd("launch", "launch/hil.yaml", "--wall-time", "--duration", "20", "rate:=250"),
-                           stdout=log, stderr=subprocess.STDOUT)
+                           stdout=open(log_path, "w"), stderr=subprocess.STDOUT)
     echo = None
     try:
         run_id = registered(run.pid, timeout=30)["run_id"]
-        echo_err = open(tmp_path / "echo.err", "w")
         echo = subprocess.Popen(dockhil_cmd("topic", "echo", "/satellite/state", "--graph", run_id),
-                                stdout=subprocess.PIPE, stderr=echo_err)
-        assert run.wait(timeout=90) == 0, (tmp_path / "launch.log").read_text()
-        assert echo.wait(timeout=30) == 0  # its output blocked, it still sees the graph end
-        said = (tmp_path / "echo.err").read_text()
-        assert "ended" in said and "message(s) lost by this echo" in said, said
-        lost = int(said.split("/satellite/state: ")[1].split()[0])
-        print(f"graph valid (no node dropped a message); echo lost {lost}")
-        assert lost > 0
+                                stdout=subprocess.PIPE, stderr=open(err_path, "w"))
+        code = run.wait(timeout=90)
+        echo_code = echo.wait(timeout=30)  # its output blocked, it still sees the graph end
+        return code, log_path.read_text(), echo_code, err_path.read_text()
     finally:
         for p in (run, echo):
             if p is not None and p.poll() is None:
@@ -150,6 +142,24 @@ def test_a_topic_echo_nobody_reads_leaves_a_wall_time_run_valid(tmp_path):
                 p.wait()
         if echo is not None:
             echo.stdout.close()
+
+
+@pytest.mark.wall_time
+def test_a_topic_echo_nobody_reads_leaves_a_wall_time_run_valid(tmp_path):
+    """`dockhil launch launch/hil.yaml --wall-time` beside `dockhil topic echo /satellite/state`
+    whose stdout pipe is never read: the run ends valid (exit 0: no node dropped a message), and
+    the echo, seeing the graph end, says how many messages it lost (its pipe, its own queues and
+    its socket's buffer hold about 3000: 20 s at 250 Hz, the rate a busy 2-core machine keeps in
+    real time, overflow them). A busy machine may pause every process for 0.1 s, which stops the
+    graph on a stale input with or without an echo: then the run is tried once more."""
+    code, log, echo_code, said = echo_beside_a_wall_time_run(tmp_path, 1)
+    if code == 1 and "old > max_age" in log:
+        code, log, echo_code, said = echo_beside_a_wall_time_run(tmp_path, 2)
+    assert code == 0, log
+    assert echo_code == 0 and "ended" in said and "message(s) lost by this echo" in said, said
+    lost = int(said.split("/satellite/state: ")[1].split()[0])
+    print(f"graph valid (no node dropped a message); echo lost {lost}")
+    assert lost > 0
 
 
 def _recorder(tmp_path, observer: bool):
