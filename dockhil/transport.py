@@ -432,7 +432,7 @@ class Publisher:
             while True:
                 joined = self.observers.recv(zmq.NOBLOCK)[:1] == b"\x01"
                 came += joined
-                self.watchers += 1 if joined else -1
+                self.watchers = self.watchers + 1 if joined else max(0, self.watchers - 1)
         except zmq.Again:
             return came
 
@@ -528,6 +528,8 @@ class Subscriber:
 
     An observer (a progress display, `dockhil topic echo`) is not part of the
     graph: sim time does not wait for it, and it may miss the first messages.
+    It reads the publishers' observer sockets, and counts in `lost` what they
+    dropped because it fell behind.
 
     A peer that fails the CURVE handshake is not the graph's publisher (a
     process that took its ipc path or tcp port): receiving then raises

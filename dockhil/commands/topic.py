@@ -171,12 +171,12 @@ class _Output:
         import sys
 
         while (line := self.lines.get()) is not None:
-            data = (line + "\n").encode()
             try:
                 if self._fd is None:
                     sys.stdout.write(line + "\n")
                     sys.stdout.flush()
                 else:
+                    data = (line + "\n").encode()
                     while data:
                         data = data[os.write(self._fd, data):]
             except (BrokenPipeError, OSError):
