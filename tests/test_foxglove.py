@@ -229,7 +229,7 @@ def test_the_bridge_joins_a_publisher_as_an_observer_and_serves_what_it_sends():
 
     from dockhil.errors import DockhilError
     from dockhil.bags.foxglove import FoxgloveBridge
-    from dockhil.runtime.transport import GraphKeys, Publisher, ipc_endpoint, new_run_dir
+    from dockhil.runtime.transport import OBSERVED, GraphKeys, Publisher, ipc_endpoint, new_run_dir
 
     keys = GraphKeys.make()
     endpoint = ipc_endpoint(new_run_dir("fox"), "/ft/wrench")
@@ -246,13 +246,14 @@ def test_the_bridge_joins_a_publisher_as_an_observer_and_serves_what_it_sends():
             await subscribe(ws, {3: found["/ft/wrench"]["id"]})
             # The bridge subscribes once a viewer wants the topic: what reaches the publisher is its prefix.
             deadline = time.monotonic() + DEADLINE_S
-            while not pub.sock.poll(50):
+            while not pub.observers.poll(50):  # observers have a socket of their own
                 assert time.monotonic() < deadline, "the bridge never subscribed"
                 await asyncio.sleep(0)
-            assert pub.sock.recv() == b"\x01/ft/wrench\x00"
+            assert pub.observers.recv() == b"\x01/ft/wrench" + OBSERVED
+            pub.watchers += 1  # as `look` would have, had it read the subscription
             with pytest.raises(DockhilError, match="0 of 1 subscribers"):
                 pub.wait_subscribers(1, timeout=0.3)
-            pub.sock.send(b"/ft/wrench\x00not msgpack")
+            pub.observers.send(b"/ft/wrench" + OBSERVED + (0).to_bytes(8, "little") + b"not msgpack")
             for k in range(n):
                 pub.send(wrench(k))
                 pub.send_empty(k)

@@ -93,6 +93,38 @@ def test_a_runtime_directory_others_could_write_is_refused_in_one_line(monkeypat
     assert "DOCKHIL_RUNTIME_DIR" in err or "chmod 700" in err
 
 
+@pytest.mark.parametrize("bad", ["parent-of-another-user", "grandparent-writable-by-others"])
+def test_a_runtime_directory_in_a_parent_others_could_change_is_refused_in_one_line(monkeypatch, tmp_path, bad):
+    """Another user who may rename or replace a parent can swap the runtime directory mid-run."""
+    top = tmp_path / "top"
+    parent = top / "parent"
+    parent.mkdir(parents=True, mode=0o755)
+    if bad == "parent-of-another-user":
+        if os.getuid() != 0:
+            pytest.skip("making a directory of another user needs root")
+        os.chown(parent, 65534, -1)  # nobody
+        expected = f"its parent {parent} belongs to uid 65534"
+    else:
+        top.chmod(0o777)
+        expected = f"its parent {top} has mode 0777: other users may write to it"
+    d = parent / "rt"
+    monkeypatch.setenv("DOCKHIL_RUNTIME_DIR", str(d))
+    with pytest.raises(DockhilError, match=re.escape(expected)):
+        runtime_dir()
+    code, out, err = run_main("topic", "list")
+    assert code == 2 and out == "" and expected in one_line(err) and "DOCKHIL_RUNTIME_DIR" in err, err
+    assert not d.exists()  # refused before anything was made in it
+
+
+def test_a_sticky_parent_writable_by_all_is_accepted(monkeypatch, tmp_path):
+    """As /tmp: only an entry's owner may rename or remove it."""
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o1777)
+    monkeypatch.setenv("DOCKHIL_RUNTIME_DIR", str(shared / "rt"))
+    assert runtime_dir() == shared / "rt" and mode(shared / "rt") == 0o700
+
+
 def test_key_files_other_users_could_read_are_refused(tmp_path):
     path = GraphKeys.make().write(tmp_path / "graph.keys")
     assert mode(path) == 0o600

@@ -14,7 +14,9 @@ The bridge observes; it never holds the graph back:
   sim-time start barrier does not wait for), subscribed only to the topics a
   viewer subscribes to, so a topic nobody looks at costs nothing. It empties
   its socket at each pass; when more came in than it can forward, it drops
-  the oldest of the burst and counts them, so no queue grows in a publisher.
+  the oldest of the burst and counts them. It reads the publishers' observer
+  sockets (`dockhil.runtime.transport`): if it falls behind anyway, its own queue
+  drops its messages (counted too), never the graph's.
 - composed: a tap that encodes a message only when a viewer wants its topic.
 - a viewer too slow for the stream loses the oldest messages in the server's
   per-client queue (foxglove-sdk); the graph does not wait for it.
@@ -108,16 +110,16 @@ class FoxgloveBridge:
     def _run(self, sub) -> None:
         import zmq
 
-        from dockhil.runtime.transport import MESSAGE
+        from dockhil.runtime.transport import OBSERVED
 
         wanted: set[str] = set()
         try:
             while not self._stop.is_set():
                 now = {topic for topic, channel in self.channels.items() if channel.has_sinks()}
                 for topic in now - wanted:  # the topic's messages, not its empty sim-time ticks
-                    sub.sock.setsockopt(zmq.SUBSCRIBE, topic.encode() + MESSAGE)
+                    sub.sock.setsockopt(zmq.SUBSCRIBE, topic.encode() + OBSERVED)
                 for topic in wanted - now:
-                    sub.sock.setsockopt(zmq.UNSUBSCRIBE, topic.encode() + MESSAGE)
+                    sub.sock.setsockopt(zmq.UNSUBSCRIBE, topic.encode() + OBSERVED)
                 wanted = now
                 frames = sub.recv(0.1)
                 if frames is None:
@@ -131,6 +133,7 @@ class FoxgloveBridge:
             self.log(f"[foxglove] warning: live view stopped: {exc}")
         finally:
             sub.close()
+            self.dropped += sub.lost  # an observer: what it fell behind on never arrived
 
     def serve(self, burst: list[list[bytes]]) -> None:
         """Forward the messages ([topic, payload]) that came in since the last pass; of more than

@@ -14,7 +14,9 @@ run recorded twice gives the same bag. It runs in three ways:
 - `dockhil launch FILE --composed --bag PATH`: a tap in the one process
   (`TapRecorder`) encodes each message and writes it; the bytes are the same.
 - `dockhil bag record PATH [--topics ...]`: joins graphs that are already
-  running (found in the registry), until Ctrl-C or until they stop.
+  running (found in the registry), until Ctrl-C or until they stop. It is an
+  observer (`dockhil.runtime.transport`): if it falls behind it loses messages, counts
+  them and says so, and the graph's own deliveries go on.
 
 Chunks are closed by size, by age and on a 0.5 s timer, so a recorder killed
 with SIGKILL loses at most the chunk it was filling. On SIGTERM or SIGINT it
@@ -135,7 +137,7 @@ class _TopicState:
         self.topic = topic
         self.sim = sim
         self.last_log = 0  # ns; a message without a readable header reuses it in sim time
-        self.last_index: int | None = None  # last header.tick (sim) or header.seq (wall)
+        self.last_index: int | None = None  # last header.tick (sim time)
         self.done = False
 
 
@@ -143,15 +145,17 @@ class Recorder:
     """Subscribes to `sources` and writes what arrives to a new bag at `path`.
 
     `n_ticks` (sim time): finished once tick n_ticks-1 of every topic is in.
-    Counts: `lost` messages (received but not on disk, or in sim time
-    missing ticks), `skipped` header.seq numbers in wall time (a publisher
-    that skips outputs, or messages that never arrived), `unreadable`
-    messages (without a header to read; recorded if they are msgpack,
-    counted in the bag's `messages_unencodable` if not).
+    Counts: `lost` messages (received but not on disk, in sim time missing
+    ticks, and for an `observer` what its publishers sent it that never
+    arrived), `unreadable` messages (without a header to read; recorded if
+    they are msgpack, counted in the bag's `messages_unencodable` if not).
+    (header.seq is the tick: a wall-time node that has nothing new at a tick
+    publishes nothing, so gaps in it are no loss. A graph member's losses are
+    counted by the publisher, whose full queue refused the message.)
     """
 
     def __init__(self, path: str, sources: dict[str, Source], *, n_ticks: int | None = None,
-                 overwrite: bool = False, log: Callable[[str], None] = _record_log):
+                 overwrite: bool = False, log: Callable[[str], None] = _record_log, observer: bool = False):
         import zmq
 
         from dockhil.runtime.transport import Subscriber
@@ -168,7 +172,7 @@ class Recorder:
             raise
         from dockhil.runtime.registry import graph_keys
 
-        self.sub = Subscriber(zmq.Context.instance())
+        self.sub = Subscriber(zmq.Context.instance(), observer=observer)
         try:
             for source in sources.values():
                 keys = graph_keys({"run_id": source.run_id, "keys": source.key_file})
@@ -182,7 +186,6 @@ class Recorder:
         self.received = 0
         self.dropped = 0  # received while writing had stopped
         self.tick_gaps = 0
-        self.skipped = 0
         self.unreadable = 0
         self.error: str | None = None
         self._next_flush = time.monotonic() + FLUSH_EVERY_S
@@ -194,7 +197,8 @@ class Recorder:
 
     @property
     def lost(self) -> int:
-        return self.dropped + self.tick_gaps + (self.bag.messages_written - self.bag.messages_flushed)
+        # An observer's lost message is also a missing tick in sim time: counted once.
+        return self.dropped + max(self.tick_gaps, self.sub.lost) + (self.bag.messages_written - self.bag.messages_flushed)
 
     def handle(self, frames: list[bytes]) -> None:
         st = self._state.get(frames[0]) if frames else None
@@ -219,10 +223,6 @@ class Recorder:
             self._tick(st, header.tick)
         else:
             log_ns = time.time_ns()
-            seq = header.seq
-            if st.last_index is not None and seq > st.last_index + 1:
-                self.skipped += seq - st.last_index - 1
-            st.last_index = seq  # a smaller seq: the publisher restarted (respawn)
         st.last_log = log_ns
         if self.error is not None:
             self.dropped += 1
@@ -316,8 +316,9 @@ class Recorder:
                 f"{self.lost} lost")
         if self.error is not None:
             line += " (recording stopped early, see above)"
-        if self.skipped:
-            line += f"; header.seq skipped {self.skipped} numbers (a publisher skipped outputs, or they never arrived)"
+        if self.sub.lost:
+            line += (f" ({self.sub.lost} not taken in time: recording from outside the graph, it drops what it "
+                     f"cannot keep up with rather than slow the graph)")
         if self.unreadable:
             line += f"; {self.unreadable} without a readable header"
         if self.bag.messages_unencodable:
@@ -333,7 +334,7 @@ def record(args: argparse.Namespace) -> int:
     sources = find_sources(args.topics)
     stop = Stop()
     stop.install()
-    recorder = Recorder(args.path, sources, overwrite=args.overwrite)
+    recorder = Recorder(args.path, sources, overwrite=args.overwrite, observer=True)
     graphs = {(s.graph_pid, s.run_id) for s in sources.values()}
     _record_log(f"recording {len(sources)} topics to {args.path} (Ctrl-C to stop)")
     try:
@@ -493,7 +494,7 @@ class _Player:
         except BaseException:
             self.close()
             raise
-        self.socks = {topic: pub.sock for topic, pub in self.pubs.items()}
+        self.socks = dict(self.pubs)  # what is played goes to the observers too (Publisher.send_multipart)
         self.registry = registry_dir() / f"{self.run_id}.json"
         tmp = self.registry.with_suffix(".tmp")
         tmp.write_text(json.dumps({
@@ -522,11 +523,12 @@ class _Player:
                 _play_log(f"still waiting for {short[0]}" + (f" and {len(short) - 1} more" if len(short) > 1 else "")
                      + "; to play fewer topics give --topics, to wait for fewer subscribers --subscribers")
             for topic in short:
-                sock = self.pubs[topic].sock
                 # A subscription is a frame starting with 1 (XPUB_VERBOSE). Unlike a graph's
                 # publishers, a player counts observers (`topic echo`) too: they may be its audience.
-                while sock.poll(0) and sock.recv()[:1] == b"\x01":
-                    self.pubs[topic].subscribers += 1
+                pub = self.pubs[topic]
+                while pub.sock.poll(0) and pub.sock.recv()[:1] == b"\x01":
+                    pub.subscribers += 1
+                pub.subscribers += pub.look()
             time.sleep(0.01)
 
     def close(self) -> None:

@@ -3,6 +3,9 @@
 When several graphs run, `--graph ID` (the run id `dockhil node list` shows) picks one; echo and
 hz refuse to guess between graphs that publish the same topic. They stop, with one line and
 exit 0, when their graph ends.
+
+Echo and hz are observers (`dockhil.runtime.transport`): one whose output is not read (a pager left
+open) never slows the graph; it loses its own messages, and says at the end how many.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from dockhil.log import Log
 
 # How often echo and hz look whether their graph still runs [s].
 ALIVE_CHECK_S = 0.5
+OUTPUT_QUEUE = 1000  # lines waiting for stdout at most; beyond, an unread output drops them
 
 
 def add_arguments(p) -> None:
@@ -122,13 +126,79 @@ def run(args) -> int:
 
     cls = msgs.type_by_name(t["type"])
     sub = _subscribe(t["endpoint"], graph_keys(info))
+    out = _Output()
     try:  # closed: a command run inside another Python program (a test) leaves no socket behind
-        return _read(args, sub, cls, _Watch(info))
+        return _read(args, sub, cls, _Watch(info), out)
     finally:
         sub.close()
+        unprinted = out.close()
+        lost = sub.lost + (unprinted if args.action == "echo" else 0)  # hz's lines are reports, not messages
+        if lost:
+            Log("[topic]").warning(f"{args.topic}: {lost} message(s) lost by this {args.action}, which did not keep "
+                                   f"up (its output was not read in time); the graph's own deliveries are unaffected")
 
 
-def _read(args, sub, cls, watch) -> int:
+class _Output:
+    """Lines to stdout from a thread of their own, so that a reader that stops reading (a pager left
+    open) blocks that thread only: the socket is still read, the graph's end still seen, and lines
+    beyond OUTPUT_QUEUE waiting are dropped and counted (`dropped`), never queued without bound."""
+
+    def __init__(self) -> None:
+        import queue
+        import sys
+        import threading
+
+        self.lines: queue.Queue = queue.Queue(OUTPUT_QUEUE)
+        self.dropped = 0
+        self.left = False  # the reader closed the pipe (`| head`): nothing more to print
+        try:
+            sys.stdout.flush()
+            self._fd = sys.stdout.fileno()  # raw writes: no buffer that exit would have to flush
+        except (AttributeError, OSError, ValueError):
+            self._fd = None  # not a file (a test's capture): its write
+        self._thread = threading.Thread(target=self._write, name="topic-output", daemon=True)
+        self._thread.start()
+
+    def put(self, line: str) -> None:
+        import queue
+
+        try:
+            self.lines.put_nowait(line)
+        except queue.Full:
+            self.dropped += 1
+
+    def _write(self) -> None:
+        import sys
+
+        while (line := self.lines.get()) is not None:
+            try:
+                if self._fd is None:
+                    sys.stdout.write(line + "\n")
+                    sys.stdout.flush()
+                else:
+                    data = (line + "\n").encode()
+                    while data:
+                        data = data[os.write(self._fd, data):]
+            except (BrokenPipeError, OSError):
+                self.left = True
+                return
+
+    def close(self, patience_s: float = 1.0) -> int:
+        """Let the lines waiting go out while they still move (stalled for patience_s: left behind);
+        how many were dropped or left behind."""
+        waiting = self.lines.qsize()
+        while waiting and self._thread.is_alive():
+            self._thread.join(patience_s)
+            moved, waiting = waiting - self.lines.qsize(), self.lines.qsize()
+            if not moved:
+                break
+        if self._thread.is_alive() and not waiting:
+            self.lines.put(None)
+            self._thread.join(patience_s)
+        return self.dropped + (0 if self.left else self.lines.qsize())
+
+
+def _read(args, sub, cls, watch, out) -> int:
     import msgspec
 
     from dockhil.msgs.codec import DecodeError, decode
@@ -137,9 +207,11 @@ def _read(args, sub, cls, watch) -> int:
         n = 0
         while args.count is None or n < args.count:
             frames = sub.recv(ALIVE_CHECK_S)
+            if out.left:
+                return 0
             if frames is not None and len(frames) == 2:  # not a time-out, nor a sim-time tick with no message
                 try:
-                    print(msgspec.json.encode(decode(frames[1], cls)).decode(), flush=True)
+                    out.put(msgspec.json.encode(decode(frames[1], cls)).decode())
                     n += 1
                 except DecodeError as exc:
                     Log("[topic]").warning(f"bad message: {exc}")
@@ -151,13 +223,15 @@ def _read(args, sub, cls, watch) -> int:
     t0 = time.monotonic()
     while args.count is None or reports < args.count:
         frames = sub.recv(0.1)
+        if out.left:
+            return 0
         if frames is not None and len(frames) == 2:
             count += 1
         if watch.ended():
             return 0
         now = time.monotonic()
         if now - t0 >= args.window:
-            print(f"{args.topic}: {count / (now - t0):.1f} Hz over {now - t0:.2f} s", flush=True)
+            out.put(f"{args.topic}: {count / (now - t0):.1f} Hz over {now - t0:.2f} s")
             reports += 1
             count = 0
             t0 = now

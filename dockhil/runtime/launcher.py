@@ -64,10 +64,22 @@ class Endpoints:
     key_file: Path | None = None  # the graph's CURVE keys, mode 0600, in run_dir
 
 
-def _free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def _free_tcp_port(taken: set[int]) -> int:
+    """A free port whose next one is free too (a publisher's observers get the next: see
+    transport.observer_endpoint); neither in `taken`, to which both are added."""
+    while True:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        if port >= 65535 or {port, port + 1} & taken:
+            continue
+        try:
+            with socket.socket() as s:
+                s.bind(("127.0.0.1", port + 1))
+        except OSError:
+            continue
+        taken.update((port, port + 1))
+        return port
 
 
 def is_local(host: str) -> bool:
@@ -111,6 +123,7 @@ def assign_endpoints(graph: Graph, transport: str = "ipc", advertise: str | None
     here = advertise or (socket.gethostname() if remote else "127.0.0.1")
     topics, binds = {}, {}
     addresses: dict[str, str] = {}
+    ports: set[int] = set()
     for topic, ref in graph.publishers.items():
         if transport == "ipc" and not remote:
             continue
@@ -118,7 +131,7 @@ def assign_endpoints(graph: Graph, transport: str = "ipc", advertise: str | None
         host = host if not is_local(host) else here
         if host not in addresses:
             addresses[host] = bind_address(host)
-        port = _free_tcp_port()
+        port = _free_tcp_port(ports)
         binds[topic] = f"tcp://{addresses[host]}:{port}"
         topics[topic] = f"tcp://{host}:{port}"
     if remote:

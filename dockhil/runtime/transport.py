@@ -27,6 +27,17 @@ a full queue blocks the publisher (XPUB_NODROP), so a slow subscriber slows
 the graph and lock-step loses nothing. Wall time: a message that a full
 queue cannot take is dropped and counted (`Publisher.dropped`); the node
 logs it and the run is judged on it.
+
+Observers (`topic echo` and `hz`, `bag record` from outside, the Foxglove
+bridge, the launcher's progress probe) are not the graph's: each publisher
+binds a second socket for them, at `observer_endpoint(endpoint)`, that never
+waits and never refuses. XPUB_NODROP judges all of a socket's pipes at once (one
+full queue refuses the message to every subscriber), so an observer on the
+graph's socket that stops reading (a pager left open) would stop the graph's
+deliveries too; on its own socket, a full queue (OBSERVER_HWM) drops that
+observer's messages alone. Its frames carry the publisher's count of messages
+(topic, 0x02, the count as 8 bytes little-endian, the payload), from which the
+observer counts what it lost (`Subscriber.lost`) and says so.
 """
 
 from __future__ import annotations
@@ -47,8 +58,13 @@ from dockhil.errors import DockhilError
 
 
 HWM = 20_000  # messages queued per subscriber, each way: bounded memory; far above any lock-step lead
+OBSERVER_HWM = 1_000  # per observer, each way: one that stops reading loses messages, it does not hoard them
 MESSAGE = b"\x00"
 EMPTY_TICK = b"\x01"
+OBSERVER_LINGER_MS = 500
+LOOK_EVERY_S = 0.05  # wall time: how often a publisher looks whether an observer listens
+OBSERVED = b"\x02"  # an observer's frame: the topic, this byte, the publisher's message count, the payload
+OBSERVER_SUFFIX = "+observers"  # an ipc observer endpoint's path: a topic's name never holds "+"
 
 
 def separator(frame: bytes) -> tuple[int, bool]:
@@ -72,6 +88,15 @@ def split(frames: list[bytes]) -> list[bytes]:
     if message:
         return [frame[:i], frame[i + 1:]]
     return [frame[:i], b"", frame[i + 1:]]
+
+
+def observer_endpoint(endpoint: str) -> str:
+    """Where a publisher bound at `endpoint` serves observers: the ipc path with OBSERVER_SUFFIX, or
+    over tcp the next port (the launcher picks the two together); a random port stays random."""
+    if endpoint.startswith("tcp://"):
+        base, port = endpoint.rsplit(":", 1)
+        return endpoint if port in ("0", "*") else f"{base}:{int(port) + 1}"
+    return endpoint + OBSERVER_SUFFIX
 
 
 def _check_private_dir(path: Path, what: str) -> None:
@@ -108,11 +133,32 @@ def private_dir(path: Path, what: str = "runtime directory") -> Path:
     return path
 
 
+def _check_ancestors(path: Path, what: str) -> None:
+    """Refuse, in one line, a directory whose parent (or one of its parents) another user could
+    rename or replace mid-run (with a directory of theirs): each must belong to this user or to
+    root, and be writable by no one else unless sticky (as /tmp, where only an entry's owner may
+    remove or rename it)."""
+    uid = os.getuid()
+    for parent in path.parent.resolve().parents[::-1] + (path.parent.resolve(),):
+        st = parent.stat()
+        mode = stat.S_IMODE(st.st_mode)
+        if st.st_uid not in (uid, 0):
+            why = f"belongs to uid {st.st_uid}, not to you (uid {uid}) or root"
+        elif mode & 0o022 and not mode & stat.S_ISVTX:
+            why = f"has mode {mode:04o}: other users may write to it"
+        else:
+            continue
+        raise DockhilError(f"{what} {path}: its parent {parent} {why}, and could swap your graph's sockets "
+                           f"mid-run; set DOCKHIL_RUNTIME_DIR to a directory under one that only you or root own")
+
+
 def runtime_dir() -> Path:
-    """Where ipc sockets, key files, device locks and the registry of running graphs live: private."""
+    """Where ipc sockets, key files, device locks and the registry of running graphs live: private,
+    in a parent no other user can change."""
     base = Path(os.environ.get("DOCKHIL_RUNTIME_DIR") or f"/tmp/dockhil-{os.getuid()}")
     if not base.parent.exists():
         base.parent.mkdir(parents=True, mode=0o700)
+    _check_ancestors(base, "runtime directory")
     return private_dir(base)
 
 
@@ -293,6 +339,7 @@ class Publisher:
         # to back, so that every process down the line wakes once a burst rather than once a message.
         self.burst = burst
         self._held: list[bytes] = []
+        self._held_observed: list[bytes] = []  # the observers' frames of the same messages
         self.topic_bytes = topic.encode()
         self._message_prefix = self.topic_bytes + MESSAGE
         self._empty_prefix = self.topic_bytes + EMPTY_TICK
@@ -304,27 +351,43 @@ class Publisher:
         self.sock.setsockopt(zmq.XPUB_VERBOSE, 1)
         # On close, queued messages still go out for up to linger_s (a slow recorder in sim time).
         self.sock.setsockopt(zmq.LINGER, int(linger_s * 1000))
+        # Observers' socket: no XPUB_NODROP, so a full queue drops that observer's message alone, and
+        # a send never waits; on close, what they have not taken lingers a moment only.
+        self.observers = ctx.socket(zmq.XPUB)
+        self.observers.setsockopt(zmq.SNDHWM, OBSERVER_HWM)
+        self.observers.setsockopt(zmq.LINGER, OBSERVER_LINGER_MS)
+        # Every subscription and unsubscription reaches `look`: frames for observers are made only while one listens.
+        self.observers.setsockopt(zmq.XPUB_VERBOSER, 1)
+        self.watchers = 0  # observers' subscriptions in (see `look`)
+        self._next_look = 0.0
+        self.sent = 0  # messages offered to observers, counted in their frames
+        self._observed_prefix = self.topic_bytes + OBSERVED
         self._ctx = ctx if keys is not None else None
         if keys is not None:
             _allow_clients(ctx, keys)  # before bind: no handshake may happen without the check
-            self.sock.curve_server = True
-            self.sock.curve_secretkey = keys.server_secret
-            self.sock.curve_publickey = keys.server_public
+            for sock in (self.sock, self.observers):
+                sock.curve_server = True
+                sock.curve_secretkey = keys.server_secret
+                sock.curve_publickey = keys.server_public
+        self.endpoint = self._bind(self.sock, endpoint)
+        self.observer_endpoint = self._bind(self.observers, observer_endpoint(endpoint))
+        self.subscribers = 0
+
+    def _bind(self, sock, endpoint: str) -> str:
         try:
             if endpoint.startswith("tcp://") and endpoint.endswith(":0"):
-                port = self.sock.bind_to_random_port(endpoint.rsplit(":", 1)[0])
-                endpoint = endpoint.rsplit(":", 1)[0] + f":{port}"
-            else:
-                self.sock.bind(endpoint)
+                port = sock.bind_to_random_port(endpoint.rsplit(":", 1)[0])
+                return endpoint.rsplit(":", 1)[0] + f":{port}"
+            sock.bind(endpoint)
+            return endpoint
         except zmq.ZMQError as exc:
             self.close()
-            raise DockhilError(f"topic {topic}: cannot bind {endpoint}: {exc}; is another graph using it?") from None
-        self.endpoint = endpoint
-        self.subscribers = 0
+            raise DockhilError(f"topic {self.topic}: cannot bind {endpoint}: {exc}; is another graph using it?") from None
 
     def wait_subscribers(self, expected: int, timeout: float, should_stop=lambda: False) -> None:
         """Block until `expected` subscriptions have arrived (sim-time start barrier)."""
         deadline = time.monotonic() + timeout
+        self.look()  # observers already there get the first tick too
         while self.subscribers < expected:
             if should_stop():
                 return
@@ -342,6 +405,7 @@ class Publisher:
 
     def send(self, payload: bytes) -> bool:
         """False if a subscriber's full queue refused it (wall time only; sim time waits for room)."""
+        self._observe(payload)
         if self.burst > 1:
             self._hold(self._message_prefix + payload)
             return True
@@ -352,12 +416,51 @@ class Publisher:
             return False
         return True
 
+    def send_multipart(self, frames, copy: bool = True) -> None:
+        """Send an envelope of frames ([topic, payload] or [topic, b"", tick], as `bag play` sends)
+        on the graph's socket as it is (zmq.Again if a full queue refused it), then to the observers."""
+        self.sock.send_multipart(frames, copy=copy)
+        if len(frames) == 2:
+            self._observe(frames[1], hold=False)
+        elif self.watchers > 0:
+            self.observers.send(frames[0] + EMPTY_TICK + frames[2], zmq.NOBLOCK)
+
+    def look(self) -> int:
+        """Take in the observers' subscriptions and unsubscriptions; how many subscriptions came."""
+        came = 0
+        try:
+            while True:
+                joined = self.observers.recv(zmq.NOBLOCK)[:1] == b"\x01"
+                came += joined
+                self.watchers = self.watchers + 1 if joined else max(0, self.watchers - 1)
+        except zmq.Again:
+            return came
+
+    def _observe(self, payload: bytes, hold: bool = True) -> None:
+        """Offer a message to the observers (with a burst's, when it goes out); never waits. Whether
+        one listens is looked at every burst, or every LOOK_EVERY_S: a new observer may miss the
+        first messages, and none costs 0.2 us a message."""
+        self.sent += 1
+        if self.burst == 1 and (now := time.monotonic()) >= self._next_look:
+            self._next_look = now + LOOK_EVERY_S
+            self.look()
+        if self.watchers > 0:
+            frame = self._observed_prefix + self.sent.to_bytes(8, "little") + payload
+            if self.burst > 1 and hold:
+                self._held_observed.append(frame)
+            else:
+                self.observers.send(frame, zmq.NOBLOCK)
+
     def send_empty(self, tick: int) -> None:
         """Sim time: this topic has no message at this tick."""
         frame = self._empty_prefix + tick.to_bytes(8, "little")
         if self.burst > 1:
+            if self.watchers > 0:
+                self._held_observed.append(frame)
             self._hold(frame)
         else:
+            if self.watchers > 0:
+                self.observers.send(frame, zmq.NOBLOCK)
             self.sock.send(frame)
 
     def _hold(self, frame: bytes) -> None:
@@ -370,16 +473,20 @@ class Publisher:
         ZeroMQ message of several frames, each frame still one message: ZeroMQ hands a message of
         many frames to its I/O thread, and to the reader, in one wake-up. Messages and empty ticks
         go in separate runs, as a reader may subscribe to only one kind (its prefix is matched
-        against the first frame)."""
-        held = self._held
+        against the first frame). The observers get theirs the same way, after, without waiting."""
+        self._send_runs(self.sock, self._held, 0)
+        self._send_runs(self.observers, self._held_observed, zmq.NOBLOCK)
+        self.look()
+
+    def _send_runs(self, sock, held: list[bytes], flags: int) -> None:
         n = len(self.topic_bytes)
         start = 0
         for i in range(1, len(held) + 1):
             if i == len(held) or held[i][n] != held[start][n]:
                 if i - start == 1:
-                    self.sock.send(held[start])
+                    sock.send(held[start], flags)
                 else:
-                    self.sock.send_multipart(held[start:i])
+                    sock.send_multipart(held[start:i], flags)
                 start = i
         held.clear()
 
@@ -390,7 +497,9 @@ class Publisher:
         except zmq.ZMQError:
             pass
         self._held.clear()
+        self._send_runs(self.observers, self._held_observed, zmq.NOBLOCK)
         self.sock.close()
+        self.observers.close()
         if self._ctx is not None:
             _release_clients(self._ctx)
             self._ctx = None
@@ -419,6 +528,8 @@ class Subscriber:
 
     An observer (a progress display, `dockhil topic echo`) is not part of the
     graph: sim time does not wait for it, and it may miss the first messages.
+    It reads the publishers' observer sockets, and counts in `lost` what they
+    dropped because it fell behind.
 
     A peer that fails the CURVE handshake is not the graph's publisher (a
     process that took its ipc path or tcp port): receiving then raises
@@ -426,7 +537,11 @@ class Subscriber:
 
     def __init__(self, ctx: zmq.Context, observer: bool = False):
         self.sock = ctx.socket(zmq.SUB)
-        self.sock.setsockopt(zmq.RCVHWM, HWM)
+        self.sock.setsockopt(zmq.RCVHWM, OBSERVER_HWM if observer else HWM)
+        self.observer = observer
+        self.lost = 0  # an observer's: messages its publishers sent it that never arrived (it fell behind)
+        self.lost_on: dict[bytes, int] = {}  # topic -> of these
+        self._count: dict[bytes, int] = {}  # topic -> the publisher's count in the last frame read
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.setsockopt(zmq.SUBSCRIBE, b"/" if observer else b"")
         # A node's publishers bind while it starts, often after its readers connect: retry a refused
@@ -446,7 +561,7 @@ class Subscriber:
                 self.sock.curve_serverkey = keys.server_public
                 self.sock.curve_publickey = keys.client_public
                 self.sock.curve_secretkey = keys.client_secret
-            self.sock.connect(endpoint)
+            self.sock.connect(observer_endpoint(endpoint) if self.observer else endpoint)
             self._connected.add(endpoint)
 
     def recv(self, timeout_s: float | None) -> list[bytes] | None:
@@ -473,9 +588,26 @@ class Subscriber:
         """A frame read alone is one message (a burst's frames are read one by one); a frame with no
         separator opens an envelope of frames ([topic, payload] or [topic, b"", tick], as `bag play`
         sends), read whole."""
+        if self.observer:
+            return self._observed(frame)
         if separator(frame)[0] >= 0:
             return split([frame])
         return self._rest(frame)
+
+    def _observed(self, frame: bytes) -> list[bytes]:
+        """An observer's frame as [topic, payload] (or [topic, b"", tick]); a gap in the publisher's
+        count is what this observer lost."""
+        i = frame.find(OBSERVED)
+        j = separator(frame)[0]
+        if i < 0 or 0 <= j < i:
+            return split([frame]) if j >= 0 else self._rest(frame)
+        topic, count = frame[:i], int.from_bytes(frame[i + 1:i + 9], "little")
+        last = self._count.get(topic)
+        if last is not None and count > last + 1:  # a smaller count: the publisher started again
+            self.lost += count - last - 1
+            self.lost_on[topic] = self.lost_on.get(topic, 0) + count - last - 1
+        self._count[topic] = count
+        return [topic, frame[i + 9:]]
 
     def _rest(self, first: bytes) -> list[bytes]:
         parts = [first]
