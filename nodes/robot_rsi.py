@@ -112,6 +112,7 @@ class RsiLink(threading.Thread):
         # Latest values, each replaced whole (one reference: no lock on the answering path).
         self.target: tuple[float, tuple, tuple] | None = None  # (handed over at, X Y Z mm, quaternion) or None
         self.korr = ((0.0, 0.0, 0.0), IDENTITY, (0.0, 0.0, 0.0))  # position mm, quaternion, A B C degrees
+        self.accepted = self.korr  # the last correction the controller had in time, as far as Delay tells
         self.latest: tuple[int, rsi.RobFrame, float] | None = None  # (count, frame, received at)
         self.first: rsi.RobFrame | None = None
         self.started = threading.Event()
@@ -123,6 +124,7 @@ class RsiLink(threading.Thread):
         self.counted = dict.fromkeys(KINDS, 0)
         self.stale_holds = 0
         self.delay = 0  # the controller's count of late answers, as it last reported it
+        self.delay_at_start: int | None = None  # ... and as it reported it first
         self.lock = threading.Lock()
         self.notes: list[str] = []
         self.fatal: str | None = None
@@ -179,11 +181,19 @@ class RsiLink(threading.Thread):
             self._count("repeated", f"IPOC {frame.ipoc} after {self.last_ipoc}")
             return None
         self.last_ipoc = frame.ipoc
+        if frame.delay is not None and self.delay_at_start is not None and frame.delay > self.delay:
+            # An answer since the last datagram came late: the controller kept the correction it had
+            # (HOLDON), so this cycle's step starts from there, not from what it never applied.
+            self.korr = self.accepted
+        else:
+            self.accepted = self.korr
         answer = self.write(self._advance(now), frame.ipoc)
         self.received += 1
         self.latest = (self.received, frame, now)
-        if frame.delay is not None and frame.delay != self.delay:
-            if frame.delay > self.delay and self.delay == 0:
+        if frame.delay is not None:
+            if self.delay_at_start is None:
+                self.delay_at_start = frame.delay
+            elif frame.delay > self.delay and self.delay == self.delay_at_start:
                 self._note(f"warning: the controller counts late answers (Delay D={frame.delay}); "
                            f"it stops RSI after its limit of late answers")
             self.delay = frame.delay
@@ -429,9 +439,14 @@ class RobotRsiDriver(RobotModbusDriver):
                 self._sent = None
             else:
                 values = _command_values(cmd)
-                self._check_jump(values[:3], values[3:7], now)
+                # A setpoint step is judged over the scene's time between the two setpoints (their
+                # publisher's ticks), not over the wall time between their deliveries: late ticks
+                # delivered together are no faster command, and the link's per-cycle step bounds
+                # what reaches the robot whenever they come.
+                scene_t = cmd.header.tick * self.ctx.dt
+                self._check_jump(values[:3], values[3:7], scene_t)
                 link.submit(*self.frame.correction(values[:3], values[3:7]))
-                self._sent = (values[:3], values[3:7], now)
+                self._sent = (values[:3], values[3:7], scene_t)
         elif self._sent is not None and now - self._last_cmd_at > p.stall_timeout:
             age = now - self._last_cmd_at
             self._trip("stale_command", age, f"stale command: no new setpoint for {age:.3f} s > stall_timeout "
@@ -492,8 +507,9 @@ class RobotRsiDriver(RobotModbusDriver):
             self.log(f"warning: {self.device}: datagrams ignored: {counted}")
         if link.stale_holds:
             self.log(f"warning: {self.device}: held on a stale setpoint for {link.stale_holds} cycles")
-        if link.delay:
-            self.log(f"warning: {self.device}: the controller counted {link.delay} late answers")
+        if link.delay_at_start is not None and link.delay > link.delay_at_start:
+            self.log(f"warning: {self.device}: the controller counted {link.delay - link.delay_at_start} late "
+                     f"answers")
         self._lock.release()
         if not held and self.tripped is None and silent < self.p.controller_timeout:
             self.log(f"warning: {self.device}: could not confirm the hold at close; the controller stops RSI "
