@@ -12,8 +12,12 @@ degrees: commanded position = start + (X, Y, Z), commanded orientation =
 R(A, B, C) R(start), a rotation about the TCP in BASE axes (configure the
 controller's correction as absolute, in #BASE: docs/hardware.md). The scene's
 robot frame (+x the docking axis) sits in BASE at KUKA angles scene_a,
-scene_b, scene_c; the published state is the RIst pose relative to the start
-pose, in that frame, as robot_modbus publishes it.
+scene_b, scene_c. The start pose is the scene's first commanded pose (bring
+the robot there before starting RSI; in hil.yaml it is x = 0, the surfaces
+touching): the correction is the command's change from it, and the published
+state is the RIst pose relative to the start pose, in the scene frame, plus
+that first pose, as robot_modbus publishes it. No state before the first
+command.
 
 The link thread, per datagram, in this order: only the configured controller's
 address is read; a datagram that is oversized, malformed, without RIst or IPOC,
@@ -51,7 +55,7 @@ from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import rsi
 from dockhil.msgs import Pose, Quaternion, RobotState, Twist, Vector3
 from dockhil.node import Param
-from dockhil.nodes.robot_modbus import RobotModbusDriver, _command_values, _key
+from dockhil.nodes.robot_modbus import RobotModbusDriver, _command_values, _key, _non_finite
 
 SWITCH_INTERVAL = 0.0002  # s: longest wait of the link thread for the interpreter while another thread runs
 LINK_PRIORITY = 60  # SCHED_FIFO priority of the link thread: above the node loops' (dockhil.process)
@@ -68,27 +72,36 @@ def _finite(values) -> bool:
 
 
 class SceneFrame:
-    """The scene's robot frame in the controller's BASE frame, and the start pose (first RIst)."""
+    """The scene's robot frame in the controller's BASE frame, the start pose (the first RIst), and the
+    scene pose the robot had there (the first command: the robot was brought to the scene's start)."""
 
     def __init__(self, abc, start):
         self.q_sb = rsi.abc_to_quat(*abc)  # scene axes -> BASE axes
         self.p0 = start[:3]  # mm
         self.q0 = rsi.abc_to_quat(*start[3:])
+        self.anchor((0.0, 0.0, 0.0), IDENTITY)
+
+    def anchor(self, position, orientation) -> None:
+        """The scene pose (m, quaternion) of the robot at the start pose."""
+        self.a_p = tuple(position)
+        self.a_q = tuple(orientation)
 
     def correction(self, position, orientation) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
-        """Scene pose (m, quaternion relative to the start) -> (X Y Z mm, rotation quaternion) in BASE."""
-        d = rotate(self.q_sb, position)
-        q = quat_multiply(quat_multiply(self.q_sb, orientation), quat_conjugate(self.q_sb))
+        """Scene pose (m, quaternion) -> correction from the start: (X Y Z mm, rotation quaternion) in BASE."""
+        a = self.a_p
+        d = rotate(self.q_sb, (position[0] - a[0], position[1] - a[1], position[2] - a[2]))
+        turn = quat_multiply(orientation, quat_conjugate(self.a_q))  # in scene axes
+        q = quat_multiply(quat_multiply(self.q_sb, turn), quat_conjugate(self.q_sb))
         return (d[0] * 1000.0, d[1] * 1000.0, d[2] * 1000.0), q
 
     def scene_pose(self, rist) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
-        """RIst (mm, degrees in BASE) -> scene pose relative to the start: (m, quaternion)."""
-        p0 = self.p0
+        """RIst (mm, degrees in BASE) -> scene pose: (m, quaternion)."""
+        p0, a = self.p0, self.a_p
         d = rotate_back(self.q_sb, ((rist[0] - p0[0]) / 1000.0, (rist[1] - p0[1]) / 1000.0,
                                     (rist[2] - p0[2]) / 1000.0))
         turn = quat_multiply(rsi.abc_to_quat(*rist[3:]), quat_conjugate(self.q0))  # in BASE axes
-        q = quat_multiply(quat_multiply(quat_conjugate(self.q_sb), turn), self.q_sb)
-        return d, q if q[3] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
+        q = quat_multiply(quat_multiply(quat_multiply(quat_conjugate(self.q_sb), turn), self.q_sb), self.a_q)
+        return (a[0] + d[0], a[1] + d[1], a[2] + d[2]), q if q[3] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
 
 
 class RsiLink(threading.Thread):
@@ -351,7 +364,8 @@ class RobotRsiDriver(RobotModbusDriver):
         self._last_step_at: float | None = None
         self._last_cmd_at: float | None = None
         self._sent = None
-        self._start_q = IDENTITY  # the scene's orientations are relative to the start pose
+        self._start_q = IDENTITY  # the first command's orientation, once it came (max_tilt)
+        self._anchored = None  # the first command: the scene pose of the start pose
         self._seen = 0
         self._history: list[tuple[float, tuple, tuple]] = []
         self._actual = None
@@ -429,8 +443,17 @@ class RobotRsiDriver(RobotModbusDriver):
             self._trip("estop", estop.reason or "active", f"estop: e-stop active ({estop.reason or 'no reason given'})")
 
         ft_fresh = self._check_wrench(inputs.get("wrench"), now)
-        reading = self._reading(latest)
         cmd = inputs.get("command")
+        if self._anchored is None:
+            if cmd is None:
+                return {}  # no state before the scene says where the robot stands
+            self._check_command_values(cmd)
+            values = _command_values(cmd)
+            self.frame.anchor(values[:3], values[3:7])
+            self._start_q = values[3:7]
+            self._anchored = values
+            self.log(f"the start pose is the scene's pose x {values[0]:.4f} y {values[1]:.4f} z {values[2]:.4f} m")
+        reading = self._reading(latest)
         if cmd is not None and (self._last_cmd is None or _key(cmd) != _key(self._last_cmd)):
             self._check_command(cmd, reading)
             self._last_cmd, self._last_cmd_at = cmd, now
@@ -464,6 +487,13 @@ class RobotRsiDriver(RobotModbusDriver):
                                                 angular=Vector3(a[10], a[11], a[12])),
                                     status="ok")}
 
+    def _check_command_values(self, cmd) -> None:
+        """The first command, which anchors the scene to the start pose, must be a pose."""
+        bad = _non_finite(("position", cmd.pose.position), ("orientation", cmd.pose.orientation))
+        if bad:
+            self._trip("non_finite", bad, f"non-finite setpoint: commanded {bad}")
+        self._check_unit("commanded", _command_values(cmd)[3:7])
+
     def _reading(self, latest) -> _Reading:
         """The latest RIst in the scene frame, with the twist over VELOCITY_WINDOW_S of receive times."""
         count, frame, t = latest
@@ -494,9 +524,10 @@ class RobotRsiDriver(RobotModbusDriver):
         if link is None:
             return
         self.link = None
-        silent = self.ctx.clock() - link.latest[2] if link.latest else math.inf
+        received = link.received
         # Hold: the answers keep the last correction until the controller has one of them, then stop.
-        held = link.hold(min(0.25, 3 * self.p.cycle + 0.05)) if silent < self.p.controller_timeout else False
+        held = link.hold(min(0.25, 3 * self.p.cycle + 0.05))
+        sending = link.received != received  # no datagram while we waited: RSI had stopped, nothing to hold
         link.stopping = True
         link.join(timeout=2.0)
         link.sock.close()
@@ -511,6 +542,6 @@ class RobotRsiDriver(RobotModbusDriver):
             self.log(f"warning: {self.device}: the controller counted {link.delay - link.delay_at_start} late "
                      f"answers")
         self._lock.release()
-        if not held and self.tripped is None and silent < self.p.controller_timeout:
+        if not held and self.tripped is None and sending:
             self.log(f"warning: {self.device}: could not confirm the hold at close; the controller stops RSI "
                      f"when the answers stop")

