@@ -48,7 +48,6 @@ import socket
 import sys
 import threading
 import time
-from array import array
 
 from dockhil.contact.rigid import IDENTITY, quat_conjugate, quat_from_rotvec, quat_multiply, rotate, rotate_back
 from dockhil.errors import DeviceError, LaunchError
@@ -108,8 +107,7 @@ class RsiLink(threading.Thread):
     """Owns the UDP socket: answers every controller datagram at once from the latest setpoint."""
 
     def __init__(self, sock, controller: str, cycle: float, max_speed: float, max_angular_speed: float,
-                 stale_after: float, sentype: str = "ImFree", clock=time.monotonic, realtime: bool = False,
-                 keep_latencies: int = 0):
+                 stale_after: float, sentype: str = "ImFree", clock=time.monotonic, realtime: bool = False):
         super().__init__(name="robot-rsi-link", daemon=True)
         self.sock = sock
         self.controller = controller
@@ -141,9 +139,6 @@ class RsiLink(threading.Thread):
         self.lock = threading.Lock()
         self.notes: list[str] = []
         self.fatal: str | None = None
-        # Answer latencies (receive to sent, s), a ring for the bench; none kept by default.
-        self.latencies = array("d", bytes(8 * keep_latencies))
-        self._n_latencies = 0
 
     # -- from the node thread ------------------------------------------------------
     def submit(self, position_mm, orientation) -> None:
@@ -164,10 +159,6 @@ class RsiLink(threading.Thread):
     def stop(self) -> None:
         self.stopping = True
         self.join(timeout=2.0)
-
-    def recorded_latencies(self) -> list[float]:
-        n, size = self._n_latencies, len(self.latencies)
-        return list(self.latencies[:n]) if n <= size else list(self.latencies)
 
     # -- the answering path -----------------------------------------------------------
     def _note(self, line: str) -> None:
@@ -262,7 +253,6 @@ class RsiLink(threading.Thread):
         sock, clock, handle = self.sock, self.clock, self.handle
         buf = bytearray(rsi.MAX_DATAGRAM + 1)  # one byte more: a datagram that fills it is oversized
         view = memoryview(buf)
-        latencies, size = self.latencies, len(self.latencies)
         while not self.stopping:
             try:
                 n, addr = sock.recvfrom_into(buf)
@@ -284,9 +274,6 @@ class RsiLink(threading.Thread):
             self.answered += 1
             if self.hold_latched:
                 self.hold_written.set()
-            if size:
-                latencies[self._n_latencies % size] = clock() - t
-                self._n_latencies += 1
 
 
 class _Reading:

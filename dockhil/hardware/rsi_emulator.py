@@ -20,8 +20,9 @@ correction in BASE (docs/hardware.md):
   jitter (uniform, up to `jitter` seconds).
 
 It records its maxima (largest TCP speed and angular speed, largest
-correction step in a cycle) and the answers' latencies, and writes them as
-JSON at exit (`record`), for tests and the bench.
+correction step in a cycle) and the answers' latencies (late ones too, if
+they come at all), and writes them as JSON at exit (`record`), for tests and
+the bench.
 
 Run alone: python -m dockhil.hardware.rsi_emulator --port 49152 [--delay S --tau S --duration S]
 """
@@ -122,7 +123,9 @@ class RsiControllerEmulator:
         self.stats = {"cycles": 0, "sent": 0, "lost": 0, "duplicated": 0, "reordered": 0, "answered": 0,
                       "late": 0, "late_in_a_row_max": 0, "bad_answers": 0, "stray_answers": 0,
                       "max_speed": 0.0, "max_angular_speed": 0.0, "max_step_mm": 0.0, "max_step_deg": 0.0}
-        self.latencies = array("d")
+        self.latencies = array("d")  # send to answer arrival [s], on time or late
+        self._sent_at: dict[int, float] = {}  # IPOC -> when its datagram was sent (Unix time), recent ones
+        self._answered_late: dict[int, bool] = {}
         self._late_in_a_row = 0
         self._held_back: bytes | None = None
         self._stop = threading.Event()
@@ -207,6 +210,12 @@ class RsiControllerEmulator:
         data = rsi.build_rob(ipoc, self.servo.rist(), self.servo.rsol(), s["late"])
         sent_at = time.time()
         self._send(data)
+        answered_late = self._answered_late
+        self._sent_at[ipoc] = sent_at
+        if len(self._sent_at) > 64:  # an answer later than that is not waited for
+            oldest = min(self._sent_at)
+            del self._sent_at[oldest]
+            answered_late.pop(oldest, None)
         deadline = slot_start + self.cycle
         answered = False
         while True:
@@ -223,6 +232,9 @@ class RsiControllerEmulator:
                 continue
             if answer_ipoc != ipoc or answered or arrival - sent_at > self.cycle:
                 s["stray_answers"] += 1
+                if answer_ipoc in self._sent_at and not answered_late.get(answer_ipoc):
+                    answered_late[answer_ipoc] = True
+                    self.latencies.append(arrival - self._sent_at[answer_ipoc])  # late, but it came
                 continue
             answered = True
             s["answered"] += 1
