@@ -54,6 +54,11 @@ def main() -> None:
              "--duration", str(args.duration + 30.0), "--record", record, "--max-late", "1000000000",
              *(["--realtime"] if args.realtime else [])],
             cwd=ROOT, stdout=subprocess.DEVNULL)
+        if args.realtime:  # as `dockhil launch --realtime` does for a node's loop (after the children start)
+            try:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
+            except (PermissionError, OSError) as exc:
+                print(f"warning: real-time scheduling refused ({exc})", file=sys.stderr)
         node = RobotRsiDriver(NodeContext("robot", 1.0 / args.rate, sim_time=False, log=logs.append), port=port,
                               ft_timeout=0.0, realtime=args.realtime, connect_timeout=10.0)
         try:

@@ -320,7 +320,8 @@ class RobotRsiDriver(RobotModbusDriver):
         "scene_c": Param(float, 0.0, unit="deg", help="KUKA angle C of the scene's robot frame in BASE",
                          ge=-180.0, le=180.0),
         "realtime": Param(bool, False, help="ask for SCHED_FIFO scheduling of the answering thread (root, "
-                          "CAP_SYS_NICE or an rtprio limit; one line and normal priority without)"),
+                          "CAP_SYS_NICE or an rtprio limit; one line and normal priority without); on under "
+                          "--realtime"),
     }
 
     def setup(self) -> None:
@@ -378,8 +379,12 @@ class RobotRsiDriver(RobotModbusDriver):
                               f"(another program uses the port?)") from None
         sock.settimeout(0.05)  # the link looks at `stopping` this often
         sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
+        try:  # a node loop launched with --realtime: its answering thread goes above it
+            inherited = os.sched_getscheduler(0) in (os.SCHED_FIFO, os.SCHED_RR)
+        except (OSError, AttributeError):
+            inherited = False
         self.link = RsiLink(sock, controller, p.cycle, p.max_speed, p.max_angular_speed, p.stall_timeout,
-                            p.sentype, self.ctx.clock, p.realtime)
+                            p.sentype, self.ctx.clock, p.realtime or inherited)
         self.link.start()
         if not self.link.started.wait(p.connect_timeout):
             counted = {k: v for k, v in self.link.counted.items() if v}
