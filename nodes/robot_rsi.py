@@ -30,7 +30,7 @@ or not finite, after a safety stop and at close.
 
 Safety, in step(), as robot_modbus (the same limits, checked by the same
 code): force and torque on the F/T input, the F/T watchdog, workspace and tilt,
-the commanded speed and setpoint steps, the following error from RIst, the
+the commanded twist and the command's lead, the following error from RIst, the
 measured speed; a stall of this driver; an e-stop. A controller that sends
 nothing for controller_timeout stopped RSI: the graph stops with one line.
 
@@ -351,7 +351,7 @@ class RobotRsiDriver(RobotModbusDriver):
         self._first_t: float | None = None
         self._last_step_at: float | None = None
         self._last_cmd_at: float | None = None
-        self._sent = None
+        self._moving = False  # a setpoint was handed over since the last hold
         self._start_q = IDENTITY  # the first command's orientation, once it came (max_tilt)
         self._anchored = None  # the first command: the scene pose of the start pose
         self._seen = 0
@@ -378,7 +378,8 @@ class RobotRsiDriver(RobotModbusDriver):
             raise DeviceError(f"{self.device}: cannot listen on {p.listen}:{p.port}: {exc.strerror or exc} "
                               f"(another program uses the port?)") from None
         sock.settimeout(0.05)  # the link looks at `stopping` this often
-        sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
+        self._switch_interval = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._switch_interval, SWITCH_INTERVAL))
         try:  # a node loop launched with --realtime: its answering thread goes above it
             inherited = os.sched_getscheduler(0) in (os.SCHED_FIFO, os.SCHED_RR)
         except (OSError, AttributeError):
@@ -404,6 +405,7 @@ class RobotRsiDriver(RobotModbusDriver):
             link.stopping = True
             link.join(timeout=2.0)
             link.sock.close()
+            sys.setswitchinterval(self._switch_interval)
 
     # -- step -----------------------------------------------------------------------
     def step(self, tick, inputs):
@@ -451,21 +453,17 @@ class RobotRsiDriver(RobotModbusDriver):
             self._last_cmd, self._last_cmd_at = cmd, now
             if not ft_fresh or not cmd.enable:
                 link.submit(None, None)  # no F/T data yet: hold rather than move blind
-                self._sent = None
+                self._moving = False
             else:
                 values = _command_values(cmd)
-                # A setpoint step is judged over the scene's time between the two setpoints (their
-                # publisher's ticks), not over the wall time between their deliveries: late ticks
-                # delivered together are no faster command, and the link's per-cycle step bounds
-                # what reaches the robot whenever they come.
-                scene_t = cmd.header.tick * self.ctx.dt
-                self._check_jump(values[:3], values[3:7], scene_t)
                 link.submit(*self.frame.correction(values[:3], values[3:7]))
-                self._sent = (values[:3], values[3:7], scene_t)
-        elif self._sent is not None and now - self._last_cmd_at > p.stall_timeout:
+                self._moving = True
+        elif self._moving and now - self._last_cmd_at > p.stall_timeout:
             age = now - self._last_cmd_at
             self._trip("stale_command", age, f"stale command: no new setpoint for {age:.3f} s > stall_timeout "
                        f"{p.stall_timeout:g} s while moving (the simulation stalled)")
+
+        self._check_ahead()
 
         if latest[0] == self._seen:
             return {}
@@ -478,6 +476,29 @@ class RobotRsiDriver(RobotModbusDriver):
                                     twist=Twist(linear=Vector3(a[7], a[8], a[9]),
                                                 angular=Vector3(a[10], a[11], a[12])),
                                     status="ok")}
+
+    def _check_ahead(self) -> None:
+        """The link moves the correction by at most one cycle's travel at max_speed (max_angular_speed)
+        toward the command, so late or bunched commands only put the command briefly ahead of the
+        correction sent. A command further ahead than stall_timeout's travel (or the following error, at
+        the start) moves faster than the limit: robot_modbus's rule, on the correction in BASE."""
+        link, p = self.link, self.p
+        target = link.target
+        if not self._moving or target is None:
+            return
+        (kp, kq, _), tp, tq = link.korr, target[1], target[2]
+        distance = math.sqrt(sum((a - b) ** 2 for a, b in zip(kp, tp))) / 1000.0
+        x, y, z, w = quat_multiply(tq, quat_conjugate(kq))
+        turn = 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), abs(w))
+        if distance > max(p.max_speed * p.stall_timeout, p.max_following_error):
+            self._trip("max_speed", distance, f"max_speed: the command ran {distance:.4f} m ahead of the "
+                       f"correction sent at {p.max_speed:g} m/s (more than stall_timeout {p.stall_timeout:g} s "
+                       f"of travel and max_following_error): it moves faster than max_speed")
+        if turn > max(p.max_angular_speed * p.stall_timeout, p.max_orientation_error):
+            self._trip("max_angular_speed", turn, f"max_angular_speed: the command turned {turn:.4f} rad ahead "
+                       f"of the correction sent at {p.max_angular_speed:g} rad/s (more than stall_timeout "
+                       f"{p.stall_timeout:g} s of turning and max_orientation_error): it turns faster than "
+                       f"max_angular_speed")
 
     def _check_command_values(self, cmd) -> None:
         """The first command, which anchors the scene to the start pose, must be a pose."""
@@ -520,9 +541,9 @@ class RobotRsiDriver(RobotModbusDriver):
         # Hold: the answers keep the last correction until the controller has one of them, then stop.
         held = link.hold(min(0.25, 3 * self.p.cycle + 0.05))
         sending = link.received != received  # no datagram while we waited: RSI had stopped, nothing to hold
-        link.stopping = True
-        link.join(timeout=2.0)
-        link.sock.close()
+        self.link = link
+        self._stop_link()
+        self.link = None
         for line in link.take_notes():
             self.log(line)
         counted = ", ".join(f"{n} {KINDS[k]}" for k, n in link.counted.items() if n)

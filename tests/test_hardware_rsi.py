@@ -475,6 +475,24 @@ def test_the_driver_holds_on_a_safety_stop_and_at_close(driven):
     assert {ctl.exchange()[2] for _ in range(5)} == {held}
 
 
+def test_a_command_that_runs_ahead_of_the_correction_faster_than_the_limit_stops(driven):
+    node, ctl, clock, logs = driven(ft_timeout=0, max_following_error=0.0)
+    # 1 mm a tick (1 m/s), its twist claiming less: the correction follows at 0.4 mm a cycle, the command
+    # pulls away and is stopped once it is more than stall_timeout's travel (0.02 m) ahead (with the
+    # following error on, that stops it first: the fake robot here does not move).
+    with pytest.raises(SafetyStop) as err:
+        for k in range(200):
+            clock.advance(0.001)
+            node.step(Tick(k, k * 0.001, 0.001), {"command": command(k, 0.001 * k, 0.05), "wrench": wrench()})
+            if k % 4 == 3:
+                ctl.exchange()
+    text = str(err.value)
+    assert "max_speed: the command ran 0.02" in text and "ahead of the correction sent" in text, text
+    assert 20 <= k <= 40 and "\n" not in text
+    # held from here: the controller's answers carry the last correction
+    assert len({ctl.exchange()[2] for _ in range(3)}) == 1
+
+
 def test_a_controller_that_stops_sending_stops_the_graph_in_one_line(driven):
     node, ctl, clock, logs = driven(ft_timeout=0, controller_timeout=0.05)
     node.step(Tick(0, 0.0, 0.001), {"command": command(0, 0.0), "wrench": wrench()})
