@@ -388,9 +388,10 @@ class RobotRsiDriver(RobotModbusDriver):
                             p.sentype, self.ctx.clock, p.realtime or inherited)
         self.link.start()
         if not self.link.started.wait(p.connect_timeout):
-            counted = {k: v for k, v in self.link.counted.items() if v}
-            self._stop_link()
-            extra = f"; ignored: {counted}" if counted else ""
+            counted = ", ".join(f"{n} {KINDS[k]}" for k, n in self.link.counted.items() if n)
+            self._stop_link(self.link)
+            self.link = None
+            extra = f" (datagrams ignored: {counted})" if counted else ""
             raise DeviceError(f"{self.device}: no RSI datagram from {p.host} within {p.connect_timeout:g} s: start "
                               f"the RSI program on the controller, and check its Ethernet configuration's IP_NUMBER "
                               f"and PORT name this host and port {p.port}{extra}")
@@ -399,13 +400,11 @@ class RobotRsiDriver(RobotModbusDriver):
         self.log(f"{self.device}: RSI running, cycle {p.cycle * 1000:g} ms; start pose X {start[0]:.2f} "
                  f"Y {start[1]:.2f} Z {start[2]:.2f} mm, A {start[3]:.2f} B {start[4]:.2f} C {start[5]:.2f} deg")
 
-    def _stop_link(self) -> None:
-        link = self.link
-        if link is not None:
-            link.stopping = True
-            link.join(timeout=2.0)
-            link.sock.close()
-            sys.setswitchinterval(self._switch_interval)
+    def _stop_link(self, link: RsiLink) -> None:
+        link.stopping = True
+        link.join(timeout=2.0)
+        link.sock.close()
+        sys.setswitchinterval(self._switch_interval)
 
     # -- step -----------------------------------------------------------------------
     def step(self, tick, inputs):
@@ -541,9 +540,7 @@ class RobotRsiDriver(RobotModbusDriver):
         # Hold: the answers keep the last correction until the controller has one of them, then stop.
         held = link.hold(min(0.25, 3 * self.p.cycle + 0.05))
         sending = link.received != received  # no datagram while we waited: RSI had stopped, nothing to hold
-        self.link = link
-        self._stop_link()
-        self.link = None
+        self._stop_link(link)
         for line in link.take_notes():
             self.log(line)
         counted = ", ".join(f"{n} {KINDS[k]}" for k, n in link.counted.items() if n)

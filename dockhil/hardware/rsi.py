@@ -90,21 +90,30 @@ def _count(text: str | None, what: str) -> int:
     return int(text)
 
 
-def parse_rob(data: bytes) -> RobFrame:
-    """The controller's datagram; RsiError if it is not one this driver can act on (it needs RIst and IPOC)."""
+def _root(data: bytes, tag: str):
+    """The parsed datagram, whose root element must be `tag`."""
     _screen(data)
     try:
         root = ET.fromstring(data)
     except ET.ParseError as exc:
         raise RsiError(f"malformed XML ({exc})") from None
-    if root.tag != "Rob":
-        raise RsiError(f"root element <{root.tag[:20]}>, not <Rob>")
-    rist = root.find("RIst")
-    if rist is None:
-        raise RsiError("no RIst element (add DEF_RIst to the SEND elements of the Ethernet configuration)")
-    ipoc = root.find("IPOC")
-    if ipoc is None:
-        raise RsiError("no IPOC element")
+    if root.tag != tag:
+        raise RsiError(f"root element <{root.tag[:20]}>, not <{tag}>")
+    return root
+
+
+def _element(root, tag: str, hint: str = ""):
+    element = root.find(tag)
+    if element is None:
+        raise RsiError(f"no {tag} element{hint}")
+    return element
+
+
+def parse_rob(data: bytes) -> RobFrame:
+    """The controller's datagram; RsiError if it is not one this driver can act on (it needs RIst and IPOC)."""
+    root = _root(data, "Rob")
+    rist = _element(root, "RIst", " (add DEF_RIst to the SEND elements of the Ethernet configuration)")
+    ipoc = _element(root, "IPOC")
     rsol = root.find("RSol")
     delay = root.find("Delay")
     return RobFrame(_count(ipoc.text, "IPOC"), _pose(rist, "RIst"),
@@ -114,20 +123,9 @@ def parse_rob(data: bytes) -> RobFrame:
 
 def parse_sen(data: bytes) -> tuple[int, tuple[float, float, float, float, float, float]]:
     """The sensor's answer: (IPOC, RKorr); RsiError if it is not one (the emulator's side)."""
-    _screen(data)
-    try:
-        root = ET.fromstring(data)
-    except ET.ParseError as exc:
-        raise RsiError(f"malformed XML ({exc})") from None
-    if root.tag != "Sen":
-        raise RsiError(f"root element <{root.tag[:20]}>, not <Sen>")
-    korr = root.find("RKorr")
-    if korr is None:
-        raise RsiError("no RKorr element")
-    ipoc = root.find("IPOC")
-    if ipoc is None:
-        raise RsiError("no IPOC element")
-    return _count(ipoc.text, "IPOC"), _pose(korr, "RKorr")
+    root = _root(data, "Sen")
+    korr = _element(root, "RKorr")
+    return _count(_element(root, "IPOC").text, "IPOC"), _pose(korr, "RKorr")
 
 
 def _check_type(value: str) -> str:
@@ -150,16 +148,16 @@ class SenWriter:
 
 def build_rob(ipoc: int, rist, rsol=None, delay: int | None = None, rob_type: str = "KUKA") -> bytes:
     """A controller's datagram (the emulator's side)."""
-    parts = [f'<Rob Type="{_check_type(rob_type)}">', _element("RIst", rist)]
+    parts = [f'<Rob Type="{_check_type(rob_type)}">', _pose_text("RIst", rist)]
     if rsol is not None:
-        parts.append(_element("RSol", rsol))
+        parts.append(_pose_text("RSol", rsol))
     if delay is not None:
         parts.append(f'<Delay D="{int(delay)}"/>')
     parts.append(f"<IPOC>{int(ipoc)}</IPOC></Rob>")
     return "".join(parts).encode()
 
 
-def _element(tag: str, pose) -> str:
+def _pose_text(tag: str, pose) -> str:
     return f"<{tag} " + " ".join(f'{n}="{v:.4f}"' for n, v in zip(CARTESIAN, pose)) + "/>"
 
 
