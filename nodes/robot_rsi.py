@@ -303,16 +303,17 @@ class RobotRsiDriver(RobotModbusDriver):
         "cycle": Param(float, 0.004, unit="s", help="the controller's RSI cycle: 0.004 (KR C4/C5) or 0.012 "
                        "(older controllers)", choices=rsi.CYCLES),
         "sentype": Param(str, "ImFree", help="the Sen Type the controller expects (its configuration's SENTYPE)"),
-        "max_speed": Param(float, 0.1, unit="m/s", help="commanded speed limit: twist and setpoint steps; the "
-                           "correction moves at most this times the cycle per cycle", gt=0.0),
-        "max_angular_speed": Param(float, 0.5, unit="rad/s", help="commanded angular speed limit: twist and "
-                                   "setpoint rotation steps; the correction turns at most this times the cycle "
-                                   "per cycle", gt=0.0),
+        "max_speed": Param(float, 0.1, unit="m/s", help="commanded speed limit: the twist, and the command's "
+                           "lead on the correction; the correction moves at most this times the cycle per cycle",
+                           gt=0.0, le=10.0),
+        "max_angular_speed": Param(float, 0.5, unit="rad/s", help="commanded angular speed limit: the twist, "
+                                   "and the command's lead on the correction; the correction turns at most this "
+                                   "times the cycle per cycle", gt=0.0, le=10.0),
         **{name: RobotModbusDriver.params[name] for name in _SHARED},
         "connect_timeout": Param(float, 10.0, unit="s", help="setup fails if no datagram came within this "
-                                 "(start the RSI program on the controller)", gt=0.0),
+                                 "(start the RSI program on the controller)", gt=0.0, le=600.0),
         "controller_timeout": Param(float, 0.2, unit="s", help="no datagram this long: the controller stopped "
-                                    "RSI, the graph stops", gt=0.0),
+                                    "RSI, the graph stops", gt=0.0, le=10.0),
         "scene_a": Param(float, 0.0, unit="deg", help="KUKA angle A of the scene's robot frame (+x the docking "
                          "axis) in the controller's BASE frame", ge=-180.0, le=180.0),
         "scene_b": Param(float, 0.0, unit="deg", help="KUKA angle B of the scene's robot frame in BASE",
