@@ -312,8 +312,8 @@ class RobotRsiDriver(RobotModbusDriver):
         **{name: RobotModbusDriver.params[name] for name in _SHARED},
         "connect_timeout": Param(float, 10.0, unit="s", help="setup fails if no datagram came within this "
                                  "(start the RSI program on the controller)", gt=0.0, le=600.0),
-        "controller_timeout": Param(float, 0.2, unit="s", help="no datagram this long: the controller stopped "
-                                    "RSI, the graph stops", gt=0.0, le=10.0),
+        "controller_timeout": Param(float, 0.5, unit="s", help="no datagram this long: the controller stopped "
+                                    "RSI (a controller sends every cycle), the graph stops", gt=0.0, le=10.0),
         "scene_a": Param(float, 0.0, unit="deg", help="KUKA angle A of the scene's robot frame (+x the docking "
                          "axis) in the controller's BASE frame", ge=-180.0, le=180.0),
         "scene_b": Param(float, 0.0, unit="deg", help="KUKA angle B of the scene's robot frame in BASE",

@@ -540,8 +540,9 @@ def test_the_driver_against_the_emulator_tracks_the_command_within_the_per_cycle
     emulator = RsiControllerEmulator(port=port, cycle=CYCLE, delay=0.008, tau=0.01)
     emulator.start_thread()
     logs: list[str] = []
+    # The emulator is a thread of this process here: a loaded machine may stall it for a while.
     node = RobotRsiDriver(NodeContext("robot", 0.001, sim_time=False, log=logs.append), port=port, ft_timeout=0,
-                          max_speed=0.05)
+                          max_speed=0.05, controller_timeout=2.0, stall_timeout=1.0)
     try:
         node.setup()
         last, bunch = None, 0
