@@ -156,10 +156,6 @@ class RsiLink(threading.Thread):
             notes, self.notes = self.notes, []
         return notes
 
-    def stop(self) -> None:
-        self.stopping = True
-        self.join(timeout=2.0)
-
     # -- the answering path -----------------------------------------------------------
     def _note(self, line: str) -> None:
         with self.lock:

@@ -7,7 +7,7 @@ dockhil/hardware/rsi_emulator.py.
 
 from __future__ import annotations
 
-from dockhil.errors import DeviceError
+from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import rsi
 from dockhil.node import Node, Param
 
@@ -39,7 +39,7 @@ class RsiControllerEmulatorNode(Node):
 
         p = self.p
         if p.jitter >= p.cycle:
-            raise DeviceError(f"KUKA RSI emulator: jitter {p.jitter:g} s must be below the cycle {p.cycle:g} s")
+            raise LaunchError(f"node {self.ctx.name!r}: jitter {p.jitter:g} s must be below the cycle {p.cycle:g} s")
         self._lock = rsi.claim_port(p.port)  # the port's graph: its driver may share it, no other graph
         try:
             self.emulator = RsiControllerEmulator(p.host, p.port, p.cycle, p.delay, p.tau, p.max_late, p.loss,
@@ -62,5 +62,9 @@ class RsiControllerEmulatorNode(Node):
         if emulator.stopped:
             self.log(f"warning: KUKA RSI emulator: RSI stopped after {emulator.max_late} late answers in a row")
         if self.p.record:
-            emulator.write_record(self.p.record)
+            try:
+                emulator.write_record(self.p.record)
+            except OSError as exc:
+                self.log(f"warning: KUKA RSI emulator: cannot write the record {self.p.record}: "
+                         f"{exc.strerror or exc}")
         self._lock.release()

@@ -578,3 +578,26 @@ def test_launch_hil_with_the_rsi_driver_and_its_emulator_is_valid(tmp_path):
     assert proc.returncode == 0 or (proc.returncode == 3 and "fell behind real time" in text), text[-3000:]
     assert "RSI running" in text and "Traceback" not in text, text[-3000:]
     assert not [line for line in text.splitlines() if line.startswith(("[robot] error", "[rsi_emulator] error"))]
+
+
+def test_the_emulator_runs_alone_and_refuses_an_unphysical_fault_in_one_line(tmp_path):
+    run = lambda *a: subprocess.run([sys.executable, "-m", "dockhil.hardware.rsi_emulator", *a],  # noqa: E731
+                                    capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert run("--help").returncode == 0
+    bad = run("--loss", "150")
+    assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "--loss 150" in bad.stderr
+    sensor = RawSensor()
+    record = tmp_path / "record.json"
+    proc = subprocess.Popen([sys.executable, "-m", "dockhil.hardware.rsi_emulator", "--port", str(sensor.port),
+                             "--duration", "5", "--max-late", "10", "--record", str(record)], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        ipoc, rist, delay, addr = sensor.receive()
+        sensor.answer(ipoc, (0.5, 0, 0, 0, 0, 0), addr)
+        assert proc.wait(timeout=30) == 1  # RSI stopped: ten late answers in a row
+    finally:
+        proc.kill()
+        sensor.sock.close()
+    assert proc.stderr.read().strip() == "rsi emulator: error: RSI stopped: 10 late answers in a row"
+    done = json.loads(record.read_text())
+    assert done["answered"] == 1 and done["late"] == 10 and done["stopped"] and done["max_step_mm"] == 0.5

@@ -315,6 +315,9 @@ def main(argv: list[str] | None = None) -> int:
     problems = [f"--{name} {getattr(args, name.replace('-', '_'))} must be within 0 to 100"
                 for name in ("loss", "duplicate", "reorder") if not 0 <= getattr(args, name) <= 100]
     problems += [f"--{name} must be >= 0" for name in ("delay", "tau", "jitter") if getattr(args, name) < 0]
+    problems += [f"--{name} must be at most 10 s" for name in ("delay", "tau") if getattr(args, name) > 10]
+    if args.jitter >= args.cycle:
+        problems.append(f"--jitter {args.jitter:g} must be below the cycle {args.cycle:g} s")
     if args.max_late < 1:
         problems.append("--max-late must be >= 1")
     if problems:
@@ -341,9 +344,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         pass
     finally:
-        if args.record:
-            emulator.write_record(args.record)
         emulator.sock.close()
+    if args.record:
+        try:
+            emulator.write_record(args.record)
+        except OSError as exc:
+            say.error(f"cannot write the record {args.record}: {exc.strerror or exc}")
+            return 1
     if emulator.stopped:
         say.error(f"RSI stopped: {emulator.max_late} late answers in a row")
         return 1
