@@ -180,9 +180,11 @@ def test_the_emulator_sends_each_cycle_applies_answers_counts_late_ones_and_stop
         # not answered yet: the late count starts with the first answer
         ipoc2, *_ = sensor.receive()
         assert ipoc2 - ipoc == 4 * round((ipoc2 - ipoc) / 4) and ipoc2 > ipoc  # a millisecond timestamp
-        sensor.answer(ipoc2 + 0, (1.0, -2.0, 0.5, 0.0, 0.0, 1.0), addr)
-        # the correction (absolute, no delay, no lag) shows within a few cycles
-        for _ in range(50):
+        # answered (each cycle, in case a loaded machine makes an answer late), the correction (absolute, no
+        # delay, no lag) shows in the next datagram
+        ipoc3 = ipoc2
+        for _ in range(100):
+            sensor.answer(ipoc3, (1.0, -2.0, 0.5, 0.0, 0.0, 1.0), addr)
             ipoc3, rist, delay, _ = sensor.receive()
             if rist[0] != pytest.approx(START[0], abs=1e-3):
                 break
@@ -193,12 +195,14 @@ def test_the_emulator_sends_each_cycle_applies_answers_counts_late_ones_and_stop
         with pytest.raises(TimeoutError):
             while True:
                 seen.append(sensor.receive()[2])
-        assert seen[-1] == 4 and emulator.stopped  # the 5th late answer stopped it, unsent
+        # the datagram that showed the correction went unanswered: late 1; four more, D counting 1 up
+        # each cycle; the 5th late answer stopped RSI before its datagram went out
+        assert seen == list(range(seen[0], seen[0] + 4)) and emulator.stopped
     finally:
         emulator.stop_thread()
         sensor.sock.close()
     record = emulator.record()
-    assert record["answered"] == 1 and record["late"] == 5 and record["stopped"]
+    assert record["answered"] >= 1 and record["late_in_a_row_max"] == 5 and record["stopped"]
     assert record["max_step_mm"] == pytest.approx(math.dist((0, 0, 0), (1.0, -2.0, 0.5)), abs=1e-9)
 
 
@@ -465,12 +469,23 @@ def test_the_driver_holds_on_a_safety_stop_and_at_close(driven):
             ctl.exchange()
     held = ctl.exchange()[2]
     # the force limit trips: the driver holds (the controller's next answers carry the same correction)
-    feeder = threading.Thread(target=lambda: [ctl.exchange() for _ in range(5)], daemon=True)
+    cycling = threading.Event()
+    cycling.set()
+
+    def controller():  # keeps its cycle while the driver trips
+        while cycling.is_set():
+            ctl.exchange()
+            time.sleep(0.002)
+
+    feeder = threading.Thread(target=controller, daemon=True)
     feeder.start()
-    with pytest.raises(SafetyStop) as err:
-        clock.advance(0.001)
-        node.step(Tick(8, 0.008, 0.001), {"command": command(8, 0.0004), "wrench": ft(8, fx=80.0)})
-    feeder.join()
+    try:
+        with pytest.raises(SafetyStop) as err:
+            clock.advance(0.001)
+            node.step(Tick(8, 0.008, 0.001), {"command": command(8, 0.0004), "wrench": ft(8, fx=80.0)})
+    finally:
+        cycling.clear()
+        feeder.join()
     assert "max_force" in str(err.value) and "robot held" in str(err.value) and "\n" not in str(err.value)
     assert {ctl.exchange()[2] for _ in range(5)} == {held}
 
@@ -537,10 +552,11 @@ def test_a_second_graph_naming_the_same_rsi_port_is_refused_naming_the_owner(dri
 
 def test_the_driver_against_the_emulator_tracks_the_command_within_the_per_cycle_limit(tmp_path):
     port = udp_port()
-    emulator = RsiControllerEmulator(port=port, cycle=CYCLE, delay=0.008, tau=0.01)
+    # The emulator is a thread of this process here: a loaded machine may stall it, or the driver, for a
+    # while; it does not stop RSI for that, and the driver waits for it.
+    emulator = RsiControllerEmulator(port=port, cycle=CYCLE, delay=0.008, tau=0.01, max_late=10**9)
     emulator.start_thread()
     logs: list[str] = []
-    # The emulator is a thread of this process here: a loaded machine may stall it for a while.
     node = RobotRsiDriver(NodeContext("robot", 0.001, sim_time=False, log=logs.append), port=port, ft_timeout=0,
                           max_speed=0.05, controller_timeout=2.0, stall_timeout=1.0)
     try:
@@ -562,7 +578,7 @@ def test_the_driver_against_the_emulator_tracks_the_command_within_the_per_cycle
         node.close()
         emulator.stop_thread()
     record = emulator.record()
-    assert record["answered"] > 100 and not record["stopped"]
+    assert record["answered"] > 50 and not record["stopped"]
     assert record["max_step_mm"] <= 0.05 * CYCLE * 1000 + 1e-3
     assert last.pose.position.x == pytest.approx(0.01, abs=5e-4)  # 10 mm, tracked through delay and lag
 
@@ -592,12 +608,19 @@ def test_the_emulator_runs_alone_and_refuses_an_unphysical_fault_in_one_line(tmp
                              "--duration", "5", "--max-late", "10", "--record", str(record)], cwd=ROOT,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        ipoc, rist, delay, addr = sensor.receive()
-        sensor.answer(ipoc, (0.5, 0, 0, 0, 0, 0), addr)
-        assert proc.wait(timeout=30) == 1  # RSI stopped: ten late answers in a row
+        ipoc, rist, delay, addr = sensor.receive()  # the emulator has started
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 0.3:  # answer for a while (some in time, whatever the machine's load)
+            sensor.answer(ipoc, (0.5, 0, 0, 0, 0, 0), addr)
+            try:
+                ipoc, rist, delay, addr = sensor.receive()
+            except TimeoutError:  # so loaded that ten answers in a row came late: RSI stopped already
+                break
+        assert proc.wait(timeout=30) == 1  # then silence: RSI stopped after ten late answers in a row
     finally:
         proc.kill()
         sensor.sock.close()
     assert proc.stderr.read().strip() == "rsi emulator: error: RSI stopped: 10 late answers in a row"
     done = json.loads(record.read_text())
-    assert done["answered"] == 1 and done["late"] == 10 and done["stopped"] and done["max_step_mm"] == 0.5
+    assert done["answered"] >= 1 and done["late_in_a_row_max"] == 10 and done["stopped"]
+    assert done["max_step_mm"] == 0.5  # the one correction, applied once

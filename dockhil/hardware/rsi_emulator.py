@@ -230,6 +230,7 @@ class RsiControllerEmulator:
             except rsi.RsiError:
                 s["bad_answers"] += 1
                 continue
+            self.armed = True  # the sensor answers: late answers count from now on
             if answer_ipoc != ipoc or answered or arrival - sent_at > self.cycle:
                 s["stray_answers"] += 1
                 if answer_ipoc in self._sent_at and not answered_late.get(answer_ipoc):
@@ -240,7 +241,6 @@ class RsiControllerEmulator:
             s["answered"] += 1
             self.latencies.append(arrival - sent_at)
             self._apply(korr, slot_start)
-            self.armed = True
         if self.armed and not answered:
             s["late"] += 1
             self._late_in_a_row += 1
