@@ -12,6 +12,18 @@ from dockhil.hardware import rsi
 from dockhil.node import Node, Param
 
 
+BIND = "127.0.0.1"  # the emulated controller's address
+
+
+def _address(host: str) -> str:
+    import socket
+
+    try:
+        return socket.gethostbyname(host)
+    except OSError:
+        return host
+
+
 class RsiControllerEmulatorNode(Node):
     """Emulated KUKA controller running RSI: <Rob> every cycle, RKorr through a servo with delay and lag."""
 
@@ -32,6 +44,8 @@ class RsiControllerEmulatorNode(Node):
                         lt=0.012),
         "seed": Param(int, 0, help="seed of the faults"),
         "record": Param(str, "", help="write the maxima and counts as JSON here at close"),
+        "controller": Param(str, "127.0.0.1", help="the controller address the driver reads (hil.yaml's "
+                            "rsi_host): this emulator's, 127.0.0.1; another means a real controller"),
     }
 
     def setup(self) -> None:
@@ -40,10 +54,16 @@ class RsiControllerEmulatorNode(Node):
         p = self.p
         if p.jitter >= p.cycle:
             raise LaunchError(f"node {self.ctx.name!r}: jitter {p.jitter:g} s must be below the cycle {p.cycle:g} s")
+        if _address(p.controller) != BIND:
+            # The driver reads only that address: it would answer a real controller, and move a real robot,
+            # while this graph emulates one.
+            raise LaunchError(f"node {self.ctx.name!r}: the driver reads the controller at {p.controller}, but this "
+                              f"emulator sends from {BIND}: the driver would move a real robot; point rsi_host at "
+                              f"the emulator ({BIND}), or drop the emulator")
         self._lock = rsi.claim_port(p.port)  # the port's graph: its driver may share it, no other graph
         try:
             self.emulator = RsiControllerEmulator(p.host, p.port, p.cycle, p.delay, p.tau, p.max_late, p.loss,
-                                                  p.duplicate, p.reorder, p.jitter, p.seed)
+                                                  p.duplicate, p.reorder, p.jitter, p.seed, bind=BIND)
         except OSError as exc:
             self._lock.release()
             raise DeviceError(f"KUKA RSI emulator: cannot open a UDP socket: {exc.strerror or exc}") from None

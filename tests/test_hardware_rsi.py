@@ -583,6 +583,17 @@ def test_the_driver_against_the_emulator_tracks_the_command_within_the_per_cycle
     assert last.pose.position.x == pytest.approx(0.01, abs=5e-4)  # 10 mm, tracked through delay and lag
 
 
+def test_an_emulator_whose_driver_reads_another_controller_is_refused_in_one_line():
+    from dockhil.nodes.rsi_emulator import RsiControllerEmulatorNode
+
+    node = RsiControllerEmulatorNode(NodeContext("rsi_emulator", 0.001, sim_time=False), port=udp_port(),
+                                     controller="192.0.2.7")
+    with pytest.raises(LaunchError) as err:
+        node.setup()
+    text = str(err.value)
+    assert "reads the controller at 192.0.2.7" in text and "would move a real robot" in text and "\n" not in text
+
+
 @pytest.mark.wall_time
 def test_launch_hil_with_the_rsi_driver_and_its_emulator_is_valid(tmp_path):
     port = udp_port()
