@@ -36,6 +36,8 @@ REGISTRY: dict[str, str] = {
     "netft_emulator": "dockhil.nodes.netft_emulator:NetFtEmulator",
     "robot_modbus": "dockhil.nodes.robot_modbus:RobotModbusDriver",
     "robot_emulator": "dockhil.nodes.robot_emulator:RobotControllerEmulatorNode",
+    "robot_rsi": "dockhil.nodes.robot_rsi:RobotRsiDriver",
+    "rsi_emulator": "dockhil.nodes.rsi_emulator:RsiControllerEmulatorNode",
     "bag_source": "dockhil.nodes.bag_source:BagSource",
     "satellite_dynamics6": "dockhil.nodes.satellite_dynamics6:SatelliteDynamics6",
     "virtual_impedance6": "dockhil.nodes.virtual_impedance6:VirtualImpedance6",

@@ -67,7 +67,7 @@ _MAP_M = (2**31 - 1) / mm.POSITION_COUNTS
 HOLD_CONFIRM_TIMEOUT = 0.25  # s: how long a safety stop waits for the hold to be written
 
 
-def _key(msg) -> tuple:
+def message_key(msg) -> tuple:
     """Identifies one published message; the runtime may hand the same one again."""
     h = msg.header
     return (h.stamp, h.tick, h.seq)
@@ -92,7 +92,7 @@ def _angle_between(q0, q1) -> float:
     return 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), abs(w))
 
 
-def _command_values(cmd: RobotCommand) -> mm.PoseTwist:
+def command_values(cmd: RobotCommand) -> mm.PoseTwist:
     p, q, lin, ang = cmd.pose.position, cmd.pose.orientation, cmd.twist.linear, cmd.twist.angular
     return (p.x, p.y, p.z, q.x, q.y, q.z, q.w, lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
 
@@ -566,14 +566,14 @@ class RobotModbusDriver(Node):
             self._reconnects_seen = link.reconnects
             self._moving = False
         cmd = inputs.get("command")
-        if cmd is not None and (self._last_cmd is None or _key(cmd) != _key(self._last_cmd)):
+        if cmd is not None and (self._last_cmd is None or message_key(cmd) != message_key(self._last_cmd)):
             self._check_command(cmd, link.latest()[1])
             self._last_cmd, self._last_cmd_at = cmd, now
             if not ft_fresh or not cmd.enable:
                 link.submit(None)  # no F/T data yet: hold rather than move blind
                 self._moving = False
             else:
-                values = _command_values(cmd)
+                values = command_values(cmd)
                 try:  # here, not in the link's thread, where a failed write reads as a lost connection
                     mm.encode_block(values)
                 except mm.RegisterError as exc:
@@ -598,10 +598,10 @@ class RobotModbusDriver(Node):
     def _check_wrench(self, wrench: WrenchStamped | None, t: float) -> bool:
         """Check the force limit and the watchdog; True if the F/T data are fresh enough to move."""
         p = self.p
-        if wrench is not None and _key(wrench) != self._last_wrench_key:
-            self._last_wrench_key = _key(wrench)
+        if wrench is not None and message_key(wrench) != self._last_wrench_key:
+            self._last_wrench_key = message_key(wrench)
             self._last_wrench_t = t
-            bad = _non_finite(("force", wrench.wrench.force), ("torque", wrench.wrench.torque))
+            bad = non_finite(("force", wrench.wrench.force), ("torque", wrench.wrench.torque))
             if bad:
                 self._trip("non_finite", bad, f"non-finite force: measured wrench {bad}")
             f = _norm(wrench.wrench.force)
@@ -636,7 +636,7 @@ class RobotModbusDriver(Node):
 
     def _check_command(self, cmd: RobotCommand, reading: mm.ControllerReading | None) -> None:
         p = self.p
-        bad = _non_finite(("position", cmd.pose.position), ("orientation", cmd.pose.orientation),
+        bad = non_finite(("position", cmd.pose.position), ("orientation", cmd.pose.orientation),
                           ("linear velocity", cmd.twist.linear), ("angular velocity", cmd.twist.angular))
         if bad:
             self._trip("non_finite", bad, f"non-finite setpoint: commanded {bad}")
@@ -771,7 +771,7 @@ def _start_orientation(reading: mm.ControllerReading) -> tuple[float, float, flo
     return tuple(c / n for c in q)
 
 
-def _non_finite(*named: tuple[str, object]) -> str:
+def non_finite(*named: tuple[str, object]) -> str:
     """'position.x = nan' for the first NaN/Inf field of the named vectors, else ''."""
     for name, vec in named:
         for axis in ("x", "y", "z", "w"):
