@@ -353,6 +353,7 @@ def metadata_yaml(file_name: str, start_ns: int, duration_ns: int,
 
 class Ros2Result(NamedTuple):
     messages: int  # ROS messages written
+    topics: int  # ROS topics
     converted: int  # dockhil messages they came from
     unconvertible: int  # dockhil messages that do not decode as their type (a recorded NaN) or do not fit the ROS type: not written
     skipped_topics: list[str]  # "TOPIC: why" for each topic left out
@@ -491,5 +492,68 @@ def _write(reader: BagReader, found: dict, directory: str, src: str) -> Ros2Resu
         f.write(text)
         f.flush()
         os.fsync(f.fileno())
-    return Ros2Result(sum(counts.values()), converted, unconvertible, skipped, found["loss"])
+    return Ros2Result(sum(counts.values()), len(counts), converted, unconvertible, skipped, found["loss"])
 
+
+
+def tell(result: Ros2Result, dst: str, say) -> str:
+    """What an export lost or left out, to `say` (a dockhil.log.Log); returns the line saying what
+    it wrote."""
+    if result.loss:
+        say.warning(result.loss)
+    for line in result.skipped_topics:
+        say.info(f"note: {line}; not exported")
+    if result.unconvertible:
+        say.info(f"note: {result.unconvertible} messages do not decode as their type (e.g. a recorded NaN) "
+                 f"or do not fit their ROS 2 type, and were not exported")
+    return (f"{result.converted} messages written to {dst} as {result.messages} ROS 2 messages on "
+            f"{result.topics} topics (rosbag2: mcap, cdr)")
+
+
+# ------------------------------------------------------------------ recording as rosbag2
+
+
+def recording_path(dst: str, *, overwrite: bool = False) -> str:
+    """The dockhil bag to record before it becomes the rosbag2 bag `dst`: `dst`.recording.mcap,
+    beside it. Refuses (one line) a `dst` that export would refuse, and a recording left there."""
+    dst = os.path.normpath(dst)
+    _check_destination("", dst, overwrite)
+    path = f"{dst}.recording.mcap"
+    if os.path.lexists(path):
+        raise BagError(f"{path} exists (a recording for {dst} that was not converted?): convert it with "
+                       f"'dockhil bag export --ros2 {dst} {path}', or remove it")
+    return path
+
+
+def record_then_convert(dst: str, record: Callable[[str], int], say, *, overwrite: bool = False) -> int:
+    """`record(path)` records a dockhil bag at `path` and returns an exit code; the bag then becomes
+    the rosbag2 bag `dst` and is removed. The dockhil bag is recorded first, and converted after,
+    so that one recorder (crash-safe, lossless, read back by the run's summary) serves both formats.
+    Returns record's code, or 1 if it was 0 and the conversion failed (the recording is kept)."""
+    path = recording_path(dst, overwrite=overwrite)
+    try:
+        code = record(path)
+    except BaseException:
+        _remove_if_empty(path)
+        raise
+    if not os.path.exists(path):
+        return code
+    try:
+        result = export(path, dst, overwrite=overwrite)
+    except BagError as exc:
+        say.error(f"{exc}; the recording stays at {path} ('dockhil bag export --ros2 {dst} {path}' converts it)")
+        return code or 1
+    os.remove(path)
+    say.info(tell(result, dst, say))
+    return code
+
+
+def _remove_if_empty(path: str) -> None:
+    """A recording that holds no message goes (a run refused or failed before its first tick)."""
+    try:
+        with BagReader(path) as reader:
+            empty = reader.summary()["messages"] == 0
+        if empty:
+            os.remove(path)
+    except (BagError, OSError):
+        pass
