@@ -42,6 +42,8 @@ import tempfile
 import textwrap
 from typing import Any, Callable, NamedTuple
 
+import msgspec
+
 from dockhil.bag import BagError, BagReader
 
 # ------------------------------------------------------------------ message definitions
@@ -280,8 +282,6 @@ def ros_header(header) -> dict:
 def ros_value(message, names: tuple[str, ...] | None) -> dict:
     """The value of a ROS message from a dockhil message: its header and the fields `names` (None:
     every field, each under its lowercased name)."""
-    import msgspec
-
     value = {name.lower(): msgspec.to_builtins(getattr(message, name)) for name in
              (names if names is not None else message.__struct_fields__) if name != "header"}
     value["header"] = ros_header(message.header)
@@ -493,7 +493,6 @@ def _write(reader: BagReader, found: dict, directory: str, src: str) -> Ros2Resu
         f.flush()
         os.fsync(f.fileno())
     return Ros2Result(sum(counts.values()), len(counts), converted, unconvertible, skipped, found["loss"])
-
 
 
 def tell(result: Ros2Result, dst: str, say) -> str:
