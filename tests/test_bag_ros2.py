@@ -42,7 +42,7 @@ from dockhil.msgs import (
     type_name,
 )
 from dockhil.msgs.codec import encode
-from tests.conftest import dockhil_cmd
+from tests.conftest import Lines, dockhil_cmd, registered
 
 rosbags_rosbag2 = pytest.importorskip("rosbags.rosbag2")
 from rosbags.highlevel import AnyReader  # noqa: E402
@@ -532,3 +532,28 @@ def test_bag_record_with_bag_format_ros2_and_no_graph_leaves_nothing(tmp_path, c
     code, _, err = run_cli(capsys, "bag", "record", tmp_path / "lab", "--bag-format", "ros2", "--topics", "/nope")
     assert code != 0 and err.count("\n") == 1 and "Traceback" not in err, err
     assert os.listdir(tmp_path) == []
+
+
+def test_bag_record_with_bag_format_ros2_records_a_played_run_as_its_export(tmp_path, hil_run):
+    """`bag play --sim-time` of the hil bag, recorded by `bag record DIR --bag-format ros2`: the
+    rosbag2 bag holds what exporting the hil bag gives (sim time: the same messages and times)."""
+    bag, exported, _ = hil_run
+    out = tmp_path / "lab"
+    play = subprocess.Popen(dockhil_cmd("bag", "play", bag, "--sim-time"), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    rec = None
+    try:
+        registered(play.pid)
+        rec = subprocess.Popen(dockhil_cmd("bag", "record", out, "--bag-format", "ros2"), stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE, text=True)
+        _, play_err = play.communicate(timeout=120)
+        rec_err = Lines(rec, rec.stderr).rest(timeout=120)
+    finally:
+        for proc in (play, rec):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+    assert play.returncode == 0, play_err
+    assert rec.returncode == 0 and "Traceback" not in rec_err, rec_err
+    assert f"messages written to {out} as " in rec_err.splitlines()[-1]
+    assert sorted(os.listdir(tmp_path)) == ["lab"]
+    assert sorted(read_mcap_ros2(out), key=repr) == sorted(read_mcap_ros2(exported), key=repr)
