@@ -10,7 +10,8 @@ from dockhil.errors import LaunchError
 EXIT_STATUS = """exit status:
   0  the run completed and its result is valid
   1  a node failed or a safety stop held the robot (the line above says which and why),
-     the recorder lost messages, or the summary could not be written after the run
+     the recorder lost messages, or the summary or the rosbag2 bag (--bag-format ros2)
+     could not be written after the run
   2  bad input: launch file, arguments or parameters outside the range of docking
      hardware, an unwritable --summary (nothing ran)
   3  INVALID: the run completed but its result is not valid (a wall-time run fell
