@@ -16,7 +16,13 @@ from pathlib import Path
 import msgspec
 import pytest
 import yaml
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import Reader as Rosbag2Reader
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from dockhil import cli
 from dockhil.bag import BagReader, BagWriter, info
@@ -43,12 +49,6 @@ from dockhil.msgs import (
 )
 from dockhil.msgs.codec import encode
 from tests.conftest import Lines, dockhil_cmd, registered
-
-rosbags_rosbag2 = pytest.importorskip("rosbags.rosbag2")
-from rosbags.highlevel import AnyReader  # noqa: E402
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E402
-from mcap.reader import make_reader  # noqa: E402
-from mcap_ros2.decoder import DecoderFactory  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -84,7 +84,7 @@ def read_rosbags(directory: Path) -> list[tuple[str, str, int, dict, bytes]]:
     """(topic, type, time [ns], message, raw CDR) of every message, through rosbags' rosbag2 Reader."""
     store = typestore()
     out = []
-    with rosbags_rosbag2.Reader(directory) as reader:
+    with Rosbag2Reader(directory) as reader:
         for connection, t, raw in reader.messages():
             msg = store.deserialize_cdr(raw, connection.msgtype)
             out.append((connection.topic, connection.msgtype, t, plain(msg), bytes(raw)))
@@ -173,11 +173,11 @@ def hil_run(tmp_path_factory):
     d = tmp_path_factory.mktemp("hil")
     bag = d / "hil.mcap"
     run = subprocess.run(dockhil_cmd("launch", "hil.yaml", "--composed", "--duration", "0.5", "--bag", bag,
-                                     "--quiet"), cwd=ROOT, capture_output=True, text=True, timeout=300)
+                                     "--quiet"), cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
     assert run.returncode == 0, run.stderr
     out = d / "hil_ros2"
     export = subprocess.run(dockhil_cmd("bag", "export", "--ros2", out, bag), cwd=d, capture_output=True,
-                            text=True, timeout=300)
+                            text=True, timeout=300, check=False)
     assert export.returncode == 0 and export.stderr == "", export.stderr
     return bag, out, export.stdout
 
@@ -188,7 +188,8 @@ def test_a_hil_run_exported_reads_back_equal_with_rosbags_and_mcap_ros2(hil_run)
     rosbags_messages = read_rosbags(out)
     n = assert_same_messages(bag, rosbags_messages, read_mcap_ros2(out))
     dockhil_count = info(bag)["messages"]
-    assert stdout == f"{dockhil_count} messages written to {out} as {n} ROS 2 messages on 13 topics (rosbag2: mcap, cdr)\n"
+    assert stdout == (f"{dockhil_count} messages written to {out} as {n} ROS 2 messages on 13 topics "
+                      f"(rosbag2: mcap, cdr)\n")
     # The encoder's bytes are the bytes rosbags' own CDR serializer makes of the same message.
     store = typestore()
     for topic, ros_type, _, _, raw in rosbags_messages[:: max(1, n // 500)]:
@@ -197,7 +198,7 @@ def test_a_hil_run_exported_reads_back_equal_with_rosbags_and_mcap_ros2(hil_run)
 
 def test_the_topics_take_standard_types_and_split_the_robot_messages(hil_run):
     _, out, _ = hil_run
-    with rosbags_rosbag2.Reader(out) as reader:
+    with Rosbag2Reader(out) as reader:
         topics = {c.topic: c.msgtype for c in reader.connections}
     assert topics == {
         "/ft/wrench": "geometry_msgs/msg/WrenchStamped",
@@ -375,7 +376,7 @@ def test_the_export_needs_none_of_the_test_libraries(tmp_path, hil_run):
             "bad = [m for m in sys.modules if m.split('.')[0] in ('rosbags', 'mcap_ros2', 'yaml', 'numpy')]; "
             "assert not bad, bad")
     run = subprocess.run([sys.executable, "-c", code, str(bag), str(tmp_path / "out")], capture_output=True,
-                         text=True, timeout=120)
+                         text=True, timeout=120, check=False)
     assert run.returncode == 0, run.stderr
 
 
@@ -465,12 +466,12 @@ def test_a_message_that_does_not_decode_is_counted_not_exported(tmp_path, capsys
 def test_launch_with_bag_format_ros2_writes_the_same_bag_as_export(tmp_path):
     args = ("launch", "hil.yaml", "--composed", "--duration", "0.1", "--quiet")
     direct = subprocess.run(dockhil_cmd(*args, "--bag", tmp_path / "run", "--bag-format", "ros2"), cwd=ROOT,
-                            capture_output=True, text=True, timeout=300)
+                            capture_output=True, text=True, timeout=300, check=False)
     assert direct.returncode == 0, direct.stderr
     assert "messages written to" in direct.stderr.splitlines()[-1]
     assert sorted(os.listdir(tmp_path)) == ["run"]  # the recording is gone once converted
     recorded = subprocess.run(dockhil_cmd(*args, "--bag", tmp_path / "run.mcap"), cwd=ROOT, capture_output=True,
-                              text=True, timeout=300)
+                              text=True, timeout=300, check=False)
     assert recorded.returncode == 0, recorded.stderr
     ros2.export(tmp_path / "run.mcap", tmp_path / "exported")
     a, b = read_mcap_ros2(tmp_path / "run"), read_mcap_ros2(tmp_path / "exported")
@@ -480,10 +481,10 @@ def test_launch_with_bag_format_ros2_writes_the_same_bag_as_export(tmp_path):
     assert meta[0]["topics_with_message_count"] == meta[1]["topics_with_message_count"]
 
     refused = subprocess.run(dockhil_cmd(*args, "--bag", tmp_path / "run", "--bag-format", "ros2"), cwd=ROOT,
-                             capture_output=True, text=True, timeout=300)
+                             capture_output=True, text=True, timeout=300, check=False)
     assert refused.returncode == 2 and "already exists" in refused.stderr and refused.stderr.count("\n") == 1
     refused = subprocess.run(dockhil_cmd(*args, "--bag-format", "ros2"), cwd=ROOT, capture_output=True, text=True,
-                             timeout=300)
+                             timeout=300, check=False)
     assert refused.returncode == 2 and "--bag-format ros2 needs --bag DIR" in refused.stderr
 
 

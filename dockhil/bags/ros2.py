@@ -4,7 +4,7 @@ Foxglove, PlotJuggler).
 A rosbag2 bag is a directory DIR holding `DIR_0.mcap` and `metadata.yaml`, as rosbag2 writes them:
 
 - the MCAP file has profile "ros2", one schema per ROS type (encoding "ros2msg": the type's `.msg`
-  text, then each type it uses after a line of 80 "=" and a line "MSG: pkg/Type"), one channel per
+  text, then each type it uses after a line of 80 "=" and a line "MSG: pkg/Type"; `schema_text`), one channel per
   ROS topic (message encoding "cdr", metadata offered_qos_profiles and topic_type_hash) and a
   metadata record "rosbag2" repeating metadata.yaml;
 - metadata.yaml is rosbag2's bag information, version 8: the newest layout that Humble's rosbag2
@@ -40,7 +40,8 @@ import shutil
 import struct
 import tempfile
 import textwrap
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import msgspec
 
@@ -91,7 +92,7 @@ def _message_dir():
     return files("dockhil.msgs").joinpath("ros2", PACKAGE, "msg")
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def definitions() -> dict[str, str]:
     """Full type name -> `.msg` text: the standard types used and every shipped dockhil_msgs type."""
     found = dict(STANDARD_DEFINITIONS)
@@ -101,7 +102,7 @@ def definitions() -> dict[str, str]:
     return found
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def fields(type_name: str) -> tuple[Field, ...]:
     """The fields of a type, parsed from its `.msg` text (constants, which are not serialized, left
     out). Only what the shipped files use is understood: primitives, strings, nested types and
@@ -140,12 +141,21 @@ def _dependencies(type_name: str) -> list[str]:
 
 
 def schema_text(type_name: str) -> str:
-    """The concatenated `ros2msg` definition rosbag2 writes as a channel's schema."""
-    parts = [definitions()[type_name]]
-    for dep in _dependencies(type_name):
-        pkg, _, short = dep.split("/")
-        parts.append(f"{'=' * 80}\nMSG: {pkg}/{short}\n{definitions()[dep]}")
-    return "".join(parts)
+    """The concatenated `ros2msg` definition of a channel's schema, as rosbag2 builds it: the type's
+    text, then for each type it uses (by name, sorted, depth first, each once) a new line, a line of
+    80 "=", "MSG: pkg/Type" and that type's text."""
+    seen: set[str] = set()
+
+    def text(name: str) -> str:
+        out = definitions()[name]
+        for dep in sorted({f.type for f in fields(name) if "/" in f.type}):
+            pkg, _, short = dep.split("/")
+            if f"{pkg}/{short}" not in seen:
+                seen.add(f"{pkg}/{short}")
+                out += f"\n{'=' * 80}\nMSG: {pkg}/{short}\n{text(dep)}"
+        return out
+
+    return text(type_name)
 
 
 def type_hash(type_name: str) -> str:
@@ -192,7 +202,7 @@ def _pad(buf: bytearray, size: int) -> None:
         buf += bytes(pad)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _encoder(type_name: str) -> _Encode:
     steps = [_field_encoder(f) for f in fields(type_name)]
 
@@ -355,7 +365,7 @@ class Ros2Result(NamedTuple):
     messages: int  # ROS messages written
     topics: int  # ROS topics
     converted: int  # dockhil messages they came from
-    unconvertible: int  # dockhil messages that do not decode as their type (a recorded NaN) or do not fit the ROS type: not written
+    unconvertible: int  # not written: they do not decode as their type (a recorded NaN) or do not fit the ROS type
     skipped_topics: list[str]  # "TOPIC: why" for each topic left out
     loss: str | None  # what of the dockhil bag was unreadable or unfinished (see dockhil.bag.loss_line)
 
