@@ -31,15 +31,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     p = sub.add_parser(
         "export",
-        help="write the messages of one topic as CSV, one row per message",
-        description="Write one CSV row per message of a topic: log_time_ns, then every field, "
+        help="write one topic as CSV, or the whole bag as a rosbag2 bag for ROS 2 tools",
+        description="--csv: one CSV row per message of a topic: log_time_ns, then every field, "
         "nested fields flattened to dotted names (header.stamp, wrench.force.x, "
-        "bodies.0.pose.position.x).",
+        "bodies.0.pose.position.x). --ros2: every topic as a rosbag2 bag (a folder DIR holding "
+        "DIR_0.mcap and metadata.yaml; cdr messages of standard ROS 2 types where they exist, "
+        "dockhil_msgs otherwise) for ros2 bag, rosbags, Foxglove and PlotJuggler; "
+        "docs/commands.md lists the topics and types.",
     )
     p.add_argument("path", metavar="PATH", help="MCAP bag file")
-    p.add_argument("--topic", "-t", required=True, metavar="T", help="topic to export, e.g. /ft/wrench")
-    p.add_argument("--csv", required=True, metavar="OUT", help="CSV file to write ('-' for standard output)")
-    p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists (default: refuse)")
+    p.add_argument("--topic", "-t", metavar="T", help="topic to export as CSV, e.g. /ft/wrench")
+    out = p.add_mutually_exclusive_group(required=True)
+    out.add_argument("--csv", metavar="OUT", help="CSV file to write ('-' for standard output)")
+    out.add_argument("--ros2", metavar="DIR", help="rosbag2 bag (a folder) to create from every topic")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace OUT, or DIR if it is a rosbag2 bag, if it exists (default: refuse)")
 
     p = sub.add_parser(
         "convert",
@@ -58,9 +64,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         description="Record topics of a graph that is already running, until Ctrl-C. "
         "Chunks are small, so a recorder that is killed loses at most its last chunk.",
     )
-    p.add_argument("path", metavar="PATH", help="MCAP bag file to create")
+    p.add_argument("path", metavar="PATH", help="MCAP bag file to create (a folder with --bag-format ros2)")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to record (default: all)")
     p.add_argument("--overwrite", action="store_true", help="replace PATH if it exists (default: refuse)")
+    add_bag_format(p, "PATH")
     log.add_arguments(p)
 
     p = sub.add_parser(
@@ -83,6 +90,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="wait until each topic has N subscribers before playing "
                         "(default 1 with --sim-time, 0 in wall time)")
     log.add_arguments(p)
+
+
+def add_bag_format(p: argparse.ArgumentParser, path: str) -> None:
+    """--bag-format, of `bag record` and `launch`."""
+    p.add_argument("--bag-format", choices=("mcap", "ros2"), default="mcap",
+                   help=f"mcap: a dockhil bag (default); ros2: a rosbag2 bag, {path} a folder (recorded as "
+                        f"{path}.recording.mcap, converted when recording ends, as 'bag export --ros2' does)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -154,6 +168,17 @@ def _time(seconds: float | None) -> str:
 
 
 def _export(args: argparse.Namespace) -> int:
+    from dockhil.errors import DockhilError
+
+    if args.ros2 is not None:
+        if args.topic is not None:
+            raise DockhilError("--topic is for --csv; --ros2 exports every topic")
+        from dockhil.bags.ros2 import export, tell
+
+        print(tell(export(args.path, args.ros2, overwrite=args.overwrite), args.ros2, log.Log("dockhil bag export:")))
+        return 0
+    if args.topic is None:
+        raise DockhilError("--csv needs --topic T: the topic to export (see 'dockhil bag info PATH')")
     from dockhil.bags.tools import export_csv
 
     out = sys.stdout if args.csv == "-" else args.csv
@@ -186,6 +211,13 @@ def _convert(args: argparse.Namespace) -> int:
 
 
 def _record(args: argparse.Namespace) -> int:
+    if args.bag_format == "ros2":
+        from dockhil.bags.ros2 import record_then_convert
+
+        def record(path: str) -> int:
+            return _live().record(argparse.Namespace(**{**vars(args), "path": path}))
+
+        return record_then_convert(args.path, record, log.Log("dockhil bag record:"), overwrite=args.overwrite)
     return _live().record(args)
 
 

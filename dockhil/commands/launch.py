@@ -10,7 +10,8 @@ from dockhil.errors import LaunchError
 EXIT_STATUS = """exit status:
   0  the run completed and its result is valid
   1  a node failed or a safety stop held the robot (the line above says which and why),
-     the recorder lost messages, or the summary could not be written after the run
+     the recorder lost messages, or the summary or the rosbag2 bag (--bag-format ros2)
+     could not be written after the run
   2  bad input: launch file, arguments or parameters outside the range of docking
      hardware, an unwritable --summary (nothing ran)
   3  INVALID: the run completed but its result is not valid (a wall-time run fell
@@ -41,6 +42,9 @@ def add_arguments(p) -> None:
     p.add_argument("--transport", choices=("ipc", "tcp"), default="ipc",
                    help="ipc sockets on one host (default) or tcp on 127.0.0.1")
     p.add_argument("--bag", metavar="PATH", help="record every topic to this MCAP bag")
+    from dockhil.commands.bag import add_bag_format
+
+    add_bag_format(p, "--bag PATH")
     p.add_argument("--summary", metavar="FILE.json", help="write the run summary (peak force, contact duration, ...)")
     p.add_argument("--quiet", action="store_true", help="print no progress and no summary table")
     p.add_argument("--realtime", action="store_true",
@@ -72,10 +76,19 @@ def run(args) -> int:
         raise LaunchError(f"{args.file}: sim time needs a run length: give --duration S or `duration:` in the file")
     if args.foxglove_host is not None and args.foxglove is None:
         raise LaunchError("--foxglove-host needs --foxglove [PORT]")
+    if args.bag_format == "ros2" and args.bag is None:
+        raise LaunchError("--bag-format ros2 needs --bag DIR: the rosbag2 bag (a folder) to write")
     graph = build(scene)
     from dockhil.session import run_scene
 
-    return run_scene(graph, clock=args.clock, duration=duration, composed=args.composed,
-                     transport=args.transport, bag=args.bag, summary=args.summary,
-                     progress=not args.quiet, show_summary=not args.quiet, realtime=args.realtime,
-                     foxglove=None if args.foxglove is None else (args.foxglove_host or "127.0.0.1", args.foxglove))
+    def run_with(bag: str | None) -> int:
+        return run_scene(graph, clock=args.clock, duration=duration, composed=args.composed,
+                         transport=args.transport, bag=bag, summary=args.summary,
+                         progress=not args.quiet, show_summary=not args.quiet, realtime=args.realtime,
+                         foxglove=None if args.foxglove is None else (args.foxglove_host or "127.0.0.1", args.foxglove))
+
+    if args.bag_format == "ros2":  # the recorder writes a dockhil bag, which becomes the rosbag2 bag at the end
+        from dockhil.bags.ros2 import record_then_convert
+
+        return record_then_convert(args.bag, run_with, log.Log("[launch]"))
+    return run_with(args.bag)
