@@ -45,6 +45,11 @@ BRIDGED = {cls.__name__: cls for cls in (WrenchStamped, RobotCommand, RobotState
 # The graph's own topics and their types; any other topic is given as `topic:Type`.
 KNOWN_TOPICS = {"/ft/wrench": WrenchStamped, "/robot/command": RobotCommand,
                 "/robot/command/delayed": RobotCommand, "/robot/state": RobotState}
+# A CYCLONEDDS_URI that keeps DDS on this host (the loopback interface, unicast discovery on 127.0.0.1):
+# tests and measurements use it, and so may a user who wants no DDS traffic on the network.
+LOOPBACK_URI = ('<CycloneDDS><Domain Id="any"><General><Interfaces><NetworkInterface name="lo"/></Interfaces>'
+                '<AllowMulticast>false</AllowMulticast></General><Discovery><ParticipantIndex>auto</ParticipantIndex>'
+                '<Peers><Peer Address="127.0.0.1"/></Peers></Discovery></Domain></CycloneDDS>')
 _ROS_NAME = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")  # a fully qualified ROS 2 topic name
 
 
