@@ -109,7 +109,8 @@ def ros2_default_qos():
                Policy.History.KeepLast(10), Policy.DataRepresentation(use_cdrv0_representation=True))
 '''
 
-# A ROS 2 subscriber of rt/ft/wrench in a process of its own: prints "ready", then reads until it has
+# A ROS 2 subscriber of rt/ft/wrench in a process of its own: prints "ready", "matched" once it has
+# discovered the bridge's writer, then reads until it has
 # `count` samples or nothing came for `idle` s after the first (or `limit` s passed), and prints
 # [[sec, nanosec, force.x, arrival s], ...] as JSON. Keep-all history: a sample taken late is not lost
 # here, so a count short of what was written is the bridge's or the network's loss.
@@ -124,7 +125,11 @@ dp = DomainParticipant(domain)
 topic = Topic(dp, "rt/ft/wrench", WrenchStamped, qos=ros2_default_qos())
 reader = DataReader(dp, topic, qos=ros2_default_qos() + Qos(Policy.History.KeepAll))
 print("ready", flush=True)
-got, end, last = [], time.monotonic() + limit, None
+end = time.monotonic() + limit
+while reader.get_subscription_matched_status().current_count < 1 and time.monotonic() < end:
+    time.sleep(0.005)
+print("matched", flush=True)  # both sides know each other: what is written from now on is delivered
+got, last = [], None
 while len(got) < count and time.monotonic() < end and (last is None or time.monotonic() - last < idle):
     now = time.monotonic()
     for s in reader.take(N=4096):
@@ -232,6 +237,7 @@ def test_ft_wrench_reaches_a_ros2_reader_at_the_graphs_rate_for_10_s_with_none_l
     try:
         with NodeHarness("ros2_bridge", dt=dt, sim_time=False, domain_id=domain, topics=["/ft/wrench"]) as h:
             wait_matched(h.node.writers["/ft/wrench"][0])
+            assert reader.stdout.readline().strip() == "matched"
             t0 = time.monotonic()
             for k in range(n):
                 ahead = t0 + k * dt - time.monotonic()
