@@ -8,6 +8,9 @@ from dockhil import physical
 from dockhil.node import Input, Node, Output, Param
 from dockhil.msgs import EStop, Pose, RobotCommand, RobotState, Twist, Vector3
 
+# Event topic, as the robot driver's: active holds the robot and stops the graph.
+ESTOP = Input(EStop, "/estop", feedthrough=False, required=False, max_age=math.inf, help="emergency stop")
+
 
 def estop_held(estop: EStop | None) -> None:
     """An active e-stop stops the simulated robot as it stops the robot driver: the pose holds (no state
@@ -23,10 +26,7 @@ def estop_held(estop: EStop | None) -> None:
 class RobotSim(Node):
     """Follows /robot/command with a first-order lag (0: exactly); publishes the actual pose."""
 
-    inputs = {"command": Input(RobotCommand, "/robot/command", help="probe pose setpoint"),
-              # Event topic, as the robot driver's: active holds the robot and stops the graph.
-              "estop": Input(EStop, "/estop", feedthrough=False, required=False, max_age=math.inf,
-                             help="emergency stop")}
+    inputs = {"command": Input(RobotCommand, "/robot/command", help="probe pose setpoint"), "estop": ESTOP}
     outputs = {"state": Output(RobotState, "/robot/state", help="actual probe pose")}
     params = {"lag": Param(float, 0.0, unit="s", help="servo time constant (0: follows exactly)", ge=0.0,
                         scale=physical.TIME)}

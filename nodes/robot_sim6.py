@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import math
-
 from dockhil import physical
 from dockhil.node import Input, Node, Output, Param
-from dockhil.msgs import EStop, Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3
-from dockhil.nodes.robot_sim import estop_held
+from dockhil.msgs import Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3
+from dockhil.nodes.robot_sim import ESTOP, estop_held
 
 
 def relative_pose(msg) -> tuple:
@@ -23,10 +21,7 @@ class RobotSim6(Node):
 
     Position and velocities per axis, attitude along the geodesic (dockhil.contact.hybrid6.Servo6)."""
 
-    inputs = {"command": Input(RobotCommand, "/robot/command", help="interface pose setpoint, in B"),
-              # Event topic, as the robot driver's: active holds the robot and stops the graph.
-              "estop": Input(EStop, "/estop", feedthrough=False, required=False, max_age=math.inf,
-                             help="emergency stop")}
+    inputs = {"command": Input(RobotCommand, "/robot/command", help="interface pose setpoint, in B"), "estop": ESTOP}
     outputs = {"state": Output(RobotState, "/robot/state", help="actual interface pose, in B")}
     params = {"lag": Param(float, 0.0, unit="s", help="servo time constant (0: follows exactly)", ge=0.0,
                         scale=physical.TIME)}

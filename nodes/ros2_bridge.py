@@ -243,7 +243,7 @@ class Ros2Bridge(Node):
         self.last_header: dict[str, Header] = {}
         self.written = 0
         self.dropped = 0
-        self.estop: EStop | None = None
+        self.pressed = False  # latched: an e-stop holds until the graph stops
 
     def step(self, tick, inputs):
         for topic, writers in self.writers.items():
@@ -253,14 +253,11 @@ class Ros2Bridge(Node):
             self.last_header[topic] = msg.header
             for writer, (_, sample) in zip(writers, ros_messages(msg)):
                 self._write(writer, sample)
-        if self.estop is None:
-            pressed = [s for s in self.estop_reader.take(N=64) if getattr(s, "data", False) is True]
-            if pressed:
+        if not self.pressed:  # keep last 10: what came since the last step; InvalidSample has no data
+            self.pressed = any(getattr(s, "data", False) is True for s in self.estop_reader.take(N=10))
+            if self.pressed:
                 self.log(f"ROS 2 /estop data: true on domain {self.p.domain_id}: holding the robot")
-                self.estop = EStop(header=tick.header(), active=True, reason="ROS 2 /estop")
-        if self.estop is None:
-            return {}
-        return {"estop": EStop(header=tick.header(), active=True, reason=self.estop.reason)}
+        return {"estop": EStop(header=tick.header(), active=True, reason="ROS 2 /estop")} if self.pressed else {}
 
     def _write(self, writer, sample) -> None:
         try:

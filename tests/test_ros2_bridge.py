@@ -18,6 +18,7 @@ from dockhil.bag import BagReader
 from dockhil.msgs import Header, Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3
 from dockhil.msgs.codec import decode
 from dockhil.msgs import WrenchStamped as DockhilWrench
+from dockhil.nodes.ros2_bridge import LOOPBACK_URI as LOOPBACK  # Cyclone DDS on lo only: nothing leaves this host
 from dockhil.testing import NodeHarness, estop, wrench
 from tests.conftest import ROOT, dockhil_cmd
 from tests.inprocess import run_main
@@ -27,11 +28,6 @@ needs_dds = pytest.mark.skipif(not HAVE_DDS, reason="the cyclonedds binding is n
                                                      "(pip install 'dockhil[ros2]'): no DDS to read the bridge with")
 
 NEEDS_LINE = "the ROS 2 bridge needs the cyclonedds binding: pip install 'dockhil[ros2]'"
-
-# Cyclone DDS on the loopback interface only, discovery by unicast to 127.0.0.1: nothing leaves this host.
-LOOPBACK = ('<CycloneDDS><Domain Id="any"><General><Interfaces><NetworkInterface name="lo"/></Interfaces>'
-            '<AllowMulticast>false</AllowMulticast></General><Discovery><ParticipantIndex>auto</ParticipantIndex>'
-            '<Peers><Peer Address="127.0.0.1"/></Peers></Discovery></Domain></CycloneDDS>')
 
 # ROS 2's messages as a ROS 2 node on Cyclone DDS sees them (rosidl's DDS names, fields and field types).
 ROS_TYPES = '''
