@@ -384,7 +384,7 @@ def test_a_domain_outside_ros2s_range_is_refused(override, says):
     (["/estop"], "/estop is the ROS 2 e-stop the bridge reads"),
     ("/ft/wrench", "expected list"),
 ])
-def test_a_topic_the_bridge_cannot_write_is_refused_in_one_line(topics, says, monkeypatch):
+def test_a_topic_the_bridge_cannot_write_is_refused_in_one_line(topics, says):
     from dockhil.errors import DockhilError
     from dockhil.nodes.ros2_bridge import Ros2Bridge, bridged_topics
 
