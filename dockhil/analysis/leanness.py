@@ -28,9 +28,9 @@ ROOT = Path(__file__).resolve().parents[2]  # the repository (a source checkout)
 
 # Packages reported per node: numpy and zmq for what they cost, the rest
 # because a scene should load them only where a node uses them.
-HEAVY = ("numpy", "zmq", "msgspec", "mcap", "can", "serial", "pymodbus", "scipy", "matplotlib")
+HEAVY = ("numpy", "zmq", "msgspec", "mcap", "can", "serial", "pymodbus", "scipy", "matplotlib", "cyclonedds")
 # The packages the rules below are about.
-RULED = ("can", "pymodbus", "scipy", "matplotlib")
+RULED = ("can", "pymodbus", "scipy", "matplotlib", "cyclonedds")
 # What each node type may load, and when: a node never imports these at module
 # import time; in setup only what it talks to.
 ALLOWED_AT_SETUP = {
@@ -38,6 +38,7 @@ ALLOWED_AT_SETUP = {
     "robot_modbus": {"pymodbus"},  # the robot controller's Modbus TCP
     "robot_emulator": {"pymodbus"},  # it is a Modbus TCP server
     "ft_emulator": set(),  # with interface "pty" it is its own slcan adapter; other interfaces load python-can
+    "ros2_bridge": {"cyclonedds"},  # the DDS participant it writes ROS 2 topics with
 }
 
 _CHILD = r"""
@@ -132,6 +133,8 @@ def _sample_bag(directory: str) -> str:
 def setup_specs(directory: str) -> dict[str, dict]:
     """How each node type is constructed for the measurement: sim or wall time
     and the parameters that keep it off real hardware."""
+    from dockhil.nodes import ros2_bridge
+
     specs = {
         "ft_can": {"sim_time": False, "params": {"interface": "virtual", "channel": "dockhil-lean",
                                                   "open_timeout": 0.05, "tare_samples": 0}},
@@ -143,6 +146,9 @@ def setup_specs(directory: str) -> dict[str, dict]:
                                                     "counts_per_force": 1e6, "counts_per_torque": 1e6,
                                                     "force_unit": "N", "torque_unit": "Nm", "tare_samples": 0}},
         "netft_emulator": {"sim_time": False, "params": {"port": 0, "http_port": 0}},
+        # DDS on the loopback interface only, in a domain of its own
+        "ros2_bridge": {"sim_time": True, "params": {"domain_id": 200 + os.getpid() % 30},
+                        "env": {"CYCLONEDDS_URI": ros2_bridge.LOOPBACK_URI}},
     }
     try:
         specs["bag_source"] = {"sim_time": True, "params": {"path": _sample_bag(directory)}}
@@ -162,8 +168,8 @@ def measure(type_name: str, spec: dict | None = None, timeout: float = 60.0, rep
 
 def _measure_once(type_name: str, spec: dict | None, timeout: float) -> dict:
     spec = {"sim_time": True, "params": {}, **(spec or {}), "root": str(ROOT)}
+    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", **spec.pop("env", {}))
     argv = [sys.executable, "-c", _CHILD, type_name, json.dumps(HEAVY), json.dumps(spec)]
-    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")
     t0 = time.perf_counter()
     try:
         done = subprocess.run(argv, capture_output=True, text=True, timeout=timeout, cwd=str(ROOT), env=env)

@@ -43,6 +43,7 @@ REGISTRY: dict[str, str] = {
     "virtual_impedance6": "dockhil.nodes.virtual_impedance6:VirtualImpedance6",
     "ft_sim6": "dockhil.nodes.ft_sim6:FtSensorSim6",
     "robot_sim6": "dockhil.nodes.robot_sim6:RobotSim6",
+    "ros2_bridge": "dockhil.nodes.ros2_bridge:Ros2Bridge",
 }
 
 

@@ -2,15 +2,31 @@
 
 from __future__ import annotations
 
+import math
+
 from dockhil import physical
 from dockhil.node import Input, Node, Output, Param
-from dockhil.msgs import Pose, RobotCommand, RobotState, Twist, Vector3
+from dockhil.msgs import EStop, Pose, RobotCommand, RobotState, Twist, Vector3
+
+# Event topic, as the robot driver's: active holds the robot and stops the graph.
+ESTOP = Input(EStop, "/estop", feedthrough=False, required=False, max_age=math.inf, help="emergency stop")
+
+
+def estop_held(estop: EStop | None) -> None:
+    """An active e-stop stops the simulated robot as it stops the robot driver: the pose holds (no state
+    follows the command) and the graph stops with the driver's line."""
+    if estop is not None and estop.active:
+        from dockhil.hardware import SafetyStop
+
+        reason = estop.reason or "no reason given"
+        raise SafetyStop(f"safety stop: estop: e-stop active ({reason}); simulated robot held", "estop",
+                         estop.reason or "active")
 
 
 class RobotSim(Node):
     """Follows /robot/command with a first-order lag (0: exactly); publishes the actual pose."""
 
-    inputs = {"command": Input(RobotCommand, "/robot/command", help="probe pose setpoint")}
+    inputs = {"command": Input(RobotCommand, "/robot/command", help="probe pose setpoint"), "estop": ESTOP}
     outputs = {"state": Output(RobotState, "/robot/state", help="actual probe pose")}
     params = {"lag": Param(float, 0.0, unit="s", help="servo time constant (0: follows exactly)", ge=0.0,
                         scale=physical.TIME)}
@@ -21,6 +37,7 @@ class RobotSim(Node):
         self.servo = Servo(self.p.lag, self.ctx.dt)
 
     def step(self, tick, inputs):
+        estop_held(inputs.get("estop"))
         cmd = inputs["command"]
         if cmd is None:  # no command yet (the delay has not passed): report no pose
             return {}

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dockhil import physical
 from dockhil.node import Input, Node, Output, Param
 from dockhil.msgs import Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3
+from dockhil.nodes.robot_sim import ESTOP, estop_held
 
 
 def relative_pose(msg) -> tuple:
@@ -20,7 +21,7 @@ class RobotSim6(Node):
 
     Position and velocities per axis, attitude along the geodesic (dockhil.contact.hybrid6.Servo6)."""
 
-    inputs = {"command": Input(RobotCommand, "/robot/command", help="interface pose setpoint, in B")}
+    inputs = {"command": Input(RobotCommand, "/robot/command", help="interface pose setpoint, in B"), "estop": ESTOP}
     outputs = {"state": Output(RobotState, "/robot/state", help="actual interface pose, in B")}
     params = {"lag": Param(float, 0.0, unit="s", help="servo time constant (0: follows exactly)", ge=0.0,
                         scale=physical.TIME)}
@@ -31,6 +32,7 @@ class RobotSim6(Node):
         self.servo = Servo6(self.p.lag, self.ctx.dt)
 
     def step(self, tick, inputs):
+        estop_held(inputs.get("estop"))
         cmd = inputs["command"]
         if cmd is None:  # no command yet (the delay has not passed): report no pose
             return {}
