@@ -5,6 +5,7 @@ temporary bag says nothing at info level, a wall-time input's max_age is set fro
 from __future__ import annotations
 
 import json
+import math
 import time
 
 import pytest
@@ -12,6 +13,7 @@ import pytest
 from dockhil import session
 from dockhil.node import ManualClock
 from dockhil.runtime.executor import NodeExecutor, RunSpec, Stop
+from tests.conftest import ROOT
 from tests.faultnodes import Hiccup
 from tests.inprocess import run_main
 
@@ -88,3 +90,111 @@ def test_a_multi_process_run_counts_its_ticks_and_keeps_its_temporary_bag_quiet(
     assert code == 0, err
     assert "[bag-recorder] debug: recording 2 topics to " in err
     assert "[bag-recorder] debug: recorded 102 messages on 2 topics to " in err
+
+
+# -- --max-age NODE.INPUT=SECONDS ---------------------------------------------------------------
+
+
+def _hil_graph():
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
+
+    return build(launchfile.load(ROOT / "launch" / "hil.yaml"))
+
+
+def test_max_age_from_the_command_line_reaches_each_node_process_and_the_composed_loop(tmp_path):
+    import msgspec
+
+    from dockhil.node import default_max_age
+    from dockhil.runtime.launcher import Endpoints, run_specs
+    from dockhil.runtime.transport import GraphKeys
+    from dockhil.scene.graph import set_max_ages
+
+    graph = _hil_graph()
+    set_max_ages(graph, [("dynamics", "ft", 0.05), ("robot", "command", math.inf)])
+    ages = graph.wall_max_ages()
+    assert ages["dynamics.ft"] == 0.05 and ages["robot.command"] == math.inf
+    assert ages["dynamics.impedance"] == default_max_age(graph.scene.dt)  # the others keep theirs
+    types = {t: "t" for t in graph.publishers}
+    ends = {t: f"ipc://{tmp_path}/{t.strip('/').replace('/', '.')}" for t in types}
+    keys = GraphKeys.make().write(tmp_path / "graph.keys")
+    specs = run_specs(graph, Endpoints("r", tmp_path, ends, types, ends, keys), "wall", None, [])
+    # As a node process reads its spec: JSON, which has no infinity (NodeExecutor takes
+    # unlimited_age as no limit and max_age over the node's own: tests/test_launch_ros2.py).
+    dyn, robot = (msgspec.json.decode(msgspec.json.encode(specs[n]), type=RunSpec) for n in ("dynamics", "robot"))
+    assert dyn.inputs["ft"].max_age == 0.05 and not dyn.inputs["ft"].unlimited_age
+    assert dyn.inputs["impedance"].max_age is None and not dyn.inputs["impedance"].unlimited_age
+    assert robot.inputs["command"].unlimited_age and robot.inputs["command"].max_age is None
+
+
+@pytest.mark.parametrize("given, line", [
+    ("dynamics.ft=0", "argument --max-age: 'dynamics.ft=0': the maximum age must be > 0 and at most 600 s, "
+                      "or inf for no limit"),
+    ("dynamics.ft=-inf", "the maximum age must be > 0 and at most 600 s, or inf for no limit"),
+    ("dynamics.ft=nan", "the maximum age must be > 0 and at most 600 s, or inf for no limit"),
+    ("dynamics.ft=601", "the maximum age must be > 0 and at most 600 s, or inf for no limit"),
+    ("dynamics.ft=soon", "'soon' is not a number of seconds (or inf for no limit)"),
+    ("dynamics=0.1", "'dynamics=0.1' is not NODE.INPUT=SECONDS"),
+    ("dynamics.ft", "'dynamics.ft' is not NODE.INPUT=SECONDS"),
+    ("dynamic.ft=0.1", "hil.yaml has no node 'dynamic'; did you mean 'dynamics'? "
+                       "(nodes: delay, dynamics, ft, impedance, robot)"),
+    ("dynamics.fts=0.1", "--max-age dynamics.fts: node 'dynamics' (satellite_dynamics) has no input 'fts'; "
+                         "did you mean 'ft'? (inputs: ft, impedance)"),
+])
+def test_a_bad_max_age_is_one_line_and_exit_2_before_anything_runs(given, line):
+    code, out, err = run_main("launch", "hil.yaml", "--wall-time", "--duration", "1", "--max-age", given)
+    assert code == 2 and line in err and len(err.strip().splitlines()) == 1, err
+    assert out == ""
+
+
+def test_a_node_name_may_hold_dots_and_the_input_is_after_the_last():
+    from dockhil.argtypes import max_age_setting
+
+    assert max_age_setting("arm.left.wrench=inf") == ("arm.left", "wrench", math.inf)
+    assert max_age_setting("dynamics.ft=0.25") == ("dynamics", "ft", 0.25)
+
+
+RESPAWNED = """
+nodes:
+  - {name: sink, node: "tests.graphnodes:Integrator"}
+  - {name: src, node: "tests.graphnodes:Gain", respawn: true}
+"""
+
+
+def test_a_finite_max_age_on_a_respawned_publisher_is_refused_and_no_limit_is_not(write_launch):
+    from dockhil.errors import LaunchError
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build, set_max_ages
+
+    path = write_launch(RESPAWNED)
+    graph = build(launchfile.load(path))
+    with pytest.raises(LaunchError, match=r"--max-age sink.u: node 'sink' input 'u' has max_age 0.5 s but reads "
+                                          r"/u from 'src', which respawns"):
+        set_max_ages(graph, [("sink", "u", 0.5)])
+    graph = build(launchfile.load(path))
+    set_max_ages(graph, [("sink", "u", math.inf)])
+    assert graph.nodes["sink"].inputs["u"].max_age == math.inf
+
+
+def test_dockhil_run_takes_max_age_for_its_own_node(monkeypatch, tmp_path):
+    from dockhil.runtime import process, registry
+    from dockhil.runtime.transport import GraphKeys
+
+    keys = GraphKeys.make().write(tmp_path / "graph.keys")
+    graph = {"run_id": "g", "pid": 1, "keys": str(keys),
+             "topics": {"/robot/command": {"type": "dockhil/RobotCommand", "endpoint": f"ipc://{tmp_path}/c",
+                                           "publisher": "dynamics"}}}
+    monkeypatch.setattr(registry, "running_graphs", lambda: [graph])
+    monkeypatch.setattr(registry, "registry_dir", lambda: tmp_path)
+    ran = []
+    monkeypatch.setattr(process, "run_node", lambda spec: ran.append(spec) or 0)
+    assert run_main("run", "robot_sim", "--max-age", "robot_sim.command=0.3")[0] == 0
+    assert run_main("run", "robot_sim", "--name", "arm", "--max-age", "arm.command=inf")[0] == 0
+    assert ran[0].inputs["command"].max_age == 0.3 and not ran[0].inputs["command"].unlimited_age
+    assert ran[1].inputs["command"].unlimited_age
+    code, _, err = run_main("run", "robot_sim", "--max-age", "robot.command=0.3")
+    assert code == 2 and "--max-age robot.command: the node run here is 'robot_sim'; " \
+                         "give --max-age robot_sim.command=SECONDS" in err
+    code, _, err = run_main("run", "robot_sim", "--max-age", "robot_sim.comand=0.3")
+    assert code == 2 and "node 'robot_sim' (robot_sim) has no input 'comand'; did you mean 'command'?" in err
+    assert len(ran) == 2
