@@ -198,3 +198,48 @@ def test_dockhil_run_takes_max_age_for_its_own_node(monkeypatch, tmp_path):
     code, _, err = run_main("run", "robot_sim", "--max-age", "robot_sim.comand=0.3")
     assert code == 2 and "node 'robot_sim' (robot_sim) has no input 'comand'; did you mean 'command'?" in err
     assert len(ran) == 2
+
+
+# -- dockhil --version names the arithmetic that runs --------------------------------------------
+
+
+def _imports(monkeypatch, built: set[str]):
+    """The compiled modules importable: only those in `built` (as after an install without them)."""
+    import importlib
+
+    from dockhil import compiled
+
+    real = importlib.import_module
+
+    def import_module(name, *a):
+        if name in compiled.TWINS and name not in built:
+            raise ImportError(f"No module named {name!r}")
+        return real(name, *a)
+
+    monkeypatch.setattr(compiled.importlib, "import_module", import_module)
+
+
+@pytest.mark.parametrize("built, pure, says", [
+    ({"dockhil.contact._rigid", "dockhil.runtime._screen"}, "", "compiled: rigid-body arithmetic, message screen"),
+    ({"dockhil.contact._rigid", "dockhil.runtime._screen"}, "1", "pure Python: DOCKHIL_PURE_PYTHON is set"),
+    (set(), "", "pure Python: the C twins were not built; install a C compiler and reinstall for speed"),
+    ({"dockhil.runtime._screen"}, "", "compiled: message screen; pure Python: rigid-body arithmetic (not built)"),
+])
+def test_version_names_the_compiled_or_pure_python_path(monkeypatch, built, pure, says):
+    import importlib.util
+
+    from dockhil import __version__
+
+    if not all(importlib.util.find_spec(m) for m in built):
+        pytest.skip("the C twins were not built here")
+    monkeypatch.setenv("DOCKHIL_PURE_PYTHON", pure)
+    _imports(monkeypatch, built)
+    code, out, _ = run_main("--version")
+    assert code == 0 and out == f"dockhil {__version__} ({says})\n"
+
+
+def test_a_twin_not_named_in_one_place_is_refused():
+    from dockhil.compiled import twin
+
+    with pytest.raises(ValueError, match="dockhil.contact._other is not a compiled twin"):
+        twin("dockhil.contact._other")
