@@ -91,14 +91,14 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
         if bridge is not None:
             bridge.observe(launcher.endpoints.topics, GraphKeys.read(launcher.endpoints.key_file))
         code = launcher.run()
+        devices = launcher.devices()
         # Wall time: an emulated device ticks from its start, before the graph's go.
-        devices = {name for name, device in launcher.devices().items() if device} if clock == "wall" else set()
-        span = ticking_span(launcher.timings, devices)
+        span = ticking_span(launcher.timings, {n for n, device in devices.items() if device and clock == "wall"})
         if span is not None:
             ticking.append(span)
         if code == 0 and clock == "wall":
             # Nodes on other hosts report to nobody here; a free-running node is an emulated device.
-            reasons += validity.wall_time_reasons(launcher.timings, launcher.devices(), dt)
+            reasons += validity.wall_time_reasons(launcher.timings, devices, dt)
         elif code == 0:
             reasons += validity.sim_time_reasons(launcher.timings)
     # The start-up (imports, devices, processes joining) is not the run's: a run that kept up says 1x.
