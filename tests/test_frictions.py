@@ -243,3 +243,10 @@ def test_a_twin_not_named_in_one_place_is_refused():
 
     with pytest.raises(ValueError, match="dockhil.contact._other is not a compiled twin"):
         twin("dockhil.contact._other")
+
+
+def test_max_age_in_sim_time_runs_and_says_it_applies_in_wall_time_only():
+    code, _, err = run_main("launch", "hil.yaml", "--composed", "--duration", "0.01", "--quiet",
+                            "--max-age", "dynamics.ft=0.05")
+    assert code == 0, err
+    assert "[launch] warning: --max-age applies in wall time only (--wall-time); sim time is lock-step" in err
