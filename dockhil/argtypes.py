@@ -6,7 +6,7 @@ import argparse
 import math
 import re
 
-from dockhil.scene.schema import MAX_DURATION, MAX_RATE, MIN_RATE, NODE_NAME
+from dockhil.scene.schema import MAX_AGE, MAX_DURATION, MAX_RATE, MIN_RATE, NODE_NAME
 
 
 def _number(text: str) -> float:
@@ -48,3 +48,21 @@ def nonnegative(text: str) -> float:
     if value < 0.0:
         raise argparse.ArgumentTypeError(f"{text} must be >= 0")
     return value
+
+
+def max_age_setting(text: str) -> tuple[str, str, float]:
+    """`NODE.INPUT=SECONDS` -> (node, input, seconds): a wall-time input's maximum age, > 0 and at
+    most MAX_AGE as in a launch file, or `inf` for no limit. Whether the node and input exist is the
+    graph's to say (dockhil.scene.graph.set_max_ages)."""
+    target, sep, value = text.partition("=")
+    node, dot, port = target.rpartition(".")
+    if not (sep and dot and node and port):
+        raise argparse.ArgumentTypeError(f"{text!r} is not NODE.INPUT=SECONDS (e.g. dynamics.ft=0.05, or =inf for no limit)")
+    try:
+        age = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: {value!r} is not a number of seconds (or inf for no limit)") from None
+    if not (0.0 < age <= MAX_AGE or age == math.inf):
+        raise argparse.ArgumentTypeError(f"{text!r}: the maximum age must be > 0 and at most {MAX_AGE:g} s, "
+                                         f"or inf for no limit")
+    return node, port, age

@@ -45,15 +45,29 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {one_line(message)}; see '{self.prog} --help'\n")
 
 
+class _Version(argparse.Action):
+    """`dockhil --version`: the version and which arithmetic runs, compiled or pure Python (worked
+    out only when asked: it loads the compiled modules)."""
+
+    def __init__(self, option_strings, dest, **kwargs):
+        super().__init__(option_strings, dest, nargs=0,
+                         help="show the version, and whether the compiled arithmetic or pure Python runs")
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from dockhil import __version__
+        from dockhil.compiled import which_arithmetic
+
+        print(f"dockhil {__version__} ({which_arithmetic()})")
+        parser.exit()
+
+
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = Parser(
         prog="dockhil",
         description="Hardware-in-the-loop docking simulation (passive + virtual compliance contact).",
         epilog="Run 'dockhil COMMAND --help' for the options of one command.",
     )
-    from dockhil import __version__
-
-    parser.add_argument("--version", action="version", version=f"dockhil {__version__}")
+    parser.add_argument("--version", action=_Version)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)

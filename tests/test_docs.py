@@ -102,3 +102,19 @@ def test_every_console_example_runs(page, tmp_path, monkeypatch):
         assert argv[0] == "dockhil" and not _SHELL & set(line), f"{page.name}: not a plain dockhil command: {line}"
         code, _, err = run_main(*argv[1:])
         assert code == 0 and "Traceback" not in err, f"{page.name}: $ {line}\n{err[-2000:]}"
+
+
+def test_the_readme_first_screen_says_what_dockhil_is_shows_it_and_gives_the_two_commands():
+    """One paragraph, a picture, the two commands (install and run; the checks and tests, exactly
+    as .ci/run runs them in its fresh venv), and where to go next; the rest lives in docs/."""
+    lines = (ROOT / "README.md").read_text().splitlines()
+    assert len(lines) <= 40, "the README is one screen: move the rest into docs/"
+    ci = [line for line in (ROOT / ".ci" / "run").read_text().splitlines() if line.startswith("python3 -m pip")]
+    commands = [line.strip() for line in lines if line.startswith("    ")]
+    assert commands == ["python3 -m pip install -e . && dockhil launch launch/hil.yaml --summary hil-summary.json",
+                        *ci] and len(ci) == 1
+    picture = re.search(r"!\[[^\]]+\]\((docs/img/[^)\s]+\.png)\)", "\n".join(lines))
+    assert picture, "the README shows a picture from docs/img/"
+    png = (ROOT / picture.group(1)).read_bytes()
+    assert png.startswith(b"\x89PNG\r\n\x1a\n") and len(png) < 100_000
+    assert "[docs/](docs/README.md)" in "\n".join(lines)

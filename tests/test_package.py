@@ -224,6 +224,18 @@ def source_packages() -> set[str]:
     return found
 
 
+def arithmetic(names: set[str]) -> str:
+    """What `dockhil --version` must name for a wheel holding `names`: the compiled twins, which pip
+    builds where a C compiler is, or pure Python and why."""
+    if os.environ.get("DOCKHIL_PURE_PYTHON"):
+        return "pure Python: DOCKHIL_PURE_PYTHON is set"
+    built = {n.split(".")[0] for n in names if n.endswith(".so")}
+    if built == {"dockhil/contact/_rigid", "dockhil/runtime/_screen"}:
+        return "compiled: rigid-body arithmetic, message screen"
+    assert not built, built  # one C file built and not the other: say what the compiler said
+    return "pure Python: the C twins were not built; install a C compiler and reinstall for speed"
+
+
 def test_the_wheel_installs_into_a_fresh_venv_and_runs_from_another_directory(tmp_path):
     version = source_version()
     dist = tmp_path / "dist"
@@ -270,7 +282,7 @@ def test_the_wheel_installs_into_a_fresh_venv_and_runs_from_another_directory(tm
     site = str(venv / "lib")
     assert where.returncode == 0 and all(p.startswith(site) for p in where.stdout.split()), where.stdout
     r = run("--version")
-    assert r.returncode == 0 and r.stdout.strip() == f"dockhil {version}"
+    assert r.returncode == 0 and r.stdout.strip() == f"dockhil {version} ({arithmetic(names)})"
     r = run("launch", "hil.yaml", "--composed", "--duration", "0.5", "--quiet", "--bag", "hil.mcap")
     assert r.returncode == 0, r.stderr
     assert (elsewhere / "hil.mcap").stat().st_size > 0

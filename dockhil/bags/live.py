@@ -357,11 +357,14 @@ def check_bag_path(path: str) -> None:
     os.remove(path)
 
 
-def recorder_process(path: str, graph, clock: str, n_ticks: int | None):
-    """The recorder as a launcher helper process, subscribed to every topic of `graph`."""
+def recorder_process(path: str, graph, clock: str, n_ticks: int | None, quiet: bool = False):
+    """The recorder as a launcher helper process, subscribed to every topic of `graph`; quiet: a bag
+    the user did not ask for (the summary's), whose path and count are said only at debug level."""
     from dockhil.runtime.launcher import ExtraProcess
 
     argv = [sys.executable, "-m", "dockhil.bags.live", "record", path, "--graph-pid", str(os.getpid())]
+    if quiet:
+        argv.append("--quiet")
     if clock == "sim" and n_ticks is not None:
         argv += ["--n-ticks", str(n_ticks)]
     return ExtraProcess(RECORDER_NAME, argv, list(graph.publishers))
@@ -427,12 +430,20 @@ def _recorder_main(argv: list[str]) -> int:
     p.add_argument("--n-ticks", type=int, help="sim time: stop after tick N-1 of every topic")
     p.add_argument("--topics", nargs="+")
     p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="info lines at debug level")
     args = p.parse_args(argv)
     die_with_parent()
     stop = Stop()
     stop.install()
     setup_child()  # its records go to the launcher, which logs them
     out = Log(f"[{RECORDER_NAME}]").line
+    if args.quiet:  # its warnings and errors still show
+        import logging
+
+        from dockhil.log import level_of
+
+        say = out
+        out = lambda text: say(text if level_of(text)[0] > logging.INFO else "debug: " + text)  # noqa: E731
     try:
         deadline = time.monotonic() + FIND_GRAPH_TIMEOUT_S
         while True:  # the launcher registers its graph just after starting its processes

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dockhil import log
-from dockhil.argtypes import seconds
+from dockhil.argtypes import max_age_setting, seconds
 from dockhil.errors import LaunchError
 
 
@@ -37,6 +37,9 @@ def add_arguments(p) -> None:
     p.set_defaults(clock="sim")
     p.add_argument("--duration", type=seconds, metavar="S",
                    help="simulated (or wall) seconds to run; default: the file's `duration`")
+    p.add_argument("--max-age", type=max_age_setting, action="append", default=[], metavar="NODE.INPUT=SECONDS",
+                   help="wall time: how old an input's latest message may be, over the launch file's "
+                        "(> 0, at most 600 s, or inf for no limit; repeatable)")
     p.add_argument("--composed", action="store_true",
                    help="run every node in this one process (same schedule, same results)")
     p.add_argument("--transport", choices=("ipc", "tcp"), default="ipc",
@@ -68,7 +71,7 @@ def _port(text: str) -> int:
 
 def run(args) -> int:
     from dockhil.scene import launchfile
-    from dockhil.scene.graph import build
+    from dockhil.scene.graph import build, set_max_ages
 
     scene = launchfile.load(args.file, launchfile.parse_overrides(args.overrides))
     duration = args.duration if args.duration is not None else scene.duration  # both checked, > 0 and bounded
@@ -79,6 +82,9 @@ def run(args) -> int:
     if args.bag_format == "ros2" and args.bag is None:
         raise LaunchError("--bag-format ros2 needs --bag DIR: the rosbag2 bag (a folder) to write")
     graph = build(scene)
+    set_max_ages(graph, args.max_age)
+    if args.max_age and args.clock == "sim":
+        log.Log("[launch]").warning("--max-age applies in wall time only (--wall-time); sim time is lock-step")
     from dockhil.session import run_scene
 
     def run_with(bag: str | None) -> int:

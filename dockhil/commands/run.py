@@ -7,11 +7,12 @@ wall time at --rate until Ctrl-C or --duration.
 
 from __future__ import annotations
 
+import math
 import os
 
 from dockhil import log
-from dockhil.argtypes import hertz, node_name, seconds
-from dockhil.errors import DockhilError
+from dockhil.argtypes import hertz, max_age_setting, node_name, seconds
+from dockhil.errors import DockhilError, suggest
 
 
 def add_arguments(p) -> None:
@@ -22,6 +23,9 @@ def add_arguments(p) -> None:
                    help="remap a port or topic to a topic (repeatable)")
     p.add_argument("--rate", type=hertz, default=100.0, metavar="HZ", help="loop rate (default 100)")
     p.add_argument("--duration", type=seconds, metavar="S", help="stop after S seconds")
+    p.add_argument("--max-age", type=max_age_setting, action="append", default=[], metavar="NAME.INPUT=SECONDS",
+                   help="how old an input's latest message may be (> 0, at most 600 s, or inf for no limit; "
+                        "NAME: --name or the type's; repeatable)")
     log.add_arguments(p)
 
 
@@ -43,6 +47,14 @@ def run(args) -> int:
     type_name, cls, params = nodes.resolve(args.node, name, params)  # dof:=6 picks the 6-DOF type
     remap = parse_overrides(args.remap)
     ins, outs = cls.ports(params)
+    ages = {}
+    for node, port, age in args.max_age:
+        where = f"--max-age {node}.{port}"
+        if node != name:
+            raise DockhilError(f"{where}: the node run here is {name!r}; give --max-age {name}.{port}=SECONDS")
+        if port not in ins:
+            raise DockhilError(f"{where}: node {name!r} ({type_name}) has no input {port!r}; {suggest(port, ins, 'inputs')}")
+        ages[port] = age
     topic_of = lambda port, default: remap.get(port, remap.get(default, default))  # noqa: E731
 
     published = {}
@@ -62,7 +74,9 @@ def run(args) -> int:
             continue
         if t["type"] != msgs.type_name(i.type):
             raise DockhilError(f"topic {topic} carries {t['type']}, but {name}.{port} expects {msgs.type_name(i.type)}")
-        inputs[port] = PortWire(topic, t["endpoint"], t["type"], i.lag_ticks(1.0 / args.rate))
+        age = ages.get(port)
+        inputs[port] = PortWire(topic, t["endpoint"], t["type"], i.lag_ticks(1.0 / args.rate),
+                                unlimited_age=age == math.inf, max_age=None if age == math.inf else age)
     for port, o in outs.items():
         _refuse_unheard(name, port, topic_of(port, o.topic))
     # One key file: the graph's keys when wired to one, which this node's own outputs then share.

@@ -445,6 +445,8 @@ class NodeExecutor:
                     self._receive(k, port)
                     break
             else:
+                if k == 0:  # the real-time factor counts from here, not from the start-up
+                    self.timing.first_tick_at = time.time()
                 inputs = {port: buf.pop(k - lag, None) for port, buf, lag in needs}
                 if unconnected:
                     inputs.update(unconnected)
@@ -454,6 +456,7 @@ class NodeExecutor:
                 k += 1
                 self.ticks_done = k
                 self._waited_since = time.monotonic()
+        self.timing.last_tick_at = time.time()
         for pub in self.pubs.values():  # the last, incomplete bursts
             pub.flush()
         # Stay subscribed until every input's last tick is in: a publisher waits for its subscribers
@@ -502,6 +505,7 @@ class NodeExecutor:
         clock = self.clock
         period = spec.dt
         t0 = clock()
+        timing.first_tick_at = time.time()
         next_t = t0
         k = 0
         try:
@@ -534,6 +538,7 @@ class NodeExecutor:
         finally:
             timing.ticks = k
             timing.elapsed = clock() - t0
+            timing.last_tick_at = timing.first_tick_at + timing.elapsed  # on the loop's own clock
             timing.dropped_in = self.dropped
             timing.dropped_out = self.dropped_outputs
         out = timing.report(spec.name)
@@ -582,6 +587,10 @@ class LoopTiming:
         self.dropped_in = 0
         self.dropped_out = 0
         self.worst_overrun = 0.0
+        # When the loop's first tick began and its last ended (time.time(), comparable across the
+        # graph's processes): the run's real-time factor counts this span, not the start-up.
+        self.first_tick_at: float | None = None
+        self.last_tick_at: float | None = None
 
     def aged(self, port: str, age: float) -> None:
         if age > self.worst_age.get(port, 0.0):
@@ -619,7 +628,8 @@ class LoopTiming:
                "worst_late_s": max(worst, self.worst_overrun),
                "max_age_s": {p: (None if math.isinf(a) else a) for p, a in self.max_age.items()},
                "worst_input_age_s": dict(self.worst_age),
-               "dropped_in": self.dropped_in, "dropped_out": self.dropped_out}
+               "dropped_in": self.dropped_in, "dropped_out": self.dropped_out,
+               "first_tick_at_s": self.first_tick_at, "last_tick_at_s": self.last_tick_at}
         return out
 
 

@@ -15,6 +15,7 @@ spec, never the keys themselves on a command line.
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import signal
@@ -264,9 +265,11 @@ def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extr
     respawned = {topic for topic, ref in graph.publishers.items() if graph.nodes[ref.node].respawn}
     for name in graph.order:
         gn = graph.nodes[name]
+        # No limit (--max-age NODE.INPUT=inf) travels as a flag: JSON has no infinity.
         inputs = {
             port: PortWire(ref.topic, ep.topics[ref.topic], ep.types[ref.topic], ref.lag,
-                           unlimited_age=ref.topic in respawned, max_age=ref.max_age)
+                           unlimited_age=ref.topic in respawned or ref.max_age == math.inf,
+                           max_age=None if ref.max_age == math.inf else ref.max_age)
             for port, ref in gn.inputs.items()
             if ref.topic in ep.topics
         }

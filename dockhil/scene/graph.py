@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import collections
 import difflib
+import math
 import re
 from dataclasses import dataclass, field
 from typing import Any
 
 from dockhil import msgs
 from dockhil import nodes as node_registry
-from dockhil.errors import LaunchError, ParamError
+from dockhil.errors import LaunchError, ParamError, suggest
 from dockhil.scene.launchfile import Scene
 from dockhil.scene.schema import MAX_DURATION
 
@@ -166,17 +167,40 @@ def build(scene: Scene) -> Graph:
                     f"{scene.path}: topic {ref.topic}: {pub.node}.{pub.port} publishes {msgs.type_name(pub.type)} "
                     f"but {ref.node}.{ref.port} expects {msgs.type_name(ref.type)}; connect ports of one type"
                 )
-            if ref.max_age is not None and gnodes[pub.node].respawn:
-                raise LaunchError(
-                    f"{scene.path}: node {ref.node!r} input {ref.port!r} has max_age {ref.max_age:g} s but reads "
-                    f"{ref.topic} from {pub.node!r}, which respawns (and may pause): drop one of the two"
-                )
+            _refuse_age_of_respawned(scene.path, ref, pub, gnodes)
             subscribers.setdefault(ref.topic, []).append(ref)
 
     _refuse_replay_into_hardware(scene.path, gnodes, publishers)
     _refuse_driver_past_its_emulator(scene.path, gnodes)
     order = _feedthrough_order(scene.path, gnodes, publishers)
     return Graph(scene, gnodes, order, publishers, subscribers, unconnected)
+
+
+def _refuse_age_of_respawned(where: str, ref: PortRef, pub: PortRef, gnodes: dict[str, GraphNode]) -> None:
+    """A topic from a node that respawns may pause while it restarts: no finite maximum age on it."""
+    if ref.max_age is not None and math.isfinite(ref.max_age) and gnodes[pub.node].respawn:
+        raise LaunchError(
+            f"{where}: node {ref.node!r} input {ref.port!r} has max_age {ref.max_age:g} s but reads "
+            f"{ref.topic} from {pub.node!r}, which respawns (and may pause): drop one of the two"
+        )
+
+
+def set_max_ages(graph: Graph, given: list[tuple[str, str, float]]) -> None:
+    """Command-line maximum ages (`--max-age NODE.INPUT=SECONDS`; math.inf: no limit) over the
+    launch file's and the node's: each names a node of the graph and one of its inputs."""
+    for node, port, age in given:
+        where = f"--max-age {node}.{port}"
+        gn = graph.nodes.get(node)
+        if gn is None:
+            raise LaunchError(f"{where}: {graph.scene.path} has no node {node!r}; {suggest(node, graph.nodes, 'nodes')}")
+        ref = gn.inputs.get(port)
+        if ref is None:
+            raise LaunchError(f"{where}: node {node!r} ({gn.type_name}) has no input {port!r}; "
+                              f"{suggest(port, gn.inputs, 'inputs')}")
+        ref.max_age = age
+        pub = graph.publishers.get(ref.topic)
+        if pub is not None:
+            _refuse_age_of_respawned(where, ref, pub, graph.nodes)
 
 
 def _refuse_replay_into_hardware(path: str, gnodes: dict[str, GraphNode], publishers: dict[str, PortRef]) -> None:
