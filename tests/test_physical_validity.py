@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import errno
 import json
-import resource
+import os
 import subprocess
-import time
 
 import pytest
 
@@ -146,12 +145,14 @@ def test_a_meaningless_6dof_parameter_is_refused_in_one_line(params, expected, w
 
 
 def test_a_refusal_takes_little_time_and_memory():
-    started = time.monotonic()
-    r = subprocess.run(dockhil_cmd("launch", "launch/hil6.yaml", "tilt:=1e9", "--duration", "1"),
-                       capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2 and len(r.stderr.splitlines()) == 1, r.stderr
-    assert time.monotonic() - started < 10.0
-    assert resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss < 500 * 1024  # [KiB]
+    """CPU time and peak memory of the refusing process alone (wait4): the same on a busy machine."""
+    proc = subprocess.Popen(dockhil_cmd("launch", "launch/hil6.yaml", "tilt:=1e9", "--duration", "1"),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    err = proc.stderr.read()
+    _pid, status, usage = os.wait4(proc.pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 2 and len(err.splitlines()) == 1, err
+    assert usage.ru_utime + usage.ru_stime < 10.0
+    assert usage.ru_maxrss < 500 * 1024  # [KiB]
 
 
 # -- an include of a file that is not a launch file ---------------------------------------------------
