@@ -111,7 +111,7 @@ def analyze(path: str, scene_file: str | None = None, overrides: dict | None = N
     if info.valid is None:  # not recorded, or not told: the messages alone judge
         reasons = own
     else:
-        recorded = info.reasons if info.state == "INVALID" else [info.why] if not info.valid else []
+        recorded = info.reasons
         reasons = recorded + [r for r in own if r not in recorded]
     out["valid"] = not reasons
     out["invalid_reasons"] = reasons
@@ -121,14 +121,16 @@ def analyze(path: str, scene_file: str | None = None, overrides: dict | None = N
 
 def validity_line(a: Analysis) -> str:
     """The run's validity in one line, as recorded (or why it is not known)."""
-    from dockhil.runtime.validity import invalid_line
+    from dockhil.runtime.validity import INVALID_EXIT, invalid_line
 
     state = a.info.state
     if not a.valid:
-        return invalid_line(a.summary["invalid_reasons"])
+        return f"{invalid_line(a.summary['invalid_reasons'])} (exit {INVALID_EXIT})"
     if state == "valid":
         return "valid (as recorded: the launch exited 0)"
-    return f"valid as far as the messages show; the recorded verdict is {state}: {a.info.why}"
+    if state == "not recorded":
+        return f"valid as far as its messages show (no verdict recorded: {a.info.why})"
+    return f"valid as far as its messages show (the recorded verdict is {state}: {a.info.why})"
 
 
 def figures(a: Analysis, path: str, out_dir: str) -> list[str]:

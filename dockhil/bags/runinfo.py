@@ -27,12 +27,12 @@ NOT_FINISHED = "did not finish"
 
 def verdict_fields(code: int, reasons: list[str]) -> dict[str, str]:
     """The verdict record of a run that ended with exit `code` and these invalid reasons."""
-    from dockhil.runtime.validity import INVALID_EXIT, invalid_line
+    from dockhil.runtime.validity import INVALID_EXIT
 
     if code == 0:
         verdict, valid, why = "valid", "true", "the run completed and its result is valid"
     elif code == INVALID_EXIT:
-        verdict, valid, why = "INVALID", "false", invalid_line(reasons)
+        verdict, valid, why = "INVALID", "false", "; ".join(reasons)
     elif code >= 128:
         verdict, valid, why = "failed", "false", f"the run was stopped by signal {code - 128} (exit {code})"
     else:
@@ -91,7 +91,10 @@ class RunInfo:
 
     @property
     def reasons(self) -> list[str]:
+        """Why the recorded run is not valid (empty when it is, or when that is not known)."""
         if self.runs and self.verdict is None:
+            return [f"the run {NOT_FINISHED}: {self.why}"]
+        if self.state == "failed":
             return [self.why]
         try:
             found = json.loads((self.verdict or {}).get("invalid_reasons") or "[]")
@@ -104,8 +107,7 @@ class RunInfo:
         if not self.runs:
             return "the bag holds no run metadata (recorded by an older dockhil, or another writer)"
         if self.verdict is None:
-            return ("the run did not finish: the recorder stopped before the run ended (killed?), "
-                    "so its verdict is not in the bag")
+            return "the recorder stopped before the run ended (killed?), so the run's verdict is not in the bag"
         return self.verdict.get("why", "")
 
     def exit_code(self) -> int | None:
