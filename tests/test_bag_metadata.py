@@ -150,7 +150,7 @@ def test_metadata_is_read_past_a_damaged_chunk(tmp_path):
 
 
 def test_an_outside_recorder_writes_what_the_graph_registered_and_that_its_verdict_is_not_known(tmp_path):
-    from dockhil.bags.live import _registered_run
+    from dockhil.bags.live import registered_run
     from dockhil.runtime.registry import registry_dir
     from dockhil.scene.provenance import run_fields, scene_texts
 
@@ -159,10 +159,10 @@ def test_an_outside_recorder_writes_what_the_graph_registered_and_that_its_verdi
     (registry_dir() / "r1.json").write_text(json.dumps({"run_id": "r1", "clock": "sim", "run": run,
                                                          "scene_files": scene_texts(scene)}))
     (registry_dir() / "r2.json").write_text(json.dumps({"run_id": "r2", "clock": "wall", "file": "play x.mcap"}))
-    got, texts = _registered_run("r1", "bag record")
+    got, texts = registered_run("r1", "bag record")
     assert got["recorded_by"] == "bag record" and got["start"] == run["start"] and got["joined"].endswith("Z")
     assert texts == scene.texts
-    got, texts = _registered_run("r2", "bag record")
+    got, texts = registered_run("r2", "bag record")
     assert got["scene"] == "" and got["scene_known"].startswith("false") and texts == {}
 
     bag = tmp_path / "outside.mcap"

@@ -358,7 +358,7 @@ def record(args: argparse.Namespace) -> int:
     sources = find_sources(args.topics)
     stop = Stop()
     stop.install()
-    runs = [_registered_run(s.run_id, recorded_by="bag record") for s in {s.run_id: s for s in sources.values()}.values()]
+    runs = [registered_run(run_id, recorded_by="bag record") for run_id in sorted({s.run_id for s in sources.values()})]
     recorder = Recorder(args.path, sources, overwrite=args.overwrite, runs=runs)
     graphs = {(s.graph_pid, s.run_id) for s in sources.values()}
     _record_log(f"recording {len(sources)} topics to {args.path} (Ctrl-C to stop)")
@@ -375,7 +375,7 @@ def record(args: argparse.Namespace) -> int:
     return 0
 
 
-def _registered_run(run_id: str, recorded_by: str) -> tuple[dict, dict]:
+def registered_run(run_id: str, recorded_by: str) -> tuple[dict, dict]:
     """(run description, scene texts) a running graph registered; what it did not register is said so."""
     from dockhil.runtime.registry import registry_dir
     from dockhil.scene.provenance import iso_utc
@@ -389,7 +389,7 @@ def _registered_run(run_id: str, recorded_by: str) -> tuple[dict, dict]:
     if not isinstance(run, dict):  # a graph of an older dockhil, or `bag play`: its scene is not known
         run = {"scene": "", "clock": entry.get("clock", ""), "graph": entry.get("file", ""),
                "scene_known": "false: the graph registered no scene (an older dockhil, or bag play)"}
-    run = {**run, "recorded_by": recorded_by} if recorded_by != run.get("recorded_by") else dict(run)
+    run = {**run, "recorded_by": recorded_by}
     if recorded_by == "bag record":  # it joined the run when it started, not when the graph did
         run.update(joined=iso_utc(now), joined_ns=f"{now:019d}")
     texts = entry.get("scene_files")
@@ -514,7 +514,7 @@ def _recorder_main(argv: list[str]) -> int:
                 if time.monotonic() > deadline or stop.requested or not _alive(args.graph_pid):
                     raise
                 time.sleep(0.02)
-        runs = [_registered_run(next(iter(sources.values())).run_id, "launch")] if sources else []
+        runs = [registered_run(next(iter(sources.values())).run_id, "launch")] if sources else []
         recorder = Recorder(args.path, sources, n_ticks=args.n_ticks, overwrite=args.overwrite, log=out, runs=runs)
     except DockhilError as exc:
         out(f"error: {exc}")

@@ -607,15 +607,22 @@ class Launcher:
                 continue
             if self.clock == "wall":
                 child.proc.send_signal(signal.SIGTERM)  # wall-time helpers run until told
-            try:
-                code = child.proc.wait(max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                self.say.error(f"{child.name!r} did not finish within {timeout:.0f} s; stopping it")
+            code = self._exited(child, deadline, timeout)
+            if code is None:
                 return 1
-            child.finished = True
             if code != 0:
                 return self._died(child, code)
         return 0
+
+    def _exited(self, child: _Child, deadline: float, timeout: float) -> int | None:
+        """The helper's exit code once it exits before `deadline`; None (said) if it does not."""
+        try:
+            code = child.proc.wait(max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            self.say.error(f"{child.name!r} did not finish within {timeout:.0f} s; stopping it")
+            return None
+        child.finished = True
+        return code
 
     def _judged(self, code: int) -> int:
         """The verdict helpers: once each has recorded everything, the run's verdict (`judge`) to each,
@@ -629,7 +636,12 @@ class Launcher:
         while not all(c.recorded or c.proc.poll() is not None for c in helpers) and time.monotonic() < deadline:
             self._wake.clear()
             self._wake.wait(POLL_S)
+        late = [c for c in helpers if not c.recorded and c.proc.poll() is None]
+        if late and code == 0:  # its bag is not the whole run yet: no verdict is drawn from it
+            self.say.error(f"{late[0].name!r} did not finish recording within {HELPER_WAIT_S:.0f} s; stopping it")
+            code = 1
         verdict = json.dumps(self.judge(code)) + "\n"
+        deadline = time.monotonic() + HELPER_WAIT_S  # the judge may have read a long bag meanwhile
         for c in helpers:
             if c.recorded and c.proc.poll() is None:
                 try:
@@ -637,12 +649,9 @@ class Launcher:
                 except OSError:
                     pass
             self._close_stdin(c)
-            try:
-                exit_code = c.proc.wait(max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                self.say.error(f"{c.name!r} did not finish within {HELPER_WAIT_S:.0f} s; stopping it")
+            exit_code = self._exited(c, deadline, HELPER_WAIT_S)
+            if exit_code is None:
                 return 1
-            c.finished = True
             if exit_code != 0 and code == 0:
                 return self._died(c, exit_code)
         return code
