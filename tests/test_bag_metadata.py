@@ -173,3 +173,18 @@ def test_an_outside_recorder_writes_what_the_graph_registered_and_that_its_verdi
     assert info.state == "not known" and info.valid is None and info.why == "recorded from outside"
     code, out, _ = run_main("bag", "info", bag)
     assert "validity:  not known: recorded from outside" in out and "args:      not known" in out
+
+
+@pytest.mark.wall_time
+def test_a_wall_time_run_records_the_verdict_its_launch_exits_with(tmp_path):
+    """Wall time: the launch stops the recorder at the duration, and it closes the bag once told the
+    verdict, which is the launch's (valid, or INVALID on a machine too busy to keep up)."""
+    bag = tmp_path / "wall.mcap"
+    r = subprocess.run(dockhil_cmd("launch", "ideal.yaml", "--wall-time", "--duration", "1", "--bag", bag, "--quiet"),
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode in (0, 3), r.stderr
+    found = records(bag)
+    assert found[runinfo.RUN]["clock"] == "wall"
+    verdict = found[runinfo.VERDICT]
+    assert verdict["exit_code"] == str(r.returncode)
+    assert verdict["verdict"] == ("valid" if r.returncode == 0 else "INVALID")
