@@ -142,3 +142,24 @@ def test_refusals_are_one_line(tmp_path, args, says):
         bag = tmp_path / "s.mcap"
     code, out, err = run_main("analyze", *[a.format(bag=bag, tmp=tmp_path) for a in args])
     assert code == 2 and out == "" and len(err.strip().splitlines()) == 1 and says in err, err
+
+
+def test_a_recorded_scene_that_does_not_rebuild_here_is_one_line(tmp_path):
+    """A node type of a package not installed here: analyze says so in one line (exit 2); plot draws the
+    bag as one without its scene, and says why."""
+    from dockhil.bags import runinfo
+
+    bag, _ = launched(tmp_path, "ideal.yaml", "--duration", "0.5", "--composed")
+    moved = tmp_path / "moved.mcap"
+    scene = str(tmp_path / "lab.yaml")
+    with BagReader(bag) as reader, BagWriter(moved) as writer:
+        run = dict(runinfo.read(reader).run, scene=scene, args="{}")
+        runinfo.write_start(writer, run, {scene: "nodes:\n  - {name: dyn, node: 'lab_package.nodes:Dynamics'}\n"})
+        for topic, type_name, log_ns, data in reader:
+            writer.add_topic(topic, type_name)
+            writer.write(topic, log_ns, log_ns, data)
+    code, out, err = run_main("analyze", moved)
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, err
+    assert "recorded scene" in err and "lab_package" in err
+    code, _, err = run_main("plot", moved, "--kcs", "3000", "--bcs", "40", "--png", tmp_path / "p.png")
+    assert code == 0 and "drawn without its recorded scene" in err

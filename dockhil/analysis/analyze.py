@@ -41,9 +41,9 @@ class Analysis:
 
 def scene_graph(path: str, info: runinfo.RunInfo, scene_file: str | None = None, overrides: dict | None = None):
     """(graph, where its scene came from) of the run a bag recorded."""
+    from dockhil.analysis.runplot import bag_graph
     from dockhil.scene import launchfile
     from dockhil.scene.graph import build
-    from dockhil.scene.provenance import rebuild
 
     overrides = dict(overrides or {})
     if scene_file is not None:
@@ -51,9 +51,10 @@ def scene_graph(path: str, info: runinfo.RunInfo, scene_file: str | None = None,
     if len(info.runs) > 1:
         raise AnalyzeError(f"{path}: the bag holds {len(info.runs)} runs (recorded from outside across graphs); "
                            f"name the one to analyze with --scene FILE [name:=value ...]")
-    if info.texts and info.run.get("scene"):
+    graph = bag_graph(path, overrides, info)
+    if graph is not None:
         changed = f", with {' '.join(f'{k}:={v}' for k, v in overrides.items())}" if overrides else ""
-        return build(rebuild(info.run, info.texts, overrides, origin=path)), f"recorded{changed}"
+        return graph, f"recorded{changed}"
     if any(name in overrides for name in IDEAL_ARGS):
         stand_in = "hil.yaml" if _has_force_topics(path) else "ideal.yaml"
         return (build(launchfile.load(stand_in, overrides)),

@@ -9,16 +9,22 @@ from dockhil.errors import DockhilError
 from dockhil.analysis.figure_file import save_figure
 
 
-def bag_graph(path: str, overrides: dict | None = None):
-    """The graph of the scene a bag recorded, rebuilt from its texts; None for a bag without them."""
+def bag_graph(path: str, overrides: dict | None = None, info=None):
+    """The graph of the scene a bag recorded (info: its runinfo.RunInfo, read if not given), rebuilt
+    from its texts; None for a bag without them. LaunchError (one line) if it does not rebuild here."""
     from dockhil.bags import runinfo
+    from dockhil.errors import LaunchError
     from dockhil.scene.graph import build
     from dockhil.scene.provenance import rebuild
 
-    info = runinfo.read_path(path)
+    info = info or runinfo.read_path(path)
     if not info.texts or not info.run.get("scene"):
         return None
-    return build(rebuild(info.run, info.texts, overrides, origin=path))
+    scene = rebuild(info.run, info.texts, overrides, origin=path)
+    try:
+        return build(scene)
+    except LaunchError as exc:  # a node type not installed here, say
+        raise LaunchError(f"{path}: recorded scene: {exc}") from None
 
 
 def is_sixdof(graph) -> bool:

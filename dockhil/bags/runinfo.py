@@ -129,7 +129,7 @@ class RunInfo:
             return None
         run = self.run
         out = {k: run.get(k) for k in ("scene", "description", "dockhil_version", "clock", "start",
-                                        "recorded_by")}
+                                        "recorded_by", "joined")}
         out["args"] = self.args()
         out["args_set"] = self.args("args_set")
         for key in ("rate_hz", "duration_s", "start_ns"):
@@ -162,7 +162,8 @@ def info_lines(run: dict | None) -> list[str]:
     state = run["verdict"] + (f" (exit {run['exit_code']})" if run["verdict"] == "valid" else f": {run['why']}")
     return [f"run:       {scene} ({run.get('clock') or '?'} time{rate}{length}), dockhil "
             f"{run.get('dockhil_version') or '?'}, recorded by {run.get('recorded_by') or '?'}",
-            f"started:   {run.get('start') or 'not known'}",
+            f"started:   {run.get('start') or 'not known'}"
+            + (f" (the recording joined at {run['joined']})" if run.get("joined") else ""),
             f"args:      {changed or ('(all at their defaults)' if run.get('scene') else 'not known')}",
             f"validity:  {state}"]
 

@@ -31,10 +31,10 @@ def run(args) -> int:
         raise DockhilError(f"--labels has {len(args.labels)} labels for {len(args.bags)} bags; give one per bag")
     if (args.kcs is None) != (args.bcs is None):
         raise DockhilError("--kcs and --bcs go together (the ideal contact force is kcs p + bcs p')")
-    from dockhil.analysis.runplot import bag_graph, is_sixdof, plot_runs
+    from dockhil.analysis.runplot import is_sixdof, plot_runs
 
     # Each bag's recorded scene: its ideal contact, and whether it is a 6-DOF run.
-    graphs = [bag_graph(path) for path in args.bags]
+    graphs = [_recorded_graph(path) for path in args.bags]
     six = [is_sixdof(g) for g in graphs]
     if args.six or all(six):
         flat = [path for path, g, s in zip(args.bags, graphs, six) if g is not None and not s]
@@ -51,3 +51,19 @@ def run(args) -> int:
                   graphs)
     print(f"wrote {args.png}")
     return 0
+
+
+def _recorded_graph(path: str):
+    """The bag's recorded scene; None, said in one line, when it does not rebuild here (a node type of
+    a package not installed): the bag is then drawn as one without it."""
+    from dockhil.analysis.runplot import bag_graph
+    from dockhil.bags.format import BagError
+    from dockhil.log import Log
+
+    try:
+        return bag_graph(path)
+    except BagError:
+        raise
+    except DockhilError as exc:
+        Log("dockhil plot:").warning(f"{exc}; drawn without its recorded scene (give --kcs/--bcs, --6dof)")
+        return None
