@@ -104,7 +104,7 @@ def test_a_recorder_killed_mid_run_leaves_a_bag_that_says_the_run_did_not_finish
     proc = subprocess.Popen(dockhil_cmd("launch", "hil.yaml", "--duration", "60", "--bag", bag, "--quiet"),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        recorder = registered(proc.pid)["nodes"]["bag-recorder"]["pid"]
+        recorder = registered(proc.pid, timeout=60)["nodes"]["bag-recorder"]["pid"]
         deadline = time.monotonic() + 60
         while (not bag.exists() or bag.stat().st_size < 200_000) and time.monotonic() < deadline:  # a few chunks
             time.sleep(0.05)
@@ -114,10 +114,10 @@ def test_a_recorder_killed_mid_run_leaves_a_bag_that_says_the_run_did_not_finish
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
-    assert proc.returncode == 1 and "'bag-recorder' was killed by SIGKILL" in err
+    assert proc.returncode == 1 and "'bag-recorder' was killed by SIGKILL" in err, err
     with BagReader(bag) as reader:
         info = runinfo.read(reader)
-    assert info.runs and info.texts and info.verdict is None
+    assert info.runs and info.texts and info.verdict is None, (bag.stat().st_size, err)
     assert info.state == "did not finish" and info.valid is False
     code, out, _ = run_main("bag", "info", bag)
     assert code == 0 and "validity:  did not finish: the recorder stopped before the run ended" in out
