@@ -32,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "stability": ("dockhil.commands.stability", "stiffness bound for a delayed contact loop (paper Eq. 12 and exact)"),
     "bag": ("dockhil.commands.bag", "record, inspect, export and replay MCAP bags"),
     "plot": ("dockhil.commands.plot", "plot force and velocity profiles from a bag"),
+    "analyze": ("dockhil.commands.analyze", "the summary and validity of a recorded run, from its bag alone"),
     "figures": ("dockhil.commands.figures", "the paper's Figs. 7, 9, 10 and 11-12 recomputed, and the 6-DOF docking, as PNGs"),
     "report": ("dockhil.commands.report", "error against run time, stiff and extreme cases, lean scenes"),
     "sweep": ("dockhil.commands.sweep", "run a scene over a campaign of parameters into a Parquet table"),

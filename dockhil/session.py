@@ -68,12 +68,45 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
         bridge = start(graph, clock=clock, host=foxglove[0], port=foxglove[1])
     started = time.perf_counter()
     reasons: list[str] = []
+    judged: dict = {}
     ticking: list[float] = []  # [s] from the first tick to the end of the last: what the real-time factor counts
+
+    def elapsed() -> float:
+        """The run's time: the start-up (imports, devices, processes joining) is not the run's, so a
+        run that kept up says 1x."""
+        if not composed and not ticking:
+            devices = launcher.devices()
+            # Wall time: an emulated device ticks from its start, before the graph's go.
+            span = ticking_span(launcher.timings, {n for n, device in devices.items() if device and clock == "wall"})
+            if span is not None:
+                ticking.append(span)
+        return ticking[0] if ticking else time.perf_counter() - started
+
+    def judge(code: int, timing: list[str]) -> dict:
+        """The run's exit code and summary, once: before the recorder closes the bag, which records
+        the verdict (dockhil.bags.runinfo)."""
+        if not judged:
+            reasons.extend(timing if code == 0 else [])
+            judged.update(given=code, **_judge(code, reasons, collector, None if composed else bag, elapsed()))
+        from dockhil.bags.runinfo import verdict_fields
+
+        return verdict_fields(judged["code"], reasons)
+
     if composed:
         from dockhil.runtime.launcher import check_composable
 
         check_composable(graph)
-        code = _run_composed(graph, clock, n_ticks, progress, bag, collector, reasons, bridge, ticking)
+        recorder = None
+        if bag is not None:
+            from dockhil.bags.live import TapRecorder
+
+            recorder = TapRecorder(bag, graph, sim=clock == "sim", duration=duration, recorded_by="launch --composed")
+        try:
+            code = _run_composed(graph, clock, n_ticks, progress, recorder, collector, reasons, bridge, ticking)
+            verdict = judge(code, [])
+        finally:
+            if recorder is not None:
+                recorder.close(verdict if judged else None)
     else:
         from dockhil.runtime.launcher import Launcher
         from dockhil.runtime.transport import GraphKeys
@@ -86,37 +119,26 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
             from dockhil.bags import live as bag_live
 
             extra.append(bag_live.recorder_process(bag, graph, clock, n_ticks, quiet=tmp is not None))
+
+        def timing() -> list[str]:
+            if clock == "wall":  # nodes on other hosts report to nobody here; a free-running node is an emulated device
+                return validity.wall_time_reasons(launcher.timings, launcher.devices(), dt)
+            return validity.sim_time_reasons(launcher.timings)
+
         launcher = Launcher(graph, clock=clock, duration=duration, transport=transport, extra=extra,
-                            progress=progress, realtime=realtime)
+                            progress=progress, realtime=realtime, judge=lambda code: judge(code, timing()))
         if bridge is not None:
             bridge.observe(launcher.endpoints.topics, GraphKeys.read(launcher.endpoints.key_file))
         code = launcher.run()
-        devices = launcher.devices()
-        # Wall time: an emulated device ticks from its start, before the graph's go.
-        span = ticking_span(launcher.timings, {n for n, device in devices.items() if device and clock == "wall"})
-        if span is not None:
-            ticking.append(span)
-        if code == 0 and clock == "wall":
-            # Nodes on other hosts report to nobody here; a free-running node is an emulated device.
-            reasons += validity.wall_time_reasons(launcher.timings, devices, dt)
-        elif code == 0:
-            reasons += validity.sim_time_reasons(launcher.timings)
-    # The start-up (imports, devices, processes joining) is not the run's: a run that kept up says 1x.
-    elapsed = ticking[0] if ticking else time.perf_counter() - started
+        if not judged:  # no recorder was told: judged here
+            judge(code, timing())
+    if judged and code == judged["given"]:  # else the recorder failed after the verdict: the run did
+        code = judged["code"]
+    out = judged.get("out") if code == judged.get("code") else None
     if bridge is not None:
         bridge.close()
-    if code == 0 and reasons:
-        code = validity.INVALID_EXIT
     try:
-        if code in (0, validity.INVALID_EXIT) and want_summary:
-            if not composed:
-                summ.feed_from_bag(bag, collector)
-            out = collector.summary(elapsed)
-            reasons += out.get("invalid_reasons") or []  # the summary's own (a saturated compensation)
-            out["valid"] = not reasons
-            out["invalid_reasons"] = list(reasons)
-            if reasons and code == 0:
-                code = validity.INVALID_EXIT
+        if out is not None:
             if show_summary:
                 print(summ.format_summary(out), flush=True)
             if summary is not None:
@@ -128,14 +150,34 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
                     say.error(f"--summary: {exc}; the run's summary is lost")
                     code = 1
         elif code == 0 and clock == "sim" and n_ticks:
-            sim_s = (n_ticks - 1) * dt
-            say.info(f"done: {sim_s:g} s simulated in {elapsed:.2f} s ({sim_s / elapsed:.1f}x real time)")
+            run_s, sim_s = elapsed(), (n_ticks - 1) * dt
+            say.info(f"done: {sim_s:g} s simulated in {run_s:.2f} s ({sim_s / run_s:.1f}x real time)")
     finally:
         if tmp is not None:
             tmp.cleanup()
     if reasons and code == validity.INVALID_EXIT:  # one line, right under the summary table where there is one
         say.error(f"{validity.invalid_line(reasons)} (exit {validity.INVALID_EXIT})", tag="")  # it says INVALID
     return code
+
+
+def _judge(code: int, reasons: list[str], collector, bag: str | None, elapsed: float) -> dict:
+    """code: INVALID_EXIT where the run has reasons (its summary's own added to `reasons`); out: the
+    summary of a run that completed (read from `bag` in a multi-process run)."""
+    if code == 0 and reasons:
+        code = validity.INVALID_EXIT
+    out = None
+    if code in (0, validity.INVALID_EXIT) and collector is not None:
+        from dockhil.analysis import summary as summ
+
+        if bag is not None:
+            summ.feed_from_bag(bag, collector)
+        out = collector.summary(elapsed)
+        reasons += out.get("invalid_reasons") or []  # the summary's own (a saturated compensation)
+        out["valid"] = not reasons
+        out["invalid_reasons"] = list(reasons)
+        if reasons and code == 0:
+            code = validity.INVALID_EXIT
+    return {"code": code, "out": out}
 
 
 SUMMARY_RESERVE = 64 * 1024  # [bytes] written before the run: a summary takes a few kB
@@ -183,9 +225,10 @@ def ticking_span(timings: dict[str, dict], leave_out: set[str] = frozenset()) ->
     return max(end for _, end in kept) - min(start for start, _ in kept)
 
 
-def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool, bag: str | None,
+def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool, recorder,
                   collector, reasons: list[str], bridge=None, ticking: list[float] | None = None) -> int:
-    """ticking: gets the time from the first tick to the end of the last [s]."""
+    """recorder: a TapRecorder, left open (all on disk) for the run's verdict; ticking: gets the time
+    from the first tick to the end of the last [s]."""
     from dockhil.runtime.composed import ComposedGraph
     from dockhil.runtime.executor import Stop
     from dockhil.progress import Progress
@@ -193,11 +236,7 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
     stop = Stop()
     stop.install()
     g = ComposedGraph(graph, sim_time=clock == "sim")
-    recorder = None
-    if bag is not None:
-        from dockhil.bags.live import TapRecorder
-
-        recorder = TapRecorder(bag, graph, sim=clock == "sim")
+    if recorder is not None:
         g.taps.append(recorder)
     if collector is not None:
         g.taps.append(collector)
@@ -222,13 +261,13 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
             failed = _said(exc)
         finally:
             if recorder is not None:
-                recorder.close()
+                recorder.flush()
     if failed:
         return 1
     if stop.requested:
         return 130
     if recorder is not None and recorder.lost:
-        Log("[launch]").error(f"the recorder lost {recorder.lost} message(s) ({bag}); the run is not complete")
+        Log("[launch]").error(f"the recorder lost {recorder.lost} message(s) ({recorder.path}); the run is not complete")
         return 1
     if g.timing is not None:
         reasons += validity.node_reasons(g.timing.report("composed"), graph.scene.dt)

@@ -52,6 +52,7 @@ import msgspec
 
 from dockhil import msgs
 from dockhil.msgs.codec import decode_header
+from dockhil.bags import runinfo
 from dockhil.bags.format import BagError, BagMessage
 from dockhil.bags.reader import BagReader
 from dockhil.bags.writer import BagWriter
@@ -155,7 +156,9 @@ class Recorder:
     """
 
     def __init__(self, path: str, sources: dict[str, Source], *, n_ticks: int | None = None,
-                 overwrite: bool = False, log: Callable[[str], None] = _record_log, observer: bool = False):
+                 overwrite: bool = False, log: Callable[[str], None] = _record_log, observer: bool = False,
+                 runs: list[tuple[dict, dict]] | None = None):
+        """runs: (run description, scene texts) of each recorded graph, written first (runinfo)."""
         import zmq
 
         from dockhil.runtime.transport import Subscriber
@@ -167,6 +170,8 @@ class Recorder:
         try:
             for source in sources.values():
                 self.bag.add_topic(source.topic, source.type_name)
+            for run, texts in runs or []:
+                runinfo.write_start(self.bag, run, texts)
         except BagError:
             self.bag.close()
             raise
@@ -189,6 +194,7 @@ class Recorder:
         self.unreadable = 0
         self.error: str | None = None
         self._next_flush = time.monotonic() + FLUSH_EVERY_S
+        self._listening = True
 
     @property
     def finished(self) -> bool:
@@ -304,9 +310,28 @@ class Recorder:
                     self.handle(frames)
                     quiet_until = time.monotonic() + DRAIN_QUIET_S
 
-    def close(self) -> str:
-        """Close the bag; returns the one-line report (also logged)."""
-        self.sub.close()
+    def stop_listening(self) -> None:
+        """Receive no more and put every message on disk: the bag then holds the whole recording,
+        open for the run's verdict (`close`)."""
+        if self._listening:
+            self._listening = False
+            self.sub.close()
+        if self.error is None:
+            try:
+                self.bag.flush()
+            except BagError as exc:
+                self._stopped(exc)
+
+    def close(self, verdict: dict[str, str] | None = None, why_not_told: str = "") -> str:
+        """Write the run's verdict (dockhil.bags.runinfo; without one, `why_not_told`) and close the
+        bag; returns the one-line report (also logged)."""
+        self.stop_listening()
+        if self.error is None:
+            try:
+                self.bag.add_metadata(runinfo.VERDICT, runinfo.with_loss(verdict or runinfo.not_told(why_not_told),
+                                                                       self.lost))
+            except BagError as exc:
+                self._stopped(exc)
         try:
             self.bag.close()
         except BagError as exc:
@@ -334,19 +359,42 @@ def record(args: argparse.Namespace) -> int:
     sources = find_sources(args.topics)
     stop = Stop()
     stop.install()
-    recorder = Recorder(args.path, sources, overwrite=args.overwrite, observer=True)
+    runs = [registered_run(run_id, recorded_by="bag record") for run_id in sorted({s.run_id for s in sources.values()})]
+    recorder = Recorder(args.path, sources, overwrite=args.overwrite, observer=True, runs=runs)
     graphs = {(s.graph_pid, s.run_id) for s in sources.values()}
     _record_log(f"recording {len(sources)} topics to {args.path} (Ctrl-C to stop)")
     try:
         why = recorder.run(stop, alive=lambda: any(_graph_running(*g) for g in graphs))
     finally:  # also on a publisher that failed authentication: what was recorded is kept
-        recorder.close()
+        recorder.close(why_not_told="recorded from outside the run (dockhil bag record), which is not told its "
+                                    "verdict: the launch that ran it says it")
     if why == "the graph stopped":
         _record_log("the recorded graph stopped")
     if recorder.lost:
         _record_log(f"error: {recorder.lost} message(s) lost; the recording is incomplete")
         return RECORDER_LOST_EXIT
     return 0
+
+
+def registered_run(run_id: str, recorded_by: str) -> tuple[dict, dict]:
+    """(run description, scene texts) a running graph registered; what it did not register is said so."""
+    from dockhil.runtime.registry import registry_dir
+    from dockhil.scene.provenance import iso_utc
+
+    try:
+        entry = json.loads((registry_dir() / f"{run_id}.json").read_text())
+    except (OSError, ValueError):
+        entry = {}
+    run = entry.get("run")
+    now = time.time_ns()
+    if not isinstance(run, dict):  # a graph of an older dockhil, or `bag play`: its scene is not known
+        run = {"scene": "", "clock": entry.get("clock", ""), "graph": entry.get("file", ""),
+               "scene_known": "false: the graph registered no scene (an older dockhil, or bag play)"}
+    run = {**run, "recorded_by": recorded_by}
+    if recorded_by == "bag record":  # it joined the run when it started, not when the graph did
+        run.update(joined=iso_utc(now), joined_ns=f"{now:019d}")
+    texts = entry.get("scene_files")
+    return run, texts if isinstance(texts, dict) else {}
 
 
 def check_bag_path(path: str) -> None:
@@ -358,28 +406,35 @@ def check_bag_path(path: str) -> None:
 
 
 def recorder_process(path: str, graph, clock: str, n_ticks: int | None, quiet: bool = False):
-    """The recorder as a launcher helper process, subscribed to every topic of `graph`; quiet: a bag
-    the user did not ask for (the summary's), whose path and count are said only at debug level."""
+    """The recorder as a launcher helper process, subscribed to every topic of `graph`; the launcher
+    tells it the run's verdict before it closes the bag. quiet: a bag the user did not ask for (the
+    summary's), whose path and count are said only at debug level."""
     from dockhil.runtime.launcher import ExtraProcess
 
-    argv = [sys.executable, "-m", "dockhil.bags.live", "record", path, "--graph-pid", str(os.getpid())]
+    argv = [sys.executable, "-m", "dockhil.bags.live", "record", path, "--graph-pid", str(os.getpid()), "--verdict"]
     if quiet:
         argv.append("--quiet")
     if clock == "sim" and n_ticks is not None:
         argv += ["--n-ticks", str(n_ticks)]
-    return ExtraProcess(RECORDER_NAME, argv, list(graph.publishers))
+    return ExtraProcess(RECORDER_NAME, argv, list(graph.publishers), verdict=True)
 
 
 class TapRecorder:
     """The recorder of a composed run: a tap that encodes each message and writes it."""
 
-    def __init__(self, path: str, graph, *, sim: bool, log: Callable[[str], None] | None = None):
+    def __init__(self, path: str, graph, *, sim: bool, log: Callable[[str], None] | None = None,
+                 duration: float | None = None, recorded_by: str = "a composed graph"):
+        from dockhil.scene.provenance import run_fields, scene_texts
+
         self.path = path
         self.sim = sim
         self.log = log or Log(f"[{RECORDER_NAME}]").line
         self.bag = BagWriter(path)
         for topic, ref in graph.publishers.items():
             self.bag.add_topic(topic, msgs.type_name(ref.type))
+        run = run_fields(graph.scene, clock="sim" if sim else "wall", duration=duration, started_ns=time.time_ns(),
+                         recorded_by=recorded_by)
+        runinfo.write_start(self.bag, run, scene_texts(graph.scene))
         self.dropped = 0
         self.error: str | None = None
         self._next_flush = time.monotonic() + FLUSH_EVERY_S
@@ -401,8 +456,23 @@ class TapRecorder:
             self.error = str(exc)
             self.log(f"error: {exc}; the graph keeps running")
 
-    def close(self) -> None:
+    def flush(self) -> None:
+        """Put every message on disk (then `lost` is final), the bag open for the run's verdict."""
+        if self.error is None:
+            try:
+                self.bag.flush()
+            except BagError as exc:
+                self.error = str(exc)
+                self.log(f"error: {exc}")
+
+    def close(self, verdict: dict[str, str] | None = None) -> None:
+        """Write the run's verdict (dockhil.bags.runinfo; without one, that it was not told) and close."""
+        self.flush()
         try:
+            if self.error is None:
+                self.bag.add_metadata(runinfo.VERDICT, runinfo.with_loss(
+                    verdict or runinfo.not_told("the recorder of this composed graph was not told the run's verdict"),
+                    self.lost))
             self.bag.close()
         except BagError as exc:
             self.error = str(exc)
@@ -431,6 +501,8 @@ def _recorder_main(argv: list[str]) -> int:
     p.add_argument("--topics", nargs="+")
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--quiet", action="store_true", help="info lines at debug level")
+    p.add_argument("--verdict", action="store_true",
+                   help="once recorded, say RECORDED and read the run's verdict (one JSON line) on stdin before closing")
     args = p.parse_args(argv)
     die_with_parent()
     stop = Stop()
@@ -454,7 +526,8 @@ def _recorder_main(argv: list[str]) -> int:
                 if time.monotonic() > deadline or stop.requested or not _alive(args.graph_pid):
                     raise
                 time.sleep(0.02)
-        recorder = Recorder(args.path, sources, n_ticks=args.n_ticks, overwrite=args.overwrite, log=out)
+        runs = [registered_run(next(iter(sources.values())).run_id, "launch")] if sources else []
+        recorder = Recorder(args.path, sources, n_ticks=args.n_ticks, overwrite=args.overwrite, log=out, runs=runs)
     except DockhilError as exc:
         out(f"error: {exc}")
         return 2
@@ -465,13 +538,28 @@ def _recorder_main(argv: list[str]) -> int:
         recorder.run(stop, alive=lambda: _alive(args.graph_pid) and (run_id is None or _graph_running(args.graph_pid, run_id)))
     except DockhilError as exc:  # a publisher that failed authentication: what was recorded is kept
         out(f"error: {exc}")
-        recorder.close()
+        recorder.close(why_not_told=f"the recorder stopped: {exc}")
         return 2
-    recorder.close()
+    verdict = None
+    if args.verdict:
+        from dockhil.runtime.launcher import RECORDED
+
+        recorder.stop_listening()
+        print(RECORDED, flush=True)
+        verdict = _read_verdict(sys.stdin.readline())
+    recorder.close(verdict, why_not_told="the launch ended without telling the recorder the run's verdict")
     if recorder.lost:  # a recording that misses messages is not the run: fail, with the count
         out(f"error: {recorder.lost} message(s) lost; the recording of this run is incomplete")
         return RECORDER_LOST_EXIT
     return 0
+
+
+def _read_verdict(line: str) -> dict[str, str] | None:
+    try:
+        found = json.loads(line) if line.strip() else None
+    except ValueError:
+        return None
+    return {str(k): str(v) for k, v in found.items()} if isinstance(found, dict) else None
 
 
 # --------------------------------------------------------------------------- playing

@@ -18,8 +18,8 @@ from dockhil.bags.format import (MAGIC, MESSAGE_HEAD, READ_ENCODINGS, RECORD_HEA
 from dockhil.files import os_reason
 
 # MCAP opcodes (spec "Records"); 0x80-0xFF are reserved for user records.
-_HEADER, _FOOTER, _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _MESSAGE_INDEX, _DATA_END = (
-    0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x0F
+_HEADER, _FOOTER, _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _MESSAGE_INDEX, _METADATA, _DATA_END = (
+    0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x0C, 0x0F
 )
 _KNOWN_OPCODES = frozenset(range(0x01, 0x10))
 # Where a damaged stretch may end: an MCAP opcode, then a length below 2**40 (its top
@@ -238,6 +238,36 @@ class BagReader:
             "topics": topics,
         }
         found["loss"] = loss_line(found)
+        return found
+
+    def metadata(self) -> list[tuple[str, dict[str, str]]]:
+        """(name, str -> str) of each metadata record, in file order. Reads record heads only
+        (chunks are stepped over, not decompressed); a damaged stretch is skipped as in a full pass."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.records import Metadata
+
+        f, size = self._file, self.size_bytes
+        found: list[tuple[str, dict[str, str]]] = []
+        pos = self._data_start
+        run = _Pass()
+        while pos + 9 <= size:
+            f.seek(pos)
+            opcode, length = RECORD_HEAD.unpack(f.read(9))
+            if opcode == _FOOTER or opcode == _DATA_END:
+                break
+            if opcode == _HEADER or not (opcode in _KNOWN_OPCODES or opcode >= 0x80) or length > size - pos - 9:
+                pos = self._resync(pos + 1, run)
+                continue
+            if opcode == _METADATA:
+                body = f.read(length)
+                try:
+                    stream = ReadDataStream(io.BytesIO(body))
+                    record = Metadata.read(stream)
+                    if stream.count == len(body):
+                        found.append((record.name, dict(record.metadata)))
+                except Exception:  # a damaged record: as if it were not there
+                    pass
+            pos += 9 + length
         return found
 
     def _check_encoding(self, topic: str) -> None:

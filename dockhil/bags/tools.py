@@ -27,10 +27,15 @@ def info(path: str | os.PathLike) -> dict:
     all of it, None for an intact, finished bag), library, messages, chunks,
     start and end [s] (log times of the first and last message, None if
     empty), duration_s, and topics: a list of {topic, type, encoding, count,
-    first, last [s], rate_hz (mean over the topic's span)}.
+    first, last [s], rate_hz (mean over the topic's span)}; run: what the bag says of its run
+    (dockhil.bags.runinfo: scene, args, version, start, validity), None for a bag of an older dockhil.
     """
+    from dockhil.bags import runinfo
+
     with BagReader(path) as reader:
-        return reader.summary()
+        found = reader.summary()
+        found["run"] = runinfo.read(reader).as_json()
+    return found
 
 
 def flatten(value: Any, prefix: str = "") -> dict[str, Any]:

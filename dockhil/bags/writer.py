@@ -203,6 +203,20 @@ class BagWriter:
         if self._pending >= self._chunk_size or time.monotonic() - self._chunk_opened >= self._chunk_seconds:
             self.flush()
 
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """Write an MCAP metadata record (name, str -> str) between chunks, on disk at once: what the
+        run was (dockhil.bags.runinfo) survives a kill of the recorder like the chunks before it."""
+        if self._failed is not None:
+            raise self._failed
+        if self._closed:
+            raise BagError(f"bag {self.path} is closed")
+        self.flush()
+        try:
+            self._writer.add_metadata(name, {str(k): str(v) for k, v in data.items()})
+            self._file.flush()
+        except OSError as exc:
+            raise self._stop(exc, "writing") from None
+
     def flush(self) -> None:
         """Close the open chunk and hand it to the OS (not fsync: it survives a crash
         of this process, not a power cut)."""

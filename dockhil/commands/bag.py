@@ -20,8 +20,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     p = sub.add_parser(
         "info",
-        help="topics, types, message counts, start, end, duration and rates of a bag",
-        description="Show what a bag holds. Works on unfinished bags too (a recorder that was "
+        help="the run (scene, args, version, start, validity), topics, types, counts, times and rates of a bag",
+        description="Show what a bag holds: the run it recorded (its scene, launch arguments, dockhil "
+        "version, start time and validity; 'did not finish' when the recorder stopped before the run "
+        "ended), and its topics. Works on unfinished bags too (a recorder that was "
         "killed): they are read up to their last complete chunk and marked as recovered. "
         "A damaged chunk or record is skipped; the line 'lost:' says how many bytes and which "
         "log times, and every other message is read.",
@@ -119,6 +121,7 @@ def _info(args: argparse.Namespace) -> int:
 def format_info(found: dict) -> str:
     """The table `dockhil bag info` prints."""
     from dockhil.bags.format import format_size
+    from dockhil.bags.runinfo import info_lines
 
     if found["recovered"]:
         state = "unfinished, recovered (the recorder stopped without closing the bag)"
@@ -137,6 +140,7 @@ def format_info(found: dict) -> str:
         f"end:       {_time(found['end'])}",
         f"duration:  {found['duration_s']:.3f} s",
     ]
+    lines += info_lines(found.get("run"))
     encodings = sorted({t["encoding"] for t in found["topics"]})
     if encodings:
         line = f"encoding:  {', '.join(encodings)}"

@@ -43,16 +43,23 @@ if TYPE_CHECKING:  # the graph module loads the launch-file parser (yaml): a rec
     from dockhil.scene.graph import Graph
 
 POLL_S = 0.05  # the watch loop's longest sleep when no child speaks or exits
+RECORDED = "DOCKHIL-RECORDED"  # a verdict helper has everything on disk and waits for the verdict on stdin
+HELPER_WAIT_S = 10.0  # for a helper to finish its recording, and to close it once told the verdict
 
 
 @dataclass
 class ExtraProcess:
     """A helper process that subscribes to topics (a recorder): it counts as
-    a subscriber so that sim time waits for it before tick 0."""
+    a subscriber so that sim time waits for it before tick 0.
+
+    verdict: once the nodes are done (or stopped) it says RECORDED and reads the run's verdict, one
+    JSON line, on its stdin before it exits (the recorder writes it into the bag); the launcher gets
+    the verdict from its `judge`."""
 
     name: str
     argv: list[str]
     topics: list[str]
+    verdict: bool = False
 
 
 @dataclass
@@ -306,17 +313,24 @@ class _Child:
     finished: bool = False
     host: str = ""  # another machine: started there by hand, not watched from here
     reader: threading.Thread | None = None
+    verdict: bool = False  # an ExtraProcess told the run's verdict
+    recorded: bool = False  # ... which has said RECORDED
 
 
 class Launcher:
     def __init__(self, graph: Graph, *, clock: str = "sim", duration: float | None = None,
                  transport: str = "ipc", extra: list[ExtraProcess] | None = None,
-                 progress: bool = False, realtime: bool = False):
+                 progress: bool = False, realtime: bool = False, judge=None):
+        """judge: exit code -> the run's verdict (str -> str), asked once the nodes are done and
+        the verdict helpers have recorded everything."""
         self.graph = graph
+        self.judge = judge
+        self._sparing = True  # while the graph runs, stopping it leaves the verdict helpers to _judged
         self.clock = clock
         self.extra = extra or []
         dt = graph.scene.dt
         self.n_ticks = None if duration is None else int(round(duration / dt)) + 1
+        self.duration = duration
         self.endpoints = assign_endpoints(graph, transport)
         # Wall time: the launcher stops the whole graph at once when the duration is up, so no driver
         # sees its device (an emulator) stop first and mistakes that for a fault.
@@ -345,7 +359,7 @@ class Launcher:
             self.children.append(_Child(name, argv, respawn=gn.respawn and clock == "wall",
                                         respawn_delay=gn.respawn_delay, host="" if is_local(gn.host) else gn.host))
         for proc in self.extra:
-            self.children.append(_Child(proc.name, proc.argv))
+            self.children.append(_Child(proc.name, proc.argv, verdict=proc.verdict and judge is not None))
 
     # -- output ----------------------------------------------------------------
     say = log.Log("[launch]")
@@ -353,8 +367,9 @@ class Launcher:
     def _read(self, child: _Child, proc: subprocess.Popen) -> None:
         for raw in proc.stdout:
             line = raw.rstrip("\n")
-            if line == READY:
-                child.ready = True
+            if line == READY or line == RECORDED:
+                child.ready = child.ready or line == READY
+                child.recorded = child.recorded or line == RECORDED
                 self._wake.set()
                 continue
             if line.startswith(TIMING):
@@ -377,7 +392,8 @@ class Launcher:
         env.setdefault("OPENBLAS_NUM_THREADS", "1")
         child.ready = child.go_sent = False
         child.proc = subprocess.Popen(
-            child.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            child.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            stdin=subprocess.PIPE if child.verdict else subprocess.DEVNULL,
             text=True, bufsize=1, start_new_session=True, env=env,
         )
         child.reader = threading.Thread(target=self._read, args=(child, child.proc), daemon=True)
@@ -400,7 +416,14 @@ class Launcher:
 
     def _write_registry(self) -> Path:
         path = registry_dir() / f"{self.endpoints.run_id}.json"
+        from dockhil.scene.provenance import run_fields, scene_texts
+
+        scene = self.graph.scene
         info = {
+            # What a recorder writes first in its bag (dockhil.bags.runinfo), for the launch's and any other.
+            "run": run_fields(scene, clock=self.clock, duration=self.duration, started_ns=self.started_ns,
+                              recorded_by="launch"),
+            "scene_files": scene_texts(scene),
             "run_id": self.endpoints.run_id,
             "pid": os.getpid(),
             "file": self.graph.scene.path,
@@ -430,7 +453,16 @@ class Launcher:
         self._stop_signal = signum
 
     def stop_all(self, grace: float = 3.0) -> None:
+        """SIGTERM every child and wait for it (then kill it). A verdict helper, while the graph runs,
+        is only told to stop recording: it waits for the verdict (`_judged`); else its stdin closes too."""
         live = [c for c in self.children if c.proc and c.proc.poll() is None]
+        for c in [c for c in live if c.verdict]:
+            if self._sparing:
+                live.remove(c)
+                if not c.recorded:
+                    c.proc.send_signal(signal.SIGTERM)
+            else:
+                self._close_stdin(c)
         for c in live:
             try:
                 c.proc.send_signal(signal.SIGTERM)
@@ -449,6 +481,7 @@ class Launcher:
         """Run until every node finishes, a node dies, or a signal arrives. Returns the exit code."""
         old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         registry = None
+        self.started_ns = time.time_ns()
         try:
             for child in self.children:
                 if child.host:
@@ -456,8 +489,9 @@ class Launcher:
                 else:
                     self._start(child)
             registry = self._write_registry()
-            return self._watch()
+            return self._judged(self._watch())
         finally:
+            self._sparing = False
             self.stop_all()
             for child in self.children:
                 if child.reader:
@@ -581,23 +615,70 @@ class Launcher:
                 return self._finish_extras()
             self._wake.wait(POLL_S)  # signals, respawns, progress and the wall-time duration: every POLL_S
 
-    def _finish_extras(self, timeout: float = 10.0) -> int:
+    def _finish_extras(self, timeout: float = HELPER_WAIT_S) -> int:
         """Nodes are done: give helper processes (a recorder draining its queue) time to exit."""
         deadline = time.monotonic() + timeout
         for child in self.children:
-            if child.name in self.specs or child.finished:
+            if child.name in self.specs or child.finished or child.verdict:
                 continue
             if self.clock == "wall":
                 child.proc.send_signal(signal.SIGTERM)  # wall-time helpers run until told
-            try:
-                code = child.proc.wait(max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                self.say.error(f"{child.name!r} did not finish within {timeout:.0f} s; stopping it")
+            code = self._exited(child, deadline, timeout)
+            if code is None:
                 return 1
-            child.finished = True
             if code != 0:
                 return self._died(child, code)
         return 0
+
+    def _exited(self, child: _Child, deadline: float, timeout: float) -> int | None:
+        """The helper's exit code once it exits before `deadline`; None (said) if it does not."""
+        try:
+            code = child.proc.wait(max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            self.say.error(f"{child.name!r} did not finish within {timeout:.0f} s; stopping it")
+            return None
+        child.finished = True
+        return code
+
+    def _judged(self, code: int) -> int:
+        """The verdict helpers: once each has recorded everything, the run's verdict (`judge`) to each,
+        then their exit. A helper that fails here fails the run (exit 1), as when it dies before."""
+        helpers = [c for c in self.children if c.verdict and c.proc and not c.finished]
+        if not helpers:
+            return code
+        if self.clock == "wall" or code != 0:
+            self.stop_all()  # stops their recording; they keep the bag open for the verdict
+        deadline = time.monotonic() + HELPER_WAIT_S
+        while not all(c.recorded or c.proc.poll() is not None for c in helpers) and time.monotonic() < deadline:
+            self._wake.clear()
+            self._wake.wait(POLL_S)
+        late = [c for c in helpers if not c.recorded and c.proc.poll() is None]
+        if late and code == 0:  # its bag is not the whole run yet: no verdict is drawn from it
+            self.say.error(f"{late[0].name!r} did not finish recording within {HELPER_WAIT_S:.0f} s; stopping it")
+            code = 1
+        verdict = json.dumps(self.judge(code)) + "\n"
+        deadline = time.monotonic() + HELPER_WAIT_S  # the judge may have read a long bag meanwhile
+        for c in helpers:
+            if c.recorded and c.proc.poll() is None:
+                try:
+                    c.proc.stdin.write(verdict)
+                except OSError:
+                    pass
+            self._close_stdin(c)
+            exit_code = self._exited(c, deadline, HELPER_WAIT_S)
+            if exit_code is None:
+                return 1
+            if exit_code != 0 and code == 0:
+                return self._died(c, exit_code)
+        return code
+
+    @staticmethod
+    def _close_stdin(child: _Child) -> None:
+        try:
+            if child.proc.stdin is not None:
+                child.proc.stdin.close()
+        except OSError:  # it exited: nothing to tell it
+            pass
 
     def _died(self, child: _Child, code: int) -> int:
         how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -141,6 +142,7 @@ class Scene:
     nodes: list[NodeSpec] = field(default_factory=list)
     skipped: list[Skipped] = field(default_factory=list)
     lets: dict[str, Any] = field(default_factory=dict)
+    texts: dict[str, str] = field(default_factory=dict)  # absolute path -> text of every launch file read
 
     @property
     def dt(self) -> float:
@@ -192,7 +194,9 @@ def load(path: str | Path | None, overrides: dict[str, Any] | None = None) -> Sc
     if path is None:
         raise LaunchError("give a launch file, e.g. hil.yaml (a shipped scene) or a path to your own")
     path = find_shipped(path)
-    scene = _load(path, overrides or {}, from_cli=True, stack=(), budget=_Budget())
+    budget = _Budget()
+    scene = _load(path, overrides or {}, from_cli=True, stack=(), budget=budget)
+    scene.texts = budget.texts
     if not scene.nodes:
         raise LaunchError(f"{path}: no node to start after conditions; check the file's `nodes:` and `if:`")
     return scene
@@ -205,6 +209,7 @@ class _Budget:
     files: int = 0
     nodes: int = 0
     text: int = 0  # characters built by substitution inside longer strings
+    texts: dict[str, str] = field(default_factory=dict)  # what a bag records to rebuild the scene
 
 
 def _read_yaml(path: Path, budget: _Budget, included_from: Path | None = None) -> tuple[dict, Any]:
@@ -222,6 +227,7 @@ def _read_yaml(path: Path, budget: _Budget, included_from: Path | None = None) -
         if len(raw) > boundedyaml.MAX_BYTES:
             raise LaunchError(f"{path}: larger than {boundedyaml.MAX_BYTES} bytes; a launch file is a page or two")
         text = raw.decode("utf-8")
+        budget.texts[os.path.abspath(path)] = text
     except UnicodeDecodeError:
         raise LaunchError(_not_launch_file(path, included_from, "not UTF-8 text")) from None
     except OSError as exc:
