@@ -35,7 +35,7 @@ from dockhil import log
 from dockhil.errors import LaunchError
 from dockhil.runtime.executor import TIMING, PortWire, RunSpec
 from dockhil.runtime.process import READY
-from dockhil.runtime.registry import KEY_FILE, registry_dir
+from dockhil.runtime.registry import KEY_FILE, describe_nodes, describe_subscribers, registry_dir
 from dockhil.runtime.transport import GraphKeys, ipc_endpoint, new_run_dir
 
 if TYPE_CHECKING:  # the graph module loads the launch-file parser (yaml): a recorder or `dockhil topic` needs neither
@@ -397,6 +397,7 @@ class Launcher:
 
     def _write_registry(self) -> Path:
         path = registry_dir() / f"{self.endpoints.run_id}.json"
+        readers = describe_subscribers(self.graph, self.extra)
         info = {
             "run_id": self.endpoints.run_id,
             "pid": os.getpid(),
@@ -407,7 +408,9 @@ class Launcher:
                                "pid": c.proc.pid if c.proc else None, "members": self.units.get(c.name, [c.name])}
                       for c in self.children},
             "topics": {t: {"type": self.endpoints.types[t], "endpoint": e,
-                           "publisher": self.graph.publishers[t].node} for t, e in self.endpoints.topics.items()},
+                           "publisher": self.graph.publishers[t].node, "subscribers": readers.get(t, [])}
+                       for t, e in self.endpoints.topics.items()},
+            "graph_nodes": describe_nodes(self.graph, self.units),  # each node's ports and parameters
             # Inputs with no publisher at launch (an e-stop): nothing started later reaches them.
             "unconnected": {t: [f"{r.node}.{r.port}" for r in self.graph.unconnected if r.topic == t]
                             for t in {r.topic for r in self.graph.unconnected}},

@@ -5,6 +5,7 @@ topics, its key file) for the observers (`dockhil topic`, `node list`, `run`, `b
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -37,4 +38,42 @@ def running_graphs() -> list[dict]:
         except (OSError, ValueError, KeyError):
             continue
         out.append(info)
+    return out
+
+
+def describe_nodes(graph, units: dict[str, list[str]]) -> dict[str, dict]:
+    """Each node of a built graph as `dockhil node info` shows it: its type, host, process (its own,
+    or the container it shares), parameters as resolved, and its ports with topic, message type,
+    lag and maximum age (wall time; inf: none)."""
+    from dockhil import msgs
+
+    process = {m: u for u, members in units.items() for m in members}
+    dt = graph.scene.dt
+    out = {}
+    for name, gn in graph.nodes.items():
+        declared, _ = gn.cls.ports(gn.params)
+        inputs = {}
+        for port, ref in gn.inputs.items():
+            decl = declared.get(port)
+            max_age = ref.max_age if ref.max_age is not None else decl.age_limit(dt) if decl else None
+            pub = graph.publishers.get(ref.topic)
+            if pub is not None and graph.nodes[pub.node].respawn:  # the launcher lifts the limit there
+                max_age = math.inf
+            inputs[port] = {"topic": ref.topic, "type": msgs.type_name(ref.type), "lag": ref.lag,
+                            "delay": decl.delay if decl else 0.0, "required": ref.required,
+                            "max_age": None if max_age is None else float(max_age)}
+        out[name] = {"type": gn.type_name, "host": gn.host or "localhost", "process": process.get(name, name),
+                     "params": json.loads(json.dumps(gn.params, default=str)),  # as JSON holds them
+                     "inputs": inputs,
+                     "outputs": {port: {"topic": ref.topic, "type": msgs.type_name(ref.type)}
+                                 for port, ref in gn.outputs.items()}}
+    return out
+
+
+def describe_subscribers(graph, extra=()) -> dict[str, list[str]]:
+    """Topic -> what reads it: `node.port` for each input, and each helper process (a recorder) by name."""
+    out = {topic: [f"{ref.node}.{ref.port}" for ref in refs] for topic, refs in graph.subscribers.items()}
+    for proc in extra:
+        for topic in proc.topics:
+            out.setdefault(topic, []).append(proc.name)
     return out
