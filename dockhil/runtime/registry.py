@@ -44,7 +44,7 @@ def running_graphs() -> list[dict]:
 def describe_nodes(graph, units: dict[str, list[str]]) -> dict[str, dict]:
     """Each node of a built graph as `dockhil node info` shows it: its type, host, process (its own,
     or the container it shares), parameters as resolved, and its ports with topic, message type,
-    lag and maximum age (wall time; inf: none)."""
+    lag and maximum age (wall time; None: no limit)."""
     from dockhil import msgs
 
     process = {m: u for u, members in units.items() for m in members}
@@ -61,7 +61,7 @@ def describe_nodes(graph, units: dict[str, list[str]]) -> dict[str, dict]:
                 max_age = math.inf
             inputs[port] = {"topic": ref.topic, "type": msgs.type_name(ref.type), "lag": ref.lag,
                             "delay": decl.delay if decl else 0.0, "required": ref.required,
-                            "max_age": None if max_age is None else float(max_age)}
+                            "max_age": None if max_age is None or math.isinf(max_age) else float(max_age)}
         out[name] = {"type": gn.type_name, "host": gn.host or "localhost", "process": process.get(name, name),
                      "params": json.loads(json.dumps(gn.params, default=str)),  # as JSON holds them
                      "inputs": inputs,
