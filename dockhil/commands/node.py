@@ -76,16 +76,16 @@ def _info(name: str, graphs: list[dict], as_json: bool) -> int:
     print(f"Graph: {g['run_id']} ({g['file']}, {g['clock']} time)")
     print(f"Process: {n['process']}{shared}, pid {pid if pid else '-'}, {out['state']}")
     print(f"Host: {n['host']}")
-    print("Inputs:")
+    print("Inputs:" + ("" if n["inputs"] else " none"))
     for port, i in n["inputs"].items():
         when = f"delayed {i['delay']:g} s" if i["delay"] else "feedthrough" if i["lag"] == 0 else "previous tick"
         age = "none" if i["max_age"] is None else f"{i['max_age']:g} s"
         opt = "" if i["required"] else ", optional"
         print(f"  {port}: {i['topic']}  {i['type']}  ({when}, {i['lag']} tick(s) back, max_age {age}{opt})")
-    print("Outputs:")
+    print("Outputs:" + ("" if n["outputs"] else " none"))
     for port, o in n["outputs"].items():
         print(f"  {port}: {o['topic']}  {o['type']}")
-    print("Parameters:")
+    print("Parameters:" + ("" if n["params"] else " none"))
     for pname, value in n["params"].items():
         print(f"  {pname}: {json.dumps(value)}")
     return 0

@@ -412,7 +412,8 @@ def _read(args, sub, cls, watch, out, pick=None) -> int:
         now = time.monotonic()
         if now >= next_report:
             stats = period_stats(arrivals) if new else None
-            out.put(format_stats(stats, sub.lost) if stats else f"{args.topic}: no new messages")
+            idle = f"{args.topic}: no new messages" if not new else f"{args.topic}: one message so far"
+            out.put(format_stats(stats, sub.lost) if stats else idle)
             reports += 1
             new = 0
             next_report = now + args.every
