@@ -207,3 +207,22 @@ def test_refusals_before_anything_runs():
     for args in (("topic", "hz", "/x", "--window", "1"), ("topic", "info", "/x", "--window", "-1")):
         r = subprocess.run(dockhil_cmd(*args), capture_output=True, text=True)
         assert r.returncode == 2 and "--window" in r.stderr, r.stderr
+
+
+@pytest.mark.wall_time
+def test_node_info_follows_a_respawned_node_to_its_new_pid(write_launch, capsys):
+    from tests.test_introspection import start, stop as stop_graph
+
+    p, lines, _ = start(write_launch, respawn=True, die_at=20)
+    try:
+        first = registered(p.pid, timeout=60)["nodes"]["gain"]["pid"]
+        lines.wait_for("[launch] node 'gain' exited with code 3; respawning in 0.2 s", count=2)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:  # the registry names the newest process once it started
+            node = json.loads(dockhil(capsys, "node", "info", "gain", "--json").stdout)
+            if node["pid"] != first:
+                break
+            time.sleep(0.1)
+        assert node["pid"] != first and node["params"]["die_at"] == 20
+    finally:
+        stop_graph(p, lines)

@@ -336,6 +336,7 @@ class Launcher:
         self._stop_signal: int | None = None
         self.children: list[_Child] = []
         self.timings: dict[str, dict] = {}  # wall time: each node's loop figures, reported as it exits
+        self._registered = False  # the registry entry is written (a respawn rewrites it)
         for name, spec in self.specs.items():
             argv = [sys.executable, "-m", "dockhil.process", msgspec.json.encode(spec).decode()]
             gn = graph.nodes[self.units[name][0]]  # a container's members are local and not respawned
@@ -380,6 +381,8 @@ class Launcher:
         child.reader = threading.Thread(target=self._read, args=(child, child.proc), daemon=True)
         child.reader.start()
         self.say.debug(f"started {child.name!r} (pid {child.proc.pid})")
+        if self._registered:  # a respawned node: its new pid for `node list` and `node info`
+            self._write_registry()
 
     def _announce_remote(self, child: _Child) -> None:
         """A node on another machine: say how to start it there. Sim time waits for it as for any
@@ -418,6 +421,7 @@ class Launcher:
         tmp = path.with_suffix(".tmp")
         tmp.write_text(json.dumps(info, indent=1))
         tmp.replace(path)
+        self._registered = True
         return path
 
     def devices(self) -> dict[str, bool]:
