@@ -169,6 +169,7 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
                   collector, reasons: list[str], bridge=None) -> int:
     from dockhil.runtime.composed import ComposedGraph
     from dockhil.runtime.executor import Stop
+    from dockhil.runtime.registry import register_composed
     from dockhil.progress import Progress
 
     stop = Stop()
@@ -186,6 +187,7 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
         g.taps.append(bridge.tap)
     bar = Progress(n_ticks, graph.scene.dt) if progress and clock == "sim" else None
     failed = False
+    entry = register_composed(graph, clock)  # for `dockhil node list` and `node info`
     try:
         g.setup()
         g.run(n_ticks, wall=clock == "wall", stop=stop, progress=bar.update if bar else None)
@@ -201,6 +203,8 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
         finally:
             if recorder is not None:
                 recorder.close()
+            if entry is not None:
+                entry.unlink(missing_ok=True)
     if failed:
         return 1
     if stop.requested:

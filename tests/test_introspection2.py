@@ -226,3 +226,24 @@ def test_node_info_follows_a_respawned_node_to_its_new_pid(write_launch, capsys)
         assert node["pid"] != first and node["params"]["die_at"] == 20
     finally:
         stop_graph(p, lines)
+
+
+@pytest.mark.wall_time
+def test_a_composed_graph_is_listed_and_its_nodes_described(write_launch, capsys):
+    p = subprocess.Popen(dockhil_cmd("launch", write_launch(SCENE.replace("container: box, ", "")), "--wall-time",
+                                     "--composed"), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines = Lines(p)
+    try:
+        entry = registered(p.pid, timeout=60)
+        assert entry["topics"] == {}  # nothing to observe: its nodes pass messages in one process
+        node = json.loads(dockhil(capsys, "node", "info", "gain", "--json").stdout)
+        assert node["process"] == "composed" and node["pid"] == p.pid and node["state"] == "running"
+        assert node["params"]["gain"] == 3.5 and node["inputs"]["x"]["topic"] == "/x"
+        listed = dockhil(capsys, "node", "list").stdout
+        assert f"composed  composed  pid {p.pid}  running" in listed
+    finally:
+        stop(p)
+        lines.rest(timeout=30)
+    from dockhil.runtime.registry import registry_dir
+
+    assert list(registry_dir().glob("*.json")) == []  # the entry goes with the run

@@ -23,7 +23,6 @@ import subprocess
 import sys
 import threading
 import time
-import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -35,7 +34,7 @@ from dockhil import log
 from dockhil.errors import LaunchError
 from dockhil.runtime.executor import TIMING, PortWire, RunSpec
 from dockhil.runtime.process import READY
-from dockhil.runtime.registry import KEY_FILE, describe_nodes, describe_subscribers, registry_dir
+from dockhil.runtime.registry import KEY_FILE, describe_nodes, describe_subscribers, new_run_id, write_entry
 from dockhil.runtime.transport import GraphKeys, ipc_endpoint, new_run_dir
 
 if TYPE_CHECKING:  # the graph module loads the launch-file parser (yaml): a recorder or `dockhil topic` needs neither
@@ -118,7 +117,7 @@ def assign_endpoints(graph: Graph, transport: str = "ipc", advertise: str | None
     publisher binds only the interface the others reach it by, its host: the node's `host`, or
     for nodes started here `advertise` (default: this machine's name, 127.0.0.1 if all is local).
     Every endpoint speaks CURVE with keys made here for this graph alone."""
-    run_id = time.strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:6]
+    run_id = new_run_id()
     remote = any(not is_local(gn.host) for gn in graph.nodes.values())
     here = advertise or (socket.gethostname() if remote else "127.0.0.1")
     topics, binds = {}, {}
@@ -399,7 +398,6 @@ class Launcher:
                          tag="")
 
     def _write_registry(self) -> Path:
-        path = registry_dir() / f"{self.endpoints.run_id}.json"
         readers = describe_subscribers(self.graph, self.extra)
         info = {
             "run_id": self.endpoints.run_id,
@@ -418,9 +416,7 @@ class Launcher:
             "unconnected": {t: [f"{r.node}.{r.port}" for r in self.graph.unconnected if r.topic == t]
                             for t in {r.topic for r in self.graph.unconnected}},
         }
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(info, indent=1))
-        tmp.replace(path)
+        path = write_entry(info)
         self._registered = True
         return path
 

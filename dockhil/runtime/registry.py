@@ -7,16 +7,48 @@ from __future__ import annotations
 import json
 import math
 import os
+import time
+import uuid
 from pathlib import Path
 
-from dockhil.errors import LaunchError
+from dockhil.errors import DockhilError, LaunchError
 from dockhil.runtime.transport import GraphKeys, private_dir, runtime_dir
 
 KEY_FILE = "graph.keys"  # a graph's CURVE keys, in its run directory
+COMPOSED = "composed"  # the process of a graph run --composed, as its entry names it
 
 
 def registry_dir() -> Path:
     return private_dir(runtime_dir() / "graphs", "registry directory")
+
+
+def new_run_id() -> str:
+    """A run's id: when it started, and six hex digits so two started in the same second differ."""
+    return time.strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:6]
+
+
+def write_entry(info: dict) -> Path:
+    """Write (or rewrite, whole) a graph's entry; its path. Readers never see half of one."""
+    path = registry_dir() / f"{info['run_id']}.json"
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(info, indent=1))
+    tmp.replace(path)
+    return path
+
+
+def register_composed(graph, clock: str) -> Path | None:
+    """The entry of a graph run --composed in this process, for `node list` and `node info`: its
+    nodes, all in one process (this one). No topics: its nodes hand messages to each other here,
+    with no socket an observer could read. None if it cannot be written: the run needs no entry."""
+    pid = os.getpid()
+    try:
+        return write_entry({
+            "run_id": new_run_id(), "pid": pid, "file": graph.scene.path, "clock": clock, "keys": "",
+            "nodes": {COMPOSED: {"type": "composed", "pid": pid, "members": list(graph.order)}},
+            "topics": {}, "graph_nodes": describe_nodes(graph, {COMPOSED: list(graph.order)}), "unconnected": {},
+        })
+    except (DockhilError, OSError):
+        return None
 
 
 def graph_keys(info: dict) -> GraphKeys:
