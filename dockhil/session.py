@@ -231,6 +231,7 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
     from the first tick to the end of the last [s]."""
     from dockhil.runtime.composed import ComposedGraph
     from dockhil.runtime.executor import Stop
+    from dockhil.runtime.registry import register_composed
     from dockhil.progress import Progress
 
     stop = Stop()
@@ -244,6 +245,7 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
         g.taps.append(bridge.tap)
     bar = Progress(n_ticks, graph.scene.dt) if progress and clock == "sim" else None
     failed = False
+    entry = register_composed(graph, clock)  # for `dockhil node list` and `node info`
     try:
         g.setup()
         first_tick = time.perf_counter()
@@ -262,6 +264,8 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
         finally:
             if recorder is not None:
                 recorder.flush()
+            if entry is not None:
+                entry.unlink(missing_ok=True)
     if failed:
         return 1
     if stop.requested:

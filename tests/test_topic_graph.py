@@ -77,12 +77,12 @@ def test_graph_is_chosen_refused_when_ambiguous_and_its_end_is_said(tmp_path, ca
         # Echo on A and hz on B, without a count: each ends, exit 0, when its own graph ends.
         echo = subprocess.Popen(dockhil_cmd("topic", "echo", "/satellite/state", "--graph", ida),
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        hz = subprocess.Popen(dockhil_cmd("topic", "hz", "/satellite/state", "--graph", idb, "--window", "0.5"),
+        hz = subprocess.Popen(dockhil_cmd("topic", "hz", "/satellite/state", "--graph", idb, "--every", "0.5"),
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         watchers = [echo, hz]
         echoed, rates = Lines(echo), Lines(hz)
         assert chaser_mass(echoed.wait_for("{", timeout=30).splitlines()[0]) == 700.0
-        rates.wait_for("Hz over", timeout=30)
+        rates.wait_for("average rate: ", timeout=30)
 
         stop(a)
         echoed.rest(timeout=30)
@@ -90,7 +90,7 @@ def test_graph_is_chosen_refused_when_ambiguous_and_its_end_is_said(tmp_path, ca
         assert echo.returncode == 0 and err.strip().splitlines()[-1] == f"[topic] graph {ida} ended", err
         # B runs on, so does its watcher: three more reports of 0.5 s after A ended, while it looks
         # at the registry every ALIVE_CHECK_S (0.5 s).
-        rates.wait_for("Hz over", count=sum("Hz over" in line for line in rates.lines) + 3, timeout=30)
+        rates.wait_for("average rate: ", count=sum("average rate: " in line for line in rates.lines) + 3, timeout=30)
         assert hz.poll() is None
 
         stop(b)

@@ -24,7 +24,6 @@ import subprocess
 import sys
 import threading
 import time
-import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -36,7 +35,7 @@ from dockhil import log
 from dockhil.errors import LaunchError
 from dockhil.runtime.executor import TIMING, PortWire, RunSpec
 from dockhil.runtime.process import READY
-from dockhil.runtime.registry import KEY_FILE, registry_dir
+from dockhil.runtime.registry import KEY_FILE, describe_nodes, describe_subscribers, new_run_id, write_entry
 from dockhil.runtime.transport import GraphKeys, ipc_endpoint, new_run_dir
 
 if TYPE_CHECKING:  # the graph module loads the launch-file parser (yaml): a recorder or `dockhil topic` needs neither
@@ -126,7 +125,7 @@ def assign_endpoints(graph: Graph, transport: str = "ipc", advertise: str | None
     publisher binds only the interface the others reach it by, its host: the node's `host`, or
     for nodes started here `advertise` (default: this machine's name, 127.0.0.1 if all is local).
     Every endpoint speaks CURVE with keys made here for this graph alone."""
-    run_id = time.strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:6]
+    run_id = new_run_id()
     remote = any(not is_local(gn.host) for gn in graph.nodes.values())
     here = advertise or (socket.gethostname() if remote else "127.0.0.1")
     topics, binds = {}, {}
@@ -353,6 +352,7 @@ class Launcher:
         self._stop_signal: int | None = None
         self.children: list[_Child] = []
         self.timings: dict[str, dict] = {}  # wall time: each node's loop figures, reported as it exits
+        self._registered = False  # the registry entry is written (a respawn rewrites it)
         for name, spec in self.specs.items():
             argv = [sys.executable, "-m", "dockhil.process", msgspec.json.encode(spec).decode()]
             gn = graph.nodes[self.units[name][0]]  # a container's members are local and not respawned
@@ -399,6 +399,8 @@ class Launcher:
         child.reader = threading.Thread(target=self._read, args=(child, child.proc), daemon=True)
         child.reader.start()
         self.say.debug(f"started {child.name!r} (pid {child.proc.pid})")
+        if self._registered:  # a respawned node: its new pid for `node list` and `node info`
+            self._write_registry()
 
     def _announce_remote(self, child: _Child) -> None:
         """A node on another machine: say how to start it there. Sim time waits for it as for any
@@ -415,10 +417,10 @@ class Launcher:
                          tag="")
 
     def _write_registry(self) -> Path:
-        path = registry_dir() / f"{self.endpoints.run_id}.json"
         from dockhil.scene.provenance import run_fields, scene_texts
 
         scene = self.graph.scene
+        readers = describe_subscribers(self.graph, self.extra)
         info = {
             # What a recorder writes first in its bag (dockhil.bags.runinfo), for the launch's and any other.
             "run": run_fields(scene, clock=self.clock, duration=self.duration, started_ns=self.started_ns,
@@ -433,14 +435,15 @@ class Launcher:
                                "pid": c.proc.pid if c.proc else None, "members": self.units.get(c.name, [c.name])}
                       for c in self.children},
             "topics": {t: {"type": self.endpoints.types[t], "endpoint": e,
-                           "publisher": self.graph.publishers[t].node} for t, e in self.endpoints.topics.items()},
+                           "publisher": self.graph.publishers[t].node, "subscribers": readers.get(t, [])}
+                       for t, e in self.endpoints.topics.items()},
+            "graph_nodes": describe_nodes(self.graph, self.units),  # each node's ports and parameters
             # Inputs with no publisher at launch (an e-stop): nothing started later reaches them.
             "unconnected": {t: [f"{r.node}.{r.port}" for r in self.graph.unconnected if r.topic == t]
                             for t in {r.topic for r in self.graph.unconnected}},
         }
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(info, indent=1))
-        tmp.replace(path)
+        path = write_entry(info)
+        self._registered = True
         return path
 
     def devices(self) -> dict[str, bool]:
