@@ -33,12 +33,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dockhil.errors import DockhilError
+
 GRID_S = 1e-4  # simulation step of the servo model [s]: a tenth of the device cycle
 MAX_DELAY_S = 0.5
 MAX_LAG_S = 0.5
 
 
-class CalibrationError(ValueError):
+class CalibrationError(DockhilError):
     """The data do not allow the identification; the message says what was missing."""
 
 
@@ -142,13 +144,14 @@ class _ServoModel:
         self.t = np.arange(self.t_cmd[0], self.t_state[-1] + grid, grid)
         self.x0 = float(self.x_state[0])
         self.keep = self.t_state >= self.t_cmd[0]
+        idx = np.searchsorted(self.t_cmd, self.t, side="right") - 1
+        self.u = self.x_cmd[np.clip(idx, 0, None)]  # the held command on the grid
 
     def response(self, delay: float, lag: float, order: int = 1) -> np.ndarray:
         from scipy.signal import lfilter
 
-        idx = np.searchsorted(self.t_cmd, self.t - delay, side="right") - 1
-        u = np.where(idx >= 0, self.x_cmd[np.clip(idx, 0, None)], self.x0)
-        y = u
+        # Shifted by interpolation on the grid, so the response is continuous in the delay (a fit needs that).
+        y = np.interp(self.t - delay, self.t, self.u, left=self.x0)
         if lag > 0.0:
             a = math.exp(-self.grid / lag)
             for _ in range(order):
@@ -196,7 +199,7 @@ def servo(t_cmd, x_cmd, t_state, x_state, max_delay: float = MAX_DELAY_S, max_la
             lag = min(share * total, max_lag) / order
             start = [max(total - order * lag, 0.0), lag]
             fit = least_squares(model.residual, x0=start, args=(order,), bounds=([0.0, 0.0], [max_delay, max_lag]),
-                                diff_step=[1e-3, 1e-3], x_scale=[0.01, 0.01])
+                                diff_step=[1e-2, 1e-2], x_scale=[0.01, 0.01])
             if best is None or fit.cost < best.cost:
                 best = fit
         fits[order] = best
@@ -231,11 +234,16 @@ def _servo_jacobian(model: _ServoModel, delay: float, lag: float) -> np.ndarray:
 
 
 def _contact_lsq(t_f, f, t_x, x, v, ft_delay: float):
+    """(k, b, c) of f = k x + b v + c, its residual and design matrix; b is 0 (and its column zero) where
+    the velocity read back never changed (the damping is then not in the data)."""
     xi = np.interp(t_f - ft_delay, t_x, x)
     vi = np.interp(t_f - ft_delay, t_x, v)
-    a = np.column_stack([xi, vi, np.ones_like(xi)])
+    moving = np.ptp(vi) > 0.0
+    a = np.column_stack([xi, vi, np.ones_like(xi)] if moving else [xi, np.ones_like(xi)])
     coef, *_ = np.linalg.lstsq(a, f, rcond=None)
     residual = a @ coef - f
+    if not moving:
+        coef, a = np.array([coef[0], 0.0, coef[1]]), np.column_stack([xi, vi, np.ones_like(xi)])
     return coef, residual, a
 
 
@@ -275,12 +283,17 @@ def contact(t_f, force, t_x, x, v, noise: float, max_ft_delay: float = 0.03) -> 
     if not k > 0.0:
         raise CalibrationError(f"the press gives a stiffness of {k:.4g} N/m: the force did not rise with the "
                                f"penetration")
-    cov = _covariance(a, residual, 3)
+    if np.any(a[:, 1]):
+        cov = _covariance(a, residual, 3)
+    else:  # no velocity, no damping in the data: b stays 0, its uncertainty unknown
+        sub = _covariance(a[:, [0, 2]], residual, 2)
+        cov = np.array([[sub[0, 0], 0.0, sub[0, 1]], [0.0, math.inf, 0.0], [sub[1, 0], 0.0, sub[1, 1]]])
     sk, sb = (math.sqrt(max(cov[j, j], 0.0)) for j in (0, 1))
     surface = -c / k
     # s = -c / k: first-order propagation with the covariance of k and c
-    grad = np.array([c / k ** 2, 0.0, -1.0 / k])
-    ss = math.sqrt(max(float(grad @ cov @ grad), 0.0))
+    kc = cov[np.ix_([0, 2], [0, 2])]
+    grad = np.array([c / k ** 2, -1.0 / k])
+    ss = math.sqrt(max(float(grad @ kc @ grad), 0.0))
     return Contact(k, b, surface, sk, sb, ss, ft_delay, ft_sigma, float(np.sqrt(np.mean(residual ** 2))), n, peak)
 
 
@@ -367,3 +380,44 @@ def check(cal: Calibration) -> None:
             raise CalibrationError(f"the {what} fit is no measurement: {value:.4g} +- {sigma:.3g} (the uncertainty "
                                    f"is larger than the value); repeat the identification with the probe free at "
                                    f"rest and the robot following")
+
+
+def recording(messages) -> Recording:
+    """A Recording from (topic, message) pairs of an identification run (a bag's, decoded), timed by
+    their header stamps (each the publishing node's tick)."""
+    cmd, state, ft, phases = [], [], [], []
+    for topic, msg in messages:
+        stamp = msg.header.stamp
+        if topic == "/robot/command":
+            cmd.append((stamp, msg.pose.position.x))
+        elif topic == "/robot/state":
+            state.append((stamp, msg.pose.position.x, msg.twist.linear.x))
+        elif topic == "/ft/wrench":
+            f, t = msg.wrench.force, msg.wrench.torque
+            ft.append((stamp, f.x, f.y, f.z, t.x, t.y, t.z))
+        elif topic == "/calibration/phase":
+            phases.append((stamp, msg.state))
+    if not phases:
+        raise CalibrationError("no /calibration/phase messages: this is not a recording of an identification run "
+                               "(dockhil calibrate records one with --bag-out)")
+    for what, rows in (("/robot/command", cmd), ("/robot/state", state), ("/ft/wrench", ft)):
+        if not rows:
+            raise CalibrationError(f"no {what} messages in the identification run")
+    c, s, w = (np.array(sorted(rows), dtype=float) for rows in (cmd, state, ft))
+    return Recording(c[:, 0], c[:, 1], s[:, 0], s[:, 1], s[:, 2], w[:, 0], w[:, 1:4], w[:, 4:7], sorted(phases))
+
+
+def verdict(cal: Calibration, m: float, kcs: float, bcs: float) -> dict:
+    """The stability of the identified loop for a scene's reduced mass m, kcs and bcs: the exact bound of
+    m s^2 + (K + b s) e^(-sh) = 0 with h = delay + lag (a lag tau counts as delay: 1 / (1 + tau s) and
+    e^(-s tau) agree to first order, and the crossing frequency is low, omega tau << 1)."""
+    from dockhil.contact.stability import exact_bound
+
+    h = cal.servo.delay_s + cal.servo.lag_s
+    bound = exact_bound(m, bcs, h)
+    k_max = bound.k_max
+    stable = k_max is not None and kcs < k_max
+    return {"m_kg": m, "kcs_N_per_m": kcs, "bcs_Ns_per_m": bcs, "h_s": h,
+            "kcs_max_N_per_m": None if k_max is None or math.isinf(k_max) else k_max,
+            "margin": None if k_max is None or math.isinf(k_max) else k_max / kcs,
+            "stable": bool(stable), "reason": bound.reason}
