@@ -48,9 +48,12 @@ def chirp_position(t: float, amplitude: float, speed: float, f0: float, f1: floa
 class Identification(Node):
     """Scripted identification profile for dockhil calibrate: rest, steps, chirp, press and release."""
 
+    # The profile runs open loop but for finding the surface; the drivers' own watchdogs (ft_timeout,
+    # stale_timeout, stall_timeout) guard the robot, so a busy machine's late message need not stop the run.
     inputs = {
-        "state": Input(RobotState, "/robot/state", feedthrough=False, help="actual pose read back"),
-        "wrench": Input(WrenchStamped, "/ft/wrench", feedthrough=False, help="measured wrench, untared"),
+        "state": Input(RobotState, "/robot/state", feedthrough=False, max_age=0.5, help="actual pose read back"),
+        "wrench": Input(WrenchStamped, "/ft/wrench", feedthrough=False, max_age=0.5,
+                        help="measured wrench, untared"),
     }
     outputs = {
         "command": Output(RobotCommand, "/robot/command", help="setpoint of the profile"),
@@ -96,6 +99,7 @@ class Identification(Node):
         self.x_contact: float | None = None
         self.x_deepest = 0.0
         self._announce: str | None = None
+        self._last_t: float | None = None
 
     @staticmethod
     def duration(params: dict) -> float:
@@ -115,7 +119,7 @@ class Identification(Node):
         """Move the setpoint toward target at speed; True once there."""
         step = speed * dt
         if abs(target - self.x) <= step:
-            self.v = (target - self.x) / dt if dt > 0 else 0.0
+            self.v = (target - self.x) / dt if dt > 0 else 0.0  # at most speed: the step was within reach
             self.x = target
             return True
         self.v = math.copysign(speed, target - self.x)
@@ -126,7 +130,11 @@ class Identification(Node):
         state, wrench = inputs.get("state"), inputs.get("wrench")
         if state is None or wrench is None:
             return {}  # the driver holds until the first command; the profile starts from the pose read
-        p, t, dt = self.p, tick.t, tick.dt
+        p, t = self.p, tick.t
+        # The time since the previous tick, not the nominal step: in wall time a late tick moves the
+        # setpoint by what the speed allows over the time that really passed, and says that speed.
+        dt = min(max(t - self._last_t, 0.0), 10.0 * tick.dt) if self._last_t is not None else tick.dt
+        self._last_t = t
         fx = wrench.wrench.force.x
         if self.x0 is None:
             self.x0 = self.x = state.pose.position.x
@@ -158,9 +166,9 @@ class Identification(Node):
                 self.x = back
                 self._enter("approach", t)
             else:
-                x = back + chirp_position(elapsed, 0.5 * p.step, 0.8 * self.v_move, p.chirp_f0, p.chirp_f1, p.chirp)
-                self.v = (x - self.x) / dt if dt > 0 else 0.0
-                self.x = x
+                args = (0.5 * p.step, 0.8 * self.v_move, p.chirp_f0, p.chirp_f1, p.chirp)
+                self.x = back + chirp_position(elapsed, *args)
+                self.v = (chirp_position(elapsed + 1e-4, *args) - chirp_position(elapsed - 1e-4, *args)) / 2e-4
         elif self.phase in ("approach", "press"):
             pushing = -(fx - self.bias)
             if pushing > 0.5 * p.max_force:

@@ -73,7 +73,10 @@ def run(args) -> int:
         print(json.dumps(out))
     else:
         _print_table(out, scene.path)
-    if args.out is not None:
+    if code != 0:
+        say.error(f"the identification run fell behind real time (INVALID, exit {code}): its delays include "
+                  f"that lateness; nothing written: run it again on a quieter machine")
+    elif args.out is not None:
         _write_loop(args.out, out, scene.path)
         say.info(f"loop written to {args.out} (a scene takes it as loop:={args.out})")
     return code
@@ -93,11 +96,9 @@ def _identify(bag: str):
 
     if not os.path.isfile(bag):
         raise LaunchError(f"--bag {bag}: no such file")
-    topics = ("/robot/command", "/robot/state", "/ft/wrench", "/calibration/phase")
-    with BagReader(bag) as reader:
-        rec = calibration.recording((topic, msg) for topic, _t, msg in reader.decoded(
-            [t for t in topics if t in reader.topics]))
     try:
+        with BagReader(bag) as reader:
+            rec = calibration.recording((topic, msg) for topic, _t, msg in reader.decoded())
         return calibration.identify(rec)
     except calibration.CalibrationError as exc:
         raise DockhilError(f"{bag}: {exc}") from None
