@@ -1,6 +1,6 @@
 """dockhil calibrate against emulators with hidden truths: prints one JSON line.
 
-    python3 bench/calibrate.py [--draws 20] [--seed 0]
+    python3 bench/calibrate.py [--draws 20] [--seed 0] [--no-realtime]
 
 Each draw hides a delay (16-120 ms), a lag (0-20 ms), a stiffness (1000 N/m +-30 %), a damping
 (0-50 N s/m), a surface (0-20 mm ahead), a noise (0-0.5 N) and a bias (|F| up to 5 N, and a torque)
@@ -78,25 +78,29 @@ def rig(folder: str, truth: dict, port: int) -> str:
 BUSY = ("ft_timeout: no F/T data", "stale data: no new sample", "safety stop: stall:", "s old > max_age", "INVALID")
 
 
-def run(truth: dict, attempts: int = 3) -> dict:
+def run(truth: dict, realtime: bool = True, attempts: int = 3, bag_out: str | None = None) -> dict:
     """One calibration against emulators hiding `truth`, tried up to `attempts` times while a busy machine
     stops it (BUSY)."""
     for attempt in range(1, attempts + 1):
-        out = run_once(truth)
+        out = run_once(truth, realtime, bag_out=bag_out)
         out["attempts"] = attempt
         if out["exit"] == 0 or not any(b in out.get("stderr_tail", "") for b in BUSY):
             break
     return out
 
 
-def run_once(truth: dict, timeout: float = 120.0) -> dict:
+def run_once(truth: dict, realtime: bool = True, timeout: float = 120.0, bag_out: str | None = None) -> dict:
     """One calibration against emulators hiding `truth`: its JSON, exit code, wall time, the emulators' maxima
-    and the errors."""
+    and the errors (bag_out: keep the run's recording there, replacing an earlier one)."""
+    if bag_out and os.path.exists(bag_out):
+        os.remove(bag_out)
     with tempfile.TemporaryDirectory(prefix="dockhil-calibrate-bench-") as folder:
         scene = rig(folder, truth, free_port())
         start = time.perf_counter()
         p = subprocess.run([sys.executable, "-m", "dockhil.cli", "calibrate", scene, "--json", "--out",
-                            os.path.join(folder, "loop.yaml")], capture_output=True, text=True, timeout=timeout)
+                            os.path.join(folder, "loop.yaml"), *(["--realtime"] if realtime else []),
+                            *(["--bag-out", bag_out] if bag_out else [])],
+                           capture_output=True, text=True, timeout=timeout)
         wall = time.perf_counter() - start
         out = {"exit": p.returncode, "wall_s": wall, "truth": truth, "written": os.path.exists(
             os.path.join(folder, "loop.yaml")), "stderr_tail": "\n".join(p.stderr.strip().splitlines()[-12:])}
@@ -137,8 +141,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--draws", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-realtime", action="store_true", help="run calibrate without --realtime")
     args = ap.parse_args()
-    rows = [run(draw(args.seed + i)) for i in range(args.draws)]
+    rows = [run(draw(args.seed + i), not args.no_realtime) for i in range(args.draws)]
     done = [r for r in rows if "errors" in r]
 
     def worst(key):

@@ -202,3 +202,83 @@ def test_the_verdict_gives_the_exact_bound_the_margin_and_the_largest_stable_kcs
     assert v["kcs_max_N_per_m"] == pytest.approx(bound)
     assert v["margin"] == pytest.approx(bound / 3000.0)
     assert v["stable"] is (3000.0 < bound)
+
+
+# -- the command: bad input, the loop file ----------------------------------------------------------------------
+
+
+def test_a_scene_without_hardware_is_refused_naming_the_arguments_to_give(tmp_path, capsys):
+    out = tmp_path / "loop.yaml"
+    assert main(["calibrate", "hil.yaml", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "robot and F/T sensor are simulated" in err and "robot:=modbus ft:=can" in err and "emulators:=true" in err
+    assert main(["calibrate", "hil.yaml", "robot:=modbus", "--out", str(out)]) == 2
+    assert "give ft:=can" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_a_bag_without_an_identification_run_is_refused_and_nothing_written(tmp_path, capsys):
+    bag, out = tmp_path / "run.mcap", tmp_path / "loop.yaml"
+    assert main(["launch", "hil.yaml", "--duration", "0.05", "--quiet", "--composed", "--bag", str(bag)]) == 0
+    capsys.readouterr()
+    assert main(["calibrate", "--bag", str(bag), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "not a recording of an identification run" in err, err
+    assert not out.exists()
+    assert main(["calibrate", "--bag", str(tmp_path / "none.mcap")]) == 2
+    assert "no such file" in capsys.readouterr().err
+
+
+def test_a_loop_file_sets_the_scene_and_the_command_line_wins(tmp_path):
+    loop = tmp_path / "loop.yaml"
+    loop.write_text("args:\n  delay: 0.0473\n  lag: 0.0081\n  k: 1012.5\n  ft_noise: 0.21\n"
+                    "tare: {\"force_N\": [0.1, 0.2, 0.3]}\n")
+    scene = launchfile.load("hil.yaml", {"loop": str(loop)})
+    assert (scene.values["delay"], scene.values["lag"], scene.values["k"], scene.values["ft_noise"]) == (
+        0.0473, 0.0081, 1012.5, 0.21)
+    scene = launchfile.load("hil.yaml", launchfile.parse_overrides([f"loop:={loop}", "delay:=0.02"]))
+    assert scene.values["delay"] == 0.02 and scene.values["k"] == 1012.5
+    six = launchfile.load("hil6.yaml", {"loop": str(loop)})  # it has no ft_noise: what it declares is set
+    assert six.values["delay"] == 0.0473 and "ft_noise" not in six.values
+
+
+@pytest.mark.parametrize("text, why", [("delay: 0.03\n", "not a loop file"), ("args:\n  delay: fast\n", "not a number"),
+                                        ("args: [1, 2]\n", "not a loop file")])
+def test_a_bad_loop_file_is_one_line(tmp_path, text, why):
+    loop = tmp_path / "loop.yaml"
+    loop.write_text(text)
+    with pytest.raises(LaunchError, match=why):
+        launchfile.load("hil.yaml", {"loop": str(loop)})
+    with pytest.raises(LaunchError, match="cannot read"):
+        launchfile.load("hil.yaml", {"loop": str(tmp_path / "missing.yaml")})
+
+
+# -- against the emulators ---------------------------------------------------------------------------------------
+
+
+@pytest.mark.wall_time
+def test_calibrate_on_emulators_finds_their_hidden_truths_within_the_limits(tmp_path):
+    """One live run (wall time, real drivers, --realtime) on emulators hiding a draw: the delay is the
+    emulator's plus the link's own latency (a few ms), the rest within its tolerance; the emulators'
+    maxima show the scene's force and speed limits were kept, and the run took under 60 s."""
+    from bench.calibrate import MAX_FORCE, MAX_SPEED, draw as bench_draw, run
+
+    truth = bench_draw(7)
+    bag = tmp_path / "run.mcap"
+    r = run(truth, bag_out=str(bag))
+    assert r["exit"] == 0, r["stderr_tail"]
+    assert r["wall_s"] < 60.0 and r["written"]
+    e = r["errors"]
+    assert 0.0 <= e["delay_ms"] < 8.0, e
+    assert abs(e["lag_ms"]) <= max(0.05 * 1e3 * truth["lag"], 1.0), e
+    assert abs(e["k_rel"]) < 0.05 and e["bias_in_noise_sd"] < 3.0, e
+    assert 0.0 < r["ft_maxima"]["max_force_N"] < 0.5 * MAX_FORCE
+    assert r["robot_maxima"]["max_speed_m_s"] < MAX_SPEED
+    # the recording gives the same loop offline
+    offline = subprocess.run([sys.executable, "-m", "dockhil.cli", "calibrate", "--bag", str(bag), "--json"],
+                             capture_output=True, text=True, timeout=120)
+    assert offline.returncode == 0, offline.stderr
+    found = json.loads(offline.stdout)
+    for key in ("delay_s", "lag_s", "k_N_per_m", "b_Ns_per_m", "bias_N", "noise_N"):
+        assert found[key] == r["found"][key], key

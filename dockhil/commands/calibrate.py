@@ -41,6 +41,8 @@ def add_arguments(p) -> None:
     p.add_argument("--bag", metavar="RUN.mcap", help="identify from this recorded run instead of running one "
                    "(the stability verdict is then for SCENE, default hil.yaml)")
     p.add_argument("--bag-out", metavar="PATH", help="keep the live run's recording here")
+    p.add_argument("--realtime", action="store_true", help="run the node loops with real-time (SCHED_FIFO) "
+                   "priority where the OS allows: a busy machine's lateness would count as delay")
 
 
 def run(args) -> int:
@@ -59,7 +61,7 @@ def run(args) -> int:
         if args.scene is None:
             raise LaunchError("give a scene with hardware (e.g. hil.yaml ft:=can robot:=modbus) or --bag RUN.mcap")
         scene = launchfile.load(args.scene, launchfile.parse_overrides(args.overrides))
-        code, cal = _live(scene, args.bag_out, say)
+        code, cal = _live(scene, args.bag_out, args.realtime, say)
         if cal is None:
             say.error(f"the identification run stopped (exit {code}; the line above says why); nothing written")
             return code
@@ -145,7 +147,7 @@ def calibration_scene(scene):
     return dataclasses.replace(scene, nodes=[*kept, ident], duration=duration)
 
 
-def _live(scene, bag_out: str | None, say):
+def _live(scene, bag_out: str | None, realtime: bool, say):
     from dockhil.graph import build
     from dockhil.session import run_scene
 
@@ -159,7 +161,7 @@ def _live(scene, bag_out: str | None, say):
     try:
         say.info(f"identification run on {scene.path}: at most {calib.duration:.0f} s; keep clear of the robot")
         code = run_scene(graph, clock="wall", duration=calib.duration, bag=bag, progress=False,
-                         show_summary=False)
+                         show_summary=False, realtime=realtime)
         if code not in (0, 3):
             return code, None
         return code, _identify(bag)
