@@ -120,9 +120,12 @@ def run_once(truth: dict, realtime: bool = True, timeout: float = 120.0, bag_out
     return out
 
 
-def errors(truth: dict, found: dict) -> dict:
+def errors(truth: dict, found: dict, link: float = 0.0) -> dict:
+    """Identified minus hidden; `link` [s]: the link's own latency (a zero-delay controller's identified
+    delay), which the *_link errors count as part of the true loop's delay."""
     m = M1 * M2 / (M1 + M2)
     true_bound = exact_bound(m, BCS, truth["delay"] + truth["lag"]).k_max
+    link_bound = exact_bound(m, BCS, truth["delay"] + link + truth["lag"]).k_max
     bias_sd = [abs(f - t) / truth["noise"] if truth["noise"] else math.inf * (abs(f - t) > 0.01)
                for f, t in zip(found["bias_N"], truth["bias"])]
     return {
@@ -134,6 +137,8 @@ def errors(truth: dict, found: dict) -> dict:
         "bias_in_noise_sd": max(bias_sd),
         "noise_rel": (found["noise_N"][0] / truth["noise"] - 1.0) if truth["noise"] else found["noise_N"][0],
         "bound_rel": found["kcs_max_N_per_m"] / true_bound - 1.0,
+        "delay_link_ms": 1e3 * (found["delay_s"] - truth["delay"] - link),
+        "bound_rel_link": found["kcs_max_N_per_m"] / link_bound - 1.0,
     }
 
 
@@ -143,8 +148,15 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-realtime", action="store_true", help="run calibrate without --realtime")
     args = ap.parse_args()
-    rows = [run(draw(args.seed + i), not args.no_realtime) for i in range(args.draws)]
+    realtime = not args.no_realtime
+    # The link's own latency: a controller without delay or lag, identified the same way.
+    zero = run({"delay": 0.0, "lag": 0.0, "k": 1000.0, "b": 0.0, "surface": 0.01, "noise": 0.1, "bias": [0.0] * 3,
+                "torque_bias": [0.0] * 3}, realtime)
+    link = zero["found"]["delay_s"] if "found" in zero else 0.0
+    rows = [run(draw(args.seed + i), realtime) for i in range(args.draws)]
     done = [r for r in rows if "errors" in r]
+    for r in done:
+        r["errors"] = errors(r["truth"], r["found"], link)
 
     def worst(key):
         return max((abs(r["errors"][key]) for r in done), default=None)
@@ -154,6 +166,10 @@ def main() -> None:
 
     print(json.dumps({
         "draws": len(rows), "identified": len(done), "exit_codes": [r["exit"] for r in rows],
+        "attempts": [r["attempts"] for r in rows], "realtime": realtime,
+        "link_latency_ms": 1e3 * link, "link_lag_ms": 1e3 * zero["found"]["lag_s"] if "found" in zero else None,
+        "delay_error_after_link_ms": {"mean": mean("delay_link_ms"), "max_abs": worst("delay_link_ms")},
+        "bound_rel_error_after_link": {"mean": mean("bound_rel_link"), "max_abs": worst("bound_rel_link")},
         "delay_error_ms": {"mean": mean("delay_ms"), "max_abs": worst("delay_ms"),
                            "min": min((r["errors"]["delay_ms"] for r in done), default=None)},
         "lag_error_ms": {"mean": mean("lag_ms"), "max_abs": worst("lag_ms")},
