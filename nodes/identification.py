@@ -142,6 +142,10 @@ class Identification(Node):
         self.v = 0.0
         back = self.x0 - p.backoff
         elapsed = t - self.phase_t
+        pushing = -(fx - self.bias)
+        if self.phase not in ("backoff", "rest") and pushing > 0.5 * p.max_force:  # a robot moving on after the press
+            raise DeviceError(f"identification: the press met {pushing:.1f} N, over half of max_force "
+                              f"{p.max_force:g} N; stopped (the robot holds)")
         if self.phase == "backoff":
             if self._move_toward(back, self.v_move, dt) and elapsed > p.backoff / self.v_move + SETTLE_S:
                 self._enter("rest", t)
@@ -170,10 +174,6 @@ class Identification(Node):
                 self.x = back + chirp_position(elapsed, *args)
                 self.v = (chirp_position(elapsed + 1e-4, *args) - chirp_position(elapsed - 1e-4, *args)) / 2e-4
         elif self.phase in ("approach", "press"):
-            pushing = -(fx - self.bias)
-            if pushing > 0.5 * p.max_force:
-                raise DeviceError(f"identification: the press met {pushing:.1f} N, over half of max_force "
-                                  f"{p.max_force:g} N; stopped (the robot holds)")
             limit = min(self.x0 + p.search + p.press_depth, p.x_max - 0.005)
             if self.phase == "approach":
                 if pushing > max(p.contact_force, 6.0 * self.noise):

@@ -5,13 +5,10 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import random
-import socket
 import subprocess
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,12 +17,11 @@ from dockhil import launchfile
 from dockhil.analysis import calibration as cal
 from dockhil.cli import main
 from dockhil.contact.stability import exact_bound
-from dockhil.errors import DeviceError, DockhilError, LaunchError
-from dockhil.msgs import RobotState, Pose, Twist, Vector3, Wrench, WrenchStamped
+from dockhil.errors import DeviceError, LaunchError
+from dockhil.msgs import Header, Pose, RobotState, Twist, Vector3, Wrench, WrenchStamped
 from dockhil.node import NodeContext, Tick
 from dockhil.nodes.identification import Identification
 
-REPO = Path(__file__).resolve().parents[1]
 M_HIL = 750.0 * 1e6 / (750.0 + 1e6)  # hil.yaml's reduced mass
 
 
@@ -111,8 +107,6 @@ def simulate(truth: Truth, seed: int = 0, max_force: float = 200.0, x_max: float
 
 
 def _header(t):
-    from dockhil.msgs import Header
-
     return Header(stamp=t)
 
 
@@ -175,6 +169,12 @@ def test_the_servo_fit_names_the_second_order_lag_when_it_fits_better():
 def test_no_contact_within_the_search_stops_with_one_line():
     with pytest.raises(DeviceError, match="no contact within search 0.03 m"):
         simulate(Truth(surface=0.2))
+
+
+def test_a_press_that_overshoots_past_half_of_max_force_stops_the_run():
+    # A very stiff surface behind a long delay: the robot moves on a delay's travel after the force is reached.
+    with pytest.raises(DeviceError, match="over half of max_force 200 N"):
+        simulate(Truth(k=60000.0, delay=0.12))
 
 
 def test_a_run_without_phases_or_without_a_press_is_refused():
