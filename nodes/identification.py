@@ -176,13 +176,14 @@ class Identification(Node):
         elif self.phase in ("approach", "press"):
             limit = min(self.x0 + p.search + p.press_depth, p.x_max - 0.005)
             if self.phase == "approach":
-                if pushing > max(p.contact_force, 6.0 * self.noise):
+                band = max(p.contact_force, 6.0 * self.noise)
+                if pushing > band:
                     self.x_contact = state.pose.position.x
                     self._enter("press", t)
                 elif self.x >= min(self.x0 + p.search, limit):
                     raise DeviceError(f"identification: no contact within search {p.search:g} m of the start pose "
-                                      f"x = {self.x0:.4f} m (the force stayed within {max(p.contact_force, 6 * self.noise):.2f} N "
-                                      f"of its rest value): start with the probe closer to the compliance")
+                                      f"x = {self.x0:.4f} m (the force stayed within {band:.2f} N of its rest "
+                                      f"value): start with the probe closer to the compliance")
             else:
                 deep = min(self.x_contact + p.press_depth, limit)
                 if pushing >= p.force_fraction * p.max_force or self.x >= deep:

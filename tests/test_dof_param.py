@@ -113,14 +113,14 @@ DYNAMICS6 = "    node: satellite_dynamics\n    params:\n      dof: 6\n"
 
 @pytest.mark.parametrize("source, old, new, line", [
     (HIL6, DYNAMICS6, DYNAMICS6.replace("dof: 6", "dof: 3"),
-     "scene.yaml:23: node 'dynamics' (satellite_dynamics): dof must be the integer 1 or 6, got 3; give dof: 1 "
+     "scene.yaml:24: node 'dynamics' (satellite_dynamics): dof must be the integer 1 or 6, got 3; give dof: 1 "
      "(along x) or dof: 6 (the 6-DOF node)"),
     (HIL6, DYNAMICS6, DYNAMICS6.replace("dof: 6", "dof: six"),
      "node 'dynamics' (satellite_dynamics): dof must be the integer 1 or 6, got 'six'; give dof: 1"),
     (HIL6, DYNAMICS6, DYNAMICS6.replace("dof: 6", "dof: 6.0"), "dof must be the integer 1 or 6, got 6.0"),
     # hil6.yaml's dynamics without its dof: the 6-DOF parameters of the 1-DOF node
     (HIL6, DYNAMICS6, DYNAMICS6.replace("      dof: 6\n", ""),
-     "scene.yaml:23: node 'dynamics' (satellite_dynamics, dof 1): unknown parameter 'attitude1', a parameter of "
+     "scene.yaml:24: node 'dynamics' (satellite_dynamics, dof 1): unknown parameter 'attitude1', a parameter of "
      "the 6-DOF node; set dof: 6 for the 6-DOF node"),
     (HIL, "v1: $(arg v1),", "v1: [0.03, 0.0, 0.0],",
      "node 'dynamics' (satellite_dynamics, dof 1): parameter 'v1' is a list [0.03, 0.0, 0.0], as the 6-DOF node "

@@ -235,8 +235,8 @@ def _write_loop(path: str, r: dict, scene: str) -> None:
     from dockhil.files import complete_or_nothing
 
     values = {"delay": r["delay_s"], "lag": r["lag_s"], "k": r["k_N_per_m"], "ft_noise": r["noise_N"][0]}
-    lines = [f"# the loop identified by dockhil calibrate on {scene}; a scene takes it as loop:={os.path.basename(path)}",
-             "# (a name:=value given on the command line wins over it)", "args:"]
+    lines = [f"# the loop identified by dockhil calibrate on {scene}",
+             f"# a scene takes it as loop:={os.path.basename(path)}; a name:=value on the command line wins", "args:"]
     lines += [f"  {name}: {values[name]!r}" for name in _LOOP_ARGS]
     lines += ["# the sensor's tare and what else was measured, with one-sigma uncertainties",
               f"tare: {json.dumps({'force_N': r['bias_N'], 'torque_Nm': r['bias_Nm']})}",
