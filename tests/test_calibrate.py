@@ -186,6 +186,16 @@ def test_a_run_without_phases_or_without_a_press_is_refused():
         cal.identify(rec)
 
 
+def test_fits_without_what_they_need_say_what_was_missing():
+    t = np.arange(0.0, 2.0, 0.001)
+    with pytest.raises(cal.CalibrationError, match="never moved the robot"):
+        cal.servo(t, np.zeros_like(t), t, np.zeros_like(t))
+    with pytest.raises(cal.CalibrationError, match="too little force"):
+        cal.contact(t, np.full_like(t, 0.3), t, np.linspace(0.0, 0.01, len(t)), np.full_like(t, 0.005), noise=0.1)
+    with pytest.raises(cal.CalibrationError, match="only 5 F/T samples at rest"):
+        cal.rest(np.zeros((5, 3)))
+
+
 def test_a_fit_whose_uncertainty_exceeds_its_value_is_no_measurement():
     rec, _f, _v = simulate(Truth())
     c = cal.identify(rec)
