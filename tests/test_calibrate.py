@@ -272,7 +272,7 @@ def test_calibrate_on_emulators_finds_their_hidden_truths_within_the_limits(tmp_
     """One live run (wall time, real drivers, --realtime) on emulators hiding a draw: the delay is the
     emulator's plus the link's own latency (a few ms), the rest within its tolerance; the emulators'
     maxima show the scene's force and speed limits were kept, and the run took under 60 s."""
-    from bench.calibrate import MAX_FORCE, MAX_SPEED, draw as bench_draw, run
+    from bench.calibrate import MAX_ACTUAL_SPEED, MAX_FORCE, draw as bench_draw, run
 
     truth = bench_draw(7)
     bag = tmp_path / "run.mcap"
@@ -284,7 +284,7 @@ def test_calibrate_on_emulators_finds_their_hidden_truths_within_the_limits(tmp_
     assert abs(e["lag_ms"]) <= max(0.05 * 1e3 * truth["lag"], 1.0), e
     assert abs(e["k_rel"]) < 0.05 and e["bias_in_noise_sd"] < 3.0, e
     assert 0.0 < r["ft_maxima"]["max_force_N"] < 0.5 * MAX_FORCE
-    assert r["robot_maxima"]["max_speed_m_s"] < MAX_SPEED
+    assert r["robot_maxima"]["max_speed_m_s"] < MAX_ACTUAL_SPEED
     # the recording gives the same loop offline
     offline = subprocess.run([sys.executable, "-m", "dockhil.cli", "calibrate", "--bag", str(bag), "--json"],
                              capture_output=True, text=True, timeout=120)
