@@ -440,7 +440,14 @@ class Launcher:
         self._stop_signal = signum
 
     def stop_all(self, grace: float = 3.0) -> None:
-        live = [c for c in self.children if c.proc and c.proc.poll() is None]
+        # Drivers before the emulated devices they talk to: a device gone first fails its driver while
+        # it stops (a closed link) and leaves its robot unheld.
+        devices = {name for name, device in self.devices().items() if device}
+        self._stop([c for c in self.children if c.name not in devices], grace)
+        self._stop([c for c in self.children if c.name in devices], grace)
+
+    def _stop(self, children: list, grace: float) -> None:
+        live = [c for c in children if c.proc and c.proc.poll() is None]
         for c in live:
             try:
                 c.proc.send_signal(signal.SIGTERM)
