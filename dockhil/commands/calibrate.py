@@ -130,14 +130,12 @@ def calibration_scene(scene):
             if "tare_samples" in cls.params:  # the bias is measured, not tared away
                 spec = dataclasses.replace(spec, params={**spec.params, "tare_samples": 0})
         kept.append(spec)
-    if robot is None or sensor is None:
-        missing = " and ".join(w for w, n in (("robot", robot), ("F/T sensor", sensor)) if n is None)
-        hint = {"robot": "robot:=modbus", "F/T sensor": "ft:=can"}
-        given = " ".join(hint[w] for w in ("robot", "F/T sensor") if (w == "robot" and robot is None)
-                         or (w == "F/T sensor" and sensor is None))
-        raise LaunchError(f"{scene.path}: the scene's {missing} {'is' if ' and ' not in missing else 'are'} "
-                          f"simulated; calibrate identifies hardware: give {given} (with emulators:=true to "
-                          f"try it on the emulators)")
+    missing = [(what, arg) for what, arg, found in (("robot", "robot:=modbus", robot),
+                                                     ("F/T sensor", "ft:=can", sensor)) if found is None]
+    if missing:
+        raise LaunchError(f"{scene.path}: the scene's {' and '.join(w for w, _ in missing)} "
+                          f"{'are' if len(missing) > 1 else 'is'} simulated; calibrate identifies hardware: give "
+                          f"{' '.join(a for _, a in missing)} (with emulators:=true to try it on the emulators)")
     if not robot.get("max_force"):
         raise LaunchError(f"{scene.path}: the robot driver's max_force is 0 (off); calibrate presses only under a "
                           f"force limit: give one")
