@@ -36,6 +36,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "figures": ("dockhil.commands.figures", "the paper's Figs. 7, 9, 10 and 11-12 recomputed, and the 6-DOF docking, as PNGs"),
     "report": ("dockhil.commands.report", "error against run time, stiff and extreme cases, lean scenes"),
     "sweep": ("dockhil.commands.sweep", "run a scene over a campaign of parameters into a Parquet table"),
+    "calibrate": ("dockhil.commands.calibrate", "identify the real loop's delay, lag, stiffness and F/T bias and noise"),
 }
 
 

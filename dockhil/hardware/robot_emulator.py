@@ -104,6 +104,8 @@ class ServoModel:
         self.fault = False
         self.heartbeat_lost = False
         self.cycles = 0
+        self.max_speed = 0.0  # m/s: the largest actual speed reported (a test checks a run kept its limits)
+        self.max_position = [-math.inf] * 3  # m: the largest actual position reached, per axis
         self.setpoint_fresh = False  # a setpoint was written since the robot last stopped
         self._last_heartbeat: int | None = None
         self._heartbeat_t: float | None = None
@@ -255,6 +257,8 @@ class ServoModel:
         if span > 0:
             self.linear = tuple((p - o) / span for p, o in zip(self.position, p_old))
             self.angular = tuple(float(w) / span for w in _rotation_between(q_old, self.orientation))
+        self.max_speed = max(self.max_speed, math.sqrt(sum(v * v for v in self.linear)))
+        self.max_position = [max(m, p) for m, p in zip(self.max_position, self.position)]
 
     def teleport(self, position, orientation=None) -> None:
         """Move the actual pose at once (tests: an encoder jump, a collision); the servo pulls it back."""

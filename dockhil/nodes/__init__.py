@@ -39,6 +39,7 @@ REGISTRY: dict[str, str] = {
     "robot_rsi": "dockhil.nodes.robot_rsi:RobotRsiDriver",
     "rsi_emulator": "dockhil.nodes.rsi_emulator:RsiControllerEmulatorNode",
     "bag_source": "dockhil.nodes.bag_source:BagSource",
+    "identification": "dockhil.nodes.identification:Identification",
     "satellite_dynamics6": "dockhil.nodes.satellite_dynamics6:SatelliteDynamics6",
     "virtual_impedance6": "dockhil.nodes.virtual_impedance6:VirtualImpedance6",
     "ft_sim6": "dockhil.nodes.ft_sim6:FtSensorSim6",

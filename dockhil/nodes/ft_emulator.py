@@ -10,6 +10,8 @@ a second slcan adapter, ...).
 
 from __future__ import annotations
 
+import json
+import math
 import random
 
 from dockhil.errors import DeviceError
@@ -19,7 +21,7 @@ from dockhil.msgs import RobotState
 
 
 class FtSensorEmulator(Node):
-    """Emulated F/T sensor on CAN: force = -k * penetration (unilateral), noise and bias."""
+    """Emulated F/T sensor on CAN: force = -(k * penetration + b * velocity), unilateral, with noise and bias."""
 
     free_running = True  # a device: it runs from power-on, the drivers' setup needs it
 
@@ -33,11 +35,21 @@ class FtSensorEmulator(Node):
                          le=1_000_000),
         **ff.frame_params(),
         "k": Param(float, 1000.0, unit="N/m", help="stiffness of the passive compliance", ge=0.0, le=1e8),
+        "b": Param(float, 0.0, unit="N s/m", help="damping of the passive compliance, on the robot's actual "
+                   "velocity (the contact still only pushes)", ge=0.0, le=1e6),
+        "surface": Param(float, 0.0, unit="m", help="x of the compliance's surface: the penetration is x - surface",
+                         ge=-1.0, le=1.0),
         "noise": Param(float, 0.0, unit="N", help="standard deviation of force noise, each axis", ge=0.0, le=1_000.0),
         "torque_noise": Param(float, 0.0, unit="N m", help="standard deviation of torque noise, each axis",
                               ge=0.0, le=100.0),
         "bias": Param(float, 0.0, unit="N", help="constant offset on Fx (the driver's tare removes it)",
                       ge=-1_000.0, le=1_000.0),
+        **{f"bias_{axis}": Param(float, 0.0, unit="N", help=f"constant offset on F{axis}", ge=-1_000.0, le=1_000.0)
+           for axis in "yz"},
+        **{f"torque_bias_{axis}": Param(float, 0.0, unit="N m", help=f"constant offset on T{axis}", ge=-100.0,
+                                        le=100.0) for axis in "xyz"},
+        "maxima": Param(str, "", help="JSON file to write at close with the largest force |F| reported and the "
+                        "largest penetration (empty: none)"),
         "seed": Param(int, 0, help="noise seed", ge=0, le=2**63 - 1),
     }
 
@@ -47,6 +59,8 @@ class FtSensorEmulator(Node):
         self.rng = random.Random(p.seed)
         self.seq = 0
         self.sent = 0
+        self.max_force = 0.0  # N: the largest |F| reported
+        self.max_penetration = 0.0  # m
         self._pty_bus = None
         self._can_bus = None
         if p.interface == "pty":
@@ -88,10 +102,15 @@ class FtSensorEmulator(Node):
     def wrench(self, state: RobotState | None) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """Force on the chaser [N] and torque [N m] for a robot pose (None: no contact)."""
         p = self.p
-        x = state.pose.position.x if state is not None else 0.0
-        fx = -p.k * x if x > 0.0 else 0.0  # unilateral: the sheet pushes, never pulls
-        force = (fx + p.bias + self._noise(p.noise), self._noise(p.noise), self._noise(p.noise))
-        torque = (self._noise(p.torque_noise), self._noise(p.torque_noise), self._noise(p.torque_noise))
+        depth = state.pose.position.x - p.surface if state is not None else 0.0
+        fx = 0.0
+        if depth > 0.0:  # unilateral: the sheet pushes, never pulls
+            fx = min(-p.k * depth - p.b * state.twist.linear.x, 0.0)
+            self.max_penetration = max(self.max_penetration, depth)
+        force = (fx + p.bias + self._noise(p.noise), p.bias_y + self._noise(p.noise), p.bias_z + self._noise(p.noise))
+        torque = (p.torque_bias_x + self._noise(p.torque_noise), p.torque_bias_y + self._noise(p.torque_noise),
+                  p.torque_bias_z + self._noise(p.torque_noise))
+        self.max_force = max(self.max_force, math.sqrt(sum(f * f for f in force)))
         return force, torque
 
     def _noise(self, sd: float) -> float:
@@ -115,6 +134,9 @@ class FtSensorEmulator(Node):
         return {}
 
     def close(self) -> None:
+        if self.p.maxima and hasattr(self, "max_force"):
+            with open(self.p.maxima, "w") as f:
+                json.dump({"max_force_N": self.max_force, "max_penetration_m": self.max_penetration}, f)
         if self._pty_bus is not None:
             self._pty_bus.stop()
             self._pty_bus = None

@@ -25,6 +25,8 @@ class RobotControllerEmulatorNode(Node):
         "cycle": Param(float, 0.001, unit="s", help="servo period", ge=1e-5, le=0.1),
         "heartbeat_timeout": Param(float, 0.2, unit="s", help="hold, and end the host's claim, when its heartbeat "
                                    "stops this long", ge=1e-3, le=10.0),
+        "maxima": Param(str, "", help="JSON file to write at close with the largest actual speed and position "
+                        "(empty: none)"),
     }
 
     def setup(self) -> None:
@@ -52,6 +54,12 @@ class RobotControllerEmulatorNode(Node):
         if emulator is not None:
             emulator.stop_thread()
             self.emulator = None
+            if self.p.maxima:
+                import json
+
+                servo = emulator.servo
+                with open(self.p.maxima, "w") as f:
+                    json.dump({"max_speed_m_s": servo.max_speed, "max_position_m": servo.max_position}, f)
             if emulator.servo.unclaimed:
                 self.log(f"warning: robot controller emulator: refused {emulator.servo.unclaimed} writes without "
                          f"a live claim")

@@ -456,8 +456,10 @@ class Launcher:
         self._stop_signal = signum
 
     def stop_all(self, grace: float = 3.0) -> None:
-        """SIGTERM every child and wait for it (then kill it). A verdict helper, while the graph runs,
-        is only told to stop recording: it waits for the verdict (`_judged`); else its stdin closes too."""
+        """SIGTERM every child and wait for it (then kill it). Drivers before the emulated devices they
+        talk to: a device gone first fails its driver while it stops (a closed link) and leaves its robot
+        unheld. A verdict helper, while the graph runs, is only told to stop recording: it waits for the
+        verdict (`_judged`); else its stdin closes too."""
         live = [c for c in self.children if c.proc and c.proc.poll() is None]
         for c in [c for c in live if c.verdict]:
             if self._sparing:
@@ -466,6 +468,11 @@ class Launcher:
                     c.proc.send_signal(signal.SIGTERM)
             else:
                 self._close_stdin(c)
+        devices = {name for name, device in self.devices().items() if device}
+        self._stop([c for c in live if c.name not in devices], grace)
+        self._stop([c for c in live if c.name in devices], grace)
+
+    def _stop(self, live: list, grace: float) -> None:
         for c in live:
             try:
                 c.proc.send_signal(signal.SIGTERM)

@@ -48,7 +48,7 @@ from typing import Any, Optional, Union
 import msgspec
 
 from dockhil.scene import boundedyaml
-from dockhil.errors import LaunchError, suggest
+from dockhil.errors import DockhilError, LaunchError, suggest
 from dockhil.scene.schema import (MAX_INCLUDES, MAX_NODES, MAX_SUBSTITUTED, MAX_TEXT, ArgDecl, LaunchFile,
                                   Lets, NodeDecl, Scalar, SchemaError, convert)
 
@@ -284,6 +284,8 @@ def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: b
     decls = convert(data.get("args"), Optional[dict[str, Union[ArgDecl, Scalar]]], prefix=("args",)) or {}
     specs = {name: _arg_spec(name, body, _where(path, root, ["args", name])) for name, body in decls.items()}
     values = {name: spec.default for name, spec in specs.items()}
+    if from_cli and "loop" in specs and given.get("loop"):
+        given = {**loop_args(str(given["loop"]), specs), **given}  # name:=value on the command line wins
     for name, value in given.items():
         if name not in specs:
             lets = data.get("let") if isinstance(data.get("let"), list) else []
@@ -349,6 +351,27 @@ def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: b
     if dup:
         raise LaunchError(f"{path}: two nodes are named {dup!r}; node names must be unique")
     return scene
+
+
+def loop_args(path: str, specs: dict[str, ArgSpec]) -> dict[str, Any]:
+    """The arguments a loop file (written by `dockhil calibrate --out`: delay, lag, k, ...) sets that the
+    scene declares; a scene takes it as loop:=FILE."""
+    try:
+        with open(path, "rb") as f:
+            raw = f.read(boundedyaml.MAX_BYTES + 1)
+        data, _root = boundedyaml.load(raw.decode("utf-8"), path)
+    except OSError as exc:
+        raise LaunchError(f"loop file {path}: cannot read: {exc.strerror}") from None
+    except (UnicodeDecodeError, DockhilError) as exc:
+        raise LaunchError(f"loop file {path}: {exc}") from None
+    args = data.get("args") if isinstance(data, dict) else None
+    if len(raw) > boundedyaml.MAX_BYTES or not isinstance(args, dict):
+        raise LaunchError(f"loop file {path}: not a loop file (a mapping with `args:`); write one with "
+                          f"dockhil calibrate --out")
+    for name, value in args.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise LaunchError(f"loop file {path}: args.{name} is {value!r}, not a number")
+    return {name: value for name, value in args.items() if name in specs}
 
 
 def _value_at(data: Any, at: list) -> Any:

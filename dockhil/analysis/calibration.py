@@ -1,0 +1,423 @@
+"""Identification of the real HIL loop: pure fits (numpy/scipy) on recorded samples, no I/O.
+
+What `dockhil calibrate` measures, each with its one-sigma uncertainty:
+
+* at rest: the F/T sensor's bias (force and torque, per axis: the mean) and noise (the
+  standard deviation per axis);
+* in free space, from the setpoints sent (/robot/command) and the poses read back
+  (/robot/state): the command-to-motion delay d and the servo lag tau of the model
+
+      x(t) = L[x_cmd](t - d),   L: first-order lag 1 / (1 + tau s)
+
+  fitted by nonlinear least squares; a second-order lag (two equal poles) is fitted too and
+  the model with the smaller Akaike information criterion is named (`lag_model`). The delay
+  is the loop's as the loop sees it: the controller's own delay plus the link's (the driver's
+  poll period and its read-back) and the graph's transport;
+* pressed into the passive compliance: the stiffness k, damping b and the surface position s
+  of the unilateral contact  F = k (x - s) + b v  (F > 0 pushes the probe back), fitted on the
+  samples where the force stands clear of the noise band, against the pose and velocity read
+  back at the force's time minus the F/T measurement delay; that delay is searched over a grid
+  and reported where the residual has a clear minimum (a slow press alone cannot tell a delay
+  of the force from less damping: k d and b enter alike; then it is None and b is the damping
+  the loop sees).
+
+Uncertainties come from the fit's Jacobian, with the residual variance inflated for the
+residuals' correlation (lag-1 autocorrelation, an AR(1) effective sample size): samples of a
+wall-time loop are not independent.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dockhil.errors import DockhilError
+
+GRID_S = 1e-4  # simulation step of the servo model [s]: a tenth of the device cycle
+MAX_DELAY_S = 0.5
+MAX_LAG_S = 0.5
+
+
+class CalibrationError(DockhilError):
+    """The data do not allow the identification; the message says what was missing."""
+
+
+@dataclass(frozen=True)
+class Rest:
+    """Sensor at rest: bias and noise per axis (force [N], torque [N m]) and their uncertainties."""
+
+    bias_N: tuple[float, float, float]
+    noise_N: tuple[float, float, float]
+    bias_Nm: tuple[float, float, float]
+    noise_Nm: tuple[float, float, float]
+    bias_sigma_N: tuple[float, float, float]
+    noise_sigma_N: tuple[float, float, float]
+    samples: int
+
+
+@dataclass(frozen=True)
+class Servo:
+    """Command-to-motion model: delay [s], first-order lag [s], their sigmas, and the fit."""
+
+    delay_s: float
+    lag_s: float
+    delay_sigma_s: float
+    lag_sigma_s: float
+    rms_m: float
+    samples: int
+    lag_model: str  # "first-order" or "second-order": the smaller AIC
+    aic: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Contact:
+    """Passive compliance: stiffness [N/m], damping [N s/m], surface position [m], F/T delay [s] or None."""
+
+    k_N_per_m: float
+    b_Ns_per_m: float
+    surface_m: float
+    k_sigma: float
+    b_sigma: float
+    surface_sigma_m: float
+    ft_delay_s: float | None
+    ft_delay_sigma_s: float | None
+    rms_N: float
+    samples: int
+    peak_force_N: float
+
+
+def _inflation(residual: np.ndarray) -> float:
+    """Variance inflation for correlated residuals: (1 + rho) / (1 - rho), rho the lag-1 autocorrelation."""
+    r = residual - residual.mean()
+    denom = float(r @ r)
+    if len(r) < 3 or denom == 0.0:
+        return 1.0
+    rho = float(r[1:] @ r[:-1]) / denom
+    rho = min(max(rho, 0.0), 0.995)
+    return (1.0 + rho) / (1.0 - rho)
+
+
+def _covariance(jac: np.ndarray, residual: np.ndarray, n_params: int) -> np.ndarray:
+    n = len(residual)
+    dof = max(n - n_params, 1)
+    s2 = float(residual @ residual) / dof * _inflation(residual)
+    jtj = jac.T @ jac
+    try:
+        return np.linalg.inv(jtj) * s2
+    except np.linalg.LinAlgError:
+        return np.full((n_params, n_params), np.inf)
+
+
+# -- at rest ---------------------------------------------------------------------------------------------------
+
+
+def rest(force: np.ndarray, torque: np.ndarray | None = None) -> Rest:
+    """Bias (mean) and noise (standard deviation) per axis of samples taken at rest; shape (n, 3)."""
+    f = np.asarray(force, dtype=float).reshape(-1, 3)
+    n = len(f)
+    if n < 20:
+        raise CalibrationError(f"only {n} F/T samples at rest; the bias and noise need at least 20")
+    t = np.zeros_like(f) if torque is None else np.asarray(torque, dtype=float).reshape(-1, 3)
+    noise = f.std(axis=0, ddof=1)
+    infl = np.array([_inflation(f[:, i]) for i in range(3)])
+    bias_sigma = noise * np.sqrt(infl / n)
+    noise_sigma = noise / math.sqrt(2.0 * (n - 1)) * np.sqrt(infl)
+    return Rest(tuple(map(float, f.mean(axis=0))), tuple(map(float, noise)), tuple(map(float, t.mean(axis=0))),
+                tuple(map(float, t.std(axis=0, ddof=1))), tuple(map(float, bias_sigma)),
+                tuple(map(float, noise_sigma)), n)
+
+
+# -- the servo: delay and lag ------------------------------------------------------------------------------------
+
+
+class _ServoModel:
+    """The delayed, lagged response to a zero-order-held command, simulated on a fine uniform grid."""
+
+    def __init__(self, t_cmd, x_cmd, t_state, x_state, grid: float = GRID_S):
+        self.t_cmd = np.asarray(t_cmd, dtype=float)
+        self.x_cmd = np.asarray(x_cmd, dtype=float)
+        self.t_state = np.asarray(t_state, dtype=float)
+        self.x_state = np.asarray(x_state, dtype=float)
+        self.grid = grid
+        self.t = np.arange(self.t_cmd[0], self.t_state[-1] + grid, grid)
+        self.x0 = float(self.x_state[0])
+        self.keep = self.t_state >= self.t_cmd[0]
+        idx = np.searchsorted(self.t_cmd, self.t, side="right") - 1
+        self.u = self.x_cmd[np.clip(idx, 0, None)]  # the held command on the grid
+
+    def response(self, delay: float, lag: float, order: int = 1) -> np.ndarray:
+        from scipy.signal import lfilter
+
+        # Shifted by interpolation on the grid, so the response is continuous in the delay (a fit needs that).
+        y = np.interp(self.t - delay, self.t, self.u, left=self.x0)
+        if lag > 0.0:
+            a = math.exp(-self.grid / lag)
+            for _ in range(order):
+                # y[n] = a y[n-1] + (1 - a) u[n-1]: the exact step of a first-order lag over a held input
+                y, _ = lfilter([0.0, 1.0 - a], [1.0, -a], y - self.x0, zi=[0.0])
+                y = y + self.x0
+        return np.interp(self.t_state[self.keep], self.t, y)
+
+    def residual(self, params, order: int = 1) -> np.ndarray:
+        delay, lag = params
+        return self.response(delay, lag, order) - self.x_state[self.keep]
+
+
+def servo(t_cmd, x_cmd, t_state, x_state, max_delay: float = MAX_DELAY_S, max_lag: float = MAX_LAG_S) -> Servo:
+    """Delay and first-order lag from a command stream (times [s], positions [m]) and the poses read back."""
+    from scipy.optimize import least_squares
+
+    t_cmd, x_cmd, t_state, x_state = (np.asarray(a, dtype=float) for a in (t_cmd, x_cmd, t_state, x_state))
+    if len(t_cmd) < 10 or len(t_state) < 20:
+        raise CalibrationError(f"{len(t_cmd)} commands and {len(t_state)} poses in free space; the delay and lag "
+                               f"need a run of small steps and a chirp (at least 10 commands and 20 poses)")
+    travel = float(np.ptp(x_cmd))
+    if travel <= 0.0:
+        raise CalibrationError("the commands in free space never moved the robot: nothing to identify the delay "
+                               "and lag from")
+    model = _ServoModel(t_cmd, x_cmd, t_state, x_state)
+    n = int(model.keep.sum())
+    if n < 20:
+        raise CalibrationError(f"only {n} poses read back after the first command in free space; the delay and "
+                               f"lag need at least 20")
+    # Coarse: the total delay (a lag looks like more delay) from the held command shifted on a 1 ms grid;
+    # then delay and lag together, from a few splits of that total.
+    ts, xs = model.t_state[model.keep], model.x_state[model.keep]
+    costs = []
+    delays = np.arange(0.0, max_delay, 0.001)
+    for d in delays:
+        idx = np.searchsorted(t_cmd, ts - d, side="right") - 1
+        r = np.where(idx >= 0, x_cmd[np.clip(idx, 0, None)], model.x0) - xs
+        costs.append(float(r @ r))
+    total = float(delays[int(np.argmin(costs))])
+    fits = {}
+    for order in (1, 2):
+        best = None
+        for share in (0.0, 0.3, 0.6):
+            lag = min(share * total, max_lag) / order
+            start = [max(total - order * lag, 0.0), lag]
+            fit = least_squares(model.residual, x0=start, args=(order,), bounds=([0.0, 0.0], [max_delay, max_lag]),
+                                diff_step=[1e-2, 1e-2], x_scale=[0.01, 0.01])
+            if best is None or fit.cost < best.cost:
+                best = fit
+        fits[order] = best
+    first = fits[1]
+    if not first.success:
+        raise CalibrationError(f"the delay and lag fit did not converge ({first.message})")
+    residual = first.fun
+    cov = _covariance(_servo_jacobian(model, *first.x), residual, 2)
+    aic = {}
+    for order, fit in fits.items():
+        rss = float(fit.fun @ fit.fun)
+        aic["first-order" if order == 1 else "second-order"] = n * math.log(max(rss, 1e-300) / n) + 4.0
+    delay, lag = (float(v) for v in first.x)
+    sigmas = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return Servo(delay, lag, float(sigmas[0]), float(sigmas[1]), float(np.sqrt(np.mean(residual ** 2))), n,
+                 min(aic, key=aic.get), aic)
+
+
+def _servo_jacobian(model: _ServoModel, delay: float, lag: float) -> np.ndarray:
+    """d residual / d (delay, lag) by differences of 0.2 ms, one-sided where a bound (zero) is near."""
+    h = 2e-4
+    cols = []
+    for j, value in enumerate((delay, lag)):
+        lo, hi = max(value - h, 0.0), value + h
+        a, b = [delay, lag], [delay, lag]
+        a[j], b[j] = lo, hi
+        cols.append((model.residual(b) - model.residual(a)) / (hi - lo))
+    return np.column_stack(cols)
+
+
+# -- the passive compliance --------------------------------------------------------------------------------------
+
+
+def _contact_lsq(t_f, f, t_x, x, v, ft_delay: float):
+    """(k, b, c) of f = k x + b v + c, its residual and design matrix; b is 0 (and its column zero) where
+    the velocity read back never changed (the damping is then not in the data)."""
+    xi = np.interp(t_f - ft_delay, t_x, x)
+    vi = np.interp(t_f - ft_delay, t_x, v)
+    moving = np.ptp(vi) > 0.0
+    a = np.column_stack([xi, vi, np.ones_like(xi)] if moving else [xi, np.ones_like(xi)])
+    coef, *_ = np.linalg.lstsq(a, f, rcond=None)
+    residual = a @ coef - f
+    if not moving:
+        coef, a = np.array([coef[0], 0.0, coef[1]]), np.column_stack([xi, vi, np.ones_like(xi)])
+    return coef, residual, a
+
+
+def contact(t_f, force, t_x, x, v, noise: float, max_ft_delay: float = 0.03) -> Contact:
+    """k, b and the surface from a press: force pushing the probe back [N] (bias removed) at times t_f, and
+    the pose x [m] and velocity v [m/s] read back at times t_x; `noise` the force noise [N] at rest."""
+    t_f, f, t_x, x, v = (np.asarray(a, dtype=float) for a in (t_f, force, t_x, x, v))
+    if len(t_f) == 0 or len(t_x) < 2:
+        raise CalibrationError("no press into the passive compliance was recorded: k needs one")
+    peak = float(f.max())
+    threshold = max(5.0 * noise, 0.05 * peak, 0.05)
+    inside = (f > threshold) & (t_f - max_ft_delay >= t_x[0]) & (t_f <= t_x[-1])
+    if inside.sum() < 20 or peak < 4.0 * threshold:
+        raise CalibrationError(f"the press met too little force ({peak:.2f} N at most against a noise band of "
+                               f"{threshold:.2f} N): k needs a press well above the noise")
+    tf, ff = t_f[inside], f[inside]
+    delays = np.arange(0.0, max_ft_delay + 1e-12, 0.0005)
+    costs = []
+    for d in delays:
+        _, residual, _ = _contact_lsq(tf, ff, t_x, x, v, float(d))
+        costs.append(float(residual @ residual))
+    costs = np.array(costs)
+    i = int(np.argmin(costs))
+    ft_delay: float | None = float(delays[i])
+    ft_sigma: float | None = None
+    n = len(ff)
+    s2 = costs[i] / max(n - 3, 1)
+    if 0 < i < len(delays) - 1:
+        curvature = (costs[i - 1] - 2 * costs[i] + costs[i + 1]) / (delays[1] - delays[0]) ** 2
+        if curvature > 0:
+            _, residual, _ = _contact_lsq(tf, ff, t_x, x, v, ft_delay)
+            ft_sigma = math.sqrt(2.0 * s2 * _inflation(residual) / curvature)
+    if ft_sigma is None or ft_sigma > ft_delay:
+        ft_delay, ft_sigma = None, None  # no clear minimum: the force's delay is not in these data
+    coef, residual, a = _contact_lsq(tf, ff, t_x, x, v, ft_delay or 0.0)
+    k, b, c = (float(cv) for cv in coef)
+    if not k > 0.0:
+        raise CalibrationError(f"the press gives a stiffness of {k:.4g} N/m: the force did not rise with the "
+                               f"penetration")
+    if np.any(a[:, 1]):
+        cov = _covariance(a, residual, 3)
+    else:  # no velocity, no damping in the data: b stays 0, its uncertainty unknown
+        sub = _covariance(a[:, [0, 2]], residual, 2)
+        cov = np.array([[sub[0, 0], 0.0, sub[0, 1]], [0.0, math.inf, 0.0], [sub[1, 0], 0.0, sub[1, 1]]])
+    sk, sb = (math.sqrt(max(cov[j, j], 0.0)) for j in (0, 1))
+    surface = -c / k
+    # s = -c / k: first-order propagation with the covariance of k and c
+    kc = cov[np.ix_([0, 2], [0, 2])]
+    grad = np.array([c / k ** 2, -1.0 / k])
+    ss = math.sqrt(max(float(grad @ kc @ grad), 0.0))
+    return Contact(k, b, surface, sk, sb, ss, ft_delay, ft_sigma, float(np.sqrt(np.mean(residual ** 2))), n, peak)
+
+
+# -- the whole identification --------------------------------------------------------------------------------------
+
+
+@dataclass
+class Recording:
+    """What an identification run recorded, as arrays; times in seconds on one clock.
+
+    phases: (start time, phase name) in order, as the identification node announced them.
+    """
+
+    t_cmd: np.ndarray
+    x_cmd: np.ndarray
+    t_state: np.ndarray
+    x_state: np.ndarray
+    v_state: np.ndarray
+    t_ft: np.ndarray
+    force: np.ndarray  # (n, 3) [N], as the driver publishes it (no tare)
+    torque: np.ndarray  # (n, 3) [N m]
+    phases: list[tuple[float, str]]
+
+    def window(self, *names: str) -> tuple[float, float]:
+        """Start and end time of the run of consecutive phases `names` (end: the next phase's start)."""
+        starts = [t for t, p in self.phases if p in names]
+        if not starts:
+            raise CalibrationError(f"the run has no {' or '.join(names)} phase: it is not an identification run "
+                                   f"of dockhil calibrate, or it stopped before it")
+        begin = min(starts)
+        later = [t for t, p in self.phases if t > max(starts) and p not in names]
+        return begin, (min(later) if later else math.inf)
+
+
+def _between(t: np.ndarray, window: tuple[float, float]) -> np.ndarray:
+    return (t >= window[0]) & (t < window[1])
+
+
+@dataclass(frozen=True)
+class Calibration:
+    rest: Rest
+    servo: Servo
+    contact: Contact
+
+    def as_dict(self) -> dict:
+        r, s, c = self.rest, self.servo, self.contact
+        return {
+            "delay_s": s.delay_s, "lag_s": s.lag_s, "k_N_per_m": c.k_N_per_m, "b_Ns_per_m": c.b_Ns_per_m,
+            "bias_N": list(r.bias_N), "noise_N": list(r.noise_N), "bias_Nm": list(r.bias_Nm),
+            "noise_Nm": list(r.noise_Nm), "ft_delay_s": c.ft_delay_s, "surface_m": c.surface_m,
+            "uncertainty": {
+                "delay_s": s.delay_sigma_s, "lag_s": s.lag_sigma_s, "k_N_per_m": c.k_sigma,
+                "b_Ns_per_m": c.b_sigma, "bias_N": list(r.bias_sigma_N), "noise_N": list(r.noise_sigma_N),
+                "ft_delay_s": c.ft_delay_sigma_s, "surface_m": c.surface_sigma_m,
+            },
+            "lag_model": s.lag_model,
+            "fit": {"servo_rms_m": s.rms_m, "servo_samples": s.samples, "contact_rms_N": c.rms_N,
+                    "contact_samples": c.samples, "peak_force_N": c.peak_force_N, "rest_samples": r.samples},
+        }
+
+
+def identify(rec: Recording) -> Calibration:
+    """Rest, servo and contact fits from one identification run."""
+    at_rest = _between(rec.t_ft, rec.window("rest"))
+    r = rest(rec.force[at_rest], rec.torque[at_rest])
+    free = rec.window("steps", "chirp")
+    cmd, state = _between(rec.t_cmd, free), _between(rec.t_state, free)
+    s = servo(rec.t_cmd[cmd], rec.x_cmd[cmd], rec.t_state[state], rec.x_state[state])
+    press = rec.window("approach", "press", "hold", "release")
+    ft, st = _between(rec.t_ft, press), _between(rec.t_state, press)
+    # The force on the probe pushes it back (-x); the bias is taken off.
+    pushing = -(rec.force[ft, 0] - r.bias_N[0])
+    c = contact(rec.t_ft[ft], pushing, rec.t_state[st], rec.x_state[st], rec.v_state[st], r.noise_N[0])
+    return Calibration(r, s, c)
+
+
+def check(cal: Calibration) -> None:
+    """CalibrationError when an estimate the loop depends on is no measurement: its uncertainty is larger
+    than its value (or not finite)."""
+    d = cal.as_dict()
+    for key, what in (("delay_s", "delay"), ("k_N_per_m", "stiffness k")):
+        value, sigma = d[key], d["uncertainty"][key]
+        if not (math.isfinite(value) and math.isfinite(sigma)) or sigma > abs(value):
+            raise CalibrationError(f"the {what} fit is no measurement: {value:.4g} +- {sigma:.3g} (the uncertainty "
+                                   f"is larger than the value); repeat the identification with the probe free at "
+                                   f"rest and the robot following")
+
+
+def recording(messages) -> Recording:
+    """A Recording from (topic, message) pairs of an identification run (a bag's, decoded), timed by
+    their header stamps (each the publishing node's tick)."""
+    cmd, state, ft, phases = [], [], [], []
+    for topic, msg in messages:
+        stamp = msg.header.stamp
+        if topic == "/robot/command":
+            cmd.append((stamp, msg.pose.position.x))
+        elif topic == "/robot/state":
+            state.append((stamp, msg.pose.position.x, msg.twist.linear.x))
+        elif topic == "/ft/wrench":
+            f, t = msg.wrench.force, msg.wrench.torque
+            ft.append((stamp, f.x, f.y, f.z, t.x, t.y, t.z))
+        elif topic == "/calibration/phase":
+            phases.append((stamp, msg.state))
+    if not phases:
+        raise CalibrationError("no /calibration/phase messages: this is not a recording of an identification run "
+                               "(dockhil calibrate records one with --bag-out)")
+    for what, rows in (("/robot/command", cmd), ("/robot/state", state), ("/ft/wrench", ft)):
+        if not rows:
+            raise CalibrationError(f"no {what} messages in the identification run")
+    c, s, w = (np.array(sorted(rows), dtype=float) for rows in (cmd, state, ft))
+    return Recording(c[:, 0], c[:, 1], s[:, 0], s[:, 1], s[:, 2], w[:, 0], w[:, 1:4], w[:, 4:7], sorted(phases))
+
+
+def verdict(cal: Calibration, m: float, kcs: float, bcs: float) -> dict:
+    """The stability of the identified loop for a scene's reduced mass m, kcs and bcs: the exact bound of
+    m s^2 + (K + b s) e^(-sh) = 0 with h = delay + lag (a lag tau counts as delay: 1 / (1 + tau s) and
+    e^(-s tau) agree to first order, and the crossing frequency is low, omega tau << 1)."""
+    from dockhil.contact.stability import exact_bound
+
+    h = cal.servo.delay_s + cal.servo.lag_s
+    bound = exact_bound(m, bcs, h)
+    k_max = bound.k_max
+    stable = k_max is not None and kcs < k_max
+    return {"m_kg": m, "kcs_N_per_m": kcs, "bcs_Ns_per_m": bcs, "h_s": h,
+            "kcs_max_N_per_m": None if k_max is None or math.isinf(k_max) else k_max,
+            "margin": None if k_max is None or math.isinf(k_max) else k_max / kcs,
+            "stable": bool(stable), "reason": bound.reason}
