@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import math
 import os
-import time
 from typing import Iterator
 
 from dockhil.analysis.sweep.campaign import CampaignError, WriteError
 from dockhil.analysis.sweep.run import exception_line, failed_row, run_batch
+from dockhil.runtime.parent import die_with_parent
 
 RETRIES = 2  # a batch whose worker was lost is sent again this many times
 
@@ -17,37 +17,13 @@ RETRIES = 2  # a batch whose worker was lost is sent again this many times
 def _worker_start(parent: int) -> None:
     """A local worker's start. Ctrl-C is the parent's to handle (it ends the workers itself), and
     a worker ends with its parent however the parent ends, a SIGKILL included: the kernel kills
-    it then (PR_SET_PDEATHSIG, Linux), else a thread that watches the parent does. A sim-time run
-    has nothing to save: the parent keeps the rows."""
+    it then, else a thread that watches the parent does (die_with_parent). A sim-time run has
+    nothing to save: the parent keeps the rows."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the parent's handler, inherited by fork
-    try:
-        import ctypes
-
-        if ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0) != 0:  # PR_SET_PDEATHSIG
-            raise OSError
-    except (OSError, AttributeError):  # not Linux
-        import threading
-
-        threading.Thread(target=_watch_parent, args=(parent,), daemon=True).start()
-    if not _alive(parent):  # it died before the prctl
-        os._exit(1)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except OSError:  # gone, or its number now another user's
-        return False
-    return True
-
-
-def _watch_parent(parent: int) -> None:
-    while _alive(parent):
-        time.sleep(0.5)
-    os._exit(1)
+    die_with_parent(signal.SIGKILL, parent)
 
 
 class Batcher:
