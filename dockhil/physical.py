@@ -10,7 +10,7 @@ before anything runs.
 A run (docs/summary.md, "A run that leaves the physical range"): its largest force, its bodies'
 positions and speeds, and the kinetic energy the loop gave them, each against the scene's own
 scale (its ideal contact, thrust and force limits, its start). A run beyond any of them exploded
-or means nothing, whatever else it says: it is INVALID (dockhil.analysis.summary.range_reasons)."""
+or means nothing, whatever else it says: it is INVALID (dockhil.analysis.summary.common.RangeMeter.reasons)."""
 
 import math
 

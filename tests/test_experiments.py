@@ -11,8 +11,8 @@ from dockhil.contact.hybrid import VirtualImpedance
 from dockhil.contact.impedance import impedance_closed_form
 from dockhil.contact.scenario import ContactScenario
 from dockhil.scene.graph import build
-from dockhil.analysis.summary import (Collector, Samples, contact_metrics, growth_rate, ideal_reference,
-                                      summarize)
+from dockhil.analysis.summary import Collector, Samples, contact_metrics, ideal_reference, summarize
+from dockhil.contact.envelope import growth_rate
 
 T1 = dict(m1=750.0, m2=1e6, kcs=3000.0, bcs=40.0, v1=0.03, v2=0.0)
 DT = 1e-3

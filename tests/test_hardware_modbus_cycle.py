@@ -22,7 +22,8 @@ import pytest
 from dockhil.hardware import modbus_map as mm
 from dockhil.hardware.robot_emulator import FOLLOW, ServoModel
 from dockhil.node import ManualClock, NodeContext, ParamError
-from dockhil.nodes.robot_modbus import ModbusLink, RobotModbusDriver, SetpointLimiter, verify_and_hold
+from dockhil.hardware.modbus_link import ModbusLink, SetpointLimiter, verify_and_hold
+from dockhil.nodes.robot_modbus import RobotModbusDriver
 from tests.test_hardware_modbus import ENV, ROOT, Drive, driver, end, start_emulator
 from tests.test_hardware_safety import (DT, Recorded, following, largest_step, make, mode,  # noqa: F401
                                         read_holding)

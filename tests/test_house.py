@@ -1,5 +1,5 @@
 """The house's shape, from the source's ast (.ci/house.py): no import cycle between dockhil's
-modules but the one the summaries still have, and no private name taken across modules."""
+modules, and no private name taken across modules."""
 
 import importlib.util
 from pathlib import Path
@@ -9,14 +9,10 @@ _spec = importlib.util.spec_from_file_location("house", ROOT / ".ci" / "house.py
 house = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(house)
 
-# The 1-DOF and 6-DOF summaries import each other (each runs the other on a scene of the other
-# kind); folding them into one module removes it (docs/architecture.md).
-KNOWN_CYCLES = [["dockhil.analysis.summary", "dockhil.analysis.summary6"]]
 
-
-def test_no_import_cycle_between_modules_but_the_known_one():
+def test_no_import_cycle_between_modules():
     edges, _ = house.graph_and_private(house.modules())
-    assert house.cycles(edges) == KNOWN_CYCLES
+    assert house.cycles(edges) == []
 
 
 def test_no_private_name_is_imported_across_modules():

@@ -1,4 +1,4 @@
-"""The run summary of the 6-DOF scene (dockhil/analysis/summary6.py): along the axis it is the 1-DOF
+"""The run summary of the 6-DOF scene (dockhil/analysis/summary/dof6.py): along the axis it is the 1-DOF
 summary of hil.yaml and its ideal the 1-DOF closed form; off the axis its numbers are those of the
 library's own hybrid and ideal runs, computed here from their arrays; a recorded run's summary is
 the live one's."""

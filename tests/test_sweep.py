@@ -15,7 +15,7 @@ import pytest
 from dockhil import cli
 from dockhil.analysis import sweep
 from dockhil.node import Node
-from dockhil.analysis.sweep import LocalPool
+from dockhil.analysis.sweep import LocalPool, campaign as sweep_campaign, executors as sweep_executors
 
 import pyarrow.parquet as pq
 
@@ -98,9 +98,9 @@ def test_runs_are_the_grid_product_times_samples_with_reproducible_draws(tmp_pat
 
 
 def test_log_range_and_value_forms():
-    axis = sweep._axis_points(sweep._axis({"range": [100.0, 10000.0], "num": 3, "log": True}, "x"))
+    axis = sweep_campaign._axis_points(sweep_campaign._axis({"range": [100.0, 10000.0], "num": 3, "log": True}, "x"))
     assert axis == pytest.approx([100.0, 1000.0, 10000.0])
-    assert sweep._axis_points(sweep._axis({"values": [1, 2]}, "x")) == [1, 2]
+    assert sweep_campaign._axis_points(sweep_campaign._axis({"values": [1, 2]}, "x")) == [1, 2]
 
 
 def test_local_pool_and_dask_local_cluster_give_identical_rows(tmp_path):
@@ -209,7 +209,7 @@ def test_a_lost_worker_s_batch_is_sent_again(tmp_path, monkeypatch):
     # The first batch to start kills its worker; the pool is replaced and the batch sent again.
     marker = tmp_path / "killed-once"
     monkeypatch.setenv("DOCKHIL_TEST_KILL_MARKER", str(marker))
-    monkeypatch.setattr(sweep, "run_batch", _dies_once)
+    monkeypatch.setattr(sweep_executors, "run_batch", _dies_once)  # what the local pool submits
     c = sweep.load_campaign(write(tmp_path, SMALL.replace("duration: 0.3", "duration: 0.05")))
     out = tmp_path / "r.parquet"
     result = sweep.sweep(c, out, LocalPool(2), progress=False)

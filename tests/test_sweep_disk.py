@@ -16,6 +16,7 @@ import pytest
 
 from dockhil import cli
 from dockhil.analysis import sweep
+from dockhil.analysis.sweep import results as sweep_results
 from tests.test_sweep import Counting
 
 CAMPAIGN = """
@@ -75,8 +76,8 @@ class FullAfter:
 def test_a_full_disk_under_the_journal_stops_the_campaign_keeps_its_rows_and_the_rerun_resumes(
         tmp_path, capsys, monkeypatch):
     path, out = campaign(tmp_path), tmp_path / "r.parquet"
-    real = sweep._open_journal
-    monkeypatch.setattr(sweep, "_open_journal", lambda results, c: FullAfter(real(results, c), 1))
+    real = sweep_results._open_journal
+    monkeypatch.setattr(sweep_results, "_open_journal", lambda results, c: FullAfter(real(results, c), 1))
     before = children()
     code, err = sweep_cli(path, out, capsys)
     assert code == 1 and len(err) == 1, err

@@ -14,6 +14,8 @@ import pytest
 
 from dockhil import cli
 from dockhil.analysis import sweep
+from dockhil.analysis.sweep import campaign as sweep_campaign
+from dockhil.scene.schema import MAX_DURATION
 
 ROOT = Path(__file__).resolve().parent.parent
 HEAD = "scene: stability.yaml\nargs: {m: 20.0, delay: 0.016}\n"
@@ -95,7 +97,7 @@ def test_a_random_draw_the_scene_refuses_names_its_run(tmp_path, capsys):
 
 
 def test_the_most_runs_is_accepted_and_one_more_refused(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(sweep, "MAX_RUNS", 12)
+    monkeypatch.setattr(sweep_campaign, "MAX_RUNS", 12)
     path = tmp_path / "c.yaml"
     path.write_text(HEAD + "duration: 0.1\ngrid: {k: [6000.0, 7000.0, 8000.0]}\nsamples: 4\n")
     assert sweep.load_campaign(path).total == 12
@@ -106,10 +108,10 @@ def test_the_most_runs_is_accepted_and_one_more_refused(tmp_path, capsys, monkey
 
 def test_the_ends_of_each_range_are_accepted(tmp_path):
     path = tmp_path / "c.yaml"
-    path.write_text(HEAD + f"duration: {sweep.MAX_DURATION:.0f}\ngrid: {{k: [6000.0]}}\nseed: {sweep.MAX_SEED}\n"
+    path.write_text(HEAD + f"duration: {MAX_DURATION:.0f}\ngrid: {{k: [6000.0]}}\nseed: {sweep.MAX_SEED}\n"
                            f"samples: 1\n")
     c = sweep.load_campaign(path)
-    assert (c.duration, c.seed) == (sweep.MAX_DURATION, 2**32 - 1)
+    assert (c.duration, c.seed) == (MAX_DURATION, 2**32 - 1)
     assert sweep.runs(c)[0]["args"]["k"] == 6000.0
 
 

@@ -20,7 +20,8 @@ from dockhil.contact.sampled import SampledLoop, sampled_growth_rate
 from dockhil.contact.scenario import TABLE1, ContactScenario
 from dockhil.contact.stability import growth_rate as predicted_growth_rate
 from dockhil.contact.stability import pade1_bound
-from dockhil.analysis.summary import Samples, contact_metrics, growth_rate
+from dockhil.analysis.summary import Samples, contact_metrics
+from dockhil.contact.envelope import growth_rate
 
 DT = 1e-3
 

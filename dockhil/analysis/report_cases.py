@@ -537,7 +537,7 @@ def stability_boundary_cases(cfg: ReportConfig) -> list[dict]:
     of extra delay: the bound is taken at h + dt/2; the expected growth rate is
     the sampled loop's own dominant eigenvalue (dockhil.contact.sampled), and the
     envelope is fitted about the true equilibrium thrust / K."""
-    from dockhil.analysis.summary import growth_rate as measured_growth
+    from dockhil.contact.envelope import growth_rate as measured_growth
     from dockhil.contact.sampled import SampledLoop, sampled_growth_rate
     from dockhil.contact.stability import exact_bound
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from dockhil.errors import DockhilError
 from dockhil.analysis.figure_file import save_figure
-from dockhil.analysis.sweep import METADATA_KEY
+from dockhil.analysis.sweep.results import METADATA_KEY
 
 MAP_ARGS = ("k", "b", "delay", "m")  # the stability scene's names for K, b, h, m
 NEAR = 0.02  # points this close to the exact boundary (relative in K) are not counted

@@ -23,7 +23,7 @@ def compensated_runs(m: float, b: float, h: float, K: float | None, max_damping:
     from dockhil.contact.passivity import Passivity, left_in_loop
     from dockhil.contact.scenario import ContactModelError
     from dockhil.contact.stability import exact_bound
-    from dockhil.analysis.summary import growth_rate
+    from dockhil.contact.envelope import growth_rate
 
     bound = exact_bound(m, b, h, damper="undelayed").k_max
     stiffnesses = [] if bound is None else [(f"{x:g}x exact", x * bound) for x in MULTIPLES]

@@ -54,7 +54,8 @@ from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import rsi
 from dockhil.msgs import Pose, Quaternion, RobotState, Twist, Vector3
 from dockhil.node import Param
-from dockhil.nodes.robot_modbus import RobotModbusDriver, command_values, message_key, non_finite
+from dockhil.hardware.robot_limits import command_values, message_key, non_finite
+from dockhil.nodes.robot_modbus import RobotModbusDriver
 
 SWITCH_INTERVAL = 0.0002  # s: longest wait of the link thread for the interpreter while another thread runs
 LINK_PRIORITY = 60  # SCHED_FIFO priority of the link thread: above the node loops' (dockhil.runtime.process)

@@ -13,23 +13,15 @@ it is asked to stop.
 
 from __future__ import annotations
 
-import ctypes
 import os
 import signal
 import sys
 
 import msgspec
 
+from dockhil.runtime.parent import die_with_parent  # the recorder takes it from here too
+
 READY = "\x1edockhil-ready"  # a line the launcher intercepts
-
-
-def die_with_parent() -> None:
-    # If the launcher is killed outright, the kernel sends us SIGTERM: no orphans.
-    try:
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except OSError:
-        pass
 
 
 REALTIME_PRIORITY = 50

@@ -2,8 +2,8 @@
 contact duration, entry and exit relative linear and angular velocities, against the ideal
 6-DOF contact (contact6.simulate_contact6) run on the scene's parameters, with the errors.
 
-One pass over the ticks with O(1) memory, as the 1-DOF summary (dockhil/analysis/summary.py), whose
-machinery it reuses: `ContactMeter6` wraps the 1-DOF `ContactMeter` on the normal axis (contact
+One pass over the ticks with O(1) memory, as the 1-DOF summary (dof1.py), whose
+machinery it shares (common.py): `ContactMeter6` wraps the 1-DOF `ContactMeter` on the normal axis (contact
 start and end interpolated between ticks, when the contact is over, the peak) and adds the
 vector quantities; messages are matched to the state of their tick as the 1-DOF summary does.
 
@@ -27,8 +27,8 @@ import math
 
 from dockhil import msgs
 from dockhil.contact.rigid import cross3, rotate, sub3
-from dockhil.analysis.scenecheck import sixdof_nodes
-from dockhil.analysis.summary import ContactMeter, RangeMeter, TickMatcher, range_summary
+from dockhil.analysis.scenecheck import scene_check, sixdof_nodes
+from dockhil.analysis.summary.common import ContactMeter, RangeMeter, TickMatcher, range_summary
 
 VECTORS = ("relative_velocity_mps", "relative_angular_velocity_radps")
 
@@ -187,8 +187,6 @@ class SummaryCollector6:
         self.match(topic, msg)
 
     def summary(self, run_time_s: float | None = None) -> dict:
-        from dockhil.analysis.summary import scene_check
-
         self.match.flush()
         m = self.meter.normal
         sim_time = float(m.t_last - m.t_first) if m.n > 1 else 0.0

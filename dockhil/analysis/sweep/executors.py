@@ -1,0 +1,199 @@
+"""Where a campaign's runs go: batches sized to the runs' time (`Batcher`), to a local process pool
+whose workers die with the sweep (`LocalPool`) or a Dask cluster (`DaskExecutor`)."""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Iterator
+
+from dockhil.analysis.sweep.campaign import CampaignError, WriteError
+from dockhil.analysis.sweep.run import exception_line, failed_row, run_batch
+from dockhil.runtime.parent import die_with_parent
+
+RETRIES = 2  # a batch whose worker was lost is sent again this many times
+
+
+def _worker_start(parent: int) -> None:
+    """A local worker's start. Ctrl-C is the parent's to handle (it ends the workers itself), and
+    a worker ends with its parent however the parent ends, a SIGKILL included: the kernel kills
+    it then, else a thread that watches the parent does (die_with_parent). A sim-time run has
+    nothing to save: the parent keeps the rows."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the parent's handler, inherited by fork
+    die_with_parent(signal.SIGKILL, parent)
+
+
+class Batcher:
+    """Cuts the runs into batches sized so that one batch takes about `target_s`, from
+    the mean run time seen so far (the first batches hold one run each): per-task
+    overhead stays small for short runs, and progress and the journal stay current for
+    long ones. Near the end batches shrink so that every worker gets a share. A batch
+    whose worker was lost comes back first, RETRIES times."""
+
+    def __init__(self, specs: list[dict], workers: int, target_s: float = 2.0, max_size: int = 50):
+        from collections import deque
+
+        self.queue = deque(specs)
+        self.retry: deque = deque()  # (batch, tries so far)
+        self.workers = max(1, workers)
+        self.target_s, self.max_size = target_s, max_size
+        self.seen = 0
+        self.total_s = 0.0
+
+    def __bool__(self) -> bool:
+        return bool(self.queue or self.retry)
+
+    def next(self) -> tuple[list[dict], int] | None:
+        if self.retry:
+            return self.retry.popleft()
+        if not self.queue:
+            return None
+        size = 1 if not self.seen else int(self.target_s / max(self.total_s / self.seen, 1e-6))
+        size = max(1, min(size, self.max_size, math.ceil(len(self.queue) / self.workers)))
+        return [self.queue.popleft() for _ in range(size)], 0
+
+    def finished(self, rows: list[dict]) -> None:
+        for row in rows:
+            if row.get("run_time_s") is not None:
+                self.seen += 1
+                self.total_s += row["run_time_s"]
+
+    def lost(self, batch: list[dict], tries: int) -> list[dict] | None:
+        """Send the batch again, or (after RETRIES) its runs as failed rows."""
+        if tries < RETRIES:
+            self.retry.append((batch, tries + 1))
+            return None
+        return [failed_row(spec, f"worker lost {tries + 1} times running this batch") for spec in batch]
+
+
+class LocalPool:
+    """A process pool of `workers`, two batches in flight per worker. A pool broken by a
+    lost worker is replaced and its unfinished batches are sent again."""
+
+    name = "local"
+
+    def __init__(self, workers: int):
+        self.workers = workers
+
+    def map(self, batcher: Batcher) -> Iterator[list[dict]]:
+        from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+        from concurrent.futures.process import BrokenProcessPool
+
+        while batcher:
+            pool = ProcessPoolExecutor(self.workers, initializer=_worker_start, initargs=(os.getpid(),))
+            in_flight: dict = {}
+            finished = False
+            try:
+                while batcher or in_flight:
+                    while len(in_flight) < 2 * self.workers and (item := batcher.next()) is not None:
+                        in_flight[pool.submit(run_batch, item[0])] = item
+                    done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
+                    broken = False
+                    for fut in done:
+                        batch, tries = in_flight.pop(fut)
+                        try:
+                            rows = fut.result()
+                        except BrokenProcessPool:
+                            broken = True
+                            rows = batcher.lost(batch, tries)
+                        except WriteError:
+                            raise
+                        except Exception as exc:
+                            rows = [failed_row(spec, f"batch failed: {exception_line(exc)}") for spec in batch]
+                        if rows is not None:
+                            batcher.finished(rows)
+                            yield rows
+                    if broken:  # every batch still in flight is lost with the pool: send them again
+                        for _fut, (batch, tries) in list(in_flight.items()):
+                            rows = batcher.lost(batch, tries)
+                            if rows is not None:
+                                yield rows
+                        in_flight.clear()
+                        break
+                else:
+                    finished = True
+            finally:
+                if not finished:  # interrupted or broken: end the workers now, not after their batches
+                    for proc in list(getattr(pool, "_processes", {}).values()):
+                        proc.terminate()
+                pool.shutdown(wait=finished, cancel_futures=True)
+
+    def close(self) -> None:
+        pass
+
+
+class DaskExecutor:
+    """Batches as Dask tasks on a cluster at `address`, or on a LocalCluster of worker
+    processes (address "local"), two in flight per worker. Dask resubmits a lost
+    worker's tasks itself (retries=)."""
+
+    name = "dask"
+
+    def __init__(self, address: str, workers: int | None):
+        import logging
+
+        try:
+            from dask.distributed import Client, LocalCluster
+        except ImportError:
+            raise CampaignError("--dask needs dask.distributed: pip install 'dask[distributed]' "
+                                "(or dockhil[sweep])") from None
+        self.cluster = None
+        try:
+            if address == "local":
+                self.cluster = LocalCluster(n_workers=workers or usable_cpus(), processes=True, threads_per_worker=1,
+                                            dashboard_address=None, silence_logs=logging.ERROR)
+                self.client = Client(self.cluster)
+            else:
+                self.client = Client(address, timeout="10s")
+        except (OSError, TimeoutError) as exc:
+            self.close()
+            raise CampaignError(f"--dask {address}: cannot reach the scheduler: {exception_line(exc)}") from None
+        self.workers = max(1, len(self.client.scheduler_info().get("workers", {})))
+        self.name = f"dask {address}"
+
+    def map(self, batcher: Batcher) -> Iterator[list[dict]]:
+        from dask.distributed import as_completed
+
+        in_flight: dict = {}
+        pending = as_completed()
+
+        def feed() -> None:
+            while len(in_flight) < 2 * self.workers and (item := batcher.next()) is not None:
+                fut = self.client.submit(run_batch, item[0], retries=RETRIES, pure=False)
+                in_flight[fut] = item[0]
+                pending.add(fut)
+
+        feed()
+        try:
+            for fut in pending:
+                batch = in_flight.pop(fut)
+                try:
+                    rows = fut.result()
+                except WriteError:
+                    raise
+                except Exception as exc:  # e.g. KilledWorker after the retries
+                    rows = [failed_row(spec, f"task failed: {exception_line(exc)}") for spec in batch]
+                batcher.finished(rows)
+                yield rows
+                feed()
+        finally:
+            if in_flight:
+                self.client.cancel(list(in_flight))
+
+    def close(self) -> None:
+        for thing in (getattr(self, "client", None), self.cluster):
+            if thing is not None:
+                try:
+                    thing.close()
+                except Exception:  # shutting down: nothing left to save
+                    pass
+
+
+def usable_cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
