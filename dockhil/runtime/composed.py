@@ -71,9 +71,10 @@ class ComposedGraph:
 
     def close(self) -> None:
         """Every node's close, even after one failed; then the first failure, as one line naming
-        its node (a driver holds the robot in close: its failure fails the run)."""
+        its node (a driver holds the robot in close: its failure fails the run). Drivers close
+        before the emulators standing in for their devices, as on a real bench the device outlives them."""
         first = None
-        for name, node in self.nodes.items():
+        for name, node in sorted(self.nodes.items(), key=lambda item: type(item[1]).free_running):
             try:
                 node.close()
             except NODE_RAISES as exc:  # close every node even if one fails (a driver holds the robot there)

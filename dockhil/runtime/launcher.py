@@ -420,14 +420,22 @@ class Launcher:
     def devices(self) -> dict[str, bool]:
         """Wall time: the local processes that report loop figures, each mapped to whether it
         stands for a device emulator (a container: when all its members do)."""
-        return {name: all(self.graph.nodes[m].cls.free_running for m in self.units[name])
-                for name, child in zip(self.specs, self.children) if not child.host}
+        return {child.name: self._is_emulator(child) for child in self.children[:len(self.specs)] if not child.host}
 
     def _on_signal(self, signum, frame) -> None:
         self._stop_signal = signum
 
+    def _is_emulator(self, child: _Child) -> bool:
+        return child.name in self.units and all(self.graph.nodes[m].cls.free_running for m in self.units[child.name])
+
     def stop_all(self, grace: float = 3.0) -> None:
-        live = [c for c in self.children if c.proc and c.proc.poll() is None]
+        """Drivers first, then the emulators standing in for their devices: a device that went away
+        under a running driver is a fault the driver reports (and the run would exit 1)."""
+        self._stop([c for c in self.children if not self._is_emulator(c)], grace)
+        self._stop([c for c in self.children if self._is_emulator(c)], grace)
+
+    def _stop(self, children: list[_Child], grace: float) -> None:
+        live = [c for c in children if c.proc and c.proc.poll() is None]
         for c in live:
             try:
                 c.proc.send_signal(signal.SIGTERM)
