@@ -93,6 +93,7 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
         if code == 0 and clock == "wall":
             # Nodes on other hosts report to nobody here; a free-running node is an emulated device.
             reasons += validity.wall_time_reasons(launcher.timings, launcher.devices(), dt)
+            reasons += validity.respawn_reasons(launcher.respawns)
         elif code == 0:
             reasons += validity.sim_time_reasons(launcher.timings)
     elapsed = time.perf_counter() - started

@@ -2,13 +2,22 @@
 reaches every thread on the delivery path (or says in one line why not), and a respawned node
 makes the run invalid."""
 
+import os
+import re
 import signal
 import subprocess
 from pathlib import Path
 
+import pytest
+
+from dockhil.node import Param
+
+from dockhil.runtime import validity
 from dockhil.runtime.launcher import Launcher
 from dockhil.scene import launchfile
 from dockhil.scene.graph import build
+from tests.conftest import dockhil_cmd
+from tests.graphnodes import Gain
 
 HIL = Path(__file__).resolve().parent.parent / "launch" / "hil.yaml"
 
@@ -70,3 +79,47 @@ def test_composed_drivers_close_before_their_emulators():
 
     ComposedGraph.close(Members())
     assert closed == ["driver", "device"]
+
+
+class DiesOnce(Gain):
+    """Gain that exits abruptly at tick `die_once_at` of its first life only (a marker file remembers)."""
+
+    params = {**Gain.params, "die_once_at": Param(int, -1, help="exit abruptly at this tick, once"),
+              "marker": Param(str, "", help="file made at the first death")}
+
+    def step(self, tick, inputs):
+        if tick.index == self.p.die_once_at and not os.path.exists(self.p.marker):
+            open(self.p.marker, "w").close()
+            os._exit(3)
+        return super().step(tick, inputs)
+
+
+RESPAWNED = """
+rate: 200
+nodes:
+  - {name: integ, node: "tests.graphnodes:Integrator"}
+  - {name: gain, node: "tests.test_busy_machine:DiesOnce", respawn: true, respawn_delay: 0.3,
+     params: {die_once_at: 100, marker: MARKER}}
+"""
+
+
+def test_respawn_reasons_name_the_node_and_when():
+    reasons = validity.respawn_reasons([("ft", 12.34, 1), ("ft", 20.0, 1), ("robot", 3.0, -9)])
+    assert reasons == [
+        "node 'ft' exited (code 1) and was respawned 2 time(s), at 12.3 s, 20.0 s into the run: its data has a gap",
+        "node 'robot' exited (code -9) and was respawned 1 time(s), at 3.0 s into the run: its data has a gap"]
+    assert validity.respawn_reasons([]) == []
+
+
+@pytest.mark.wall_time
+def test_a_run_in_which_a_node_was_respawned_is_invalid(write_launch, tmp_path):
+    """The node dies half a second in and is respawned: the run goes on to its end but is INVALID,
+    with the line naming the node and when. (The machine's own reasons may join the line.)"""
+    scene = write_launch(RESPAWNED.replace("MARKER", str(tmp_path / "died")))
+    p = subprocess.run(dockhil_cmd("launch", str(scene), "--wall-time", "--duration", "3"),
+                       capture_output=True, text=True, timeout=120)
+    text = p.stdout + p.stderr
+    assert "Traceback" not in text, text
+    assert p.returncode == validity.INVALID_EXIT, text
+    line = next(x for x in text.splitlines() if "INVALID:" in x)
+    assert re.search(r"node 'gain' exited \(code 3\) and was respawned 1 time\(s\), at \d+\.\d s into the run", line), line

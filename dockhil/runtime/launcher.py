@@ -336,6 +336,9 @@ class Launcher:
         self._stop_signal: int | None = None
         self.children: list[_Child] = []
         self.timings: dict[str, dict] = {}  # wall time: each node's loop figures, reported as it exits
+        # Each respawn: (node, seconds into the run, its exit code). The run goes on, but its data has a gap.
+        self.respawns: list[tuple[str, float, int]] = []
+        self._started_at = time.monotonic()
         for name, spec in self.specs.items():
             argv = [sys.executable, "-m", "dockhil.process", msgspec.json.encode(spec).decode()]
             gn = graph.nodes[self.units[name][0]]  # a container's members are local and not respawned
@@ -535,7 +538,9 @@ class Launcher:
 
     def _stop_at_duration(self) -> int:
         self.stop_all()
-        failed = [c for c in self.children if c.proc and c.proc.returncode not in (0, None)]
+        # A node still starting (a respawn under way) has no handler yet: our SIGTERM ends it, no fault of its own.
+        failed = [c for c in self.children if c.proc and c.proc.returncode not in (0, None)
+                  and not (c.proc.returncode == -signal.SIGTERM and not c.ready)]
         for c in failed:
             self.say.error(f"{c.name!r} exited with code {c.proc.returncode} while stopping", tag="")
         return 1 if failed else 0
@@ -579,6 +584,7 @@ class Launcher:
                     self.say.warning(f"node {child.name!r} exited with code {code}; respawning in "
                                      f"{child.respawn_delay:g} s", tag="")
                     child.respawn_at = time.monotonic() + child.respawn_delay
+                    self.respawns.append((child.name, time.monotonic() - (self._all_ready_at or self._started_at), code))
                     nodes_running += 1
                     continue
                 return self._died(child, code)
