@@ -17,8 +17,9 @@ from typing import Any, Callable
 import msgspec
 
 from dockhil.errors import NODE_RAISES, DockhilError, failure_line
-from dockhil.runtime.executor import (LoopTiming, Stop, bounds_check, sleep_until, check_outputs,
-                                      checked_payload)
+from dockhil.runtime.executor import Stop, check_outputs
+from dockhil.runtime.looptime import LoopTiming, sleep_until
+from dockhil.runtime.screen import bounds_check, checked_payload
 from dockhil.scene.graph import Graph
 from dockhil.log import node_line
 from dockhil.node import NodeContext, Tick
