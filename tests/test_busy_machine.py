@@ -123,3 +123,67 @@ def test_a_run_in_which_a_node_was_respawned_is_invalid(write_launch, tmp_path):
     assert p.returncode == validity.INVALID_EXIT, text
     line = next(x for x in text.splitlines() if "INVALID:" in x)
     assert re.search(r"node 'gain' exited \(code 3\) and was respawned 1 time\(s\), at \d+\.\d s into the run", line), line
+
+
+class RecordingContext:
+    def __init__(self):
+        self.options = {}
+
+    def set(self, option, value):
+        self.options[option] = value
+
+
+def test_realtime_reaches_zeromq_s_io_threads_only_where_granted(monkeypatch):
+    import zmq
+
+    from dockhil.runtime import realtime
+
+    ctx = RecordingContext()
+    monkeypatch.setattr(realtime, "granted", lambda: True)
+    assert realtime.zmq_options(ctx)
+    assert ctx.options == {zmq.THREAD_SCHED_POLICY: os.SCHED_FIFO, zmq.THREAD_PRIORITY: realtime.IO_PRIORITY}
+    assert realtime.LOOP_PRIORITY < realtime.IO_PRIORITY < realtime.DEVICE_PRIORITY
+    # Not granted: libzmq would abort on the refusal, so nothing is asked of it.
+    ctx = RecordingContext()
+    monkeypatch.setattr(realtime, "granted", lambda: False)
+    assert not realtime.zmq_options(ctx) and ctx.options == {}
+
+
+def test_a_refused_realtime_request_is_one_line_and_normal_priority(monkeypatch):
+    from dockhil.runtime import realtime
+
+    def refuse(pid, policy, param):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    lines = []
+    assert not realtime.ask(realtime.LOOP_PRIORITY, "the node loop", lines.append)
+    assert len(lines) == 1 and "\n" not in lines[0]
+    assert lines[0].startswith("warning: real-time scheduling of the node loop refused")
+    assert "running at normal priority" in lines[0] and "docs/time.md" in lines[0]
+    # A device thread of a process without the privilege is not asked again (nor said again).
+    lines.clear()
+    monkeypatch.setattr(realtime, "granted", lambda: False)
+    realtime.raise_device_thread(lines.append, "the RSI link")
+    assert lines == []
+
+
+def test_a_refused_node_loop_runs_at_normal_priority(monkeypatch):
+    """run_node with --realtime where the OS refuses: the one line, then the node runs."""
+    from dockhil.runtime import process
+    from dockhil.runtime.executor import RunSpec
+
+    def refuse(pid, policy, param):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    lines = []
+    spec = RunSpec(name="src", type_name="tests.graphnodes:Integrator", params={}, dt=0.01, clock="wall",
+                   n_ticks=3, inputs={}, outputs={}, realtime=True)
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        assert process.run_node(spec, log=lines.append) == 0
+    finally:  # the node's stop handlers are this test process's no longer
+        for s, h in handlers.items():
+            signal.signal(s, h)
+    assert sum("real-time scheduling of the node loop refused" in line for line in lines) == 1, lines

@@ -253,6 +253,11 @@ class RsiControllerEmulator:
 
     def run(self, duration: float | None = None) -> None:
         """Cycles on the monotonic clock until stopped, RSI stops, or `duration` seconds have passed."""
+        from dockhil.log import Log
+        from dockhil.runtime import realtime
+
+        # It stands for the controller: its cycle is the device's clock, above the node loops.
+        realtime.raise_device_thread(Log("rsi emulator:").warning, "the RSI controller emulator's cycle")
         t0 = next_t = time.monotonic()
         while not self._stop.is_set() and not self.stopped:
             if duration is not None and next_t - t0 >= duration:
@@ -324,12 +329,9 @@ def main(argv: list[str] | None = None) -> int:
         say.error(problems[0])
         return 2
     if args.realtime:
-        try:
-            import os
+        from dockhil.runtime import realtime
 
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(60))
-        except (PermissionError, OSError) as exc:
-            say.warning(f"real-time scheduling refused ({exc}); running at normal priority")
+        realtime.ask(realtime.DEVICE_PRIORITY, "the RSI controller emulator", say.warning)
     try:
         emulator = RsiControllerEmulator(args.host, args.port, args.cycle, args.delay, args.tau, args.max_late,
                                          args.loss, args.duplicate, args.reorder, args.jitter, args.seed,

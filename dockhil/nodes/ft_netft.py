@@ -17,7 +17,7 @@ import socket
 import threading
 import time
 
-from dockhil.runtime import ownership
+from dockhil.runtime import ownership, realtime
 from dockhil.errors import DeviceError, LaunchError, ParamError
 from dockhil.hardware import netft as rdt
 from dockhil.node import Node, Output, Param
@@ -31,8 +31,8 @@ class _Receiver:
     """Reads the box's socket in a thread: a running sum of the usable records and the counts of
     everything else."""
 
-    def __init__(self, sock: socket.socket, box: tuple[str, int]):
-        self.sock, self.box = sock, box
+    def __init__(self, sock: socket.socket, box: tuple[str, int], say=print):
+        self.sock, self.box, self.say = sock, box, say
         self.lock = threading.Lock()
         self.seq = rdt.SequenceCheck()
         self.n = 0
@@ -51,6 +51,7 @@ class _Receiver:
         self.thread.start()
 
     def _loop(self) -> None:
+        realtime.raise_device_thread(self.say, "the Net F/T receive thread")
         sock = self.sock
         while self._run:
             try:
@@ -173,7 +174,7 @@ class FtNetFtDriver(Node):
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
             self.sock.bind(("", 0))
             self.sock.settimeout(0.05)
-            self.receiver = _Receiver(self.sock, self.box)
+            self.receiver = _Receiver(self.sock, self.box, self.log)
             self._tare()
         except BaseException:
             self._shutdown()

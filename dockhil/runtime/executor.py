@@ -38,6 +38,7 @@ from dockhil.errors import DockhilError
 from dockhil.log import node_line
 from dockhil.node import NodeContext, Tick
 from dockhil.msgs.codec import DecodeError, decode, decode_header
+from dockhil.runtime import realtime
 from dockhil.runtime.looptime import LoopTiming, sleep_until
 from dockhil.runtime.screen import checked_payload
 
@@ -159,6 +160,7 @@ class NodeExecutor:
         self.unconnected = [port for port in ins if port not in spec.inputs]
         self.in_types = {port: ins[port].type for port in spec.inputs}
         self.ctx = zmq.Context.instance()
+        realtime.zmq_options(self.ctx)  # --realtime: its I/O threads too, set before its first socket
         keys = read_spec_keys(spec)
         self.sub = Subscriber(self.ctx)
         self._separator = separator
