@@ -129,6 +129,7 @@ class RsiLink(threading.Thread):
         self.hold_latched = False
         self.hold_written = threading.Event()
         self.last_ipoc = -1
+        self.missing = 0  # controller datagrams that never came: IPOC gaps of more than one cycle
         self.received = 0
         self.answered = 0
         self.counted = dict.fromkeys(KINDS, 0)
@@ -179,6 +180,8 @@ class RsiLink(threading.Thread):
         if frame.ipoc <= self.last_ipoc:
             self._count("repeated", f"IPOC {frame.ipoc} after {self.last_ipoc}")
             return None
+        if self.last_ipoc >= 0:
+            self.missing += max(0, round((frame.ipoc - self.last_ipoc) / (self.cycle * 1000.0)) - 1)
         self.last_ipoc = frame.ipoc
         if frame.delay is not None and self.delay_at_start is not None and frame.delay > self.delay:
             # An answer since the last datagram came late: the controller kept the correction it had
@@ -535,6 +538,8 @@ class RobotRsiDriver(RobotModbusDriver):
         counted = ", ".join(f"{n} {KINDS[k]}" for k, n in link.counted.items() if n)
         if counted:
             self.log(f"warning: {self.device}: datagrams ignored: {counted}")
+        if link.missing:
+            self.log(f"warning: {self.device}: {link.missing} controller datagrams never came (gaps in the IPOC)")
         if link.stale_holds:
             self.log(f"warning: {self.device}: held on a stale setpoint for {link.stale_holds} cycles")
         if link.delay_at_start is not None and link.delay > link.delay_at_start:
