@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import random
+import re
 import subprocess
 from pathlib import Path
 
@@ -59,25 +60,31 @@ MACHINE = ("fell behind real time", "missed", "started", "late")  # reasons that
 
 @pytest.mark.wall_time
 def test_one_percent_loss_on_both_links_is_counted_and_the_run_valid_or_held(tmp_path):
+    """At 250 Hz (as the swap test: a busy machine's seven processes keep up there). The counts hold
+    whatever the machine did; the run is valid, or invalid only for the machine's reasons after a
+    retry, or held with one line."""
     scene = lossy_scene(tmp_path, 1.0, tmp_path)
     for _attempt in range(2):
         p = subprocess.run(dockhil_cmd("launch", str(scene), "ft:=netft", "robot:=rsi", "emulators:=true",
-                                       "--wall-time", "--duration", "6"),
+                                       "rate:=250", "--wall-time", "--duration", "6"),
                            capture_output=True, text=True, timeout=90)
         text = p.stdout + p.stderr
         assert "Traceback" not in text, text
         invalid = next((x for x in text.splitlines() if "INVALID:" in x), "")
-        if p.returncode == 3 and all(any(m in r for m in MACHINE) for r in invalid.split("; ")):
-            continue  # the machine's: try once more
-        break
-    assert p.returncode in (0, 1, 3), text
-    if p.returncode == 1:  # held: one line says why, and the robot was held
+        machine = p.returncode == 3 and all(any(m in r for m in MACHINE) for r in invalid.split("; "))
+        if not machine:
+            break
+    if p.returncode == 1:  # held: one line says why
         assert any("safety stop" in x or "holding" in x for x in text.splitlines()), text
         return
-    assert p.returncode == 0, text
+    assert p.returncode == 0 or machine, text
     emulated = json.loads((tmp_path / "rsi.json").read_text())
-    assert emulated["lost"] > 0
-    # The driver counts every datagram the controller lost (an IPOC gap); the box's lost records
-    # are counted by the Net F/T driver as sequence gaps.
-    assert f"{emulated['lost']} controller datagrams never came" in text, text
-    assert "lost" in next(x for x in text.splitlines() if x.startswith("[ft]") and "warning" in x and "lost" in x)
+    # Every datagram the controller lost is an IPOC gap the driver counts (so are the slots the
+    # emulator itself skipped when it fell behind: at least as many).
+    missing = re.search(r"(\d+) controller datagrams never came", text)
+    assert emulated["lost"] > 0 and missing and int(missing[1]) >= emulated["lost"], text
+    box = re.search(r"Net F/T emulator: (\d+) records, (\d+) datagrams sent", text)
+    lost = int(box[1]) - int(box[2])
+    assert lost > 0 and f"Net F/T box 127.0.0.2:49152: {lost} lost" in text, text
+    # The correction never moved more than the per-cycle limit (the driver's max_speed 0.1 m/s).
+    assert emulated["max_step_mm"] <= 0.1 * 0.004 * 1000 + 1e-9
