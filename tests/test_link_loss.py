@@ -79,12 +79,15 @@ def test_one_percent_loss_on_both_links_is_counted_and_the_run_valid_or_held(tmp
         return
     assert p.returncode == 0 or machine, text
     emulated = json.loads((tmp_path / "rsi.json").read_text())
-    # Every datagram the controller lost is an IPOC gap the driver counts (so are the slots the
-    # emulator itself skipped when it fell behind: at least as many).
-    missing = re.search(r"(\d+) controller datagrams never came", text)
-    assert emulated["lost"] > 0 and missing and int(missing[1]) >= emulated["lost"], text
+    # Every datagram the controller lost while the driver listened is an IPOC gap the driver counts
+    # (and so are slots the emulator itself skipped when it fell behind: at least as many).
+    missing = re.search(r"(\d+) controller datagrams never came \(gaps in the IPOC between (\d+) and (\d+)\)", text)
+    assert missing, text
+    first, last = int(missing[2]), int(missing[3])
+    lost = [i for i in emulated["lost_ipocs"] if first < i < last]
+    assert lost and int(missing[1]) >= len(lost), (missing[0], lost)
     box = re.search(r"Net F/T emulator: (\d+) records, (\d+) datagrams sent", text)
-    lost = int(box[1]) - int(box[2])
-    assert lost > 0 and f"Net F/T box 127.0.0.2:49152: {lost} lost" in text, text
+    dropped = int(box[1]) - int(box[2])
+    assert dropped > 0 and f"Net F/T box 127.0.0.2:49152: {dropped} lost" in text, text
     # The correction never moved more than the per-cycle limit (the driver's max_speed 0.1 m/s).
     assert emulated["max_step_mm"] <= 0.1 * 0.004 * 1000 + 1e-9

@@ -54,6 +54,7 @@ def _normalised(q):
     return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
 
+MAX_LOST_KEPT = 100_000  # lost IPOCs the record lists: a driver's count is checked against them
 class RsiServo:
     """The robot behind the controller: start pose + correction, through a delay and a first-order lag. No I/O."""
 
@@ -120,6 +121,7 @@ class RsiControllerEmulator:
         self.korr = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         self.stopped = False  # RSI stopped: too many late answers
         self.armed = False  # the first answer came: late answers count from now on
+        self.lost_ipocs: list[int] = []  # which cycles' datagrams were lost (the first MAX_LOST_KEPT)
         self.stats = {"cycles": 0, "sent": 0, "lost": 0, "duplicated": 0, "reordered": 0, "answered": 0,
                       "late": 0, "late_in_a_row_max": 0, "bad_answers": 0, "stray_answers": 0,
                       "max_speed": 0.0, "max_angular_speed": 0.0, "max_step_mm": 0.0, "max_step_deg": 0.0}
@@ -141,6 +143,8 @@ class RsiControllerEmulator:
         rng = self.rng
         if self.loss and rng.random() < self.loss:
             self.stats["lost"] += 1
+            if len(self.lost_ipocs) < MAX_LOST_KEPT:
+                self.lost_ipocs.append(self.ipoc)
             return
         if self.reorder and self._held_back is None and rng.random() < self.reorder:
             self._held_back = data  # goes out after the next one
@@ -285,6 +289,7 @@ class RsiControllerEmulator:
         lat = list(self.latencies)
         ms = lambda v: None if v is None else round(v * 1000.0, 4)  # noqa: E731
         return {**self.stats, "delay": self.stats["late"], "stopped": self.stopped, "cycle": self.cycle,
+                "lost_ipocs": self.lost_ipocs,
                 "latency_ms": {"p50": ms(_percentile(lat, 0.5)), "p99": ms(_percentile(lat, 0.99)),
                                "max": ms(max(lat) if lat else None)}}
 

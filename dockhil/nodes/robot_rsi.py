@@ -539,7 +539,8 @@ class RobotRsiDriver(RobotModbusDriver):
         if counted:
             self.log(f"warning: {self.device}: datagrams ignored: {counted}")
         if link.missing:
-            self.log(f"warning: {self.device}: {link.missing} controller datagrams never came (gaps in the IPOC)")
+            self.log(f"warning: {self.device}: {link.missing} controller datagrams never came (gaps in the IPOC "
+                     f"between {link.first.ipoc} and {link.last_ipoc})")
         if link.stale_holds:
             self.log(f"warning: {self.device}: held on a stale setpoint for {link.stale_holds} cycles")
         if link.delay_at_start is not None and link.delay > link.delay_at_start:
