@@ -74,7 +74,7 @@ def messages_of(scene: str, n_ticks: int, args: dict | None = None) -> list[list
 
 def cost_us_per_tick(ticks: list[list], repeat: int = 5) -> dict[str, float]:
     """Median CPU [us] per tick of screening the tick's messages, and of building them."""
-    from dockhil.runtime.executor import bounds_check
+    from dockhil.runtime.screen import bounds_check
 
     screens = {t: bounds_check(t) for t in {type(m) for msgs in ticks for m in msgs}}
     builds = {t: rebuilder(t) for t in screens}

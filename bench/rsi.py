@@ -80,7 +80,7 @@ def main() -> None:
                     time.sleep(pause)
                 elif pause < -0.1:
                     next_t = time.monotonic()
-            counted = dict(node.link.counted)
+            counted, missing = dict(node.link.counted), node.link.missing
         finally:
             emulator.terminate()  # the controller stops first: no late answers from the driver's closing
             emulator.wait(timeout=30)
@@ -98,6 +98,9 @@ def main() -> None:
         "datagrams": rec["sent"], "answered": rec["answered"], "late": rec["late"],
         "late_in_a_row_max": rec["late_in_a_row_max"],
         "lost": rec["lost"], "counted_by_driver": counted, "stray_answers": rec["stray_answers"],
+        # IPOC gaps the emulator did not lose on purpose: cycles it skipped because it stalled itself
+        # (its own process, SCHED_FIFO 60 with --realtime): the machine's stalls (bench/rt_probe.py).
+        "emulator_stalls": missing - rec["lost"],
         "max_step_mm": round(rec["max_step_mm"], 4), "max_speed_m_s": round(rec["max_speed"], 4),
         "warnings": [line for line in logs if line.startswith("warning")],
     }

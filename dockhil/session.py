@@ -122,7 +122,8 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
 
         def timing() -> list[str]:
             if clock == "wall":  # nodes on other hosts report to nobody here; a free-running node is an emulated device
-                return validity.wall_time_reasons(launcher.timings, launcher.devices(), dt)
+                return (validity.wall_time_reasons(launcher.timings, launcher.devices(), dt)
+                        + validity.respawn_reasons(launcher.respawns))
             return validity.sim_time_reasons(launcher.timings)
 
         launcher = Launcher(graph, clock=clock, duration=duration, transport=transport, extra=extra,

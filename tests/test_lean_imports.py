@@ -116,7 +116,7 @@ def test_a_node_processs_authentication_and_loop_report_load_neither_asyncio_nor
 
     code = (
         "import sys, zmq\n"
-        "from dockhil.runtime.executor import LoopTiming\n"
+        "from dockhil.runtime.looptime import LoopTiming\n"
         "from dockhil.runtime.transport import GraphKeys, Publisher, Subscriber\n"
         "keys = GraphKeys.make()\n"
         "ctx = zmq.Context.instance()\n"

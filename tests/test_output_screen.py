@@ -8,7 +8,7 @@ import pytest
 
 from dockhil import msgs
 from dockhil.errors import DockhilError
-from dockhil.runtime.executor import check_message, checked_payload
+from dockhil.runtime.screen import check_message, checked_payload
 from dockhil.msgs import (BodyState, BodyWrenches, Header, Pose, Quaternion, RobotState, SatelliteState, Twist, Vector3,
                   Wrench, WrenchStamped)
 
@@ -87,7 +87,7 @@ def test_a_composed_run_refuses_exactly_what_a_reader_refuses_with_the_same_line
 def test_the_screen_passes_good_messages_without_the_full_check():
     # A screen that said False for everything would be right and slow: the messages the nodes
     # build pass it as they are.
-    from dockhil.runtime.executor import bounds_check
+    from dockhil.runtime.screen import bounds_check
 
     good = [WrenchStamped(header=Header(stamp=1.5, tick=3, seq=3, frame="f"), wrench=Wrench(force=Vector3(1.0, 2.0, 3.0))),
             SatelliteState(header=Header(), bodies=(BodyState("chaser", 750.0), BodyState("target", 1e6)), in_contact=True),
@@ -141,7 +141,7 @@ def _mutants(seed: int, n: int):
 
 
 def test_the_compiled_screen_judges_as_its_python_twin():
-    from dockhil.runtime import executor
+    from dockhil.runtime import screen
 
     from dockhil.compiled import twin
 
@@ -149,7 +149,7 @@ def test_the_compiled_screen_judges_as_its_python_twin():
         pytest.skip("dockhil.runtime._screen is not built here")
     passed = 0
     for msg in [*CASES, *_mutants(3, 3000)]:
-        compiled, python = executor.bounds_check(type(msg))(msg), executor.python_screen(type(msg))(msg)
+        compiled, python = screen.bounds_check(type(msg))(msg), screen.python_screen(type(msg))(msg)
         # Either may only pass what a reader accepts; the compiled one passes all the twin passes
         # (and more: a sum of finite values that overflows, which the twin sends to the full check).
         assert compiled <= reader_accepts(msg) and python <= compiled, msg

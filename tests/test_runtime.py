@@ -362,7 +362,7 @@ def test_loop_figures_are_numpys_percentiles_without_numpy():
 
     import numpy as np
 
-    from dockhil.runtime.executor import LoopTiming
+    from dockhil.runtime.looptime import LoopTiming
 
     rng = random.Random(7)
     for n in (2, 3, 10, 1001):

@@ -377,7 +377,7 @@ def test_the_composed_bounds_check_refuses_what_a_reader_refuses():
     import math
 
     from dockhil import msgs
-    from dockhil.runtime.executor import check_message, checked_payload
+    from dockhil.runtime.screen import check_message, checked_payload
     from dockhil.msgs import BodyState, BodyWrenches, Pose, SatelliteState, Twist
 
     def body(mass=1.0, vx=0.0):

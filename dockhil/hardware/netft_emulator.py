@@ -195,6 +195,10 @@ class NetFtBox:
 
     # -- the box's loop -----------------------------------------------------------------
     def _serve_rdt(self) -> None:
+        from dockhil.log import Log
+        from dockhil.runtime import realtime
+
+        realtime.raise_device_thread(Log("netft emulator:").warning, "the Net F/T emulator's stream")  # it stands for the box
         while self._running:
             try:
                 data, address = self.udp.recvfrom(2048)

@@ -54,6 +54,7 @@ def _normalised(q):
     return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
 
+MAX_LOST_KEPT = 100_000  # lost IPOCs the record lists: a driver's count is checked against them
 class RsiServo:
     """The robot behind the controller: start pose + correction, through a delay and a first-order lag. No I/O."""
 
@@ -120,6 +121,7 @@ class RsiControllerEmulator:
         self.korr = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         self.stopped = False  # RSI stopped: too many late answers
         self.armed = False  # the first answer came: late answers count from now on
+        self.lost_ipocs: list[int] = []  # which cycles' datagrams were lost (the first MAX_LOST_KEPT)
         self.stats = {"cycles": 0, "sent": 0, "lost": 0, "duplicated": 0, "reordered": 0, "answered": 0,
                       "late": 0, "late_in_a_row_max": 0, "bad_answers": 0, "stray_answers": 0,
                       "max_speed": 0.0, "max_angular_speed": 0.0, "max_step_mm": 0.0, "max_step_deg": 0.0}
@@ -141,6 +143,8 @@ class RsiControllerEmulator:
         rng = self.rng
         if self.loss and rng.random() < self.loss:
             self.stats["lost"] += 1
+            if len(self.lost_ipocs) < MAX_LOST_KEPT:
+                self.lost_ipocs.append(self.ipoc)
             return
         if self.reorder and self._held_back is None and rng.random() < self.reorder:
             self._held_back = data  # goes out after the next one
@@ -253,6 +257,11 @@ class RsiControllerEmulator:
 
     def run(self, duration: float | None = None) -> None:
         """Cycles on the monotonic clock until stopped, RSI stops, or `duration` seconds have passed."""
+        from dockhil.log import Log
+        from dockhil.runtime import realtime
+
+        # It stands for the controller: its cycle is the device's clock, above the node loops.
+        realtime.raise_device_thread(Log("rsi emulator:").warning, "the RSI controller emulator's cycle")
         t0 = next_t = time.monotonic()
         while not self._stop.is_set() and not self.stopped:
             if duration is not None and next_t - t0 >= duration:
@@ -280,6 +289,7 @@ class RsiControllerEmulator:
         lat = list(self.latencies)
         ms = lambda v: None if v is None else round(v * 1000.0, 4)  # noqa: E731
         return {**self.stats, "delay": self.stats["late"], "stopped": self.stopped, "cycle": self.cycle,
+                "lost_ipocs": self.lost_ipocs,
                 "latency_ms": {"p50": ms(_percentile(lat, 0.5)), "p99": ms(_percentile(lat, 0.99)),
                                "max": ms(max(lat) if lat else None)}}
 
@@ -324,12 +334,9 @@ def main(argv: list[str] | None = None) -> int:
         say.error(problems[0])
         return 2
     if args.realtime:
-        try:
-            import os
+        from dockhil.runtime import realtime
 
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(60))
-        except (PermissionError, OSError) as exc:
-            say.warning(f"real-time scheduling refused ({exc}); running at normal priority")
+        realtime.ask(realtime.DEVICE_PRIORITY, "the RSI controller emulator", say.warning)
     try:
         emulator = RsiControllerEmulator(args.host, args.port, args.cycle, args.delay, args.tau, args.max_late,
                                          args.loss, args.duplicate, args.reorder, args.jitter, args.seed,

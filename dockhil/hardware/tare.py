@@ -17,7 +17,7 @@ import re
 import stat
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 from dockhil.errors import DeviceError
 
@@ -146,3 +146,41 @@ def graph_store(node: str) -> TareStore | None:
 
     directory = ownership.graph_dir()
     return TareStore(directory, node) if directory is not None else None
+
+
+Samples = Sequence[tuple[Sequence[float], Sequence[float]]]
+
+
+def graph_tare(node: str, device: str, tare_samples: int, limits: TareLimits, read: Callable[[int], Samples],
+               log: Callable[[str], None], unit: str = "samples") -> Bias | None:
+    """The tare of `node` for this graph: at its first start, over `read(tare_samples)` (refused in
+    one line where `refusal` says so) and kept; at a restart, the kept one (read(1): the sensor
+    streams). None when tare_samples is 0 (no tare)."""
+    store = graph_store(node) if tare_samples else None
+    try:
+        first = store.load() if store else None
+    except DeviceError as exc:
+        raise DeviceError(f"{device}: {exc}") from None
+    got = read(tare_samples if tare_samples and first is None else 1)
+    if first is not None:
+        off = norm([a - b for a, b in zip(measure(got).force, first.force)])
+        log(f"{device}: restarted: kept the graph's first tare, bias force {fmt(first.force)} N, "
+            f"torque {fmt(first.torque)} N m (the probe reads {off:.2f} N from it now)")
+        return first
+    if not tare_samples:
+        return None
+    bias = measure(got)
+    why = refusal(bias, limits)
+    if why:
+        raise DeviceError(f"{device}: tare: {why}")
+    if store is not None:
+        try:
+            store.save(bias)
+        except OSError as exc:
+            raise DeviceError(f"{device}: cannot keep the tare in {store.path}: {exc.strerror}") from None
+    log(f"{device}: tared over {bias.samples} {unit}: bias force {fmt(bias.force)} N, torque {fmt(bias.torque)} N m")
+    return bias
+
+
+def fmt(v: Sequence[float]) -> str:
+    return "(" + ", ".join(f"{x:.3f}" for x in v) + ")"

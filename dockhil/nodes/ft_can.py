@@ -201,7 +201,7 @@ class FtCanDriver(Node):
             if sample.status & (ff.STATUS_FAULT | ff.STATUS_OVERRANGE):
                 raise DeviceError(
                     f"{self.device}: sensor reports {ff.describe_status(sample.status)} "
-                    f"(raw force {_fmt(sample.force)} N, torque {_fmt(sample.torque)} N m)"
+                    f"(raw force {tare.fmt(sample.force)} N, torque {tare.fmt(sample.torque)} N m)"
                 )
             samples.append(sample)
         return samples
@@ -209,35 +209,11 @@ class FtCanDriver(Node):
     def _tare(self) -> None:
         """Tare at the graph's first start; a restart keeps that tare (it may come back in contact)."""
         p = self.p
-        store = tare.graph_store(self.ctx.name) if p.tare_samples else None
-        try:
-            first = store.load() if store else None
-        except DeviceError as exc:
-            raise DeviceError(f"{self.device}: {exc}") from None
-        want = p.tare_samples if p.tare_samples and first is None else 1  # 1: the sensor streams
-        got = self._first_samples(want)
-        if first is not None:
-            self.bias_force, self.bias_torque = first.force, first.torque
-            now = tare.measure([(s.force, s.torque) for s in got])
-            off = tare.norm([a - b for a, b in zip(now.force, first.force)])
-            self.log(f"{self.device}: restarted: kept the graph's first tare, bias force {_fmt(first.force)} N, "
-                     f"torque {_fmt(first.torque)} N m (the probe reads {off:.2f} N from it now)")
-            return
-        if not p.tare_samples:
-            return
-        bias = tare.measure([(s.force, s.torque) for s in got])
         limits = tare.TareLimits(p.max_bias, p.max_bias_torque, p.max_tare_spread, p.max_tare_spread_torque)
-        why = tare.refusal(bias, limits)
-        if why:
-            raise DeviceError(f"{self.device}: tare: {why}")
-        if store is not None:
-            try:
-                store.save(bias)
-            except OSError as exc:
-                raise DeviceError(f"{self.device}: cannot keep the tare in {store.path}: {exc.strerror}") from None
-        self.bias_force, self.bias_torque = bias.force, bias.torque
-        self.log(f"{self.device}: tared over {bias.samples} samples: bias force {_fmt(bias.force)} N, "
-                 f"torque {_fmt(bias.torque)} N m")
+        bias = tare.graph_tare(self.ctx.name, self.device, p.tare_samples, limits,
+                               lambda n: [(s.force, s.torque) for s in self._first_samples(n)], self.log)
+        if bias is not None:
+            self.bias_force, self.bias_torque = bias.force, bias.torque
 
     def _first_samples(self, want: int) -> list[ff.FtSample]:
         """The first `want` samples the sensor streams, within open_timeout (each budget)."""
@@ -303,7 +279,3 @@ class FtCanDriver(Node):
             (self.assembler.orphans, "unpaired frames")) if n]
         if problems:
             self.log(f"warning: {self.device}: {', '.join(problems)}")
-
-
-def _fmt(v) -> str:
-    return "(" + ", ".join(f"{x:.3f}" for x in v) + ")"

@@ -12,14 +12,14 @@ Standard library only (socket, urllib).
 
 from __future__ import annotations
 
-import math
 import socket
 import threading
 import time
 
-from dockhil.runtime import ownership
+from dockhil.runtime import ownership, realtime
 from dockhil.errors import DeviceError, LaunchError, ParamError
 from dockhil.hardware import netft as rdt
+from dockhil.hardware import tare
 from dockhil.node import Node, Output, Param
 from dockhil.msgs import Vector3, Wrench, WrenchStamped
 from dockhil.nodes.ft_can import FtCanDriver
@@ -31,8 +31,8 @@ class _Receiver:
     """Reads the box's socket in a thread: a running sum of the usable records and the counts of
     everything else."""
 
-    def __init__(self, sock: socket.socket, box: tuple[str, int]):
-        self.sock, self.box = sock, box
+    def __init__(self, sock: socket.socket, box: tuple[str, int], say=print):
+        self.sock, self.box, self.say = sock, box, say
         self.lock = threading.Lock()
         self.seq = rdt.SequenceCheck()
         self.n = 0
@@ -51,6 +51,7 @@ class _Receiver:
         self.thread.start()
 
     def _loop(self) -> None:
+        realtime.raise_device_thread(self.say, "the Net F/T receive thread")
         sock = self.sock
         while self._run:
             try:
@@ -126,7 +127,8 @@ class FtNetFtDriver(Node):
         "torque_unit": Param(str, "", help="the box's torque unit: Nm, Nmm, lbf-in, lbf-ft, kgf-cm, kNm ('': "
                              "scfgtu of netftapi2.xml)"),
         # the tare and the mounting as for the CAN sensor (tare_samples counts records here)
-        **{name: FtCanDriver.params[name] for name in ("sign", "tare_samples", "max_bias", "max_bias_torque")},
+        **{name: FtCanDriver.params[name] for name in ("sign", "tare_samples", "max_bias", "max_bias_torque",
+                                                          "max_tare_spread", "max_tare_spread_torque")},
         "stale_timeout": Param(float, 0.1, unit="s", help="no new record for this long is an error", gt=0.0),
         "open_timeout": Param(float, 2.0, unit="s", help="time for the box to start streaming", gt=0.0),
         "frame": Param(str, "probe", help="header frame id of the published wrench"),
@@ -173,7 +175,7 @@ class FtNetFtDriver(Node):
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
             self.sock.bind(("", 0))
             self.sock.settimeout(0.05)
-            self.receiver = _Receiver(self.sock, self.box)
+            self.receiver = _Receiver(self.sock, self.box, self.log)
             self._tare()
         except BaseException:
             self._shutdown()
@@ -216,9 +218,19 @@ class FtNetFtDriver(Node):
                               f"{exc.strerror or exc}") from None
 
     def _tare(self) -> None:
-        """Wait for the stream; tare over the first tare_samples records (at least one must come)."""
+        """Tare at the graph's first start over tare_samples records; a restart keeps that tare (it
+        may come back in contact): dockhil/hardware/tare.py, as for the CAN sensor."""
+        p = self.p
+        limits = tare.TareLimits(p.max_bias, p.max_bias_torque, p.max_tare_spread, p.max_tare_spread_torque)
+        bias = tare.graph_tare(self.ctx.name, self.device, p.tare_samples, limits, self._first_records, self.log,
+                               unit="records")
+        if bias is not None:
+            self.bias_force, self.bias_torque = bias.force, bias.torque
+
+    def _first_records(self, want: int) -> list[tuple[tuple[float, ...], tuple[float, ...]]]:
+        """Wait for the stream; the first `want` usable records as (force, torque) (at least one must come)."""
         p, receiver = self.p, self.receiver
-        want = max(1, p.tare_samples)
+        want = max(1, want)
         receiver.collect(want)
         deadline, asked, streaming = time.monotonic() + p.open_timeout, 0.0, False
         while True:
@@ -244,11 +256,8 @@ class FtNetFtDriver(Node):
         with receiver.lock:
             records, receiver.collected = receiver.collected, None
         receiver.take()  # the graph's ticks start from here
-        if p.tare_samples:
-            fs, ts = self.force_scale, self.torque_scale
-            samples = [(tuple(c[i] * fs for i in range(3)), tuple(c[3 + i] * ts for i in range(3))) for c in records]
-            self.bias_force, self.bias_torque = tare_bias(samples, p.max_bias, p.max_bias_torque, self.device,
-                                                          self.log)
+        fs, ts = self.force_scale, self.torque_scale
+        return [(tuple(c[i] * fs for i in range(3)), tuple(c[3 + i] * ts for i in range(3))) for c in records]
 
     def _foreign_note(self) -> str:
         r = self.receiver
@@ -262,7 +271,7 @@ class FtNetFtDriver(Node):
             f = [c * self.force_scale for c in fault.counts[:3]]
             raise DeviceError(f"{self.device}: the box reports status {fault.status:#010x} "
                               f"({rdt.describe_status(fault.status)}) in record {fault.rdt_sequence}; holding "
-                              f"(raw force {_fmt(f)} N; see the box's web page)")
+                              f"(raw force {tare.fmt(f)} N; see the box's web page)")
 
     def step(self, tick, inputs):
         r = self.receiver
@@ -325,25 +334,3 @@ class FtNetFtDriver(Node):
         problems = [f"{n} {what}" for what, n in counters.items() if n and what != "records"]
         if problems:
             self.log(f"warning: {self.device}: {', '.join(problems)}")
-
-
-def tare_bias(samples, max_bias: float, max_bias_torque: float, device: str, log):
-    """The bias (mean force [N], mean torque [N m]) of the unloaded probe's (force, torque) samples,
-    refused when it is so large that something loads the probe."""
-    n = len(samples)
-    force = tuple(sum(s[0][i] for s in samples) / n for i in range(3))
-    torque = tuple(sum(s[1][i] for s in samples) / n for i in range(3))
-    f, t = math.sqrt(sum(v * v for v in force)), math.sqrt(sum(v * v for v in torque))
-    for value, bound, what in ((f, max_bias, f"bias force |F| = {f:.1f} N > max_bias {max_bias:g} N"),
-                               (t, max_bias_torque, f"bias torque |T| = {t:.2f} N m > max_bias_torque "
-                                                    f"{max_bias_torque:g} N m")):
-        if bound and value > bound:
-            raise DeviceError(f"{device}: tare: {what}: something loads the probe (taring it away would hide that "
-                              f"force from every limit); free the probe and start again, or raise the bound for a "
-                              f"heavy tool")
-    log(f"{device}: tared over {n} records: bias force {_fmt(force)} N, torque {_fmt(torque)} N m")
-    return force, torque
-
-
-def _fmt(v) -> str:
-    return "(" + ", ".join(f"{x:.3f}" for x in v) + ")"

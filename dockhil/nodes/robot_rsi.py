@@ -43,7 +43,6 @@ thread waits for the interpreter at most that long while the node's thread runs;
 from __future__ import annotations
 
 import math
-import os
 import socket
 import sys
 import threading
@@ -56,9 +55,9 @@ from dockhil.msgs import Pose, Quaternion, RobotState, Twist, Vector3
 from dockhil.node import Param
 from dockhil.hardware.robot_limits import command_values, message_key, non_finite
 from dockhil.nodes.robot_modbus import RobotModbusDriver
+from dockhil.runtime import realtime
 
 SWITCH_INTERVAL = 0.0002  # s: longest wait of the link thread for the interpreter while another thread runs
-LINK_PRIORITY = 60  # SCHED_FIFO priority of the link thread: above the node loops' (dockhil.runtime.process)
 VELOCITY_WINDOW_S = 0.02  # the measured twist is the pose's change over at least this long
 KINDS = {"foreign": "from another address than the controller's",
          "oversized": "oversized", "malformed": "malformed", "repeated": "with an IPOC not above the last one"}
@@ -131,6 +130,7 @@ class RsiLink(threading.Thread):
         self.hold_latched = False
         self.hold_written = threading.Event()
         self.last_ipoc = -1
+        self.missing = 0  # controller datagrams that never came: IPOC gaps of more than one cycle
         self.received = 0
         self.answered = 0
         self.counted = dict.fromkeys(KINDS, 0)
@@ -181,6 +181,8 @@ class RsiLink(threading.Thread):
         if frame.ipoc <= self.last_ipoc:
             self._count("repeated", f"IPOC {frame.ipoc} after {self.last_ipoc}")
             return None
+        if self.last_ipoc >= 0:
+            self.missing += max(0, round((frame.ipoc - self.last_ipoc) / (self.cycle * 1000.0)) - 1)
         self.last_ipoc = frame.ipoc
         if frame.delay is not None and self.delay_at_start is not None and frame.delay > self.delay:
             # An answer since the last datagram came late: the controller kept the correction it had
@@ -242,11 +244,7 @@ class RsiLink(threading.Thread):
 
     def run(self) -> None:
         if self.realtime:
-            try:
-                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(LINK_PRIORITY))
-            except (PermissionError, OSError, AttributeError) as exc:
-                self._note(f"warning: real-time scheduling of the RSI link refused ({exc}); answering at normal "
-                           f"priority (grant CAP_SYS_NICE or an rtprio limit)")
+            realtime.ask(realtime.DEVICE_PRIORITY, "the RSI link", self._note)
         sock, clock, handle = self.sock, self.clock, self.handle
         buf = bytearray(rsi.MAX_DATAGRAM + 1)  # one byte more: a datagram that fills it is oversized
         view = memoryview(buf)
@@ -378,10 +376,7 @@ class RobotRsiDriver(RobotModbusDriver):
         sock.settimeout(0.05)  # the link looks at `stopping` this often
         self._switch_interval = sys.getswitchinterval()
         sys.setswitchinterval(min(self._switch_interval, SWITCH_INTERVAL))
-        try:  # a node loop launched with --realtime: its answering thread goes above it
-            inherited = os.sched_getscheduler(0) in (os.SCHED_FIFO, os.SCHED_RR)
-        except (OSError, AttributeError):
-            inherited = False
+        inherited = realtime.granted()  # a node loop launched with --realtime: its answering thread goes above it
         self.link = RsiLink(sock, controller, p.cycle, p.max_speed, p.max_angular_speed, p.stall_timeout,
                             p.sentype, self.ctx.clock, p.realtime or inherited)
         self.link.start()
@@ -544,6 +539,9 @@ class RobotRsiDriver(RobotModbusDriver):
         counted = ", ".join(f"{n} {KINDS[k]}" for k, n in link.counted.items() if n)
         if counted:
             self.log(f"warning: {self.device}: datagrams ignored: {counted}")
+        if link.missing:
+            self.log(f"warning: {self.device}: {link.missing} controller datagrams never came (gaps in the IPOC "
+                     f"between {link.first.ipoc} and {link.last_ipoc})")
         if link.stale_holds:
             self.log(f"warning: {self.device}: held on a stale setpoint for {link.stale_holds} cycles")
         if link.delay_at_start is not None and link.delay > link.delay_at_start:

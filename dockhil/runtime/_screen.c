@@ -1,5 +1,5 @@
-/* The screen of a message, compiled: what executor.bounds_check's generated Python function
-   judges, judged from a spec built from the message's type (executor._screen_spec). A screen, not
+/* The screen of a message, compiled: what screen.bounds_check's generated Python function
+   judges, judged from a spec built from the message's type (screen._screen_spec). A screen, not
    the verdict: False sends the message to the full check (encode and decode), which gives the line.
 */
 
@@ -94,7 +94,7 @@ static PyObject *screen(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 
 static PyMethodDef methods[] = {
     {"screen", (PyCFunction)(void (*)(void))screen, METH_FASTCALL,
-     "screen(spec, message): executor.bounds_check's screen, compiled."},
+     "screen(spec, message): screen.bounds_check's screen, compiled."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -17,8 +17,9 @@ from typing import Any, Callable
 import msgspec
 
 from dockhil.errors import NODE_RAISES, DockhilError, failure_line
-from dockhil.runtime.executor import (LoopTiming, Stop, bounds_check, sleep_until, check_outputs,
-                                      checked_payload)
+from dockhil.runtime.executor import Stop, check_outputs
+from dockhil.runtime.looptime import LoopTiming, sleep_until
+from dockhil.runtime.screen import bounds_check, checked_payload
 from dockhil.scene.graph import Graph
 from dockhil.log import node_line
 from dockhil.node import NodeContext, Tick
@@ -71,9 +72,10 @@ class ComposedGraph:
 
     def close(self) -> None:
         """Every node's close, even after one failed; then the first failure, as one line naming
-        its node (a driver holds the robot in close: its failure fails the run)."""
+        its node (a driver holds the robot in close: its failure fails the run). Drivers close
+        before the emulators standing in for their devices, as on a real bench the device outlives them."""
         first = None
-        for name, node in self.nodes.items():
+        for name, node in sorted(self.nodes.items(), key=lambda item: type(item[1]).free_running):
             try:
                 node.close()
             except NODE_RAISES as exc:  # close every node even if one fails (a driver holds the robot there)

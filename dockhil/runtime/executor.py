@@ -17,12 +17,12 @@ are not sent.
 
 Both clocks: every output is checked before it leaves the node. A NaN or
 Inf in a physical field (a diverging loop) stops the producing node with one
-line, the same in a multi-process and a composed run.
+line, the same in a multi-process and a composed run (`screen`). The loop's
+figures and its sleep to the next tick are `looptime`'s.
 """
 
 from __future__ import annotations
 
-import functools
 import gc
 import json
 import math
@@ -37,7 +37,10 @@ import msgspec
 from dockhil.errors import DockhilError
 from dockhil.log import node_line
 from dockhil.node import NodeContext, Tick
-from dockhil.msgs.codec import DecodeError, decode, decode_header, encode
+from dockhil.msgs.codec import DecodeError, decode, decode_header
+from dockhil.runtime import realtime
+from dockhil.runtime.looptime import LoopTiming, sleep_until
+from dockhil.runtime.screen import checked_payload
 
 TIMING = "\x1edockhil-timing "
 DEFERRED = 16  # sim time: frames an output holds at most while its node computes on without waiting  # a node process's line with its wall-time loop figures (JSON), read by the launcher
@@ -90,170 +93,6 @@ class Stop:
 
 class StaleInput(DockhilError):
     """A wall-time input's latest message is older than its maximum age."""
-
-
-def checked_payload(name: str, port: str, topic: str, k: int, msg) -> bytes:
-    """`msg` encoded, after checking it decodes as a valid message: a NaN or Inf in a physical field
-    (a loop that diverged) stops the node that produced it, not its readers, with one line. (Decoding
-    is the reader's own check, and faster than a screen of the fields' types written in Python.)"""
-    payload = encode(msg)
-    try:
-        decode(payload, type(msg))
-    except DecodeError as exc:
-        raise DockhilError(f"node {name!r} produced an invalid message at tick {k} on output {port!r} "
-                           f"({topic}): {exc}; stopping the graph") from None
-    return payload
-
-
-def check_message(name: str, port: str, topic: str, k: int, msg) -> None:
-    """What checked_payload checks, for a message that is not sent (composed runs): the numbers'
-    screen first (several times faster than encoding and decoding; the message is handed on as
-    the object it is); on a failure, the same check and line as a node process gives."""
-    if not bounds_check(type(msg))(msg):
-        checked_payload(name, port, topic, k, msg)
-
-
-_MAX_FLOAT = 1.7976931348623157e308
-_SCREENS: dict[type, Any] = {}
-
-
-class _Unscreened(Exception):
-    """A number the screen does not judge (multiple_of): every message of that type gets the full check."""
-
-
-def bounds_check(cls: type):
-    """A function true when a message of type `cls` holds what its decoding would accept: every
-    number finite and within its type's bounds, and every value of its field's own type (a float,
-    a str, a bool, an int, the declared struct, a tuple), as a node process's encoding and decoding
-    would check it. A screen, not the verdict: it may say False for a good message (a sum of finite
-    values that overflows, an int where a float goes, a numpy float), and callers then run the full
-    check. Compiled (dockhil/runtime/_screen.c) where built, else `python_screen`."""
-    check = _SCREENS.get(cls)
-    if check is None:
-        from dockhil.compiled import twin
-
-        compiled = twin("dockhil.runtime._screen")
-        try:
-            spec = _screen_spec(cls)
-        except _Unscreened:  # a type neither screen judges: every message of it gets the full check
-            check = _never
-        else:  # the same judgement in C (dockhil/runtime/_screen.c), several times faster, or its Python twin
-            check = functools.partial(compiled.screen, spec) if compiled else _python_screen(cls.__name__, spec)
-        _SCREENS[cls] = check
-    return check
-
-
-def python_screen(cls: type):
-    """`bounds_check`'s screen of `cls` as a generated Python function (the compiled one's twin)."""
-    try:
-        return _python_screen(cls.__name__, _screen_spec(cls))
-    except _Unscreened:
-        return _never
-
-
-def _never(m) -> bool:
-    return False
-
-
-def _screen_spec(cls: type) -> tuple:
-    """(cls, fields): what a screen judges of a message type, read once from its type; each field
-    (member, kind, ...), member its descriptor in cls (the C screen reads the slot through it),
-    kind 0 float and 1 int (with ge, gt, le, lt: a float or None each), 2 bool, 3 str, 4 struct (its
-    spec), 5 tuple and 6 list (an item's field, member None). _Unscreened for a type no screen
-    judges (a multiple_of, a constrained str, a type msgs do not use)."""
-    import msgspec.inspect as mi
-
-    def struct(t) -> tuple:
-        return (t.cls, tuple(field(f.type, _member(t.cls, f.name)) for f in t.fields))
-
-    def field(t, member) -> tuple:
-        if isinstance(t, mi.Metadata):
-            t = t.type
-        kind = _LEAF_KINDS.get(type(t).__name__)
-        if kind in (0, 1):
-            if t.multiple_of is not None:
-                raise _Unscreened
-            return (member, kind, *(None if b is None else float(b) for b in (t.ge, t.gt, t.le, t.lt)))
-        if kind == 3 and (t.min_length or t.max_length is not None or t.pattern):
-            raise _Unscreened
-        if kind is not None:
-            return (member, kind)
-        if isinstance(t, mi.StructType):
-            return (member, 4, struct(t))
-        if isinstance(t, (mi.ListType, mi.VarTupleType)):
-            return (member, 5 if isinstance(t, mi.VarTupleType) else 6, field(t.item_type, None))
-        raise _Unscreened
-
-    return struct(mi.type_info(cls))
-
-
-def _member(cls: type, name: str):
-    for klass in cls.__mro__:
-        if name in vars(klass):
-            return vars(klass)[name]
-    raise _Unscreened
-
-
-# A leaf's kind in a screen's spec, and the Python type its value has where its decoding would
-# accept it without conversion (the kind indexes _LEAF_TYPES).
-_LEAF_KINDS = {"FloatType": 0, "IntType": 1, "BoolType": 2, "StrType": 3}
-_LEAF_TYPES = (float, int, bool, str)
-
-
-def _python_screen(name: str, spec: tuple):
-    """A screen's spec written out as a Python function. The floats are added up as they are read
-    (each struct read once): a NaN or Inf anywhere makes the sum non-finite; the types are compared
-    a struct's fields at a time."""
-    lines: list[str] = []
-    scope: dict[str, Any] = {}
-    _screen_lines((None, 4, spec), "m", lines, "        ", scope)
-    src = ("def check(m):\n    s = 0.0\n    try:\n" + "".join(f"{line}\n" for line in lines)
-           + "    except Exception:\n        return False\n    return s - s == 0\n")
-    exec(compile(src, f"<screen of {name}>", "exec"), scope)  # noqa: S102 - built from the type
-    return scope["check"]
-
-
-def _screen_lines(field: tuple, var: str, lines: list[str], indent: str, scope: dict) -> None:
-    """Statements that return False when a value under `var` is out of its bounds or not of its
-    field's type, and add its floats to the sum s."""
-    leaves: dict[type, list[str]] = {}
-    _screen_field(field, var, lines, indent, scope, leaves)
-    for kind, names in leaves.items():  # builtins: float, int, bool, str
-        lines.append(f"{indent}if not ({' is '.join(f'type({n})' for n in names)} is {kind.__name__}): return False")
-    if leaves.get(float):
-        lines.append(f"{indent}s += {' + '.join(leaves[float])}")
-
-
-def _screen_field(field: tuple, var: str, lines: list[str], indent: str, scope: dict, leaves: dict) -> None:
-    kind = field[1]
-    if kind < 4:
-        conds = [f"{var} {op} {bound!r}" for op, bound in zip((">=", ">", "<=", "<"), field[2:])
-                 if bound is not None and abs(bound) != _MAX_FLOAT]
-        if conds:  # a NaN fails a bound too
-            lines.append(f"{indent}if not ({' and '.join(conds)}): return False")
-        leaves.setdefault(_LEAF_TYPES[kind], []).append(var)
-    elif kind == 4:
-        cls, fields = field[2]
-        if "." in var or var.startswith("_i"):  # a nested struct (or a tuple's item): its type checked
-            cls_name = f"_T{len(scope)}"
-            scope[cls_name] = cls
-            if "." in var:  # read once into a local, not once per field below it
-                local = f"_s{len(scope)}"
-                scope[local] = None
-                lines.append(f"{indent}{local} = {var}")
-                var = local
-            lines.append(f"{indent}if type({var}) is not {cls_name}: return False")
-        for f in fields:
-            _screen_field(f, f"{var}.{f[0].__name__}", lines, indent, scope, leaves)
-    else:  # a tuple or a list of items
-        item = f"_i{len(scope)}"
-        scope[item] = None
-        body: list[str] = []
-        _screen_lines(field[2], item, body, indent + "    ", scope)
-        lines.append(f"{indent}if type({var}) is not {'tuple' if kind == 5 else 'list'}: return False")
-        if body:
-            lines.append(f"{indent}for {item} in {var}:")
-            lines.extend(body)
 
 
 def check_outputs(name: str, declared: dict, k: int, outs: dict, sim: bool) -> None:
@@ -321,6 +160,7 @@ class NodeExecutor:
         self.unconnected = [port for port in ins if port not in spec.inputs]
         self.in_types = {port: ins[port].type for port in spec.inputs}
         self.ctx = zmq.Context.instance()
+        realtime.zmq_options(self.ctx)  # --realtime: its I/O threads too, set before its first socket
         keys = read_spec_keys(spec)
         self.sub = Subscriber(self.ctx)
         self._separator = separator
@@ -566,95 +406,3 @@ class NodeExecutor:
                 pub.close()
             self.sub.close()
             self.ctx.term()  # returns once queued messages are out (or linger has passed)
-
-
-class LoopTiming:
-    """Wall-time loop statistics: how late each tick started against its schedule,
-    missed deadlines, and how old each input's latest message was when used
-    (by its stamp, and by the time since it arrived against its maximum age)."""
-
-    def __init__(self, ports: list[str], period: float = 0.0, max_age: dict[str, float] | None = None):
-        from array import array
-
-        self.lateness = array("d")
-        self.ages = {port: array("d") for port in ports}
-        self.misses = 0
-        self.ticks = 0
-        self.period = period
-        self.elapsed = 0.0
-        self.max_age = dict(max_age or {})
-        self.worst_age = {port: 0.0 for port in ports}  # since arrival [s]
-        self.dropped_in = 0
-        self.dropped_out = 0
-        self.worst_overrun = 0.0
-        # When the loop's first tick began and its last ended (time.time(), comparable across the
-        # graph's processes): the run's real-time factor counts this span, not the start-up.
-        self.first_tick_at: float | None = None
-        self.last_tick_at: float | None = None
-
-    def aged(self, port: str, age: float) -> None:
-        if age > self.worst_age.get(port, 0.0):
-            self.worst_age[port] = age
-
-    def started(self, late_s: float) -> None:
-        self.lateness.append(late_s)
-
-    def inputs(self, now: float, latest: dict) -> None:
-        for port, ages in self.ages.items():
-            msg = latest.get(port)
-            if msg is not None:
-                ages.append(now - msg.header.stamp)
-
-    def missed(self, late: float = 0.0) -> None:
-        """A tick ended `late` seconds after its deadline (a long one re-bases the schedule, so the
-        next start does not show it: keep the worst here)."""
-        self.misses += 1
-        self.worst_overrun = max(self.worst_overrun, late)
-
-    def report(self, name: str) -> dict:
-        def pct(values) -> dict:
-            if not len(values):
-                return {}
-            us = sorted(abs(v) * 1e6 for v in values)
-            return {"p50": percentile(us, 50), "p99": percentile(us, 99), "max": us[-1]}
-
-        late = [abs(v) for v in self.lateness[1:]]  # the first tick has no schedule to keep
-        worst = max(late, default=0.0)
-        out = {"node": name, "ticks": self.ticks, "deadline_misses": self.misses,
-               "jitter_us": pct(late), "worst_tick": late.index(worst) + 1 if late else None,
-               "input_age_us": {port: pct(a) for port, a in self.ages.items()},
-               # What validity is judged on (dockhil/runtime/validity.py):
-               "period_s": self.period, "elapsed_s": self.elapsed, "covered_s": self.ticks * self.period,
-               "worst_late_s": max(worst, self.worst_overrun),
-               "max_age_s": {p: (None if math.isinf(a) else a) for p, a in self.max_age.items()},
-               "worst_input_age_s": dict(self.worst_age),
-               "dropped_in": self.dropped_in, "dropped_out": self.dropped_out,
-               "first_tick_at_s": self.first_tick_at, "last_tick_at_s": self.last_tick_at}
-        return out
-
-
-def percentile(ordered: list[float], p: float) -> float:
-    """numpy.percentile(values, p) (its default, linear method) of values sorted ascending, without
-    numpy: a node that does not compute with numpy does not import it (0.1 s of CPU) to report."""
-    at = p / 100 * (len(ordered) - 1)
-    below = math.floor(at)
-    a, b = ordered[below], ordered[min(below + 1, len(ordered) - 1)]
-    t = at - below
-    return b - (b - a) * (1 - t) if t >= 0.5 else a + (b - a) * t  # numpy's two-sided interpolation
-
-
-SPIN_S = float(os.environ.get("DOCKHIL_SPIN_S", "0.0002"))
-
-
-def sleep_until(deadline: float, clock=time.monotonic) -> None:
-    # Sleep most of the way, then spin the last SPIN_S: time.sleep alone overshoots by ~60-150 us,
-    # but every microsecond spun is CPU the other nodes on the machine do not get.
-    if clock is not time.monotonic:  # a test's clock: its time moves when the test says, never by waiting
-        if hasattr(clock, "sleep_until"):
-            clock.sleep_until(deadline)
-        return
-    left = deadline - time.monotonic()
-    if left > SPIN_S:
-        time.sleep(left - SPIN_S)
-    while time.monotonic() < deadline:
-        pass

@@ -353,6 +353,9 @@ class Launcher:
         self.children: list[_Child] = []
         self.timings: dict[str, dict] = {}  # wall time: each node's loop figures, reported as it exits
         self._registered = False  # the registry entry is written (a respawn rewrites it)
+        # Each respawn: (node, seconds into the run, its exit code). The run goes on, but its data has a gap.
+        self.respawns: list[tuple[str, float, int]] = []
+        self._started_at = time.monotonic()
         for name, spec in self.specs.items():
             argv = [sys.executable, "-m", "dockhil.process", msgspec.json.encode(spec).decode()]
             gn = graph.nodes[self.units[name][0]]  # a container's members are local and not respawned
@@ -449,11 +452,13 @@ class Launcher:
     def devices(self) -> dict[str, bool]:
         """Wall time: the local processes that report loop figures, each mapped to whether it
         stands for a device emulator (a container: when all its members do)."""
-        return {name: all(self.graph.nodes[m].cls.free_running for m in self.units[name])
-                for name, child in zip(self.specs, self.children) if not child.host}
+        return {child.name: self._is_emulator(child) for child in self.children[:len(self.specs)] if not child.host}
 
     def _on_signal(self, signum, frame) -> None:
         self._stop_signal = signum
+
+    def _is_emulator(self, child: _Child) -> bool:
+        return child.name in self.units and all(self.graph.nodes[m].cls.free_running for m in self.units[child.name])
 
     def stop_all(self, grace: float = 3.0) -> None:
         """SIGTERM every child and wait for it (then kill it). Drivers before the emulated devices they
@@ -574,7 +579,9 @@ class Launcher:
 
     def _stop_at_duration(self) -> int:
         self.stop_all()
-        failed = [c for c in self.children if c.proc and c.proc.returncode not in (0, None)]
+        # A node still starting (a respawn under way) has no handler yet: our SIGTERM ends it, no fault of its own.
+        failed = [c for c in self.children if c.proc and c.proc.returncode not in (0, None)
+                  and not (c.proc.returncode == -signal.SIGTERM and not c.ready)]
         for c in failed:
             self.say.error(f"{c.name!r} exited with code {c.proc.returncode} while stopping", tag="")
         return 1 if failed else 0
@@ -618,6 +625,7 @@ class Launcher:
                     self.say.warning(f"node {child.name!r} exited with code {code}; respawning in "
                                      f"{child.respawn_delay:g} s", tag="")
                     child.respawn_at = time.monotonic() + child.respawn_delay
+                    self.respawns.append((child.name, time.monotonic() - (self._all_ready_at or self._started_at), code))
                     nodes_running += 1
                     continue
                 return self._died(child, code)

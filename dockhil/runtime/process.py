@@ -24,16 +24,6 @@ from dockhil.runtime.parent import die_with_parent  # the recorder takes it from
 READY = "\x1edockhil-ready"  # a line the launcher intercepts
 
 
-REALTIME_PRIORITY = 50
-
-
-def _ask_realtime(log) -> None:
-    """SCHED_FIFO for a wall-time loop; one line, and normal priority, where the OS refuses."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
-    except (PermissionError, OSError, AttributeError) as exc:
-        log(f"warning: real-time scheduling refused ({exc}); running at normal priority "
-            f"(grant CAP_SYS_NICE or an rtprio limit to use --realtime)")
 
 
 def _wait_for_go(go: list, stop) -> None:
@@ -72,8 +62,10 @@ def run_node(spec, log=None, on_ready=None) -> int:
         signal.signal(signal.SIGUSR1, lambda signum, frame: go.append(True))
     executor = None
     ticking = close_failed = False
-    if spec.realtime and spec.clock == "wall":
-        _ask_realtime(log)
+    if spec.realtime and spec.clock == "wall":  # first: every thread made from here on inherits it
+        from dockhil.runtime import realtime
+
+        realtime.ask(realtime.LOOP_PRIORITY, "the node loop", log)
     try:
         executor = NodeExecutor(spec, nodes.load(spec.type_name), stop, log)
         executor.start()

@@ -17,6 +17,8 @@ schedule well enough that the simulated time is the time that passed:
   watchdogs judge what it delivers)
 - input ages: no input was used older than its maximum age (the node stops
   when that happens, so this reads only in a report that a node wrote);
+- no node respawned: the run went on, but the restarted node's data has a gap (a force held
+  stale while the F/T driver restarted, integrated by the dynamics);
 - no message lost: none dropped by a full queue (a subscriber that did not
   keep up), none dropped as malformed, none lost by the recorder.
 
@@ -47,6 +49,17 @@ def wall_time_reasons(timings: dict[str, dict], expected: dict[str, bool], dt: f
             continue
         reasons.extend(node_reasons(t, dt, device=device))
     return reasons
+
+
+def respawn_reasons(respawns: list[tuple[str, float, int]]) -> list[str]:
+    """One reason per respawned node, from each respawn (node, seconds into the run, exit code)."""
+    out = []
+    for name in dict.fromkeys(n for n, _, _ in respawns):
+        times = [f"{at:.1f} s" for n, at, _ in respawns if n == name]
+        code = next(c for n, _, c in respawns if n == name)
+        out.append(f"node {name!r} exited (code {code}) and was respawned {len(times)} time(s), at "
+                   f"{', '.join(times)} into the run: its data has a gap")
+    return out
 
 
 def sim_time_reasons(timings: dict[str, dict]) -> list[str]:

@@ -1,0 +1,100 @@
+"""Wall-time loop timing: each tick's lateness against its schedule, missed deadlines, input ages
+(what validity judges a run on), and the sleep to the next tick."""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+
+
+class LoopTiming:
+    """Wall-time loop statistics: how late each tick started against its schedule,
+    missed deadlines, and how old each input's latest message was when used
+    (by its stamp, and by the time since it arrived against its maximum age)."""
+
+    def __init__(self, ports: list[str], period: float = 0.0, max_age: dict[str, float] | None = None):
+        from array import array
+
+        self.lateness = array("d")
+        self.ages = {port: array("d") for port in ports}
+        self.misses = 0
+        self.ticks = 0
+        self.period = period
+        self.elapsed = 0.0
+        self.max_age = dict(max_age or {})
+        self.worst_age = {port: 0.0 for port in ports}  # since arrival [s]
+        self.dropped_in = 0
+        self.dropped_out = 0
+        self.worst_overrun = 0.0
+        # When the loop's first tick began and its last ended (time.time(), comparable across the
+        # graph's processes): the run's real-time factor counts this span, not the start-up.
+        self.first_tick_at: float | None = None
+        self.last_tick_at: float | None = None
+
+    def aged(self, port: str, age: float) -> None:
+        if age > self.worst_age.get(port, 0.0):
+            self.worst_age[port] = age
+
+    def started(self, late_s: float) -> None:
+        self.lateness.append(late_s)
+
+    def inputs(self, now: float, latest: dict) -> None:
+        for port, ages in self.ages.items():
+            msg = latest.get(port)
+            if msg is not None:
+                ages.append(now - msg.header.stamp)
+
+    def missed(self, late: float = 0.0) -> None:
+        """A tick ended `late` seconds after its deadline (a long one re-bases the schedule, so the
+        next start does not show it: keep the worst here)."""
+        self.misses += 1
+        self.worst_overrun = max(self.worst_overrun, late)
+
+    def report(self, name: str) -> dict:
+        def pct(values) -> dict:
+            if not len(values):
+                return {}
+            us = sorted(abs(v) * 1e6 for v in values)
+            return {"p50": percentile(us, 50), "p99": percentile(us, 99), "max": us[-1]}
+
+        late = [abs(v) for v in self.lateness[1:]]  # the first tick has no schedule to keep
+        worst = max(late, default=0.0)
+        out = {"node": name, "ticks": self.ticks, "deadline_misses": self.misses,
+               "jitter_us": pct(late), "worst_tick": late.index(worst) + 1 if late else None,
+               "input_age_us": {port: pct(a) for port, a in self.ages.items()},
+               # What validity is judged on (dockhil/runtime/validity.py):
+               "period_s": self.period, "elapsed_s": self.elapsed, "covered_s": self.ticks * self.period,
+               "worst_late_s": max(worst, self.worst_overrun),
+               "max_age_s": {p: (None if math.isinf(a) else a) for p, a in self.max_age.items()},
+               "worst_input_age_s": dict(self.worst_age),
+               "dropped_in": self.dropped_in, "dropped_out": self.dropped_out,
+               "first_tick_at_s": self.first_tick_at, "last_tick_at_s": self.last_tick_at}
+        return out
+
+
+def percentile(ordered: list[float], p: float) -> float:
+    """numpy.percentile(values, p) (its default, linear method) of values sorted ascending, without
+    numpy: a node that does not compute with numpy does not import it (0.1 s of CPU) to report."""
+    at = p / 100 * (len(ordered) - 1)
+    below = math.floor(at)
+    a, b = ordered[below], ordered[min(below + 1, len(ordered) - 1)]
+    t = at - below
+    return b - (b - a) * (1 - t) if t >= 0.5 else a + (b - a) * t  # numpy's two-sided interpolation
+
+
+SPIN_S = float(os.environ.get("DOCKHIL_SPIN_S", "0.0002"))
+
+
+def sleep_until(deadline: float, clock=time.monotonic) -> None:
+    # Sleep most of the way, then spin the last SPIN_S: time.sleep alone overshoots by ~60-150 us,
+    # but every microsecond spun is CPU the other nodes on the machine do not get.
+    if clock is not time.monotonic:  # a test's clock: its time moves when the test says, never by waiting
+        if hasattr(clock, "sleep_until"):
+            clock.sleep_until(deadline)
+        return
+    left = deadline - time.monotonic()
+    if left > SPIN_S:
+        time.sleep(left - SPIN_S)
+    while time.monotonic() < deadline:
+        pass

@@ -1,0 +1,59 @@
+"""`--realtime`: SCHED_FIFO for the whole delivery path of a wall-time run.
+
+A node process asks for it on its main thread before anything else starts, so every thread it
+makes afterwards (the node loop, a driver's device thread, an emulator's cycle) inherits it. The
+threads that meet a device's own clock (a driver's answering or receiving thread, an emulator's
+cycle standing in for the device) go above the loops, and ZeroMQ's I/O threads, which carry every
+message between processes, go between: a busy core then delays none of them behind ordinary work.
+
+Without the privilege (not root, no CAP_SYS_NICE, no rtprio limit: docs/time.md) the OS refuses;
+the process says so in one line and runs at normal priority.
+"""
+
+from __future__ import annotations
+
+import os
+
+LOOP_PRIORITY = 50  # node loops
+IO_PRIORITY = 55  # ZeroMQ's I/O threads: between the loops and the devices they serve
+DEVICE_PRIORITY = 60  # threads that meet a device's clock: drivers' link threads, emulators' cycles
+
+HOW = "grant CAP_SYS_NICE or an rtprio limit to use --realtime: docs/time.md"
+
+
+def ask(priority: int, what: str, say) -> bool:
+    """SCHED_FIFO at `priority` for the calling thread; where the OS refuses, one line through
+    `say` naming `what` runs at normal priority, and False."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (PermissionError, OSError, AttributeError) as exc:
+        say(f"warning: real-time scheduling of {what} refused ({exc}); running at normal priority ({HOW})")
+        return False
+    return True
+
+
+def granted() -> bool:
+    """Whether the calling thread runs under a real-time policy (asked for, or inherited)."""
+    try:
+        return os.sched_getscheduler(0) in (os.SCHED_FIFO, os.SCHED_RR)
+    except (OSError, AttributeError):
+        return False
+
+
+def raise_device_thread(say, what: str) -> None:
+    """A device thread of a process running real-time: above the loops (it inherited theirs)."""
+    if granted():
+        ask(DEVICE_PRIORITY, what, say)
+
+
+def zmq_options(ctx) -> bool:
+    """SCHED_FIFO for a ZeroMQ context's I/O threads, set before its first socket starts them.
+    Only where this thread already holds a real-time policy: libzmq aborts the process when the
+    OS refuses the policy to its thread, so it is asked only once the privilege is proven."""
+    import zmq
+
+    if not granted():
+        return False
+    ctx.set(zmq.THREAD_SCHED_POLICY, os.SCHED_FIFO)
+    ctx.set(zmq.THREAD_PRIORITY, IO_PRIORITY)
+    return True
