@@ -247,3 +247,69 @@ def _entity(stamp: dict, entity_id: str, frame: str, *, frame_locked: bool = Tru
     for kind in ("arrows", "cubes", "spheres", "cylinders", "lines", "triangles", "texts", "models"):
         entity[kind] = primitives.get(kind, [])
     return entity
+
+
+# --------------------------------------------------------------------------- a bag with them
+
+
+class ExportResult(NamedTuple):
+    messages: int  # the bag's own, copied
+    derived: int  # /tf and /scene messages added
+    loss: str | None  # what of the bag was unreadable or unfinished (see loss_line)
+
+
+def export(src, dst, *, geometry: Geometry | None = None, overwrite: bool = False) -> ExportResult:
+    """Copy the bag `src` to `dst` with /tf and /scene added at each /satellite/state.
+
+    `geometry`: the scene's (`geometry_of`); None takes it from the bag: the 6-DOF defaults if its
+    /robot/command is in `target_interface` (a 6-DOF scene), else interfaces at the CoMs (1-DOF).
+    `dst` appears only when complete."""
+    import os
+
+    import msgspec
+
+    from dockhil.bags.format import BagError, BagMessage
+    from dockhil.bags.reader import BagReader
+    from dockhil.bags.writer import BagWriter
+    from dockhil.files import complete_or_nothing
+    from dockhil.msgs.codec import DecodeError
+
+    src, dst = os.fspath(src), os.fspath(dst)
+    if os.path.isdir(dst):
+        raise BagError(f"cannot create bag {dst}: it is a directory")
+    if os.path.exists(dst) and not overwrite:
+        raise BagError(f"bag {dst} already exists; choose another name or pass --overwrite to replace it")
+    if os.path.exists(dst) and os.path.exists(src) and os.path.samefile(src, dst):
+        raise BagError(f"cannot write {dst}: it is the bag it reads; give the copy another name")
+    encode = msgspec.msgpack.Encoder().encode
+    derived = 0
+    with BagReader(src) as reader:
+        found = reader.summary()
+        if STATE not in reader.topics:
+            raise BagError(f"{src}: no {STATE} in the bag: the 3D view is drawn from the bodies' states")
+        if geometry is None:
+            geometry = _geometry_in(reader)
+        feed = SceneFeed(geometry)
+        with complete_or_nothing(dst, BagError) as part, BagWriter(part, overwrite=True) as out:
+            for topic, type_name in reader.topics.items():
+                out.add_topic(topic, type_name)
+            for topic, name in DERIVED.items():
+                out.add_topic(topic, name, schema(name))
+            for topic, type_name, log_ns, publish_ns, data in reader.messages_with_publish_time():
+                out.write(topic, log_ns, publish_ns, data)
+                if topic not in SOURCES:
+                    continue
+                try:
+                    message = BagMessage(topic, type_name, log_ns, data).decode()
+                except (DecodeError, KeyError):  # not one of its type (a recorded NaN): copied, not drawn
+                    continue
+                for derived_topic, value in feed.add(topic, message).items():
+                    out.write(derived_topic, log_ns, publish_ns, encode(value))
+                    derived += 1
+    return ExportResult(out.messages_written - derived, derived, found["loss"])
+
+
+def _geometry_in(reader) -> Geometry:
+    for message in reader.messages(["/robot/command"]):
+        return Geometry.six_dof_defaults() if message.decode().header.frame == TARGET_INTERFACE else Geometry()
+    return Geometry()
