@@ -113,7 +113,8 @@ async def message_data(ws):
 
 @pytest.mark.parametrize("mode", [[], ["--composed"]], ids=["processes", "composed"])
 def test_a_viewer_sees_every_topic_with_its_schema_and_receives_valid_wrenches(tmp_path, mode):
-    expected = scene_topics()
+    # Every topic of the scene, and the 3D view's (tests/test_foxglove_3d.py)
+    expected = {**scene_topics(), "/tf": "foxglove.FrameTransforms", "/scene": "foxglove.SceneUpdate"}
     port = free_port()
     # Long enough that the graph still runs when the client is done; stopped with Ctrl-C.
     proc, out = start_launch(tmp_path, "--duration", "600", "--foxglove", str(port), *mode)
