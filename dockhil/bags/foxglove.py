@@ -95,7 +95,7 @@ class FoxgloveBridge:
         self.types = {topic: msgs.type_by_name(type_name) for topic, type_name in topics.items()}
         # The 3D view's channels, fed from the bodies' states (none in a scene without them).
         self.derived: dict[str, Any] = {}
-        self._feed = fs.SceneFeed(geometry or fs.Geometry())
+        self._feed = fs.SceneFeed(geometry or fs.AT_THE_COMS)
         if fs.STATE in topics:
             for topic, name in fs.DERIVED.items():
                 data = json.dumps(fs.schema(name), separators=(",", ":")).encode()

@@ -80,10 +80,13 @@ class Geometry(NamedTuple):
         return cls.from_params({name: param.default for name, param in {**BODY_PARAMS, **MOUNT_PARAMS}.items()})
 
 
+AT_THE_COMS = Geometry()  # the 1-DOF scenes' mounting
+
+
 def geometry_of(graph) -> Geometry:
     """The geometry of a built scene: the parameters of the node that publishes /satellite/state."""
     ref = graph.publishers.get(STATE)
-    return Geometry() if ref is None else Geometry.from_params(graph.nodes[ref.node].params)
+    return AT_THE_COMS if ref is None else Geometry.from_params(graph.nodes[ref.node].params)
 
 
 def schema(name: str) -> dict:
@@ -94,7 +97,7 @@ def schema(name: str) -> dict:
 # --------------------------------------------------------------------------- the computation
 
 
-def views(state, wrench=None, robot=None, geometry: Geometry = Geometry(),
+def views(state, wrench=None, robot=None, geometry: Geometry = AT_THE_COMS,
           force_scale: float = FORCE_SCALE) -> dict[str, dict]:
     """The derived messages at a SatelliteState, with the latest WrenchStamped and RobotState
     (None: not yet seen): {"/tf": FrameTransforms, "/scene": SceneUpdate}, as JSON values."""
@@ -149,7 +152,7 @@ def views(state, wrench=None, robot=None, geometry: Geometry = Geometry(),
     return {TF_TOPIC: {"transforms": transforms}, SCENE_TOPIC: {"deletions": [], "entities": entities}}
 
 
-def contact_force(state, wrench, geometry: Geometry = Geometry()) -> tuple[float, float, float]:
+def contact_force(state, wrench, geometry: Geometry = AT_THE_COMS) -> tuple[float, float, float]:
     """The measured contact force on the chaser [N], world axes (zero without a wrench)."""
     from dockhil.contact.rigid import quat_multiply, rotate
 
@@ -169,7 +172,7 @@ class SceneFeed:
     """The derived messages of a stream of dockhil messages: feed each (topic, message) to `add`;
     a /satellite/state gives {"/tf": .., "/scene": ..} with the latest wrench and robot state."""
 
-    def __init__(self, geometry: Geometry = Geometry()):
+    def __init__(self, geometry: Geometry = AT_THE_COMS):
         self.geometry = geometry
         self.wrench = None
         self.robot = None
@@ -311,5 +314,5 @@ def export(src, dst, *, geometry: Geometry | None = None, overwrite: bool = Fals
 
 def _geometry_in(reader) -> Geometry:
     for message in reader.messages(["/robot/command"]):
-        return Geometry.six_dof_defaults() if message.decode().header.frame == TARGET_INTERFACE else Geometry()
-    return Geometry()
+        return Geometry.six_dof_defaults() if message.decode().header.frame == TARGET_INTERFACE else AT_THE_COMS
+    return AT_THE_COMS
