@@ -98,6 +98,14 @@ async def subscribe(ws, subscriptions: dict[int, int]) -> None:
                               "subscriptions": [{"id": s, "channelId": c} for s, c in subscriptions.items()]}))
 
 
+async def until_subscribed(*channels) -> None:
+    """Until the server has handed each channel's subscription to it (has_sinks)."""
+    deadline = time.monotonic() + DEADLINE_S
+    while not all(channel.has_sinks() for channel in channels):
+        assert time.monotonic() < deadline, "the subscription never reached the bridge"
+        await asyncio.sleep(0.01)
+
+
 async def message_data(ws):
     """The next binary message-data frame: (subscription id, log time ns, payload)."""
     while True:
@@ -286,10 +294,7 @@ def test_a_bridge_that_falls_behind_drops_the_oldest_and_counts_them():
         try:
             found = await channels(ws, ["/ft/wrench"])
             await subscribe(ws, {1: found["/ft/wrench"]["id"]})
-            deadline = time.monotonic() + DEADLINE_S
-            while not bridge.channels["/ft/wrench"].has_sinks():
-                assert time.monotonic() < deadline
-                await asyncio.sleep(0.01)
+            await until_subscribed(bridge.channels["/ft/wrench"])
             bridge.serve([[b"/ft/wrench", wrench(k)] for k in range(10)])  # one pass found 10 waiting
             return [await message_data(ws) for _ in range(4)]
         finally:

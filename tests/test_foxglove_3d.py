@@ -21,7 +21,7 @@ from dockhil.msgs import (BodyState, Header, Pose, Quaternion, RobotState, Satel
                           WrenchStamped)
 from tests.conftest import ROOT, dockhil_cmd, free_port
 from tests.inprocess import run_main
-from tests.test_foxglove import channels, connect, message_data, subscribe
+from tests.test_foxglove import channels, connect, message_data, subscribe, until_subscribed
 
 OFFICIAL = {name: fs.schema(name) for name in fs.DERIVED.values()}
 
@@ -240,8 +240,7 @@ def test_the_live_bridge_announces_and_sends_tf_and_scene():
                 assert json.loads(found[topic]["schema"]) == OFFICIAL[name]
             # Only the 3D view is watched: the bridge still reads its sources.
             await subscribe(ws, {1: found["/tf"]["id"], 2: found["/scene"]["id"]})
-            while not all(bridge.derived[t].has_sinks() for t in fs.DERIVED):
-                await asyncio.sleep(0.01)
+            await until_subscribed(*bridge.derived.values())
             assert bridge._wanted() == set(topics)
             # Multi-process: wire bytes as they come off the bus; composed: the message itself.
             bridge.serve([[b"/ft/wrench", msgspec.msgpack.encode(wrench)],
