@@ -185,15 +185,17 @@ class FoxgloveBridge:
             if not 0 <= log_ns < 2**64:
                 raise ValueError(log_ns)
             data = self._to_json(message) if channel.has_sinks() else None
-            typed = msgspec.convert(message, self.types[topic]) if topic in self._sources and self._deriving() else None
-        except (msgspec.DecodeError, msgspec.EncodeError, msgspec.ValidationError, TypeError, KeyError, ValueError,
-                OverflowError):
+        except (msgspec.DecodeError, msgspec.EncodeError, TypeError, KeyError, ValueError, OverflowError):
             self.unencodable += 1
             return
         if data is not None:
             channel.log(data, log_time=log_ns)
             self.sent += 1
-        if typed is not None:
+        if topic in self._sources and self._deriving():
+            try:
+                typed = msgspec.convert(message, self.types[topic])
+            except msgspec.ValidationError:  # not of its type (a NaN): served as it came, not drawn
+                return
             self._derive(topic, typed, log_ns)
 
     def _derive(self, topic: str, message: Any, log_ns: int) -> None:
@@ -233,7 +235,6 @@ class FoxgloveBridge:
 def start(graph, *, clock: str, host: str, port: int) -> FoxgloveBridge:
     """A bridge serving every topic of `graph` (checked before any node starts: a busy port fails here)."""
     from dockhil import msgs
-
     from dockhil.bags.foxglove_scene import geometry_of
 
     topics = {topic: msgs.type_name(ref.type) for topic, ref in graph.publishers.items()}
