@@ -290,3 +290,43 @@ def test_the_layout_has_a_3d_panel_on_tf_and_scene_and_the_raw_topics():
     assert raw and raw[0]["topicPath"] == "/ft/wrench"
     plotted = {path["value"] for p in shown if p.startswith("Plot!") for path in layout["configById"][p]["paths"]}
     assert "/ft/wrench.wrench.force.x" in plotted and "/satellite/state.bodies[0].twist.linear.x" in plotted
+
+
+def test_a_launched_6dof_run_serves_the_3d_view_to_a_viewer_of_tf_alone(tmp_path):
+    """Multi-process: the bridge reads the state and the robot state for a viewer who only asked
+    for /tf, and draws with the scene's mounting (hil6.yaml's)."""
+    from tests.test_foxglove import finish
+
+    port = free_port()
+    out = open(tmp_path / "launch.out", "w+")
+    proc = subprocess.Popen(dockhil_cmd("launch", "launch/hil6.yaml", "--quiet", "--duration", "600",
+                                        "--foxglove", str(port)), cwd=ROOT, stdout=out, stderr=subprocess.STDOUT,
+                            text=True)
+
+    async def view():
+        ws = await connect(port, proc)
+        try:
+            found = await channels(ws, ["/tf"])
+            await subscribe(ws, {5: found["/tf"]["id"]})
+            # 100 ticks at least: past the robot's 32 ms delay, after which it has a state.
+            return [await message_data(ws) for _ in range(100)]
+        finally:
+            await ws.close()
+
+    try:
+        got = asyncio.run(view())
+    finally:
+        code, text = finish(proc, out, interrupt=True)
+    assert code == 130 and "Traceback" not in text, text
+    ticks = []
+    for _, log_ns, payload in got:
+        value = json.loads(payload)
+        validate("/tf", value)
+        tf = {t["child_frame_id"]: t for t in value["transforms"]}
+        assert tf["chaser"]["timestamp"] == {"sec": log_ns // 10**9, "nsec": log_ns % 10**9}
+        assert xyz(tf["probe"]["translation"]) == [1.0, 0.0, 0.0]  # hil6.yaml: A 1 m ahead of the CoM
+        assert xyz(tf["target_interface"]["translation"]) == [-2.0, 0.0, 0.0]
+        ticks.append(log_ns)
+    assert ticks == sorted(ticks) and len(set(ticks)) == len(ticks)
+    # The robot state was read too.
+    assert "robot_probe" in {t["child_frame_id"] for t in json.loads(got[-1][2])["transforms"]}
