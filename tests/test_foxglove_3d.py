@@ -11,6 +11,7 @@ import asyncio
 import json
 import math
 import subprocess
+import time
 
 import jsonschema
 import msgspec
@@ -308,8 +309,13 @@ def test_a_launched_6dof_run_serves_the_3d_view_to_a_viewer_of_tf_alone(tmp_path
         try:
             found = await channels(ws, ["/tf"])
             await subscribe(ws, {5: found["/tf"]["id"]})
-            # 100 ticks at least: past the robot's 32 ms delay, after which it has a state.
-            return [await message_data(ws) for _ in range(100)]
+            # Until the robot's state has come too: it starts after the robot's 32 ms delay, and the
+            # bridge's subscription to it may reach its publisher after the one to the state.
+            got, deadline = [], time.monotonic() + 60
+            while len(got) < 20 or "robot_probe" not in got[-1][2].decode():
+                assert time.monotonic() < deadline, "no /tf with robot_probe"
+                got.append(await message_data(ws))
+            return got
         finally:
             await ws.close()
 
@@ -328,5 +334,5 @@ def test_a_launched_6dof_run_serves_the_3d_view_to_a_viewer_of_tf_alone(tmp_path
         assert xyz(tf["target_interface"]["translation"]) == [-2.0, 0.0, 0.0]
         ticks.append(log_ns)
     assert ticks == sorted(ticks) and len(set(ticks)) == len(ticks)
-    # The robot state was read too.
+    # The robot state was read too: A in B where the robot has it.
     assert "robot_probe" in {t["child_frame_id"] for t in json.loads(got[-1][2])["transforms"]}
