@@ -31,6 +31,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "params": ("dockhil.commands.params", "virtual impedance k1, b1, k2, b2 from an ideal contact (paper Eqs. 5-6)"),
     "stability": ("dockhil.commands.stability", "stiffness bound for a delayed contact loop (paper Eq. 12 and exact)"),
     "bag": ("dockhil.commands.bag", "record, inspect, export and replay MCAP bags"),
+    "foxglove": ("dockhil.commands.foxglove", "print the Foxglove layout of a docking run (3D view, plots)"),
     "plot": ("dockhil.commands.plot", "plot force and velocity profiles from a bag"),
     "analyze": ("dockhil.commands.analyze", "the summary and validity of a recorded run, from its bag alone"),
     "figures": ("dockhil.commands.figures", "the paper's Figs. 7, 9, 10 and 11-12 recomputed, and the 6-DOF docking, as PNGs"),

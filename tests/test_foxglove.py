@@ -98,6 +98,14 @@ async def subscribe(ws, subscriptions: dict[int, int]) -> None:
                               "subscriptions": [{"id": s, "channelId": c} for s, c in subscriptions.items()]}))
 
 
+async def until_subscribed(*channels) -> None:
+    """Until the server has handed each channel's subscription to it (has_sinks)."""
+    deadline = time.monotonic() + DEADLINE_S
+    while not all(channel.has_sinks() for channel in channels):
+        assert time.monotonic() < deadline, "the subscription never reached the bridge"
+        await asyncio.sleep(0.01)
+
+
 async def message_data(ws):
     """The next binary message-data frame: (subscription id, log time ns, payload)."""
     while True:
@@ -113,7 +121,8 @@ async def message_data(ws):
 
 @pytest.mark.parametrize("mode", [[], ["--composed"]], ids=["processes", "composed"])
 def test_a_viewer_sees_every_topic_with_its_schema_and_receives_valid_wrenches(tmp_path, mode):
-    expected = scene_topics()
+    # Every topic of the scene, and the 3D view's (tests/test_foxglove_3d.py)
+    expected = {**scene_topics(), "/tf": "foxglove.FrameTransforms", "/scene": "foxglove.SceneUpdate"}
     port = free_port()
     # Long enough that the graph still runs when the client is done; stopped with Ctrl-C.
     proc, out = start_launch(tmp_path, "--duration", "600", "--foxglove", str(port), *mode)
@@ -285,10 +294,7 @@ def test_a_bridge_that_falls_behind_drops_the_oldest_and_counts_them():
         try:
             found = await channels(ws, ["/ft/wrench"])
             await subscribe(ws, {1: found["/ft/wrench"]["id"]})
-            deadline = time.monotonic() + DEADLINE_S
-            while not bridge.channels["/ft/wrench"].has_sinks():
-                assert time.monotonic() < deadline
-                await asyncio.sleep(0.01)
+            await until_subscribed(bridge.channels["/ft/wrench"])
             bridge.serve([[b"/ft/wrench", wrench(k)] for k in range(10)])  # one pass found 10 waiting
             return [await message_data(ws) for _ in range(4)]
         finally:
@@ -351,12 +357,15 @@ def _resolve(schema: dict, fields: list[str]) -> dict:
 
 
 def test_the_shipped_layout_plots_numbers_the_scene_publishes():
-    """docs/foxglove-layout.json is a Foxglove layout (configById, layout tree, globalVariables,
-    userNodes) whose every plotted message path is a number field of a topic of launch/hil.yaml."""
+    """The layout `dockhil foxglove layout` prints is a Foxglove layout (configById, layout tree,
+    globalVariables, userNodes) whose every plotted message path is a number field of a topic of
+    launch/hil.yaml (its 3D panel: tests/test_foxglove_3d.py)."""
     from dockhil import msgs
     from dockhil.bags.writer import channel_schema
 
-    layout = json.loads((ROOT / "docs" / "foxglove-layout.json").read_text())
+    code, out, err = run_main("foxglove", "layout")
+    assert code == 0, err
+    layout = json.loads(out)
     assert {"configById", "layout", "globalVariables", "userNodes"} <= set(layout)
 
     def panels(node):
@@ -369,8 +378,7 @@ def test_the_shipped_layout_plots_numbers_the_scene_publishes():
     assert sorted(shown) == sorted(layout["configById"])
     topics = scene_topics()
     plotted = set()
-    for panel_id in shown:
-        assert panel_id.startswith("Plot!")
+    for panel_id in [p for p in shown if p.startswith("Plot!")]:
         config = layout["configById"][panel_id]
         assert config["xAxisVal"] == "timestamp" and config["paths"]
         for path in config["paths"]:

@@ -8,6 +8,12 @@ channels a bag records: message encoding "json", schema encoding
 time is the message's sim time t * 1e9 ns after the Unix epoch, in wall time
 the time the bridge received it.
 
+Beside them, for Foxglove's 3D panel, a graph with /satellite/state gets /tf
+(foxglove.FrameTransforms) and /scene (foxglove.SceneUpdate), computed from
+/satellite/state, /ft/wrench and /robot/state by `dockhil.bags.foxglove_scene`
+(as `dockhil bag export --foxglove` adds them to a bag); the bridge reads those
+topics while a viewer subscribes to /tf or /scene.
+
 The bridge observes; it never holds the graph back:
 
 - multi-process: one observer subscriber (prefix subscriptions, which the
@@ -51,12 +57,14 @@ class FoxgloveBridge:
     Serving starts at once; `observe` feeds it from a multi-process graph, `tap` from a composed one."""
 
     def __init__(self, topics: dict[str, str], *, sim: bool, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
-                 log: Callable[[str], None] = _log, burst: int = BURST):
+                 log: Callable[[str], None] = _log, burst: int = BURST, geometry=None):
+        """geometry: where the interfaces are mounted (`foxglove_scene.Geometry`, default at the CoMs)."""
         try:
             import foxglove
         except ImportError:
             raise DockhilError("--foxglove needs the foxglove-sdk package: pip install 'dockhil[foxglove]'") from None
         from dockhil import msgs
+        from dockhil.bags import foxglove_scene as fs
         from dockhil.bags.format import SCHEMA_ENCODING
         from dockhil.bags.writer import channel_schema
 
@@ -84,11 +92,23 @@ class FoxgloveBridge:
         self.channels = {topic: foxglove.Channel(topic, schema=schemas[type_name], message_encoding="json",
                                                  context=self._context)
                          for topic, type_name in sorted(topics.items())}
+        self.types = {topic: msgs.type_by_name(type_name) for topic, type_name in topics.items()}
+        # The 3D view's channels, fed from the bodies' states (none in a scene without them).
+        self.derived: dict[str, Any] = {}
+        self._feed = fs.SceneFeed(geometry or fs.AT_THE_COMS)
+        if fs.STATE in topics:
+            for topic, name in fs.DERIVED.items():
+                data = json.dumps(fs.schema(name), separators=(",", ":")).encode()
+                self.derived[topic] = foxglove.Channel(
+                    topic, schema=foxglove.Schema(name=name, encoding=SCHEMA_ENCODING, data=data),
+                    message_encoding="json", context=self._context)
+        self._sources = [topic for topic in fs.SOURCES if topic in topics]
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: str | None = None
-        log(f"[foxglove] live view of {len(self.channels)} topics on ws://{host}:{self.port} "
-            f"(Foxglove: Open connection, Foxglove WebSocket; layout: docs/foxglove-layout.json)")
+        log(f"[foxglove] live view of {len(self.channels)} topics{' and /tf, /scene' if self.derived else ''} on "
+            f"ws://{host}:{self.port} (Foxglove: Open connection, Foxglove WebSocket; layout: "
+            f"'dockhil foxglove layout > layout.json', then Import layout)")
 
     # -- a multi-process graph ---------------------------------------------------
     def observe(self, endpoints: dict[str, str], keys) -> None:
@@ -115,7 +135,7 @@ class FoxgloveBridge:
         wanted: set[str] = set()
         try:
             while not self._stop.is_set():
-                now = {topic for topic, channel in self.channels.items() if channel.has_sinks()}
+                now = self._wanted()
                 for topic in now - wanted:  # the topic's messages, not its empty sim-time ticks
                     sub.sock.setsockopt(zmq.SUBSCRIBE, topic.encode() + OBSERVED)
                 for topic in wanted - now:
@@ -145,6 +165,16 @@ class FoxgloveBridge:
             if len(frames) == 2:
                 self._forward(frames[0].decode(errors="replace"), frames[1])
 
+    def _wanted(self) -> set[str]:
+        """The topics a viewer wants now: theirs, and the 3D view's sources while one wants /tf or /scene."""
+        wanted = {topic for topic, channel in self.channels.items() if channel.has_sinks()}
+        if self._deriving():
+            wanted.update(self._sources)
+        return wanted
+
+    def _deriving(self) -> bool:
+        return any(channel.has_sinks() for channel in self.derived.values())
+
     def _forward(self, topic: str, payload: bytes) -> None:
         channel = self.channels.get(topic)
         if channel is None:
@@ -154,22 +184,43 @@ class FoxgloveBridge:
             log_ns = round(message["header"]["stamp"] * 1e9) if self.sim else time.time_ns()
             if not 0 <= log_ns < 2**64:
                 raise ValueError(log_ns)
-            data = self._to_json(message)
+            data = self._to_json(message) if channel.has_sinks() else None
         except (msgspec.DecodeError, msgspec.EncodeError, TypeError, KeyError, ValueError, OverflowError):
             self.unencodable += 1
             return
-        channel.log(data, log_time=log_ns)
-        self.sent += 1
+        if data is not None:
+            channel.log(data, log_time=log_ns)
+            self.sent += 1
+        if topic in self._sources and self._deriving():
+            try:
+                typed = msgspec.convert(message, self.types[topic])
+            except msgspec.ValidationError:  # not of its type (a NaN): served as it came, not drawn
+                return
+            self._derive(topic, typed, log_ns)
+
+    def _derive(self, topic: str, message: Any, log_ns: int) -> None:
+        """The 3D view's messages at a satellite state, to the viewers that want them."""
+        for derived_topic, value in self._feed.add(topic, message).items():
+            channel = self.derived[derived_topic]
+            if channel.has_sinks():
+                channel.log(self._to_json(value), log_time=log_ns)
+                self.sent += 1
 
     # -- a composed graph ----------------------------------------------------------
     def tap(self, topic: str, message: Any) -> None:
         """ComposedGraph tap: encode only what a viewer subscribed to."""
         channel = self.channels.get(topic)
-        if channel is None or not channel.has_sinks():
+        if channel is None:
+            return
+        derive = topic in self._sources and self._deriving()
+        if not (derive or channel.has_sinks()):
             return
         log_ns = round(message.header.stamp * 1e9) if self.sim else time.time_ns()
-        channel.log(self._to_json(message), log_time=log_ns)
-        self.sent += 1
+        if channel.has_sinks():
+            channel.log(self._to_json(message), log_time=log_ns)
+            self.sent += 1
+        if derive:
+            self._derive(topic, message, log_ns)
 
     def close(self) -> None:
         self._stop.set()
@@ -184,6 +235,7 @@ class FoxgloveBridge:
 def start(graph, *, clock: str, host: str, port: int) -> FoxgloveBridge:
     """A bridge serving every topic of `graph` (checked before any node starts: a busy port fails here)."""
     from dockhil import msgs
+    from dockhil.bags.foxglove_scene import geometry_of
 
     topics = {topic: msgs.type_name(ref.type) for topic, ref in graph.publishers.items()}
-    return FoxgloveBridge(topics, sim=clock == "sim", host=host, port=port)
+    return FoxgloveBridge(topics, sim=clock == "sim", host=host, port=port, geometry=geometry_of(graph))

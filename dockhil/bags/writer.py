@@ -140,8 +140,9 @@ class BagWriter:
         """topic -> type name of the topics added so far."""
         return {topic: type_name for topic, (_, type_name) in self._channels.items()}
 
-    def add_topic(self, topic: str, type_name: str) -> None:
-        """Declare a topic and its message type (a key of msgs.TYPES); adding it again is a no-op."""
+    def add_topic(self, topic: str, type_name: str, schema: dict | None = None) -> None:
+        """Declare a topic and its message type (a key of msgs.TYPES, or another type with its JSON
+        `schema`, such as Foxglove's well-known types); adding it again is a no-op."""
         from dockhil.msgs import TYPES
 
         if not isinstance(topic, str) or not topic:
@@ -152,14 +153,14 @@ class BagWriter:
                 raise BagError(f"bag {self.path}: topic {topic} is already recorded as {known[1]}, not {type_name}")
             return
         cls = TYPES.get(type_name)
-        if cls is None:
+        if cls is None and schema is None:
             raise BagError(
                 f"bag {self.path}: topic {topic} has unknown message type {type_name!r}; "
                 f"known: {', '.join(sorted(TYPES))}"
             )
         schema_id = self._schemas.get(type_name)
         if schema_id is None:
-            data = json.dumps(channel_schema(cls), separators=(",", ":")).encode()
+            data = json.dumps(channel_schema(cls) if schema is None else schema, separators=(",", ":")).encode()
             schema_id = self._writer.register_schema(name=type_name, encoding=SCHEMA_ENCODING, data=data)
             self._schemas[type_name] = schema_id
             self._pending += len(data)

@@ -33,19 +33,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     p = sub.add_parser(
         "export",
-        help="write one topic as CSV, or the whole bag as a rosbag2 bag for ROS 2 tools",
+        help="write one topic as CSV, the whole bag as a rosbag2 bag for ROS 2 tools, or a copy for Foxglove's 3D panel",
         description="--csv: one CSV row per message of a topic: log_time_ns, then every field, "
         "nested fields flattened to dotted names (header.stamp, wrench.force.x, "
         "bodies.0.pose.position.x). --ros2: every topic as a rosbag2 bag (a folder DIR holding "
         "DIR_0.mcap and metadata.yaml; cdr messages of standard ROS 2 types where they exist, "
         "dockhil_msgs otherwise) for ros2 bag, rosbags, Foxglove and PlotJuggler; "
-        "docs/commands.md lists the topics and types.",
+        "docs/commands.md lists the topics and types. --foxglove: a copy of the bag with /tf "
+        "(foxglove.FrameTransforms) and /scene (foxglove.SceneUpdate) added, which Foxglove's 3D panel "
+        "draws (layout: 'dockhil foxglove layout').",
     )
     p.add_argument("path", metavar="PATH", help="MCAP bag file")
     p.add_argument("--topic", "-t", metavar="T", help="topic to export as CSV, e.g. /ft/wrench")
     out = p.add_mutually_exclusive_group(required=True)
     out.add_argument("--csv", metavar="OUT", help="CSV file to write ('-' for standard output)")
     out.add_argument("--ros2", metavar="DIR", help="rosbag2 bag (a folder) to create from every topic")
+    out.add_argument("--foxglove", metavar="OUT", help="MCAP bag to create: the bag with /tf and /scene added")
+    p.add_argument("--scene", nargs="+", metavar=("FILE", "name:=value"),
+                   help="--foxglove: the launch file (and arguments) the bag was recorded from, for where the "
+                        "interfaces are mounted (default: the shipped scenes' mounting)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace OUT, or DIR if it is a rosbag2 bag, if it exists (default: refuse)")
 
@@ -174,6 +180,10 @@ def _time(seconds: float | None) -> str:
 def _export(args: argparse.Namespace) -> int:
     from dockhil.errors import DockhilError
 
+    if args.scene is not None and args.foxglove is None:
+        raise DockhilError("--scene is for --foxglove")
+    if args.foxglove is not None:
+        return _export_foxglove(args)
     if args.ros2 is not None:
         if args.topic is not None:
             raise DockhilError("--topic is for --csv; --ros2 exports every topic")
@@ -198,6 +208,26 @@ def _export(args: argparse.Namespace) -> int:
         log.Log("dockhil bag export:").info(f"note: {note}")
     if args.csv != "-":
         print(f"{result.rows} rows of {args.topic} written to {args.csv}")
+    return 0
+
+
+def _export_foxglove(args: argparse.Namespace) -> int:
+    from dockhil.bags.foxglove_scene import export, geometry_of
+    from dockhil.errors import DockhilError
+
+    if args.topic is not None:
+        raise DockhilError("--topic is for --csv; --foxglove copies every topic")
+    geometry = None
+    if args.scene is not None:
+        from dockhil.scene import launchfile
+        from dockhil.scene.graph import build
+
+        file, *overrides = args.scene
+        geometry = geometry_of(build(launchfile.load(file, launchfile.parse_overrides(overrides))))
+    result = export(args.path, args.foxglove, geometry=geometry, overwrite=args.overwrite)
+    if result.loss:
+        log.Log("dockhil bag export:").warning(result.loss)
+    print(f"{result.messages} messages and {result.derived} /tf and /scene messages written to {args.foxglove}")
     return 0
 
 

@@ -54,7 +54,7 @@ def add_arguments(p) -> None:
                    help="wall time: run node loops with real-time (SCHED_FIFO) priority where the OS allows")
     p.add_argument("--foxglove", nargs="?", const=8765, type=_port, metavar="PORT",
                    help="serve every topic live to Foxglove over WebSocket on PORT (default 8765); "
-                        "layout: docs/foxglove-layout.json")
+                        "layout: dockhil foxglove layout > layout.json")
     p.add_argument("--foxglove-host", metavar="HOST",
                    help="address the Foxglove server binds (default 127.0.0.1: this machine only)")
     log.add_arguments(p)
