@@ -10,8 +10,10 @@ from setuptools import Extension, setup
 # one (see the file's head).
 FLAGS = ["-O2", "-ffp-contract=off", "-fno-builtin", "-fno-fast-math"]
 
-setup(ext_modules=[
-    Extension("dockhil.contact._rigid", ["dockhil/contact/_rigid.c"], extra_compile_args=FLAGS, optional=True),
-    # A composed run's message screen (dockhil/runtime/_screen.c; screen.bounds_check is its twin).
-    Extension("dockhil.runtime._screen", ["dockhil/runtime/_screen.c"], extra_compile_args=FLAGS, optional=True),
-])
+setup(
+    ext_modules=[
+        Extension("dockhil.contact._rigid", ["dockhil/contact/_rigid.c"], extra_compile_args=FLAGS, optional=True),
+        # A composed run's message screen (dockhil/runtime/_screen.c; screen.bounds_check is its twin).
+        Extension("dockhil.runtime._screen", ["dockhil/runtime/_screen.c"], extra_compile_args=FLAGS, optional=True),
+    ]
+)

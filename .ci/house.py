@@ -67,8 +67,13 @@ def graph_and_private(mods: dict[str, Path]):
         tree = ast.parse(path.read_text(), str(path))
         bound: dict[str, str] = {}  # local name -> dockhil module, for `module._name`
         for target, names, line in _imports(tree, name, path.name == "__init__.py", mods):
-            target = target if target in mods else next(
-                (t for t in (target.rsplit(".", k)[0] for k in range(1, target.count(".") + 1)) if t in mods), None)
+            target = (
+                target
+                if target in mods
+                else next(
+                    (t for t in (target.rsplit(".", k)[0] for k in range(1, target.count(".") + 1)) if t in mods), None
+                )
+            )
             if target is None or target == name:
                 continue
             edges[name].add(target)
@@ -85,9 +90,14 @@ def graph_and_private(mods: dict[str, Path]):
                     if alias.asname and alias.name in mods:
                         bound[alias.asname] = alias.name
         for node in ast.walk(tree):
-            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in bound
-                    and node.attr.startswith("_") and not node.attr.startswith("__")
-                    and bound[node.value.id] != name):
+            if (
+                isinstance(node, ast.Attribute)
+                and isinstance(node.value, ast.Name)
+                and node.value.id in bound
+                and node.attr.startswith("_")
+                and not node.attr.startswith("__")
+                and bound[node.value.id] != name
+            ):
                 private.append(f"{path.relative_to(ROOT)}:{node.lineno}: {node.attr} from {bound[node.value.id]}")
     return edges, sorted(set(private))
 

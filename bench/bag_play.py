@@ -44,8 +44,13 @@ def record_graph(tmp: str, seconds: float) -> dict:
     from dockhil.bags.tools import info
 
     path = os.path.join(tmp, "hil.mcap")
-    r = subprocess.run(dockhil("launch", "launch/hil.yaml", "--wall-time", "--duration", str(seconds), "--bag", path),
-                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        dockhil("launch", "launch/hil.yaml", "--wall-time", "--duration", str(seconds), "--bag", path),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     if r.returncode != 0:
         raise SystemExit(f"launch failed: {r.stdout}{r.stderr}")
     report = next(line for line in r.stdout.splitlines() if "[bag-recorder] recorded" in line)
@@ -86,8 +91,12 @@ def play_bag(tmp: str, seconds: float, rate: float) -> dict:
     copy = os.path.join(tmp, "played.mcap")
     graphs = os.path.join(os.environ["DOCKHIL_RUNTIME_DIR"], "graphs")
     started = time.monotonic()
-    play = subprocess.Popen(dockhil("bag", "play", path, "--rate", str(rate), "--subscribers", "1"),
-                            cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    play = subprocess.Popen(
+        dockhil("bag", "play", path, "--rate", str(rate), "--subscribers", "1"),
+        cwd=ROOT,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     while not glob.glob(os.path.join(graphs, "play-*.json")):
         if play.poll() is not None:
             raise SystemExit(f"bag play failed: {play.stderr.read()}")

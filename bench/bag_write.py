@@ -31,7 +31,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from dockhil.bags.reader import BagReader
-from dockhil.bags.writer import BagWriter# noqa: E402
+from dockhil.bags.writer import BagWriter  # noqa: E402
 from dockhil.msgs import (  # noqa: E402
     BodyState,
     Header,
@@ -71,8 +71,13 @@ def graph_messages(seconds: float, rate_hz: float = 1000.0) -> tuple[list[tuple[
         x = 0.02 * math.sin(2 * math.pi * 0.5 * t)
         v = 0.02 * math.pi * math.cos(2 * math.pi * 0.5 * t)
         f = max(0.0, 4000.0 * x) + rng.gauss(0.0, 0.5)
-        wrench = WrenchStamped(header=h, wrench=Wrench(force=Vector3(x=f, y=rng.gauss(0, 0.2), z=rng.gauss(0, 0.2)),
-                                                       torque=Vector3(x=rng.gauss(0, 0.01), y=rng.gauss(0, 0.01))))
+        wrench = WrenchStamped(
+            header=h,
+            wrench=Wrench(
+                force=Vector3(x=f, y=rng.gauss(0, 0.2), z=rng.gauss(0, 0.2)),
+                torque=Vector3(x=rng.gauss(0, 0.01), y=rng.gauss(0, 0.01)),
+            ),
+        )
         virtual = WrenchStamped(header=h, wrench=Wrench(force=Vector3(x=-0.8 * f - 30.0 * v)))
         pose = Pose(position=Vector3(x=x))
         twist = Twist(linear=Vector3(x=v))

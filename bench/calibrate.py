@@ -39,9 +39,16 @@ def draw(seed: int) -> dict:
     """Hidden truths from the ranges calibrate is specified over."""
     r = random.Random(seed)
     bias = [r.uniform(-5.0, 5.0) / math.sqrt(3) for _ in range(3)]
-    return {"delay": r.uniform(0.016, 0.120), "lag": r.uniform(0.0, 0.020), "k": 1000.0 * r.uniform(0.7, 1.3),
-            "b": r.uniform(0.0, 50.0), "surface": r.uniform(0.0, 0.02), "noise": r.uniform(0.0, 0.5), "bias": bias,
-            "torque_bias": [r.uniform(-0.5, 0.5) for _ in range(3)]}
+    return {
+        "delay": r.uniform(0.016, 0.120),
+        "lag": r.uniform(0.0, 0.020),
+        "k": 1000.0 * r.uniform(0.7, 1.3),
+        "b": r.uniform(0.0, 50.0),
+        "surface": r.uniform(0.0, 0.02),
+        "noise": r.uniform(0.0, 0.5),
+        "bias": bias,
+        "torque_bias": [r.uniform(-0.5, 0.5) for _ in range(3)],
+    }
 
 
 def free_port() -> int:
@@ -55,17 +62,41 @@ def rig(folder: str, truth: dict, port: int) -> str:
     folder/ft_maxima.json and folder/robot_maxima.json."""
     channel = os.path.join(folder, "ft.slcan")
     fb, tb = truth["bias"], truth["torque_bias"]
-    ft = {"channel": channel, "k": truth["k"], "b": truth["b"], "surface": truth["surface"], "noise": truth["noise"],
-          "bias": fb[0], "bias_y": fb[1], "bias_z": fb[2], "torque_bias_x": tb[0], "torque_bias_y": tb[1],
-          "torque_bias_z": tb[2], "seed": 1, "maxima": os.path.join(folder, "ft_maxima.json")}
-    robot = {"port": port, "delay": truth["delay"], "tau": truth["lag"],
-             "maxima": os.path.join(folder, "robot_maxima.json")}
+    ft = {
+        "channel": channel,
+        "k": truth["k"],
+        "b": truth["b"],
+        "surface": truth["surface"],
+        "noise": truth["noise"],
+        "bias": fb[0],
+        "bias_y": fb[1],
+        "bias_z": fb[2],
+        "torque_bias_x": tb[0],
+        "torque_bias_y": tb[1],
+        "torque_bias_z": tb[2],
+        "seed": 1,
+        "maxima": os.path.join(folder, "ft_maxima.json"),
+    }
+    robot = {
+        "port": port,
+        "delay": truth["delay"],
+        "tau": truth["lag"],
+        "maxima": os.path.join(folder, "robot_maxima.json"),
+    }
     nodes = [
         {"name": "dynamics", "node": "satellite_dynamics", "params": {"m1": M1, "m2": M2}},
         {"name": "impedance", "node": "virtual_impedance", "params": {"m1": M1, "m2": M2, "kcs": KCS, "bcs": BCS}},
-        {"name": "robot", "node": "robot_modbus", "params": {"port": port, "max_force": MAX_FORCE,
-                                                             "max_speed": MAX_SPEED, "ft_timeout": 0.2,
-                                                             "max_actual_speed": MAX_ACTUAL_SPEED}},
+        {
+            "name": "robot",
+            "node": "robot_modbus",
+            "params": {
+                "port": port,
+                "max_force": MAX_FORCE,
+                "max_speed": MAX_SPEED,
+                "ft_timeout": 0.2,
+                "max_actual_speed": MAX_ACTUAL_SPEED,
+            },
+        },
         {"name": "ft", "node": "ft_can", "params": {"channel": channel}},
         {"name": "ft_emulator", "node": "ft_emulator", "params": ft},
         {"name": "robot_emulator", "node": "robot_emulator", "params": robot},
@@ -79,8 +110,14 @@ def rig(folder: str, truth: dict, port: int) -> str:
 # A busy machine can starve the drivers past their watchdogs: a valid safety stop, not a calibration
 # result; such a run is tried again (the attempts are counted). So is one whose F/T emulator, stopped with
 # the graph, closed its link before the driver stopped reading it ("while stopping").
-BUSY = ("ft_timeout: no F/T data", "stale data: no new sample", "safety stop: stall:", "s old > max_age", "INVALID",
-        "while stopping")
+BUSY = (
+    "ft_timeout: no F/T data",
+    "stale data: no new sample",
+    "safety stop: stall:",
+    "s old > max_age",
+    "INVALID",
+    "while stopping",
+)
 
 
 def run(truth: dict, realtime: bool = True, attempts: int = 3, bag_out: str | None = None) -> dict:
@@ -102,13 +139,31 @@ def run_once(truth: dict, realtime: bool = True, timeout: float = 120.0, bag_out
     with tempfile.TemporaryDirectory(prefix="dockhil-calibrate-bench-") as folder:
         scene = rig(folder, truth, free_port())
         start = time.perf_counter()
-        p = subprocess.run([sys.executable, "-m", "dockhil.cli", "calibrate", scene, "--json", "--out",
-                            os.path.join(folder, "loop.yaml"), *(["--realtime"] if realtime else []),
-                            *(["--bag-out", bag_out] if bag_out else [])],
-                           capture_output=True, text=True, timeout=timeout)
+        p = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "dockhil.cli",
+                "calibrate",
+                scene,
+                "--json",
+                "--out",
+                os.path.join(folder, "loop.yaml"),
+                *(["--realtime"] if realtime else []),
+                *(["--bag-out", bag_out] if bag_out else []),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+        )
         wall = time.perf_counter() - start
-        out = {"exit": p.returncode, "wall_s": wall, "truth": truth, "written": os.path.exists(
-            os.path.join(folder, "loop.yaml")), "stderr_tail": "\n".join(p.stderr.strip().splitlines()[-12:])}
+        out = {
+            "exit": p.returncode,
+            "wall_s": wall,
+            "truth": truth,
+            "written": os.path.exists(os.path.join(folder, "loop.yaml")),
+            "stderr_tail": "\n".join(p.stderr.strip().splitlines()[-12:]),
+        }
         for name in ("ft_maxima", "robot_maxima"):
             try:
                 with open(os.path.join(folder, f"{name}.json")) as f:
@@ -131,8 +186,10 @@ def errors(truth: dict, found: dict, link: float = 0.0) -> dict:
     m = M1 * M2 / (M1 + M2)
     true_bound = exact_bound(m, BCS, truth["delay"] + truth["lag"]).k_max
     link_bound = exact_bound(m, BCS, truth["delay"] + link + truth["lag"]).k_max
-    bias_sd = [abs(f - t) / truth["noise"] if truth["noise"] else math.inf * (abs(f - t) > 0.01)
-               for f, t in zip(found["bias_N"], truth["bias"])]
+    bias_sd = [
+        abs(f - t) / truth["noise"] if truth["noise"] else math.inf * (abs(f - t) > 0.01)
+        for f, t in zip(found["bias_N"], truth["bias"])
+    ]
     return {
         "delay_ms": 1e3 * (found["delay_s"] - truth["delay"]),
         "lag_ms": 1e3 * (found["lag_s"] - truth["lag"]),
@@ -155,8 +212,19 @@ def main() -> None:
     args = ap.parse_args()
     realtime = not args.no_realtime
     # The link's own latency: a controller without delay or lag, identified the same way.
-    zero = run({"delay": 0.0, "lag": 0.0, "k": 1000.0, "b": 0.0, "surface": 0.01, "noise": 0.1, "bias": [0.0] * 3,
-                "torque_bias": [0.0] * 3}, realtime)
+    zero = run(
+        {
+            "delay": 0.0,
+            "lag": 0.0,
+            "k": 1000.0,
+            "b": 0.0,
+            "surface": 0.01,
+            "noise": 0.1,
+            "bias": [0.0] * 3,
+            "torque_bias": [0.0] * 3,
+        },
+        realtime,
+    )
     link = zero["found"]["delay_s"] if "found" in zero else 0.0
     rows = [run(draw(args.seed + i), realtime) for i in range(args.draws)]
     done = [r for r in rows if "errors" in r]
@@ -179,31 +247,49 @@ def main() -> None:
     m = M1 * M2 / (M1 + M2)
     for r in done:
         t, f = r["truth"], r["found"]
-        r["errors"]["bound_rel_median_link"] = f["kcs_max_N_per_m"] / exact_bound(
-            m, BCS, t["delay"] + t["lag"] + 1e-3 * offset).k_max - 1.0
+        r["errors"]["bound_rel_median_link"] = (
+            f["kcs_max_N_per_m"] / exact_bound(m, BCS, t["delay"] + t["lag"] + 1e-3 * offset).k_max - 1.0
+        )
 
-    print(json.dumps({
-        "draws": len(rows), "identified": len(done), "exit_codes": [r["exit"] for r in rows],
-        "attempts": [r["attempts"] for r in rows], "realtime": realtime,
-        "link_latency_ms": 1e3 * link, "link_lag_ms": 1e3 * zero["found"]["lag_s"] if "found" in zero else None,
-        "delay_offset_ms": around_median("delay_ms"), "delay_plus_lag_offset_ms": around_median("delay_plus_lag_ms"),
-        "delay_error_after_link_ms": {"mean": mean("delay_link_ms"), "max_abs": worst("delay_link_ms")},
-        "bound_rel_error_after_link": {"mean": mean("bound_rel_link"), "max_abs": worst("bound_rel_link")},
-        "bound_rel_error_after_median_link": {"mean": mean("bound_rel_median_link"),
-                                              "max_abs": worst("bound_rel_median_link")},
-        "delay_error_ms": {"mean": mean("delay_ms"), "max_abs": worst("delay_ms"),
-                           "min": min((r["errors"]["delay_ms"] for r in done), default=None)},
-        "lag_error_ms": {"mean": mean("lag_ms"), "max_abs": worst("lag_ms")},
-        "delay_plus_lag_error_ms": {"mean": mean("delay_plus_lag_ms"), "max_abs": worst("delay_plus_lag_ms")},
-        "k_rel_error_max_abs": worst("k_rel"), "bias_error_max_noise_sd": worst("bias_in_noise_sd"),
-        "bound_rel_error": {"mean": mean("bound_rel"), "max_abs": worst("bound_rel")},
-        "b_error_Ns_per_m_max_abs": worst("b_Ns_per_m"),
-        "wall_s_max": max(r["wall_s"] for r in rows),
-        "max_force_N": max((r["ft_maxima"] or {}).get("max_force_N", 0.0) for r in rows), "force_limit_N": MAX_FORCE,
-        "max_speed_m_s": max((r["robot_maxima"] or {}).get("max_speed_m_s", 0.0) for r in rows),
-        "actual_speed_limit_m_s": MAX_ACTUAL_SPEED, "setpoint_speed_limit_m_s": MAX_SPEED,
-        "runs": rows,
-    }))
+    print(
+        json.dumps(
+            {
+                "draws": len(rows),
+                "identified": len(done),
+                "exit_codes": [r["exit"] for r in rows],
+                "attempts": [r["attempts"] for r in rows],
+                "realtime": realtime,
+                "link_latency_ms": 1e3 * link,
+                "link_lag_ms": 1e3 * zero["found"]["lag_s"] if "found" in zero else None,
+                "delay_offset_ms": around_median("delay_ms"),
+                "delay_plus_lag_offset_ms": around_median("delay_plus_lag_ms"),
+                "delay_error_after_link_ms": {"mean": mean("delay_link_ms"), "max_abs": worst("delay_link_ms")},
+                "bound_rel_error_after_link": {"mean": mean("bound_rel_link"), "max_abs": worst("bound_rel_link")},
+                "bound_rel_error_after_median_link": {
+                    "mean": mean("bound_rel_median_link"),
+                    "max_abs": worst("bound_rel_median_link"),
+                },
+                "delay_error_ms": {
+                    "mean": mean("delay_ms"),
+                    "max_abs": worst("delay_ms"),
+                    "min": min((r["errors"]["delay_ms"] for r in done), default=None),
+                },
+                "lag_error_ms": {"mean": mean("lag_ms"), "max_abs": worst("lag_ms")},
+                "delay_plus_lag_error_ms": {"mean": mean("delay_plus_lag_ms"), "max_abs": worst("delay_plus_lag_ms")},
+                "k_rel_error_max_abs": worst("k_rel"),
+                "bias_error_max_noise_sd": worst("bias_in_noise_sd"),
+                "bound_rel_error": {"mean": mean("bound_rel"), "max_abs": worst("bound_rel")},
+                "b_error_Ns_per_m_max_abs": worst("b_Ns_per_m"),
+                "wall_s_max": max(r["wall_s"] for r in rows),
+                "max_force_N": max((r["ft_maxima"] or {}).get("max_force_N", 0.0) for r in rows),
+                "force_limit_N": MAX_FORCE,
+                "max_speed_m_s": max((r["robot_maxima"] or {}).get("max_speed_m_s", 0.0) for r in rows),
+                "actual_speed_limit_m_s": MAX_ACTUAL_SPEED,
+                "setpoint_speed_limit_m_s": MAX_SPEED,
+                "runs": rows,
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -46,8 +46,13 @@ def multiprocess(seconds: float, scene: str = HIL) -> float:
 
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "dockhil.cli", "launch", scene, "--duration", str(seconds), "--quiet"],
-                   check=True, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    subprocess.run(
+        [sys.executable, "-m", "dockhil.cli", "launch", scene, "--duration", str(seconds), "--quiet"],
+        check=True,
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     CPU.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
@@ -105,8 +110,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per run (default 10)")
     ap.add_argument("--repeat", type=int, default=3, help="runs per mode; medians are reported")
-    ap.add_argument("--ring-seconds", type=float, default=2.0,
-                    help="simulated seconds per ring run (rings of 2, 4 and 8 processes); 0 skips the rings")
+    ap.add_argument(
+        "--ring-seconds",
+        type=float,
+        default=2.0,
+        help="simulated seconds per ring run (rings of 2, 4 and 8 processes); 0 skips the rings",
+    )
     args = ap.parse_args()
     n = int(round(args.seconds * 1000)) + 1
     med = statistics.median
@@ -142,7 +151,9 @@ def main() -> None:
     # Issue 13's figure beside them: the 6-DOF scene composed (bench/hil6.py gives its details).
     six_cpu: list[float] = []
     six_n = min(n, 3001)
-    out["sixdof_composed_rtf"] = round((six_n - 1) * 1e-3 / med(composed(six_n, six_cpu, HIL6) for _ in range(args.repeat)), 1)
+    out["sixdof_composed_rtf"] = round(
+        (six_n - 1) * 1e-3 / med(composed(six_n, six_cpu, HIL6) for _ in range(args.repeat)), 1
+    )
     out["sixdof_composed_cpu_us_per_tick"] = round(med(six_cpu) / six_n * 1e6, 1)
     # The floor of a composed tick: the bare loop's physics plus screening and building the tick's
     # messages (bench/message_floor.py); no runner or node logic can go below it.
@@ -154,8 +165,13 @@ def main() -> None:
     out["composed_floor_us_per_tick"] = round(floor, 2)
     out["composed_floor_rtf"] = round(1e6 / floor / 1000.0, 1)  # 1 kHz: a tick is 1000 us of sim time
     out["composed_over_floor"] = round(out["composed_cpu_us_per_tick"] / floor, 2)
-    goals = {"multiprocess_rtf": (">=", 4.0), "container_rtf": (">=", 10.0), "composed_rtf": (">=", 100.0),
-             "bare_over_composed": ("<=", 1.5), "sixdof_composed_rtf": (">=", 20.0)}
+    goals = {
+        "multiprocess_rtf": (">=", 4.0),
+        "container_rtf": (">=", 10.0),
+        "composed_rtf": (">=", 100.0),
+        "bare_over_composed": ("<=", 1.5),
+        "sixdof_composed_rtf": (">=", 20.0),
+    }
     if args.ring_seconds > 0:
         from throughput import ring_costs
 
@@ -164,8 +180,10 @@ def main() -> None:
         out["ring_us_per_added_process_per_tick"] = rings["multiprocess_us_per_added_process_per_tick"]
         out["ring_cpu_us_per_added_process_per_tick"] = rings["multiprocess_cpu_us_per_added_process_per_tick"]
         goals["ring_us_per_added_process_per_tick"] = ("<=", round(114 * 0.7, 1))  # 30 % under 114 us
-    out["goals"] = {name: {"goal": f"{op} {bound:g}", "met": out[name] >= bound if op == ">=" else out[name] <= bound}
-                    for name, (op, bound) in goals.items()}
+    out["goals"] = {
+        name: {"goal": f"{op} {bound:g}", "met": out[name] >= bound if op == ">=" else out[name] <= bound}
+        for name, (op, bound) in goals.items()
+    }
     from machine_speed import python_loop_s
 
     out["python_loop_3M_s"] = python_loop_s()  # the machine's speed at the time (bench/machine_speed.py)

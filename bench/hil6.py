@@ -22,6 +22,7 @@ sys.path.insert(0, os.path.join(ROOT, "bench"))  # machine_speed
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from machine_speed import python_loop_s  # noqa: E402
+
 HIL6 = os.path.join(ROOT, "launch", "hil6.yaml")
 
 
@@ -37,11 +38,13 @@ def composed(n_ticks: int, per_node: bool = False, order: int | None = None) -> 
     spent: dict[str, float] = {}
     if per_node:  # wrap each node's step with a CPU timer (adds a little overhead of its own)
         for name, node in g.nodes.items():
+
             def timed(tick, inputs, _step=node.step, _name=name):
                 t = time.process_time()
                 out = _step(tick, inputs)
                 spent[_name] = spent.get(_name, 0.0) + time.process_time() - t
                 return out
+
             node.step = timed
         g.plan = [(name, g.nodes[name], *rest) for name, _node, *rest in g.plan]
     t0, c0 = time.perf_counter(), time.process_time()
@@ -65,15 +68,20 @@ def runtime_only(n_ticks: int) -> float:
     g.setup()
     sent: dict[str, dict] = {}
     for name, node in g.nodes.items():
+
         def record(tick, inputs, _step=node.step, _name=name):
             sent[_name] = out = _step(tick, inputs)
             return out
+
         node.step = record
     g.run(301)
     for name, node in g.nodes.items():
+
         def stub(tick, inputs, _sent=sent[name]):
-            return {port: msgspec.structs.replace(msg, header=tick.header(msg.header.frame))
-                    for port, msg in _sent.items()}
+            return {
+                port: msgspec.structs.replace(msg, header=tick.header(msg.header.frame)) for port, msg in _sent.items()
+            }
+
         node.step = stub
     c0 = time.process_time()
     g.run(n_ticks)
@@ -116,18 +124,30 @@ def main() -> None:
     lib = statistics.median(library(n) for _ in range(args.repeat))
     per_node = composed(n, per_node=True)[2]
     runtime = statistics.median(runtime_only(n) for _ in range(args.repeat))
-    print(json.dumps({
-        "scene": "launch/hil6.yaml (defaults: offset 0.05 m, tilt 0.02 rad, spin 0.01 rad/s, delay 32 ms, order 2)",
-        "rate_Hz": 1000.0, "sim_seconds": sim, "repeat": args.repeat,
-        "sixdof_composed_rtf": sim / wall, "sixdof_composed_cpu_rtf": sim / cpu,
-        "cpu_us_per_tick": cpu / n * 1e6,
-        "order4_composed_rtf": sim / wall4, "order4_cpu_us_per_tick": cpu4 / n * 1e6,
-        "library_loop_order4_rtf": sim / lib, "goal_rtf": 20.0,
-        "per_node_cpu_us_per_tick": {k: round(v, 1) for k, v in sorted(per_node.items(), key=lambda kv: -kv[1])},
-        "runtime_only_cpu_us_per_tick": round(runtime, 1),
-        "cpus": os.cpu_count(), "load_avg_1min": os.getloadavg()[0],
-        "python_loop_3M_s": python_loop_s(),  # the machine's speed at the time (bench/machine_speed.py)
-    }))
+    print(
+        json.dumps(
+            {
+                "scene": "launch/hil6.yaml (defaults: offset 0.05 m, tilt 0.02 rad, spin 0.01 rad/s, delay 32 ms, order 2)",
+                "rate_Hz": 1000.0,
+                "sim_seconds": sim,
+                "repeat": args.repeat,
+                "sixdof_composed_rtf": sim / wall,
+                "sixdof_composed_cpu_rtf": sim / cpu,
+                "cpu_us_per_tick": cpu / n * 1e6,
+                "order4_composed_rtf": sim / wall4,
+                "order4_cpu_us_per_tick": cpu4 / n * 1e6,
+                "library_loop_order4_rtf": sim / lib,
+                "goal_rtf": 20.0,
+                "per_node_cpu_us_per_tick": {
+                    k: round(v, 1) for k, v in sorted(per_node.items(), key=lambda kv: -kv[1])
+                },
+                "runtime_only_cpu_us_per_tick": round(runtime, 1),
+                "cpus": os.cpu_count(),
+                "load_avg_1min": os.getloadavg()[0],
+                "python_loop_3M_s": python_loop_s(),  # the machine's speed at the time (bench/machine_speed.py)
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

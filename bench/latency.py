@@ -30,7 +30,7 @@ def _keys(kind: str, endpoint: str):
 
     from dockhil.runtime.transport import GraphKeys
 
-    path = Path(endpoint[len("ipc://"):] + ".keys")
+    path = Path(endpoint[len("ipc://") :] + ".keys")
     if not path.exists():
         GraphKeys.make().write(path)
     return GraphKeys.read(path)
@@ -49,8 +49,9 @@ def sender(kind: str, endpoint: str, n: int, period: float) -> None:
         pub = Publisher(ctx, "/ft/wrench", endpoint, keys=_keys(kind, endpoint))
         pub.wait_subscribers(1, 10)
         wrench = msgs.Wrench(force=msgs.Vector3(x=1.0, y=2.0, z=3.0), torque=msgs.Vector3(x=0.1))
-        send = lambda i: pub.send(encode(msgs.WrenchStamped(  # noqa: E731
-            header=msgs.Header(stamp=time.perf_counter(), tick=i, seq=i), wrench=wrench)))
+        send = lambda i: pub.send(  # noqa: E731
+            encode(msgs.WrenchStamped(header=msgs.Header(stamp=time.perf_counter(), tick=i, seq=i), wrench=wrench))
+        )
     else:
         import msgpack
 
@@ -127,7 +128,7 @@ def main() -> None:
         for b in range(args.blocks):
             for kind in ("runtime", "plain", "raw") if b % 2 == 0 else ("raw", "plain", "runtime"):
                 got = one_block(kind, args.messages, period, tmp)
-                lat[kind].extend(got[len(got) // 10:])  # drop the warm-up tenth
+                lat[kind].extend(got[len(got) // 10 :])  # drop the warm-up tenth
                 print(f"{kind} block {b + 1}: {len(got)} messages", file=sys.stderr)
     r = np.array(lat["runtime"]) * 1e6
     w = np.array(lat["raw"]) * 1e6

@@ -31,8 +31,9 @@ CASES = {
     "alias_bomb": billion_laughs(),
     "nested_20000": "nodes: " + "[" * 20000 + "\n",
     "file_2MB": "description: " + "x" * (2 << 20) + "\n",
-    "hil_yaml": open(os.path.join(ROOT, "launch", "hil.yaml")).read().replace("file: emulators.yaml",
-                                                                               f"file: {ROOT}/launch/emulators.yaml"),
+    "hil_yaml": open(os.path.join(ROOT, "launch", "hil.yaml"))
+    .read()
+    .replace("file: emulators.yaml", f"file: {ROOT}/launch/emulators.yaml"),
 }
 
 
@@ -41,15 +42,23 @@ def refuse(text: str, folder: str) -> dict:
     with open(path, "w") as f:
         f.write(text)
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "dockhil.cli", "graph", path], cwd=ROOT,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "dockhil.cli", "graph", path],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     _, status, usage = os.wait4(proc.pid, 0)
     seconds = time.perf_counter() - t0
     stderr = proc.stderr.read().decode()
     proc.stderr.close()
-    return {"bytes": len(text.encode()), "exit_code": os.waitstatus_to_exitcode(status),
-            "stderr_lines": len(stderr.strip().splitlines()), "seconds": round(seconds, 3),
-            "peak_rss_mb": round(usage.ru_maxrss / 1024, 1)}
+    return {
+        "bytes": len(text.encode()),
+        "exit_code": os.waitstatus_to_exitcode(status),
+        "stderr_lines": len(stderr.strip().splitlines()),
+        "seconds": round(seconds, 3),
+        "peak_rss_mb": round(usage.ru_maxrss / 1024, 1),
+    }
 
 
 def hil_load_ms(repeats: int = 50) -> float:

@@ -21,9 +21,15 @@ def main() -> None:
 
     rows = leanness.measure_all(repeats=args.repeat)
     out = {
-        "nodes": {r["node"]: {"startup_s": round(r["startup_s"], 3) if r.get("startup_s") else None,
-                              "rss_mb": round(r["rss_mb"], 1) if r.get("rss_mb") else None,
-                              "loaded_after_setup": r.get("after_setup", []), "kind": r["kind"]} for r in rows},
+        "nodes": {
+            r["node"]: {
+                "startup_s": round(r["startup_s"], 3) if r.get("startup_s") else None,
+                "rss_mb": round(r["rss_mb"], 1) if r.get("rss_mb") else None,
+                "loaded_after_setup": r.get("after_setup", []),
+                "kind": r["kind"],
+            }
+            for r in rows
+        },
         "violations": leanness.violations(rows),
     }
     print(json.dumps(out))

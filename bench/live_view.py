@@ -55,8 +55,12 @@ class Viewer(threading.Thread):
 
         while True:
             try:
-                ws = await websockets.connect(f"ws://127.0.0.1:{self.port}", max_size=None, close_timeout=0.5,
-                                              subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"])
+                ws = await websockets.connect(
+                    f"ws://127.0.0.1:{self.port}",
+                    max_size=None,
+                    close_timeout=0.5,
+                    subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"],
+                )
                 break
             except OSError:
                 await asyncio.sleep(0.05)
@@ -83,8 +87,13 @@ def forward(ticks: int) -> dict:
     from dockhil.msgs import BodyState, Header, SatelliteState, Vector3, Wrench, WrenchStamped
 
     port = free_port()
-    bridge = FoxgloveBridge({"/satellite/state": "dockhil/SatelliteState", "/ft/wrench": "dockhil/WrenchStamped"},
-                            sim=True, port=port, log=lambda line: None, burst=10**9)
+    bridge = FoxgloveBridge(
+        {"/satellite/state": "dockhil/SatelliteState", "/ft/wrench": "dockhil/WrenchStamped"},
+        sim=True,
+        port=port,
+        log=lambda line: None,
+        burst=10**9,
+    )
     viewer = Viewer(port)
     viewer.start()
     viewer.subscribed.wait(30)
@@ -93,19 +102,29 @@ def forward(ticks: int) -> dict:
     frames = []
     for k in range(ticks):
         h = Header(stamp=k * 0.001, tick=k, seq=k)
-        frames.append([b"/satellite/state", msgspec.msgpack.encode(
-            SatelliteState(header=h, bodies=[BodyState("chaser", 750.0), BodyState("target", 1e6)]))])
+        frames.append(
+            [
+                b"/satellite/state",
+                msgspec.msgpack.encode(
+                    SatelliteState(header=h, bodies=[BodyState("chaser", 750.0), BodyState("target", 1e6)])
+                ),
+            ]
+        )
         frames.append([b"/ft/wrench", msgspec.msgpack.encode(WrenchStamped(header=h, wrench=Wrench(Vector3(k))))])
     t = time.perf_counter()
     for i in range(0, len(frames), 1000):
-        bridge.serve(frames[i:i + 1000])
+        bridge.serve(frames[i : i + 1000])
     elapsed = time.perf_counter() - t
     time.sleep(0.5)  # what the server still holds reaches the viewer
     received = viewer.received
     viewer.stop = True
     bridge.close()
-    return {"messages": len(frames), "seconds": round(elapsed, 3),
-            "messages_per_s": round(len(frames) / elapsed), "viewer_received": received}
+    return {
+        "messages": len(frames),
+        "seconds": round(elapsed, 3),
+        "messages_per_s": round(len(frames) / elapsed),
+        "viewer_received": received,
+    }
 
 
 def run(duration: float, watched: bool) -> dict:

@@ -64,8 +64,11 @@ def messages_of(scene: str, n_ticks: int, args: dict | None = None) -> list[list
     from dockhil.scene.graph import build
 
     ticks: list[list] = [[] for _ in range(n_ticks)]
-    g = ComposedGraph(build(launchfile.load(scene, args or {})), log=lambda n, m: None,
-                      taps=[lambda topic, msg: ticks[msg.header.tick].append(msg)])
+    g = ComposedGraph(
+        build(launchfile.load(scene, args or {})),
+        log=lambda n, m: None,
+        taps=[lambda topic, msg: ticks[msg.header.tick].append(msg)],
+    )
     g.setup()
     g.run(n_ticks)
     g.close()
@@ -101,9 +104,16 @@ def main() -> None:
     ap.add_argument("--ticks", type=int, default=3000, help="ticks recorded (default 3000)")
     args = ap.parse_args()
     ticks = messages_of(args.scene, args.ticks)
-    print(json.dumps({"scene": os.path.relpath(args.scene, ROOT), "ticks": args.ticks,
-                      "messages_per_tick": round(sum(map(len, ticks)) / len(ticks), 2),
-                      **cost_us_per_tick(ticks)}))
+    print(
+        json.dumps(
+            {
+                "scene": os.path.relpath(args.scene, ROOT),
+                "ticks": args.ticks,
+                "messages_per_tick": round(sum(map(len, ticks)) / len(ticks), 2),
+                **cost_us_per_tick(ticks),
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

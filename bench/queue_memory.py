@@ -64,12 +64,19 @@ def main() -> None:
             idle.wait()
             pub.close()
             ctx.term()
-    print(json.dumps({
-        "messages": args.messages, "payload_bytes": args.size, "hwm": HWM,
-        "dropped": pub.dropped, "publisher_rss_growth_mb": round(grown, 1),
-        "unbounded_would_be_mb": round(args.messages * args.size / 1e6, 1),
-        "send_rate_per_s": round(args.messages / seconds),
-    }))
+    print(
+        json.dumps(
+            {
+                "messages": args.messages,
+                "payload_bytes": args.size,
+                "hwm": HWM,
+                "dropped": pub.dropped,
+                "publisher_rss_growth_mb": round(grown, 1),
+                "unbounded_would_be_mb": round(args.messages * args.size / 1e6, 1),
+                "send_rate_per_s": round(args.messages / seconds),
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

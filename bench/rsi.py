@@ -50,17 +50,37 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as folder:
         record = os.path.join(folder, "emulator.json")
         emulator = subprocess.Popen(
-            [sys.executable, "-m", "dockhil.hardware.rsi_emulator", "--port", str(port), "--cycle", str(args.cycle),
-             "--duration", str(args.duration + 30.0), "--record", record, "--max-late", "1000000000",
-             *(["--realtime"] if args.realtime else [])],
-            cwd=ROOT, stdout=subprocess.DEVNULL)
+            [
+                sys.executable,
+                "-m",
+                "dockhil.hardware.rsi_emulator",
+                "--port",
+                str(port),
+                "--cycle",
+                str(args.cycle),
+                "--duration",
+                str(args.duration + 30.0),
+                "--record",
+                record,
+                "--max-late",
+                "1000000000",
+                *(["--realtime"] if args.realtime else []),
+            ],
+            cwd=ROOT,
+            stdout=subprocess.DEVNULL,
+        )
         if args.realtime:  # as `dockhil launch --realtime` does for a node's loop (after the children start)
             try:
                 os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
             except (PermissionError, OSError) as exc:
                 print(f"warning: real-time scheduling refused ({exc})", file=sys.stderr)
-        node = RobotRsiDriver(NodeContext("robot", 1.0 / args.rate, sim_time=False, log=logs.append), port=port,
-                              ft_timeout=0.0, realtime=args.realtime, connect_timeout=10.0)
+        node = RobotRsiDriver(
+            NodeContext("robot", 1.0 / args.rate, sim_time=False, log=logs.append),
+            port=port,
+            ft_timeout=0.0,
+            realtime=args.realtime,
+            connect_timeout=10.0,
+        )
         try:
             node.setup()
             dt = 1.0 / args.rate
@@ -70,8 +90,9 @@ def main() -> None:
                 t = k * dt
                 x = 0.005 * math.sin(2 * math.pi * 0.5 * t)  # 5 mm at 0.5 Hz: 16 mm/s at most
                 v = 0.005 * 2 * math.pi * 0.5 * math.cos(2 * math.pi * 0.5 * t)
-                cmd = RobotCommand(header=Header(time.time(), k, k, "target"), pose=Pose(Vector3(x)),
-                                   twist=Twist(Vector3(v)))
+                cmd = RobotCommand(
+                    header=Header(time.time(), k, k, "target"), pose=Pose(Vector3(x)), twist=Twist(Vector3(v))
+                )
                 node.step(Tick(k, time.monotonic() - t0, dt), {"command": cmd})
                 k += 1
                 next_t += dt
@@ -92,16 +113,25 @@ def main() -> None:
             rec = json.load(f)
     out = {
         "bench": "KUKA RSI answer latency, controller emulator in its own process",
-        "duration_s": args.duration, "cycle_ms": args.cycle * 1000, "rate_hz": args.rate,
-        "realtime": args.realtime, "busy_loops": args.busy, "cpus": os.cpu_count(),
+        "duration_s": args.duration,
+        "cycle_ms": args.cycle * 1000,
+        "rate_hz": args.rate,
+        "realtime": args.realtime,
+        "busy_loops": args.busy,
+        "cpus": os.cpu_count(),
         "latency_ms": rec["latency_ms"],
-        "datagrams": rec["sent"], "answered": rec["answered"], "late": rec["late"],
+        "datagrams": rec["sent"],
+        "answered": rec["answered"],
+        "late": rec["late"],
         "late_in_a_row_max": rec["late_in_a_row_max"],
-        "lost": rec["lost"], "counted_by_driver": counted, "stray_answers": rec["stray_answers"],
+        "lost": rec["lost"],
+        "counted_by_driver": counted,
+        "stray_answers": rec["stray_answers"],
         # IPOC gaps the emulator did not lose on purpose: cycles it skipped because it stalled itself
         # (its own process, SCHED_FIFO 60 with --realtime): the machine's stalls (bench/rt_probe.py).
         "emulator_stalls": missing - rec["lost"],
-        "max_step_mm": round(rec["max_step_mm"], 4), "max_speed_m_s": round(rec["max_speed"], 4),
+        "max_step_mm": round(rec["max_step_mm"], 4),
+        "max_speed_m_s": round(rec["max_speed"], 4),
         "warnings": [line for line in logs if line.startswith("warning")],
     }
     print(json.dumps(out))

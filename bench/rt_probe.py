@@ -47,11 +47,22 @@ def main() -> None:
             p.wait()
     late.sort()
     n = len(late)
-    print(json.dumps({"bench": "SCHED_FIFO 80 wake-up lateness, 1 ms period", "realtime": realtime,
-                      "busy_loops": args.busy, "load": os.getloadavg()[0], "wakeups": n,
-                      "p50_ms": round(late[n // 2] * 1e3, 3), "p99_ms": round(late[int(n * 0.99)] * 1e3, 3),
-                      "max_ms": round(late[-1] * 1e3, 3), "over_1ms": sum(v > 0.001 for v in late),
-                      "over_4ms": sum(v > 0.004 for v in late)}))
+    print(
+        json.dumps(
+            {
+                "bench": "SCHED_FIFO 80 wake-up lateness, 1 ms period",
+                "realtime": realtime,
+                "busy_loops": args.busy,
+                "load": os.getloadavg()[0],
+                "wakeups": n,
+                "p50_ms": round(late[n // 2] * 1e3, 3),
+                "p99_ms": round(late[int(n * 0.99)] * 1e3, 3),
+                "max_ms": round(late[-1] * 1e3, 3),
+                "over_1ms": sum(v > 0.001 for v in late),
+                "over_4ms": sum(v > 0.004 for v in late),
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

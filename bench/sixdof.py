@@ -49,7 +49,10 @@ def torque_free(seconds: float, order: int, dt: float = 1e-3) -> dict:
     wall = time.perf_counter() - start
     slope = float(np.polyfit(times, energy, 1)[0])
     return {
-        "order": order, "seconds": seconds, "dt": dt, "steps_per_s": steps / wall,
+        "order": order,
+        "seconds": seconds,
+        "dt": dt,
+        "steps_per_s": steps / wall,
         "energy_max_rel_error": float(np.max(np.abs(energy))),
         "energy_drift_per_1000s": slope * 1000.0,
         "angular_momentum_max_rel_error": float(np.max(momentum)),
@@ -60,10 +63,16 @@ def torque_free(seconds: float, order: int, dt: float = 1e-3) -> dict:
 def off_axis_case():
     i1 = np.array([[40.0, 2, -1], [2, 50, 3], [-1, 3, 60]])
     i2 = np.array([[80.0, -4, 2], [-4, 70, 1], [2, 1, 90]])
-    chaser = RigidBody(100.0, i1, com=[0.05, 0.02, 0], interface_position=[1.0, 0.1, -0.05],
-                       interface_orientation=quat_from_rotvec([0, 0, 0.05]))
-    target = RigidBody(200.0, i2, interface_position=[-1.0, 0.0, 0.0],
-                       interface_orientation=quat_from_rotvec([0.02, 0, 0]))
+    chaser = RigidBody(
+        100.0,
+        i1,
+        com=[0.05, 0.02, 0],
+        interface_position=[1.0, 0.1, -0.05],
+        interface_orientation=quat_from_rotvec([0, 0, 0.05]),
+    )
+    target = RigidBody(
+        200.0, i2, interface_position=[-1.0, 0.0, 0.0], interface_orientation=quat_from_rotvec([0.02, 0, 0])
+    )
     s1 = BodyState([-1.951, 0.3, 0.1], quat_from_rotvec([0.01, 0.02, -0.03]), [0.05, 0.01, 0], [0.02, -0.03, 0.05])
     s2 = BodyState([0.0, 0.3, 0.1], (0, 0, 0, 1), [0, 0, 0.0], [0, 0.02, 0])
     k = np.diag([1000.0, 400, 500, 150, 120, 100])
@@ -104,13 +113,19 @@ def main() -> None:
     delayed = simulate_hybrid6(chaser, target, s1, s2, ideal, passive, dt=1e-3, t_end=1.2, delay_ticks=32)
     result["contact_steps_per_s"] = {"ideal_order4_event_located": ideal_rate, "hybrid_sampled_order4": hybrid_rate}
     result["hybrid_vs_ideal_1kHz"] = {"no_delay": errors(ref, hyb), "delay_32ms": errors(ref, delayed)}
-    result["contact"] = {"onset_s": ref.onset, "exit_s": ref.exit, "peak_force_N": ref.peak("force"),
-                         "peak_torque_Nm": ref.peak("torque"),
-                         "momentum_rel_drift": float(np.max(np.linalg.norm(ref.momentum - ref.momentum[0], axis=1))
-                                                     / np.linalg.norm(ref.momentum[0])),
-                         "angular_momentum_rel_drift": float(
-                             np.max(np.linalg.norm(ref.angular_momentum - ref.angular_momentum[0], axis=1))
-                             / np.linalg.norm(ref.angular_momentum[0]))}
+    result["contact"] = {
+        "onset_s": ref.onset,
+        "exit_s": ref.exit,
+        "peak_force_N": ref.peak("force"),
+        "peak_torque_Nm": ref.peak("torque"),
+        "momentum_rel_drift": float(
+            np.max(np.linalg.norm(ref.momentum - ref.momentum[0], axis=1)) / np.linalg.norm(ref.momentum[0])
+        ),
+        "angular_momentum_rel_drift": float(
+            np.max(np.linalg.norm(ref.angular_momentum - ref.angular_momentum[0], axis=1))
+            / np.linalg.norm(ref.angular_momentum[0])
+        ),
+    }
     # The same contact's linearised hybrid loop: which mode the delay destabilises first.
     g1, g2 = interface_mobilities(chaser, target, s1, s2)
     result["stability_6dof"] = []
@@ -119,12 +134,17 @@ def main() -> None:
         start = time.perf_counter()
         root = rightmost(loop)
         margin = stiffness_margin(loop)
-        result["stability_6dof"].append({
-            "h_s": h, "rightmost_root": [root.s.real, root.s.imag], "rightmost_axis": root.axis,
-            "passive_stiffness_margin": margin.alpha, "crossing_rad_s": margin.omega,
-            "limiting_axis": None if margin.root is None else margin.root.axis,
-            "seconds": time.perf_counter() - start,
-        })
+        result["stability_6dof"].append(
+            {
+                "h_s": h,
+                "rightmost_root": [root.s.real, root.s.imag],
+                "rightmost_axis": root.axis,
+                "passive_stiffness_margin": margin.alpha,
+                "crossing_rad_s": margin.omega,
+                "limiting_axis": None if margin.root is None else margin.root.axis,
+                "seconds": time.perf_counter() - start,
+            }
+        )
     print(json.dumps(result, indent=1))
 
 

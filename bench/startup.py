@@ -50,8 +50,9 @@ nodes:
 
 
 def launch(repeat: int, scene: str = HIL, *extra: str) -> dict:
-    return timed([sys.executable, "-m", "dockhil.cli", "launch", scene, "--duration", "0.001", "--quiet", *extra],
-                 repeat)
+    return timed(
+        [sys.executable, "-m", "dockhil.cli", "launch", scene, "--duration", "0.001", "--quiet", *extra], repeat
+    )
 
 
 def small_graph(repeat: int) -> dict:
@@ -73,10 +74,11 @@ def node_spec(type_name: str, folder: str, key_file: str) -> str:
     cls = nodes.load(type_name)
     params = cls.resolve_params(type_name, {})
     _ins, outs = cls.ports(params)
-    outputs = {port: PortWire(o.topic, ipc_endpoint(folder, f"{type_name}{o.topic}"), msgs.type_name(o.type))
-               for port, o in outs.items()}
-    spec = RunSpec(type_name, type_name, params, 1e-3, "sim", 1, {}, outputs, key_file=key_file,
-                   run_id="bench-startup")
+    outputs = {
+        port: PortWire(o.topic, ipc_endpoint(folder, f"{type_name}{o.topic}"), msgs.type_name(o.type))
+        for port, o in outs.items()
+    }
+    spec = RunSpec(type_name, type_name, params, 1e-3, "sim", 1, {}, outputs, key_file=key_file, run_id="bench-startup")
     return msgspec.json.encode(spec).decode()
 
 

@@ -42,8 +42,14 @@ def main() -> None:
     rows = []
     for s in args.seconds:
         peak, out = peak_bytes(s)
-        rows.append({"sim_time_s": s, "peak_traced_kb": round(peak / 1024, 1),
-                     "peak_force_N": out["peak_force_N"], "exit_velocity_mps": out["exit_velocity_mps"]})
+        rows.append(
+            {
+                "sim_time_s": s,
+                "peak_traced_kb": round(peak / 1024, 1),
+                "peak_force_N": out["peak_force_N"],
+                "exit_velocity_mps": out["exit_velocity_mps"],
+            }
+        )
     print(json.dumps({"bench": "summary_memory", "runs": rows}))
 
 

@@ -25,14 +25,16 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from dockhil.analysis import sweep# noqa: E402
+from dockhil.analysis import sweep  # noqa: E402
 
 
 def campaign_file(folder: str, runs: int, duration: float) -> str:
     path = os.path.join(folder, "bench.yaml")
     with open(path, "w") as f:
-        f.write(f"scene: stability.yaml\nargs: {{m: 20.0, delay: 0.016, b: 150.0}}\nduration: {duration}\n"
-                f"grid:\n  k: {{range: [6000, 12000], num: {runs}}}\n")
+        f.write(
+            f"scene: stability.yaml\nargs: {{m: 20.0, delay: 0.016, b: 150.0}}\nduration: {duration}\n"
+            f"grid:\n  k: {{range: [6000, 12000], num: {runs}}}\n"
+        )
     return path
 
 
@@ -45,9 +47,15 @@ def measure(campaign, executor, folder: str, label: str) -> dict:
 
     run_times = [t for t in pq.read_table(out).column("run_time_s").to_pylist() if t is not None]
     n = result["executed"]
-    return {"workers": executor.workers, "runs": n, "ok": result["ok"], "wall_s": round(wall, 3),
-            "runs_per_s": round(n / wall, 2), "run_s_mean": round(sum(run_times) / len(run_times), 4),
-            "overhead_s_per_run": round((wall * executor.workers - sum(run_times)) / n, 4)}
+    return {
+        "workers": executor.workers,
+        "runs": n,
+        "ok": result["ok"],
+        "wall_s": round(wall, 3),
+        "runs_per_s": round(n / wall, 2),
+        "run_s_mean": round(sum(run_times) / len(run_times), 4),
+        "overhead_s_per_run": round((wall * executor.workers - sum(run_times)) / n, 4),
+    }
 
 
 def main() -> None:
@@ -55,8 +63,12 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=200)
     ap.add_argument("--duration", type=float, default=1.0, help="simulated seconds per run")
     args = ap.parse_args()
-    out: dict = {"runs": args.runs, "duration_s": args.duration, "cpus": sweep.usable_cpus(),
-                 "loadavg_1min": round(os.getloadavg()[0], 2)}
+    out: dict = {
+        "runs": args.runs,
+        "duration_s": args.duration,
+        "cpus": sweep.usable_cpus(),
+        "loadavg_1min": round(os.getloadavg()[0], 2),
+    }
     with tempfile.TemporaryDirectory(prefix="dockhil-bench-sweep-") as folder:
         campaign = sweep.load_campaign(campaign_file(folder, args.runs, args.duration))
         out["local_1"] = measure(campaign, sweep.LocalPool(1), folder, "local1")

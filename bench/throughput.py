@@ -26,11 +26,17 @@ ROOT = os.path.dirname(HERE)
 
 def ring_file(folder: str, n: int) -> str:
     """A loop of n nodes: the integrator reads the last gain; gain i reads node i-1."""
-    lines = ["description: a ring for throughput", "rate: 1000", "nodes:",
-             f"  - {{name: integ, node: 'tests.graphnodes:Integrator', remap: {{x: /r0, u: /r{n - 1}}}}}"]
+    lines = [
+        "description: a ring for throughput",
+        "rate: 1000",
+        "nodes:",
+        f"  - {{name: integ, node: 'tests.graphnodes:Integrator', remap: {{x: /r0, u: /r{n - 1}}}}}",
+    ]
     for i in range(1, n):
-        lines.append(f"  - {{name: gain{i}, node: 'tests.graphnodes:Gain', params: {{gain: 0.001}}, "
-                     f"remap: {{x: /r{i - 1}, u: /r{i}}}}}")
+        lines.append(
+            f"  - {{name: gain{i}, node: 'tests.graphnodes:Gain', params: {{gain: 0.001}}, "
+            f"remap: {{x: /r{i - 1}, u: /r{i}}}}}"
+        )
     path = os.path.join(folder, f"ring{n}.yaml")
     with open(path, "w") as f:
         f.write("\n".join(lines) + "\n")
@@ -45,9 +51,13 @@ def multiprocess_seconds(duration: float, scene: str = os.path.join(HERE, "loop.
 
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "dockhil.cli", "launch", scene,
-                    "--duration", str(duration), "--quiet"], check=True, cwd=ROOT,
-                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    subprocess.run(
+        [sys.executable, "-m", "dockhil.cli", "launch", scene, "--duration", str(duration), "--quiet"],
+        check=True,
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     CPU.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
@@ -79,14 +89,18 @@ def main() -> None:
     base = statistics.median(multiprocess_seconds(0.001) for _ in range(args.repeat))
     mp = statistics.median(multiprocess_seconds(args.seconds) for _ in range(args.repeat)) - base
     comp = statistics.median(composed_seconds(n) for _ in range(args.repeat))
-    print(json.dumps({
-        "graph": "bench/loop.yaml (2 nodes, 1 kHz)",
-        "ticks": n,
-        "multiprocess_ticks_per_s": round(n / mp),
-        "composed_ticks_per_s": round(n / comp),
-        "multiprocess_startup_s": round(base, 3),
-        "composed_over_multiprocess": round(mp / comp, 1),
-    }))
+    print(
+        json.dumps(
+            {
+                "graph": "bench/loop.yaml (2 nodes, 1 kHz)",
+                "ticks": n,
+                "multiprocess_ticks_per_s": round(n / mp),
+                "composed_ticks_per_s": round(n / comp),
+                "multiprocess_startup_s": round(base, 3),
+                "composed_over_multiprocess": round(mp / comp, 1),
+            }
+        )
+    )
 
 
 def _slope(xs: list[float], ys: list[float]) -> float:

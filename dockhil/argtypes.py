@@ -57,12 +57,17 @@ def max_age_setting(text: str) -> tuple[str, str, float]:
     target, sep, value = text.partition("=")
     node, dot, port = target.rpartition(".")
     if not (sep and dot and node and port):
-        raise argparse.ArgumentTypeError(f"{text!r} is not NODE.INPUT=SECONDS (e.g. dynamics.ft=0.05, or =inf for no limit)")
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not NODE.INPUT=SECONDS (e.g. dynamics.ft=0.05, or =inf for no limit)"
+        )
     try:
         age = float(value)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: {value!r} is not a number of seconds (or inf for no limit)") from None
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: {value!r} is not a number of seconds (or inf for no limit)"
+        ) from None
     if not (0.0 < age <= MAX_AGE or age == math.inf):
-        raise argparse.ArgumentTypeError(f"{text!r}: the maximum age must be > 0 and at most {MAX_AGE:g} s, "
-                                         f"or inf for no limit")
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: the maximum age must be > 0 and at most {MAX_AGE:g} s, or inf for no limit"
+        )
     return node, port, age

@@ -34,10 +34,16 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "foxglove": ("dockhil.commands.foxglove", "print the Foxglove layout of a docking run (3D view, plots)"),
     "plot": ("dockhil.commands.plot", "plot force and velocity profiles from a bag"),
     "analyze": ("dockhil.commands.analyze", "the summary and validity of a recorded run, from its bag alone"),
-    "figures": ("dockhil.commands.figures", "the paper's Figs. 7, 9, 10 and 11-12 recomputed, and the 6-DOF docking, as PNGs"),
+    "figures": (
+        "dockhil.commands.figures",
+        "the paper's Figs. 7, 9, 10 and 11-12 recomputed, and the 6-DOF docking, as PNGs",
+    ),
     "report": ("dockhil.commands.report", "error against run time, stiff and extreme cases, lean scenes"),
     "sweep": ("dockhil.commands.sweep", "run a scene over a campaign of parameters into a Parquet table"),
-    "calibrate": ("dockhil.commands.calibrate", "identify the real loop's delay, lag, stiffness and F/T bias and noise"),
+    "calibrate": (
+        "dockhil.commands.calibrate",
+        "identify the real loop's delay, lag, stiffness and F/T bias and noise",
+    ),
 }
 
 
@@ -53,8 +59,12 @@ class _Version(argparse.Action):
     out only when asked: it loads the compiled modules)."""
 
     def __init__(self, option_strings, dest, **kwargs):
-        super().__init__(option_strings, dest, nargs=0,
-                         help="show the version, and whether the compiled arithmetic or pure Python runs")
+        super().__init__(
+            option_strings,
+            dest,
+            nargs=0,
+            help="show the version, and whether the compiled arithmetic or pure Python runs",
+        )
 
     def __call__(self, parser, namespace, values, option_string=None):
         from dockhil import __version__
@@ -124,9 +134,12 @@ def main(argv: list[str] | None = None) -> int:
         if os.environ.get("DOCKHIL_TRACEBACK"):
             raise
         where = traceback.extract_tb(exc.__traceback__)[-1]
-        print(f"dockhil {args.command}: internal error: {type(exc).__name__}: {one_line(str(exc))} "
-              f"(at {os.path.basename(where.filename)}:{where.lineno}); please report it with the command line "
-              f"(DOCKHIL_TRACEBACK=1 shows the traceback)", file=sys.stderr)
+        print(
+            f"dockhil {args.command}: internal error: {type(exc).__name__}: {one_line(str(exc))} "
+            f"(at {os.path.basename(where.filename)}:{where.lineno}); please report it with the command line "
+            f"(DOCKHIL_TRACEBACK=1 shows the traceback)",
+            file=sys.stderr,
+        )
         return 1
 
 

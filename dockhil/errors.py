@@ -45,9 +45,13 @@ def failure_line(name: str, where: str, exc: BaseException) -> str:
     """What node `name` did at `where` (a tick, setup, close): the one line a node process, a
     composed run and a container all give for a node's own exception, sys.exit or KeyboardInterrupt."""
     if isinstance(exc, SystemExit):
-        return (f"node {name!r} called sys.exit({exc.code!r}) at {where}; a node ends with its graph: "
-                f"return from step, or raise to stop the graph with a line")
+        return (
+            f"node {name!r} called sys.exit({exc.code!r}) at {where}; a node ends with its graph: "
+            f"return from step, or raise to stop the graph with a line"
+        )
     if isinstance(exc, KeyboardInterrupt):
-        return (f"node {name!r} raised KeyboardInterrupt at {where} (not a Ctrl-C, which stops the graph without one); "
-                f"a node ends with its graph: return from step, or raise an Exception to stop the graph with a line")
+        return (
+            f"node {name!r} raised KeyboardInterrupt at {where} (not a Ctrl-C, which stops the graph without one); "
+            f"a node ends with its graph: return from step, or raise an Exception to stop the graph with a line"
+        )
     return f"node {name!r} failed at {where}: {type(exc).__name__}: {exc}"

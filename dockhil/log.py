@@ -106,8 +106,11 @@ class FileHandler(logging.FileHandler):
             why = getattr(exc, "strerror", None) or exc
             from dockhil import progress
 
-            progress.write_between(sys.stderr, f"dockhil: warning: --log-file {self.baseFilename}: writing failed "
-                                               f"({why}); the log goes on to stderr only\n")
+            progress.write_between(
+                sys.stderr,
+                f"dockhil: warning: --log-file {self.baseFilename}: writing failed "
+                f"({why}); the log goes on to stderr only\n",
+            )
 
 
 class ForwardHandler(logging.Handler):
@@ -143,10 +146,18 @@ def _level_arg(text: str) -> str:
 
 def add_arguments(p) -> None:
     """--log-level and --log-file, for the commands that run things."""
-    p.add_argument("--log-level", metavar="LEVEL", type=_level_arg, default=None,
-                   help="diagnostics shown: debug, info (default), warning or error")
-    p.add_argument("--log-file", metavar="PATH",
-                   help="also append every diagnostic, with its time, to this file (node processes' too)")
+    p.add_argument(
+        "--log-level",
+        metavar="LEVEL",
+        type=_level_arg,
+        default=None,
+        help="diagnostics shown: debug, info (default), warning or error",
+    )
+    p.add_argument(
+        "--log-file",
+        metavar="PATH",
+        help="also append every diagnostic, with its time, to this file (node processes' too)",
+    )
 
 
 def _open_file(path: str) -> FileHandler:
@@ -158,8 +169,9 @@ def _open_file(path: str) -> FileHandler:
     try:
         return FileHandler(path)
     except OSError as exc:
-        raise DockhilError(f"--log-file {path}: cannot be written ({exc.strerror or exc}); "
-                           f"name a file you can write") from None
+        raise DockhilError(
+            f"--log-file {path}: cannot be written ({exc.strerror or exc}); name a file you can write"
+        ) from None
 
 
 def setup(level: str | int | None = None, file: str | None = None, stream=None) -> None:
@@ -239,8 +251,9 @@ def emit(level: int, source: str, message: str, tag: str | None = None, created:
     _ensure_setup()
     if not _logger.isEnabledFor(level):
         return
-    record = _logger.makeRecord(_logger.name, level, "(dockhil)", 0, message, None, None,
-                                extra={"source": source, "tag": tag})
+    record = _logger.makeRecord(
+        _logger.name, level, "(dockhil)", 0, message, None, None, extra={"source": source, "tag": tag}
+    )
     if created is not None:
         record.created, record.msecs = created, (created % 1) * 1000
     _logger.handle(record)
@@ -294,7 +307,7 @@ def replay(line: str, source: str) -> None:
     made; any other line (a traceback, a print) is logged at info under `source`."""
     if line.startswith(FORWARD):
         try:
-            level, src, message, created, *tag = json.loads(line[len(FORWARD):])
+            level, src, message, created, *tag = json.loads(line[len(FORWARD) :])
             emit(int(level), str(src) or source, str(message), tag[0] if tag else None, float(created))
             return
         except (ValueError, TypeError):

@@ -133,10 +133,14 @@ class Param:
             try:
                 value = float(value)
             except OverflowError:
-                raise ParamError(f"{where}: an integer of {len(str(abs(value)))} digits is too large for a float "
-                                 f"({self._describe()})") from None
-        if want is bool and not isinstance(value, bool) or (
-            want is not bool and (isinstance(value, bool) or not isinstance(value, want))
+                raise ParamError(
+                    f"{where}: an integer of {len(str(abs(value)))} digits is too large for a float "
+                    f"({self._describe()})"
+                ) from None
+        if (
+            want is bool
+            and not isinstance(value, bool)
+            or (want is not bool and (isinstance(value, bool) or not isinstance(value, want)))
         ):
             raise ParamError(
                 f"{where}: expected {want.__name__}, got {type(value).__name__} {reprlib.repr(value)}"
@@ -146,11 +150,13 @@ class Param:
             raise ParamError(f"{where}: {value!r} is not a finite number ({self._describe()})")
         if want is float and value != 0.0 and abs(value) < sys.float_info.min:
             # Subnormal: no physical quantity is that small, and 1/value overflows.
-            raise ParamError(f"{where}: {value!r} is too small to compute with; give 0 or a normal number "
-                             f"({self._describe()})")
+            raise ParamError(
+                f"{where}: {value!r} is too small to compute with; give 0 or a normal number ({self._describe()})"
+            )
         if want is int and not -(2**63) <= value < 2**63:  # nodes get their parameters as msgpack int64
-            raise ParamError(f"{where}: an integer of {len(str(abs(value)))} digits does not fit in 64 bits "
-                             f"({self._describe()})")
+            raise ParamError(
+                f"{where}: an integer of {len(str(abs(value)))} digits does not fit in 64 bits ({self._describe()})"
+            )
         for bound, ok, sym in (
             (self.ge, lambda b: value >= b, ">="),
             (self.gt, lambda b: value > b, ">"),
@@ -165,9 +171,11 @@ class Param:
                     raise ParamError(f"{where}{at}: {number!r} is not a finite number ({self._describe()})")
                 if number != 0 and not self.scale[0] <= abs(number) <= self.scale[1]:
                     unit = f" {self.unit}" if self.unit else ""
-                    raise ParamError(f"{where}{at}: {number!r}{unit} is outside {self.scale[0]:g} to "
-                                     f"{self.scale[1]:g}{unit} in magnitude, the range of docking hardware; "
-                                     f"give a physical value")
+                    raise ParamError(
+                        f"{where}{at}: {number!r}{unit} is outside {self.scale[0]:g} to "
+                        f"{self.scale[1]:g}{unit} in magnitude, the range of docking hardware; "
+                        f"give a physical value"
+                    )
         if self.choices is not None and value not in self.choices:
             raise ParamError(f"{where}: {value!r} is not one of {', '.join(map(str, self.choices))}")
         return value
@@ -200,8 +208,9 @@ class Tick:
     def header(self, frame: str | None = None) -> Header:
         # Wall-time stamps are absolute, so stamps of different processes compare (latencies, alignment).
         # Positional (stamp, tick, seq, frame): keywords cost more than the rest of the call.
-        return Header(self.t if self.stamp is None else self.stamp, self.index, self.index,
-                      self.frame if frame is None else frame)
+        return Header(
+            self.t if self.stamp is None else self.stamp, self.index, self.index, self.frame if frame is None else frame
+        )
 
 
 @dataclass
@@ -245,8 +254,10 @@ class Node:
         """Defaults overlaid with `given`, each checked; unknown names refused."""
         unknown = sorted(set(given) - set(cls.params))
         if unknown:
-            raise ParamError(f"node {node_name!r} ({cls.__name__}): unknown parameter {unknown[0]!r}; "
-                             f"{suggest(unknown[0], cls.params, 'known')}")
+            raise ParamError(
+                f"node {node_name!r} ({cls.__name__}): unknown parameter {unknown[0]!r}; "
+                f"{suggest(unknown[0], cls.params, 'known')}"
+            )
         values = {}
         for name, spec in cls.params.items():
             value = given.get(name, spec.default)

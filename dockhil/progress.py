@@ -87,7 +87,9 @@ class Progress:
         elapsed = now - self.start
         rtf = f"{sim / elapsed:.1f}x real time" if elapsed > 0 else ""
         if self.total:
-            text = f"[{bar(ticks_done / self.total, 24)}] {sim:.2f} of {(self.total - 1) * self.dt:.2f} s simulated, {rtf}"
+            text = (
+                f"[{bar(ticks_done / self.total, 24)}] {sim:.2f} of {(self.total - 1) * self.dt:.2f} s simulated, {rtf}"
+            )
         else:
             text = f"{sim:.2f} s simulated, {rtf}"
         self.line.show(text)
@@ -118,4 +120,6 @@ class TaskProgress:
 
     def _draw(self, label: str) -> None:
         elapsed = time.perf_counter() - self.started
-        self.line.show(f"[{bar(self.done / self.total, self.width)}] {self.done:>3}/{self.total} {elapsed:6.1f} s  {label}")
+        self.line.show(
+            f"[{bar(self.done / self.total, self.width)}] {self.done:>3}/{self.total} {elapsed:6.1f} s  {label}"
+        )

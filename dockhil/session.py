@@ -27,10 +27,20 @@ from dockhil.files import remove_quietly, complete_or_nothing, os_reason
 from dockhil.scene.graph import Graph
 
 
-def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None, composed: bool = False,
-              transport: str = "ipc", bag: str | None = None, summary: str | None = None,
-              progress: bool = False, show_summary: bool = True, realtime: bool = False,
-              foxglove: tuple[str, int] | None = None) -> int:
+def run_scene(
+    graph: Graph,
+    *,
+    clock: str = "sim",
+    duration: float | None = None,
+    composed: bool = False,
+    transport: str = "ipc",
+    bag: str | None = None,
+    summary: str | None = None,
+    progress: bool = False,
+    show_summary: bool = True,
+    realtime: bool = False,
+    foxglove: tuple[str, int] | None = None,
+) -> int:
     """foxglove: (host, port) to serve a live view of the run on (dockhil.bags.foxglove)."""
     say = Log("[launch]")
 
@@ -122,12 +132,21 @@ def run_scene(graph: Graph, *, clock: str = "sim", duration: float | None = None
 
         def timing() -> list[str]:
             if clock == "wall":  # nodes on other hosts report to nobody here; a free-running node is an emulated device
-                return (validity.wall_time_reasons(launcher.timings, launcher.devices(), dt)
-                        + validity.respawn_reasons(launcher.respawns))
+                return validity.wall_time_reasons(launcher.timings, launcher.devices(), dt) + validity.respawn_reasons(
+                    launcher.respawns
+                )
             return validity.sim_time_reasons(launcher.timings)
 
-        launcher = Launcher(graph, clock=clock, duration=duration, transport=transport, extra=extra,
-                            progress=progress, realtime=realtime, judge=lambda code: judge(code, timing()))
+        launcher = Launcher(
+            graph,
+            clock=clock,
+            duration=duration,
+            transport=transport,
+            extra=extra,
+            progress=progress,
+            realtime=realtime,
+            judge=lambda code: judge(code, timing()),
+        )
         if bridge is not None:
             bridge.observe(launcher.endpoints.topics, GraphKeys.read(launcher.endpoints.key_file))
         code = launcher.run()
@@ -194,8 +213,10 @@ def _check_writable(path: str, bag: str | None) -> None:
         raise DockhilError(f"--summary {path}: is the file --bag records to; give the summary another name")
     existed = os.path.exists(path)
     if existed and not _is_summary(path):
-        raise DockhilError(f"--summary {path}: exists and is not the summary of a run (which it would replace); "
-                           f"choose another name or remove it")
+        raise DockhilError(
+            f"--summary {path}: exists and is not the summary of a run (which it would replace); "
+            f"choose another name or remove it"
+        )
     if existed:  # an earlier run's: from here on the file is this run's summary or nothing
         try:
             os.remove(path)
@@ -209,8 +230,9 @@ def _check_writable(path: str, bag: str | None) -> None:
             f.flush()
             os.fsync(f.fileno())
     except OSError as exc:
-        raise DockhilError(f"--summary {path}: cannot be written ({os_reason(exc)}); free some space or "
-                           f"give another path") from None
+        raise DockhilError(
+            f"--summary {path}: cannot be written ({os_reason(exc)}); free some space or give another path"
+        ) from None
     finally:
         remove_quietly(path)
 
@@ -218,16 +240,28 @@ def _check_writable(path: str, bag: str | None) -> None:
 def ticking_span(timings: dict[str, dict], leave_out: set[str] = frozenset()) -> float | None:
     """[s] from the graph's first tick to the end of its last, from the nodes' loop figures
     (LoopTiming.report), leaving out the nodes in `leave_out` unless no other ticked; None if none ticked."""
-    spans = {name: (t["first_tick_at_s"], t["last_tick_at_s"]) for name, t in timings.items()
-             if t.get("first_tick_at_s") is not None and t.get("last_tick_at_s") is not None}
+    spans = {
+        name: (t["first_tick_at_s"], t["last_tick_at_s"])
+        for name, t in timings.items()
+        if t.get("first_tick_at_s") is not None and t.get("last_tick_at_s") is not None
+    }
     kept = [span for name, span in spans.items() if name not in leave_out] or list(spans.values())
     if not kept:
         return None
     return max(end for _, end in kept) - min(start for start, _ in kept)
 
 
-def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool, recorder,
-                  collector, reasons: list[str], bridge=None, ticking: list[float] | None = None) -> int:
+def _run_composed(
+    graph: Graph,
+    clock: str,
+    n_ticks: int | None,
+    progress: bool,
+    recorder,
+    collector,
+    reasons: list[str],
+    bridge=None,
+    ticking: list[float] | None = None,
+) -> int:
     """recorder: a TapRecorder, left open (all on disk) for the run's verdict; ticking: gets the time
     from the first tick to the end of the last [s]."""
     from dockhil.runtime.composed import ComposedGraph
@@ -272,7 +306,9 @@ def _run_composed(graph: Graph, clock: str, n_ticks: int | None, progress: bool,
     if stop.requested:
         return 130
     if recorder is not None and recorder.lost:
-        Log("[launch]").error(f"the recorder lost {recorder.lost} message(s) ({recorder.path}); the run is not complete")
+        Log("[launch]").error(
+            f"the recorder lost {recorder.lost} message(s) ({recorder.path}); the run is not complete"
+        )
         return 1
     if g.timing is not None:
         reasons += validity.node_reasons(g.timing.report("composed"), graph.scene.dt)

@@ -42,8 +42,20 @@ from dockhil.errors import DockhilError
 from dockhil.runtime.executor import check_outputs
 from dockhil.scene.graph import Graph, GraphNode, PortRef
 from dockhil.node import ManualClock, Node, Output, Tick
-from dockhil.msgs import (BodyState, BodyWrenches, EStop, Header, Pose, RobotCommand, RobotState, SatelliteState, Twist,
-                  Vector3, Wrench, WrenchStamped)
+from dockhil.msgs import (
+    BodyState,
+    BodyWrenches,
+    EStop,
+    Header,
+    Pose,
+    RobotCommand,
+    RobotState,
+    SatelliteState,
+    Twist,
+    Vector3,
+    Wrench,
+    WrenchStamped,
+)
 
 FEEDER = "harness-inputs"  # name of the node that publishes the test's inputs
 
@@ -58,8 +70,10 @@ class _Feeder(Node):
 
     def step(self, tick, inputs):
         header = {"tick": tick.index, "seq": tick.index, "stamp": tick.t if tick.stamp is None else tick.stamp}
-        out = {port: msgspec.structs.replace(msg, header=msgspec.structs.replace(msg.header, **header))
-               for port, msg in self.pending.items()}
+        out = {
+            port: msgspec.structs.replace(msg, header=msgspec.structs.replace(msg.header, **header))
+            for port, msg in self.pending.items()
+        }
         self.pending = {}
         return out
 
@@ -71,8 +85,17 @@ class NodeHarness:
     path, or a Node subclass. Parameters are checked as a launch file's are.
     """
 
-    def __init__(self, node: str | type, *, dt: float = 0.001, sim_time: bool = True, name: str | None = None,
-                 params: dict[str, Any] | None = None, echo_log: bool = False, **more_params: Any):
+    def __init__(
+        self,
+        node: str | type,
+        *,
+        dt: float = 0.001,
+        sim_time: bool = True,
+        name: str | None = None,
+        params: dict[str, Any] | None = None,
+        echo_log: bool = False,
+        **more_params: Any,
+    ):
         if isinstance(node, str):
             from dockhil import nodes as registry
 
@@ -97,21 +120,41 @@ class NodeHarness:
         self.output_ports = dict(outs)
         # Private topics: the harness graph is only the feeder and the node.
         in_topic = {port: f"/in/{port}" for port in ins}
-        feeder_cls = type("HarnessInputs", (_Feeder,), {
-            "outputs": {port: Output(spec.type, in_topic[port]) for port, spec in ins.items()}})
-        feeder = GraphNode(FEEDER, "harness inputs", feeder_cls, {}, {},
-                           {port: PortRef(FEEDER, port, in_topic[port], spec.type) for port, spec in ins.items()})
+        feeder_cls = type(
+            "HarnessInputs",
+            (_Feeder,),
+            {"outputs": {port: Output(spec.type, in_topic[port]) for port, spec in ins.items()}},
+        )
+        feeder = GraphNode(
+            FEEDER,
+            "harness inputs",
+            feeder_cls,
+            {},
+            {},
+            {port: PortRef(FEEDER, port, in_topic[port], spec.type) for port, spec in ins.items()},
+        )
         target = GraphNode(
-            self.name, self.name, cls, resolved,
-            {port: PortRef(self.name, port, in_topic[port], spec.type, spec.lag_ticks(dt), spec.required)
-             for port, spec in ins.items()},
-            {port: PortRef(self.name, port, f"/out/{port}", spec.type) for port, spec in outs.items()})
+            self.name,
+            self.name,
+            cls,
+            resolved,
+            {
+                port: PortRef(self.name, port, in_topic[port], spec.type, spec.lag_ticks(dt), spec.required)
+                for port, spec in ins.items()
+            },
+            {port: PortRef(self.name, port, f"/out/{port}", spec.type) for port, spec in outs.items()},
+        )
         publishers = {ref.topic: ref for gn in (feeder, target) for ref in gn.outputs.values()}
         subscribers = {ref.topic: [ref] for ref in target.inputs.values()}
         # Only graph.scene.dt is read: a namespace keeps dt exactly as given (1/(1/dt) need not be dt).
         scene = SimpleNamespace(path=f"<NodeHarness {self.name}>", dt=dt)
-        graph = Graph(scene, {FEEDER: feeder, self.name: target}, [FEEDER, self.name],  # type: ignore[arg-type]
-                      publishers, subscribers)
+        graph = Graph(
+            scene,  # type: ignore[arg-type]
+            {FEEDER: feeder, self.name: target},
+            [FEEDER, self.name],
+            publishers,
+            subscribers,
+        )
         # The node's clock (NodeContext.clock: watchdogs, speed checks) is the tick time: it moves only
         # when the test steps, so a verdict does not depend on how fast the machine runs the test.
         self.clock = ManualClock()
@@ -147,11 +190,13 @@ class NodeHarness:
         for port, msg in given.items():
             spec = self.input_ports.get(port)
             if spec is None:
-                raise DockhilError(f"node {self.name!r} has no input {port!r}; inputs: "
-                                   f"{', '.join(self.input_ports) or 'none'}")
+                raise DockhilError(
+                    f"node {self.name!r} has no input {port!r}; inputs: {', '.join(self.input_ports) or 'none'}"
+                )
             if msg is not None and type(msg) is not spec.type:
-                raise DockhilError(f"node {self.name!r} input {port!r} takes {spec.type.__name__}, "
-                                   f"got {type(msg).__name__}")
+                raise DockhilError(
+                    f"node {self.name!r} input {port!r} takes {spec.type.__name__}, got {type(msg).__name__}"
+                )
         self._feeder.pending = {port: msg for port, msg in given.items() if msg is not None}
         k = self.k
         tick_t = k * self.dt if t is None else t
@@ -163,8 +208,9 @@ class NodeHarness:
         self.k += 1
         return {port: msg for port, msg in outs.items() if msg is not None}
 
-    def run(self, n: int, inputs: dict[str, Any] | Callable[[int], dict[str, Any] | None] | None = None
-            ) -> list[dict[str, Any]]:
+    def run(
+        self, n: int, inputs: dict[str, Any] | Callable[[int], dict[str, Any] | None] | None = None
+    ) -> list[dict[str, Any]]:
         """n steps; `inputs` the same every tick, or a function of the tick index. The outputs of each."""
         return [self.step(inputs(self.k) if callable(inputs) else inputs) for _ in range(n)]
 
@@ -183,8 +229,15 @@ def vector(x: float = 0.0, y: float = 0.0, z: float = 0.0) -> Vector3:
     return Vector3(float(x), float(y), float(z))
 
 
-def wrench(fx: float = 0.0, fy: float = 0.0, fz: float = 0.0, tx: float = 0.0, ty: float = 0.0, tz: float = 0.0,
-           frame: str = "") -> WrenchStamped:
+def wrench(
+    fx: float = 0.0,
+    fy: float = 0.0,
+    fz: float = 0.0,
+    tx: float = 0.0,
+    ty: float = 0.0,
+    tz: float = 0.0,
+    frame: str = "",
+) -> WrenchStamped:
     """A force [N] and torque [N m] on the chaser."""
     return WrenchStamped(header=Header(frame=frame), wrench=Wrench(vector(fx, fy, fz), vector(tx, ty, tz)))
 
@@ -194,19 +247,31 @@ def body_wrenches(*forces_x: float, frame: str = "world") -> BodyWrenches:
     return BodyWrenches(header=Header(frame=frame), wrenches=tuple(Wrench(vector(f)) for f in forces_x))
 
 
-def satellite_state(x1: float = 0.0, v1: float = 0.0, x2: float = 0.0, v2: float = 0.0, m1: float = 750.0,
-                    m2: float = 1e6, in_contact: bool = False) -> SatelliteState:
+def satellite_state(
+    x1: float = 0.0,
+    v1: float = 0.0,
+    x2: float = 0.0,
+    v2: float = 0.0,
+    m1: float = 750.0,
+    m2: float = 1e6,
+    in_contact: bool = False,
+) -> SatelliteState:
     """Chaser and target on the x axis: positions [m], velocities [m/s], masses [kg]."""
-    return SatelliteState(header=Header(frame="world"), in_contact=in_contact, bodies=(
-        BodyState("chaser", m1, Pose(vector(x1)), Twist(vector(v1))),
-        BodyState("target", m2, Pose(vector(x2)), Twist(vector(v2)))))
+    return SatelliteState(
+        header=Header(frame="world"),
+        in_contact=in_contact,
+        bodies=(
+            BodyState("chaser", m1, Pose(vector(x1)), Twist(vector(v1))),
+            BodyState("target", m2, Pose(vector(x2)), Twist(vector(v2))),
+        ),
+    )
 
 
-def robot_command(x: float = 0.0, v: float = 0.0, y: float = 0.0, z: float = 0.0,
-                  enable: bool = True) -> RobotCommand:
+def robot_command(x: float = 0.0, v: float = 0.0, y: float = 0.0, z: float = 0.0, enable: bool = True) -> RobotCommand:
     """A probe pose setpoint relative to the target [m] (x > 0: penetration), its velocity along x [m/s]."""
-    return RobotCommand(header=Header(frame="target"), pose=Pose(vector(x, y, z)), twist=Twist(vector(v)),
-                        enable=enable)
+    return RobotCommand(
+        header=Header(frame="target"), pose=Pose(vector(x, y, z)), twist=Twist(vector(v)), enable=enable
+    )
 
 
 def robot_state(x: float = 0.0, v: float = 0.0, status: str = "ok") -> RobotState:

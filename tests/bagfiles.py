@@ -24,8 +24,9 @@ def write_msgpack_bag(path, topics: dict[str, str], messages, *, per_chunk: int 
             if type_name not in schemas:
                 data = json.dumps(schema(TYPES[type_name]), separators=(",", ":")).encode()
                 schemas[type_name] = writer.register_schema(name=type_name, encoding="jsonschema", data=data)
-            channels[topic] = writer.register_channel(topic=topic, message_encoding="msgpack",
-                                                      schema_id=schemas[type_name])
+            channels[topic] = writer.register_channel(
+                topic=topic, message_encoding="msgpack", schema_id=schemas[type_name]
+            )
             sequence[topic] = 0
         for k, (topic, log_ns, publish_ns, data) in enumerate(messages):
             writer.add_message(channels[topic], log_ns, data, publish_ns, sequence[topic])

@@ -1,8 +1,8 @@
 """Nodes for bag tests: a driven plant whose drive can come from a bag instead.
 
-    drive (source) --/drive--> plant --/x--> gain --/u--+
-                                 ^                      |
-                                 +----------------------+
+drive (source) --/drive--> plant --/x--> gain --/u--+
+                             ^                      |
+                             +----------------------+
 """
 
 from __future__ import annotations
@@ -22,8 +22,10 @@ class Drive(Node):
     """A seeded noisy sine: what a sensor driver would publish, not reproducible without the seed."""
 
     outputs = {"drive": Output(WrenchStamped, "/drive")}
-    params = {"seed": Param(int, 7, help="noise seed"),
-              "quiet_every": Param(int, 0, help="send nothing at every Nth tick (0: never)")}
+    params = {
+        "seed": Param(int, 7, help="noise seed"),
+        "quiet_every": Param(int, 0, help="send nothing at every Nth tick (0: never)"),
+    }
 
     def setup(self):
         self.rng = random.Random(self.p.seed)
@@ -38,8 +40,7 @@ class Drive(Node):
 class Plant(Node):
     """x[k] = x[k-1] + dt u[k-1] + 0.01 d[k]: state from the loop, the drive read at the same tick."""
 
-    inputs = {"u": Input(WrenchStamped, "/u", feedthrough=False),
-              "d": Input(WrenchStamped, "/drive", required=False)}
+    inputs = {"u": Input(WrenchStamped, "/u", feedthrough=False), "d": Input(WrenchStamped, "/drive", required=False)}
     outputs = {"x": Output(WrenchStamped, "/x")}
 
     def setup(self):

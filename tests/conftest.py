@@ -39,8 +39,12 @@ def pytest_configure(config):
 def pytest_ignore_collect(collection_path, config):
     # The suite's second phase, `-m wall_time`, needs only the files that have such tests: importing
     # the other modules (hypothesis, numpy, the models) cost that phase about 7 CPU-s of collection.
-    if (config.option.markexpr == "wall_time" and collection_path.suffix == ".py"
-            and collection_path.name.startswith("test_") and "wall_time" not in collection_path.read_text()):
+    if (
+        config.option.markexpr == "wall_time"
+        and collection_path.suffix == ".py"
+        and collection_path.name.startswith("test_")
+        and "wall_time" not in collection_path.read_text()
+    ):
         return True
     return None
 
@@ -93,8 +97,14 @@ def controller():
 def node_process_error(spec: dict, env=None) -> str:
     """Run one node process that must fail fast (a missing device): return its single error line."""
     t = time.monotonic()
-    proc = subprocess.run([sys.executable, "-m", "dockhil.process", json.dumps(spec)], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=30)
+    proc = subprocess.run(
+        [sys.executable, "-m", "dockhil.process", json.dumps(spec)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert time.monotonic() - t < 15.0  # fails at once, not after a hang (interpreter start-up on a busy machine)
     assert proc.returncode != 0
     lines = proc.stderr.strip().splitlines()
@@ -157,8 +167,9 @@ class Lines:
         return "".join(self.lines)
 
 
-def kill_child_and_expect_the_graph_to_stop(launch: subprocess.Popen, name: str, dependent: str = "",
-                                            lines: Lines | None = None) -> str:
+def kill_child_and_expect_the_graph_to_stop(
+    launch: subprocess.Popen, name: str, dependent: str = "", lines: Lines | None = None
+) -> str:
     """SIGKILL the launched process `name`; the launcher must stop the graph, non-zero, in plain lines.
     `dependent`: a node that may notice first (a driver whose device died) and fail with its own line.
     `lines`: the launcher's output, if a test already reads it."""
@@ -171,8 +182,11 @@ def kill_child_and_expect_the_graph_to_stop(launch: subprocess.Popen, name: str,
             launch.kill()
     assert launch.returncode != 0
     killed = f"[launch] node '{name}' was killed by SIGKILL while running; stopping the graph" in out
-    noticed = bool(dependent) and f"[launch] node '{dependent}' exited with code 2 while running" in out \
+    noticed = (
+        bool(dependent)
+        and f"[launch] node '{dependent}' exited with code 2 while running" in out
         and f"[{dependent}] error: " in out
+    )
     assert killed or noticed, out
     assert "Traceback" not in out
     return out

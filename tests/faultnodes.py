@@ -50,8 +50,10 @@ class Hiccup(Node):
     """Publishes /x; at tick `at` its step takes `seconds` (a process starved or stopped)."""
 
     outputs = {"x": Output(WrenchStamped, "/x")}
-    params = {"at": Param(int, 50, help="tick that stalls"),
-              "seconds": Param(float, 0.3, unit="s", help="how long it stalls", ge=0.0)}
+    params = {
+        "at": Param(int, 50, help="tick that stalls"),
+        "seconds": Param(float, 0.3, unit="s", help="how long it stalls", ge=0.0),
+    }
 
     def setup(self):
         self.clock = self.ctx.clock
@@ -71,9 +73,11 @@ class Gate(Node):
     (a run a test can keep in progress for as long as it needs, at no CPU cost)."""
 
     inputs = {"state": Input(SatelliteState, "/satellite/state", required=False)}
-    params = {"hold": Param(bool, False, help="wait at tick 1 for the file"),
-              "path": Param(str, "", help="the file that opens the gate"),
-              "give_up": Param(float, 120.0, unit="s", help="go on after this long (no worker waits forever)", gt=0.0)}
+    params = {
+        "hold": Param(bool, False, help="wait at tick 1 for the file"),
+        "path": Param(str, "", help="the file that opens the gate"),
+        "give_up": Param(float, 120.0, unit="s", help="go on after this long (no worker waits forever)", gt=0.0),
+    }
 
     def step(self, tick, inputs):
         if self.p.hold and tick.index == 1:

@@ -108,8 +108,11 @@ class StateTrace(Node):
 
     def step(self, tick, inputs):
         b = inputs["state"].bodies
-        self.rows.append(" ".join(v.hex() for v in (b[0].pose.position.x, b[1].pose.position.x,
-                                                     b[0].twist.linear.x, b[1].twist.linear.x)))
+        self.rows.append(
+            " ".join(
+                v.hex() for v in (b[0].pose.position.x, b[1].pose.position.x, b[0].twist.linear.x, b[1].twist.linear.x)
+            )
+        )
         return {}
 
     def close(self):

@@ -54,8 +54,11 @@ def test_analyze_gives_the_launch_summary_from_the_bag_alone(tmp_path, mode):
 
     code, out, err = run_main("analyze", bag, "--png", tmp_path)
     assert code == 0, err
-    assert "scene:     recorded" in out and "peak force" in out and out.rstrip().endswith(
-        "valid (as recorded: the launch exited 0)")
+    assert (
+        "scene:     recorded" in out
+        and "peak force" in out
+        and out.rstrip().endswith("valid (as recorded: the launch exited 0)")
+    )
     png = tmp_path / "run-force-velocity.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
 
@@ -102,8 +105,9 @@ def test_a_bag_without_its_scene_says_what_to_pass_and_works_when_given(tmp_path
         assert_same_numbers(analysis, summary)
         assert analysis["run"]["verdict"] == "not recorded"
     code, out, _ = run_main("analyze", old, "--m1", "750")
-    assert code == 0 and out.rstrip().endswith("(no verdict recorded: the bag holds no run metadata (recorded by "
-                                               "an older dockhil, or another writer))")
+    assert code == 0 and out.rstrip().endswith(
+        "(no verdict recorded: the bag holds no run metadata (recorded by an older dockhil, or another writer))"
+    )
     # Another ideal contact: other reference numbers, the same run.
     other = analyzed(old, "--kcs", "2000", "--bcs", "40")
     assert other["peak_force_N"] == summary["peak_force_N"] and other["ideal"] != summary["ideal"]
@@ -125,19 +129,23 @@ def test_an_ideal_model_bag_is_plotted_with_its_recorded_force(tmp_path):
     assert analyzed(bag)["peak_force_N"] == summary["peak_force_N"]
 
 
-@pytest.mark.parametrize("args, says", [
-    (["nothing.mcap"], "nothing.mcap: no such file"),
-    (["{bag}", "--png", "{tmp}/missing"], "no such folder"),
-    (["{bag}", "--kcs", "1", "kcs:=2"], "kcs is given twice"),
-    (["{bag}", "nope:=1"], "unknown arg 'nope'"),
-])
+@pytest.mark.parametrize(
+    "args, says",
+    [
+        (["nothing.mcap"], "nothing.mcap: no such file"),
+        (["{bag}", "--png", "{tmp}/missing"], "no such folder"),
+        (["{bag}", "--kcs", "1", "kcs:=2"], "kcs is given twice"),
+        (["{bag}", "nope:=1"], "unknown arg 'nope'"),
+    ],
+)
 def test_refusals_are_one_line(tmp_path, args, says):
     bag = tmp_path / "b.mcap"
     with BagWriter(bag) as w:
         w.add_topic("/satellite/state", "dockhil/SatelliteState")
     if "nope:=1" in args or "--png" in args:  # these need a scene: the recorded one
-        r = launch_here_or_process("ideal.yaml", "--duration", "0.05", "--bag", tmp_path / "s.mcap", "--quiet",
-                                   "--composed")
+        r = launch_here_or_process(
+            "ideal.yaml", "--duration", "0.05", "--bag", tmp_path / "s.mcap", "--quiet", "--composed"
+        )
         assert r.returncode == 0, r.stderr
         bag = tmp_path / "s.mcap"
     code, out, err = run_main("analyze", *[a.format(bag=bag, tmp=tmp_path) for a in args])

@@ -49,11 +49,16 @@ def wrench(k: int) -> WrenchStamped:
 
 def state(k: int) -> SatelliteState:
     # One body for the first messages, then two: the CSV must grow columns.
-    bodies = [BodyState(name="chaser", mass=120.0, pose=Pose(position=Vector3(x=0.01 * k)), twist=Twist(linear=Vector3(x=0.02)))]
+    bodies = [
+        BodyState(
+            name="chaser", mass=120.0, pose=Pose(position=Vector3(x=0.01 * k)), twist=Twist(linear=Vector3(x=0.02))
+        )
+    ]
     if k >= 5:
         bodies.append(BodyState(name="target", mass=300.0, pose=Pose(position=Vector3(x=1.0 - 0.001 * k))))
-    return SatelliteState(header=Header(stamp=k * 1e-2, tick=10 * k, seq=k), bodies=tuple(bodies),
-                          in_contact=k % 2 == 0)
+    return SatelliteState(
+        header=Header(stamp=k * 1e-2, tick=10 * k, seq=k), bodies=tuple(bodies), in_contact=k % 2 == 0
+    )
 
 
 def write_run(path, n_wrench=500, n_state=50, **writer_options):
@@ -188,7 +193,9 @@ def test_export_keeps_a_recorded_nan_and_skips_non_msgpack(tmp_path, capsys, enc
         # JSON holds neither bytes that are not msgpack (counted, not written) nor NaN (null).
         assert (bag.messages_written, bag.messages_unencodable) == (2, 1)
     else:  # a bag recorded before json channels holds the wire bytes as they came
-        write_msgpack_bag(path, {"/ft/wrench": "dockhil/WrenchStamped"}, [("/ft/wrench", k, k, d) for k, d in enumerate(wire, 1)])
+        write_msgpack_bag(
+            path, {"/ft/wrench": "dockhil/WrenchStamped"}, [("/ft/wrench", k, k, d) for k, d in enumerate(wire, 1)]
+        )
     out_csv = tmp_path / "w.csv"
     code, out, err = run_cli(capsys, "export", path, "--topic", "/ft/wrench", "--csv", out_csv)
     assert code == 0
@@ -262,8 +269,9 @@ def test_every_message_type_has_a_self_contained_schema_its_messages_meet():
         jsonschema.Draft202012Validator.check_schema(found)
         # Same meaning as msgspec's own schema: the default message is valid under both.
         # (as JSON, which is what a schema describes and what a viewer gets: sequences are arrays)
-        default = msgspec.json.decode(msgspec.json.encode(cls(header=Header()) if "header" in cls.__struct_fields__
-                                                          else cls()))
+        default = msgspec.json.decode(
+            msgspec.json.encode(cls(header=Header()) if "header" in cls.__struct_fields__ else cls())
+        )
         jsonschema.validate(default, found)
         jsonschema.validate(default, schema(cls))
 
@@ -515,10 +523,17 @@ def test_export_never_replaces_its_own_bag_nor_an_existing_file_unasked(tmp_path
 
 def test_record_and_play_parse_their_options():
     parser = cli.build_parser("bag")
-    args = parser.parse_args(["bag", "play", "run.mcap", "--rate", "10", "--loop", "--topics", "/a", "/b", "--start", "2.5",
-                              "--sim-time"])
+    args = parser.parse_args(
+        ["bag", "play", "run.mcap", "--rate", "10", "--loop", "--topics", "/a", "/b", "--start", "2.5", "--sim-time"]
+    )
     assert (args.bag_command, args.path, args.rate, args.loop, args.topics, args.start, args.sim_time) == (
-        "play", "run.mcap", 10.0, True, ["/a", "/b"], 2.5, True
+        "play",
+        "run.mcap",
+        10.0,
+        True,
+        ["/a", "/b"],
+        2.5,
+        True,
     )
     args = parser.parse_args(["bag", "record", "run.mcap", "--topics", "/ft/wrench"])
     assert (args.bag_command, args.path, args.topics, args.overwrite) == ("record", "run.mcap", ["/ft/wrench"], False)
@@ -538,8 +553,9 @@ def _old_run(path, n=300):
         messages.append(("/ft/wrench", t, t + 7, encode(wrench(k))))
         if k % 10 == 0:
             messages.append(("/dynamics/state", t, t, encode(state(k // 10))))
-    write_msgpack_bag(path, {"/ft/wrench": "dockhil/WrenchStamped", "/dynamics/state": "dockhil/SatelliteState"},
-                      messages)
+    write_msgpack_bag(
+        path, {"/ft/wrench": "dockhil/WrenchStamped", "/dynamics/state": "dockhil/SatelliteState"}, messages
+    )
     return messages
 
 
@@ -567,7 +583,10 @@ def test_old_msgpack_bags_read_as_before_and_convert_to_json(tmp_path, capsys):
     validators = {}  # one per schema record, its schema checked once (jsonschema.validate re-checks it every call)
     for (schema_rec, channel, message), (topic, log_ns, publish_ns, data) in zip(got, messages):
         assert (channel.topic, channel.message_encoding, message.log_time, message.publish_time) == (
-            topic, "json", log_ns, publish_ns
+            topic,
+            "json",
+            log_ns,
+            publish_ns,
         )
         value = json.loads(message.data)
         assert value == msgpack.unpackb(data)

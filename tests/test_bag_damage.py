@@ -274,8 +274,11 @@ def test_export_of_a_deeply_nested_message_is_one_line(tmp_path, capsys):
     deep_maps = b"\x81\xa1a" * 500 + b"\x01"  # 500 nested maps: decodes, flattens deep
     # A bag recorded before json channels holds the wire bytes as they came.
     path = tmp_path / "nested.mcap"
-    write_msgpack_bag(path, {"/ft/wrench": "dockhil/WrenchStamped"},
-                      [("/ft/wrench", k, k, d) for k, d in enumerate([good, deep_arrays, deep_maps], 1)])
+    write_msgpack_bag(
+        path,
+        {"/ft/wrench": "dockhil/WrenchStamped"},
+        [("/ft/wrench", k, k, d) for k, d in enumerate([good, deep_arrays, deep_maps], 1)],
+    )
     out_csv = tmp_path / "nested.csv"
     code = cli.main(["bag", "export", str(path), "--topic", "/ft/wrench", "--csv", str(out_csv)])
     out, err = capsys.readouterr()
@@ -335,8 +338,9 @@ def test_a_damaged_header_is_a_lost_region_when_chunks_follow(bag, tmp_path):
     assert _seqs(path) == bag.seqs_outside()
     found = info(path)
     first_chunk = bag.chunks[0][0]
-    assert found["lost"] == [{"offset": 8, "bytes": first_chunk - 8, "after": None,
-                              "before": T0 / 1e9, "at_end": False}]
+    assert found["lost"] == [
+        {"offset": 8, "bytes": first_chunk - 8, "after": None, "before": T0 / 1e9, "at_end": False}
+    ]
 
 
 def test_random_damage_never_costs_an_intact_chunk(bag, tmp_path):

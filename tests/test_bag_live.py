@@ -75,13 +75,15 @@ def one_line(text: str) -> str:
 def play_and_record(bag, out, *play_args, timing: dict | None = None):
     """`bag play BAG ...` with `bag record OUT` joined to it; both must end by themselves; their stderr.
     timing: gets "recording" (the recorder says it records: play may start) and "ended" (play exited)."""
-    play = subprocess.Popen(dockhil_cmd("bag", "play", bag, *play_args), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    play = subprocess.Popen(
+        dockhil_cmd("bag", "play", bag, *play_args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     rec = None
     try:
         registered(play.pid)
-        rec = subprocess.Popen(dockhil_cmd("bag", "record", out), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                               text=True)
+        rec = subprocess.Popen(
+            dockhil_cmd("bag", "record", out), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+        )
         rec_lines = Lines(rec, rec.stderr)
         rec_lines.wait_for("recording ", timeout=30)
         recording = time.monotonic()
@@ -116,7 +118,9 @@ def test_launch_bag_round_trip_record_info_export_play(write_launch, tmp_path, c
     a, b = by_topic(multi), by_topic(composed)
     assert a == b
     # Recorded as json that viewers read: every message meets its channel's schema.
-    assert assert_messages_meet_their_channel_schemas(multi) == assert_messages_meet_their_channel_schemas(composed) == 843
+    assert (
+        assert_messages_meet_their_channel_schemas(multi) == assert_messages_meet_their_channel_schemas(composed) == 843
+    )
     assert {t: len(v) for t, v in a.items()} == {"/x": TICKS, "/u": TICKS, "/drive": TICKS - TICKS // 5}
     assert [ns for ns, _ in a["/x"]] == [k * 1_000_000 for k in range(TICKS)]  # sim times, not wall times
     assert [ns for ns, _ in a["/drive"]] == [k * 1_000_000 for k in range(TICKS) if k % 5 != 4]
@@ -125,8 +129,10 @@ def test_launch_bag_round_trip_record_info_export_play(write_launch, tmp_path, c
     found = json.loads(capsys.readouterr().out)
     assert code == 0 and found["recovered"] is False and found["duration_s"] == pytest.approx(0.3)
     assert {t["topic"]: (t["type"], t["count"]) for t in found["topics"]} == {
-        "/x": ("dockhil/WrenchStamped", TICKS), "/u": ("dockhil/WrenchStamped", TICKS),
-        "/drive": ("dockhil/WrenchStamped", 241)}
+        "/x": ("dockhil/WrenchStamped", TICKS),
+        "/u": ("dockhil/WrenchStamped", TICKS),
+        "/drive": ("dockhil/WrenchStamped", 241),
+    }
 
     out_csv = tmp_path / "x.csv"
     assert cli.main(["bag", "export", str(multi), "--topic", "/x", "--csv", str(out_csv)]) == 0
@@ -227,8 +233,12 @@ def test_bag_source_steps_by_tick_or_by_time(tmp_path):
 def test_recorder_killed_mid_run_leaves_a_readable_bag(write_launch, tmp_path):
     scene = write_launch(SCENE)
     path = tmp_path / "killed.mcap"
-    p = subprocess.Popen(dockhil_cmd("launch", scene, "--wall-time", "--duration", "20", "--bag", path),
-                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    p = subprocess.Popen(
+        dockhil_cmd("launch", scene, "--wall-time", "--duration", "20", "--bag", path),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     deadline = time.time() + 15
     registered(p.pid)
     while time.time() < deadline and (not path.exists() or path.stat().st_size < 30_000):
@@ -252,8 +262,11 @@ def test_unwritable_bag_fails_the_launch_in_one_line_before_any_node_runs(write_
     scene = write_launch(SCENE)
     existing = tmp_path / "existing.mcap"
     existing.write_bytes(b"keep me")
-    for bag, words in [(tmp_path / "no" / "run.mcap", "No such file or directory"),
-                       (existing, "already exists"), (tmp_path, "directory")]:
+    for bag, words in [
+        (tmp_path / "no" / "run.mcap", "No such file or directory"),
+        (existing, "already exists"),
+        (tmp_path, "directory"),
+    ]:
         for mode in ([], ["--composed"]):
             # In this process: a refusal needs no interpreter of its own (a node it started would
             # still print here, through the launcher's log).
@@ -269,9 +282,18 @@ def test_unwritable_bag_fails_the_launch_in_one_line_before_any_node_runs(write_
     assert code == 2 and "no running graph found" in one_line(err)
     graphs = Path(os.environ["DOCKHIL_RUNTIME_DIR"]) / "graphs"
     graphs.mkdir(exist_ok=True)
-    (graphs / "fake.json").write_text(json.dumps({
-        "run_id": "fake", "pid": os.getpid(), "file": "test", "clock": "wall", "nodes": {},
-        "topics": {"/x": {"type": "dockhil/WrenchStamped", "endpoint": "tcp://127.0.0.1:9", "publisher": "t"}}}))
+    (graphs / "fake.json").write_text(
+        json.dumps(
+            {
+                "run_id": "fake",
+                "pid": os.getpid(),
+                "file": "test",
+                "clock": "wall",
+                "nodes": {},
+                "topics": {"/x": {"type": "dockhil/WrenchStamped", "endpoint": "tcp://127.0.0.1:9", "publisher": "t"}},
+            }
+        )
+    )
     try:
         code, _, err = run_main("bag", "record", tmp_path / "no" / "x.mcap")
         assert code == 2 and "No such file or directory" in one_line(err)
@@ -290,8 +312,15 @@ def _small_file_limit():
 def test_full_disk_stops_recording_in_one_line_and_fails_the_run_with_the_count(write_launch, tmp_path, mode):
     scene = write_launch(SCENE)
     path = tmp_path / "full.mcap"
-    r = launch(scene, "--duration", "1", "--bag", path, *(["--composed"] if mode == "composed" else []),
-               preexec_fn=_small_file_limit)
+    r = launch(
+        scene,
+        "--duration",
+        "1",
+        "--bag",
+        path,
+        *(["--composed"] if mode == "composed" else []),
+        preexec_fn=_small_file_limit,
+    )
     text = r.stdout + r.stderr
     assert r.returncode != 0 and "Traceback" not in text, text  # lost messages: the run is not valid
     stopped = [line for line in text.splitlines() if "recording stopped" in line and "error" in line]
@@ -301,8 +330,9 @@ def test_full_disk_stops_recording_in_one_line_and_fails_the_run_with_the_count(
     report = next(line for line in text.splitlines() if "[bag-recorder] recorded" in line)
     lost = 1001 + 1001 + 801 - found["messages"]
     assert f"recorded {found['messages']} messages" in report and f"{lost} lost" in report
-    failed = [line for line in text.splitlines() if f"{lost} message(s) lost" in line or
-              f"lost {lost} message(s)" in line]
+    failed = [
+        line for line in text.splitlines() if f"{lost} message(s) lost" in line or f"lost {lost} message(s)" in line
+    ]
     assert len(failed) == 1 and "error" in failed[0], text
 
 
@@ -316,8 +346,9 @@ def write_wrench_bag(path, seconds: float, rate_hz: float) -> list[bytes]:
         bag.add_topic("/ft/wrench", type_name(WrenchStamped))
         for k in range(n):
             ns = 1_700_000_000_000_000_000 + int(k * 1e9 / rate_hz)
-            msg = encode(WrenchStamped(header=Header(stamp=k / rate_hz, tick=k, seq=k),
-                                       wrench=Wrench(force=Vector3(x=0.5 * k))))
+            msg = encode(
+                WrenchStamped(header=Header(stamp=k / rate_hz, tick=k, seq=k), wrench=Wrench(force=Vector3(x=0.5 * k)))
+            )
             bag.write("/ft/wrench", ns, ns, msg)
             data.append(msg)
     return data
@@ -346,9 +377,12 @@ def test_play_refuses_bad_files_and_topics_in_one_line(tmp_path, capsys):
     write_wrench_bag(bag, 0.1, 100.0)
     text = tmp_path / "text.mcap"
     text.write_text("time,force\n")
-    for args, words in [([text], "not an MCAP bag"), ([tmp_path / "none.mcap"], "no such file"),
-                        ([bag, "--topics", "/nope"], "no messages on /nope; topics in the bag: /ft/wrench"),
-                        ([bag, "--start", "5"], "no message after --start 5 s")]:
+    for args, words in [
+        ([text], "not an MCAP bag"),
+        ([tmp_path / "none.mcap"], "no such file"),
+        ([bag, "--topics", "/nope"], "no messages on /nope; topics in the bag: /ft/wrench"),
+        ([bag, "--start", "5"], "no message after --start 5 s"),
+    ]:
         code = cli.main(["bag", "play", *map(str, args)])
         err = capsys.readouterr().err
         assert code == 2 and words in one_line(err), err

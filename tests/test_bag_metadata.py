@@ -57,7 +57,11 @@ def test_a_launch_bag_records_its_scene_arguments_start_and_verdict(tmp_path, mo
     assert found[runinfo.SCENE] == {str(SHIPPED_SCENES / "hil.yaml"): (SHIPPED_SCENES / "hil.yaml").read_text()}
     verdict = found[runinfo.VERDICT]
     assert (verdict["verdict"], verdict["valid"], verdict["exit_code"], verdict["recorder_lost"]) == (
-        "valid", "true", "0", "0")
+        "valid",
+        "true",
+        "0",
+        "0",
+    )
 
     code, out, _ = run_main("bag", "info", bag)
     assert code == 0
@@ -87,8 +91,17 @@ def test_the_same_run_recorded_twice_differs_only_in_its_start_time(tmp_path):
 
 def test_an_invalid_run_records_its_reasons(tmp_path):
     bag, summary = tmp_path / "run.mcap", tmp_path / "s.json"
-    r = launch_here_or_process("hil.yaml", "compensation:=passivity", "max_damping:=1", "--bag", bag,
-                               "--summary", summary, "--quiet", "--composed")
+    r = launch_here_or_process(
+        "hil.yaml",
+        "compensation:=passivity",
+        "max_damping:=1",
+        "--bag",
+        bag,
+        "--summary",
+        summary,
+        "--quiet",
+        "--composed",
+    )
     assert r.returncode == 3, r.stderr
     verdict = records(bag)[runinfo.VERDICT]
     reasons = json.loads(summary.read_text())["invalid_reasons"]
@@ -101,8 +114,12 @@ def test_an_invalid_run_records_its_reasons(tmp_path):
 
 def test_a_recorder_killed_mid_run_leaves_a_bag_that_says_the_run_did_not_finish(tmp_path):
     bag = tmp_path / "run.mcap"
-    proc = subprocess.Popen(dockhil_cmd("launch", "hil.yaml", "--duration", "60", "--bag", bag, "--quiet"),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        dockhil_cmd("launch", "hil.yaml", "--duration", "60", "--bag", bag, "--quiet"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         recorder = registered(proc.pid, timeout=60)["nodes"]["bag-recorder"]["pid"]
         deadline = time.monotonic() + 60
@@ -143,7 +160,7 @@ def test_metadata_is_read_past_a_damaged_chunk(tmp_path):
     assert r.returncode == 0, r.stderr
     data = bytearray(bag.read_bytes())
     middle = len(data) // 2
-    data[middle:middle + 4000] = bytes(4000)
+    data[middle : middle + 4000] = bytes(4000)
     bag.write_bytes(bytes(data))
     found = records(bag)
     assert found[runinfo.VERDICT]["verdict"] == "valid"
@@ -156,8 +173,9 @@ def test_an_outside_recorder_writes_what_the_graph_registered_and_that_its_verdi
 
     scene = load("hil.yaml")
     run = run_fields(scene, clock="sim", duration=3.0, started_ns=1, recorded_by="launch")
-    (registry_dir() / "r1.json").write_text(json.dumps({"run_id": "r1", "clock": "sim", "run": run,
-                                                         "scene_files": scene_texts(scene)}))
+    (registry_dir() / "r1.json").write_text(
+        json.dumps({"run_id": "r1", "clock": "sim", "run": run, "scene_files": scene_texts(scene)})
+    )
     (registry_dir() / "r2.json").write_text(json.dumps({"run_id": "r2", "clock": "wall", "file": "play x.mcap"}))
     got, texts = registered_run("r1", "bag record")
     assert got["recorded_by"] == "bag record" and got["start"] == run["start"] and got["joined"].endswith("Z")
@@ -180,8 +198,12 @@ def test_a_wall_time_run_records_the_verdict_its_launch_exits_with(tmp_path):
     """Wall time: the launch stops the recorder at the duration, and it closes the bag once told the
     verdict, which is the launch's (valid, or INVALID on a machine too busy to keep up)."""
     bag = tmp_path / "wall.mcap"
-    r = subprocess.run(dockhil_cmd("launch", "ideal.yaml", "--wall-time", "--duration", "1", "--bag", bag, "--quiet"),
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        dockhil_cmd("launch", "ideal.yaml", "--wall-time", "--duration", "1", "--bag", bag, "--quiet"),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode in (0, 3), r.stderr
     found = records(bag)
     assert found[runinfo.RUN]["clock"] == "wall"

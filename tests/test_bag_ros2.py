@@ -100,8 +100,10 @@ def read_mcap_ros2(directory: Path) -> list[tuple[str, str, int, int, int, dict]
     with open(mcap_file, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         assert reader.get_header().profile == "ros2"
-        return [(ch.topic, schema.name, m.log_time, m.publish_time, m.sequence, plain(dec))
-                for schema, ch, m, dec in reader.iter_decoded_messages(log_time_order=False)]
+        return [
+            (ch.topic, schema.name, m.log_time, m.publish_time, m.sequence, plain(dec))
+            for schema, ch, m, dec in reader.iter_decoded_messages(log_time_order=False)
+        ]
 
 
 # --------------------------------------------------------------------------- the expected mapping
@@ -174,12 +176,24 @@ def hil_run(tmp_path_factory):
     """A 0.5 s composed run of hil.yaml recorded as a dockhil bag, exported with the CLI."""
     d = tmp_path_factory.mktemp("hil")
     bag = d / "hil.mcap"
-    run = subprocess.run(dockhil_cmd("launch", "hil.yaml", "--composed", "--duration", "0.5", "--bag", bag,
-                                     "--quiet"), cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
+    run = subprocess.run(
+        dockhil_cmd("launch", "hil.yaml", "--composed", "--duration", "0.5", "--bag", bag, "--quiet"),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert run.returncode == 0, run.stderr
     out = d / "hil_ros2"
-    export = subprocess.run(dockhil_cmd("bag", "export", "--ros2", out, bag), cwd=d, capture_output=True,
-                            text=True, timeout=300, check=False)
+    export = subprocess.run(
+        dockhil_cmd("bag", "export", "--ros2", out, bag),
+        cwd=d,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert export.returncode == 0 and export.stderr == "", export.stderr
     return bag, out, export.stdout
 
@@ -190,8 +204,9 @@ def test_a_hil_run_exported_reads_back_equal_with_rosbags_and_mcap_ros2(hil_run)
     rosbags_messages = read_rosbags(out)
     n = assert_same_messages(bag, rosbags_messages, read_mcap_ros2(out))
     dockhil_count = info(bag)["messages"]
-    assert stdout == (f"{dockhil_count} messages written to {out} as {n} ROS 2 messages on 13 topics "
-                      f"(rosbag2: mcap, cdr)\n")
+    assert stdout == (
+        f"{dockhil_count} messages written to {out} as {n} ROS 2 messages on 13 topics (rosbag2: mcap, cdr)\n"
+    )
     # The encoder's bytes are the bytes rosbags' own CDR serializer makes of the same message.
     store = typestore()
     for topic, ros_type, _, _, raw in rosbags_messages[:: max(1, n // 500)]:
@@ -250,8 +265,14 @@ def test_metadata_yaml_is_rosbag2s_with_counts_duration_and_topics(hil_run):
     assert meta["duration"] == {"nanoseconds": max(times) - min(times)} == {"nanoseconds": 500_000_000}
     assert meta["message_count"] == len(ros)
     assert meta["relative_file_paths"] == ["hil_ros2_0.mcap"]
-    assert meta["files"] == [{"path": "hil_ros2_0.mcap", "starting_time": meta["starting_time"],
-                              "duration": meta["duration"], "message_count": len(ros)}]
+    assert meta["files"] == [
+        {
+            "path": "hil_ros2_0.mcap",
+            "starting_time": meta["starting_time"],
+            "duration": meta["duration"],
+            "message_count": len(ros),
+        }
+    ]
     assert meta["compression_format"] == "" and meta["compression_mode"] == ""
     assert meta["custom_data"] is None
     store = typestore()
@@ -291,8 +312,9 @@ def twist(k: float) -> Twist:
 
 
 def every_type(k: int) -> dict[str, object]:
-    bodies = tuple(BodyState(name=f"body {i} é", mass=10.0 * (i + 1), pose=pose(k + i), twist=twist(i))
-                   for i in range(k % 3))  # 0, 1 or 2 bodies: a sequence of any length
+    bodies = tuple(
+        BodyState(name=f"body {i} é", mass=10.0 * (i + 1), pose=pose(k + i), twist=twist(i)) for i in range(k % 3)
+    )  # 0, 1 or 2 bodies: a sequence of any length
     return {
         "/ft/wrench": WrenchStamped(header=header(k, "ft_sensor"), wrench=Wrench(force=vec(k), torque=vec(2 * k))),
         "/satellite/state": SatelliteState(header=header(k, "world"), bodies=bodies, in_contact=k % 2 == 1),
@@ -300,12 +322,17 @@ def every_type(k: int) -> dict[str, object]:
         "/robot/command": RobotCommand(header=header(k, "target"), pose=pose(k), twist=twist(k), enable=k % 2 == 0),
         "/robot/state": RobotState(header=header(k, "target"), pose=pose(-k), twist=twist(k), status="ok" * (k % 3)),
         "/impedance/params": ImpedanceParams(header=header(k), k1=2001.5 + k, b1=40.03, k2=2.6e6, b2=5e4, method="fit"),
-        "/status": NodeStatus(header=header(k), node="dynamics", state="running", ticks=2**63 + k, dropped=k,
-                              message="line\twith tab"),
+        "/status": NodeStatus(
+            header=header(k), node="dynamics", state="running", ticks=2**63 + k, dropped=k, message="line\twith tab"
+        ),
         "/estop": EStop(header=header(k), active=k == 3, reason="" if k != 3 else "force 250 N > 200 N"),
-        "/energy": Energy(header=header(k), **{name: 0.5 * k + i for i, name in enumerate(Energy.__struct_fields__)
-                                                if name.endswith("_J")}, damping_Ns_m=12.0 * k,
-                          at_max_damping=k == 2, port_loaded=k > 1),
+        "/energy": Energy(
+            header=header(k),
+            **{name: 0.5 * k + i for i, name in enumerate(Energy.__struct_fields__) if name.endswith("_J")},
+            damping_Ns_m=12.0 * k,
+            at_max_damping=k == 2,
+            port_loaded=k > 1,
+        ),
     }
 
 
@@ -330,32 +357,60 @@ def test_every_dockhil_type_has_a_ros_type_and_every_field_comes_back(tmp_path, 
 def test_cdr_aligns_after_the_encapsulation_header_and_counts_the_nul():
     value = {"header": {"stamp": {"sec": 7, "nanosec": 5}, "frame_id": "ab"}, "active": True, "reason": ""}
     data = ros2.serialize("dockhil_msgs/msg/EStop", value)
-    assert data == (b"\x00\x01\x00\x00" + struct.pack("<iI", 7, 5) + struct.pack("<I", 3) + b"ab\x00"
-                    + b"\x01" + struct.pack("<I", 1) + b"\x00")  # the bool lands on 4-aligned 11: no pad
-    value = {"header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""}, "k1": 1.0, "b1": 2.0, "k2": 3.0,
-             "b2": 4.0, "method": "x"}
+    assert data == (
+        b"\x00\x01\x00\x00"
+        + struct.pack("<iI", 7, 5)
+        + struct.pack("<I", 3)
+        + b"ab\x00"
+        + b"\x01"
+        + struct.pack("<I", 1)
+        + b"\x00"
+    )  # the bool lands on 4-aligned 11: no pad
+    value = {
+        "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""},
+        "k1": 1.0,
+        "b1": 2.0,
+        "k2": 3.0,
+        "b2": 4.0,
+        "method": "x",
+    }
     data = ros2.serialize("dockhil_msgs/msg/ImpedanceParams", value)
     # 8 bytes of time, 4 + 1 of frame_id, then k1 8-aligned at 16 (3 bytes of padding)
     assert data[4:17] == bytes(8) + struct.pack("<I", 1) + b"\x00" and data[17:20] == bytes(3)
     assert struct.unpack_from("<4d", data, 4 + 16) == (1.0, 2.0, 3.0, 4.0)
     with pytest.raises(ValueError, match="NodeStatus"):
-        ros2.serialize("dockhil_msgs/msg/NodeStatus", {**value, "node": "", "state": "", "ticks": 2**64,
-                                                       "dropped": 0, "message": ""})
+        ros2.serialize(
+            "dockhil_msgs/msg/NodeStatus",
+            {**value, "node": "", "state": "", "ticks": 2**64, "dropped": 0, "message": ""},
+        )
 
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 text = st.text(st.characters(blacklist_categories=("Cs",), blacklist_characters="\x00"), max_size=20)
 
 
-@given(st.lists(st.tuples(text, finite, st.lists(finite, min_size=13, max_size=13)), max_size=4), st.booleans(),
-       st.integers(0, 2**31 - 1), st.integers(0, 10**9 - 1), text)
+@given(
+    st.lists(st.tuples(text, finite, st.lists(finite, min_size=13, max_size=13)), max_size=4),
+    st.booleans(),
+    st.integers(0, 2**31 - 1),
+    st.integers(0, 10**9 - 1),
+    text,
+)
 def test_cdr_equals_rosbags_serializer_for_any_satellite_state(bodies, contact, sec, nanosec, frame):
     store = _STORE
-    value = {"header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame}, "in_contact": contact,
-             "bodies": [{"name": name, "mass": mass,
-                         "pose": {"position": dict(zip("xyz", v[0:3])), "orientation": dict(zip("xyzw", v[3:7]))},
-                         "twist": {"linear": dict(zip("xyz", v[7:10])), "angular": dict(zip("xyz", v[10:13]))}}
-                        for name, mass, v in bodies]}
+    value = {
+        "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame},
+        "in_contact": contact,
+        "bodies": [
+            {
+                "name": name,
+                "mass": mass,
+                "pose": {"position": dict(zip("xyz", v[0:3])), "orientation": dict(zip("xyzw", v[3:7]))},
+                "twist": {"linear": dict(zip("xyz", v[7:10])), "angular": dict(zip("xyz", v[10:13]))},
+            }
+            for name, mass, v in bodies
+        ],
+    }
     data = ros2.serialize("dockhil_msgs/msg/SatelliteState", value)
     msg = store.deserialize_cdr(data, "dockhil_msgs/msg/SatelliteState")
     assert plain(msg) == value
@@ -374,11 +429,18 @@ def test_every_type_hash_and_definition_agrees_with_rosbags():
 
 def test_the_export_needs_none_of_the_test_libraries(tmp_path, hil_run):
     bag, _, _ = hil_run
-    code = ("import sys; from dockhil.bags.ros2 import export; export(sys.argv[1], sys.argv[2]); "
-            "bad = [m for m in sys.modules if m.split('.')[0] in ('rosbags', 'mcap_ros2', 'yaml', 'numpy')]; "
-            "assert not bad, bad")
-    run = subprocess.run([sys.executable, "-c", code, str(bag), str(tmp_path / "out")], capture_output=True,
-                         text=True, timeout=120, check=False)
+    code = (
+        "import sys; from dockhil.bags.ros2 import export; export(sys.argv[1], sys.argv[2]); "
+        "bad = [m for m in sys.modules if m.split('.')[0] in ('rosbags', 'mcap_ros2', 'yaml', 'numpy')]; "
+        "assert not bad, bad"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", code, str(bag), str(tmp_path / "out")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
     assert run.returncode == 0, run.stderr
 
 
@@ -454,12 +516,18 @@ def test_a_message_that_does_not_decode_is_counted_not_exported(tmp_path, capsys
         bag.add_topic("/ft/wrench", type_name(WrenchStamped))
         bag.write("/ft/wrench", 1_000_000, 1_000_000, encode(good))
         nan = encode(msgspec.structs.replace(good, header=Header(stamp=0.002)))
-        bag.write("/ft/wrench", 2_000_000, 2_000_000, nan.replace(b"\xcb" + struct.pack(">d", 0.002),
-                                                                  b"\xcb" + struct.pack(">d", float("nan"))))
+        bag.write(
+            "/ft/wrench",
+            2_000_000,
+            2_000_000,
+            nan.replace(b"\xcb" + struct.pack(">d", 0.002), b"\xcb" + struct.pack(">d", float("nan"))),
+        )
     code, out, err = run_cli(capsys, "bag", "export", "--ros2", tmp_path / "out", src)
     assert code == 0 and out.startswith("1 messages written")
-    assert err == ("dockhil bag export: note: 1 messages do not decode as their type (e.g. a recorded NaN) "
-                   "or do not fit their ROS 2 type, and were not exported\n")
+    assert err == (
+        "dockhil bag export: note: 1 messages do not decode as their type (e.g. a recorded NaN) "
+        "or do not fit their ROS 2 type, and were not exported\n"
+    )
 
 
 # --------------------------------------------------------------------------- recording as rosbag2
@@ -467,26 +535,47 @@ def test_a_message_that_does_not_decode_is_counted_not_exported(tmp_path, capsys
 
 def test_launch_with_bag_format_ros2_writes_the_same_bag_as_export(tmp_path):
     args = ("launch", "hil.yaml", "--composed", "--duration", "0.1", "--quiet")
-    direct = subprocess.run(dockhil_cmd(*args, "--bag", tmp_path / "run", "--bag-format", "ros2"), cwd=ROOT,
-                            capture_output=True, text=True, timeout=300, check=False)
+    direct = subprocess.run(
+        dockhil_cmd(*args, "--bag", tmp_path / "run", "--bag-format", "ros2"),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert direct.returncode == 0, direct.stderr
     assert "messages written to" in direct.stderr.splitlines()[-1]
     assert sorted(os.listdir(tmp_path)) == ["run"]  # the recording is gone once converted
-    recorded = subprocess.run(dockhil_cmd(*args, "--bag", tmp_path / "run.mcap"), cwd=ROOT, capture_output=True,
-                              text=True, timeout=300, check=False)
+    recorded = subprocess.run(
+        dockhil_cmd(*args, "--bag", tmp_path / "run.mcap"),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert recorded.returncode == 0, recorded.stderr
     ros2.export(tmp_path / "run.mcap", tmp_path / "exported")
     a, b = read_mcap_ros2(tmp_path / "run"), read_mcap_ros2(tmp_path / "exported")
     assert len(a) > 600 and a == b  # sim time: the same run, the same messages and times
-    meta = [yaml.safe_load((tmp_path / d / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-            for d in ("run", "exported")]
+    meta = [
+        yaml.safe_load((tmp_path / d / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        for d in ("run", "exported")
+    ]
     assert meta[0]["topics_with_message_count"] == meta[1]["topics_with_message_count"]
 
-    refused = subprocess.run(dockhil_cmd(*args, "--bag", tmp_path / "run", "--bag-format", "ros2"), cwd=ROOT,
-                             capture_output=True, text=True, timeout=300, check=False)
+    refused = subprocess.run(
+        dockhil_cmd(*args, "--bag", tmp_path / "run", "--bag-format", "ros2"),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert refused.returncode == 2 and "already exists" in refused.stderr and refused.stderr.count("\n") == 1
-    refused = subprocess.run(dockhil_cmd(*args, "--bag-format", "ros2"), cwd=ROOT, capture_output=True, text=True,
-                             timeout=300, check=False)
+    refused = subprocess.run(
+        dockhil_cmd(*args, "--bag-format", "ros2"), cwd=ROOT, capture_output=True, text=True, timeout=300, check=False
+    )
     assert refused.returncode == 2 and "--bag-format ros2 needs --bag DIR" in refused.stderr
 
 
@@ -542,13 +631,18 @@ def test_bag_record_with_bag_format_ros2_records_a_played_run_as_its_export(tmp_
     rosbag2 bag holds what exporting the hil bag gives (sim time: the same messages and times)."""
     bag, exported, _ = hil_run
     out = tmp_path / "lab"
-    play = subprocess.Popen(dockhil_cmd("bag", "play", bag, "--sim-time"), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    play = subprocess.Popen(
+        dockhil_cmd("bag", "play", bag, "--sim-time"), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     rec = None
     try:
         registered(play.pid)
-        rec = subprocess.Popen(dockhil_cmd("bag", "record", out, "--bag-format", "ros2"), stdout=subprocess.DEVNULL,
-                               stderr=subprocess.PIPE, text=True)
+        rec = subprocess.Popen(
+            dockhil_cmd("bag", "record", out, "--bag-format", "ros2"),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         _, play_err = play.communicate(timeout=120)
         rec_err = Lines(rec, rec.stderr).rest(timeout=120)
     finally:

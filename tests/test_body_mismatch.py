@@ -24,14 +24,21 @@ def test_the_shipped_scenes_tune_the_impedance_for_their_bodies(scene):
 
 def test_a_1dof_impedance_tuned_for_another_mass_is_named():
     got = [w for w in warnings_of("hil.yaml", {("impedance", "m1"): 300.0}) if "tuned for" in w]
-    assert got == ["node 'impedance' is tuned for m1 = 300.0 kg but node 'dynamics' integrates m1 = 750.0 kg: "
-                   "the virtual impedance does not make the ideal contact for these bodies; give both the same m1"]
+    assert got == [
+        "node 'impedance' is tuned for m1 = 300.0 kg but node 'dynamics' integrates m1 = 750.0 kg: "
+        "the virtual impedance does not make the ideal contact for these bodies; give both the same m1"
+    ]
 
 
 def test_a_6dof_impedance_tuned_for_another_interface_is_named():
-    got = [w for w in warnings_of("hil6.yaml", {("impedance", "interface1"): [1.2, 0.0, 0.0],
-                                               ("impedance", "m2"): 2e6}) if "tuned for" in w]
+    got = [
+        w
+        for w in warnings_of("hil6.yaml", {("impedance", "interface1"): [1.2, 0.0, 0.0], ("impedance", "m2"): 2e6})
+        if "tuned for" in w
+    ]
     assert len(got) == 2
     assert got[0].startswith("node 'impedance' is tuned for m2 = 2000000.0 kg but node 'dynamics' integrates m2 = ")
-    assert got[1].startswith("node 'impedance' is tuned for interface1 = [1.2, 0.0, 0.0] m but node 'dynamics' "
-                             "integrates interface1 = [1.0, 0.0, 0.0] m")
+    assert got[1].startswith(
+        "node 'impedance' is tuned for interface1 = [1.2, 0.0, 0.0] m but node 'dynamics' "
+        "integrates interface1 = [1.0, 0.0, 0.0] m"
+    )

@@ -84,8 +84,11 @@ def test_composed_drivers_close_before_their_emulators():
 class DiesOnce(Gain):
     """Gain that exits abruptly at tick `die_once_at` of its first life only (a marker file remembers)."""
 
-    params = {**Gain.params, "die_once_at": Param(int, -1, help="exit abruptly at this tick, once"),
-              "marker": Param(str, "", help="file made at the first death")}
+    params = {
+        **Gain.params,
+        "die_once_at": Param(int, -1, help="exit abruptly at this tick, once"),
+        "marker": Param(str, "", help="file made at the first death"),
+    }
 
     def step(self, tick, inputs):
         if tick.index == self.p.die_once_at and not os.path.exists(self.p.marker):
@@ -107,7 +110,8 @@ def test_respawn_reasons_name_the_node_and_when():
     reasons = validity.respawn_reasons([("ft", 12.34, 1), ("ft", 20.0, 1), ("robot", 3.0, -9)])
     assert reasons == [
         "node 'ft' exited (code 1) and was respawned 2 time(s), at 12.3 s, 20.0 s into the run: its data has a gap",
-        "node 'robot' exited (code -9) and was respawned 1 time(s), at 3.0 s into the run: its data has a gap"]
+        "node 'robot' exited (code -9) and was respawned 1 time(s), at 3.0 s into the run: its data has a gap",
+    ]
     assert validity.respawn_reasons([]) == []
 
 
@@ -116,13 +120,16 @@ def test_a_run_in_which_a_node_was_respawned_is_invalid(write_launch, tmp_path):
     """The node dies half a second in and is respawned: the run goes on to its end but is INVALID,
     with the line naming the node and when. (The machine's own reasons may join the line.)"""
     scene = write_launch(RESPAWNED.replace("MARKER", str(tmp_path / "died")))
-    p = subprocess.run(dockhil_cmd("launch", str(scene), "--wall-time", "--duration", "3"),
-                       capture_output=True, text=True, timeout=120)
+    p = subprocess.run(
+        dockhil_cmd("launch", str(scene), "--wall-time", "--duration", "3"), capture_output=True, text=True, timeout=120
+    )
     text = p.stdout + p.stderr
     assert "Traceback" not in text, text
     assert p.returncode == validity.INVALID_EXIT, text
     line = next(x for x in text.splitlines() if "INVALID:" in x)
-    assert re.search(r"node 'gain' exited \(code 3\) and was respawned 1 time\(s\), at \d+\.\d s into the run", line), line
+    assert re.search(r"node 'gain' exited \(code 3\) and was respawned 1 time\(s\), at \d+\.\d s into the run", line), (
+        line
+    )
 
 
 class RecordingContext:
@@ -178,8 +185,17 @@ def test_a_refused_node_loop_runs_at_normal_priority(monkeypatch):
 
     monkeypatch.setattr(os, "sched_setscheduler", refuse)
     lines = []
-    spec = RunSpec(name="src", type_name="tests.graphnodes:Integrator", params={}, dt=0.01, clock="wall",
-                   n_ticks=3, inputs={}, outputs={}, realtime=True)
+    spec = RunSpec(
+        name="src",
+        type_name="tests.graphnodes:Integrator",
+        params={},
+        dt=0.01,
+        clock="wall",
+        n_ticks=3,
+        inputs={},
+        outputs={},
+        realtime=True,
+    )
     handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         assert process.run_node(spec, log=lines.append) == 0

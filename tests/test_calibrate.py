@@ -40,21 +40,38 @@ class Truth:
 def draw(seed: int) -> Truth:
     """Hidden truths from the ranges calibrate is specified over."""
     r = random.Random(seed)
-    return Truth(delay=r.uniform(0.016, 0.120), lag=r.uniform(0.0, 0.020), k=1000.0 * r.uniform(0.7, 1.3),
-                 b=r.uniform(0.0, 50.0), surface=r.uniform(0.0, 0.02),
-                 bias=tuple(r.uniform(-5.0, 5.0) / math.sqrt(3) for _ in range(3)), noise=r.uniform(0.0, 0.5))
+    return Truth(
+        delay=r.uniform(0.016, 0.120),
+        lag=r.uniform(0.0, 0.020),
+        k=1000.0 * r.uniform(0.7, 1.3),
+        b=r.uniform(0.0, 50.0),
+        surface=r.uniform(0.0, 0.02),
+        bias=tuple(r.uniform(-5.0, 5.0) / math.sqrt(3) for _ in range(3)),
+        noise=r.uniform(0.0, 0.5),
+    )
 
 
-def simulate(truth: Truth, seed: int = 0, max_force: float = 200.0, x_max: float = 0.1, rate: float = 1000.0,
-             substeps: int = 10, **params):
+def simulate(
+    truth: Truth,
+    seed: int = 0,
+    max_force: float = 200.0,
+    x_max: float = 0.1,
+    rate: float = 1000.0,
+    substeps: int = 10,
+    **params,
+):
     """The identification node against a plant with `truth`, on the node's own ticks: the servo follows the
     held command through the delay and an exact first-order lag (integrated in substeps), the pose is
     read back at each tick (1 um counts), the force is the unilateral spring-damper, biased and noisy.
     Returns the Recording and the largest |F| and speed the plant saw."""
     rng = np.random.default_rng(seed)
     dt = 1.0 / rate
-    node = Identification(NodeContext("identification", dt, sim_time=True, log=lambda line: None),
-                          max_force=max_force, x_max=x_max, **params)
+    node = Identification(
+        NodeContext("identification", dt, sim_time=True, log=lambda line: None),
+        max_force=max_force,
+        x_max=x_max,
+        **params,
+    )
     node.setup()
     h = dt / substeps
     a = 1.0 - math.exp(-h / truth.lag) if truth.lag > 0 else 1.0
@@ -101,8 +118,9 @@ def simulate(truth: Truth, seed: int = 0, max_force: float = 200.0, x_max: float
         wrench = WrenchStamped(header=_header(tn), wrench=Wrench(force=Vector3(*map(float, f))))
         ft.append((tn, *f, 0.0, 0.0, 0.0))
     s, w = np.array(st), np.array(ft)
-    rec = cal.Recording(np.array(cmd_t), np.array(cmd_x), s[:, 0], s[:, 1], s[:, 2], w[:, 0], w[:, 1:4], w[:, 4:7],
-                        phases)
+    rec = cal.Recording(
+        np.array(cmd_t), np.array(cmd_x), s[:, 0], s[:, 1], s[:, 2], w[:, 0], w[:, 1:4], w[:, 4:7], phases
+    )
     return rec, max_f, max_v
 
 
@@ -242,19 +260,30 @@ def test_a_bag_without_an_identification_run_is_refused_and_nothing_written(tmp_
 
 def test_a_loop_file_sets_the_scene_and_the_command_line_wins(tmp_path):
     loop = tmp_path / "loop.yaml"
-    loop.write_text("args:\n  delay: 0.0473\n  lag: 0.0081\n  k: 1012.5\n  ft_noise: 0.21\n"
-                    "tare: {\"force_N\": [0.1, 0.2, 0.3]}\n")
+    loop.write_text(
+        'args:\n  delay: 0.0473\n  lag: 0.0081\n  k: 1012.5\n  ft_noise: 0.21\ntare: {"force_N": [0.1, 0.2, 0.3]}\n'
+    )
     scene = launchfile.load("hil.yaml", {"loop": str(loop)})
     assert (scene.values["delay"], scene.values["lag"], scene.values["k"], scene.values["ft_noise"]) == (
-        0.0473, 0.0081, 1012.5, 0.21)
+        0.0473,
+        0.0081,
+        1012.5,
+        0.21,
+    )
     scene = launchfile.load("hil.yaml", launchfile.parse_overrides([f"loop:={loop}", "delay:=0.02"]))
     assert scene.values["delay"] == 0.02 and scene.values["k"] == 1012.5
     six = launchfile.load("hil6.yaml", {"loop": str(loop)})  # it has no ft_noise: what it declares is set
     assert six.values["delay"] == 0.0473 and "ft_noise" not in six.values
 
 
-@pytest.mark.parametrize("text, why", [("delay: 0.03\n", "not a loop file"), ("args:\n  delay: fast\n", "not a number"),
-                                        ("args: [1, 2]\n", "not a loop file")])
+@pytest.mark.parametrize(
+    "text, why",
+    [
+        ("delay: 0.03\n", "not a loop file"),
+        ("args:\n  delay: fast\n", "not a number"),
+        ("args: [1, 2]\n", "not a loop file"),
+    ],
+)
 def test_a_bad_loop_file_is_one_line(tmp_path, text, why):
     loop = tmp_path / "loop.yaml"
     loop.write_text(text)
@@ -286,8 +315,12 @@ def test_calibrate_on_emulators_finds_their_hidden_truths_within_the_limits(tmp_
     assert 0.0 < r["ft_maxima"]["max_force_N"] < 0.5 * MAX_FORCE
     assert r["robot_maxima"]["max_speed_m_s"] < MAX_ACTUAL_SPEED
     # the recording gives the same loop offline
-    offline = subprocess.run([sys.executable, "-m", "dockhil.cli", "calibrate", "--bag", str(bag), "--json"],
-                             capture_output=True, text=True, timeout=120)
+    offline = subprocess.run(
+        [sys.executable, "-m", "dockhil.cli", "calibrate", "--bag", str(bag), "--json"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert offline.returncode == 0, offline.stderr
     found = json.loads(offline.stdout)
     for key in ("delay_s", "lag_s", "k_N_per_m", "b_Ns_per_m", "bias_N", "noise_N"):

@@ -7,11 +7,14 @@ import pytest
 from dockhil import cli
 
 
-@pytest.mark.parametrize("argv", [
-    ["run", "spring_node:Spring", "--name", "spring", "--rate", "200", "k:=50", "x0:=0.1"],
-    ["run", "spring_node:Spring", "k:=50", "--name", "spring", "x0:=0.1", "--rate", "200"],
-    ["run", "spring_node:Spring", "k:=50", "x0:=0.1", "--name", "spring", "--rate", "200"],
-])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["run", "spring_node:Spring", "--name", "spring", "--rate", "200", "k:=50", "x0:=0.1"],
+        ["run", "spring_node:Spring", "k:=50", "--name", "spring", "x0:=0.1", "--rate", "200"],
+        ["run", "spring_node:Spring", "k:=50", "x0:=0.1", "--name", "spring", "--rate", "200"],
+    ],
+)
 def test_run_takes_parameters_anywhere_on_the_line(argv):
     _, args = cli.parse(argv)
     assert args.node == "spring_node:Spring" and args.name == "spring" and args.rate == 200.0

@@ -94,7 +94,9 @@ def test_refuses_equal_times():
 
 @pytest.mark.parametrize("t1, t2", [(0.5, 2.0), (-0.1, 0.5), (0.0, 0.5), (0.5, 1.5703473066360272)])
 def test_refuses_times_outside_contact(t1, t2):
-    with pytest.raises(FitError, match=r"outside the contact \(0, 1\.57035\) s.*e\.g\. t1 = 0\.3926 s and t2 = 1\.178 s"):
+    with pytest.raises(
+        FitError, match=r"outside the contact \(0, 1\.57035\) s.*e\.g\. t1 = 0\.3926 s and t2 = 1\.178 s"
+    ):
         fit_impedance(TABLE1, t1, t2)
 
 
@@ -107,7 +109,9 @@ def test_refuses_times_where_the_contact_has_died_out():
     # over-damped: the contact never ends, but after many time constants the
     # states are round-off around the CoM motion and carry nothing to fit
     heavy = ContactScenario(m1=100.0, m2=100.0, kcs=100.0, bcs=500.0, k=50.0, v1=0.1)
-    with pytest.raises(FitError, match=r"at t2 = 2000 s the contact motion has decayed to .* too little to fit; .*e\.g\. t1 = "):
+    with pytest.raises(
+        FitError, match=r"at t2 = 2000 s the contact motion has decayed to .* too little to fit; .*e\.g\. t1 = "
+    ):
         fit_impedance(heavy, 0.1, 2000.0)
 
 

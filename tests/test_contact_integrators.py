@@ -101,7 +101,9 @@ def test_growing_physics_is_not_blamed_on_the_method():
 def test_explicit_step_outside_stability_region_is_refused():
     integ = Integrator(CONTACT, "euler")
     x = np.array([0.0, 0.0, 0.03, 0.0])
-    with pytest.raises(StepTooLargeError, match=r"explicit Euler with dt = 0\.02 s .* largest stable step is 0\.0133333 s"):
+    with pytest.raises(
+        StepTooLargeError, match=r"explicit Euler with dt = 0\.02 s .* largest stable step is 0\.0133333 s"
+    ):
         integ.step(x, None, 0.02)
     integ.step(x, None, 0.013)  # inside: fine
     with pytest.raises(StepTooLargeError, match=r"RK4 with dt = 2 s .* largest stable step is 1\.42"):
@@ -125,8 +127,10 @@ def test_unstable_step_only_warns_when_asked():
     assert abs(y[0] - y[1]) > 100 * 0.015
 
 
-@pytest.mark.parametrize("method, dt, tol", [("exact", 1e-2, 1e-12), ("rk4", 1e-2, 1e-8), ("symplectic_euler", 1e-3, 2e-3),
-                                             ("euler", 1e-3, 5e-2)])
+@pytest.mark.parametrize(
+    "method, dt, tol",
+    [("exact", 1e-2, 1e-12), ("rk4", 1e-2, 1e-8), ("symplectic_euler", 1e-3, 2e-3), ("euler", 1e-3, 5e-2)],
+)
 def test_unilateral_run_matches_closed_form(method, dt, tol):
     gap = 0.0046  # onset between samples: no sample sits on the contact instant
     run = simulate_contact(TABLE1, method=method, dt=dt, gap=gap)

@@ -41,7 +41,9 @@ def test_pade_order_1_is_routh_and_higher_orders_converge_to_exact(damper, m, b,
 
 
 @pytest.mark.parametrize("damper", ["delayed", "undelayed"])
-@pytest.mark.parametrize("m, b, h", [(M, 20.0, H), (M, 60.0, H), (M, 200.0, 0.032), (1.0, 80.0, 0.016), (5.0, 1.0, 0.03)])
+@pytest.mark.parametrize(
+    "m, b, h", [(M, 20.0, H), (M, 60.0, H), (M, 200.0, 0.032), (1.0, 80.0, 0.016), (5.0, 1.0, 0.03)]
+)
 def test_exact_boundary_is_where_the_rightmost_root_changes_sign(damper, m, b, h):
     bound = exact_bound(m, b, h, damper)
     k = bound.k_max

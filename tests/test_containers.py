@@ -16,8 +16,13 @@ HIL = Path(__file__).resolve().parent.parent / "launch" / "hil.yaml"
 def hil_with(tmp_path, containers: dict[str, str], isolated: str = "") -> Path:
     """launch/hil.yaml with `container:` on the named simulated nodes, and `isolated: true` on one."""
     text = HIL.read_text().replace("file: emulators.yaml", f"file: {HIL.parent / 'emulators.yaml'}")
-    for name, node_type in (("delay", "delay_injector"), ("robot", "robot_sim"), ("ft", "ft_sim"),
-                            ("dynamics", "satellite_dynamics"), ("impedance", "virtual_impedance")):
+    for name, node_type in (
+        ("delay", "delay_injector"),
+        ("robot", "robot_sim"),
+        ("ft", "ft_sim"),
+        ("dynamics", "satellite_dynamics"),
+        ("impedance", "virtual_impedance"),
+    ):
         head = f"  - name: {name}\n    node: {node_type}\n"
         assert head in text
         if name in containers:
@@ -65,13 +70,21 @@ def test_dockhil_graph_shows_the_processes(tmp_path):
     assert "processes (5):" in r.stdout
 
 
-@pytest.mark.parametrize("containers, isolated, command, expected", [
-    ({"ft": "hw", "robot": "hw"}, "ft", "graph", "node 'ft': `isolated: true` keeps it in a process of its own"),
-    ({}, "ft", "--composed", "node 'ft' is `isolated: true` (its own process), so the graph cannot run --composed"),
-    ({"delay": "hw", "ft": "hw"}, "", "graph", "container processes hw -> robot -> hw read each other at the same tick"),
-    ({"delay": "ft"}, "", "graph", "container 'ft' has the name of a node"),
-    ({"delay": "h w"}, "", "graph", "`container` must be a name of letters, digits"),
-])
+@pytest.mark.parametrize(
+    "containers, isolated, command, expected",
+    [
+        ({"ft": "hw", "robot": "hw"}, "ft", "graph", "node 'ft': `isolated: true` keeps it in a process of its own"),
+        ({}, "ft", "--composed", "node 'ft' is `isolated: true` (its own process), so the graph cannot run --composed"),
+        (
+            {"delay": "hw", "ft": "hw"},
+            "",
+            "graph",
+            "container processes hw -> robot -> hw read each other at the same tick",
+        ),
+        ({"delay": "ft"}, "", "graph", "container 'ft' has the name of a node"),
+        ({"delay": "h w"}, "", "graph", "`container` must be a name of letters, digits"),
+    ],
+)
 def test_refused_containment_is_one_line(tmp_path, containers, isolated, command, expected):
     scene = hil_with(tmp_path, containers, isolated)
     args = ("graph", scene) if command == "graph" else ("launch", scene, "--duration", "0.01", command, "--quiet")
@@ -109,6 +122,8 @@ nodes:
         r = run("launch", path)
         assert r.returncode == 1, r.stderr
         lines[box] = [line.split("] ", 1)[1] for line in r.stderr.splitlines() if "invalid message" in line]
-    want = ("error: node 'source' produced an invalid message at tick 5 on output 'x' (/x): WrenchStamped: "
-            "Expected `float`, got `bool` - at `$.wrench.force.x`; stopping the graph")
+    want = (
+        "error: node 'source' produced an invalid message at tick 5 on output 'x' (/x): WrenchStamped: "
+        "Expected `float`, got `bool` - at `$.wrench.force.x`; stopping the graph"
+    )
     assert lines == {"": [want], "\n    container: box": [want]}

@@ -33,8 +33,13 @@ def blocks(text: str):
 
 
 def commands(text: str) -> list[str]:
-    return [line[2:].strip() for lang, _, body in blocks(text) if lang == "console"
-            for line in body.splitlines() if line.startswith("$ ")]
+    return [
+        line[2:].strip()
+        for lang, _, body in blocks(text)
+        if lang == "console"
+        for line in body.splitlines()
+        if line.startswith("$ ")
+    ]
 
 
 def slug(heading: str) -> str:
@@ -74,8 +79,10 @@ def test_relative_links_point_to_files(page):
 
 def test_the_link_check_finds_a_missing_file_and_a_missing_heading(tmp_path):
     page = tmp_path / "page.md"
-    page.write_text("# Top\n\n## Two words\n\n[ok](#two-words) [web](https://example.com) [self](page.md#top)\n"
-                    "[gone](nowhere.md) [bad anchor](page.md#three-words)\n```sh\n[in code](ignored.md)\n```\n")
+    page.write_text(
+        "# Top\n\n## Two words\n\n[ok](#two-words) [web](https://example.com) [self](page.md#top)\n"
+        "[gone](nowhere.md) [bad anchor](page.md#three-words)\n```sh\n[in code](ignored.md)\n```\n"
+    )
     assert broken_links(page) == ["nowhere.md", "page.md#three-words"]
 
 
@@ -111,8 +118,10 @@ def test_the_readme_first_screen_says_what_dockhil_is_shows_it_and_gives_the_two
     assert len(lines) <= 40, "the README is one screen: move the rest into docs/"
     ci = [line for line in (ROOT / ".ci" / "run").read_text().splitlines() if line.startswith("python3 -m pip")]
     commands = [line.strip() for line in lines if line.startswith("    ")]
-    assert commands == ["python3 -m pip install -e . && dockhil launch launch/hil.yaml --summary hil-summary.json",
-                        *ci] and len(ci) == 1
+    assert (
+        commands == ["python3 -m pip install -e . && dockhil launch launch/hil.yaml --summary hil-summary.json", *ci]
+        and len(ci) == 1
+    )
     picture = re.search(r"!\[[^\]]+\]\((docs/img/[^)\s]+\.png)\)", "\n".join(lines))
     assert picture, "the README shows a picture from docs/img/"
     png = (ROOT / picture.group(1)).read_bytes()

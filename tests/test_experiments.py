@@ -26,8 +26,9 @@ def hybrid(k=1000.0, delay=0.0, n=3001):
 
 def composed(scene, n, **args):
     c = Collector()
-    g = ComposedGraph(build(launchfile.load(scene, {k: str(v) for k, v in args.items()})), log=lambda n_, m: None,
-                      taps=[c])
+    g = ComposedGraph(
+        build(launchfile.load(scene, {k: str(v) for k, v in args.items()})), log=lambda n_, m: None, taps=[c]
+    )
     g.setup()
     g.run(n)
     return c.samples()
@@ -81,8 +82,17 @@ def test_fig10_peak_force_grows_with_passive_stiffness_under_delay():
 def test_figs11_12_growth_rate_matches_rightmost_root(b, grows):
     K, m, h, thrust = 2510.0, 750.0, 0.016, 10.0
     x_eq = thrust / K
-    r = simulate_hil(m1=m, m2=0.0, k=K, impedance=VirtualImpedance(0.0, b, 0.0, 0.0), dt=DT, n_ticks=20001,
-                     delay=h, thrust=thrust, x1=x_eq + 0.002)
+    r = simulate_hil(
+        m1=m,
+        m2=0.0,
+        k=K,
+        impedance=VirtualImpedance(0.0, b, 0.0, 0.0),
+        dt=DT,
+        n_ticks=20001,
+        delay=h,
+        thrust=thrust,
+        x1=x_eq + 0.002,
+    )
     measured = growth_rate(r.t, r.x1)
     # The damper acts on the simulated (undelayed) velocity; the sampled loop adds up to one step of delay.
     predicted = stability.growth_rate(m, K, b, h + DT / 2, damper="undelayed")
@@ -100,6 +110,15 @@ def test_composed_graph_equals_library_loop():
 
 def test_stability_scene_composed_equals_library_loop():
     s = composed("launch/stability.yaml", 3001, b=60.0, x0=0.006)
-    r = simulate_hil(m1=750.0, m2=0.0, k=2510.0, impedance=VirtualImpedance(0.0, 60.0, 0.0, 0.0), dt=DT,
-                     n_ticks=3001, delay=0.016, thrust=10.0, x1=0.006)
+    r = simulate_hil(
+        m1=750.0,
+        m2=0.0,
+        k=2510.0,
+        impedance=VirtualImpedance(0.0, 60.0, 0.0, 0.0),
+        dt=DT,
+        n_ticks=3001,
+        delay=0.016,
+        thrust=10.0,
+        x1=0.006,
+    )
     assert np.array_equal(s.p, r.x1 - r.x2) and np.array_equal(s.force, r.force)

@@ -44,8 +44,9 @@ def scene_topics() -> dict[str, str]:
 
 def start_launch(tmp_path, *args):
     out = open(tmp_path / "launch.out", "w+")
-    proc = subprocess.Popen(dockhil_cmd("launch", SCENE, "--quiet", *args), cwd=ROOT, stdout=out,
-                            stderr=subprocess.STDOUT, text=True)
+    proc = subprocess.Popen(
+        dockhil_cmd("launch", SCENE, "--quiet", *args), cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, text=True
+    )
     return proc, out
 
 
@@ -71,10 +72,13 @@ async def connect(port: int, proc=None):
     while True:
         try:
             # close_timeout: the server may drop the connection without answering our close frame.
-            return await websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=SUBPROTOCOLS, max_size=None,
-                                            open_timeout=10, close_timeout=0.5)
+            return await websockets.connect(
+                f"ws://127.0.0.1:{port}", subprotocols=SUBPROTOCOLS, max_size=None, open_timeout=10, close_timeout=0.5
+            )
         except (OSError, asyncio.TimeoutError, websockets.exceptions.InvalidHandshake):
-            assert proc is None or proc.poll() is None, f"the launch exited ({proc.returncode}) before its server was reached"
+            assert proc is None or proc.poll() is None, (
+                f"the launch exited ({proc.returncode}) before its server was reached"
+            )
             assert time.monotonic() < deadline, f"no Foxglove server on port {port}"
             await asyncio.sleep(0.05)
 
@@ -94,8 +98,9 @@ async def channels(ws, topics) -> dict[str, dict]:
 
 async def subscribe(ws, subscriptions: dict[int, int]) -> None:
     """subscription id -> channel id."""
-    await ws.send(json.dumps({"op": "subscribe",
-                              "subscriptions": [{"id": s, "channelId": c} for s, c in subscriptions.items()]}))
+    await ws.send(
+        json.dumps({"op": "subscribe", "subscriptions": [{"id": s, "channelId": c} for s, c in subscriptions.items()]})
+    )
 
 
 async def until_subscribed(*channels) -> None:
@@ -178,13 +183,35 @@ def test_a_watched_run_gives_the_same_bag_and_summary_as_an_unwatched_one(tmp_pa
     from dockhil.bags.reader import BagReader
 
     args = ["--duration", "1.5"]
-    plain = subprocess.run(dockhil_cmd("launch", SCENE, "--quiet", *args, "--composed", "--bag", tmp_path / "plain.mcap",
-                                       "--summary", tmp_path / "plain.json"),
-                           cwd=ROOT, capture_output=True, text=True, timeout=DEADLINE_S)
+    plain = subprocess.run(
+        dockhil_cmd(
+            "launch",
+            SCENE,
+            "--quiet",
+            *args,
+            "--composed",
+            "--bag",
+            tmp_path / "plain.mcap",
+            "--summary",
+            tmp_path / "plain.json",
+        ),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=DEADLINE_S,
+    )
     assert plain.returncode == 0, plain.stderr
     port = free_port()
-    proc, out = start_launch(tmp_path, *args, "--bag", tmp_path / "watched.mcap",
-                             "--summary", tmp_path / "watched.json", "--foxglove", str(port))
+    proc, out = start_launch(
+        tmp_path,
+        *args,
+        "--bag",
+        tmp_path / "watched.mcap",
+        "--summary",
+        tmp_path / "watched.json",
+        "--foxglove",
+        str(port),
+    )
     topics = scene_topics()
 
     async def view():
@@ -226,8 +253,9 @@ def wrench(k: int) -> bytes:
 
     from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped
 
-    return msgspec.msgpack.encode(WrenchStamped(header=Header(stamp=k * 0.001, tick=k, seq=k),
-                                                wrench=Wrench(force=Vector3(x=float(k)))))
+    return msgspec.msgpack.encode(
+        WrenchStamped(header=Header(stamp=k * 0.001, tick=k, seq=k), wrench=Wrench(force=Vector3(x=float(k))))
+    )
 
 
 def test_the_bridge_joins_a_publisher_as_an_observer_and_serves_what_it_sends():
@@ -323,12 +351,15 @@ def test_a_busy_port_is_refused_in_one_line_before_any_node_starts(tmp_path):
     assert "[impedance]" not in out + err  # no node ran
 
 
-@pytest.mark.parametrize("args, says", [
-    (["--foxglove-host", "0.0.0.0"], "--foxglove-host needs --foxglove"),
-    (["--foxglove", "70000"], "not a port number"),
-    (["--foxglove", "delay:=0.01"], "put --foxglove after the launch arguments"),
-    (["--foxglove", "1", "--foxglove-host", "no-such-host.invalid"], "no-such-host.invalid"),
-])
+@pytest.mark.parametrize(
+    "args, says",
+    [
+        (["--foxglove-host", "0.0.0.0"], "--foxglove-host needs --foxglove"),
+        (["--foxglove", "70000"], "not a port number"),
+        (["--foxglove", "delay:=0.01"], "put --foxglove after the launch arguments"),
+        (["--foxglove", "1", "--foxglove-host", "no-such-host.invalid"], "no-such-host.invalid"),
+    ],
+)
 def test_bad_live_view_options_get_one_line(args, says):
     code, _, err = run_main("launch", SCENE, *args)
     assert code == 2
@@ -338,8 +369,11 @@ def test_bad_live_view_options_get_one_line(args, says):
 
 
 def test_a_launch_without_the_live_view_does_not_import_foxglove():
-    code = ("import sys; from dockhil.commands import launch; from dockhil import session; from dockhil.runtime import launcher, composed; "
-            "print('foxglove' in sys.modules)")
+    code = (
+        "import sys; from dockhil.commands import launch; from dockhil import session; "
+        "from dockhil.runtime import launcher, composed; "
+        "print('foxglove' in sys.modules)"
+    )
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=DEADLINE_S)
     assert r.stdout.strip() == "False", r.stderr
 

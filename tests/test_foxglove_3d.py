@@ -18,8 +18,7 @@ import msgspec
 import pytest
 
 from dockhil.bags import foxglove_scene as fs
-from dockhil.msgs import (BodyState, Header, Pose, Quaternion, RobotState, SatelliteState, Vector3, Wrench,
-                          WrenchStamped)
+from dockhil.msgs import BodyState, Header, Pose, Quaternion, RobotState, SatelliteState, Vector3, Wrench, WrenchStamped
 from tests.conftest import ROOT, dockhil_cmd, free_port
 from tests.inprocess import run_main
 from tests.test_foxglove import channels, connect, message_data, subscribe, until_subscribed
@@ -35,9 +34,11 @@ def validate(topic: str, value: dict) -> None:
 def matrix(q):
     """The rotation matrix of a unit quaternion (x, y, z, w), written out."""
     x, y, z, w = q
-    return [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+    return [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ]
 
 
 def apply(q, v):
@@ -49,9 +50,13 @@ def about_z(angle):
 
 
 def state(x1, q1, x2, q2, stamp=1.25):
-    return SatelliteState(header=Header(stamp=stamp, frame="world"), bodies=(
-        BodyState("chaser", 750.0, Pose(Vector3(*x1), Quaternion(*q1))),
-        BodyState("target", 1e6, Pose(Vector3(*x2), Quaternion(*q2)))))
+    return SatelliteState(
+        header=Header(stamp=stamp, frame="world"),
+        bodies=(
+            BodyState("chaser", 750.0, Pose(Vector3(*x1), Quaternion(*q1))),
+            BodyState("target", 1e6, Pose(Vector3(*x2), Quaternion(*q2))),
+        ),
+    )
 
 
 def xyz(d):
@@ -70,17 +75,24 @@ def test_the_frames_and_the_force_arrow_of_a_tilted_6dof_contact():
     s = state((-1.0, 0.05, 0.0), about_z(theta), (2.0, 0.0, 0.0), target_q)
     # On the target, in the sensor's axes: -30 N along the sensor's y, which is B's -x... turned by the target.
     wrench = WrenchStamped(header=Header(stamp=1.25, frame="ft_sensor"), wrench=Wrench(Vector3(0.0, -30.0, 4.0)))
-    robot = RobotState(header=Header(stamp=1.25, frame="target_interface"),
-                       pose=Pose(Vector3(0.002, 0.01, 0.0), Quaternion(*about_z(0.01))))
+    robot = RobotState(
+        header=Header(stamp=1.25, frame="target_interface"),
+        pose=Pose(Vector3(0.002, 0.01, 0.0), Quaternion(*about_z(0.01))),
+    )
     out = fs.views(s, wrench, robot, geometry)
     assert set(out) == {"/tf", "/scene"}
     for topic, value in out.items():
         validate(topic, value)
 
     tf = {(t["parent_frame_id"], t["child_frame_id"]): t for t in out["/tf"]["transforms"]}
-    assert set(tf) == {("world", "chaser"), ("world", "target"), ("chaser", "probe"),
-                       ("target", "target_interface"), ("target_interface", "ft_sensor"),
-                       ("target_interface", "robot_probe")}
+    assert set(tf) == {
+        ("world", "chaser"),
+        ("world", "target"),
+        ("chaser", "probe"),
+        ("target", "target_interface"),
+        ("target_interface", "ft_sensor"),
+        ("target_interface", "robot_probe"),
+    }
     for t in tf.values():
         assert t["timestamp"] == {"sec": 1, "nsec": 250_000_000}
     assert xyz(tf["world", "chaser"]["translation"]) == [-1.0, 0.05, 0.0]
@@ -169,17 +181,31 @@ def test_an_exported_bag_has_tf_and_scene_channels_whose_messages_validate(tmp_p
     from mcap.reader import make_reader
 
     bag, copy = tmp_path / "run.mcap", tmp_path / "fox.mcap"
-    run = subprocess.run(dockhil_cmd("launch", scene, "--quiet", "--composed", "--duration", "0.2", "--bag", bag),
-                         cwd=ROOT, capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        dockhil_cmd("launch", scene, "--quiet", "--composed", "--duration", "0.2", "--bag", bag),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode == 0, run.stderr
     code, out, err = run_main("bag", "export", bag, "--foxglove", copy, "--scene", scene)
     assert code == 0, err
 
     def read(path):
         with open(path, "rb") as f:
-            return [(channel.topic, schema.name, schema.encoding, json.loads(schema.data) if schema.data else None,
-                     channel.message_encoding, message.log_time, message.data)
-                    for schema, channel, message in make_reader(f).iter_messages(log_time_order=False)]
+            return [
+                (
+                    channel.topic,
+                    schema.name,
+                    schema.encoding,
+                    json.loads(schema.data) if schema.data else None,
+                    channel.message_encoding,
+                    message.log_time,
+                    message.data,
+                )
+                for schema, channel, message in make_reader(f).iter_messages(log_time_order=False)
+            ]
 
     original, exported = read(bag), read(copy)
     derived = [m for m in exported if m[0] in ("/tf", "/scene")]
@@ -201,7 +227,8 @@ def test_an_exported_bag_has_tf_and_scene_channels_whose_messages_validate(tmp_p
     arrow = next(e for e in last["entities"] if e["id"] == "contact_force")["arrows"][0]
     f = wrenches[-1]
     assert arrow["shaft_length"] + arrow["head_length"] == pytest.approx(
-        math.sqrt(f["x"] ** 2 + f["y"] ** 2 + f["z"] ** 2) * fs.FORCE_SCALE)
+        math.sqrt(f["x"] ** 2 + f["y"] ** 2 + f["z"] ** 2) * fs.FORCE_SCALE
+    )
     assert "messages and 402 /tf and /scene messages written" in out
 
 
@@ -223,8 +250,11 @@ def test_export_refusals_are_one_line(tmp_path):
 def test_the_live_bridge_announces_and_sends_tf_and_scene():
     from dockhil.bags.foxglove import FoxgloveBridge
 
-    topics = {"/satellite/state": "dockhil/SatelliteState", "/ft/wrench": "dockhil/WrenchStamped",
-              "/robot/state": "dockhil/RobotState"}
+    topics = {
+        "/satellite/state": "dockhil/SatelliteState",
+        "/ft/wrench": "dockhil/WrenchStamped",
+        "/robot/state": "dockhil/RobotState",
+    }
     port = free_port()
     lines = []
     bridge = FoxgloveBridge(topics, sim=True, port=port, log=lines.append, geometry=fs.Geometry.six_dof_defaults())
@@ -236,16 +266,20 @@ def test_the_live_bridge_announces_and_sends_tf_and_scene():
         try:
             found = await channels(ws, ["/tf", "/scene", *topics])
             for topic, name in fs.DERIVED.items():
-                assert (found[topic]["schemaName"], found[topic]["schemaEncoding"], found[topic]["encoding"]) == \
-                    (name, "jsonschema", "json")
+                assert (found[topic]["schemaName"], found[topic]["schemaEncoding"], found[topic]["encoding"]) == (
+                    name,
+                    "jsonschema",
+                    "json",
+                )
                 assert json.loads(found[topic]["schema"]) == OFFICIAL[name]
             # Only the 3D view is watched: the bridge still reads its sources.
             await subscribe(ws, {1: found["/tf"]["id"], 2: found["/scene"]["id"]})
             await until_subscribed(*bridge.derived.values())
             assert bridge._wanted() == set(topics)
             # Multi-process: wire bytes as they come off the bus; composed: the message itself.
-            bridge.serve([[b"/ft/wrench", msgspec.msgpack.encode(wrench)],
-                          [b"/satellite/state", msgspec.msgpack.encode(s)]])
+            bridge.serve(
+                [[b"/ft/wrench", msgspec.msgpack.encode(wrench)], [b"/satellite/state", msgspec.msgpack.encode(s)]]
+            )
             first = [await message_data(ws) for _ in range(2)]
             bridge.tap("/satellite/state", msgspec.structs.replace(s, header=Header(stamp=0.004, tick=4)))
             return first + [await message_data(ws) for _ in range(2)]
@@ -257,8 +291,12 @@ def test_the_live_bridge_announces_and_sends_tf_and_scene():
     finally:
         bridge.close()
     by_sub = {1: "/tf", 2: "/scene"}
-    assert sorted((sub, log_ns) for sub, log_ns, _ in got) == [(1, 3_000_000), (1, 4_000_000),
-                                                                (2, 3_000_000), (2, 4_000_000)]
+    assert sorted((sub, log_ns) for sub, log_ns, _ in got) == [
+        (1, 3_000_000),
+        (1, 4_000_000),
+        (2, 3_000_000),
+        (2, 4_000_000),
+    ]
     expected = fs.views(s, wrench, None, fs.Geometry.six_dof_defaults())
     for sub, log_ns, payload in got:
         value = json.loads(payload)
@@ -300,9 +338,13 @@ def test_a_launched_6dof_run_serves_the_3d_view_to_a_viewer_of_tf_alone(tmp_path
 
     port = free_port()
     out = open(tmp_path / "launch.out", "w+")
-    proc = subprocess.Popen(dockhil_cmd("launch", "launch/hil6.yaml", "--quiet", "--duration", "600",
-                                        "--foxglove", str(port)), cwd=ROOT, stdout=out, stderr=subprocess.STDOUT,
-                            text=True)
+    proc = subprocess.Popen(
+        dockhil_cmd("launch", "launch/hil6.yaml", "--quiet", "--duration", "600", "--foxglove", str(port)),
+        cwd=ROOT,
+        stdout=out,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
 
     async def view():
         ws = await connect(port, proc)

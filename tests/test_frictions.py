@@ -24,10 +24,12 @@ P = 1 / 1024  # a period that binary floating point adds up exactly
 
 
 def test_the_ticking_span_runs_from_the_graphs_first_tick_to_its_last():
-    timings = {"dynamics": {"first_tick_at_s": 100.5, "last_tick_at_s": 108.5},
-               "robot": {"first_tick_at_s": 100.6, "last_tick_at_s": 108.4},
-               "ft": {"first_tick_at_s": 97.0, "last_tick_at_s": 108.6},  # an emulated device: ticks before the go
-               "remote": {"first_tick_at_s": None, "last_tick_at_s": 108.0}}  # stopped before its first tick
+    timings = {
+        "dynamics": {"first_tick_at_s": 100.5, "last_tick_at_s": 108.5},
+        "robot": {"first_tick_at_s": 100.6, "last_tick_at_s": 108.4},
+        "ft": {"first_tick_at_s": 97.0, "last_tick_at_s": 108.6},  # an emulated device: ticks before the go
+        "remote": {"first_tick_at_s": None, "last_tick_at_s": 108.0},
+    }  # stopped before its first tick
     assert session.ticking_span(timings, {"ft"}) == pytest.approx(8.0)
     assert session.ticking_span(timings) == pytest.approx(11.6)
     assert session.ticking_span({"ft": timings["ft"]}, {"ft"}) == pytest.approx(11.6)  # devices alone: theirs
@@ -127,20 +129,30 @@ def test_max_age_from_the_command_line_reaches_each_node_process_and_the_compose
     assert robot.inputs["command"].unlimited_age and robot.inputs["command"].max_age is None
 
 
-@pytest.mark.parametrize("given, line", [
-    ("dynamics.ft=0", "argument --max-age: 'dynamics.ft=0': the maximum age must be > 0 and at most 600 s, "
-                      "or inf for no limit"),
-    ("dynamics.ft=-inf", "the maximum age must be > 0 and at most 600 s, or inf for no limit"),
-    ("dynamics.ft=nan", "the maximum age must be > 0 and at most 600 s, or inf for no limit"),
-    ("dynamics.ft=601", "the maximum age must be > 0 and at most 600 s, or inf for no limit"),
-    ("dynamics.ft=soon", "'soon' is not a number of seconds (or inf for no limit)"),
-    ("dynamics=0.1", "'dynamics=0.1' is not NODE.INPUT=SECONDS"),
-    ("dynamics.ft", "'dynamics.ft' is not NODE.INPUT=SECONDS"),
-    ("dynamic.ft=0.1", "hil.yaml has no node 'dynamic'; did you mean 'dynamics'? "
-                       "(nodes: delay, dynamics, ft, impedance, robot)"),
-    ("dynamics.fts=0.1", "--max-age dynamics.fts: node 'dynamics' (satellite_dynamics) has no input 'fts'; "
-                         "did you mean 'ft'? (inputs: ft, impedance)"),
-])
+@pytest.mark.parametrize(
+    "given, line",
+    [
+        (
+            "dynamics.ft=0",
+            "argument --max-age: 'dynamics.ft=0': the maximum age must be > 0 and at most 600 s, or inf for no limit",
+        ),
+        ("dynamics.ft=-inf", "the maximum age must be > 0 and at most 600 s, or inf for no limit"),
+        ("dynamics.ft=nan", "the maximum age must be > 0 and at most 600 s, or inf for no limit"),
+        ("dynamics.ft=601", "the maximum age must be > 0 and at most 600 s, or inf for no limit"),
+        ("dynamics.ft=soon", "'soon' is not a number of seconds (or inf for no limit)"),
+        ("dynamics=0.1", "'dynamics=0.1' is not NODE.INPUT=SECONDS"),
+        ("dynamics.ft", "'dynamics.ft' is not NODE.INPUT=SECONDS"),
+        (
+            "dynamic.ft=0.1",
+            "hil.yaml has no node 'dynamic'; did you mean 'dynamics'? (nodes: delay, dynamics, ft, impedance, robot)",
+        ),
+        (
+            "dynamics.fts=0.1",
+            "--max-age dynamics.fts: node 'dynamics' (satellite_dynamics) has no input 'fts'; "
+            "did you mean 'ft'? (inputs: ft, impedance)",
+        ),
+    ],
+)
 def test_a_bad_max_age_is_one_line_and_exit_2_before_anything_runs(given, line):
     code, out, err = run_main("launch", "hil.yaml", "--wall-time", "--duration", "1", "--max-age", given)
     assert code == 2 and line in err and len(err.strip().splitlines()) == 1, err
@@ -168,8 +180,11 @@ def test_a_finite_max_age_on_a_respawned_publisher_is_refused_and_no_limit_is_no
 
     path = write_launch(RESPAWNED)
     graph = build(launchfile.load(path))
-    with pytest.raises(LaunchError, match=r"--max-age sink.u: node 'sink' input 'u' has max_age 0.5 s but reads "
-                                          r"/u from 'src', which respawns"):
+    with pytest.raises(
+        LaunchError,
+        match=r"--max-age sink.u: node 'sink' input 'u' has max_age 0.5 s but reads "
+        r"/u from 'src', which respawns",
+    ):
         set_max_ages(graph, [("sink", "u", 0.5)])
     graph = build(launchfile.load(path))
     set_max_ages(graph, [("sink", "u", math.inf)])
@@ -181,9 +196,18 @@ def test_dockhil_run_takes_max_age_for_its_own_node(monkeypatch, tmp_path):
     from dockhil.runtime.transport import GraphKeys
 
     keys = GraphKeys.make().write(tmp_path / "graph.keys")
-    graph = {"run_id": "g", "pid": 1, "keys": str(keys),
-             "topics": {"/robot/command": {"type": "dockhil/RobotCommand", "endpoint": f"ipc://{tmp_path}/c",
-                                           "publisher": "dynamics"}}}
+    graph = {
+        "run_id": "g",
+        "pid": 1,
+        "keys": str(keys),
+        "topics": {
+            "/robot/command": {
+                "type": "dockhil/RobotCommand",
+                "endpoint": f"ipc://{tmp_path}/c",
+                "publisher": "dynamics",
+            }
+        },
+    }
     monkeypatch.setattr(registry, "running_graphs", lambda: [graph])
     monkeypatch.setattr(registry, "registry_dir", lambda: tmp_path)
     ran = []
@@ -193,8 +217,10 @@ def test_dockhil_run_takes_max_age_for_its_own_node(monkeypatch, tmp_path):
     assert ran[0].inputs["command"].max_age == 0.3 and not ran[0].inputs["command"].unlimited_age
     assert ran[1].inputs["command"].unlimited_age
     code, _, err = run_main("run", "robot_sim", "--max-age", "robot.command=0.3")
-    assert code == 2 and "--max-age robot.command: the node run here is 'robot_sim'; " \
-                         "give --max-age robot_sim.command=SECONDS" in err
+    assert (
+        code == 2
+        and "--max-age robot.command: the node run here is 'robot_sim'; give --max-age robot_sim.command=SECONDS" in err
+    )
     code, _, err = run_main("run", "robot_sim", "--max-age", "robot_sim.comand=0.3")
     assert code == 2 and "node 'robot_sim' (robot_sim) has no input 'comand'; did you mean 'command'?" in err
     assert len(ran) == 2
@@ -219,12 +245,15 @@ def _imports(monkeypatch, built: set[str]):
     monkeypatch.setattr(compiled.importlib, "import_module", import_module)
 
 
-@pytest.mark.parametrize("built, pure, says", [
-    ({"dockhil.contact._rigid", "dockhil.runtime._screen"}, "", "compiled: rigid-body arithmetic, message screen"),
-    ({"dockhil.contact._rigid", "dockhil.runtime._screen"}, "1", "pure Python: DOCKHIL_PURE_PYTHON is set"),
-    (set(), "", "pure Python: the C twins were not built; install a C compiler and reinstall for speed"),
-    ({"dockhil.runtime._screen"}, "", "compiled: message screen; pure Python: rigid-body arithmetic (not built)"),
-])
+@pytest.mark.parametrize(
+    "built, pure, says",
+    [
+        ({"dockhil.contact._rigid", "dockhil.runtime._screen"}, "", "compiled: rigid-body arithmetic, message screen"),
+        ({"dockhil.contact._rigid", "dockhil.runtime._screen"}, "1", "pure Python: DOCKHIL_PURE_PYTHON is set"),
+        (set(), "", "pure Python: the C twins were not built; install a C compiler and reinstall for speed"),
+        ({"dockhil.runtime._screen"}, "", "compiled: message screen; pure Python: rigid-body arithmetic (not built)"),
+    ],
+)
 def test_version_names_the_compiled_or_pure_python_path(monkeypatch, built, pure, says):
     import importlib.util
 
@@ -246,7 +275,8 @@ def test_a_twin_not_named_in_one_place_is_refused():
 
 
 def test_max_age_in_sim_time_runs_and_says_it_applies_in_wall_time_only():
-    code, _, err = run_main("launch", "hil.yaml", "--composed", "--duration", "0.01", "--quiet",
-                            "--max-age", "dynamics.ft=0.05")
+    code, _, err = run_main(
+        "launch", "hil.yaml", "--composed", "--duration", "0.01", "--quiet", "--max-age", "dynamics.ft=0.05"
+    )
     assert code == 0, err
     assert "[launch] warning: --max-age applies in wall time only (--wall-time); sim time is lock-step" in err

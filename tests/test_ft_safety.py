@@ -198,8 +198,10 @@ def test_device_paths_others_could_plant_or_replace_are_untrusted(tmp_path):
         open_dir = shared_dir(tmp_path / "open", 0o777)  # no sticky bit: anyone may replace our link
         (open_dir / "ft.slcan").symlink_to(pty)
         why = untrusted(str(open_dir / "ft.slcan"))
-        assert why == (f"directory {open_dir} (mode 0777) is writable by others without the sticky bit: "
-                       f"anyone may replace what is in it")
+        assert why == (
+            f"directory {open_dir} (mode 0777) is writable by others without the sticky bit: "
+            f"anyone may replace what is in it"
+        )
         via = tmp_path / "via"
         via.symlink_to(open_dir)
         assert untrusted(str(via / "ft.slcan")) == why  # a directory reached through a link counts too
@@ -233,12 +235,18 @@ def test_a_planted_channel_is_refused_before_a_sample_is_read(tmp_path):
         with pytest.raises(DeviceError) as err:
             node.setup()
         text = str(err.value)
-        assert "\n" not in text and text.startswith(f"F/T sensor (slcan {link}, CAN ID 0x1a0): refused: "
-                                                    f"{link} belongs to uid {OTHER}, not to you or root"), text
+        assert "\n" not in text and text.startswith(
+            f"F/T sensor (slcan {link}, CAN ID 0x1a0): refused: {link} belongs to uid {OTHER}, not to you or root"
+        ), text
         port.read_host()
         assert not port.is_open and port.bitrate_code is None  # the driver never spoke to it
-        spec = {"name": "ft", "type_name": "ft_can", "dt": 0.001, "clock": "wall",
-                "params": {"channel": link, "open_timeout": 0.5}}
+        spec = {
+            "name": "ft",
+            "type_name": "ft_can",
+            "dt": 0.001,
+            "clock": "wall",
+            "params": {"channel": link, "open_timeout": 0.5},
+        }
         line = node_process_error(spec, ENV)
         assert f"refused: {link} belongs to uid {OTHER}" in line
     finally:
@@ -249,12 +257,21 @@ def test_a_channel_in_a_directory_anyone_may_write_is_refused_and_no_adapter_is_
     open_dir = shared_dir(tmp_path / "open", 0o777)
     link = str(open_dir / "ft.slcan")
     em = FtSensorEmulator(ctx([]), channel=link)
-    with pytest.raises(DeviceError, match=rf"^slcan adapter {link}: refused: directory {open_dir} \(mode 0777\) "
-                                          rf"is writable by others"):
+    with pytest.raises(
+        DeviceError,
+        match=rf"^slcan adapter {link}: refused: directory {open_dir} \(mode 0777\) "
+        rf"is writable by others",
+    ):
         em.setup()
     assert not os.path.lexists(link)
-    proc = subprocess.run([sys.executable, "-m", "dockhil.hardware.slcan_pty", link], cwd=ROOT, env=ENV,
-                          capture_output=True, text=True, timeout=30)
+    proc = subprocess.run(
+        [sys.executable, "-m", "dockhil.hardware.slcan_pty", link],
+        cwd=ROOT,
+        env=ENV,
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1
     assert proc.stderr.startswith(f"slcan_pty: error: slcan adapter {link}: refused: directory {open_dir}")
     node = FtCanDriver(ctx([]), channel=link, open_timeout=0.5)
@@ -295,15 +312,27 @@ def test_the_default_channel_is_the_emulators_link_in_the_graphs_private_run_dir
 # -- parameters ----------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("node, name, value", [
-    (FtCanDriver, "bitrate", 2_000_000), (FtCanDriver, "tare_samples", -1),
-    (FtCanDriver, "max_tare_spread", -0.5), (FtCanDriver, "max_tare_spread_torque", float("nan")),
-    (FtCanDriver, "stale_timeout", 60.0), (FtCanDriver, "open_timeout", 0.0),
-    (FtCanDriver, "force_resolution", 0.0), (FtCanDriver, "torque_resolution", 5.0),
-    (FtCanDriver, "max_bias", 1e6), (FtCanDriver, "open_delay", -1.0), (FtCanDriver, "max_bus_errors", 0),
-    (FtSensorEmulator, "k", -1.0), (FtSensorEmulator, "noise", 1e4), (FtSensorEmulator, "bias", 5000.0),
-    (FtSensorEmulator, "seed", -1), (FtSensorEmulator, "bitrate", 0),
-])
+@pytest.mark.parametrize(
+    "node, name, value",
+    [
+        (FtCanDriver, "bitrate", 2_000_000),
+        (FtCanDriver, "tare_samples", -1),
+        (FtCanDriver, "max_tare_spread", -0.5),
+        (FtCanDriver, "max_tare_spread_torque", float("nan")),
+        (FtCanDriver, "stale_timeout", 60.0),
+        (FtCanDriver, "open_timeout", 0.0),
+        (FtCanDriver, "force_resolution", 0.0),
+        (FtCanDriver, "torque_resolution", 5.0),
+        (FtCanDriver, "max_bias", 1e6),
+        (FtCanDriver, "open_delay", -1.0),
+        (FtCanDriver, "max_bus_errors", 0),
+        (FtSensorEmulator, "k", -1.0),
+        (FtSensorEmulator, "noise", 1e4),
+        (FtSensorEmulator, "bias", 5000.0),
+        (FtSensorEmulator, "seed", -1),
+        (FtSensorEmulator, "bitrate", 0),
+    ],
+)
 def test_every_parameter_out_of_its_range_is_refused(node, name, value):
     with pytest.raises(ParamError) as err:
         node(ctx([]), **{name: value})
@@ -312,6 +341,12 @@ def test_every_parameter_out_of_its_range_is_refused(node, name, value):
 
 def test_a_node_process_with_a_parameter_out_of_range_exits_2_in_one_line():
     spec = {"name": "ft", "type_name": "ft_can", "dt": 0.001, "clock": "wall", "params": {"bitrate": 2_000_000}}
-    proc = subprocess.run([sys.executable, "-m", "dockhil.process", json.dumps(spec)], cwd=ROOT, env=ENV,
-                          capture_output=True, text=True, timeout=30)
+    proc = subprocess.run(
+        [sys.executable, "-m", "dockhil.process", json.dumps(spec)],
+        cwd=ROOT,
+        env=ENV,
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "bitrate" in proc.stderr, proc.stderr

@@ -15,7 +15,6 @@ import math
 import re
 import resource
 import subprocess
-import sys
 import time
 
 import pytest
@@ -47,9 +46,11 @@ class _Dumper(yaml.SafeDumper):
     """Quotes a string that the launch loader would read as a number (1e3), as it does `1.5`."""
 
 
-_Dumper.add_implicit_resolver("tag:yaml.org,2002:float",
-                              re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
-                              list("-+0123456789."))
+_Dumper.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
 
 
 def dump(doc) -> str:
@@ -60,8 +61,10 @@ def dump(doc) -> str:
 
 non_finite = st.sampled_from([math.inf, -math.inf, math.nan])
 words = st.text(alphabet="abcdefghijklmnopqrstuvwxyz_", min_size=1, max_size=12)
-identifiers = st.tuples(st.sampled_from("abcdefghijklmnopqrstuvwxyz_"),
-                        st.text(alphabet="abcdefghijklmnopqrstuvwxyz0123456789_", max_size=10)).map("".join)
+identifiers = st.tuples(
+    st.sampled_from("abcdefghijklmnopqrstuvwxyz_"),
+    st.text(alphabet="abcdefghijklmnopqrstuvwxyz0123456789_", max_size=10),
+).map("".join)
 # Any character but a lone surrogate (not text that a file can hold).
 chars = st.characters(exclude_categories=["Cs"])
 # Text: never an `$(arg` that could name a declared argument.
@@ -83,12 +86,40 @@ def mutated_scene(draw) -> str | bytes:
     """YAML text of BASE with one defect (or bytes of junk)."""
     doc = copy.deepcopy(BASE)
     nodes = doc["nodes"]
-    kind = draw(st.sampled_from([
-        "rate", "duration", "description", "top key", "node name", "node path", "respawn", "respawn_delay",
-        "host", "remap", "condition", "node key", "unknown param", "param value", "deep params", "arg default",
-        "arg choices", "arg type", "arg key", "arg name", "include", "alias bomb", "junk",
-        "max_age", "let", "group", "remap list", "param list",
-    ]))
+    kind = draw(
+        st.sampled_from(
+            [
+                "rate",
+                "duration",
+                "description",
+                "top key",
+                "node name",
+                "node path",
+                "respawn",
+                "respawn_delay",
+                "host",
+                "remap",
+                "condition",
+                "node key",
+                "unknown param",
+                "param value",
+                "deep params",
+                "arg default",
+                "arg choices",
+                "arg type",
+                "arg key",
+                "arg name",
+                "include",
+                "alias bomb",
+                "junk",
+                "max_age",
+                "let",
+                "group",
+                "remap list",
+                "param list",
+            ]
+        )
+    )
     i = draw(st.integers(0, 1))  # integ or gain: nodes that conditions keep
     if kind == "rate":
         doc["rate"] = draw(st.one_of(number_outside(1e-3, 1e6), st.none()))
@@ -99,43 +130,98 @@ def mutated_scene(draw) -> str | bytes:
     elif kind == "top key":
         doc[draw(identifiers.filter(lambda k: k not in TOP_KEYS))] = draw(st.integers())
     elif kind == "node name":
-        nodes[i]["name"] = draw(st.one_of(st.integers(), containers, st.none(), st.just(""),
-                                          st.text(min_size=65, max_size=80, alphabet="ab"),
-                                          st.tuples(words, st.sampled_from("/ :\n*"), words).map("".join)))
+        nodes[i]["name"] = draw(
+            st.one_of(
+                st.integers(),
+                containers,
+                st.none(),
+                st.just(""),
+                st.text(min_size=65, max_size=80, alphabet="ab"),
+                st.tuples(words, st.sampled_from("/ :\n*"), words).map("".join),
+            )
+        )
     elif kind == "node path":
-        nodes[i]["node"] = draw(st.one_of(
-            st.sampled_from(["os:system", "json:dumps", "builtins:print", "dockhil.node:Param",
-                             "dockhil.node:Node", "tests.graphnodes:Nope", "no_such_pkg.mod:Node",
-                             "tests.graphnodes:", ":Gain", "a..b:C", "tests/graphnodes:Gain"]),
-            words.filter(lambda w: w not in ("satellite_dynamics", "virtual_impedance", "ft_sim", "robot_sim",
-                                             "delay_injector", "ft_can", "ft_emulator", "robot_modbus",
-                                             "robot_emulator", "bag_source")),
-            st.integers(), containers, st.none()))
+        nodes[i]["node"] = draw(
+            st.one_of(
+                st.sampled_from(
+                    [
+                        "os:system",
+                        "json:dumps",
+                        "builtins:print",
+                        "dockhil.node:Param",
+                        "dockhil.node:Node",
+                        "tests.graphnodes:Nope",
+                        "no_such_pkg.mod:Node",
+                        "tests.graphnodes:",
+                        ":Gain",
+                        "a..b:C",
+                        "tests/graphnodes:Gain",
+                    ]
+                ),
+                words.filter(
+                    lambda w: (
+                        w
+                        not in (
+                            "satellite_dynamics",
+                            "virtual_impedance",
+                            "ft_sim",
+                            "robot_sim",
+                            "delay_injector",
+                            "ft_can",
+                            "ft_emulator",
+                            "robot_modbus",
+                            "robot_emulator",
+                            "bag_source",
+                        )
+                    )
+                ),
+                st.integers(),
+                containers,
+                st.none(),
+            )
+        )
     elif kind == "respawn":
         nodes[i]["respawn"] = draw(st.one_of(st.integers(), st.floats(), text, containers, st.none()))
     elif kind == "respawn_delay":
         nodes[i]["respawn_delay"] = draw(number_outside(0.0, 600.0))
     elif kind == "host":
-        nodes[i]["host"] = draw(st.one_of(st.integers(), containers,
-                                          st.tuples(words, st.sampled_from(" /:\n@"), words).map("".join)))
+        nodes[i]["host"] = draw(
+            st.one_of(st.integers(), containers, st.tuples(words, st.sampled_from(" /:\n@"), words).map("".join))
+        )
     elif kind == "remap":
-        nodes[i]["remap"] = draw(st.one_of(
-            st.integers(), text, st.lists(st.integers(), min_size=1, max_size=2),
-            st.fixed_dictionaries({"x": st.one_of(st.integers(), st.booleans(), containers, st.floats())}),
-            st.fixed_dictionaries({"x": words}),  # a topic without the leading /
-            st.dictionaries(words.filter(lambda w: w not in PORTS), st.just("/y"), min_size=1, max_size=1)))
+        nodes[i]["remap"] = draw(
+            st.one_of(
+                st.integers(),
+                text,
+                st.lists(st.integers(), min_size=1, max_size=2),
+                st.fixed_dictionaries({"x": st.one_of(st.integers(), st.booleans(), containers, st.floats())}),
+                st.fixed_dictionaries({"x": words}),  # a topic without the leading /
+                st.dictionaries(words.filter(lambda w: w not in PORTS), st.just("/y"), min_size=1, max_size=1),
+            )
+        )
     elif kind == "condition":
-        bad = st.one_of(st.floats(), containers,
-                        text.filter(lambda s: "==" not in s and "!=" not in s
-                                    and s.strip().lower() not in ("true", "false", "1", "0")))
+        bad = st.one_of(
+            st.floats(),
+            containers,
+            text.filter(
+                lambda s: "==" not in s and "!=" not in s and s.strip().lower() not in ("true", "false", "1", "0")
+            ),
+        )
         nodes[i][draw(st.sampled_from(["if", "unless"]))] = draw(bad)
     elif kind == "node key":
         nodes[i][draw(identifiers.filter(lambda k: k not in NODE_KEYS))] = draw(st.integers())
     elif kind == "unknown param":
         nodes[i]["params"] = {draw(identifiers.filter(lambda k: k not in ("x0", "gain", "die_at"))): 1.0}
     elif kind == "param value":
-        bad = st.one_of(non_finite, text, st.booleans(), containers, st.none(), subnormal,
-                        st.integers(min_value=2**1024, max_value=2**1100))
+        bad = st.one_of(
+            non_finite,
+            text,
+            st.booleans(),
+            containers,
+            st.none(),
+            subnormal,
+            st.integers(min_value=2**1024, max_value=2**1100),
+        )
         name = "x0" if i == 0 else "gain"
         if i == 1:  # gain must also be >= 0
             bad = st.one_of(bad, st.floats(max_value=-1e-300, allow_infinity=False))
@@ -145,26 +231,42 @@ def mutated_scene(draw) -> str | bytes:
         depth = draw(st.integers(min_value=30, max_value=400))  # 20,000: in the subprocess cases below
         return dump(doc).replace("__DEEP__", "[" * depth + "]" * depth)
     elif kind == "arg default":
-        doc["args"]["gain"]["default"] = draw(st.one_of(non_finite, containers, st.none(),
-                                                        st.integers(min_value=2**1024, max_value=2**1030)))
+        doc["args"]["gain"]["default"] = draw(
+            st.one_of(non_finite, containers, st.none(), st.integers(min_value=2**1024, max_value=2**1030))
+        )
     elif kind == "arg choices":
-        doc["args"]["gain"]["choices"] = draw(st.one_of(
-            st.integers(), st.floats(allow_nan=False), text, st.dictionaries(words, st.integers(), max_size=2),
-            st.lists(st.floats(allow_nan=False).filter(lambda v: v != 2.0), min_size=1, max_size=3), st.just([])))
+        doc["args"]["gain"]["choices"] = draw(
+            st.one_of(
+                st.integers(),
+                st.floats(allow_nan=False),
+                text,
+                st.dictionaries(words, st.integers(), max_size=2),
+                st.lists(st.floats(allow_nan=False).filter(lambda v: v != 2.0), min_size=1, max_size=3),
+                st.just([]),
+            )
+        )
     elif kind == "arg type":
-        doc["args"]["gain"]["type"] = draw(st.one_of(text.filter(lambda s: s not in ("float", "int", "bool", "str")),
-                                                     st.integers(), containers))
+        doc["args"]["gain"]["type"] = draw(
+            st.one_of(text.filter(lambda s: s not in ("float", "int", "bool", "str")), st.integers(), containers)
+        )
     elif kind == "arg key":
         doc["args"]["gain"][draw(identifiers.filter(lambda k: k not in ARG_KEYS))] = 1
     elif kind == "arg name":
         doc["args"][draw(st.one_of(st.integers(), st.tuples(words, st.sampled_from("- .$"), words).map("".join)))] = 1.0
     elif kind == "include":
-        doc["include"] = draw(st.one_of(
-            st.integers(), text,
-            st.lists(st.fixed_dictionaries({"file": st.one_of(words.map(lambda w: w + ".yaml"), text)}),
-                     min_size=1, max_size=2),
-            st.just([{"file": "scene.yaml"}]),  # itself: a cycle
-            st.just([{"args": {"a": 1}}])))
+        doc["include"] = draw(
+            st.one_of(
+                st.integers(),
+                text,
+                st.lists(
+                    st.fixed_dictionaries({"file": st.one_of(words.map(lambda w: w + ".yaml"), text)}),
+                    min_size=1,
+                    max_size=2,
+                ),
+                st.just([{"file": "scene.yaml"}]),  # itself: a cycle
+                st.just([{"args": {"a": 1}}]),
+            )
+        )
     elif kind == "alias bomb":
         fan = draw(st.integers(2, 10))
         levels = math.ceil(math.log(200_000) / math.log(fan))
@@ -172,47 +274,113 @@ def mutated_scene(draw) -> str | bytes:
         lines += [f"a{k}: &a{k} [" + ", ".join([f"*a{k - 1}"] * fan) + "]" for k in range(1, levels + 1)]
         return "\n".join(lines) + "\n" + dump(doc)
     elif kind == "max_age":  # Integrator's input is u, Gain's x
-        nodes[i]["max_age"] = draw(st.one_of(
-            st.fixed_dictionaries({"u" if i == 0 else "x": number_outside(0.0, 600.0, low_open=True)}),
-            st.dictionaries(words.filter(lambda w: w != ("u" if i == 0 else "x")), st.just(0.05), min_size=1,
-                            max_size=1),
-            st.integers(), text, st.lists(st.integers(), max_size=2)))
+        nodes[i]["max_age"] = draw(
+            st.one_of(
+                st.fixed_dictionaries({"u" if i == 0 else "x": number_outside(0.0, 600.0, low_open=True)}),
+                st.dictionaries(
+                    words.filter(lambda w: w != ("u" if i == 0 else "x")), st.just(0.05), min_size=1, max_size=1
+                ),
+                st.integers(),
+                text,
+                st.lists(st.integers(), max_size=2),
+            )
+        )
     elif kind == "let":
-        doc["let"] = draw(st.one_of(
-            st.integers(), text,
-            st.just([{"name": "gain", "value": 1.0}]),  # an argument's name
-            st.lists(st.fixed_dictionaries({"name": st.one_of(st.integers(), st.just(""), st.tuples(
-                words, st.sampled_from("- .$/"), words).map("".join)), "value": st.integers()}),
-                min_size=1, max_size=2),
-            st.lists(st.fixed_dictionaries({"name": identifiers, "value": st.one_of(containers, st.none())}),
-                     min_size=1, max_size=2),
-            st.just([{"name": "a", "value": "$(var nope)"}])))
+        doc["let"] = draw(
+            st.one_of(
+                st.integers(),
+                text,
+                st.just([{"name": "gain", "value": 1.0}]),  # an argument's name
+                st.lists(
+                    st.fixed_dictionaries(
+                        {
+                            "name": st.one_of(
+                                st.integers(),
+                                st.just(""),
+                                st.tuples(words, st.sampled_from("- .$/"), words).map("".join),
+                            ),
+                            "value": st.integers(),
+                        }
+                    ),
+                    min_size=1,
+                    max_size=2,
+                ),
+                st.lists(
+                    st.fixed_dictionaries({"name": identifiers, "value": st.one_of(containers, st.none())}),
+                    min_size=1,
+                    max_size=2,
+                ),
+                st.just([{"name": "a", "value": "$(var nope)"}]),
+            )
+        )
     elif kind == "group":
-        doc["group"] = draw(st.one_of(
-            st.integers(), text,
-            st.lists(st.fixed_dictionaries({"namespace": st.one_of(
-                st.integers(), containers, st.just(""),
-                st.tuples(words, st.sampled_from("/ :.\n"), words).map("".join)),
-                "nodes": st.just([])}), min_size=1, max_size=1),
-            st.just([{"namespace": "ns"}]),  # no nodes
-            st.just([{"nodes": [], "scoped": True}]),
-            st.just([{"nodes": [{"name": "integ", "node": "tests.graphnodes:Source"}]}])))  # a name twice
+        doc["group"] = draw(
+            st.one_of(
+                st.integers(),
+                text,
+                st.lists(
+                    st.fixed_dictionaries(
+                        {
+                            "namespace": st.one_of(
+                                st.integers(),
+                                containers,
+                                st.just(""),
+                                st.tuples(words, st.sampled_from("/ :.\n"), words).map("".join),
+                            ),
+                            "nodes": st.just([]),
+                        }
+                    ),
+                    min_size=1,
+                    max_size=1,
+                ),
+                st.just([{"namespace": "ns"}]),  # no nodes
+                st.just([{"nodes": [], "scoped": True}]),
+                st.just([{"nodes": [{"name": "integ", "node": "tests.graphnodes:Source"}]}]),
+            )
+        )  # a name twice
     elif kind == "remap list":
-        nodes[i]["remap"] = draw(st.one_of(
-            st.lists(st.fixed_dictionaries({"from": st.sampled_from(["x", "u"]),
-                                            "to": st.one_of(st.integers(), words, containers)}),
-                     min_size=1, max_size=2),
-            st.lists(st.fixed_dictionaries({"from": words.filter(lambda w: w not in PORTS), "to": st.just("/y")}),
-                     min_size=1, max_size=1),
-            st.just([{"from": "x", "to": "/y"}, {"from": "x", "to": "/z"}]),
-            st.just([{"from": "x"}])))
+        nodes[i]["remap"] = draw(
+            st.one_of(
+                st.lists(
+                    st.fixed_dictionaries(
+                        {"from": st.sampled_from(["x", "u"]), "to": st.one_of(st.integers(), words, containers)}
+                    ),
+                    min_size=1,
+                    max_size=2,
+                ),
+                st.lists(
+                    st.fixed_dictionaries({"from": words.filter(lambda w: w not in PORTS), "to": st.just("/y")}),
+                    min_size=1,
+                    max_size=1,
+                ),
+                st.just([{"from": "x", "to": "/y"}, {"from": "x", "to": "/z"}]),
+                st.just([{"from": "x"}]),
+            )
+        )
     elif kind == "param list":
         name = "x0" if i == 0 else "gain"
-        nodes[i]["param"] = draw(st.one_of(
-            st.just([{"name": name, "value": 1.0}]) if i == 0 else st.just([{"name": name, "value": 1.0}] * 2),
-            st.lists(st.fixed_dictionaries({"name": st.one_of(st.integers(), st.just(""), identifiers.filter(
-                lambda k: k not in ("x0", "gain", "die_at"))), "value": st.just(1.0)}), min_size=1, max_size=1),
-            st.just([{"name": name}]), st.integers(), text))
+        nodes[i]["param"] = draw(
+            st.one_of(
+                st.just([{"name": name, "value": 1.0}]) if i == 0 else st.just([{"name": name, "value": 1.0}] * 2),
+                st.lists(
+                    st.fixed_dictionaries(
+                        {
+                            "name": st.one_of(
+                                st.integers(),
+                                st.just(""),
+                                identifiers.filter(lambda k: k not in ("x0", "gain", "die_at")),
+                            ),
+                            "value": st.just(1.0),
+                        }
+                    ),
+                    min_size=1,
+                    max_size=1,
+                ),
+                st.just([{"name": name}]),
+                st.integers(),
+                text,
+            )
+        )
     elif kind == "junk":
         return draw(st.one_of(st.text(chars, max_size=200), st.binary(max_size=200)))
     return dump(doc)
@@ -220,18 +388,36 @@ def mutated_scene(draw) -> str | bytes:
 
 bad_override = st.one_of(
     st.tuples(identifiers.filter(lambda k: k not in ("gain", "use_trace")), text).map(lambda t: f"{t[0]}:={t[1]}"),
-    st.sampled_from(["gain:=inf", "gain:=nan", "gain:=-inf", "gain:=1e999", "gain:=-1", "gain:=1e-320",
-                     "gain:=", "use_trace:=maybe", ":=3", "gain=3", "gain:=0x10"]),
+    st.sampled_from(
+        [
+            "gain:=inf",
+            "gain:=nan",
+            "gain:=-inf",
+            "gain:=1e999",
+            "gain:=-1",
+            "gain:=1e-320",
+            "gain:=",
+            "use_trace:=maybe",
+            ":=3",
+            "gain=3",
+            "gain:=0x10",
+        ]
+    ),
     # With a character no finite decimal number has (float() takes spaces, _ and any script's digits).
     text.filter(lambda s: re.search(r"[^\s\d.eE+_-]", s) and not s.startswith("-")).map(lambda s: f"gain:={s}"),
-    text.filter(lambda s: s.strip().lower() not in ("true", "false", "1", "0") and not s.startswith("-")
-                ).map(lambda s: f"use_trace:={s}"),
+    text.filter(lambda s: s.strip().lower() not in ("true", "false", "1", "0") and not s.startswith("-")).map(
+        lambda s: f"use_trace:={s}"
+    ),
 )
 good_override = st.sampled_from(["gain:=3.5", "use_trace:=false", "gain:=0"])
 
-FUZZ = settings(max_examples=200, deadline=None, derandomize=True, database=None,
-                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow,
-                                       HealthCheck.filter_too_much])
+FUZZ = settings(
+    max_examples=200,
+    deadline=None,
+    derandomize=True,
+    database=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow, HealthCheck.filter_too_much],
+)
 
 
 def assert_refused(code, out, err):
@@ -262,8 +448,7 @@ def test_graph_refuses_every_bad_launch_file(scene_path, text):
 
 
 @settings(FUZZ, max_examples=150)
-@given(st.lists(st.one_of(good_override, bad_override), max_size=2), bad_override,
-       st.lists(good_override, max_size=1))
+@given(st.lists(st.one_of(good_override, bad_override), max_size=2), bad_override, st.lists(good_override, max_size=1))
 def test_graph_refuses_every_bad_argument(scene_path, before, bad, after):
     scene_path.write_text(dump(BASE))
     assert_refused(*run_main("graph", scene_path, *before, bad, *after))
@@ -285,7 +470,8 @@ def _seconds_in_range(text: str) -> bool:
 
 
 bad_seconds = st.one_of(st.floats().map(repr), st.integers().map(str), text).filter(
-    lambda s: not s.startswith("-") and not _seconds_in_range(s))
+    lambda s: not s.startswith("-") and not _seconds_in_range(s)
+)
 
 
 @settings(FUZZ, max_examples=60)
@@ -301,9 +487,12 @@ extreme = st.one_of(st.floats(), st.sampled_from([0.0, 5e-324, 1e-320, 1e-300, 1
 
 
 @settings(FUZZ, max_examples=60)
-@given(st.dictionaries(st.sampled_from(["m1", "m2", "kcs", "bcs", "k", "v1", "v2", "t1", "t2", "dt"]), extreme,
-                       min_size=1, max_size=4),
-       st.sampled_from(["exact", "closed_form", "rk4", "euler", "symplectic_euler", "solve_ivp"]))
+@given(
+    st.dictionaries(
+        st.sampled_from(["m1", "m2", "kcs", "bcs", "k", "v1", "v2", "t1", "t2", "dt"]), extreme, min_size=1, max_size=4
+    ),
+    st.sampled_from(["exact", "closed_form", "rk4", "euler", "symplectic_euler", "solve_ivp"]),
+)
 def test_params_answers_or_refuses_absurd_values_in_one_line(values, states):
     code, out, err = run_main("params", "--table1", "--states", states, *(f"--{k}={v!r}" for k, v in values.items()))
     assert code in (0, 2), err
@@ -358,8 +547,9 @@ def test_expensive_inputs_are_refused_within_bounds(case, tmp_path):
     path.write_text(text)
     (tmp_path / "loop.yaml").symlink_to("loop.yaml")
     started = time.monotonic()
-    r = subprocess.run(dockhil_cmd("graph", path), cwd=ROOT, capture_output=True, text=True, timeout=120,
-                       preexec_fn=_limited)
+    r = subprocess.run(
+        dockhil_cmd("graph", path), cwd=ROOT, capture_output=True, text=True, timeout=120, preexec_fn=_limited
+    )
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr[-2000:]
     assert expected in lines[0], lines[0]
@@ -373,10 +563,17 @@ def test_an_include_fan_out_is_bounded(tmp_path):
         (tmp_path / f"f{k}.yaml").write_text(
             "args: {p: {default: n}}\n"
             'nodes:\n  - {name: "$(arg p)", node: "tests.graphnodes:Source", remap: {x: "/$(arg p)"}}\n'
-            f"include:\n  - {{file: {child}, args: {{p: $(arg p)a}}}}\n  - {{file: {child}, args: {{p: $(arg p)b}}}}\n")
+            f"include:\n  - {{file: {child}, args: {{p: $(arg p)a}}}}\n  - {{file: {child}, args: {{p: $(arg p)b}}}}\n"
+        )
     (tmp_path / "f12.yaml").write_text("args: {p: {default: n}}\nnodes: []\n")
-    r = subprocess.run(dockhil_cmd("graph", tmp_path / "f0.yaml"), cwd=ROOT, capture_output=True, text=True,
-                       timeout=120, preexec_fn=_limited)
+    r = subprocess.run(
+        dockhil_cmd("graph", tmp_path / "f0.yaml"),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        preexec_fn=_limited,
+    )
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr[-2000:]
     assert "more than 100 launch files read for one scene" in lines[0]
@@ -386,11 +583,19 @@ def test_arguments_that_double_through_includes_are_bounded(tmp_path):
     """Each file passes `$(arg p)$(arg p)` to the next: the text doubles at every include."""
     for k in range(40):
         (tmp_path / f"f{k}.yaml").write_text(
-            "args: {p: {default: ab}}\n"
-            f"include:\n  - {{file: f{k + 1}.yaml, args: {{p: \"$(arg p)$(arg p)\"}}}}\n")
-    (tmp_path / "f40.yaml").write_text('args: {p: {default: ab}}\nnodes:\n  - {name: a, node: "tests.graphnodes:Source"}\n')
-    r = subprocess.run(dockhil_cmd("graph", tmp_path / "f0.yaml"), cwd=ROOT, capture_output=True, text=True,
-                       timeout=120, preexec_fn=_limited)
+            f'args: {{p: {{default: ab}}}}\ninclude:\n  - {{file: f{k + 1}.yaml, args: {{p: "$(arg p)$(arg p)"}}}}\n'
+        )
+    (tmp_path / "f40.yaml").write_text(
+        'args: {p: {default: ab}}\nnodes:\n  - {name: a, node: "tests.graphnodes:Source"}\n'
+    )
+    r = subprocess.run(
+        dockhil_cmd("graph", tmp_path / "f0.yaml"),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        preexec_fn=_limited,
+    )
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr[-2000:]
     assert "f15.yaml:3: include[0].args.p: is 131072 characters after $(arg ...) substitution" in lines[0]

@@ -30,8 +30,13 @@ ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTH
 
 def spawn(code: str, *args: str) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-c", code, *args], cwd=ROOT, env=ENV, text=True,
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        [sys.executable, "-c", code, *args],
+        cwd=ROOT,
+        env=ENV,
+        text=True,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
     )
 
 
@@ -54,7 +59,9 @@ def ready_line(proc: subprocess.Popen, timeout: float = 10.0) -> str:
     reader.start()
     reader.join(timeout)
     if not line or not line[0]:
-        raise AssertionError(f"process gave no ready line; stderr: {proc.stderr.read() if proc.poll() is not None else ''}")
+        raise AssertionError(
+            f"process gave no ready line; stderr: {proc.stderr.read() if proc.poll() is not None else ''}"
+        )
     return line[0].strip()
 
 
@@ -81,6 +88,7 @@ def test_adapter_answers_lawicel_commands_and_moves_frames(tmp_path):
     port = bus.ports[0]
     host = serial.Serial(str(tmp_path / "can0"), timeout=1.0)
     try:
+
         def ask(cmd: bytes) -> bytes:
             host.write(cmd + b"\r")
             reply = b""
@@ -137,8 +145,14 @@ bus.shutdown()
 
 def test_python_can_slcan_talks_across_processes_through_the_pty_bus(tmp_path):
     a, b = str(tmp_path / "a"), str(tmp_path / "b")
-    bridge = subprocess.Popen([sys.executable, "-m", "dockhil.hardware.slcan_pty", a, b], cwd=ROOT, env=ENV,
-                              text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    bridge = subprocess.Popen(
+        [sys.executable, "-m", "dockhil.hardware.slcan_pty", a, b],
+        cwd=ROOT,
+        env=ENV,
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     echo = None
     try:
         assert ready_line(bridge).startswith(f"ready {a}=/dev/pts/")
@@ -150,8 +164,13 @@ def test_python_can_slcan_talks_across_processes_through_the_pty_bus(tmp_path):
             got = []
             for i in range(n):
                 extended = i % 5 == 0
-                bus.send(can.Message(arbitration_id=(0x1ABCDE00 + i) if extended else 0x200 + i,
-                                     data=bytes([i % 256, 1, 2, 3][: i % 5]), is_extended_id=extended))
+                bus.send(
+                    can.Message(
+                        arbitration_id=(0x1ABCDE00 + i) if extended else 0x200 + i,
+                        data=bytes([i % 256, 1, 2, 3][: i % 5]),
+                        is_extended_id=extended,
+                    )
+                )
                 msg = recv(bus, 2.0)
                 assert msg is not None, f"no echo for frame {i}"
                 got.append(msg)
@@ -317,14 +336,18 @@ def test_adapter_link_replaces_only_a_stale_link_of_its_own_kind(tmp_path):
 def test_emulator_process_refuses_to_replace_a_file_in_one_line(tmp_path):
     precious = tmp_path / "data.csv"
     precious.write_text("1,2,3\n")
-    proc = subprocess.run([sys.executable, "-m", "dockhil.hardware.slcan_pty", str(precious)], cwd=ROOT,
-                          env=ENV, capture_output=True, text=True, timeout=30)
+    proc = subprocess.run(
+        [sys.executable, "-m", "dockhil.hardware.slcan_pty", str(precious)],
+        cwd=ROOT,
+        env=ENV,
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
     assert proc.stderr.startswith(f"slcan_pty: error: slcan adapter {precious}: ")
     assert precious.read_text() == "1,2,3\n"
-
-
 
 
 def test_missing_serial_port_fails_fast_with_one_line(tmp_path):
@@ -367,15 +390,22 @@ def test_sim_time_is_refused():
 
 
 def test_node_process_exits_non_zero_with_one_line_when_the_sensor_is_missing(tmp_path):
-    spec = {"name": "ft", "type_name": "ft_can", "dt": 0.001, "clock": "wall",
-            "params": {"channel": str(tmp_path / "ttyACM9"), "open_timeout": 0.5}}
+    spec = {
+        "name": "ft",
+        "type_name": "ft_can",
+        "dt": 0.001,
+        "clock": "wall",
+        "params": {"channel": str(tmp_path / "ttyACM9"), "open_timeout": 0.5},
+    }
     line = node_process_error(spec, ENV)
     assert "F/T sensor (slcan" in line and "ttyACM9" in line
 
 
 def test_modules_do_not_import_python_can_until_setup():
-    code = ("import sys, dockhil.nodes.ft_can, dockhil.nodes.ft_emulator, dockhil.hardware.slcan_pty; "
-            "print(sorted(m for m in ('can', 'serial', 'pymodbus') if m in sys.modules))")
+    code = (
+        "import sys, dockhil.nodes.ft_can, dockhil.nodes.ft_emulator, dockhil.hardware.slcan_pty; "
+        "print(sorted(m for m in ('can', 'serial', 'pymodbus') if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=30)
     assert out.stdout.strip() == "[]", out.stderr
 
@@ -422,13 +452,16 @@ def test_tare_removes_the_offset_and_sign_flips(virtual):
     assert w.header.tick == 1 and w.header.stamp == 0.001
 
 
-@pytest.mark.parametrize("force, torque, params, words", [
-    # a probe pressed at start: taring it away would hide a 150 N contact from every force limit
-    ((150.0, 0.0, 0.0), (0.0, 0.0, 0.0), {}, "tare: bias force |F| = 150.0 N > max_bias 50 N"),
-    ((0.0, 30.0, 40.1), (0.0, 0.0, 0.0), {}, "tare: bias force |F| = 50.1 N > max_bias 50 N"),
-    ((0.0, 0.0, 0.0), (3.0, 0.0, 4.001), {}, "tare: bias torque |T| = 5.00 N m > max_bias_torque 5 N m"),
-    ((30.0, 0.0, 0.0), (0.0, 0.0, 0.0), {"max_bias": 20.0}, "tare: bias force |F| = 30.0 N > max_bias 20 N"),
-])
+@pytest.mark.parametrize(
+    "force, torque, params, words",
+    [
+        # a probe pressed at start: taring it away would hide a 150 N contact from every force limit
+        ((150.0, 0.0, 0.0), (0.0, 0.0, 0.0), {}, "tare: bias force |F| = 150.0 N > max_bias 50 N"),
+        ((0.0, 30.0, 40.1), (0.0, 0.0, 0.0), {}, "tare: bias force |F| = 50.1 N > max_bias 50 N"),
+        ((0.0, 0.0, 0.0), (3.0, 0.0, 4.001), {}, "tare: bias torque |T| = 5.00 N m > max_bias_torque 5 N m"),
+        ((30.0, 0.0, 0.0), (0.0, 0.0, 0.0), {"max_bias": 20.0}, "tare: bias force |F| = 30.0 N > max_bias 20 N"),
+    ],
+)
 def test_a_loaded_probe_at_start_is_refused_not_tared_away(virtual, force, torque, params, words):
     sensor, make, _ = virtual
     sensor.force = force

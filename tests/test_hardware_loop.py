@@ -35,8 +35,7 @@ def test_pushing_into_the_compliance_measures_k_x_and_trips_the_force_limit(tmp_
     controller.start_thread()
     sensor = FtSensorEmulator(ctx("ft_emulator"), channel=link, k=k_sheet, bias=0.75)
     ft = FtCanDriver(ctx("ft"), channel=link, tare_samples=20)
-    robot = RobotModbusDriver(ctx("robot"), port=controller.port, max_force=4.0, ft_timeout=0.05,
-                              max_speed=0.05)
+    robot = RobotModbusDriver(ctx("robot"), port=controller.port, max_force=4.0, ft_timeout=0.05, max_speed=0.05)
     state = [None]
     streaming = [True]
 
@@ -64,8 +63,11 @@ def test_pushing_into_the_compliance_measures_k_x_and_trips_the_force_limit(tmp_
                 # 20 ms out of contact first, then press on at 10 mm/s (of the drivers' time): free
                 # samples whatever the controller's servo did in real time before the first read
                 x = 0.01 * (t - 0.02)
-                cmd = RobotCommand(header=Header(stamp=t, tick=k, seq=k), pose=Pose(position=Vector3(x=x)),
-                                   twist=Twist(linear=Vector3(x=0.01)))
+                cmd = RobotCommand(
+                    header=Header(stamp=t, tick=k, seq=k),
+                    pose=Pose(position=Vector3(x=x)),
+                    twist=Twist(linear=Vector3(x=0.01)),
+                )
                 out = robot.step(Tick(k, t, 0.001), {"command": cmd, "wrench": wrench, "estop": None})
                 if out:
                     state[0] = out["state"]

@@ -121,8 +121,14 @@ def test_fault_holds_until_reset():
 
 
 def start_emulator(port: int = 0, *args: str) -> tuple[subprocess.Popen, int]:
-    proc = subprocess.Popen([sys.executable, "-m", "dockhil.hardware.robot_emulator", "--port", str(port), *args],
-                            cwd=ROOT, env=ENV, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "dockhil.hardware.robot_emulator", "--port", str(port), *args],
+        cwd=ROOT,
+        env=ENV,
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     line = []
     reader = threading.Thread(target=lambda: line.append(proc.stdout.readline()), daemon=True)
     reader.start()
@@ -153,8 +159,12 @@ class Drive:
 
     def command(self, x: float = 0.0, v: float = 0.0, y: float = 0.0, enable: bool = True) -> RobotCommand:
         t = self.now()
-        return RobotCommand(header=Header(stamp=t, tick=self.k, seq=self.k),
-                            pose=Pose(position=Vector3(x=x, y=y)), twist=Twist(linear=Vector3(x=v)), enable=enable)
+        return RobotCommand(
+            header=Header(stamp=t, tick=self.k, seq=self.k),
+            pose=Pose(position=Vector3(x=x, y=y)),
+            twist=Twist(linear=Vector3(x=v)),
+            enable=enable,
+        )
 
     def step(self, command=None, wrench=None, estop=None):
         out = self.node.step(Tick(self.k, self.now(), 0.001), {"command": command, "wrench": wrench, "estop": estop})
@@ -255,8 +265,10 @@ def test_lost_connection_reconnects_and_never_sends_a_stale_setpoint():
     try:
         node.setup()
         drive = Drive(node)
-        drive.until(lambda d: d.last() and d.last().pose.position.x == pytest.approx(0.002, rel=0.05),
-                    lambda d: {"command": d.command(x=0.002)})
+        drive.until(
+            lambda d: d.last() and d.last().pose.position.x == pytest.approx(0.002, rel=0.05),
+            lambda d: {"command": d.command(x=0.002)},
+        )
         end(proc)  # the controller dies
         n_before = len(drive.states)
         # Fresh commands keep coming while it is gone; none of them may reach the new controller.
@@ -268,16 +280,19 @@ def test_lost_connection_reconnects_and_never_sends_a_stale_setpoint():
         drive.until(lambda d: node.link.reconnects > 0, lambda d: {"command": held})  # the same message: not fresh
         assert node.link.reconnects == 1
         n_before = len(drive.states)
-        drive.until(lambda d: len(d.states) > n_before + 5 and d.last().status == "holding",
-                    lambda d: {"command": held})
+        drive.until(
+            lambda d: len(d.states) > n_before + 5 and d.last().status == "holding", lambda d: {"command": held}
+        )
         # Held at x = 0 (the new controller's first cycles may still miss our heartbeat: held too; and a
         # reading taken before its first servo cycle since the hold was written still says disabled).
         after = [(s.status, s.pose.position.x) for _, s in drive.states[n_before:]]
         assert all(status in ("holding", "heartbeat-lost", "disabled") and x == 0.0 for status, x in after), after
         assert read_holding(port).setpoint == mm.HOLD_POSE  # the restarted controller never got a setpoint
         assert any("reconnected after" in line for line in logs)
-        drive.until(lambda d: d.last().status == "ok" and d.last().pose.position.x == pytest.approx(0.002, rel=0.05),
-                    lambda d: {"command": d.command(x=0.002)})  # fresh commands move it again
+        drive.until(
+            lambda d: d.last().status == "ok" and d.last().pose.position.x == pytest.approx(0.002, rel=0.05),
+            lambda d: {"command": d.command(x=0.002)},
+        )  # fresh commands move it again
     finally:
         node.close()
         end(proc)
@@ -295,8 +310,11 @@ def test_connection_lost_too_long_is_an_error():
             drive.run(30.0, lambda d: {"command": d.command()})
         text = str(err.value)
         assert "\n" not in text
-        assert re.match(rf"robot controller \(Modbus TCP 127.0.0.1:{port}\): connection lost for \d+\.\d s "
-                        r"\(reconnect_timeout 0.3 s\): ", text), text
+        assert re.match(
+            rf"robot controller \(Modbus TCP 127.0.0.1:{port}\): connection lost for \d+\.\d s "
+            r"\(reconnect_timeout 0.3 s\): ",
+            text,
+        ), text
         gone = float(text.split("connection lost for ")[1].split()[0])
         assert gone >= 0.3
     finally:
@@ -314,8 +332,9 @@ def test_missing_controller_fails_fast_with_one_line():
     with pytest.raises(DeviceError) as err:
         node.setup()
     assert time.monotonic() - t < 1.5
-    assert str(err.value) == (f"robot controller (Modbus TCP 127.0.0.1:{port}): no connection within 0.5 s: "
-                              "Connection refused")
+    assert str(err.value) == (
+        f"robot controller (Modbus TCP 127.0.0.1:{port}): no connection within 0.5 s: Connection refused"
+    )
 
 
 class ForeignDevice(RobotControllerEmulator):
@@ -337,8 +356,13 @@ def test_a_device_with_another_register_map_is_refused():
 
 def test_node_process_exits_non_zero_with_one_line_when_the_controller_is_missing():
     port = free_port()
-    spec = {"name": "robot", "type_name": "robot_modbus", "dt": 0.001, "clock": "wall",
-            "params": {"port": port, "connect_timeout": 0.5}}
+    spec = {
+        "name": "robot",
+        "type_name": "robot_modbus",
+        "dt": 0.001,
+        "clock": "wall",
+        "params": {"port": port, "connect_timeout": 0.5},
+    }
     line = node_process_error(spec, ENV)
     assert f"robot controller (Modbus TCP 127.0.0.1:{port})" in line and "Connection refused" in line
 
@@ -348,8 +372,14 @@ def test_emulator_refuses_a_busy_port_with_one_line():
         s.bind(("127.0.0.1", 0))
         s.listen()
         port = s.getsockname()[1]
-        proc = subprocess.run([sys.executable, "-m", "dockhil.hardware.robot_emulator", "--port", str(port)],
-                              cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=30)
+        proc = subprocess.run(
+            [sys.executable, "-m", "dockhil.hardware.robot_emulator", "--port", str(port)],
+            cwd=ROOT,
+            env=ENV,
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
     assert proc.returncode == 2
     assert proc.stderr.strip() == f"robot emulator: error: cannot listen on 127.0.0.1:{port}: Address already in use"
 
@@ -362,8 +392,10 @@ def test_sim_time_and_an_empty_workspace_are_refused():
 
 
 def test_modules_do_not_import_pymodbus_until_setup():
-    code = ("import sys, dockhil.nodes.robot_modbus, dockhil.nodes.robot_emulator, dockhil.hardware.robot_emulator; "
-            "print(sorted(m for m in ('can', 'serial', 'pymodbus') if m in sys.modules))")
+    code = (
+        "import sys, dockhil.nodes.robot_modbus, dockhil.nodes.robot_emulator, dockhil.hardware.robot_emulator; "
+        "print(sorted(m for m in ('can', 'serial', 'pymodbus') if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=30)
     assert out.stdout.strip() == "[]", out.stderr
 
@@ -371,14 +403,13 @@ def test_modules_do_not_import_pymodbus_until_setup():
 # -- driver and emulator in one process ---------------------------------------------------
 
 
-
-
 def test_close_holds_the_robot(controller):
     node = driver(controller.port)
     node.setup()
     drive = Drive(node)
-    drive.until(lambda d: controller.call(lambda: controller.servo.mode) == FOLLOW,
-                lambda d: {"command": d.command(x=0.001)})
+    drive.until(
+        lambda d: controller.call(lambda: controller.servo.mode) == FOLLOW, lambda d: {"command": d.command(x=0.001)}
+    )
     node.close()
     assert controller.call(lambda: controller.servo.holding[mm.HR_CONTROL]) == mm.CONTROL_ENABLE | mm.CONTROL_HOLD
     deadline = time.monotonic() + 10  # the controller's next servo cycle holds
@@ -413,7 +444,8 @@ def test_driver_logs_when_the_controller_lost_its_heartbeat(controller):
         assert any(s.status == "heartbeat-lost" for _, s in drive.states)
         assert [line for line in logs if "heartbeat" in line] == [
             f"warning: robot controller (Modbus TCP 127.0.0.1:{controller.port}): controller lost our heartbeat and "
-            "holds; resuming on the next command"]  # once, however often it flickers
+            "holds; resuming on the next command"
+        ]  # once, however often it flickers
     finally:
         node.close()
     assert node.heartbeat_losses > 1 and f"lost our heartbeat {node.heartbeat_losses} times" in logs[-1]

@@ -25,8 +25,15 @@ from dockhil.node import ManualClock, NodeContext, ParamError
 from dockhil.hardware.modbus_link import ModbusLink, SetpointLimiter, verify_and_hold
 from dockhil.nodes.robot_modbus import RobotModbusDriver
 from tests.test_hardware_modbus import ENV, ROOT, Drive, driver, end, start_emulator
-from tests.test_hardware_safety import (DT, Recorded, following, largest_step, make, mode,  # noqa: F401
-                                        read_holding)
+from tests.test_hardware_safety import (
+    DT,
+    Recorded,
+    following,
+    largest_step,
+    make,  # noqa: F401 - a fixture
+    mode,  # noqa: F401 - a fixture
+    read_holding,
+)
 
 MAX_SPEED, MAX_CYCLE, MAX_ACTUAL_SPEED = 0.1, 0.005, 0.2  # the driver's defaults
 COUNT = 1.0 / mm.POSITION_COUNTS  # one register count of position
@@ -105,7 +112,7 @@ class ServoClient:
     def read_input_registers(self, address, count, device_id=1):
         self._answer()
         regs = self.model.inputs + self.model.owner_inputs()
-        return Answer(regs[address:address + count])
+        return Answer(regs[address : address + count])
 
     now = 0.0
 
@@ -117,8 +124,16 @@ class Bench:
         self.clock = ManualClock(0.0)
         self.model = ServoModel(tau=tau, heartbeat_timeout=0.2)
         self.client = ServoClient(self.model, "driver")
-        self.p = SimpleNamespace(device_id=1, timeout=0.1, reconnect_min=0.05, reconnect_max=1.0, poll_period=0.002,
-                                 max_speed=MAX_SPEED, max_angular_speed=0.5, max_cycle=MAX_CYCLE)
+        self.p = SimpleNamespace(
+            device_id=1,
+            timeout=0.1,
+            reconnect_min=0.05,
+            reconnect_max=1.0,
+            poll_period=0.002,
+            max_speed=MAX_SPEED,
+            max_angular_speed=0.5,
+            max_cycle=MAX_CYCLE,
+        )
         claim = mm.encode_owner(SESSION, "graph@here")
         reading = verify_and_hold(self.client, 1, 0, claim)
         self.link = ModbusLink(self.client, "robot", self.p, lambda: "refused", claim, self.clock, reading)
@@ -273,8 +288,14 @@ def test_bunched_ticks_do_not_trip_the_driver(controller, make):  # noqa: F811 -
 
 
 def test_the_link_parameters_have_physical_ranges():
-    for name, value in (("max_cycle", 0.0), ("max_cycle", 1.0), ("poll_period", 5.0), ("x_max", 1e4),
-                        ("max_speed", 100.0), ("timeout", 60.0)):
+    for name, value in (
+        ("max_cycle", 0.0),
+        ("max_cycle", 1.0),
+        ("poll_period", 5.0),
+        ("x_max", 1e4),
+        ("max_speed", 100.0),
+        ("timeout", 60.0),
+    ):
         with pytest.raises(ParamError, match=f"parameter '{name}'"):
             RobotModbusDriver(NodeContext("robot", DT, sim_time=False), **{name: value})
 
@@ -310,11 +331,15 @@ def test_a_sigstopped_controller_resumes_without_a_jump(stall):
         resumed = len(drive.states)
         drive.until(lambda d: link.reconnects >= 1 and len(d.states) > resumed + 50, approach, timeout=30.0)
         drive.run(0.5, approach)
-        speed = max(math.sqrt(s.twist.linear.x ** 2 + s.twist.linear.y ** 2 + s.twist.linear.z ** 2)
-                    for _, s in drive.states[resumed:])
+        speed = max(
+            math.sqrt(s.twist.linear.x**2 + s.twist.linear.y**2 + s.twist.linear.z**2)
+            for _, s in drive.states[resumed:]
+        )
         step = largest_step(rec.xs)
-        print(f"stall {stall} s: robot speed {speed:.4f} m/s, largest setpoint step {step * 1e3:.4f} mm, "
-              f"reconnects {link.reconnects}")
+        print(
+            f"stall {stall} s: robot speed {speed:.4f} m/s, largest setpoint step {step * 1e3:.4f} mm, "
+            f"reconnects {link.reconnects}"
+        )
         assert node.tripped is None
         assert speed <= MAX_ACTUAL_SPEED
         assert step <= MAX_SPEED * node.p.max_cycle + COUNT
@@ -325,8 +350,14 @@ def test_a_sigstopped_controller_resumes_without_a_jump(stall):
 
 @pytest.mark.parametrize("arg, value", [("--cycle", "0"), ("--delay", "-0.1"), ("--heartbeat-timeout", "nan")])
 def test_the_emulator_refuses_a_parameter_outside_its_range_before_it_listens(arg, value):
-    proc = subprocess.run([sys.executable, "-m", "dockhil.hardware.robot_emulator", "--port", "0", arg, value],
-                          cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=30)
+    proc = subprocess.run(
+        [sys.executable, "-m", "dockhil.hardware.robot_emulator", "--port", "0", arg, value],
+        cwd=ROOT,
+        env=ENV,
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert proc.returncode == 2 and proc.stdout == ""
     assert proc.stderr.strip().startswith(f"robot emulator: error: {arg} {float(value)} is outside its range ")
     assert len(proc.stderr.strip().splitlines()) == 1

@@ -83,14 +83,21 @@ def test_requests_are_the_manuals_eight_bytes():
 
 def test_records_are_the_manuals_36_bytes():
     data = bytes.fromhex(
-        "00000001" "00000102" "00000000"  # rdt_sequence 1, ft_sequence 258, status 0
-        "ffffffff" "000f4240" "fffffffe"  # Fx -1, Fy 1000000, Fz -2
-        "7fffffff" "80000000" "00000000")  # Tx, Ty the int32 extremes, Tz 0
+        "00000001"
+        "00000102"
+        "00000000"  # rdt_sequence 1, ft_sequence 258, status 0
+        "ffffffff"
+        "000f4240"
+        "fffffffe"  # Fx -1, Fy 1000000, Fz -2
+        "7fffffff"
+        "80000000"
+        "00000000"
+    )  # Tx, Ty the int32 extremes, Tz 0
     r = rdt.decode_record(data)
     assert (r.rdt_sequence, r.ft_sequence, r.status) == (1, 258, 0)
     assert r.counts == (-1, 1_000_000, -2, 2**31 - 1, -(2**31), 0)
     assert rdt.encode_record(1, 258, 0, r.counts) == data
-    assert rdt.decode_record(bytes.fromhex("ffffffff" "ffffffff" "80020000" + "00" * 24)).status == 0x80020000
+    assert rdt.decode_record(bytes.fromhex("ffffffffffffffff80020000" + "00" * 24)).status == 0x80020000
     for size in (0, 35, 37, 1500):
         with pytest.raises(rdt.RdtError, match="a record is 36 bytes"):
             rdt.decode_record(bytes(size))
@@ -102,46 +109,64 @@ def test_records_are_the_manuals_36_bytes():
 
 def test_the_boxs_page_gives_counts_per_unit_and_units():
     cal = rdt.calibration_from(rdt.parse_netftapi2(BOX_XML))
-    assert (cal.counts_per_force, cal.counts_per_torque, cal.force_unit, cal.torque_unit) == \
-        (1e6, 1e6, "lbf", "lbf-in")
+    assert (cal.counts_per_force, cal.counts_per_torque, cal.force_unit, cal.torque_unit) == (1e6, 1e6, "lbf", "lbf-in")
     assert cal.newtons_per_count == pytest.approx(LBF / 1e6, rel=1e-12)
     assert cal.newton_metres_per_count == pytest.approx(LBF_IN / 1e6, rel=1e-12)
     # a page with only the units' codes (cfgfu 4 kN, cfgtu 4 N mm)
     coded = BOX_XML.replace("<scfgfu>lbf</scfgfu><scfgtu>lbf-in</scfgtu>", "").replace(
-        "<cfgfu>1</cfgfu><cfgtu>1</cfgtu>", "<cfgfu>4</cfgfu><cfgtu>4</cfgtu>")
+        "<cfgfu>1</cfgfu><cfgtu>1</cfgtu>", "<cfgfu>4</cfgfu><cfgtu>4</cfgtu>"
+    )
     cal = rdt.calibration_from(rdt.parse_netftapi2(coded))
     assert (cal.force_unit, cal.torque_unit) == ("kN", "Nmm")
     # parameters override the page, each on its own
-    cal = rdt.calibration_from(rdt.parse_netftapi2(BOX_XML), {"counts_per_force": 500.0, "torque_unit": "Nm",
-                                                              "counts_per_torque": 0.0, "force_unit": ""})
+    cal = rdt.calibration_from(
+        rdt.parse_netftapi2(BOX_XML),
+        {"counts_per_force": 500.0, "torque_unit": "Nm", "counts_per_torque": 0.0, "force_unit": ""},
+    )
     assert (cal.counts_per_force, cal.counts_per_torque, cal.force_unit, cal.torque_unit) == (500.0, 1e6, "lbf", "Nm")
 
 
-@pytest.mark.parametrize("change, words", [
-    (("<cfgcpf>1000000</cfgcpf>", ""), "no <cfgcpf>"),
-    (("<cfgcpt>1000000</cfgcpt>", "<cfgcpt>lots</cfgcpt>"), "<cfgcpt> is 'lots'"),
-    (("<cfgcpf>1000000</cfgcpf>", "<cfgcpf>0</cfgcpf>"), "counts_per_force must be a finite positive number"),
-    (("<cfgcpf>1000000</cfgcpf>", "<cfgcpf>nan</cfgcpf>"), "counts_per_force must be a finite positive number"),
-    (("<scfgfu>lbf</scfgfu>", "<scfgfu>stone</scfgfu>"), "unknown force unit 'stone'"),
-    (("<cfgcpt>1000000</cfgcpt>", "<cfgcpt>1e-300</cfgcpt>"), "not the resolution of a sensor"),
-    (("</netft>", ""), "not XML"),
-])
+@pytest.mark.parametrize(
+    "change, words",
+    [
+        (("<cfgcpf>1000000</cfgcpf>", ""), "no <cfgcpf>"),
+        (("<cfgcpt>1000000</cfgcpt>", "<cfgcpt>lots</cfgcpt>"), "<cfgcpt> is 'lots'"),
+        (("<cfgcpf>1000000</cfgcpf>", "<cfgcpf>0</cfgcpf>"), "counts_per_force must be a finite positive number"),
+        (("<cfgcpf>1000000</cfgcpf>", "<cfgcpf>nan</cfgcpf>"), "counts_per_force must be a finite positive number"),
+        (("<scfgfu>lbf</scfgfu>", "<scfgfu>stone</scfgfu>"), "unknown force unit 'stone'"),
+        (("<cfgcpt>1000000</cfgcpt>", "<cfgcpt>1e-300</cfgcpt>"), "not the resolution of a sensor"),
+        (("</netft>", ""), "not XML"),
+    ],
+)
 def test_a_broken_page_is_one_line(change, words):
     with pytest.raises(rdt.RdtError) as err:
         rdt.calibration_from(rdt.parse_netftapi2(BOX_XML.replace(*change)))
     assert words in str(err.value) and "\n" not in str(err.value)
 
 
-@pytest.mark.parametrize("unit, newtons", [("N", 1.0), ("lbf", LBF), ("kN", 1000.0), ("klbf", 1000 * LBF),
-                                           ("kgf", 9.80665), ("gf", 0.00980665)])
+@pytest.mark.parametrize(
+    "unit, newtons",
+    [("N", 1.0), ("lbf", LBF), ("kN", 1000.0), ("klbf", 1000 * LBF), ("kgf", 9.80665), ("gf", 0.00980665)],
+)
 def test_force_units(unit, newtons):
     assert rdt.force_factor(unit) == pytest.approx(newtons, rel=1e-12)
 
 
-@pytest.mark.parametrize("unit, newton_metres", [("Nm", 1.0), ("N-m", 1.0), ("N mm", 0.001), ("Nmm", 0.001),
-                                                 ("N-mm", 0.001), ("lbf-in", 0.1129848290276167),
-                                                 ("in-lb", 0.1129848290276167), ("lbf-ft", 1.3558179483314004),
-                                                 ("kgf-cm", 0.0980665), ("kNm", 1000.0)])
+@pytest.mark.parametrize(
+    "unit, newton_metres",
+    [
+        ("Nm", 1.0),
+        ("N-m", 1.0),
+        ("N mm", 0.001),
+        ("Nmm", 0.001),
+        ("N-mm", 0.001),
+        ("lbf-in", 0.1129848290276167),
+        ("in-lb", 0.1129848290276167),
+        ("lbf-ft", 1.3558179483314004),
+        ("kgf-cm", 0.0980665),
+        ("kNm", 1000.0),
+    ],
+)
 def test_torque_units(unit, newton_metres):
     assert rdt.torque_factor(unit) == pytest.approx(newton_metres, rel=1e-12)
 
@@ -194,8 +219,15 @@ def client() -> socket.socket:
 
 
 def test_emulator_streams_the_counted_records_to_the_requester_and_serves_its_page(box):
-    b = box(k=1000.0, position=0.004, rate=1000.0, force_unit="kN", counts_per_force=1_000_000.0,
-            torque_unit="Nmm", counts_per_torque=1000.0)
+    b = box(
+        k=1000.0,
+        position=0.004,
+        rate=1000.0,
+        force_unit="kN",
+        counts_per_force=1_000_000.0,
+        torque_unit="Nmm",
+        counts_per_torque=1000.0,
+    )
     with client() as c:
         c.sendto(request(0x0002, 10), ("127.0.0.1", b.port))
         got = []
@@ -214,8 +246,13 @@ def test_emulator_streams_the_counted_records_to_the_requester_and_serves_its_pa
     url = f"http://127.0.0.1:{b.http_port}/netftapi2.xml"
     page = ET.fromstring(urllib.request.urlopen(url, timeout=5).read())
     assert page.tag == "netft"
-    assert [page.findtext(t) for t in ("cfgcpf", "cfgcpt", "scfgfu", "scfgtu", "comrdtrate")] == \
-        ["1e+06", "1000", "kN", "Nmm", "1000"]
+    assert [page.findtext(t) for t in ("cfgcpf", "cfgcpt", "scfgfu", "scfgtu", "comrdtrate")] == [
+        "1e+06",
+        "1000",
+        "kN",
+        "Nmm",
+        "1000",
+    ]
     with pytest.raises(urllib.error.HTTPError, match="404"):
         urllib.request.urlopen(f"http://127.0.0.1:{b.http_port}/index.html", timeout=5)
 
@@ -263,12 +300,36 @@ def test_emulator_loss_is_seeded_and_counted(box):
 
 def test_emulator_process_writes_its_maxima_when_terminated(tmp_path):
     maxima = tmp_path / "maxima.json"
-    help_ = subprocess.run([sys.executable, "-m", "dockhil.hardware.netft_emulator", "--help"], cwd=ROOT,
-                           capture_output=True, text=True, timeout=30)
+    help_ = subprocess.run(
+        [sys.executable, "-m", "dockhil.hardware.netft_emulator", "--help"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert help_.returncode == 0 and "--loss" in help_.stdout
-    proc = subprocess.Popen([sys.executable, "-m", "dockhil.hardware.netft_emulator", "--port", "0", "--http-port",
-                             "0", "--position", "0.01", "--k", "2000", "--maxima", str(maxima)], cwd=ROOT,
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "dockhil.hardware.netft_emulator",
+            "--port",
+            "0",
+            "--http-port",
+            "0",
+            "--position",
+            "0.01",
+            "--k",
+            "2000",
+            "--maxima",
+            str(maxima),
+        ],
+        cwd=ROOT,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         line = proc.stdout.readline().split()
         assert line[:2] == ["listening", "udp"], line
@@ -315,8 +376,10 @@ class FakeBox:
         self.http = ThreadingHTTPServer(("127.0.0.1", 0), Page)
         self.http_port = self.http.server_address[1]
         self.running = True
-        self.threads = [threading.Thread(target=self._serve, daemon=True),
-                        threading.Thread(target=self.http.serve_forever, daemon=True)]
+        self.threads = [
+            threading.Thread(target=self._serve, daemon=True),
+            threading.Thread(target=self.http.serve_forever, daemon=True),
+        ]
         for t in self.threads:
             t.start()
 
@@ -357,8 +420,7 @@ def fake():
         boxes.append(b)
         # the tare's records: lbf and lbf-in, 1e6 counts each
         b.on_start = [record(i + 1, 10 * (i + 1), 0, tare[i % len(tare)]) for i in range(20)]
-        d = FtNetFtDriver(ctx(logs), host="127.0.0.1", port=b.port, http_port=b.http_port, tare_samples=20,
-                          **params)
+        d = FtNetFtDriver(ctx(logs), host="127.0.0.1", port=b.port, http_port=b.http_port, tare_samples=20, **params)
         drivers.append(d)
         d.setup()
         return b, d
@@ -496,8 +558,13 @@ def test_node_process_exits_non_zero_with_one_line_when_the_box_is_missing():
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    spec = {"name": "ft", "type_name": "ft_netft", "dt": 0.001, "clock": "wall",
-            "params": {"host": "127.0.0.1", "http_port": port, "open_timeout": 0.3}}
+    spec = {
+        "name": "ft",
+        "type_name": "ft_netft",
+        "dt": 0.001,
+        "clock": "wall",
+        "params": {"host": "127.0.0.1", "http_port": port, "open_timeout": 0.3},
+    }
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     line = node_process_error(spec, env)
     assert "Net F/T box 127.0.0.1:49152" in line and "netftapi2.xml" in line, line
@@ -531,9 +598,15 @@ def test_a_second_graph_naming_the_same_box_is_refused(fake):
 # -- the driver against the emulator -------------------------------------------------------
 
 
-@pytest.mark.parametrize("fault, box_count, driver_count", [
-    ("loss", "lost", "lost"), ("duplicate", "duplicated", "duplicates"), ("reorder", "reordered", "reordered"),
-    ("late", "late", "reordered")])
+@pytest.mark.parametrize(
+    "fault, box_count, driver_count",
+    [
+        ("loss", "lost", "lost"),
+        ("duplicate", "duplicated", "duplicates"),
+        ("reorder", "reordered", "reordered"),
+        ("late", "late", "reordered"),
+    ],
+)
 def test_driver_counts_what_the_emulator_injected(box, fault, box_count, driver_count):
     # A run in which the kernel dropped datagrams (the receive thread starved on a busy machine and
     # its socket buffer overflowed) counts those as lost too; it is tried again, for exact counts.
@@ -561,8 +634,10 @@ def test_driver_counts_what_the_emulator_injected(box, fault, box_count, driver_
     else:
         pytest.fail(f"the kernel dropped datagrams in 3 runs: {counters}, {stats}")
     # a record lost after the last one sent leaves no gap a receiver could see
-    assert counters[driver_count] == stats[box_count] - (stats["lost_unseen"] if fault == "loss" else 0) > 0, \
-        (counters, stats)
+    assert counters[driver_count] == stats[box_count] - (stats["lost_unseen"] if fault == "loss" else 0) > 0, (
+        counters,
+        stats,
+    )
     others = {"lost", "duplicates", "reordered"} - {driver_count}
     assert all(counters[o] == 0 for o in others), counters
     assert forces and all(f == pytest.approx(0.0, abs=1e-9) for f in forces)  # tared, constant contact
@@ -596,8 +671,7 @@ def test_driver_publishes_what_the_simulated_sensor_does_for_the_same_contact(bo
 
 def test_emulator_status_fault_reaches_the_driver(box):
     b = box(rate=1000.0, fault_after=0.3)
-    d = FtNetFtDriver(ctx([]), host="127.0.0.1", port=b.port, http_port=b.http_port, tare_samples=20,
-                      stale_timeout=5.0)
+    d = FtNetFtDriver(ctx([]), host="127.0.0.1", port=b.port, http_port=b.http_port, tare_samples=20, stale_timeout=5.0)
     d.setup()
     try:
         with pytest.raises(DeviceError, match=r"the box reports status 0x80020000"):
@@ -612,8 +686,9 @@ def test_emulator_status_fault_reaches_the_driver(box):
 
 
 def graph_text(*args) -> str:
-    r = subprocess.run(dockhil_cmd("graph", "launch/hil.yaml", *args), cwd=ROOT, capture_output=True, text=True,
-                       timeout=60)
+    r = subprocess.run(
+        dockhil_cmd("graph", "launch/hil.yaml", *args), cwd=ROOT, capture_output=True, text=True, timeout=60
+    )
     assert r.returncode == 0, r.stderr
     return r.stdout
 
@@ -646,10 +721,26 @@ def test_hil_scene_runs_on_the_emulated_box(tmp_path):
     # (stale data: the safety doing its job) says why in one line, and is tried again.
     for attempt in range(3):
         summary = tmp_path / f"hw{attempt}.json"
-        r = subprocess.run(dockhil_cmd("launch", "launch/hil.yaml", "ft:=netft", "emulators:=true", "rate:=250",
-                                       f"netft_port:={free_udp_and_tcp_port()}", "--wall-time", "--duration", "5",
-                                       "--summary", summary, "--quiet"),
-                           cwd=ROOT, capture_output=True, text=True, timeout=120)
+        r = subprocess.run(
+            dockhil_cmd(
+                "launch",
+                "launch/hil.yaml",
+                "ft:=netft",
+                "emulators:=true",
+                "rate:=250",
+                f"netft_port:={free_udp_and_tcp_port()}",
+                "--wall-time",
+                "--duration",
+                "5",
+                "--summary",
+                summary,
+                "--quiet",
+            ),
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         out = r.stdout + r.stderr
         assert "Traceback" not in out, out
         if r.returncode == 0:

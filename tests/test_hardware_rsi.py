@@ -43,13 +43,15 @@ def udp_port() -> int:
 def rob_text(ipoc: int, rist=START, delay: int = 0, attribute: str = "Type", extra: str = "") -> bytes:
     """A controller datagram as the protocol describes it, with elements a driver must skip."""
     x, y, z, a, b, c = rist
-    return (f'<Rob {attribute}="KUKA">\r\n'
-            f'  <RIst X="{x}" Y="{y}" Z="{z}" A="{a}" B="{b}" C="{c}" />\r\n'
-            f'  <RSol X="{x}" Y="{y}" Z="{z}" A="{a}" B="{b}" C="{c}" />\r\n'
-            f'  <AIPos A1="0.0" A2="-90.0" A3="90.0" A4="0.0" A5="45.0" A6="0.0" />\r\n'
-            f'  <ASPos A1="0.0" A2="-90.0" A3="90.0" A4="0.0" A5="45.0" A6="0.0" />\r\n'
-            f'  <Delay D="{delay}" />\r\n{extra}'
-            f'  <IPOC>{ipoc}</IPOC>\r\n</Rob>').encode()
+    return (
+        f'<Rob {attribute}="KUKA">\r\n'
+        f'  <RIst X="{x}" Y="{y}" Z="{z}" A="{a}" B="{b}" C="{c}" />\r\n'
+        f'  <RSol X="{x}" Y="{y}" Z="{z}" A="{a}" B="{b}" C="{c}" />\r\n'
+        f'  <AIPos A1="0.0" A2="-90.0" A3="90.0" A4="0.0" A5="45.0" A6="0.0" />\r\n'
+        f'  <ASPos A1="0.0" A2="-90.0" A3="90.0" A4="0.0" A5="45.0" A6="0.0" />\r\n'
+        f'  <Delay D="{delay}" />\r\n{extra}'
+        f"  <IPOC>{ipoc}</IPOC>\r\n</Rob>"
+    ).encode()
 
 
 def read_sen(data: bytes) -> tuple[str, int, tuple[float, ...]]:
@@ -80,19 +82,22 @@ def test_a_controller_datagram_is_read_with_the_elements_it_needs_and_the_rest_s
     assert frame == rsi.RobFrame(9, (1.0, 2.0, 3.0, 4.0, 5.0, 6.0), None, None)
 
 
-@pytest.mark.parametrize("data, why", [
-    (b'<Rob Type="KUKA"><RIst X="1" Y="2" Z="3" A="4" B="5" C="6"/>', "malformed XML"),
-    (b'<Rob Type="KUKA"><AIPos A1="0"/><IPOC>1</IPOC></Rob>', "no RIst"),
-    (b'<Rob Type="KUKA"><RIst X="1" Y="2" Z="3" A="4" B="5" C="6"/></Rob>', "no IPOC"),
-    (b'<Rob Type="KUKA"><RIst X="1" Y="2" Z="3" A="4" B="5"/><IPOC>1</IPOC></Rob>', "no attribute C"),
-    (b'<Rob Type="KUKA"><RIst X="nan" Y="2" Z="3" A="4" B="5" C="6"/><IPOC>1</IPOC></Rob>', "not finite"),
-    (b'<Rob Type="KUKA"><RIst X="1mm" Y="2" Z="3" A="4" B="5" C="6"/><IPOC>1</IPOC></Rob>', "not a number"),
-    (b'<Rob Type="KUKA"><RIst X="1" Y="2" Z="3" A="4" B="5" C="6"/><IPOC>-4</IPOC></Rob>', "IPOC"),
-    (b'<Sen Type="ImFree"><RKorr X="0" Y="0" Z="0" A="0" B="0" C="0"/><IPOC>1</IPOC></Sen>', "not <Rob>"),
-    (b'<!DOCTYPE r [<!ENTITY e "xxxxxxxx">]><Rob Type="KUKA"><IPOC>&e;</IPOC></Rob>', "declaration"),
-    (b'<Rob Type="KUKA"><?pi x?><IPOC>1</IPOC></Rob>', "processing instruction"),
-    (b'<Rob Type="KUKA">' + b" " * rsi.MAX_DATAGRAM + b"</Rob>", "oversized"),
-])
+@pytest.mark.parametrize(
+    "data, why",
+    [
+        (b'<Rob Type="KUKA"><RIst X="1" Y="2" Z="3" A="4" B="5" C="6"/>', "malformed XML"),
+        (b'<Rob Type="KUKA"><AIPos A1="0"/><IPOC>1</IPOC></Rob>', "no RIst"),
+        (b'<Rob Type="KUKA"><RIst X="1" Y="2" Z="3" A="4" B="5" C="6"/></Rob>', "no IPOC"),
+        (b'<Rob Type="KUKA"><RIst X="1" Y="2" Z="3" A="4" B="5"/><IPOC>1</IPOC></Rob>', "no attribute C"),
+        (b'<Rob Type="KUKA"><RIst X="nan" Y="2" Z="3" A="4" B="5" C="6"/><IPOC>1</IPOC></Rob>', "not finite"),
+        (b'<Rob Type="KUKA"><RIst X="1mm" Y="2" Z="3" A="4" B="5" C="6"/><IPOC>1</IPOC></Rob>', "not a number"),
+        (b'<Rob Type="KUKA"><RIst X="1" Y="2" Z="3" A="4" B="5" C="6"/><IPOC>-4</IPOC></Rob>', "IPOC"),
+        (b'<Sen Type="ImFree"><RKorr X="0" Y="0" Z="0" A="0" B="0" C="0"/><IPOC>1</IPOC></Sen>', "not <Rob>"),
+        (b'<!DOCTYPE r [<!ENTITY e "xxxxxxxx">]><Rob Type="KUKA"><IPOC>&e;</IPOC></Rob>', "declaration"),
+        (b'<Rob Type="KUKA"><?pi x?><IPOC>1</IPOC></Rob>', "processing instruction"),
+        (b'<Rob Type="KUKA">' + b" " * rsi.MAX_DATAGRAM + b"</Rob>", "oversized"),
+    ],
+)
 def test_what_is_not_a_controller_datagram_is_refused_in_a_few_words(data, why):
     with pytest.raises(rsi.RsiError, match=why):
         rsi.parse_rob(data)
@@ -109,8 +114,10 @@ def test_an_answer_reads_back_as_any_xml_reader_sees_it():
     with pytest.raises(ValueError):
         rsi.SenWriter('x" evil="1')
     # the emulator's side reads a sensor's answer written by hand
-    text = b'<Sen Type="ImFree">\n<EStr>hello</EStr>\n<RKorr X="1.5" Y="0" Z="-2" A="0" B="0" C="0.25" />\n' \
-           b'<IPOC>77</IPOC>\n</Sen>'
+    text = (
+        b'<Sen Type="ImFree">\n<EStr>hello</EStr>\n<RKorr X="1.5" Y="0" Z="-2" A="0" B="0" C="0.25" />\n'
+        b"<IPOC>77</IPOC>\n</Sen>"
+    )
     assert rsi.parse_sen(text) == (77, (1.5, 0.0, -2.0, 0.0, 0.0, 0.25))
 
 
@@ -161,13 +168,20 @@ class RawSensor:
         data, addr = self.sock.recvfrom(8192)
         root = ET.fromstring(data)
         rist = root.find("RIst").attrib
-        return (int(root.find("IPOC").text), tuple(float(rist[k]) for k in "XYZABC"),
-                int(root.find("Delay").get("D")), addr)
+        return (
+            int(root.find("IPOC").text),
+            tuple(float(rist[k]) for k in "XYZABC"),
+            int(root.find("Delay").get("D")),
+            addr,
+        )
 
     def answer(self, ipoc: int, korr, addr) -> None:
         x, y, z, a, b, c = korr
-        self.sock.sendto(f'<Sen Type="ImFree"><RKorr X="{x}" Y="{y}" Z="{z}" A="{a}" B="{b}" C="{c}"/>'
-                         f'<IPOC>{ipoc}</IPOC></Sen>'.encode(), addr)
+        self.sock.sendto(
+            f'<Sen Type="ImFree"><RKorr X="{x}" Y="{y}" Z="{z}" A="{a}" B="{b}" C="{c}"/>'
+            f"<IPOC>{ipoc}</IPOC></Sen>".encode(),
+            addr,
+        )
 
 
 def test_the_emulator_sends_each_cycle_applies_answers_counts_late_ones_and_stops_rsi():
@@ -300,11 +314,13 @@ def test_foreign_malformed_repeated_and_oversized_datagrams_are_counted_and_neve
     lk = link(clock)
     lk.submit((10.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
     first = read_sen(lk.handle(rob_text(100), "127.0.0.1", clock()))[2]
-    bad = [(rob_text(104), "10.0.0.7"),  # another sender
-           (b'<Rob Type="KUKA"><RIst X="1" Y="2"', "127.0.0.1"),
-           (rob_text(100), "127.0.0.1"),  # the same IPOC again
-           (rob_text(96), "127.0.0.1"),  # an older one
-           (rob_text(108, extra=" " * rsi.MAX_DATAGRAM), "127.0.0.1")]
+    bad = [
+        (rob_text(104), "10.0.0.7"),  # another sender
+        (b'<Rob Type="KUKA"><RIst X="1" Y="2"', "127.0.0.1"),
+        (rob_text(100), "127.0.0.1"),  # the same IPOC again
+        (rob_text(96), "127.0.0.1"),  # an older one
+        (rob_text(108, extra=" " * rsi.MAX_DATAGRAM), "127.0.0.1"),
+    ]
     for data, host in bad:
         assert lk.handle(data, host, clock()) is None
     assert lk.counted == {"foreign": 1, "malformed": 1, "repeated": 2, "oversized": 1}
@@ -340,7 +356,8 @@ def test_the_scene_frame_maps_the_docking_axis_and_rist_both_ways():
     assert Rotation.from_quat(q).as_rotvec() == pytest.approx((0.0, -0.1, 0.0), abs=1e-12)
     # the robot at start + that correction reads back as that scene pose
     moved_abc = (Rotation.from_quat(q) * Rotation.from_euler("ZYX", START[3:], degrees=True)).as_euler(
-        "ZYX", degrees=True)
+        "ZYX", degrees=True
+    )
     rist = (START[0] + p[0], START[1] + p[1], START[2] + p[2], *moved_abc)
     position, orientation = frame.scene_pose(rist)
     assert position == pytest.approx((0.01, 0.0, 0.002), abs=1e-12)
@@ -408,8 +425,12 @@ def driven():
         port = udp_port()
         clock = ManualClock(100.0)
         logs: list[str] = []
-        node = RobotRsiDriver(NodeContext("robot", 0.001, sim_time=False, log=logs.append, clock=clock),
-                              port=port, host="127.0.0.1", **params)
+        node = RobotRsiDriver(
+            NodeContext("robot", 0.001, sim_time=False, log=logs.append, clock=clock),
+            port=port,
+            host="127.0.0.1",
+            **params,
+        )
         controller = FakeController(port)
         ready = threading.Event()
         feeder = threading.Thread(target=controller.until_answered, args=(ready,), daemon=True)
@@ -519,8 +540,9 @@ def test_a_controller_that_stops_sending_stops_the_graph_in_one_line(driven):
 
 def test_setup_without_a_controller_fails_in_one_line_and_refuses_sim_time():
     port = udp_port()
-    node = RobotRsiDriver(NodeContext("robot", 0.001, sim_time=False, log=lambda line: None), port=port,
-                          connect_timeout=0.1)
+    node = RobotRsiDriver(
+        NodeContext("robot", 0.001, sim_time=False, log=lambda line: None), port=port, connect_timeout=0.1
+    )
     with pytest.raises(DeviceError) as err:
         node.setup()
     assert "no RSI datagram from 127.0.0.1 within 0.1 s" in str(err.value) and "\n" not in str(err.value)
@@ -535,8 +557,9 @@ def test_a_second_graph_naming_the_same_rsi_port_is_refused_naming_the_owner(dri
     node, ctl, clock, logs = driven(ft_timeout=0)
     ownership.set_graph("graph-two")
     try:
-        other = RobotRsiDriver(NodeContext("robot", 0.001, sim_time=False, log=lambda line: None),
-                               port=node.p.port, connect_timeout=0.1)
+        other = RobotRsiDriver(
+            NodeContext("robot", 0.001, sim_time=False, log=lambda line: None), port=node.p.port, connect_timeout=0.1
+        )
         with pytest.raises(DeviceError) as err:
             other.setup()
     finally:
@@ -556,15 +579,22 @@ def test_the_driver_against_the_emulator_tracks_the_command_within_the_per_cycle
     emulator = RsiControllerEmulator(port=port, cycle=CYCLE, delay=0.008, tau=0.01, max_late=10**9)
     emulator.start_thread()
     logs: list[str] = []
-    node = RobotRsiDriver(NodeContext("robot", 0.001, sim_time=False, log=logs.append), port=port, ft_timeout=0,
-                          max_speed=0.05, controller_timeout=2.0, stall_timeout=1.0)
+    node = RobotRsiDriver(
+        NodeContext("robot", 0.001, sim_time=False, log=logs.append),
+        port=port,
+        ft_timeout=0,
+        max_speed=0.05,
+        controller_timeout=2.0,
+        stall_timeout=1.0,
+    )
     try:
         node.setup()
         last, bunch = None, 0
         for k in range(900):
             x = 0.02 * min(k * 0.001, 0.5)  # 20 mm/s for 0.5 s of the scene's time, then still
-            out = node.step(Tick(k, k * 0.001, 0.001), {"command": command(k, x, 0.02 if x < 0.01 else 0.0),
-                                                        "wrench": wrench()})
+            out = node.step(
+                Tick(k, k * 0.001, 0.001), {"command": command(k, x, 0.02 if x < 0.01 else 0.0), "wrench": wrench()}
+            )
             last = out.get("state", last)
             if k == 300:  # the graph stalls for 60 ms, then catches up: sixty ticks at once
                 time.sleep(0.06)
@@ -585,8 +615,9 @@ def test_the_driver_against_the_emulator_tracks_the_command_within_the_per_cycle
 def test_an_emulator_whose_driver_reads_another_controller_is_refused_in_one_line():
     from dockhil.nodes.rsi_emulator import RsiControllerEmulatorNode
 
-    node = RsiControllerEmulatorNode(NodeContext("rsi_emulator", 0.001, sim_time=False), port=udp_port(),
-                                     controller="192.0.2.7")
+    node = RsiControllerEmulatorNode(
+        NodeContext("rsi_emulator", 0.001, sim_time=False), port=udp_port(), controller="192.0.2.7"
+    )
     with pytest.raises(LaunchError) as err:
         node.setup()
     text = str(err.value)
@@ -596,9 +627,26 @@ def test_an_emulator_whose_driver_reads_another_controller_is_refused_in_one_lin
 @pytest.mark.wall_time
 def test_launch_hil_with_the_rsi_driver_and_its_emulator_is_valid(tmp_path):
     port = udp_port()
-    proc = subprocess.run([sys.executable, "-m", "dockhil.cli", "launch", str(ROOT / "launch" / "hil.yaml"),
-                           "robot:=rsi", "emulators:=true", f"rsi_port:={port}", "--wall-time", "--duration", "5",
-                           "--quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "dockhil.cli",
+            "launch",
+            str(ROOT / "launch" / "hil.yaml"),
+            "robot:=rsi",
+            "emulators:=true",
+            f"rsi_port:={port}",
+            "--wall-time",
+            "--duration",
+            "5",
+            "--quiet",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     text = proc.stdout + proc.stderr
     # Valid, or invalid only because a loaded machine kept a node from keeping real time.
     assert proc.returncode == 0 or (proc.returncode == 3 and "fell behind real time" in text), text[-3000:]
@@ -607,16 +655,37 @@ def test_launch_hil_with_the_rsi_driver_and_its_emulator_is_valid(tmp_path):
 
 
 def test_the_emulator_runs_alone_and_refuses_an_unphysical_fault_in_one_line(tmp_path):
-    run = lambda *a: subprocess.run([sys.executable, "-m", "dockhil.hardware.rsi_emulator", *a],  # noqa: E731
-                                    capture_output=True, text=True, timeout=60, cwd=ROOT)
+    run = lambda *a: subprocess.run(  # noqa: E731
+        [sys.executable, "-m", "dockhil.hardware.rsi_emulator", *a],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
     assert run("--help").returncode == 0
     bad = run("--loss", "150")
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "--loss 150" in bad.stderr
     sensor = RawSensor()
     record = tmp_path / "record.json"
-    proc = subprocess.Popen([sys.executable, "-m", "dockhil.hardware.rsi_emulator", "--port", str(sensor.port),
-                             "--duration", "5", "--max-late", "10", "--record", str(record)], cwd=ROOT,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "dockhil.hardware.rsi_emulator",
+            "--port",
+            str(sensor.port),
+            "--duration",
+            "5",
+            "--max-late",
+            "10",
+            "--record",
+            str(record),
+        ],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         ipoc, rist, delay, addr = sensor.receive()  # the emulator has started
         t0 = time.monotonic()

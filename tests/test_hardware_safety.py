@@ -47,12 +47,16 @@ class ClockedDrive:
         return self.clock()
 
     def command(self, x: float = 0.0, v: float = 0.0, stamp: float | None = None) -> RobotCommand:
-        return RobotCommand(header=Header(stamp=self.now() if stamp is None else stamp, tick=self.k, seq=self.k),
-                            pose=Pose(position=Vector3(x=x)), twist=Twist(linear=Vector3(x=v)))
+        return RobotCommand(
+            header=Header(stamp=self.now() if stamp is None else stamp, tick=self.k, seq=self.k),
+            pose=Pose(position=Vector3(x=x)),
+            twist=Twist(linear=Vector3(x=v)),
+        )
 
     def wrench(self, fx: float, fy: float = 0.0) -> WrenchStamped:
-        return WrenchStamped(header=Header(stamp=self.now(), tick=self.k, seq=self.k),
-                             wrench=Wrench(force=Vector3(x=fx, y=fy)))
+        return WrenchStamped(
+            header=Header(stamp=self.now(), tick=self.k, seq=self.k), wrench=Wrench(force=Vector3(x=fx, y=fy))
+        )
 
     def step(self, command=None, wrench=None, estop=None, dt: float = DT):
         self.clock.advance(dt)
@@ -74,8 +78,9 @@ def make(controller):
     def make_driver(**params):
         params.setdefault("ft_timeout", 0.0)
         clock = ManualClock(100.0)
-        node = RobotModbusDriver(NodeContext("robot", DT, sim_time=False, log=lambda line: None, clock=clock),
-                                 port=controller.port, **params)
+        node = RobotModbusDriver(
+            NodeContext("robot", DT, sim_time=False, log=lambda line: None, clock=clock), port=controller.port, **params
+        )
         node.setup()
         made.append(node)
         return ClockedDrive(node, clock)
@@ -145,23 +150,41 @@ def tripped(drive: ClockedDrive, controller, run, limit: str, message: str, valu
 def test_max_force(controller, make):
     drive = make(max_force=120.0, ft_timeout=0.05)
     following(drive, controller, lambda d: {"command": d.command(), "wrench": d.wrench(-80.0)})
-    tripped(drive, controller, lambda: drive.step(command=drive.command(), wrench=drive.wrench(-150.5)),
-            "max_force", "max_force: contact force |F| = 150.5 N > 120 N", 150.5)
+    tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=drive.command(), wrench=drive.wrench(-150.5)),
+        "max_force",
+        "max_force: contact force |F| = 150.5 N > 120 N",
+        150.5,
+    )
 
 
 def test_max_force_is_the_norm_of_the_force(controller, make):
     drive = make(max_force=4.0, ft_timeout=0.05)
     following(drive, controller, lambda d: {"command": d.command(), "wrench": d.wrench(-2.0)})
     drive.step(command=drive.command(), wrench=drive.wrench(-3.0, 2.6))  # |F| = 3.97 N: under the limit
-    tripped(drive, controller, lambda: drive.step(command=drive.command(), wrench=drive.wrench(-3.0, 2.7)),
-            "max_force", "max_force: contact force |F| = 4.0 N > 4 N", math.hypot(3.0, 2.7))
+    tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=drive.command(), wrench=drive.wrench(-3.0, 2.7)),
+        "max_force",
+        "max_force: contact force |F| = 4.0 N > 4 N",
+        math.hypot(3.0, 2.7),
+    )
 
 
 def test_max_speed_of_the_commanded_twist(controller, make):
     drive = make(max_speed=0.05)
     following(drive, controller, lambda d: {"command": d.command(v=0.05)})
-    tripped(drive, controller, lambda: drive.step(command=drive.command(v=0.08)),
-            "max_speed", "max_speed: commanded speed 0.080 m/s > 0.05 m/s", 0.08)
+    tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=drive.command(v=0.08)),
+        "max_speed",
+        "max_speed: commanded speed 0.080 m/s > 0.05 m/s",
+        0.08,
+    )
 
 
 class Recorded:
@@ -194,6 +217,7 @@ def test_a_command_faster_than_max_speed_is_sent_at_max_speed_then_stops(control
     drive = make(max_speed=0.05, max_following_error=0.0, stall_timeout=0.2, max_cycle=0.01)
     following(drive, controller)
     rec = recorded(drive)
+
     # 0.2 m/s, whatever the stamps say: the setpoint sent moves at most 0.05 m/s on the driver's clock, one
     # device cycle (at most max_cycle) at a time; the command runs ahead until it is 0.05 m/s x 0.2 s ahead.
     def run():
@@ -223,8 +247,14 @@ def test_a_gap_longer_than_the_stall_timeout_holds_and_stops(controller, make):
     drive = make(stall_timeout=0.2)
     following(drive, controller)
     x_before = read_holding(controller.port).setpoint[0]
-    tripped(drive, controller, lambda: drive.step(command=drive.command(x=0.0001), dt=0.25),
-            "stall", "stall: no step for 0.250 s > stall_timeout 0.2 s", 0.25)
+    tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=drive.command(x=0.0001), dt=0.25),
+        "stall",
+        "stall: no step for 0.250 s > stall_timeout 0.2 s",
+        0.25,
+    )
     assert read_holding(controller.port).setpoint[0] == x_before  # the step after the gap was never written
 
 
@@ -241,8 +271,14 @@ def test_setpoints_that_stop_coming_while_moving_hold_and_stop(controller, make)
     last = drive.command()
     drive.step(command=last)
     drive.run(99, lambda d: {"command": last})  # the same message again for 0.099 s: the simulation stalled
-    tripped(drive, controller, lambda: drive.step(command=last, dt=0.002),
-            "stale_command", "stale command: no new setpoint for 0.101 s > stall_timeout 0.1 s", 0.101)
+    tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=last, dt=0.002),
+        "stale_command",
+        "stale command: no new setpoint for 0.101 s > stall_timeout 0.1 s",
+        0.101,
+    )
 
 
 @pytest.mark.parametrize("field", ["x", "inf", "twist"])
@@ -250,13 +286,13 @@ def test_a_non_finite_setpoint_trips_by_name_before_it_is_written(controller, ma
     drive = make()
     following(drive, controller)
     writes = settled(drive)
-    bad = {"x": Pose(position=Vector3(x=math.nan)), "inf": Pose(position=Vector3(z=-math.inf)),
-           "twist": Pose()}[field]
+    bad = {"x": Pose(position=Vector3(x=math.nan)), "inf": Pose(position=Vector3(z=-math.inf)), "twist": Pose()}[field]
     twist = Twist(linear=Vector3(y=math.nan)) if field == "twist" else Twist()
     cmd = RobotCommand(header=Header(stamp=drive.now(), tick=drive.k, seq=drive.k), pose=bad, twist=twist)
     expect = {"x": "position.x = nan", "inf": "position.z = -inf", "twist": "linear velocity.y = nan"}[field]
-    stop = tripped(drive, controller, lambda: drive.step(command=cmd),
-                   "non_finite", f"non-finite setpoint: commanded {expect}")
+    stop = tripped(
+        drive, controller, lambda: drive.step(command=cmd), "non_finite", f"non-finite setpoint: commanded {expect}"
+    )
     assert stop.value == expect
     assert drive.node.link.writes == writes
 
@@ -264,8 +300,13 @@ def test_a_non_finite_setpoint_trips_by_name_before_it_is_written(controller, ma
 def test_a_non_finite_force_trips_by_name(controller, make):
     drive = make(max_force=200.0, ft_timeout=0.05)
     following(drive, controller, lambda d: {"command": d.command(), "wrench": d.wrench(-1.0)})
-    tripped(drive, controller, lambda: drive.step(command=drive.command(), wrench=drive.wrench(math.nan)),
-            "non_finite", "non-finite force: measured wrench force.x = nan")
+    tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=drive.command(), wrench=drive.wrench(math.nan)),
+        "non_finite",
+        "non-finite force: measured wrench force.x = nan",
+    )
 
 
 def test_max_actual_speed(controller, make):
@@ -290,8 +331,14 @@ def test_max_actual_speed(controller, make):
 def test_workspace_refuses_a_commanded_pose_before_it_is_written(controller, make):
     drive = make(x_max=0.005)
     following(drive, controller)
-    tripped(drive, controller, lambda: drive.step(command=drive.command(x=0.0051)),
-            "workspace", "workspace: commanded position.x = 0.0051 m above x_max 0.005 m", 0.0051)
+    tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=drive.command(x=0.0051)),
+        "workspace",
+        "workspace: commanded position.x = 0.0051 m above x_max 0.005 m",
+        0.0051,
+    )
     assert read_holding(controller.port).setpoint[0] == 0.0
 
 
@@ -299,8 +346,13 @@ def test_a_setpoint_the_register_map_cannot_carry_holds_the_robot_in_one_line(co
     # The speed limit off: the map itself refuses a twist past its +-2147 m/s.
     drive = make(max_speed=0.0, max_following_error=0.0)
     following(drive, controller)
-    stop = tripped(drive, controller, lambda: drive.step(command=drive.command(v=3000.0)), "register_range",
-                   "register map: setpoint linear.x = 3000 m/s does not fit the register map")
+    stop = tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=drive.command(v=3000.0)),
+        "register_range",
+        "register map: setpoint linear.x = 3000 m/s does not fit the register map",
+    )
     assert "connection lost" not in str(stop)
     assert read_holding(controller.port).setpoint[0] == 0.0
 
@@ -323,8 +375,14 @@ def test_workspace_of_the_actual_pose(controller, make):
 def test_max_following_error_catches_a_start_far_from_the_robot(controller, make):
     drive = make(max_following_error=0.01)
     wait_for(lambda: drive.node.link.latest()[1] is not None, what="a reading")  # where the robot is
-    tripped(drive, controller, lambda: drive.step(command=drive.command(x=-0.03)),
-            "max_following_error", "max_following_error: setpoint 0.0300 m from the actual pose > 0.01 m", 0.03)
+    tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=drive.command(x=-0.03)),
+        "max_following_error",
+        "max_following_error: setpoint 0.0300 m from the actual pose > 0.01 m",
+        0.03,
+    )
     assert controller.call(lambda: controller.servo.position[0]) == 0.0  # it never moved
 
 
@@ -334,8 +392,13 @@ def test_ft_watchdog_stops_when_the_wrench_goes_stale(controller, make):
     last = drive.wrench(-5.0)
     drive.step(command=drive.command(), wrench=last)
     drive.run(39, lambda d: {"command": d.command(), "wrench": last})  # the same message again: 0.039 s old
-    stop = tripped(drive, controller, lambda: drive.step(command=drive.command(), wrench=last, dt=0.002),
-                   "ft_timeout", "ft_timeout: no F/T data for 0.041 s > 0.04 s")
+    stop = tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=drive.command(), wrench=last, dt=0.002),
+        "ft_timeout",
+        "ft_timeout: no F/T data for 0.041 s > 0.04 s",
+    )
     assert stop.value == pytest.approx(0.041)
 
 
@@ -345,8 +408,13 @@ def test_ft_watchdog_holds_until_the_first_wrench_then_stops(controller, make):
     time.sleep(0.05)  # whatever the link does meanwhile: without F/T data it only holds
     assert mode(controller) == HOLD  # commands arrive, but without F/T data the robot stays put
     assert read_holding(controller.port).setpoint[0] == 0.0
-    stop = tripped(drive, controller, lambda: drive.step(command=drive.command(x=0.001), dt=0.002),
-                   "ft_timeout", "ft_timeout: no F/T data 0.171 s after start")
+    stop = tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=drive.command(x=0.001), dt=0.002),
+        "ft_timeout",
+        "ft_timeout: no F/T data 0.171 s after start",
+    )
     assert "after start (ft_grace 0.15 s + ft_timeout 0.02 s; connect /ft/wrench or set ft_timeout 0)" in str(stop)
     assert stop.value == pytest.approx(0.171)
 
@@ -356,8 +424,13 @@ def test_estop(controller, make):
     calm = EStop(header=Header(), active=False)
     following(drive, controller, lambda d: {"command": d.command(), "estop": calm})
     pressed = EStop(header=Header(stamp=drive.now()), active=True, reason="operator button")
-    tripped(drive, controller, lambda: drive.step(command=drive.command(), estop=pressed),
-            "estop", "estop: e-stop active (operator button)")
+    tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=drive.command(), estop=pressed),
+        "estop",
+        "estop: e-stop active (operator button)",
+    )
 
 
 def test_a_stop_while_the_controller_is_unreachable_says_so(controller, make):
@@ -372,5 +445,6 @@ def test_a_stop_while_the_controller_is_unreachable_says_so(controller, make):
     with pytest.raises(SafetyStop) as err:
         drive.step(command=drive.command(), estop=EStop(header=Header(), active=True))
     assert str(err.value).endswith(
-        "; hold not confirmed (controller unreachable: its heartbeat timeout holds the robot)")
+        "; hold not confirmed (controller unreachable: its heartbeat timeout holds the robot)"
+    )
     assert drive.node.link.hold_latched  # a reconnect would write the hold first

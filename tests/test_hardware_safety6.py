@@ -40,14 +40,17 @@ IDENTITY = (0.0, 0.0, 0.0, 1.0)
 
 
 def command6(d: ClockedDrive, q=IDENTITY, w=(0.0, 0.0, 0.0), x: float = 0.0, stamp: float | None = None):
-    return RobotCommand(header=Header(stamp=d.now() if stamp is None else stamp, tick=d.k, seq=d.k),
-                        pose=Pose(position=Vector3(x=x), orientation=Quaternion(*q)),
-                        twist=Twist(angular=Vector3(*w)))
+    return RobotCommand(
+        header=Header(stamp=d.now() if stamp is None else stamp, tick=d.k, seq=d.k),
+        pose=Pose(position=Vector3(x=x), orientation=Quaternion(*q)),
+        twist=Twist(angular=Vector3(*w)),
+    )
 
 
 def wrench6(d: ClockedDrive, torque=(0.0, 0.0, 0.0), fx: float = 0.0) -> WrenchStamped:
-    return WrenchStamped(header=Header(stamp=d.now(), tick=d.k, seq=d.k),
-                         wrench=Wrench(force=Vector3(x=fx), torque=Vector3(*torque)))
+    return WrenchStamped(
+        header=Header(stamp=d.now(), tick=d.k, seq=d.k), wrench=Wrench(force=Vector3(x=fx), torque=Vector3(*torque))
+    )
 
 
 def keep_stepping(drive: ClockedDrive, make_inputs, seconds: float = 2.0) -> None:
@@ -172,8 +175,10 @@ def test_the_driver_commands_and_reads_an_orientation_through_the_controller(con
     final = rotation(axis, rate * DT * turns)
     settled(drive, lambda d: {"command": command6(d, final)})
     assert read_holding(controller.port).setpoint[3:7] == pytest.approx(final, abs=1e-9)
-    wait_for(lambda: controller.call(lambda: controller.servo.orientation) == pytest.approx(final, abs=1e-9),
-             what="the servo at the final orientation")
+    wait_for(
+        lambda: controller.call(lambda: controller.servo.orientation) == pytest.approx(final, abs=1e-9),
+        what="the servo at the final orientation",
+    )
     keep_stepping(drive, lambda d: {"command": command6(d, final)}, 0.05)
     state = drive.states[-1]
     q = state.pose.orientation
@@ -187,26 +192,43 @@ def test_max_torque(controller, make):
     drive = make(max_torque=20.0, ft_timeout=0.05)
     following(drive, controller, lambda d: {"command": command6(d), "wrench": wrench6(d, (0.0, 12.0, 16.0))})
     drive.step(command=command6(drive), wrench=wrench6(drive, (0.0, 12.0, 16.0)))  # |T| = 20 N m: at the limit
-    tripped(drive, controller, lambda: drive.step(command=command6(drive), wrench=wrench6(drive, (0.0, 12.0, 16.5))),
-            "max_torque", "max_torque: contact torque |T| = 20.40 N m > 20 N m", math.hypot(12.0, 16.5))
+    tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=command6(drive), wrench=wrench6(drive, (0.0, 12.0, 16.5))),
+        "max_torque",
+        "max_torque: contact torque |T| = 20.40 N m > 20 N m",
+        math.hypot(12.0, 16.5),
+    )
 
 
 def test_a_non_finite_torque_trips_by_name(controller, make):
     drive = make(ft_timeout=0.05)
     following(drive, controller, lambda d: {"command": command6(d), "wrench": wrench6(d)})
-    tripped(drive, controller, lambda: drive.step(command=command6(drive), wrench=wrench6(drive, (0, math.inf, 0))),
-            "non_finite", "non-finite force: measured wrench torque.y = inf")
+    tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=command6(drive), wrench=wrench6(drive, (0, math.inf, 0))),
+        "non_finite",
+        "non-finite force: measured wrench torque.y = inf",
+    )
 
 
-@pytest.mark.parametrize("q, norm", [((0.0, 0.0, 0.0, 1.1), 1.1), ((0.0, 0.0, 0.0, 0.0), 0.0),
-                                     ((0.6, 0.0, 0.0, 0.8 + 2e-6), None)])
+@pytest.mark.parametrize(
+    "q, norm", [((0.0, 0.0, 0.0, 1.1), 1.1), ((0.0, 0.0, 0.0, 0.0), 0.0), ((0.6, 0.0, 0.0, 0.8 + 2e-6), None)]
+)
 def test_a_non_unit_quaternion_trips_by_name_before_it_is_written(controller, make, q, norm):
     drive = make()
     following(drive, controller)
     writes = settled(drive)
     expect = math.sqrt(sum(c * c for c in q)) if norm is None else norm  # 1.0000016: just past 1e-6
-    stop = tripped(drive, controller, lambda: drive.step(command=command6(drive, q)),
-                   "non_unit_quaternion", f"non-unit quaternion: commanded orientation |q| = {expect:.9g} ")
+    stop = tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=command6(drive, q)),
+        "non_unit_quaternion",
+        f"non-unit quaternion: commanded orientation |q| = {expect:.9g} ",
+    )
     assert stop.value == pytest.approx(expect, abs=1e-12)
     assert "a rotation needs |q| = 1 within 1e-06" in str(stop)
     assert drive.node.link.writes == writes  # never written
@@ -226,11 +248,15 @@ def test_a_non_finite_orientation_or_angular_velocity_trips_by_name(controller, 
     drive = make()
     following(drive, controller)
     writes = settled(drive)
-    cmd = (command6(drive, (0.0, 0.0, 0.0, math.nan)) if field == "orientation"
-           else command6(drive, w=(0.0, 0.0, -math.inf)))
+    cmd = (
+        command6(drive, (0.0, 0.0, 0.0, math.nan))
+        if field == "orientation"
+        else command6(drive, w=(0.0, 0.0, -math.inf))
+    )
     expect = "orientation.w = nan" if field == "orientation" else "angular velocity.z = -inf"
-    tripped(drive, controller, lambda: drive.step(command=cmd),
-            "non_finite", f"non-finite setpoint: commanded {expect}")
+    tripped(
+        drive, controller, lambda: drive.step(command=cmd), "non_finite", f"non-finite setpoint: commanded {expect}"
+    )
     assert drive.node.link.writes == writes
 
 
@@ -241,8 +267,14 @@ def test_max_tilt_of_the_commanded_orientation(controller, make):
     for i in range(1, 25):  # 0.4 rad/s, under max_angular_speed, up to 0.0096 rad: under the limit
         drive.step(command=command6(drive, rotation(axis, 0.0004 * i)))
     settled(drive, lambda d: {"command": command6(d, rotation(axis, 0.0096))})  # the last of them written
-    tripped(drive, controller, lambda: drive.step(command=command6(drive, rotation(axis, 0.0104))),
-            "max_tilt", "max_tilt: commanded orientation 0.0104 rad from the start orientation > 0.01 rad", 0.0104)
+    tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=command6(drive, rotation(axis, 0.0104))),
+        "max_tilt",
+        "max_tilt: commanded orientation 0.0104 rad from the start orientation > 0.01 rad",
+        0.0104,
+    )
     assert read_holding(controller.port).setpoint[3:7] == pytest.approx(rotation(axis, 0.0096), abs=1e-9)
 
 
@@ -252,16 +284,26 @@ def test_max_tilt_is_measured_from_the_start_orientation(controller, make):
     drive = make(max_tilt=0.2)
     following(drive, controller, lambda d: {"command": command6(d, start)})  # 0.3 rad from identity: fine
     tilted = tuple(float(c) for c in _product(start, rotation((0.0, 1.0, 0.0), 0.21)))
-    tripped(drive, controller, lambda: drive.step(command=command6(drive, tilted)),
-            "max_tilt", "max_tilt: commanded orientation 0.2100 rad from the start orientation > 0.2 rad", 0.21)
+    tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=command6(drive, tilted)),
+        "max_tilt",
+        "max_tilt: commanded orientation 0.2100 rad from the start orientation > 0.2 rad",
+        0.21,
+    )
 
 
 def _product(a, b):
     """Hamilton product a b, scalar last, written out here independently of the driver's helper."""
     ax, ay, az, aw = a
     bx, by, bz, bw = b
-    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
+    return (
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
+    )
 
 
 def test_max_tilt_of_the_actual_orientation(controller, make):
@@ -281,9 +323,14 @@ def test_max_tilt_of_the_actual_orientation(controller, make):
 def test_max_angular_speed_of_the_commanded_twist(controller, make):
     drive = make(max_angular_speed=0.5)
     following(drive, controller, lambda d: {"command": command6(d, w=(0.0, 0.0, 0.5))})  # at the limit
-    tripped(drive, controller, lambda: drive.step(command=command6(drive, w=(0.0, 0.3, 0.45))),
-            "max_angular_speed", "max_angular_speed: commanded angular speed 0.541 rad/s > 0.5 rad/s",
-            math.hypot(0.3, 0.45))
+    tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=command6(drive, w=(0.0, 0.3, 0.45))),
+        "max_angular_speed",
+        "max_angular_speed: commanded angular speed 0.541 rad/s > 0.5 rad/s",
+        math.hypot(0.3, 0.45),
+    )
 
 
 def test_a_turn_faster_than_max_angular_speed_is_sent_at_that_speed_then_stops(controller, make):
@@ -320,8 +367,13 @@ def test_max_actual_angular_speed(controller, make):
     # A lurch of 0.5 rad in one cycle: the windowed speed stays above 1 rad/s for ~30 ms while the servo
     # turns back (tau 5 ms), long enough for a reading on a busy machine.
     controller.call(controller.servo.teleport, (0.0, 0.0, 0.0), rotation((0.0, 0.0, 1.0), 0.5))
-    stop = tripped(drive, controller, lambda: keep_stepping(drive, lambda d: {"command": command6(d)}),
-                   "max_actual_angular_speed", "max_actual_angular_speed: measured angular speed ")
+    stop = tripped(
+        drive,
+        controller,
+        lambda: keep_stepping(drive, lambda d: {"command": command6(d)}),
+        "max_actual_angular_speed",
+        "max_actual_angular_speed: measured angular speed ",
+    )
     assert stop.value > 1.0
 
 
@@ -330,9 +382,15 @@ def test_max_orientation_error_catches_a_start_turned_away_from_the_robot(contro
     controller.call(controller.servo.place, (0.0, 0.0, 0.0), start)
     drive = make(max_orientation_error=0.1)
     wait_for(lambda: drive.node.link.latest()[1] is not None, what="a reading")
-    tripped(drive, controller, lambda: drive.step(command=command6(drive)),  # the identity: 0.3 rad away
-            "max_orientation_error", "max_orientation_error: setpoint orientation 0.3000 rad from the actual "
-            "orientation > 0.1 rad (turn the robot to the start orientation first)", 0.3)
+    tripped(
+        drive,
+        controller,
+        lambda: drive.step(command=command6(drive)),  # the identity: 0.3 rad away
+        "max_orientation_error",
+        "max_orientation_error: setpoint orientation 0.3000 rad from the actual "
+        "orientation > 0.1 rad (turn the robot to the start orientation first)",
+        0.3,
+    )
     assert controller.call(lambda: controller.servo.orientation) == pytest.approx(start, abs=1e-12)  # never moved
 
 
@@ -348,16 +406,24 @@ def test_the_limits_hold_nothing_in_a_one_dof_motion(controller, make):
     assert drive.node.tripped is None and mode(controller) == FOLLOW
 
 
-@pytest.mark.parametrize("name, value, says", [
-    ("max_tilt", -0.1, "must be >= 0.0"),
-    ("max_tilt", 4.0, "must be <= 3.14159"),
-    ("max_orientation_error", 3.5, "must be <= 3.14159"),
-    ("max_torque", "strong", "expected float"),
-    ("max_actual_angular_speed", -1.0, "must be >= 0.0"),
-])
+@pytest.mark.parametrize(
+    "name, value, says",
+    [
+        ("max_tilt", -0.1, "must be >= 0.0"),
+        ("max_tilt", 4.0, "must be <= 3.14159"),
+        ("max_orientation_error", 3.5, "must be <= 3.14159"),
+        ("max_torque", "strong", "expected float"),
+        ("max_actual_angular_speed", -1.0, "must be >= 0.0"),
+    ],
+)
 def test_a_bad_limit_gives_one_line_and_nothing_moves(name, value, says):
-    spec = {"name": "robot", "type_name": "robot_modbus", "dt": 0.001, "clock": "wall",
-            "params": {"port": 9, "connect_timeout": 0.1, name: value}}
+    spec = {
+        "name": "robot",
+        "type_name": "robot_modbus",
+        "dt": 0.001,
+        "clock": "wall",
+        "params": {"port": 9, "connect_timeout": 0.1, name: value},
+    }
     line = node_process_error(spec, ENV)
     assert f"parameter '{name}'" in line and says in line, line
 
@@ -371,7 +437,7 @@ def report_orientation(controller, q) -> None:
 
         def broken_cycle(now):
             cycle(now)
-            servo.inputs[mm.IR_ACTUAL + 6:mm.IR_ACTUAL + 14] = registers
+            servo.inputs[mm.IR_ACTUAL + 6 : mm.IR_ACTUAL + 14] = registers
 
         servo.cycle = broken_cycle
 
@@ -383,8 +449,11 @@ def test_a_controller_reporting_no_rotation_is_refused_at_setup(controller):
 
     report_orientation(controller, (0.0, 0.0, 0.0, 0.0))  # orientation registers left at zero
     wait_for(lambda: controller.call(lambda: controller.servo.inputs[mm.IR_ACTUAL + 12]) == 0, what="the zeros")
-    node = RobotModbusDriver(NodeContext("robot", DT, sim_time=False, log=lambda line: None, clock=ManualClock(0.0)),
-                             port=controller.port, ft_timeout=0.0)
+    node = RobotModbusDriver(
+        NodeContext("robot", DT, sim_time=False, log=lambda line: None, clock=ManualClock(0.0)),
+        port=controller.port,
+        ft_timeout=0.0,
+    )
     with pytest.raises(DeviceError) as err:
         node.setup()
     text = str(err.value)
@@ -397,6 +466,11 @@ def test_a_non_unit_actual_orientation_trips_by_name(controller, make):
     drive = make()
     following(drive, controller)
     report_orientation(controller, (0.0, 0.0, 0.0, 0.5))
-    stop = tripped(drive, controller, lambda: keep_stepping(drive, lambda d: {"command": command6(d)}),
-                   "non_unit_quaternion", "non-unit quaternion: actual orientation |q| = 0.5 ")
+    stop = tripped(
+        drive,
+        controller,
+        lambda: keep_stepping(drive, lambda d: {"command": command6(d)}),
+        "non_unit_quaternion",
+        "non-unit quaternion: actual orientation |q| = 0.5 ",
+    )
     assert stop.value == pytest.approx(0.5)

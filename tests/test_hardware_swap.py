@@ -20,8 +20,14 @@ pytestmark = pytest.mark.wall_time
 
 def hardware_args(tmp_path, emulators=True):
     tmp_path.mkdir(exist_ok=True)
-    return ["ft:=can", "robot:=modbus", f"emulators:={'true' if emulators else 'false'}",
-            f"can_channel:={tmp_path / 'ft.slcan'}", f"modbus_port:={free_port()}", "ft_timeout:=1.0"]
+    return [
+        "ft:=can",
+        "robot:=modbus",
+        f"emulators:={'true' if emulators else 'false'}",
+        f"can_channel:={tmp_path / 'ft.slcan'}",
+        f"modbus_port:={free_port()}",
+        "ft_timeout:=1.0",
+    ]
 
 
 def contact_ended(summary) -> bool:
@@ -38,9 +44,14 @@ def wall_run(tmp_path, *args, done, attempts=3) -> subprocess.CompletedProcess:
     loop skipped so many ticks that its simulated time ended before the contact did says so in
     its summary's note, and is tried again too."""
     for attempt in range(attempts):
-        r = subprocess.run(dockhil_cmd("launch", "launch/hil.yaml", *hardware_args(tmp_path / str(attempt)),
-                                       "--wall-time", *args, "--quiet"),
-                           capture_output=True, text=True, timeout=120)
+        r = subprocess.run(
+            dockhil_cmd(
+                "launch", "launch/hil.yaml", *hardware_args(tmp_path / str(attempt)), "--wall-time", *args, "--quiet"
+            ),
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         out = r.stdout + r.stderr
         assert "Traceback" not in out, out
         if done(r):
@@ -48,7 +59,9 @@ def wall_run(tmp_path, *args, done, attempts=3) -> subprocess.CompletedProcess:
         why = [line for line in out.splitlines() if " error: " in line or "safety stop" in line or "INVALID" in line]
         if r.returncode == 0 and "--summary" in args:
             note = json.loads(Path(args[args.index("--summary") + 1]).read_text())["note"] or ""
-            assert note.startswith("the contact had not ended"), out  # a valid run: only a cut-short contact is tried again
+            assert note.startswith("the contact had not ended"), (
+                out
+            )  # a valid run: only a cut-short contact is tried again
             why = [note]
         else:
             assert r.returncode != 0 and why, out
@@ -59,13 +72,24 @@ def test_swap_runs_the_scene_through_the_drivers_and_lands_near_the_simulated_ru
     sim, hw = tmp_path / "sim.json", tmp_path / "hw.json"
     # 250 Hz, for both: the loop a 2-core machine keeps in real time also while other work runs
     # (at 1 kHz seven processes on a busy machine fall behind, and the run rightly says so).
-    r = subprocess.run(dockhil_cmd("launch", "launch/hil.yaml", "rate:=250", "--composed", "--summary", sim,
-                                   "--quiet"), capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        dockhil_cmd("launch", "launch/hil.yaml", "rate:=250", "--composed", "--summary", sim, "--quiet"),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     # 2.5 s of wall time: the 1.57 s contact ends within it also when a busy machine skips some ticks
     # (a run that skipped so many that it did not is tried again).
-    r = wall_run(tmp_path, "rate:=250", "--duration", "2.5", "--summary", hw,
-                 done=lambda r: r.returncode == 0 and contact_ended(hw))
+    r = wall_run(
+        tmp_path,
+        "rate:=250",
+        "--duration",
+        "2.5",
+        "--summary",
+        hw,
+        done=lambda r: r.returncode == 0 and contact_ended(hw),
+    )
     assert "tared over 100 samples" in r.stderr and "listening on 127.0.0.1" in r.stderr
     s, h = json.loads(sim.read_text()), json.loads(hw.read_text())
     # Real protocols and wall-clock scheduling add a little delay on top of the emulated 32 ms.
@@ -80,8 +104,16 @@ def test_passivity_compensation_works_through_the_drivers(tmp_path):
     # (restitution 0.993 against 0.959, README). The controller takes out the energy those delays
     # make, whatever made it: the bodies leave no faster than ideal, to the links' jitter.
     hw = tmp_path / "hw.json"
-    r = wall_run(tmp_path, "rate:=250", "compensation:=passivity", "--duration", "2.5", "--summary", hw,
-                 done=lambda r: r.returncode == 0 and contact_ended(hw))
+    wall_run(
+        tmp_path,
+        "rate:=250",
+        "compensation:=passivity",
+        "--duration",
+        "2.5",
+        "--summary",
+        hw,
+        done=lambda r: r.returncode == 0 and contact_ended(hw),
+    )
     h = json.loads(hw.read_text())
     assert h["valid"] is True and h["energy"]["compensation"] == "passivity"
     assert h["energy"]["generated_J"] > 0 and h["energy"]["net_generated_J"] <= 1e-3 * h["energy"]["generated_J"]
@@ -90,9 +122,20 @@ def test_passivity_compensation_works_through_the_drivers(tmp_path):
 
 def test_missing_devices_fail_fast_with_one_line_each(tmp_path):
     t0 = time.monotonic()
-    r = subprocess.run(dockhil_cmd("launch", "launch/hil.yaml", *hardware_args(tmp_path, emulators=False),
-                                   "--wall-time", "--duration", "30", "--quiet"),
-                       capture_output=True, text=True, timeout=60)
+    r = subprocess.run(
+        dockhil_cmd(
+            "launch",
+            "launch/hil.yaml",
+            *hardware_args(tmp_path, emulators=False),
+            "--wall-time",
+            "--duration",
+            "30",
+            "--quiet",
+        ),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert r.returncode != 0
     assert time.monotonic() - t0 < 25  # fails at start, long before the 30 s run would end
     out = r.stdout + r.stderr
@@ -106,8 +149,14 @@ def test_a_safety_limit_stops_the_graph_naming_limit_and_value(tmp_path):
     # The sensor measures the passive compliance alone: k v / omega, about 15 N at its peak here.
     # 250 Hz, as in the swap test: at 1 kHz a busy machine's seven processes fall behind and a run stops
     # on a stale input before the contact (three times in a row, seen with other work on the machine).
-    r = wall_run(tmp_path, "rate:=250", "max_force:=10", "--duration", "3",
-                 done=lambda r: "safety stop: max_force" in r.stdout + r.stderr)
+    r = wall_run(
+        tmp_path,
+        "rate:=250",
+        "max_force:=10",
+        "--duration",
+        "3",
+        done=lambda r: "safety stop: max_force" in r.stdout + r.stderr,
+    )
     assert r.returncode != 0
     out = r.stdout + r.stderr
     trip = [line for line in out.splitlines() if "safety stop: max_force" in line]
@@ -119,8 +168,12 @@ def test_a_dead_device_stops_the_graph(tmp_path):
     """The sensor's CAN adapter (the emulator) dies mid-run: the launcher stops the graph, non-zero.
     The driver's own watchdog and hold are tested in test_hardware_safety.py."""
     args = hardware_args(tmp_path)
-    p = subprocess.Popen(dockhil_cmd("launch", "launch/hil.yaml", *args, "--wall-time", "--duration", "20", "--quiet"),
-                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    p = subprocess.Popen(
+        dockhil_cmd("launch", "launch/hil.yaml", *args, "--wall-time", "--duration", "20", "--quiet"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     lines = Lines(p)
     lines.wait_for("tared over")  # running: the driver reads the emulated sensor
     out = kill_child_and_expect_the_graph_to_stop(p, "ft_emulator", dependent="ft", lines=lines)

@@ -39,8 +39,16 @@ def test_multiprocess_equals_composed_equals_library(tmp_path):
     assert len(ma) == 7 * 2001 - 2 * 32  # seven topics; no delayed command and no robot pose in the first 32 ms
     assert sorted(ma) == sorted(mb)  # the same bytes on every topic at every tick
     s = samples_from_bag(a)
-    lib = simulate_hil(m1=TABLE1.m1, m2=TABLE1.m2, k=TABLE1.k, impedance=impedance_closed_form(TABLE1), dt=1e-3,
-                       n_ticks=2001, v1=TABLE1.v1, delay=0.032)
+    lib = simulate_hil(
+        m1=TABLE1.m1,
+        m2=TABLE1.m2,
+        k=TABLE1.k,
+        impedance=impedance_closed_form(TABLE1),
+        dt=1e-3,
+        n_ticks=2001,
+        v1=TABLE1.v1,
+        delay=0.032,
+    )
     assert np.array_equal(s.p, lib.x1 - lib.x2) and np.array_equal(s.pd, lib.v1 - lib.v2)
     assert np.array_equal(s.force, lib.force)
 
@@ -53,8 +61,16 @@ def test_fig9_from_the_graph_summary(tmp_path):
         assert "peak force" in r.stdout and "ideal" in r.stdout
         out[delay] = json.loads(path.read_text())
     undelayed, delayed = out["0.0"], out["0.032"]
-    for key in ("run_time_s", "sim_time_s", "real_time_factor", "peak_force_N", "contact_duration_s",
-                "exit_velocity_mps", "ideal", "error"):
+    for key in (
+        "run_time_s",
+        "sim_time_s",
+        "real_time_factor",
+        "peak_force_N",
+        "contact_duration_s",
+        "exit_velocity_mps",
+        "ideal",
+        "error",
+    ):
         assert key in delayed
     # No delay: the hybrid loop is the ideal contact, to the sampling error.
     assert abs(undelayed["error"]["peak_force_N"]) < 0.05 and undelayed["error"]["max_force_N"] < 0.1
@@ -74,8 +90,9 @@ def test_ideal_scene_matches_the_closed_form(tmp_path):
 @pytest.mark.parametrize("b, grows", [(20, True), (60, False)])
 def test_figs11_12_from_the_graph(tmp_path, b, grows):
     path = tmp_path / "st.json"
-    launch("launch/stability.yaml", f"b:={b}", "x0:=0.006", "--duration", "15", "--composed", "--summary", path,
-           "--quiet")
+    launch(
+        "launch/stability.yaml", f"b:={b}", "x0:=0.006", "--duration", "15", "--composed", "--summary", path, "--quiet"
+    )
     s = json.loads(path.read_text())
     measured, predicted = s["growth_rate_1_s"], s["predicted_growth_rate_1_s"]
     assert (measured > 0) is grows and (predicted > 0) is grows

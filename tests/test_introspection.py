@@ -35,10 +35,14 @@ def dockhil(capsys, *args):
 
 def start(write_launch, respawn=False, die_at=-1, capsys=None):
     # An input that reads a respawning node has no maximum age at all (it is refused there).
-    path = write_launch(WALL.replace("RESPAWN", str(respawn).lower()).replace("DIE", str(die_at))
-                        .replace("INTEG_AGE", "" if respawn else ", max_age: {u: 5.0}"))
-    p = subprocess.Popen(dockhil_cmd("launch", path, "--wall-time"), stdout=subprocess.PIPE,
-                         stderr=subprocess.STDOUT, text=True)
+    path = write_launch(
+        WALL.replace("RESPAWN", str(respawn).lower())
+        .replace("DIE", str(die_at))
+        .replace("INTEG_AGE", "" if respawn else ", max_age: {u: 5.0}")
+    )
+    p = subprocess.Popen(
+        dockhil_cmd("launch", path, "--wall-time"), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
     lines = Lines(p)
     if capsys is None:  # not waiting for the nodes to run
         return p, lines, ""

@@ -38,8 +38,12 @@ def dockhil(capsys, *args):
 
 
 def launch(write_launch):
-    return subprocess.Popen(dockhil_cmd("launch", write_launch(SCENE), "--wall-time"), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
+    return subprocess.Popen(
+        dockhil_cmd("launch", write_launch(SCENE), "--wall-time"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
 
 
 def stop(p, timeout=30):
@@ -53,6 +57,7 @@ def stop(p, timeout=30):
 
 
 # -- the statistics, on arrival times the test gives --------------------------------------------
+
 
 def test_period_stats_are_exact_over_given_arrivals():
     stats = period_stats([0.0, 0.001, 0.002, 0.004, 0.005])  # periods 1, 1, 2, 1 ms
@@ -75,6 +80,7 @@ def test_period_stats_of_a_steady_rate_and_of_too_few_messages():
 
 # -- --field, on messages built here --------------------------------------------------------------
 
+
 def test_field_reader_reads_nested_fields_and_list_items():
     w = msgs.WrenchStamped(header=msgs.Header(), wrench=msgs.Wrench(force=msgs.Vector3(x=1.5, y=-2.0)))
     assert field_reader(msgs.WrenchStamped, "wrench.force.x")(w) == 1.5
@@ -87,11 +93,14 @@ def test_field_reader_reads_nested_fields_and_list_items():
         field_reader(msgs.SatelliteState, "bodies.5.mass")(state)
 
 
-@pytest.mark.parametrize("path, said", [
-    ("wrench.foo", "--field wrench.foo: wrench (Wrench) has no field 'foo'; fields: force, torque"),
-    ("nope", "--field nope: the message (WrenchStamped) has no field 'nope'; fields: header, wrench"),
-    ("wrench.force.x.y", "--field wrench.force.x.y: wrench.force.x is a value (float) with no fields"),
-])
+@pytest.mark.parametrize(
+    "path, said",
+    [
+        ("wrench.foo", "--field wrench.foo: wrench (Wrench) has no field 'foo'; fields: force, torque"),
+        ("nope", "--field nope: the message (WrenchStamped) has no field 'nope'; fields: header, wrench"),
+        ("wrench.force.x.y", "--field wrench.force.x.y: wrench.force.x is a value (float) with no fields"),
+    ],
+)
 def test_field_reader_refuses_an_unknown_field_naming_those_there_are(path, said):
     with pytest.raises(DockhilError) as exc:
         field_reader(msgs.WrenchStamped, path)
@@ -104,6 +113,7 @@ def test_field_reader_wants_a_number_for_a_list():
 
 
 # -- against a running graph ----------------------------------------------------------------------
+
 
 @pytest.mark.wall_time
 def test_info_hz_and_echo_field_on_a_running_graph(write_launch, capsys):
@@ -129,8 +139,14 @@ def test_info_hz_and_echo_field_on_a_running_graph(write_launch, capsys):
         node = json.loads(r.stdout)
         assert node["type"] == "tests.graphnodes:Gain" and node["process"] == "box" and node["host"] == "localhost"
         assert node["params"] == {"gain": 3.5, "die_at": -1}
-        assert node["inputs"]["x"] == {"topic": "/x", "type": "dockhil/WrenchStamped", "lag": 0, "delay": 0.0,
-                                       "required": True, "max_age": 5.0}
+        assert node["inputs"]["x"] == {
+            "topic": "/x",
+            "type": "dockhil/WrenchStamped",
+            "lag": 0,
+            "delay": 0.0,
+            "required": True,
+            "max_age": 5.0,
+        }
         assert node["outputs"] == {"u": {"topic": "/u", "type": "dockhil/WrenchStamped"}}
         assert node["pid"] == entry["nodes"]["box"]["pid"]
         text = dockhil(capsys, "node", "info", "integ").stdout
@@ -156,8 +172,10 @@ def test_info_hz_and_echo_field_on_a_running_graph(write_launch, capsys):
         r = dockhil(capsys, "topic", "echo", "/x", "--field", "wrench.forse.x", "-n", "1")
         assert r.returncode == 2 and r.stdout == ""
         said = r.stderr.strip().splitlines()
-        assert len(said) == 1 and "--field wrench.forse.x: wrench (Wrench) has no field 'forse'; fields: force, torque" \
-            in said[0], r.stderr
+        assert (
+            len(said) == 1
+            and "--field wrench.forse.x: wrench (Wrench) has no field 'forse'; fields: force, torque" in said[0]
+        ), r.stderr
     finally:
         stop(p)
         lines.rest(timeout=30)
@@ -165,8 +183,12 @@ def test_info_hz_and_echo_field_on_a_running_graph(write_launch, capsys):
 
 @pytest.mark.wall_time
 def test_echo_wait_started_before_the_graph_prints_its_first_message(write_launch):
-    echo = subprocess.Popen(dockhil_cmd("topic", "echo", "/u", "--wait", "--field", "header", "-n", "1"),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    echo = subprocess.Popen(
+        dockhil_cmd("topic", "echo", "/u", "--wait", "--field", "header", "-n", "1"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     p = None
     try:
         said = Lines(echo, echo.stderr)
@@ -187,8 +209,9 @@ def test_echo_wait_started_before_the_graph_prints_its_first_message(write_launc
 
 @pytest.mark.wall_time
 def test_echo_wait_ends_cleanly_on_ctrl_c():
-    echo = subprocess.Popen(dockhil_cmd("topic", "echo", "/nothing", "--wait"),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    echo = subprocess.Popen(
+        dockhil_cmd("topic", "echo", "/nothing", "--wait"), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     try:
         Lines(echo, echo.stderr).wait_for("[topic] waiting for /nothing", timeout=60)
         echo.send_signal(signal.SIGINT)
@@ -230,8 +253,12 @@ def test_node_info_follows_a_respawned_node_to_its_new_pid(write_launch, capsys)
 
 @pytest.mark.wall_time
 def test_a_composed_graph_is_listed_and_its_nodes_described(write_launch, capsys):
-    p = subprocess.Popen(dockhil_cmd("launch", write_launch(SCENE.replace("container: box, ", "")), "--wall-time",
-                                     "--composed"), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    p = subprocess.Popen(
+        dockhil_cmd("launch", write_launch(SCENE.replace("container: box, ", "")), "--wall-time", "--composed"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     lines = Lines(p)
     try:
         entry = registered(p.pid, timeout=60)

@@ -9,9 +9,11 @@ from tests.conftest import ROOT, dockhil_cmd
 from tests.inprocess import run_main
 
 # The line each node of the shipped hil.yaml is declared on, read from the file (a refusal names it).
-HIL_LINE = {line.split("name:", 1)[1].strip(): n
-            for n, line in enumerate((ROOT / "launch" / "hil.yaml").read_text().splitlines(), 1)
-            if line.strip().startswith("- name:")}
+HIL_LINE = {
+    line.split("name:", 1)[1].strip(): n
+    for n, line in enumerate((ROOT / "launch" / "hil.yaml").read_text().splitlines(), 1)
+    if line.strip().startswith("- name:")
+}
 
 LOOP = """
 rate: 1000
@@ -27,42 +29,85 @@ nodes:
 
 CASES = {
     "unknown node type": ("nodes:\n  - {name: a, node: no_such_node}\n", [], "unknown node type 'no_such_node'"),
-    "unknown param": ('nodes:\n  - {name: a, node: "tests.graphnodes:Source", params: {speed: 1}}\n', [],
-                      "unknown parameter 'speed'"),
-    "mistyped param": ('nodes:\n  - {name: i, node: "tests.graphnodes:Integrator", params: {x0: fast}}\n'
-                       '  - {name: g, node: "tests.graphnodes:Gain"}\n', [], "parameter 'x0': expected float, got str"),
-    "param out of range": ('nodes:\n  - {name: i, node: "tests.graphnodes:Integrator"}\n'
-                           '  - {name: g, node: "tests.graphnodes:Gain", params: {gain: -1}}\n', [],
-                           "'gain': -1.0 is out of range, must be >= 0.0"),
+    "unknown param": (
+        'nodes:\n  - {name: a, node: "tests.graphnodes:Source", params: {speed: 1}}\n',
+        [],
+        "unknown parameter 'speed'",
+    ),
+    "mistyped param": (
+        'nodes:\n  - {name: i, node: "tests.graphnodes:Integrator", params: {x0: fast}}\n'
+        '  - {name: g, node: "tests.graphnodes:Gain"}\n',
+        [],
+        "parameter 'x0': expected float, got str",
+    ),
+    "param out of range": (
+        'nodes:\n  - {name: i, node: "tests.graphnodes:Integrator"}\n'
+        '  - {name: g, node: "tests.graphnodes:Gain", params: {gain: -1}}\n',
+        [],
+        "'gain': -1.0 is out of range, must be >= 0.0",
+    ),
     "unknown arg": (LOOP, ["gian:=3"], "unknown arg 'gian'; did you mean 'gain'? (known args: gain, use_trace)"),
     "mistyped arg": (LOOP, ["gain:=high"], "arg 'gain' expects float, got 'high'"),
-    "unconnected input": ('nodes:\n  - {name: g, node: "tests.graphnodes:Gain"}\n', [],
-                          "node 'g' input 'x' needs topic /x but no node publishes it"),
-    "type mismatch": ('nodes:\n  - {name: s, node: "tests.graphnodes:Source"}\n'
-                      '  - {name: k, node: "tests.graphnodes:StateSink"}\n', [],
-                      "topic /x: s.x publishes dockhil/WrenchStamped but k.x expects dockhil/RobotState"),
-    "algebraic loop": ('nodes:\n  - {name: g1, node: "tests.graphnodes:Gain"}\n'
-                       '  - {name: g2, node: "tests.graphnodes:Gain", remap: {x: /u, u: /x}}\n', [],
-                       "algebraic loop g1 -> g2 -> g1"),
-    "two publishers": ('nodes:\n  - {name: a, node: "tests.graphnodes:Source"}\n'
-                       '  - {name: b, node: "tests.graphnodes:Source"}\n', [], "topic /x is published by both a.x and b.x"),
+    "unconnected input": (
+        'nodes:\n  - {name: g, node: "tests.graphnodes:Gain"}\n',
+        [],
+        "node 'g' input 'x' needs topic /x but no node publishes it",
+    ),
+    "type mismatch": (
+        'nodes:\n  - {name: s, node: "tests.graphnodes:Source"}\n  - {name: k, node: "tests.graphnodes:StateSink"}\n',
+        [],
+        "topic /x: s.x publishes dockhil/WrenchStamped but k.x expects dockhil/RobotState",
+    ),
+    "algebraic loop": (
+        'nodes:\n  - {name: g1, node: "tests.graphnodes:Gain"}\n'
+        '  - {name: g2, node: "tests.graphnodes:Gain", remap: {x: /u, u: /x}}\n',
+        [],
+        "algebraic loop g1 -> g2 -> g1",
+    ),
+    "two publishers": (
+        'nodes:\n  - {name: a, node: "tests.graphnodes:Source"}\n  - {name: b, node: "tests.graphnodes:Source"}\n',
+        [],
+        "topic /x is published by both a.x and b.x",
+    ),
     "bad yaml": ("nodes: [\n  - {name: a\n", [], "not valid YAML"),
     "not a mapping": ("- a\n- b\n", [], "a launch file is a YAML mapping"),
     "unknown key": ("nodez: []\n", [], "unknown key 'nodez'"),
-    "bad topic name": ('nodes:\n  - {name: a, node: "tests.graphnodes:Source", remap: {x: "no slash"}}\n', [],
-                       "topic 'no slash' of port 'x' must start with /"),
-    "bad remap": ('nodes:\n  - {name: a, node: "tests.graphnodes:Source", remap: {y: /z}}\n', [],
-                  "remap 'y' names no port or topic"),
-    "undeclared arg": ('nodes:\n  - {name: a, node: "tests.graphnodes:Source", if: $(arg sim)}\n', [],
-                       "$(arg sim) is not declared"),
-    "bad condition": ('nodes:\n  - {name: a, node: "tests.graphnodes:Source", if: maybe}\n', [],
-                      "neither true/false nor"),
-    "duplicate name": ('nodes:\n  - {name: a, node: "tests.graphnodes:Source"}\n'
-                       '  - {name: a, node: "tests.graphnodes:Sink"}\n', [], "two nodes are named 'a'"),
+    "bad topic name": (
+        'nodes:\n  - {name: a, node: "tests.graphnodes:Source", remap: {x: "no slash"}}\n',
+        [],
+        "topic 'no slash' of port 'x' must start with /",
+    ),
+    "bad remap": (
+        'nodes:\n  - {name: a, node: "tests.graphnodes:Source", remap: {y: /z}}\n',
+        [],
+        "remap 'y' names no port or topic",
+    ),
+    "undeclared arg": (
+        'nodes:\n  - {name: a, node: "tests.graphnodes:Source", if: $(arg sim)}\n',
+        [],
+        "$(arg sim) is not declared",
+    ),
+    "bad condition": (
+        'nodes:\n  - {name: a, node: "tests.graphnodes:Source", if: maybe}\n',
+        [],
+        "neither true/false nor",
+    ),
+    "duplicate name": (
+        'nodes:\n  - {name: a, node: "tests.graphnodes:Source"}\n  - {name: a, node: "tests.graphnodes:Sink"}\n',
+        [],
+        "two nodes are named 'a'",
+    ),
     "bad override syntax": (LOOP, ["gain=3"], "is not of the form name:=value"),
-    "no nodes left": ('args: {enabled: {default: false}}\nnodes:\n  - {name: a, node: "tests.graphnodes:Source", if: $(arg enabled)}\n',
-                      [], "no node to start after conditions"),
-    "boolean arg name": ('args: {on: {default: false}}\nnodes: []\n', [], "args: keys must be text (YAML reads on/off/yes/no as booleans"),
+    "no nodes left": (
+        'args: {enabled: {default: false}}\nnodes:\n  - {name: a, node: "tests.graphnodes:Source", if: $(arg enabled)}\n',
+        [],
+        "no node to start after conditions",
+    ),
+    "boolean arg name": (
+        "args: {on: {default: false}}\nnodes: []\n",
+        [],
+        "args: keys must be text (YAML reads on/off/yes/no as booleans",
+    ),
 }
 
 
@@ -86,12 +131,14 @@ def test_missing_file():
 
 def test_include_and_conditions(write_launch, tmp_path):
     (tmp_path / "child.yaml").write_text(
-        'args: {g: {default: 1.0}}\nnodes:\n  - {name: gain, node: "tests.graphnodes:Gain", params: {gain: $(arg g)}}\n')
+        'args: {g: {default: 1.0}}\nnodes:\n  - {name: gain, node: "tests.graphnodes:Gain", params: {gain: $(arg g)}}\n'
+    )
     path = write_launch(
         'args:\n  g: {default: 5.0}\n  trace: {default: "off", choices: ["on", "off"]}\n'
         'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
         '  - {name: tr, node: "tests.graphnodes:Trace", if: $(arg trace) == on}\n'
-        'include:\n  - {file: child.yaml, args: {g: $(arg g)}}\n')
+        "include:\n  - {file: child.yaml, args: {g: $(arg g)}}\n"
+    )
     from dockhil.scene import launchfile
     from dockhil.scene.graph import build
 
@@ -120,48 +167,110 @@ def test_graph_shows_what_conditions_left_out(write_launch):
 # command, the words that say what and where). Every one is refused in one line, exit 2, before anything runs.
 SOURCE = '  - {name: a, node: "tests.graphnodes:Source"'
 BAD_INPUTS = {
-    "rate .inf": ("graph", "rate: .inf\nnodes:\n" + SOURCE + "}\n", [],
-                  "scene.yaml:1: rate: expected a number <= 1000000.0, got inf"),
-    "rate 1e308": ("graph", "rate: 1e308\nnodes:\n" + SOURCE + "}\n", [],
-                   "scene.yaml:1: rate: expected a number <= 1000000.0, got 1e+308"),
-    "rate nan": ("graph", "nodes:\n" + SOURCE + "}\nrate: .nan\n", [],
-                 "scene.yaml:3: rate: expected a number >= 0.001, got nan"),
-    "duration .inf": ("graph", "duration: .inf\nnodes:\n" + SOURCE + "}\n", [],
-                      "scene.yaml:1: duration: expected a number <= 1000000.0, got inf"),
-    "respawn_delay soon": ("graph", "nodes:\n" + SOURCE + ", respawn: true, respawn_delay: soon}\n", [],
-                           "scene.yaml:2: nodes[0].respawn_delay: expected a number, got 'soon'"),
-    "respawn_delay -5": ("launch", "nodes:\n" + SOURCE + ", respawn: true, respawn_delay: -5}\n",
-                         ["--duration", "0.01"],
-                         "scene.yaml:2: nodes[0].respawn_delay: expected a number >= 0.0, got -5"),
-    "choices 5": ("graph", "args:\n  x: {default: 5, choices: 5}\nnodes:\n" + SOURCE + "}\n", [],
-                  "scene.yaml:2: args.x.choices: expected a list, got 5"),
-    "node os:system": ("graph", "nodes:\n  - {name: a, node: 'os:system'}\n", [],
-                       "scene.yaml:2: node 'a': node type 'os:system': system is not a dockhil node"),
-    "node json:dumps": ("graph", "nodes:\n  - {name: a, node: 'json:dumps'}\n", [],
-                        "scene.yaml:2: node 'a': node type 'json:dumps': "),  # not a class: not a node
+    "rate .inf": (
+        "graph",
+        "rate: .inf\nnodes:\n" + SOURCE + "}\n",
+        [],
+        "scene.yaml:1: rate: expected a number <= 1000000.0, got inf",
+    ),
+    "rate 1e308": (
+        "graph",
+        "rate: 1e308\nnodes:\n" + SOURCE + "}\n",
+        [],
+        "scene.yaml:1: rate: expected a number <= 1000000.0, got 1e+308",
+    ),
+    "rate nan": (
+        "graph",
+        "nodes:\n" + SOURCE + "}\nrate: .nan\n",
+        [],
+        "scene.yaml:3: rate: expected a number >= 0.001, got nan",
+    ),
+    "duration .inf": (
+        "graph",
+        "duration: .inf\nnodes:\n" + SOURCE + "}\n",
+        [],
+        "scene.yaml:1: duration: expected a number <= 1000000.0, got inf",
+    ),
+    "respawn_delay soon": (
+        "graph",
+        "nodes:\n" + SOURCE + ", respawn: true, respawn_delay: soon}\n",
+        [],
+        "scene.yaml:2: nodes[0].respawn_delay: expected a number, got 'soon'",
+    ),
+    "respawn_delay -5": (
+        "launch",
+        "nodes:\n" + SOURCE + ", respawn: true, respawn_delay: -5}\n",
+        ["--duration", "0.01"],
+        "scene.yaml:2: nodes[0].respawn_delay: expected a number >= 0.0, got -5",
+    ),
+    "choices 5": (
+        "graph",
+        "args:\n  x: {default: 5, choices: 5}\nnodes:\n" + SOURCE + "}\n",
+        [],
+        "scene.yaml:2: args.x.choices: expected a list, got 5",
+    ),
+    "node os:system": (
+        "graph",
+        "nodes:\n  - {name: a, node: 'os:system'}\n",
+        [],
+        "scene.yaml:2: node 'a': node type 'os:system': system is not a dockhil node",
+    ),
+    "node json:dumps": (
+        "graph",
+        "nodes:\n  - {name: a, node: 'json:dumps'}\n",
+        [],
+        "scene.yaml:2: node 'a': node type 'json:dumps': ",
+    ),  # not a class: not a node
     "20000 nested [": ("graph", "nodes: " + "[" * 20000 + "\n", [], "scene.yaml:1: nested deeper than 32 levels"),
     "--duration inf": ("launch", LOOP, ["--duration", "inf"], "argument --duration: 'inf' is not a finite number"),
     "--duration nan": ("launch", LOOP, ["--duration", "nan"], "argument --duration: 'nan' is not a finite number"),
     "--duration -1": ("launch", LOOP, ["--duration=-1"], "argument --duration: -1 s must be > 0"),
-    "delay:=1e308": ("graph", "launch/hil.yaml", ["delay:=1e308"],
-                     f"hil.yaml:{HIL_LINE['delay']}: node 'delay' parameter 'delay': 1e+308 s is outside 0 to 60 s"),
+    "delay:=1e308": (
+        "graph",
+        "launch/hil.yaml",
+        ["delay:=1e308"],
+        f"hil.yaml:{HIL_LINE['delay']}: node 'delay' parameter 'delay': 1e+308 s is outside 0 to 60 s",
+    ),
     "params --m1 1e-320": ("params", None, ["--table1", "--m1", "1e-320"], "--m1 1e-320 is too small to compute with"),
     "params --m1 1e308": ("params", None, ["--table1", "--m1", "1e308"], "--m1 1e+308 kg is outside 0.01 to 1e+08 kg"),
-    "params --m1 2e150 (solve_ivp never ended)": ("params", None, ["--table1", "--states", "solve_ivp", "--m1", "2e150",
-                                                                   "--m2", "6e-5"],
-                                                  "--m1 2e+150 kg is outside 0.01 to 1e+08 kg"),
+    "params --m1 2e150 (solve_ivp never ended)": (
+        "params",
+        None,
+        ["--table1", "--states", "solve_ivp", "--m1", "2e150", "--m2", "6e-5"],
+        "--m1 2e+150 kg is outside 0.01 to 1e+08 kg",
+    ),
     # sqrt(m / kcs) with m = 750 * 1e6 / (750 + 1e6) kg = 749.44 kg and kcs = 1e-300 N/m: 2.74e151 s
-    "params --kcs 1e-300": ("params", None, ["--table1", "--kcs", "1e-300", "--k", "0", "--bcs", "0"],
-                            "the contact's time scale sqrt(m/kcs) = 2.74e+151 s is outside 1e-09 to 1e+09 s"),
-    "params --dt 1e-9": ("params", None, ["--table1", "--states", "rk4", "--dt", "1e-9"],
-                         "--dt 1e-09 s takes 1.18e+09 steps"),
+    "params --kcs 1e-300": (
+        "params",
+        None,
+        ["--table1", "--kcs", "1e-300", "--k", "0", "--bcs", "0"],
+        "the contact's time scale sqrt(m/kcs) = 2.74e+151 s is outside 1e-09 to 1e+09 s",
+    ),
+    "params --dt 1e-9": (
+        "params",
+        None,
+        ["--table1", "--states", "rk4", "--dt", "1e-9"],
+        "--dt 1e-09 s takes 1.18e+09 steps",
+    ),
     "arg typo": ("graph", "launch/hil.yaml", ["delya:=0.1"], "unknown arg 'delya'; did you mean 'delay'?"),
-    "key typo": ("graph", "nodes:\n" + SOURCE + ", parms: {}}\n", [],
-                 "scene.yaml:2: nodes[0].parms: unknown key 'parms'; did you mean 'params'?"),
-    "subnormal param": ("graph", "launch/hil.yaml", ["m1:=1e-320"],
-                        f"hil.yaml:{HIL_LINE['dynamics']}: node 'dynamics' parameter 'm1': 1e-320 is too small to compute with"),
-    "rate arg 2e6": ("graph", "rate: $(arg rate)\nargs: {rate: {default: 1000.0}}\nnodes:\n" + SOURCE + "}\n",
-                     ["rate:=2e6"], "scene.yaml:1: rate: expected a number <= 1000000.0, got 2000000.0"),
+    "key typo": (
+        "graph",
+        "nodes:\n" + SOURCE + ", parms: {}}\n",
+        [],
+        "scene.yaml:2: nodes[0].parms: unknown key 'parms'; did you mean 'params'?",
+    ),
+    "subnormal param": (
+        "graph",
+        "launch/hil.yaml",
+        ["m1:=1e-320"],
+        f"hil.yaml:{HIL_LINE['dynamics']}: node 'dynamics' parameter 'm1': 1e-320 is too small to compute with",
+    ),
+    "rate arg 2e6": (
+        "graph",
+        "rate: $(arg rate)\nargs: {rate: {default: 1000.0}}\nnodes:\n" + SOURCE + "}\n",
+        ["rate:=2e6"],
+        "scene.yaml:1: rate: expected a number <= 1000000.0, got 2000000.0",
+    ),
     "recursive alias": ("graph", "nodes: &n [*n]\n", [], "scene.yaml:1: alias *n refers to the value that contains it"),
 }
 
@@ -197,13 +306,17 @@ def test_summary_never_replaces_the_bag_or_a_file_that_is_no_summary(tmp_path):
     bag = tmp_path / "run.mcap"
     # the same file for --bag and --summary: the summary would overwrite the recording
     for spelling in (bag, tmp_path / "." / "run.mcap"):
-        code, out, err = run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--bag", bag,
-                                  "--summary", spelling)
+        code, out, err = run_main(
+            "launch", "launch/ideal.yaml", "--composed", "--quiet", "--bag", bag, "--summary", spelling
+        )
         assert_one_line_refusal(code, err, f"--summary {spelling}: is the file --bag records to")
         assert not bag.exists()  # nothing ran
     # an existing file that is not a summary (a bag, data, a script) is left alone
-    for name, content in (("old.mcap", b"\x89MCAP0\r\n" + bytes(100)), ("table.csv", b"a,b\n1,2\n"),
-                          ("other.json", b'{"name": "not a run summary"}')):
+    for name, content in (
+        ("old.mcap", b"\x89MCAP0\r\n" + bytes(100)),
+        ("table.csv", b"a,b\n1,2\n"),
+        ("other.json", b'{"name": "not a run summary"}'),
+    ):
         path = tmp_path / name
         path.write_bytes(content)
         code, out, err = run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--summary", path)
@@ -211,11 +324,14 @@ def test_summary_never_replaces_the_bag_or_a_file_that_is_no_summary(tmp_path):
         assert path.read_bytes() == content
     # the summary of an earlier run is replaced, complete
     path = tmp_path / "s.json"
-    assert run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--duration", "0.05",
-                    "--summary", path)[0] == 0
+    assert (
+        run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--duration", "0.05", "--summary", path)[0]
+        == 0
+    )
     first = json.loads(path.read_text())
-    code, _, err = run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--duration", "0.1",
-                            "--summary", path)
+    code, _, err = run_main(
+        "launch", "launch/ideal.yaml", "--composed", "--quiet", "--duration", "0.1", "--summary", path
+    )
     assert code == 0, err
     second = json.loads(path.read_text())
     assert (first["sim_time_s"], second["sim_time_s"]) == (0.05, 0.1)
@@ -249,7 +365,8 @@ def test_a_real_robot_never_moves_on_a_replayed_recording(command, tmp_path, wri
         "  - {name: ft, node: bag_source, params: {path: %s, topics: [/ft/wrench]}}\n"
         "  - {name: dynamics, node: satellite_dynamics}\n"
         "  - {name: impedance, node: virtual_impedance}\n"
-        "  - {name: robot, node: robot_modbus, remap: {wrench: /unused}}\n" % bag)
+        "  - {name: robot, node: robot_modbus, remap: {wrench: /unused}}\n" % bag
+    )
     code, _, err = run_main(command, scene)
     assert_one_line_refusal(code, err, "input 'command' (/robot/command) depends on /ft/wrench")
     assert "from 'ft' (bag_source), which replays a recording" in err, err
@@ -285,8 +402,10 @@ def test_a_run_that_writes_no_summary_leaves_no_earlier_one_behind(tmp_path):
     """A valid summary of an earlier run at --summary PATH, then a run refused by its scene check: what is at
     PATH afterwards must not say "valid" about a run that did not happen."""
     path = tmp_path / "s.json"
-    assert run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--duration", "0.05",
-                    "--summary", path)[0] == 0
+    assert (
+        run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--duration", "0.05", "--summary", path)[0]
+        == 0
+    )
     assert json.loads(path.read_text())["valid"] is True
     code, _, err = run_main("launch", "launch/hil.yaml", "rate:=2", "--composed", "--quiet", "--summary", path)
     assert_one_line_refusal(code, err, "refused: the step does not resolve the contact")
@@ -294,9 +413,11 @@ def test_a_run_that_writes_no_summary_leaves_no_earlier_one_behind(tmp_path):
 
 
 def test_rate_from_an_argument_sets_the_step(write_launch):
-    path = write_launch("rate: $(arg rate)\nduration: $(arg T)\nargs:\n  rate: {default: 1000.0}\n  T: {default: 0.5}\n"
-                        'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
-                        '  - {name: gain, node: "tests.graphnodes:Gain"}\n')
+    path = write_launch(
+        "rate: $(arg rate)\nduration: $(arg T)\nargs:\n  rate: {default: 1000.0}\n  T: {default: 0.5}\n"
+        'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
+        '  - {name: gain, node: "tests.graphnodes:Gain"}\n'
+    )
     from dockhil.scene import launchfile
 
     scene = launchfile.load(path, {"rate": "250", "T": "2"})
@@ -305,9 +426,11 @@ def test_rate_from_an_argument_sets_the_step(write_launch):
 
 
 def test_aliases_within_bounds_still_work(write_launch):
-    path = write_launch('nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
-                        '  - {name: gain, node: "tests.graphnodes:Gain", params: &p {gain: 3.0}}\n'
-                        '  - {name: g2, node: "tests.graphnodes:Gain", params: *p, remap: {x: /u, u: /y}}\n')
+    path = write_launch(
+        'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
+        '  - {name: gain, node: "tests.graphnodes:Gain", params: &p {gain: 3.0}}\n'
+        '  - {name: g2, node: "tests.graphnodes:Gain", params: *p, remap: {x: /u, u: /y}}\n'
+    )
     from dockhil.scene import launchfile
 
     scene = launchfile.load(path)
@@ -333,7 +456,8 @@ def test_node_path_must_name_a_node_class(tmp_path, monkeypatch):
 
     marker = tmp_path / "imported"
     (tmp_path / "sidefx_mod.py").write_text(
-        f"open({str(marker)!r}, 'w').close()\n\ndef run():\n    pass\n\n\nclass Helper:\n    pass\n")
+        f"open({str(marker)!r}, 'w').close()\n\ndef run():\n    pass\n\n\nclass Helper:\n    pass\n"
+    )
     monkeypatch.syspath_prepend(str(tmp_path))
     with pytest.raises(LaunchError, match="module 'sidefx_mod' defines no class 'run'"):
         nodes.load("sidefx_mod:run")
@@ -341,8 +465,12 @@ def test_node_path_must_name_a_node_class(tmp_path, monkeypatch):
     with pytest.raises(LaunchError, match="Helper is not a dockhil node"):
         nodes.load("sidefx_mod:Helper")
     assert marker.exists()
-    for path, words in [("os:system", "system is not a dockhil node"), ("dockhil.node:Node", "Node is not a dockhil node"),
-                        ("a..b:X", "not of the form package.module:Class"), ("no_such_pkg.x:Y", "cannot import")]:
+    for path, words in [
+        ("os:system", "system is not a dockhil node"),
+        ("dockhil.node:Node", "Node is not a dockhil node"),
+        ("a..b:X", "not of the form package.module:Class"),
+        ("no_such_pkg.x:Y", "cannot import"),
+    ]:
         with pytest.raises(LaunchError, match=words.replace(".", r"\.")):
             nodes.load(path)
     assert nodes.load("tests.graphnodes:Gain").__name__ == "Gain"

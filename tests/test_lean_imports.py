@@ -98,8 +98,10 @@ def test_simulated_hil_scene_composed_loads_none_of_them(rows):
 
 
 def test_violations_names_the_node_and_the_package():
-    fake = [{"node": "ft_sim", "kind": "node", "after_import": ["scipy"], "after_setup": ["scipy", "can"]},
-            {"node": "ft_can", "kind": "node", "after_import": [], "after_setup": ["can"]}]
+    fake = [
+        {"node": "ft_sim", "kind": "node", "after_import": ["scipy"], "after_setup": ["scipy", "can"]},
+        {"node": "ft_can", "kind": "node", "after_import": [], "after_setup": ["can"]},
+    ]
     found = leanness.violations(fake)
     assert any("ft_sim" in v and "scipy" in v and "import" in v for v in found)
     assert any("ft_sim" in v and "can" in v and "setup" in v for v in found)
@@ -132,7 +134,8 @@ def test_a_node_processs_authentication_and_loop_report_load_neither_asyncio_nor
         "sub.close(); pub.close(); ctx.term()\n"
         "print(sorted(m for m in ('asyncio', 'numpy') if m in sys.modules))\n"
     )
-    done = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=60,
-                          cwd=str(leanness.ROOT))
+    done = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=60, cwd=str(leanness.ROOT)
+    )
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[]", done.stdout

@@ -65,9 +65,22 @@ def test_one_percent_loss_on_both_links_is_counted_and_the_run_valid_or_held(tmp
     retry, or held with one line."""
     scene = lossy_scene(tmp_path, 1.0, tmp_path)
     for _attempt in range(2):
-        p = subprocess.run(dockhil_cmd("launch", str(scene), "ft:=netft", "robot:=rsi", "emulators:=true",
-                                       "rate:=250", "--wall-time", "--duration", "6"),
-                           capture_output=True, text=True, timeout=90)
+        p = subprocess.run(
+            dockhil_cmd(
+                "launch",
+                str(scene),
+                "ft:=netft",
+                "robot:=rsi",
+                "emulators:=true",
+                "rate:=250",
+                "--wall-time",
+                "--duration",
+                "6",
+            ),
+            capture_output=True,
+            text=True,
+            timeout=90,
+        )
         text = p.stdout + p.stderr
         assert "Traceback" not in text, text
         invalid = next((x for x in text.splitlines() if "INVALID:" in x), "")

@@ -54,7 +54,8 @@ def launch(*args):
 
 @pytest.mark.parametrize("level, shown", [("warning", ("warning", "error")), ("debug", WORDS)])
 def test_the_level_filters_and_the_file_gets_the_node_processes_records_with_their_prefixes(
-        write_launch, tmp_path, level, shown):
+    write_launch, tmp_path, level, shown
+):
     scene, file = write_launch(CHATTY), tmp_path / "run.log"
     r = launch(scene, "--log-level", level, "--log-file", file)
     assert r.returncode == 0, r.stderr
@@ -75,11 +76,23 @@ def node_process(tmp_path, env, node="Chatty"):
     from dockhil.runtime.transport import GraphKeys
 
     keys = GraphKeys.make().write(tmp_path / "graph.keys")
-    spec = {"name": "alone", "type_name": f"tests.lognodes:{node}", "dt": 0.01, "clock": "sim", "n_ticks": 3,
-            "params": {}, "key_file": str(keys),
-            "outputs": {"x": {"topic": "/x", "endpoint": f"ipc://{tmp_path}/x", "type": "dockhil/WrenchStamped"}}}
-    return subprocess.run([sys.executable, "-m", "dockhil.process", json.dumps(spec)], capture_output=True,
-                          text=True, env=dict(os.environ, **env), timeout=60)
+    spec = {
+        "name": "alone",
+        "type_name": f"tests.lognodes:{node}",
+        "dt": 0.01,
+        "clock": "sim",
+        "n_ticks": 3,
+        "params": {},
+        "key_file": str(keys),
+        "outputs": {"x": {"topic": "/x", "endpoint": f"ipc://{tmp_path}/x", "type": "dockhil/WrenchStamped"}},
+    }
+    return subprocess.run(
+        [sys.executable, "-m", "dockhil.process", json.dumps(spec)],
+        capture_output=True,
+        text=True,
+        env=dict(os.environ, **env),
+        timeout=60,
+    )
 
 
 def test_a_node_process_sends_the_launcher_only_what_its_level_shows(tmp_path):
@@ -87,14 +100,16 @@ def test_a_node_process_sends_the_launcher_only_what_its_level_shows(tmp_path):
     assert r.returncode == 0 and r.stderr == "", r.stderr
     # split at \n alone, as the launcher reads: str.splitlines() also splits at FORWARD's \x1e
     sent = [line for line in r.stdout.split("\n") if line.startswith(log.FORWARD)]
-    assert [json.loads(line[len(log.FORWARD):])[:3] for line in sent] == [
-        [30, "[alone]", "alone says warning"], [40, "[alone]", "alone says error"]]
+    assert [json.loads(line[len(log.FORWARD) :])[:3] for line in sent] == [
+        [30, "[alone]", "alone says warning"],
+        [40, "[alone]", "alone says error"],
+    ]
 
 
 def test_a_library_warning_in_a_node_process_is_a_warning_under_the_nodes_name(tmp_path):
     r = node_process(tmp_path, {log.LEVEL_ENV: "info", log.FORWARD_ENV: "1"}, node="Library")
     assert r.returncode == 0 and r.stderr == "", r.stderr
-    sent = [json.loads(line[len(log.FORWARD):]) for line in r.stdout.split("\n") if line.startswith(log.FORWARD)]
+    sent = [json.loads(line[len(log.FORWARD) :]) for line in r.stdout.split("\n") if line.startswith(log.FORWARD)]
     assert [s[:2] for s in sent] == [[30, "[alone]"], [30, "[alone]"]]
     assert sent[0][2] == "somelib says warning"
     assert "UserWarning: python says warning" in sent[1][2]
@@ -103,8 +118,9 @@ def test_a_library_warning_in_a_node_process_is_a_warning_under_the_nodes_name(t
 def test_a_node_process_started_by_hand_writes_its_lines_to_stderr(tmp_path):
     r = node_process(tmp_path, {log.LEVEL_ENV: "", log.FORWARD_ENV: ""})  # as on another host
     assert r.returncode == 0 and log.FORWARD not in r.stdout
-    assert node_lines(r.stderr) == {f"[alone] {w}alone says {n}" for w, n in
-                                    (("", "info"), ("warning: ", "warning"), ("error: ", "error"))}
+    assert node_lines(r.stderr) == {
+        f"[alone] {w}alone says {n}" for w, n in (("", "info"), ("warning: ", "warning"), ("error: ", "error"))
+    }
 
 
 def test_a_composed_run_says_the_same_lines(write_launch):
@@ -126,10 +142,17 @@ def test_a_file_that_appends_keeps_the_earlier_runs(write_launch, tmp_path):
 # --------------------------------------------------------------------------- the records' form
 
 
-@pytest.mark.parametrize("line, level, text", [
-    ("warning: low", 30, "low"), ("error: bad", 40, "bad"), ("debug: detail", 10, "detail"),
-    ("note: kept", 20, "note: kept"), ("plain words", 20, "plain words"), ("warning:no space", 20, "warning:no space"),
-])
+@pytest.mark.parametrize(
+    "line, level, text",
+    [
+        ("warning: low", 30, "low"),
+        ("error: bad", 40, "bad"),
+        ("debug: detail", 10, "detail"),
+        ("note: kept", 20, "note: kept"),
+        ("plain words", 20, "plain words"),
+        ("warning:no space", 20, "warning:no space"),
+    ],
+)
 def test_a_nodes_line_says_its_level_with_its_first_word(line, level, text):
     assert log.level_of(line) == (level, text)
 
@@ -158,11 +181,16 @@ def test_the_file_gives_every_warning_and_error_its_level_word(tmp_path):
     log.Log("[launch]").error("INVALID: late (exit 3)", tag="")
     log.Log("[launch]").info("done")
     log.setup()  # closes the file
-    assert out.getvalue().splitlines() == ["[launch] node 'x' exited with code 3 while running; stopping the graph",
-                                           "[launch] INVALID: late (exit 3)", "[launch] done"]
+    assert out.getvalue().splitlines() == [
+        "[launch] node 'x' exited with code 3 while running; stopping the graph",
+        "[launch] INVALID: late (exit 3)",
+        "[launch] done",
+    ]
     assert [line.split("Z ", 1)[1] for line in file.read_text().splitlines()] == [
         "[launch] error: node 'x' exited with code 3 while running; stopping the graph",
-        "[launch] error: INVALID: late (exit 3)", "[launch] done"]
+        "[launch] error: INVALID: late (exit 3)",
+        "[launch] done",
+    ]
 
 
 # --------------------------------------------------------------------------- progress and records
@@ -187,7 +215,7 @@ def screen(written: str) -> list[str]:
         elif token == "\x1b[K":
             del row[col:]
         else:
-            row[col:col + len(token)] = list(token)
+            row[col : col + len(token)] = list(token)
             col += len(token)
     return ["".join(row) for row in lines]
 
@@ -279,11 +307,14 @@ def test_an_unwritable_log_file_is_one_line_and_exit_2_before_anything_runs(comm
 
 
 def test_a_bad_level_is_one_line_and_exit_2():
-    r = subprocess.run(dockhil_cmd("launch", "launch/ideal.yaml", "--log-level", "loud"), capture_output=True,
-                       text=True, timeout=60)
+    r = subprocess.run(
+        dockhil_cmd("launch", "launch/ideal.yaml", "--log-level", "loud"), capture_output=True, text=True, timeout=60
+    )
     assert r.returncode == 2 and r.stdout == ""
-    assert r.stderr == ("dockhil launch: error: argument --log-level: not a level; give one of debug, info, "
-                        "warning, error; see 'dockhil launch --help'\n")
+    assert r.stderr == (
+        "dockhil launch: error: argument --log-level: not a level; give one of debug, info, "
+        "warning, error; see 'dockhil launch --help'\n"
+    )
 
 
 def test_a_log_file_that_fails_later_says_so_once_and_the_log_goes_on(capsys):
@@ -292,8 +323,10 @@ def test_a_log_file_that_fails_later_says_so_once_and_the_log_goes_on(capsys):
     for i in range(3):
         log.Log("[x]").info(f"record {i}")
     err = capsys.readouterr().err
-    assert err == ("dockhil: warning: --log-file /dev/full: writing failed (No space left on device); "
-                   "the log goes on to stderr only\n")
+    assert err == (
+        "dockhil: warning: --log-file /dev/full: writing failed (No space left on device); "
+        "the log goes on to stderr only\n"
+    )
     assert out.getvalue().splitlines() == [f"[x] record {i}" for i in range(3)]
 
 
@@ -305,17 +338,23 @@ def test_a_misspelt_node_type_gets_a_suggestion(write_launch, capsys):
     assert cli.main(["launch", str(scene)]) == 2
     out, err = capsys.readouterr()
     assert out == "" and err.count("\n") == 1
-    assert f"{scene}:3: node 'dynamics': unknown node type 'satelite_dynamics'; did you mean " \
-           f"'satellite_dynamics'? (known types: " in err
+    assert (
+        f"{scene}:3: node 'dynamics': unknown node type 'satelite_dynamics'; did you mean "
+        f"'satellite_dynamics'? (known types: " in err
+    )
 
 
-@pytest.mark.parametrize("given, says", [
-    ("kcss", "unknown parameter 'kcss'; did you mean 'kcs'? (known: b1, b2, bcs, compensation, "),
-    ("zzz", "unknown parameter 'zzz'; known: b1, b2, bcs, compensation, "),  # nothing close: the list alone
-])
+@pytest.mark.parametrize(
+    "given, says",
+    [
+        ("kcss", "unknown parameter 'kcss'; did you mean 'kcs'? (known: b1, b2, bcs, compensation, "),
+        ("zzz", "unknown parameter 'zzz'; known: b1, b2, bcs, compensation, "),  # nothing close: the list alone
+    ],
+)
 def test_a_misspelt_node_parameter_gets_a_suggestion(write_launch, capsys, given, says):
-    scene = write_launch(f"duration: 0.1\nnodes:\n  - {{name: imp, node: virtual_impedance, "
-                         f"params: {{{given}: 1.0}}}}\n")
+    scene = write_launch(
+        f"duration: 0.1\nnodes:\n  - {{name: imp, node: virtual_impedance, params: {{{given}: 1.0}}}}\n"
+    )
     assert cli.main(["graph", str(scene)]) == 2
     out, err = capsys.readouterr()
     assert out == "" and err.count("\n") == 1

@@ -16,9 +16,14 @@ vec = st.builds(msgs.Vector3, finite, finite, finite)
 
 def sample(cls):
     if cls is msgs.SatelliteState:
-        return cls(header=msgs.Header(stamp=1.5, tick=3, seq=3, frame="com"),
-                   bodies=(msgs.BodyState("chaser", 750.0, msgs.Pose(msgs.Vector3(0.1, 0, 0)),
-                                          msgs.Twist(msgs.Vector3(0.03, 0, 0))),))
+        return cls(
+            header=msgs.Header(stamp=1.5, tick=3, seq=3, frame="com"),
+            bodies=(
+                msgs.BodyState(
+                    "chaser", 750.0, msgs.Pose(msgs.Vector3(0.1, 0, 0)), msgs.Twist(msgs.Vector3(0.03, 0, 0))
+                ),
+            ),
+        )
     if cls is msgs.BodyWrenches:
         return cls(header=msgs.Header(tick=1), wrenches=(msgs.Wrench(msgs.Vector3(1, 2, 3), msgs.Vector3(4, 5, 6)),))
     return cls(header=msgs.Header(stamp=0.25, tick=7, seq=7, frame="probe"))
@@ -70,9 +75,13 @@ def test_random_bytes_never_crash(data):
 
 
 @settings(max_examples=200)
-@given(st.recursive(st.none() | st.booleans() | st.floats() | st.integers(-2**63, 2**64 - 1) | st.text(max_size=5),
-                    lambda c: st.lists(c, max_size=4) | st.dictionaries(st.text(max_size=8), c, max_size=4),
-                    max_leaves=20))
+@given(
+    st.recursive(
+        st.none() | st.booleans() | st.floats() | st.integers(-(2**63), 2**64 - 1) | st.text(max_size=5),
+        lambda c: st.lists(c, max_size=4) | st.dictionaries(st.text(max_size=8), c, max_size=4),
+        max_leaves=20,
+    )
+)
 def test_random_msgpack_values_never_crash(value):
     data = msgpack.packb(value)
     for cls in msgs.TYPES.values():

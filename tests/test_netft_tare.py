@@ -33,8 +33,9 @@ def start():
     def make(logs: list, counts, n=20, **params):
         box = FakeBox()
         box.on_start = [record(i + 1, 10 * (i + 1), 0, counts[i % len(counts)]) for i in range(n)]
-        driver = FtNetFtDriver(ctx(logs), host="127.0.0.1", port=box.port, http_port=box.http_port,
-                               tare_samples=20, **params)
+        driver = FtNetFtDriver(
+            ctx(logs), host="127.0.0.1", port=box.port, http_port=box.http_port, tare_samples=20, **params
+        )
         opened.append((box, driver))
         driver.setup()
         return box, driver

@@ -154,17 +154,20 @@ nodes:
     return str(path)
 
 
-@pytest.mark.parametrize("cls, line", [
-    ("RaisesAtTick2", "node 'bad' failed at tick 2: ValueError: boom"),
-    ("ReturnsNone", "node 'bad' returned NoneType from step at tick 0; step returns a dict of its outputs"),
-    ("FailsAtSetup", "node 'bad' failed at setup: KeyError: 'calibration'"),
-    ("ExitsAtTick2", "node 'bad' called sys.exit(0) at tick 2; a node ends with its graph"),
-    ("FailsAtClose", "node 'bad' failed at close: RuntimeError: could not hold"),
-    ("InterruptsAtTick2", "node 'bad' raised KeyboardInterrupt at tick 2 (not a Ctrl-C"),
-    ("InterruptsAtSetup", "node 'bad' raised KeyboardInterrupt at setup (not a Ctrl-C"),
-    ("InterruptsAtClose", "node 'bad' raised KeyboardInterrupt at close (not a Ctrl-C"),
-    ("ExitsAtClose", "node 'bad' called sys.exit(0) at close; a node ends with its graph"),
-])
+@pytest.mark.parametrize(
+    "cls, line",
+    [
+        ("RaisesAtTick2", "node 'bad' failed at tick 2: ValueError: boom"),
+        ("ReturnsNone", "node 'bad' returned NoneType from step at tick 0; step returns a dict of its outputs"),
+        ("FailsAtSetup", "node 'bad' failed at setup: KeyError: 'calibration'"),
+        ("ExitsAtTick2", "node 'bad' called sys.exit(0) at tick 2; a node ends with its graph"),
+        ("FailsAtClose", "node 'bad' failed at close: RuntimeError: could not hold"),
+        ("InterruptsAtTick2", "node 'bad' raised KeyboardInterrupt at tick 2 (not a Ctrl-C"),
+        ("InterruptsAtSetup", "node 'bad' raised KeyboardInterrupt at setup (not a Ctrl-C"),
+        ("InterruptsAtClose", "node 'bad' raised KeyboardInterrupt at close (not a Ctrl-C"),
+        ("ExitsAtClose", "node 'bad' called sys.exit(0) at close; a node ends with its graph"),
+    ],
+)
 def test_a_composed_run_names_the_failing_node_and_tick(tmp_path, cls, line):
     code, out, err = run_main("launch", scene(tmp_path, cls), "--composed")
     assert code == 1
@@ -175,18 +178,24 @@ def test_a_composed_run_names_the_failing_node_and_tick(tmp_path, cls, line):
 def test_a_node_process_says_the_same_of_a_step_that_returns_no_dict():
     declared = ReturnsNone.outputs
     for returned in (None, [1], "w"):
-        with pytest.raises(Exception, match=rf"node 'bad' returned {type(returned).__name__} from step at tick 7; "
-                                            r"step returns a dict of its outputs \(port -> message\), \{\} for none"):
+        with pytest.raises(
+            Exception,
+            match=rf"node 'bad' returned {type(returned).__name__} from step at tick 7; "
+            r"step returns a dict of its outputs \(port -> message\), \{\} for none",
+        ):
             check_outputs("bad", declared, 7, returned, sim=True)
 
 
-@pytest.mark.parametrize("cls, line", [
-    ("ExitsAtTick2", "[bad] error: node 'bad' called sys.exit(0) at tick 2; a node ends with its graph"),
-    ("FailsAtClose", "[bad] error: node 'bad' failed at close: RuntimeError: could not hold"),
-    ("FailsAtSetup", "[bad] error: node 'bad' failed at setup: KeyError: 'calibration'"),
-    ("InterruptsAtTick2", "[bad] error: node 'bad' raised KeyboardInterrupt at tick 2 (not a Ctrl-C"),
-    ("ExitsAtClose", "[bad] error: node 'bad' called sys.exit(0) at close; a node ends with its graph"),
-])
+@pytest.mark.parametrize(
+    "cls, line",
+    [
+        ("ExitsAtTick2", "[bad] error: node 'bad' called sys.exit(0) at tick 2; a node ends with its graph"),
+        ("FailsAtClose", "[bad] error: node 'bad' failed at close: RuntimeError: could not hold"),
+        ("FailsAtSetup", "[bad] error: node 'bad' failed at setup: KeyError: 'calibration'"),
+        ("InterruptsAtTick2", "[bad] error: node 'bad' raised KeyboardInterrupt at tick 2 (not a Ctrl-C"),
+        ("ExitsAtClose", "[bad] error: node 'bad' called sys.exit(0) at close; a node ends with its graph"),
+    ],
+)
 def test_a_node_process_says_the_same_and_fails_the_run(tmp_path, cls, line):
     import subprocess
 
@@ -196,17 +205,21 @@ def test_a_node_process_says_the_same_and_fails_the_run(tmp_path, cls, line):
     assert "Traceback" not in run.stderr and "SIGINT" not in run.stderr
 
 
-@pytest.mark.parametrize("cls, line", [
-    ("RaisesAtTick2", "[box] error: node 'bad' failed at tick 2: ValueError: boom"),
-    ("InterruptsAtTick2", "[box] error: node 'bad' raised KeyboardInterrupt at tick 2 (not a Ctrl-C"),
-    ("InterruptsAtClose", "[box] error: node 'bad' raised KeyboardInterrupt at close (not a Ctrl-C"),
-    ("FailsAtClose", "[box] error: node 'bad' failed at close: RuntimeError: could not hold"),  # not 'box' failed
-])
+@pytest.mark.parametrize(
+    "cls, line",
+    [
+        ("RaisesAtTick2", "[box] error: node 'bad' failed at tick 2: ValueError: boom"),
+        ("InterruptsAtTick2", "[box] error: node 'bad' raised KeyboardInterrupt at tick 2 (not a Ctrl-C"),
+        ("InterruptsAtClose", "[box] error: node 'bad' raised KeyboardInterrupt at close (not a Ctrl-C"),
+        ("FailsAtClose", "[box] error: node 'bad' failed at close: RuntimeError: could not hold"),  # not 'box' failed
+    ],
+)
 def test_a_container_names_the_member_that_failed(tmp_path, cls, line):
     import subprocess
 
-    run = subprocess.run(dockhil_cmd("launch", scene(tmp_path, cls, container=True)),
-                         capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        dockhil_cmd("launch", scene(tmp_path, cls, container=True)), capture_output=True, text=True, timeout=120
+    )
     assert run.returncode == 1
     assert line in run.stderr
     assert "node 'box'" not in run.stderr.split("[launch]")[0] and "Traceback" not in run.stderr
@@ -235,7 +248,6 @@ def test_dockhil_traceback_shows_where_the_node_raised(tmp_path, monkeypatch):
     assert code == 1
     assert "node 'bad' failed at tick 2: ValueError: boom" in err
     assert 'raise ValueError("boom")' in err and "test_node_failures.py" in err
-
 
 
 class BuildsAList(Node):
@@ -280,8 +292,7 @@ def test_a_reader_cannot_change_a_message_composed_as_it_cannot_across_processes
 
     code, out, err = run_main("launch", mutation_scene(tmp_path), "--composed")
     assert code == 1 and f"[launch] error: {LINE}" in err
-    run = subprocess.run(dockhil_cmd("launch", mutation_scene(tmp_path)), capture_output=True, text=True,
-                         timeout=120)
+    run = subprocess.run(dockhil_cmd("launch", mutation_scene(tmp_path)), capture_output=True, text=True, timeout=120)
     assert run.returncode == 1 and f"[reader] error: {LINE}" in run.stderr
 
 
@@ -304,8 +315,10 @@ def test_a_node_failing_at_close_does_not_keep_the_others_from_closing(bad):
         def close(self):
             closed.append(self.ctx.name)
 
-    nodes = {name: SimpleNamespace(cls=cls, params={}, inputs={}, outputs={})
-             for name, cls in (("bad", globals()[bad]), ("driver", Driver))}
+    nodes = {
+        name: SimpleNamespace(cls=cls, params={}, inputs={}, outputs={})
+        for name, cls in (("bad", globals()[bad]), ("driver", Driver))
+    }
     graph = SimpleNamespace(scene=SimpleNamespace(dt=0.01), nodes=nodes, order=["bad", "driver"], publishers={})
     g = ComposedGraph(graph, log=lambda n, m: None)
     g.setup()

@@ -84,8 +84,7 @@ def test_robot_force_limit_reads_the_wrench_one_tick_late_and_trips_on_its_norm(
 def test_robot_ft_watchdog_counts_on_the_tick_clock(controller):
     # dt 10 ms, ft_timeout 50 ms: the wrench of tick 0 is read at tick 1 (t = 0.01 s) and is
     # the last; the age first exceeds 0.05 s at tick 7 (0.06 s), however slowly the test steps.
-    with NodeHarness("robot_modbus", sim_time=False, dt=0.01, port=controller.port, ft_timeout=0.05,
-                     timeout=1.0) as h:
+    with NodeHarness("robot_modbus", sim_time=False, dt=0.01, port=controller.port, ft_timeout=0.05, timeout=1.0) as h:
         h.step({"wrench": wrench()})
         for _ in range(6):
             h.step()
@@ -131,8 +130,9 @@ def ft_driver(sensor, **params):
     """An F/T driver set up against the streaming sensor (its offset tared away), the stream then stopped."""
     sensor.force = (1.5, -0.25, 0.5)  # the unloaded sensor's offset
     sensor.stream()
-    h = NodeHarness("ft_can", sim_time=False, interface="virtual", channel=sensor.channel, tare_samples=20,
-                    **params).setup()
+    h = NodeHarness(
+        "ft_can", sim_time=False, interface="virtual", channel=sensor.channel, tare_samples=20, **params
+    ).setup()
     sensor.quiet()
     h.step(t=0.0)  # take what the stream left
     return h
@@ -176,8 +176,9 @@ def frames(bus, n: int, timeout: float = 30.0) -> list:
 def test_ft_emulator_sends_minus_k_x_in_the_documented_frame_layout(request):
     channel = f"nodes-{request.node.name}"
     listener = can.Bus(interface="virtual", channel=channel)
-    em = NodeHarness("ft_emulator", sim_time=False, interface="virtual", channel=channel, k=1000.0, bias=0.5,
-                     force_resolution=0.01).setup()
+    em = NodeHarness(
+        "ft_emulator", sim_time=False, interface="virtual", channel=channel, k=1000.0, bias=0.5, force_resolution=0.01
+    ).setup()
     try:
         for x in (0.012, -0.02):  # 12 mm into the sheet; then apart: a sheet does not pull
             assert em.step({"state": robot_state(x)}) == {}

@@ -137,8 +137,9 @@ def bag(tmp_path):
         for k in range(10):
             ns = k * 1_000_000
             if k != 4:
-                msg = WrenchStamped(header=msgs.Header(stamp=k * 0.001, tick=k, seq=k, frame="probe"),
-                                    wrench=Wrench(Vector3(x=0.5 * k)))
+                msg = WrenchStamped(
+                    header=msgs.Header(stamp=k * 0.001, tick=k, seq=k, frame="probe"), wrench=Wrench(Vector3(x=0.5 * k))
+                )
                 b.write("/ft/wrench", ns, ns, encode(msg))
             if k % 2 == 0:
                 cmd = RobotCommand(header=msgs.Header(stamp=k * 0.001, tick=k, seq=k), pose=msgs.Pose(Vector3(x=k)))

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from dockhil.errors import ParamError
-from dockhil.testing import (NodeHarness, body_wrenches, robot_command, robot_state, satellite_state, wrench)
+from dockhil.testing import NodeHarness, body_wrenches, robot_command, robot_state, satellite_state, wrench
 
 DT = 0.001
 
@@ -34,8 +34,12 @@ def target(out):
 
 # x after n steps of dt under constant acceleration a, v0 = 0: exact (and RK4, exact for a
 # quadratic) a t^2/2; semi-implicit Euler a dt^2 n(n+1)/2; explicit Euler a dt^2 n(n-1)/2.
-DRIFT = {"exact": lambda n: n * n / 2, "rk4": lambda n: n * n / 2, "symplectic_euler": lambda n: n * (n + 1) / 2,
-         "euler": lambda n: n * (n - 1) / 2}
+DRIFT = {
+    "exact": lambda n: n * n / 2,
+    "rk4": lambda n: n * n / 2,
+    "symplectic_euler": lambda n: n * (n + 1) / 2,
+    "euler": lambda n: n * (n - 1) / 2,
+}
 
 
 @pytest.mark.parametrize("method", sorted(DRIFT))
@@ -111,7 +115,7 @@ def test_dynamics_ideal_model_is_the_damped_oscillator_while_in_contact():
         assert outs[k]["state"].in_contact  # from t = 0: at the surface and closing in
         assert m1 * u1 + m2 * u2 == pytest.approx(m1 * v0, abs=1e-9)
     # After the contact: apart, flying apart at a constant speed, never to touch again.
-    after = [chaser(o)[1] - target(o)[1] for o in outs[int(t_sep / DT) + 20:]]
+    after = [chaser(o)[1] - target(o)[1] for o in outs[int(t_sep / DT) + 20 :]]
     assert not outs[-1]["state"].in_contact
     assert max(after) < 0 and max(after) - min(after) < 1e-12
     assert -after[-1] < v0  # the dashpot took energy
@@ -141,8 +145,9 @@ def closed_form(m1, m2, kcs, bcs, k):
     return ((kcs - k) * (1 + m1 / m2), bcs * (1 + m1 / m2), (kcs - k) * (1 + m2 / m1), bcs * (1 + m2 / m1))
 
 
-@pytest.mark.parametrize("m1, m2, kcs, bcs, k", [(750.0, 1e6, 3000.0, 40.0, 1000.0),
-                                                  (300.0, 900.0, 5000.0, 12.0, 800.0)])
+@pytest.mark.parametrize(
+    "m1, m2, kcs, bcs, k", [(750.0, 1e6, 3000.0, 40.0, 1000.0), (300.0, 900.0, 5000.0, 12.0, 800.0)]
+)
 def test_impedance_is_the_spring_damper_to_the_wall_moving_at_v_com(m1, m2, kcs, bcs, k):
     k1, b1, k2, b2 = closed_form(m1, m2, kcs, bcs, k)
     v1, v2, t = 0.03, -0.002, 0.21
@@ -202,9 +207,11 @@ def test_ft_sim_is_hookes_law_on_the_penetration_and_never_pulls():
 def test_ft_sim_bias_quantization_and_seeded_noise():
     with NodeHarness("ft_sim", k=1000.0, bias=0.3, quantization=0.25) as h:
         assert h.step(inputs={"robot": robot_state(0.0071)})["wrench"].wrench.force.x == -6.75  # -7.1 + 0.3
+
     def noisy(seed):
         with NodeHarness("ft_sim", noise=0.5, seed=seed) as h:
             return np.array([o["wrench"].wrench.force.x for o in h.run(4000, {"robot": robot_state(-1.0)})])
+
     a, b, c = noisy(1), noisy(1), noisy(2)
     assert np.array_equal(a, b) and not np.array_equal(a, c)
     assert abs(a.mean()) < 0.05 and a.std() == pytest.approx(0.5, rel=0.05)
@@ -255,8 +262,9 @@ def test_delay_injector_shifts_by_round_delay_over_dt_ticks(delay, dt):
 
 def test_delay_injector_jitter_stays_within_its_bound_and_never_reorders():
     d, j = 0.010, 0.005
-    with NodeHarness("delay_injector", delay=d, jitter=j, seed=4, type="dockhil/WrenchStamped",
-                     input="/ft/wrench", output="/ft/late") as h:
+    with NodeHarness(
+        "delay_injector", delay=d, jitter=j, seed=4, type="dockhil/WrenchStamped", input="/ft/wrench", output="/ft/late"
+    ) as h:
         outs = h.run(500, inputs=lambda k: {"input": wrench(fx=float(k))})
     sent = [(k, int(o["output"].wrench.force.x)) for k, o in enumerate(outs) if o]
     ages = [k - src for k, src in sent]

@@ -72,8 +72,10 @@ def test_an_unread_observer_loses_its_own_messages_and_the_graph_none(tmp_path, 
         assert observer.recv(5.0)[1][:4] == n.to_bytes(4, "little")
         read += 1
         assert 0 < read < n / 2 and observer.lost == n + 1 - read and observer.lost_on == {b"/t": observer.lost}
-        print(f"graph member: {len(got)} of {n} delivered, publisher dropped {pub.dropped}; "
-              f"observer read {read}, lost {observer.lost}")
+        print(
+            f"graph member: {len(got)} of {n} delivered, publisher dropped {pub.dropped}; "
+            f"observer read {read}, lost {observer.lost}"
+        )
     finally:
         for s in (pub, member, observer):
             s.close()
@@ -108,8 +110,11 @@ def test_an_observer_frame_carries_the_count_and_reads_as_the_message(tmp_path):
         assert observer._message(frame + (10).to_bytes(8, "little") + b"\x80") == [b"/a/b", b"\x80"]
         assert observer.lost == 2
         assert observer._message(frame + (1).to_bytes(8, "little") + b"\x80") == [b"/a/b", b"\x80"]
-        assert observer._message(b"/a/b" + transport.EMPTY_TICK + (2).to_bytes(8, "little")) == \
-            [b"/a/b", b"", (2).to_bytes(8, "little")]
+        assert observer._message(b"/a/b" + transport.EMPTY_TICK + (2).to_bytes(8, "little")) == [
+            b"/a/b",
+            b"",
+            (2).to_bytes(8, "little"),
+        ]
         assert observer.lost == 2
     finally:
         observer.close()
@@ -125,13 +130,19 @@ def echo_beside_a_wall_time_run(tmp_path, attempt: int) -> tuple[int, str, int |
     """hil.yaml in wall time with an echo of /satellite/state whose stdout nobody reads: the run's
     exit code and log, the echo's exit code and what it said."""
     log_path, err_path = tmp_path / f"launch-{attempt}.log", tmp_path / f"echo-{attempt}.err"
-    run = subprocess.Popen(dockhil_cmd("launch", "launch/hil.yaml", "--wall-time", "--duration", "20", "rate:=250"),
-                           stdout=open(log_path, "w"), stderr=subprocess.STDOUT)
+    run = subprocess.Popen(
+        dockhil_cmd("launch", "launch/hil.yaml", "--wall-time", "--duration", "20", "rate:=250"),
+        stdout=open(log_path, "w"),
+        stderr=subprocess.STDOUT,
+    )
     echo = None
     try:
         run_id = registered(run.pid, timeout=30)["run_id"]
-        echo = subprocess.Popen(dockhil_cmd("topic", "echo", "/satellite/state", "--graph", run_id),
-                                stdout=subprocess.PIPE, stderr=open(err_path, "w"))
+        echo = subprocess.Popen(
+            dockhil_cmd("topic", "echo", "/satellite/state", "--graph", run_id),
+            stdout=subprocess.PIPE,
+            stderr=open(err_path, "w"),
+        )
         code = run.wait(timeout=90)
         echo_code = echo.wait(timeout=30)  # its output blocked, it still sees the graph end
         return code, log_path.read_text(), echo_code, err_path.read_text()

@@ -9,8 +9,19 @@ import pytest
 from dockhil import msgs
 from dockhil.errors import DockhilError
 from dockhil.runtime.screen import check_message, checked_payload
-from dockhil.msgs import (BodyState, BodyWrenches, Header, Pose, Quaternion, RobotState, SatelliteState, Twist, Vector3,
-                  Wrench, WrenchStamped)
+from dockhil.msgs import (
+    BodyState,
+    BodyWrenches,
+    Header,
+    Pose,
+    Quaternion,
+    RobotState,
+    SatelliteState,
+    Twist,
+    Vector3,
+    Wrench,
+    WrenchStamped,
+)
 
 
 def reader_accepts(msg) -> bool:
@@ -89,9 +100,11 @@ def test_the_screen_passes_good_messages_without_the_full_check():
     # build pass it as they are.
     from dockhil.runtime.screen import bounds_check
 
-    good = [WrenchStamped(header=Header(stamp=1.5, tick=3, seq=3, frame="f"), wrench=Wrench(force=Vector3(1.0, 2.0, 3.0))),
-            SatelliteState(header=Header(), bodies=(BodyState("chaser", 750.0), BodyState("target", 1e6)), in_contact=True),
-            BodyWrenches(header=Header(), wrenches=(Wrench(), Wrench(Vector3(1.0, 0.0, 0.0), Vector3())))]
+    good = [
+        WrenchStamped(header=Header(stamp=1.5, tick=3, seq=3, frame="f"), wrench=Wrench(force=Vector3(1.0, 2.0, 3.0))),
+        SatelliteState(header=Header(), bodies=(BodyState("chaser", 750.0), BodyState("target", 1e6)), in_contact=True),
+        BodyWrenches(header=Header(), wrenches=(Wrench(), Wrench(Vector3(1.0, 0.0, 0.0), Vector3()))),
+    ]
     assert all(bounds_check(type(m))(m) for m in good)
 
 

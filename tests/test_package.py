@@ -28,8 +28,9 @@ SCENES = sorted(p.name for p in (REPO / "launch").glob("*.yaml"))
 def source_version() -> str:
     """dockhil.__version__ read from the source text, not imported."""
     tree = ast.parse((REPO / "dockhil" / "__init__.py").read_text())
-    return next(n.value.value for n in tree.body if isinstance(n, ast.Assign)
-                and [t.id for t in n.targets] == ["__version__"])
+    return next(
+        n.value.value for n in tree.body if isinstance(n, ast.Assign) and [t.id for t in n.targets] == ["__version__"]
+    )
 
 
 def see_this_environment(py: Path) -> None:
@@ -39,8 +40,13 @@ def see_this_environment(py: Path) -> None:
     --system-site-packages are the base's, not this environment's. A plain path in a .pth file
     adds a directory without running its own .pth files: an editable dockhil installed here
     stays out of sight, and the venv's own site-packages (the wheel) come first."""
-    site_dir = subprocess.run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                              capture_output=True, text=True, check=True, timeout=60).stdout.strip()
+    site_dir = subprocess.run(
+        [str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=60,
+    ).stdout.strip()
     Path(site_dir, "outer_environment.pth").write_text("\n".join(site.getsitepackages()) + "\n")
 
 
@@ -89,12 +95,24 @@ def test_an_unknown_campaign_lists_the_shipped_campaigns(tmp_path, monkeypatch):
 
 def test_the_cli_finds_a_shipped_scene_from_another_directory(tmp_path):
     env = clean_env(PYTHONPATH=str(REPO))
-    r = subprocess.run([sys.executable, "-m", "dockhil.cli", "graph", "stability.yaml"], cwd=tmp_path, env=env,
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "dockhil.cli", "graph", "stability.yaml"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     assert str((REPO / "launch" / "stability.yaml").resolve()) in r.stdout
-    r = subprocess.run([sys.executable, "-m", "dockhil.cli", "launch", "nope.yaml", "--duration", "0.1"],
-                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "dockhil.cli", "launch", "nope.yaml", "--duration", "0.1"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "hil.yaml" in r.stderr, r.stderr
 
 
@@ -161,12 +179,15 @@ def test_a_built_in_name_is_never_replaced_by_a_package(fake_distribution):
     assert nodes.load("ft_sim").__module__ == "dockhil.nodes.ft_sim"
 
 
-@pytest.mark.parametrize("name, why", [
-    ("not_a_node", "is not a dockhil node"),
-    ("missing_module", "no module 'dockhil_fake_missing'"),
-    ("no_such_class", "defines no class 'Nowhere'"),
-    ("not_a_path", "not of the form package.module:Class"),
-])
+@pytest.mark.parametrize(
+    "name, why",
+    [
+        ("not_a_node", "is not a dockhil node"),
+        ("missing_module", "no module 'dockhil_fake_missing'"),
+        ("no_such_class", "defines no class 'Nowhere'"),
+        ("not_a_path", "not of the form package.module:Class"),
+    ],
+)
 def test_a_broken_entry_point_is_refused_in_one_line_naming_its_package(fake_distribution, name, why):
     with pytest.raises(LaunchError) as err:
         nodes.load(name)
@@ -177,15 +198,24 @@ def test_a_broken_entry_point_is_refused_in_one_line_naming_its_package(fake_dis
 
 
 def test_an_unknown_name_lists_the_installed_types_too(fake_distribution):
-    with pytest.raises(LaunchError, match=r"unknown node type 'rampp'; did you mean 'ramp'\? "
-                                          r"\(known types: .*\bramp\b.*satellite_dynamics"):
+    with pytest.raises(
+        LaunchError,
+        match=r"unknown node type 'rampp'; did you mean 'ramp'\? "
+        r"\(known types: .*\bramp\b.*satellite_dynamics",
+    ):
         nodes.load("rampp")
 
 
 def test_node_types_lists_packages_and_a_launch_file_runs_their_node(fake_distribution, tmp_path):
     env = clean_env(PYTHONPATH=os.pathsep.join([str(fake_distribution), str(REPO)]))
-    r = subprocess.run([sys.executable, "-m", "dockhil.cli", "node", "types"], cwd=tmp_path, env=env,
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "dockhil.cli", "node", "types"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 1  # the broken entry points are errors ...
     listed = dict(line.split(": ", 1) for line in r.stdout.splitlines())
     assert set(nodes.REGISTRY) < set(listed)  # ... that hide no other type
@@ -194,16 +224,35 @@ def test_node_types_lists_packages_and_a_launch_file_runs_their_node(fake_distri
     assert len(errors) == 4 and all("dockhil-fake-plugin 1.2" in e for e in errors), r.stderr
 
     scene = tmp_path / "ramp.yaml"
-    scene.write_text(textwrap.dedent("""\
+    scene.write_text(
+        textwrap.dedent("""\
         rate: 100
         nodes:
           - name: ramp
             node: ramp
             params: {slope: 3.0}
-        """))
-    r = subprocess.run([sys.executable, "-m", "dockhil.cli", "launch", "ramp.yaml", "--duration", "0.1",
-                        "--composed", "--quiet", "--bag", "ramp.mcap"], cwd=tmp_path, env=env,
-                       capture_output=True, text=True, timeout=120)
+        """)
+    )
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "dockhil.cli",
+            "launch",
+            "ramp.yaml",
+            "--duration",
+            "0.1",
+            "--composed",
+            "--quiet",
+            "--bag",
+            "ramp.mcap",
+        ],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     from dockhil.bags.reader import BagReader
 
@@ -239,8 +288,12 @@ def arithmetic(names: set[str]) -> str:
 def test_the_wheel_installs_into_a_fresh_venv_and_runs_from_another_directory(tmp_path):
     version = source_version()
     dist = tmp_path / "dist"
-    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(dist), str(REPO)],
-                       capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(dist), str(REPO)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     wheel = next(dist.glob("dockhil-*.whl"))
     assert wheel.name.startswith(f"dockhil-{version}-")
@@ -263,22 +316,35 @@ def test_the_wheel_installs_into_a_fresh_venv_and_runs_from_another_directory(tm
     venv = tmp_path / "venv"
     # Without a pip of its own (copying one in is most of a venv's cost): the venv's python runs the
     # pip it sees through the system site-packages, which installs into the venv.
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", "--system-site-packages", str(venv)], check=True,
-                   timeout=120)
+    subprocess.run(
+        [sys.executable, "-m", "venv", "--without-pip", "--system-site-packages", str(venv)], check=True, timeout=120
+    )
     py, exe = venv / "bin" / "python", venv / "bin" / "dockhil"
     see_this_environment(py)
-    subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-deps", str(wheel)], check=True, timeout=300,
-                   env=clean_env())
+    subprocess.run(
+        [str(py), "-m", "pip", "install", "-q", "--no-deps", str(wheel)], check=True, timeout=300, env=clean_env()
+    )
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
 
     def run(*argv, timeout=120):
-        return subprocess.run([str(exe), *argv], cwd=elsewhere, env=clean_env(), capture_output=True, text=True,
-                              timeout=timeout)
+        return subprocess.run(
+            [str(exe), *argv], cwd=elsewhere, env=clean_env(), capture_output=True, text=True, timeout=timeout
+        )
 
-    where = subprocess.run([str(py), "-c", "import dockhil, dockhil.nodes, dockhil.msgs; from dockhil.scene import launchfile; "
-                            "print(dockhil.__file__, dockhil.nodes.__file__, dockhil.msgs.__file__, launchfile.SHIPPED_SCENES)"],
-                           cwd=elsewhere, env=clean_env(), capture_output=True, text=True, timeout=60)
+    where = subprocess.run(
+        [
+            str(py),
+            "-c",
+            "import dockhil, dockhil.nodes, dockhil.msgs; from dockhil.scene import launchfile; "
+            "print(dockhil.__file__, dockhil.nodes.__file__, dockhil.msgs.__file__, launchfile.SHIPPED_SCENES)",
+        ],
+        cwd=elsewhere,
+        env=clean_env(),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     site = str(venv / "lib")
     assert where.returncode == 0 and all(p.startswith(site) for p in where.stdout.split()), where.stdout
     r = run("--version")

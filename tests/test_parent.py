@@ -59,10 +59,16 @@ def test_without_it_the_child_outlives_its_parent():
 def test_a_parent_already_gone_ends_the_child_at_once():
     gone = subprocess.Popen([sys.executable, "-c", "pass"])
     gone.wait()
-    code = ("import signal\nfrom dockhil.runtime.parent import die_with_parent\n"
-            f"die_with_parent(signal.SIGKILL, {gone.pid})\nprint('still here')\n")
+    code = (
+        "import signal\nfrom dockhil.runtime.parent import die_with_parent\n"
+        f"die_with_parent(signal.SIGKILL, {gone.pid})\nprint('still here')\n"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert (out.returncode, out.stdout) == (1, "")
-    here = subprocess.run([sys.executable, "-c", code.replace(str(gone.pid), "__import__('os').getppid()")],
-                          capture_output=True, text=True, timeout=60)
+    here = subprocess.run(
+        [sys.executable, "-c", code.replace(str(gone.pid), "__import__('os').getppid()")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert (here.returncode, here.stdout) == (0, "still here\n")

@@ -24,8 +24,18 @@ IMP = impedance_closed_form(TABLE1, warn=False)
 
 def table1(delay, passivity=None, n_ticks=2400, energy=True):
     t = TABLE1
-    return simulate_hil(m1=t.m1, m2=t.m2, k=t.k, impedance=IMP, dt=DT, n_ticks=n_ticks, v1=t.v1, delay=delay,
-                        passivity=passivity, energy=energy)
+    return simulate_hil(
+        m1=t.m1,
+        m2=t.m2,
+        k=t.k,
+        impedance=IMP,
+        dt=DT,
+        n_ticks=n_ticks,
+        v1=t.v1,
+        delay=delay,
+        passivity=passivity,
+        energy=energy,
+    )
 
 
 def metrics(run):
@@ -44,7 +54,7 @@ def test_the_account_closes_and_its_port_energy_matches_an_independent_computati
     assert np.allclose(e["port_work_J"], work, rtol=0, atol=1e-12)
     # Energy balance of the bodies (exact integrator, forces held over a tick): the change of
     # kinetic energy is the work of the port and of the virtual impedance.
-    ke = 0.5 * (t.m1 * v1 ** 2 + t.m2 * v2 ** 2)
+    ke = 0.5 * (t.m1 * v1**2 + t.m2 * v2**2)
     assert np.allclose(e["kinetic_J"], ke, rtol=1e-12, atol=0)
     assert np.allclose(ke - ke[0], e["port_work_J"] + e["virtual_work_J"], rtol=0, atol=1e-9)
     # Once the contact is over (nothing stored), the energy made is what the bodies carry beyond
@@ -78,8 +88,18 @@ def test_the_unstable_sheet_stops_growing_with_compensation():
     K, b, h = 2510.0, 20.0, 0.016  # Fig. 11: unstable without compensation
     rates = {}
     for name, pc in (("none", None), ("passivity", Passivity(K, 200.0))):
-        run = simulate_hil(m1=750.0, m2=0.0, k=K, impedance=VirtualImpedance(0.0, b, 0.0, 0.0), dt=DT,
-                           n_ticks=30001, delay=h, thrust=10.0, x1=0.006, passivity=pc)
+        run = simulate_hil(
+            m1=750.0,
+            m2=0.0,
+            k=K,
+            impedance=VirtualImpedance(0.0, b, 0.0, 0.0),
+            dt=DT,
+            n_ticks=30001,
+            delay=h,
+            thrust=10.0,
+            x1=0.006,
+            passivity=pc,
+        )
         rates[name] = growth_rate(run.t, run.x1 - run.x2, about=10.0 / K)
     assert rates["none"] > 0.005
     # With compensation the loop is passive: it decays like the damper alone, b / (2 m).
@@ -146,12 +166,22 @@ def test_a_bound_below_the_damping_the_delay_needs_saturates():
 def test_the_damping_stays_below_what_reverses_the_relative_velocity_within_a_tick():
     # A 2 kg body: m / dt = 2000 N s/m, far below the default bound.
     m, K, b = 2.0, 1000.0, 2.0
-    run = simulate_hil(m1=m, m2=0.0, k=K, impedance=VirtualImpedance(0.0, b, 0.0, 0.0), dt=DT, n_ticks=3000,
-                       v1=0.03, delay=0.05, passivity=Passivity(K, DEFAULT_MAX_DAMPING))
+    run = simulate_hil(
+        m1=m,
+        m2=0.0,
+        k=K,
+        impedance=VirtualImpedance(0.0, b, 0.0, 0.0),
+        dt=DT,
+        n_ticks=3000,
+        v1=0.03,
+        delay=0.05,
+        passivity=Passivity(K, DEFAULT_MAX_DAMPING),
+    )
     assert np.max(run.extra["damping_Ns_m"]) == pytest.approx(m / DT)
     ideal = ideal_summary(m1=m, m2=1e15, kcs=K, bcs=b, v1=0.03, v2=0.0)
-    plain = simulate_hil(m1=m, m2=0.0, k=K, impedance=VirtualImpedance(0.0, b, 0.0, 0.0), dt=DT, n_ticks=3000,
-                         v1=0.03, delay=0.05)
+    plain = simulate_hil(
+        m1=m, m2=0.0, k=K, impedance=VirtualImpedance(0.0, b, 0.0, 0.0), dt=DT, n_ticks=3000, v1=0.03, delay=0.05
+    )
     assert metrics(plain)["restitution"] > ideal["restitution"] + 0.1  # 50 ms is a third of this contact
     assert metrics(run)["restitution"] <= ideal["restitution"] + 1e-3
 
@@ -203,8 +233,18 @@ def launch(*args, expect=0):
 def test_saturation_marks_the_run_invalid(tmp_path):
     # 100 ms needs about k tan(w h) / w = 101 N s/m: a bound of 40 leaves the energy in the loop.
     path = tmp_path / "s.json"
-    r = launch("launch/hil.yaml", "delay:=0.1", "compensation:=passivity", "max_damping:=40", "--composed",
-               "--duration", "2.5", "--summary", path, expect=3)
+    r = launch(
+        "launch/hil.yaml",
+        "delay:=0.1",
+        "compensation:=passivity",
+        "max_damping:=40",
+        "--composed",
+        "--duration",
+        "2.5",
+        "--summary",
+        path,
+        expect=3,
+    )
     s = json.loads(path.read_text())
     assert s["valid"] is False and s["energy"]["saturated"] is True
     assert "saturated at max_damping 40" in s["invalid_reasons"][0]
@@ -215,14 +255,16 @@ def test_saturation_marks_the_run_invalid(tmp_path):
     assert s["valid"] is True and s["energy"]["saturated"] is False and s["invalid_reasons"] == []
 
 
-@pytest.mark.parametrize("args, words", [
-    (("launch/stability.yaml", "compensation:=passivity", "k:=0"), "needs the passive stiffness k > 0"),
-    (("launch/hil.yaml", "compensation:=passivity", "max_damping:=0"), "needs max_damping > 0"),
-    (("launch/hil.yaml", "compensation:=passivity", "max_damping:=-5"), "max_damping': -5.0 is out of range"),
-])
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (("launch/stability.yaml", "compensation:=passivity", "k:=0"), "needs the passive stiffness k > 0"),
+        (("launch/hil.yaml", "compensation:=passivity", "max_damping:=0"), "needs max_damping > 0"),
+        (("launch/hil.yaml", "compensation:=passivity", "max_damping:=-5"), "max_damping': -5.0 is out of range"),
+    ],
+)
 def test_bad_parameters_give_one_line(args, words):
-    r = subprocess.run(dockhil_cmd("launch", *args, "--duration", "0.1"), capture_output=True, text=True,
-                       timeout=60)
+    r = subprocess.run(dockhil_cmd("launch", *args, "--duration", "0.1"), capture_output=True, text=True, timeout=60)
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and words in lines[0], r.stderr
@@ -241,8 +283,17 @@ def test_graph_equals_library_with_compensation(tmp_path):
     ma = _bag(a)
     assert sorted(ma) == sorted(_bag(b))
     t = TABLE1
-    lib = simulate_hil(m1=t.m1, m2=t.m2, k=t.k, impedance=IMP, dt=DT, n_ticks=1001, v1=t.v1, delay=0.064,
-                       passivity=Passivity(t.k, DEFAULT_MAX_DAMPING))
+    lib = simulate_hil(
+        m1=t.m1,
+        m2=t.m2,
+        k=t.k,
+        impedance=IMP,
+        dt=DT,
+        n_ticks=1001,
+        v1=t.v1,
+        delay=0.064,
+        passivity=Passivity(t.k, DEFAULT_MAX_DAMPING),
+    )
     with BagReader(a) as bag:
         got = {"state": [], "energy": []}
         for topic, _t, msg in bag.decoded(["/satellite/state", "/energy"]):
@@ -282,15 +333,38 @@ def test_stability_measures_the_compensated_loop(capsys):
     from dockhil.cli import main
 
     # The measurement in this process; the refusal below as a command.
-    assert main(["stability", "--m", "750", "--b", "20", "--h", "0.016", "--K", "2510", "--compensation", "passivity",
-                 "--json"]) == 0
+    assert (
+        main(
+            [
+                "stability",
+                "--m",
+                "750",
+                "--b",
+                "20",
+                "--h",
+                "0.016",
+                "--K",
+                "2510",
+                "--compensation",
+                "passivity",
+                "--json",
+            ]
+        )
+        == 0
+    )
     report = json.loads(capsys.readouterr().out)
     assert report["growth_rate"] > 0  # Fig. 11 without compensation
     at_k = next(row for row in report["passivity"]["runs"] if row["label"] == "--K")
     assert at_k["growth_rate"] < 0 and at_k["saturated"] is False
     assert report["passivity"]["largest_decaying_K"] >= 3 * report["exact"] * 0.999
-    r = subprocess.run(dockhil_cmd("stability", "--m", 750, "--b", 20, "--h", 0.016, "--compensation", "passivity",
-                                   "--max-damping", -1), capture_output=True, text=True, timeout=60)
+    r = subprocess.run(
+        dockhil_cmd(
+            "stability", "--m", 750, "--b", 20, "--h", 0.016, "--compensation", "passivity", "--max-damping", -1
+        ),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert r.returncode != 0 and r.stderr.strip().splitlines() == [r.stderr.strip()] and "--max-damping" in r.stderr
 
 

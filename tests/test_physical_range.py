@@ -10,15 +10,22 @@ from tests.conftest import dockhil_cmd
 
 
 def launch(*args):
-    return subprocess.run(dockhil_cmd("launch", "launch/stability.yaml", "--composed", "--duration", "0.1", *args),
-                          capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        dockhil_cmd("launch", "launch/stability.yaml", "--composed", "--duration", "0.1", *args),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
-@pytest.mark.parametrize("override, said", [
-    ("m:=1e-300", "node 'dynamics' parameter 'm1': 1e-300 kg is outside 0.01 to 1e+08 kg in magnitude"),
-    ("thrust:=1e300", "node 'dynamics' parameter 'thrust': 1e+300 N is outside 0 to 1e+06 N in magnitude"),
-    ("v0:=-5e3", "node 'dynamics' parameter 'v1': -5000.0 m/s is outside 0 to 5 m/s in magnitude"),
-])
+@pytest.mark.parametrize(
+    "override, said",
+    [
+        ("m:=1e-300", "node 'dynamics' parameter 'm1': 1e-300 kg is outside 0.01 to 1e+08 kg in magnitude"),
+        ("thrust:=1e300", "node 'dynamics' parameter 'thrust': 1e+300 N is outside 0 to 1e+06 N in magnitude"),
+        ("v0:=-5e3", "node 'dynamics' parameter 'v1': -5000.0 m/s is outside 0 to 5 m/s in magnitude"),
+    ],
+)
 def test_a_value_outside_docking_hardware_is_refused_in_one_line(override, said):
     r = launch(override)
     assert r.returncode == 2 and r.stdout == ""
@@ -39,19 +46,26 @@ def test_a_bug_ends_in_one_line_naming_where(monkeypatch, capsys):
         raise ValueError("Maximum allowed dimension exceeded")
 
     import dockhil.commands.params as params
+
     monkeypatch.setattr(params, "run", broken)
     monkeypatch.delenv("DOCKHIL_TRACEBACK", raising=False)
     assert cli.main(["params"]) == 1
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("dockhil params: internal error: ValueError: Maximum allowed "
-                                                  "dimension exceeded (at test_physical_range.py:")
+    assert err.count("\n") == 1 and err.startswith(
+        "dockhil params: internal error: ValueError: Maximum allowed dimension exceeded (at test_physical_range.py:"
+    )
     monkeypatch.setenv("DOCKHIL_TRACEBACK", "1")
     with pytest.raises(ValueError):
         cli.main(["params"])
 
 
-@pytest.mark.parametrize("argv", [["stability", "--m", "1e-300", "--b", "20", "--h", "0.016"],
-                                  ["stability", "map", "--m", "1e-9", "--png", "never.png"]])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["stability", "--m", "1e-300", "--b", "20", "--h", "0.016"],
+        ["stability", "map", "--m", "1e-9", "--png", "never.png"],
+    ],
+)
 def test_the_stability_tool_holds_its_mass_to_the_same_range(argv, capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert cli.main(argv) == 2

@@ -38,13 +38,15 @@ def largest_force_in_bag(path) -> float:
 
 def test_an_exploding_loop_is_invalid_and_its_peak_force_is_the_runs_largest(tmp_path):
     path, bag = tmp_path / "s.json", tmp_path / "run.mcap"
-    code, out, err = run_main("launch", "launch/hil.yaml", *EXPLODING, "--composed", *SHORT, "--bag", bag,
-                              "--summary", path)
+    code, out, err = run_main(
+        "launch", "launch/hil.yaml", *EXPLODING, "--composed", *SHORT, "--bag", bag, "--summary", path
+    )
     assert code == 3, err
     s = json.loads(path.read_text())
     assert s["valid"] is False
-    assert any(r.startswith("the force reached") and "times the ideal contact's peak" in r
-               for r in s["invalid_reasons"]), s["invalid_reasons"]
+    assert any(
+        r.startswith("the force reached") and "times the ideal contact's peak" in r for r in s["invalid_reasons"]
+    ), s["invalid_reasons"]
     assert any("kinetic energy" in r for r in s["invalid_reasons"])
     true_peak = largest_force_in_bag(bag)
     assert true_peak > 100 * s["ideal"]["peak_force_N"]
@@ -58,16 +60,21 @@ def test_an_exploding_loop_is_invalid_and_its_peak_force_is_the_runs_largest(tmp
 
 def test_an_exploding_loop_is_invalid_quiet_and_as_processes():
     # --quiet prints no summary, and the node processes' run is summarised from its bag: still judged.
-    r = subprocess.run(dockhil_cmd("launch", "launch/hil.yaml", *EXPLODING, *SHORT, "--quiet"),
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        dockhil_cmd("launch", "launch/hil.yaml", *EXPLODING, *SHORT, "--quiet"),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 3, r.stderr
     assert "INVALID: the force reached" in r.stderr.strip().splitlines()[-1]
 
 
 def test_an_exploding_6dof_loop_is_invalid(tmp_path):
     path = tmp_path / "s.json"
-    code, _, err = run_main("launch", "launch/hil6.yaml", *EXPLODING, "--composed", *SHORT, "--quiet",
-                            "--summary", path)
+    code, _, err = run_main(
+        "launch", "launch/hil6.yaml", *EXPLODING, "--composed", *SHORT, "--quiet", "--summary", path
+    )
     assert code == 3, err
     s = json.loads(path.read_text())
     assert s["dof"] == 6 and s["valid"] is False
@@ -78,8 +85,9 @@ def test_an_exploding_6dof_loop_is_invalid(tmp_path):
 def test_a_loop_that_made_energy_but_not_yet_force_is_invalid(tmp_path):
     # After 1 s the 6-DOF loop's force is still within 100 times the ideal peak, its energy is not.
     path = tmp_path / "s.json"
-    code, _, err = run_main("launch", "launch/hil6.yaml", *EXPLODING, "--composed", "--duration", "1", "--quiet",
-                            "--summary", path)
+    code, _, err = run_main(
+        "launch", "launch/hil6.yaml", *EXPLODING, "--composed", "--duration", "1", "--quiet", "--summary", path
+    )
     assert code == 3, err
     reasons = json.loads(path.read_text())["invalid_reasons"]
     assert len(reasons) == 1 and reasons[0].startswith("the bodies' kinetic energy reached"), reasons
@@ -128,26 +136,34 @@ def hil6_with(param: str) -> str:
     return text.replace(anchor, anchor + f"      {param}\n")
 
 
-@pytest.mark.parametrize("params, expected", [
-    ("attitude1: [1.0e6, 0.0, 0.0]", "parameter 'attitude1'[0]: 1000000.0 rad is outside 0 to 6.28319 rad"),
-    ("attitude1: [1.0e300, 0.0, 0.0]", "parameter 'attitude1'[0]: 1e+300 rad is outside"),
-    ("inertia1: [1.0e-30, 1.0e-30, 1.0e-30]", "parameter 'inertia1'[0]: 1e-30 kg m^2 is outside 1e-06 to 1e+13"),
-    ("inertia1: [[1.0e20, 0.0, 0.0], [0.0, 1.0e20, 0.0], [0.0, 0.0, 1.0e20]]",
-     "parameter 'inertia1'[0][0]: 1e+20 kg m^2 is outside"),
-    ("inertia1: [1.0, 1.0, 3.0]", "principal moments [1.0, 1.0, 3.0] break I1 + I2 >= I3"),
-    ("w2: [0.0, .inf, 0.0]", "parameter 'w2'[1]: inf is not a finite number"),
-    ("x2: [2.0e3, 0.0, 0.0]", "parameter 'x2'[0]: 2000.0 m is outside 0 to 1000 m"),
-])
+@pytest.mark.parametrize(
+    "params, expected",
+    [
+        ("attitude1: [1.0e6, 0.0, 0.0]", "parameter 'attitude1'[0]: 1000000.0 rad is outside 0 to 6.28319 rad"),
+        ("attitude1: [1.0e300, 0.0, 0.0]", "parameter 'attitude1'[0]: 1e+300 rad is outside"),
+        ("inertia1: [1.0e-30, 1.0e-30, 1.0e-30]", "parameter 'inertia1'[0]: 1e-30 kg m^2 is outside 1e-06 to 1e+13"),
+        (
+            "inertia1: [[1.0e20, 0.0, 0.0], [0.0, 1.0e20, 0.0], [0.0, 0.0, 1.0e20]]",
+            "parameter 'inertia1'[0][0]: 1e+20 kg m^2 is outside",
+        ),
+        ("inertia1: [1.0, 1.0, 3.0]", "principal moments [1.0, 1.0, 3.0] break I1 + I2 >= I3"),
+        ("w2: [0.0, .inf, 0.0]", "parameter 'w2'[1]: inf is not a finite number"),
+        ("x2: [2.0e3, 0.0, 0.0]", "parameter 'x2'[0]: 2000.0 m is outside 0 to 1000 m"),
+    ],
+)
 def test_a_meaningless_6dof_parameter_is_refused_in_one_line(params, expected, write_launch):
-    code, out, err = run_main("launch", write_launch(hil6_with(params)), "--composed",
-                              "--duration", "0.01", "--quiet")
+    code, out, err = run_main("launch", write_launch(hil6_with(params)), "--composed", "--duration", "0.01", "--quiet")
     assert_refused(code, out, err, expected)
 
 
 def test_a_refusal_takes_little_time_and_memory():
     """CPU time and peak memory of the refusing process alone (wait4): the same on a busy machine."""
-    proc = subprocess.Popen(dockhil_cmd("launch", "launch/hil6.yaml", "tilt:=1e9", "--duration", "1"),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        dockhil_cmd("launch", "launch/hil6.yaml", "tilt:=1e9", "--duration", "1"),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     err = proc.stderr.read()
     _pid, status, usage = os.wait4(proc.pid, 0)
     assert os.waitstatus_to_exitcode(status) == 2 and len(err.splitlines()) == 1, err
@@ -192,6 +208,7 @@ def test_a_file_given_that_is_no_launch_file_is_not_shown_either(tmp_path):
 
 # -- the summary file ---------------------------------------------------------------------------------
 
+
 def test_a_summary_on_a_full_disk_is_refused_before_the_run(tmp_path, monkeypatch):
     import dockhil.session as session
 
@@ -223,11 +240,13 @@ def test_a_disk_that_fills_during_the_run_fails_it_in_one_line(tmp_path, monkeyp
 
     monkeypatch.setattr(session, "complete_or_nothing", filled)
     path = tmp_path / "s.json"
-    code, out, err = run_main("launch", "launch/ideal.yaml", "--composed", "--quiet", "--duration", "0.05",
-                              "--summary", path)
+    code, out, err = run_main(
+        "launch", "launch/ideal.yaml", "--composed", "--quiet", "--duration", "0.05", "--summary", path
+    )
     assert code == 1, err
-    assert err.strip().splitlines() == [f"[launch] error: --summary: cannot write {path}: No space left on device "
-                                        f"(ENOSPC); the run's summary is lost"]
+    assert err.strip().splitlines() == [
+        f"[launch] error: --summary: cannot write {path}: No space left on device (ENOSPC); the run's summary is lost"
+    ]
     assert not path.exists()
 
 

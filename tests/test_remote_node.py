@@ -23,14 +23,16 @@ def test_remote_node_runs_from_the_printed_command_and_changes_no_bit(write_laun
     local = tmp_path / "local.txt"
     # The reference runs composed, in this process: a graph's processes give a composed run's bits
     # (test_runtime.py holds that), so the graph with its remote node must give them too.
-    code, out, err = run_main("launch", write_launch(SCENE.format(host="", trace=local), "local.yaml"), "--quiet",
-                              "--composed")
+    code, out, err = run_main(
+        "launch", write_launch(SCENE.format(host="", trace=local), "local.yaml"), "--quiet", "--composed"
+    )
     assert code == 0, out + err
 
     remote = tmp_path / "remote.txt"
     scene = write_launch(SCENE.format(host=", host: 127.0.0.2", trace=remote), "remote.yaml")
-    launch = subprocess.Popen(dockhil_cmd("launch", scene, "--quiet"), stdout=subprocess.PIPE,
-                              stderr=subprocess.STDOUT, text=True)
+    launch = subprocess.Popen(
+        dockhil_cmd("launch", scene, "--quiet"), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
     line = launch.stdout.readline()
     assert line.startswith("[launch] node 'gain' runs on 127.0.0.2: copy the key file ")
     key_file = line.split("copy the key file ", 1)[1].split()[0]

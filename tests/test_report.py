@@ -34,8 +34,7 @@ def quick_report(tmp_path_factory):
     runtime = tmp_path_factory.mktemp("rt")
     # Module scope runs before conftest's per-test runtime directory: give the launches their own.
     # Lean scenes are measured (and tested) on their own: skipped here to keep the fixture short.
-    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stderr(err), \
-            contextlib.redirect_stdout(io.StringIO()):
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
         mp.setenv("DOCKHIL_RUNTIME_DIR", str(runtime))
         code = main(["report", "--quick", "--no-lean", "--out", str(out)])
     return code, out, err.getvalue()
@@ -135,15 +134,27 @@ def test_report_writes_json_markdown_and_plots(quick_report):
     code, out, _ = quick_report
     assert code == 0
     data = json.loads((out / "report.json").read_text())
-    for key in ("work_precision", "work_precision_summary", "reference", "graph_cost", "energy_drift",
-                "stiff_cases", "plots", "run_time_s"):
+    for key in (
+        "work_precision",
+        "work_precision_summary",
+        "reference",
+        "graph_cost",
+        "energy_drift",
+        "stiff_cases",
+        "plots",
+        "run_time_s",
+    ):
         assert key in data, key
     assert "lean" not in data  # --no-lean
     for name in data["plots"].values():
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     md = (out / "report.md").read_text()
-    for heading in ("## Error against run time", "## The graph's cost", "## Energy over a long run",
-                    "## Stiff and extreme cases"):
+    for heading in (
+        "## Error against run time",
+        "## The graph's cost",
+        "## Energy over a long run",
+        "## Stiff and extreme cases",
+    ):
         assert heading in md
     assert "first order" in md and "Self-comparisons: none" in md
     assert md.count("\n| ") > len(data["stiff_cases"])  # the case table is there
@@ -206,8 +217,16 @@ def test_hybrid_work_precision_error_is_the_one_computed_here(quick_report, tabl
     entries = json.loads((out / "report.json").read_text())["work_precision"]
     entry = next(e for e in entries if e["model"] == "hybrid_delay" and e["method"] == "exact" and e["step_s"] == 1e-3)
     t, p, pd, fs, _ = table1_delay_solution
-    run = simulate_hil(m1=TABLE1.m1, m2=TABLE1.m2, k=TABLE1.k, impedance=report_precision.hybrid_impedance(TABLE1), dt=1e-3,
-                       n_ticks=2001, v1=TABLE1.v1, delay=0.032)
+    run = simulate_hil(
+        m1=TABLE1.m1,
+        m2=TABLE1.m2,
+        k=TABLE1.k,
+        impedance=report_precision.hybrid_impedance(TABLE1),
+        dt=1e-3,
+        n_ticks=2001,
+        v1=TABLE1.v1,
+        delay=0.032,
+    )
     idx = np.round(run.t / (0.032 / 640)).astype(int)
     rp, rpd = run.x1 - run.x2, run.v1 - run.v2
     mine_touch = (rp > 0) | ((rp == 0) & (rpd > 0))
@@ -242,8 +261,9 @@ def test_work_precision_entries(quick_report):
             assert e["max_error_N"] >= 0 and e["run_time_s"] > 0
 
     def error(model, method, dt):
-        return next(e["max_error_N"] for e in entries if e["model"] == model and e["method"] == method
-                    and e.get("step_s") == dt)
+        return next(
+            e["max_error_N"] for e in entries if e["model"] == model and e["method"] == method and e.get("step_s") == dt
+        )
 
     assert error("ideal", "exact", 1e-3) < 1e-9
     # Explicit Euler on the stiff contact is refused above |R(lambda dt)| = 1, which the entry names:
@@ -276,7 +296,9 @@ def test_energy_drift_per_integrator(quick_report):
 
 def cases_of(quick_report, group_start):
     _, out, _ = quick_report
-    return [c for c in json.loads((out / "report.json").read_text())["stiff_cases"] if c["group"].startswith(group_start)]
+    return [
+        c for c in json.loads((out / "report.json").read_text())["stiff_cases"] if c["group"].startswith(group_start)
+    ]
 
 
 def fine_rate(m1, m2, kcs, bcs):
@@ -345,8 +367,10 @@ def method_limit(scn, method):
         if method == "euler":
             return all(abs(1 + z) <= 1 for z in lam * dt)
         if method == "rk4":
-            return all(abs(1 + z + z * z / 2 + z ** 3 / 6 + z ** 4 / 24) <= 1 for z in lam * dt)
-        a = np.array([[1 - dt * dt * scn.kcs / m, dt - dt * dt * scn.bcs / m], [-dt * scn.kcs / m, 1 - dt * scn.bcs / m]])
+            return all(abs(1 + z + z * z / 2 + z**3 / 6 + z**4 / 24) <= 1 for z in lam * dt)
+        a = np.array(
+            [[1 - dt * dt * scn.kcs / m, dt - dt * dt * scn.bcs / m], [-dt * scn.kcs / m, 1 - dt * scn.bcs / m]]
+        )
         return max(abs(np.linalg.eigvals(a))) <= 1 + 1e-12
 
     lo, hi = 0.0, 1.0
@@ -361,7 +385,9 @@ def test_explicit_method_refuses_and_names_the_largest_stable_step(method):
     case = report_cases.explicit_refusal_case("t", report_cases.STIFF, method, 1e-3)
     limit = method_limit(report_cases.STIFF, method)
     assert case["measured"].startswith("refused") and case["measured_value"] == pytest.approx(limit, rel=1e-5)
-    report_cases.simulate_contact(report_cases.STIFF, method=method, dt=0.99 * limit, t_end=0.99 * limit)  # just inside, it runs
+    report_cases.simulate_contact(
+        report_cases.STIFF, method=method, dt=0.99 * limit, t_end=0.99 * limit
+    )  # just inside, it runs
 
 
 @pytest.mark.parametrize("method", report_precision.EXPLICIT)
@@ -375,7 +401,9 @@ def test_stiff_contact_exit_at_every_onset_phase_and_with_implicit_solvers(quick
     sc = report_cases.STIFF
     _, _, exit_v = ideal_closed_form(sc.m1, sc.m2, sc.kcs, sc.bcs, sc.v1 - sc.v2)
     by = {c["name"]: c for c in cases_of(quick_report, "kcs = 1e9")}
-    assert all(v == pytest.approx(exit_v, rel=1e-6) for v in by["exact step, onset at tenths of a step"]["measured_value"])
+    assert all(
+        v == pytest.approx(exit_v, rel=1e-6) for v in by["exact step, onset at tenths of a step"]["measured_value"]
+    )
     implicit = [c for c in by.values() if c["name"].startswith("solve_ivp")]
     assert len(implicit) == 2 and all(c["measured_value"] == pytest.approx(exit_v, rel=1e-6) for c in implicit)
 
@@ -399,7 +427,7 @@ def test_zero_damping_restitution_and_rk4_loss(quick_report):
     scn = report_precision.undamped_scenario()
     dt, n = rk4["params"]["dt"], round(rk4["params"]["t_end"] / rk4["params"]["dt"])
     z = 1j * math.sqrt(scn.kcs / scn.reduced_mass) * dt  # RK4's amplification on the undamped pole
-    rho = abs(1 + z + z * z / 2 + z ** 3 / 6 + z ** 4 / 24)
+    rho = abs(1 + z + z * z / 2 + z**3 / 6 + z**4 / 24)
     assert rk4["measured_value"] == pytest.approx(rho ** (2 * n) - 1.0, rel=1e-3) and rk4["measured_value"] < 0
 
 
@@ -430,7 +458,7 @@ def test_growth_just_inside_and_outside_the_boundary_is_the_sampled_loops(quick_
         a[1, :2] = [0.0, 1 - dt * p["b"] / p["m"]]
         a[0, 2 * d] += -0.5 * dt * dt * p["K"] / p["m"]
         a[1, 2 * d] += -dt * p["K"] / p["m"]
-        a[2:, :2 * d] = np.eye(2 * d)
+        a[2:, : 2 * d] = np.eye(2 * d)
         root = math.log(max(abs(np.linalg.eigvals(a)))) / dt
         assert c["expected_value"] == pytest.approx(root, rel=1e-9)
         assert c["measured_value"] == pytest.approx(root, rel=0.02)

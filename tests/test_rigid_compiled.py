@@ -51,7 +51,9 @@ def _pair(rng):
     inertia = np.diag([rng.uniform(300, 500) for _ in range(3)])  # I1 + I2 >= I3
     inertia[0, 1] = inertia[1, 0] = rng.uniform(-20, 20)
     body = RigidBody(rng.uniform(10, 1e4), inertia, interface_position=[1.0, 0.2, -0.1])
-    state = BodyState(list(_vec(rng)), quat_from_rotvec(_vec(rng)), list(_vec(rng)), [rng.gauss(0, 0.5) for _ in range(3)])
+    state = BodyState(
+        list(_vec(rng)), quat_from_rotvec(_vec(rng)), list(_vec(rng)), [rng.gauss(0, 0.5) for _ in range(3)]
+    )
     return Motion.from_state(body, state), Motion.from_state(body, state)
 
 
@@ -85,9 +87,11 @@ def test_bad_input_gets_a_clear_error_not_a_crash():
 def test_the_python_twins_alone_give_the_recorded_6dof_runs():
     # The suite runs the compiled path (where built); this holds the twins to the same digests.
     env = {**os.environ, "DOCKHIL_PURE_PYTHON": "1"}
-    code = ("from dockhil.contact import rigid; assert rigid.COMPILED is None;"
-            "from tests.test_sixdof_reference import CASES, digest;"
-            "[print(name, digest(a, p) == (n, d)) for name, (a, p, n, d) in CASES.items()]")
+    code = (
+        "from dockhil.contact import rigid; assert rigid.COMPILED is None;"
+        "from tests.test_sixdof_reference import CASES, digest;"
+        "[print(name, digest(a, p) == (n, d)) for name, (a, p, n, d) in CASES.items()]"
+    )
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     lines = r.stdout.split("\n")
@@ -104,7 +108,9 @@ def test_the_interface_geometry_equals_its_twin_bit_for_bit():
     tilted = quat_from_rotvec([0.0, 0.0, 0.02])
     for frames in ((np.diag([300.0, 400.0, 500.0]), (0.0, 0.0, 0.0, 1.0)), (inertia, tilted)):
         b1 = RigidBody(750.0, frames[0], interface_position=[1.0, 0.1, 0.0], interface_orientation=frames[1])
-        b2 = RigidBody(1e6, np.diag([4e6, 5e6, 6e6]), interface_position=[-2.0, 0.0, 0.3], interface_orientation=frames[1])
+        b2 = RigidBody(
+            1e6, np.diag([4e6, 5e6, 6e6]), interface_position=[-2.0, 0.0, 0.3], interface_orientation=frames[1]
+        )
         for _ in range(500):
             p1 = (_vec(rng), _quat(rng), _vec(rng), _vec(rng))
             p2 = (_vec(rng), _quat(rng), _vec(rng), _vec(rng))
@@ -112,7 +118,19 @@ def test_the_interface_geometry_equals_its_twin_bit_for_bit():
             want = InterfaceGeometry.between(b1, p1[0], q1, b2, p2[0], q2)
             velocity, spin = want.rates3(p1[2], p1[3], p2[2], p2[3])
             got = rigid.COMPILED.interface(b1._frames, b2._frames, *p1, *p2)
-            assert got == (q1, q2, want.arm1, want.arm2, want.point, want.r, want.q_b, want.q_rel, want.d, velocity, spin)
+            assert got == (
+                q1,
+                q2,
+                want.arm1,
+                want.arm2,
+                want.point,
+                want.r,
+                want.q_b,
+                want.q_rel,
+                want.d,
+                velocity,
+                spin,
+            )
 
 
 @compiled

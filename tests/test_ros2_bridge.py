@@ -24,13 +24,15 @@ from tests.conftest import ROOT, dockhil_cmd
 from tests.inprocess import run_main
 
 HAVE_DDS = importlib.util.find_spec("cyclonedds") is not None
-needs_dds = pytest.mark.skipif(not HAVE_DDS, reason="the cyclonedds binding is not installed "
-                                                     "(pip install 'dockhil[ros2]'): no DDS to read the bridge with")
+needs_dds = pytest.mark.skipif(
+    not HAVE_DDS,
+    reason="the cyclonedds binding is not installed (pip install 'dockhil[ros2]'): no DDS to read the bridge with",
+)
 
 NEEDS_LINE = "the ROS 2 bridge needs the cyclonedds binding: pip install 'dockhil[ros2]'"
 
 # ROS 2's messages as a ROS 2 node on Cyclone DDS sees them (rosidl's DDS names, fields and field types).
-ROS_TYPES = '''
+ROS_TYPES = """
 from dataclasses import dataclass
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import float64, int32, uint32
@@ -103,14 +105,16 @@ from cyclonedds.qos import Policy, Qos
 def ros2_default_qos():
     return Qos(Policy.Reliability.Reliable(max_blocking_time=100_000_000), Policy.Durability.Volatile,
                Policy.History.KeepLast(10), Policy.DataRepresentation(use_cdrv0_representation=True))
-'''
+"""
 
 # A ROS 2 subscriber of rt/ft/wrench in a process of its own: prints "ready", "matched" once it has
 # discovered the bridge's writer, then reads until it has
 # `count` samples or nothing came for `idle` s after the first (or `limit` s passed), and prints
 # [[sec, nanosec, force.x, arrival s], ...] as JSON. Keep-all history: a sample taken late is not lost
 # here, so a count short of what was written is the bridge's or the network's loss.
-READER = ROS_TYPES + '''
+READER = (
+    ROS_TYPES
+    + """
 import json, sys, time
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.sub import DataReader
@@ -134,7 +138,8 @@ while len(got) < count and time.monotonic() < end and (last is None or time.mono
             last = now
     time.sleep(0.002)
 print(json.dumps(got), flush=True)
-'''
+"""
+)
 
 
 @pytest.fixture
@@ -155,8 +160,12 @@ def ros():
 
 
 def start_reader(domain: int, count: int, idle: float, limit: float) -> subprocess.Popen:
-    proc = subprocess.Popen([sys.executable, "-c", READER, str(domain), str(count), str(idle), str(limit)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", READER, str(domain), str(count), str(idle), str(limit)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     assert proc.stdout.readline().strip() == "ready", proc.stderr.read()
     return proc
 
@@ -188,20 +197,31 @@ def test_each_topic_reaches_ros2_with_its_names_fields_and_values(domain, ros):
     from cyclonedds.topic import Topic
 
     dp = DomainParticipant(domain)
-    wanted = {"rt/ft/wrench": ros.WrenchStamped, "rt/robot/command": ros.PoseStamped,
-              "rt/robot/command/twist": ros.TwistStamped, "rt/robot/state": ros.PoseStamped,
-              "rt/robot/state/twist": ros.TwistStamped}
-    readers = {name: DataReader(dp, Topic(dp, name, t, qos=ros.ros2_default_qos()), qos=ros.ros2_default_qos())
-               for name, t in wanted.items()}
+    wanted = {
+        "rt/ft/wrench": ros.WrenchStamped,
+        "rt/robot/command": ros.PoseStamped,
+        "rt/robot/command/twist": ros.TwistStamped,
+        "rt/robot/state": ros.PoseStamped,
+        "rt/robot/state/twist": ros.TwistStamped,
+    }
+    readers = {
+        name: DataReader(dp, Topic(dp, name, t, qos=ros.ros2_default_qos()), qos=ros.ros2_default_qos())
+        for name, t in wanted.items()
+    }
     pose = Pose(Vector3(0.01, -0.02, 0.03), Quaternion(0.0, 0.0, 0.38268343236508984, 0.9238795325112867))
     twist = Twist(Vector3(0.03, 0.0, -0.001), Vector3(0.0, 0.01, 0.0))
     with NodeHarness("ros2_bridge", dt=0.001, sim_time=False, domain_id=domain) as h:
         for writers in h.node.writers.values():
             for writer in writers:
                 wait_matched(writer)
-        h.step(inputs={"/ft/wrench": wrench(fx=12.5, fy=-1.0, tz=0.25),
-                       "/robot/command": RobotCommand(Header(frame="target"), pose=pose, twist=twist),
-                       "/robot/state": RobotState(Header(frame="target"), pose=pose, twist=twist)}, t=1.25)
+        h.step(
+            inputs={
+                "/ft/wrench": wrench(fx=12.5, fy=-1.0, tz=0.25),
+                "/robot/command": RobotCommand(Header(frame="target"), pose=pose, twist=twist),
+                "/robot/state": RobotState(Header(frame="target"), pose=pose, twist=twist),
+            },
+            t=1.25,
+        )
         got = {}
         end = time.monotonic() + 10.0
         while len(got) < len(readers) and time.monotonic() < end:
@@ -265,17 +285,34 @@ def test_a_wall_time_hil_run_with_ros2_true_writes_every_wrench_it_published(dom
     bag = tmp_path / "run.mcap"
     reader = start_reader(domain, 10**6, idle=3.0, limit=120.0)
     try:
-        run = subprocess.run(dockhil_cmd("launch", ROOT / "launch/hil.yaml", "--wall-time", "--composed", "--quiet",
-                                         "--duration", "5", "--bag", bag, "ros2:=true", f"ros_domain_id:={domain}"),
-                             capture_output=True, text=True, timeout=180, cwd=str(ROOT))
+        run = subprocess.run(
+            dockhil_cmd(
+                "launch",
+                ROOT / "launch/hil.yaml",
+                "--wall-time",
+                "--composed",
+                "--quiet",
+                "--duration",
+                "5",
+                "--bag",
+                bag,
+                "ros2:=true",
+                f"ros_domain_id:={domain}",
+            ),
+            capture_output=True,
+            text=True,
+            timeout=180,
+            cwd=str(ROOT),
+        )
         got = reader_result(reader, timeout=60.0)
     finally:
         reader.kill()
         reader.wait()
     assert run.returncode in (0, 3), run.stderr  # 3: INVALID (fell behind real time on a busy machine)
     with BagReader(str(bag)) as r:
-        published = [ros_ns(decode(data, DockhilWrench).header.stamp)
-                     for topic, _, _, data in r if topic == "/ft/wrench"]
+        published = [
+            ros_ns(decode(data, DockhilWrench).header.stamp) for topic, _, _, data in r if topic == "/ft/wrench"
+        ]
     received = [s[0] * 1_000_000_000 + s[1] for s in got]
     assert len(published) > 1000 and received, (len(published), len(received))
     first = published.index(received[0])  # before the reader matched, a volatile topic sends nothing
@@ -335,9 +372,22 @@ def test_the_simulated_robot_holds_on_an_active_estop_with_the_drivers_line(node
 @pytest.mark.wall_time
 def test_one_ros2_estop_line_holds_the_robot_of_a_running_hil_scene(domain, ros):
     # `ros2 topic pub --once /estop std_msgs/msg/Bool "{data: true}"`, as one DDS write of the test's own.
-    launch = subprocess.Popen(dockhil_cmd("launch", ROOT / "launch/hil.yaml", "--wall-time", "--composed",
-                                          "--duration", "60", "ros2:=true", f"ros_domain_id:={domain}"),
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=str(ROOT))
+    launch = subprocess.Popen(
+        dockhil_cmd(
+            "launch",
+            ROOT / "launch/hil.yaml",
+            "--wall-time",
+            "--composed",
+            "--duration",
+            "60",
+            "ros2:=true",
+            f"ros_domain_id:={domain}",
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=str(ROOT),
+    )
     try:
         _, writer = estop_writer(ros, domain)
         wait_matched(writer, timeout=60.0)
@@ -360,8 +410,10 @@ def test_one_ros2_estop_line_holds_the_robot_of_a_running_hil_scene(domain, ros)
 
 def test_without_the_binding_ros2_true_is_refused_in_one_line_before_anything_runs(monkeypatch):
     monkeypatch.setitem(sys.modules, "cyclonedds", None)  # as if not installed: find_spec and import fail
-    for argv in (("launch", ROOT / "launch/hil.yaml", "--composed", "--duration", "0.01", "ros2:=true"),
-                 ("graph", ROOT / "launch/hil6.yaml", "ros2:=true")):
+    for argv in (
+        ("launch", ROOT / "launch/hil.yaml", "--composed", "--duration", "0.01", "ros2:=true"),
+        ("graph", ROOT / "launch/hil6.yaml", "ros2:=true"),
+    ):
         code, out, err = run_main(*argv)
         assert code == 2, (argv, err)
         assert err.strip().splitlines() == [f"dockhil {argv[0]}: error: {NEEDS_LINE}"], err
@@ -370,22 +422,28 @@ def test_without_the_binding_ros2_true_is_refused_in_one_line_before_anything_ru
 
 
 @pytest.mark.skipif(not HAVE_DDS, reason="the parameters are checked after the binding")
-@pytest.mark.parametrize("override, says", [
-    ("ros_domain_id:=233", "'domain_id': 233 is out of range, must be <= 232"),
-    ("ros_domain_id:=-1", "'domain_id': -1 is out of range, must be >= 0"),
-])
+@pytest.mark.parametrize(
+    "override, says",
+    [
+        ("ros_domain_id:=233", "'domain_id': 233 is out of range, must be <= 232"),
+        ("ros_domain_id:=-1", "'domain_id': -1 is out of range, must be >= 0"),
+    ],
+)
 def test_a_domain_outside_ros2s_range_is_refused(override, says):
     code, _, err = run_main("graph", ROOT / "launch/hil.yaml", "ros2:=true", override)
     assert code == 2 and says in err and len(err.strip().splitlines()) == 1, err
 
 
-@pytest.mark.parametrize("topics, says", [
-    (["/ft/wrench", "/satellite/state"], "'/satellite/state' is not one of the graph's topics"),
-    (["ft/wrench"], "'ft/wrench' is not a ROS 2 topic name"),
-    (["/my/force:BodyWrenches"], "the bridge writes WrenchStamped, RobotCommand, RobotState, not 'BodyWrenches'"),
-    (["/estop"], "/estop is the ROS 2 e-stop the bridge reads"),
-    ("/ft/wrench", "expected list"),
-])
+@pytest.mark.parametrize(
+    "topics, says",
+    [
+        (["/ft/wrench", "/satellite/state"], "'/satellite/state' is not one of the graph's topics"),
+        (["ft/wrench"], "'ft/wrench' is not a ROS 2 topic name"),
+        (["/my/force:BodyWrenches"], "the bridge writes WrenchStamped, RobotCommand, RobotState, not 'BodyWrenches'"),
+        (["/estop"], "/estop is the ROS 2 e-stop the bridge reads"),
+        ("/ft/wrench", "expected list"),
+    ],
+)
 def test_a_topic_the_bridge_cannot_write_is_refused_in_one_line(topics, says):
     from dockhil.errors import DockhilError
     from dockhil.nodes.ros2_bridge import Ros2Bridge, bridged_topics
@@ -399,8 +457,10 @@ def test_a_topic_the_bridge_cannot_write_is_refused_in_one_line(topics, says):
 def test_a_topic_of_another_name_is_written_with_the_type_given():
     from dockhil.nodes.ros2_bridge import bridged_topics
 
-    assert bridged_topics(["/lab/ft:WrenchStamped", "/robot/state"]) == {"/lab/ft": DockhilWrench,
-                                                                        "/robot/state": RobotState}
+    assert bridged_topics(["/lab/ft:WrenchStamped", "/robot/state"]) == {
+        "/lab/ft": DockhilWrench,
+        "/robot/state": RobotState,
+    }
 
 
 @needs_dds

@@ -110,10 +110,13 @@ def _wait_children(pid, n, timeout=60.0):
 @pytest.mark.wall_time
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_signal_shutdown_leaves_no_process(write_launch, tmp_path, sig):
-    path = write_launch("rate: 200\nnodes:\n  - {name: integ, node: 'tests.graphnodes:Integrator'}\n"
-                        "  - {name: gain, node: 'tests.graphnodes:Gain'}\n")
-    p = subprocess.Popen(dockhil_cmd("launch", path, "--wall-time"), stdout=subprocess.PIPE,
-                         stderr=subprocess.STDOUT, text=True)
+    path = write_launch(
+        "rate: 200\nnodes:\n  - {name: integ, node: 'tests.graphnodes:Integrator'}\n"
+        "  - {name: gain, node: 'tests.graphnodes:Gain'}\n"
+    )
+    p = subprocess.Popen(
+        dockhil_cmd("launch", path, "--wall-time"), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
     kids = _wait_children(p.pid, 2)
     assert len(kids) == 2
     registered(p.pid)  # the graph is up
@@ -126,8 +129,10 @@ def test_signal_shutdown_leaves_no_process(write_launch, tmp_path, sig):
 
 @pytest.mark.wall_time
 def test_launcher_killed_outright_leaves_no_orphans(write_launch):
-    path = write_launch("rate: 200\nnodes:\n  - {name: integ, node: 'tests.graphnodes:Integrator'}\n"
-                        "  - {name: gain, node: 'tests.graphnodes:Gain'}\n")
+    path = write_launch(
+        "rate: 200\nnodes:\n  - {name: integ, node: 'tests.graphnodes:Integrator'}\n"
+        "  - {name: gain, node: 'tests.graphnodes:Gain'}\n"
+    )
     p = subprocess.Popen(dockhil_cmd("launch", path, "--wall-time"), stdout=subprocess.DEVNULL)
     kids = _wait_children(p.pid, 2)
     assert len(kids) == 2
@@ -151,15 +156,29 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
     graphs = os.path.join(env["DOCKHIL_RUNTIME_DIR"], "graphs")
     os.makedirs(graphs, mode=0o700, exist_ok=True)
     with open(os.path.join(graphs, "fake.json"), "w") as f:
-        json.dump({"run_id": "fake", "pid": os.getpid(), "file": "test", "clock": "wall", "nodes": {},
-                   "keys": str(key_file),
-                   "topics": {"/x": {"type": "dockhil/WrenchStamped", "endpoint": f"tcp://127.0.0.1:{port}",
-                                     "publisher": "test"}}}, f)
+        json.dump(
+            {
+                "run_id": "fake",
+                "pid": os.getpid(),
+                "file": "test",
+                "clock": "wall",
+                "nodes": {},
+                "keys": str(key_file),
+                "topics": {
+                    "/x": {"type": "dockhil/WrenchStamped", "endpoint": f"tcp://127.0.0.1:{port}", "publisher": "test"}
+                },
+            },
+            f,
+        )
     # 20 Hz: an input's default maximum age is then 20 periods, 1 s, so a busy machine pausing this
     # test's sender for more than 0.1 s does not stop the node on a stale input (what this test is
     # not about; the maximum age is tested on its own).
-    node = subprocess.Popen(dockhil_cmd("run", "tests.graphnodes:Gain", "gain:=3.0", "--rate", "20"),
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    node = subprocess.Popen(
+        dockhil_cmd("run", "tests.graphnodes:Gain", "gain:=3.0", "--rate", "20"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     try:
         # Find the node's output endpoint in the registry, subscribe to it.
         endpoint = None
@@ -175,8 +194,11 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
         assert endpoint
         sub = ctx.socket(zmq.SUB)
         sub.setsockopt(zmq.SUBSCRIBE, b"")
-        sub.curve_serverkey, sub.curve_publickey, sub.curve_secretkey = \
-            keys.server_public, keys.client_public, keys.client_secret
+        sub.curve_serverkey, sub.curve_publickey, sub.curve_secretkey = (
+            keys.server_public,
+            keys.client_public,
+            keys.client_secret,
+        )
         sub.connect(endpoint)
         good = msgs.WrenchStamped(header=msgs.Header(), wrench=msgs.Wrench(force=msgs.Vector3(x=2.0)))
 
@@ -198,7 +220,12 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
                 break
         nan = msgpack.unpackb(encode(good))
         nan["wrench"]["force"]["x"] = float("nan")
-        bad = [b"\xc1garbage", msgpack.packb([1, 2, 3]), msgpack.packb(nan), encode(msgs.RobotState(header=msgs.Header()))]
+        bad = [
+            b"\xc1garbage",
+            msgpack.packb([1, 2, 3]),
+            msgpack.packb(nan),
+            encode(msgs.RobotState(header=msgs.Header())),
+        ]
         for _ in range(3):
             for b in bad:
                 pub.send(b"/x\x00" + b)
@@ -216,7 +243,12 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
         out, _ = node.communicate(timeout=10)
         assert node.returncode == 0, out
         assert "dropped bad message on /x" in out
-        assert "NaN or Inf refused" in out and "not msgpack" in out and "Expected `object`, got `array`" in out and "dockhil/RobotState" in out
+        assert (
+            "NaN or Inf refused" in out
+            and "not msgpack" in out
+            and "Expected `object`, got `array`" in out
+            and "dockhil/RobotState" in out
+        )
         assert "15 bad message(s) dropped" in out
         assert "Traceback" not in out
     finally:
@@ -247,7 +279,6 @@ def test_observers_are_not_counted_as_subscribers(tmp_path):
     assert member.recv(5.0) == [b"/t", b"\x80"] and observer.recv(5.0) == [b"/t", b"\x80"]
     for s in (pub, observer, member):
         s.close()
-
 
 
 BURSTS = """
@@ -325,8 +356,11 @@ def test_a_burst_is_read_message_by_message_and_an_envelope_is_joined(tmp_path):
     for sub in (member, observer):
         sub.connect(endpoint, keys=keys)
     raw = ctx.socket(zmq.SUB)  # plain pyzmq, as a foreign reader would
-    raw.curve_serverkey, raw.curve_publickey, raw.curve_secretkey = \
-        keys.server_public, keys.client_public, keys.client_secret
+    raw.curve_serverkey, raw.curve_publickey, raw.curve_secretkey = (
+        keys.server_public,
+        keys.client_public,
+        keys.client_secret,
+    )
     raw.setsockopt(zmq.SUBSCRIBE, b"/t\x00")
     raw.connect(endpoint)
     joined, deadline = set(), time.monotonic() + 20  # all three subscriptions in, the observer's on its own socket
@@ -339,11 +373,17 @@ def test_a_burst_is_read_message_by_message_and_an_envelope_is_joined(tmp_path):
     pub.send(b"\x81\xa1a\x01")
     assert member.recv_frame(0.05) is None  # held: two of three
     pub.send(b"\x81\xa1a\x02")  # the third: out go the empty tick, then the two messages together
-    want = [b"/t" + EMPTY_TICK + (0).to_bytes(8, "little"), b"/t" + MESSAGE + b"\x81\xa1a\x01",
-            b"/t" + MESSAGE + b"\x81\xa1a\x02"]
+    want = [
+        b"/t" + EMPTY_TICK + (0).to_bytes(8, "little"),
+        b"/t" + MESSAGE + b"\x81\xa1a\x01",
+        b"/t" + MESSAGE + b"\x81\xa1a\x02",
+    ]
     assert [member.recv_frame(5.0) for _ in range(3)] == want
-    assert [observer.recv(5.0) for _ in range(3)] == [[b"/t", b"", (0).to_bytes(8, "little")],
-                                                       [b"/t", b"\x81\xa1a\x01"], [b"/t", b"\x81\xa1a\x02"]]
+    assert [observer.recv(5.0) for _ in range(3)] == [
+        [b"/t", b"", (0).to_bytes(8, "little")],
+        [b"/t", b"\x81\xa1a\x01"],
+        [b"/t", b"\x81\xa1a\x02"],
+    ]
     assert raw.poll(5000)  # the two messages as one ZeroMQ message, each frame read by the reference msgpack
     assert [msgpack.unpackb(f.split(b"\x00", 1)[1]) for f in raw.recv_multipart()] == [{"a": 1}, {"a": 2}]
     raw.close(linger=0)
@@ -374,8 +414,11 @@ def test_loop_figures_are_numpys_percentiles_without_numpy():
         late = np.abs(np.asarray(timing.lateness[1:]))
         for figures, values in ((out["jitter_us"], late), (out["input_age_us"]["ft"], np.asarray(timing.ages["ft"]))):
             us = np.abs(values) * 1e6
-            assert figures == {"p50": float(np.percentile(us, 50)), "p99": float(np.percentile(us, 99)),
-                               "max": float(us.max())}
+            assert figures == {
+                "p50": float(np.percentile(us, 50)),
+                "p99": float(np.percentile(us, 99)),
+                "max": float(us.max()),
+            }
         assert out["worst_tick"] == int(np.argmax(late)) + 1
         assert out["worst_late_s"] == float(late.max())
     assert LoopTiming([], period=1e-3).report("idle")["jitter_us"] == {}

@@ -72,7 +72,7 @@ def test_polynomial_roots_are_the_eigenvalues_of_the_tick_map_and_of_the_plain_l
         amp.append(abs(p))
     # Growth of the envelope over the last 40 s against ln(spectral radius) / dt.
     late = np.array(amp[20000:])
-    peaks = [max(late[i:i + 2000]) for i in range(0, 40000, 2000)]
+    peaks = [max(late[i : i + 2000]) for i in range(0, 40000, 2000)]
     measured = np.polyfit(np.arange(len(peaks)) * 2.0, np.log(peaks), 1)[0]
     assert measured == pytest.approx(math.log(spectral_radius(loop)) / dt, abs=2e-4)
 
@@ -129,8 +129,17 @@ def test_stiff_contact_at_1khz_is_refused_in_one_line_naming_the_numbers(scene):
 
 def test_stiff_contact_at_the_named_rate_matches_the_closed_form(tmp_path):
     out = tmp_path / "s.json"
-    r = launch("launch/hil.yaml", *overrides(STIFF), "delay:=0", "rate:=110000", "--duration", "0.006",
-               "--quiet", "--summary", out)
+    r = launch(
+        "launch/hil.yaml",
+        *overrides(STIFF),
+        "delay:=0",
+        "rate:=110000",
+        "--duration",
+        "0.006",
+        "--quiet",
+        "--summary",
+        out,
+    )
     assert r.returncode == 0, r.stderr
     s = json.loads(out.read_text())
     # Closed form of Eq. 1: peak of kcs p + bcs p' along p = v0/wd e^{-zeta w t} sin(wd t).
@@ -151,8 +160,16 @@ def test_stiff_contact_at_the_named_rate_matches_the_closed_form(tmp_path):
 
 def test_allow_coarse_runs_and_the_summary_carries_the_warning(tmp_path):
     out = tmp_path / "s.json"
-    r = launch("launch/ideal.yaml", *overrides({k: v for k, v in STIFF.items() if k != "k"}),
-               "allow_coarse:=true", "--duration", "0.026", "--quiet", "--summary", out)
+    r = launch(
+        "launch/ideal.yaml",
+        *overrides({k: v for k, v in STIFF.items() if k != "k"}),
+        "allow_coarse:=true",
+        "--duration",
+        "0.026",
+        "--quiet",
+        "--summary",
+        out,
+    )
     assert r.returncode == 0, r.stderr
     s = json.loads(out.read_text())
     assert len(s["warnings"]) == 1 and "rate:=110000" in s["warnings"][0]
@@ -242,9 +259,15 @@ def test_a_run_stopped_inside_the_contact_reports_no_peak_force_error():
     peak = float(np.max(contact(np.linspace(0, math.pi / wd, 100001))[2]))
     t = np.arange(0, 0.2, 1e-3)
     p, pd, f = contact(t)
-    s = summarize(Samples(t, p, pd, f), ideal={"peak_force_N": peak, "contact_duration_s": math.pi / wd,
-                                               "exit_velocity_mps": -v0 * math.exp(-sigma * math.pi / wd),
-                                               "restitution": None})
+    s = summarize(
+        Samples(t, p, pd, f),
+        ideal={
+            "peak_force_N": peak,
+            "contact_duration_s": math.pi / wd,
+            "exit_velocity_mps": -v0 * math.exp(-sigma * math.pi / wd),
+            "restitution": None,
+        },
+    )
     assert s["peak_force_N"] == pytest.approx(float(np.max(kcs * p + bcs * pd))) and s["peak_force_N"] < 0.5 * peak
     assert s["error"]["peak_force_N"] is None and s["error"]["contact_duration_s"] is None
     assert "had not ended" in s["note"] and "run longer" in s["note"]
@@ -262,8 +285,16 @@ def test_summary_collector_keeps_bounded_buffers_over_a_long_run():
     graph = build(launchfile.load("launch/stability.yaml", {"b": "60"}))
     collect = SummaryCollector(graph)
     sizes = []
-    g = ComposedGraph(graph, log=lambda n, m: None, taps=[collect, lambda topic, msg: sizes.append(
-        (len(collect.match.pending), len(collect.match.ft), len(collect.match.virtual)))])
+    g = ComposedGraph(
+        graph,
+        log=lambda n, m: None,
+        taps=[
+            collect,
+            lambda topic, msg: sizes.append(
+                (len(collect.match.pending), len(collect.match.ft), len(collect.match.virtual))
+            ),
+        ],
+    )
     g.setup()
     try:
         g.run(5001)  # 5 s: 20 windows, so a buffer that grows with the run would hold thousands
@@ -291,7 +322,7 @@ def test_growth_rate_matches_the_sampled_loop_root_within_one_percent(b):
     a[0, 0], a[0, 1] = 1.0, dt + 0.5 * dt * dt * acc_v
     a[1, 1] = 1.0 + dt * acc_v
     a[0, 2 * d], a[1, 2 * d] = 0.5 * dt * dt * acc_late, dt * acc_late
-    a[2:2 * (d + 1), :2 * d] = np.eye(2 * d)
+    a[2 : 2 * (d + 1), : 2 * d] = np.eye(2 * d)
     root = math.log(max(abs(np.linalg.eigvals(a)))) / dt
     assert case["predicted_growth_rate_1_s"] == pytest.approx(root, rel=1e-9)
     assert case["growth_rate_1_s"] == pytest.approx(root, rel=0.01)
@@ -302,11 +333,20 @@ def test_substeps_integrate_the_ideal_contact_more_finely(tmp_path):
     errors = []
     for n in (1, 4):
         out = tmp_path / f"s{n}.json"
-        r = launch("launch/ideal.yaml", "kcs:=3e6", "method:=rk4", f"substeps:={n}", "--duration", "0.1",
-                   "--quiet", "--summary", out)
+        r = launch(
+            "launch/ideal.yaml",
+            "kcs:=3e6",
+            "method:=rk4",
+            f"substeps:={n}",
+            "--duration",
+            "0.1",
+            "--quiet",
+            "--summary",
+            out,
+        )
         assert r.returncode == 0, r.stderr
         errors.append(json.loads(out.read_text())["error"]["max_force_N"])
-    assert 4 ** 4 / 2 < errors[0] / errors[1] < 4 ** 4 * 2
+    assert 4**4 / 2 < errors[0] / errors[1] < 4**4 * 2
 
 
 def test_a_delay_rounded_to_whole_ticks_is_warned(tmp_path):

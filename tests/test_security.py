@@ -140,10 +140,21 @@ def test_key_files_other_users_could_read_are_refused(tmp_path):
         os.chown(path, os.getuid(), -1)
     # A node started by hand with such a file says so in one line.
     path.chmod(0o640)
-    spec = {"name": "g", "type_name": "tests.graphnodes:Gain", "dt": 0.01, "clock": "wall", "params": {},
-            "inputs": {"x": {"topic": "/x", "endpoint": f"ipc://{tmp_path}/x", "type": "dockhil/WrenchStamped"}}}
-    r = subprocess.run([sys.executable, "-m", "dockhil.process", "--keys", str(path), json.dumps(spec)],
-                       capture_output=True, text=True, env=env(), timeout=30)
+    spec = {
+        "name": "g",
+        "type_name": "tests.graphnodes:Gain",
+        "dt": 0.01,
+        "clock": "wall",
+        "params": {},
+        "inputs": {"x": {"topic": "/x", "endpoint": f"ipc://{tmp_path}/x", "type": "dockhil/WrenchStamped"}},
+    }
+    r = subprocess.run(
+        [sys.executable, "-m", "dockhil.process", "--keys", str(path), json.dumps(spec)],
+        capture_output=True,
+        text=True,
+        env=env(),
+        timeout=30,
+    )
     assert r.returncode == 2 and "has mode 0640" in one_line(r.stderr)
 
 
@@ -187,7 +198,7 @@ def test_a_socket_bound_on_the_ipc_path_after_the_publisher_is_never_heard(tmp_p
                 sock.bind(endpoint)
             driver = Subscriber(ctx)
             driver.connect(endpoint, keys=keys)
-            got, why = hear(driver, lambda: sock.send(forged))
+            got, why = hear(driver, lambda: sock.send(forged))  # noqa: B023 - called at once, in this pass
             driver.close()
             sock.close(linger=0)
             assert got == [], hijacker
@@ -279,8 +290,12 @@ def test_socket_monitor_events_read_as_pyzmq_reads_them():
 
     from dockhil.runtime.transport import monitor_event
 
-    for event in (zmq.EVENT_HANDSHAKE_SUCCEEDED, zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL,
-                  zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL, zmq.EVENT_HANDSHAKE_FAILED_AUTH):
+    for event in (
+        zmq.EVENT_HANDSHAKE_SUCCEEDED,
+        zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL,
+        zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL,
+        zmq.EVENT_HANDSHAKE_FAILED_AUTH,
+    ):
         frames = [struct.pack("=hi", event, 0x3F), b"ipc:///run/x"]
         theirs = parse_monitor_message(frames)
         assert monitor_event(frames) == (theirs["event"], theirs["endpoint"]) == (event, b"ipc:///run/x")
@@ -298,8 +313,13 @@ nodes:
 
 @pytest.mark.wall_time
 def test_a_running_graph_over_tcp_gives_nothing_to_an_unauthenticated_socket(write_launch):
-    launch = subprocess.Popen(dockhil_cmd("launch", write_launch(WALL_TCP), "--wall-time", "--transport", "tcp"),
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env())
+    launch = subprocess.Popen(
+        dockhil_cmd("launch", write_launch(WALL_TCP), "--wall-time", "--transport", "tcp"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env(),
+    )
     ctx = zmq.Context.instance()
     socks = []
     try:
@@ -365,13 +385,24 @@ def controller():
 
 
 def start_driver(port: int, run_id: str, runtime: str | None = None, **params) -> subprocess.Popen:
-    spec = {"name": "robot", "type_name": "robot_modbus", "dt": 0.01, "clock": "wall", "run_id": run_id,
-            "params": {"port": port, "ft_timeout": 0.0, "connect_timeout": 2.0, **params}}
+    spec = {
+        "name": "robot",
+        "type_name": "robot_modbus",
+        "dt": 0.01,
+        "clock": "wall",
+        "run_id": run_id,
+        "params": {"port": port, "ft_timeout": 0.0, "connect_timeout": 2.0, **params},
+    }
     e = env()
     if runtime:
         e["DOCKHIL_RUNTIME_DIR"] = runtime
-    return subprocess.Popen([sys.executable, "-m", "dockhil.process", json.dumps(spec)], stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, env=e)
+    return subprocess.Popen(
+        [sys.executable, "-m", "dockhil.process", json.dumps(spec)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=e,
+    )
 
 
 def wait_ready(proc: subprocess.Popen, timeout: float = 20.0) -> None:
@@ -476,16 +507,31 @@ def test_the_controller_refuses_a_host_that_ignores_the_claim_until_the_owner_di
 def test_a_second_emulator_on_the_same_port_names_the_graph_that_owns_it():
     port = free_port()
     spec = {"name": "em", "type_name": "robot_emulator", "dt": 0.01, "clock": "wall", "params": {"port": port}}
-    first = subprocess.Popen([sys.executable, "-m", "dockhil.process", json.dumps({**spec, "run_id": "graph-one"})],
-                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env())
+    first = subprocess.Popen(
+        [sys.executable, "-m", "dockhil.process", json.dumps({**spec, "run_id": "graph-one"})],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env(),
+    )
     try:
         wait_ready(first)
-        r = subprocess.run([sys.executable, "-m", "dockhil.process", json.dumps({**spec, "run_id": "graph-two"})],
-                           capture_output=True, text=True, env=env(), timeout=30)
+        r = subprocess.run(
+            [sys.executable, "-m", "dockhil.process", json.dumps({**spec, "run_id": "graph-two"})],
+            capture_output=True,
+            text=True,
+            env=env(),
+            timeout=30,
+        )
         assert r.returncode == 2
         assert f"robot controller emulator port 127.0.0.1:{port} is in use by graph graph-one" in one_line(r.stderr)
-        r = subprocess.run([sys.executable, "-m", "dockhil.hardware.robot_emulator", "--port", str(port)],
-                           capture_output=True, text=True, env=env(), timeout=30)
+        r = subprocess.run(
+            [sys.executable, "-m", "dockhil.hardware.robot_emulator", "--port", str(port)],
+            capture_output=True,
+            text=True,
+            env=env(),
+            timeout=30,
+        )
         assert r.returncode == 2 and "is in use by graph graph-one" in one_line(r.stderr)
     finally:
         first.send_signal(signal.SIGTERM)
@@ -504,17 +550,33 @@ def test_a_second_slcan_adapter_or_driver_on_the_same_path_is_refused(tmp_path):
         ownership.set_graph("")
     try:
         target = os.readlink(link)
-        r = subprocess.run([sys.executable, "-m", "dockhil.hardware.slcan_pty", link], capture_output=True, text=True,
-                           env=env(), timeout=30)
+        r = subprocess.run(
+            [sys.executable, "-m", "dockhil.hardware.slcan_pty", link],
+            capture_output=True,
+            text=True,
+            env=env(),
+            timeout=30,
+        )
         assert r.returncode == 2 and f"slcan adapter {link} is in use by graph graph-one" in one_line(r.stderr)
         assert os.readlink(link) == target  # the first adapter keeps its link
         # The F/T driver side: the adapter path is claimed by one graph's driver at a time.
         held = ownership.claim(f"can-slcan-{os.path.abspath(link)}", "F/T adapter")
         try:
-            spec = {"name": "ft", "type_name": "ft_can", "dt": 0.01, "clock": "wall", "run_id": "graph-two",
-                    "params": {"channel": link, "open_timeout": 0.5}}
-            r = subprocess.run([sys.executable, "-m", "dockhil.process", json.dumps(spec)], capture_output=True,
-                               text=True, env=env(), timeout=30)
+            spec = {
+                "name": "ft",
+                "type_name": "ft_can",
+                "dt": 0.01,
+                "clock": "wall",
+                "run_id": "graph-two",
+                "params": {"channel": link, "open_timeout": 0.5},
+            }
+            r = subprocess.run(
+                [sys.executable, "-m", "dockhil.process", json.dumps(spec)],
+                capture_output=True,
+                text=True,
+                env=env(),
+                timeout=30,
+            )
             assert r.returncode == 2 and f"F/T adapter (slcan {link}) is in use by process pid" in one_line(r.stderr)
         finally:
             held.release()
@@ -582,8 +644,10 @@ def test_another_graphs_emulator_cannot_join_the_can_bus_a_driver_reads(request)
 def test_a_graph_claim_is_shared_within_its_graph_across_processes_and_dies_with_them():
     from dockhil.runtime import ownership
 
-    code = ("import time; from dockhil.runtime import ownership; ownership.set_graph('graph-one'); "
-            "ownership.claim_for_graph('bus', 'the bus'); print('held', flush=True); time.sleep(60)")
+    code = (
+        "import time; from dockhil.runtime import ownership; ownership.set_graph('graph-one'); "
+        "ownership.claim_for_graph('bus', 'the bus'); print('held', flush=True); time.sleep(60)"
+    )
     holder = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env())
     try:
         assert holder.stdout.readline().strip() == "held"
@@ -614,24 +678,46 @@ def _fake_graph(name: str, **entry) -> Path:
     graphs = runtime_dir() / "graphs"
     graphs.mkdir(mode=0o700, parents=True, exist_ok=True)
     path = graphs / f"{name}.json"
-    path.write_text(json.dumps({"run_id": name, "pid": os.getpid(), "file": "hil.yaml", "clock": "wall",
-                                "nodes": {}, "keys": "", "topics": {}, **entry}))
+    path.write_text(
+        json.dumps(
+            {
+                "run_id": name,
+                "pid": os.getpid(),
+                "file": "hil.yaml",
+                "clock": "wall",
+                "nodes": {},
+                "keys": "",
+                "topics": {},
+                **entry,
+            }
+        )
+    )
     return path
 
 
-@pytest.mark.parametrize("entry, words", [
-    # a second publisher of a graph's topic: the graph's subscribers never connect to it
-    ({"topics": {"/x": {"type": "dockhil/WrenchStamped", "endpoint": "ipc:///nowhere", "publisher": "dynamics"}}},
-     ["topic /x is published by graph lab-graph (node 'dynamics')", "-r x:=/TOPIC"]),
-    # an input the launch left unconnected (an e-stop nobody published) does not start listening later
-    ({"unconnected": {"/x": ["robot.estop"]}},
-     ["graph lab-graph left input robot.estop (/x) unconnected at launch", "would not hear"]),
-])
+@pytest.mark.parametrize(
+    "entry, words",
+    [
+        # a second publisher of a graph's topic: the graph's subscribers never connect to it
+        (
+            {
+                "topics": {
+                    "/x": {"type": "dockhil/WrenchStamped", "endpoint": "ipc:///nowhere", "publisher": "dynamics"}
+                }
+            },
+            ["topic /x is published by graph lab-graph (node 'dynamics')", "-r x:=/TOPIC"],
+        ),
+        # an input the launch left unconnected (an e-stop nobody published) does not start listening later
+        (
+            {"unconnected": {"/x": ["robot.estop"]}},
+            ["graph lab-graph left input robot.estop (/x) unconnected at launch", "would not hear"],
+        ),
+    ],
+)
 def test_a_node_run_alone_never_publishes_what_a_running_graph_would_not_hear(entry, words):
     """`dockhil run` outputs are new topics: one that a running graph publishes, or that a node of it
     reads but was left unconnected (the robot driver's /estop), is refused in one line; an e-stop sent
     that way would never reach the driver, while the operator believes it would."""
-    from dockhil import cli
 
     reg = _fake_graph("lab-graph", **entry)
     try:  # a refusal: in this process, no interpreter of its own
@@ -648,8 +734,10 @@ def test_a_node_run_alone_never_publishes_what_a_running_graph_would_not_hear(en
 def test_a_device_lock_dies_with_its_process(tmp_path):
     from dockhil.runtime import ownership
 
-    code = ("import time; from dockhil.runtime import ownership; ownership.set_graph('graph-one'); "
-            "ownership.claim('dev', 'the device'); print('held', flush=True); time.sleep(60)")
+    code = (
+        "import time; from dockhil.runtime import ownership; ownership.set_graph('graph-one'); "
+        "ownership.claim('dev', 'the device'); print('held', flush=True); time.sleep(60)"
+    )
     holder = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env())
     try:
         assert holder.stdout.readline().strip() == "held"
@@ -677,14 +765,15 @@ def test_a_driver_stalled_past_its_claim_does_not_resume_on_a_controller_taken_o
         os.kill(first.pid, signal.SIGSTOP)
         assert wait_until(lambda: servo.owner_session == 0, timeout=10.0)
         assert other.connect()
-        assert not other.write_registers(mm.HR_SESSION, mm.encode_owner(99, "graph-two@elsewhere"),
-                                         device_id=1).isError()
+        assert not other.write_registers(
+            mm.HR_SESSION, mm.encode_owner(99, "graph-two@elsewhere"), device_id=1
+        ).isError()
         refused_before = servo.refused
         os.kill(first.pid, signal.SIGCONT)
         out, _ = first.communicate(timeout=30)
         assert first.returncode == 2, out
         # Whichever the driver notices first, its own stall or the new owner, it stops in one line.
-        assert ("owned by graph graph-two@elsewhere" in out or "safety stop: stall" in out), out
+        assert "owned by graph graph-two@elsewhere" in out or "safety stop: stall" in out, out
         assert "Traceback" not in out
         assert servo.refused > refused_before  # it tried, and the controller said no
     finally:
@@ -731,9 +820,10 @@ def test_a_remote_node_that_could_not_reach_a_loopback_bind_is_refused_before_an
     here = socket.gethostname()
     if not socket.gethostbyname(here).startswith("127."):
         pytest.skip(f"{here} resolves to a network address here")
-    scene = write_launch('nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
-                         '  - {name: gain, node: "tests.graphnodes:Gain", host: 192.0.2.7}\n')
+    scene = write_launch(
+        'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
+        '  - {name: gain, node: "tests.graphnodes:Gain", host: 192.0.2.7}\n'
+    )
     code, out, err = run_main("launch", scene, "--duration", "0.1")  # a refusal: no process of its own
     assert code == 2 and out == ""
-    assert (f"node 'gain' runs on 192.0.2.7 (192.0.2.7), but this machine's name '{here}' resolves to "
-            in one_line(err))
+    assert f"node 'gain' runs on 192.0.2.7 (192.0.2.7), but this machine's name '{here}' resolves to " in one_line(err)

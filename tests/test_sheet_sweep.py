@@ -21,15 +21,29 @@ M = 750.0
 
 def test_each_lane_runs_the_library_loop():
     # (b, K, h, max_damping): uncompensated unstable, compensated, saturating, another delay.
-    points = [(20.0, 2510.0, 0.016, 0.0), (20.0, 2510.0, 0.016, DEFAULT_MAX_DAMPING), (20.0, 12500.0, 0.016, 40.0),
-              (60.0, 6000.0, 0.03, DEFAULT_MAX_DAMPING)]
+    points = [
+        (20.0, 2510.0, 0.016, 0.0),
+        (20.0, 2510.0, 0.016, DEFAULT_MAX_DAMPING),
+        (20.0, 12500.0, 0.016, 40.0),
+        (60.0, 6000.0, 0.03, DEFAULT_MAX_DAMPING),
+    ]
     b, K, h, md = (np.array(v) for v in zip(*points))
     seconds = 8.0
     lanes = simulate_sheets(M, b, K, h, md, seconds=seconds, record=True)
     for i, (bi, Ki, hi, mdi) in enumerate(points):
-        run = simulate_hil(m1=M, m2=0.0, k=Ki, impedance=VirtualImpedance(0.0, bi, 0.0, 0.0), dt=1e-3,
-                           n_ticks=int(seconds * 1000) + 1, delay=hi, thrust=10.0, x1=20.0 / Ki,
-                           passivity=Passivity(Ki, mdi) if mdi > 0 else None, energy=True)
+        run = simulate_hil(
+            m1=M,
+            m2=0.0,
+            k=Ki,
+            impedance=VirtualImpedance(0.0, bi, 0.0, 0.0),
+            dt=1e-3,
+            n_ticks=int(seconds * 1000) + 1,
+            delay=hi,
+            thrust=10.0,
+            x1=20.0 / Ki,
+            passivity=Passivity(Ki, mdi) if mdi > 0 else None,
+            energy=True,
+        )
         p = run.x1 - run.x2
         # The free mass's step in closed form against the library's matrix exponential: roundings.
         assert np.allclose(lanes["p"][:, i], p, rtol=0, atol=1e-10 * np.max(np.abs(p))), points[i]
@@ -59,8 +73,23 @@ def test_verdicts_agree_with_the_exact_bound_and_the_damping_the_delay_needs():
 
 
 def map_args(tmp_path, *extra):
-    return ["stability", "map", "--m", M, "--png", tmp_path / "m.png", "--n", 20, "--compensation", "passivity",
-            "--sim-n", 2, "--seconds", 20, *extra]
+    return [
+        "stability",
+        "map",
+        "--m",
+        M,
+        "--png",
+        tmp_path / "m.png",
+        "--n",
+        20,
+        "--compensation",
+        "passivity",
+        "--sim-n",
+        2,
+        "--seconds",
+        20,
+        *extra,
+    ]
 
 
 def map_cmd(tmp_path, *extra):
@@ -88,12 +117,15 @@ def test_the_map_draws_the_compensated_region(tmp_path, capsys):
     assert "stable (neither grows nor saturates) in 4 of 4 runs" in out, out
 
 
-@pytest.mark.parametrize("args, words", [
-    (("--sim-n", 1), "--sim-n must be between 2 and 40"),
-    (("--multiples", -1), "--multiples must be"),
-    (("--max-damping", -3), "--max-damping must be > 0"),
-    (("--seconds", 0.5), "--seconds must be between"),
-])
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (("--sim-n", 1), "--sim-n must be between 2 and 40"),
+        (("--multiples", -1), "--multiples must be"),
+        (("--max-damping", -3), "--max-damping must be > 0"),
+        (("--seconds", 0.5), "--seconds must be between"),
+    ],
+)
 def test_bad_sweep_arguments_give_one_line(tmp_path, args, words):
     r = subprocess.run(map_cmd(tmp_path, *args), capture_output=True, text=True, timeout=60)
     assert r.returncode == 2
@@ -101,11 +133,29 @@ def test_bad_sweep_arguments_give_one_line(tmp_path, args, words):
     assert len(lines) == 1 and words in lines[0], r.stderr
 
 
-@pytest.mark.parametrize("args, words", [
-    (("stability", "map", "--m", 749.4, "--kcs", 3000, "--bcs", 40, "--png", "x.png", "--compensation", "passivity"),
-     "the hybrid map (--kcs, --bcs) has none"),
-    (("stability", "--scene", "launch/hil.yaml", "--compensation", "passivity"), "the hybrid loop (--scene"),
-])
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (
+            (
+                "stability",
+                "map",
+                "--m",
+                749.4,
+                "--kcs",
+                3000,
+                "--bcs",
+                40,
+                "--png",
+                "x.png",
+                "--compensation",
+                "passivity",
+            ),
+            "the hybrid map (--kcs, --bcs) has none",
+        ),
+        (("stability", "--scene", "launch/hil.yaml", "--compensation", "passivity"), "the hybrid loop (--scene"),
+    ],
+)
 def test_compensation_on_the_hybrid_loop_is_refused_in_one_line(args, words):
     r = subprocess.run(dockhil_cmd(*args), capture_output=True, text=True, timeout=60)
     assert r.returncode == 2

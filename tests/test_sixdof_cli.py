@@ -23,8 +23,26 @@ def critical_stiffness(m, b, h):
 
 def test_planar_decoupled_case_is_limited_by_the_weaker_axis():
     m, inertia, k, b, kr, br, h = 750.0, 500.0, 2510.0, 60.0, 300.0, 20.0, 0.016
-    r = cli("--planar", "--m", m, "--inertia", inertia, "--lever", 0, "--k-normal", k, "--b-normal", b,
-            "--k-rot", kr, "--b-rot", br, "--h", h, "--json")
+    r = cli(
+        "--planar",
+        "--m",
+        m,
+        "--inertia",
+        inertia,
+        "--lever",
+        0,
+        "--k-normal",
+        k,
+        "--b-normal",
+        b,
+        "--k-rot",
+        kr,
+        "--b-rot",
+        br,
+        "--h",
+        h,
+        "--json",
+    )
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     per_axis = {"x": critical_stiffness(m, b, h) / k, "rz": critical_stiffness(inertia, br, h) / kr}
@@ -42,11 +60,14 @@ def test_scene_margin_names_its_axis_and_agrees_with_the_root():
     assert out["stable"] == (out["stiffness_margin"] > 1.0)
 
 
-@pytest.mark.parametrize("args, line", [
-    ((), "give either --scene FILE"),
-    (("--planar", "--m", "750", "--h", "0.016"), "--planar needs --inertia"),
-    (("--scene", "launch/hil.yaml"), "not a 6-DOF hybrid scene"),
-])
+@pytest.mark.parametrize(
+    "args, line",
+    [
+        ((), "give either --scene FILE"),
+        (("--planar", "--m", "750", "--h", "0.016"), "--planar needs --inertia"),
+        (("--scene", "launch/hil.yaml"), "not a 6-DOF hybrid scene"),
+    ],
+)
 def test_bad_input_one_line(args, line):
     r = cli(*args)
     assert r.returncode != 0 and "Traceback" not in r.stderr

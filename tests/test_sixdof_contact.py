@@ -23,10 +23,13 @@ def test_one_axis_run_reproduces_the_1dof_library():
     target = RigidBody(scn.m2, np.diag([5e5, 6e5, 7e5]), interface_position=[-2.0, 0, 0])
     model = Contact6([scn.kcs, 1e3, 1e3, 1e3, 1e3, 1e3], [scn.bcs, 0, 0, 0, 0, 0])
     run = simulate_contact6(
-        chaser, target,
+        chaser,
+        target,
         BodyState([-1.0, 0, 0], AT_REST, [scn.v1, 0, 0], [0, 0, 0]),
         BodyState([2.0, 0, 0], AT_REST, [scn.v2, 0, 0], [0, 0, 0]),
-        model, dt=1e-3, t_end=1.7,
+        model,
+        dt=1e-3,
+        t_end=1.7,
     )
     closed = ideal_trajectory(scn, run.t)
     exact = simulate_contact(scn, dt=1e-3, t_end=1.7)
@@ -53,10 +56,13 @@ def test_decoupled_axes_follow_their_own_closed_forms():
     target = RigidBody(m2, np.diag([ix2, 300.0, 350.0]))
     v_close, w_rel = 0.1, 0.05
     run = simulate_contact6(
-        chaser, target,
+        chaser,
+        target,
         BodyState([0, 0, 0], AT_REST, [v_close, 0, 0], [w_rel, 0, 0]),
         BodyState([0, 0, 0], AT_REST, [0, 0, 0], [0, 0, 0]),
-        Contact6(k, c), dt=1e-3, t_end=0.5,
+        Contact6(k, c),
+        dt=1e-3,
+        t_end=0.5,
     )
     inside = run.in_contact
     t = run.t[inside]
@@ -73,10 +79,16 @@ def off_axis_pair() -> tuple[RigidBody, RigidBody]:
     """Two bodies with full inertias, an off-centre CoM and tilted interfaces (the off-axis cases)."""
     i1 = np.array([[40.0, 2, -1], [2, 50, 3], [-1, 3, 60]])
     i2 = np.array([[80.0, -4, 2], [-4, 70, 1], [2, 1, 90]])
-    chaser = RigidBody(100.0, i1, com=[0.05, 0.02, 0], interface_position=[1.0, 0.1, -0.05],
-                       interface_orientation=quat_from_rotvec([0, 0, 0.05]))
-    target = RigidBody(200.0, i2, interface_position=[-1.0, 0.0, 0.0],
-                       interface_orientation=quat_from_rotvec([0.02, 0, 0]))
+    chaser = RigidBody(
+        100.0,
+        i1,
+        com=[0.05, 0.02, 0],
+        interface_position=[1.0, 0.1, -0.05],
+        interface_orientation=quat_from_rotvec([0, 0, 0.05]),
+    )
+    target = RigidBody(
+        200.0, i2, interface_position=[-1.0, 0.0, 0.0], interface_orientation=quat_from_rotvec([0.02, 0, 0])
+    )
     return chaser, target
 
 
@@ -112,8 +124,9 @@ def test_undamped_off_axis_energy_is_conserved_to_the_integrators_order():
     errors = {}
     for order in (2, 4):
         for dt in (1e-3, 5e-4):
-            run = simulate_contact6(chaser, target, s1, s2, Contact6(coupled_stiffness()), dt=dt, t_end=0.45,
-                                    order=order)
+            run = simulate_contact6(
+                chaser, target, s1, s2, Contact6(coupled_stiffness()), dt=dt, t_end=0.45, order=order
+            )
             inside = run.in_contact
             assert inside.sum() > 100
             errors[order, dt] = np.max(np.abs(run.energy[inside] - run.energy[0])) / run.energy[0]
@@ -138,8 +151,9 @@ def test_sensor_wrench_moves_to_both_centres_of_mass():
     other = Motion.from_state(body, BodyState([1.0, 4.0, 3.0], AT_REST, [0, 0, 0], [0, 0, 0]))
     # Sensor 0.5 m ahead of the body origin along body y, its own x along body z (rotation -pi/2 about y).
     sensor_q = quat_from_rotvec([0, -math.pi / 2, 0])
-    f_c, t_c, f_o, t_o = sensor_wrench_to_bodies(carrier, other, [0.0, 0.5, 0.0], sensor_q,
-                                                 [2.0, 0.0, 0.0], [0.0, 0.0, 0.1])
+    f_c, t_c, f_o, t_o = sensor_wrench_to_bodies(
+        carrier, other, [0.0, 0.5, 0.0], sensor_q, [2.0, 0.0, 0.0], [0.0, 0.0, 0.1]
+    )
     # By hand: sensor x = body z = world z; sensor z = -(body x) = -(world y); body origin at the
     # CoM minus R (0.2, 0, 0) = (1, 1.8, 3); sensor origin = (1, 1.8, 3) + R (0, 0.5, 0) = (0.5, 1.8, 3).
     f_world = np.array([0.0, 0.0, 2.0])

@@ -48,12 +48,23 @@ def library_run(offset, tilt, spin, delay, n_ticks, mu=0.0, order=2):
     s2 = BodyState([2.0, 0.0, 0.0], (0.0, 0.0, 0.0, 1.0), [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
     ideal = Contact6([3000.0, 3000.0, 3000.0, 300.0, 300.0, 300.0], [40.0, 40.0, 40.0, 4.0, 4.0, 4.0])
     passive = Contact6([1000.0, 1000.0, 1000.0, 100.0, 100.0, 100.0], mu=mu)
-    return simulate_hybrid6(chaser, target, s1, s2, ideal, passive, dt=DT, t_end=(n_ticks - 1) * DT,
-                            delay_ticks=int(round(delay / DT)), order=order)
+    return simulate_hybrid6(
+        chaser,
+        target,
+        s1,
+        s2,
+        ideal,
+        passive,
+        dt=DT,
+        t_end=(n_ticks - 1) * DT,
+        delay_ticks=int(round(delay / DT)),
+        order=order,
+    )
 
 
 def states(msgs_list):
     """positions, velocities, world angular velocities: (n, 2, 3) each."""
+
     def arr(get):
         return np.array([[[getattr(get(b), c) for c in "xyz"] for b in m.bodies] for m in msgs_list])
 
@@ -82,8 +93,9 @@ def test_composed_off_axis_graph_equals_the_library_loop_bit_for_bit():
 def test_composed_order_4_equals_the_library_loop_bit_for_bit():
     args = dict(offset=0.05, tilt=0.02, spin=0.01, delay=0.016, order=4)
     n = 200
-    assert_equals_library(run_composed(HIL6, args, n)["/satellite/state"], library_run(0.05, 0.02, 0.01, 0.016, n,
-                                                                                      order=4))
+    assert_equals_library(
+        run_composed(HIL6, args, n)["/satellite/state"], library_run(0.05, 0.02, 0.01, 0.016, n, order=4)
+    )
 
 
 def test_the_scenes_order_2_is_order_4_to_far_below_the_sampled_loops_error():
@@ -99,8 +111,12 @@ def test_the_scenes_order_2_is_order_4_to_far_below_the_sampled_loops_error():
 
 def test_multiprocess_run_equals_the_library_loop_bit_for_bit(tmp_path):
     bag = tmp_path / "hil6.mcap"
-    r = subprocess.run(dockhil_cmd("launch", HIL6, "--duration", "0.1", "--bag", bag, "--quiet", "delay:=0.01"),
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        dockhil_cmd("launch", HIL6, "--duration", "0.1", "--bag", bag, "--quiet", "delay:=0.01"),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     with BagReader(str(bag)) as reader:
         got = [msg for _topic, _t, msg in reader.decoded(["/satellite/state"])]
@@ -128,26 +144,40 @@ def test_along_the_axis_the_6dof_scene_is_the_1dof_hil_scene(delay):
     assert np.all(v6[:, :, 1:] == 0.0) and np.all(w6 == 0.0)  # nothing off the axis moves
 
 
-K_ASYM = ("[[3000, 0, 0, 0, 0, 0], [0, 3000, 0, 0, 0, 0], [0, 0, 3000, 0, 0, 0], [0, 0, 0, 300, 0, 0],"
-          " [0, 0, 0, 0, 300, 5], [0, 0, 0, 0, 0, 300]]")
+K_ASYM = (
+    "[[3000, 0, 0, 0, 0, 0], [0, 3000, 0, 0, 0, 0], [0, 0, 3000, 0, 0, 0], [0, 0, 0, 300, 0, 0],"
+    " [0, 0, 0, 0, 300, 5], [0, 0, 0, 0, 0, 300]]"
+)
 
 
-@pytest.mark.parametrize("old, new, line", [
-    ("      w1: [$(arg spin), 0.0, 0.0]", "      w1: [$(arg spin), 0.0, 0.0]\n      inertia1: [300.0, -400.0, 500.0]",
-     "node 'dynamics': chaser.inertia must be positive definite: its smallest eigenvalue is -400.0"),
-    ("      w1: [$(arg spin), 0.0, 0.0]", "      w1: [$(arg spin), 0.0, 0.0]\n      q1: [0.0, 0.0, 0.1, 1.0]",
-     "node 'dynamics': q1 must be a unit quaternion (x, y, z, w), got norm 1.00498756211"),
-    ("      stiffness: [$(arg kcs), $(arg kcs), $(arg kcs), $(arg kr), $(arg kr), $(arg kr)]",
-     f"      stiffness: {K_ASYM}",
-     "node 'impedance': stiffness must be symmetric: entry [4][5] = 5.0 but [5][4] = 0.0"),
-])
+@pytest.mark.parametrize(
+    "old, new, line",
+    [
+        (
+            "      w1: [$(arg spin), 0.0, 0.0]",
+            "      w1: [$(arg spin), 0.0, 0.0]\n      inertia1: [300.0, -400.0, 500.0]",
+            "node 'dynamics': chaser.inertia must be positive definite: its smallest eigenvalue is -400.0",
+        ),
+        (
+            "      w1: [$(arg spin), 0.0, 0.0]",
+            "      w1: [$(arg spin), 0.0, 0.0]\n      q1: [0.0, 0.0, 0.1, 1.0]",
+            "node 'dynamics': q1 must be a unit quaternion (x, y, z, w), got norm 1.00498756211",
+        ),
+        (
+            "      stiffness: [$(arg kcs), $(arg kcs), $(arg kcs), $(arg kr), $(arg kr), $(arg kr)]",
+            f"      stiffness: {K_ASYM}",
+            "node 'impedance': stiffness must be symmetric: entry [4][5] = 5.0 but [5][4] = 0.0",
+        ),
+    ],
+)
 def test_bad_6dof_parameters_stop_the_launch_with_one_line(tmp_path, old, new, line):
     text = HIL6.read_text()
     assert old in text
     path = tmp_path / "bad.yaml"
     path.write_text(text.replace(old, new, 1))
-    r = subprocess.run(dockhil_cmd("launch", path, "--composed", "--duration", "0.01"), capture_output=True,
-                       text=True, timeout=60)
+    r = subprocess.run(
+        dockhil_cmd("launch", path, "--composed", "--duration", "0.01"), capture_output=True, text=True, timeout=60
+    )
     assert r.returncode not in (0, None)
     assert "Traceback" not in r.stderr + r.stdout
     lines = [s for s in (r.stderr + r.stdout).splitlines() if s.strip()]
@@ -158,8 +188,10 @@ def test_plot_6dof_draws_the_recorded_pose_and_rates(tmp_path):
     from dockhil.analysis.plot6 import series6
 
     bag, png = tmp_path / "hil6.mcap", tmp_path / "hil6.png"
-    for args in (("launch", HIL6, "--composed", "--duration", "0.3", "--bag", bag, "--quiet", "delay:=0.01"),
-                 ("plot", bag, "--6dof", "--png", png)):
+    for args in (
+        ("launch", HIL6, "--composed", "--duration", "0.3", "--bag", bag, "--quiet", "delay:=0.01"),
+        ("plot", bag, "--6dof", "--png", png),
+    ):
         r = subprocess.run(dockhil_cmd(*args), capture_output=True, text=True, timeout=120)
         assert r.returncode == 0, r.stdout + r.stderr
     assert png.stat().st_size > 10_000
@@ -177,14 +209,22 @@ def _off_axis_pair():
     from dockhil.contact.hybrid6 import motion_from_published, published_body, relative_interface
     from dockhil.contact.rigid import Motion
 
-    chaser = RigidBody(750.0, [[300.0, 10.0, 0.0], [10.0, 400.0, 5.0], [0.0, 5.0, 500.0]],
-                       interface_position=[1.0, 0.1, 0.0])
-    target = RigidBody(2000.0, np.diag([900.0, 1000.0, 1100.0]), interface_position=[-2.0, 0.0, 0.05],
-                       interface_orientation=quat_from_rotvec([0.0, 0.05, 0.0]))
-    m1 = Motion.from_state(chaser, BodyState([-0.99, 0.05, 0.01], quat_from_rotvec([0.01, 0.0, 0.02]),
-                                             [0.03, 0.004, -0.002], [0.01, 0.02, -0.01]))
-    m2 = Motion.from_state(target, BodyState([2.0, 0.0, 0.1], quat_from_rotvec([0.0, -0.05, 0.0]),
-                                             [0.0, 0.001, 0.0], [0.0, 0.0, 0.003]))
+    chaser = RigidBody(
+        750.0, [[300.0, 10.0, 0.0], [10.0, 400.0, 5.0], [0.0, 5.0, 500.0]], interface_position=[1.0, 0.1, 0.0]
+    )
+    target = RigidBody(
+        2000.0,
+        np.diag([900.0, 1000.0, 1100.0]),
+        interface_position=[-2.0, 0.0, 0.05],
+        interface_orientation=quat_from_rotvec([0.0, 0.05, 0.0]),
+    )
+    m1 = Motion.from_state(
+        chaser,
+        BodyState([-0.99, 0.05, 0.01], quat_from_rotvec([0.01, 0.0, 0.02]), [0.03, 0.004, -0.002], [0.01, 0.02, -0.01]),
+    )
+    m2 = Motion.from_state(
+        target, BodyState([2.0, 0.0, 0.1], quat_from_rotvec([0.0, -0.05, 0.0]), [0.0, 0.001, 0.0], [0.0, 0.0, 0.003])
+    )
     pubs = [published_body(m) for m in (m1, m2)]
     s1 = motion_from_published(chaser, *pubs[0])
     s2 = motion_from_published(target, *pubs[1])
@@ -218,8 +258,10 @@ def test_the_sensor_mounting_pose_does_not_change_the_wrench_on_the_bodies():
     passive = Contact6([1000.0, 800.0, 900.0, 100.0, 120.0, 90.0])
     zero = (np.zeros(3),) * 4
     out = []
-    for position, orientation in (((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
-                                  ((0.02, -0.03, 0.1), quat_from_rotvec([0.3, -0.2, 0.5]))):
+    for position, orientation in (
+        ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
+        ((0.02, -0.03, 0.1), quat_from_rotvec([0.3, -0.2, 0.5])),
+    ):
         force, torque, _ = PassiveSensor6(passive, position, orientation).read(pose)
         w = held_wrench(m1, m2, sensor_mount_in_body(m2.body, position, orientation), force, torque, zero)
         out.append(np.concatenate([w.f1, w.t1, w.f2, w.t2]))

@@ -56,7 +56,8 @@ def test_a_lever_arm_couples_translation_and_rotation():
     chaser = RigidBody(m1, np.diag([30.0, 35.0, iz1]), interface_position=[0.0, lever, 0.0])
     target = RigidBody(m2, np.diag([800.0, 850.0, iz2]))
     g1, g2 = interface_mobilities(
-        chaser, target,
+        chaser,
+        target,
         BodyState([0, -lever, 0], AT_REST, [0, 0, 0], [0, 0, 0]),
         BodyState([0, 0, 0], AT_REST, [0, 0, 0], [0, 0, 0]),
     )
@@ -155,12 +156,31 @@ def test_one_axis_hybrid_loop_is_the_1dof_hil_loop(delay):
 
     scn = TABLE1
     dt, n = 2e-3, 1000
-    one = simulate_hil(m1=scn.m1, m2=scn.m2, k=scn.k, impedance=impedance_closed_form(scn), dt=dt, n_ticks=n,
-                       delay=delay, x1=0.0, x2=0.0, v1=scn.v1, v2=scn.v2)
+    one = simulate_hil(
+        m1=scn.m1,
+        m2=scn.m2,
+        k=scn.k,
+        impedance=impedance_closed_form(scn),
+        dt=dt,
+        n_ticks=n,
+        delay=delay,
+        x1=0.0,
+        x2=0.0,
+        v1=scn.v1,
+        v2=scn.v2,
+    )
     chaser, target, s1, s2 = table1_bodies()
-    six = simulate_hybrid6(chaser, target, s1, s2, Contact6([scn.kcs, 0, 0, 0, 0, 0], [scn.bcs, 0, 0, 0, 0, 0]),
-                           Contact6([scn.k, 0, 0, 0, 0, 0]), dt=dt, t_end=(n - 1) * dt,
-                           delay_ticks=int(round(delay / dt)))
+    six = simulate_hybrid6(
+        chaser,
+        target,
+        s1,
+        s2,
+        Contact6([scn.kcs, 0, 0, 0, 0, 0], [scn.bcs, 0, 0, 0, 0, 0]),
+        Contact6([scn.k, 0, 0, 0, 0, 0]),
+        dt=dt,
+        t_end=(n - 1) * dt,
+        delay_ticks=int(round(delay / dt)),
+    )
     assert np.max(np.abs(six.velocities[:, 0, 0] - one.v1)) < 1e-9 * scn.v1
     assert np.max(np.abs(six.velocities[:, 1, 0] - one.v2)) < 1e-9 * scn.v1 * scn.m1 / scn.m2
     assert np.max(np.abs(-six.force[:, 0] - one.force)) < 1e-9 * np.max(np.abs(one.force))

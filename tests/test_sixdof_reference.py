@@ -31,10 +31,14 @@ CHASER_INERTIA = [[300.0, 20.0, 0.0], [20.0, 400.0, 10.0], [0.0, 10.0, 500.0]]  
 # Node parameters beyond the launch arguments: principal axes, interface and sensor frames that are
 # not the identity, and a passive damping, so that every frame change of the per-tick path acts.
 GENERAL = {
-    ("dynamics", "inertia1"): CHASER_INERTIA, ("impedance", "inertia1"): CHASER_INERTIA,
-    ("dynamics", "interface_orientation1"): TILT_Z, ("impedance", "interface_orientation1"): TILT_Z,
-    ("dynamics", "sensor_position"): [0.1, 0.02, -0.03], ("ft", "sensor_position"): [0.1, 0.02, -0.03],
-    ("dynamics", "sensor_orientation"): TILT_Y, ("ft", "sensor_orientation"): TILT_Y,
+    ("dynamics", "inertia1"): CHASER_INERTIA,
+    ("impedance", "inertia1"): CHASER_INERTIA,
+    ("dynamics", "interface_orientation1"): TILT_Z,
+    ("impedance", "interface_orientation1"): TILT_Z,
+    ("dynamics", "sensor_position"): [0.1, 0.02, -0.03],
+    ("ft", "sensor_position"): [0.1, 0.02, -0.03],
+    ("dynamics", "sensor_orientation"): TILT_Y,
+    ("ft", "sensor_orientation"): TILT_Y,
     ("ft", "passive_damping"): [5.0, 5.0, 5.0, 0.5, 0.5, 0.5],
     ("impedance", "passive_damping"): [5.0, 5.0, 5.0, 0.5, 0.5, 0.5],
 }
@@ -42,8 +46,12 @@ GENERAL = {
 CASES = {
     # name: (launch arguments, node parameters, messages, sha256 of them as recorded)
     "defaults": ({}, {}, 17942, "366a543b2c115396d1f6a7c365fccb12b69fbe0a3c78b43918e1c2957cc30f6e"),
-    "servo lag and friction": ({"lag": "0.01", "mu": "0.3"}, {}, 17942,
-                               "0c3de3bb5e169a5078e05c7870f7066f6f58fdc1ee800226b7642900b337d089"),
+    "servo lag and friction": (
+        {"lag": "0.01", "mu": "0.3"},
+        {},
+        17942,
+        "0c3de3bb5e169a5078e05c7870f7066f6f58fdc1ee800226b7642900b337d089",
+    ),
     "general frames": ({}, GENERAL, 17942, "942c8b689b6cb6c2bfeabbc0f814b001b13a1c427edb2d388ef4b241c69c58a4"),
 }
 

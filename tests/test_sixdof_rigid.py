@@ -108,8 +108,14 @@ def test_asymmetric_body_matches_an_independent_integration_of_eulers_equations(
         return np.concatenate([dw, dq])
 
     t_end = 10.0
-    ref = solve_ivp(rhs, (0.0, t_end), np.concatenate([state.angular_velocity, state.orientation]),
-                    method="DOP853", rtol=1e-13, atol=1e-15)
+    ref = solve_ivp(
+        rhs,
+        (0.0, t_end),
+        np.concatenate([state.angular_velocity, state.orientation]),
+        method="DOP853",
+        rtol=1e-13,
+        atol=1e-15,
+    )
     m = Motion.from_state(body, state)
     for _ in range(int(round(t_end / 1e-3))):
         free_step(m, 1e-3)

@@ -62,8 +62,9 @@ def test_the_narrow_bracket_follows_the_crossing_root_and_is_checked_with_all_th
 def test_decoupled_axes_take_the_smallest_bound_and_name_its_axis():
     h = 0.016
     masses, dampers, k = [750.0, 300.0, 120.0], [20.0, 60.0, 10.0], [1000.0, 1000.0, 1000.0]
-    loop = MultiAxisLoop(np.diag(masses), np.zeros((3, 3)), np.zeros((3, 3)), np.diag(k), np.diag(dampers), h,
-                         ("x", "y", "rz"))
+    loop = MultiAxisLoop(
+        np.diag(masses), np.zeros((3, 3)), np.zeros((3, 3)), np.diag(k), np.diag(dampers), h, ("x", "y", "rz")
+    )
     per_axis = [exact_k_max(m, b, h) / kk for m, b, kk in zip(masses, dampers, k)]
     margin = stiffness_margin(loop)
     assert margin.alpha == pytest.approx(min(per_axis), rel=1e-6)
@@ -91,8 +92,8 @@ def simulated_growth(loop: MultiAxisLoop, t_end: float, steps_per_delay: int = 3
         q, v = q + dt * v + 0.5 * dt * dt * a, v + dt * a
         peaks[i] = np.max(np.abs(q))
     half, quarter = steps // 2, steps // 4
-    early = np.max(peaks[half:half + quarter])
-    late = np.max(peaks[half + quarter:])
+    early = np.max(peaks[half : half + quarter])
+    late = np.max(peaks[half + quarter :])
     return math.log(late / early) / (quarter * dt)
 
 
@@ -117,11 +118,19 @@ def test_hybrid_loop_of_one_axis_is_the_1dof_hybrid_loop():
 
     m1, m2, h = 750.0, 1e6, 0.032
     g1, g2 = np.diag([1 / m1] * 3 + [1 / 500.0] * 3), np.diag([1 / m2] * 3 + [1 / 5e5] * 3)
-    loop = hybrid_loop6(Contact6([3000.0, 0, 0, 0, 0, 0], [40.0, 0, 0, 0, 0, 0]), Contact6([1000.0, 0, 0, 0, 0, 0]),
-                        g1, g2, h)
+    loop = hybrid_loop6(
+        Contact6([3000.0, 0, 0, 0, 0, 0], [40.0, 0, 0, 0, 0, 0]), Contact6([1000.0, 0, 0, 0, 0, 0]), g1, g2, h
+    )
     m = m1 * m2 / (m1 + m2)
-    x_only = MultiAxisLoop(loop.mass[:1, :1], loop.k_direct[:1, :1], loop.b_direct[:1, :1], loop.k_delayed[:1, :1],
-                           loop.b_delayed[:1, :1], h, ("x",))
+    x_only = MultiAxisLoop(
+        loop.mass[:1, :1],
+        loop.k_direct[:1, :1],
+        loop.b_direct[:1, :1],
+        loop.k_delayed[:1, :1],
+        loop.b_delayed[:1, :1],
+        h,
+        ("x",),
+    )
     assert rightmost(x_only).s == pytest.approx(hybrid_rightmost(m, 2000.0, 40.0, 1000.0, 0.0, h), rel=1e-9)
 
 
@@ -153,4 +162,5 @@ def test_the_6dof_scene_check_warns_of_an_unstable_delayed_loop_as_the_1dof_one_
     assert [w for w in growing["warnings"] if w.startswith("the loop is unstable")] == [
         f"the loop is unstable: linearised at the start, the delayed loop grows at {root[0]:+.4g} 1/s (rightmost root "
         f"{root[0]:+.4g} {root[1]:+.4g}j, led by axis z); `dockhil stability multi --scene` on it gives the stable "
-        "stiffness"]
+        "stiffness"
+    ]

@@ -69,8 +69,10 @@ def _first_contact_metrics(t, p, pd, force, torque, vel, spin, acting):
         "peak_torque_Nm": float(np.max(np.linalg.norm(torque[start:end], axis=1))),
         "entry": (vel[start], spin[start]),
         "exit": (vel[last_acting + 1], spin[last_acting + 1]),
-        "duration": float((t[end] - p[end] * (t[end] - t[end - 1]) / (p[end] - p[end - 1]))
-                          - (t[start] - p[start] * (t[start] - t[start - 1]) / (p[start] - p[start - 1]))),
+        "duration": float(
+            (t[end] - p[end] * (t[end] - t[end - 1]) / (p[end] - p[end - 1]))
+            - (t[start] - p[start] * (t[start] - t[start - 1]) / (p[start] - p[start - 1]))
+        ),
     }
     return out
 
@@ -97,8 +99,9 @@ def test_off_axis_summary_is_the_librarys_hybrid_run_against_its_ideal_run(live)
     six = live
     hyb = library_run(0.05, 0.02, 0.01, 0.032, n)
     acting = np.any(hyb.force != 0.0, axis=1) | np.any(hyb.generalized != 0.0, axis=1)
-    want = _first_contact_metrics(hyb.t, hyb.e[:, 0], hyb.rate[:, 0], hyb.force, hyb.torque, hyb.rate[:, :3],
-                                  _relative_spin(hyb), acting)
+    want = _first_contact_metrics(
+        hyb.t, hyb.e[:, 0], hyb.rate[:, 0], hyb.force, hyb.torque, hyb.rate[:, :3], _relative_spin(hyb), acting
+    )
     assert want["peak_torque_Nm"] > 1.0  # off the axis: torque acts
     assert rel(six["peak_force_N"], want["peak_force_N"]) < 1e-12
     assert rel(six["peak_torque_Nm"], want["peak_torque_Nm"]) < 1e-12
@@ -116,15 +119,18 @@ def test_off_axis_summary_is_the_librarys_hybrid_run_against_its_ideal_run(live)
     ref = simulate_contact6(chaser, target, s1, s2, ideal, dt=DT, t_end=(n - 1) * DT)
     assert abs(six["ideal"]["peak_force_N"] - ref.peak("force")) < 1e-12 * ref.peak("force")
     assert abs(six["ideal"]["peak_torque_Nm"] - ref.peak("torque")) < 1e-12 * ref.peak("torque")
-    ideal_metrics = _first_contact_metrics(ref.t, ref.e[:, 0], ref.rate[:, 0], ref.force, ref.torque,
-                                           ref.rate[:, :3], _relative_spin(ref), ref.in_contact)
+    ideal_metrics = _first_contact_metrics(
+        ref.t, ref.e[:, 0], ref.rate[:, 0], ref.force, ref.torque, ref.rate[:, :3], _relative_spin(ref), ref.in_contact
+    )
     assert np.allclose(six["ideal"]["exit_relative_velocity_mps"], ideal_metrics["exit"][0], rtol=0, atol=1e-15)
-    assert np.allclose(six["ideal"]["exit_relative_angular_velocity_radps"], ideal_metrics["exit"][1], rtol=0,
-                       atol=1e-15)
+    assert np.allclose(
+        six["ideal"]["exit_relative_angular_velocity_radps"], ideal_metrics["exit"][1], rtol=0, atol=1e-15
+    )
     # Errors are run - ideal, componentwise; with the robot's 32 ms delay a few per cent (docs/sixdof.md).
     err = six["error"]
-    assert err["exit_relative_velocity_mps"] == [a - b for a, b in zip(six["exit_relative_velocity_mps"],
-                                                                      six["ideal"]["exit_relative_velocity_mps"])]
+    assert err["exit_relative_velocity_mps"] == [
+        a - b for a, b in zip(six["exit_relative_velocity_mps"], six["ideal"]["exit_relative_velocity_mps"])
+    ]
     assert 0.005 < err["peak_force_N"] / six["ideal"]["peak_force_N"] < 0.05
     text = format_summary(six)
     assert "peak torque |T|" in text and "exit ang. vel." in text and "ideal" in text
@@ -133,18 +139,29 @@ def test_off_axis_summary_is_the_librarys_hybrid_run_against_its_ideal_run(live)
 def hyb_bodies():
     from dockhil.contact.rigid import RigidBody
 
-    return (RigidBody(750.0, np.diag([300.0, 400.0, 500.0]), interface_position=[1.0, 0.0, 0.0]),
-            RigidBody(1e6, np.diag([4e6, 5e6, 6e6]), interface_position=[-2.0, 0.0, 0.0]))
+    return (
+        RigidBody(750.0, np.diag([300.0, 400.0, 500.0]), interface_position=[1.0, 0.0, 0.0]),
+        RigidBody(1e6, np.diag([4e6, 5e6, 6e6]), interface_position=[-2.0, 0.0, 0.0]),
+    )
 
 
 def test_a_recorded_run_gives_the_live_runs_summary(tmp_path, live):
     path = tmp_path / "summary.json"
-    r = subprocess.run(dockhil_cmd("launch", HIL6, "--duration", "1.8", "--summary", path, "--quiet"),
-                       capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        dockhil_cmd("launch", HIL6, "--duration", "1.8", "--summary", path, "--quiet"),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     recorded = json.loads(path.read_text())
-    for key in ("peak_force_N", "peak_torque_Nm", "contact_duration_s", "exit_relative_velocity_mps",
-                "exit_relative_angular_velocity_radps"):
+    for key in (
+        "peak_force_N",
+        "peak_torque_Nm",
+        "contact_duration_s",
+        "exit_relative_velocity_mps",
+        "exit_relative_angular_velocity_radps",
+    ):
         assert recorded[key] == live[key], key
     assert recorded["ideal"] == live["ideal"]
 

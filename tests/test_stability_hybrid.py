@@ -39,8 +39,10 @@ def simulate_delay_equation(m, kd, bd, kh, h, t_end, dt=1e-3):
         return p[i] * (1 - f) + p[min(i + 1, n)] * f
 
     for i in range(n):
+
         def acc(x, xd, s, i=i):
             return -(kd * x + bd * xd + kh * past(i + s - n_delay)) / m
+
         k1x, k1v = v[i], acc(p[i], v[i], 0.0)
         k2x, k2v = v[i] + 0.5 * dt * k1v, acc(p[i] + 0.5 * dt * k1x, v[i] + 0.5 * dt * k1v, 0.5)
         k3x, k3v = v[i] + 0.5 * dt * k2v, acc(p[i] + 0.5 * dt * k2x, v[i] + 0.5 * dt * k2v, 0.5)
@@ -95,7 +97,7 @@ def sampled_radius(m, kd, bd, kh, dt, d):
     a[1, 1] = 1 - dt * bd / m
     a[0, 2 * d] += -0.5 * dt * dt * kh / m
     a[1, 2 * d] += -dt * kh / m
-    a[2:, :2 * d] = np.eye(2 * d)
+    a[2:, : 2 * d] = np.eye(2 * d)
     return max(abs(np.linalg.eigvals(a)))
 
 
@@ -117,27 +119,32 @@ def test_scene_values_are_read_from_the_launch_file(capsys):
     assert r["sampled"]["rate"] == 500.0 and r["sampled"]["delay_ticks"] == 50
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--m", "750", "--b", "20", "--h", "1e308"], "--h must be at most 10 s"),
-    (["--m", "750", "--b", "20", "--h", "nan"], "--h must be a finite number"),
-    (["--m", "0", "--k-delayed", "1", "--h", "0.01"], "--m must be > 0 kg"),
-    (["--m", "-3", "--b", "20", "--h", "0.01"], "--m must be > 0 kg"),
-    (["--m", "750", "--k-delayed", "inf", "--h", "0.01"], "--k-delayed must be a finite number"),
-    (["--m", "750", "--k-delayed", "1", "--h", "0.01", "--rate", "0"], "--rate must be > 0 Hz"),
-    (["--m", "750", "--b", "20", "--h", "0.016", "--K", "1e308"], "--K must be at most"),
-    (["--scene", "launch/hil.yaml", "--m", "3"], "--m and --scene do not go together"),
-    (["--scene", "launch/hil.yaml", "bogus:=1"], "unknown arg 'bogus'"),
-    # a real robot's delay is the hardware's: the scene does not know it, so no verdict at h = 0
-    (["--scene", "launch/hil.yaml", "robot:=modbus"], "the robot's delay is the hardware's"),
-    (["--scene", "launch/hil.yaml", "robot:=modbus", "emulators:=true"], "give it with --h"),
-    # 15000 ticks of delay: the roots are refused, not found by a 3.6 GB companion matrix
-    (["--scene", "launch/hil.yaml", "delay:=15"], "could not be verified"),
-    (["map", "--m", "750", "--h-range", "0.01", "1e308", "--png", "x.png"], "--h-range HI must be at most 10 s"),
-    (["map", "--m", "750", "--b-range", "0", "1e308", "--png", "x.png"], "--b-range HI must be at most"),
-    (["map", "--m", "750", "--kcs", "3000", "--png", "x.png"], "needs both --kcs and --bcs"),
-    (["map", "--m", "750", "--kcs", "3000", "--bcs", "40", "--h-range", "0.01", "1", "--png", "x.png"],
-     "1000 ticks of delay"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--m", "750", "--b", "20", "--h", "1e308"], "--h must be at most 10 s"),
+        (["--m", "750", "--b", "20", "--h", "nan"], "--h must be a finite number"),
+        (["--m", "0", "--k-delayed", "1", "--h", "0.01"], "--m must be > 0 kg"),
+        (["--m", "-3", "--b", "20", "--h", "0.01"], "--m must be > 0 kg"),
+        (["--m", "750", "--k-delayed", "inf", "--h", "0.01"], "--k-delayed must be a finite number"),
+        (["--m", "750", "--k-delayed", "1", "--h", "0.01", "--rate", "0"], "--rate must be > 0 Hz"),
+        (["--m", "750", "--b", "20", "--h", "0.016", "--K", "1e308"], "--K must be at most"),
+        (["--scene", "launch/hil.yaml", "--m", "3"], "--m and --scene do not go together"),
+        (["--scene", "launch/hil.yaml", "bogus:=1"], "unknown arg 'bogus'"),
+        # a real robot's delay is the hardware's: the scene does not know it, so no verdict at h = 0
+        (["--scene", "launch/hil.yaml", "robot:=modbus"], "the robot's delay is the hardware's"),
+        (["--scene", "launch/hil.yaml", "robot:=modbus", "emulators:=true"], "give it with --h"),
+        # 15000 ticks of delay: the roots are refused, not found by a 3.6 GB companion matrix
+        (["--scene", "launch/hil.yaml", "delay:=15"], "could not be verified"),
+        (["map", "--m", "750", "--h-range", "0.01", "1e308", "--png", "x.png"], "--h-range HI must be at most 10 s"),
+        (["map", "--m", "750", "--b-range", "0", "1e308", "--png", "x.png"], "--b-range HI must be at most"),
+        (["map", "--m", "750", "--kcs", "3000", "--png", "x.png"], "needs both --kcs and --bcs"),
+        (
+            ["map", "--m", "750", "--kcs", "3000", "--bcs", "40", "--h-range", "0.01", "1", "--png", "x.png"],
+            "1000 ticks of delay",
+        ),
+    ],
+)
 def test_bad_input_gives_one_line_and_exit_2(argv, message):
     r = subprocess.run(dockhil_cmd("stability", *argv), capture_output=True, text=True, timeout=60)
     assert r.returncode == 2, r.stdout + r.stderr
@@ -160,8 +167,27 @@ def test_the_launch_scene_check_says_a_hardware_robots_delay_is_not_in_its_numbe
 
 def test_hybrid_map_draws_both_regions(capsys, tmp_path):
     png = tmp_path / "hyb.png"
-    r = run_json(capsys, ["stability", "map", "--m", "750", "--kcs", "3000", "--bcs", "40", "--n", "8",
-                          "--h-range", "0.004", "0.06", "--png", str(png), "--json"])
+    r = run_json(
+        capsys,
+        [
+            "stability",
+            "map",
+            "--m",
+            "750",
+            "--kcs",
+            "3000",
+            "--bcs",
+            "40",
+            "--n",
+            "8",
+            "--h-range",
+            "0.004",
+            "0.06",
+            "--png",
+            str(png),
+            "--json",
+        ],
+    )
     assert png.read_bytes()[:4] == b"\x89PNG"
     # k = 0: everything direct, stable at every delay; so some but not all of the grid is stable.
     assert 0 < r["exact_stable_fraction"] < 1 and r["sampled_disagrees_fraction"] <= 0.1
@@ -176,8 +202,9 @@ def test_critical_delay_of_the_papers_loop_from_its_closed_form(capsys, theta):
     # m s^2 + (K + b s) e^{-sh} = 0 crosses at s = j theta / h when b h / m = theta sin(theta) and
     # K h^2 / m = theta^2 cos(theta): choose theta and h, derive b and K, find h back.
     m, h = 750.0, 0.016
-    b, K = theta * math.sin(theta) * m / h, theta ** 2 * math.cos(theta) * m / h ** 2
-    r = run_json(capsys, ["stability", "--m", "750", "--k-delayed", repr(K), "--b-delayed", repr(b), "--h", "0.01",
-                          "--json"])
+    b, K = theta * math.sin(theta) * m / h, theta**2 * math.cos(theta) * m / h**2
+    r = run_json(
+        capsys, ["stability", "--m", "750", "--k-delayed", repr(K), "--b-delayed", repr(b), "--h", "0.01", "--json"]
+    )
     assert r["critical_delay"] == pytest.approx(h, rel=1e-9)
     assert r["critical_frequency"] == pytest.approx(theta / h, rel=1e-9)

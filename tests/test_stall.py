@@ -127,9 +127,21 @@ def test_a_stalled_robot_driver_holds_and_stops_the_graph(tmp_path):
     stall_timeout and holds (or a reader of its state stopped the graph first); never exit 0."""
     for _attempt in range(3):
         port = free_port()
-        p, lines = start(["launch", "launch/hil.yaml", "ft:=can", "robot:=modbus", "emulators:=true",
-                          f"can_channel:={tmp_path / 'ft.slcan'}", f"modbus_port:={port}",
-                          "--wall-time", "--duration", "30", "--quiet"])
+        p, lines = start(
+            [
+                "launch",
+                "launch/hil.yaml",
+                "ft:=can",
+                "robot:=modbus",
+                "emulators:=true",
+                f"can_channel:={tmp_path / 'ft.slcan'}",
+                f"modbus_port:={port}",
+                "--wall-time",
+                "--duration",
+                "30",
+                "--quiet",
+            ]
+        )
         try:
             pid = registered(p.pid)["nodes"]["robot"]["pid"]
             wait_line(lines, "tared over", 30)
@@ -146,8 +158,9 @@ def test_a_stalled_robot_driver_holds_and_stops_the_graph(tmp_path):
         # driver's own watchdog (0.1 s) when the emulated sensor is held that long, or the robot
         # driver's speed limit when late ticks bunch its setpoints. A valid stop, but not the one
         # under test: run again.
-        other_stop = (("[ft] error:" in text and "stale data: no new sample" in text)
-                      or "[robot] error: safety stop: max_speed:" in text)
+        other_stop = (
+            "[ft] error:" in text and "stale data: no new sample" in text
+        ) or "[robot] error: safety stop: max_speed:" in text
         if stalled or not other_stop:
             break
     assert stalled, text

@@ -105,6 +105,7 @@ def test_log_range_and_value_forms():
 
 def test_local_pool_and_dask_local_cluster_give_identical_rows(tmp_path):
     import dask.distributed  # noqa: F401  (a dev dependency: fails, never skips)
+
     campaign = write(tmp_path, SMALL)
     local, dask = tmp_path / "local.parquet", tmp_path / "dask.parquet"
     assert cli.main(["sweep", str(campaign), "--out", str(local), "--workers", "2", "--quiet"]) == 0
@@ -123,8 +124,19 @@ def test_local_pool_and_dask_local_cluster_give_identical_rows(tmp_path):
     assert without_timing(a) == without_timing(b)
     assert pq.read_table(local).schema.names == pq.read_table(dask).schema.names
     for r in a:
-        assert {"m", "delay", "b", "k", "thrust", "status", "error", "run_time_s", "peak_force_N",
-                "growth_rate_per_s", "stable"} <= set(r)
+        assert {
+            "m",
+            "delay",
+            "b",
+            "k",
+            "thrust",
+            "status",
+            "error",
+            "run_time_s",
+            "peak_force_N",
+            "growth_rate_per_s",
+            "stable",
+        } <= set(r)
 
 
 def test_an_interrupted_campaign_resumes_without_rerunning_finished_rows(tmp_path):
@@ -170,14 +182,17 @@ def test_results_of_another_campaign_are_refused_not_overwritten(tmp_path, capsy
 def test_refused_and_diverging_runs_are_rows_and_the_campaign_goes_on(tmp_path, capsys):
     # b = -1e4 (a damper that feeds energy) moves too fast for the 1 ms step: the scene check refuses
     # it (an invalid row), and with allow_coarse it runs and diverges (a failed row).
-    campaign = write(tmp_path, """
+    campaign = write(
+        tmp_path,
+        """
         scene: stability.yaml
         args: {m: 1.0, delay: 0.016, k: 10000}
         duration: 0.5
         grid:
           allow_coarse: [false, true]
           b: [-1.0e+4, 100]
-        """)
+        """,
+    )
     out = tmp_path / "r.parquet"
     code = cli.main(["sweep", str(campaign), "--out", str(out), "--workers", "2", "--quiet"])
     assert code == 1  # some run failed; every row is there
@@ -217,22 +232,25 @@ def test_a_lost_worker_s_batch_is_sent_again(tmp_path, monkeypatch):
     assert result["ok"] == 6 and [r["status"] for r in rows_of(out)] == ["ok"] * 6
 
 
-@pytest.mark.parametrize("text, expect", [
-    ("scene: stability.yaml\ngrd: {k: [1]}\n", "unknown key 'grd'"),
-    ("scene: stability.yaml\ngrid: {k: [1.0]}\nrandom: {b: {gauss: [1, 2]}}\n", "random.b"),
-    ("scene: stability.yaml\ngrid: {k: {uniform: [1, 2]}}\n", "grid.k"),
-    ("scene: stability.yaml\ngrid: {k: []}\n", "empty grid"),
-    ("scene: stability.yaml\ngrid: {}\n", "empty grid"),
-    ("scene: stability.yaml\ngrid: {stiffness: [1.0]}\n", "no arg 'stiffness'"),
-    ("scene: stability.yaml\ngrid: {k: {range: [1, 2]}}\n", "num"),
-    ("scene: stability.yaml\nrandom: {b: {loguniform: [0, 2]}}\n", "loguniform"),
-    ("scene: nowhere.yaml\ngrid: {k: [1.0]}\n", "not found"),
-    ("scene: stability.yaml\ngrid: {k: ['1e3']}\n", "expects float, got str '1e3'"),
-    ("scene: stability.yaml\nargs: {k: 1.0}\ngrid: {k: [1.0]}\n", "give it once"),
-    ("grid: {k: [1.0]}\n", "`scene:` is required"),
-    ("scene: [\n", "not valid YAML"),
-    ("scene: stability.yaml\ngrid: {k: [5000.0]}\noutputs: [peak_force]\n", "'peak_force' is not a summary field"),
-])
+@pytest.mark.parametrize(
+    "text, expect",
+    [
+        ("scene: stability.yaml\ngrd: {k: [1]}\n", "unknown key 'grd'"),
+        ("scene: stability.yaml\ngrid: {k: [1.0]}\nrandom: {b: {gauss: [1, 2]}}\n", "random.b"),
+        ("scene: stability.yaml\ngrid: {k: {uniform: [1, 2]}}\n", "grid.k"),
+        ("scene: stability.yaml\ngrid: {k: []}\n", "empty grid"),
+        ("scene: stability.yaml\ngrid: {}\n", "empty grid"),
+        ("scene: stability.yaml\ngrid: {stiffness: [1.0]}\n", "no arg 'stiffness'"),
+        ("scene: stability.yaml\ngrid: {k: {range: [1, 2]}}\n", "num"),
+        ("scene: stability.yaml\nrandom: {b: {loguniform: [0, 2]}}\n", "loguniform"),
+        ("scene: nowhere.yaml\ngrid: {k: [1.0]}\n", "not found"),
+        ("scene: stability.yaml\ngrid: {k: ['1e3']}\n", "expects float, got str '1e3'"),
+        ("scene: stability.yaml\nargs: {k: 1.0}\ngrid: {k: [1.0]}\n", "give it once"),
+        ("grid: {k: [1.0]}\n", "`scene:` is required"),
+        ("scene: [\n", "not valid YAML"),
+        ("scene: stability.yaml\ngrid: {k: [5000.0]}\noutputs: [peak_force]\n", "'peak_force' is not a summary field"),
+    ],
+)
 def test_a_bad_campaign_file_is_one_line_and_exit_2(tmp_path, capsys, text, expect):
     path = tmp_path / "bad.yaml"
     path.write_text(text)
@@ -328,14 +346,17 @@ def test_outputs_keep_only_the_named_summary_columns(tmp_path):
 def test_bags_true_keeps_one_readable_bag_per_run(tmp_path):
     from dockhil.bags.reader import BagReader
 
-    campaign = write(tmp_path, """
+    campaign = write(
+        tmp_path,
+        """
         scene: stability.yaml
         args: {m: 20.0, delay: 0.016, b: 150}
         duration: 0.05
         grid:
           k: [6000, 9000]
         bags: true
-        """)
+        """,
+    )
     out = tmp_path / "r.parquet"
     assert cli.main(["sweep", str(campaign), "--out", str(out), "--workers", "1", "--quiet"]) == 0
     rows = rows_of(out)
@@ -362,19 +383,33 @@ def test_the_shipped_fig7_campaign_brackets_the_boundary_at_every_point():
 
 def one_row(scene: Path, args: dict, duration: float) -> dict:
     """The row of one run of `scene` with `args`, as a campaign's worker makes it."""
-    return sweep.run_one({"run": 0, "sample": 0, "args": args, "args_hash": "h", "scene": str(scene),
-                          "duration": duration, "bag": None, "outputs": None})
+    return sweep.run_one(
+        {
+            "run": 0,
+            "sample": 0,
+            "args": args,
+            "args_hash": "h",
+            "scene": str(scene),
+            "duration": duration,
+            "bag": None,
+            "outputs": None,
+        }
+    )
 
 
 def hil_with(tmp_path: Path, node: str) -> Path:
     """launch/hil.yaml with one more node (its YAML, as a list entry of `nodes:`)."""
-    return write(tmp_path, f"""
+    return write(
+        tmp_path,
+        f"""
         rate: 1000
         include:
           - file: {ROOT / "launch" / "hil.yaml"}
         nodes:
           {node}
-        """, "scene.yaml")
+        """,
+        "scene.yaml",
+    )
 
 
 def test_a_rows_warnings_carry_what_its_nodes_warned():
@@ -385,7 +420,6 @@ def test_a_rows_warnings_carry_what_its_nodes_warned():
     assert soft["status"] == "ok" and stiff["status"] == "ok"
     assert soft["warnings"].startswith("impedance: kcs = 500 N/m is below the passive stiffness k = 1000 N/m")
     assert stiff["warnings"] is None
-
 
 
 class LogsAnError(Node):
@@ -409,9 +443,11 @@ def test_a_node_s_nan_is_its_own_failure_and_a_diverging_loop_is_labelled_diverg
     bodies have left that range: that row says diverged, and where the bodies were."""
     node = one_row(hil_with(tmp_path, "- {name: nan, node: 'tests.faultnodes:NanAt', params: {at: 5}}"), {}, 0.1)
     assert node["status"] == "failed"
-    assert node["error"] == ("node 'nan' produced an invalid message at tick 5 on output 'x' (/x): WrenchStamped: "
-                             "NaN or Inf refused (physical fields must be finite) - at `$.wrench.force.x`; "
-                             "stopping the graph")
+    assert node["error"] == (
+        "node 'nan' produced an invalid message at tick 5 on output 'x' (/x): WrenchStamped: "
+        "NaN or Inf refused (physical fields must be finite) - at `$.wrench.force.x`; "
+        "stopping the graph"
+    )
     diverged = one_row(ROOT / "launch" / "hil.yaml", {"k": 1e12}, 0.1)  # a virtual stiffness of -1e15 N/m
     assert diverged["status"] == "failed"
     head, line = diverged["error"].split("): ", 1)

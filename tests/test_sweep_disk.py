@@ -74,16 +74,19 @@ class FullAfter:
 
 
 def test_a_full_disk_under_the_journal_stops_the_campaign_keeps_its_rows_and_the_rerun_resumes(
-        tmp_path, capsys, monkeypatch):
+    tmp_path, capsys, monkeypatch
+):
     path, out = campaign(tmp_path), tmp_path / "r.parquet"
     real = sweep_results._open_journal
     monkeypatch.setattr(sweep_results, "_open_journal", lambda results, c: FullAfter(real(results, c), 1))
     before = children()
     code, err = sweep_cli(path, out, capsys)
     assert code == 1 and len(err) == 1, err
-    assert err[0] == (f"dockhil sweep: error: cannot write {out}.partial: No space left on device (ENOSPC); the rows "
-                      f"written before stay: make room on that disk (or make it writable) and rerun the same command "
-                      f"to resume")
+    assert err[0] == (
+        f"dockhil sweep: error: cannot write {out}.partial: No space left on device (ENOSPC); the rows "
+        f"written before stay: make room on that disk (or make it writable) and rerun the same command "
+        f"to resume"
+    )
     assert_no_worker_left(before)
     assert len(sweep.journal_path(out).read_text().splitlines()) == 1
     kept = sorted(r["run"] for r in pq.read_table(out).to_pylist())
@@ -170,8 +173,13 @@ def small_disk(tmp_path):
     """A 64 KiB tmpfs with one 4 KiB page free (root only; skipped where mounting is not allowed)."""
     disk = tmp_path / "disk"
     disk.mkdir()
-    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(disk)],
-                                           capture_output=True).returncode != 0:
+    if (
+        os.geteuid() != 0
+        or subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(disk)], capture_output=True
+        ).returncode
+        != 0
+    ):
         pytest.skip("needs root and mount to make a small disk")
     try:
         filler = disk / "filler"

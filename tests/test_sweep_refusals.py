@@ -37,37 +37,55 @@ def refused(tmp_path: Path, capsys, text: str | None = None, path: Path | None =
     return lines[0]
 
 
-@pytest.mark.parametrize("text, expect", [
-    ("grid: {k: [6000.0]}\nduration: 0.1\nsamples: 1e12\n",
-     "`samples` must be a whole number from 1 to 100,000, got 1000000000000.0"),
-    ("grid: {k: [6000.0]}\nduration: 0.1\nsamples: 1000000000000\n", "`samples` must be a whole number from 1 to"),
-    ("grid: {k: [6000.0]}\nduration: 0.1\nsamples: 0\n", "`samples` must be a whole number from 1 to"),
-    ("grid: {k: [6000.0]}\nduration: 0.1\nsamples: 2.5\n", "`samples` must be a whole number"),
-    ("grid: {k: [6000.0]}\nduration: 0.1\nsamples: true\n", "`samples` must be a whole number"),
-    ("grid: {k: [6000.0]}\nduration: 0.1\nseed: -1\n", "`seed` must be a whole number from 0 to 4,294,967,295, got -1"),
-    ("grid: {k: [6000.0]}\nduration: 0.1\nseed: 4294967296\n", "`seed` must be a whole number from 0 to 4,294,967,295"),
-    ("grid: {k: [6000.0]}\nduration: 1.0e+300\n", "`duration` must be simulated seconds per run, > 0 and at most 1e+06"),
-    ("grid: {k: [6000.0]}\nduration: 0\n", "`duration` must be"),
-    ("grid: {k: [6000.0]}\nduration: -1.0\n", "`duration` must be"),
-    ("grid: {k: [6000.0]}\nduration: .nan\n", "got nan"),
-    ("grid: {k: [6000.0]}\nduration: .inf\n", "got inf"),
-    ("grid: {k: [6000.0]}\nduration: forever\n", "got 'forever'"),
-    ("duration: 0.1\ngrid:\n  k: {range: [5000, 9000], num: 1000}\n  b: {range: [10, 200], num: 1000}\n"
-     "  thrust: {range: [1, 10], num: 1000}\n", "1000 x 1000 x 1000 grid points x 1 samples = 1,000,000,000 runs; "
-                                                "a campaign has at most 100,000"),
-    ("duration: 0.1\ngrid: {k: {range: [5000, 9000], num: 1000}}\nsamples: 101\n", "= 101,000 runs"),
-    ("duration: 0.1\ngrid: {k: {range: [5000, 9000], num: 1000000000}}\n", "`num:` from 1 to 100,000 points"),
-    ("duration: 0.1\ngrid: {k: {range: [5000, 9000], num: 0}}\n", "`num:` from 1 to 100,000 points"),
-    ("duration: 0.1\nrandom: {thrust: {uniform: [-1.0e+308, 1.0e+308]}}\n", "b - a finite"),
-    ("duration: 0.1\nrandom: {thrust: {normal: [0.0, 1.0e+308]}}\nsamples: 100\n", "give a narrower distribution"),
-    ("duration: 0.1\ngrid: {k: [6000.0, -5.0]}\n", "grid.k = -5.0: refused by the scene: "),
-    ("duration: 0.1\ngrid: {b: [100.0]}\nargs: {m: -1.0}\n", "run 0: refused by the scene: "),
-    ("duration: 0.1\ngrid: {thrust: [10.0, 1.0e+30]}\n", "grid.thrust = 1e+30: refused by the scene: "),
-    ("duration: 0.1\ngrid: {rate: [1000.0, 1.0e+9]}\n", "grid.rate = 1000000000.0: refused by the scene: "),
-    ("duration: 0.1\ngrid: {k: " + "[" * 100 + "]" * 100 + "}\n", "nested deeper than 32 levels"),
-    ("duration: 0.1\ngrid: {k: [6000.0]}\nl0: &l0 [1, 1, 1, 1, 1, 1, 1, 1, 1]\n" + LAUGHS,
-     "expands to more than 100000 values"),
-])
+@pytest.mark.parametrize(
+    "text, expect",
+    [
+        (
+            "grid: {k: [6000.0]}\nduration: 0.1\nsamples: 1e12\n",
+            "`samples` must be a whole number from 1 to 100,000, got 1000000000000.0",
+        ),
+        ("grid: {k: [6000.0]}\nduration: 0.1\nsamples: 1000000000000\n", "`samples` must be a whole number from 1 to"),
+        ("grid: {k: [6000.0]}\nduration: 0.1\nsamples: 0\n", "`samples` must be a whole number from 1 to"),
+        ("grid: {k: [6000.0]}\nduration: 0.1\nsamples: 2.5\n", "`samples` must be a whole number"),
+        ("grid: {k: [6000.0]}\nduration: 0.1\nsamples: true\n", "`samples` must be a whole number"),
+        (
+            "grid: {k: [6000.0]}\nduration: 0.1\nseed: -1\n",
+            "`seed` must be a whole number from 0 to 4,294,967,295, got -1",
+        ),
+        (
+            "grid: {k: [6000.0]}\nduration: 0.1\nseed: 4294967296\n",
+            "`seed` must be a whole number from 0 to 4,294,967,295",
+        ),
+        (
+            "grid: {k: [6000.0]}\nduration: 1.0e+300\n",
+            "`duration` must be simulated seconds per run, > 0 and at most 1e+06",
+        ),
+        ("grid: {k: [6000.0]}\nduration: 0\n", "`duration` must be"),
+        ("grid: {k: [6000.0]}\nduration: -1.0\n", "`duration` must be"),
+        ("grid: {k: [6000.0]}\nduration: .nan\n", "got nan"),
+        ("grid: {k: [6000.0]}\nduration: .inf\n", "got inf"),
+        ("grid: {k: [6000.0]}\nduration: forever\n", "got 'forever'"),
+        (
+            "duration: 0.1\ngrid:\n  k: {range: [5000, 9000], num: 1000}\n  b: {range: [10, 200], num: 1000}\n"
+            "  thrust: {range: [1, 10], num: 1000}\n",
+            "1000 x 1000 x 1000 grid points x 1 samples = 1,000,000,000 runs; a campaign has at most 100,000",
+        ),
+        ("duration: 0.1\ngrid: {k: {range: [5000, 9000], num: 1000}}\nsamples: 101\n", "= 101,000 runs"),
+        ("duration: 0.1\ngrid: {k: {range: [5000, 9000], num: 1000000000}}\n", "`num:` from 1 to 100,000 points"),
+        ("duration: 0.1\ngrid: {k: {range: [5000, 9000], num: 0}}\n", "`num:` from 1 to 100,000 points"),
+        ("duration: 0.1\nrandom: {thrust: {uniform: [-1.0e+308, 1.0e+308]}}\n", "b - a finite"),
+        ("duration: 0.1\nrandom: {thrust: {normal: [0.0, 1.0e+308]}}\nsamples: 100\n", "give a narrower distribution"),
+        ("duration: 0.1\ngrid: {k: [6000.0, -5.0]}\n", "grid.k = -5.0: refused by the scene: "),
+        ("duration: 0.1\ngrid: {b: [100.0]}\nargs: {m: -1.0}\n", "run 0: refused by the scene: "),
+        ("duration: 0.1\ngrid: {thrust: [10.0, 1.0e+30]}\n", "grid.thrust = 1e+30: refused by the scene: "),
+        ("duration: 0.1\ngrid: {rate: [1000.0, 1.0e+9]}\n", "grid.rate = 1000000000.0: refused by the scene: "),
+        ("duration: 0.1\ngrid: {k: " + "[" * 100 + "]" * 100 + "}\n", "nested deeper than 32 levels"),
+        (
+            "duration: 0.1\ngrid: {k: [6000.0]}\nl0: &l0 [1, 1, 1, 1, 1, 1, 1, 1, 1]\n" + LAUGHS,
+            "expands to more than 100000 values",
+        ),
+    ],
+)
 def test_a_meaningless_campaign_is_refused_before_anything_runs(tmp_path, capsys, text, expect):
     line = refused(tmp_path, capsys, ("scene: stability.yaml\n" + text) if "args:" in text else HEAD + text)
     assert expect in line, line
@@ -101,15 +119,15 @@ def test_the_most_runs_is_accepted_and_one_more_refused(tmp_path, capsys, monkey
     path = tmp_path / "c.yaml"
     path.write_text(HEAD + "duration: 0.1\ngrid: {k: [6000.0, 7000.0, 8000.0]}\nsamples: 4\n")
     assert sweep.load_campaign(path).total == 12
-    line = refused(tmp_path, capsys, HEAD + "duration: 0.1\ngrid: {k: [6000.0, 7000.0, 8000.0], b: [1.0, 2.0]}\n"
-                                            "samples: 3\n")
+    line = refused(
+        tmp_path, capsys, HEAD + "duration: 0.1\ngrid: {k: [6000.0, 7000.0, 8000.0], b: [1.0, 2.0]}\nsamples: 3\n"
+    )
     assert "3 x 2 grid points x 3 samples = 18 runs; a campaign has at most 12" in line
 
 
 def test_the_ends_of_each_range_are_accepted(tmp_path):
     path = tmp_path / "c.yaml"
-    path.write_text(HEAD + f"duration: {MAX_DURATION:.0f}\ngrid: {{k: [6000.0]}}\nseed: {sweep.MAX_SEED}\n"
-                           f"samples: 1\n")
+    path.write_text(HEAD + f"duration: {MAX_DURATION:.0f}\ngrid: {{k: [6000.0]}}\nseed: {sweep.MAX_SEED}\nsamples: 1\n")
     c = sweep.load_campaign(path)
     assert (c.duration, c.seed) == (MAX_DURATION, 2**32 - 1)
     assert sweep.runs(c)[0]["args"]["k"] == 6000.0
@@ -127,8 +145,13 @@ def test_a_file_larger_than_the_launch_reader_takes_is_not_read(tmp_path, capsys
 def _measured(args: list[str], cwd: Path) -> tuple[int, str, float, float]:
     """(exit code, stderr, CPU seconds, peak resident MB) of `dockhil ARGS` in its own process. CPU
     time, not wall time: what the refusal costs, the same on a machine whose cores are busy."""
-    proc = subprocess.Popen([sys.executable, "-m", "dockhil.cli", *args], cwd=cwd,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "dockhil.cli", *args],
+        cwd=cwd,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     err = proc.stderr.read()
     _pid, status, usage = os.wait4(proc.pid, 0)
     proc.returncode = os.waitstatus_to_exitcode(status)
@@ -142,10 +165,10 @@ def test_each_refusal_takes_under_10_s_and_500_mb(tmp_path):
         "seed": HEAD + "grid: {k: [6000.0]}\nduration: 0.1\nseed: -1\n",
         "duration": HEAD + "grid: {k: [6000.0]}\nduration: 1.0e+300\n",
         "grid": HEAD + "duration: 0.1\ngrid:\n  k: {range: [5000, 9000], num: 1000}\n"
-                       "  b: {range: [10, 200], num: 1000}\n  thrust: {range: [1, 10], num: 1000}\n",
+        "  b: {range: [10, 200], num: 1000}\n  thrust: {range: [1, 10], num: 1000}\n",
         # the largest campaign, some of whose draws are refused: every draw is made to find the least
         "draw": "scene: stability.yaml\nduration: 0.1\ngrid: {k: {range: [5000, 9000], num: 1000}}\n"
-                "random: {m: {normal: [20.0, 10.0]}}\nsamples: 100\n",
+        "random: {m: {normal: [20.0, 10.0]}}\nsamples: 100\n",
     }
     for name, text in files.items():
         (tmp_path / f"{name}.yaml").write_text(text)

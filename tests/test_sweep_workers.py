@@ -26,7 +26,8 @@ def gated_campaign(tmp_path: Path) -> tuple[Path, Path]:
     """A campaign whose runs 0 and 1 finish and whose runs 2 and 3 wait at a gate (a file that never
     appears here), so that the workers are mid-run when the sweep is killed."""
     gate = tmp_path / "gate"
-    (tmp_path / "gated.yaml").write_text(textwrap.dedent(f"""
+    (tmp_path / "gated.yaml").write_text(
+        textwrap.dedent(f"""
         args:
           k: {{default: 6000.0}}
           hold: {{default: false}}
@@ -36,16 +37,19 @@ def gated_campaign(tmp_path: Path) -> tuple[Path, Path]:
             args: {{m: 20.0, delay: 0.016, b: 150.0, k: $(arg k)}}
         nodes:
           - {{name: gate, node: "tests.faultnodes:Gate", params: {{hold: $(arg hold), path: $(arg gate)}}}}
-        """))
+        """)
+    )
     campaign = tmp_path / "campaign.yaml"
-    campaign.write_text(textwrap.dedent(f"""
+    campaign.write_text(
+        textwrap.dedent(f"""
         scene: gated.yaml
         args: {{gate: "{gate}"}}
         duration: 0.2
         grid:
           hold: [false, true]
           k: [6000, 7000]
-        """))
+        """)
+    )
     return campaign, gate
 
 
@@ -59,9 +63,13 @@ def start_and_kill(tmp_path: Path, sig: int, *extra: str):
     # the default disposition, even where this test runs with SIGINT ignored (a script's background
     # job), which Python would inherit.
     with open(stderr, "w") as err:
-        proc = subprocess.Popen(dockhil_cmd("sweep", campaign, "--out", out, "--quiet", *extra),
-                                stdout=subprocess.DEVNULL, stderr=err, cwd=ROOT,
-                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        proc = subprocess.Popen(
+            dockhil_cmd("sweep", campaign, "--out", out, "--quiet", *extra),
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+            cwd=ROOT,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        )
     workers = []
     try:
         deadline = time.monotonic() + 120

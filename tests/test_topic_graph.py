@@ -16,9 +16,11 @@ pytestmark = pytest.mark.wall_time
 
 def launch(m1: float, log):
     # Wall time at a gentle 100 Hz, longer than the test: the graph runs until the test stops it.
-    return subprocess.Popen(dockhil_cmd("launch", "launch/ideal.yaml", "--wall-time", "--duration", "300",
-                                        "rate:=100", f"m1:={m1}"),
-                            stdout=log, stderr=subprocess.STDOUT)
+    return subprocess.Popen(
+        dockhil_cmd("launch", "launch/ideal.yaml", "--wall-time", "--duration", "300", "rate:=100", f"m1:={m1}"),
+        stdout=log,
+        stderr=subprocess.STDOUT,
+    )
 
 
 def dockhil(capsys, *args):
@@ -75,10 +77,18 @@ def test_graph_is_chosen_refused_when_ambiguous_and_its_end_is_said(tmp_path, ca
         assert r.returncode == 2 and f"topic /nope is not published by graph {ida}" in r.stderr
 
         # Echo on A and hz on B, without a count: each ends, exit 0, when its own graph ends.
-        echo = subprocess.Popen(dockhil_cmd("topic", "echo", "/satellite/state", "--graph", ida),
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        hz = subprocess.Popen(dockhil_cmd("topic", "hz", "/satellite/state", "--graph", idb, "--every", "0.5"),
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        echo = subprocess.Popen(
+            dockhil_cmd("topic", "echo", "/satellite/state", "--graph", ida),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        hz = subprocess.Popen(
+            dockhil_cmd("topic", "hz", "/satellite/state", "--graph", idb, "--every", "0.5"),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         watchers = [echo, hz]
         echoed, rates = Lines(echo), Lines(hz)
         assert chaser_mass(echoed.wait_for("{", timeout=30).splitlines()[0]) == 700.0

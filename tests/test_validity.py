@@ -9,7 +9,6 @@ from __future__ import annotations
 import os
 import resource
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
@@ -24,7 +23,7 @@ from dockhil.runtime.transport import HWM, GraphKeys, Publisher, Subscriber
 from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped
 from dockhil.msgs.codec import encode
 from tests.conftest import dockhil_cmd
-from tests.faultnodes import Follow, Hiccup, NanAt
+from tests.faultnodes import Follow, Hiccup
 
 P = 1 / 1024  # a period that binary floating point adds up exactly
 
@@ -44,9 +43,19 @@ def executor(node_cls, clock, params=None, inputs=None, name="n", keys=None) -> 
 
 
 def figures(**over) -> dict:
-    t = {"node": "dynamics", "ticks": 3000, "deadline_misses": 0, "period_s": 0.001, "elapsed_s": 3.0,
-         "covered_s": 3.0, "worst_late_s": 0.002, "max_age_s": {"ft": 0.1}, "worst_input_age_s": {"ft": 0.003},
-         "dropped_in": 0, "dropped_out": 0}
+    t = {
+        "node": "dynamics",
+        "ticks": 3000,
+        "deadline_misses": 0,
+        "period_s": 0.001,
+        "elapsed_s": 3.0,
+        "covered_s": 3.0,
+        "worst_late_s": 0.002,
+        "max_age_s": {"ft": 0.1},
+        "worst_input_age_s": {"ft": 0.003},
+        "dropped_in": 0,
+        "dropped_out": 0,
+    }
     t.update(over)
     return t
 
@@ -58,28 +67,34 @@ def test_a_run_that_kept_real_time_is_valid():
 def test_a_run_that_fell_behind_is_invalid_with_the_figures():
     # The reported failure: 1.666 s simulated in 6.19 s.
     reasons = validity.node_reasons(figures(ticks=1666, covered_s=1.666, elapsed_s=6.19), 0.001)
-    assert reasons == ["node 'dynamics' simulated 1.666 s in 6.190 s of wall time "
-                       "(fell behind real time; at least 80% needed)"]
+    assert reasons == [
+        "node 'dynamics' simulated 1.666 s in 6.190 s of wall time (fell behind real time; at least 80% needed)"
+    ]
 
 
 def test_lateness_misses_ages_and_drops_each_make_a_run_invalid():
     dt = 0.001
     assert validity.node_reasons(figures(worst_late_s=0.12), dt) == [
-        "node 'dynamics': a tick started 0.120 s late (> 0.1 s)"]
+        "node 'dynamics': a tick started 0.120 s late (> 0.1 s)"
+    ]
     assert validity.node_reasons(figures(deadline_misses=751), dt) == [
-        "node 'dynamics' missed 751 of 3000 deadlines (25% > 25%)"]
+        "node 'dynamics' missed 751 of 3000 deadlines (25% > 25%)"
+    ]
     assert validity.node_reasons(figures(deadline_misses=750), dt) == []  # exactly a quarter: still valid
     assert validity.node_reasons(figures(worst_input_age_s={"ft": 0.1001}), dt) == [
-        "node 'dynamics': input 'ft' was used 0.100 s old (> max_age 0.1 s)"]
+        "node 'dynamics': input 'ft' was used 0.100 s old (> max_age 0.1 s)"
+    ]
     assert validity.node_reasons(figures(dropped_out=7), dt) == [
-        "node 'dynamics' dropped 7 output message(s): a subscriber did not keep up"]
+        "node 'dynamics' dropped 7 output message(s): a subscriber did not keep up"
+    ]
     assert validity.node_reasons(figures(dropped_in=2), dt) == ["node 'dynamics' dropped 2 bad input message(s)"]
 
 
 def test_an_emulated_device_is_not_judged_on_its_schedule_but_on_what_it_lost():
     slow = figures(covered_s=1.0, worst_late_s=1.0, deadline_misses=2000, dropped_out=3)
     assert validity.node_reasons(slow, 0.001, device=True) == [
-        "node 'dynamics' dropped 3 output message(s): a subscriber did not keep up"]
+        "node 'dynamics' dropped 3 output message(s): a subscriber did not keep up"
+    ]
 
 
 def test_a_node_that_did_not_report_makes_the_run_invalid():
@@ -109,7 +124,8 @@ def test_a_stalled_tick_shows_as_lateness_and_lost_coverage_exactly():
     assert report["worst_late_s"] == 255 * P
     assert validity.node_reasons(report, P) == [
         "node 'n' simulated 0.750 s in 1.000 s of wall time (fell behind real time; at least 80% needed)",
-        "node 'n': a tick started 0.249 s late (> 0.1 s)"]
+        "node 'n': a tick started 0.249 s late (> 0.1 s)",
+    ]
 
 
 def test_an_input_older_than_its_maximum_age_stops_the_node_with_one_line(tmp_path):
@@ -125,20 +141,23 @@ def test_an_input_older_than_its_maximum_age_stops_the_node_with_one_line(tmp_pa
         def sleep_until(self, deadline):
             super().sleep_until(deadline)
             if self.now <= 50 * P:
-                pub.send(encode(WrenchStamped(header=Header(stamp=1.0, seq=len(sent)),
-                                              wrench=Wrench(force=Vector3(x=1.0)))))
+                pub.send(
+                    encode(WrenchStamped(header=Header(stamp=1.0, seq=len(sent)), wrench=Wrench(force=Vector3(x=1.0))))
+                )
                 sent.append(self.now)
                 assert ex.sub.sock.poll(5000), "the message did not arrive"  # there before the next tick
 
     clock = Upstream()
-    ex = executor(Follow, clock, inputs={"x": PortWire("/x", endpoint, "dockhil/WrenchStamped")}, name="follow",
-                  keys=keys)
+    ex = executor(
+        Follow, clock, inputs={"x": PortWire("/x", endpoint, "dockhil/WrenchStamped")}, name="follow", keys=keys
+    )
     try:
         pub.wait_subscribers(1, 10.0)
         with pytest.raises(StaleInput) as err:
             ex.run_wall(None)
-        assert str(err.value) == ("node 'follow': input 'x' (/x) is 0.101 s old > max_age 0.1 s "
-                                  "(its publisher stalled or died); stopping")
+        assert str(err.value) == (
+            "node 'follow': input 'x' (/x) is 0.101 s old > max_age 0.1 s (its publisher stalled or died); stopping"
+        )
         assert clock() == 153 * P and sent[-1] == 50 * P
         assert isinstance(err.value, DockhilError)  # a node process turns it into one line and exit 2
     finally:
@@ -161,12 +180,18 @@ nodes:
 
 def test_a_non_finite_output_stops_the_graph_with_the_same_line_in_both_modes(write_launch):
     scene = write_launch(NAN_SCENE)
-    want = ("node 'source' produced an invalid message at tick 7 on output 'x' (/x): WrenchStamped: NaN or Inf "
-            "refused (physical fields must be finite) - at `$.wrench.force.x`; stopping the graph")
+    want = (
+        "node 'source' produced an invalid message at tick 7 on output 'x' (/x): WrenchStamped: NaN or Inf "
+        "refused (physical fields must be finite) - at `$.wrench.force.x`; stopping the graph"
+    )
     lines = {}
     for mode in ("multi", "composed"):
-        r = subprocess.run(dockhil_cmd("launch", scene, *(["--composed"] if mode == "composed" else [])),
-                           capture_output=True, text=True, timeout=120)
+        r = subprocess.run(
+            dockhil_cmd("launch", scene, *(["--composed"] if mode == "composed" else [])),
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         text = r.stdout + r.stderr
         assert r.returncode == 1 and "Traceback" not in text, text
         lines[mode] = [line for line in text.splitlines() if want in line]
@@ -181,13 +206,19 @@ def test_a_diverging_hil_loop_stops_both_modes_with_the_same_line():
     within tens of ticks."""
     found = {}
     for mode in ("multi", "composed"):
-        r = subprocess.run(dockhil_cmd("launch", "launch/hil.yaml", "k:=1e12", "--quiet",
-                                       *(["--composed"] if mode == "composed" else [])),
-                           capture_output=True, text=True, timeout=120)
+        r = subprocess.run(
+            dockhil_cmd(
+                "launch", "launch/hil.yaml", "k:=1e12", "--quiet", *(["--composed"] if mode == "composed" else [])
+            ),
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         text = r.stdout + r.stderr
         assert r.returncode == 1 and "Traceback" not in text, text
-        found[mode] = [line.split("error: ", 1)[1] for line in text.splitlines()
-                       if "produced an invalid message" in line]
+        found[mode] = [
+            line.split("error: ", 1)[1] for line in text.splitlines() if "produced an invalid message" in line
+        ]
         assert len(found[mode]) == 1, text
     assert found["multi"] == found["composed"]
     assert "NaN or Inf refused" in found["multi"][0]
@@ -207,8 +238,9 @@ nodes:
 def test_a_wall_time_run_that_stalled_says_invalid_and_exits_3(write_launch):
     scene = write_launch(HICCUP_SCENE)
     # The stall is recorded once tick 40 (0.2 s) has begun before the 1 s run ends.
-    r = subprocess.run(dockhil_cmd("launch", scene, "--wall-time", "--duration", "1"),
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        dockhil_cmd("launch", scene, "--wall-time", "--duration", "1"), capture_output=True, text=True, timeout=120
+    )
     text = r.stdout + r.stderr
     assert r.returncode == validity.INVALID_EXIT == 3, text
     invalid = [line for line in text.splitlines() if "INVALID" in line]
@@ -228,8 +260,9 @@ nodes:
 @pytest.mark.wall_time
 def test_a_stalled_publisher_stops_its_reader_naming_node_input_and_age(write_launch):
     scene = write_launch(STALE_SCENE)
-    r = subprocess.run(dockhil_cmd("launch", scene, "--wall-time", "--duration", "3"),
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        dockhil_cmd("launch", scene, "--wall-time", "--duration", "3"), capture_output=True, text=True, timeout=120
+    )
     text = r.stdout + r.stderr
     assert r.returncode == 1 and "Traceback" not in text, text
     stale = [line for line in text.splitlines() if "max_age" in line]
@@ -262,8 +295,13 @@ def test_a_full_filesystem_fails_the_run_with_the_count_of_lost_messages(write_l
     disk = tmp_path / "disk"
     mounted, limit = _tiny_filesystem(disk)
     try:
-        r = subprocess.run(dockhil_cmd("launch", scene, "--duration", "3", "--bag", disk / "run.mcap"),
-                           capture_output=True, text=True, timeout=120, preexec_fn=limit)
+        r = subprocess.run(
+            dockhil_cmd("launch", scene, "--duration", "3", "--bag", disk / "run.mcap"),
+            capture_output=True,
+            text=True,
+            timeout=120,
+            preexec_fn=limit,
+        )
     finally:
         if mounted:
             subprocess.run(["umount", str(disk)], check=True)
@@ -341,8 +379,12 @@ def test_a_stopped_composed_wall_time_run_is_invalid_in_its_summary(tmp_path):
     import threading
 
     out = tmp_path / "s.json"
-    p = subprocess.Popen(dockhil_cmd("launch", "launch/hil.yaml", "--composed", "--wall-time", "--duration", "2",
-                                     "--summary", out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    p = subprocess.Popen(
+        dockhil_cmd("launch", "launch/hil.yaml", "--composed", "--wall-time", "--duration", "2", "--summary", out),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(iter(p.stderr.readline, "")), daemon=True)
     reader.start()
@@ -385,12 +427,15 @@ def test_the_composed_bounds_check_refuses_what_a_reader_refuses():
 
     good = [msgs.TYPES[name](header=Header()) for name in msgs.TYPES] + [
         SatelliteState(header=Header(stamp=2.0), bodies=[body(), body(0.0, -1e300)]),
-        BodyWrenches(header=Header(), wrenches=[Wrench(force=Vector3(x=1e308, y=-1e308))])]
-    bad = [SatelliteState(header=Header(), bodies=[body(), body(vx=math.inf)]),
-           SatelliteState(header=Header(), bodies=[body(mass=-1.0)]),
-           BodyWrenches(header=Header(), wrenches=[Wrench(), Wrench(torque=Vector3(z=math.nan))]),
-           WrenchStamped(header=Header(stamp=math.nan)),
-           WrenchStamped(header=Header(seq=-1))]
+        BodyWrenches(header=Header(), wrenches=[Wrench(force=Vector3(x=1e308, y=-1e308))]),
+    ]
+    bad = [
+        SatelliteState(header=Header(), bodies=[body(), body(vx=math.inf)]),
+        SatelliteState(header=Header(), bodies=[body(mass=-1.0)]),
+        BodyWrenches(header=Header(), wrenches=[Wrench(), Wrench(torque=Vector3(z=math.nan))]),
+        WrenchStamped(header=Header(stamp=math.nan)),
+        WrenchStamped(header=Header(seq=-1)),
+    ]
     for msg in good:
         check_message("n", "p", "/t", 0, msg)
         checked_payload("n", "p", "/t", 0, msg)
@@ -408,8 +453,10 @@ def test_a_composed_wall_time_loop_on_a_controlled_clock_reports_the_stall_exact
     from dockhil.runtime.composed import ComposedGraph
     from dockhil.scene.graph import build
 
-    scene = write_launch("rate: 1024\nnodes:\n  - {name: source, node: 'tests.faultnodes:Hiccup', "
-                         "params: {at: 50, seconds: 0.25}}\n  - {name: follow, node: 'tests.faultnodes:Follow'}\n")
+    scene = write_launch(
+        "rate: 1024\nnodes:\n  - {name: source, node: 'tests.faultnodes:Hiccup', "
+        "params: {at: 50, seconds: 0.25}}\n  - {name: follow, node: 'tests.faultnodes:Follow'}\n"
+    )
     clock = ManualClock()
     g = ComposedGraph(build(launchfile.load(str(scene))), sim_time=False, log=lambda n, m: None, clock=clock)
     g.setup()

@@ -49,20 +49,26 @@ def scene_graph(path: str, info: runinfo.RunInfo, scene_file: str | None = None,
     if scene_file is not None:
         return build(launchfile.load(scene_file, overrides)), f"{scene_file} (given)"
     if len(info.runs) > 1:
-        raise AnalyzeError(f"{path}: the bag holds {len(info.runs)} runs (recorded from outside across graphs); "
-                           f"name the one to analyze with --scene FILE [name:=value ...]")
+        raise AnalyzeError(
+            f"{path}: the bag holds {len(info.runs)} runs (recorded from outside across graphs); "
+            f"name the one to analyze with --scene FILE [name:=value ...]"
+        )
     graph = bag_graph(path, overrides, info)
     if graph is not None:
         changed = f", with {' '.join(f'{k}:={v}' for k, v in overrides.items())}" if overrides else ""
         return graph, f"recorded{changed}"
     if any(name in overrides for name in IDEAL_ARGS):
         stand_in = "hil.yaml" if _has_force_topics(path) else "ideal.yaml"
-        return (build(launchfile.load(stand_in, overrides)),
-                f"not recorded: the given ideal contact on {stand_in}'s loop")
+        return (
+            build(launchfile.load(stand_in, overrides)),
+            f"not recorded: the given ideal contact on {stand_in}'s loop",
+        )
     why = info.why if not info.runs else "the bag holds no scene (its graph registered none)"
-    raise AnalyzeError(f"{path}: {why}, so its scene and ideal contact are not known; pass the scene, "
-                       f"--scene FILE [name:=value ...] (e.g. --scene hil.yaml delay:=0.016), or the ideal "
-                       f"contact, --kcs --bcs --m1 --m2 --v1 --v2")
+    raise AnalyzeError(
+        f"{path}: {why}, so its scene and ideal contact are not known; pass the scene, "
+        f"--scene FILE [name:=value ...] (e.g. --scene hil.yaml delay:=0.016), or the ideal "
+        f"contact, --kcs --bcs --m1 --m2 --v1 --v2"
+    )
 
 
 def _has_force_topics(path: str) -> bool:
@@ -87,8 +93,10 @@ class _Ticks:
             if self.states <= 3 and h.tick > 0 and h.stamp < 1e6:  # sim time: stamp = tick dt
                 spacing = h.stamp / h.tick
                 if not math.isclose(spacing, self.dt, rel_tol=1e-6):
-                    raise AnalyzeError(f"{self.path}: the bag's ticks are {spacing * 1e3:.6g} ms apart, the scene's "
-                                       f"{self.dt * 1e3:.6g} ms; give the scene its rate (rate:={1 / spacing:.6g})")
+                    raise AnalyzeError(
+                        f"{self.path}: the bag's ticks are {spacing * 1e3:.6g} ms apart, the scene's "
+                        f"{self.dt * 1e3:.6g} ms; give the scene its rate (rate:={1 / spacing:.6g})"
+                    )
         self.collector(topic, msg)
 
 
@@ -98,8 +106,9 @@ def analyze(path: str, scene_file: str | None = None, overrides: dict | None = N
     info = runinfo.read_path(path)
     graph, scene = scene_graph(path, info, scene_file, overrides)
     if "/satellite/state" not in graph.publishers:
-        raise AnalyzeError(f"{path}: its scene ({scene}) publishes no /satellite/state: there is no contact to "
-                           f"summarize")
+        raise AnalyzeError(
+            f"{path}: its scene ({scene}) publishes no /satellite/state: there is no contact to summarize"
+        )
     collector = SummaryCollector(graph)
     ticks = _Ticks(collector, graph.scene.dt, path)
     feed_from_bag(path, ticks)

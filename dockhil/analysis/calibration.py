@@ -124,9 +124,15 @@ def rest(force: np.ndarray, torque: np.ndarray | None = None) -> Rest:
     infl = np.array([_inflation(f[:, i]) for i in range(3)])
     bias_sigma = noise * np.sqrt(infl / n)
     noise_sigma = noise / math.sqrt(2.0 * (n - 1)) * np.sqrt(infl)
-    return Rest(tuple(map(float, f.mean(axis=0))), tuple(map(float, noise)), tuple(map(float, t.mean(axis=0))),
-                tuple(map(float, t.std(axis=0, ddof=1))), tuple(map(float, bias_sigma)),
-                tuple(map(float, noise_sigma)), n)
+    return Rest(
+        tuple(map(float, f.mean(axis=0))),
+        tuple(map(float, noise)),
+        tuple(map(float, t.mean(axis=0))),
+        tuple(map(float, t.std(axis=0, ddof=1))),
+        tuple(map(float, bias_sigma)),
+        tuple(map(float, noise_sigma)),
+        n,
+    )
 
 
 # -- the servo: delay and lag ------------------------------------------------------------------------------------
@@ -171,17 +177,21 @@ def servo(t_cmd, x_cmd, t_state, x_state, max_delay: float = MAX_DELAY_S, max_la
 
     t_cmd, x_cmd, t_state, x_state = (np.asarray(a, dtype=float) for a in (t_cmd, x_cmd, t_state, x_state))
     if len(t_cmd) < 10 or len(t_state) < 20:
-        raise CalibrationError(f"{len(t_cmd)} commands and {len(t_state)} poses in free space; the delay and lag "
-                               f"need a run of small steps and a chirp (at least 10 commands and 20 poses)")
+        raise CalibrationError(
+            f"{len(t_cmd)} commands and {len(t_state)} poses in free space; the delay and lag "
+            f"need a run of small steps and a chirp (at least 10 commands and 20 poses)"
+        )
     travel = float(np.ptp(x_cmd))
     if travel <= 0.0:
-        raise CalibrationError("the commands in free space never moved the robot: nothing to identify the delay "
-                               "and lag from")
+        raise CalibrationError(
+            "the commands in free space never moved the robot: nothing to identify the delay and lag from"
+        )
     model = _ServoModel(t_cmd, x_cmd, t_state, x_state)
     n = int(model.keep.sum())
     if n < 20:
-        raise CalibrationError(f"only {n} poses read back after the first command in free space; the delay and "
-                               f"lag need at least 20")
+        raise CalibrationError(
+            f"only {n} poses read back after the first command in free space; the delay and lag need at least 20"
+        )
     # Coarse: the total delay (a lag looks like more delay) from the held command shifted on a 1 ms grid;
     # then delay and lag together, from a few splits of that total.
     ts, xs = model.t_state[model.keep], model.x_state[model.keep]
@@ -198,8 +208,14 @@ def servo(t_cmd, x_cmd, t_state, x_state, max_delay: float = MAX_DELAY_S, max_la
         for share in (0.0, 0.3, 0.6):
             lag = min(share * total, max_lag) / order
             start = [max(total - order * lag, 0.0), lag]
-            fit = least_squares(model.residual, x0=start, args=(order,), bounds=([0.0, 0.0], [max_delay, max_lag]),
-                                diff_step=[1e-2, 1e-2], x_scale=[0.01, 0.01])
+            fit = least_squares(
+                model.residual,
+                x0=start,
+                args=(order,),
+                bounds=([0.0, 0.0], [max_delay, max_lag]),
+                diff_step=[1e-2, 1e-2],
+                x_scale=[0.01, 0.01],
+            )
             if best is None or fit.cost < best.cost:
                 best = fit
         fits[order] = best
@@ -214,8 +230,16 @@ def servo(t_cmd, x_cmd, t_state, x_state, max_delay: float = MAX_DELAY_S, max_la
         aic["first-order" if order == 1 else "second-order"] = n * math.log(max(rss, 1e-300) / n) + 4.0
     delay, lag = (float(v) for v in first.x)
     sigmas = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    return Servo(delay, lag, float(sigmas[0]), float(sigmas[1]), float(np.sqrt(np.mean(residual ** 2))), n,
-                 min(aic, key=aic.get), aic)
+    return Servo(
+        delay,
+        lag,
+        float(sigmas[0]),
+        float(sigmas[1]),
+        float(np.sqrt(np.mean(residual**2))),
+        n,
+        min(aic, key=aic.get),
+        aic,
+    )
 
 
 def _servo_jacobian(model: _ServoModel, delay: float, lag: float) -> np.ndarray:
@@ -257,8 +281,10 @@ def contact(t_f, force, t_x, x, v, noise: float, max_ft_delay: float = 0.03) -> 
     threshold = max(5.0 * noise, 0.05 * peak, 0.05)
     inside = (f > threshold) & (t_f - max_ft_delay >= t_x[0]) & (t_f <= t_x[-1])
     if inside.sum() < 20 or peak < 4.0 * threshold:
-        raise CalibrationError(f"the press met too little force ({peak:.2f} N at most against a noise band of "
-                               f"{threshold:.2f} N): k needs a press well above the noise")
+        raise CalibrationError(
+            f"the press met too little force ({peak:.2f} N at most against a noise band of "
+            f"{threshold:.2f} N): k needs a press well above the noise"
+        )
     tf, ff = t_f[inside], f[inside]
     delays = np.arange(0.0, max_ft_delay + 1e-12, 0.0005)
     costs = []
@@ -281,8 +307,9 @@ def contact(t_f, force, t_x, x, v, noise: float, max_ft_delay: float = 0.03) -> 
     coef, residual, a = _contact_lsq(tf, ff, t_x, x, v, ft_delay or 0.0)
     k, b, c = (float(cv) for cv in coef)
     if not k > 0.0:
-        raise CalibrationError(f"the press gives a stiffness of {k:.4g} N/m: the force did not rise with the "
-                               f"penetration")
+        raise CalibrationError(
+            f"the press gives a stiffness of {k:.4g} N/m: the force did not rise with the penetration"
+        )
     if np.any(a[:, 1]):
         cov = _covariance(a, residual, 3)
     else:  # no velocity, no damping in the data: b stays 0, its uncertainty unknown
@@ -292,9 +319,9 @@ def contact(t_f, force, t_x, x, v, noise: float, max_ft_delay: float = 0.03) -> 
     surface = -c / k
     # s = -c / k: first-order propagation with the covariance of k and c
     kc = cov[np.ix_([0, 2], [0, 2])]
-    grad = np.array([c / k ** 2, -1.0 / k])
+    grad = np.array([c / k**2, -1.0 / k])
     ss = math.sqrt(max(float(grad @ kc @ grad), 0.0))
-    return Contact(k, b, surface, sk, sb, ss, ft_delay, ft_sigma, float(np.sqrt(np.mean(residual ** 2))), n, peak)
+    return Contact(k, b, surface, sk, sb, ss, ft_delay, ft_sigma, float(np.sqrt(np.mean(residual**2))), n, peak)
 
 
 # -- the whole identification --------------------------------------------------------------------------------------
@@ -321,8 +348,10 @@ class Recording:
         """Start and end time of the run of consecutive phases `names` (end: the next phase's start)."""
         starts = [t for t, p in self.phases if p in names]
         if not starts:
-            raise CalibrationError(f"the run has no {' or '.join(names)} phase: it is not an identification run "
-                                   f"of dockhil calibrate, or it stopped before it")
+            raise CalibrationError(
+                f"the run has no {' or '.join(names)} phase: it is not an identification run "
+                f"of dockhil calibrate, or it stopped before it"
+            )
         begin = min(starts)
         later = [t for t, p in self.phases if t > max(starts) and p not in names]
         return begin, (min(later) if later else math.inf)
@@ -341,17 +370,35 @@ class Calibration:
     def as_dict(self) -> dict:
         r, s, c = self.rest, self.servo, self.contact
         return {
-            "delay_s": s.delay_s, "lag_s": s.lag_s, "k_N_per_m": c.k_N_per_m, "b_Ns_per_m": c.b_Ns_per_m,
-            "bias_N": list(r.bias_N), "noise_N": list(r.noise_N), "bias_Nm": list(r.bias_Nm),
-            "noise_Nm": list(r.noise_Nm), "ft_delay_s": c.ft_delay_s, "surface_m": c.surface_m,
+            "delay_s": s.delay_s,
+            "lag_s": s.lag_s,
+            "k_N_per_m": c.k_N_per_m,
+            "b_Ns_per_m": c.b_Ns_per_m,
+            "bias_N": list(r.bias_N),
+            "noise_N": list(r.noise_N),
+            "bias_Nm": list(r.bias_Nm),
+            "noise_Nm": list(r.noise_Nm),
+            "ft_delay_s": c.ft_delay_s,
+            "surface_m": c.surface_m,
             "uncertainty": {
-                "delay_s": s.delay_sigma_s, "lag_s": s.lag_sigma_s, "k_N_per_m": c.k_sigma,
-                "b_Ns_per_m": c.b_sigma, "bias_N": list(r.bias_sigma_N), "noise_N": list(r.noise_sigma_N),
-                "ft_delay_s": c.ft_delay_sigma_s, "surface_m": c.surface_sigma_m,
+                "delay_s": s.delay_sigma_s,
+                "lag_s": s.lag_sigma_s,
+                "k_N_per_m": c.k_sigma,
+                "b_Ns_per_m": c.b_sigma,
+                "bias_N": list(r.bias_sigma_N),
+                "noise_N": list(r.noise_sigma_N),
+                "ft_delay_s": c.ft_delay_sigma_s,
+                "surface_m": c.surface_sigma_m,
             },
             "lag_model": s.lag_model,
-            "fit": {"servo_rms_m": s.rms_m, "servo_samples": s.samples, "contact_rms_N": c.rms_N,
-                    "contact_samples": c.samples, "peak_force_N": c.peak_force_N, "rest_samples": r.samples},
+            "fit": {
+                "servo_rms_m": s.rms_m,
+                "servo_samples": s.samples,
+                "contact_rms_N": c.rms_N,
+                "contact_samples": c.samples,
+                "peak_force_N": c.peak_force_N,
+                "rest_samples": r.samples,
+            },
         }
 
 
@@ -377,9 +424,11 @@ def check(cal: Calibration) -> None:
     for key, what in (("delay_s", "delay"), ("k_N_per_m", "stiffness k")):
         value, sigma = d[key], d["uncertainty"][key]
         if not (math.isfinite(value) and math.isfinite(sigma)) or sigma > abs(value):
-            raise CalibrationError(f"the {what} fit is no measurement: {value:.4g} +- {sigma:.3g} (the uncertainty "
-                                   f"is larger than the value); repeat the identification with the probe free at "
-                                   f"rest and the robot following")
+            raise CalibrationError(
+                f"the {what} fit is no measurement: {value:.4g} +- {sigma:.3g} (the uncertainty "
+                f"is larger than the value); repeat the identification with the probe free at "
+                f"rest and the robot following"
+            )
 
 
 def recording(messages) -> Recording:
@@ -398,8 +447,10 @@ def recording(messages) -> Recording:
         elif topic == "/calibration/phase":
             phases.append((stamp, msg.state))
     if not phases:
-        raise CalibrationError("no /calibration/phase messages: this is not a recording of an identification run "
-                               "(dockhil calibrate records one with --bag-out)")
+        raise CalibrationError(
+            "no /calibration/phase messages: this is not a recording of an identification run "
+            "(dockhil calibrate records one with --bag-out)"
+        )
     for what, rows in (("/robot/command", cmd), ("/robot/state", state), ("/ft/wrench", ft)):
         if not rows:
             raise CalibrationError(f"no {what} messages in the identification run")
@@ -417,7 +468,13 @@ def verdict(cal: Calibration, m: float, kcs: float, bcs: float) -> dict:
     bound = exact_bound(m, bcs, h)
     k_max = bound.k_max
     stable = k_max is not None and kcs < k_max
-    return {"m_kg": m, "kcs_N_per_m": kcs, "bcs_Ns_per_m": bcs, "h_s": h,
-            "kcs_max_N_per_m": None if k_max is None or math.isinf(k_max) else k_max,
-            "margin": None if k_max is None or math.isinf(k_max) else k_max / kcs,
-            "stable": bool(stable), "reason": bound.reason}
+    return {
+        "m_kg": m,
+        "kcs_N_per_m": kcs,
+        "bcs_Ns_per_m": bcs,
+        "h_s": h,
+        "kcs_max_N_per_m": None if k_max is None or math.isinf(k_max) else k_max,
+        "margin": None if k_max is None or math.isinf(k_max) else k_max / kcs,
+        "stable": bool(stable),
+        "reason": bound.reason,
+    }

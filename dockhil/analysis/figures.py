@@ -28,46 +28,82 @@ DT = 1e-3
 
 def _hybrid(k: float, delay: float, seconds: float = 3.0) -> Samples:
     scn = ContactScenario(TABLE1.m1, TABLE1.m2, TABLE1.kcs, TABLE1.bcs, k, TABLE1.v1, TABLE1.v2)
-    r = simulate_hil(m1=scn.m1, m2=scn.m2, k=k, impedance=impedance_closed_form(scn, warn=False), dt=DT,
-                     n_ticks=int(seconds / DT) + 1, v1=scn.v1, v2=scn.v2, delay=delay)
+    r = simulate_hil(
+        m1=scn.m1,
+        m2=scn.m2,
+        k=k,
+        impedance=impedance_closed_form(scn, warn=False),
+        dt=DT,
+        n_ticks=int(seconds / DT) + 1,
+        v1=scn.v1,
+        v2=scn.v2,
+        delay=delay,
+    )
     return Samples(r.t, r.x1 - r.x2, r.v1 - r.v2, r.force)
 
 
 def fig9(delay: float = 0.032) -> dict:
-    ideal = simulate_ideal(m1=TABLE1.m1, m2=TABLE1.m2, kcs=TABLE1.kcs, bcs=TABLE1.bcs, dt=DT, n_ticks=3001,
-                           v1=TABLE1.v1, v2=TABLE1.v2)
-    runs = {"ideal": Samples(ideal.t, ideal.x1 - ideal.x2, ideal.v1 - ideal.v2, ideal.force),
-            "hybrid, no delay": _hybrid(TABLE1.k, 0.0),
-            f"hybrid, {delay * 1e3:g} ms delay": _hybrid(TABLE1.k, delay)}
+    ideal = simulate_ideal(
+        m1=TABLE1.m1, m2=TABLE1.m2, kcs=TABLE1.kcs, bcs=TABLE1.bcs, dt=DT, n_ticks=3001, v1=TABLE1.v1, v2=TABLE1.v2
+    )
+    runs = {
+        "ideal": Samples(ideal.t, ideal.x1 - ideal.x2, ideal.v1 - ideal.v2, ideal.force),
+        "hybrid, no delay": _hybrid(TABLE1.k, 0.0),
+        f"hybrid, {delay * 1e3:g} ms delay": _hybrid(TABLE1.k, delay),
+    }
     return {"runs": runs, "metrics": {name: contact_metrics(s) for name, s in runs.items()}}
 
 
 def fig10(ks=(250.0, 500.0, 1000.0, 1500.0, 2000.0, 2500.0, 2900.0), delay: float = 0.032) -> dict:
     rows = []
     for k in ks:
-        rows.append({"k_N_per_m": k, "peak_force_no_delay_N": contact_metrics(_hybrid(k, 0.0))["peak_force_N"],
-                     "peak_force_delay_N": contact_metrics(_hybrid(k, delay))["peak_force_N"]})
+        rows.append(
+            {
+                "k_N_per_m": k,
+                "peak_force_no_delay_N": contact_metrics(_hybrid(k, 0.0))["peak_force_N"],
+                "peak_force_delay_N": contact_metrics(_hybrid(k, delay))["peak_force_N"],
+            }
+        )
     return {"delay_s": delay, "rows": rows}
 
 
-def fig11_12(m: float = 750.0, K: float = 2510.0, h: float = 0.016, thrust: float = 10.0,
-             dampers=(20.0, 60.0), seconds: float = 20.0) -> dict:
+def fig11_12(
+    m: float = 750.0,
+    K: float = 2510.0,
+    h: float = 0.016,
+    thrust: float = 10.0,
+    dampers=(20.0, 60.0),
+    seconds: float = 20.0,
+) -> dict:
     out = {"m_kg": m, "K_N_per_m": K, "h_s": h, "thrust_N": thrust, "cases": []}
     for b in dampers:
-        r = simulate_hil(m1=m, m2=0.0, k=K, impedance=VirtualImpedance(0.0, b, 0.0, 0.0), dt=DT,
-                         n_ticks=int(seconds / DT) + 1, delay=h, thrust=thrust, x1=thrust / K + 0.002)
+        r = simulate_hil(
+            m1=m,
+            m2=0.0,
+            k=K,
+            impedance=VirtualImpedance(0.0, b, 0.0, 0.0),
+            dt=DT,
+            n_ticks=int(seconds / DT) + 1,
+            delay=h,
+            thrust=thrust,
+            x1=thrust / K + 0.002,
+        )
         loop = SampledLoop(m, 0.0, b, K, 0.0, dt=DT, delay_ticks=delay_ticks(h, DT))
-        out["cases"].append({
-            "b_N_s_per_m": b, "t": r.t, "force_N": r.force,
-            # The envelope about the true equilibrium thrust / K (the median of a growing or decaying
-            # oscillation is not its centre, and fitting about it biased the rate by 8 to 9 %).
-            "growth_rate_1_s": growth_rate(r.t, r.x1, about=thrust / K),
-            # The loop the graph runs: forces held over a step, the sheet 16 ticks late; its dominant
-            # eigenvalue, ln|z| / dt. Beside it the delay equation's rightmost root (damper undelayed).
-            "predicted_growth_rate_1_s": sampled_growth_rate(loop),
-            "delay_equation_growth_rate_1_s": predicted_growth_rate(m, K, b, h, damper="undelayed"),
-            "eq12_bound_N_per_m": pade1_bound(m, b, h),
-        })
+        out["cases"].append(
+            {
+                "b_N_s_per_m": b,
+                "t": r.t,
+                "force_N": r.force,
+                # The envelope about the true equilibrium thrust / K (the median of a growing or decaying
+                # oscillation is not its centre, and fitting about it biased the rate by 8 to 9 %).
+                "growth_rate_1_s": growth_rate(r.t, r.x1, about=thrust / K),
+                # The loop the graph runs: forces held over a step, the sheet 16 ticks late; its dominant
+                # eigenvalue, ln|z| / dt. Beside it the delay equation's rightmost root (damper undelayed).
+                "predicted_growth_rate_1_s": sampled_growth_rate(loop),
+                "delay_equation_growth_rate_1_s": predicted_growth_rate(m, K, b, h, damper="undelayed"),
+                "eq12_bound_N_per_m": pade1_bound(m, b, h),
+            }
+        )
     return out
 
 
@@ -142,13 +178,18 @@ def plot_all(out_dir, delay: float = 0.032) -> dict:
     fig, axes = plt.subplots(1, 2, sharey=True, figsize=(10, 4))
     for ax, case in zip(axes, f1112["cases"]):
         ax.plot(case["t"], case["force_N"])
-        ax.set_title(f"b = {case['b_N_s_per_m']:g} N s/m: growth {case['growth_rate_1_s']:+.4f} 1/s "
-                     f"(root {case['predicted_growth_rate_1_s']:+.4f})", fontsize=9)
+        ax.set_title(
+            f"b = {case['b_N_s_per_m']:g} N s/m: growth {case['growth_rate_1_s']:+.4f} 1/s "
+            f"(root {case['predicted_growth_rate_1_s']:+.4f})",
+            fontsize=9,
+        )
         ax.set_xlabel("time [s]")
         ax.grid(True, alpha=0.3)
     axes[0].set_ylabel("contact force [N]")
-    fig.suptitle(f"Figs. 11-12: {f1112['m_kg']:g} kg, {f1112['thrust_N']:g} N thrust, sheet "
-                 f"{f1112['K_N_per_m']:g} N/m, h = {f1112['h_s'] * 1e3:g} ms")
+    fig.suptitle(
+        f"Figs. 11-12: {f1112['m_kg']:g} kg, {f1112['thrust_N']:g} N thrust, sheet "
+        f"{f1112['K_N_per_m']:g} N/m, h = {f1112['h_s'] * 1e3:g} ms"
+    )
     fig.tight_layout()
     fig.savefig(f"{out_dir}/fig11_12.png", dpi=110)
     plt.close(fig)
@@ -169,10 +210,17 @@ def plot_all(out_dir, delay: float = 0.032) -> dict:
 
     bag = f"{out_dir}/sixdof.mcap"
     six = sixdof(bag, delay)
-    plot6([bag], f"{out_dir}/sixdof.png", labels=[f"hil6.yaml, {delay * 1e3:g} ms"],
-          title=f"6-DOF off-axis docking (launch/hil6.yaml, {delay * 1e3:g} ms delay): wrench, relative pose,"
-                " angular rates")
+    plot6(
+        [bag],
+        f"{out_dir}/sixdof.png",
+        labels=[f"hil6.yaml, {delay * 1e3:g} ms"],
+        title=f"6-DOF off-axis docking (launch/hil6.yaml, {delay * 1e3:g} ms delay): wrench, relative pose,"
+        " angular rates",
+    )
 
-    return {"fig9": f9["metrics"], "fig10": f10,
-            "fig11_12": [{k: v for k, v in c.items() if k not in ("t", "force_N")} for c in f1112["cases"]],
-            "sixdof": six}
+    return {
+        "fig9": f9["metrics"],
+        "fig10": f10,
+        "fig11_12": [{k: v for k, v in c.items() if k not in ("t", "force_N")} for c in f1112["cases"]],
+        "sixdof": six,
+    }

@@ -136,19 +136,36 @@ def setup_specs(directory: str) -> dict[str, dict]:
     from dockhil.nodes import ros2_bridge
 
     specs = {
-        "ft_can": {"sim_time": False, "params": {"interface": "virtual", "channel": "dockhil-lean",
-                                                  "open_timeout": 0.05, "tare_samples": 0}},
-        "robot_modbus": {"sim_time": False, "params": {"port": _closed_port(), "connect_timeout": 0.05,
-                                                        "reconnect_min": 0.01}},
+        "ft_can": {
+            "sim_time": False,
+            "params": {"interface": "virtual", "channel": "dockhil-lean", "open_timeout": 0.05, "tare_samples": 0},
+        },
+        "robot_modbus": {
+            "sim_time": False,
+            "params": {"port": _closed_port(), "connect_timeout": 0.05, "reconnect_min": 0.01},
+        },
         "ft_emulator": {"sim_time": False, "params": {"channel": os.path.join(directory, "ft.slcan")}},
         "robot_emulator": {"sim_time": False, "params": {"port": 0}},
-        "ft_netft": {"sim_time": False, "params": {"host": "127.0.0.1", "port": _closed_port(), "open_timeout": 0.05,
-                                                    "counts_per_force": 1e6, "counts_per_torque": 1e6,
-                                                    "force_unit": "N", "torque_unit": "Nm", "tare_samples": 0}},
+        "ft_netft": {
+            "sim_time": False,
+            "params": {
+                "host": "127.0.0.1",
+                "port": _closed_port(),
+                "open_timeout": 0.05,
+                "counts_per_force": 1e6,
+                "counts_per_torque": 1e6,
+                "force_unit": "N",
+                "torque_unit": "Nm",
+                "tare_samples": 0,
+            },
+        },
         "netft_emulator": {"sim_time": False, "params": {"port": 0, "http_port": 0}},
         # DDS on the loopback interface only, in a domain of its own
-        "ros2_bridge": {"sim_time": True, "params": {"domain_id": 200 + os.getpid() % 30},
-                        "env": {"CYCLONEDDS_URI": ros2_bridge.LOOPBACK_URI}},
+        "ros2_bridge": {
+            "sim_time": True,
+            "params": {"domain_id": 200 + os.getpid() % 30},
+            "env": {"CYCLONEDDS_URI": ros2_bridge.LOOPBACK_URI},
+        },
     }
     try:
         specs["bag_source"] = {"sim_time": True, "params": {"path": _sample_bag(directory)}}
@@ -186,8 +203,10 @@ def _measure_once(type_name: str, spec: dict | None, timeout: float) -> dict:
     return {"node": type_name, "setup": f"measurement failed: {tail}", "startup_s": wall}
 
 
-RUNTIME = ("module:dockhil.msgs,dockhil.node,dockhil.runtime.executor,dockhil.runtime.transport,"
-           "dockhil.runtime.process,dockhil.nodes")
+RUNTIME = (
+    "module:dockhil.msgs,dockhil.node,dockhil.runtime.executor,dockhil.runtime.transport,"
+    "dockhil.runtime.process,dockhil.nodes"
+)
 BASELINES = {
     "module:json": "python, nothing of dockhil",
     RUNTIME: "node process runtime (transport, executor)",
@@ -197,8 +216,9 @@ BASELINES = {
 SCENES = ("launch/ideal.yaml", "launch/hil.yaml")
 
 
-def measure_all(types: list[str] | None = None, workers: int = 2, baselines: bool = True,
-                repeats: int = 2) -> list[dict]:
+def measure_all(
+    types: list[str] | None = None, workers: int = 2, baselines: bool = True, repeats: int = 2
+) -> list[dict]:
     """Every registered node type (or `types`), plus baselines (a bare interpreter,
     the runtime every node process loads, `import dockhil.contact`, `import
     dockhil.cli`) and the simulated scenes composed in one process."""
@@ -210,7 +230,7 @@ def measure_all(types: list[str] | None = None, workers: int = 2, baselines: boo
         jobs = [(t, specs.get(t)) for t in types]
         if baselines:
             jobs = [(b, None) for b in BASELINES] + jobs
-            from dockhil.scene.launchfile import SHIPPED_SCENES# launch/ of a checkout, or of the wheel
+            from dockhil.scene.launchfile import SHIPPED_SCENES  # launch/ of a checkout, or of the wheel
 
             jobs += [(f"scene:{s}", None) for s in SCENES if (SHIPPED_SCENES / Path(s).name).exists()]
         with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:

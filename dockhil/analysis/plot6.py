@@ -45,16 +45,30 @@ def series6(path: str) -> Series6:
                 w = [b.twist.angular for b in msg.bodies[:2]]
                 state.append((msg.header.stamp, w[0].x, w[0].y, w[0].z, w[1].x, w[1].y, w[1].z))
     if not state or not pose:
-        raise DockhilError(f"{path}: no /satellite/state or /robot/command messages; record a 6-DOF run"
-                           " (launch/hil6.yaml with --bag) to plot it")
+        raise DockhilError(
+            f"{path}: no /satellite/state or /robot/command messages; record a 6-DOF run"
+            " (launch/hil6.yaml with --bag) to plot it"
+        )
     ft_a = np.array(sorted(ft)).reshape(-1, 7)
     pose_a, state_a = np.array(sorted(pose)), np.array(sorted(state))
-    return Series6(ft_a[:, 0], ft_a[:, 1:4], ft_a[:, 4:7], pose_a[:, 0], pose_a[:, 1:4], pose_a[:, 4:7],
-                   state_a[:, 0], state_a[:, 1:].reshape(-1, 2, 3))
+    return Series6(
+        ft_a[:, 0],
+        ft_a[:, 1:4],
+        ft_a[:, 4:7],
+        pose_a[:, 0],
+        pose_a[:, 1:4],
+        pose_a[:, 4:7],
+        state_a[:, 0],
+        state_a[:, 1:].reshape(-1, 2, 3),
+    )
 
 
-def plot6(bags: list[str], png: str, labels: list[str] | None = None,
-          title: str = "6-DOF contact: wrench, relative pose, angular rates") -> None:
+def plot6(
+    bags: list[str],
+    png: str,
+    labels: list[str] | None = None,
+    title: str = "6-DOF contact: wrench, relative pose, angular rates",
+) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -71,9 +85,16 @@ def plot6(bags: list[str], png: str, labels: list[str] | None = None,
             axes[3].plot(s.t_pose, s.rotation[:, j], label=f"{label}: r{c}")
             for b, body in enumerate(("chaser", "target")):
                 axes[4].plot(s.t_state, s.omega[:, b, j], label=f"{label}: {body} w{c}")
-    for ax, text in zip(axes, ("F/T force on target, sensor axes [N]", "F/T torque, sensor axes [N m]",
-                               "A in B: position [m]", "A in B: rotation vector [rad]",
-                               "angular velocity, world [rad/s]")):
+    for ax, text in zip(
+        axes,
+        (
+            "F/T force on target, sensor axes [N]",
+            "F/T torque, sensor axes [N m]",
+            "A in B: position [m]",
+            "A in B: rotation vector [rad]",
+            "angular velocity, world [rad/s]",
+        ),
+    ):
         ax.set_ylabel(text, fontsize=8)
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=6, ncol=3)

@@ -137,26 +137,26 @@ def reference_check(cfg: ReportConfig, ref) -> dict:
     return {
         "ideal": "closed form of Eq. 1 (dockhil.contact.ideal_trajectory)",
         "hybrid_delay": "the continuous delay system that the sampled loop converges to as its step goes to 0,"
-                        f" solved by an independent method-of-steps solver (dockhil.contact.delayref: RK4 at steps"
-                        f" of at most {REFERENCE_DT:g} s, Hermite history, contact events located, the delay's"
-                        " breakpoints landed on), sharing no code with any measured method",
+        f" solved by an independent method-of-steps solver (dockhil.contact.delayref: RK4 at steps"
+        f" of at most {REFERENCE_DT:g} s, Hermite history, contact events located, the delay's"
+        " breakpoints landed on), sharing no code with any measured method",
         "hybrid_delay_check": f"the same solver at {'twice' if cfg.quick else 'half'} the step agrees to "
-                              f"{step_check:.2g} N; solve_ivp DOP853 at rtol {dop['rtol']:g} agrees to "
-                              f"{dop['max_error_N']:.2g} N",
+        f"{step_check:.2g} N; solve_ivp DOP853 at rtol {dop['rtol']:g} agrees to "
+        f"{dop['max_error_N']:.2g} N",
         "hybrid_delay_check_N": max(step_check, dop["max_error_N"]),
         "hybrid_delay_step_check_N": step_check,
         "hybrid_delay_step_check_dt_s": other_dt,
         "hybrid_delay_dop853_N": dop["max_error_N"],
         "self_comparisons": "none: every row is measured against a reference computed by other code (closed form,"
-                            " or the method-of-steps solver)",
+        " or the method-of-steps solver)",
         "first_order_why": "the sampled HIL loop holds each force over a step (zero-order hold), so it follows the"
-                           " delay equation with forces about dt/2 late: its error is O(dt) whatever integrator moves"
-                           " the bodies between ticks (exact, rk4, symplectic Euler and Euler show orders near 1 on"
-                           " the delayed loop); only solve_ivp, which integrates the delay equation itself, converges"
-                           " faster",
+        " delay equation with forces about dt/2 late: its error is O(dt) whatever integrator moves"
+        " the bodies between ticks (exact, rk4, symplectic Euler and Euler show orders near 1 on"
+        " the delayed loop); only solve_ivp, which integrates the delay equation itself, converges"
+        " faster",
         "error_grid_s": GRID,
         "force_compared": "the contact law on both states wherever either run is in contact; how much earlier or later"
-                          " a run separates is exit_error_s",
+        " a run separates is exit_error_s",
     }
 
 
@@ -174,19 +174,25 @@ def work_precision_summary(entries: list[dict]) -> list[dict]:
         refused = [e for e in mine if "refused" in e]
         within = [e for e in ran if e["max_error_N"] <= 1e-3]
         cheapest = min(within, key=lambda e: e["run_time_s"]) if within else None
-        rows.append({
-            "model": model,
-            "method": method,
-            "runs": len(ran),
-            "refused": len(refused),
-            "best_error_N": min((e["max_error_N"] for e in ran), default=None),
-            "order": convergence_order(entries, model, method, "step_s" if "step_s" in mine[0] else "rtol"),
-            "order_in": "step" if "step_s" in mine[0] else "rtol",
-            "cheapest_within_1mN": None if cheapest is None else {
-                "step_s" if "step_s" in cheapest else "rtol": cheapest.get("step_s", cheapest.get("rtol")),
-                "max_error_N": cheapest["max_error_N"], "run_time_s": cheapest["run_time_s"]},
-            "largest_stable_step_s": refused[0].get("largest_stable_step_s") if refused else None,
-        })
+        rows.append(
+            {
+                "model": model,
+                "method": method,
+                "runs": len(ran),
+                "refused": len(refused),
+                "best_error_N": min((e["max_error_N"] for e in ran), default=None),
+                "order": convergence_order(entries, model, method, "step_s" if "step_s" in mine[0] else "rtol"),
+                "order_in": "step" if "step_s" in mine[0] else "rtol",
+                "cheapest_within_1mN": None
+                if cheapest is None
+                else {
+                    "step_s" if "step_s" in cheapest else "rtol": cheapest.get("step_s", cheapest.get("rtol")),
+                    "max_error_N": cheapest["max_error_N"],
+                    "run_time_s": cheapest["run_time_s"],
+                },
+                "largest_stable_step_s": refused[0].get("largest_stable_step_s") if refused else None,
+            }
+        )
     return rows
 
 
@@ -200,10 +206,11 @@ def energy_drift(cfg: ReportConfig, progress: TaskProgress) -> dict:
     for method in cfg.ivp_methods:
         progress.step(f"energy drift: solve_ivp {method}")
         runs.append(energy_run_ivp(method, cfg.energy_ivp_rtol, ivp_t_end, scn))
-    return {"scenario": {**scn.as_dict(), "bilateral": True,
-                         "period_s": 2 * math.pi / scn.natural_frequency},
-            "quantity": "relative energy error (E - E0) / E0 of the relative motion, E = m pd^2 / 2 + kcs p^2 / 2",
-            "runs": [{k: plain(v) if not isinstance(v, list) else v for k, v in r.items()} for r in runs]}
+    return {
+        "scenario": {**scn.as_dict(), "bilateral": True, "period_s": 2 * math.pi / scn.natural_frequency},
+        "quantity": "relative energy error (E - E0) / E0 of the relative motion, E = m pd^2 / 2 + kcs p^2 / 2",
+        "runs": [{k: plain(v) if not isinstance(v, list) else v for k, v in r.items()} for r in runs],
+    }
 
 
 def stiff_cases(cfg: ReportConfig, progress: TaskProgress) -> list[dict]:
@@ -219,9 +226,13 @@ def lean_scenes(cfg: ReportConfig, progress: TaskProgress) -> dict:
 
     progress.step("lean scenes: one interpreter per node type")
     rows = leanness.measure_all(repeats=2 if not cfg.quick else 1)
-    return {"rows": rows, "violations": leanness.violations(rows), "heavy": list(leanness.HEAVY),
-            "ruled": list(leanness.RULED), "allowed_at_setup": {k: sorted(v) for k, v in
-                                                                leanness.ALLOWED_AT_SETUP.items()}}
+    return {
+        "rows": rows,
+        "violations": leanness.violations(rows),
+        "heavy": list(leanness.HEAVY),
+        "ruled": list(leanness.RULED),
+        "allowed_at_setup": {k: sorted(v) for k, v in leanness.ALLOWED_AT_SETUP.items()},
+    }
 
 
 PASSIVITY_DELAYS = (0.016, 0.032, 0.064, 0.1, 0.3, 0.785)  # [s] Table 1 with and without passivity compensation,
@@ -242,21 +253,44 @@ def passivity_compensation() -> dict:
     for delay in PASSIVITY_DELAYS:
         for comp in ("none", "passivity"):
             pc = Passivity(t.k, PASSIVITY_MAX_DAMPING) if comp == "passivity" else None
-            run = simulate_hil(m1=t.m1, m2=t.m2, k=t.k, impedance=imp, dt=1e-3, n_ticks=int((2.2 + 2.5 * delay) * 1e3),
-                               v1=t.v1, delay=delay, passivity=pc, energy=True)
+            run = simulate_hil(
+                m1=t.m1,
+                m2=t.m2,
+                k=t.k,
+                impedance=imp,
+                dt=1e-3,
+                n_ticks=int((2.2 + 2.5 * delay) * 1e3),
+                v1=t.v1,
+                delay=delay,
+                passivity=pc,
+                energy=True,
+            )
             m = contact_metrics(Samples(run.t, run.x1 - run.x2, run.v1 - run.v2, run.force))
             left, allowed = left_in_loop(run.extra)
-            rows.append({"delay_s": delay, "compensation": comp,
-                         "exit_velocity_error_mps": m["exit_velocity_mps"] - ideal["exit_velocity_mps"],
-                         "peak_force_error_N": m["peak_force_N"] - ideal["peak_force_N"],
-                         "restitution": m["restitution"], "generated_J": float(run.extra["generated_J"][-1]),
-                         "net_generated_J": float(run.extra["net_generated_J"][-1]),
-                         "saturated": bool(comp == "passivity" and left > allowed)})
+            rows.append(
+                {
+                    "delay_s": delay,
+                    "compensation": comp,
+                    "exit_velocity_error_mps": m["exit_velocity_mps"] - ideal["exit_velocity_mps"],
+                    "peak_force_error_N": m["peak_force_N"] - ideal["peak_force_N"],
+                    "restitution": m["restitution"],
+                    "generated_J": float(run.extra["generated_J"][-1]),
+                    "net_generated_J": float(run.extra["net_generated_J"][-1]),
+                    "saturated": bool(comp == "passivity" and left > allowed),
+                }
+            )
             if delay == 0.032:
-                curves[comp] = {"t": run.t[::10].tolist(), "generated_J": run.extra["generated_J"][::10].tolist(),
-                                "net_generated_J": run.extra["net_generated_J"][::10].tolist()}
-    return {"ideal_restitution": ideal["restitution"], "max_damping_Ns_m": PASSIVITY_MAX_DAMPING,
-            "rows": rows, "energy_32ms": curves}
+                curves[comp] = {
+                    "t": run.t[::10].tolist(),
+                    "generated_J": run.extra["generated_J"][::10].tolist(),
+                    "net_generated_J": run.extra["net_generated_J"][::10].tolist(),
+                }
+    return {
+        "ideal_restitution": ideal["restitution"],
+        "max_damping_Ns_m": PASSIVITY_MAX_DAMPING,
+        "rows": rows,
+        "energy_32ms": curves,
+    }
 
 
 def build_report(cfg: ReportConfig | None = None, stream=None) -> dict:
@@ -269,8 +303,7 @@ def build_report(cfg: ReportConfig | None = None, stream=None) -> dict:
     entries, reference = work_precision(cfg, progress)
     report = {
         "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()},
-        "machine": {"python": platform.python_version(), "platform": platform.platform(),
-                    "cpus": os.cpu_count()},
+        "machine": {"python": platform.python_version(), "platform": platform.platform(), "cpus": os.cpu_count()},
         "work_precision": entries,
         "work_precision_summary": work_precision_summary(entries),
         "reference": reference,
@@ -322,31 +355,51 @@ def _cheapest(run: dict | None) -> str:
 def render_markdown(report: dict, plots: dict[str, str]) -> str:
     cfg = report["config"]
     out = ["# dockhil report", ""]
-    out.append(f"Generated in {report['run_time_s']:.1f} s on {report['machine']['platform']}, Python "
-               f"{report['machine']['python']}, {report['machine']['cpus']} CPUs"
-               + (" (quick configuration)." if cfg["quick"] else "."))
-    repeats = (f"the fastest of repeated runs where a run takes under {cfg['min_timing_s']:g} s"
-               if cfg["min_timing_s"] > 0 else "single runs")
+    out.append(
+        f"Generated in {report['run_time_s']:.1f} s on {report['machine']['platform']}, Python "
+        f"{report['machine']['python']}, {report['machine']['cpus']} CPUs"
+        + (" (quick configuration)." if cfg["quick"] else ".")
+    )
+    repeats = (
+        f"the fastest of repeated runs where a run takes under {cfg['min_timing_s']:g} s"
+        if cfg["min_timing_s"] > 0
+        else "single runs"
+    )
     out.append(f"Run times are {repeats}; the machine may be shared, so compare orders of magnitude.")
     out += ["", "## Error against run time", ""]
     ref = report["reference"]
-    out.append("Ideal contact: Table 1 (m1 = 750 kg, m2 = 1e6 kg, kcs = 3000 N/m, bcs = 40 N s/m, v1 = 0.03 m/s); "
-               "ideal_stiff: the same with kcs = 3e6 N/m (63 rad/s, contact 50 ms), where explicit methods reach"
-               f" their stability limits; reference {ref['ideal']}. Hybrid loop: Table 1 with k = 1000 N/m and a 32 ms "
-               f"robot delay, reference "
-               f"{ref['hybrid_delay']}; {ref['hybrid_delay_check']}. Errors are the largest force error on the "
-               f"{1 / ref['error_grid_s']:g} Hz grid ({ref['force_compared']}). Fixed-step runs of the hybrid loop are "
-               "`simulate_hil`, the arithmetic every node of hil.yaml does; a step that does not divide 32 ms "
-               "rounds the delay (noted). Order: the slope of log error against log step (against log rtol for "
-               f"solve_ivp). Why every fixed-step method is first order on the delayed loop: {ref['first_order_why']}. "
-               f"Self-comparisons: {ref['self_comparisons']}.")
+    out.append(
+        "Ideal contact: Table 1 (m1 = 750 kg, m2 = 1e6 kg, kcs = 3000 N/m, bcs = 40 N s/m, v1 = 0.03 m/s); "
+        "ideal_stiff: the same with kcs = 3e6 N/m (63 rad/s, contact 50 ms), where explicit methods reach"
+        f" their stability limits; reference {ref['ideal']}. Hybrid loop: Table 1 with k = 1000 N/m and a 32 ms "
+        f"robot delay, reference "
+        f"{ref['hybrid_delay']}; {ref['hybrid_delay_check']}. Errors are the largest force error on the "
+        f"{1 / ref['error_grid_s']:g} Hz grid ({ref['force_compared']}). Fixed-step runs of the hybrid loop are "
+        "`simulate_hil`, the arithmetic every node of hil.yaml does; a step that does not divide 32 ms "
+        "rounds the delay (noted). Order: the slope of log error against log step (against log rtol for "
+        f"solve_ivp). Why every fixed-step method is first order on the delayed loop: {ref['first_order_why']}. "
+        f"Self-comparisons: {ref['self_comparisons']}."
+    )
     if "work_precision" in plots:
         out += ["", f"![work precision]({plots['work_precision']})"]
-    out += ["", _md_table(
-        ["model", "method", "runs", "refused", "best error [N]", "order", "cheapest run within 1 mN"],
-        [[r["model"], r["method"], r["runs"], r["refused"] or "-", _g(r["best_error_N"]), _g(r["order"], 2),
-          _cheapest(r["cheapest_within_1mN"])]
-         for r in report["work_precision_summary"]])]
+    out += [
+        "",
+        _md_table(
+            ["model", "method", "runs", "refused", "best error [N]", "order", "cheapest run within 1 mN"],
+            [
+                [
+                    r["model"],
+                    r["method"],
+                    r["runs"],
+                    r["refused"] or "-",
+                    _g(r["best_error_N"]),
+                    _g(r["order"], 2),
+                    _cheapest(r["cheapest_within_1mN"]),
+                ]
+                for r in report["work_precision_summary"]
+            ],
+        ),
+    ]
     refusals: dict[tuple[str, str], list[dict]] = {}
     for e in report["work_precision"]:
         if "refused" in e:
@@ -355,90 +408,206 @@ def render_markdown(report: dict, plots: dict[str, str]) -> str:
         out += ["", "Refused steps (outside the method's stability region):", ""]
         for (model, method), refused in refusals.items():
             steps = ", ".join(f"{e['step_s']:g}" for e in refused)
-            out.append(f"- {model}, {method} at {steps} s: \"{refused[0]['refused']}\"")
-    out += ["", "<details><summary>every run</summary>", "", _md_table(
-        ["model", "method", "step [s] / rtol", "max error [N]", "run time [s]", "exit error [s]", "note"],
-        [[e["model"], e["method"], _g(e.get("step_s", e.get("rtol"))), _g(e["max_error_N"]), _g(e["run_time_s"]),
-          _g(e.get("exit_error_s")), "refused" if "refused" in e else
-          (f"delay rounded to {e['delay_s']:g} s" if "delay_s" in e else "")]
-         for e in report["work_precision"]]), "", "</details>"]
+            out.append(f'- {model}, {method} at {steps} s: "{refused[0]["refused"]}"')
+    out += [
+        "",
+        "<details><summary>every run</summary>",
+        "",
+        _md_table(
+            ["model", "method", "step [s] / rtol", "max error [N]", "run time [s]", "exit error [s]", "note"],
+            [
+                [
+                    e["model"],
+                    e["method"],
+                    _g(e.get("step_s", e.get("rtol"))),
+                    _g(e["max_error_N"]),
+                    _g(e["run_time_s"]),
+                    _g(e.get("exit_error_s")),
+                    "refused" if "refused" in e else (f"delay rounded to {e['delay_s']:g} s" if "delay_s" in e else ""),
+                ]
+                for e in report["work_precision"]
+            ],
+        ),
+        "",
+        "</details>",
+    ]
 
     if "error" in report.get("graph_cost", {}):
         out += ["", "## The graph's cost", "", f"Not measured: {report['graph_cost']['error']}"]
     elif "graph_cost" in report:
         g = report["graph_cost"]
-        out += ["", "## The graph's cost", "", f"{g['scene']}, {g['sim_time_s']:g} s simulated. The force error"
-                " against the ideal contact is what the 32 ms delay does to the loop (the same in every mode), not"
-                " numerical error.", ""]
-        out.append(_md_table(
-            ["mode", "run time [s]", "real-time factor", "peak force [N]", "force error vs ideal [N]", "how"],
-            [[m["mode"], _g(m["run_time_s"]), _g(m["real_time_factor"]), _g(m.get("peak_force_N"), 6),
-              _g((m.get("error_vs_ideal") or {}).get("max_force_N")), m["what"]] for m in g["modes"]]))
+        out += [
+            "",
+            "## The graph's cost",
+            "",
+            f"{g['scene']}, {g['sim_time_s']:g} s simulated. The force error"
+            " against the ideal contact is what the 32 ms delay does to the loop (the same in every mode), not"
+            " numerical error.",
+            "",
+        ]
+        out.append(
+            _md_table(
+                ["mode", "run time [s]", "real-time factor", "peak force [N]", "force error vs ideal [N]", "how"],
+                [
+                    [
+                        m["mode"],
+                        _g(m["run_time_s"]),
+                        _g(m["real_time_factor"]),
+                        _g(m.get("peak_force_N"), 6),
+                        _g((m.get("error_vs_ideal") or {}).get("max_force_N")),
+                        m["what"],
+                    ]
+                    for m in g["modes"]
+                ],
+            )
+        )
         mp = next(m for m in g["modes"] if m["mode"] == "multiprocess")
-        out += ["", f"- composed == library loop, bit for bit: {_g(g['composed_equals_library'])}",
-                f"- multi-process == library loop, bit for bit: {_g(g['multiprocess_equals_library'])}"
-                f" (trajectory {mp['trajectory']})",
-                f"- multi-process start-up (a one-tick launch): {_g(mp.get('startup_s'))} s"]
+        out += [
+            "",
+            f"- composed == library loop, bit for bit: {_g(g['composed_equals_library'])}",
+            f"- multi-process == library loop, bit for bit: {_g(g['multiprocess_equals_library'])}"
+            f" (trajectory {mp['trajectory']})",
+            f"- multi-process start-up (a one-tick launch): {_g(mp.get('startup_s'))} s",
+        ]
 
     e = report["energy_drift"]
     scn = e["scenario"]
-    out += ["", "## Energy over a long run", "",
-            f"Undamped contact kept closed (bilateral spring): m1 = {scn['m1']:g} kg, m2 = {scn['m2']:g} kg, "
-            f"kcs = {scn['kcs']:g} N/m, period {scn['period_s']:.3g} s. {e['quantity']}."]
+    out += [
+        "",
+        "## Energy over a long run",
+        "",
+        f"Undamped contact kept closed (bilateral spring): m1 = {scn['m1']:g} kg, m2 = {scn['m2']:g} kg, "
+        f"kcs = {scn['kcs']:g} N/m, period {scn['period_s']:.3g} s. {e['quantity']}.",
+    ]
     if "energy_drift" in plots:
         out += ["", f"![energy drift]({plots['energy_drift']})"]
-    out += ["", _md_table(
-        ["method", "step [s] / rtol", "simulated [s]", "final drift", "largest error", "run time [s]"],
-        [[r["method"], _g(r.get("step_s", r.get("rtol"))), _g(r.get("t_end_s")),
-          _g(r.get("final_relative_drift")) if "refused" not in r else "refused: " + r["refused"],
-          _g(r.get("max_relative_error")), _g(r.get("run_time_s"))] for r in e["runs"]])]
+    out += [
+        "",
+        _md_table(
+            ["method", "step [s] / rtol", "simulated [s]", "final drift", "largest error", "run time [s]"],
+            [
+                [
+                    r["method"],
+                    _g(r.get("step_s", r.get("rtol"))),
+                    _g(r.get("t_end_s")),
+                    _g(r.get("final_relative_drift")) if "refused" not in r else "refused: " + r["refused"],
+                    _g(r.get("max_relative_error")),
+                    _g(r.get("run_time_s")),
+                ]
+                for r in e["runs"]
+            ],
+        ),
+    ]
 
     cases = report["stiff_cases"]
     passed = sum(c["passed"] for c in cases)
-    out += ["", "## Stiff and extreme cases", "",
-            f"{passed} of {len(cases)} passed. Each expectation is computed from the model (closed form, the "
-            "integrators' stability limits, the delay equation's rightmost root), not written in.", ""]
-    out.append(_md_table(["group", "case", "expected", "measured", "passed"],
-                         [[c["group"], c["name"], c["expected"], c["measured"], "yes" if c["passed"] else "**NO**"]
-                          for c in cases]))
+    out += [
+        "",
+        "## Stiff and extreme cases",
+        "",
+        f"{passed} of {len(cases)} passed. Each expectation is computed from the model (closed form, the "
+        "integrators' stability limits, the delay equation's rightmost root), not written in.",
+        "",
+    ]
+    out.append(
+        _md_table(
+            ["group", "case", "expected", "measured", "passed"],
+            [[c["group"], c["name"], c["expected"], c["measured"], "yes" if c["passed"] else "**NO**"] for c in cases],
+        )
+    )
 
     if "passivity" in report:
         pas = report["passivity"]
-        out += ["", "## Passivity compensation", "",
-                "Table 1 at 1 kHz, without and with the passivity controller (`compensation:=passivity`, "
-                f"max_damping {pas['max_damping_Ns_m']:g} N s/m), at delays up to half the contact: errors against "
-                f"the ideal contact (restitution {pas['ideal_restitution']:.5g}), the energy the delay and the "
-                "sampling made, and what was left in the loop. Compensated, the chaser feels the delay-free spring "
-                "wherever the delay would make energy, so both errors stay at the sampled ideal contact's own. "
-                "`bench/passivity.py` measures the rest (every delay to half the contact, Fig. 11, the Fig. 7 grid)."]
+        out += [
+            "",
+            "## Passivity compensation",
+            "",
+            "Table 1 at 1 kHz, without and with the passivity controller (`compensation:=passivity`, "
+            f"max_damping {pas['max_damping_Ns_m']:g} N s/m), at delays up to half the contact: errors against "
+            f"the ideal contact (restitution {pas['ideal_restitution']:.5g}), the energy the delay and the "
+            "sampling made, and what was left in the loop. Compensated, the chaser feels the delay-free spring "
+            "wherever the delay would make energy, so both errors stay at the sampled ideal contact's own. "
+            "`bench/passivity.py` measures the rest (every delay to half the contact, Fig. 11, the Fig. 7 grid).",
+        ]
         if "passivity" in plots:
             out += ["", f"![energy over a contact]({plots['passivity']})"]
-        out += ["", _md_table(
-            ["delay [s]", "compensation", "exit velocity error [m/s]", "peak force error [N]", "restitution",
-             "energy made [J]", "left [J]", "saturated"],
-            [[_g(r["delay_s"]), r["compensation"], _g(r["exit_velocity_error_mps"]), _g(r["peak_force_error_N"]),
-              _g(r["restitution"], 5), _g(r["generated_J"]), _g(r["net_generated_J"]),
-              ("yes" if r["saturated"] else "no") if r["compensation"] == "passivity" else "-"]
-             for r in pas["rows"]])]
+        out += [
+            "",
+            _md_table(
+                [
+                    "delay [s]",
+                    "compensation",
+                    "exit velocity error [m/s]",
+                    "peak force error [N]",
+                    "restitution",
+                    "energy made [J]",
+                    "left [J]",
+                    "saturated",
+                ],
+                [
+                    [
+                        _g(r["delay_s"]),
+                        r["compensation"],
+                        _g(r["exit_velocity_error_mps"]),
+                        _g(r["peak_force_error_N"]),
+                        _g(r["restitution"], 5),
+                        _g(r["generated_J"]),
+                        _g(r["net_generated_J"]),
+                        ("yes" if r["saturated"] else "no") if r["compensation"] == "passivity" else "-",
+                    ]
+                    for r in pas["rows"]
+                ],
+            ),
+        ]
 
     if "lean" in report:
         lean = report["lean"]
-        out += ["", "## Lean scenes", "",
-                "Each row is a fresh interpreter: import the node class, construct it, set it up and step it once"
-                " (hardware drivers against absent devices: their setup fails after loading what it needs). Start-up"
-                " is the wall time of the whole process, interpreter included; memory is the peak resident set."]
+        out += [
+            "",
+            "## Lean scenes",
+            "",
+            "Each row is a fresh interpreter: import the node class, construct it, set it up and step it once"
+            " (hardware drivers against absent devices: their setup fails after loading what it needs). Start-up"
+            " is the wall time of the whole process, interpreter included; memory is the peak resident set.",
+        ]
         if "lean" in plots:
             out += ["", f"![lean scenes]({plots['lean']})"]
-        out += ["", _md_table(
-            ["what", "start-up [s]", "import [s]", "setup + 1 step [s]", "memory [MB]", "loaded at import",
-             "loaded after setup", "setup"],
-            [[r["node"], _g(r.get("startup_s")), _g(r.get("import_s")), _g(r.get("setup_s")), _g(r.get("rss_mb")),
-              ", ".join(r.get("after_import", [])) or "-", ", ".join(r.get("after_setup", [])) or "-",
-              r.get("setup", "")[:90]] for r in lean["rows"]])]
-        out += ["", "Rule: no node imports " + ", ".join(lean["ruled"]) + " at import time; in setup only what it "
-                "talks to (" + "; ".join(f"{k}: {', '.join(v) or 'none'}" for k, v in lean["allowed_at_setup"].items())
-                + "; every other node: none).",
-                "Violations: " + ("; ".join(lean["violations"]) if lean["violations"] else "none") + "."]
+        out += [
+            "",
+            _md_table(
+                [
+                    "what",
+                    "start-up [s]",
+                    "import [s]",
+                    "setup + 1 step [s]",
+                    "memory [MB]",
+                    "loaded at import",
+                    "loaded after setup",
+                    "setup",
+                ],
+                [
+                    [
+                        r["node"],
+                        _g(r.get("startup_s")),
+                        _g(r.get("import_s")),
+                        _g(r.get("setup_s")),
+                        _g(r.get("rss_mb")),
+                        ", ".join(r.get("after_import", [])) or "-",
+                        ", ".join(r.get("after_setup", [])) or "-",
+                        r.get("setup", "")[:90],
+                    ]
+                    for r in lean["rows"]
+                ],
+            ),
+        ]
+        out += [
+            "",
+            "Rule: no node imports " + ", ".join(lean["ruled"]) + " at import time; in setup only what it "
+            "talks to ("
+            + "; ".join(f"{k}: {', '.join(v) or 'none'}" for k, v in lean["allowed_at_setup"].items())
+            + "; every other node: none).",
+            "Violations: " + ("; ".join(lean["violations"]) if lean["violations"] else "none") + ".",
+        ]
     return "\n".join(out) + "\n"
 
 
@@ -462,16 +631,21 @@ def write_plots(report: dict, out_dir: Path) -> dict[str, str]:
     plots = {}
     floor = 1e-16  # errors at round-off are drawn here on the log scale
     fig, axes = plt.subplots(1, 3, figsize=(17, 4.8))
-    for ax, model, title in ((axes[0], "ideal", "ideal contact, Table 1 (closed form)"),
-                             (axes[1], "ideal_stiff", "ideal contact, kcs = 3e6 N/m (closed form)"),
-                             (axes[2], "hybrid_delay", "hybrid loop, 32 ms delay")):
+    for ax, model, title in (
+        (axes[0], "ideal", "ideal contact, Table 1 (closed form)"),
+        (axes[1], "ideal_stiff", "ideal contact, kcs = 3e6 N/m (closed form)"),
+        (axes[2], "hybrid_delay", "hybrid loop, 32 ms delay"),
+    ):
         methods = []
         for e in report["work_precision"]:
             if e["model"] == model and e["method"] not in methods:
                 methods.append(e["method"])
         for method in methods:
-            pts = [(e["run_time_s"], max(e["max_error_N"], floor)) for e in report["work_precision"]
-                   if e["model"] == model and e["method"] == method and e["max_error_N"] is not None]
+            pts = [
+                (e["run_time_s"], max(e["max_error_N"], floor))
+                for e in report["work_precision"]
+                if e["model"] == model and e["method"] == method and e["max_error_N"] is not None
+            ]
             if pts:
                 style = "s--" if method.startswith("solve_ivp") else "o-"
                 ax.loglog(*zip(*sorted(pts)), style, label=method, markersize=4)
@@ -498,7 +672,7 @@ def write_plots(report: dict, out_dir: Path) -> dict[str, str]:
     if "passivity" in report:
         fig, ax = plt.subplots(figsize=(8, 4.5))
         for comp, c in report["passivity"]["energy_32ms"].items():
-            line, = ax.plot(c["t"], c["generated_J"], label=f"{comp}: made by the delay and the sampling")
+            (line,) = ax.plot(c["t"], c["generated_J"], label=f"{comp}: made by the delay and the sampling")
             if comp == "passivity":
                 ax.plot(c["t"], c["net_generated_J"], "--", color=line.get_color(), label="passivity: left in the loop")
         ax.set_xlabel("time [s]")

@@ -28,8 +28,17 @@ def _hil_library(duration: float, dt: float = 1e-3):
 
     imp = hybrid_impedance(TABLE1)
     n = int(round(duration / dt)) + 1
-    r = simulate_hil(m1=TABLE1.m1, m2=TABLE1.m2, k=TABLE1.k, impedance=imp, dt=dt, n_ticks=n,
-                     v1=TABLE1.v1, v2=TABLE1.v2, delay=HIL_DELAY)
+    r = simulate_hil(
+        m1=TABLE1.m1,
+        m2=TABLE1.m2,
+        k=TABLE1.k,
+        impedance=imp,
+        dt=dt,
+        n_ticks=n,
+        v1=TABLE1.v1,
+        v2=TABLE1.v2,
+        delay=HIL_DELAY,
+    )
     return Samples(r.t, r.x1 - r.x2, r.v1 - r.v2, r.force)
 
 
@@ -54,8 +63,9 @@ def composed_samples(scene_file: str, duration: float, args: dict | None = None,
     return collect.samples()
 
 
-def launch_subprocess(scene: str, duration: float, args: dict | None = None, bag: str | None = None,
-                      timeout: float = 300.0) -> dict:
+def launch_subprocess(
+    scene: str, duration: float, args: dict | None = None, bag: str | None = None, timeout: float = 300.0
+) -> dict:
     """`dockhil launch SCENE --duration S` as its own process tree; returns exit
     code, output and wall time (process start-up included)."""
     argv = [sys.executable, "-m", "dockhil.cli", "launch", str(scene), "--duration", repr(duration), "--quiet"]
@@ -69,8 +79,12 @@ def launch_subprocess(scene: str, duration: float, args: dict | None = None, bag
         done = subprocess.run(argv, cwd=str(ROOT), capture_output=True, text=True, timeout=timeout, env=env)
     except subprocess.TimeoutExpired:
         raise DockhilError(f"dockhil launch {scene} did not finish within {timeout:g} s") from None
-    return {"code": done.returncode, "stdout": done.stdout, "stderr": done.stderr,
-            "run_time_s": time.perf_counter() - t0}
+    return {
+        "code": done.returncode,
+        "stdout": done.stdout,
+        "stderr": done.stderr,
+        "run_time_s": time.perf_counter() - t0,
+    }
 
 
 def bag_samples(path: str, ideal_force=None):
@@ -112,17 +126,30 @@ def graph_cost(cfg: ReportConfig, progress: TaskProgress | None = None) -> dict:
         else:
             how = f"not compared: the --bag run failed ({last_line(recorded)})"
     startup = launch_subprocess(LAUNCH_DIR / "hil.yaml", 0.001)
-    ideal = ideal_reference(m1=TABLE1.m1, m2=TABLE1.m2, kcs=TABLE1.kcs, bcs=TABLE1.bcs, v1=TABLE1.v1, v2=TABLE1.v2,
-                            t=lib.t)
+    ideal = ideal_reference(
+        m1=TABLE1.m1, m2=TABLE1.m2, kcs=TABLE1.kcs, bcs=TABLE1.bcs, v1=TABLE1.v1, v2=TABLE1.v2, t=lib.t
+    )
     out = {"scene": "launch/hil.yaml (Table 1, delay 32 ms, 1 kHz, sim time)", "sim_time_s": duration, "modes": []}
     for name, (s, elapsed, what) in runs.items():
         summary = summarize(s, run_time_s=elapsed, ideal=ideal)
-        out["modes"].append({"mode": name, "what": what, "run_time_s": elapsed,
-                             "real_time_factor": duration / elapsed, "error_vs_ideal": summary["error"],
-                             "peak_force_N": summary["peak_force_N"]})
-    mp = {"mode": "multiprocess", "what": "python -m dockhil.cli launch launch/hil.yaml (one process per node)",
-          "run_time_s": timed["run_time_s"], "real_time_factor": duration / timed["run_time_s"],
-          "startup_s": startup["run_time_s"] if startup["code"] == 0 else None, "trajectory": how}
+        out["modes"].append(
+            {
+                "mode": name,
+                "what": what,
+                "run_time_s": elapsed,
+                "real_time_factor": duration / elapsed,
+                "error_vs_ideal": summary["error"],
+                "peak_force_N": summary["peak_force_N"],
+            }
+        )
+    mp = {
+        "mode": "multiprocess",
+        "what": "python -m dockhil.cli launch launch/hil.yaml (one process per node)",
+        "run_time_s": timed["run_time_s"],
+        "real_time_factor": duration / timed["run_time_s"],
+        "startup_s": startup["run_time_s"] if startup["code"] == 0 else None,
+        "trajectory": how,
+    }
     if multi is not None:
         summary = summarize(multi, run_time_s=timed["run_time_s"], ideal=ideal)
         mp["error_vs_ideal"] = summary["error"]

@@ -124,9 +124,18 @@ class DelayedContactRun:
     high-order methods keep their order.
     """
 
-    def __init__(self, scenario: ContactScenario, *, impedance: VirtualImpedance | None = None,
-                 delay: float = 0.0, t_end: float, method: str = "DOP853", rtol: float = 1e-12,
-                 atol: float = 1e-16, gap: float = 0.0):
+    def __init__(
+        self,
+        scenario: ContactScenario,
+        *,
+        impedance: VirtualImpedance | None = None,
+        delay: float = 0.0,
+        t_end: float,
+        method: str = "DOP853",
+        rtol: float = 1e-12,
+        atol: float = 1e-16,
+        gap: float = 0.0,
+    ):
         from scipy.integrate import solve_ivp
 
         if method not in IVP_METHODS:
@@ -168,14 +177,18 @@ class DelayedContactRun:
                 t1 = min(t1, t0 + self.delay)  # method of steps: t - h must fall in a finished segment
             penetration.direction = -1.0 if touching else 1.0
             if self.k_delayed:
+
                 def rhs(t, y, a=a, push=self.push):
                     return a @ y + push * self.passive(t)
             else:
+
                 def rhs(_t, y, a=a):
                     return a @ y
+
             options = {"jac": lambda _t, _y, a=a: a} if method in ("Radau", "LSODA") else {}
-            sol = solve_ivp(rhs, (t0, t1), x, method=method, rtol=rtol, atol=atol, events=penetration,
-                            dense_output=True, **options)
+            sol = solve_ivp(
+                rhs, (t0, t1), x, method=method, rtol=rtol, atol=atol, events=penetration, dense_output=True, **options
+            )
             if sol.status == -1:
                 raise ContactModelError(f"solve_ivp ({method}) failed at t = {sol.t[-1]:.6g} s: {sol.message}")
             self.steps += len(sol.t) - 1
@@ -222,8 +235,17 @@ class DelayedContactRun:
             states[:, sel] = dense(t[sel])
             touching[sel] = mode
         fs = np.array([self.passive(float(tt)) for tt in t]) if self.k_delayed else np.zeros(t.size)
-        return {"t": t, "x1": states[0], "x2": states[1], "v1": states[2], "v2": states[3],
-                "p": states[0] - states[1], "pd": states[2] - states[3], "touching": touching, "fs": fs}
+        return {
+            "t": t,
+            "x1": states[0],
+            "x2": states[1],
+            "v1": states[2],
+            "v2": states[3],
+            "p": states[0] - states[1],
+            "pd": states[2] - states[3],
+            "touching": touching,
+            "fs": fs,
+        }
 
 
 def contact_force_law(scenario: ContactScenario, impedance: VirtualImpedance | None, p, pd):
@@ -252,8 +274,19 @@ def compared_force(scenario, impedance, p, pd, touching, other_touching, passive
 # -- work precision ---------------------------------------------------------------------------------
 
 
-def _wp_entry(model: str, method: str, *, step_s=None, rtol=None, error=None, run_time=None,
-              refused=None, exit_error=None, steps=None, extra=None) -> dict:
+def _wp_entry(
+    model: str,
+    method: str,
+    *,
+    step_s=None,
+    rtol=None,
+    error=None,
+    run_time=None,
+    refused=None,
+    exit_error=None,
+    steps=None,
+    extra=None,
+) -> dict:
     entry = {"model": model, "method": method}
     if step_s is not None:
         entry["step_s"] = step_s
@@ -286,18 +319,26 @@ def ideal_fixed_step(method: str, dt: float, cfg: ReportConfig, model: str = "id
     scenario, t_end = IDEAL_MODELS[model]
     try:
         traj, elapsed = best_time(
-            lambda: simulate_contact(scenario, method=method, dt=dt, t_end=t_end), cfg.min_timing_s)
+            lambda: simulate_contact(scenario, method=method, dt=dt, t_end=t_end), cfg.min_timing_s
+        )
     except StepTooLargeError as exc:
         return _wp_entry(model, method, step_s=dt, refused=str(exc))
     idx = _grid_indices(traj.t, dt)
     ref = ideal_trajectory(scenario, traj.t[idx])
-    mine = compared_force(scenario, None, traj.penetration[idx], traj.penetration_rate[idx],
-                          traj.in_contact[idx], ref.in_contact)
-    theirs = compared_force(scenario, None, ref.penetration, ref.penetration_rate, ref.in_contact,
-                            traj.in_contact[idx])
+    mine = compared_force(
+        scenario, None, traj.penetration[idx], traj.penetration_rate[idx], traj.in_contact[idx], ref.in_contact
+    )
+    theirs = compared_force(scenario, None, ref.penetration, ref.penetration_rate, ref.in_contact, traj.in_contact[idx])
     exit_error = None if traj.exit is None or ref.exit is None else abs(traj.exit - ref.exit)
-    return _wp_entry(model, method, step_s=dt, error=float(np.max(np.abs(mine - theirs))), run_time=elapsed,
-                     exit_error=exit_error, steps=len(traj.t) - 1)
+    return _wp_entry(
+        model,
+        method,
+        step_s=dt,
+        error=float(np.max(np.abs(mine - theirs))),
+        run_time=elapsed,
+        exit_error=exit_error,
+        steps=len(traj.t) - 1,
+    )
 
 
 def ideal_ivp(method: str, rtol: float, cfg: ReportConfig, model: str = "ideal") -> dict:
@@ -315,8 +356,15 @@ def ideal_ivp(method: str, rtol: float, cfg: ReportConfig, model: str = "ideal")
     theirs = compared_force(scenario, None, ref.penetration, ref.penetration_rate, ref.in_contact, s["touching"])
     # The run starts in contact (no gap), so its first event is the separation.
     exit_error = abs(r.events[0] - ref.exit) if r.events and ref.exit is not None else None
-    return _wp_entry(model, f"solve_ivp {method}", rtol=rtol, error=float(np.max(np.abs(mine - theirs))),
-                     run_time=elapsed, exit_error=exit_error, steps=r.steps)
+    return _wp_entry(
+        model,
+        f"solve_ivp {method}",
+        rtol=rtol,
+        error=float(np.max(np.abs(mine - theirs))),
+        run_time=elapsed,
+        exit_error=exit_error,
+        steps=r.steps,
+    )
 
 
 def hybrid_impedance(scenario: ContactScenario = TABLE1) -> VirtualImpedance:
@@ -328,8 +376,13 @@ def hybrid_impedance(scenario: ContactScenario = TABLE1) -> VirtualImpedance:
 REFERENCE_DT = 1e-4  # [s] largest step of the independent reference (its error: ~1e-10 N on Table 1)
 
 
-def hybrid_reference(cfg: ReportConfig, scenario: ContactScenario = TABLE1, delay: float = HIL_DELAY,
-                     dt: float = REFERENCE_DT, t_end: float | None = None):
+def hybrid_reference(
+    cfg: ReportConfig,
+    scenario: ContactScenario = TABLE1,
+    delay: float = HIL_DELAY,
+    dt: float = REFERENCE_DT,
+    t_end: float | None = None,
+):
     """The continuous delayed hybrid loop by the independent method-of-steps solver."""
     return _delay_reference(scenario, float(delay), float(dt), float(cfg.contact_t_end if t_end is None else t_end))
 
@@ -341,8 +394,19 @@ def _delay_reference(scenario: ContactScenario, delay: float, dt: float, t_end: 
     from dockhil.contact.delayref import DelayedContactReference
 
     imp = hybrid_impedance(scenario)
-    ref = DelayedContactReference(m1=scenario.m1, m2=scenario.m2, k1=imp.k1, b1=imp.b1, k2=imp.k2, b2=imp.b2,
-                                  k=scenario.k, h=delay, v0=scenario.closing_velocity, t_end=t_end, dt=dt)
+    ref = DelayedContactReference(
+        m1=scenario.m1,
+        m2=scenario.m2,
+        k1=imp.k1,
+        b1=imp.b1,
+        k2=imp.k2,
+        b2=imp.b2,
+        k=scenario.k,
+        h=delay,
+        v0=scenario.closing_velocity,
+        t_end=t_end,
+        dt=dt,
+    )
     ref.impedance = imp
     return ref
 
@@ -357,15 +421,28 @@ def _hil_compared(scenario, imp, run, idx, other_touching):
     return compared_force(scenario, imp, p, pd, touching, other_touching, passive), touching
 
 
-def hybrid_fixed_step(method: str, dt: float, cfg: ReportConfig, ref,
-                      scenario: ContactScenario = TABLE1, delay: float = HIL_DELAY) -> dict:
+def hybrid_fixed_step(
+    method: str, dt: float, cfg: ReportConfig, ref, scenario: ContactScenario = TABLE1, delay: float = HIL_DELAY
+) -> dict:
     """The sampled HIL loop (the graph's own arithmetic) against the continuous reference."""
     imp = ref.impedance
     n = int(round(cfg.contact_t_end / dt)) + 1
     try:
-        run, elapsed = best_time(lambda: simulate_hil(m1=scenario.m1, m2=scenario.m2, k=scenario.k, impedance=imp,
-                                                       dt=dt, n_ticks=n, delay=delay, v1=scenario.v1,
-                                                       v2=scenario.v2, method=method), cfg.min_timing_s)
+        run, elapsed = best_time(
+            lambda: simulate_hil(
+                m1=scenario.m1,
+                m2=scenario.m2,
+                k=scenario.k,
+                impedance=imp,
+                dt=dt,
+                n_ticks=n,
+                delay=delay,
+                v1=scenario.v1,
+                v2=scenario.v2,
+                method=method,
+            ),
+            cfg.min_timing_s,
+        )
     except StepTooLargeError as exc:
         return _wp_entry("hybrid_delay", method, step_s=dt, refused=str(exc))
     idx = _grid_indices(run.t, dt)
@@ -373,33 +450,50 @@ def hybrid_fixed_step(method: str, dt: float, cfg: ReportConfig, ref,
     mine, touching = _hil_compared(scenario, imp, run, idx, s["touching"])
     theirs = compared_force(scenario, imp, s["p"], s["pd"], s["touching"], touching, s["fs"])
     ticks = int(round(delay / dt))
-    return _wp_entry("hybrid_delay", method, step_s=dt, error=float(np.max(np.abs(mine - theirs))),
-                     run_time=elapsed, steps=n - 1,
-                     extra={"delay_s": ticks * dt} if abs(ticks * dt - delay) > 1e-12 else None)
+    return _wp_entry(
+        "hybrid_delay",
+        method,
+        step_s=dt,
+        error=float(np.max(np.abs(mine - theirs))),
+        run_time=elapsed,
+        steps=n - 1,
+        extra={"delay_s": ticks * dt} if abs(ticks * dt - delay) > 1e-12 else None,
+    )
 
 
-def hybrid_ivp(method: str, rtol: float, cfg: ReportConfig, ref,
-               scenario: ContactScenario = TABLE1, delay: float = HIL_DELAY) -> dict:
+def hybrid_ivp(
+    method: str, rtol: float, cfg: ReportConfig, ref, scenario: ContactScenario = TABLE1, delay: float = HIL_DELAY
+) -> dict:
     grid = np.arange(int(round(cfg.contact_t_end / GRID)) + 1) * GRID
     imp = ref.impedance
 
     def run():
-        r = DelayedContactRun(scenario, impedance=imp, delay=delay, t_end=cfg.contact_t_end, method=method,
-                              rtol=rtol, atol=rtol * 1e-4)
+        r = DelayedContactRun(
+            scenario, impedance=imp, delay=delay, t_end=cfg.contact_t_end, method=method, rtol=rtol, atol=rtol * 1e-4
+        )
         return r, r.sample(grid)
 
     (r, s), elapsed = best_time(run, cfg.min_timing_s)
     q = ref.sample(grid)
     mine = compared_force(scenario, imp, s["p"], s["pd"], s["touching"], q["touching"], s["fs"])
     theirs = compared_force(scenario, imp, q["p"], q["pd"], q["touching"], s["touching"], q["fs"])
-    return _wp_entry("hybrid_delay", f"solve_ivp {method}", rtol=rtol, error=float(np.max(np.abs(mine - theirs))),
-                     run_time=elapsed, steps=r.steps)
+    return _wp_entry(
+        "hybrid_delay",
+        f"solve_ivp {method}",
+        rtol=rtol,
+        error=float(np.max(np.abs(mine - theirs))),
+        run_time=elapsed,
+        steps=r.steps,
+    )
 
 
 def convergence_order(entries: list[dict], model: str, method: str, key: str = "step_s") -> float | None:
     """Slope of log(error) against log(step) (key "rtol": against log(rtol)) over the finest runs of one method."""
-    pts = sorted((e[key], e["max_error_N"]) for e in entries if e["model"] == model and e["method"] == method
-                 and e.get(key) and e.get("max_error_N"))
+    pts = sorted(
+        (e[key], e["max_error_N"])
+        for e in entries
+        if e["model"] == model and e["method"] == method and e.get(key) and e.get("max_error_N")
+    )
     pts = [(s, err) for s, err in pts if err > 1e-9][:4]
     if len(pts) < 2:
         return None
@@ -429,8 +523,9 @@ def relative_energy(scn: ContactScenario, p, pd):
 
 
 @functools.lru_cache(maxsize=16)  # the energy section and the zero-damping cases may ask for the same run
-def energy_run_fixed(method: str, dt: float, t_end: float, scn: ContactScenario | None = None,
-                     samples: int = 400) -> dict:
+def energy_run_fixed(
+    method: str, dt: float, t_end: float, scn: ContactScenario | None = None, samples: int = 400
+) -> dict:
     """Relative energy error over a long undamped run with one fixed-step integrator (a shared
     result: read it, do not change it)."""
     scn = scn or undamped_scenario()
@@ -441,8 +536,12 @@ def energy_run_fixed(method: str, dt: float, t_end: float, scn: ContactScenario 
     try:
         phi, _ = integ.step_matrices(dt)
     except StepTooLargeError as exc:
-        return {"method": method, "step_s": dt, "refused": str(exc),
-                "largest_stable_step_s": max_stable_step(system, method)}
+        return {
+            "method": method,
+            "step_s": dt,
+            "refused": str(exc),
+            "largest_stable_step_s": max_stable_step(system, method),
+        }
     e0 = float(relative_energy(scn, 0.0, scn.closing_velocity))
     every = max(1, n // samples)
     t_s, err = [0.0], [0.0]
@@ -458,12 +557,22 @@ def energy_run_fixed(method: str, dt: float, t_end: float, scn: ContactScenario 
             t_s.append(i * dt)
             err.append(rel)
     elapsed = time.perf_counter() - started
-    return {"method": method, "step_s": dt, "t_end_s": n * dt, "steps": n, "final_relative_drift": err[-1],
-            "max_relative_error": worst, "run_time_s": elapsed, "t": t_s, "relative_error": err}
+    return {
+        "method": method,
+        "step_s": dt,
+        "t_end_s": n * dt,
+        "steps": n,
+        "final_relative_drift": err[-1],
+        "max_relative_error": worst,
+        "run_time_s": elapsed,
+        "t": t_s,
+        "relative_error": err,
+    }
 
 
-def energy_run_ivp(method: str, rtol: float, t_end: float, scn: ContactScenario | None = None,
-                   samples: int = 400) -> dict:
+def energy_run_ivp(
+    method: str, rtol: float, t_end: float, scn: ContactScenario | None = None, samples: int = 400
+) -> dict:
     from scipy.integrate import solve_ivp
 
     scn = scn or undamped_scenario()
@@ -473,13 +582,22 @@ def energy_run_ivp(method: str, rtol: float, t_end: float, scn: ContactScenario 
     t_eval = np.linspace(0.0, t_end, samples + 1)
     options = {"jac": lambda _t, _y: a} if method in ("Radau", "LSODA") else {}
     started = time.perf_counter()
-    sol = solve_ivp(lambda _t, y: a @ y, (0.0, t_end), x0, method=method, rtol=rtol, atol=rtol * 1e-4,
-                    t_eval=t_eval, **options)
+    sol = solve_ivp(
+        lambda _t, y: a @ y, (0.0, t_end), x0, method=method, rtol=rtol, atol=rtol * 1e-4, t_eval=t_eval, **options
+    )
     elapsed = time.perf_counter() - started
     rel = (relative_energy(scn, sol.y[0] - sol.y[1], sol.y[2] - sol.y[3]) - e0) / e0
-    return {"method": f"solve_ivp {method}", "rtol": rtol, "t_end_s": t_end, "rhs_evaluations": int(sol.nfev),
-            "final_relative_drift": float(rel[-1]), "max_relative_error": float(np.max(np.abs(rel))),
-            "run_time_s": elapsed, "t": sol.t.tolist(), "relative_error": rel.tolist()}
+    return {
+        "method": f"solve_ivp {method}",
+        "rtol": rtol,
+        "t_end_s": t_end,
+        "rhs_evaluations": int(sol.nfev),
+        "final_relative_drift": float(rel[-1]),
+        "max_relative_error": float(np.max(np.abs(rel))),
+        "run_time_s": elapsed,
+        "t": sol.t.tolist(),
+        "relative_error": rel.tolist(),
+    }
 
 
 def named_stable_step(message: str) -> float | None:

@@ -76,8 +76,14 @@ def ideal_curves(graph, t):
     return force, traj.penetration_rate
 
 
-def plot_runs(bags: list[str], png: str, labels: list[str] | None = None, kcs_bcs=None,
-              topics: list[str] | None = None, graphs: list | None = None) -> None:
+def plot_runs(
+    bags: list[str],
+    png: str,
+    labels: list[str] | None = None,
+    kcs_bcs=None,
+    topics: list[str] | None = None,
+    graphs: list | None = None,
+) -> None:
     """The force and velocity figure of 1-DOF bags; graphs: each bag's recorded graph (or None)."""
     import matplotlib
 
@@ -109,7 +115,7 @@ def plot_runs(bags: list[str], png: str, labels: list[str] | None = None, kcs_bc
             axes[1].plot(s.t, velocity, "k--", lw=1, label=text)
         if energies[i] is not None:
             t, made, net = energies[i]
-            line, = axes[2].plot(t, made, label=f"{label}: made by delay and sampling")
+            (line,) = axes[2].plot(t, made, label=f"{label}: made by delay and sampling")
             if any(net != made):
                 axes[2].plot(t, net, "--", color=line.get_color(), label=f"{label}: left after compensation")
         if topics:

@@ -46,8 +46,13 @@ def scene_loop(graph, dt: float | None = None) -> dict | None:
     free = p["thrust"] == 0.0 and m2 > 0.0 and p["v1"] > p["v2"]
     if p["model"] == "ideal":
         loop = sampled.SampledLoop(m, p["kcs"], p["bcs"], held=False, **common)
-        return _with_target(dict(loop=loop, h=0.0, delay_known=True, m=m, kd=p["kcs"], bd=p["bcs"], kh=0.0, bh=0.0),
-                            p, free, p["kcs"], p["bcs"])
+        return _with_target(
+            dict(loop=loop, h=0.0, delay_known=True, m=m, kd=p["kcs"], bd=p["bcs"], kh=0.0, bh=0.0),
+            p,
+            free,
+            p["kcs"],
+            p["bcs"],
+        )
     imp, ft = first_node(graph, "virtual_impedance"), first_node(graph, "ft_sim")
     k1 = b1 = k2 = b2 = 0.0
     kcs = bcs = None
@@ -75,11 +80,21 @@ def scene_loop(graph, dt: float | None = None) -> dict | None:
     robot = first_node(graph, "robot_sim")
     h = delay.params["delay"] if delay is not None else 0.0
     if delay_ticks(h, dt) > sampled.MAX_DELAY_TICKS:
-        raise DockhilError(f"{graph.scene.path}: the delay h = {h:g} s at {1.0 / dt:g} Hz is {delay_ticks(h, dt)} "
-                           f"ticks of delay; the scene check resolves up to {sampled.MAX_DELAY_TICKS} ticks: give a "
-                           f"shorter delay or a lower rate")
-    loop = sampled.SampledLoop(m, kd, bd, kh, 0.0, delay_ticks=delay_ticks(h, dt),
-                               lag=robot.params["lag"] if robot is not None else 0.0, **common)
+        raise DockhilError(
+            f"{graph.scene.path}: the delay h = {h:g} s at {1.0 / dt:g} Hz is {delay_ticks(h, dt)} "
+            f"ticks of delay; the scene check resolves up to {sampled.MAX_DELAY_TICKS} ticks: give a "
+            f"shorter delay or a lower rate"
+        )
+    loop = sampled.SampledLoop(
+        m,
+        kd,
+        bd,
+        kh,
+        0.0,
+        delay_ticks=delay_ticks(h, dt),
+        lag=robot.params["lag"] if robot is not None else 0.0,
+        **common,
+    )
     # A robot driver's delay is the hardware's, which no parameter of the scene gives.
     hardware = any(gn.cls.moves_hardware for gn in graph.nodes.values())
     info = dict(loop=loop, h=h, delay_known=delay is not None or not hardware, m=m, kd=kd, bd=bd, kh=kh, bh=0.0)
@@ -113,17 +128,23 @@ def _analyse(info: dict, cont=None) -> dict:
     if cont is None:
         cont = hybrid_roots(info["m"], info["kd"], info["bd"], info["kh"], info["bh"], h, count=4)
     try:
-        guesses = [cmath.exp(complex(s) * loop.dt) for s in cont] + [cmath.exp(complex(s).conjugate() * loop.dt)
-                                                                     for s in cont]
+        guesses = [cmath.exp(complex(s) * loop.dt) for s in cont] + [
+            cmath.exp(complex(s).conjugate() * loop.dt) for s in cont
+        ]
         z = sampled.sampled_roots(loop, guesses)[0]
         rho = abs(complex(z))
     except OverflowError:  # a root so far right that exp(s dt) overflows: the sampled loop explodes
         rho = math.inf
     except sampled.RootsNotResolved as exc:
-        raise DockhilError(f"the scene check cannot judge this loop: {exc}; give a shorter delay or a lower "
-                           f"rate") from None
-    return dict(continuous=complex(cont[0]), roots=cont, rho=rho,
-                growth=(math.log(rho) / loop.dt) if 0 < rho < math.inf else (math.inf if rho else -math.inf))
+        raise DockhilError(
+            f"the scene check cannot judge this loop: {exc}; give a shorter delay or a lower rate"
+        ) from None
+    return dict(
+        continuous=complex(cont[0]),
+        roots=cont,
+        rho=rho,
+        growth=(math.log(rho) / loop.dt) if 0 < rho < math.inf else (math.inf if rho else -math.inf),
+    )
 
 
 def _stable_rate(graph, info: dict, start: float, cont) -> float | None:
@@ -178,8 +199,9 @@ def scene_loop6(graph):
     delay = first_node(graph, "delay_injector")
     h = float(delay.params.get("delay", 0.032)) if delay is not None else 0.0
     g = InterfaceGeometry(dyn.m1, dyn.m2)
-    return hybrid_loop6(imp.wall.ideal, imp.wall.passive, body_mobility(dyn.m1, g.point, g),
-                        body_mobility(dyn.m2, g.point, g), h)
+    return hybrid_loop6(
+        imp.wall.ideal, imp.wall.passive, body_mobility(dyn.m1, g.point, g), body_mobility(dyn.m2, g.point, g), h
+    )
 
 
 SOFTER = "give a softer contact or heavier bodies"
@@ -192,8 +214,10 @@ def _too_fast(rate: float) -> str:
 
 def _coarse(res, good: float) -> str:
     """The warning of a resolved but coarse step."""
-    return (f"coarse step: {res.describe()}; the peak force errs by about {40 * res.omega_dt:.2g} %; "
-            f"rate:={good:g} resolves it")
+    return (
+        f"coarse step: {res.describe()}; the peak force errs by about {40 * res.omega_dt:.2g} %; "
+        f"rate:={good:g} resolves it"
+    )
 
 
 def _check6(graph, loop, refuse: bool) -> dict:
@@ -213,8 +237,13 @@ def _check6(graph, loop, refuse: bool) -> dict:
         return {"loop": {}, "warnings": []}
     dt = graph.scene.dt
     res = sampled.Resolution(omega, dt, 2.0 * math.pi / omega, "period")
-    numbers = {"rate_Hz": 1.0 / dt, "omega_rad_s": omega, "omega_dt": res.omega_dt,
-               "samples_per_period": res.samples, "suggested_rate_Hz": None}
+    numbers = {
+        "rate_Hz": 1.0 / dt,
+        "omega_rad_s": omega,
+        "omega_dt": res.omega_dt,
+        "samples_per_period": res.samples,
+        "suggested_rate_Hz": None,
+    }
     warnings = []
     if res.refused or res.coarse:
         good = numbers["suggested_rate_Hz"] = res.fine_rate()
@@ -233,9 +262,11 @@ def _check6(graph, loop, refuse: bool) -> dict:
     root = stability6.rightmost(loop)
     numbers["rightmost_root_1_s"], numbers["rightmost_axis"] = [root.s.real, root.s.imag], root.axis
     if root.s.real > 1e-9 * max(1.0, omega):
-        warnings.append(f"the loop is unstable: linearised at the start, the delayed loop grows at "
-                        f"{root.s.real:+.4g} 1/s (rightmost root {root.s.real:+.4g} {root.s.imag:+.4g}j, led by axis "
-                        f"{root.axis}); `dockhil stability multi --scene` on it gives the stable stiffness")
+        warnings.append(
+            f"the loop is unstable: linearised at the start, the delayed loop grows at "
+            f"{root.s.real:+.4g} 1/s (rightmost root {root.s.real:+.4g} {root.s.imag:+.4g}j, led by axis "
+            f"{root.axis}); `dockhil stability multi --scene` on it gives the stable stiffness"
+        )
     return {"loop": numbers, "warnings": warnings}
 
 
@@ -259,9 +290,12 @@ def scene_check(graph, refuse: bool = True) -> dict:
     cont, rho, growth = a["continuous"], a["rho"], a["growth"]
     rate = 1.0 / loop.dt
     numbers = {
-        "rate_Hz": rate, "omega_rad_s": res.omega, "omega_dt": res.omega_dt,
+        "rate_Hz": rate,
+        "omega_rad_s": res.omega,
+        "omega_dt": res.omega_dt,
         f"samples_per_{res.span_name}": res.samples if math.isfinite(res.samples) else None,
-        "delay_ticks": loop.delay_ticks, "spectral_radius": rho,
+        "delay_ticks": loop.delay_ticks,
+        "spectral_radius": rho,
         "sampled_growth_rate_1_s": growth if math.isfinite(growth) else None,
         "continuous_growth_rate_1_s": cont.real,
     }
@@ -277,7 +311,8 @@ def scene_check(graph, refuse: bool = True) -> dict:
         problems.append(
             f"the sampled loop {'grows' if sampled_unstable else 'does not grow'} (spectral radius {rho:.9g}, "
             f"{growth:+.4g} 1/s) while the delay equation it stands for "
-            f"{'grows' if physics_unstable else 'does not'} (rightmost root {cont.real + 0.0:+.4g} 1/s)")
+            f"{'grows' if physics_unstable else 'does not'} (rightmost root {cont.real + 0.0:+.4g} 1/s)"
+        )
     warnings = []
     dyn = first_node(graph, "satellite_dynamics")
     allowed = bool(dyn.params.get("allow_coarse", False))
@@ -291,8 +326,10 @@ def scene_check(graph, refuse: bool = True) -> dict:
             line = f"{'; '.join(problems)}; {_too_fast(start)}"
         else:
             fix = SOFTER if loop.method == "exact" else "use method:=exact"
-            line = (f"{'; '.join(problems)}; no rate up to {min(256 * start, MAX_RATE):g} Hz fixes it with method "
-                    f"{loop.method!r}: {fix}")
+            line = (
+                f"{'; '.join(problems)}; no rate up to {min(256 * start, MAX_RATE):g} Hz fixes it with method "
+                f"{loop.method!r}: {fix}"
+            )
         if refuse and not allowed:
             raise DockhilError(f"{graph.scene.path}: refused: {line} (or allow_coarse:=true to run anyway)")
         warnings.append(f"ran although not resolved (allow_coarse): {line}")
@@ -302,16 +339,28 @@ def scene_check(graph, refuse: bool = True) -> dict:
         warnings.append(_coarse(res, good))
     h = info["h"]
     if loop.held and h > 0.0 and abs(loop.delay_ticks * loop.dt - h) > 1e-9 * h:
-        warnings.append(f"the delay h = {h:g} s runs as {loop.delay_ticks} ticks = {loop.delay_ticks * loop.dt:g} s "
-                        f"at {rate:g} Hz (choose a rate with a whole number of ticks in h)")
+        warnings.append(
+            f"the delay h = {h:g} s runs as {loop.delay_ticks} ticks = {loop.delay_ticks * loop.dt:g} s "
+            f"at {rate:g} Hz (choose a rate with a whole number of ticks in h)"
+        )
     if physics_unstable and sampled_unstable:
-        warnings.append(f"the loop is unstable: it grows at {growth:+.4g} 1/s (spectral radius {rho:.6g}), as "
-                        f"the delay equation predicts ({cont.real:+.4g} 1/s)")
+        warnings.append(
+            f"the loop is unstable: it grows at {growth:+.4g} 1/s (spectral radius {rho:.6g}), as "
+            f"the delay equation predicts ({cont.real:+.4g} 1/s)"
+        )
     return {"loop": numbers, "warnings": warnings + body_mismatches(graph)}
 
 
-BODY_PARAMS = ("m1", "m2", "inertia1", "inertia2", "interface1", "interface2", "interface_orientation1",
-               "interface_orientation2")
+BODY_PARAMS = (
+    "m1",
+    "m2",
+    "inertia1",
+    "inertia2",
+    "interface1",
+    "interface2",
+    "interface_orientation1",
+    "interface_orientation2",
+)
 
 
 def body_mismatches(graph) -> list[str]:
@@ -323,10 +372,14 @@ def body_mismatches(graph) -> list[str]:
     imp = first_node(graph, "virtual_impedance") or first_node(graph, "virtual_impedance6")
     if dyn is None or imp is None:
         return []
+
     def said(gn, name):
         unit = getattr(gn.cls.params.get(name), "unit", "")
         return f"{name} = {gn.params[name]!r}{' ' + unit if unit else ''}"
 
-    return [f"node {imp.name!r} is tuned for {said(imp, name)} but node {dyn.name!r} integrates {said(dyn, name)}: "
-            f"the virtual impedance does not make the ideal contact for these bodies; give both the same {name}"
-            for name in BODY_PARAMS if name in imp.params and name in dyn.params and imp.params[name] != dyn.params[name]]
+    return [
+        f"node {imp.name!r} is tuned for {said(imp, name)} but node {dyn.name!r} integrates {said(dyn, name)}: "
+        f"the virtual impedance does not make the ideal contact for these bodies; give both the same {name}"
+        for name in BODY_PARAMS
+        if name in imp.params and name in dyn.params and imp.params[name] != dyn.params[name]
+    ]

@@ -48,8 +48,14 @@ def plot_region(ax, r: dict) -> None:
     levels = [0.0, *r["multiples"]]
     colors = ["#f4c7c3", *[_green(i, len(r["multiples"])) for i in range(len(r["multiples"]))]]
     edges = [-0.5] + [(a + b) / 2 for a, b in zip(levels, levels[1:])] + [levels[-1] + 1.0]
-    mesh = ax.pcolormesh(np.array(r["b"]), np.array(r["h"]) * 1e3, largest, shading="nearest",
-                         cmap=ListedColormap(colors), norm=BoundaryNorm(edges, len(colors)))
+    mesh = ax.pcolormesh(
+        np.array(r["b"]),
+        np.array(r["h"]) * 1e3,
+        largest,
+        shading="nearest",
+        cmap=ListedColormap(colors),
+        norm=BoundaryNorm(edges, len(colors)),
+    )
     bar = ax.figure.colorbar(mesh, ax=ax, ticks=levels, label="largest K stable [x exact bound]")
     bar.ax.set_yticklabels(["none", *[f"{x:g}x" for x in r["multiples"]]])
     if len(r["b"]) <= 12:
@@ -60,8 +66,11 @@ def plot_region(ax, r: dict) -> None:
                     ax.text(b, h * 1e3, label, ha="center", va="center", fontsize=7)
     ax.set_xlabel("b [N s/m]")
     ax.set_ylabel("h [ms]")
-    ax.set_title(f"passivity compensation (max_damping {r['max_damping']:g} N s/m), simulated:\n"
-                 "largest K that neither grows nor saturates (undelayed damper)", fontsize=9)
+    ax.set_title(
+        f"passivity compensation (max_damping {r['max_damping']:g} N s/m), simulated:\n"
+        "largest K that neither grows nor saturates (undelayed damper)",
+        fontsize=9,
+    )
 
 
 def _green(i: int, n: int) -> str:
@@ -84,12 +93,20 @@ def plot_hybrid(path, m, kcs, bcs, rate, ks, hs, exact, sampled, eq12) -> None:
     a.contourf(kk, hh, exact.astype(float), levels=[-0.5, 0.5, 1.5], colors=["#f4c7c3", "#b7e1cd"])
     if sampled.any() and not sampled.all():
         a.contour(kk, hh, sampled.astype(float), levels=[0.5], colors="k", linewidths=1.2)
-    a.set_title(f"hybrid loop, kcs = {kcs:g} N/m, bcs = {bcs:g} N s/m, m = {m:g} kg\n"
-                f"green: stable (exact); black: sampled boundary at {rate:g} Hz", fontsize=9)
+    a.set_title(
+        f"hybrid loop, kcs = {kcs:g} N/m, bcs = {bcs:g} N s/m, m = {m:g} kg\n"
+        f"green: stable (exact); black: sampled boundary at {rate:g} Hz",
+        fontsize=9,
+    )
     a.set_xlabel("passive stiffness k [N/m] (virtual: kcs - k)")
     a.set_ylabel("delay h [ms]")
-    b.contourf(kk, hh, np.repeat(eq12[:, None], ks.size, axis=1).astype(float), levels=[-0.5, 0.5, 1.5],
-               colors=["#f4c7c3", "#b7e1cd"])
+    b.contourf(
+        kk,
+        hh,
+        np.repeat(eq12[:, None], ks.size, axis=1).astype(float),
+        levels=[-0.5, 0.5, 1.5],
+        colors=["#f4c7c3", "#b7e1cd"],
+    )
     b.set_title("Eq. 12 on the paper's loop (all of kcs behind the delay)\ngreen: kcs < K_max(bcs, h)", fontsize=9)
     b.set_xlabel("passive stiffness k [N/m] (Eq. 12 does not depend on it)")
     fig.tight_layout()

@@ -29,7 +29,9 @@ def read_results(path: str) -> tuple[dict[str, list], dict]:
     try:
         table = pq.read_table(path)
     except FileNotFoundError:
-        raise DockhilError(f"{path}: no such results file; run 'dockhil sweep CAMPAIGN.yaml --out {path}' first") from None
+        raise DockhilError(
+            f"{path}: no such results file; run 'dockhil sweep CAMPAIGN.yaml --out {path}' first"
+        ) from None
     except Exception as exc:
         raise DockhilError(f"{path}: not a readable Parquet file ({type(exc).__name__}: {exc})") from None
     meta = json.loads((table.schema.metadata or {}).get(METADATA_KEY, b"{}"))
@@ -65,7 +67,8 @@ def map_agreement(cols: dict[str, list], dt: float) -> dict:
 
 def _numeric(values: list) -> bool:
     return all(v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)) for v in values) and any(
-        v is not None for v in values)
+        v is not None for v in values
+    )
 
 
 def plot_results(path: str, png: str) -> list[str]:
@@ -82,15 +85,20 @@ def plot_results(path: str, png: str) -> list[str]:
     dt = 1.0 / float(meta.get("rate", 1000.0))
     swept = [a for a in (*meta.get("grid", []), *meta.get("random", [])) if a in cols and _numeric(cols[a])]
     has_map = all(a in cols for a in MAP_ARGS) and "stable" in cols
-    quantities = [q for q in ("error.peak_force_N", "error.exit_velocity_mps", "growth_rate_per_s")
-                  if q in cols and _numeric(cols[q])]
+    quantities = [
+        q
+        for q in ("error.peak_force_N", "error.exit_velocity_mps", "growth_rate_per_s")
+        if q in cols and _numeric(cols[q])
+    ]
     panels_map = []
     if has_map:
         panels_map = sorted({(float(m), float(h)) for m, h in zip(cols["m"], cols["delay"])})[:6]
     panels_q = [(q, a) for q in quantities for a in swept if a not in ("b",) or not has_map][:9]
     if not panels_map and not panels_q:
-        raise DockhilError(f"{path}: nothing to plot: the rows have neither a stability classification "
-                           f"(k, b, delay, m, stable) nor error columns against a swept arg")
+        raise DockhilError(
+            f"{path}: nothing to plot: the rows have neither a stability classification "
+            f"(k, b, delay, m, stable) nor error columns against a swept arg"
+        )
     ncols = 3
     rows_map = math.ceil(len(panels_map) / ncols)
     rows_q = math.ceil(len(panels_q) / ncols)
@@ -113,14 +121,32 @@ def plot_results(path: str, png: str) -> list[str]:
             sel = (m_all == m) & (h_all == h)
             bl = np.linspace(max(1e-9, b_all[sel].min()), b_all[sel].max(), 200)
             ax.plot(bl, critical_stiffness_map(m, bl, [h], "pade1", "delayed")[0], "k--", lw=1, label="Eq. 12")
-            ax.plot(bl, critical_stiffness_map(m, bl, [h], "exact", "delayed")[0], "k:", lw=1,
-                    label="exact, delayed damper")
-            ax.plot(bl, critical_stiffness_map(m, bl, [h + dt / 2], "exact", "undelayed")[0], "g-", lw=1.2,
-                    label="exact, scene's loop (h + dt/2)")
-            ax.scatter(b_all[sel & ok & stable], k_all[sel & ok & stable], marker="o", s=14, c="tab:blue",
-                       label="simulated: stable")
-            ax.scatter(b_all[sel & ok & unstable], k_all[sel & ok & unstable], marker="x", s=16, c="tab:red",
-                       label="simulated: unstable")
+            ax.plot(
+                bl, critical_stiffness_map(m, bl, [h], "exact", "delayed")[0], "k:", lw=1, label="exact, delayed damper"
+            )
+            ax.plot(
+                bl,
+                critical_stiffness_map(m, bl, [h + dt / 2], "exact", "undelayed")[0],
+                "g-",
+                lw=1.2,
+                label="exact, scene's loop (h + dt/2)",
+            )
+            ax.scatter(
+                b_all[sel & ok & stable],
+                k_all[sel & ok & stable],
+                marker="o",
+                s=14,
+                c="tab:blue",
+                label="simulated: stable",
+            )
+            ax.scatter(
+                b_all[sel & ok & unstable],
+                k_all[sel & ok & unstable],
+                marker="x",
+                s=16,
+                c="tab:red",
+                label="simulated: unstable",
+            )
             other = sel & ~(ok & (stable | unstable))
             if other.any():
                 ax.scatter(b_all[other], k_all[other], marker=".", s=10, c="0.6", label="not classified")
@@ -132,8 +158,10 @@ def plot_results(path: str, png: str) -> list[str]:
             ax.legend(fontsize=7, loc="upper left", framealpha=0.85)
         agreement = map_agreement(cols, dt)
         counted = agreement["agree"] + agreement["disagree"]
-        lines.append(f"stability map: {agreement['agree']} of {counted} runs more than {NEAR:.0%} from the exact "
-                     f"boundary are classified as it says ({agreement['near']} within {NEAR:.0%} not counted)")
+        lines.append(
+            f"stability map: {agreement['agree']} of {counted} runs more than {NEAR:.0%} from the exact "
+            f"boundary are classified as it says ({agreement['near']} within {NEAR:.0%} not counted)"
+        )
         for k, b, h, m in agreement["wrong"][:5]:
             lines.append(f"  disagrees: k={k:g} b={b:g} delay={h:g} m={m:g}")
     for j, (q, a) in enumerate(panels_q):

@@ -56,8 +56,17 @@ class FoxgloveBridge:
 
     Serving starts at once; `observe` feeds it from a multi-process graph, `tap` from a composed one."""
 
-    def __init__(self, topics: dict[str, str], *, sim: bool, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
-                 log: Callable[[str], None] = _log, burst: int = BURST, geometry=None):
+    def __init__(
+        self,
+        topics: dict[str, str],
+        *,
+        sim: bool,
+        host: str = DEFAULT_HOST,
+        port: int = DEFAULT_PORT,
+        log: Callable[[str], None] = _log,
+        burst: int = BURST,
+        geometry=None,
+    ):
         """geometry: where the interfaces are mounted (`foxglove_scene.Geometry`, default at the CoMs)."""
         try:
             import foxglove
@@ -81,17 +90,21 @@ class FoxgloveBridge:
             self._server = foxglove.start_server(name="dockhil", host=host, port=port, context=self._context)
         except RuntimeError as exc:
             reason = str(exc).removeprefix("FoxgloveError: ")
-            todo = ("choose a free port with --foxglove PORT" if "in use" in reason
-                    else "give --foxglove-host an address of this machine")
+            todo = (
+                "choose a free port with --foxglove PORT"
+                if "in use" in reason
+                else "give --foxglove-host an address of this machine"
+            )
             raise DockhilError(f"--foxglove: cannot serve on {host}:{port}: {reason}; {todo}") from None
         self.host, self.port = host, self._server.port
         schemas = {}
         for type_name in set(topics.values()):
             data = json.dumps(channel_schema(msgs.type_by_name(type_name)), separators=(",", ":")).encode()
             schemas[type_name] = foxglove.Schema(name=type_name, encoding=SCHEMA_ENCODING, data=data)
-        self.channels = {topic: foxglove.Channel(topic, schema=schemas[type_name], message_encoding="json",
-                                                 context=self._context)
-                         for topic, type_name in sorted(topics.items())}
+        self.channels = {
+            topic: foxglove.Channel(topic, schema=schemas[type_name], message_encoding="json", context=self._context)
+            for topic, type_name in sorted(topics.items())
+        }
         self.types = {topic: msgs.type_by_name(type_name) for topic, type_name in topics.items()}
         # The 3D view's channels, fed from the bodies' states (none in a scene without them).
         self.derived: dict[str, Any] = {}
@@ -100,15 +113,20 @@ class FoxgloveBridge:
             for topic, name in fs.DERIVED.items():
                 data = json.dumps(fs.schema(name), separators=(",", ":")).encode()
                 self.derived[topic] = foxglove.Channel(
-                    topic, schema=foxglove.Schema(name=name, encoding=SCHEMA_ENCODING, data=data),
-                    message_encoding="json", context=self._context)
+                    topic,
+                    schema=foxglove.Schema(name=name, encoding=SCHEMA_ENCODING, data=data),
+                    message_encoding="json",
+                    context=self._context,
+                )
         self._sources = [topic for topic in fs.SOURCES if topic in topics]
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: str | None = None
-        log(f"[foxglove] live view of {len(self.channels)} topics{' and /tf, /scene' if self.derived else ''} on "
+        log(
+            f"[foxglove] live view of {len(self.channels)} topics{' and /tf, /scene' if self.derived else ''} on "
             f"ws://{host}:{self.port} (Foxglove: Open connection, Foxglove WebSocket; layout: "
-            f"'dockhil foxglove layout > layout.json', then Import layout)")
+            f"'dockhil foxglove layout > layout.json', then Import layout)"
+        )
 
     # -- a multi-process graph ---------------------------------------------------
     def observe(self, endpoints: dict[str, str], keys) -> None:
@@ -160,7 +178,7 @@ class FoxgloveBridge:
         `self.burst`, the oldest are dropped and counted: the bridge catches up instead of lagging."""
         if len(burst) > self.burst:
             self.dropped += len(burst) - self.burst
-            burst = burst[-self.burst:]
+            burst = burst[-self.burst :]
         for frames in burst:
             if len(frames) == 2:
                 self._forward(frames[0].decode(errors="replace"), frames[1])

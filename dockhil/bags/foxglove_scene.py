@@ -39,7 +39,13 @@ DERIVED = {TF_TOPIC: "foxglove.FrameTransforms", SCENE_TOPIC: "foxglove.SceneUpd
 STATE, WRENCH, ROBOT = "/satellite/state", "/ft/wrench", "/robot/state"
 SOURCES = (STATE, WRENCH, ROBOT)  # the dockhil topics the derived ones are computed from
 
-WORLD, PROBE, TARGET_INTERFACE, FT_SENSOR, ROBOT_PROBE = "world", "probe", "target_interface", "ft_sensor", "robot_probe"
+WORLD, PROBE, TARGET_INTERFACE, FT_SENSOR, ROBOT_PROBE = (
+    "world",
+    "probe",
+    "target_interface",
+    "ft_sensor",
+    "robot_probe",
+)
 
 # Sizes [m] of the primitives: a docking probe and drogue of a small satellite, visible at the
 # metre scale of the shipped scenes; the force arrow's length per newton.
@@ -69,8 +75,12 @@ class Geometry(NamedTuple):
     @classmethod
     def from_params(cls, params: dict[str, Any]) -> "Geometry":
         """From a dynamics node's parameters; one without them (1-DOF) has its interfaces at the CoMs."""
-        return cls(*(tuple(float(v) for v in params.get(name, default)) for name, default in
-                     zip(cls._fields, cls._field_defaults.values())))
+        return cls(
+            *(
+                tuple(float(v) for v in params.get(name, default))
+                for name, default in zip(cls._fields, cls._field_defaults.values())
+            )
+        )
 
     @classmethod
     def six_dof_defaults(cls) -> "Geometry":
@@ -97,8 +107,9 @@ def schema(name: str) -> dict:
 # --------------------------------------------------------------------------- the computation
 
 
-def views(state, wrench=None, robot=None, geometry: Geometry = AT_THE_COMS,
-          force_scale: float = FORCE_SCALE) -> dict[str, dict]:
+def views(
+    state, wrench=None, robot=None, geometry: Geometry = AT_THE_COMS, force_scale: float = FORCE_SCALE
+) -> dict[str, dict]:
     """The derived messages at a SatelliteState, with the latest WrenchStamped and RobotState
     (None: not yet seen): {"/tf": FrameTransforms, "/scene": SceneUpdate}, as JSON values."""
     from dockhil.contact.rigid import rotate
@@ -108,14 +119,21 @@ def views(state, wrench=None, robot=None, geometry: Geometry = AT_THE_COMS,
     g = geometry
 
     def tf(parent, child, translation, rotation):
-        return {"timestamp": stamp, "parent_frame_id": parent, "child_frame_id": child,
-                "translation": _vector(translation), "rotation": _quaternion(rotation)}
+        return {
+            "timestamp": stamp,
+            "parent_frame_id": parent,
+            "child_frame_id": child,
+            "translation": _vector(translation),
+            "rotation": _quaternion(rotation),
+        }
 
-    transforms = [tf(WORLD, chaser.name, _xyz(chaser.pose.position), _xyzw(chaser.pose.orientation)),
-                  tf(WORLD, target.name, _xyz(target.pose.position), _xyzw(target.pose.orientation)),
-                  tf(chaser.name, PROBE, g.interface1, g.interface_orientation1),
-                  tf(target.name, TARGET_INTERFACE, g.interface2, g.interface_orientation2),
-                  tf(TARGET_INTERFACE, FT_SENSOR, g.sensor_position, g.sensor_orientation)]
+    transforms = [
+        tf(WORLD, chaser.name, _xyz(chaser.pose.position), _xyzw(chaser.pose.orientation)),
+        tf(WORLD, target.name, _xyz(target.pose.position), _xyzw(target.pose.orientation)),
+        tf(chaser.name, PROBE, g.interface1, g.interface_orientation1),
+        tf(target.name, TARGET_INTERFACE, g.interface2, g.interface_orientation2),
+        tf(TARGET_INTERFACE, FT_SENSOR, g.sensor_position, g.sensor_orientation),
+    ]
     if robot is not None:
         transforms.append(tf(TARGET_INTERFACE, ROBOT_PROBE, _xyz(robot.pose.position), _xyzw(robot.pose.orientation)))
 
@@ -123,30 +141,75 @@ def views(state, wrench=None, robot=None, geometry: Geometry = AT_THE_COMS,
     tip = _add(_xyz(chaser.pose.position), rotate(q1, g.interface1))  # A's origin, world
     force = contact_force(state, wrench, g)
     entities = [
-        _entity(stamp, chaser.name, chaser.name, spheres=[_sphere(_COLOURS["chaser"])],
-                lines=[_line((_ZERO, g.interface1), _COLOURS["chaser"])]),
-        _entity(stamp, target.name, target.name, spheres=[_sphere(_COLOURS["target"])],
-                lines=[_line((_ZERO, g.interface2), _COLOURS["target"])]),
+        _entity(
+            stamp,
+            chaser.name,
+            chaser.name,
+            spheres=[_sphere(_COLOURS["chaser"])],
+            lines=[_line((_ZERO, g.interface1), _COLOURS["chaser"])],
+        ),
+        _entity(
+            stamp,
+            target.name,
+            target.name,
+            spheres=[_sphere(_COLOURS["target"])],
+            lines=[_line((_ZERO, g.interface2), _COLOURS["target"])],
+        ),
         # A cone whose tip is A's origin: its base is at -PROBE_LENGTH along x, its top (z) turned to +x.
-        _entity(stamp, PROBE, PROBE, cylinders=[{
-            "pose": _pose((-PROBE_LENGTH / 2, 0.0, 0.0), _X_TO_Z),
-            "size": _vector((PROBE_DIAMETER, PROBE_DIAMETER, PROBE_LENGTH)),
-            "bottom_scale": 1.0, "top_scale": 0.0, "color": _colour(_COLOURS["chaser"])}]),
-        _entity(stamp, "drogue", TARGET_INTERFACE, cylinders=[{
-            "pose": _pose((DROGUE_THICKNESS / 2, 0.0, 0.0), _X_TO_Z),
-            "size": _vector((DROGUE_DIAMETER, DROGUE_DIAMETER, DROGUE_THICKNESS)),
-            "bottom_scale": 1.0, "top_scale": 1.0, "color": _colour(_COLOURS["target"])}]),
+        _entity(
+            stamp,
+            PROBE,
+            PROBE,
+            cylinders=[
+                {
+                    "pose": _pose((-PROBE_LENGTH / 2, 0.0, 0.0), _X_TO_Z),
+                    "size": _vector((PROBE_DIAMETER, PROBE_DIAMETER, PROBE_LENGTH)),
+                    "bottom_scale": 1.0,
+                    "top_scale": 0.0,
+                    "color": _colour(_COLOURS["chaser"]),
+                }
+            ],
+        ),
+        _entity(
+            stamp,
+            "drogue",
+            TARGET_INTERFACE,
+            cylinders=[
+                {
+                    "pose": _pose((DROGUE_THICKNESS / 2, 0.0, 0.0), _X_TO_Z),
+                    "size": _vector((DROGUE_DIAMETER, DROGUE_DIAMETER, DROGUE_THICKNESS)),
+                    "bottom_scale": 1.0,
+                    "top_scale": 1.0,
+                    "color": _colour(_COLOURS["target"]),
+                }
+            ],
+        ),
     ]
     magnitude = math.sqrt(sum(f * f for f in force))
     arrows, texts = [], []
     if magnitude > MIN_FORCE:
         length = magnitude * force_scale
         head = min(0.3 * length, 0.05)
-        arrows.append({"pose": _pose(tip, _x_towards(force)), "shaft_length": length - head,
-                       "shaft_diameter": 0.02, "head_length": head, "head_diameter": 0.05,
-                       "color": _colour(_COLOURS["force"])})
-        texts.append({"pose": _pose(_add(tip, (0.0, 0.0, 0.15)), _IDENTITY), "billboard": True, "font_size": 14.0,
-                      "scale_invariant": True, "color": _colour(_COLOURS["force"]), "text": f"{magnitude:.1f} N"})
+        arrows.append(
+            {
+                "pose": _pose(tip, _x_towards(force)),
+                "shaft_length": length - head,
+                "shaft_diameter": 0.02,
+                "head_length": head,
+                "head_diameter": 0.05,
+                "color": _colour(_COLOURS["force"]),
+            }
+        )
+        texts.append(
+            {
+                "pose": _pose(_add(tip, (0.0, 0.0, 0.15)), _IDENTITY),
+                "billboard": True,
+                "font_size": 14.0,
+                "scale_invariant": True,
+                "color": _colour(_COLOURS["force"]),
+                "text": f"{magnitude:.1f} N",
+            }
+        )
     # Always sent, empty out of contact: the entity replaces the last one, so the arrow goes away.
     entities.append(_entity(stamp, "contact_force", WORLD, arrows=arrows, texts=texts, frame_locked=False))
     return {TF_TOPIC: {"transforms": transforms}, SCENE_TOPIC: {"deletions": [], "entities": entities}}
@@ -240,13 +303,27 @@ def _sphere(rgba) -> dict:
 
 
 def _line(points, rgba) -> dict:
-    return {"type": 0, "pose": _pose(_ZERO, _IDENTITY), "thickness": 0.02, "scale_invariant": False,
-            "points": [_vector(p) for p in points], "color": _colour(rgba), "colors": [], "indices": []}
+    return {
+        "type": 0,
+        "pose": _pose(_ZERO, _IDENTITY),
+        "thickness": 0.02,
+        "scale_invariant": False,
+        "points": [_vector(p) for p in points],
+        "color": _colour(rgba),
+        "colors": [],
+        "indices": [],
+    }
 
 
 def _entity(stamp: dict, entity_id: str, frame: str, *, frame_locked: bool = True, **primitives) -> dict:
-    entity = {"timestamp": stamp, "frame_id": frame, "id": entity_id, "lifetime": {"sec": 0, "nsec": 0},
-              "frame_locked": frame_locked, "metadata": []}
+    entity = {
+        "timestamp": stamp,
+        "frame_id": frame,
+        "id": entity_id,
+        "lifetime": {"sec": 0, "nsec": 0},
+        "frame_locked": frame_locked,
+        "metadata": [],
+    }
     for kind in ("arrows", "cubes", "spheres", "cylinders", "lines", "triangles", "texts", "models"):
         entity[kind] = primitives.get(kind, [])
     return entity

@@ -116,11 +116,14 @@ def find_sources(topics: list[str] | None = None, graph_pid: int | None = None) 
         for topic, t in sorted(g.get("topics", {}).items()):
             other = found.get(topic)
             if other is not None:
-                _record_log(f"note: topic {topic} is published by two running graphs; recording the one of pid "
-                            f"{other.graph_pid}")
+                _record_log(
+                    f"note: topic {topic} is published by two running graphs; recording the one of pid "
+                    f"{other.graph_pid}"
+                )
                 continue
-            found[topic] = Source(topic, t["endpoint"], t["type"], g.get("clock") == "sim", g["pid"], g["run_id"],
-                                  g.get("keys", ""))
+            found[topic] = Source(
+                topic, t["endpoint"], t["type"], g.get("clock") == "sim", g["pid"], g["run_id"], g.get("keys", "")
+            )
     if topics is None:
         return found
     missing = [t for t in topics if t not in found]
@@ -155,9 +158,17 @@ class Recorder:
     counted by the publisher, whose full queue refused the message.)
     """
 
-    def __init__(self, path: str, sources: dict[str, Source], *, n_ticks: int | None = None,
-                 overwrite: bool = False, log: Callable[[str], None] = _record_log, observer: bool = False,
-                 runs: list[tuple[dict, dict]] | None = None):
+    def __init__(
+        self,
+        path: str,
+        sources: dict[str, Source],
+        *,
+        n_ticks: int | None = None,
+        overwrite: bool = False,
+        log: Callable[[str], None] = _record_log,
+        observer: bool = False,
+        runs: list[tuple[dict, dict]] | None = None,
+    ):
         """runs: (run description, scene texts) of each recorded graph, written first (runinfo)."""
         import zmq
 
@@ -204,7 +215,9 @@ class Recorder:
     @property
     def lost(self) -> int:
         # An observer's lost message is also a missing tick in sim time: counted once.
-        return self.dropped + max(self.tick_gaps, self.sub.lost) + (self.bag.messages_written - self.bag.messages_flushed)
+        return (
+            self.dropped + max(self.tick_gaps, self.sub.lost) + (self.bag.messages_written - self.bag.messages_flushed)
+        )
 
     def handle(self, frames: list[bytes]) -> None:
         st = self._state.get(frames[0]) if frames else None
@@ -328,8 +341,9 @@ class Recorder:
         self.stop_listening()
         if self.error is None:
             try:
-                self.bag.add_metadata(runinfo.VERDICT, runinfo.with_loss(verdict or runinfo.not_told(why_not_told),
-                                                                       self.lost))
+                self.bag.add_metadata(
+                    runinfo.VERDICT, runinfo.with_loss(verdict or runinfo.not_told(why_not_told), self.lost)
+                )
             except BagError as exc:
                 self._stopped(exc)
         try:
@@ -337,13 +351,14 @@ class Recorder:
         except BagError as exc:
             self._stopped(exc)
         on_disk = self.bag.messages_flushed
-        line = (f"recorded {on_disk} messages on {len(self._state)} topics to {self.path}; "
-                f"{self.lost} lost")
+        line = f"recorded {on_disk} messages on {len(self._state)} topics to {self.path}; {self.lost} lost"
         if self.error is not None:
             line += " (recording stopped early, see above)"
         if self.sub.lost:
-            line += (f" ({self.sub.lost} not taken in time: recording from outside the graph, it drops what it "
-                     f"cannot keep up with rather than slow the graph)")
+            line += (
+                f" ({self.sub.lost} not taken in time: recording from outside the graph, it drops what it "
+                f"cannot keep up with rather than slow the graph)"
+            )
         if self.unreadable:
             line += f"; {self.unreadable} without a readable header"
         if self.bag.messages_unencodable:
@@ -366,8 +381,10 @@ def record(args: argparse.Namespace) -> int:
     try:
         why = recorder.run(stop, alive=lambda: any(_graph_running(*g) for g in graphs))
     finally:  # also on a publisher that failed authentication: what was recorded is kept
-        recorder.close(why_not_told="recorded from outside the run (dockhil bag record), which is not told its "
-                                    "verdict: the launch that ran it says it")
+        recorder.close(
+            why_not_told="recorded from outside the run (dockhil bag record), which is not told its "
+            "verdict: the launch that ran it says it"
+        )
     if why == "the graph stopped":
         _record_log("the recorded graph stopped")
     if recorder.lost:
@@ -388,8 +405,12 @@ def registered_run(run_id: str, recorded_by: str) -> tuple[dict, dict]:
     run = entry.get("run")
     now = time.time_ns()
     if not isinstance(run, dict):  # a graph of an older dockhil, or `bag play`: its scene is not known
-        run = {"scene": "", "clock": entry.get("clock", ""), "graph": entry.get("file", ""),
-               "scene_known": "false: the graph registered no scene (an older dockhil, or bag play)"}
+        run = {
+            "scene": "",
+            "clock": entry.get("clock", ""),
+            "graph": entry.get("file", ""),
+            "scene_known": "false: the graph registered no scene (an older dockhil, or bag play)",
+        }
     run = {**run, "recorded_by": recorded_by}
     if recorded_by == "bag record":  # it joined the run when it started, not when the graph did
         run.update(joined=iso_utc(now), joined_ns=f"{now:019d}")
@@ -422,8 +443,16 @@ def recorder_process(path: str, graph, clock: str, n_ticks: int | None, quiet: b
 class TapRecorder:
     """The recorder of a composed run: a tap that encodes each message and writes it."""
 
-    def __init__(self, path: str, graph, *, sim: bool, log: Callable[[str], None] | None = None,
-                 duration: float | None = None, recorded_by: str = "a composed graph"):
+    def __init__(
+        self,
+        path: str,
+        graph,
+        *,
+        sim: bool,
+        log: Callable[[str], None] | None = None,
+        duration: float | None = None,
+        recorded_by: str = "a composed graph",
+    ):
         from dockhil.scene.provenance import run_fields, scene_texts
 
         self.path = path
@@ -432,8 +461,13 @@ class TapRecorder:
         self.bag = BagWriter(path)
         for topic, ref in graph.publishers.items():
             self.bag.add_topic(topic, msgs.type_name(ref.type))
-        run = run_fields(graph.scene, clock="sim" if sim else "wall", duration=duration, started_ns=time.time_ns(),
-                         recorded_by=recorded_by)
+        run = run_fields(
+            graph.scene,
+            clock="sim" if sim else "wall",
+            duration=duration,
+            started_ns=time.time_ns(),
+            recorded_by=recorded_by,
+        )
         runinfo.write_start(self.bag, run, scene_texts(graph.scene))
         self.dropped = 0
         self.error: str | None = None
@@ -470,15 +504,22 @@ class TapRecorder:
         self.flush()
         try:
             if self.error is None:
-                self.bag.add_metadata(runinfo.VERDICT, runinfo.with_loss(
-                    verdict or runinfo.not_told("the recorder of this composed graph was not told the run's verdict"),
-                    self.lost))
+                self.bag.add_metadata(
+                    runinfo.VERDICT,
+                    runinfo.with_loss(
+                        verdict
+                        or runinfo.not_told("the recorder of this composed graph was not told the run's verdict"),
+                        self.lost,
+                    ),
+                )
             self.bag.close()
         except BagError as exc:
             self.error = str(exc)
             self.log(f"error: {exc}")
-        self.log(f"recorded {self.bag.messages_flushed} messages on {len(self.bag.topics)} topics to {self.path}; "
-                 f"{self.lost} lost" + (" (recording stopped early, see above)" if self.error else ""))
+        self.log(
+            f"recorded {self.bag.messages_flushed} messages on {len(self.bag.topics)} topics to {self.path}; "
+            f"{self.lost} lost" + (" (recording stopped early, see above)" if self.error else "")
+        )
 
     @property
     def lost(self) -> int:
@@ -501,8 +542,11 @@ def _recorder_main(argv: list[str]) -> int:
     p.add_argument("--topics", nargs="+")
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--quiet", action="store_true", help="info lines at debug level")
-    p.add_argument("--verdict", action="store_true",
-                   help="once recorded, say RECORDED and read the run's verdict (one JSON line) on stdin before closing")
+    p.add_argument(
+        "--verdict",
+        action="store_true",
+        help="once recorded, say RECORDED and read the run's verdict (one JSON line) on stdin before closing",
+    )
     args = p.parse_args(argv)
     die_with_parent()
     stop = Stop()
@@ -535,7 +579,9 @@ def _recorder_main(argv: list[str]) -> int:
     out(f"recording {len(sources)} topics to {args.path}")
     run_id = next(iter(sources.values())).run_id if sources else None
     try:
-        recorder.run(stop, alive=lambda: _alive(args.graph_pid) and (run_id is None or _graph_running(args.graph_pid, run_id)))
+        recorder.run(
+            stop, alive=lambda: _alive(args.graph_pid) and (run_id is None or _graph_running(args.graph_pid, run_id))
+        )
     except DockhilError as exc:  # a publisher that failed authentication: what was recorded is kept
         out(f"error: {exc}")
         recorder.close(why_not_told=f"the recorder stopped: {exc}")
@@ -596,13 +642,23 @@ class _Player:
         self.socks = dict(self.pubs)  # what is played goes to the observers too (Publisher.send_multipart)
         self.registry = registry_dir() / f"{self.run_id}.json"
         tmp = self.registry.with_suffix(".tmp")
-        tmp.write_text(json.dumps({
-            "run_id": self.run_id, "pid": os.getpid(), "file": f"dockhil bag play {path}",
-            "clock": "sim" if sim else "wall", "keys": str(self.key_file),
-            "nodes": {"bag-play": {"type": "bag play", "pid": os.getpid()}},
-            "topics": {t: {"type": topics[t], "endpoint": p.endpoint, "publisher": "bag-play"}
-                       for t, p in self.pubs.items()},
-        }, indent=1))
+        tmp.write_text(
+            json.dumps(
+                {
+                    "run_id": self.run_id,
+                    "pid": os.getpid(),
+                    "file": f"dockhil bag play {path}",
+                    "clock": "sim" if sim else "wall",
+                    "keys": str(self.key_file),
+                    "nodes": {"bag-play": {"type": "bag play", "pid": os.getpid()}},
+                    "topics": {
+                        t: {"type": topics[t], "endpoint": p.endpoint, "publisher": "bag-play"}
+                        for t, p in self.pubs.items()
+                    },
+                },
+                indent=1,
+            )
+        )
         tmp.replace(self.registry)
 
     def wait_subscribers(self, n: int, stop) -> bool:
@@ -619,8 +675,11 @@ class _Player:
                 return False
             if hint_at is not None and time.monotonic() > hint_at:
                 hint_at = None
-                _play_log(f"still waiting for {short[0]}" + (f" and {len(short) - 1} more" if len(short) > 1 else "")
-                     + "; to play fewer topics give --topics, to wait for fewer subscribers --subscribers")
+                _play_log(
+                    f"still waiting for {short[0]}"
+                    + (f" and {len(short) - 1} more" if len(short) > 1 else "")
+                    + "; to play fewer topics give --topics, to wait for fewer subscribers --subscribers"
+                )
             for topic in short:
                 # A subscription is a frame starting with 1 (XPUB_VERBOSE). Unlike a graph's
                 # publishers, a player counts observers (`topic echo`) too: they may be its audience.
@@ -662,7 +721,9 @@ def play(args: argparse.Namespace) -> int:
     first_s = min(t["first"] for t in found["topics"] if t["count"])
     last_s = max(t["last"] for t in found["topics"] if t["topic"] in topics and t["count"])
     if first_s + args.start > last_s:
-        raise BagError(f"{args.path}: no message after --start {args.start:g} s; the bag lasts {found['duration_s']:.3f} s")
+        raise BagError(
+            f"{args.path}: no message after --start {args.start:g} s; the bag lasts {found['duration_s']:.3f} s"
+        )
     start_ns = None if args.start == 0 else int(round(first_s * 1e9)) + int(round(args.start * 1e9))
     sim = args.sim_time
     wait_for = getattr(args, "subscribers", None)

@@ -13,13 +13,30 @@ from typing import Any, Iterable, Iterator
 
 import msgspec
 
-from dockhil.bags.format import (MAGIC, MESSAGE_HEAD, READ_ENCODINGS, RECORD_HEAD, U64_MAX, BagError, BagMessage,
-                                 LostRegion, loss_line)
+from dockhil.bags.format import (
+    MAGIC,
+    MESSAGE_HEAD,
+    READ_ENCODINGS,
+    RECORD_HEAD,
+    U64_MAX,
+    BagError,
+    BagMessage,
+    LostRegion,
+    loss_line,
+)
 from dockhil.files import os_reason
 
 # MCAP opcodes (spec "Records"); 0x80-0xFF are reserved for user records.
 _HEADER, _FOOTER, _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _MESSAGE_INDEX, _METADATA, _DATA_END = (
-    0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x0C, 0x0F
+    0x01,
+    0x02,
+    0x03,
+    0x04,
+    0x05,
+    0x06,
+    0x07,
+    0x0C,
+    0x0F,
 )
 _KNOWN_OPCODES = frozenset(range(0x01, 0x10))
 # Where a damaged stretch may end: an MCAP opcode, then a length below 2**40 (its top

@@ -68,14 +68,36 @@ PACKAGE = "dockhil_msgs"
 
 # name -> (struct format, size); byte and char are uint8 in ROS 2.
 _PRIMITIVES = {
-    "bool": ("?", 1), "byte": ("B", 1), "char": ("B", 1), "int8": ("b", 1), "uint8": ("B", 1),
-    "int16": ("h", 2), "uint16": ("H", 2), "int32": ("i", 4), "uint32": ("I", 4),
-    "int64": ("q", 8), "uint64": ("Q", 8), "float32": ("f", 4), "float64": ("d", 8),
+    "bool": ("?", 1),
+    "byte": ("B", 1),
+    "char": ("B", 1),
+    "int8": ("b", 1),
+    "uint8": ("B", 1),
+    "int16": ("h", 2),
+    "uint16": ("H", 2),
+    "int32": ("i", 4),
+    "uint32": ("I", 4),
+    "int64": ("q", 8),
+    "uint64": ("Q", 8),
+    "float32": ("f", 4),
+    "float64": ("d", 8),
 }
 # Type ids of the type description (REP 2011), for the RIHS01 type hash; + 144 for a sequence.
 _TYPE_IDS = {
-    "int8": 2, "uint8": 3, "int16": 4, "uint16": 5, "int32": 6, "uint32": 7, "int64": 8, "uint64": 9,
-    "float32": 10, "float64": 11, "char": 13, "bool": 15, "byte": 16, "string": 17,
+    "int8": 2,
+    "uint8": 3,
+    "int16": 4,
+    "uint16": 5,
+    "int32": 6,
+    "uint32": 7,
+    "int64": 8,
+    "uint64": 9,
+    "float32": 10,
+    "float64": 11,
+    "char": 13,
+    "bool": 15,
+    "byte": 16,
+    "string": 17,
 }
 _NESTED_ID, _SEQUENCE_ID = 1, 144
 _FIELD = re.compile(r"^([A-Za-z][A-Za-z0-9_/]*)(\[\])?\s+([a-z][a-z0-9_]*)(\s+\S.*)?$")
@@ -167,8 +189,17 @@ def type_hash(type_name: str) -> str:
         for field in fields(name):
             nested = "/" in field.type
             type_id = (_NESTED_ID if nested else _TYPE_IDS[field.type]) + (_SEQUENCE_ID if field.sequence else 0)
-            out.append({"name": field.name, "type": {"type_id": type_id, "capacity": 0, "string_capacity": 0,
-                                                     "nested_type_name": field.type if nested else ""}})
+            out.append(
+                {
+                    "name": field.name,
+                    "type": {
+                        "type_id": type_id,
+                        "capacity": 0,
+                        "string_capacity": 0,
+                        "nested_type_name": field.type if nested else "",
+                    },
+                }
+            )
         return {"type_name": name, "fields": out}
 
     description = {
@@ -226,6 +257,7 @@ def _field_encoder(field: Field) -> _Encode:
     if field.type in _PRIMITIVES:
         fmt, size = _PRIMITIVES[field.type]
         if field.sequence:
+
             def encode(buf, value):
                 items = value[name]
                 _pad(buf, 4)
@@ -239,9 +271,11 @@ def _field_encoder(field: Field) -> _Encode:
             def encode(buf, value):
                 _pad(buf, size)
                 buf += pack(value[name])
+
         return encode
     element = _string if field.type == "string" else _encoder(field.type)
     if field.sequence:
+
         def encode(buf, value):
             items = value[name]
             _pad(buf, 4)
@@ -249,8 +283,10 @@ def _field_encoder(field: Field) -> _Encode:
             for item in items:
                 element(buf, item)
     else:
+
         def encode(buf, value):
             element(buf, value[name])
+
     return encode
 
 
@@ -262,10 +298,16 @@ POSE, TWIST = "geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/TwistStamped"
 # Other dockhil types map to dockhil_msgs types of the same name, field for field (lowercased).
 ROS_TOPICS: dict[str, tuple[tuple[str, str, tuple[str, ...]], ...]] = {
     "dockhil/WrenchStamped": (("", "geometry_msgs/msg/WrenchStamped", ("wrench",)),),
-    "dockhil/RobotCommand": (("/pose", POSE, ("pose",)), ("/twist", TWIST, ("twist",)),
-                             ("/enable", f"{PACKAGE}/msg/RobotEnable", ("enable",))),
-    "dockhil/RobotState": (("/pose", POSE, ("pose",)), ("/twist", TWIST, ("twist",)),
-                           ("/status", f"{PACKAGE}/msg/RobotStatus", ("status",))),
+    "dockhil/RobotCommand": (
+        ("/pose", POSE, ("pose",)),
+        ("/twist", TWIST, ("twist",)),
+        ("/enable", f"{PACKAGE}/msg/RobotEnable", ("enable",)),
+    ),
+    "dockhil/RobotState": (
+        ("/pose", POSE, ("pose",)),
+        ("/twist", TWIST, ("twist",)),
+        ("/status", f"{PACKAGE}/msg/RobotStatus", ("status",)),
+    ),
 }
 MAX_STAMP_S = 2**31  # builtin_interfaces/Time has int32 seconds
 
@@ -293,8 +335,11 @@ def ros_header(header) -> dict:
 def ros_value(message, names: tuple[str, ...] | None) -> dict:
     """The value of a ROS message from a dockhil message: its header and the fields `names` (None:
     every field, each under its lowercased name)."""
-    value = {name.lower(): msgspec.to_builtins(getattr(message, name)) for name in
-             (names if names is not None else message.__struct_fields__) if name != "header"}
+    value = {
+        name.lower(): msgspec.to_builtins(getattr(message, name))
+        for name in (names if names is not None else message.__struct_fields__)
+        if name != "header"
+    }
     value["header"] = ros_header(message.header)
     return value
 
@@ -314,8 +359,7 @@ QOS_PROFILES = (
 )
 
 
-def metadata_yaml(file_name: str, start_ns: int, duration_ns: int,
-                  topics: list[tuple[str, str, int]]) -> str:
+def metadata_yaml(file_name: str, start_ns: int, duration_ns: int, topics: list[tuple[str, str, int]]) -> str:
     """rosbag2's metadata.yaml for one MCAP file; topics: (name, type, message count). Written as
     rosbag2 writes it (names and types need no quoting: they are checked ROS names)."""
     count = sum(n for _, _, n in topics)
@@ -354,7 +398,7 @@ def metadata_yaml(file_name: str, start_ns: int, duration_ns: int,
         f"        nanoseconds: {duration_ns}",
         f"      message_count: {count}",
         "  custom_data: ~",
-        "  ros_distro: \"\"",
+        '  ros_distro: ""',
     ]
     return "\n".join(lines) + "\n"
 
@@ -449,8 +493,10 @@ def _write(reader: BagReader, found: dict, directory: str, src: str) -> Ros2Resu
             continue
         for ros_topic, _, _ in targets:
             if ros_topic in owner:
-                raise BagError(f"{src}: topics {owner[ros_topic]} and {topic} would both be the ROS 2 topic "
-                               f"{ros_topic}; rename one before exporting")
+                raise BagError(
+                    f"{src}: topics {owner[ros_topic]} and {topic} would both be the ROS 2 topic "
+                    f"{ros_topic}; rename one before exporting"
+                )
             owner[ros_topic] = topic
         plan[topic] = list(targets)
 
@@ -470,8 +516,11 @@ def _write(reader: BagReader, found: dict, directory: str, src: str) -> Ros2Resu
                 if ros_type not in schemas:
                     schemas[ros_type] = writer.register_schema(ros_type, "ros2msg", schema_text(ros_type).encode())
                 channels[ros_topic] = writer.register_channel(
-                    ros_topic, "cdr", schemas[ros_type],
-                    {"offered_qos_profiles": QOS_PROFILES, "topic_type_hash": type_hash(ros_type)})
+                    ros_topic,
+                    "cdr",
+                    schemas[ros_type],
+                    {"offered_qos_profiles": QOS_PROFILES, "topic_type_hash": type_hash(ros_type)},
+                )
                 counts[ros_topic] = 0
         for topic, type_name, log_ns, publish_ns, data in reader.messages_with_publish_time():
             targets = plan.get(topic)
@@ -479,14 +528,17 @@ def _write(reader: BagReader, found: dict, directory: str, src: str) -> Ros2Resu
                 continue
             try:
                 message = decode(data, TYPES[type_name])
-                encoded = [(ros_topic, serialize(ros_type, ros_value(message, names)))
-                           for ros_topic, ros_type, names in targets]
+                encoded = [
+                    (ros_topic, serialize(ros_type, ros_value(message, names)))
+                    for ros_topic, ros_type, names in targets
+                ]
             except (DecodeError, ValueError, RecursionError):
                 unconvertible += 1
                 continue
             for ros_topic, cdr in encoded:
-                writer.add_message(channels[ros_topic], log_ns, cdr, publish_ns,
-                                   sequence=message.header.seq & 0xFFFFFFFF)
+                writer.add_message(
+                    channels[ros_topic], log_ns, cdr, publish_ns, sequence=message.header.seq & 0xFFFFFFFF
+                )
                 counts[ros_topic] += 1
             converted += 1
             start = log_ns if start is None or log_ns < start else start
@@ -514,10 +566,14 @@ def tell(result: Ros2Result, dst: str, say) -> str:
     for line in result.skipped_topics:
         say.info(f"note: {line}; not exported")
     if result.unconvertible:
-        say.info(f"note: {result.unconvertible} messages do not decode as their type (e.g. a recorded NaN) "
-                 f"or do not fit their ROS 2 type, and were not exported")
-    return (f"{result.converted} messages written to {dst} as {result.messages} ROS 2 messages on "
-            f"{result.topics} topics (rosbag2: mcap, cdr)")
+        say.info(
+            f"note: {result.unconvertible} messages do not decode as their type (e.g. a recorded NaN) "
+            f"or do not fit their ROS 2 type, and were not exported"
+        )
+    return (
+        f"{result.converted} messages written to {dst} as {result.messages} ROS 2 messages on "
+        f"{result.topics} topics (rosbag2: mcap, cdr)"
+    )
 
 
 # ------------------------------------------------------------------ recording as rosbag2
@@ -530,8 +586,10 @@ def recording_path(dst: str, *, overwrite: bool = False) -> str:
     _check_destination("", dst, overwrite)
     path = f"{dst}.recording.mcap"
     if os.path.lexists(path):
-        raise BagError(f"{path} exists (a recording for {dst} that was not converted?): convert it with "
-                       f"'dockhil bag export --ros2 {dst} {path}', or remove it")
+        raise BagError(
+            f"{path} exists (a recording for {dst} that was not converted?): convert it with "
+            f"'dockhil bag export --ros2 {dst} {path}', or remove it"
+        )
     return path
 
 

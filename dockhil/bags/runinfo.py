@@ -36,9 +36,18 @@ def verdict_fields(code: int, reasons: list[str]) -> dict[str, str]:
     elif code >= 128:
         verdict, valid, why = "failed", "false", f"the run was stopped by signal {code - 128} (exit {code})"
     else:
-        verdict, valid, why = "failed", "false", f"a node stopped the graph, or the run could not complete (exit {code})"
-    return {"verdict": verdict, "valid": valid, "exit_code": str(code), "invalid_reasons": json.dumps(list(reasons)),
-            "why": why}
+        verdict, valid, why = (
+            "failed",
+            "false",
+            f"a node stopped the graph, or the run could not complete (exit {code})",
+        )
+    return {
+        "verdict": verdict,
+        "valid": valid,
+        "exit_code": str(code),
+        "invalid_reasons": json.dumps(list(reasons)),
+        "why": why,
+    }
 
 
 def not_told(why: str) -> dict[str, str]:
@@ -51,8 +60,12 @@ def with_loss(verdict: dict[str, str], lost: int) -> dict[str, str]:
     exits 1 then) and says so, whatever it was told."""
     out = dict(verdict, recorder_lost=str(lost))
     if lost:
-        out.update(verdict="failed", valid="false", exit_code="1",
-                   why=f"the recorder lost {lost} message(s): the bag is not the whole run")
+        out.update(
+            verdict="failed",
+            valid="false",
+            exit_code="1",
+            why=f"the recorder lost {lost} message(s): the bag is not the whole run",
+        )
     return out
 
 
@@ -128,8 +141,10 @@ class RunInfo:
         if not self.runs:
             return None
         run = self.run
-        out = {k: run.get(k) for k in ("scene", "description", "dockhil_version", "clock", "start",
-                                        "recorded_by", "joined")}
+        out = {
+            k: run.get(k)
+            for k in ("scene", "description", "dockhil_version", "clock", "start", "recorded_by", "joined")
+        }
         out["args"] = self.args()
         out["args_set"] = self.args("args_set")
         for key in ("rate_hz", "duration_s", "start_ns"):
@@ -140,15 +155,17 @@ class RunInfo:
         out["scene_files"] = sorted(self.texts)
         if len(self.runs) > 1:
             out["other_runs"] = [r.get("scene") for r in self.runs[1:]]
-        out.update(verdict=self.state, valid=self.valid, invalid_reasons=self.reasons, exit_code=self.exit_code(),
-                   why=self.why)
+        out.update(
+            verdict=self.state, valid=self.valid, invalid_reasons=self.reasons, exit_code=self.exit_code(), why=self.why
+        )
         if self.verdict is not None and "recorder_lost" in self.verdict:
             out["recorder_lost"] = int(self.verdict["recorder_lost"] or 0)
         return out
 
 
-OLDER_BAG = ("not recorded (a bag of an older dockhil, or of another writer): its scene, arguments and validity "
-             "are not known")
+OLDER_BAG = (
+    "not recorded (a bag of an older dockhil, or of another writer): its scene, arguments and validity are not known"
+)
 
 
 def info_lines(run: dict | None) -> list[str]:
@@ -160,12 +177,14 @@ def info_lines(run: dict | None) -> list[str]:
     length = f", {run['duration_s']:g} s" if run.get("duration_s") else ""
     changed = " ".join(f"{k}:={v}" for k, v in (run.get("args_set") or {}).items())
     state = run["verdict"] + (f" (exit {run['exit_code']})" if run["verdict"] == "valid" else f": {run['why']}")
-    return [f"run:       {scene} ({run.get('clock') or '?'} time{rate}{length}), dockhil "
-            f"{run.get('dockhil_version') or '?'}, recorded by {run.get('recorded_by') or '?'}",
-            f"started:   {run.get('start') or 'not known'}"
-            + (f" (the recording joined at {run['joined']})" if run.get("joined") else ""),
-            f"args:      {changed or ('(all at their defaults)' if run.get('scene') else 'not known')}",
-            f"validity:  {state}"]
+    return [
+        f"run:       {scene} ({run.get('clock') or '?'} time{rate}{length}), dockhil "
+        f"{run.get('dockhil_version') or '?'}, recorded by {run.get('recorded_by') or '?'}",
+        f"started:   {run.get('start') or 'not known'}"
+        + (f" (the recording joined at {run['joined']})" if run.get("joined") else ""),
+        f"args:      {changed or ('(all at their defaults)' if run.get('scene') else 'not known')}",
+        f"validity:  {state}",
+    ]
 
 
 def read(reader) -> RunInfo:

@@ -69,8 +69,9 @@ class ExportResult(NamedTuple):
     loss: str | None  # the one line on what was unreadable or unfinished (see loss_line)
 
 
-def export_csv(path: str | os.PathLike, topic: str, out: str | os.PathLike | IO[str], *,
-               overwrite: bool = False) -> ExportResult:
+def export_csv(
+    path: str | os.PathLike, topic: str, out: str | os.PathLike | IO[str], *, overwrite: bool = False
+) -> ExportResult:
     """Write one CSV row per message on `topic`: log_time_ns, then the flattened fields.
 
     A file `out` appears only when complete (written aside, then renamed); an

@@ -55,8 +55,7 @@ from typing import IO, Any
 
 import msgspec
 
-from dockhil.bags.format import (COMPRESSIONS, MESSAGE_ENCODING, MESSAGE_HEAD, SCHEMA_ENCODING, U64_MAX,
-                                 BagError)
+from dockhil.bags.format import COMPRESSIONS, MESSAGE_ENCODING, MESSAGE_HEAD, SCHEMA_ENCODING, U64_MAX, BagError
 from dockhil.files import os_reason
 
 # Size of a message record in a chunk besides its data: opcode, length, MESSAGE_HEAD.
@@ -187,7 +186,9 @@ class BagWriter:
         except TypeError:
             log_time_ns = -1
         if not (0 <= log_time_ns <= U64_MAX and 0 <= publish_time_ns <= U64_MAX):
-            raise BagError(f"bag {self.path}: topic {topic}: times must be integer ns in [0, 2**64), got {log_time_ns!r}")
+            raise BagError(
+                f"bag {self.path}: topic {topic}: times must be integer ns in [0, 2**64), got {log_time_ns!r}"
+            )
         try:
             data = self._to_json(self._from_wire(data))
         except (msgspec.DecodeError, msgspec.EncodeError, TypeError, ValueError, RecursionError):
@@ -296,7 +297,7 @@ def channel_schema(cls: type) -> dict:
             return node
         ref = node.get("$ref")
         if isinstance(ref, str) and ref.startswith("#/$defs/"):
-            name = ref[len("#/$defs/"):]
+            name = ref[len("#/$defs/") :]
             siblings = {k: inline(v, path) for k, v in node.items() if k not in ("$ref", "$defs")}
             if name in path:  # recursion: leave a reference
                 kept[name] = True

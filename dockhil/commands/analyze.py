@@ -16,21 +16,36 @@ def add_arguments(p) -> None:
     import argparse
 
     p.formatter_class = argparse.RawDescriptionHelpFormatter
-    p.description = ("The summary of a recorded run, sim or lab, from its bag alone: the scene and launch "
-                     "arguments the bag records rebuild the graph, and the launch's summary code gives the same "
-                     "numbers (peak force, duration, entry and exit velocity, restitution against the scene's "
-                     "ideal contact, the energy account); the validity is the one recorded. A bag of an older "
-                     "dockhil holds no scene: name it with --scene, or the ideal contact with --kcs --bcs ...")
+    p.description = (
+        "The summary of a recorded run, sim or lab, from its bag alone: the scene and launch "
+        "arguments the bag records rebuild the graph, and the launch's summary code gives the same "
+        "numbers (peak force, duration, entry and exit velocity, restitution against the scene's "
+        "ideal contact, the energy account); the validity is the one recorded. A bag of an older "
+        "dockhil holds no scene: name it with --scene, or the ideal contact with --kcs --bcs ..."
+    )
     p.epilog = EXIT_STATUS
     p.add_argument("bag", metavar="RUN.mcap", help="a bag recorded by dockhil launch --bag (or dockhil bag record)")
-    p.add_argument("overrides", nargs="*", metavar="name:=value",
-                   help="launch arguments over the recorded ones (or those of --scene)")
+    p.add_argument(
+        "overrides",
+        nargs="*",
+        metavar="name:=value",
+        help="launch arguments over the recorded ones (or those of --scene)",
+    )
     p.add_argument("--scene", metavar="FILE", help="the scene the run ran, for a bag that does not record it")
-    for name, unit, what in (("kcs", "N/m", "ideal contact stiffness"), ("bcs", "N s/m", "ideal contact damping"),
-                             ("m1", "kg", "chaser mass"), ("m2", "kg", "target mass"),
-                             ("v1", "m/s", "chaser velocity at contact"), ("v2", "m/s", "target velocity at contact")):
-        p.add_argument(f"--{name}", type=float if name in ("v1", "v2") else nonnegative, metavar="X",
-                       help=f"{what} [{unit}] (the same as {name}:=X)")
+    for name, unit, what in (
+        ("kcs", "N/m", "ideal contact stiffness"),
+        ("bcs", "N s/m", "ideal contact damping"),
+        ("m1", "kg", "chaser mass"),
+        ("m2", "kg", "target mass"),
+        ("v1", "m/s", "chaser velocity at contact"),
+        ("v2", "m/s", "target velocity at contact"),
+    ):
+        p.add_argument(
+            f"--{name}",
+            type=float if name in ("v1", "v2") else nonnegative,
+            metavar="X",
+            help=f"{what} [{unit}] (the same as {name}:=X)",
+        )
     p.add_argument("--png", metavar="DIR", help="write the run's figures to this folder")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
 
@@ -48,7 +63,9 @@ def run(args) -> int:
         value = getattr(args, name)
         if value is not None:
             if name in overrides:
-                raise DockhilError(f"{name} is given twice (--{name} {value:g}, {name}:={overrides[name]}); give it once")
+                raise DockhilError(
+                    f"{name} is given twice (--{name} {value:g}, {name}:={overrides[name]}); give it once"
+                )
             overrides[name] = value
     a = analyze(args.bag, args.scene, overrides)
     written = figures(a, args.bag, args.png) if args.png else []

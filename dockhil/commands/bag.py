@@ -49,11 +49,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out.add_argument("--csv", metavar="OUT", help="CSV file to write ('-' for standard output)")
     out.add_argument("--ros2", metavar="DIR", help="rosbag2 bag (a folder) to create from every topic")
     out.add_argument("--foxglove", metavar="OUT", help="MCAP bag to create: the bag with /tf and /scene added")
-    p.add_argument("--scene", nargs="+", metavar=("FILE", "name:=value"),
-                   help="--foxglove: the launch file (and arguments) the bag was recorded from, for where the "
-                        "interfaces are mounted (default: the shipped scenes' mounting)")
-    p.add_argument("--overwrite", action="store_true",
-                   help="replace OUT, or DIR if it is a rosbag2 bag, if it exists (default: refuse)")
+    p.add_argument(
+        "--scene",
+        nargs="+",
+        metavar=("FILE", "name:=value"),
+        help="--foxglove: the launch file (and arguments) the bag was recorded from, for where the "
+        "interfaces are mounted (default: the shipped scenes' mounting)",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace OUT, or DIR if it is a rosbag2 bag, if it exists (default: refuse)",
+    )
 
     p = sub.add_parser(
         "convert",
@@ -86,31 +93,49 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "and a recorded run is reproduced exactly.",
     )
     p.add_argument("path", metavar="PATH", help="MCAP bag file")
-    p.add_argument("--rate", type=_positive_float, default=1.0, metavar="R",
-                   help="playback speed factor in wall time (default 1.0; 10 plays 60 s in 6 s)")
+    p.add_argument(
+        "--rate",
+        type=_positive_float,
+        default=1.0,
+        metavar="R",
+        help="playback speed factor in wall time (default 1.0; 10 plays 60 s in 6 s)",
+    )
     p.add_argument("--loop", action="store_true", help="start again from the beginning at the end")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to play (default: all)")
-    p.add_argument("--start", type=_non_negative_float, default=0.0, metavar="S",
-                   help="skip the first S seconds of the bag (default 0)")
-    p.add_argument("--sim-time", action="store_true",
-                   help="drive sim-time ticks from the bag's stamps instead of the wall clock")
-    p.add_argument("--subscribers", type=_non_negative_int, metavar="N",
-                   help="wait until each topic has N subscribers before playing "
-                        "(default 1 with --sim-time, 0 in wall time)")
+    p.add_argument(
+        "--start",
+        type=_non_negative_float,
+        default=0.0,
+        metavar="S",
+        help="skip the first S seconds of the bag (default 0)",
+    )
+    p.add_argument(
+        "--sim-time", action="store_true", help="drive sim-time ticks from the bag's stamps instead of the wall clock"
+    )
+    p.add_argument(
+        "--subscribers",
+        type=_non_negative_int,
+        metavar="N",
+        help="wait until each topic has N subscribers before playing (default 1 with --sim-time, 0 in wall time)",
+    )
     log.add_arguments(p)
 
 
 def add_bag_format(p: argparse.ArgumentParser, path: str) -> None:
     """--bag-format, of `bag record` and `launch`."""
-    p.add_argument("--bag-format", choices=("mcap", "ros2"), default="mcap",
-                   help=f"mcap: a dockhil bag (default); ros2: a rosbag2 bag, {path} a folder (recorded as "
-                        f"{path}.recording.mcap, converted when recording ends, as 'bag export --ros2' does)")
+    p.add_argument(
+        "--bag-format",
+        choices=("mcap", "ros2"),
+        default="mcap",
+        help=f"mcap: a dockhil bag (default); ros2: a rosbag2 bag, {path} a folder (recorded as "
+        f"{path}.recording.mcap, converted when recording ends, as 'bag export --ros2' does)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
-    return {"info": _info, "export": _export, "convert": _convert, "record": _record, "play": _play}[
-        args.bag_command
-    ](args)
+    return {"info": _info, "export": _export, "convert": _convert, "record": _record, "play": _play}[args.bag_command](
+        args
+    )
 
 
 def _info(args: argparse.Namespace) -> int:
@@ -238,8 +263,9 @@ def _convert(args: argparse.Namespace) -> int:
     if result.loss:
         log.Log("dockhil bag convert:").warning(result.loss)
     if result.unencodable:
-        log.Log("dockhil bag convert:").info(f"note: {result.unencodable} messages are not msgpack and were not "
-                                             f"converted")
+        log.Log("dockhil bag convert:").info(
+            f"note: {result.unencodable} messages are not msgpack and were not converted"
+        )
     print(f"{result.messages} messages written to {args.out} (json)")
     return 0
 

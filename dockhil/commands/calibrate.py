@@ -13,8 +13,17 @@ import tempfile
 from dockhil.errors import DockhilError, LaunchError
 
 # Node types of the simulated loop: left out of the identification graph (it drives the hardware alone).
-_SIMULATED = {"satellite_dynamics", "satellite_dynamics6", "virtual_impedance", "virtual_impedance6",
-              "delay_injector", "robot_sim", "robot_sim6", "ft_sim", "ft_sim6"}
+_SIMULATED = {
+    "satellite_dynamics",
+    "satellite_dynamics6",
+    "virtual_impedance",
+    "virtual_impedance6",
+    "delay_injector",
+    "robot_sim",
+    "robot_sim6",
+    "ft_sim",
+    "ft_sim6",
+}
 _START_S = 5.0  # s: the devices' setup and the first pose and force, beyond the profile's own length
 _LOOP_ARGS = ("delay", "lag", "k", "ft_noise")  # what a loop file sets in a scene
 
@@ -23,26 +32,38 @@ def add_arguments(p) -> None:
     import argparse
 
     p.formatter_class = argparse.RawDescriptionHelpFormatter
-    p.description = ("Identify the real HIL loop on the scene's hardware: the F/T sensor's bias and noise at rest,\n"
-                     "the robot's delay and lag from small steps and a chirp in free space, the passive\n"
-                     "compliance's stiffness and damping from a slow press to a fraction of max_force. The\n"
-                     "scene's safety limits stay in force. Writes LOOP.yaml, which a scene takes as loop:=LOOP.yaml.")
-    p.epilog = ("examples:\n"
-                "  dockhil calibrate hil.yaml ft:=can robot:=modbus --out loop.yaml\n"
-                "  dockhil calibrate hil.yaml ft:=can robot:=modbus emulators:=true --out loop.yaml --json\n"
-                "  dockhil calibrate --bag run.mcap --out loop.yaml      # from a recorded identification run\n"
-                "  dockhil launch hil.yaml loop:=loop.yaml               # the scene at the identified loop\n"
-                "exit status: 0 identified; 1 the run stopped (a safety stop, no contact found); 2 bad input or\n"
-                "a fit that is no measurement (nothing written); 3 the run fell behind real time")
+    p.description = (
+        "Identify the real HIL loop on the scene's hardware: the F/T sensor's bias and noise at rest,\n"
+        "the robot's delay and lag from small steps and a chirp in free space, the passive\n"
+        "compliance's stiffness and damping from a slow press to a fraction of max_force. The\n"
+        "scene's safety limits stay in force. Writes LOOP.yaml, which a scene takes as loop:=LOOP.yaml."
+    )
+    p.epilog = (
+        "examples:\n"
+        "  dockhil calibrate hil.yaml ft:=can robot:=modbus --out loop.yaml\n"
+        "  dockhil calibrate hil.yaml ft:=can robot:=modbus emulators:=true --out loop.yaml --json\n"
+        "  dockhil calibrate --bag run.mcap --out loop.yaml      # from a recorded identification run\n"
+        "  dockhil launch hil.yaml loop:=loop.yaml               # the scene at the identified loop\n"
+        "exit status: 0 identified; 1 the run stopped (a safety stop, no contact found); 2 bad input or\n"
+        "a fit that is no measurement (nothing written); 3 the run fell behind real time"
+    )
     p.add_argument("scene", nargs="?", help="launch file with the hardware (robot and F/T drivers, or emulators)")
     p.add_argument("overrides", nargs="*", metavar="name:=value", help="launch arguments of the scene")
     p.add_argument("--out", metavar="LOOP.yaml", help="write the identified loop here (a scene's loop:=)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    p.add_argument("--bag", metavar="RUN.mcap", help="identify from this recorded run instead of running one "
-                   "(the stability verdict is then for SCENE, default hil.yaml)")
+    p.add_argument(
+        "--bag",
+        metavar="RUN.mcap",
+        help="identify from this recorded run instead of running one "
+        "(the stability verdict is then for SCENE, default hil.yaml)",
+    )
     p.add_argument("--bag-out", metavar="PATH", help="keep the live run's recording here")
-    p.add_argument("--realtime", action="store_true", help="run the node loops with real-time (SCHED_FIFO) "
-                   "priority where the OS allows: a busy machine's lateness would count as delay")
+    p.add_argument(
+        "--realtime",
+        action="store_true",
+        help="run the node loops with real-time (SCHED_FIFO) "
+        "priority where the OS allows: a busy machine's lateness would count as delay",
+    )
 
 
 def run(args) -> int:
@@ -76,8 +97,10 @@ def run(args) -> int:
     else:
         _print_table(out, scene.path)
     if code != 0:
-        say.error(f"the identification run fell behind real time (INVALID, exit {code}): its delays include "
-                  f"that lateness; nothing written: run it again on a quieter machine")
+        say.error(
+            f"the identification run fell behind real time (INVALID, exit {code}): its delays include "
+            f"that lateness; nothing written: run it again on a quieter machine"
+        )
     elif args.out is not None:
         _write_loop(args.out, out, scene.path)
         say.info(f"loop written to {args.out} (a scene takes it as loop:={args.out})")
@@ -120,8 +143,10 @@ def calibration_scene(scene):
         if type_name in _SIMULATED:
             continue
         if type_name == "bag_source":
-            raise LaunchError(f"{scene.path}: node {spec.name!r} replays a recording; calibrate identifies live "
-                              f"hardware: give the scene its F/T driver (e.g. ft:=can)")
+            raise LaunchError(
+                f"{scene.path}: node {spec.name!r} replays a recording; calibrate identifies live "
+                f"hardware: give the scene its F/T driver (e.g. ft:=can)"
+            )
         outs = {o.topic for o in cls.outputs.values()}
         if cls.moves_hardware:
             robot = params
@@ -130,15 +155,22 @@ def calibration_scene(scene):
             if "tare_samples" in cls.params:  # the bias is measured, not tared away
                 spec = dataclasses.replace(spec, params={**spec.params, "tare_samples": 0})
         kept.append(spec)
-    missing = [(what, arg) for what, arg, found in (("robot", "robot:=modbus", robot),
-                                                     ("F/T sensor", "ft:=can", sensor)) if found is None]
+    missing = [
+        (what, arg)
+        for what, arg, found in (("robot", "robot:=modbus", robot), ("F/T sensor", "ft:=can", sensor))
+        if found is None
+    ]
     if missing:
-        raise LaunchError(f"{scene.path}: the scene's {' and '.join(w for w, _ in missing)} "
-                          f"{'are' if len(missing) > 1 else 'is'} simulated; calibrate identifies hardware: give "
-                          f"{' '.join(a for _, a in missing)} (with emulators:=true to try it on the emulators)")
+        raise LaunchError(
+            f"{scene.path}: the scene's {' and '.join(w for w, _ in missing)} "
+            f"{'are' if len(missing) > 1 else 'is'} simulated; calibrate identifies hardware: give "
+            f"{' '.join(a for _, a in missing)} (with emulators:=true to try it on the emulators)"
+        )
     if not robot.get("max_force"):
-        raise LaunchError(f"{scene.path}: the robot driver's max_force is 0 (off); calibrate presses only under a "
-                          f"force limit: give one")
+        raise LaunchError(
+            f"{scene.path}: the robot driver's max_force is 0 (off); calibrate presses only under a "
+            f"force limit: give one"
+        )
     params = {"max_speed": robot["max_speed"] or 0.1, "max_force": robot["max_force"], "x_max": robot["x_max"]}
     ident = NodeSpec("identification", "identification", params, {}, "dockhil calibrate")
     duration = Identification.duration(params) + _START_S
@@ -158,8 +190,9 @@ def _live(scene, bag_out: str | None, realtime: bool, say):
         bag = os.path.join(tmp.name, "identification.mcap")
     try:
         say.info(f"identification run on {scene.path}: at most {calib.duration:.0f} s; keep clear of the robot")
-        code = run_scene(graph, clock="wall", duration=calib.duration, bag=bag, progress=False,
-                         show_summary=False, realtime=realtime)
+        code = run_scene(
+            graph, clock="wall", duration=calib.duration, bag=bag, progress=False, show_summary=False, realtime=realtime
+        )
         if code not in (0, 3):
             return code, None
         return code, _identify(bag)
@@ -181,8 +214,11 @@ def _verdict(scene, cal) -> dict:
         elif type_name == "virtual_impedance":
             values["kcs"], values["bcs"] = params["kcs"], params["bcs"]
     if len(values) < 4:
-        return {"stable": None, "kcs_max_N_per_m": None,
-                "verdict": {"reason": f"{scene.path} has no 1-DOF dynamics and impedance to judge the loop for"}}
+        return {
+            "stable": None,
+            "kcs_max_N_per_m": None,
+            "verdict": {"reason": f"{scene.path} has no 1-DOF dynamics and impedance to judge the loop for"},
+        }
     m1, m2 = values["m1"], values["m2"]
     m = m1 if m2 == 0.0 else m1 * m2 / (m1 + m2)
     v = calibration.verdict(cal, m, values["kcs"], values["bcs"])
@@ -217,14 +253,18 @@ def _print_table(r: dict, scene: str) -> None:
     if "m_kg" not in v:
         print(f"  stability: {v['reason']}")
         return
-    print(f"stability of m s^2 + (K + b s) e^(-sh) = 0 at m = {v['m_kg']:.6g} kg, b = bcs = {v['bcs_Ns_per_m']:g} "
-          f"N s/m, h = delay + lag = {v['h_s'] * 1e3:.4g} ms:")
+    print(
+        f"stability of m s^2 + (K + b s) e^(-sh) = 0 at m = {v['m_kg']:.6g} kg, b = bcs = {v['bcs_Ns_per_m']:g} "
+        f"N s/m, h = delay + lag = {v['h_s'] * 1e3:.4g} ms:"
+    )
     if v["kcs_max_N_per_m"] is None:
         print(f"  {v['reason']}")
     else:
         print(f"  {'largest stable kcs (exact bound)':36} {v['kcs_max_N_per_m']:.6g} N/m")
-        print(f"  {'the scene kcs':36} {v['kcs_N_per_m']:g} N/m: {'stable' if v['stable'] else 'UNSTABLE'}, "
-              f"margin {v['margin']:.3g}x")
+        print(
+            f"  {'the scene kcs':36} {v['kcs_N_per_m']:g} N/m: {'stable' if v['stable'] else 'UNSTABLE'}, "
+            f"margin {v['margin']:.3g}x"
+        )
     if not r["run_valid"]:
         print("  the run fell behind real time: the delay includes that lateness")
 
@@ -233,12 +273,17 @@ def _write_loop(path: str, r: dict, scene: str) -> None:
     from dockhil.files import complete_or_nothing
 
     values = {"delay": r["delay_s"], "lag": r["lag_s"], "k": r["k_N_per_m"], "ft_noise": r["noise_N"][0]}
-    lines = [f"# the loop identified by dockhil calibrate on {scene}",
-             f"# a scene takes it as loop:={os.path.basename(path)}; a name:=value on the command line wins", "args:"]
+    lines = [
+        f"# the loop identified by dockhil calibrate on {scene}",
+        f"# a scene takes it as loop:={os.path.basename(path)}; a name:=value on the command line wins",
+        "args:",
+    ]
     lines += [f"  {name}: {values[name]!r}" for name in _LOOP_ARGS]
-    lines += ["# the sensor's tare and what else was measured, with one-sigma uncertainties",
-              f"tare: {json.dumps({'force_N': r['bias_N'], 'torque_Nm': r['bias_Nm']})}",
-              f"calibration: {json.dumps({k: v for k, v in r.items() if k not in ('verdict',)})}",
-              f"verdict: {json.dumps(r['verdict'])}"]
+    lines += [
+        "# the sensor's tare and what else was measured, with one-sigma uncertainties",
+        f"tare: {json.dumps({'force_N': r['bias_N'], 'torque_Nm': r['bias_Nm']})}",
+        f"calibration: {json.dumps({k: v for k, v in r.items() if k not in ('verdict',)})}",
+        f"verdict: {json.dumps(r['verdict'])}",
+    ]
     with complete_or_nothing(path) as part, open(part, "w") as f:
         f.write("\n".join(lines) + "\n")

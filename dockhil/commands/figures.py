@@ -10,9 +10,16 @@ from dockhil.errors import DockhilError
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--out", default="figures", metavar="DIR", help="folder for the PNGs and figures.json (default: figures)")
-    p.add_argument("--delay", type=float, default=0.032, metavar="S",
-                   help="robot delay for Figs. 9-10 and the 6-DOF docking [s] (default 0.032)")
+    p.add_argument(
+        "--out", default="figures", metavar="DIR", help="folder for the PNGs and figures.json (default: figures)"
+    )
+    p.add_argument(
+        "--delay",
+        type=float,
+        default=0.032,
+        metavar="S",
+        help="robot delay for Figs. 9-10 and the 6-DOF docking [s] (default 0.032)",
+    )
 
 
 def run(args) -> int:
@@ -29,15 +36,23 @@ def run(args) -> int:
         json.dump(numbers, f, indent=1)
     m = numbers["fig9"]
     delayed = next(k for k in m if "delay" in k and k != "hybrid, no delay")
-    print(f"Fig. 9: peak force ideal {m['ideal']['peak_force_N']:.3f} N, hybrid {m['hybrid, no delay']['peak_force_N']:.3f} N, "
-          f"{delayed} {m[delayed]['peak_force_N']:.3f} N")
+    print(
+        f"Fig. 9: peak force ideal {m['ideal']['peak_force_N']:.3f} N, hybrid {m['hybrid, no delay']['peak_force_N']:.3f} N, "
+        f"{delayed} {m[delayed]['peak_force_N']:.3f} N"
+    )
     for c in numbers["fig11_12"]:
-        print(f"Figs. 11-12: b = {c['b_N_s_per_m']:g}: growth {c['growth_rate_1_s']:+.5f} 1/s, "
-              f"sampled loop's root {c['predicted_growth_rate_1_s']:+.5f} 1/s (delay equation "
-              f"{c['delay_equation_growth_rate_1_s']:+.5f} 1/s), Eq. 12 bound {c['eq12_bound_N_per_m']:.1f} N/m")
+        print(
+            f"Figs. 11-12: b = {c['b_N_s_per_m']:g}: growth {c['growth_rate_1_s']:+.5f} 1/s, "
+            f"sampled loop's root {c['predicted_growth_rate_1_s']:+.5f} 1/s (delay equation "
+            f"{c['delay_equation_growth_rate_1_s']:+.5f} 1/s), Eq. 12 bound {c['eq12_bound_N_per_m']:.1f} N/m"
+        )
     six = numbers["sixdof"]
-    print(f"6-DOF (hil6.yaml): peak |F| {six['peak_force_N']:.3f} N (ideal {six['ideal']['peak_force_N']:.3f} N), "
-          f"peak |T| {six['peak_torque_Nm']:.3f} N m (ideal {six['ideal']['peak_torque_Nm']:.3f} N m)")
-    print(f"wrote fig7.png, fig9.png, fig10.png, fig11_12.png, sixdof.png (from sixdof.mcap) and figures.json"
-          f" to {args.out}")
+    print(
+        f"6-DOF (hil6.yaml): peak |F| {six['peak_force_N']:.3f} N (ideal {six['ideal']['peak_force_N']:.3f} N), "
+        f"peak |T| {six['peak_torque_Nm']:.3f} N m (ideal {six['ideal']['peak_torque_Nm']:.3f} N m)"
+    )
+    print(
+        f"wrote fig7.png, fig9.png, fig10.png, fig11_12.png, sixdof.png (from sixdof.mcap) and figures.json"
+        f" to {args.out}"
+    )
     return 0

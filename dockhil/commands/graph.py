@@ -40,8 +40,11 @@ def run(args) -> int:
 
 def to_text(graph) -> str:
     scene = graph.scene
-    lines = [f"{scene.path}: {scene.description}".rstrip(": "),
-             f"rate {scene.rate:g} Hz (step {scene.dt:g} s)" + (f", duration {scene.duration:g} s" if scene.duration else "")]
+    lines = [
+        f"{scene.path}: {scene.description}".rstrip(": "),
+        f"rate {scene.rate:g} Hz (step {scene.dt:g} s)"
+        + (f", duration {scene.duration:g} s" if scene.duration else ""),
+    ]
     if scene.args:
         lines.append("args:")
         for name, spec in scene.args.items():
@@ -73,7 +76,9 @@ def to_text(graph) -> str:
 
     units = processes(graph)
     lines.append(f"processes ({len(units)}):")
-    lines += [f"  {name}: {', '.join(members)}" if members != [name] else f"  {name}" for name, members in units.items()]
+    lines += [
+        f"  {name}: {', '.join(members)}" if members != [name] else f"  {name}" for name, members in units.items()
+    ]
     if scene.skipped:
         lines.append("left out by conditions:")
         for s in scene.skipped:

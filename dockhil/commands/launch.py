@@ -27,36 +27,73 @@ def add_arguments(p) -> None:
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = EXIT_STATUS
     p.add_argument("file", nargs="?", help="launch file (YAML), e.g. launch/hil.yaml")
-    p.add_argument("overrides", nargs="*", metavar="name:=value",
-                   help="launch arguments, ROS 2 style (see 'dockhil graph FILE' for the list)")
+    p.add_argument(
+        "overrides",
+        nargs="*",
+        metavar="name:=value",
+        help="launch arguments, ROS 2 style (see 'dockhil graph FILE' for the list)",
+    )
     clock = p.add_mutually_exclusive_group()
-    clock.add_argument("--sim-time", dest="clock", action="store_const", const="sim",
-                       help="lock-step ticks, deterministic, as fast as possible (default)")
-    clock.add_argument("--wall-time", dest="clock", action="store_const", const="wall",
-                       help="fixed rate in real time, for hardware")
+    clock.add_argument(
+        "--sim-time",
+        dest="clock",
+        action="store_const",
+        const="sim",
+        help="lock-step ticks, deterministic, as fast as possible (default)",
+    )
+    clock.add_argument(
+        "--wall-time", dest="clock", action="store_const", const="wall", help="fixed rate in real time, for hardware"
+    )
     p.set_defaults(clock="sim")
-    p.add_argument("--duration", type=seconds, metavar="S",
-                   help="simulated (or wall) seconds to run; default: the file's `duration`")
-    p.add_argument("--max-age", type=max_age_setting, action="append", default=[], metavar="NODE.INPUT=SECONDS",
-                   help="wall time: how old an input's latest message may be, over the launch file's "
-                        "(> 0, at most 600 s, or inf for no limit; repeatable)")
-    p.add_argument("--composed", action="store_true",
-                   help="run every node in this one process (same schedule, same results)")
-    p.add_argument("--transport", choices=("ipc", "tcp"), default="ipc",
-                   help="ipc sockets on one host (default) or tcp on 127.0.0.1")
+    p.add_argument(
+        "--duration",
+        type=seconds,
+        metavar="S",
+        help="simulated (or wall) seconds to run; default: the file's `duration`",
+    )
+    p.add_argument(
+        "--max-age",
+        type=max_age_setting,
+        action="append",
+        default=[],
+        metavar="NODE.INPUT=SECONDS",
+        help="wall time: how old an input's latest message may be, over the launch file's "
+        "(> 0, at most 600 s, or inf for no limit; repeatable)",
+    )
+    p.add_argument(
+        "--composed", action="store_true", help="run every node in this one process (same schedule, same results)"
+    )
+    p.add_argument(
+        "--transport",
+        choices=("ipc", "tcp"),
+        default="ipc",
+        help="ipc sockets on one host (default) or tcp on 127.0.0.1",
+    )
     p.add_argument("--bag", metavar="PATH", help="record every topic to this MCAP bag")
     from dockhil.commands.bag import add_bag_format
 
     add_bag_format(p, "--bag PATH")
     p.add_argument("--summary", metavar="FILE.json", help="write the run summary (peak force, contact duration, ...)")
     p.add_argument("--quiet", action="store_true", help="print no progress and no summary table")
-    p.add_argument("--realtime", action="store_true",
-                   help="wall time: run node loops with real-time (SCHED_FIFO) priority where the OS allows")
-    p.add_argument("--foxglove", nargs="?", const=8765, type=_port, metavar="PORT",
-                   help="serve every topic live to Foxglove over WebSocket on PORT (default 8765); "
-                        "layout: dockhil foxglove layout > layout.json")
-    p.add_argument("--foxglove-host", metavar="HOST",
-                   help="address the Foxglove server binds (default 127.0.0.1: this machine only)")
+    p.add_argument(
+        "--realtime",
+        action="store_true",
+        help="wall time: run node loops with real-time (SCHED_FIFO) priority where the OS allows",
+    )
+    p.add_argument(
+        "--foxglove",
+        nargs="?",
+        const=8765,
+        type=_port,
+        metavar="PORT",
+        help="serve every topic live to Foxglove over WebSocket on PORT (default 8765); "
+        "layout: dockhil foxglove layout > layout.json",
+    )
+    p.add_argument(
+        "--foxglove-host",
+        metavar="HOST",
+        help="address the Foxglove server binds (default 127.0.0.1: this machine only)",
+    )
     log.add_arguments(p)
 
 
@@ -64,8 +101,10 @@ def _port(text: str) -> int:
     import argparse
 
     if not text.isdigit() or not 1 <= int(text) <= 65535:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a port number (1-65535); "
-                                         f"give --foxglove PORT, or put --foxglove after the launch arguments")
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a port number (1-65535); "
+            f"give --foxglove PORT, or put --foxglove after the launch arguments"
+        )
     return int(text)
 
 
@@ -88,10 +127,19 @@ def run(args) -> int:
     from dockhil.session import run_scene
 
     def run_with(bag: str | None) -> int:
-        return run_scene(graph, clock=args.clock, duration=duration, composed=args.composed,
-                         transport=args.transport, bag=bag, summary=args.summary,
-                         progress=not args.quiet, show_summary=not args.quiet, realtime=args.realtime,
-                         foxglove=None if args.foxglove is None else (args.foxglove_host or "127.0.0.1", args.foxglove))
+        return run_scene(
+            graph,
+            clock=args.clock,
+            duration=duration,
+            composed=args.composed,
+            transport=args.transport,
+            bag=bag,
+            summary=args.summary,
+            progress=not args.quiet,
+            show_summary=not args.quiet,
+            realtime=args.realtime,
+            foxglove=None if args.foxglove is None else (args.foxglove_host or "127.0.0.1", args.foxglove),
+        )
 
     if args.bag_format == "ros2":  # the recorder writes a dockhil bag, which becomes the rosbag2 bag at the end
         from dockhil.bags.ros2 import record_then_convert

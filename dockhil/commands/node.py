@@ -1,4 +1,5 @@
-"""`dockhil node list`: the nodes of running graphs; `dockhil node types`: the node types\ninstalled (built in, or added by another package through the `dockhil.nodes` entry points)."""
+"""`dockhil node list`: the nodes of running graphs; `dockhil node types`: the node types
+installed (built in, or added by another package through the `dockhil.nodes` entry points)."""
 
 from __future__ import annotations
 
@@ -54,23 +55,37 @@ def _info(name: str, graphs: list[dict], as_json: bool) -> int:
         raise DockhilError("no running graph found; start one with 'dockhil launch FILE'")
     found = [g for g in graphs if name in g.get("graph_nodes", {})]
     if len(found) > 1:
-        raise DockhilError(f"node {name} runs in {len(found)} graphs: {', '.join(g['run_id'] for g in found)}; "
-                           f"choose one with --graph ID")
+        raise DockhilError(
+            f"node {name} runs in {len(found)} graphs: {', '.join(g['run_id'] for g in found)}; "
+            f"choose one with --graph ID"
+        )
     if not found:
         known = sorted({n for g in graphs for n in g.get("graph_nodes", g["nodes"])})
-        raise DockhilError(f"node {name} runs in no running graph{' chosen' if len(graphs) == 1 else ''}; "
-                           f"nodes: {', '.join(known)} (a graph started by an older dockhil does not describe them)")
+        raise DockhilError(
+            f"node {name} runs in no running graph{' chosen' if len(graphs) == 1 else ''}; "
+            f"nodes: {', '.join(known)} (a graph started by an older dockhil does not describe them)"
+        )
     g = found[0]
     n = g["graph_nodes"][name]
     proc = g["nodes"].get(n["process"], {})
     pid = proc.get("pid")
-    out = {"node": name, "graph": g["run_id"], "file": g["file"], "clock": g["clock"], **n, "pid": pid,
-           "state": "running" if _alive(pid) else "on another host" if pid is None else "exited"}
+    out = {
+        "node": name,
+        "graph": g["run_id"],
+        "file": g["file"],
+        "clock": g["clock"],
+        **n,
+        "pid": pid,
+        "state": "running" if _alive(pid) else "on another host" if pid is None else "exited",
+    }
     if as_json:
         print(json.dumps(out))
         return 0
-    shared = f" (container, with {', '.join(m for m in proc.get('members', []) if m != name)})" \
-        if len(proc.get("members", [])) > 1 else ""
+    shared = (
+        f" (container, with {', '.join(m for m in proc.get('members', []) if m != name)})"
+        if len(proc.get("members", [])) > 1
+        else ""
+    )
     print(f"Node: {name}")
     print(f"Type: {n['type']}")
     print(f"Graph: {g['run_id']} ({g['file']}, {g['clock']} time)")

@@ -54,7 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="chaser velocity before contact [m/s] (default 0.03); the result does not depend on it,"
         " but the chaser must close in (v1 > v2)",
     )
-    parser.add_argument("--v2", type=float, default=0.0, metavar="V", help="target velocity before contact [m/s] (default 0)")
+    parser.add_argument(
+        "--v2", type=float, default=0.0, metavar="V", help="target velocity before contact [m/s] (default 0)"
+    )
     parser.add_argument(
         "--t1",
         type=float,
@@ -70,7 +72,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         " step (default), the closed form, a fixed-step method with --dt, or solve_ivp",
     )
     parser.add_argument(
-        "--dt", type=float, default=1e-3, metavar="S", help="step [s] for --states rk4|symplectic_euler|euler (default 0.001)"
+        "--dt",
+        type=float,
+        default=1e-3,
+        metavar="S",
+        help="step [s] for --states rk4|symplectic_euler|euler (default 0.001)",
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
 
@@ -105,8 +111,10 @@ def _scenario(args):
     check_positive("--dt", args.dt, "s")
     for name, value in (*values.items(), ("t1", args.t1), ("t2", args.t2), ("dt", args.dt)):
         if value and abs(value) < sys.float_info.min:
-            raise DockhilError(f"--{name} {value!r} is too small to compute with (a subnormal number); "
-                               f"give a value of physical size, in SI units")
+            raise DockhilError(
+                f"--{name} {value!r} is too small to compute with (a subnormal number); "
+                f"give a value of physical size, in SI units"
+            )
     scenario = ContactScenario(**values)
     _check_scales(scenario)
     return scenario
@@ -117,9 +125,15 @@ MAX_STEPS = 1_000_000
 # Docking hardware spans a gram-scale probe to a space station, and a contact lasts from nanoseconds
 # (stiff metal) to years (a near-free drift): outside these the contact models are not the tool, and
 # the fit's solvers would take as long as the numbers are absurd.
-PLAUSIBLE = {"m1": (*physical.MASS, "kg"), "m2": (*physical.MASS, "kg"), "kcs": (*physical.STIFFNESS, "N/m"),
-             "bcs": (*physical.DAMPING, "N s/m"), "k": (*physical.STIFFNESS, "N/m"),
-             "v1": (-physical.SPEED[1], physical.SPEED[1], "m/s"), "v2": (-physical.SPEED[1], physical.SPEED[1], "m/s")}
+PLAUSIBLE = {
+    "m1": (*physical.MASS, "kg"),
+    "m2": (*physical.MASS, "kg"),
+    "kcs": (*physical.STIFFNESS, "N/m"),
+    "bcs": (*physical.DAMPING, "N s/m"),
+    "k": (*physical.STIFFNESS, "N/m"),
+    "v1": (-physical.SPEED[1], physical.SPEED[1], "m/s"),
+    "v2": (-physical.SPEED[1], physical.SPEED[1], "m/s"),
+}
 TIME_SCALE = (1e-9, 1e9)  # [s]
 
 
@@ -129,14 +143,20 @@ def _check_scales(s) -> None:
     for name, (low, high, unit) in PLAUSIBLE.items():
         value = getattr(s, name)
         if not low <= value <= high:
-            raise DockhilError(f"--{name} {value:g} {unit} is outside {low:g} to {high:g} {unit}, the range of "
-                               f"docking hardware these models are for")
-    scales = {"sqrt(m/kcs)": math.sqrt(s.reduced_mass / s.kcs) if s.kcs else None,
-              "m/bcs": s.reduced_mass / s.bcs if s.bcs else None}
+            raise DockhilError(
+                f"--{name} {value:g} {unit} is outside {low:g} to {high:g} {unit}, the range of "
+                f"docking hardware these models are for"
+            )
+    scales = {
+        "sqrt(m/kcs)": math.sqrt(s.reduced_mass / s.kcs) if s.kcs else None,
+        "m/bcs": s.reduced_mass / s.bcs if s.bcs else None,
+    }
     for name, seconds in scales.items():
         if seconds is not None and not TIME_SCALE[0] <= seconds <= TIME_SCALE[1]:
-            raise DockhilError(f"the contact's time scale {name} = {seconds:.3g} s is outside {TIME_SCALE[0]:g} to "
-                               f"{TIME_SCALE[1]:g} s: the masses, stiffness and damping are not of one physical system")
+            raise DockhilError(
+                f"the contact's time scale {name} = {seconds:.3g} s is outside {TIME_SCALE[0]:g} to "
+                f"{TIME_SCALE[1]:g} s: the masses, stiffness and damping are not of one physical system"
+            )
 
 
 def _check_steps(scenario, args) -> None:
@@ -149,8 +169,10 @@ def _check_steps(scenario, args) -> None:
     t_end = max(args.t1 if args.t1 is not None else t1, args.t2 if args.t2 is not None else t2)
     steps = t_end / args.dt
     if not steps <= MAX_STEPS:
-        raise DockhilError(f"--dt {args.dt:g} s takes {steps:.3g} steps to t = {t_end:.6g} s with --states "
-                           f"{args.states}; at most {MAX_STEPS:g}: give a larger --dt")
+        raise DockhilError(
+            f"--dt {args.dt:g} s takes {steps:.3g} steps to t = {t_end:.6g} s with --states "
+            f"{args.states}; at most {MAX_STEPS:g}: give a larger --dt"
+        )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -168,8 +190,9 @@ def run(args: argparse.Namespace) -> int:
         try:
             fit = fit_impedance(scenario, args.t1, args.t2, states=args.states, dt=args.dt)
         except (ArithmeticError, ValueError) as exc:
-            raise DockhilError(f"the fit left the floating-point range ({exc}); give values of physical "
-                               f"size (SI units)") from None
+            raise DockhilError(
+                f"the fit left the floating-point range ({exc}); give values of physical size (SI units)"
+            ) from None
     imp, closed = fit.impedance.as_dict(), fit.closed_form.as_dict()
     duration = None if math.isinf(fit.contact_duration) else fit.contact_duration
     result = {

@@ -14,15 +14,27 @@ def add_arguments(p) -> None:
     p.add_argument("bags", nargs="+", metavar="BAG", help="one or more recorded runs (MCAP); each is one curve")
     p.add_argument("--png", required=True, metavar="FILE", help="where to write the figure")
     p.add_argument("--labels", nargs="+", metavar="LABEL", help="legend label per bag (default: file names)")
-    p.add_argument("--kcs", type=nonnegative,
-                   help="ideal runs: contact stiffness [N/m] to compute the force from the state (default: the "
-                        "recorded scene's)")
-    p.add_argument("--bcs", type=nonnegative, help="ideal runs: contact damping [N s/m] (default: the recorded scene's)")
-    p.add_argument("--topics", nargs="+", metavar="TOPIC",
-                   help="extra topics to plot in a third panel: every numeric field over time")
-    p.add_argument("--6dof", dest="six", action="store_true",
-                   help="6-DOF runs (launch/hil6.yaml): F/T force and torque, relative pose, angular rates "
-                        "(the default for bags whose recorded scene is 6-DOF)")
+    p.add_argument(
+        "--kcs",
+        type=nonnegative,
+        help="ideal runs: contact stiffness [N/m] to compute the force from the state (default: the recorded scene's)",
+    )
+    p.add_argument(
+        "--bcs", type=nonnegative, help="ideal runs: contact damping [N s/m] (default: the recorded scene's)"
+    )
+    p.add_argument(
+        "--topics",
+        nargs="+",
+        metavar="TOPIC",
+        help="extra topics to plot in a third panel: every numeric field over time",
+    )
+    p.add_argument(
+        "--6dof",
+        dest="six",
+        action="store_true",
+        help="6-DOF runs (launch/hil6.yaml): F/T force and torque, relative pose, angular rates "
+        "(the default for bags whose recorded scene is 6-DOF)",
+    )
 
 
 def run(args) -> int:
@@ -44,11 +56,13 @@ def run(args) -> int:
 
         plot6(args.bags, args.png, args.labels)
     elif any(six):
-        raise DockhilError(f"{args.bags[six.index(True)]}: a 6-DOF run (its recorded scene); plot it apart "
-                           f"from the 1-DOF bags")
+        raise DockhilError(
+            f"{args.bags[six.index(True)]}: a 6-DOF run (its recorded scene); plot it apart from the 1-DOF bags"
+        )
     else:
-        plot_runs(args.bags, args.png, args.labels, None if args.kcs is None else (args.kcs, args.bcs), args.topics,
-                  graphs)
+        plot_runs(
+            args.bags, args.png, args.labels, None if args.kcs is None else (args.kcs, args.bcs), args.topics, graphs
+        )
     print(f"wrote {args.png}")
     return 0
 

@@ -18,12 +18,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         " suite of stiff and extreme cases with computed expectations, and each node type's"
         " start-up time, memory and heavy imports. A few minutes on two cores."
     )
-    parser.add_argument("--out", metavar="DIR", default="report",
-                        help="directory for report.json, report.md and the PNG plots (default: ./report)")
-    parser.add_argument("--no-lean", action="store_true",
-                        help="skip the lean-scene measurement (one interpreter per node type)")
-    parser.add_argument("--quick", action="store_true",
-                        help="a small configuration (fewer steps and tolerances, shorter runs): seconds, for tests")
+    parser.add_argument(
+        "--out",
+        metavar="DIR",
+        default="report",
+        help="directory for report.json, report.md and the PNG plots (default: ./report)",
+    )
+    parser.add_argument(
+        "--no-lean", action="store_true", help="skip the lean-scene measurement (one interpreter per node type)"
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="a small configuration (fewer steps and tolerances, shorter runs): seconds, for tests",
+    )
 
 
 def run(args) -> int:
@@ -52,7 +60,11 @@ def run(args) -> int:
     cases = data["stiff_cases"]
     failed = [c for c in cases if not c["passed"]]
     print(f"wrote {out / 'report.json'}, {out / 'report.md'} and {len(plots)} plots")
-    print(f"stiff cases: {len(cases) - len(failed)} of {len(cases)} passed"
-          + "".join(f"\n  not passed: {c['group']}: {c['name']}: expected {c['expected']}, measured {c['measured']}"
-                    for c in failed))
+    print(
+        f"stiff cases: {len(cases) - len(failed)} of {len(cases)} passed"
+        + "".join(
+            f"\n  not passed: {c['group']}: {c['name']}: expected {c['expected']}, measured {c['measured']}"
+            for c in failed
+        )
+    )
     return 0

@@ -19,13 +19,25 @@ def add_arguments(p) -> None:
     p.add_argument("node", help="node type (see 'dockhil node types') or module:Class")
     p.add_argument("overrides", nargs="*", metavar="param:=value", help="node parameters (anywhere on the line)")
     p.add_argument("--name", type=node_name, help="node name (default: the type name)")
-    p.add_argument("-r", "--remap", action="append", default=[], metavar="FROM:=TO",
-                   help="remap a port or topic to a topic (repeatable)")
+    p.add_argument(
+        "-r",
+        "--remap",
+        action="append",
+        default=[],
+        metavar="FROM:=TO",
+        help="remap a port or topic to a topic (repeatable)",
+    )
     p.add_argument("--rate", type=hertz, default=100.0, metavar="HZ", help="loop rate (default 100)")
     p.add_argument("--duration", type=seconds, metavar="S", help="stop after S seconds")
-    p.add_argument("--max-age", type=max_age_setting, action="append", default=[], metavar="NAME.INPUT=SECONDS",
-                   help="how old an input's latest message may be (> 0, at most 600 s, or inf for no limit; "
-                        "NAME: --name or the type's; repeatable)")
+    p.add_argument(
+        "--max-age",
+        type=max_age_setting,
+        action="append",
+        default=[],
+        metavar="NAME.INPUT=SECONDS",
+        help="how old an input's latest message may be (> 0, at most 600 s, or inf for no limit; "
+        "NAME: --name or the type's; repeatable)",
+    )
     log.add_arguments(p)
 
 
@@ -53,7 +65,9 @@ def run(args) -> int:
         if node != name:
             raise DockhilError(f"{where}: the node run here is {name!r}; give --max-age {name}.{port}=SECONDS")
         if port not in ins:
-            raise DockhilError(f"{where}: node {name!r} ({type_name}) has no input {port!r}; {suggest(port, ins, 'inputs')}")
+            raise DockhilError(
+                f"{where}: node {name!r} ({type_name}) has no input {port!r}; {suggest(port, ins, 'inputs')}"
+            )
         ages[port] = age
     topic_of = lambda port, default: remap.get(port, remap.get(default, default))  # noqa: E731
 
@@ -75,31 +89,60 @@ def run(args) -> int:
         if t["type"] != msgs.type_name(i.type):
             raise DockhilError(f"topic {topic} carries {t['type']}, but {name}.{port} expects {msgs.type_name(i.type)}")
         age = ages.get(port)
-        inputs[port] = PortWire(topic, t["endpoint"], t["type"], i.lag_ticks(1.0 / args.rate),
-                                unlimited_age=age == math.inf, max_age=None if age == math.inf else age)
+        inputs[port] = PortWire(
+            topic,
+            t["endpoint"],
+            t["type"],
+            i.lag_ticks(1.0 / args.rate),
+            unlimited_age=age == math.inf,
+            max_age=None if age == math.inf else age,
+        )
     for port, o in outs.items():
         _refuse_unheard(name, port, topic_of(port, o.topic))
     # One key file: the graph's keys when wired to one, which this node's own outputs then share.
     graphs = {published[w.topic]["graph"]["run_id"]: published[w.topic]["graph"] for w in inputs.values()}
     if len(graphs) > 1:
-        raise DockhilError(f"node {name!r} inputs come from {len(graphs)} running graphs "
-                           f"({', '.join(sorted(graphs))}); a node joins one graph")
+        raise DockhilError(
+            f"node {name!r} inputs come from {len(graphs)} running graphs "
+            f"({', '.join(sorted(graphs))}); a node joins one graph"
+        )
     keys = graph_keys(next(iter(graphs.values()))) if graphs else GraphKeys.make()
     run_id = f"run-{name}-{uuid.uuid4().hex[:6]}"
     run_dir = new_run_dir(run_id)
     key_file = keys.write(run_dir / KEY_FILE)
-    outputs = {port: PortWire(topic_of(port, o.topic), ipc_endpoint(run_dir, topic_of(port, o.topic)),
-                              msgs.type_name(o.type)) for port, o in outs.items()}
+    outputs = {
+        port: PortWire(topic_of(port, o.topic), ipc_endpoint(run_dir, topic_of(port, o.topic)), msgs.type_name(o.type))
+        for port, o in outs.items()
+    }
     n_ticks = None if args.duration is None else int(round(args.duration * args.rate))
-    spec = RunSpec(name, type_name, params, 1.0 / args.rate, "wall", n_ticks, inputs, outputs,
-                   key_file=str(key_file), run_id=run_id)
+    spec = RunSpec(
+        name,
+        type_name,
+        params,
+        1.0 / args.rate,
+        "wall",
+        n_ticks,
+        inputs,
+        outputs,
+        key_file=str(key_file),
+        run_id=run_id,
+    )
     reg = registry_dir() / f"{run_id}.json"
-    reg.write_text(json.dumps({
-        "run_id": run_id, "pid": os.getpid(), "file": f"dockhil run {args.node}", "clock": "wall",
-        "keys": str(key_file),
-        "nodes": {name: {"type": type_name, "pid": os.getpid()}},
-        "topics": {w.topic: {"type": w.type, "endpoint": w.endpoint, "publisher": name} for w in outputs.values()},
-    }))
+    reg.write_text(
+        json.dumps(
+            {
+                "run_id": run_id,
+                "pid": os.getpid(),
+                "file": f"dockhil run {args.node}",
+                "clock": "wall",
+                "keys": str(key_file),
+                "nodes": {name: {"type": type_name, "pid": os.getpid()}},
+                "topics": {
+                    w.topic: {"type": w.type, "endpoint": w.endpoint, "publisher": name} for w in outputs.values()
+                },
+            }
+        )
+    )
     try:
         return run_node(spec)
     finally:
@@ -118,10 +161,14 @@ def _refuse_unheard(name: str, port: str, topic: str) -> None:
     for info in running_graphs():
         t = info.get("topics", {}).get(topic)
         if t is not None:
-            raise DockhilError(f"topic {topic} is published by graph {info['run_id']} (node {t['publisher']!r}); "
-                               f"{name}.{port} would be a second publisher its subscribers never hear: remap it "
-                               f"with -r {port}:=/TOPIC")
+            raise DockhilError(
+                f"topic {topic} is published by graph {info['run_id']} (node {t['publisher']!r}); "
+                f"{name}.{port} would be a second publisher its subscribers never hear: remap it "
+                f"with -r {port}:=/TOPIC"
+            )
         readers = info.get("unconnected", {}).get(topic)
         if readers:
-            raise DockhilError(f"graph {info['run_id']} left input {readers[0]} ({topic}) unconnected at launch, so it "
-                               f"would not hear {name}.{port}; publish {topic} from a node of the launch file")
+            raise DockhilError(
+                f"graph {info['run_id']} left input {readers[0]} ({topic}) unconnected at launch, so it "
+                f"would not hear {name}.{port}; publish {topic} from a node of the launch file"
+            )

@@ -49,10 +49,17 @@ def add_arguments(p) -> None:
     p.add_argument("campaign", metavar="CAMPAIGN.yaml", help="the campaign file (or 'plot' to plot results)")
     p.add_argument("results", nargs="?", metavar="RESULTS.parquet", help="with 'plot': the results to draw")
     p.add_argument("--out", metavar="RESULTS.parquet", help="where the rows go (a rerun resumes it)")
-    p.add_argument("--workers", type=int, metavar="N",
-                   help="worker processes (default: the CPU count; with --dask ADDRESS: the cluster's)")
-    p.add_argument("--dask", metavar="ADDRESS|local",
-                   help="run on a Dask distributed scheduler (tcp://host:8786), or 'local' for a LocalCluster")
+    p.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="worker processes (default: the CPU count; with --dask ADDRESS: the cluster's)",
+    )
+    p.add_argument(
+        "--dask",
+        metavar="ADDRESS|local",
+        help="run on a Dask distributed scheduler (tcp://host:8786), or 'local' for a LocalCluster",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.add_argument("--png", metavar="FILE", help="with 'plot': where to write the figure")
     log.add_arguments(p)
@@ -73,7 +80,9 @@ def run(args) -> int:
     if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
         raise DockhilError(f"--out {args.out}: folder {folder} does not exist or is not writable")
     if os.path.isdir(args.out):
-        raise DockhilError(f"--out {args.out}: is a folder; give a file name, e.g. {os.path.join(args.out, 'results.parquet')}")
+        raise DockhilError(
+            f"--out {args.out}: is a folder; give a file name, e.g. {os.path.join(args.out, 'results.parquet')}"
+        )
     from dockhil.analysis import sweep
 
     campaign = sweep.load_campaign(args.campaign)
@@ -93,8 +102,10 @@ def run(args) -> int:
         say.info(f"{signals.what}; the finished runs are in {args.out}: rerun the same command to resume")
         return 128 + signals.number
     except sweep.WriteError as exc:
-        say.error(f"{exc}; the rows written before stay: make room on that disk (or make it writable) and rerun "
-                  f"the same command to resume")
+        say.error(
+            f"{exc}; the rows written before stay: make room on that disk (or make it writable) and rerun "
+            f"the same command to resume"
+        )
         return 1
     finally:
         signals.restore()

@@ -28,25 +28,42 @@ def add_arguments(p) -> None:
     ls = sub.add_parser("list", help="topics of every running graph, with type and publisher")
     info = sub.add_parser("info", help="a topic's type, publisher, subscribers, endpoint and rate")
     info.add_argument("topic")
-    info.add_argument("--window", type=nonnegative, default=1.0, metavar="S",
-                      help="measure the rate over S seconds (default 1; 0: do not measure)")
+    info.add_argument(
+        "--window",
+        type=nonnegative,
+        default=1.0,
+        metavar="S",
+        help="measure the rate over S seconds (default 1; 0: do not measure)",
+    )
     info.add_argument("--json", action="store_true", help="one JSON object")
     echo = sub.add_parser("echo", help="print messages of a topic as JSON lines")
     echo.add_argument("topic")
     echo.add_argument("--count", "-n", type=int, metavar="N", help="stop after N messages")
-    echo.add_argument("--field", metavar="PATH",
-                      help="print only this field: dotted, list indices as numbers (wrench.force.x, bodies.0.mass)")
-    echo.add_argument("--wait", action="store_true",
-                      help="wait for a graph to publish the topic rather than fail (Ctrl-C ends it)")
+    echo.add_argument(
+        "--field",
+        metavar="PATH",
+        help="print only this field: dotted, list indices as numbers (wrench.force.x, bodies.0.mass)",
+    )
+    echo.add_argument(
+        "--wait", action="store_true", help="wait for a graph to publish the topic rather than fail (Ctrl-C ends it)"
+    )
     hz = sub.add_parser("hz", help="measure the rate of a topic, with min/max/std dev of its period")
     hz.add_argument("topic")
-    hz.add_argument("--window", type=_positive_int, default=HZ_WINDOW, metavar="N",
-                    help=f"statistics over the last N messages (default {HZ_WINDOW})")
+    hz.add_argument(
+        "--window",
+        type=_positive_int,
+        default=HZ_WINDOW,
+        metavar="N",
+        help=f"statistics over the last N messages (default {HZ_WINDOW})",
+    )
     hz.add_argument("--every", type=seconds, default=1.0, metavar="S", help="report every S seconds (default 1)")
     hz.add_argument("--count", "-n", type=int, metavar="N", help="stop after N reports")
     for q in (ls, info, echo, hz):
-        q.add_argument("--graph", metavar="ID",
-                       help="the run id of the graph to look at (see 'dockhil node list'); needed when several run")
+        q.add_argument(
+            "--graph",
+            metavar="ID",
+            help="the run id of the graph to look at (see 'dockhil node list'); needed when several run",
+        )
 
 
 def _positive_int(text: str) -> int:
@@ -90,8 +107,10 @@ def choose_graph(topic: str, graph_id: str | None) -> dict:
         raise NotYet("no running graph found; start one with 'dockhil launch FILE'")
     publishing = [info for info in graphs if topic in info["topics"]]
     if len(publishing) > 1:
-        raise DockhilError(f"topic {topic} is published by {len(publishing)} running graphs: "
-                           f"{', '.join(_describe(i) for i in publishing)}; choose one with --graph ID")
+        raise DockhilError(
+            f"topic {topic} is published by {len(publishing)} running graphs: "
+            f"{', '.join(_describe(i) for i in publishing)}; choose one with --graph ID"
+        )
     if not publishing:
         known = sorted({t for info in graphs for t in info["topics"]})
         where = f"graph {graph_id}" if graph_id is not None else "any running graph"
@@ -150,7 +169,9 @@ def run(args) -> int:
                 print(f"{topic}  {t['type']}  from {t['publisher']}  ({info['run_id']})")
         return 0
     try:  # Ctrl-C ends an observer as its graph's end does: what it read is out, exit 0
-        info = _wait_for(args.topic, args.graph) if getattr(args, "wait", False) else choose_graph(args.topic, args.graph)
+        info = (
+            _wait_for(args.topic, args.graph) if getattr(args, "wait", False) else choose_graph(args.topic, args.graph)
+        )
         t = info["topics"][args.topic]
         from dockhil import msgs
 
@@ -167,9 +188,11 @@ def run(args) -> int:
             unprinted = out.close()
             lost = sub.lost + (unprinted if args.action == "echo" else 0)  # hz's lines are reports, not messages
             if lost:
-                Log("[topic]").warning(f"{args.topic}: {lost} message(s) lost by this {args.action}, which did not "
-                                       f"keep up (its output was not read in time); the graph's own deliveries "
-                                       f"are unaffected")
+                Log("[topic]").warning(
+                    f"{args.topic}: {lost} message(s) lost by this {args.action}, which did not "
+                    f"keep up (its output was not read in time); the graph's own deliveries "
+                    f"are unaffected"
+                )
     except KeyboardInterrupt:
         return 0
 
@@ -208,14 +231,14 @@ def field_reader(cls: type, path: str):
         if isinstance(t, type) and issubclass(t, msgspec.Struct):
             fields = {f.name: f.type for f in msgspec.structs.fields(t)}
             if part not in fields:
-                raise DockhilError(f"--field {path}: {where} ({t.__name__}) has no field {part!r}; "
-                                   f"fields: {', '.join(fields)}")
+                raise DockhilError(
+                    f"--field {path}: {where} ({t.__name__}) has no field {part!r}; fields: {', '.join(fields)}"
+                )
             t = fields[part]
             steps.append(part)
         elif typing.get_origin(t) in (list, tuple):
             if not part.isdigit():
-                raise DockhilError(f"--field {path}: {where} is a list; index it by number (0, 1, ...), "
-                                   f"not {part!r}")
+                raise DockhilError(f"--field {path}: {where} is a list; index it by number (0, 1, ...), not {part!r}")
             index = int(part)
             if Ellipsis in args or typing.get_origin(t) is list:
                 t = args[0] if args else object
@@ -234,8 +257,9 @@ def field_reader(cls: type, path: str):
             if isinstance(step, int):
                 if step >= len(value):
                     where = ".".join(map(str, steps[:i])) or "the message"
-                    raise DockhilError(f"--field {path}: {where} has {len(value)} item(s) in this message; "
-                                       f"index {step} is beyond")
+                    raise DockhilError(
+                        f"--field {path}: {where} has {len(value)} item(s) in this message; index {step} is beyond"
+                    )
                 value = value[step]
             else:
                 value = getattr(value, step)
@@ -257,13 +281,20 @@ def period_stats(arrivals) -> dict | None:
     n = len(periods)
     mean = (times[-1] - times[0]) / n
     std = math.sqrt(sum((p - mean) ** 2 for p in periods) / n)
-    return {"rate": 1.0 / mean if mean > 0 else math.inf, "min": min(periods), "max": max(periods),
-            "std": std, "window": n}
+    return {
+        "rate": 1.0 / mean if mean > 0 else math.inf,
+        "min": min(periods),
+        "max": max(periods),
+        "std": std,
+        "window": n,
+    }
 
 
 def format_stats(stats: dict, lost: int = 0) -> str:
-    line = (f"average rate: {stats['rate']:.1f} / min: {stats['min']:.3f}s max: {stats['max']:.3f}s "
-            f"std dev: {stats['std']:.5f}s window: {stats['window']}")
+    line = (
+        f"average rate: {stats['rate']:.1f} / min: {stats['min']:.3f}s max: {stats['max']:.3f}s "
+        f"std dev: {stats['std']:.5f}s window: {stats['window']}"
+    )
     return line + (f" / lost: {lost}" if lost else "")
 
 
@@ -275,10 +306,21 @@ def _info(args, info: dict, t: dict, keys) -> int:
     described = info.get("graph_nodes", {})
     publisher = t["publisher"]
     process = described.get(publisher, {}).get("process", publisher)
-    out = {"topic": args.topic, "type": t["type"], "graph": info["run_id"], "file": info["file"],
-           "publisher": publisher, "process": process, "pid": nodes.get(process, {}).get("pid"),
-           "subscribers": t.get("subscribers"), "endpoint": endpoint,
-           "kind": endpoint.split("://", 1)[0], "rate_hz": None, "window_s": args.window, "messages": None}
+    out = {
+        "topic": args.topic,
+        "type": t["type"],
+        "graph": info["run_id"],
+        "file": info["file"],
+        "publisher": publisher,
+        "process": process,
+        "pid": nodes.get(process, {}).get("pid"),
+        "subscribers": t.get("subscribers"),
+        "endpoint": endpoint,
+        "kind": endpoint.split("://", 1)[0],
+        "rate_hz": None,
+        "window_s": args.window,
+        "messages": None,
+    }
     if args.window > 0:
         sub = _subscribe(endpoint, keys)
         arrivals = []
@@ -297,8 +339,13 @@ def _info(args, info: dict, t: dict, keys) -> int:
         print(json.dumps(out))
         return 0
     subs = out["subscribers"]
-    readers = ("none" if subs == [] else ", ".join(subs) if subs else
-               "not registered (the graph was started by an older dockhil)")
+    readers = (
+        "none"
+        if subs == []
+        else ", ".join(subs)
+        if subs
+        else "not registered (the graph was started by an older dockhil)"
+    )
     pid = f", pid {out['pid']}" if out["pid"] else ""
     via = f" (process {process}{pid})" if process != publisher or pid else ""
     print(f"Topic: {args.topic}")
@@ -352,7 +399,7 @@ class _Output:
                 else:
                     data = (line + "\n").encode()
                     while data:
-                        data = data[os.write(self._fd, data):]
+                        data = data[os.write(self._fd, data) :]
             except (BrokenPipeError, OSError):
                 self.left = True
                 return

@@ -47,8 +47,25 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dockhil.contact import rigid
-from dockhil.contact.rigid import IDENTITY, BodyState, Motion, RigidBody, Wrench, add3, check_symmetric, check_unit_quaternion, \
-    check_vector, cross3, quat_conjugate, quat_multiply, quat_to_matrix, rotate, rotate_back, rotvec3, sub3
+from dockhil.contact.rigid import (
+    IDENTITY,
+    BodyState,
+    Motion,
+    RigidBody,
+    Wrench,
+    add3,
+    check_symmetric,
+    check_unit_quaternion,
+    check_vector,
+    cross3,
+    quat_conjugate,
+    quat_multiply,
+    quat_to_matrix,
+    rotate,
+    rotate_back,
+    rotvec3,
+    sub3,
+)
 from dockhil.contact.scenario import ContactModelError, check_nonnegative, check_positive
 
 AXES = ("x", "y", "z", "rx", "ry", "rz")
@@ -77,25 +94,33 @@ def left_jacobian_inverse3_python(theta) -> tuple:
         c = 1.0 / sq - (1.0 + math.cos(angle)) / (2.0 * angle * math.sin(angle))
     hx, hy, hz = 0.5 * x, 0.5 * y, 0.5 * z
     cxy, cxz, cyz = c * x * y, c * x * z, c * y * z
-    return ((1.0 + c * (x * x - sq), hz + cxy, cxz - hy),
-            (cxy - hz, 1.0 + c * (y * y - sq), hx + cyz),
-            (hy + cxz, cyz - hx, 1.0 + c * (z * z - sq)))
+    return (
+        (1.0 + c * (x * x - sq), hz + cxy, cxz - hy),
+        (cxy - hz, 1.0 + c * (y * y - sq), hx + cyz),
+        (hy + cxz, cyz - hx, 1.0 + c * (z * z - sq)),
+    )
 
 
 def mat3_vec(a, v) -> tuple[float, float, float]:
     """a v for a 3x3 matrix given as rows, plain floats."""
     r0, r1, r2 = a
     v0, v1, v2 = v
-    return (r0[0] * v0 + r0[1] * v1 + r0[2] * v2, r1[0] * v0 + r1[1] * v1 + r1[2] * v2,
-            r2[0] * v0 + r2[1] * v1 + r2[2] * v2)
+    return (
+        r0[0] * v0 + r0[1] * v1 + r0[2] * v2,
+        r1[0] * v0 + r1[1] * v1 + r1[2] * v2,
+        r2[0] * v0 + r2[1] * v1 + r2[2] * v2,
+    )
 
 
 def mat3t_vec(a, v) -> tuple[float, float, float]:
     """a^T v for a 3x3 matrix given as rows, plain floats."""
     r0, r1, r2 = a
     v0, v1, v2 = v
-    return (r0[0] * v0 + r1[0] * v1 + r2[0] * v2, r0[1] * v0 + r1[1] * v1 + r2[1] * v2,
-            r0[2] * v0 + r1[2] * v1 + r2[2] * v2)
+    return (
+        r0[0] * v0 + r1[0] * v1 + r2[0] * v2,
+        r0[1] * v0 + r1[1] * v1 + r2[1] * v2,
+        r0[2] * v0 + r1[2] * v1 + r2[2] * v2,
+    )
 
 
 def add6(a, b) -> tuple:
@@ -127,12 +152,14 @@ class MatVec6:
             d = self.diagonal
             return (d[0] * v0, d[1] * v1, d[2] * v2, d[3] * v3, d[4] * v4, d[5] * v5)
         r0, r1, r2, r3, r4, r5 = self.rows
-        return (r0[0] * v0 + r0[1] * v1 + r0[2] * v2 + r0[3] * v3 + r0[4] * v4 + r0[5] * v5,
-                r1[0] * v0 + r1[1] * v1 + r1[2] * v2 + r1[3] * v3 + r1[4] * v4 + r1[5] * v5,
-                r2[0] * v0 + r2[1] * v1 + r2[2] * v2 + r2[3] * v3 + r2[4] * v4 + r2[5] * v5,
-                r3[0] * v0 + r3[1] * v1 + r3[2] * v2 + r3[3] * v3 + r3[4] * v4 + r3[5] * v5,
-                r4[0] * v0 + r4[1] * v1 + r4[2] * v2 + r4[3] * v3 + r4[4] * v4 + r4[5] * v5,
-                r5[0] * v0 + r5[1] * v1 + r5[2] * v2 + r5[3] * v3 + r5[4] * v4 + r5[5] * v5)
+        return (
+            r0[0] * v0 + r0[1] * v1 + r0[2] * v2 + r0[3] * v3 + r0[4] * v4 + r0[5] * v5,
+            r1[0] * v0 + r1[1] * v1 + r1[2] * v2 + r1[3] * v3 + r1[4] * v4 + r1[5] * v5,
+            r2[0] * v0 + r2[1] * v1 + r2[2] * v2 + r2[3] * v3 + r2[4] * v4 + r2[5] * v5,
+            r3[0] * v0 + r3[1] * v1 + r3[2] * v2 + r3[3] * v3 + r3[4] * v4 + r3[5] * v5,
+            r4[0] * v0 + r4[1] * v1 + r4[2] * v2 + r4[3] * v3 + r4[4] * v4 + r4[5] * v5,
+            r5[0] * v0 + r5[1] * v1 + r5[2] * v2 + r5[3] * v3 + r5[4] * v4 + r5[5] * v5,
+        )
 
 
 def check_matrix6(name: str, value, unit: str) -> np.ndarray:
@@ -241,9 +268,11 @@ class InterfaceGeometry:
         a, b, r = self.arm1, self.arm2, self.r
         p0, p1, p2 = w1
         s0, s1, s2 = w2
-        u = (v1[0] + p1 * a[2] - p2 * a[1] - v2[0] - s1 * b[2] + s2 * b[1] + r[1] * s2 - r[2] * s1,
-             v1[1] + p2 * a[0] - p0 * a[2] - v2[1] - s2 * b[0] + s0 * b[2] + r[2] * s0 - r[0] * s2,
-             v1[2] + p0 * a[1] - p1 * a[0] - v2[2] - s0 * b[1] + s1 * b[0] + r[0] * s1 - r[1] * s0)
+        u = (
+            v1[0] + p1 * a[2] - p2 * a[1] - v2[0] - s1 * b[2] + s2 * b[1] + r[1] * s2 - r[2] * s1,
+            v1[1] + p2 * a[0] - p0 * a[2] - v2[1] - s2 * b[0] + s0 * b[2] + r[2] * s0 - r[0] * s2,
+            v1[2] + p0 * a[1] - p1 * a[0] - v2[2] - s0 * b[1] + s1 * b[0] + r[0] * s1 - r[1] * s0,
+        )
         q_b = self.q_b
         return rotate_back(q_b, u), rotate_back(q_b, (p0 - s0, p1 - s1, p2 - s2))
 
@@ -318,6 +347,7 @@ def touching_at(m1: Motion, m2: Motion) -> bool:
 
 # --- the F/T sensor's wrench, moved to the centres of mass ---------------------------------
 
+
 def sensor_wrench_to_bodies(carrier: Motion, other: Motion, sensor_position, sensor_orientation, force, torque):
     """Forces and torques [N, N m] (world, about each CoM) on the body carrying
     the sensor and on the other body.
@@ -353,6 +383,7 @@ def sensor_wrench_checked(carrier: Motion, other: Motion, p_s, q_s, f_s, t_s):
 
 
 # --- the contact run ------------------------------------------------------------------------
+
 
 @dataclass
 class Run6:
@@ -418,8 +449,9 @@ class Recorder:
         self.flag = np.zeros(n, dtype=bool)
         self.q = np.zeros((n, 6))
 
-    def record(self, i: int, t: float, m1: Motion, m2: Motion, force, torque, q, potential: float,
-               touching: bool) -> None:
+    def record(
+        self, i: int, t: float, m1: Motion, m2: Motion, force, torque, q, potential: float, touching: bool
+    ) -> None:
         g, rate = interface_state(m1, m2)
         self.t[i] = t
         for j, m in enumerate((m1, m2)):
@@ -438,9 +470,26 @@ class Recorder:
     def run(self, onset, exit_time, final, anchor, n: int | None = None) -> Run6:
         """The run of the first n samples (all by default)."""
         k = slice(None, n)
-        return Run6(self.t[k], self.pos[k], self.vel[k], self.quat[k], self.omega[k], self.force[k], self.torque[k],
-                    self.e[k], self.rate[k], self.p[k], self.l[k], self.energy[k], self.flag[k], onset, exit_time,
-                    final, self.q[k], anchor)
+        return Run6(
+            self.t[k],
+            self.pos[k],
+            self.vel[k],
+            self.quat[k],
+            self.omega[k],
+            self.force[k],
+            self.torque[k],
+            self.e[k],
+            self.rate[k],
+            self.p[k],
+            self.l[k],
+            self.energy[k],
+            self.flag[k],
+            onset,
+            exit_time,
+            final,
+            self.q[k],
+            anchor,
+        )
 
 
 def _step_with_events(m1: Motion, m2: Motion, wrench: IdealContactWrench, h: float, order: int) -> list:
@@ -491,8 +540,17 @@ def potential_energy(model: Contact6, g: InterfaceGeometry, anchor, touching: bo
 
 
 def simulate_contact6(
-    body1: RigidBody, body2: RigidBody, state1: BodyState, state2: BodyState, model: Contact6, *,
-    dt: float = 1e-3, t_end: float = 2.0, order: int = 4, substeps: int = 1, until_exit: bool = False,
+    body1: RigidBody,
+    body2: RigidBody,
+    state1: BodyState,
+    state2: BodyState,
+    model: Contact6,
+    *,
+    dt: float = 1e-3,
+    t_end: float = 2.0,
+    order: int = 4,
+    substeps: int = 1,
+    until_exit: bool = False,
 ) -> Run6:
     """Fixed-step run of the ideal 6-DOF contact from the given states, samples
     every dt [s]; each sample interval is `substeps` integrator steps. With
@@ -518,8 +576,17 @@ def simulate_contact6(
             force, moment, q = contact_wrench(model, g, rate, wrench.anchor)
         else:
             force, moment, q = np.zeros(3), np.zeros(3), np.zeros(6)
-        rec.record(i, i * dt, m1, m2, force, moment, q, potential_energy(model, g, wrench.anchor, wrench.touching),
-                   wrench.touching)
+        rec.record(
+            i,
+            i * dt,
+            m1,
+            m2,
+            force,
+            moment,
+            q,
+            potential_energy(model, g, wrench.anchor, wrench.touching),
+            wrench.touching,
+        )
 
     sample(0)
     for i in range(steps):

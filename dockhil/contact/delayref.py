@@ -29,8 +29,22 @@ class DelayedContactReference:
     m1, m2 [kg]; k1, b1, k2, b2: the virtual impedance; k: the passive compliance behind the
     delay h [s]; v0: closing velocity at t = 0 (p(0) = -gap)."""
 
-    def __init__(self, *, m1: float, m2: float, k1: float, b1: float, k2: float, b2: float, k: float,
-                 h: float, v0: float, t_end: float, dt: float = 1e-4, gap: float = 0.0):
+    def __init__(
+        self,
+        *,
+        m1: float,
+        m2: float,
+        k1: float,
+        b1: float,
+        k2: float,
+        b2: float,
+        k: float,
+        h: float,
+        v0: float,
+        t_end: float,
+        dt: float = 1e-4,
+        gap: float = 0.0,
+    ):
         total = m1 + m2
         self.cp = (m2 / total) * k1 / m1 + (m1 / total) * k2 / m2
         self.cv = (m2 / total) * b1 / m1 + (m1 / total) * b2 / m2

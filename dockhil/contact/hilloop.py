@@ -34,8 +34,18 @@ class Bodies:
     With `ideal` (kcs, bcs) the ideal spring-dashpot acts inside the step
     while the bodies touch, instead of measured forces."""
 
-    def __init__(self, m1: float, m2: float, x1: float, x2: float, v1: float, v2: float,
-                 method: str = "exact", ideal: tuple[float, float] | None = None, on_unstable: str = "raise"):
+    def __init__(
+        self,
+        m1: float,
+        m2: float,
+        x1: float,
+        x2: float,
+        v1: float,
+        v2: float,
+        method: str = "exact",
+        ideal: tuple[float, float] | None = None,
+        on_unstable: str = "raise",
+    ):
         # numpy and the integrators here, not at the top: the nodes that use only the pieces below
         # (servo, sensor, delay) do not load them.
         import numpy as np
@@ -98,10 +108,12 @@ class Bodies:
             (a0, a1, a2, a3), (b0, b1, b2, b3), (c0, c1, c2, c3), (d0, d1, d2, d3) = phi
             (ga0, ga1), (gb0, gb1), (gc0, gc1), (gd0, gd1) = gamma
             s0, s1, s2, s3 = self.state
-            self.state = (a0 * s0 + a1 * s1 + a2 * s2 + a3 * s3 + (ga0 * f1 + ga1 * f2),
-                          b0 * s0 + b1 * s1 + b2 * s2 + b3 * s3 + (gb0 * f1 + gb1 * f2),
-                          c0 * s0 + c1 * s1 + c2 * s2 + c3 * s3 + (gc0 * f1 + gc1 * f2),
-                          d0 * s0 + d1 * s1 + d2 * s2 + d3 * s3 + (gd0 * f1 + gd1 * f2))
+            self.state = (
+                a0 * s0 + a1 * s1 + a2 * s2 + a3 * s3 + (ga0 * f1 + ga1 * f2),
+                b0 * s0 + b1 * s1 + b2 * s2 + b3 * s3 + (gb0 * f1 + gb1 * f2),
+                c0 * s0 + c1 * s1 + c2 * s2 + c3 * s3 + (gc0 * f1 + gc1 * f2),
+                d0 * s0 + d1 * s1 + d2 * s2 + d3 * s3 + (gd0 * f1 + gd1 * f2),
+            )
         elif self.contact is None:  # a fixed target: numpy's product of two values fuses differently
             import numpy as np
 
@@ -112,8 +124,9 @@ class Bodies:
             from dockhil.contact.integrators import step_with_events
 
             force = np.array([f1]) if self.fixed_target else np.array([f1, f2])
-            self.state, self.in_contact, _ = step_with_events(self.free, self.contact, self.state, force, dt,
-                                                              self.in_contact, self.pen, self.omega)
+            self.state, self.in_contact, _ = step_with_events(
+                self.free, self.contact, self.state, force, dt, self.in_contact, self.pen, self.omega
+            )
         s0, s1, *rest = self.state
         if not (math.isfinite(s0) and math.isfinite(s1) and all(map(math.isfinite, rest))):
             raise ContactModelError(
@@ -129,8 +142,9 @@ class Bodies:
         return self.kcs * (x1 - x2) + self.bcs * (v1 - v2)
 
 
-def virtual_wrench(x1: float, x2: float, v1: float, v2: float, m1: float, m2: float,
-                   impedance: VirtualImpedance) -> tuple[float, float]:
+def virtual_wrench(
+    x1: float, x2: float, v1: float, v2: float, m1: float, m2: float, impedance: VirtualImpedance
+) -> tuple[float, float]:
     """Virtual forces [N] on chaser and target while touching; m2 = 0 is a fixed
     target (infinite mass: the wall is the target itself)."""
     if m2 != 0.0:
@@ -195,10 +209,25 @@ class HilRun:
     extra: dict = field(default_factory=dict)
 
 
-def simulate_hil(*, m1: float, m2: float, k: float, impedance: VirtualImpedance, dt: float, n_ticks: int,
-                 delay: float = 0.0, x1: float = 0.0, x2: float = 0.0, v1: float = 0.0, v2: float = 0.0,
-                 thrust: float = 0.0, method: str = "exact", lag: float = 0.0,
-                 passivity: Passivity | None = None, energy: bool = False) -> HilRun:
+def simulate_hil(
+    *,
+    m1: float,
+    m2: float,
+    k: float,
+    impedance: VirtualImpedance,
+    dt: float,
+    n_ticks: int,
+    delay: float = 0.0,
+    x1: float = 0.0,
+    x2: float = 0.0,
+    v1: float = 0.0,
+    v2: float = 0.0,
+    thrust: float = 0.0,
+    method: str = "exact",
+    lag: float = 0.0,
+    passivity: Passivity | None = None,
+    energy: bool = False,
+) -> HilRun:
     """The HIL loop of the graph in hil.yaml/stability.yaml, without the graph. With `passivity`
     the virtual impedance adds the passivity controller's force (as the node does). With
     `energy` or `passivity`, `extra` holds the energy account per tick (the fields of
@@ -232,9 +261,21 @@ def simulate_hil(*, m1: float, m2: float, k: float, impedance: VirtualImpedance,
     return HilRun(*out, extra=account)
 
 
-def simulate_ideal(*, m1: float, m2: float, kcs: float, bcs: float, dt: float, n_ticks: int,
-                   x1: float = 0.0, x2: float = 0.0, v1: float = 0.0, v2: float = 0.0,
-                   thrust: float = 0.0, method: str = "exact") -> HilRun:
+def simulate_ideal(
+    *,
+    m1: float,
+    m2: float,
+    kcs: float,
+    bcs: float,
+    dt: float,
+    n_ticks: int,
+    x1: float = 0.0,
+    x2: float = 0.0,
+    v1: float = 0.0,
+    v2: float = 0.0,
+    thrust: float = 0.0,
+    method: str = "exact",
+) -> HilRun:
     """The ideal model (Eq. 1) sampled as the satellite-dynamics node runs it in ideal.yaml."""
     import numpy as np
 

@@ -63,10 +63,26 @@ from dockhil.contact.contact6 import (
     skew,
     sub6,
 )
-from dockhil.contact.rigid import (COMPILED, BodyState, HeldWrench, Motion, RigidBody, normalised, add3,
-                                   check_unit_quaternion, check_vector, cross3, quat_conjugate, quat_from_rotvec,
-                                   quat_multiply, quat_to_matrix, rotate, rotate_back, rotvec3,
-                                   sub3)
+from dockhil.contact.rigid import (
+    COMPILED,
+    BodyState,
+    HeldWrench,
+    Motion,
+    RigidBody,
+    normalised,
+    add3,
+    check_unit_quaternion,
+    check_vector,
+    cross3,
+    quat_conjugate,
+    quat_from_rotvec,
+    quat_multiply,
+    quat_to_matrix,
+    rotate,
+    rotate_back,
+    rotvec3,
+    sub3,
+)
 from dockhil.contact.scenario import ContactModelError, FitError, check_positive
 
 
@@ -88,10 +104,12 @@ def _mobility(body: RigidBody, x, q, point, g: InterfaceGeometry) -> np.ndarray:
     rot = quat_to_matrix(q)
     inv_inertia = (rot / body.principal_moments) @ rot.T
     rho = skew(np.asarray(point) - x)
-    spatial = np.block([
-        [np.eye(3) / body.mass - rho @ inv_inertia @ rho, -rho @ inv_inertia],
-        [inv_inertia @ rho, inv_inertia],
-    ])
+    spatial = np.block(
+        [
+            [np.eye(3) / body.mass - rho @ inv_inertia @ rho, -rho @ inv_inertia],
+            [inv_inertia @ rho, inv_inertia],
+        ]
+    )
     pt = np.zeros((6, 6))
     pt[:3, :3] = g.rot_b.T
     pt[3:, 3:] = g.jinv @ g.rot_b.T
@@ -119,8 +137,15 @@ class Impedance6:
 
     def per_axis(self) -> dict[str, dict[str, float]]:
         """Diagonal entries by axis (the whole story only when the axes decouple)."""
-        return {a: {"k1": float(self.k1[i, i]), "c1": float(self.c1[i, i]), "k2": float(self.k2[i, i]),
-                    "c2": float(self.c2[i, i])} for i, a in enumerate(AXES)}
+        return {
+            a: {
+                "k1": float(self.k1[i, i]),
+                "c1": float(self.c1[i, i]),
+                "k2": float(self.k2[i, i]),
+                "c2": float(self.c2[i, i]),
+            }
+            for i, a in enumerate(AXES)
+        }
 
 
 def wall_split(g1: np.ndarray, g2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -146,8 +171,9 @@ def impedance_closed_form6(ideal: Contact6, passive: Contact6, g1, g2) -> Impeda
     return Impedance6(dk @ inv1, dc @ inv1, dk @ inv2, dc @ inv2, d1, d2)
 
 
-def fit_impedance6(run: Run6, times, passive: Contact6, g1, g2, axes=AXES,
-                   max_condition: float = 1e8) -> dict[str, tuple[float, float, float, float]]:
+def fit_impedance6(
+    run: Run6, times, passive: Contact6, g1, g2, axes=AXES, max_condition: float = 1e8
+) -> dict[str, tuple[float, float, float, float]]:
     """The two-time fit (Eqs. 5-6) per axis: (k1, c1, k2, c2) for each axis in `axes`.
 
     At two times inside the contact of the ideal `run`, the virtual part must
@@ -278,11 +304,13 @@ def published_interface(body1: RigidBody, published1: tuple, body2: RigidBody, p
     if COMPILED is not None:  # the same arithmetic in C (rigid.COMPILED), the same bits
         g = InterfaceGeometry.__new__(InterfaceGeometry)
         q1, q2, g.arm1, g.arm2, g.point, g.r, g.q_b, g.q_rel, g.d, velocity, spin = COMPILED.interface(
-            body1._frames, body2._frames, x1, q1, v1, w1, x2, q2, v2, w2)
+            body1._frames, body2._frames, x1, q1, v1, w1, x2, q2, v2, w2
+        )
         g.pose1, g.pose2 = (body1, x1, q1), (body2, x2, q2)
     else:
-        g = InterfaceGeometry.between(body1, x1, principal_attitude(body1, q1), body2, x2,
-                                      principal_attitude(body2, q2))
+        g = InterfaceGeometry.between(
+            body1, x1, principal_attitude(body1, q1), body2, x2, principal_attitude(body2, q2)
+        )
         velocity, spin = g.rates3(v1, w1, v2, w2)
     answer = (g, velocity, spin)
     _LAST_INTERFACE[0] = (key, answer)
@@ -330,8 +358,9 @@ class VirtualWall6:
         if self.anchor is None:
             self.anchor = (0.0,) + tuple(g.e[1:])
             if self.impedance is None:
-                self.impedance = impedance_closed_form6(self.ideal, self.passive, _mobility(*g.pose1, g.point, g),
-                                                        _mobility(*g.pose2, g.point, g))
+                self.impedance = impedance_closed_form6(
+                    self.ideal, self.passive, _mobility(*g.pose1, g.point, g), _mobility(*g.pose2, g.point, g)
+                )
                 # The closed form makes K_i D_i = K - K_p and C_i D_i = C - C_p: take them as they are
                 # (the D_i cancel) rather than as products that carry the inverse's rounding.
                 dk = MatVec6(self.ideal.stiffness - self.passive.stiffness)
@@ -339,8 +368,9 @@ class VirtualWall6:
                 self._products = (dk, dc, dk, dc)
             else:
                 imp = self.impedance
-                self._products = tuple(MatVec6(a @ d) for a, d in ((imp.k1, imp.d1), (imp.c1, imp.d1),
-                                                                   (imp.k2, imp.d2), (imp.c2, imp.d2)))
+                self._products = tuple(
+                    MatVec6(a @ d) for a, d in ((imp.k1, imp.d1), (imp.c1, imp.d1), (imp.k2, imp.d2), (imp.c2, imp.d2))
+                )
         k1, c1, k2, c2 = self._products
         de = sub6(g.e, self.anchor)
         q1 = add6(k1(de), c1(rate))
@@ -406,8 +436,7 @@ class PassiveSensor6:
         if self._at_b:
             return force_b, moment_b, q
         qm = self.mount_orientation
-        return (rotate_back(qm, force_b), rotate_back(qm, sub3(moment_b, cross3(self.mount_position, force_b))),
-                q)
+        return (rotate_back(qm, force_b), rotate_back(qm, sub3(moment_b, cross3(self.mount_position, force_b))), q)
 
 
 def sensor_mount_in_body(body2: RigidBody, mount_position=(0.0, 0.0, 0.0), mount_orientation=IDENTITY) -> tuple:
@@ -466,10 +495,21 @@ def _toward(now, goal, a: float) -> tuple:
 
 
 def simulate_hybrid6(
-    body1: RigidBody, body2: RigidBody, state1: BodyState, state2: BodyState, ideal: Contact6,
-    passive: Contact6, *, dt: float = 1e-3, t_end: float = 2.0, delay_ticks: int = 0,
-    impedance: Impedance6 | None = None, order: int = 4, lag: float = 0.0,
-    sensor_position=(0.0, 0.0, 0.0), sensor_orientation=IDENTITY,
+    body1: RigidBody,
+    body2: RigidBody,
+    state1: BodyState,
+    state2: BodyState,
+    ideal: Contact6,
+    passive: Contact6,
+    *,
+    dt: float = 1e-3,
+    t_end: float = 2.0,
+    delay_ticks: int = 0,
+    impedance: Impedance6 | None = None,
+    order: int = 4,
+    lag: float = 0.0,
+    sensor_position=(0.0, 0.0, 0.0),
+    sensor_orientation=IDENTITY,
 ) -> Run6:
     """The sampled hybrid loop, tick by tick, as the graph runs it.
 
@@ -513,11 +553,9 @@ def simulate_hybrid6(
         if not wall.touching and onset is not None and exit_time is None and i * dt > onset:
             exit_time = i * dt
         # Record the state of tick i and the wrench held over the next tick.
-        rec.record(i, i * dt, m1, m2, wrench.f1, sub3(wrench.t1, cross3(g.arm1, wrench.f1)), q_seen, 0.0,
-                   wall.touching)
+        rec.record(i, i * dt, m1, m2, wrench.f1, sub3(wrench.t1, cross3(g.arm1, wrench.f1)), q_seen, 0.0, wall.touching)
         if i < steps:
             rigid.step(m1, m2, wrench, dt, order)
-    run = rec.run(onset, exit_time, (m1.state(), m2.state()),
-                  None if wall.anchor is None else np.array(wall.anchor))
+    run = rec.run(onset, exit_time, (m1.state(), m2.state()), None if wall.anchor is None else np.array(wall.anchor))
     run.impedance = wall.impedance
     return run

@@ -140,9 +140,7 @@ def ideal_contact_summary(scenario: ContactScenario) -> ContactSummary:
     scn = scenario
     v0 = scn.closing_velocity
     if v0 <= 0.0:
-        raise ContactModelError(
-            f"no contact: the chaser does not close in (v1 - v2 = {v0!r} m/s, needs > 0)"
-        )
+        raise ContactModelError(f"no contact: the chaser does not close in (v1 - v2 = {v0!r} m/s, needs > 0)")
     m = scn.reduced_mass
     mo = modes(m, scn.kcs, scn.bcs)
     duration = contact_duration(m, scn.kcs, scn.bcs)

@@ -128,9 +128,7 @@ class IdealStates:
     source: str
 
 
-def ideal_states(
-    scenario: ContactScenario, times, source: str = "exact", dt: float = 1e-3
-) -> IdealStates:
+def ideal_states(scenario: ContactScenario, times, source: str = "exact", dt: float = 1e-3) -> IdealStates:
     """States of the ideal model (contact from t = 0 at the origin) at `times`.
 
     source: "exact" (simulated with the exact step), "closed_form", a fixed-step

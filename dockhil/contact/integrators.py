@@ -363,14 +363,15 @@ class Penetration:
         return float(self.c @ state[: self.c.size]) + self.offset
 
     def rate(self, state) -> float:
-        return float(self.c @ state[self.c.size:])
+        return float(self.c @ state[self.c.size :])
 
 
 RELATIVE = Penetration([1.0, -1.0])  # chaser minus target
 
 
-def step_with_events(free: Integrator, contact: Integrator, x, u, dt: float, touching: bool,
-                     pen: Penetration, omega: float) -> tuple[np.ndarray, bool, list[tuple[float, bool]]]:
+def step_with_events(
+    free: Integrator, contact: Integrator, x, u, dt: float, touching: bool, pen: Penetration, omega: float
+) -> tuple[np.ndarray, bool, list[tuple[float, bool]]]:
     """One step of dt with the contact switching on and off inside it.
 
     `omega` [rad/s] is the contact's natural frequency. Returns the new
@@ -397,9 +398,7 @@ def step_with_events(free: Integrator, contact: Integrator, x, u, dt: float, tou
         events.append((done, touching))
         if remaining <= 0.0:
             return x, touching, events
-    raise ContactModelError(
-        f"more than 16 contact events within one step of {dt:.6g} s (chatter); use a smaller dt"
-    )
+    raise ContactModelError(f"more than 16 contact events within one step of {dt:.6g} s (chatter); use a smaller dt")
 
 
 def _side_changed(y, touching: bool, pen: Penetration) -> bool:
@@ -407,8 +406,9 @@ def _side_changed(y, touching: bool, pen: Penetration) -> bool:
     return p <= 0.0 if touching else p > 0.0
 
 
-def _event_bracket(integ: Integrator, x, u, span: float, end, touching: bool, pen: Penetration,
-                   omega: float) -> tuple[float, float] | None:
+def _event_bracket(
+    integ: Integrator, x, u, span: float, end, touching: bool, pen: Penetration, omega: float
+) -> tuple[float, float] | None:
     """(lo, hi) with the penetration on the old side at lo and on the new side at hi, or None."""
     inner: list[float] = []
     if touching and omega * span > 0.5 * math.pi:

@@ -88,11 +88,15 @@ class Passivity:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.k) and self.k > 0.0):
-            raise ContactModelError(f"compensation 'passivity' needs the passive stiffness k > 0 N/m of the "
-                                    f"compliance the sensor measures, got k = {self.k!r}; set k (e.g. k:=2510)")
+            raise ContactModelError(
+                f"compensation 'passivity' needs the passive stiffness k > 0 N/m of the "
+                f"compliance the sensor measures, got k = {self.k!r}; set k (e.g. k:=2510)"
+            )
         if not (math.isfinite(self.max_damping) and self.max_damping > 0.0):
-            raise ContactModelError(f"compensation 'passivity' needs max_damping > 0 N s/m, got {self.max_damping!r}; "
-                                    f"set max_damping (e.g. max_damping:=200)")
+            raise ContactModelError(
+                f"compensation 'passivity' needs max_damping > 0 N s/m, got {self.max_damping!r}; "
+                f"set max_damping (e.g. max_damping:=200)"
+            )
         if not (math.isfinite(self.deadband) and self.deadband >= 0.0):
             raise ContactModelError(f"compensation 'passivity' needs force_deadband >= 0 N, got {self.deadband!r}")
 
@@ -135,8 +139,9 @@ def port_generation(f: float, p: float, dp: float, k: float) -> float:
     return f * dp + 0.5 * k * ((q * q if q > 0.0 else 0.0) - (p * p if p > 0.0 else 0.0))
 
 
-def damping_force(passivity: Passivity | None, energy: float, v: float, dt: float, active: bool,
-                  ceiling: float = math.inf) -> tuple[float, float, bool]:
+def damping_force(
+    passivity: Passivity | None, energy: float, v: float, dt: float, active: bool, ceiling: float = math.inf
+) -> tuple[float, float, bool]:
     """One axis of the controller: (force on the chaser [N], damping [N s/m], at the bound) over
     the next tick, so that it dissipates `energy` [J] at velocity v [m/s]; the damping is bounded by
     max_damping and by `ceiling` (m_r / dt: no reversal of the relative velocity within a tick)."""
@@ -167,8 +172,9 @@ class EnergyMonitor:
         self.e = EnergyTick()
         self.initial = 0.0  # [J] what the port and the virtual springs hold at the first tick
 
-    def step(self, x1: float, x2: float, v1: float, v2: float, f: float, fv1: float, fv2: float,
-             dt: float) -> tuple[float, EnergyTick]:
+    def step(
+        self, x1: float, x2: float, v1: float, v2: float, f: float, fv1: float, fv2: float, dt: float
+    ) -> tuple[float, EnergyTick]:
         """Account for the tick that just ended (the previous tick's forces over the motion since),
         then return the controller's force on the chaser for the next tick (0 without it; the
         target gets its opposite) and the account. f: measured force on the chaser [N]; fv1, fv2:
@@ -195,15 +201,22 @@ class EnergyMonitor:
             # A run may start in contact: what the stores hold then was not made by the loop (the
             # delay-free port holds k p^2 / 2 from the start; the delayed robot reports it later).
             self.initial = e.port_stored_J + e.virtual_stored_J
-        e.generated_J = (e.port_work_J + e.port_stored_J + e.virtual_work_J + e.virtual_stored_J
-                         + e.virtual_dissipated_J - self.initial)
+        e.generated_J = (
+            e.port_work_J
+            + e.port_stored_J
+            + e.virtual_work_J
+            + e.virtual_stored_J
+            + e.virtual_dissipated_J
+            - self.initial
+        )
         e.net_generated_J = e.generated_J - e.compensation_dissipated_J
         e.port_loaded = touching or abs(f) > (self.passivity.deadband if self.passivity is not None else 0.0)
         if self.passivity is not None and e.port_loaded:
             # What is left, and what the held force will make over the next tick (p moving at pd).
             energy = e.net_generated_J + port_generation(f, p, pd * dt, self.k)
-            fc, e.damping_Ns_m, e.at_max_damping = damping_force(self.passivity, energy, pd, dt, True,
-                                                                 self.reduced / dt)
+            fc, e.damping_Ns_m, e.at_max_damping = damping_force(
+                self.passivity, energy, pd, dt, True, self.reduced / dt
+            )
         else:
             fc, e.damping_Ns_m, e.at_max_damping = 0.0, 0.0, False
         self.prev = (x1, x2, p, pd, f, fc, fv1, fv2, touching)
@@ -239,9 +252,11 @@ class EnergyMeter:
         residual, tol = self.residual(), RESIDUAL_TOLERANCE * self.spring_max
         if residual <= tol:
             return None
-        return (f"the passivity controller saturated at max_damping {max_damping:g} N s/m: {residual:.3g} J made "
-                f"by the delay stayed in the loop (allowed {tol:.3g} J, {RESIDUAL_TOLERANCE:g} of the port's "
-                f"peak energy; {self.ticks_at_max} ticks at the bound); raise max_damping")
+        return (
+            f"the passivity controller saturated at max_damping {max_damping:g} N s/m: {residual:.3g} J made "
+            f"by the delay stayed in the loop (allowed {tol:.3g} J, {RESIDUAL_TOLERANCE:g} of the port's "
+            f"peak energy; {self.ticks_at_max} ticks at the bound); raise max_damping"
+        )
 
 
 def left_in_loop(account: dict) -> tuple[float, float]:

@@ -53,6 +53,7 @@ IDENTITY = (0.0, 0.0, 0.0, 1.0)
 
 # --- quaternions (x, y, z, w), plain floats -------------------------------------------------
 
+
 def quat_multiply_python(a, b) -> tuple[float, float, float, float]:
     """Hamilton product a b (scalar last); `quat_multiply` is it compiled where built (see `COMPILED`)."""
     ax, ay, az, aw = a
@@ -72,11 +73,13 @@ def quat_conjugate(q) -> tuple[float, float, float, float]:
 def quat_to_matrix(q) -> np.ndarray:
     """Rotation matrix of a unit quaternion (body -> world)."""
     x, y, z, w = q
-    return np.array([
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
-        [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
-        [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
+            [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
+            [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)],
+        ]
+    )
 
 
 def matrix_to_quat(r) -> tuple[float, float, float, float]:
@@ -135,6 +138,7 @@ def cross(a, b) -> np.ndarray:
 
 # --- 3-vectors as tuples of floats: the per-tick arithmetic of the sampled loop ----------------
 # numpy costs about a microsecond per call on vectors this small; plain floats cost a fraction.
+
 
 def cross3(a, b) -> tuple[float, float, float]:
     a0, a1, a2 = a
@@ -228,13 +232,12 @@ def check_symmetric(name: str, matrix, size: int, definite: bool, unit: str = ""
     if definite and low <= 0.0:
         raise ContactModelError(f"{name} must be positive definite: its smallest eigenvalue is {low!r} {unit}")
     if not definite and low < -1e-12 * scale:
-        raise ContactModelError(
-            f"{name} must be positive semi-definite: its smallest eigenvalue is {low!r} {unit}"
-        )
+        raise ContactModelError(f"{name} must be positive semi-definite: its smallest eigenvalue is {low!r} {unit}")
     return arr
 
 
 # --- bodies ----------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class RigidBody:
@@ -260,8 +263,7 @@ class RigidBody:
         # A rigid body's principal moments obey the triangle inequality (I1 + I2 >= I3).
         if moments[0] + moments[1] < moments[2] * (1.0 - 1e-12):
             raise ContactModelError(
-                f"{n}.inertia is not a rigid body's: principal moments {moments.tolist()} break"
-                " I1 + I2 >= I3"
+                f"{n}.inertia is not a rigid body's: principal moments {moments.tolist()} break I1 + I2 >= I3"
             )
         if np.linalg.det(axes) < 0.0:
             axes[:, 2] = -axes[:, 2]
@@ -287,8 +289,9 @@ class RigidBody:
         object.__setattr__(self, "_pi_identity", self._q_pi == IDENTITY)
         object.__setattr__(self, "_com", tuple(float(c) for c in self.com))
         # What the compiled interface geometry reads (None: the identity, whose product is skipped).
-        object.__setattr__(self, "_frames", (self._r_p, None if self._pi_identity else self._q_pi,
-                                             None if self._bp_identity else q_bp))
+        object.__setattr__(
+            self, "_frames", (self._r_p, None if self._pi_identity else self._q_pi, None if self._bp_identity else q_bp)
+        )
         # What the per-tick geometry and mobilities read of the body: two bodies with equal keys
         # give them equal numbers (hybrid6.published_interface remembers its last answer by it).
         # Equal keys are one object, so that comparing them is an identity check.
@@ -335,8 +338,9 @@ class Motion:
     def from_state(cls, body: RigidBody, state: BodyState) -> "Motion":
         q_p = normalised(quat_multiply(state.orientation, body._q_bp))
         omega_p = body.principal_axes.T @ state.angular_velocity
-        return cls(body, _floats3(state.position), _floats3(state.velocity), q_p,
-                   _floats3(body.principal_moments * omega_p))
+        return cls(
+            body, _floats3(state.position), _floats3(state.velocity), q_p, _floats3(body.principal_moments * omega_p)
+        )
 
     def copy(self) -> "Motion":
         return Motion(self.body, self.x, self.v, self.q, self.L)  # tuples: nothing shared can change
@@ -344,8 +348,9 @@ class Motion:
     def state(self) -> BodyState:
         b = self.body
         q_b = normalised(quat_multiply(self.q, quat_conjugate(b._q_bp)))
-        return BodyState(np.array(self.x), q_b, np.array(self.v),
-                         b.principal_axes @ (np.array(self.L) / b.principal_moments))
+        return BodyState(
+            np.array(self.x), q_b, np.array(self.v), b.principal_axes @ (np.array(self.L) / b.principal_moments)
+        )
 
     # World-frame quantities used by contact models.
     def rotation(self) -> np.ndarray:
@@ -362,8 +367,10 @@ class Motion:
 
     def interface_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """Interface origin [m] and rotation matrix (interface -> world)."""
-        return (np.array(add3(self.x, rotate(self.q, self.body._r_p))),
-                quat_to_matrix(quat_multiply(self.q, self.body._q_pi)))
+        return (
+            np.array(add3(self.x, rotate(self.q, self.body._r_p))),
+            quat_to_matrix(quat_multiply(self.q, self.body._q_pi)),
+        )
 
     def point_velocity(self, point) -> np.ndarray:
         return np.array(add3(self.v, cross3(self.omega3(), sub3(point, self.x))))
@@ -379,8 +386,9 @@ class Motion:
     def kinetic_energy(self) -> float:
         b = self.body
         v, L, i = self.v, self.L, b._moments
-        return (0.5 * b.mass * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-                + 0.5 * (L[0] * L[0] / i[0] + L[1] * L[1] / i[1] + L[2] * L[2] / i[2]))
+        return 0.5 * b.mass * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) + 0.5 * (
+            L[0] * L[0] / i[0] + L[1] * L[1] / i[1] + L[2] * L[2] / i[2]
+        )
 
 
 def _floats3(v) -> tuple[float, float, float]:
@@ -388,6 +396,7 @@ def _floats3(v) -> tuple[float, float, float]:
 
 
 # --- the free flight: exact translation, rotation split about principal axes ----------------
+
 
 def drift_python(m: Motion, t: float) -> None:
     """Free flight for t [s]: translation exact, rotation by the symmetric
@@ -523,8 +532,12 @@ def _midpoint_wrench(wrench_of, f, mom, m1, m2, arm1, arm2, h):
         t2 = rotate_back(q2, sub3(cross3(fz, arm2), mz))
         omega1 = rotate(q1, ((L1[0] + half * t1[0]) / i1, (L1[1] + half * t1[1]) / i2, (L1[2] + half * t1[2]) / i3))
         omega2 = rotate(q2, ((L2[0] + half * t2[0]) / j1, (L2[1] + half * t2[1]) / j2, (L2[2] + half * t2[2]) / j3))
-        g, nm = wrench_of((v1[0] + k1 * fz[0], v1[1] + k1 * fz[1], v1[2] + k1 * fz[2]), omega1,
-                          (v2[0] - k2 * fz[0], v2[1] - k2 * fz[1], v2[2] - k2 * fz[2]), omega2)
+        g, nm = wrench_of(
+            (v1[0] + k1 * fz[0], v1[1] + k1 * fz[1], v1[2] + k1 * fz[2]),
+            omega1,
+            (v2[0] - k2 * fz[0], v2[1] - k2 * fz[1], v2[2] - k2 * fz[2]),
+            omega2,
+        )
         return tuple(g) + tuple(nm)
 
     z = tuple(f) + tuple(mom)

@@ -44,6 +44,7 @@ DENSE_FALLBACK_DEGREE = 4000
 class RootsNotResolved(ValueError):
     """The dominant roots of a long-delay loop could not be verified, and all of them cost too much."""
 
+
 # The resolution criterion. Forces held over a step act on average dt/2 late, so the peak force of
 # a contact errs by about 0.4 omega dt (measured from 1 to 200 kHz on the stiff case of issue 12:
 # 2.61 -> +158 %, 0.26 -> +10.6 %, 0.026 -> +0.98 %). omega is the fastest pole of the contact.
@@ -88,10 +89,10 @@ class SampledLoop:
         return 1.0 if self.lag == 0.0 else -math.expm1(-self.dt / self.lag)
 
 
-
 # The longest delay, in ticks, whose sampled loop is analysed: its characteristic polynomial has
 # that degree, and the root finding grows with it (30000 ticks took minutes and 11 GB).
 MAX_DELAY_TICKS = 20000
+
 
 def _tick_matrices(loop: SampledLoop, system: LinearSecondOrderSystem) -> tuple[np.ndarray, np.ndarray]:
     """Phi, Gamma of one tick made of `substeps` integrator steps with the input held."""
@@ -118,10 +119,10 @@ def one_tick_map(loop: SampledLoop) -> np.ndarray:
     # r_k = (1 - alpha) r_{k-1} + alpha [p, p']_{k-d}; a_k = c_d . x_k + c_h . r_k
     r_from_old = (1.0 - al) * np.eye(2)
     a[:2, :2] = phi + np.outer(gam[:, 0], c_d)
-    a[:2, 2 * d:2 * d + 2] += al * np.outer(gam[:, 0], c_h)
+    a[:2, 2 * d : 2 * d + 2] += al * np.outer(gam[:, 0], c_h)
     a[:2, -2:] += np.outer(gam[:, 0], c_h) @ r_from_old
-    a[2:2 * (d + 1), :2 * d] = np.eye(2 * d)
-    a[-2:, 2 * d:2 * d + 2] = al * np.eye(2)
+    a[2 : 2 * (d + 1), : 2 * d] = np.eye(2 * d)
+    a[-2:, 2 * d : 2 * d + 2] = al * np.eye(2)
     a[-2:, -2:] = r_from_old
     return a
 
@@ -142,8 +143,8 @@ def characteristic_polynomial(loop: SampledLoop) -> np.ndarray:
     e0 = c_h[0] * (-p[1, 1] * g[0] + p[0, 1] * g[1]) + c_h[1] * (p[1, 0] * g[0] - p[0, 0] * g[1])
     d, al = loop.delay_ticks, loop.alpha
     q = np.zeros(d + 4)
-    q[d + 1:d + 4] += det_poly  # z * z^d det
-    q[d:d + 3] -= (1.0 - al) * det_poly  # -(1 - alpha) z^d det
+    q[d + 1 : d + 4] += det_poly  # z * z^d det
+    q[d : d + 3] -= (1.0 - al) * det_poly  # -(1 - alpha) z^d det
     q[1] -= al * e0
     q[2] -= al * e1
     return q
@@ -206,8 +207,10 @@ def sampled_roots(loop: SampledLoop, guesses=()) -> np.ndarray:
         # inside the annulus is one found.
         rho = abs(found[0])
         near = sum(1 for z in found if abs(z) > rho * (1.0 - VERIFY_MARGIN))
-        if (_zeros_outside(q, rho * (1.0 + VERIFY_MARGIN)) == 0
-                and _zeros_outside(q, rho * (1.0 - VERIFY_MARGIN)) == near):
+        if (
+            _zeros_outside(q, rho * (1.0 + VERIFY_MARGIN)) == 0
+            and _zeros_outside(q, rho * (1.0 - VERIFY_MARGIN)) == near
+        ):
             return np.array(found)
     return _all_roots(q)
 
@@ -215,9 +218,11 @@ def sampled_roots(loop: SampledLoop, guesses=()) -> np.ndarray:
 def _all_roots(q: np.ndarray) -> np.ndarray:
     deg = len(q) - 1
     if deg > DENSE_FALLBACK_DEGREE:
-        raise RootsNotResolved(f"the sampled loop's dominant roots at degree {deg} (its ticks of delay) could not "
-                               f"be verified, and finding all {deg} roots is beyond the {DENSE_FALLBACK_DEGREE} "
-                               f"this check computes")
+        raise RootsNotResolved(
+            f"the sampled loop's dominant roots at degree {deg} (its ticks of delay) could not "
+            f"be verified, and finding all {deg} roots is beyond the {DENSE_FALLBACK_DEGREE} "
+            f"this check computes"
+        )
     roots = np.roots(q[::-1])
     return roots[np.argsort(-np.abs(roots))]
 
@@ -278,8 +283,10 @@ class Resolution:
         return round_up(need)
 
     def describe(self) -> str:
-        return (f"omega*dt = {self.omega_dt:.3g} (omega = {self.omega:.4g} rad/s, dt = {self.dt:.3g} s), "
-                f"{self.samples:.3g} samples per {self.span_name}")
+        return (
+            f"omega*dt = {self.omega_dt:.3g} (omega = {self.omega:.4g} rad/s, dt = {self.dt:.3g} s), "
+            f"{self.samples:.3g} samples per {self.span_name}"
+        )
 
 
 def round_up(rate: float) -> float:

@@ -17,8 +17,19 @@ import numpy as np
 from dockhil.contact.passivity import RESIDUAL_TOLERANCE
 
 
-def simulate_sheets(m, b, K, h, max_damping, *, dt: float = 1e-3, seconds: float = 30.0, thrust: float = 10.0,
-                    progress=None, record: bool = False) -> dict:
+def simulate_sheets(
+    m,
+    b,
+    K,
+    h,
+    max_damping,
+    *,
+    dt: float = 1e-3,
+    seconds: float = 30.0,
+    thrust: float = 10.0,
+    progress=None,
+    record: bool = False,
+) -> dict:
     """Run every lane (arrays broadcast together: mass m [kg], damper b [N s/m], sheet K [N/m], delay
     h [s], the controller's bound max_damping [N s/m], 0 for no controller) for `seconds` from rest
     at twice the equilibrium compression. `progress`: a dockhil.progress.Progress, or None.
@@ -97,9 +108,15 @@ def simulate_sheets(m, b, K, h, max_damping, *, dt: float = 1e-3, seconds: float
         rate = np.log(amplitude[1] / amplitude[0]) / span
     allowed = RESIDUAL_TOLERANCE * spring_max
     grows = diverged | ~(amplitude[1] <= amplitude[0])
-    out = {"grows": grows, "saturated": compensated & ~diverged & (left > allowed), "diverged": diverged,
-           "compensated": compensated, "growth_rate": np.where(diverged, np.inf, rate), "left_J": left,
-           "allowed_J": allowed}
+    out = {
+        "grows": grows,
+        "saturated": compensated & ~diverged & (left > allowed),
+        "diverged": diverged,
+        "compensated": compensated,
+        "growth_rate": np.where(diverged, np.inf, rate),
+        "left_J": left,
+        "allowed_J": allowed,
+    }
     if record:
         out["p"] = trace
     return out

@@ -219,9 +219,7 @@ def exact_bound(m: float, b: float, h: float, damper: str = "delayed") -> Stabil
     return StabilityBound(k_max, omega, beta, damper, reason)
 
 
-def critical_stiffness_map(
-    m: float, b_values, h_values, bound: str = "pade1", damper: str = "delayed"
-) -> np.ndarray:
+def critical_stiffness_map(m: float, b_values, h_values, bound: str = "pade1", damper: str = "delayed") -> np.ndarray:
     """K_max [N/m] over a grid, shape (len(h_values), len(b_values)); nan where
     no K > 0 is stable. bound: "pade1" (Eq. 12, Fig. 7) or "exact". Vectorized."""
     m = check_positive("m", m, "kg")
@@ -278,9 +276,7 @@ def _newton(lam: complex, kappa: float, beta: float, damper: str) -> complex | N
     return complex(lam) if abs(f) < 1e-10 * (1.0 + abs(lam) ** 2) else None
 
 
-def characteristic_roots(
-    m: float, K: float, b: float, h: float, damper: str = "delayed", count: int = 6
-) -> np.ndarray:
+def characteristic_roots(m: float, K: float, b: float, h: float, damper: str = "delayed", count: int = 6) -> np.ndarray:
     """The `count` rightmost roots s [1/s] of the loop's characteristic equation,
     rightmost first. Chebyshev collocation of the delay equation (Breda, Maset
     and Vermiglio's infinitesimal-generator method), each root then refined
@@ -356,9 +352,8 @@ def stability_report(
         "reason": exact.reason,
     }
     if pade1 is None:
-        report["pade1_reason"] = (
-            "first-order Pade + Routh admit no K > 0"
-            + (f" (needs b h < 2 m, here b h / m = {exact.beta:.4g})" if b > 0.0 else " without damping")
+        report["pade1_reason"] = "first-order Pade + Routh admit no K > 0" + (
+            f" (needs b h < 2 m, here b h / m = {exact.beta:.4g})" if b > 0.0 else " without damping"
         )
     elif exact.k_max is None:
         report["pade1_reason"] = (
@@ -385,8 +380,15 @@ def stability_report(
 
 def _check_hybrid(m, k_direct, b_direct, k_delayed, b_delayed, h):
     m = check_positive("m", m, "kg")
-    vals = [check_finite(n, v, u) for n, v, u in (("k_direct", k_direct, "N/m"), ("b_direct", b_direct, "N s/m"),
-                                                   ("k_delayed", k_delayed, "N/m"), ("b_delayed", b_delayed, "N s/m"))]
+    vals = [
+        check_finite(n, v, u)
+        for n, v, u in (
+            ("k_direct", k_direct, "N/m"),
+            ("b_direct", b_direct, "N s/m"),
+            ("k_delayed", k_delayed, "N/m"),
+            ("b_delayed", b_delayed, "N s/m"),
+        )
+    ]
     return (m, *vals, check_nonnegative("h", h, "s"))
 
 
@@ -397,8 +399,9 @@ def _hybrid_char(lam: complex, kd, bd, kh, bh) -> tuple[complex, complex]:
     return f, 2.0 * lam + bd + bh * e - (kh + bh * lam) * e
 
 
-def hybrid_roots(m: float, k_direct: float, b_direct: float, k_delayed: float, b_delayed: float, h: float,
-                 count: int = 6) -> np.ndarray:
+def hybrid_roots(
+    m: float, k_direct: float, b_direct: float, k_delayed: float, b_delayed: float, h: float, count: int = 6
+) -> np.ndarray:
     """The `count` rightmost roots s [1/s] of the hybrid loop
         m s^2 + b_d s + k_d + (k_h + b_h s) e^{-sh} = 0
     (virtual impedance on the simulator's state, passive compliance behind the robot's delay),
@@ -453,8 +456,9 @@ class DelayCrossing:
     destabilizing: bool
 
 
-def delay_crossings(m: float, k_direct: float, b_direct: float, k_delayed: float, b_delayed: float
-                    ) -> list[DelayCrossing]:
+def delay_crossings(
+    m: float, k_direct: float, b_direct: float, k_delayed: float, b_delayed: float
+) -> list[DelayCrossing]:
     """Closed-form crossing frequencies and critical delays of
     m s^2 + b_d s + k_d + (k_h + b_h s) e^{-sh} = 0 (the method of Zebenay, Boge, Krenn and
     Choukroun, arXiv 1309.3512, for the docking simulator's loop): at s = j w the moduli of
@@ -484,8 +488,9 @@ def delay_crossings(m: float, k_direct: float, b_direct: float, k_delayed: float
     return out
 
 
-def unstable_root_count(m: float, k_direct: float, b_direct: float, k_delayed: float, b_delayed: float,
-                        h: float) -> int:
+def unstable_root_count(
+    m: float, k_direct: float, b_direct: float, k_delayed: float, b_delayed: float, h: float
+) -> int:
     """Roots in the open right half-plane at delay h: those of the undelayed polynomial, plus two
     per destabilizing crossing at or below h, minus two per stabilizing one (exact, closed form)."""
     m, kd, bd, kh, bh, h = _check_hybrid(m, k_direct, b_direct, k_delayed, b_delayed, h)
@@ -497,8 +502,9 @@ def unstable_root_count(m: float, k_direct: float, b_direct: float, k_delayed: f
     return max(n, 0)
 
 
-def critical_delay(m: float, k_direct: float, b_direct: float, k_delayed: float, b_delayed: float
-                   ) -> tuple[float | None, float | None]:
+def critical_delay(
+    m: float, k_direct: float, b_direct: float, k_delayed: float, b_delayed: float
+) -> tuple[float | None, float | None]:
     """(h*, omega*): the smallest delay [s] at which the loop, stable without delay, loses
     stability, and the frequency [rad/s] it then oscillates at; (inf, None) when no delay
     destabilizes it; (None, None) when it is unstable already without delay."""
@@ -520,8 +526,9 @@ def _pade_hybrid_stable(m, kd, bd, kh, bh, h, order) -> bool:
     return _poly_stable(poly)
 
 
-def pade_critical_delay(m: float, k_direct: float, b_direct: float, k_delayed: float, b_delayed: float,
-                        order: int = 1, h_max: float = 100.0) -> float | None:
+def pade_critical_delay(
+    m: float, k_direct: float, b_direct: float, k_delayed: float, b_delayed: float, order: int = 1, h_max: float = 100.0
+) -> float | None:
     """The smallest delay [s] at which the loop with e^{-sh} replaced by its order-n Pade
     approximant is unstable (found by scanning and bisection); inf when none up to h_max;
     None when unstable without delay."""
@@ -541,8 +548,16 @@ def pade_critical_delay(m: float, k_direct: float, b_direct: float, k_delayed: f
     return math.inf
 
 
-def hybrid_report(m: float, k_direct: float, b_direct: float, k_delayed: float, b_delayed: float, h: float,
-                  rate: float | None = None, pade_order: int | None = None) -> dict:
+def hybrid_report(
+    m: float,
+    k_direct: float,
+    b_direct: float,
+    k_delayed: float,
+    b_delayed: float,
+    h: float,
+    rate: float | None = None,
+    pade_order: int | None = None,
+) -> dict:
     """Everything `dockhil stability` prints for the hybrid loop, as a JSON-ready dict: the
     closed-form crossings and critical delay, Pade critical delays, the rightmost root, the
     paper's verdict when the whole contact is delayed, and the sampled loop at `rate`."""
@@ -556,14 +571,22 @@ def hybrid_report(m: float, k_direct: float, b_direct: float, k_delayed: float, 
     whole = hybrid_rightmost(m, 0.0, 0.0, kd + kh, bd + bh, h)
     fin = lambda v: None if v is None or not math.isfinite(v) else v  # noqa: E731
     out = {
-        "m": m, "k_direct": kd, "b_direct": bd, "k_delayed": kh, "b_delayed": bh, "h": h,
+        "m": m,
+        "k_direct": kd,
+        "b_direct": bd,
+        "k_delayed": kh,
+        "b_delayed": bh,
+        "h": h,
         "equation": "m s^2 + b_d s + k_d + (k_h + b_h s) e^(-sh) = 0",
         "crossings": [{"omega": c.omega, "h0": c.h0, "destabilizing": c.destabilizing} for c in crossings],
-        "critical_delay": fin(h_star), "critical_frequency": w_star,
+        "critical_delay": fin(h_star),
+        "critical_frequency": w_star,
         "stable_without_delay": h_star is not None,
         "no_delay_destabilizes": h_star is not None and math.isinf(h_star),
         "pade1_critical_delay": fin(pade_critical_delay(m, kd, bd, kh, bh, 1)),
-        "rightmost_root": [root.real, root.imag], "growth_rate": root.real, "stable": bool(root.real < 0.0),
+        "rightmost_root": [root.real, root.imag],
+        "growth_rate": root.real,
+        "stable": bool(root.real < 0.0),
         "unstable_roots": unstable_root_count(m, kd, bd, kh, bh, h),
         "whole_delayed_growth_rate": whole.real,
     }
@@ -589,8 +612,14 @@ def _sampled_report(m, kd, bd, kh, bh, h, rate, h_star) -> dict:
         return float(abs(z))
 
     rho = radius(d)
-    sampled = {"rate": rate, "dt": dt, "delay_ticks": d, "spectral_radius": rho,
-               "growth_rate": math.log(rho) * rate if rho > 0 else None, "stable": bool(rho < 1.0)}
+    sampled = {
+        "rate": rate,
+        "dt": dt,
+        "delay_ticks": d,
+        "spectral_radius": rho,
+        "growth_rate": math.log(rho) * rate if rho > 0 else None,
+        "stable": bool(rho < 1.0),
+    }
     # The smallest delay in whole ticks at which the sampled loop grows, near the exact one.
     if h_star is not None and math.isfinite(h_star) and h_star * rate < 20000:
         start = max(0, int(h_star * rate) - 6)

@@ -76,8 +76,9 @@ class MultiAxisLoop:
 
     def scaled(self, alpha: float) -> "MultiAxisLoop":
         """The same loop with the delayed stiffness times alpha."""
-        return MultiAxisLoop(self.mass, self.k_direct, self.b_direct, alpha * self.k_delayed, self.b_delayed,
-                             self.h, self.axes)
+        return MultiAxisLoop(
+            self.mass, self.k_direct, self.b_direct, alpha * self.k_delayed, self.b_delayed, self.h, self.axes
+        )
 
     def matrix(self, s: complex) -> np.ndarray:
         """D(s) = M s^2 + B_d s + K_d + (B_h s + K_h) e^{-sh}."""
@@ -128,8 +129,12 @@ def roots(loop: MultiAxisLoop, count: int = 6) -> list[Root]:
     n = loop.n
     minv = np.linalg.inv(loop.mass)
     if loop.h == 0.0:
-        a = np.block([[np.zeros((n, n)), np.eye(n)],
-                      [-minv @ (loop.k_direct + loop.k_delayed), -minv @ (loop.b_direct + loop.b_delayed)]])
+        a = np.block(
+            [
+                [np.zeros((n, n)), np.eye(n)],
+                [-minv @ (loop.k_direct + loop.k_delayed), -minv @ (loop.b_direct + loop.b_delayed)],
+            ]
+        )
         eig = np.linalg.eigvals(a)
     else:
         h = loop.h
@@ -185,9 +190,12 @@ def stiffness_margin(loop: MultiAxisLoop, rel_tol: float = 1e-7) -> Margin:
         return Margin(math.inf, None, None, "no delay: the delayed stiffness is not limited by the delay")
     lo, hi = 0.0, 1.0
     if grows(1e-9):
-        return Margin(None, None, rightmost(loop.scaled(1e-9)),
-                      "unstable for any delayed stiffness: the direct terms or the damping seen"
-                      " through the delay destabilise it")
+        return Margin(
+            None,
+            None,
+            rightmost(loop.scaled(1e-9)),
+            "unstable for any delayed stiffness: the direct terms or the damping seen through the delay destabilise it",
+        )
     while not grows(hi):
         lo, hi = hi, 2.0 * hi
         if hi > 1e12:
@@ -256,13 +264,29 @@ def modal_loops(loop: MultiAxisLoop, tol: float = 1e-9) -> list[dict] | None:
         if any(abs(v.imag) > tol * (1.0 + abs(v)) for v in vals):
             return None
         v = vecs[:, j]
-        out.append({"axis": loop.axes[int(np.argmax(np.abs(v)))], "k_direct": vals[0].real,
-                    "b_direct": vals[1].real, "k_delayed": vals[2].real, "b_delayed": vals[3].real})
+        out.append(
+            {
+                "axis": loop.axes[int(np.argmax(np.abs(v)))],
+                "k_direct": vals[0].real,
+                "b_direct": vals[1].real,
+                "k_delayed": vals[2].real,
+                "b_delayed": vals[3].real,
+            }
+        )
     return out
 
 
-def planar_loop(m: float, inertia: float, lever: float, k_normal: float, b_normal: float, h: float,
-                k_rot: float = 0.0, b_rot: float = 0.0, direct: float = 0.0) -> MultiAxisLoop:
+def planar_loop(
+    m: float,
+    inertia: float,
+    lever: float,
+    k_normal: float,
+    b_normal: float,
+    h: float,
+    k_rot: float = 0.0,
+    b_rot: float = 0.0,
+    direct: float = 0.0,
+) -> MultiAxisLoop:
     """The 2-D loop: a free body (mass m [kg], inertia about z [kg m^2]) touching
     at a point `lever` [m] off its CoM along y; normal spring-dashpot
     (k_normal, b_normal) and rotational (k_rot, b_rot) seen through the delay h.
@@ -277,13 +301,20 @@ def planar_loop(m: float, inertia: float, lever: float, k_normal: float, b_norma
     mass = np.linalg.inv(g)
     k = np.diag([k_normal, k_rot])
     b = np.diag([b_normal, b_rot])
-    return MultiAxisLoop(0.5 * (mass + mass.T), direct * k, direct * b, (1.0 - direct) * k, (1.0 - direct) * b, h,
-                         ("x", "rz"))
+    return MultiAxisLoop(
+        0.5 * (mass + mass.T), direct * k, direct * b, (1.0 - direct) * k, (1.0 - direct) * b, h, ("x", "rz")
+    )
 
 
 def hybrid_loop6(ideal, passive, g1, g2, h: float) -> MultiAxisLoop:
     """The 6-DOF hybrid loop at the contact's onset configuration: M = (G1 + G2)^-1,
     the virtual impedance (K - K_p, C - C_p) direct, the passive (K_p, C_p) delayed."""
     mass = np.linalg.inv(np.asarray(g1, float) + np.asarray(g2, float))
-    return MultiAxisLoop(0.5 * (mass + mass.T), ideal.stiffness - passive.stiffness, ideal.damping - passive.damping,
-                         passive.stiffness, passive.damping, h)
+    return MultiAxisLoop(
+        0.5 * (mass + mass.T),
+        ideal.stiffness - passive.stiffness,
+        ideal.damping - passive.damping,
+        passive.stiffness,
+        passive.damping,
+        h,
+    )

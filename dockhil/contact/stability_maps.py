@@ -33,9 +33,18 @@ def compensated_runs(m: float, b: float, h: float, K: float | None, max_damping:
     for label, k in stiffnesses:
         row = {"label": label, "K": k, "growth_rate": None, "saturated": None, "diverged": False}
         try:
-            run = simulate_hil(m1=m, m2=0.0, k=k, impedance=VirtualImpedance(0.0, b, 0.0, 0.0), dt=1 / RATE,
-                               n_ticks=int(SECONDS * RATE) + 1, delay=h, thrust=THRUST, x1=2 * THRUST / k,
-                               passivity=Passivity(k, max_damping))
+            run = simulate_hil(
+                m1=m,
+                m2=0.0,
+                k=k,
+                impedance=VirtualImpedance(0.0, b, 0.0, 0.0),
+                dt=1 / RATE,
+                n_ticks=int(SECONDS * RATE) + 1,
+                delay=h,
+                thrust=THRUST,
+                x1=2 * THRUST / k,
+                passivity=Passivity(k, max_damping),
+            )
         except ContactModelError:
             row["diverged"] = True
             rows.append(row)
@@ -48,16 +57,26 @@ def compensated_runs(m: float, b: float, h: float, K: float | None, max_damping:
             row["growth_rate"] = None
             row["settled"] = bool(np.ptp((run.x1 - run.x2)[-1000:]) < 1e-6)
         rows.append(row)
-    ok = [r["K"] for r in rows if not r["diverged"] and not r["saturated"]
-          and (r["growth_rate"] is not None and r["growth_rate"] < 0 or r.get("settled"))]
-    return {"loop": "m s^2 + b s + K e^(-sh) = 0 (stability.yaml: damper on the simulated velocity), "
-                    f"sampled at {RATE:g} Hz, {THRUST:g} N thrust, {SECONDS:g} s simulated",
-            "max_damping": max_damping, "exact_undelayed": bound, "runs": rows,
-            "largest_decaying_K": max(ok) if ok else None}
+    ok = [
+        r["K"]
+        for r in rows
+        if not r["diverged"]
+        and not r["saturated"]
+        and (r["growth_rate"] is not None and r["growth_rate"] < 0 or r.get("settled"))
+    ]
+    return {
+        "loop": "m s^2 + b s + K e^(-sh) = 0 (stability.yaml: damper on the simulated velocity), "
+        f"sampled at {RATE:g} Hz, {THRUST:g} N thrust, {SECONDS:g} s simulated",
+        "max_damping": max_damping,
+        "exact_undelayed": bound,
+        "runs": rows,
+        "largest_decaying_K": max(ok) if ok else None,
+    }
 
 
-def compensated_region(m: float, b_range, h_range, n: int, multiples: list[float], max_damping: float,
-                       seconds: float, progress=None) -> dict:
+def compensated_region(
+    m: float, b_range, h_range, n: int, multiples: list[float], max_damping: float, seconds: float, progress=None
+) -> dict:
     """Over a coarse n x n (b, h) grid, stability.yaml's loop with the passivity controller simulated at
     multiples of the exact bound (undelayed damper: the loop the scene runs), all points at once."""
     import numpy as np
@@ -71,8 +90,9 @@ def compensated_region(m: float, b_range, h_range, n: int, multiples: list[float
     kk = bound[:, :, None] * xx
     ok = np.isfinite(kk) & (kk > 0.0)
     start, cpu = time.perf_counter(), time.process_time()
-    runs = simulate_sheets(m, bb[ok], kk[ok], hh[ok], max_damping, dt=1.0 / RATE, seconds=seconds,
-                           thrust=THRUST, progress=progress)
+    runs = simulate_sheets(
+        m, bb[ok], kk[ok], hh[ok], max_damping, dt=1.0 / RATE, seconds=seconds, thrust=THRUST, progress=progress
+    )
     stable = np.zeros(kk.shape, bool)
     stable[ok] = ~runs["grows"] & ~runs["saturated"]
     saturated = np.zeros(kk.shape, bool)
@@ -82,13 +102,21 @@ def compensated_region(m: float, b_range, h_range, n: int, multiples: list[float
     largest = np.where(upto.any(axis=2), np.array(multiples)[np.argmax(~upto, axis=2) - 1], 0.0)
     largest = np.where(upto.all(axis=2), multiples[-1], largest)
     largest = np.where(np.isfinite(bound), largest, np.nan)
-    return {"loop": "m s^2 + b s + K e^(-sh) = 0 (stability.yaml: damper on the simulated velocity), sampled at "
-                    f"{RATE:g} Hz, {THRUST:g} N thrust, {seconds:g} s simulated per point",
-            "max_damping": max_damping, "grid": [n, n], "b": bs.tolist(), "h": hs.tolist(),
-            "multiples": multiples, "points": int(ok.sum()),
-            "largest_stable_multiple": [[None if math.isnan(x) else float(x) for x in row] for row in largest],
-            "stable_points": int(stable.sum()), "saturated_points": int(saturated.sum()),
-            "wall_seconds": time.perf_counter() - start, "cpu_seconds": time.process_time() - cpu}
+    return {
+        "loop": "m s^2 + b s + K e^(-sh) = 0 (stability.yaml: damper on the simulated velocity), sampled at "
+        f"{RATE:g} Hz, {THRUST:g} N thrust, {seconds:g} s simulated per point",
+        "max_damping": max_damping,
+        "grid": [n, n],
+        "b": bs.tolist(),
+        "h": hs.tolist(),
+        "multiples": multiples,
+        "points": int(ok.sum()),
+        "largest_stable_multiple": [[None if math.isnan(x) else float(x) for x in row] for row in largest],
+        "stable_points": int(stable.sum()),
+        "saturated_points": int(saturated.sum()),
+        "wall_seconds": time.perf_counter() - start,
+        "cpu_seconds": time.process_time() - cpu,
+    }
 
 
 def hybrid_map(m: float, kcs: float, bcs: float, rate: float, ks, hs):

@@ -38,8 +38,10 @@ def untrusted(path: str) -> str | None:
         mode = directory.st_mode
         others_write = mode & stat.S_IWOTH or (mode & stat.S_IWGRP and directory.st_gid != os.getgid())
         if others_write and not mode & stat.S_ISVTX:
-            return (f"directory {current} (mode {stat.S_IMODE(mode):04o}) is writable by others without the "
-                    f"sticky bit: anyone may replace what is in it")
+            return (
+                f"directory {current} (mode {stat.S_IMODE(mode):04o}) is writable by others without the "
+                f"sticky bit: anyone may replace what is in it"
+            )
         entry = os.path.join(current, part)
         try:
             st = os.lstat(entry)

@@ -43,13 +43,17 @@ def frame_params() -> dict:
     from dockhil.node import Param
 
     return {
-        "can_id": Param(int, DEFAULT_BASE_ID, help="base CAN ID: force frame = base, torque frame = base + 1",
-                        ge=0, le=MAX_STANDARD_ID - 1),
-        "force_resolution": Param(float, 0.01, unit="N/count", help="force per count", gt=0.0,
-                                  le=10.0),
-        "torque_resolution": Param(float, 0.001, unit="N m/count", help="torque per count",
-                                   gt=0.0, le=1.0),
+        "can_id": Param(
+            int,
+            DEFAULT_BASE_ID,
+            help="base CAN ID: force frame = base, torque frame = base + 1",
+            ge=0,
+            le=MAX_STANDARD_ID - 1,
+        ),
+        "force_resolution": Param(float, 0.01, unit="N/count", help="force per count", gt=0.0, le=10.0),
+        "torque_resolution": Param(float, 0.001, unit="N m/count", help="torque per count", gt=0.0, le=1.0),
     }
+
 
 STATUS_OVERRANGE = 0x01
 STATUS_FAULT = 0x02

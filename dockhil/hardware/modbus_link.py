@@ -42,8 +42,11 @@ class SetpointLimiter:
         dt = min(max(dt, 0.0), self.max_cycle)
         origin = self.sent if self.sent is not None else actual
         position = toward(origin[:3], target[:3], self.max_speed * dt) if self.max_speed else target[:3]
-        orientation = (turn_toward(origin[3:7], target[3:7], self.max_angular_speed * dt)
-                       if self.max_angular_speed else target[3:7])
+        orientation = (
+            turn_toward(origin[3:7], target[3:7], self.max_angular_speed * dt)
+            if self.max_angular_speed
+            else target[3:7]
+        )
         self.sent = tuple(position) + tuple(orientation) + tuple(target[7:])
         return self.sent
 
@@ -62,8 +65,16 @@ class ModbusLink(threading.Thread):
     """Owns the Modbus client: on each of its cycles writes the rate-limited setpoint (or a hold, or the
     heartbeat) and reads the actual pose. The device's cycle is this thread's, on `clock`."""
 
-    def __init__(self, client, describe: str, p, probe, claim: list[int] | None = None, clock=time.monotonic,
-                 reading: mm.ControllerReading | None = None):
+    def __init__(
+        self,
+        client,
+        describe: str,
+        p,
+        probe,
+        claim: list[int] | None = None,
+        clock=time.monotonic,
+        reading: mm.ControllerReading | None = None,
+    ):
         super().__init__(name="robot-modbus-link", daemon=True)
         self.clock = clock
         self.client = client
@@ -170,16 +181,22 @@ class ModbusLink(threading.Thread):
         self.heartbeat = (self.heartbeat + 1) & 0xFFFF
         limiter = self.limiter
         reading = self.reading
-        if (reading is not None and not reading.status & mm.STATUS_FOLLOWING
-                and (reading.heartbeat - self.setpoint_heartbeat) & 0xFFFF < 0x8000):
+        if (
+            reading is not None
+            and not reading.status & mm.STATUS_FOLLOWING
+            and (reading.heartbeat - self.setpoint_heartbeat) & 0xFFFF < 0x8000
+        ):
             # The controller saw our last setpoint and does not follow (it holds, e.g. it lost our heartbeat):
             # it stands at the actual pose, and the next setpoint starts from there.
             limiter.reset()
         if hold or target is None:
             limiter.reset()
             if hold or fresh:
-                self._check(client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE | mm.CONTROL_HOLD,
-                                                                       self.heartbeat), device_id=dev))
+                self._check(
+                    client.write_registers(
+                        0, mm.encode_write(mm.CONTROL_ENABLE | mm.CONTROL_HOLD, self.heartbeat), device_id=dev
+                    )
+                )
             else:
                 self._check(client.write_register(mm.HR_HEARTBEAT, self.heartbeat, device_id=dev))
             if hold:
@@ -190,8 +207,9 @@ class ModbusLink(threading.Thread):
             if before is not None:
                 step = math.sqrt(sum((b - a) ** 2 for a, b in zip(before[:3], setpoint[:3])))
                 self.largest_step = max(self.largest_step, step)
-            self._check(client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE, self.heartbeat, setpoint),
-                                               device_id=dev))
+            self._check(
+                client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE, self.heartbeat, setpoint), device_id=dev)
+            )
             self.writes += 1
             self.setpoint_heartbeat = self.heartbeat
         else:
@@ -249,16 +267,20 @@ class ModbusLink(threading.Thread):
         self.connected = True
         self.lost_since = None
         self.reconnects += 1
-        self._note(f"{self.describe}: reconnected after {gap:.2f} s; holding until a fresh command, then "
-                   f"moving on from the actual pose")
+        self._note(
+            f"{self.describe}: reconnected after {gap:.2f} s; holding until a fresh command, then "
+            f"moving on from the actual pose"
+        )
         return True
 
 
 def read_owner(client, device_id: int) -> tuple[int, str]:
     rr = client.read_input_registers(mm.IR_OWNER, count=mm.IR_OWNER_COUNT, device_id=device_id)
     if rr.isError():
-        raise mm.RegisterError(f"cannot read the owner registers (input {mm.IR_OWNER}-{mm.IR_END - 1}): {rr}; "
-                               f"without them nothing keeps another graph from commanding this robot")
+        raise mm.RegisterError(
+            f"cannot read the owner registers (input {mm.IR_OWNER}-{mm.IR_END - 1}): {rr}; "
+            f"without them nothing keeps another graph from commanding this robot"
+        )
     return mm.decode_owner(rr.registers)
 
 
@@ -274,9 +296,11 @@ def claim_controller(client, device_id: int, claim: list[int]) -> None:
 
 
 def _owned(session: int, name: str) -> str:
-    return (f"owned by graph {name or '(no name)'} (session {session:#010x}); nothing written. Stop that graph "
-            f"first; a claim ends when its owner stops, or when its heartbeat has been silent for the "
-            f"controller's heartbeat timeout")
+    return (
+        f"owned by graph {name or '(no name)'} (session {session:#010x}); nothing written. Stop that graph "
+        f"first; a claim ends when its owner stops, or when its heartbeat has been silent for the "
+        f"controller's heartbeat timeout"
+    )
 
 
 def verify_and_hold(client, device_id: int, heartbeat: int, claim: list[int] | None = None) -> mm.ControllerReading:
@@ -288,8 +312,7 @@ def verify_and_hold(client, device_id: int, heartbeat: int, claim: list[int] | N
     start_orientation(reading)  # a controller that reports no rotation is refused before anything is written
     if claim is not None:
         claim_controller(client, device_id, claim)
-    wr = client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE | mm.CONTROL_HOLD, heartbeat),
-                                device_id=device_id)
+    wr = client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE | mm.CONTROL_HOLD, heartbeat), device_id=device_id)
     if wr.isError():  # e.g. our claim lapsed in between: try again, as after any failed connect
         raise ConnectionError(f"cannot write holding registers 0-1: {wr}")
     return reading

@@ -187,9 +187,7 @@ def encode_block(values: PoseTwist, what: str = "setpoint") -> list[int]:
 def decode_block(regs) -> PoseTwist:
     if len(regs) != BLOCK_REGISTERS:
         raise RegisterError(f"pose block: expected {BLOCK_REGISTERS} registers, got {len(regs)}")
-    return tuple(
-        registers_to_int32(regs[2 * i], regs[2 * i + 1]) / FIELDS[i][1] for i in range(BLOCK_VALUES)
-    )
+    return tuple(registers_to_int32(regs[2 * i], regs[2 * i + 1]) / FIELDS[i][1] for i in range(BLOCK_VALUES))
 
 
 def encode_write(control: int, heartbeat: int, setpoint: PoseTwist | None = None) -> list[int]:
@@ -261,7 +259,7 @@ def encode_owner(session: int, name: str) -> list[int]:
     if not 0 <= session <= 0xFFFF_FFFF:
         raise RegisterError(f"session id {session} does not fit 32 bits")
     raw = name.encode("ascii", "replace")[: 2 * OWNER_NAME_REGISTERS].ljust(2 * OWNER_NAME_REGISTERS, b"\0")
-    return [session >> 16, session & 0xFFFF] + [int.from_bytes(raw[i:i + 2], "big") for i in range(0, len(raw), 2)]
+    return [session >> 16, session & 0xFFFF] + [int.from_bytes(raw[i : i + 2], "big") for i in range(0, len(raw), 2)]
 
 
 def decode_owner(regs) -> tuple[int, str]:

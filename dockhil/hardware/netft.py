@@ -47,20 +47,44 @@ SEQ_MOD = 2**32
 LBF = 4.4482216152605
 FORCE_UNITS = {"n": 1.0, "lbf": LBF, "klbf": 1000.0 * LBF, "kn": 1000.0, "kgf": 9.80665, "gf": 0.00980665}
 FORCE_CODES = {1: "lbf", 2: "N", 3: "klbf", 4: "kN", 5: "kgf", 6: "gf"}
-TORQUE_UNITS = {"nm": 1.0, "nmm": 0.001, "lbfin": LBF * 0.0254, "lbfft": LBF * 0.3048,
-                "kgfcm": 0.0980665, "knm": 1000.0}
-TORQUE_ALIASES = {"inlb": "lbfin", "inlbf": "lbfin", "lbin": "lbfin", "ftlb": "lbfft", "ftlbf": "lbfft",
-                  "lbft": "lbfft", "kgcm": "kgfcm"}
+TORQUE_UNITS = {
+    "nm": 1.0,
+    "nmm": 0.001,
+    "lbfin": LBF * 0.0254,
+    "lbfft": LBF * 0.3048,
+    "kgfcm": 0.0980665,
+    "knm": 1000.0,
+}
+TORQUE_ALIASES = {
+    "inlb": "lbfin",
+    "inlbf": "lbfin",
+    "lbin": "lbfin",
+    "ftlb": "lbfft",
+    "ftlbf": "lbfft",
+    "lbft": "lbfft",
+    "kgcm": "kgfcm",
+}
 TORQUE_CODES = {1: "lbf-in", 2: "lbf-ft", 3: "Nm", 4: "Nmm", 5: "kgf-cm", 6: "kNm"}
 
 # Status bits as the manual names them (the ones a run is likeliest to meet first).
 STATUS_BITS = {
-    31: "error", 30: "CPU or RAM error", 29: "digital board error", 28: "analog board error",
-    27: "serial link error", 26: "program memory error", 25: "halted by configuration errors",
-    24: "settings validation error", 23: "configuration incompatible with calibration",
-    22: "network failure", 20: "RDT communication error", 17: "transducer saturation or A/D error",
-    16: "monitor condition latched", 14: "watchdog timeout", 9: "excessive strain gage excitation",
-    8: "insufficient strain gage excitation", 2: "internal temperature error",
+    31: "error",
+    30: "CPU or RAM error",
+    29: "digital board error",
+    28: "analog board error",
+    27: "serial link error",
+    26: "program memory error",
+    25: "halted by configuration errors",
+    24: "settings validation error",
+    23: "configuration incompatible with calibration",
+    22: "network failure",
+    20: "RDT communication error",
+    17: "transducer saturation or A/D error",
+    16: "monitor condition latched",
+    14: "watchdog timeout",
+    9: "excessive strain gage excitation",
+    8: "insufficient strain gage excitation",
+    2: "internal temperature error",
 }
 STATUS_SATURATED = (1 << 31) | (1 << 17)
 
@@ -152,11 +176,15 @@ class Calibration:
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise RdtError(f"{name} must be a finite positive number, got {value!r}")
         # a full-scale count must stay a number: 1e-300 counts per N would make it infinite
-        for name, scale in (("counts_per_force", self.newtons_per_count),
-                            ("counts_per_torque", self.newton_metres_per_count)):
+        for name, scale in (
+            ("counts_per_force", self.newtons_per_count),
+            ("counts_per_torque", self.newton_metres_per_count),
+        ):
             if not 0.0 < scale * 2.0**31 < 1e15:
-                raise RdtError(f"{name} {getattr(self, name)!r}: a count would be {scale:g} N or N m, "
-                               f"not the resolution of a sensor")
+                raise RdtError(
+                    f"{name} {getattr(self, name)!r}: a count would be {scale:g} N or N m, "
+                    f"not the resolution of a sensor"
+                )
 
     @property
     def newtons_per_count(self) -> float:
@@ -167,8 +195,9 @@ class Calibration:
         return torque_factor(self.torque_unit) / self.counts_per_torque
 
     def describe(self) -> str:
-        return (f"{self.counts_per_force:g} counts/{self.force_unit}, "
-                f"{self.counts_per_torque:g} counts/{self.torque_unit}")
+        return (
+            f"{self.counts_per_force:g} counts/{self.force_unit}, {self.counts_per_torque:g} counts/{self.torque_unit}"
+        )
 
 
 def parse_netftapi2(text: str | bytes) -> dict[str, str]:

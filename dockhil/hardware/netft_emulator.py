@@ -43,8 +43,9 @@ class ContactModel:
     """The passive compliance k (and dashpot b while touching) against the probe's position along
     the docking axis, with a constant bias and seeded white noise: the wrench on the probe [N, N m]."""
 
-    def __init__(self, k: float, b: float = 0.0, bias: float = 0.0, noise: float = 0.0,
-                 torque_noise: float = 0.0, seed: int = 0):
+    def __init__(
+        self, k: float, b: float = 0.0, bias: float = 0.0, noise: float = 0.0, torque_noise: float = 0.0, seed: int = 0
+    ):
         from dockhil.contact.hybrid import passive_force
 
         self._passive = passive_force
@@ -63,8 +64,11 @@ class ContactModel:
             # the sheet pushes, never pulls: the dashpot may slow a release, not reverse the force
             compression = max(0.0, self._passive(x, self.k) + self.b * v)
         gauss, sd, td = self.rng.gauss, self.noise, self.torque_noise
-        force = (-compression + self.bias + (gauss(0.0, sd) if sd else 0.0),
-                 gauss(0.0, sd) if sd else 0.0, gauss(0.0, sd) if sd else 0.0)
+        force = (
+            -compression + self.bias + (gauss(0.0, sd) if sd else 0.0),
+            gauss(0.0, sd) if sd else 0.0,
+            gauss(0.0, sd) if sd else 0.0,
+        )
         torque = tuple(gauss(0.0, td) if td else 0.0 for _ in range(3))
         return force, torque
 
@@ -72,12 +76,28 @@ class ContactModel:
 class NetFtBox:
     """The emulated box: UDP RDT server on (host, port), HTTP server on (host, http_port)."""
 
-    def __init__(self, model: ContactModel, host: str = "127.0.0.1", port: int = rdt.RDT_PORT,
-                 http_port: int = HTTP_DEFAULT, rate: float = 1000.0, counts_per_force: float = 1_000_000.0,
-                 counts_per_torque: float = 1_000_000.0, force_unit: str = "N", torque_unit: str = "Nm",
-                 seed: int = 0, loss: float = 0.0, duplicate: float = 0.0, reorder: float = 0.0,
-                 late: float = 0.0, late_delay: float = 0.05, jitter: float = 0.0, fault_after: float = -1.0,
-                 fault_status: int = 0x80020000, maxima: str = ""):
+    def __init__(
+        self,
+        model: ContactModel,
+        host: str = "127.0.0.1",
+        port: int = rdt.RDT_PORT,
+        http_port: int = HTTP_DEFAULT,
+        rate: float = 1000.0,
+        counts_per_force: float = 1_000_000.0,
+        counts_per_torque: float = 1_000_000.0,
+        force_unit: str = "N",
+        torque_unit: str = "Nm",
+        seed: int = 0,
+        loss: float = 0.0,
+        duplicate: float = 0.0,
+        reorder: float = 0.0,
+        late: float = 0.0,
+        late_delay: float = 0.05,
+        jitter: float = 0.0,
+        fault_after: float = -1.0,
+        fault_status: int = 0x80020000,
+        maxima: str = "",
+    ):
         if not 0.0 < rate <= rdt.MAX_RDT_RATE:
             raise ValueError(f"rate {rate!r} Hz: the box streams at most {rdt.MAX_RDT_RATE:g} Hz")
         for name, value in (("loss", loss), ("duplicate", duplicate), ("reorder", reorder), ("late", late)):
@@ -106,9 +126,21 @@ class NetFtBox:
         self._jitter_t = 0.0
         self._boot = time.monotonic()
         self._running = False
-        self.counts = {"requests": 0, "bad_requests": 0, "starts": 0, "stops": 0, "biases": 0, "records": 0,
-                       "sent": 0, "lost": 0, "duplicated": 0, "reordered": 0, "late": 0, "faulty": 0,
-                       "saturated": 0}
+        self.counts = {
+            "requests": 0,
+            "bad_requests": 0,
+            "starts": 0,
+            "stops": 0,
+            "biases": 0,
+            "records": 0,
+            "sent": 0,
+            "lost": 0,
+            "duplicated": 0,
+            "reordered": 0,
+            "late": 0,
+            "faulty": 0,
+            "saturated": 0,
+        }
         self.max_force = [0.0, 0.0, 0.0]  # largest |F| per axis the box reported [N]
         self.max_torque = [0.0, 0.0, 0.0]
 
@@ -145,9 +177,12 @@ class NetFtBox:
         self.http.daemon_threads = True
         self.http_port = self.http.server_address[1]
         self._running = True
-        self._threads = [threading.Thread(target=self._serve_rdt, name="netft-rdt", daemon=True),
-                         threading.Thread(target=self.http.serve_forever, kwargs={"poll_interval": 0.05},
-                                          name="netft-http", daemon=True)]
+        self._threads = [
+            threading.Thread(target=self._serve_rdt, name="netft-rdt", daemon=True),
+            threading.Thread(
+                target=self.http.serve_forever, kwargs={"poll_interval": 0.05}, name="netft-http", daemon=True
+            ),
+        ]
         for thread in self._threads:
             thread.start()
         return self
@@ -168,28 +203,38 @@ class NetFtBox:
     def stats(self) -> dict:
         with self._lock:
             # lost_unseen: the lost records after the last one sent, which no sequence can show
-            return {**self.counts, "lost_unseen": self._lost_tail, "max_abs_force_N": list(self.max_force),
-                    "max_abs_torque_Nm": list(self.max_torque),
-                    "rate_Hz": self.rate, "calibration": self.calibration.describe()}
+            return {
+                **self.counts,
+                "lost_unseen": self._lost_tail,
+                "max_abs_force_N": list(self.max_force),
+                "max_abs_torque_Nm": list(self.max_torque),
+                "rate_Hz": self.rate,
+                "calibration": self.calibration.describe(),
+            }
 
     def xml(self) -> str:
         """netftapi2.xml as the box serves it (the elements a client reads, in the box's spelling)."""
         c = self.calibration
         fu = next((code for code, name in rdt.FORCE_CODES.items() if name == c.force_unit), 0)
         tu = next((code for code, name in rdt.TORQUE_CODES.items() if name == c.torque_unit), 0)
-        return ('<?xml version="1.0" encoding="utf-8"?>\r\n<netft>\r\n'
-                f"<runstat>0x{self.status_now():08X}</runstat><runrate>{rdt.INTERNAL_RATE:.0f}</runrate>\r\n"
-                "<cfgnam>dockhil emulator</cfgnam><cfgcalsel>0</cfgcalsel><cfgcalsn>FT-EMULATED</cfgcalsn>\r\n"
-                f"<cfgfu>{fu}</cfgfu><cfgtu>{tu}</cfgtu>\r\n"
-                f"<scfgfu>{c.force_unit}</scfgfu><scfgtu>{c.torque_unit}</scfgtu>\r\n"
-                f"<cfgcpf>{c.counts_per_force:g}</cfgcpf><cfgcpt>{c.counts_per_torque:g}</cfgcpt>\r\n"
-                "<setuserfilter>0</setuserfilter>\r\n"
-                f"<comrdte>Enabled</comrdte><comrdtrate>{self.rate:g}</comrdtrate><comrdtbsiz>1</comrdtbsiz>\r\n"
-                "</netft>\r\n")
+        return (
+            '<?xml version="1.0" encoding="utf-8"?>\r\n<netft>\r\n'
+            f"<runstat>0x{self.status_now():08X}</runstat><runrate>{rdt.INTERNAL_RATE:.0f}</runrate>\r\n"
+            "<cfgnam>dockhil emulator</cfgnam><cfgcalsel>0</cfgcalsel><cfgcalsn>FT-EMULATED</cfgcalsn>\r\n"
+            f"<cfgfu>{fu}</cfgfu><cfgtu>{tu}</cfgtu>\r\n"
+            f"<scfgfu>{c.force_unit}</scfgfu><scfgtu>{c.torque_unit}</scfgtu>\r\n"
+            f"<cfgcpf>{c.counts_per_force:g}</cfgcpf><cfgcpt>{c.counts_per_torque:g}</cfgcpt>\r\n"
+            "<setuserfilter>0</setuserfilter>\r\n"
+            f"<comrdte>Enabled</comrdte><comrdtrate>{self.rate:g}</comrdtrate><comrdtbsiz>1</comrdtbsiz>\r\n"
+            "</netft>\r\n"
+        )
 
     def status_now(self) -> int:
-        if self.fault_after >= 0 and self._client is not None and \
-                time.monotonic() - self._stream_t0 >= self.fault_after:
+        if (
+            self.fault_after >= 0
+            and self._client is not None
+            and time.monotonic() - self._stream_t0 >= self.fault_after
+        ):
             return self.fault_status
         return 0
 
@@ -198,7 +243,9 @@ class NetFtBox:
         from dockhil.log import Log
         from dockhil.runtime import realtime
 
-        realtime.raise_device_thread(Log("netft emulator:").warning, "the Net F/T emulator's stream")  # it stands for the box
+        realtime.raise_device_thread(
+            Log("netft emulator:").warning, "the Net F/T emulator's stream"
+        )  # it stands for the box
         while self._running:
             try:
                 data, address = self.udp.recvfrom(2048)
@@ -326,12 +373,18 @@ class NetFtBox:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m dockhil.hardware.netft_emulator",
-                                     description="ATI Net F/T box emulator: RDT over UDP, netftapi2.xml over HTTP.")
+    parser = argparse.ArgumentParser(
+        prog="python -m dockhil.hardware.netft_emulator",
+        description="ATI Net F/T box emulator: RDT over UDP, netftapi2.xml over HTTP.",
+    )
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on")
     parser.add_argument("--port", type=int, default=rdt.RDT_PORT, help="UDP port of RDT (0: any free port)")
-    parser.add_argument("--http-port", type=int, default=HTTP_DEFAULT,
-                        help="TCP port of netftapi2.xml (the real box: 80; 0: any free port)")
+    parser.add_argument(
+        "--http-port",
+        type=int,
+        default=HTTP_DEFAULT,
+        help="TCP port of netftapi2.xml (the real box: 80; 0: any free port)",
+    )
     parser.add_argument("--rate", type=float, default=1000.0, help="RDT records a second (at most 7000)")
     parser.add_argument("--counts-per-force", type=float, default=1_000_000.0)
     parser.add_argument("--counts-per-torque", type=float, default=1_000_000.0)
@@ -343,8 +396,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise", type=float, default=0.0, help="force noise standard deviation [N]")
     parser.add_argument("--position", type=float, default=0.0, help="probe position [m] (x > 0: penetration)")
     parser.add_argument("--seed", type=int, default=0)
-    for name, what in (("loss", "records never sent"), ("duplicate", "records sent twice"),
-                       ("reorder", "records sent after the next"), ("late", "records held back --late-delay")):
+    for name, what in (
+        ("loss", "records never sent"),
+        ("duplicate", "records sent twice"),
+        ("reorder", "records sent after the next"),
+        ("late", "records held back --late-delay"),
+    ):
         parser.add_argument(f"--{name}", type=float, default=0.0, help=f"percent of {what}")
     parser.add_argument("--late-delay", type=float, default=0.05, help="[s]")
     parser.add_argument("--jitter", type=float, default=0.0, help="sends up to this late [s]")
@@ -357,10 +414,26 @@ def main(argv: list[str] | None = None) -> int:
     model = ContactModel(args.k, args.b, args.bias, args.noise, seed=args.seed)
     model.set_pose(args.position)
     try:
-        box = NetFtBox(model, args.host, args.port, args.http_port, args.rate, args.counts_per_force,
-                       args.counts_per_torque, args.force_unit, args.torque_unit, args.seed, args.loss,
-                       args.duplicate, args.reorder, args.late, args.late_delay, args.jitter, args.fault_after,
-                       maxima=args.maxima)
+        box = NetFtBox(
+            model,
+            args.host,
+            args.port,
+            args.http_port,
+            args.rate,
+            args.counts_per_force,
+            args.counts_per_torque,
+            args.force_unit,
+            args.torque_unit,
+            args.seed,
+            args.loss,
+            args.duplicate,
+            args.reorder,
+            args.late,
+            args.late_delay,
+            args.jitter,
+            args.fault_after,
+            maxima=args.maxima,
+        )
     except ValueError as exc:  # an argument out of its range (rdt.RdtError too: units, counts per unit)
         say.error(str(exc))
         return 2

@@ -136,7 +136,7 @@ class ServoModel:
         """A Modbus write to holding registers [address, address + len) over connection `client`;
         False if refused: another host owns the controller (or a claim without its session id)."""
         end = address + len(values)
-        claim = list(values[mm.HR_SESSION - address:]) if address <= mm.HR_SESSION < end else None
+        claim = list(values[mm.HR_SESSION - address :]) if address <= mm.HR_SESSION < end else None
         if claim is not None and (address != mm.HR_SESSION or len(claim) < 2):
             self.refused += 1  # a claim writes its session id whole, alone
             return False
@@ -150,15 +150,17 @@ class ServoModel:
             self.unclaimed += 1
             if self.log is not None and client not in self._told:
                 self._told.add(client)
-                self.log(f"refused a write of holding registers {address}-{end - 1} from connection {client}: "
-                         f"it holds no live claim (claim SESSION and OWNER_NAME, registers {mm.HR_SESSION}-"
-                         f"{mm.HR_END - 1}, first); counting, not logging, the rest")
+                self.log(
+                    f"refused a write of holding registers {address}-{end - 1} from connection {client}: "
+                    f"it holds no live claim (claim SESSION and OWNER_NAME, registers {mm.HR_SESSION}-"
+                    f"{mm.HR_END - 1}, first); counting, not logging, the rest"
+                )
             return False
         if claim is not None:
             if session == 0:
                 self._release()
             else:
-                self.claim = (claim + mm.encode_owner(0, "")[len(claim):])[: mm.HR_CLAIM_COUNT]
+                self.claim = (claim + mm.encode_owner(0, "")[len(claim) :])[: mm.HR_CLAIM_COUNT]
                 self.owner_session, self.owner_name = mm.decode_owner(self.claim)
                 self.owner_client = client
                 self._claim_new = True
@@ -305,8 +307,17 @@ class RobotControllerEmulator:
     """The Modbus TCP server and the servo, on one asyncio loop (so a request
     and a servo cycle never interleave)."""
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 5020, delay: float = 0.0, tau: float = 0.0,
-                 cycle: float = 0.001, heartbeat_timeout: float = 0.2, clock=time.monotonic, log=None):
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 5020,
+        delay: float = 0.0,
+        tau: float = 0.0,
+        cycle: float = 0.001,
+        heartbeat_timeout: float = 0.2,
+        clock=time.monotonic,
+        log=None,
+    ):
         self.clock = clock  # the servo's time (monotonic seconds); ServoModel itself takes `now` per cycle
         self.host = host
         self.port = port
@@ -469,8 +480,10 @@ def listen_problem(host: str, port: int) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m dockhil.hardware.robot_emulator",
-                                     description="Robot-controller emulator: Modbus TCP server with a servo.")
+    parser = argparse.ArgumentParser(
+        prog="python -m dockhil.hardware.robot_emulator",
+        description="Robot-controller emulator: Modbus TCP server with a servo.",
+    )
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--port", type=int, default=5020, help="TCP port (0: any free port)")
     parser.add_argument("--delay", type=float, default=0.0, help="servo delay [s]")
@@ -482,9 +495,13 @@ def main(argv: list[str] | None = None) -> int:
     from dockhil.log import Log
 
     say = Log("robot emulator:")
-    for name, value, lo, hi in (("--port", args.port, 0, 65535), ("--delay", args.delay, 0.0, 1.0),
-                                ("--tau", args.tau, 0.0, 10.0), ("--cycle", args.cycle, 1e-5, 0.1),
-                                ("--heartbeat-timeout", args.heartbeat_timeout, 1e-3, 10.0)):
+    for name, value, lo, hi in (
+        ("--port", args.port, 0, 65535),
+        ("--delay", args.delay, 0.0, 1.0),
+        ("--tau", args.tau, 0.0, 10.0),
+        ("--cycle", args.cycle, 1e-5, 0.1),
+        ("--heartbeat-timeout", args.heartbeat_timeout, 1e-3, 10.0),
+    ):
         if not lo <= value <= hi:  # NaN too
             say.error(f"{name} {value} is outside its range [{lo:g}, {hi:g}]")
             return 2
@@ -493,8 +510,9 @@ def main(argv: list[str] | None = None) -> int:
     except DockhilError as exc:
         say.error(str(exc))
         return 2
-    emulator = RobotControllerEmulator(args.host, args.port, args.delay, args.tau, args.cycle, args.heartbeat_timeout,
-                                       log=say.warning)
+    emulator = RobotControllerEmulator(
+        args.host, args.port, args.delay, args.tau, args.cycle, args.heartbeat_timeout, log=say.warning
+    )
 
     async def run():
         loop = asyncio.get_running_loop()

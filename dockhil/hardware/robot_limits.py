@@ -66,9 +66,11 @@ def start_orientation(reading: mm.ControllerReading) -> tuple[float, float, floa
     q = reading.actual[3:7]
     n = quat_norm(q)
     if abs(n - 1.0) > mm.UNIT_TOLERANCE:
-        raise mm.RegisterError(f"the controller reports an actual orientation with |q| = {n:.9g}, not a unit "
-                               f"quaternion; check its orientation registers (input {mm.IR_ACTUAL + 6}-"
-                               f"{mm.IR_ACTUAL + 13})")
+        raise mm.RegisterError(
+            f"the controller reports an actual orientation with |q| = {n:.9g}, not a unit "
+            f"quaternion; check its orientation registers (input {mm.IR_ACTUAL + 6}-"
+            f"{mm.IR_ACTUAL + 13})"
+        )
     return tuple(c / n for c in q)
 
 

@@ -62,7 +62,7 @@ def _screen(data: bytes) -> None:
     head = data.lstrip()
     if head.startswith(b"<?xml"):
         end = head.find(b"?>")
-        head = head[end + 2:] if end > 0 else head
+        head = head[end + 2 :] if end > 0 else head
     if b"<?" in head:
         raise RsiError("datagram carries a processing instruction: refused unparsed")
 
@@ -116,9 +116,12 @@ def parse_rob(data: bytes) -> RobFrame:
     ipoc = _element(root, "IPOC")
     rsol = root.find("RSol")
     delay = root.find("Delay")
-    return RobFrame(_count(ipoc.text, "IPOC"), _pose(rist, "RIst"),
-                    None if rsol is None else _pose(rsol, "RSol"),
-                    None if delay is None else _count(delay.get("D"), "Delay D"))
+    return RobFrame(
+        _count(ipoc.text, "IPOC"),
+        _pose(rist, "RIst"),
+        None if rsol is None else _pose(rsol, "RSol"),
+        None if delay is None else _count(delay.get("D"), "Delay D"),
+    )
 
 
 def parse_sen(data: bytes) -> tuple[int, tuple[float, float, float, float, float, float]]:
@@ -138,8 +141,10 @@ class SenWriter:
     """Builds the answers for one SENTYPE: one %-format of a prebuilt template, no XML library."""
 
     def __init__(self, sentype: str = "ImFree"):
-        self._template = (f'<Sen Type="{_check_type(sentype)}"><RKorr X="%.4f" Y="%.4f" Z="%.4f" '
-                          f'A="%.4f" B="%.4f" C="%.4f"/><IPOC>%d</IPOC></Sen>').encode()
+        self._template = (
+            f'<Sen Type="{_check_type(sentype)}"><RKorr X="%.4f" Y="%.4f" Z="%.4f" '
+            f'A="%.4f" B="%.4f" C="%.4f"/><IPOC>%d</IPOC></Sen>'
+        ).encode()
 
     def __call__(self, korr, ipoc: int) -> bytes:
         """The answer carrying correction `korr` (X Y Z mm, A B C degrees, all finite) for cycle `ipoc`."""
@@ -168,10 +173,12 @@ def abc_to_quat(a: float, b: float, c: float) -> tuple[float, float, float, floa
     """Quaternion (x, y, z, w) of KUKA angles A B C [degrees]: R = Rz(A) Ry(B) Rx(C)."""
     ha, hb, hc = math.radians(a) / 2, math.radians(b) / 2, math.radians(c) / 2
     ca, sa, cb, sb, cc, sc = math.cos(ha), math.sin(ha), math.cos(hb), math.sin(hb), math.cos(hc), math.sin(hc)
-    return (ca * cb * sc - sa * sb * cc,
-            ca * sb * cc + sa * cb * sc,
-            sa * cb * cc - ca * sb * sc,
-            ca * cb * cc + sa * sb * sc)
+    return (
+        ca * cb * sc - sa * sb * cc,
+        ca * sb * cc + sa * cb * sc,
+        sa * cb * cc - ca * sb * sc,
+        ca * cb * cc + sa * sb * sc,
+    )
 
 
 def quat_to_abc(q) -> tuple[float, float, float]:

@@ -55,6 +55,8 @@ def _normalised(q):
 
 
 MAX_LOST_KEPT = 100_000  # lost IPOCs the record lists: a driver's count is checked against them
+
+
 class RsiServo:
     """The robot behind the controller: start pose + correction, through a delay and a first-order lag. No I/O."""
 
@@ -107,10 +109,23 @@ def _percentile(values, q: float) -> float | None:
 class RsiControllerEmulator:
     """The controller's RSI loop over UDP, in a thread (start_thread/stop_thread) or in the caller (run)."""
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 49152, cycle: float = 0.004, delay: float = 0.0,
-                 tau: float = 0.0, max_late: int = DEFAULT_MAX_LATE, loss: float = 0.0, duplicate: float = 0.0,
-                 reorder: float = 0.0, jitter: float = 0.0, seed: int = 0, start=START_POSE,
-                 bind: str = "127.0.0.1", ipoc0: int = 1_000_000):
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 49152,
+        cycle: float = 0.004,
+        delay: float = 0.0,
+        tau: float = 0.0,
+        max_late: int = DEFAULT_MAX_LATE,
+        loss: float = 0.0,
+        duplicate: float = 0.0,
+        reorder: float = 0.0,
+        jitter: float = 0.0,
+        seed: int = 0,
+        start=START_POSE,
+        bind: str = "127.0.0.1",
+        ipoc0: int = 1_000_000,
+    ):
         self.host, self.port, self.cycle = host, port, cycle
         self.max_late = max_late
         self.loss, self.duplicate, self.reorder, self.jitter = loss / 100.0, duplicate / 100.0, reorder / 100.0, jitter
@@ -122,9 +137,22 @@ class RsiControllerEmulator:
         self.stopped = False  # RSI stopped: too many late answers
         self.armed = False  # the first answer came: late answers count from now on
         self.lost_ipocs: list[int] = []  # which cycles' datagrams were lost (the first MAX_LOST_KEPT)
-        self.stats = {"cycles": 0, "sent": 0, "lost": 0, "duplicated": 0, "reordered": 0, "answered": 0,
-                      "late": 0, "late_in_a_row_max": 0, "bad_answers": 0, "stray_answers": 0,
-                      "max_speed": 0.0, "max_angular_speed": 0.0, "max_step_mm": 0.0, "max_step_deg": 0.0}
+        self.stats = {
+            "cycles": 0,
+            "sent": 0,
+            "lost": 0,
+            "duplicated": 0,
+            "reordered": 0,
+            "answered": 0,
+            "late": 0,
+            "late_in_a_row_max": 0,
+            "bad_answers": 0,
+            "stray_answers": 0,
+            "max_speed": 0.0,
+            "max_angular_speed": 0.0,
+            "max_step_mm": 0.0,
+            "max_step_deg": 0.0,
+        }
         self.latencies = array("d")  # send to answer arrival [s], on time or late
         self._sent_at: dict[int, float] = {}  # IPOC -> when its datagram was sent (Unix time), recent ones
         self._answered_late: dict[int, bool] = {}
@@ -288,10 +316,18 @@ class RsiControllerEmulator:
     def record(self) -> dict:
         lat = list(self.latencies)
         ms = lambda v: None if v is None else round(v * 1000.0, 4)  # noqa: E731
-        return {**self.stats, "delay": self.stats["late"], "stopped": self.stopped, "cycle": self.cycle,
-                "lost_ipocs": self.lost_ipocs,
-                "latency_ms": {"p50": ms(_percentile(lat, 0.5)), "p99": ms(_percentile(lat, 0.99)),
-                               "max": ms(max(lat) if lat else None)}}
+        return {
+            **self.stats,
+            "delay": self.stats["late"],
+            "stopped": self.stopped,
+            "cycle": self.cycle,
+            "lost_ipocs": self.lost_ipocs,
+            "latency_ms": {
+                "p50": ms(_percentile(lat, 0.5)),
+                "p99": ms(_percentile(lat, 0.99)),
+                "max": ms(max(lat) if lat else None),
+            },
+        }
 
     def write_record(self, path: str) -> None:
         with open(path, "w") as f:
@@ -299,8 +335,10 @@ class RsiControllerEmulator:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m dockhil.hardware.rsi_emulator",
-                                     description="KUKA controller emulator running RSI (XML over UDP).")
+    parser = argparse.ArgumentParser(
+        prog="python -m dockhil.hardware.rsi_emulator",
+        description="KUKA controller emulator running RSI (XML over UDP).",
+    )
     parser.add_argument("--host", default="127.0.0.1", help="the sensor's (driver's) address")
     parser.add_argument("--port", type=int, default=49152, help="the sensor's UDP port")
     parser.add_argument("--bind", default="127.0.0.1", help="this controller's address")
@@ -313,8 +351,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--reorder", type=float, default=0.0, help="datagrams sent after the next [percent]")
     parser.add_argument("--jitter", type=float, default=0.0, help="send jitter, uniform up to [s]")
     parser.add_argument("--seed", type=int, default=0, help="seed of the faults")
-    parser.add_argument("--start", type=float, nargs=6, default=START_POSE, metavar=("X", "Y", "Z", "A", "B", "C"),
-                        help="start pose of the TCP [mm, degrees]")
+    parser.add_argument(
+        "--start",
+        type=float,
+        nargs=6,
+        default=START_POSE,
+        metavar=("X", "Y", "Z", "A", "B", "C"),
+        help="start pose of the TCP [mm, degrees]",
+    )
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     parser.add_argument("--record", default="", help="write the maxima and counts as JSON here at exit")
     parser.add_argument("--realtime", action="store_true", help="ask for SCHED_FIFO scheduling")
@@ -322,8 +366,11 @@ def main(argv: list[str] | None = None) -> int:
     from dockhil.log import Log
 
     say = Log("rsi emulator:")
-    problems = [f"--{name} {getattr(args, name.replace('-', '_'))} must be within 0 to 100"
-                for name in ("loss", "duplicate", "reorder") if not 0 <= getattr(args, name) <= 100]
+    problems = [
+        f"--{name} {getattr(args, name.replace('-', '_'))} must be within 0 to 100"
+        for name in ("loss", "duplicate", "reorder")
+        if not 0 <= getattr(args, name) <= 100
+    ]
     problems += [f"--{name} must be >= 0" for name in ("delay", "tau", "jitter") if getattr(args, name) < 0]
     problems += [f"--{name} must be at most 10 s" for name in ("delay", "tau") if getattr(args, name) > 10]
     if args.jitter >= args.cycle:
@@ -338,9 +385,21 @@ def main(argv: list[str] | None = None) -> int:
 
         realtime.ask(realtime.DEVICE_PRIORITY, "the RSI controller emulator", say.warning)
     try:
-        emulator = RsiControllerEmulator(args.host, args.port, args.cycle, args.delay, args.tau, args.max_late,
-                                         args.loss, args.duplicate, args.reorder, args.jitter, args.seed,
-                                         tuple(args.start), args.bind)
+        emulator = RsiControllerEmulator(
+            args.host,
+            args.port,
+            args.cycle,
+            args.delay,
+            args.tau,
+            args.max_late,
+            args.loss,
+            args.duplicate,
+            args.reorder,
+            args.jitter,
+            args.seed,
+            tuple(args.start),
+            args.bind,
+        )
     except OSError as exc:
         say.error(f"cannot open a UDP socket on {args.bind}: {exc.strerror or exc}")
         return 2

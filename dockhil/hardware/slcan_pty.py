@@ -97,8 +97,9 @@ def _check_replaceable(link: str) -> None:
 
     why = untrusted(link)
     if why:
-        raise DeviceError(f"slcan adapter {link}: refused: {why}; give the adapter a path in a directory only "
-                          f"you can write")
+        raise DeviceError(
+            f"slcan adapter {link}: refused: {why}; give the adapter a path in a directory only you can write"
+        )
     if not os.path.lexists(link):
         return
     if os.path.islink(link):
@@ -112,8 +113,10 @@ def _check_replaceable(link: str) -> None:
         what = "a regular file"
     else:
         what = "a device or other special file"
-    raise DeviceError(f"slcan adapter {link}: the path exists and is {what}, not the link of an emulated "
-                      f"adapter; it was left as it is: give the emulator a path of its own")
+    raise DeviceError(
+        f"slcan adapter {link}: the path exists and is {what}, not the link of an emulated "
+        f"adapter; it was left as it is: give the emulator a path of its own"
+    )
 
 
 class SlcanPort:

@@ -75,15 +75,21 @@ def refusal(bias: Bias, limits: TareLimits) -> str | None:
     elif limits.max_bias_torque and t > limits.max_bias_torque:
         what = f"bias torque |T| = {t:.2f} N m > max_bias_torque {limits.max_bias_torque:g} N m"
     elif limits.max_spread and bias.force_spread > limits.max_spread:
-        what = (f"force spread {bias.force_spread:.2f} N over {bias.samples} samples > max_tare_spread "
-                f"{limits.max_spread:g} N")
+        what = (
+            f"force spread {bias.force_spread:.2f} N over {bias.samples} samples > max_tare_spread "
+            f"{limits.max_spread:g} N"
+        )
     elif limits.max_spread_torque and bias.torque_spread > limits.max_spread_torque:
-        what = (f"torque spread {bias.torque_spread:.3f} N m over {bias.samples} samples > "
-                f"max_tare_spread_torque {limits.max_spread_torque:g} N m")
+        what = (
+            f"torque spread {bias.torque_spread:.3f} N m over {bias.samples} samples > "
+            f"max_tare_spread_torque {limits.max_spread_torque:g} N m"
+        )
     else:
         return None
-    return (f"{what}: something loads the probe (taring it away would hide that force from every limit); "
-            f"free the probe and start again, or raise the bound for a heavy tool or a noisy sensor")
+    return (
+        f"{what}: something loads the probe (taring it away would hide that force from every limit); "
+        f"free the probe and start again, or raise the bound for a heavy tool or a noisy sensor"
+    )
 
 
 class TareStore:
@@ -100,25 +106,35 @@ class TareStore:
         except FileNotFoundError:
             return None
         except OSError as exc:
-            raise DeviceError(f"tare file {self.path}: {exc.strerror}; the graph's first tare cannot be "
-                              f"read: stop the graph and start it again with the probe free") from None
+            raise DeviceError(
+                f"tare file {self.path}: {exc.strerror}; the graph's first tare cannot be "
+                f"read: stop the graph and start it again with the probe free"
+            ) from None
         try:
             st = os.fstat(fd)
             mode = stat.S_IMODE(st.st_mode)
             if not stat.S_ISREG(st.st_mode) or st.st_uid != os.getuid() or mode & 0o077:
-                raise DeviceError(f"tare file {self.path} is not a file of yours of mode 0600 (uid {st.st_uid}, "
-                                  f"mode {mode:04o}): it cannot be trusted; stop the graph and start it again "
-                                  f"with the probe free")
+                raise DeviceError(
+                    f"tare file {self.path} is not a file of yours of mode 0600 (uid {st.st_uid}, "
+                    f"mode {mode:04o}): it cannot be trusted; stop the graph and start it again "
+                    f"with the probe free"
+                )
             text = os.read(fd, 4096)
         finally:
             os.close(fd)
         try:
             d = json.loads(text)
-            bias = Bias(_vec(d["force"]), _vec(d["torque"]), float(d["force_spread"]),
-                        float(d["torque_spread"]), int(d["samples"]))
+            bias = Bias(
+                _vec(d["force"]),
+                _vec(d["torque"]),
+                float(d["force_spread"]),
+                float(d["torque_spread"]),
+                int(d["samples"]),
+            )
         except (ValueError, KeyError, TypeError):
-            raise DeviceError(f"tare file {self.path} is damaged; stop the graph and start it again "
-                              f"with the probe free") from None
+            raise DeviceError(
+                f"tare file {self.path} is damaged; stop the graph and start it again with the probe free"
+            ) from None
         return bias
 
     def save(self, bias: Bias) -> None:
@@ -151,8 +167,15 @@ def graph_store(node: str) -> TareStore | None:
 Samples = Sequence[tuple[Sequence[float], Sequence[float]]]
 
 
-def graph_tare(node: str, device: str, tare_samples: int, limits: TareLimits, read: Callable[[int], Samples],
-               log: Callable[[str], None], unit: str = "samples") -> Bias | None:
+def graph_tare(
+    node: str,
+    device: str,
+    tare_samples: int,
+    limits: TareLimits,
+    read: Callable[[int], Samples],
+    log: Callable[[str], None],
+    unit: str = "samples",
+) -> Bias | None:
     """The tare of `node` for this graph: at its first start, over `read(tare_samples)` (refused in
     one line where `refusal` says so) and kept; at a restart, the kept one (read(1): the sensor
     streams). None when tare_samples is 0 (no tare)."""
@@ -164,8 +187,10 @@ def graph_tare(node: str, device: str, tare_samples: int, limits: TareLimits, re
     got = read(tare_samples if tare_samples and first is None else 1)
     if first is not None:
         off = norm([a - b for a, b in zip(measure(got).force, first.force)])
-        log(f"{device}: restarted: kept the graph's first tare, bias force {fmt(first.force)} N, "
-            f"torque {fmt(first.torque)} N m (the probe reads {off:.2f} N from it now)")
+        log(
+            f"{device}: restarted: kept the graph's first tare, bias force {fmt(first.force)} N, "
+            f"torque {fmt(first.torque)} N m (the probe reads {off:.2f} N from it now)"
+        )
         return first
     if not tare_samples:
         return None

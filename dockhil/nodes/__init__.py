@@ -66,10 +66,17 @@ def dof_param(type_name: str):
     from dockhil.node import Param
 
     if type_name in ONE_DOF:
-        return Param(int, 6, help=f"degrees of freedom: 6, this node ({ONE_DOF[type_name]} with dof: 6); "
-                                  f"for 1 write node: {ONE_DOF[type_name]}")
-    return Param(int, 1, help=f"degrees of freedom: 1, this node (along x); 6, the 6-DOF node "
-                              f"({SIX_DOF[type_name]}, docs/sixdof.md)")
+        return Param(
+            int,
+            6,
+            help=f"degrees of freedom: 6, this node ({ONE_DOF[type_name]} with dof: 6); "
+            f"for 1 write node: {ONE_DOF[type_name]}",
+        )
+    return Param(
+        int,
+        1,
+        help=f"degrees of freedom: 1, this node (along x); 6, the 6-DOF node ({SIX_DOF[type_name]}, docs/sixdof.md)",
+    )
 
 
 def resolve(type_name: str, node_name: str, given: dict) -> tuple[str, type, dict]:
@@ -83,11 +90,15 @@ def resolve(type_name: str, node_name: str, given: dict) -> tuple[str, type, dic
         given = dict(given)
         dof = given.pop("dof")
         if type(dof) is not int or dof not in (1, 6):  # not True (== 1) nor 6.0
-            raise ParamError(f"node {node_name!r} ({type_name}): dof must be the integer 1 or 6, got "
-                             f"{reprlib.repr(dof)}; give dof: 1 (along x) or dof: 6 (the 6-DOF node)")
+            raise ParamError(
+                f"node {node_name!r} ({type_name}): dof must be the integer 1 or 6, got "
+                f"{reprlib.repr(dof)}; give dof: 1 (along x) or dof: 6 (the 6-DOF node)"
+            )
         if type_name in ONE_DOF and dof != 6:
-            raise ParamError(f"node {node_name!r} ({type_name}): dof {dof}, but {type_name} is the 6-DOF node; "
-                             f"write node: {ONE_DOF[type_name]} for the {dof}-DOF one")
+            raise ParamError(
+                f"node {node_name!r} ({type_name}): dof {dof}, but {type_name} is the 6-DOF node; "
+                f"write node: {ONE_DOF[type_name]} for the {dof}-DOF one"
+            )
     registered = SIX_DOF[type_name] if type_name in SIX_DOF and dof == 6 else type_name
     cls = load(registered)
     try:
@@ -109,9 +120,11 @@ def mixed_dof(types: dict[str, str]) -> str | None:
     six = [name for name, t in types.items() if t in ONE_DOF]
     if not one or not six:
         return None
-    return (f"node {one[0]!r} ({types[one[0]]}) is 1-DOF and node {six[0]!r} ({ONE_DOF[types[six[0]]]} with dof: 6) "
-            f"is 6-DOF: the nodes of one loop take one dof; give {', '.join(map(repr, one))} dof: 6, or "
-            f"{', '.join(map(repr, six))} dof: 1")
+    return (
+        f"node {one[0]!r} ({types[one[0]]}) is 1-DOF and node {six[0]!r} ({ONE_DOF[types[six[0]]]} with dof: 6) "
+        f"is 6-DOF: the nodes of one loop take one dof; give {', '.join(map(repr, one))} dof: 6, or "
+        f"{', '.join(map(repr, six))} dof: 1"
+    )
 
 
 def _other_dof_line(type_name: str, registered: str, dof: int, node_name: str, cls, given: dict) -> str | None:
@@ -128,12 +141,16 @@ def _other_dof_line(type_name: str, registered: str, dof: int, node_name: str, c
         if theirs is None or not _accepts(theirs, name, value):
             continue
         if mine is None:
-            return (f"node {node_name!r} ({label}): unknown parameter {name!r}, a parameter of the "
-                    f"{other_dof}-DOF node; {fix}")
+            return (
+                f"node {node_name!r} ({label}): unknown parameter {name!r}, a parameter of the "
+                f"{other_dof}-DOF node; {fix}"
+            )
         if mine.type is not theirs.type and not _accepts(mine, name, value):
-            return (f"node {node_name!r} ({label}): parameter {name!r} is a {type(value).__name__} "
-                    f"{reprlib.repr(value)}, as the {other_dof}-DOF node takes it, not a {mine.type.__name__}; "
-                    f"{fix}, or give a {mine.type.__name__}")
+            return (
+                f"node {node_name!r} ({label}): parameter {name!r} is a {type(value).__name__} "
+                f"{reprlib.repr(value)}, as the {other_dof}-DOF node takes it, not a {mine.type.__name__}; "
+                f"{fix}, or give a {mine.type.__name__}"
+            )
     return None
 
 
@@ -157,8 +174,9 @@ def plugins() -> dict[str, tuple[str, str]]:
     try:
         eps = entry_points(group=ENTRY_POINT_GROUP)
     except Exception as exc:  # a distribution's metadata that does not parse
-        raise LaunchError(f"cannot read the installed {ENTRY_POINT_GROUP} entry points "
-                          f"({type(exc).__name__}: {exc})") from None
+        raise LaunchError(
+            f"cannot read the installed {ENTRY_POINT_GROUP} entry points ({type(exc).__name__}: {exc})"
+        ) from None
     for ep in eps:
         dist = f"{ep.dist.name} {ep.dist.version}" if ep.dist is not None else "an unnamed distribution"
         if ep.name not in REGISTRY and ep.name not in found:
@@ -178,14 +196,17 @@ def load(type_name: str):
         return _load(type_name, REGISTRY.get(type_name, type_name))
     extra = plugins()
     if type_name not in extra:
-        raise LaunchError(f"unknown node type {type_name!r}; "
-                          f"{suggest(type_name, [*REGISTRY, *extra], 'known types')} (or give module:Class)")
+        raise LaunchError(
+            f"unknown node type {type_name!r}; "
+            f"{suggest(type_name, [*REGISTRY, *extra], 'known types')} (or give module:Class)"
+        )
     target, dist = extra[type_name]
     try:
         return _load(type_name, target)
     except LaunchError as exc:
-        raise LaunchError(f"{exc} (entry point {ENTRY_POINT_GROUP} {type_name} = {target!r} of {dist}; "
-                          f"fix or uninstall that package)") from None
+        raise LaunchError(
+            f"{exc} (entry point {ENTRY_POINT_GROUP} {type_name} = {target!r} of {dist}; fix or uninstall that package)"
+        ) from None
 
 
 def _load(type_name: str, target: str):
@@ -203,14 +224,16 @@ def _load(type_name: str, target: str):
     except ImportError as exc:
         raise LaunchError(f"node type {type_name!r}: cannot import {module_name!r} ({exc})") from None
     except Exception as exc:  # the module's own code failed: still one line
-        raise LaunchError(f"node type {type_name!r}: importing {module_name!r} raised "
-                          f"{type(exc).__name__}: {exc}") from None
+        raise LaunchError(
+            f"node type {type_name!r}: importing {module_name!r} raised {type(exc).__name__}: {exc}"
+        ) from None
     cls = getattr(module, class_name, None)
     if cls is None:
         raise LaunchError(f"node type {type_name!r}: module {module_name!r} has no {class_name!r}")
     if not (isinstance(cls, type) and issubclass(cls, Node)) or cls is Node:
-        raise LaunchError(f"node type {type_name!r}: {class_name} is not a dockhil node "
-                          f"(a subclass of dockhil.node.Node)")
+        raise LaunchError(
+            f"node type {type_name!r}: {class_name} is not a dockhil node (a subclass of dockhil.node.Node)"
+        )
     return cls
 
 
@@ -224,8 +247,9 @@ def _check_source(type_name: str, module_name: str, class_name: str) -> None:
         raise LaunchError(f"node type {type_name!r}: no module {module_name!r}")
     origin = spec.origin or ""
     if not origin.endswith(".py"):
-        raise LaunchError(f"node type {type_name!r}: {module_name!r} is not a Python source module, "
-                          f"so it defines no dockhil node")
+        raise LaunchError(
+            f"node type {type_name!r}: {module_name!r} is not a Python source module, so it defines no dockhil node"
+        )
     try:
         with open(origin, encoding="utf-8", errors="replace") as f:
             source = f.read()

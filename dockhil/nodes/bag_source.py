@@ -69,7 +69,9 @@ def _selected(params: dict[str, Any]) -> dict[str, str]:
         raise ParamError(f"node type bag_source parameter 'topics': expected a list of topic names, got {wanted!r}")
     for topic in wanted:
         if topic not in in_bag:
-            raise BagError(f"{params['path']}: no messages on {topic}; topics in the bag: {', '.join(sorted(in_bag)) or 'none'}")
+            raise BagError(
+                f"{params['path']}: no messages on {topic}; topics in the bag: {', '.join(sorted(in_bag)) or 'none'}"
+            )
     selected = {t: in_bag[t] for t in (wanted or sorted(in_bag))}
     for topic, type_name in selected.items():
         if type_name not in msgs.TYPES:
@@ -87,14 +89,22 @@ class BagSource(Node):
     params = {
         "path": Param(str, "", help="MCAP bag to replay"),
         "topics": Param(list, [], help="topics to replay (default: every topic in the bag)"),
-        "start": Param(float, 0.0, unit="s", ge=0.0, le=MAX_DURATION,
-                       help="skip the first S seconds of the bag (sim time: S/dt ticks)"),
+        "start": Param(
+            float,
+            0.0,
+            unit="s",
+            ge=0.0,
+            le=MAX_DURATION,
+            help="skip the first S seconds of the bag (sim time: S/dt ticks)",
+        ),
     }
 
     @classmethod
     def ports(cls, params):
-        return {}, {topic: Output(msgs.TYPES[type_name], topic, help="as recorded")
-                    for topic, type_name in _selected(params).items()}
+        return {}, {
+            topic: Output(msgs.TYPES[type_name], topic, help="as recorded")
+            for topic, type_name in _selected(params).items()
+        }
 
     def setup(self):
         self.types = {t: msgs.TYPES[n] for t, n in _selected(vars(self.p)).items()}
@@ -163,18 +173,22 @@ class BagSource(Node):
     def _tick_of(self, topic: str, message) -> int:
         header = decode_header(message.data)
         if header is None:
-            raise DockhilError(f"bag {self.p.path}: a message on {topic} at log time {message.log_time_ns} ns "
-                               f"has no readable header")
+            raise DockhilError(
+                f"bag {self.p.path}: a message on {topic} at log time {message.log_time_ns} ns has no readable header"
+            )
         return header.tick
 
     def _decode(self, topic: str, message):
         try:
             return self.decoders[topic].decode(message.data)
         except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-            raise DockhilError(f"bag {self.p.path}: message on {topic} at log time {message.log_time_ns} ns: {exc}") from None
+            raise DockhilError(
+                f"bag {self.p.path}: message on {topic} at log time {message.log_time_ns} ns: {exc}"
+            ) from None
         except RecursionError:
-            raise DockhilError(f"bag {self.p.path}: message on {topic} at log time {message.log_time_ns} ns "
-                               "nests too deeply to decode") from None
+            raise DockhilError(
+                f"bag {self.p.path}: message on {topic} at log time {message.log_time_ns} ns nests too deeply to decode"
+            ) from None
 
     def _emit(self, topic: str, message, tick, recorded_tick: int):
         msg = self._decode(topic, message)
@@ -183,8 +197,10 @@ class BagSource(Node):
             return msgspec.structs.replace(msg, header=header)
         if not self.warned_stamp and abs(msg.header.stamp - tick.t) > 1e-9 * max(1.0, tick.t):
             self.warned_stamp = True
-            self.log(f"note: {topic} tick {recorded_tick} was recorded at {msg.header.stamp:g} s, this scene's tick "
-                     f"{tick.index} is at {tick.t:g} s: was the bag recorded at another rate?")
+            self.log(
+                f"note: {topic} tick {recorded_tick} was recorded at {msg.header.stamp:g} s, this scene's tick "
+                f"{tick.index} is at {tick.t:g} s: was the bag recorded at another rate?"
+            )
         return msg
 
     def _by_time(self, tick):

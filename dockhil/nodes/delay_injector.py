@@ -16,14 +16,15 @@ class DelayInjector(Node):
     """Re-publishes its input `delay` seconds later (exact in ticks in sim time); jitter and loss optional."""
 
     params = {
-        "delay": Param(float, 0.032, unit="s", help="fixed delay (rounded to whole ticks)", ge=0.0,
-                       scale=physical.TIME),
-        "jitter": Param(float, 0.0, unit="s", help="extra delay, uniform in [0, jitter], per message", ge=0.0,
-                        scale=physical.TIME),
+        "delay": Param(
+            float, 0.032, unit="s", help="fixed delay (rounded to whole ticks)", ge=0.0, scale=physical.TIME
+        ),
+        "jitter": Param(
+            float, 0.0, unit="s", help="extra delay, uniform in [0, jitter], per message", ge=0.0, scale=physical.TIME
+        ),
         "loss": Param(float, 0.0, help="probability that a message is lost (the last one is held)", ge=0.0, le=1.0),
         "seed": Param(int, 0, help="seed of jitter and loss: the same seed, the same run"),
-        "type": Param(str, "dockhil/RobotCommand", help="message type of the delayed topic",
-                      choices=tuple(msgs.TYPES)),
+        "type": Param(str, "dockhil/RobotCommand", help="message type of the delayed topic", choices=tuple(msgs.TYPES)),
         "input": Param(str, "/robot/command", help="topic to delay"),
         "output": Param(str, "/robot/command/delayed", help="topic to publish"),
     }
@@ -32,8 +33,10 @@ class DelayInjector(Node):
     def ports(cls, params):
         t = msgs.type_by_name(params["type"])
         # The declared delay lets the runtime pipeline: this node at tick k reads tick k - delay/dt.
-        return ({"input": Input(t, params["input"], delay=params["delay"], help="the topic to delay")},
-                {"output": Output(t, params["output"], help="the same messages, later")})
+        return (
+            {"input": Input(t, params["input"], delay=params["delay"], help="the topic to delay")},
+            {"output": Output(t, params["output"], help="the same messages, later")},
+        )
 
     def setup(self):
         from dockhil.contact.hilloop import delay_ticks

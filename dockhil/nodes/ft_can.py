@@ -42,32 +42,70 @@ class FtCanDriver(Node):
     outputs = {"wrench": Output(WrenchStamped, "/ft/wrench", help="wrench the contact exerts on the chaser")}
     params = {
         "interface": Param(str, "slcan", help="python-can interface: slcan, socketcan, pcan, virtual, ..."),
-        "channel": Param(str, "", help="python-can channel: serial port, can0, ... (slcan, empty: the emulator's "
-                         "link ft.slcan in the graph's private run directory)"),
+        "channel": Param(
+            str,
+            "",
+            help="python-can channel: serial port, can0, ... (slcan, empty: the emulator's "
+            "link ft.slcan in the graph's private run directory)",
+        ),
         "bitrate": Param(int, 1_000_000, unit="bit/s", help="CAN bitrate", gt=0, le=1_000_000),
         **ff.frame_params(),
         "sign": Param(float, 1.0, help="-1 if the sensor reports the force on the target side", choices=(1.0, -1.0)),
-        "tare_samples": Param(int, 100, help="samples averaged into the bias at the graph's first start (0: no "
-                              "tare); nothing may touch the probe meanwhile. A restart keeps the first tare",
-                              ge=0, le=100_000),
+        "tare_samples": Param(
+            int,
+            100,
+            help="samples averaged into the bias at the graph's first start (0: no "
+            "tare); nothing may touch the probe meanwhile. A restart keeps the first tare",
+            ge=0,
+            le=100_000,
+        ),
         # A tare takes whatever loads the probe at start for the sensor's offset, and every force limit downstream
         # would then miss it: a large bias means the probe is pressed, a large spread that it moved while taring.
-        "max_bias": Param(float, 50.0, unit="N", help="largest tare bias |F| accepted; more means something "
-                          "loads the probe at start (raise it for a heavy tool; 0: off)", ge=0.0, le=10_000.0),
-        "max_bias_torque": Param(float, 5.0, unit="N m", help="largest tare bias |T| accepted (0: off)",
-                                 ge=0.0, le=1_000.0),
-        "max_tare_spread": Param(float, 2.0, unit="N", help="largest standard deviation of a force axis over the "
-                                 "tare samples (the noise band); more means the probe moved or was touched while "
-                                 "taring (0: off)", ge=0.0, le=1_000.0),
-        "max_tare_spread_torque": Param(float, 0.2, unit="N m", help="largest standard deviation of a torque axis "
-                                        "over the tare samples (0: off)", ge=0.0, le=100.0),
+        "max_bias": Param(
+            float,
+            50.0,
+            unit="N",
+            help="largest tare bias |F| accepted; more means something "
+            "loads the probe at start (raise it for a heavy tool; 0: off)",
+            ge=0.0,
+            le=10_000.0,
+        ),
+        "max_bias_torque": Param(
+            float, 5.0, unit="N m", help="largest tare bias |T| accepted (0: off)", ge=0.0, le=1_000.0
+        ),
+        "max_tare_spread": Param(
+            float,
+            2.0,
+            unit="N",
+            help="largest standard deviation of a force axis over the "
+            "tare samples (the noise band); more means the probe moved or was touched while "
+            "taring (0: off)",
+            ge=0.0,
+            le=1_000.0,
+        ),
+        "max_tare_spread_torque": Param(
+            float,
+            0.2,
+            unit="N m",
+            help="largest standard deviation of a torque axis over the tare samples (0: off)",
+            ge=0.0,
+            le=100.0,
+        ),
         "stale_timeout": Param(float, 0.1, unit="s", help="no new sample for this long is an error", gt=0.0, le=10.0),
-        "open_timeout": Param(float, 2.0, unit="s", help="time for the device to appear and start streaming",
-                              gt=0.0, le=120.0),
-        "max_bus_errors": Param(int, 10, help="error frames in a row without a valid sample that are an error",
-                                ge=1, le=100_000),
-        "open_delay": Param(float, 0.0, unit="s", help="slcan only: wait after opening the serial port "
-                            "(adapters that reset on open need ~2 s)", ge=0.0, le=30.0),
+        "open_timeout": Param(
+            float, 2.0, unit="s", help="time for the device to appear and start streaming", gt=0.0, le=120.0
+        ),
+        "max_bus_errors": Param(
+            int, 10, help="error frames in a row without a valid sample that are an error", ge=1, le=100_000
+        ),
+        "open_delay": Param(
+            float,
+            0.0,
+            unit="s",
+            help="slcan only: wait after opening the serial port (adapters that reset on open need ~2 s)",
+            ge=0.0,
+            le=30.0,
+        ),
         "frame": Param(str, "", help="header frame id of the published wrench"),
     }
 
@@ -105,8 +143,9 @@ class FtCanDriver(Node):
         self._bus_claim = None
         if p.interface != "slcan":
             try:
-                self._bus_claim = ownership.claim_for_graph(f"can-bus-{p.interface}-{channel}",
-                                                            f"CAN bus {p.interface} {p.channel}")
+                self._bus_claim = ownership.claim_for_graph(
+                    f"can-bus-{p.interface}-{channel}", f"CAN bus {p.interface} {p.channel}"
+                )
             except BaseException:
                 self._lock.release()
                 raise
@@ -153,9 +192,11 @@ class FtCanDriver(Node):
     def _check_path(self) -> None:
         why = untrusted(self._path) if self._path else None
         if why:
-            raise DeviceError(f"{self.device}: refused: {why}; whoever can plant or replace it feeds this driver "
-                              f"its forces: use a device in /dev, or a path in a directory only you can write "
-                              f"(leave channel empty for the emulator's link in the graph's private run directory)")
+            raise DeviceError(
+                f"{self.device}: refused: {why}; whoever can plant or replace it feeds this driver "
+                f"its forces: use a device in /dev, or a path in a directory only you can write "
+                f"(leave channel empty for the emulator's link in the graph's private run directory)"
+            )
 
     def _read_samples(self) -> list[ff.FtSample]:
         """New samples on the bus, oldest first; raises DeviceError on bus and sensor faults."""
@@ -178,8 +219,14 @@ class FtCanDriver(Node):
                     )
                 continue
             try:
-                half = ff.decode_frame(msg.arbitration_id, msg.data, self.p.can_id, self.scaling,
-                                       is_extended_id=msg.is_extended_id, is_remote_frame=msg.is_remote_frame)
+                half = ff.decode_frame(
+                    msg.arbitration_id,
+                    msg.data,
+                    self.p.can_id,
+                    self.scaling,
+                    is_extended_id=msg.is_extended_id,
+                    is_remote_frame=msg.is_remote_frame,
+                )
             except ff.FrameError as exc:
                 self.bad_frames += 1
                 if self._bad_logged < 5:  # the first few tell the story; the count is logged at close
@@ -210,8 +257,14 @@ class FtCanDriver(Node):
         """Tare at the graph's first start; a restart keeps that tare (it may come back in contact)."""
         p = self.p
         limits = tare.TareLimits(p.max_bias, p.max_bias_torque, p.max_tare_spread, p.max_tare_spread_torque)
-        bias = tare.graph_tare(self.ctx.name, self.device, p.tare_samples, limits,
-                               lambda n: [(s.force, s.torque) for s in self._first_samples(n)], self.log)
+        bias = tare.graph_tare(
+            self.ctx.name,
+            self.device,
+            p.tare_samples,
+            limits,
+            lambda n: [(s.force, s.torque) for s in self._first_samples(n)],
+            self.log,
+        )
         if bias is not None:
             self.bias_force, self.bias_torque = bias.force, bias.torque
 
@@ -234,9 +287,7 @@ class FtCanDriver(Node):
                         f"{self.device}: no F/T frames on CAN IDs {p.can_id:#05x}/{p.can_id + 1:#05x} within "
                         f"{p.open_timeout:g} s: is the sensor powered, streaming, and at {p.bitrate} bit/s?"
                     )
-                raise DeviceError(
-                    f"{self.device}: only {len(got)} of {want} tare samples within {p.open_timeout:g} s"
-                )
+                raise DeviceError(f"{self.device}: only {len(got)} of {want} tare samples within {p.open_timeout:g} s")
             time.sleep(0.0005)
         return got[:want]
 
@@ -273,9 +324,16 @@ class FtCanDriver(Node):
             return
         self._shutdown_bus()
         self._release_claims()
-        problems = [f"{n} {what}" for n, what in (
-            (self.lost, "samples lost"), (self.repeated, "samples repeated"),
-            (self.bad_frames, "bad frames"), (self.error_frames, "error frames"),
-            (self.assembler.orphans, "unpaired frames")) if n]
+        problems = [
+            f"{n} {what}"
+            for n, what in (
+                (self.lost, "samples lost"),
+                (self.repeated, "samples repeated"),
+                (self.bad_frames, "bad frames"),
+                (self.error_frames, "error frames"),
+                (self.assembler.orphans, "unpaired frames"),
+            )
+            if n
+        ]
         if problems:
             self.log(f"warning: {self.device}: {', '.join(problems)}")

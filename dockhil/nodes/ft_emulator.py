@@ -27,29 +27,54 @@ class FtSensorEmulator(Node):
 
     inputs = {"state": Input(RobotState, "/robot/state", help="robot pose: probe relative to the target interface")}
     params = {
-        "interface": Param(str, "pty", help="pty: be an slcan adapter on a pseudo-terminal; "
-                           "else a python-can interface to send through"),
-        "channel": Param(str, "", help="pty: symlink to create (empty: ft.slcan in the graph's private run "
-                         "directory, the driver's default); else the python-can channel"),
-        "bitrate": Param(int, 1_000_000, unit="bit/s", help="CAN bitrate (python-can interfaces)", gt=0,
-                         le=1_000_000),
+        "interface": Param(
+            str,
+            "pty",
+            help="pty: be an slcan adapter on a pseudo-terminal; else a python-can interface to send through",
+        ),
+        "channel": Param(
+            str,
+            "",
+            help="pty: symlink to create (empty: ft.slcan in the graph's private run "
+            "directory, the driver's default); else the python-can channel",
+        ),
+        "bitrate": Param(int, 1_000_000, unit="bit/s", help="CAN bitrate (python-can interfaces)", gt=0, le=1_000_000),
         **ff.frame_params(),
         "k": Param(float, 1000.0, unit="N/m", help="stiffness of the passive compliance", ge=0.0, le=1e8),
-        "b": Param(float, 0.0, unit="N s/m", help="damping of the passive compliance, on the robot's actual "
-                   "velocity (the contact still only pushes)", ge=0.0, le=1e6),
-        "surface": Param(float, 0.0, unit="m", help="x of the compliance's surface: the penetration is x - surface",
-                         ge=-1.0, le=1.0),
+        "b": Param(
+            float,
+            0.0,
+            unit="N s/m",
+            help="damping of the passive compliance, on the robot's actual velocity (the contact still only pushes)",
+            ge=0.0,
+            le=1e6,
+        ),
+        "surface": Param(
+            float, 0.0, unit="m", help="x of the compliance's surface: the penetration is x - surface", ge=-1.0, le=1.0
+        ),
         "noise": Param(float, 0.0, unit="N", help="standard deviation of force noise, each axis", ge=0.0, le=1_000.0),
-        "torque_noise": Param(float, 0.0, unit="N m", help="standard deviation of torque noise, each axis",
-                              ge=0.0, le=100.0),
-        "bias": Param(float, 0.0, unit="N", help="constant offset on Fx (the driver's tare removes it)",
-                      ge=-1_000.0, le=1_000.0),
-        **{f"bias_{axis}": Param(float, 0.0, unit="N", help=f"constant offset on F{axis}", ge=-1_000.0, le=1_000.0)
-           for axis in "yz"},
-        **{f"torque_bias_{axis}": Param(float, 0.0, unit="N m", help=f"constant offset on T{axis}", ge=-100.0,
-                                        le=100.0) for axis in "xyz"},
-        "maxima": Param(str, "", help="JSON file to write at close with the largest force |F| reported and the "
-                        "largest penetration (empty: none)"),
+        "torque_noise": Param(
+            float, 0.0, unit="N m", help="standard deviation of torque noise, each axis", ge=0.0, le=100.0
+        ),
+        "bias": Param(
+            float, 0.0, unit="N", help="constant offset on Fx (the driver's tare removes it)", ge=-1_000.0, le=1_000.0
+        ),
+        **{
+            f"bias_{axis}": Param(float, 0.0, unit="N", help=f"constant offset on F{axis}", ge=-1_000.0, le=1_000.0)
+            for axis in "yz"
+        },
+        **{
+            f"torque_bias_{axis}": Param(
+                float, 0.0, unit="N m", help=f"constant offset on T{axis}", ge=-100.0, le=100.0
+            )
+            for axis in "xyz"
+        },
+        "maxima": Param(
+            str,
+            "",
+            help="JSON file to write at close with the largest force |F| reported and the "
+            "largest penetration (empty: none)",
+        ),
         "seed": Param(int, 0, help="noise seed", ge=0, le=2**63 - 1),
     }
 
@@ -83,11 +108,13 @@ class FtSensorEmulator(Node):
             # One emulated sensor per channel: two would stream the same CAN IDs.
             # The bus is its graph's: a driver of another graph reading it would take our frames for
             # its sensor's. Claimed first, so a refused emulator never holds the emulator claim.
-            bus_claim = ownership.claim_for_graph(f"can-bus-{p.interface}-{p.channel}",
-                                                  f"CAN bus {p.interface} {p.channel}")
+            bus_claim = ownership.claim_for_graph(
+                f"can-bus-{p.interface}-{p.channel}", f"CAN bus {p.interface} {p.channel}"
+            )
             try:
-                self._lock = ownership.claim(f"can-emulator-{p.interface}-{p.channel}",
-                                             f"F/T sensor emulator on {p.interface} {p.channel}")
+                self._lock = ownership.claim(
+                    f"can-emulator-{p.interface}-{p.channel}", f"F/T sensor emulator on {p.interface} {p.channel}"
+                )
             except BaseException:
                 bus_claim.release()
                 raise
@@ -108,8 +135,11 @@ class FtSensorEmulator(Node):
             fx = min(-p.k * depth - p.b * state.twist.linear.x, 0.0)
             self.max_penetration = max(self.max_penetration, depth)
         force = (fx + p.bias + self._noise(p.noise), p.bias_y + self._noise(p.noise), p.bias_z + self._noise(p.noise))
-        torque = (p.torque_bias_x + self._noise(p.torque_noise), p.torque_bias_y + self._noise(p.torque_noise),
-                  p.torque_bias_z + self._noise(p.torque_noise))
+        torque = (
+            p.torque_bias_x + self._noise(p.torque_noise),
+            p.torque_bias_y + self._noise(p.torque_noise),
+            p.torque_bias_z + self._noise(p.torque_noise),
+        )
         self.max_force = max(self.max_force, math.sqrt(sum(f * f for f in force)))
         return force, torque
 

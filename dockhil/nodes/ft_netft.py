@@ -116,19 +116,31 @@ class FtNetFtDriver(Node):
         "host": Param(str, "192.168.1.1", help="the box's address (factory setting 192.168.1.1)"),
         "port": Param(int, rdt.RDT_PORT, help="the box's RDT UDP port", ge=1, le=65535),
         "http_port": Param(int, 80, help="the box's web server port (netftapi2.xml)", ge=1, le=65535),
-        "http_timeout": Param(float, 2.0, unit="s", help="time for the box's web server to answer", gt=0.0,
-                              le=60.0),
-        "counts_per_force": Param(float, 0.0, help="counts per force unit (0: cfgcpf of the box's netftapi2.xml)",
-                                  ge=0.0, scale=(1e-3, 1e12)),
-        "counts_per_torque": Param(float, 0.0, help="counts per torque unit (0: cfgcpt of netftapi2.xml)",
-                                   ge=0.0, scale=(1e-3, 1e12)),
-        "force_unit": Param(str, "", help="the box's force unit: N, lbf, klbf, kN, kgf, gf ('': scfgfu of "
-                            "netftapi2.xml)"),
-        "torque_unit": Param(str, "", help="the box's torque unit: Nm, Nmm, lbf-in, lbf-ft, kgf-cm, kNm ('': "
-                             "scfgtu of netftapi2.xml)"),
+        "http_timeout": Param(float, 2.0, unit="s", help="time for the box's web server to answer", gt=0.0, le=60.0),
+        "counts_per_force": Param(
+            float, 0.0, help="counts per force unit (0: cfgcpf of the box's netftapi2.xml)", ge=0.0, scale=(1e-3, 1e12)
+        ),
+        "counts_per_torque": Param(
+            float, 0.0, help="counts per torque unit (0: cfgcpt of netftapi2.xml)", ge=0.0, scale=(1e-3, 1e12)
+        ),
+        "force_unit": Param(
+            str, "", help="the box's force unit: N, lbf, klbf, kN, kgf, gf ('': scfgfu of netftapi2.xml)"
+        ),
+        "torque_unit": Param(
+            str, "", help="the box's torque unit: Nm, Nmm, lbf-in, lbf-ft, kgf-cm, kNm ('': scfgtu of netftapi2.xml)"
+        ),
         # the tare and the mounting as for the CAN sensor (tare_samples counts records here)
-        **{name: FtCanDriver.params[name] for name in ("sign", "tare_samples", "max_bias", "max_bias_torque",
-                                                          "max_tare_spread", "max_tare_spread_torque")},
+        **{
+            name: FtCanDriver.params[name]
+            for name in (
+                "sign",
+                "tare_samples",
+                "max_bias",
+                "max_bias_torque",
+                "max_tare_spread",
+                "max_tare_spread_torque",
+            )
+        },
         "stale_timeout": Param(float, 0.1, unit="s", help="no new record for this long is an error", gt=0.0),
         "open_timeout": Param(float, 2.0, unit="s", help="time for the box to start streaming", gt=0.0),
         "frame": Param(str, "probe", help="header frame id of the published wrench"),
@@ -184,16 +196,21 @@ class FtNetFtDriver(Node):
     def _calibration(self) -> rdt.Calibration:
         """From the parameters where given, the rest from the box's netftapi2.xml."""
         p = self.p
-        given = {"counts_per_force": p.counts_per_force, "counts_per_torque": p.counts_per_torque,
-                 "force_unit": p.force_unit, "torque_unit": p.torque_unit}
+        given = {
+            "counts_per_force": p.counts_per_force,
+            "counts_per_torque": p.counts_per_torque,
+            "force_unit": p.force_unit,
+            "torque_unit": p.torque_unit,
+        }
         try:
             if all(given.values()):
                 calibration = rdt.Calibration(**given)
             else:
                 calibration = rdt.calibration_from(self._netftapi2(), given)
         except rdt.RdtError as exc:
-            raise DeviceError(f"{self.device}: {exc} (or give counts_per_force, counts_per_torque, force_unit "
-                              f"and torque_unit)") from None
+            raise DeviceError(
+                f"{self.device}: {exc} (or give counts_per_force, counts_per_torque, force_unit and torque_unit)"
+            ) from None
         self.log(f"{self.device}: {calibration.describe()}")
         return calibration
 
@@ -214,16 +231,18 @@ class FtNetFtDriver(Node):
         try:
             self.sock.sendto(rdt.encode_request(command), self.box)
         except OSError as exc:
-            raise DeviceError(f"{self.device}: cannot send the {rdt.COMMANDS[command]} request: "
-                              f"{exc.strerror or exc}") from None
+            raise DeviceError(
+                f"{self.device}: cannot send the {rdt.COMMANDS[command]} request: {exc.strerror or exc}"
+            ) from None
 
     def _tare(self) -> None:
         """Tare at the graph's first start over tare_samples records; a restart keeps that tare (it
         may come back in contact): dockhil/hardware/tare.py, as for the CAN sensor."""
         p = self.p
         limits = tare.TareLimits(p.max_bias, p.max_bias_torque, p.max_tare_spread, p.max_tare_spread_torque)
-        bias = tare.graph_tare(self.ctx.name, self.device, p.tare_samples, limits, self._first_records, self.log,
-                               unit="records")
+        bias = tare.graph_tare(
+            self.ctx.name, self.device, p.tare_samples, limits, self._first_records, self.log, unit="records"
+        )
         if bias is not None:
             self.bias_force, self.bias_torque = bias.force, bias.torque
 
@@ -250,7 +269,8 @@ class FtNetFtDriver(Node):
                     raise DeviceError(
                         f"{self.device}: no RDT records within {p.open_timeout:g} s of the start request: is the "
                         f"box powered, at this address, and does its network let UDP port {p.port} through?"
-                        + self._foreign_note())
+                        + self._foreign_note()
+                    )
                 raise DeviceError(f"{self.device}: only {n} of {want} tare records within {p.open_timeout:g} s")
             time.sleep(0.002)
         with receiver.lock:
@@ -269,9 +289,11 @@ class FtNetFtDriver(Node):
     def _refuse_fault(self, fault: rdt.Record | None) -> None:
         if fault is not None:
             f = [c * self.force_scale for c in fault.counts[:3]]
-            raise DeviceError(f"{self.device}: the box reports status {fault.status:#010x} "
-                              f"({rdt.describe_status(fault.status)}) in record {fault.rdt_sequence}; holding "
-                              f"(raw force {tare.fmt(f)} N; see the box's web page)")
+            raise DeviceError(
+                f"{self.device}: the box reports status {fault.status:#010x} "
+                f"({rdt.describe_status(fault.status)}) in record {fault.rdt_sequence}; holding "
+                f"(raw force {tare.fmt(f)} N; see the box's web page)"
+            )
 
     def step(self, tick, inputs):
         r = self.receiver
@@ -280,8 +302,10 @@ class FtNetFtDriver(Node):
         if r.foreign and not self._foreign_logged:
             self._foreign_logged = True
             host, port = r.foreign_from
-            self.log(f"warning: {self.device}: ignoring datagrams from {host}:{port}, not the box "
-                     f"(counted; another device sends to this driver's port)")
+            self.log(
+                f"warning: {self.device}: ignoring datagrams from {host}:{port}, not the box "
+                f"(counted; another device sends to this driver's port)"
+            )
         t = tick.t
         self.ticks += 1
         if self._last_fresh_t is None:
@@ -289,8 +313,10 @@ class FtNetFtDriver(Node):
         if not n:
             age = t - self._last_fresh_t
             if age > self.p.stale_timeout:
-                raise DeviceError(f"{self.device}: stale data: no new record for {age:.3f} s "
-                                  f"(stale_timeout {self.p.stale_timeout:g} s)")
+                raise DeviceError(
+                    f"{self.device}: stale data: no new record for {age:.3f} s "
+                    f"(stale_timeout {self.p.stale_timeout:g} s)"
+                )
             return {}  # nothing new: publish nothing rather than repeat an old mean
         self._last_fresh_t = t
         self.ticks_with_data += 1
@@ -304,9 +330,16 @@ class FtNetFtDriver(Node):
     def counters(self) -> dict[str, int]:
         r = self.receiver
         with r.lock:
-            return {"records": r.records, "lost": r.seq.lost, "reordered": r.seq.reordered,
-                    "duplicates": r.seq.duplicates, "restarts": r.seq.restarts, "repeated": r.repeated,
-                    "bad datagrams": r.bad, "foreign datagrams": r.foreign}
+            return {
+                "records": r.records,
+                "lost": r.seq.lost,
+                "reordered": r.seq.reordered,
+                "duplicates": r.seq.duplicates,
+                "restarts": r.seq.restarts,
+                "repeated": r.repeated,
+                "bad datagrams": r.bad,
+                "foreign datagrams": r.foreign,
+            }
 
     def _shutdown(self) -> None:
         if self.sock is not None:
@@ -329,8 +362,10 @@ class FtNetFtDriver(Node):
         counters = self.counters()
         self._shutdown()
         if self.ticks_with_data:
-            self.log(f"{self.device}: {self.averaged} records averaged over {self.ticks_with_data} ticks "
-                     f"({self.averaged / self.ticks_with_data:.2f} a tick, at most {self.most_per_tick})")
+            self.log(
+                f"{self.device}: {self.averaged} records averaged over {self.ticks_with_data} ticks "
+                f"({self.averaged / self.ticks_with_data:.2f} a tick, at most {self.most_per_tick})"
+            )
         problems = [f"{n} {what}" for what, n in counters.items() if n and what != "records"]
         if problems:
             self.log(f"warning: {self.device}: {', '.join(problems)}")

@@ -14,15 +14,22 @@ class FtSensorSim(Node):
     inputs = {"robot": Input(RobotState, "/robot/state", help="actual probe pose relative to the target")}
     outputs = {"wrench": Output(WrenchStamped, "/ft/wrench", help="contact force on the chaser (+x)")}
     params = {
-        "k": Param(float, 1000.0, unit="N/m", help="passive compliance stiffness (metal sheet, sensor)", ge=0.0,
-                   scale=physical.STIFFNESS),
-        "noise": Param(float, 0.0, unit="N", help="standard deviation of white force noise", ge=0.0,
-                       scale=physical.FORCE),
+        "k": Param(
+            float,
+            1000.0,
+            unit="N/m",
+            help="passive compliance stiffness (metal sheet, sensor)",
+            ge=0.0,
+            scale=physical.STIFFNESS,
+        ),
+        "noise": Param(
+            float, 0.0, unit="N", help="standard deviation of white force noise", ge=0.0, scale=physical.FORCE
+        ),
         "bias": Param(float, 0.0, unit="N", help="constant offset added to the force", scale=physical.FORCE),
-        "rate": Param(float, 0.0, unit="Hz", help="sample rate, held between samples (0: every tick)", ge=0.0,
-                      le=MAX_RATE),
-        "quantization": Param(float, 0.0, unit="N", help="force resolution (0: none)", ge=0.0,
-                              scale=physical.FORCE),
+        "rate": Param(
+            float, 0.0, unit="Hz", help="sample rate, held between samples (0: every tick)", ge=0.0, le=MAX_RATE
+        ),
+        "quantization": Param(float, 0.0, unit="N", help="force resolution (0: none)", ge=0.0, scale=physical.FORCE),
         "seed": Param(int, 0, help="noise seed: the same seed gives the same noise in every run"),
     }
 

@@ -21,10 +21,12 @@ class FtSensorSim6(Node):
     outputs = {"wrench": Output(WrenchStamped, "/ft/wrench", help="wrench on the target, sensor frame")}
     params = {
         **PASSIVE_PARAMS,
-        "mu": Param(float, 0.0, help="tangential Coulomb friction of the hardware contact", ge=0.0,
-                    scale=physical.FRICTION),
-        "slip_velocity": Param(float, 1e-3, unit="m/s", help="friction regularising sliding speed", gt=0.0,
-                               scale=physical.SPEED),
+        "mu": Param(
+            float, 0.0, help="tangential Coulomb friction of the hardware contact", ge=0.0, scale=physical.FRICTION
+        ),
+        "slip_velocity": Param(
+            float, 1e-3, unit="m/s", help="friction regularising sliding speed", gt=0.0, scale=physical.SPEED
+        ),
         **MOUNT_PARAMS,
     }
 
@@ -32,8 +34,10 @@ class FtSensorSim6(Node):
         from dockhil.contact.hybrid6 import PassiveSensor6
 
         p = self.p
-        self.sensor = checked(self.ctx.name, lambda: PassiveSensor6(
-            passive_contact(p, p.mu, p.slip_velocity), p.sensor_position, p.sensor_orientation))
+        self.sensor = checked(
+            self.ctx.name,
+            lambda: PassiveSensor6(passive_contact(p, p.mu, p.slip_velocity), p.sensor_position, p.sensor_orientation),
+        )
 
     def step(self, tick, inputs):
         robot = inputs["robot"]

@@ -52,19 +52,23 @@ class Identification(Node):
     # stale_timeout, stall_timeout) guard the robot, so a busy machine's late message need not stop the run.
     inputs = {
         "state": Input(RobotState, "/robot/state", feedthrough=False, max_age=0.5, help="actual pose read back"),
-        "wrench": Input(WrenchStamped, "/ft/wrench", feedthrough=False, max_age=0.5,
-                        help="measured wrench, untared"),
+        "wrench": Input(WrenchStamped, "/ft/wrench", feedthrough=False, max_age=0.5, help="measured wrench, untared"),
     }
     outputs = {
         "command": Output(RobotCommand, "/robot/command", help="setpoint of the profile"),
         "phase": Output(NodeStatus, "/calibration/phase", help="the phase that starts (state), on each change"),
     }
     params = {
-        "max_speed": Param(float, 0.1, unit="m/s", help="the robot driver's max_speed; the profile moves at "
-                           "half of it at most", gt=0.0, le=10.0),
+        "max_speed": Param(
+            float,
+            0.1,
+            unit="m/s",
+            help="the robot driver's max_speed; the profile moves at half of it at most",
+            gt=0.0,
+            le=10.0,
+        ),
         "max_force": Param(float, 200.0, unit="N", help="the robot driver's max_force", gt=0.0, le=1e5),
-        "x_max": Param(float, 0.1, unit="m", help="the robot driver's workspace bound in +x", ge=-2000.0,
-                       le=2000.0),
+        "x_max": Param(float, 0.1, unit="m", help="the robot driver's workspace bound in +x", ge=-2000.0, le=2000.0),
         "force_fraction": Param(float, 0.35, help="press up to this fraction of max_force", gt=0.0, le=0.5),
         "backoff": Param(float, 0.015, unit="m", help="move back this far from the start first", gt=0.0, le=0.1),
         "rest": Param(float, 2.0, unit="s", help="time at rest for the bias and noise", ge=0.5, le=60.0),
@@ -74,14 +78,20 @@ class Identification(Node):
         "chirp": Param(float, 6.0, unit="s", help="length of the chirp (0: none)", ge=0.0, le=60.0),
         "chirp_f0": Param(float, 0.5, unit="Hz", help="chirp start frequency", gt=0.0, le=100.0),
         "chirp_f1": Param(float, 8.0, unit="Hz", help="chirp end frequency", gt=0.0, le=100.0),
-        "press_speed": Param(float, 0.02, unit="m/s", help="speed of the approach, press and release", gt=0.0,
-                             le=1.0),
-        "search": Param(float, 0.03, unit="m", help="how far beyond the start pose the surface may lie", gt=0.0,
-                        le=0.5),
+        "press_speed": Param(float, 0.02, unit="m/s", help="speed of the approach, press and release", gt=0.0, le=1.0),
+        "search": Param(
+            float, 0.03, unit="m", help="how far beyond the start pose the surface may lie", gt=0.0, le=0.5
+        ),
         "press_depth": Param(float, 0.04, unit="m", help="deepest press beyond the surface", gt=0.0, le=0.5),
         "hold": Param(float, 0.5, unit="s", help="time the press is held", ge=0.0, le=10.0),
-        "contact_force": Param(float, 0.5, unit="N", help="least force rise that counts as contact (and at "
-                               "least 6 noise standard deviations)", gt=0.0, le=1000.0),
+        "contact_force": Param(
+            float,
+            0.5,
+            unit="N",
+            help="least force rise that counts as contact (and at least 6 noise standard deviations)",
+            gt=0.0,
+            le=1000.0,
+        ),
     }
 
     def setup(self) -> None:
@@ -108,8 +118,17 @@ class Identification(Node):
         v_move = 0.5 * p["max_speed"]
         v = min(p["press_speed"], v_move)
         travel = p["backoff"] + p["search"] + p["press_depth"]
-        return (p["backoff"] / v_move + SETTLE_S + p["rest"] + p["steps"] * (p["step"] / v_move + p["step_hold"])
-                + p["chirp"] + SETTLE_S + 2.0 * travel / v + p["hold"] + SETTLE_S)
+        return (
+            p["backoff"] / v_move
+            + SETTLE_S
+            + p["rest"]
+            + p["steps"] * (p["step"] / v_move + p["step_hold"])
+            + p["chirp"]
+            + SETTLE_S
+            + 2.0 * travel / v
+            + p["hold"]
+            + SETTLE_S
+        )
 
     def _enter(self, phase: str, t: float) -> None:
         self.phase, self.phase_t = phase, t
@@ -144,8 +163,10 @@ class Identification(Node):
         elapsed = t - self.phase_t
         pushing = -(fx - self.bias)
         if self.phase not in ("backoff", "rest") and pushing > 0.5 * p.max_force:  # a robot moving on after the press
-            raise DeviceError(f"identification: the press met {pushing:.1f} N, over half of max_force "
-                              f"{p.max_force:g} N; stopped (the robot holds)")
+            raise DeviceError(
+                f"identification: the press met {pushing:.1f} N, over half of max_force "
+                f"{p.max_force:g} N; stopped (the robot holds)"
+            )
         if self.phase == "backoff":
             if self._move_toward(back, self.v_move, dt) and elapsed > p.backoff / self.v_move + SETTLE_S:
                 self._enter("rest", t)
@@ -155,7 +176,7 @@ class Identification(Node):
             self.rest_sq += fx * fx
             if elapsed >= p.rest:
                 self.bias = self.rest_sum / self.rest_n
-                self.noise = math.sqrt(max(self.rest_sq / self.rest_n - self.bias ** 2, 0.0))
+                self.noise = math.sqrt(max(self.rest_sq / self.rest_n - self.bias**2, 0.0))
                 self._enter("steps", t)
         elif self.phase == "steps":
             period = p.step / self.v_move + p.step_hold
@@ -181,9 +202,11 @@ class Identification(Node):
                     self.x_contact = state.pose.position.x
                     self._enter("press", t)
                 elif self.x >= min(self.x0 + p.search, limit):
-                    raise DeviceError(f"identification: no contact within search {p.search:g} m of the start pose "
-                                      f"x = {self.x0:.4f} m (the force stayed within {band:.2f} N of its rest "
-                                      f"value): start with the probe closer to the compliance")
+                    raise DeviceError(
+                        f"identification: no contact within search {p.search:g} m of the start pose "
+                        f"x = {self.x0:.4f} m (the force stayed within {band:.2f} N of its rest "
+                        f"value): start with the probe closer to the compliance"
+                    )
             else:
                 deep = min(self.x_contact + p.press_depth, limit)
                 if pushing >= p.force_fraction * p.max_force or self.x >= deep:
@@ -196,8 +219,11 @@ class Identification(Node):
         elif self.phase == "release":
             if self._move_toward(back, self.press_speed, dt):
                 self._enter("done", t)
-        out = {"command": RobotCommand(header=tick.header(), pose=Pose(position=Vector3(x=self.x)),
-                                       twist=Twist(linear=Vector3(x=self.v)))}
+        out = {
+            "command": RobotCommand(
+                header=tick.header(), pose=Pose(position=Vector3(x=self.x)), twist=Twist(linear=Vector3(x=self.v))
+            )
+        }
         if self._announce is not None:
             out["phase"] = NodeStatus(header=tick.header(), node=self.ctx.name, state=self._announce)
             self._announce = None

@@ -23,18 +23,27 @@ class NetFtEmulator(Node):
     params = {
         "host": Param(str, "127.0.0.1", help="address to listen on"),
         "port": Param(int, rdt.RDT_PORT, help="UDP port of RDT (0: any free port, logged)", ge=0, le=65535),
-        "http_port": Param(int, 8080, help="TCP port serving netftapi2.xml (the real box: 80; 0: any free port)",
-                           ge=0, le=65535),
-        "rate": Param(float, 1000.0, unit="Hz", help="RDT records a second (the box's setting, at most 7000)",
-                      gt=0.0, le=rdt.MAX_RDT_RATE),
-        "counts_per_force": Param(float, 1_000_000.0, help="cfgcpf: counts per force unit", gt=0.0,
-                                  scale=(1e-3, 1e12)),
-        "counts_per_torque": Param(float, 1_000_000.0, help="cfgcpt: counts per torque unit", gt=0.0,
-                                   scale=(1e-3, 1e12)),
-        "force_unit": Param(str, "N", help="scfgfu: N, lbf, klbf, kN, kgf, gf",
-                            choices=tuple(rdt.FORCE_CODES.values())),
-        "torque_unit": Param(str, "Nm", help="scfgtu: Nm, Nmm, lbf-in, lbf-ft, kgf-cm, kNm",
-                             choices=tuple(rdt.TORQUE_CODES.values())),
+        "http_port": Param(
+            int, 8080, help="TCP port serving netftapi2.xml (the real box: 80; 0: any free port)", ge=0, le=65535
+        ),
+        "rate": Param(
+            float,
+            1000.0,
+            unit="Hz",
+            help="RDT records a second (the box's setting, at most 7000)",
+            gt=0.0,
+            le=rdt.MAX_RDT_RATE,
+        ),
+        "counts_per_force": Param(float, 1_000_000.0, help="cfgcpf: counts per force unit", gt=0.0, scale=(1e-3, 1e12)),
+        "counts_per_torque": Param(
+            float, 1_000_000.0, help="cfgcpt: counts per torque unit", gt=0.0, scale=(1e-3, 1e12)
+        ),
+        "force_unit": Param(
+            str, "N", help="scfgfu: N, lbf, klbf, kN, kgf, gf", choices=tuple(rdt.FORCE_CODES.values())
+        ),
+        "torque_unit": Param(
+            str, "Nm", help="scfgtu: Nm, Nmm, lbf-in, lbf-ft, kgf-cm, kNm", choices=tuple(rdt.TORQUE_CODES.values())
+        ),
         "k": Param(float, 1000.0, unit="N/m", help="passive stiffness of the compliance", ge=0.0),
         "b": Param(float, 0.0, unit="N s/m", help="passive damping of the compliance, while in contact", ge=0.0),
         "bias": Param(float, 0.0, unit="N", help="constant offset on Fx (the driver's tare removes it)"),
@@ -47,10 +56,12 @@ class NetFtEmulator(Node):
         "late": Param(float, 0.0, unit="%", help="records held back late_delay", ge=0.0, le=100.0),
         "late_delay": Param(float, 0.05, unit="s", help="how late a late record is", ge=0.0, le=10.0),
         "jitter": Param(float, 0.0, unit="s", help="each send up to this late (in order)", ge=0.0, le=1.0),
-        "fault_after": Param(float, -1.0, unit="s", help="the status word turns non-zero this long into a stream "
-                             "(< 0: never)"),
-        "fault_status": Param(int, 0x80020000, help="the status word of the fault (default: error, saturation)",
-                              gt=0, lt=2**32),
+        "fault_after": Param(
+            float, -1.0, unit="s", help="the status word turns non-zero this long into a stream (< 0: never)"
+        ),
+        "fault_status": Param(
+            int, 0x80020000, help="the status word of the fault (default: error, saturation)", gt=0, lt=2**32
+        ),
         "maxima": Param(str, "", help="JSON file for the box's counts and largest reported force, written at close"),
     }
 
@@ -62,9 +73,27 @@ class NetFtEmulator(Node):
 
         p = self.p
         self.model = ContactModel(p.k, p.b, p.bias, p.noise, p.torque_noise, p.seed)
-        self.box = NetFtBox(self.model, p.host, p.port, p.http_port, p.rate, p.counts_per_force,
-                            p.counts_per_torque, p.force_unit, p.torque_unit, p.seed, p.loss, p.duplicate,
-                            p.reorder, p.late, p.late_delay, p.jitter, p.fault_after, p.fault_status, p.maxima)
+        self.box = NetFtBox(
+            self.model,
+            p.host,
+            p.port,
+            p.http_port,
+            p.rate,
+            p.counts_per_force,
+            p.counts_per_torque,
+            p.force_unit,
+            p.torque_unit,
+            p.seed,
+            p.loss,
+            p.duplicate,
+            p.reorder,
+            p.late,
+            p.late_delay,
+            p.jitter,
+            p.fault_after,
+            p.fault_status,
+            p.maxima,
+        )
         self._claim = None
         if p.port:
             try:
@@ -76,10 +105,13 @@ class NetFtEmulator(Node):
             self.box.start()
         except OSError as exc:
             self._release()
-            raise DeviceError(f"Net F/T emulator: cannot listen on {p.host} (udp {p.port}, http {p.http_port}): "
-                              f"{exc.strerror or exc}") from None
-        self.log(f"Net F/T emulator: RDT on udp {p.host}:{self.box.port}, netftapi2.xml on "
-                 f"http://{p.host}:{self.box.http_port}, {p.rate:g} records/s")
+            raise DeviceError(
+                f"Net F/T emulator: cannot listen on {p.host} (udp {p.port}, http {p.http_port}): {exc.strerror or exc}"
+            ) from None
+        self.log(
+            f"Net F/T emulator: RDT on udp {p.host}:{self.box.port}, netftapi2.xml on "
+            f"http://{p.host}:{self.box.http_port}, {p.rate:g} records/s"
+        )
 
     def step(self, tick, inputs):
         state = inputs.get("state")
@@ -93,8 +125,10 @@ class NetFtEmulator(Node):
             box.stop()
             self.box = None
             s = box.stats()
-            self.log(f"Net F/T emulator: {s['records']} records, {s['sent']} datagrams sent, largest |Fx| "
-                     f"{s['max_abs_force_N'][0]:.3f} N")
+            self.log(
+                f"Net F/T emulator: {s['records']} records, {s['sent']} datagrams sent, largest |Fx| "
+                f"{s['max_abs_force_N'][0]:.3f} N"
+            )
         self._release()
 
     def _release(self) -> None:

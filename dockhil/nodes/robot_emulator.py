@@ -19,14 +19,20 @@ class RobotControllerEmulatorNode(Node):
     params = {
         "host": Param(str, "127.0.0.1", help="address to listen on"),
         "port": Param(int, 5020, help="TCP port (0: any free port, logged)", ge=0, le=65535),
-        "delay": Param(float, 0.0, unit="s", help="servo delay: setpoints take effect this much later", ge=0.0,
-                       le=1.0),
+        "delay": Param(float, 0.0, unit="s", help="servo delay: setpoints take effect this much later", ge=0.0, le=1.0),
         "tau": Param(float, 0.0, unit="s", help="servo first-order lag time constant (0: none)", ge=0.0, le=10.0),
         "cycle": Param(float, 0.001, unit="s", help="servo period", ge=1e-5, le=0.1),
-        "heartbeat_timeout": Param(float, 0.2, unit="s", help="hold, and end the host's claim, when its heartbeat "
-                                   "stops this long", ge=1e-3, le=10.0),
-        "maxima": Param(str, "", help="JSON file to write at close with the largest actual speed and position "
-                        "(empty: none)"),
+        "heartbeat_timeout": Param(
+            float,
+            0.2,
+            unit="s",
+            help="hold, and end the host's claim, when its heartbeat stops this long",
+            ge=1e-3,
+            le=10.0,
+        ),
+        "maxima": Param(
+            str, "", help="JSON file to write at close with the largest actual speed and position (empty: none)"
+        ),
     }
 
     def setup(self) -> None:
@@ -34,9 +40,15 @@ class RobotControllerEmulatorNode(Node):
 
         p = self.p
         self._lock = claim_port(p.host, p.port)  # one graph per emulator port, named when refused
-        self.emulator = RobotControllerEmulator(p.host, p.port, p.delay, p.tau, p.cycle, p.heartbeat_timeout,
-                                                log=lambda line: self.log(f"warning: robot controller emulator: "
-                                                                          f"{line}"))
+        self.emulator = RobotControllerEmulator(
+            p.host,
+            p.port,
+            p.delay,
+            p.tau,
+            p.cycle,
+            p.heartbeat_timeout,
+            log=lambda line: self.log(f"warning: robot controller emulator: {line}"),
+        )
         try:
             self.emulator.start_thread()
         except (OSError, RuntimeError):
@@ -61,8 +73,10 @@ class RobotControllerEmulatorNode(Node):
                 with open(self.p.maxima, "w") as f:
                     json.dump({"max_speed_m_s": servo.max_speed, "max_position_m": servo.max_position}, f)
             if emulator.servo.unclaimed:
-                self.log(f"warning: robot controller emulator: refused {emulator.servo.unclaimed} writes without "
-                         f"a live claim")
+                self.log(
+                    f"warning: robot controller emulator: refused {emulator.servo.unclaimed} writes without "
+                    f"a live claim"
+                )
         self._release()
 
     def _release(self) -> None:

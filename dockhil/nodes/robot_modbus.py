@@ -60,8 +60,16 @@ from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import SafetyStop
 from dockhil.hardware import modbus_map as mm
 from dockhil.hardware.modbus_link import NoDelayClient, ModbusLink, set_nodelay, verify_and_hold
-from dockhil.hardware.robot_limits import (angle_between, command_values, message_key, non_finite, quat_norm,
-                                           quat_tuple, start_orientation, vector_norm)
+from dockhil.hardware.robot_limits import (
+    angle_between,
+    command_values,
+    message_key,
+    non_finite,
+    quat_norm,
+    quat_tuple,
+    start_orientation,
+    vector_norm,
+)
 from dockhil.node import Input, Node, Output, Param
 from dockhil.msgs import EStop, Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3, WrenchStamped
 
@@ -76,8 +84,14 @@ class RobotModbusDriver(Node):
     inputs = {
         "command": Input(RobotCommand, "/robot/command", help="setpoint: probe pose relative to the target"),
         # Its maximum age is the driver's own watchdog, ft_timeout (with ft_grace before the first).
-        "wrench": Input(WrenchStamped, "/ft/wrench", feedthrough=False, required=False, max_age=math.inf,
-                        help="measured contact wrench, for max_force and the F/T watchdog"),
+        "wrench": Input(
+            WrenchStamped,
+            "/ft/wrench",
+            feedthrough=False,
+            required=False,
+            max_age=math.inf,
+            help="measured contact wrench, for max_force and the F/T watchdog",
+        ),
         # Event topic: silent while nothing happens, so no maximum age.
         "estop": Input(EStop, "/estop", feedthrough=False, required=False, max_age=math.inf, help="emergency stop"),
     }
@@ -88,52 +102,129 @@ class RobotModbusDriver(Node):
         "port": Param(int, 5020, help="controller Modbus TCP port", ge=1, le=65535),
         "device_id": Param(int, 1, help="Modbus unit id", ge=0, le=255),
         "timeout": Param(float, 0.1, unit="s", help="connect and per-request timeout", gt=0.0, le=10.0),
-        "connect_timeout": Param(float, 2.0, unit="s", help="setup fails if no connection within this", gt=0.0,
-                                 le=600.0),
+        "connect_timeout": Param(
+            float, 2.0, unit="s", help="setup fails if no connection within this", gt=0.0, le=600.0
+        ),
         "reconnect_min": Param(float, 0.05, unit="s", help="first reconnect backoff (doubles)", gt=0.0, le=10.0),
         "reconnect_max": Param(float, 1.0, unit="s", help="longest reconnect backoff", gt=0.0, le=60.0),
-        "reconnect_timeout": Param(float, 5.0, unit="s", help="connection lost (the controller did not answer) "
-                                   "this long stops the graph (0: never)", ge=0.0, le=3600.0),
-        "poll_period": Param(float, 0.002, unit="s", help="device cycle: read the actual pose and write the "
-                             "latest setpoint at least this often", gt=0.0, le=0.1),
+        "reconnect_timeout": Param(
+            float,
+            5.0,
+            unit="s",
+            help="connection lost (the controller did not answer) this long stops the graph (0: never)",
+            ge=0.0,
+            le=3600.0,
+        ),
+        "poll_period": Param(
+            float,
+            0.002,
+            unit="s",
+            help="device cycle: read the actual pose and write the latest setpoint at least this often",
+            gt=0.0,
+            le=0.1,
+        ),
         # Within a velocity window of 10 ms the setpoint moves at most max_speed x (10 ms + max_cycle): 5 ms
         # keeps that 1.5 max_speed, under max_actual_speed, however the link's cycles bunch.
-        "max_cycle": Param(float, 0.005, unit="s", help="longest device cycle the speed limits credit: one "
-                           "write moves the setpoint at most max_speed x min(time since the previous cycle, "
-                           "max_cycle), so a late cycle never catches up in a jump", gt=0.0, le=0.1),
+        "max_cycle": Param(
+            float,
+            0.005,
+            unit="s",
+            help="longest device cycle the speed limits credit: one "
+            "write moves the setpoint at most max_speed x min(time since the previous cycle, "
+            "max_cycle), so a late cycle never catches up in a jump",
+            gt=0.0,
+            le=0.1,
+        ),
         "max_force": Param(float, 200.0, unit="N", help="contact force limit |F| (0: off)", ge=0.0, le=1e5),
-        "max_speed": Param(float, 0.1, unit="m/s", help="setpoint speed limit: the commanded twist, and the "
-                           "setpoint sent per device cycle (0: off)", ge=0.0, le=10.0),
-        "max_actual_speed": Param(float, 0.2, unit="m/s", help="measured speed limit; above max_speed to allow "
-                                  "for tracking transients and velocity noise (0: off)", ge=0.0, le=10.0),
-        "max_following_error": Param(float, 0.02, unit="m", help="setpoint distance from the actual pose "
-                                     "(catches a start far from the robot before it jumps; 0: off)", ge=0.0, le=10.0),
+        "max_speed": Param(
+            float,
+            0.1,
+            unit="m/s",
+            help="setpoint speed limit: the commanded twist, and the setpoint sent per device cycle (0: off)",
+            ge=0.0,
+            le=10.0,
+        ),
+        "max_actual_speed": Param(
+            float,
+            0.2,
+            unit="m/s",
+            help="measured speed limit; above max_speed to allow for tracking transients and velocity noise (0: off)",
+            ge=0.0,
+            le=10.0,
+        ),
+        "max_following_error": Param(
+            float,
+            0.02,
+            unit="m",
+            help="setpoint distance from the actual pose (catches a start far from the robot before it jumps; 0: off)",
+            ge=0.0,
+            le=10.0,
+        ),
         "max_torque": Param(float, 20.0, unit="N m", help="contact torque limit |T| (0: off)", ge=0.0, le=1e4),
-        "max_angular_speed": Param(float, 0.5, unit="rad/s", help="setpoint angular speed limit: the commanded "
-                                   "twist, and the setpoint sent per device cycle (0: off)", ge=0.0, le=10.0),
-        "max_actual_angular_speed": Param(float, 1.0, unit="rad/s", help="measured angular speed limit; above "
-                                          "max_angular_speed as max_actual_speed is above max_speed (0: off)",
-                                          ge=0.0, le=10.0),
-        "max_tilt": Param(float, 0.5, unit="rad", help="orientation workspace: rotation angle of the commanded "
-                          "and the actual orientation from the orientation at start (0: off)", ge=0.0, le=math.pi),
-        "max_orientation_error": Param(float, 0.1, unit="rad", help="setpoint orientation's angle from the actual "
-                                       "orientation (catches a start turned away from the robot; 0: off)",
-                                       ge=0.0, le=math.pi),
+        "max_angular_speed": Param(
+            float,
+            0.5,
+            unit="rad/s",
+            help="setpoint angular speed limit: the commanded twist, and the setpoint sent per device cycle (0: off)",
+            ge=0.0,
+            le=10.0,
+        ),
+        "max_actual_angular_speed": Param(
+            float,
+            1.0,
+            unit="rad/s",
+            help="measured angular speed limit; above "
+            "max_angular_speed as max_actual_speed is above max_speed (0: off)",
+            ge=0.0,
+            le=10.0,
+        ),
+        "max_tilt": Param(
+            float,
+            0.5,
+            unit="rad",
+            help="orientation workspace: rotation angle of the commanded "
+            "and the actual orientation from the orientation at start (0: off)",
+            ge=0.0,
+            le=math.pi,
+        ),
+        "max_orientation_error": Param(
+            float,
+            0.1,
+            unit="rad",
+            help="setpoint orientation's angle from the actual "
+            "orientation (catches a start turned away from the robot; 0: off)",
+            ge=0.0,
+            le=math.pi,
+        ),
         "x_min": Param(float, -0.5, unit="m", help="workspace lower bound, x", ge=-_MAP_M, le=_MAP_M),
-        "x_max": Param(float, 0.1, unit="m", help="workspace upper bound, x (x > 0 is penetration)", ge=-_MAP_M,
-                       le=_MAP_M),
+        "x_max": Param(
+            float, 0.1, unit="m", help="workspace upper bound, x (x > 0 is penetration)", ge=-_MAP_M, le=_MAP_M
+        ),
         "y_min": Param(float, -0.2, unit="m", help="workspace lower bound, y", ge=-_MAP_M, le=_MAP_M),
         "y_max": Param(float, 0.2, unit="m", help="workspace upper bound, y", ge=-_MAP_M, le=_MAP_M),
         "z_min": Param(float, -0.2, unit="m", help="workspace lower bound, z", ge=-_MAP_M, le=_MAP_M),
         "z_max": Param(float, 0.2, unit="m", help="workspace upper bound, z", ge=-_MAP_M, le=_MAP_M),
-        "ft_timeout": Param(float, 0.05, unit="s", help="F/T watchdog: no new wrench this long stops (0: off)",
-                            ge=0.0, le=10.0),
-        "stall_timeout": Param(float, 0.2, unit="s", help="longest gap between two steps of this driver, or "
-                               "between two fresh setpoints while moving, before it holds and stops (a stalled "
-                               "process or simulation); the controller's own heartbeat timeout is 0.2 s", gt=0.0,
-                               le=60.0),
-        "ft_grace": Param(float, 2.0, unit="s", help="time from the first tick for the first wrench; "
-                          "commands are held until it arrives", ge=0.0, le=600.0),
+        "ft_timeout": Param(
+            float, 0.05, unit="s", help="F/T watchdog: no new wrench this long stops (0: off)", ge=0.0, le=10.0
+        ),
+        "stall_timeout": Param(
+            float,
+            0.2,
+            unit="s",
+            help="longest gap between two steps of this driver, or "
+            "between two fresh setpoints while moving, before it holds and stops (a stalled "
+            "process or simulation); the controller's own heartbeat timeout is 0.2 s",
+            gt=0.0,
+            le=60.0,
+        ),
+        "ft_grace": Param(
+            float,
+            2.0,
+            unit="s",
+            help="time from the first tick for the first wrench; commands are held until it arrives",
+            ge=0.0,
+            le=600.0,
+        ),
         "frame": Param(str, "", help="header frame id of the published state"),
     }
 
@@ -199,8 +290,7 @@ class RobotModbusDriver(Node):
         except Exception as exc:  # noqa: BLE001 - e.g. the server closed on us
             client.close()
             raise DeviceError(f"{self.device}: {' '.join(str(exc).split())}") from None
-        self.link = ModbusLink(NoDelayClient(client), self.device, p, self._probe, self._claim, self.ctx.clock,
-                               start)
+        self.link = ModbusLink(NoDelayClient(client), self.device, p, self._probe, self._claim, self.ctx.clock, start)
         self.link.start()
 
     def _probe(self) -> str:
@@ -222,14 +312,20 @@ class RobotModbusDriver(Node):
             raise DeviceError(link.fatal)
         if self._last_step_at is not None and now - self._last_step_at > p.stall_timeout:
             gap = now - self._last_step_at
-            self._trip("stall", gap, f"stall: no step for {gap:.3f} s > stall_timeout {p.stall_timeout:g} s "
-                       f"(this process was stopped or starved); resuming would jump")
+            self._trip(
+                "stall",
+                gap,
+                f"stall: no step for {gap:.3f} s > stall_timeout {p.stall_timeout:g} s "
+                f"(this process was stopped or starved); resuming would jump",
+            )
         self._last_step_at = now
         if not link.connected and p.reconnect_timeout and link.lost_since is not None:
             gone = now - link.lost_since
             if gone > p.reconnect_timeout:
-                raise DeviceError(f"{self.device}: connection lost for {gone:.1f} s "
-                                  f"(reconnect_timeout {p.reconnect_timeout:g} s): {link.last_error}")
+                raise DeviceError(
+                    f"{self.device}: connection lost for {gone:.1f} s "
+                    f"(reconnect_timeout {p.reconnect_timeout:g} s): {link.last_error}"
+                )
         if self._first_t is None:
             self._first_t = t
 
@@ -261,8 +357,12 @@ class RobotModbusDriver(Node):
                 self._moving = True
         elif self._moving and now - self._last_cmd_at > p.stall_timeout:
             age = now - self._last_cmd_at
-            self._trip("stale_command", age, f"stale command: no new setpoint for {age:.3f} s > stall_timeout "
-                       f"{p.stall_timeout:g} s while moving (the simulation stalled)")
+            self._trip(
+                "stale_command",
+                age,
+                f"stale command: no new setpoint for {age:.3f} s > stall_timeout "
+                f"{p.stall_timeout:g} s while moving (the simulation stalled)",
+            )
         self._check_lag(link.lag)
 
         count, reading = link.latest()
@@ -288,16 +388,20 @@ class RobotModbusDriver(Node):
                 self._trip("max_force", f, f"max_force: contact force |F| = {f:.1f} N > {p.max_force:g} N")
             torque = vector_norm(wrench.wrench.torque)
             if p.max_torque and torque > p.max_torque:
-                self._trip("max_torque", torque,
-                           f"max_torque: contact torque |T| = {torque:.2f} N m > {p.max_torque:g} N m")
+                self._trip(
+                    "max_torque", torque, f"max_torque: contact torque |T| = {torque:.2f} N m > {p.max_torque:g} N m"
+                )
         if not p.ft_timeout:
             return True
         if self._last_wrench_t is None:
             waited = t - self._first_t
             if waited > p.ft_grace + p.ft_timeout:
-                self._trip("ft_timeout", waited,
-                           f"ft_timeout: no F/T data {waited:.3f} s after start (ft_grace {p.ft_grace:g} s + "
-                           f"ft_timeout {p.ft_timeout:g} s; connect /ft/wrench or set ft_timeout 0)")
+                self._trip(
+                    "ft_timeout",
+                    waited,
+                    f"ft_timeout: no F/T data {waited:.3f} s after start (ft_grace {p.ft_grace:g} s + "
+                    f"ft_timeout {p.ft_timeout:g} s; connect /ft/wrench or set ft_timeout 0)",
+                )
             return False
         age = t - self._last_wrench_t
         if age > p.ft_timeout:
@@ -315,8 +419,12 @@ class RobotModbusDriver(Node):
 
     def _check_command(self, cmd: RobotCommand, reading: mm.ControllerReading | None) -> None:
         p = self.p
-        bad = non_finite(("position", cmd.pose.position), ("orientation", cmd.pose.orientation),
-                          ("linear velocity", cmd.twist.linear), ("angular velocity", cmd.twist.angular))
+        bad = non_finite(
+            ("position", cmd.pose.position),
+            ("orientation", cmd.pose.orientation),
+            ("linear velocity", cmd.twist.linear),
+            ("angular velocity", cmd.twist.angular),
+        )
         if bad:
             self._trip("non_finite", bad, f"non-finite setpoint: commanded {bad}")
         pos, q = cmd.pose.position, quat_tuple(cmd.pose.orientation)
@@ -328,37 +436,53 @@ class RobotModbusDriver(Node):
             self._trip("max_speed", speed, f"max_speed: commanded speed {speed:.3f} m/s > {p.max_speed:g} m/s")
         rate = vector_norm(cmd.twist.angular)
         if p.max_angular_speed and rate > p.max_angular_speed:
-            self._trip("max_angular_speed", rate, f"max_angular_speed: commanded angular speed {rate:.3f} rad/s "
-                       f"> {p.max_angular_speed:g} rad/s")
+            self._trip(
+                "max_angular_speed",
+                rate,
+                f"max_angular_speed: commanded angular speed {rate:.3f} rad/s > {p.max_angular_speed:g} rad/s",
+            )
         if p.max_following_error and reading is not None:
             a = reading.actual
             err = math.sqrt((pos.x - a[0]) ** 2 + (pos.y - a[1]) ** 2 + (pos.z - a[2]) ** 2)
             if err > p.max_following_error:
-                self._trip("max_following_error", err,
-                           f"max_following_error: setpoint {err:.4f} m from the actual pose > "
-                           f"{p.max_following_error:g} m (move the robot to the start pose first)")
+                self._trip(
+                    "max_following_error",
+                    err,
+                    f"max_following_error: setpoint {err:.4f} m from the actual pose > "
+                    f"{p.max_following_error:g} m (move the robot to the start pose first)",
+                )
         if p.max_orientation_error and reading is not None:
             turn = angle_between(reading.actual[3:7], q)
             if turn > p.max_orientation_error:
-                self._trip("max_orientation_error", turn,
-                           f"max_orientation_error: setpoint orientation {turn:.4f} rad from the actual "
-                           f"orientation > {p.max_orientation_error:g} rad (turn the robot to the start "
-                           f"orientation first)")
+                self._trip(
+                    "max_orientation_error",
+                    turn,
+                    f"max_orientation_error: setpoint orientation {turn:.4f} rad from the actual "
+                    f"orientation > {p.max_orientation_error:g} rad (turn the robot to the start "
+                    f"orientation first)",
+                )
 
     def _check_unit(self, what: str, q) -> None:
         """A quaternion that is not unit is no rotation: what it would command is undefined."""
         n = quat_norm(q)
         if abs(n - 1.0) > mm.UNIT_TOLERANCE:
-            self._trip("non_unit_quaternion", n, f"non-unit quaternion: {what} orientation |q| = {n:.9g} "
-                       f"(x, y, z, w = {q[0]:g}, {q[1]:g}, {q[2]:g}, {q[3]:g}); a rotation needs |q| = 1 "
-                       f"within {mm.UNIT_TOLERANCE:g}")
+            self._trip(
+                "non_unit_quaternion",
+                n,
+                f"non-unit quaternion: {what} orientation |q| = {n:.9g} "
+                f"(x, y, z, w = {q[0]:g}, {q[1]:g}, {q[2]:g}, {q[3]:g}); a rotation needs |q| = 1 "
+                f"within {mm.UNIT_TOLERANCE:g}",
+            )
 
     def _check_tilt(self, what: str, q) -> None:
         """Orientation workspace: the angle of the rotation from the orientation at start."""
         tilt = angle_between(self._start_q, q)
         if self.p.max_tilt and tilt > self.p.max_tilt:
-            self._trip("max_tilt", tilt, f"max_tilt: {what} orientation {tilt:.4f} rad from the start "
-                       f"orientation > {self.p.max_tilt:g} rad")
+            self._trip(
+                "max_tilt",
+                tilt,
+                f"max_tilt: {what} orientation {tilt:.4f} rad from the start orientation > {self.p.max_tilt:g} rad",
+            )
 
     def _check_lag(self, lag: tuple[float, float] | None) -> None:
         """The link sends each device cycle at most one cycle's travel at max_speed (max_angular_speed)
@@ -370,14 +494,22 @@ class RobotModbusDriver(Node):
         distance, turn = lag
         # After a resume from the actual pose the command may be as far ahead as the following errors allow.
         if p.max_speed and distance > max(p.max_speed * p.stall_timeout, p.max_following_error):
-            self._trip("max_speed", distance, f"max_speed: the command ran {distance:.4f} m ahead of the setpoint "
-                       f"sent at {p.max_speed:g} m/s (more than stall_timeout {p.stall_timeout:g} s of travel and "
-                       f"max_following_error): it moves faster than max_speed")
+            self._trip(
+                "max_speed",
+                distance,
+                f"max_speed: the command ran {distance:.4f} m ahead of the setpoint "
+                f"sent at {p.max_speed:g} m/s (more than stall_timeout {p.stall_timeout:g} s of travel and "
+                f"max_following_error): it moves faster than max_speed",
+            )
         if p.max_angular_speed and turn > max(p.max_angular_speed * p.stall_timeout, p.max_orientation_error):
-            self._trip("max_angular_speed", turn, f"max_angular_speed: the command turned {turn:.4f} rad ahead of "
-                       f"the setpoint sent at {p.max_angular_speed:g} rad/s (more than stall_timeout "
-                       f"{p.stall_timeout:g} s of turning and max_orientation_error): it turns faster than "
-                       f"max_angular_speed")
+            self._trip(
+                "max_angular_speed",
+                turn,
+                f"max_angular_speed: the command turned {turn:.4f} rad ahead of "
+                f"the setpoint sent at {p.max_angular_speed:g} rad/s (more than stall_timeout "
+                f"{p.stall_timeout:g} s of turning and max_orientation_error): it turns faster than "
+                f"max_angular_speed",
+            )
 
     def _check_actual(self, reading: mm.ControllerReading) -> None:
         a, p = reading.actual, self.p
@@ -386,12 +518,19 @@ class RobotModbusDriver(Node):
         self._check_tilt("actual", a[3:7])
         speed = math.sqrt(a[7] ** 2 + a[8] ** 2 + a[9] ** 2)
         if p.max_actual_speed and speed > p.max_actual_speed:
-            self._trip("max_actual_speed", speed,
-                       f"max_actual_speed: measured speed {speed:.3f} m/s > {p.max_actual_speed:g} m/s")
+            self._trip(
+                "max_actual_speed",
+                speed,
+                f"max_actual_speed: measured speed {speed:.3f} m/s > {p.max_actual_speed:g} m/s",
+            )
         rate = math.sqrt(a[10] ** 2 + a[11] ** 2 + a[12] ** 2)
         if p.max_actual_angular_speed and rate > p.max_actual_angular_speed:
-            self._trip("max_actual_angular_speed", rate, f"max_actual_angular_speed: measured angular speed "
-                       f"{rate:.3f} rad/s > {p.max_actual_angular_speed:g} rad/s")
+            self._trip(
+                "max_actual_angular_speed",
+                rate,
+                f"max_actual_angular_speed: measured angular speed "
+                f"{rate:.3f} rad/s > {p.max_actual_angular_speed:g} rad/s",
+            )
         if reading.status & mm.STATUS_FAULT:
             self.link.hold(HOLD_CONFIRM_TIMEOUT)
             raise DeviceError(f"{self.device}: controller reports a fault (status {reading.status:#06x}); holding")
@@ -402,8 +541,9 @@ class RobotModbusDriver(Node):
         if status & mm.STATUS_HEARTBEAT_LOST and old is not None and not old & mm.STATUS_HEARTBEAT_LOST:
             self.heartbeat_losses += 1
             if self.heartbeat_losses == 1:  # the first one tells the story; close() reports the count
-                self.log(f"warning: {self.device}: controller lost our heartbeat and holds; "
-                         f"resuming on the next command")
+                self.log(
+                    f"warning: {self.device}: controller lost our heartbeat and holds; resuming on the next command"
+                )
 
     def _trip(self, limit: str, value, text: str) -> None:
         line = f"safety stop: {text}"
@@ -435,8 +575,10 @@ class RobotModbusDriver(Node):
         if self.heartbeat_losses > 1:
             self.log(f"warning: {self.device}: the controller lost our heartbeat {self.heartbeat_losses} times")
         if not held and self.tripped is None:
-            self.log(f"warning: {self.device}: could not hold the robot at close (not connected); "
-                     f"the controller holds when our heartbeat stops")
+            self.log(
+                f"warning: {self.device}: could not hold the robot at close (not connected); "
+                f"the controller holds when our heartbeat stops"
+            )
 
 
 def _address(host: str) -> str:

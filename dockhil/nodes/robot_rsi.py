@@ -59,8 +59,12 @@ from dockhil.runtime import realtime
 
 SWITCH_INTERVAL = 0.0002  # s: longest wait of the link thread for the interpreter while another thread runs
 VELOCITY_WINDOW_S = 0.02  # the measured twist is the pose's change over at least this long
-KINDS = {"foreign": "from another address than the controller's",
-         "oversized": "oversized", "malformed": "malformed", "repeated": "with an IPOC not above the last one"}
+KINDS = {
+    "foreign": "from another address than the controller's",
+    "oversized": "oversized",
+    "malformed": "malformed",
+    "repeated": "with an IPOC not above the last one",
+}
 
 
 def _finite(values) -> bool:
@@ -96,8 +100,7 @@ class SceneFrame:
     def scene_pose(self, rist) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
         """RIst (mm, degrees in BASE) -> scene pose: (m, quaternion)."""
         p0, a = self.p0, self.a_p
-        d = rotate_back(self.q_sb, ((rist[0] - p0[0]) / 1000.0, (rist[1] - p0[1]) / 1000.0,
-                                    (rist[2] - p0[2]) / 1000.0))
+        d = rotate_back(self.q_sb, ((rist[0] - p0[0]) / 1000.0, (rist[1] - p0[1]) / 1000.0, (rist[2] - p0[2]) / 1000.0))
         turn = quat_multiply(rsi.abc_to_quat(*rist[3:]), quat_conjugate(self.q0))  # in BASE axes
         q = quat_multiply(quat_multiply(quat_multiply(quat_conjugate(self.q_sb), turn), self.q_sb), self.a_q)
         return (a[0] + d[0], a[1] + d[1], a[2] + d[2]), q if q[3] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
@@ -106,8 +109,18 @@ class SceneFrame:
 class RsiLink(threading.Thread):
     """Owns the UDP socket: answers every controller datagram at once from the latest setpoint."""
 
-    def __init__(self, sock, controller: str, cycle: float, max_speed: float, max_angular_speed: float,
-                 stale_after: float, sentype: str = "ImFree", clock=time.monotonic, realtime: bool = False):
+    def __init__(
+        self,
+        sock,
+        controller: str,
+        cycle: float,
+        max_speed: float,
+        max_angular_speed: float,
+        stale_after: float,
+        sentype: str = "ImFree",
+        clock=time.monotonic,
+        realtime: bool = False,
+    ):
         super().__init__(name="robot-rsi-link", daemon=True)
         self.sock = sock
         self.controller = controller
@@ -165,8 +178,9 @@ class RsiLink(threading.Thread):
     def _count(self, kind: str, why: str) -> None:
         self.counted[kind] += 1
         if self.counted[kind] == 1:  # the first one tells the story; close() reports the counts
-            self._note(f"warning: datagram {KINDS[kind]} ignored ({why}); such datagrams are counted, "
-                       f"never answered nor used")
+            self._note(
+                f"warning: datagram {KINDS[kind]} ignored ({why}); such datagrams are counted, never answered nor used"
+            )
 
     def handle(self, data: bytes, host: str, now: float) -> bytes | None:
         """The answer to one datagram received from `host` at `now`, or None if it is ignored."""
@@ -197,8 +211,10 @@ class RsiLink(threading.Thread):
             if self.delay_at_start is None:
                 self.delay_at_start = frame.delay
             elif frame.delay > self.delay and self.delay == self.delay_at_start:
-                self._note(f"warning: the controller counts late answers (Delay D={frame.delay}); "
-                           f"it stops RSI after its limit of late answers")
+                self._note(
+                    f"warning: the controller counts late answers (Delay D={frame.delay}); "
+                    f"it stops RSI after its limit of late answers"
+                )
             self.delay = frame.delay
         if self.first is None:
             self.first = frame
@@ -215,8 +231,10 @@ class RsiLink(threading.Thread):
         if now - handed > self.stale_after:
             self.stale_holds += 1
             if self.stale_holds == 1:
-                self._note(f"warning: holding: the latest setpoint is {now - handed:.3f} s old > "
-                           f"stall_timeout {self.stale_after:g} s")
+                self._note(
+                    f"warning: holding: the latest setpoint is {now - handed:.3f} s old > "
+                    f"stall_timeout {self.stale_after:g} s"
+                )
             return (*kp, *abc)
         if not (_finite(p) and _finite(q)):  # never formatted, never sent
             return (*kp, *abc)
@@ -281,9 +299,25 @@ class _Reading:
         self.status = 0
 
 
-_SHARED = ("max_force", "max_actual_speed", "max_following_error", "max_torque", "max_actual_angular_speed",
-           "max_tilt", "max_orientation_error", "x_min", "x_max", "y_min", "y_max", "z_min", "z_max",
-           "ft_timeout", "stall_timeout", "ft_grace", "frame")
+_SHARED = (
+    "max_force",
+    "max_actual_speed",
+    "max_following_error",
+    "max_torque",
+    "max_actual_angular_speed",
+    "max_tilt",
+    "max_orientation_error",
+    "x_min",
+    "x_max",
+    "y_min",
+    "y_max",
+    "z_min",
+    "z_max",
+    "ft_timeout",
+    "stall_timeout",
+    "ft_grace",
+    "frame",
+)
 
 
 class RobotRsiDriver(RobotModbusDriver):
@@ -292,32 +326,79 @@ class RobotRsiDriver(RobotModbusDriver):
 
     params = {
         "host": Param(str, "127.0.0.1", help="the controller's address: the only sender read"),
-        "port": Param(int, 49152, help="local UDP port the controller sends to (its Ethernet configuration's "
-                      "PORT)", ge=1, le=65535),
+        "port": Param(
+            int,
+            49152,
+            help="local UDP port the controller sends to (its Ethernet configuration's PORT)",
+            ge=1,
+            le=65535,
+        ),
         "listen": Param(str, "0.0.0.0", help="local address to listen on"),
-        "cycle": Param(float, 0.004, unit="s", help="the controller's RSI cycle: 0.004 (KR C4/C5) or 0.012 "
-                       "(older controllers)", choices=rsi.CYCLES),
+        "cycle": Param(
+            float,
+            0.004,
+            unit="s",
+            help="the controller's RSI cycle: 0.004 (KR C4/C5) or 0.012 (older controllers)",
+            choices=rsi.CYCLES,
+        ),
         "sentype": Param(str, "ImFree", help="the Sen Type the controller expects (its configuration's SENTYPE)"),
-        "max_speed": Param(float, 0.1, unit="m/s", help="commanded speed limit: the twist, and the command's "
-                           "lead on the correction; the correction moves at most this times the cycle per cycle",
-                           gt=0.0, le=10.0),
-        "max_angular_speed": Param(float, 0.5, unit="rad/s", help="commanded angular speed limit: the twist, "
-                                   "and the command's lead on the correction; the correction turns at most this "
-                                   "times the cycle per cycle", gt=0.0, le=10.0),
+        "max_speed": Param(
+            float,
+            0.1,
+            unit="m/s",
+            help="commanded speed limit: the twist, and the command's "
+            "lead on the correction; the correction moves at most this times the cycle per cycle",
+            gt=0.0,
+            le=10.0,
+        ),
+        "max_angular_speed": Param(
+            float,
+            0.5,
+            unit="rad/s",
+            help="commanded angular speed limit: the twist, "
+            "and the command's lead on the correction; the correction turns at most this "
+            "times the cycle per cycle",
+            gt=0.0,
+            le=10.0,
+        ),
         **{name: RobotModbusDriver.params[name] for name in _SHARED},
-        "connect_timeout": Param(float, 10.0, unit="s", help="setup fails if no datagram came within this "
-                                 "(start the RSI program on the controller)", gt=0.0, le=600.0),
-        "controller_timeout": Param(float, 0.5, unit="s", help="no datagram this long: the controller stopped "
-                                    "RSI (a controller sends every cycle), the graph stops", gt=0.0, le=10.0),
-        "scene_a": Param(float, 0.0, unit="deg", help="KUKA angle A of the scene's robot frame (+x the docking "
-                         "axis) in the controller's BASE frame", ge=-180.0, le=180.0),
-        "scene_b": Param(float, 0.0, unit="deg", help="KUKA angle B of the scene's robot frame in BASE",
-                         ge=-90.0, le=90.0),
-        "scene_c": Param(float, 0.0, unit="deg", help="KUKA angle C of the scene's robot frame in BASE",
-                         ge=-180.0, le=180.0),
-        "realtime": Param(bool, False, help="ask for SCHED_FIFO scheduling of the answering thread (root, "
-                          "CAP_SYS_NICE or an rtprio limit; one line and normal priority without); on under "
-                          "--realtime"),
+        "connect_timeout": Param(
+            float,
+            10.0,
+            unit="s",
+            help="setup fails if no datagram came within this (start the RSI program on the controller)",
+            gt=0.0,
+            le=600.0,
+        ),
+        "controller_timeout": Param(
+            float,
+            0.5,
+            unit="s",
+            help="no datagram this long: the controller stopped RSI (a controller sends every cycle), the graph stops",
+            gt=0.0,
+            le=10.0,
+        ),
+        "scene_a": Param(
+            float,
+            0.0,
+            unit="deg",
+            help="KUKA angle A of the scene's robot frame (+x the docking axis) in the controller's BASE frame",
+            ge=-180.0,
+            le=180.0,
+        ),
+        "scene_b": Param(
+            float, 0.0, unit="deg", help="KUKA angle B of the scene's robot frame in BASE", ge=-90.0, le=90.0
+        ),
+        "scene_c": Param(
+            float, 0.0, unit="deg", help="KUKA angle C of the scene's robot frame in BASE", ge=-180.0, le=180.0
+        ),
+        "realtime": Param(
+            bool,
+            False,
+            help="ask for SCHED_FIFO scheduling of the answering thread (root, "
+            "CAP_SYS_NICE or an rtprio limit; one line and normal priority without); on under "
+            "--realtime",
+        ),
     }
 
     def setup(self) -> None:
@@ -336,8 +417,10 @@ class RobotRsiDriver(RobotModbusDriver):
             raise LaunchError(f"node {self.ctx.name!r}: sentype: {exc}") from None
         ticks = p.cycle / self.ctx.dt
         if abs(ticks - round(ticks)) > 1e-6:
-            self.log(f"warning: the scene's rate {1 / self.ctx.dt:g} Hz is not a multiple of the RSI rate "
-                     f"{1 / p.cycle:g} Hz: the robot takes every {ticks:.2f}th setpoint, unevenly (docs/time.md)")
+            self.log(
+                f"warning: the scene's rate {1 / self.ctx.dt:g} Hz is not a multiple of the RSI rate "
+                f"{1 / p.cycle:g} Hz: the robot takes every {ticks:.2f}th setpoint, unevenly (docs/time.md)"
+            )
         self.device = f"robot controller (KUKA RSI {p.host} -> UDP port {p.port})"
         self.link: RsiLink | None = None
         self.tripped = None
@@ -371,27 +454,42 @@ class RobotRsiDriver(RobotModbusDriver):
             sock.bind((p.listen, p.port))
         except OSError as exc:
             sock.close()
-            raise DeviceError(f"{self.device}: cannot listen on {p.listen}:{p.port}: {exc.strerror or exc} "
-                              f"(another program uses the port?)") from None
+            raise DeviceError(
+                f"{self.device}: cannot listen on {p.listen}:{p.port}: {exc.strerror or exc} "
+                f"(another program uses the port?)"
+            ) from None
         sock.settimeout(0.05)  # the link looks at `stopping` this often
         self._switch_interval = sys.getswitchinterval()
         sys.setswitchinterval(min(self._switch_interval, SWITCH_INTERVAL))
         inherited = realtime.granted()  # a node loop launched with --realtime: its answering thread goes above it
-        self.link = RsiLink(sock, controller, p.cycle, p.max_speed, p.max_angular_speed, p.stall_timeout,
-                            p.sentype, self.ctx.clock, p.realtime or inherited)
+        self.link = RsiLink(
+            sock,
+            controller,
+            p.cycle,
+            p.max_speed,
+            p.max_angular_speed,
+            p.stall_timeout,
+            p.sentype,
+            self.ctx.clock,
+            p.realtime or inherited,
+        )
         self.link.start()
         if not self.link.started.wait(p.connect_timeout):
             counted = ", ".join(f"{n} {KINDS[k]}" for k, n in self.link.counted.items() if n)
             self._stop_link(self.link)
             self.link = None
             extra = f" (datagrams ignored: {counted})" if counted else ""
-            raise DeviceError(f"{self.device}: no RSI datagram from {p.host} within {p.connect_timeout:g} s: start "
-                              f"the RSI program on the controller, and check its Ethernet configuration's IP_NUMBER "
-                              f"and PORT name this host and port {p.port}{extra}")
+            raise DeviceError(
+                f"{self.device}: no RSI datagram from {p.host} within {p.connect_timeout:g} s: start "
+                f"the RSI program on the controller, and check its Ethernet configuration's IP_NUMBER "
+                f"and PORT name this host and port {p.port}{extra}"
+            )
         self.frame = SceneFrame((p.scene_a, p.scene_b, p.scene_c), self.link.first.rist)
         start = self.link.first.rist
-        self.log(f"{self.device}: RSI running, cycle {p.cycle * 1000:g} ms; start pose X {start[0]:.2f} "
-                 f"Y {start[1]:.2f} Z {start[2]:.2f} mm, A {start[3]:.2f} B {start[4]:.2f} C {start[5]:.2f} deg")
+        self.log(
+            f"{self.device}: RSI running, cycle {p.cycle * 1000:g} ms; start pose X {start[0]:.2f} "
+            f"Y {start[1]:.2f} Z {start[2]:.2f} mm, A {start[3]:.2f} B {start[4]:.2f} C {start[5]:.2f} deg"
+        )
 
     def _stop_link(self, link: RsiLink) -> None:
         link.stopping = True
@@ -411,16 +509,22 @@ class RobotRsiDriver(RobotModbusDriver):
             raise DeviceError(f"{self.device}: {link.fatal}")
         if self._last_step_at is not None and now - self._last_step_at > p.stall_timeout:
             gap = now - self._last_step_at
-            self._trip("stall", gap, f"stall: no step for {gap:.3f} s > stall_timeout {p.stall_timeout:g} s "
-                       f"(this process was stopped or starved); resuming would jump")
+            self._trip(
+                "stall",
+                gap,
+                f"stall: no step for {gap:.3f} s > stall_timeout {p.stall_timeout:g} s "
+                f"(this process was stopped or starved); resuming would jump",
+            )
         self._last_step_at = now
         latest = link.latest
         silent = now - latest[2]
         if silent > p.controller_timeout:
             link.hold_latched = True
-            raise DeviceError(f"{self.device}: no datagram for {silent:.3f} s > controller_timeout "
-                              f"{p.controller_timeout:g} s: the controller stopped RSI (late answers: Delay "
-                              f"D={link.delay}; see its message window)")
+            raise DeviceError(
+                f"{self.device}: no datagram for {silent:.3f} s > controller_timeout "
+                f"{p.controller_timeout:g} s: the controller stopped RSI (late answers: Delay "
+                f"D={link.delay}; see its message window)"
+            )
         if self._first_t is None:
             self._first_t = now
 
@@ -452,8 +556,12 @@ class RobotRsiDriver(RobotModbusDriver):
                 self._moving = True
         elif self._moving and now - self._last_cmd_at > p.stall_timeout:
             age = now - self._last_cmd_at
-            self._trip("stale_command", age, f"stale command: no new setpoint for {age:.3f} s > stall_timeout "
-                       f"{p.stall_timeout:g} s while moving (the simulation stalled)")
+            self._trip(
+                "stale_command",
+                age,
+                f"stale command: no new setpoint for {age:.3f} s > stall_timeout "
+                f"{p.stall_timeout:g} s while moving (the simulation stalled)",
+            )
 
         self._check_ahead()
 
@@ -462,12 +570,14 @@ class RobotRsiDriver(RobotModbusDriver):
         self._seen = latest[0]
         self._check_actual(reading)
         a = reading.actual
-        return {"state": RobotState(header=tick.header(p.frame),
-                                    pose=Pose(position=Vector3(a[0], a[1], a[2]),
-                                              orientation=Quaternion(a[3], a[4], a[5], a[6])),
-                                    twist=Twist(linear=Vector3(a[7], a[8], a[9]),
-                                                angular=Vector3(a[10], a[11], a[12])),
-                                    status="ok")}
+        return {
+            "state": RobotState(
+                header=tick.header(p.frame),
+                pose=Pose(position=Vector3(a[0], a[1], a[2]), orientation=Quaternion(a[3], a[4], a[5], a[6])),
+                twist=Twist(linear=Vector3(a[7], a[8], a[9]), angular=Vector3(a[10], a[11], a[12])),
+                status="ok",
+            )
+        }
 
     def _check_ahead(self) -> None:
         """The link moves the correction by at most one cycle's travel at max_speed (max_angular_speed)
@@ -483,14 +593,22 @@ class RobotRsiDriver(RobotModbusDriver):
         x, y, z, w = quat_multiply(tq, quat_conjugate(kq))
         turn = 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), abs(w))
         if distance > max(p.max_speed * p.stall_timeout, p.max_following_error):
-            self._trip("max_speed", distance, f"max_speed: the command ran {distance:.4f} m ahead of the "
-                       f"correction sent at {p.max_speed:g} m/s (more than stall_timeout {p.stall_timeout:g} s "
-                       f"of travel and max_following_error): it moves faster than max_speed")
+            self._trip(
+                "max_speed",
+                distance,
+                f"max_speed: the command ran {distance:.4f} m ahead of the "
+                f"correction sent at {p.max_speed:g} m/s (more than stall_timeout {p.stall_timeout:g} s "
+                f"of travel and max_following_error): it moves faster than max_speed",
+            )
         if turn > max(p.max_angular_speed * p.stall_timeout, p.max_orientation_error):
-            self._trip("max_angular_speed", turn, f"max_angular_speed: the command turned {turn:.4f} rad ahead "
-                       f"of the correction sent at {p.max_angular_speed:g} rad/s (more than stall_timeout "
-                       f"{p.stall_timeout:g} s of turning and max_orientation_error): it turns faster than "
-                       f"max_angular_speed")
+            self._trip(
+                "max_angular_speed",
+                turn,
+                f"max_angular_speed: the command turned {turn:.4f} rad ahead "
+                f"of the correction sent at {p.max_angular_speed:g} rad/s (more than stall_timeout "
+                f"{p.stall_timeout:g} s of turning and max_orientation_error): it turns faster than "
+                f"max_angular_speed",
+            )
 
     def _check_command_values(self, cmd) -> None:
         """The first command, which anchors the scene to the start pose, must be a pose."""
@@ -540,14 +658,17 @@ class RobotRsiDriver(RobotModbusDriver):
         if counted:
             self.log(f"warning: {self.device}: datagrams ignored: {counted}")
         if link.missing:
-            self.log(f"warning: {self.device}: {link.missing} controller datagrams never came (gaps in the IPOC "
-                     f"between {link.first.ipoc} and {link.last_ipoc})")
+            self.log(
+                f"warning: {self.device}: {link.missing} controller datagrams never came (gaps in the IPOC "
+                f"between {link.first.ipoc} and {link.last_ipoc})"
+            )
         if link.stale_holds:
             self.log(f"warning: {self.device}: held on a stale setpoint for {link.stale_holds} cycles")
         if link.delay_at_start is not None and link.delay > link.delay_at_start:
-            self.log(f"warning: {self.device}: the controller counted {link.delay - link.delay_at_start} late "
-                     f"answers")
+            self.log(f"warning: {self.device}: the controller counted {link.delay - link.delay_at_start} late answers")
         self._lock.release()
         if not held and self.tripped is None and sending:
-            self.log(f"warning: {self.device}: could not confirm the hold at close; the controller stops RSI "
-                     f"when the answers stop")
+            self.log(
+                f"warning: {self.device}: could not confirm the hold at close; the controller stops RSI "
+                f"when the answers stop"
+            )

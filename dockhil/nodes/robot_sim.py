@@ -19,8 +19,9 @@ def estop_held(estop: EStop | None) -> None:
         from dockhil.hardware import SafetyStop
 
         reason = estop.reason or "no reason given"
-        raise SafetyStop(f"safety stop: estop: e-stop active ({reason}); simulated robot held", "estop",
-                         estop.reason or "active")
+        raise SafetyStop(
+            f"safety stop: estop: e-stop active ({reason}); simulated robot held", "estop", estop.reason or "active"
+        )
 
 
 class RobotSim(Node):
@@ -28,8 +29,9 @@ class RobotSim(Node):
 
     inputs = {"command": Input(RobotCommand, "/robot/command", help="probe pose setpoint"), "estop": ESTOP}
     outputs = {"state": Output(RobotState, "/robot/state", help="actual probe pose")}
-    params = {"lag": Param(float, 0.0, unit="s", help="servo time constant (0: follows exactly)", ge=0.0,
-                        scale=physical.TIME)}
+    params = {
+        "lag": Param(float, 0.0, unit="s", help="servo time constant (0: follows exactly)", ge=0.0, scale=physical.TIME)
+    }
 
     def setup(self):
         from dockhil.contact.hilloop import Servo

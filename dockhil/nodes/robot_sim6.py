@@ -23,8 +23,9 @@ class RobotSim6(Node):
 
     inputs = {"command": Input(RobotCommand, "/robot/command", help="interface pose setpoint, in B"), "estop": ESTOP}
     outputs = {"state": Output(RobotState, "/robot/state", help="actual interface pose, in B")}
-    params = {"lag": Param(float, 0.0, unit="s", help="servo time constant (0: follows exactly)", ge=0.0,
-                        scale=physical.TIME)}
+    params = {
+        "lag": Param(float, 0.0, unit="s", help="servo time constant (0: follows exactly)", ge=0.0, scale=physical.TIME)
+    }
 
     def setup(self):
         from dockhil.contact.hybrid6 import Servo6

@@ -43,13 +43,19 @@ DOMAIN_MAX = 232  # ROS 2's largest domain id: DDS ports 7400 + 250 d stay below
 # dockhil message types the bridge writes, by name (for `topic:Type`)
 BRIDGED = {cls.__name__: cls for cls in (WrenchStamped, RobotCommand, RobotState)}
 # The graph's own topics and their types; any other topic is given as `topic:Type`.
-KNOWN_TOPICS = {"/ft/wrench": WrenchStamped, "/robot/command": RobotCommand,
-                "/robot/command/delayed": RobotCommand, "/robot/state": RobotState}
+KNOWN_TOPICS = {
+    "/ft/wrench": WrenchStamped,
+    "/robot/command": RobotCommand,
+    "/robot/command/delayed": RobotCommand,
+    "/robot/state": RobotState,
+}
 # A CYCLONEDDS_URI that keeps DDS on this host (the loopback interface, unicast discovery on 127.0.0.1):
 # tests and measurements use it, and so may a user who wants no DDS traffic on the network.
-LOOPBACK_URI = ('<CycloneDDS><Domain Id="any"><General><Interfaces><NetworkInterface name="lo"/></Interfaces>'
-                '<AllowMulticast>false</AllowMulticast></General><Discovery><ParticipantIndex>auto</ParticipantIndex>'
-                '<Peers><Peer Address="127.0.0.1"/></Peers></Discovery></Domain></CycloneDDS>')
+LOOPBACK_URI = (
+    '<CycloneDDS><Domain Id="any"><General><Interfaces><NetworkInterface name="lo"/></Interfaces>'
+    "<AllowMulticast>false</AllowMulticast></General><Discovery><ParticipantIndex>auto</ParticipantIndex>"
+    '<Peers><Peer Address="127.0.0.1"/></Peers></Discovery></Domain></CycloneDDS>'
+)
 _ROS_NAME = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")  # a fully qualified ROS 2 topic name
 
 
@@ -62,8 +68,10 @@ def bridged_topics(entries) -> dict[str, type]:
     for entry in entries:
         topic, _, type_name = entry.partition(":")
         if not _ROS_NAME.fullmatch(topic):
-            raise ParamError(f"{where}: {topic!r} is not a ROS 2 topic name (/ and parts of letters, digits "
-                             f"and _, each not starting with a digit)")
+            raise ParamError(
+                f"{where}: {topic!r} is not a ROS 2 topic name (/ and parts of letters, digits "
+                f"and _, each not starting with a digit)"
+            )
         if topic == "/estop":
             raise ParamError(f"{where}: /estop is the ROS 2 e-stop the bridge reads, not a topic it writes")
         if type_name:
@@ -73,9 +81,11 @@ def bridged_topics(entries) -> dict[str, type]:
         elif topic in KNOWN_TOPICS:
             out[topic] = KNOWN_TOPICS[topic]
         else:
-            raise ParamError(f"{where}: {topic!r} is not one of the graph's topics "
-                             f"({', '.join(KNOWN_TOPICS)}); give its type as '{topic}:WrenchStamped', "
-                             f"':RobotCommand' or ':RobotState'")
+            raise ParamError(
+                f"{where}: {topic!r} is not one of the graph's topics "
+                f"({', '.join(KNOWN_TOPICS)}); give its type as '{topic}:WrenchStamped', "
+                f"':RobotCommand' or ':RobotState'"
+            )
     return out
 
 
@@ -157,9 +167,25 @@ def ros_types():
         header: RosHeader
         twist: Twist
 
-    return SimpleNamespace(**{cls.__name__: cls for cls in (
-        Time, RosHeader, Bool, Vector3, Point, Quaternion, Wrench, WrenchStamped, Pose, PoseStamped, Twist,
-        TwistStamped)})
+    return SimpleNamespace(
+        **{
+            cls.__name__: cls
+            for cls in (
+                Time,
+                RosHeader,
+                Bool,
+                Vector3,
+                Point,
+                Quaternion,
+                Wrench,
+                WrenchStamped,
+                Pose,
+                PoseStamped,
+                Twist,
+                TwistStamped,
+            )
+        }
+    )
 
 
 def ros_messages(msg) -> list[tuple[str, object]]:
@@ -175,8 +201,10 @@ def ros_messages(msg) -> list[tuple[str, object]]:
         return [("", t.WrenchStamped(header, t.Wrench(vec(msg.wrench.force), vec(msg.wrench.torque))))]
     p, q, tw = msg.pose.position, msg.pose.orientation, msg.twist
     pose = t.Pose(t.Point(p.x, p.y, p.z), t.Quaternion(q.x, q.y, q.z, q.w))
-    return [("", t.PoseStamped(header, pose)),
-            ("/twist", t.TwistStamped(header, t.Twist(vec(tw.linear), vec(tw.angular))))]
+    return [
+        ("", t.PoseStamped(header, pose)),
+        ("/twist", t.TwistStamped(header, t.Twist(vec(tw.linear), vec(tw.angular)))),
+    ]
 
 
 def ros_sample_types(cls) -> list[tuple[str, type]]:
@@ -192,17 +220,24 @@ def ros2_qos():
     as rmw_cyclonedds_cpp writes and reads it; a write never waits (max_blocking_time 0)."""
     from cyclonedds.qos import Policy, Qos
 
-    return Qos(Policy.Reliability.Reliable(max_blocking_time=0), Policy.Durability.Volatile,
-               Policy.History.KeepLast(10), Policy.DataRepresentation(use_cdrv0_representation=True))
+    return Qos(
+        Policy.Reliability.Reliable(max_blocking_time=0),
+        Policy.Durability.Volatile,
+        Policy.History.KeepLast(10),
+        Policy.DataRepresentation(use_cdrv0_representation=True),
+    )
 
 
 class Ros2Bridge(Node):
     """Writes chosen topics to a ROS 2 domain over DDS (ROS 2's names, types and QoS); a ROS 2 /estop holds the robot."""
 
     params = {
-        "topics": Param(list, ["/ft/wrench", "/robot/command", "/robot/state"],
-                        help="topics to write to ROS 2: the graph's /ft/wrench, /robot/command, "
-                             "/robot/command/delayed, /robot/state, or any topic as 'topic:Type'"),
+        "topics": Param(
+            list,
+            ["/ft/wrench", "/robot/command", "/robot/state"],
+            help="topics to write to ROS 2: the graph's /ft/wrench, /robot/command, "
+            "/robot/command/delayed, /robot/state, or any topic as 'topic:Type'",
+        ),
         "domain_id": Param(int, 0, help="ROS 2 domain (ROS_DOMAIN_ID)", ge=0, le=DOMAIN_MAX),
     }
     outputs = {"estop": Output(EStop, "/estop", help="active from the first ROS 2 /estop data: true on")}
@@ -211,8 +246,10 @@ class Ros2Bridge(Node):
     def ports(cls, params):
         if importlib.util.find_spec("cyclonedds") is None:  # refused before anything runs; nothing imported
             raise DockhilError(NEEDS)
-        inputs = {topic: Input(t, topic, required=False, max_age=math.inf, help="written to ROS 2 as it comes")
-                  for topic, t in bridged_topics(params["topics"]).items()}
+        inputs = {
+            topic: Input(t, topic, required=False, max_age=math.inf, help="written to ROS 2 as it comes")
+            for topic, t in bridged_topics(params["topics"]).items()
+        }
         return inputs, cls.outputs
 
     def setup(self):
@@ -232,14 +269,19 @@ class Ros2Bridge(Node):
             self.writers = {}
             for topic, cls in self.topics.items():
                 self.writers[topic] = [
-                    DataWriter(self.participant, Topic(self.participant, f"rt{topic}{suffix}", ros_type, qos=qos),
-                               qos=qos)
-                    for suffix, ros_type in ros_sample_types(cls)]
-            self.estop_reader = DataReader(self.participant,
-                                           Topic(self.participant, "rt/estop", ros_types().Bool, qos=qos), qos=qos)
+                    DataWriter(
+                        self.participant, Topic(self.participant, f"rt{topic}{suffix}", ros_type, qos=qos), qos=qos
+                    )
+                    for suffix, ros_type in ros_sample_types(cls)
+                ]
+            self.estop_reader = DataReader(
+                self.participant, Topic(self.participant, "rt/estop", ros_types().Bool, qos=qos), qos=qos
+            )
         except DDSException as exc:
-            raise DockhilError(f"node {self.ctx.name!r}: cannot join ROS 2 domain {self.p.domain_id} over DDS "
-                               f"({exc}); check CYCLONEDDS_URI") from None
+            raise DockhilError(
+                f"node {self.ctx.name!r}: cannot join ROS 2 domain {self.p.domain_id} over DDS "
+                f"({exc}); check CYCLONEDDS_URI"
+            ) from None
         self.last_header: dict[str, Header] = {}
         self.written = 0
         self.dropped = 0
@@ -276,7 +318,8 @@ class Ros2Bridge(Node):
             return
         self.participant = None
         if self.dropped:
-            self.log(f"warning: {self.dropped} of {self.written + self.dropped} ROS 2 samples dropped "
-                     f"(readers too slow)")
+            self.log(
+                f"warning: {self.dropped} of {self.written + self.dropped} ROS 2 samples dropped (readers too slow)"
+            )
         self.writers, self.estop_reader = {}, None
         participant.__del__()  # now, not at garbage collection: ROS 2 readers see the writers leave

@@ -33,19 +33,25 @@ class RsiControllerEmulatorNode(Node):
         "host": Param(str, "127.0.0.1", help="the driver's address (the controller's IP_NUMBER)"),
         "port": Param(int, 49152, help="the driver's UDP port (the controller's PORT)", ge=1, le=65535),
         "cycle": Param(float, 0.004, unit="s", help="RSI cycle", choices=rsi.CYCLES),
-        "delay": Param(float, 0.0, unit="s", help="servo delay: corrections take effect this much later", ge=0.0,
-                       le=10.0),
+        "delay": Param(
+            float, 0.0, unit="s", help="servo delay: corrections take effect this much later", ge=0.0, le=10.0
+        ),
         "tau": Param(float, 0.0, unit="s", help="servo first-order lag time constant (0: none)", ge=0.0, le=10.0),
         "max_late": Param(int, 100, help="late answers in a row that stop RSI", ge=1, le=1_000_000),
         "loss": Param(float, 0.0, unit="%", help="datagrams lost", ge=0.0, le=100.0),
         "duplicate": Param(float, 0.0, unit="%", help="datagrams sent twice", ge=0.0, le=100.0),
         "reorder": Param(float, 0.0, unit="%", help="datagrams sent after the next one", ge=0.0, le=100.0),
-        "jitter": Param(float, 0.0, unit="s", help="send jitter, uniform up to this (below the cycle)", ge=0.0,
-                        lt=0.012),
+        "jitter": Param(
+            float, 0.0, unit="s", help="send jitter, uniform up to this (below the cycle)", ge=0.0, lt=0.012
+        ),
         "seed": Param(int, 0, help="seed of the faults"),
         "record": Param(str, "", help="write the maxima and counts as JSON here at close"),
-        "controller": Param(str, "127.0.0.1", help="the controller address the driver reads (hil.yaml's "
-                            "rsi_host): this emulator's, 127.0.0.1; another means a real controller"),
+        "controller": Param(
+            str,
+            "127.0.0.1",
+            help="the controller address the driver reads (hil.yaml's "
+            "rsi_host): this emulator's, 127.0.0.1; another means a real controller",
+        ),
     }
 
     def setup(self) -> None:
@@ -57,13 +63,27 @@ class RsiControllerEmulatorNode(Node):
         if _address(p.controller) != BIND:
             # The driver reads only that address: it would answer a real controller, and move a real robot,
             # while this graph emulates one.
-            raise LaunchError(f"node {self.ctx.name!r}: the driver reads the controller at {p.controller}, but this "
-                              f"emulator sends from {BIND}: the driver would move a real robot; point rsi_host at "
-                              f"the emulator ({BIND}), or drop the emulator")
+            raise LaunchError(
+                f"node {self.ctx.name!r}: the driver reads the controller at {p.controller}, but this "
+                f"emulator sends from {BIND}: the driver would move a real robot; point rsi_host at "
+                f"the emulator ({BIND}), or drop the emulator"
+            )
         self._lock = rsi.claim_port(p.port)  # the port's graph: its driver may share it, no other graph
         try:
-            self.emulator = RsiControllerEmulator(p.host, p.port, p.cycle, p.delay, p.tau, p.max_late, p.loss,
-                                                  p.duplicate, p.reorder, p.jitter, p.seed, bind=BIND)
+            self.emulator = RsiControllerEmulator(
+                p.host,
+                p.port,
+                p.cycle,
+                p.delay,
+                p.tau,
+                p.max_late,
+                p.loss,
+                p.duplicate,
+                p.reorder,
+                p.jitter,
+                p.seed,
+                bind=BIND,
+            )
         except OSError as exc:
             self._lock.release()
             raise DeviceError(f"KUKA RSI emulator: cannot open a UDP socket: {exc.strerror or exc}") from None
@@ -85,6 +105,5 @@ class RsiControllerEmulatorNode(Node):
             try:
                 emulator.write_record(self.p.record)
             except OSError as exc:
-                self.log(f"warning: KUKA RSI emulator: cannot write the record {self.p.record}: "
-                         f"{exc.strerror or exc}")
+                self.log(f"warning: KUKA RSI emulator: cannot write the record {self.p.record}: {exc.strerror or exc}")
         self._lock.release()

@@ -4,16 +4,19 @@ from __future__ import annotations
 
 from dockhil import physical
 from dockhil.node import Input, Node, Output, Param
-from dockhil.msgs import (BodyState, BodyWrenches, Pose, RobotCommand, SatelliteState, Twist, Vector3,
-                  WrenchStamped)
+from dockhil.msgs import BodyState, BodyWrenches, Pose, RobotCommand, SatelliteState, Twist, Vector3, WrenchStamped
 
 
 class SatelliteDynamics(Node):
     """Integrates chaser and target under F/T + virtual + thrust forces; publishes states and the robot command."""
 
     inputs = {
-        "ft": Input(WrenchStamped, "/ft/wrench", feedthrough=False,
-                    help="contact force on the chaser, measured (the target feels its opposite)"),
+        "ft": Input(
+            WrenchStamped,
+            "/ft/wrench",
+            feedthrough=False,
+            help="contact force on the chaser, measured (the target feels its opposite)",
+        ),
         "impedance": Input(BodyWrenches, "/impedance/wrench", feedthrough=False, help="virtual forces per body"),
     }
     outputs = {
@@ -22,27 +25,42 @@ class SatelliteDynamics(Node):
     }
     params = {
         "m1": Param(float, 750.0, unit="kg", help="chaser mass", gt=0.0, scale=physical.MASS),
-        "m2": Param(float, 1e6, unit="kg", help="target mass; 0 fixes the target to the ground", ge=0.0,
-                    scale=physical.MASS),
-        "x1": Param(float, 0.0, unit="m", help="chaser initial position (contact point at 0)",
-                    scale=physical.DISTANCE),
+        "m2": Param(
+            float, 1e6, unit="kg", help="target mass; 0 fixes the target to the ground", ge=0.0, scale=physical.MASS
+        ),
+        "x1": Param(float, 0.0, unit="m", help="chaser initial position (contact point at 0)", scale=physical.DISTANCE),
         "x2": Param(float, 0.0, unit="m", help="target initial position", scale=physical.DISTANCE),
         "v1": Param(float, 0.03, unit="m/s", help="chaser initial velocity", scale=physical.SPEED),
         "v2": Param(float, 0.0, unit="m/s", help="target initial velocity", scale=physical.SPEED),
-        "thrust": Param(float, 0.0, unit="N", help="constant thrust on the chaser along +x",
-                        scale=physical.FORCE),
-        "method": Param(str, "exact", help="integrator of the model tool",
-                        choices=("exact", "rk4", "symplectic_euler", "euler")),
-        "model": Param(str, "hybrid", help="hybrid: forces come from the F/T and impedance topics; "
-                       "ideal: the ideal spring-dashpot (kcs, bcs) acts inside the node", choices=("hybrid", "ideal")),
-        "kcs": Param(float, 3000.0, unit="N/m", help="ideal contact stiffness (model=ideal)", ge=0.0,
-                     scale=physical.STIFFNESS),
-        "bcs": Param(float, 40.0, unit="N s/m", help="ideal contact damping (model=ideal)", ge=0.0,
-                     scale=physical.DAMPING),
-        "substeps": Param(int, 1, help="integrator steps per tick (forces held over the tick; the ideal "
-                          "contact is integrated inside each)", ge=1, le=1000),
-        "allow_coarse": Param(bool, False, help="run even where the step does not resolve the contact "
-                              "(the summary then carries the warning)"),
+        "thrust": Param(float, 0.0, unit="N", help="constant thrust on the chaser along +x", scale=physical.FORCE),
+        "method": Param(
+            str, "exact", help="integrator of the model tool", choices=("exact", "rk4", "symplectic_euler", "euler")
+        ),
+        "model": Param(
+            str,
+            "hybrid",
+            help="hybrid: forces come from the F/T and impedance topics; "
+            "ideal: the ideal spring-dashpot (kcs, bcs) acts inside the node",
+            choices=("hybrid", "ideal"),
+        ),
+        "kcs": Param(
+            float, 3000.0, unit="N/m", help="ideal contact stiffness (model=ideal)", ge=0.0, scale=physical.STIFFNESS
+        ),
+        "bcs": Param(
+            float, 40.0, unit="N s/m", help="ideal contact damping (model=ideal)", ge=0.0, scale=physical.DAMPING
+        ),
+        "substeps": Param(
+            int,
+            1,
+            help="integrator steps per tick (forces held over the tick; the ideal contact is integrated inside each)",
+            ge=1,
+            le=1000,
+        ),
+        "allow_coarse": Param(
+            bool,
+            False,
+            help="run even where the step does not resolve the contact (the summary then carries the warning)",
+        ),
     }
 
     @classmethod
@@ -94,6 +112,5 @@ class SatelliteDynamics(Node):
             ),
             in_contact=self.bodies.touching(),
         )
-        command = RobotCommand(header=tick.header("target"), pose=Pose(Vector3(x1 - x2)),
-                               twist=Twist(Vector3(v1 - v2)))
+        command = RobotCommand(header=tick.header("target"), pose=Pose(Vector3(x1 - x2)), twist=Twist(Vector3(v1 - v2)))
         return {"state": state, "command": command}

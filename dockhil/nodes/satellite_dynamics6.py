@@ -4,8 +4,17 @@ from __future__ import annotations
 
 from dockhil import physical
 from dockhil.node import Input, Node, Output, Param
-from dockhil.msgs import (BodyState, BodyWrenches, Pose, Quaternion, RobotCommand, SatelliteState, Twist, Vector3,
-                  WrenchStamped)
+from dockhil.msgs import (
+    BodyState,
+    BodyWrenches,
+    Pose,
+    Quaternion,
+    RobotCommand,
+    SatelliteState,
+    Twist,
+    Vector3,
+    WrenchStamped,
+)
 from dockhil.nodes.sixdof_params import BODY_PARAMS, IDENTITY, MOUNT_PARAMS, bodies, checked
 
 
@@ -24,16 +33,30 @@ class SatelliteDynamics6(Node):
     (dockhil.contact.hybrid6.held_wrench) and held over the tick; dockhil.contact.rigid integrates."""
 
     inputs = {
-        "ft": Input(WrenchStamped, "/ft/wrench", feedthrough=False,
-                    help="wrench on the target measured by the F/T sensor, in the sensor frame"),
-        "impedance": Input(BodyWrenches, "/impedance/wrench", feedthrough=False,
-                           help="virtual wrenches on chaser, target (world, about each CoM)"),
+        "ft": Input(
+            WrenchStamped,
+            "/ft/wrench",
+            feedthrough=False,
+            help="wrench on the target measured by the F/T sensor, in the sensor frame",
+        ),
+        "impedance": Input(
+            BodyWrenches,
+            "/impedance/wrench",
+            feedthrough=False,
+            help="virtual wrenches on chaser, target (world, about each CoM)",
+        ),
     }
     outputs = {
-        "state": Output(SatelliteState, "/satellite/state",
-                        help="chaser, target: CoM pose (body-frame attitude) and twist (world angular velocity)"),
-        "command": Output(RobotCommand, "/robot/command",
-                          help="chaser interface A relative to target interface B: pose and twist in B"),
+        "state": Output(
+            SatelliteState,
+            "/satellite/state",
+            help="chaser, target: CoM pose (body-frame attitude) and twist (world angular velocity)",
+        ),
+        "command": Output(
+            RobotCommand,
+            "/robot/command",
+            help="chaser interface A relative to target interface B: pose and twist in B",
+        ),
     }
     params = {
         **BODY_PARAMS,
@@ -41,18 +64,28 @@ class SatelliteDynamics6(Node):
         "x2": Param(list, [2.0, 0.0, 0.0], unit="m", help="target CoM, world", scale=physical.DISTANCE),
         "q1": Param(list, IDENTITY, help="chaser attitude, body -> world (x, y, z, w)"),
         "q2": Param(list, IDENTITY, help="target attitude, body -> world (x, y, z, w)"),
-        "attitude1": Param(list, [0.0, 0.0, 0.0], unit="rad",
-                           help="chaser attitude change as a rotation vector, applied after q1 (world axes)",
-                           scale=physical.ANGLE),
-        "attitude2": Param(list, [0.0, 0.0, 0.0], unit="rad",
-                           help="target attitude change as a rotation vector, applied after q2 (world axes)",
-                           scale=physical.ANGLE),
+        "attitude1": Param(
+            list,
+            [0.0, 0.0, 0.0],
+            unit="rad",
+            help="chaser attitude change as a rotation vector, applied after q1 (world axes)",
+            scale=physical.ANGLE,
+        ),
+        "attitude2": Param(
+            list,
+            [0.0, 0.0, 0.0],
+            unit="rad",
+            help="target attitude change as a rotation vector, applied after q2 (world axes)",
+            scale=physical.ANGLE,
+        ),
         "v1": Param(list, [0.03, 0.0, 0.0], unit="m/s", help="chaser CoM velocity, world", scale=physical.SPEED),
         "v2": Param(list, [0.0, 0.0, 0.0], unit="m/s", help="target CoM velocity, world", scale=physical.SPEED),
-        "w1": Param(list, [0.0, 0.0, 0.0], unit="rad/s", help="chaser angular velocity, body axes",
-                    scale=physical.ANGULAR_SPEED),
-        "w2": Param(list, [0.0, 0.0, 0.0], unit="rad/s", help="target angular velocity, body axes",
-                    scale=physical.ANGULAR_SPEED),
+        "w1": Param(
+            list, [0.0, 0.0, 0.0], unit="rad/s", help="chaser angular velocity, body axes", scale=physical.ANGULAR_SPEED
+        ),
+        "w2": Param(
+            list, [0.0, 0.0, 0.0], unit="rad/s", help="target angular velocity, body axes", scale=physical.ANGULAR_SPEED
+        ),
         **MOUNT_PARAMS,
         "order": Param(int, 4, help="integrator order (2 or 4)", choices=(2, 4)),
     }
@@ -66,8 +99,13 @@ class SatelliteDynamics6(Node):
             b1, b2 = bodies(p)
             s1 = rigid.BodyState(p.x1, attitude(p.q1, p.attitude1, "attitude1"), p.v1, p.w1)
             s2 = rigid.BodyState(p.x2, attitude(p.q2, p.attitude2, "attitude2"), p.v2, p.w2)
-            return (b1, b2, rigid.Motion.from_state(b1, s1), rigid.Motion.from_state(b2, s2),
-                    hybrid6.sensor_mount_in_body(b2, p.sensor_position, p.sensor_orientation))
+            return (
+                b1,
+                b2,
+                rigid.Motion.from_state(b1, s1),
+                rigid.Motion.from_state(b2, s2),
+                hybrid6.sensor_mount_in_body(b2, p.sensor_position, p.sensor_orientation),
+            )
 
         self.b1, self.b2, self.m1, self.m2, self.mount = checked(self.ctx.name, build)
         self.lib, self.rigid = hybrid6, rigid
@@ -112,7 +150,9 @@ class SatelliteDynamics6(Node):
             ),
             in_contact=touching,
         )
-        command = RobotCommand(header=tick.header("target_interface"),
-                               pose=Pose(Vector3(*d), Quaternion(*q_rel)),
-                               twist=Twist(Vector3(*d_rate), Vector3(*w_rel)))
+        command = RobotCommand(
+            header=tick.header("target_interface"),
+            pose=Pose(Vector3(*d), Quaternion(*q_rel)),
+            twist=Twist(Vector3(*d_rate), Vector3(*w_rel)),
+        )
         return {"state": state, "command": command}

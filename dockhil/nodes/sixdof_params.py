@@ -18,43 +18,82 @@ IDENTITY = [0.0, 0.0, 0.0, 1.0]
 BODY_PARAMS = {
     "m1": Param(float, 750.0, unit="kg", help="chaser mass", gt=0.0, scale=physical.MASS),
     "m2": Param(float, 1e6, unit="kg", help="target mass", gt=0.0, scale=physical.MASS),
-    "inertia1": Param(list, [300.0, 400.0, 500.0], unit="kg m^2",
-                      help="chaser inertia about its CoM, body axes: 3 principal moments or 3x3",
-                      scale=physical.INERTIA),
-    "inertia2": Param(list, [4e6, 5e6, 6e6], unit="kg m^2",
-                      help="target inertia about its CoM, body axes: 3 principal moments or 3x3",
-                      scale=physical.INERTIA),
-    "interface1": Param(list, [1.0, 0.0, 0.0], unit="m", help="chaser interface origin A from its CoM, body axes",
-                        scale=physical.DISTANCE),
-    "interface2": Param(list, [-2.0, 0.0, 0.0], unit="m", help="target interface origin B from its CoM, body axes",
-                        scale=physical.DISTANCE),
+    "inertia1": Param(
+        list,
+        [300.0, 400.0, 500.0],
+        unit="kg m^2",
+        help="chaser inertia about its CoM, body axes: 3 principal moments or 3x3",
+        scale=physical.INERTIA,
+    ),
+    "inertia2": Param(
+        list,
+        [4e6, 5e6, 6e6],
+        unit="kg m^2",
+        help="target inertia about its CoM, body axes: 3 principal moments or 3x3",
+        scale=physical.INERTIA,
+    ),
+    "interface1": Param(
+        list,
+        [1.0, 0.0, 0.0],
+        unit="m",
+        help="chaser interface origin A from its CoM, body axes",
+        scale=physical.DISTANCE,
+    ),
+    "interface2": Param(
+        list,
+        [-2.0, 0.0, 0.0],
+        unit="m",
+        help="target interface origin B from its CoM, body axes",
+        scale=physical.DISTANCE,
+    ),
     "interface_orientation1": Param(list, IDENTITY, help="chaser interface frame A in its body frame (x, y, z, w)"),
-    "interface_orientation2": Param(list, IDENTITY, help="target interface frame B in its body frame (x, y, z, w); "
-                                    "B's x axis is the contact normal"),
+    "interface_orientation2": Param(
+        list, IDENTITY, help="target interface frame B in its body frame (x, y, z, w); B's x axis is the contact normal"
+    ),
 }
 
 IDEAL_PARAMS = {
-    "stiffness": Param(list, [3000.0, 3000.0, 3000.0, 300.0, 300.0, 300.0], unit="N/m, N m/rad",
-                       help="ideal contact stiffness to reproduce: 6 (diagonal) or 6x6 symmetric",
-                       scale=physical.STIFFNESS),
-    "damping": Param(list, [40.0, 40.0, 40.0, 4.0, 4.0, 4.0], unit="N s/m, N m s/rad",
-                     help="ideal contact damping to reproduce: 6 (diagonal) or 6x6 symmetric",
-                     scale=physical.DAMPING),
+    "stiffness": Param(
+        list,
+        [3000.0, 3000.0, 3000.0, 300.0, 300.0, 300.0],
+        unit="N/m, N m/rad",
+        help="ideal contact stiffness to reproduce: 6 (diagonal) or 6x6 symmetric",
+        scale=physical.STIFFNESS,
+    ),
+    "damping": Param(
+        list,
+        [40.0, 40.0, 40.0, 4.0, 4.0, 4.0],
+        unit="N s/m, N m s/rad",
+        help="ideal contact damping to reproduce: 6 (diagonal) or 6x6 symmetric",
+        scale=physical.DAMPING,
+    ),
 }
 
 PASSIVE_PARAMS = {
-    "passive_stiffness": Param(list, [1000.0, 1000.0, 1000.0, 100.0, 100.0, 100.0], unit="N/m, N m/rad",
-                               help="passive compliance on the robot: 6 (diagonal) or 6x6 symmetric",
-                               scale=physical.STIFFNESS),
-    "passive_damping": Param(list, [0.0] * 6, unit="N s/m, N m s/rad",
-                             help="passive damping on the robot: 6 (diagonal) or 6x6 symmetric",
-                             scale=physical.DAMPING),
+    "passive_stiffness": Param(
+        list,
+        [1000.0, 1000.0, 1000.0, 100.0, 100.0, 100.0],
+        unit="N/m, N m/rad",
+        help="passive compliance on the robot: 6 (diagonal) or 6x6 symmetric",
+        scale=physical.STIFFNESS,
+    ),
+    "passive_damping": Param(
+        list,
+        [0.0] * 6,
+        unit="N s/m, N m s/rad",
+        help="passive damping on the robot: 6 (diagonal) or 6x6 symmetric",
+        scale=physical.DAMPING,
+    ),
 }
 
 MOUNT_PARAMS = {
-    "sensor_position": Param(list, [0.0, 0.0, 0.0], unit="m",
-                             help="F/T sensor origin in the target's interface frame B",
-                             scale=physical.DISTANCE),
+    "sensor_position": Param(
+        list,
+        [0.0, 0.0, 0.0],
+        unit="m",
+        help="F/T sensor origin in the target's interface frame B",
+        scale=physical.DISTANCE,
+    ),
     "sensor_orientation": Param(list, IDENTITY, help="F/T sensor axes in B (x, y, z, w)"),
 }
 
@@ -75,10 +114,22 @@ def bodies(p):
     the body: `chaser.inertia` is the param inertia1, `target.interface_position` interface2."""
     from dockhil.contact.rigid import RigidBody
 
-    return (RigidBody(p.m1, _inertia(p.inertia1), interface_position=p.interface1,
-                      interface_orientation=p.interface_orientation1, name="chaser"),
-            RigidBody(p.m2, _inertia(p.inertia2), interface_position=p.interface2,
-                      interface_orientation=p.interface_orientation2, name="target"))
+    return (
+        RigidBody(
+            p.m1,
+            _inertia(p.inertia1),
+            interface_position=p.interface1,
+            interface_orientation=p.interface_orientation1,
+            name="chaser",
+        ),
+        RigidBody(
+            p.m2,
+            _inertia(p.inertia2),
+            interface_position=p.interface2,
+            interface_orientation=p.interface_orientation2,
+            name="target",
+        ),
+    )
 
 
 def _inertia(value):
@@ -97,8 +148,12 @@ def ideal_contact(p):
 def passive_contact(p, mu: float = 0.0, slip_velocity: float = 1e-3):
     from dockhil.contact.contact6 import Contact6
 
-    return Contact6(_matrix(p.passive_stiffness, "passive_stiffness"),
-                    _matrix(p.passive_damping, "passive_damping"), mu=mu, slip_velocity=slip_velocity)
+    return Contact6(
+        _matrix(p.passive_stiffness, "passive_stiffness"),
+        _matrix(p.passive_damping, "passive_damping"),
+        mu=mu,
+        slip_velocity=slip_velocity,
+    )
 
 
 def _matrix(value, name):

@@ -13,43 +13,66 @@ class VirtualImpedance(Node):
 
     inputs = {
         "state": Input(SatelliteState, "/satellite/state"),
-        "ft": Input(WrenchStamped, "/ft/wrench", required=False,
-                    help="measured force on the chaser: the hardware port of the energy account"),
+        "ft": Input(
+            WrenchStamped,
+            "/ft/wrench",
+            required=False,
+            help="measured force on the chaser: the hardware port of the energy account",
+        ),
     }
     outputs = {
-        "wrench": Output(BodyWrenches, "/impedance/wrench",
-                         help="virtual force on chaser, target (with the passivity controller's damping)"),
+        "wrench": Output(
+            BodyWrenches,
+            "/impedance/wrench",
+            help="virtual force on chaser, target (with the passivity controller's damping)",
+        ),
         "energy": Output(Energy, "/energy", help="the loop's energy account per tick [J]"),
     }
     params = {
-        "mode": Param(str, "determine", help="determine: k1..b2 from kcs, bcs, k at start (closed form, "
-                      "checked against the two-time fit of Eqs. 5-6); given: use k1..b2 as set",
-                      choices=("determine", "given")),
+        "mode": Param(
+            str,
+            "determine",
+            help="determine: k1..b2 from kcs, bcs, k at start (closed form, "
+            "checked against the two-time fit of Eqs. 5-6); given: use k1..b2 as set",
+            choices=("determine", "given"),
+        ),
         "m1": Param(float, 750.0, unit="kg", help="chaser mass", gt=0.0, scale=physical.MASS),
         "m2": Param(float, 1e6, unit="kg", help="target mass; 0 = fixed target", ge=0.0, scale=physical.MASS),
-        "kcs": Param(float, 3000.0, unit="N/m", help="ideal contact stiffness to reproduce", ge=0.0,
-                     scale=physical.STIFFNESS),
-        "bcs": Param(float, 40.0, unit="N s/m", help="ideal contact damping to reproduce", ge=0.0,
-                     scale=physical.DAMPING),
-        "k": Param(float, 1000.0, unit="N/m", help="passive compliance on the robot", ge=0.0,
-                   scale=physical.STIFFNESS),
-        "k1": Param(float, 0.0, unit="N/m", help="chaser virtual stiffness (mode=given)",
-                    scale=physical.STIFFNESS),
-        "b1": Param(float, 0.0, unit="N s/m", help="chaser virtual damping (mode=given)",
-                    scale=physical.DAMPING),
-        "k2": Param(float, 0.0, unit="N/m", help="target virtual stiffness (mode=given)",
-                    scale=physical.STIFFNESS),
-        "b2": Param(float, 0.0, unit="N s/m", help="target virtual damping (mode=given)",
-                    scale=physical.DAMPING),
-        "compensation": Param(str, "none", help="passivity: add the damping that dissipates the energy the "
-                              "delay and the sampling make (time-domain passivity, needs k); none: as published",
-                              choices=("none", "passivity")),
-        "max_damping": Param(float, 1e5, unit="N s/m", help="largest damping the passivity controller adds; "
-                             "energy it cannot take out marks the run invalid", ge=0.0,
-                             scale=physical.DAMPING),
-        "force_deadband": Param(float, 0.0, unit="N", help="passivity: once the bodies part, a measured force "
-                                "below this counts as none (set it above the sensor's noise)", ge=0.0,
-                                scale=physical.FORCE),
+        "kcs": Param(
+            float, 3000.0, unit="N/m", help="ideal contact stiffness to reproduce", ge=0.0, scale=physical.STIFFNESS
+        ),
+        "bcs": Param(
+            float, 40.0, unit="N s/m", help="ideal contact damping to reproduce", ge=0.0, scale=physical.DAMPING
+        ),
+        "k": Param(float, 1000.0, unit="N/m", help="passive compliance on the robot", ge=0.0, scale=physical.STIFFNESS),
+        "k1": Param(float, 0.0, unit="N/m", help="chaser virtual stiffness (mode=given)", scale=physical.STIFFNESS),
+        "b1": Param(float, 0.0, unit="N s/m", help="chaser virtual damping (mode=given)", scale=physical.DAMPING),
+        "k2": Param(float, 0.0, unit="N/m", help="target virtual stiffness (mode=given)", scale=physical.STIFFNESS),
+        "b2": Param(float, 0.0, unit="N s/m", help="target virtual damping (mode=given)", scale=physical.DAMPING),
+        "compensation": Param(
+            str,
+            "none",
+            help="passivity: add the damping that dissipates the energy the "
+            "delay and the sampling make (time-domain passivity, needs k); none: as published",
+            choices=("none", "passivity"),
+        ),
+        "max_damping": Param(
+            float,
+            1e5,
+            unit="N s/m",
+            help="largest damping the passivity controller adds; energy it cannot take out marks the run invalid",
+            ge=0.0,
+            scale=physical.DAMPING,
+        ),
+        "force_deadband": Param(
+            float,
+            0.0,
+            unit="N",
+            help="passivity: once the bodies part, a measured force "
+            "below this counts as none (set it above the sensor's noise)",
+            ge=0.0,
+            scale=physical.FORCE,
+        ),
     }
 
     @classmethod
@@ -92,8 +115,10 @@ class VirtualImpedance(Node):
             if p.m2 == 0.0:
                 from dockhil.errors import ParamError
 
-                raise ParamError(f"node {self.ctx.name!r}: mode 'determine' needs a free target (m2 > 0); "
-                                 f"give k1, b1 with mode 'given' for a fixed target")
+                raise ParamError(
+                    f"node {self.ctx.name!r}: mode 'determine' needs a free target (m2 > 0); "
+                    f"give k1, b1 with mode 'given' for a fixed target"
+                )
             scenario = ContactScenario(p.m1, p.m2, p.kcs, p.bcs, p.k, 0.03, 0.0)
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
@@ -103,11 +128,11 @@ class VirtualImpedance(Node):
                 self.log(f"warning: {w.message}")
             how = f"closed form; two-time fit agrees: {fit.agrees}"
         imp = self.impedance
-        self.passivity = (Passivity(p.k, p.max_damping, p.force_deadband) if p.compensation == "passivity"
-                          else None)
+        self.passivity = Passivity(p.k, p.max_damping, p.force_deadband) if p.compensation == "passivity" else None
         self.monitor = EnergyMonitor(p.m1, p.m2, p.k, imp, self.passivity)
-        self.log(f"impedance ({how}): k1={imp.k1:.6g} N/m b1={imp.b1:.6g} N s/m "
-                 f"k2={imp.k2:.6g} N/m b2={imp.b2:.6g} N s/m")
+        self.log(
+            f"impedance ({how}): k1={imp.k1:.6g} N/m b1={imp.b1:.6g} N s/m k2={imp.k2:.6g} N/m b2={imp.b2:.6g} N s/m"
+        )
 
     def step(self, tick, inputs):
         state, ft = inputs["state"], inputs.get("ft")

@@ -4,8 +4,15 @@ from __future__ import annotations
 
 from dockhil.node import Input, Node, Output
 from dockhil.msgs import BodyWrenches, SatelliteState, Vector3, Wrench
-from dockhil.nodes.sixdof_params import BODY_PARAMS, IDEAL_PARAMS, PASSIVE_PARAMS, bodies, checked, ideal_contact, \
-    passive_contact
+from dockhil.nodes.sixdof_params import (
+    BODY_PARAMS,
+    IDEAL_PARAMS,
+    PASSIVE_PARAMS,
+    bodies,
+    checked,
+    ideal_contact,
+    passive_contact,
+)
 
 
 NO_WRENCH = Wrench()  # msgs are frozen: one zero wrench serves every message that carries one
@@ -25,8 +32,11 @@ class VirtualImpedance6(Node):
     from both bodies' mobilities there."""
 
     inputs = {"state": Input(SatelliteState, "/satellite/state")}
-    outputs = {"wrench": Output(BodyWrenches, "/impedance/wrench",
-                                help="virtual wrench on chaser, target (world, about each CoM)")}
+    outputs = {
+        "wrench": Output(
+            BodyWrenches, "/impedance/wrench", help="virtual wrench on chaser, target (world, about each CoM)"
+        )
+    }
     params = {**BODY_PARAMS, **IDEAL_PARAMS, **PASSIVE_PARAMS}
 
     def setup(self):
@@ -34,7 +44,8 @@ class VirtualImpedance6(Node):
 
         p = self.p
         self.b1, self.b2, self.wall = checked(
-            self.ctx.name, lambda: (*bodies(p), hybrid6.VirtualWall6(ideal_contact(p), passive_contact(p))))
+            self.ctx.name, lambda: (*bodies(p), hybrid6.VirtualWall6(ideal_contact(p), passive_contact(p)))
+        )
         self.lib = hybrid6
         self.logged = False
 
@@ -42,17 +53,24 @@ class VirtualImpedance6(Node):
         state = inputs["state"]
         forces = None
         if state is not None and len(state.bodies) >= 2:
-            g, velocity, spin = self.lib.published_interface(self.b1, published(state.bodies[0]),
-                                                             self.b2, published(state.bodies[1]))
+            g, velocity, spin = self.lib.published_interface(
+                self.b1, published(state.bodies[0]), self.b2, published(state.bodies[1])
+            )
             forces = self.wall.wrenches(g, velocity, spin)
             if self.wall.impedance is not None and not self.logged:
                 self.logged = True
                 per_axis = self.wall.impedance.per_axis()
-                self.log("impedance (closed form at first contact), diagonal: " + " ".join(
-                    f"{a}: k1={v['k1']:.6g} c1={v['c1']:.6g}" for a, v in per_axis.items()))
+                self.log(
+                    "impedance (closed form at first contact), diagonal: "
+                    + " ".join(f"{a}: k1={v['k1']:.6g} c1={v['c1']:.6g}" for a, v in per_axis.items())
+                )
         if forces is None or not self.wall.touching:  # the wall's wrenches are zero: one frozen Wrench() for them
             return {"wrench": BodyWrenches(header=tick.header("world"), wrenches=(NO_WRENCH, NO_WRENCH))}
         f1, t1, f2, t2 = forces
         # The wall's values are plain floats already (tuples): they go into the message as they are.
-        return {"wrench": BodyWrenches(header=tick.header("world"), wrenches=(
-            Wrench(Vector3(*f1), Vector3(*t1)), Wrench(Vector3(*f2), Vector3(*t2))))}
+        return {
+            "wrench": BodyWrenches(
+                header=tick.header("world"),
+                wrenches=(Wrench(Vector3(*f1), Vector3(*t1)), Wrench(Vector3(*f2), Vector3(*t2))),
+            )
+        }

@@ -28,8 +28,16 @@ Tap = Callable[[str, Any], None]  # (topic, message)
 
 
 class ComposedGraph:
-    def __init__(self, graph: Graph, *, sim_time: bool = True, log=None, taps: list[Tap] | None = None,
-                 clock: Callable[[], float] = time.monotonic, boxes: dict[tuple[str, str], list] | None = None):
+    def __init__(
+        self,
+        graph: Graph,
+        *,
+        sim_time: bool = True,
+        log=None,
+        taps: list[Tap] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        boxes: dict[tuple[str, str], list] | None = None,
+    ):
         """boxes: (node, port) -> a one-element list holding that input's message of the current
         tick, filled by the caller (a container, with what arrived from outside)."""
         self.clock = clock  # wall time: the runtime's clock, handed to every node
@@ -43,8 +51,10 @@ class ComposedGraph:
         for gn in graph.nodes.values():
             for ref in gn.inputs.values():
                 depth[ref.topic] = max(depth.get(ref.topic, 0), ref.lag)
-        self.history = {topic: deque([None] * (depth.get(topic, 0) + 1), maxlen=depth.get(topic, 0) + 1)
-                        for topic in graph.publishers}
+        self.history = {
+            topic: deque([None] * (depth.get(topic, 0) + 1), maxlen=depth.get(topic, 0) + 1)
+            for topic in graph.publishers
+        }
         self.timing: LoopTiming | None = None  # wall time: the one loop's figures, for validity
         self._schedules: dict[bool, Callable] = {}  # step(): the tick function, made once per clock
         self.plan = []  # (name, node, [(port, history, lag)], [(port, topic, history)], declared outputs)
@@ -54,8 +64,12 @@ class ComposedGraph:
             node = gn.cls(ctx, **gn.params)
             self.nodes[name] = node
             _, outs = gn.cls.ports(gn.params)
-            ins = [(port, boxes[(name, port)], 0) if boxes and (name, port) in boxes
-                   else (port, self.history.get(ref.topic), ref.lag) for port, ref in gn.inputs.items()]
+            ins = [
+                (port, boxes[(name, port)], 0)
+                if boxes and (name, port) in boxes
+                else (port, self.history.get(ref.topic), ref.lag)
+                for port, ref in gn.inputs.items()
+            ]
             outs_map = [(p, r.topic, self.history[r.topic]) for p, r in gn.outputs.items()]
             self.plan.append((name, node, ins, outs_map, outs))
 
@@ -105,8 +119,14 @@ class ComposedGraph:
             schedule = self._schedules[wall] = self.schedule(wall, collect=True)
         return self.step_tick(schedule, tick, wall)
 
-    def run(self, n_ticks: int | None, *, wall: bool = False, stop: Stop | None = None,
-            progress: Callable[[int], None] | None = None) -> int:
+    def run(
+        self,
+        n_ticks: int | None,
+        *,
+        wall: bool = False,
+        stop: Stop | None = None,
+        progress: Callable[[int], None] | None = None,
+    ) -> int:
         """Step ticks 0..n_ticks-1 (None: until stopped). Returns ticks done.
 
         Each topic's history holds its last lag+1 messages, newest last; a
@@ -152,8 +172,12 @@ def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, coll
     outputs by node name. Written out rather than looped over, since the loop's own bookkeeping
     cost more than the checks it ran (bench/graph.py). `f.owners` maps each line of it to its
     node, for failed_node."""
-    scope: dict[str, Any] = {"check_outputs": check_outputs, "checked_payload": checked_payload, "taps": taps,
-                             "replace": msgspec.structs.replace}
+    scope: dict[str, Any] = {
+        "check_outputs": check_outputs,
+        "checked_payload": checked_payload,
+        "taps": taps,
+        "replace": msgspec.structs.replace,
+    }
     lines = ["def tick_function(tick, k, check_types):"]
     for i, hist in enumerate(histories):
         scope[f"topic{i}"] = hist
@@ -171,24 +195,32 @@ def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, coll
             else:
                 scope[f"in{i}_{j}"] = hist
                 reads.append(f"{port!r}: in{i}_{j}[{-1 - lag}]")
-        lines += [f"    o = step{i}(tick, {{{', '.join(reads)}}})",
-                  f"    if type(o) is not dict or not o.keys() <= names{i}:",
-                  f"        check_outputs({name!r}, declared{i}, k, o, sim={not wall})  # its line"]
+        lines += [
+            f"    o = step{i}(tick, {{{', '.join(reads)}}})",
+            f"    if type(o) is not dict or not o.keys() <= names{i}:",
+            f"        check_outputs({name!r}, declared{i}, k, o, sim={not wall})  # its line",
+        ]
         for j, (port, out) in enumerate(declared.items()):
             hist = next((h for p, _, h in outs_map if p == port), None)
             topic = next((t for p, t, _ in outs_map if p == port), out.topic)
             v = f"{i}_{j}"
             scope[f"type{v}"], scope[f"screen{v}"] = out.type, bounds_check(out.type)
             header = "" if wall else " or m.header.tick != k"
-            lines += [f"    m = o.get({port!r})",
-                      "    if m is not None:",
-                      f"        if check_types and (type(m) is not type{v}{header}):",
-                      f"            check_outputs({name!r}, declared{i}, k, {{{port!r}: m}}, sim={not wall})"]
+            lines += [
+                f"    m = o.get({port!r})",
+                "    if m is not None:",
+                f"        if check_types and (type(m) is not type{v}{header}):",
+                f"            check_outputs({name!r}, declared{i}, k, {{{port!r}: m}}, sim={not wall})",
+            ]
             for field in _sequence_fields(out.type):  # a list a node built: a tuple, as a reader decodes it
-                lines += [f"        if type(m.{field}) is not tuple:",
-                          f"            m = o[{port!r}] = replace(m, {field}=tuple(m.{field}))"]
-            lines += [f"        if not screen{v}(m):",
-                      f"            checked_payload({name!r}, {port!r}, {topic!r}, k, m)  # as a node process"]
+                lines += [
+                    f"        if type(m.{field}) is not tuple:",
+                    f"            m = o[{port!r}] = replace(m, {field}=tuple(m.{field}))",
+                ]
+            lines += [
+                f"        if not screen{v}(m):",
+                f"            checked_payload({name!r}, {port!r}, {topic!r}, k, m)  # as a node process",
+            ]
             if hist is not None:
                 scope[f"out{v}"] = hist
                 lines.append(f"        out{v}[-1] = m")

@@ -42,8 +42,9 @@ class Container(Node):
                 decl = ins[port]
                 # A free-running member (an emulated device) goes on from its last input, as on its own.
                 age = math.inf if node_cls.free_running and decl.max_age is None else decl.max_age
-                inputs[f"{m['name']}.{port}"] = Input(decl.type, topic, decl.feedthrough, decl.required,
-                                                      decl.help, decl.delay, age)
+                inputs[f"{m['name']}.{port}"] = Input(
+                    decl.type, topic, decl.feedthrough, decl.required, decl.help, decl.delay, age
+                )
             for port, topic in m["outputs"].items():
                 outputs[f"{m['name']}.{port}"] = Output(outs[port].type, topic, outs[port].help)
         return inputs, outputs
@@ -61,20 +62,32 @@ class Container(Node):
         for m in _members(params):
             cls = nodes.load(m["type"])
             ins, outs = cls.ports(m["params"])
-            inputs = {port: PortRef(m["name"], port, topic, ins[port].type, lag)
-                      for port, (topic, lag) in {**m["internal"], **m["external"]}.items()}
+            inputs = {
+                port: PortRef(m["name"], port, topic, ins[port].type, lag)
+                for port, (topic, lag) in {**m["internal"], **m["external"]}.items()
+            }
             outputs = {port: PortRef(m["name"], port, topic, outs[port].type) for port, topic in m["outputs"].items()}
             gnodes[m["name"]] = GraphNode(m["name"], m["type"], cls, m["params"], inputs, outputs)
             publishers.update({ref.topic: ref for ref in outputs.values()})
             for port in m["external"]:
                 box = self.boxes[(m["name"], port)] = [None]
                 self.reads.append((f"{m['name']}.{port}", box))
-        graph = SimpleNamespace(scene=SimpleNamespace(dt=ctx.dt), nodes=gnodes,
-                                order=[m["name"] for m in _members(params)], publishers=publishers)
+        graph = SimpleNamespace(
+            scene=SimpleNamespace(dt=ctx.dt),
+            nodes=gnodes,
+            order=[m["name"] for m in _members(params)],
+            publishers=publishers,
+        )
         self.sent: dict[str, Any] = {}
         self.out_port = {topic: f"{ref.node}.{ref.port}" for topic, ref in publishers.items()}
-        self.members = ComposedGraph(graph, sim_time=ctx.sim_time, clock=ctx.clock, boxes=self.boxes,
-                                     log=lambda name, msg: ctx.log(f"[{name}] {msg}"), taps=[self._sent])
+        self.members = ComposedGraph(
+            graph,
+            sim_time=ctx.sim_time,
+            clock=ctx.clock,
+            boxes=self.boxes,
+            log=lambda name, msg: ctx.log(f"[{name}] {msg}"),
+            taps=[self._sent],
+        )
         self._schedule = None
 
     def _sent(self, topic: str, msg) -> None:

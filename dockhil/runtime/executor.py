@@ -42,8 +42,8 @@ from dockhil.runtime import realtime
 from dockhil.runtime.looptime import LoopTiming, sleep_until
 from dockhil.runtime.screen import checked_payload
 
-TIMING = "\x1edockhil-timing "
-DEFERRED = 16  # sim time: frames an output holds at most while its node computes on without waiting  # a node process's line with its wall-time loop figures (JSON), read by the launcher
+TIMING = "\x1edockhil-timing "  # a node process's line with its wall-time loop figures (JSON), read by the launcher
+DEFERRED = 16  # sim time: frames an output holds at most while its node computes on without waiting
 
 
 @dataclass
@@ -98,8 +98,10 @@ class StaleInput(DockhilError):
 def check_outputs(name: str, declared: dict, k: int, outs: dict, sim: bool) -> None:
     """Refuse outputs a node did not declare, of the wrong type, or stamped with another tick."""
     if not isinstance(outs, dict):
-        raise DockhilError(f"node {name!r} returned {type(outs).__name__} from step at tick {k}; step returns "
-                           f"a dict of its outputs (port -> message), {{}} for none")
+        raise DockhilError(
+            f"node {name!r} returned {type(outs).__name__} from step at tick {k}; step returns "
+            f"a dict of its outputs (port -> message), {{}} for none"
+        )
     for port, msg in outs.items():
         if port not in declared:
             raise DockhilError(f"node {name!r} returned undeclared output {port!r} at tick {k}")
@@ -124,8 +126,10 @@ def read_spec_keys(spec: RunSpec):
     if not spec.inputs and not spec.outputs:
         return None
     if not spec.key_file:
-        raise DockhilError(f"node {spec.name!r}: its spec names no key file for its endpoints; "
-                           f"start it with 'dockhil launch' or give --keys FILE")
+        raise DockhilError(
+            f"node {spec.name!r}: its spec names no key file for its endpoints; "
+            f"start it with 'dockhil launch' or give --keys FILE"
+        )
     return GraphKeys.read(spec.key_file)
 
 
@@ -144,6 +148,7 @@ class NodeExecutor:
         self.node = node_cls(NodeContext(spec.name, spec.dt, spec.clock == "sim", self.log, clock), **spec.params)
         ins, outs = node_cls.ports(vars(self.node.p))
         self.outputs = outs
+
         # Wall time: how long each input's latest message may be used after it arrived. A free-running
         # node stands for a device (an emulated sensor): like the physics it stands for, it goes on
         # from the last value unless it declares a limit; the drivers' watchdogs judge what it delivers.
@@ -176,9 +181,18 @@ class NodeExecutor:
         # any other when the node is about to wait for input (or DEFERRED frames are held), so a
         # node handed a burst passes one on. A node never waits holding a frame of the second kind.
         sim = spec.clock == "sim"
-        self.pubs = {port: Publisher(self.ctx, wire.topic, wire.endpoint, linger, keys=keys, lossy=not sim,
-                                     burst=(wire.burst if wire.burst > 1 else DEFERRED) if sim else 1)
-                     for port, wire in spec.outputs.items()}
+        self.pubs = {
+            port: Publisher(
+                self.ctx,
+                wire.topic,
+                wire.endpoint,
+                linger,
+                keys=keys,
+                lossy=not sim,
+                burst=(wire.burst if wire.burst > 1 else DEFERRED) if sim else 1,
+            )
+            for port, wire in spec.outputs.items()
+        }
         self._deferred = [self.pubs[port] for port, wire in spec.outputs.items() if sim and wire.burst <= 1]
         self.dropped = 0
         self._drop_logged = 0.0
@@ -201,12 +215,13 @@ class NodeExecutor:
             return []
         if not message:
             if i < 0 or len(frame) - i != 9:
-                self._drop(topic.decode(errors="replace"),
-                           "malformed frame: expected the topic, a NUL byte, then msgpack")
+                self._drop(
+                    topic.decode(errors="replace"), "malformed frame: expected the topic, a NUL byte, then msgpack"
+                )
                 return []
-            tick = int.from_bytes(frame[i + 1:], "little")
+            tick = int.from_bytes(frame[i + 1 :], "little")
             return [(port, tick, None, True) for port, _ in routes]
-        payload = frame[i + 1:]
+        payload = frame[i + 1 :]
         out = []
         for port, fast in routes:
             try:
@@ -243,7 +258,9 @@ class NodeExecutor:
 
     def wait_for_subscribers(self) -> None:
         for port, pub in self.pubs.items():
-            pub.wait_subscribers(self.spec.outputs[port].subscribers, self.spec.start_timeout, lambda: self.stop.requested)
+            pub.wait_subscribers(
+                self.spec.outputs[port].subscribers, self.spec.start_timeout, lambda: self.stop.requested
+            )
 
     def publish(self, k: int, outs: dict, sim: bool) -> None:
         for port, pub in self.pubs.items():
@@ -257,8 +274,10 @@ class NodeExecutor:
     def _lost_output(self, pub) -> None:
         # Wall time: a subscriber's queue is full (it stopped reading); the message is dropped, not queued.
         if pub.dropped == 1 or pub.dropped % 1000 == 0:
-            self.log(f"warning: output {pub.topic}: a subscriber is not keeping up; {pub.dropped} message(s) dropped "
-                     f"(high-water mark reached)")
+            self.log(
+                f"warning: output {pub.topic}: a subscriber is not keeping up; {pub.dropped} message(s) dropped "
+                f"(high-water mark reached)"
+            )
 
     @property
     def dropped_outputs(self) -> int:
@@ -355,7 +374,7 @@ class NodeExecutor:
                     break
                 timing.started(now - next_t)
                 while (frames := self.sub.recv_frame_nowait()) is not None:
-                    for port, _tick, msg, ok in self._decode(frames):
+                    for port, _tick, msg, _ok in self._decode(frames):
                         if msg is not None:
                             latest[port] = msg
                             arrived[port] = now
@@ -395,8 +414,10 @@ class NodeExecutor:
             limit = self.max_age.get(port, math.inf)
             if age > limit:
                 topic = self.spec.inputs[port].topic
-                raise StaleInput(f"node {self.spec.name!r}: input {port!r} ({topic}) is {age:.3f} s old > "
-                                 f"max_age {limit:g} s (its publisher stalled or died); stopping")
+                raise StaleInput(
+                    f"node {self.spec.name!r}: input {port!r} ({topic}) is {age:.3f} s old > "
+                    f"max_age {limit:g} s (its publisher stalled or died); stopping"
+                )
 
     def close(self) -> None:
         try:

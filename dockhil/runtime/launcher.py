@@ -98,8 +98,10 @@ def bind_address(host: str) -> str:
     try:
         return socket.gethostbyname(host)
     except OSError as exc:
-        raise LaunchError(f"host {host!r}: cannot resolve its address to bind ({exc.strerror or exc}); "
-                          f"give the node's host as an address") from None
+        raise LaunchError(
+            f"host {host!r}: cannot resolve its address to bind ({exc.strerror or exc}); "
+            f"give the node's host as an address"
+        ) from None
 
 
 def _check_reachable(graph: Graph, here: str, addresses: dict[str, str]) -> None:
@@ -115,9 +117,11 @@ def _check_reachable(graph: Graph, here: str, addresses: dict[str, str]) -> None
             continue
         address = addresses.get(gn.host) or bind_address(gn.host)
         if not ipaddress.ip_address(address).is_loopback:
-            raise LaunchError(f"node {gn.name!r} runs on {gn.host} ({address}), but this machine's name {here!r} "
-                              f"resolves to {local}, a loopback address it could not reach; map {here} to this "
-                              f"machine's network address (/etc/hosts or DNS)")
+            raise LaunchError(
+                f"node {gn.name!r} runs on {gn.host} ({address}), but this machine's name {here!r} "
+                f"resolves to {local}, a loopback address it could not reach; map {here} to this "
+                f"machine's network address (/etc/hosts or DNS)"
+            )
 
 
 def assign_endpoints(graph: Graph, transport: str = "ipc", advertise: str | None = None) -> Endpoints:
@@ -175,8 +179,10 @@ def processes(graph: Graph) -> dict[str, list[str]]:
         if not isinstance(container, str) or (container and not re.fullmatch(r"[A-Za-z0-9_.-]+", container)):
             raise LaunchError(f"{where}: `container` must be a name of letters, digits and _ . -, got {container!r}")
         if container and isolated:
-            raise LaunchError(f"{where}: `isolated: true` keeps it in a process of its own; remove "
-                              f"`container: {container}` or `isolated`")
+            raise LaunchError(
+                f"{where}: `isolated: true` keeps it in a process of its own; remove "
+                f"`container: {container}` or `isolated`"
+            )
         if container and container in graph.nodes:
             raise LaunchError(f"{where}: container {container!r} has the name of a node; name it otherwise")
         if container and (spec.host or spec.respawn):
@@ -207,10 +213,12 @@ def _check_no_loop_through(graph: Graph, unit: dict[str, str]) -> None:
         stack.append(u)
         for v in sorted(edges[u]):
             if state.get(v) == 1:
-                path = " -> ".join(stack[stack.index(v):] + [v])
-                raise LaunchError(f"{graph.scene.path}: container processes {path} read each other at the same "
-                                  f"tick, so a container would wait for itself; put those nodes in one container "
-                                  f"or none")
+                path = " -> ".join(stack[stack.index(v) :] + [v])
+                raise LaunchError(
+                    f"{graph.scene.path}: container processes {path} read each other at the same "
+                    f"tick, so a container would wait for itself; put those nodes in one container "
+                    f"or none"
+                )
             if v not in state:
                 visit(v)
         stack.pop()
@@ -225,8 +233,10 @@ def check_composable(graph: Graph) -> None:
     """--composed runs every node in one process: refused for a node that asks to be isolated."""
     for spec in graph.scene.nodes:
         if spec.isolated is True:
-            raise LaunchError(f"{graph.scene.path}: node {spec.name!r} is `isolated: true` (its own process), "
-                              f"so the graph cannot run --composed; run it without --composed")
+            raise LaunchError(
+                f"{graph.scene.path}: node {spec.name!r} is `isolated: true` (its own process), "
+                f"so the graph cannot run --composed; run it without --composed"
+            )
 
 
 def _container_spec(graph: Graph, name: str, members: list[str], specs: dict[str, RunSpec]) -> RunSpec:
@@ -235,17 +245,41 @@ def _container_spec(graph: Graph, name: str, members: list[str], specs: dict[str
     described, inputs, outputs = [], {}, {}
     for m in members:
         gn, spec = graph.nodes[m], specs[m]
-        internal = {port: [ref.topic, ref.lag] for port, ref in gn.inputs.items()
-                    if ref.topic in graph.publishers and graph.publishers[ref.topic].node in inside}
-        external = {port: [ref.topic, ref.lag] for port, ref in gn.inputs.items()
-                    if port in spec.inputs and port not in internal}
-        described.append({"name": m, "type": gn.type_name, "params": gn.params, "internal": internal,
-                          "external": external, "outputs": {port: ref.topic for port, ref in gn.outputs.items()}})
+        internal = {
+            port: [ref.topic, ref.lag]
+            for port, ref in gn.inputs.items()
+            if ref.topic in graph.publishers and graph.publishers[ref.topic].node in inside
+        }
+        external = {
+            port: [ref.topic, ref.lag]
+            for port, ref in gn.inputs.items()
+            if port in spec.inputs and port not in internal
+        }
+        described.append(
+            {
+                "name": m,
+                "type": gn.type_name,
+                "params": gn.params,
+                "internal": internal,
+                "external": external,
+                "outputs": {port: ref.topic for port, ref in gn.outputs.items()},
+            }
+        )
         inputs.update({f"{m}.{port}": spec.inputs[port] for port in external})
         outputs.update({f"{m}.{port}": wire for port, wire in spec.outputs.items()})
     first = specs[members[0]]
-    return RunSpec(name, CONTAINER_TYPE, {"members": described}, first.dt, first.clock, first.n_ticks, inputs,
-                   outputs, key_file=first.key_file, run_id=first.run_id)
+    return RunSpec(
+        name,
+        CONTAINER_TYPE,
+        {"members": described},
+        first.dt,
+        first.clock,
+        first.n_ticks,
+        inputs,
+        outputs,
+        key_file=first.key_file,
+        run_id=first.run_id,
+    )
 
 
 def burst(graph: Graph, topic: str) -> int:
@@ -258,8 +292,14 @@ def burst(graph: Graph, topic: str) -> int:
     return max(1, min(lags) // 2) if lags else 1
 
 
-def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extra: list[ExtraProcess],
-              units: dict[str, list[str]] | None = None) -> dict[str, RunSpec]:
+def run_specs(
+    graph: Graph,
+    ep: Endpoints,
+    clock: str,
+    n_ticks: int | None,
+    extra: list[ExtraProcess],
+    units: dict[str, list[str]] | None = None,
+) -> dict[str, RunSpec]:
     """One RunSpec per process (`units`, from processes(); default: one per node)."""
     unit_of = {m: u for u, members in (units or {}).items() for m in members}
     extra_count: dict[str, int] = {}
@@ -273,23 +313,44 @@ def run_specs(graph: Graph, ep: Endpoints, clock: str, n_ticks: int | None, extr
         gn = graph.nodes[name]
         # No limit (--max-age NODE.INPUT=inf) travels as a flag: JSON has no infinity.
         inputs = {
-            port: PortWire(ref.topic, ep.topics[ref.topic], ep.types[ref.topic], ref.lag,
-                           unlimited_age=ref.topic in respawned or ref.max_age == math.inf,
-                           max_age=None if ref.max_age == math.inf else ref.max_age)
+            port: PortWire(
+                ref.topic,
+                ep.topics[ref.topic],
+                ep.types[ref.topic],
+                ref.lag,
+                unlimited_age=ref.topic in respawned or ref.max_age == math.inf,
+                max_age=None if ref.max_age == math.inf else ref.max_age,
+            )
             for port, ref in gn.inputs.items()
             if ref.topic in ep.topics
         }
         outputs = {
-            port: PortWire(ref.topic, ep.binds[ref.topic], ep.types[ref.topic],
-                           # One subscription per process: a container's members share one socket.
-                           subscribers=len({unit_of.get(s.node, s.node) for s in graph.subscribers.get(ref.topic, [])}
-                                           - {unit_of.get(name, name)})
-                           + extra_count.get(ref.topic, 0),
-                           burst=burst(graph, ref.topic) if clock == "sim" else 1)
+            port: PortWire(
+                ref.topic,
+                ep.binds[ref.topic],
+                ep.types[ref.topic],
+                # One subscription per process: a container's members share one socket.
+                subscribers=len(
+                    {unit_of.get(s.node, s.node) for s in graph.subscribers.get(ref.topic, [])}
+                    - {unit_of.get(name, name)}
+                )
+                + extra_count.get(ref.topic, 0),
+                burst=burst(graph, ref.topic) if clock == "sim" else 1,
+            )
             for port, ref in gn.outputs.items()
         }
-        specs[name] = RunSpec(name, gn.type_name, gn.params, graph.scene.dt, clock, n_ticks, inputs, outputs,
-                              key_file=str(ep.key_file or ""), run_id=ep.run_id)
+        specs[name] = RunSpec(
+            name,
+            gn.type_name,
+            gn.params,
+            graph.scene.dt,
+            clock,
+            n_ticks,
+            inputs,
+            outputs,
+            key_file=str(ep.key_file or ""),
+            run_id=ep.run_id,
+        )
     for u, members in (units or {}).items():
         if len(members) > 1 or u != members[0]:
             container = _container_spec(graph, u, members, specs)
@@ -317,9 +378,18 @@ class _Child:
 
 
 class Launcher:
-    def __init__(self, graph: Graph, *, clock: str = "sim", duration: float | None = None,
-                 transport: str = "ipc", extra: list[ExtraProcess] | None = None,
-                 progress: bool = False, realtime: bool = False, judge=None):
+    def __init__(
+        self,
+        graph: Graph,
+        *,
+        clock: str = "sim",
+        duration: float | None = None,
+        transport: str = "ipc",
+        extra: list[ExtraProcess] | None = None,
+        progress: bool = False,
+        realtime: bool = False,
+        judge=None,
+    ):
         """judge: exit code -> the run's verdict (str -> str), asked once the nodes are done and
         the verdict helpers have recorded everything."""
         self.graph = graph
@@ -335,15 +405,19 @@ class Launcher:
         # sees its device (an emulator) stop first and mistakes that for a fault.
         self.wall_duration = duration if clock == "wall" else None
         self.units = processes(graph)
-        self.specs = run_specs(graph, self.endpoints, clock, self.n_ticks if clock == "sim" else None, self.extra,
-                               self.units)
+        self.specs = run_specs(
+            graph, self.endpoints, clock, self.n_ticks if clock == "sim" else None, self.extra, self.units
+        )
         for name, spec in self.specs.items():
             spec.realtime = realtime
             # Wall time: every local node starts its fixed-rate loop when all are ready, so none runs
             # against nodes still importing or opening devices. (A node on another host cannot be told.)
             members = [graph.nodes[m] for m in self.units[name]]
-            spec.wait_for_go = (clock == "wall" and all(is_local(gn.host) for gn in members)
-                                and not all(gn.cls.free_running for gn in members))
+            spec.wait_for_go = (
+                clock == "wall"
+                and all(is_local(gn.host) for gn in members)
+                and not all(gn.cls.free_running for gn in members)
+            )
         self._all_ready_at: float | None = None
         # Set by a child's reader when it says READY or its output ends (it exits): the watch loop
         # wakes at once rather than at its next poll, so a run's end and a wall-time start wait for nothing.
@@ -359,8 +433,15 @@ class Launcher:
         for name, spec in self.specs.items():
             argv = [sys.executable, "-m", "dockhil.process", msgspec.json.encode(spec).decode()]
             gn = graph.nodes[self.units[name][0]]  # a container's members are local and not respawned
-            self.children.append(_Child(name, argv, respawn=gn.respawn and clock == "wall",
-                                        respawn_delay=gn.respawn_delay, host="" if is_local(gn.host) else gn.host))
+            self.children.append(
+                _Child(
+                    name,
+                    argv,
+                    respawn=gn.respawn and clock == "wall",
+                    respawn_delay=gn.respawn_delay,
+                    host="" if is_local(gn.host) else gn.host,
+                )
+            )
         for proc in self.extra:
             self.children.append(_Child(proc.name, proc.argv, verdict=proc.verdict and judge is not None))
 
@@ -377,7 +458,7 @@ class Launcher:
                 continue
             if line.startswith(TIMING):
                 try:
-                    self.timings[child.name] = json.loads(line[len(TIMING):])
+                    self.timings[child.name] = json.loads(line[len(TIMING) :])
                 except ValueError:
                     pass
                 continue
@@ -395,9 +476,14 @@ class Launcher:
         env.setdefault("OPENBLAS_NUM_THREADS", "1")
         child.ready = child.go_sent = False
         child.proc = subprocess.Popen(
-            child.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            child.argv,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
             stdin=subprocess.PIPE if child.verdict else subprocess.DEVNULL,
-            text=True, bufsize=1, start_new_session=True, env=env,
+            text=True,
+            bufsize=1,
+            start_new_session=True,
+            env=env,
         )
         child.reader = threading.Thread(target=self._read, args=(child, child.proc), daemon=True)
         child.reader.start()
@@ -415,9 +501,11 @@ class Launcher:
         argv = ["python3", "-m", "dockhil.process", "--keys", str(keys), *child.argv[3:]]
         command = " ".join(shlex.quote(a) for a in argv)
         # Warning level: the graph waits for this node, so the line shows at any --log-level but error.
-        self.say.warning(f"node {child.name!r} runs on {child.host}: copy the key file {keys} to the same path "
-                         f"there (mode 0600, over a private channel such as scp) and start it there with: {command}",
-                         tag="")
+        self.say.warning(
+            f"node {child.name!r} runs on {child.host}: copy the key file {keys} to the same path "
+            f"there (mode 0600, over a private channel such as scp) and start it there with: {command}",
+            tag="",
+        )
 
     def _write_registry(self) -> Path:
         from dockhil.scene.provenance import run_fields, scene_texts
@@ -426,24 +514,38 @@ class Launcher:
         readers = describe_subscribers(self.graph, self.extra)
         info = {
             # What a recorder writes first in its bag (dockhil.bags.runinfo), for the launch's and any other.
-            "run": run_fields(scene, clock=self.clock, duration=self.duration, started_ns=self.started_ns,
-                              recorded_by="launch"),
+            "run": run_fields(
+                scene, clock=self.clock, duration=self.duration, started_ns=self.started_ns, recorded_by="launch"
+            ),
             "scene_files": scene_texts(scene),
             "run_id": self.endpoints.run_id,
             "pid": os.getpid(),
             "file": self.graph.scene.path,
             "clock": self.clock,
             "keys": str(self.endpoints.key_file),
-            "nodes": {c.name: {"type": self.specs[c.name].type_name if c.name in self.specs else "process",
-                               "pid": c.proc.pid if c.proc else None, "members": self.units.get(c.name, [c.name])}
-                      for c in self.children},
-            "topics": {t: {"type": self.endpoints.types[t], "endpoint": e,
-                           "publisher": self.graph.publishers[t].node, "subscribers": readers.get(t, [])}
-                       for t, e in self.endpoints.topics.items()},
+            "nodes": {
+                c.name: {
+                    "type": self.specs[c.name].type_name if c.name in self.specs else "process",
+                    "pid": c.proc.pid if c.proc else None,
+                    "members": self.units.get(c.name, [c.name]),
+                }
+                for c in self.children
+            },
+            "topics": {
+                t: {
+                    "type": self.endpoints.types[t],
+                    "endpoint": e,
+                    "publisher": self.graph.publishers[t].node,
+                    "subscribers": readers.get(t, []),
+                }
+                for t, e in self.endpoints.topics.items()
+            },
             "graph_nodes": describe_nodes(self.graph, self.units),  # each node's ports and parameters
             # Inputs with no publisher at launch (an e-stop): nothing started later reaches them.
-            "unconnected": {t: [f"{r.node}.{r.port}" for r in self.graph.unconnected if r.topic == t]
-                            for t in {r.topic for r in self.graph.unconnected}},
+            "unconnected": {
+                t: [f"{r.node}.{r.port}" for r in self.graph.unconnected if r.topic == t]
+                for t in {r.topic for r in self.graph.unconnected}
+            },
         }
         path = write_entry(info)
         self._registered = True
@@ -452,7 +554,7 @@ class Launcher:
     def devices(self) -> dict[str, bool]:
         """Wall time: the local processes that report loop figures, each mapped to whether it
         stands for a device emulator (a container: when all its members do)."""
-        return {child.name: self._is_emulator(child) for child in self.children[:len(self.specs)] if not child.host}
+        return {child.name: self._is_emulator(child) for child in self.children[: len(self.specs)] if not child.host}
 
     def _on_signal(self, signum, frame) -> None:
         self._stop_signal = signum
@@ -580,8 +682,13 @@ class Launcher:
     def _stop_at_duration(self) -> int:
         self.stop_all()
         # A node still starting (a respawn under way) has no handler yet: our SIGTERM ends it, no fault of its own.
-        failed = [c for c in self.children if c.proc and c.proc.returncode not in (0, None)
-                  and not (c.proc.returncode == -signal.SIGTERM and not c.ready)]
+        failed = [
+            c
+            for c in self.children
+            if c.proc
+            and c.proc.returncode not in (0, None)
+            and not (c.proc.returncode == -signal.SIGTERM and not c.ready)
+        ]
         for c in failed:
             self.say.error(f"{c.name!r} exited with code {c.proc.returncode} while stopping", tag="")
         return 1 if failed else 0
@@ -622,10 +729,13 @@ class Launcher:
                         return self._died(child, code)
                     continue
                 if child.respawn and child.ready:
-                    self.say.warning(f"node {child.name!r} exited with code {code}; respawning in "
-                                     f"{child.respawn_delay:g} s", tag="")
+                    self.say.warning(
+                        f"node {child.name!r} exited with code {code}; respawning in {child.respawn_delay:g} s", tag=""
+                    )
                     child.respawn_at = time.monotonic() + child.respawn_delay
-                    self.respawns.append((child.name, time.monotonic() - (self._all_ready_at or self._started_at), code))
+                    self.respawns.append(
+                        (child.name, time.monotonic() - (self._all_ready_at or self._started_at), code)
+                    )
                     nodes_running += 1
                     continue
                 return self._died(child, code)

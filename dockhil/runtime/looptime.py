@@ -60,16 +60,25 @@ class LoopTiming:
 
         late = [abs(v) for v in self.lateness[1:]]  # the first tick has no schedule to keep
         worst = max(late, default=0.0)
-        out = {"node": name, "ticks": self.ticks, "deadline_misses": self.misses,
-               "jitter_us": pct(late), "worst_tick": late.index(worst) + 1 if late else None,
-               "input_age_us": {port: pct(a) for port, a in self.ages.items()},
-               # What validity is judged on (dockhil/runtime/validity.py):
-               "period_s": self.period, "elapsed_s": self.elapsed, "covered_s": self.ticks * self.period,
-               "worst_late_s": max(worst, self.worst_overrun),
-               "max_age_s": {p: (None if math.isinf(a) else a) for p, a in self.max_age.items()},
-               "worst_input_age_s": dict(self.worst_age),
-               "dropped_in": self.dropped_in, "dropped_out": self.dropped_out,
-               "first_tick_at_s": self.first_tick_at, "last_tick_at_s": self.last_tick_at}
+        out = {
+            "node": name,
+            "ticks": self.ticks,
+            "deadline_misses": self.misses,
+            "jitter_us": pct(late),
+            "worst_tick": late.index(worst) + 1 if late else None,
+            "input_age_us": {port: pct(a) for port, a in self.ages.items()},
+            # What validity is judged on (dockhil/runtime/validity.py):
+            "period_s": self.period,
+            "elapsed_s": self.elapsed,
+            "covered_s": self.ticks * self.period,
+            "worst_late_s": max(worst, self.worst_overrun),
+            "max_age_s": {p: (None if math.isinf(a) else a) for p, a in self.max_age.items()},
+            "worst_input_age_s": dict(self.worst_age),
+            "dropped_in": self.dropped_in,
+            "dropped_out": self.dropped_out,
+            "first_tick_at_s": self.first_tick_at,
+            "last_tick_at_s": self.last_tick_at,
+        }
         return out
 
 

@@ -84,8 +84,9 @@ def claim(key: str, device: str) -> DeviceLock:
     except BlockingIOError:
         held_by = os.pread(fd, 512, 0).decode(errors="replace").strip() or "another process"
         os.close(fd)
-        raise DeviceError(f"{device} is in use by {held_by}; stop it first, "
-                          f"or give this graph another device") from None
+        raise DeviceError(
+            f"{device} is in use by {held_by}; stop it first, or give this graph another device"
+        ) from None
     except OSError as exc:
         os.close(fd)
         raise DeviceError(f"{device}: cannot lock {path}: {exc.strerror}") from None
@@ -121,8 +122,10 @@ def claim_for_graph(key: str, device: str, timeout: float = 1.0) -> DeviceLock:
                 break
             except BlockingIOError:
                 if time.monotonic() > deadline:
-                    raise DeviceError(f"{device}: its claim did not settle within {timeout:g} s; "
-                                      f"another graph is claiming it, try again") from None
+                    raise DeviceError(
+                        f"{device}: its claim did not settle within {timeout:g} s; "
+                        f"another graph is claiming it, try again"
+                    ) from None
                 time.sleep(0.01)
         graph, _, held_by = os.pread(fd, 512, 0).decode(errors="replace").partition("\n")
     except OSError as exc:
@@ -130,6 +133,8 @@ def claim_for_graph(key: str, device: str, timeout: float = 1.0) -> DeviceLock:
         raise DeviceError(f"{device}: cannot lock {path}: {exc.strerror}") from None
     if graph != mine:
         os.close(fd)
-        raise DeviceError(f"{device} is in use by {held_by.strip() or 'another graph'}; stop it first, "
-                          f"or give this graph another device")
+        raise DeviceError(
+            f"{device} is in use by {held_by.strip() or 'another graph'}; stop it first, "
+            f"or give this graph another device"
+        )
     return DeviceLock(fd, path)

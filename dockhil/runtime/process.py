@@ -24,8 +24,6 @@ from dockhil.runtime.parent import die_with_parent  # the recorder takes it from
 READY = "\x1edockhil-ready"  # a line the launcher intercepts
 
 
-
-
 def _wait_for_go(go: list, stop) -> None:
     """Sleep until the launcher's go (SIGUSR1, whose handler fills `go`) or a stop. The signal's
     byte on the wake-up fd ends the wait at once, on whichever thread the signal lands; the

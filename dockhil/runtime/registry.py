@@ -42,11 +42,19 @@ def register_composed(graph, clock: str) -> Path | None:
     with no socket an observer could read. None if it cannot be written: the run needs no entry."""
     pid = os.getpid()
     try:
-        return write_entry({
-            "run_id": new_run_id(), "pid": pid, "file": graph.scene.path, "clock": clock, "keys": "",
-            "nodes": {COMPOSED: {"type": "composed", "pid": pid, "members": list(graph.order)}},
-            "topics": {}, "graph_nodes": describe_nodes(graph, {COMPOSED: list(graph.order)}), "unconnected": {},
-        })
+        return write_entry(
+            {
+                "run_id": new_run_id(),
+                "pid": pid,
+                "file": graph.scene.path,
+                "clock": clock,
+                "keys": "",
+                "nodes": {COMPOSED: {"type": "composed", "pid": pid, "members": list(graph.order)}},
+                "topics": {},
+                "graph_nodes": describe_nodes(graph, {COMPOSED: list(graph.order)}),
+                "unconnected": {},
+            }
+        )
     except (DockhilError, OSError):
         return None
 
@@ -55,8 +63,9 @@ def graph_keys(info: dict) -> GraphKeys:
     """The CURVE keys of a registered graph, for an observer (`topic echo`, a recorder)."""
     path = info.get("keys")
     if not path:
-        raise LaunchError(f"graph {info.get('run_id')} names no key file; it was started by an older dockhil: "
-                          f"restart it")
+        raise LaunchError(
+            f"graph {info.get('run_id')} names no key file; it was started by an older dockhil: restart it"
+        )
     return GraphKeys.read(path)
 
 
@@ -91,14 +100,24 @@ def describe_nodes(graph, units: dict[str, list[str]]) -> dict[str, dict]:
             pub = graph.publishers.get(ref.topic)
             if pub is not None and graph.nodes[pub.node].respawn:  # the launcher lifts the limit there
                 max_age = math.inf
-            inputs[port] = {"topic": ref.topic, "type": msgs.type_name(ref.type), "lag": ref.lag,
-                            "delay": decl.delay if decl else 0.0, "required": ref.required,
-                            "max_age": None if max_age is None or math.isinf(max_age) else float(max_age)}
-        out[name] = {"type": gn.type_name, "host": gn.host or "localhost", "process": process.get(name, name),
-                     "params": json.loads(json.dumps(gn.params, default=str)),  # as JSON holds them
-                     "inputs": inputs,
-                     "outputs": {port: {"topic": ref.topic, "type": msgs.type_name(ref.type)}
-                                 for port, ref in gn.outputs.items()}}
+            inputs[port] = {
+                "topic": ref.topic,
+                "type": msgs.type_name(ref.type),
+                "lag": ref.lag,
+                "delay": decl.delay if decl else 0.0,
+                "required": ref.required,
+                "max_age": None if max_age is None or math.isinf(max_age) else float(max_age),
+            }
+        out[name] = {
+            "type": gn.type_name,
+            "host": gn.host or "localhost",
+            "process": process.get(name, name),
+            "params": json.loads(json.dumps(gn.params, default=str)),  # as JSON holds them
+            "inputs": inputs,
+            "outputs": {
+                port: {"topic": ref.topic, "type": msgs.type_name(ref.type)} for port, ref in gn.outputs.items()
+            },
+        }
     return out
 
 

@@ -19,8 +19,10 @@ def checked_payload(name: str, port: str, topic: str, k: int, msg) -> bytes:
     try:
         decode(payload, type(msg))
     except DecodeError as exc:
-        raise DockhilError(f"node {name!r} produced an invalid message at tick {k} on output {port!r} "
-                           f"({topic}): {exc}; stopping the graph") from None
+        raise DockhilError(
+            f"node {name!r} produced an invalid message at tick {k} on output {port!r} "
+            f"({topic}): {exc}; stopping the graph"
+        ) from None
     return payload
 
 
@@ -126,8 +128,11 @@ def _python_screen(name: str, spec: tuple):
     lines: list[str] = []
     scope: dict[str, Any] = {}
     _screen_lines((None, 4, spec), "m", lines, "        ", scope)
-    src = ("def check(m):\n    s = 0.0\n    try:\n" + "".join(f"{line}\n" for line in lines)
-           + "    except Exception:\n        return False\n    return s - s == 0\n")
+    src = (
+        "def check(m):\n    s = 0.0\n    try:\n"
+        + "".join(f"{line}\n" for line in lines)
+        + "    except Exception:\n        return False\n    return s - s == 0\n"
+    )
     exec(compile(src, f"<screen of {name}>", "exec"), scope)  # noqa: S102 - built from the type
     return scope["check"]
 
@@ -146,8 +151,11 @@ def _screen_lines(field: tuple, var: str, lines: list[str], indent: str, scope: 
 def _screen_field(field: tuple, var: str, lines: list[str], indent: str, scope: dict, leaves: dict) -> None:
     kind = field[1]
     if kind < 4:
-        conds = [f"{var} {op} {bound!r}" for op, bound in zip((">=", ">", "<=", "<"), field[2:])
-                 if bound is not None and abs(bound) != _MAX_FLOAT]
+        conds = [
+            f"{var} {op} {bound!r}"
+            for op, bound in zip((">=", ">", "<=", "<"), field[2:])
+            if bound is not None and abs(bound) != _MAX_FLOAT
+        ]
         if conds:  # a NaN fails a bound too
             lines.append(f"{indent}if not ({' and '.join(conds)}): return False")
         leaves.setdefault(_LEAF_TYPES[kind], []).append(var)

@@ -86,8 +86,8 @@ def split(frames: list[bytes]) -> list[bytes]:
     if i < 0:
         return frames
     if message:
-        return [frame[:i], frame[i + 1:]]
-    return [frame[:i], b"", frame[i + 1:]]
+        return [frame[:i], frame[i + 1 :]]
+    return [frame[:i], b"", frame[i + 1 :]]
 
 
 def observer_endpoint(endpoint: str) -> str:
@@ -104,18 +104,26 @@ def _check_private_dir(path: Path, what: str) -> None:
     try:
         st = path.lstat()
     except OSError as exc:
-        raise DockhilError(f"{what} {path}: {exc.strerror}; set DOCKHIL_RUNTIME_DIR to a directory of your own") from None
+        raise DockhilError(
+            f"{what} {path}: {exc.strerror}; set DOCKHIL_RUNTIME_DIR to a directory of your own"
+        ) from None
     if stat.S_ISLNK(st.st_mode) or not stat.S_ISDIR(st.st_mode):
-        raise DockhilError(f"{what} {path} is not a plain directory (a symlink or a file); "
-                           f"remove it, or set DOCKHIL_RUNTIME_DIR to a directory of your own")
+        raise DockhilError(
+            f"{what} {path} is not a plain directory (a symlink or a file); "
+            f"remove it, or set DOCKHIL_RUNTIME_DIR to a directory of your own"
+        )
     if st.st_uid != os.getuid():
-        raise DockhilError(f"{what} {path} belongs to uid {st.st_uid}, not to you (uid {os.getuid()}): "
-                           f"its owner could read or replace your graph's sockets; remove it, "
-                           f"or set DOCKHIL_RUNTIME_DIR to a directory of your own")
+        raise DockhilError(
+            f"{what} {path} belongs to uid {st.st_uid}, not to you (uid {os.getuid()}): "
+            f"its owner could read or replace your graph's sockets; remove it, "
+            f"or set DOCKHIL_RUNTIME_DIR to a directory of your own"
+        )
     mode = stat.S_IMODE(st.st_mode)
     if mode & 0o022:
-        raise DockhilError(f"{what} {path} has mode {mode:04o}: other users may write to it and replace your "
-                           f"graph's sockets; remove it (with what is in it), or chmod 700 {path}")
+        raise DockhilError(
+            f"{what} {path} has mode {mode:04o}: other users may write to it and replace your "
+            f"graph's sockets; remove it (with what is in it), or chmod 700 {path}"
+        )
     if mode != 0o700:
         os.chmod(path, 0o700)  # ours and not writable by others: readable by others need not be
 
@@ -127,8 +135,9 @@ def private_dir(path: Path, what: str = "runtime directory") -> Path:
     except FileExistsError:
         pass
     except OSError as exc:
-        raise DockhilError(f"cannot create {what} {path}: {exc.strerror}; "
-                           f"set DOCKHIL_RUNTIME_DIR to a directory of your own") from None
+        raise DockhilError(
+            f"cannot create {what} {path}: {exc.strerror}; set DOCKHIL_RUNTIME_DIR to a directory of your own"
+        ) from None
     _check_private_dir(path, what)
     return path
 
@@ -148,8 +157,10 @@ def _check_ancestors(path: Path, what: str) -> None:
             why = f"has mode {mode:04o}: other users may write to it"
         else:
             continue
-        raise DockhilError(f"{what} {path}: its parent {parent} {why}, and could swap your graph's sockets "
-                           f"mid-run; set DOCKHIL_RUNTIME_DIR to a directory under one that only you or root own")
+        raise DockhilError(
+            f"{what} {path}: its parent {parent} {why}, and could swap your graph's sockets "
+            f"mid-run; set DOCKHIL_RUNTIME_DIR to a directory under one that only you or root own"
+        )
 
 
 def runtime_dir() -> Path:
@@ -207,17 +218,21 @@ class GraphKeys:
         try:
             fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
         except OSError as exc:
-            raise DockhilError(f"key file {path}: {exc.strerror}; copy the graph's key file there "
-                               f"(mode 0600) or start the graph again") from None
+            raise DockhilError(
+                f"key file {path}: {exc.strerror}; copy the graph's key file there (mode 0600) or start the graph again"
+            ) from None
         with os.fdopen(fd) as f:
             st = os.fstat(f.fileno())
             if st.st_uid != os.getuid():
-                raise DockhilError(f"key file {path} belongs to uid {st.st_uid}, not to you (uid {os.getuid()}); "
-                                   f"use a copy of your own with mode 0600")
+                raise DockhilError(
+                    f"key file {path} belongs to uid {st.st_uid}, not to you (uid {os.getuid()}); "
+                    f"use a copy of your own with mode 0600"
+                )
             mode = stat.S_IMODE(st.st_mode)
             if mode & 0o077:
-                raise DockhilError(f"key file {path} has mode {mode:04o}: other users can read the graph's keys; "
-                                   f"chmod 600 {path}")
+                raise DockhilError(
+                    f"key file {path} has mode {mode:04o}: other users can read the graph's keys; chmod 600 {path}"
+                )
             try:
                 data = json.loads(f.read())
                 keys = cls(**{k: data[k].encode() for k in cls.__dataclass_fields__})
@@ -287,8 +302,13 @@ class _ZapHandler:
         from zmq.utils import z85
 
         request_id = request[1] if len(request) > 1 else b""
-        admitted = (len(request) == 7 and request[0] == b"1.0" and request[5] == b"CURVE"
-                    and len(request[6]) == 32 and z85.encode(request[6]) in self.allowed)
+        admitted = (
+            len(request) == 7
+            and request[0] == b"1.0"
+            and request[5] == b"CURVE"
+            and len(request[6]) == 32
+            and z85.encode(request[6]) in self.allowed
+        )
         if admitted:
             return [b"1.0", request_id, b"200", b"OK", b"graph", b""]
         return [b"1.0", request_id, b"400", b"not a client of this graph", b"", b""]
@@ -332,8 +352,17 @@ def ipc_endpoint(run_dir: Path, topic: str) -> str:
 class Publisher:
     """A topic's XPUB socket, a CURVE server with the graph's keys (None: plain, for benchmarks only)."""
 
-    def __init__(self, ctx: zmq.Context, topic: str, endpoint: str, linger_s: float = 2.0, *,
-                 keys: GraphKeys | None, lossy: bool = False, burst: int = 1):
+    def __init__(
+        self,
+        ctx: zmq.Context,
+        topic: str,
+        endpoint: str,
+        linger_s: float = 2.0,
+        *,
+        keys: GraphKeys | None,
+        lossy: bool = False,
+        burst: int = 1,
+    ):
         self.topic = topic
         # Sim time, readers with slack (a declared delay): frames held and sent `burst` at a time, back
         # to back, so that every process down the line wakes once a burst rather than once a message.
@@ -382,7 +411,9 @@ class Publisher:
             return endpoint
         except zmq.ZMQError as exc:
             self.close()
-            raise DockhilError(f"topic {self.topic}: cannot bind {endpoint}: {exc}; is another graph using it?") from None
+            raise DockhilError(
+                f"topic {self.topic}: cannot bind {endpoint}: {exc}; is another graph using it?"
+            ) from None
 
     def wait_subscribers(self, expected: int, timeout: float, should_stop=lambda: False) -> None:
         """Block until `expected` subscriptions have arrived (sim-time start barrier)."""
@@ -505,8 +536,12 @@ class Publisher:
             self._ctx = None
 
 
-_HANDSHAKE_EVENTS = (zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
-                     | zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL)
+_HANDSHAKE_EVENTS = (
+    zmq.EVENT_HANDSHAKE_SUCCEEDED
+    | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
+    | zmq.EVENT_HANDSHAKE_FAILED_AUTH
+    | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
+)
 # A handshake cut short without detail may be a publisher closing mid-handshake: stop on the third in a row.
 NO_DETAIL_FAILURES = 3
 RECONNECT_MS = 10  # a subscriber's wait before it tries a refused endpoint again
@@ -601,13 +636,13 @@ class Subscriber:
         j = separator(frame)[0]
         if i < 0 or 0 <= j < i:
             return split([frame]) if j >= 0 else self._rest(frame)
-        topic, count = frame[:i], int.from_bytes(frame[i + 1:i + 9], "little")
+        topic, count = frame[:i], int.from_bytes(frame[i + 1 : i + 9], "little")
         last = self._count.get(topic)
         if last is not None and count > last + 1:  # a smaller count: the publisher started again
             self.lost += count - last - 1
             self.lost_on[topic] = self.lost_on.get(topic, 0) + count - last - 1
         self._count[topic] = count
-        return [topic, frame[i + 9:]]
+        return [topic, frame[i + 9 :]]
 
     def _rest(self, first: bytes) -> list[bytes]:
         parts = [first]
@@ -665,7 +700,8 @@ class Subscriber:
             if event != zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL or n >= NO_DETAIL_FAILURES:
                 raise DockhilError(
                     f"{endpoint}: the peer there failed the graph's authentication (CURVE handshake): it is not "
-                    f"this graph's publisher; another process may have taken its address. Nothing from it was read")
+                    f"this graph's publisher; another process may have taken its address. Nothing from it was read"
+                )
 
     def close(self) -> None:
         self.sock.disable_monitor()

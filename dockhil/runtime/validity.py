@@ -57,8 +57,10 @@ def respawn_reasons(respawns: list[tuple[str, float, int]]) -> list[str]:
     for name in dict.fromkeys(n for n, _, _ in respawns):
         times = [f"{at:.1f} s" for n, at, _ in respawns if n == name]
         code = next(c for n, _, c in respawns if n == name)
-        out.append(f"node {name!r} exited (code {code}) and was respawned {len(times)} time(s), at "
-                   f"{', '.join(times)} into the run: its data has a gap")
+        out.append(
+            f"node {name!r} exited (code {code}) and was respawned {len(times)} time(s), at "
+            f"{', '.join(times)} into the run: its data has a gap"
+        )
     return out
 
 
@@ -92,16 +94,20 @@ def schedule_reasons(t: dict, dt: float) -> list[str]:
     out = []
     elapsed, covered, ticks = t.get("elapsed_s", 0.0), t.get("covered_s", 0.0), t.get("ticks", 0)
     if elapsed > 0 and covered < MIN_COVERED * elapsed:
-        out.append(f"node {name!r} simulated {covered:.3f} s in {elapsed:.3f} s of wall time "
-                   f"(fell behind real time; at least {MIN_COVERED:.0%} needed)")
+        out.append(
+            f"node {name!r} simulated {covered:.3f} s in {elapsed:.3f} s of wall time "
+            f"(fell behind real time; at least {MIN_COVERED:.0%} needed)"
+        )
     limits = [a for a in (t.get("max_age_s") or {}).values() if a is not None and math.isfinite(a)]
     late_limit = min(limits, default=default_max_age(dt))
     worst = t.get("worst_late_s", 0.0)
     if worst > late_limit:
         out.append(f"node {name!r}: a tick started {worst:.3f} s late (> {late_limit:g} s)")
     if ticks and t.get("deadline_misses", 0) > MAX_MISS_RATIO * ticks:
-        out.append(f"node {name!r} missed {t['deadline_misses']} of {ticks} deadlines "
-                   f"({t['deadline_misses'] / ticks:.0%} > {MAX_MISS_RATIO:.0%})")
+        out.append(
+            f"node {name!r} missed {t['deadline_misses']} of {ticks} deadlines "
+            f"({t['deadline_misses'] / ticks:.0%} > {MAX_MISS_RATIO:.0%})"
+        )
     return out
 
 

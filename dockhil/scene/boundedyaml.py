@@ -38,9 +38,11 @@ class _Loader(yaml.SafeLoader):
             event = self.peek_event()
             node = super().compose_node(parent, index)
             if not hasattr(node, "expanded"):  # named before it is complete: it contains itself
-                raise YamlError(f"{self.name}:{event.start_mark.line + 1}: alias *{event.anchor} refers to the "
-                                f"value that contains it (a recursive document); write the value out",
-                                event.start_mark.line + 1)
+                raise YamlError(
+                    f"{self.name}:{event.start_mark.line + 1}: alias *{event.anchor} refers to the "
+                    f"value that contains it (a recursive document); write the value out",
+                    event.start_mark.line + 1,
+                )
             return node
         self.depth += 1
         try:
@@ -52,17 +54,26 @@ class _Loader(yaml.SafeLoader):
             self.depth -= 1
         # Size and depth with every alias expanded, from the children's (composed before their parent,
         # as the value an alias names is composed before the alias): linear in the text.
-        kids = [] if isinstance(node, yaml.ScalarNode) else \
-            node.value if isinstance(node, yaml.SequenceNode) else [x for pair in node.value for x in pair]
+        kids = (
+            []
+            if isinstance(node, yaml.ScalarNode)
+            else node.value
+            if isinstance(node, yaml.SequenceNode)
+            else [x for pair in node.value for x in pair]
+        )
         node.expanded = 1 + sum(k.expanded for k in kids)
         node.nesting = 1 + max((k.nesting for k in kids), default=0)
         line = node.start_mark.line + 1
         if node.expanded > MAX_NODES:
-            raise YamlError(f"{self.name}:{line}: expands to more than {MAX_NODES} values "
-                            f"(each alias repeats what it names); write a smaller file", line)
+            raise YamlError(
+                f"{self.name}:{line}: expands to more than {MAX_NODES} values "
+                f"(each alias repeats what it names); write a smaller file",
+                line,
+            )
         if node.nesting > MAX_DEPTH:
-            raise YamlError(f"{self.name}:{line}: nested deeper than {MAX_DEPTH} levels once its aliases "
-                            f"are expanded", line)
+            raise YamlError(
+                f"{self.name}:{line}: nested deeper than {MAX_DEPTH} levels once its aliases are expanded", line
+            )
         return node
 
 

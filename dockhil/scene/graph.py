@@ -86,8 +86,9 @@ def _topic_for(port: str, default: str, remap: dict[str, str], where: str, names
     if topic is None:
         topic = f"/{namespace}{default}" if namespace else default
     if not _TOPIC.fullmatch(topic):
-        raise LaunchError(f"{where}: topic {topic!r} of port {port!r} must start with / and use only "
-                          f"letters, digits and _ . - /")
+        raise LaunchError(
+            f"{where}: topic {topic!r} of port {port!r} must start with / and use only letters, digits and _ . - /"
+        )
     return topic
 
 
@@ -106,8 +107,10 @@ def build(scene: Scene) -> Graph:
         for name, p in ins.items():
             # A declared input delay is kept as that many ticks of messages: bounded by the longest run.
             if not 0.0 <= p.delay <= MAX_DURATION:
-                raise LaunchError(f"{where}: input {name!r} delay {p.delay:g} s is not between 0 and "
-                                  f"{MAX_DURATION:g} s (the longest run)")
+                raise LaunchError(
+                    f"{where}: input {name!r} delay {p.delay:g} s is not between 0 and "
+                    f"{MAX_DURATION:g} s (the longest run)"
+                )
         known = set(ins) | set(outs) | {p.topic for p in ins.values()} | {p.topic for p in outs.values()}
         bad = sorted(set(spec.remap) - known)
         if bad:
@@ -121,18 +124,30 @@ def build(scene: Scene) -> Graph:
             if port not in ins:
                 near = difflib.get_close_matches(port, list(ins), n=1)
                 hint = f"did you mean {near[0]!r}? " if near else ""
-                raise LaunchError(f"{where}: max_age {port!r} names no input of {spec.type}; {hint}"
-                                  f"inputs: {', '.join(sorted(ins)) or 'none'}")
+                raise LaunchError(
+                    f"{where}: max_age {port!r} names no input of {spec.type}; {hint}"
+                    f"inputs: {', '.join(sorted(ins)) or 'none'}"
+                )
         ns = spec.namespace
         inputs = {
-            name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap, where, ns), p.type,
-                          p.lag_ticks(scene.dt), p.required, spec.max_age.get(name))
+            name: PortRef(
+                spec.name,
+                name,
+                _topic_for(name, p.topic, spec.remap, where, ns),
+                p.type,
+                p.lag_ticks(scene.dt),
+                p.required,
+                spec.max_age.get(name),
+            )
             for name, p in ins.items()
         }
-        outputs = {name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap, where, ns), p.type)
-                   for name, p in outs.items()}
-        gnodes[spec.name] = GraphNode(spec.name, type_name, cls, params, inputs, outputs, spec.respawn,
-                                      spec.respawn_delay, spec.host)
+        outputs = {
+            name: PortRef(spec.name, name, _topic_for(name, p.topic, spec.remap, where, ns), p.type)
+            for name, p in outs.items()
+        }
+        gnodes[spec.name] = GraphNode(
+            spec.name, type_name, cls, params, inputs, outputs, spec.respawn, spec.respawn_delay, spec.host
+        )
 
     mixed = node_registry.mixed_dof({name: gn.type_name for name, gn in gnodes.items()})
     if mixed:
@@ -192,11 +207,14 @@ def set_max_ages(graph: Graph, given: list[tuple[str, str, float]]) -> None:
         where = f"--max-age {node}.{port}"
         gn = graph.nodes.get(node)
         if gn is None:
-            raise LaunchError(f"{where}: {graph.scene.path} has no node {node!r}; {suggest(node, graph.nodes, 'nodes')}")
+            raise LaunchError(
+                f"{where}: {graph.scene.path} has no node {node!r}; {suggest(node, graph.nodes, 'nodes')}"
+            )
         ref = gn.inputs.get(port)
         if ref is None:
-            raise LaunchError(f"{where}: node {node!r} ({gn.type_name}) has no input {port!r}; "
-                              f"{suggest(port, gn.inputs, 'inputs')}")
+            raise LaunchError(
+                f"{where}: node {node!r} ({gn.type_name}) has no input {port!r}; {suggest(port, gn.inputs, 'inputs')}"
+            )
         ref.max_age = age
         pub = graph.publishers.get(ref.topic)
         if pub is not None:
@@ -224,7 +242,8 @@ def _refuse_replay_into_hardware(path: str, gnodes: dict[str, GraphNode], publis
                 raise LaunchError(
                     f"{path}: node {gn.name!r} ({gn.type_name}) moves real hardware, but its input "
                     f"{ref.port!r} ({ref.topic}) {via} from {source.name!r} ({source.type_name}), which "
-                    f"replays a recording, not this run; replay in front of a simulated robot instead")
+                    f"replays a recording, not this run; replay in front of a simulated robot instead"
+                )
             todo.extend((ref, r.topic) for r in source.inputs.values())
 
 
@@ -250,7 +269,8 @@ def _refuse_driver_past_its_emulator(path: str, gnodes: dict[str, GraphNode]) ->
             raise LaunchError(
                 f"{path}: node {gn.name!r} ({gn.type_name}) commands the controller at {gn.params['host']}:"
                 f"{gn.params['port']}, but node {em.name!r} emulates one at {em.params['host']}:{em.params['port']}: "
-                f"the driver would move a real robot; point it at the emulator, or drop the emulator")
+                f"the driver would move a real robot; point it at the emulator, or drop the emulator"
+            )
 
 
 def _feedthrough_order(path: str, gnodes: dict[str, GraphNode], publishers: dict[str, PortRef]) -> list[str]:
@@ -271,7 +291,7 @@ def _feedthrough_order(path: str, gnodes: dict[str, GraphNode], publishers: dict
         stack.append(n)
         for m in edges[n]:
             if state.get(m) == 1:
-                cycle = stack[stack.index(m):] + [m]
+                cycle = stack[stack.index(m) :] + [m]
                 raise LaunchError(
                     f"{path}: algebraic loop {' -> '.join(cycle)}: every input on it is feedthrough; "
                     f"put a delay or a state-holding node on the loop"

@@ -49,8 +49,19 @@ import msgspec
 
 from dockhil.scene import boundedyaml
 from dockhil.errors import DockhilError, LaunchError, suggest
-from dockhil.scene.schema import (MAX_INCLUDES, MAX_NODES, MAX_SUBSTITUTED, MAX_TEXT, ArgDecl, LaunchFile,
-                                  Lets, NodeDecl, Scalar, SchemaError, convert)
+from dockhil.scene.schema import (
+    MAX_INCLUDES,
+    MAX_NODES,
+    MAX_SUBSTITUTED,
+    MAX_TEXT,
+    ArgDecl,
+    LaunchFile,
+    Lets,
+    NodeDecl,
+    Scalar,
+    SchemaError,
+    convert,
+)
 
 _ARG = re.compile(r"\$\((?:arg|var) ([A-Za-z_][A-Za-z0-9_]*)\)")
 _ARG_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -95,8 +106,9 @@ class ArgSpec:
             try:
                 value = float(value)
             except OverflowError:
-                raise LaunchError(f"{where}: arg {self.name!r}: an integer of {len(str(abs(value)))} digits "
-                                  f"is too large for a float") from None
+                raise LaunchError(
+                    f"{where}: arg {self.name!r}: an integer of {len(str(abs(value)))} digits is too large for a float"
+                ) from None
         if not isinstance(value, self.type) or (self.type is not bool and isinstance(value, bool)):
             hint = " (YAML reads on/off/yes/no as booleans: quote them)" if isinstance(value, bool) else ""
             raise LaunchError(
@@ -184,8 +196,9 @@ def find_shipped(path: str | Path, kind: str = "launch file", folder: str = "") 
             if candidate.is_file():
                 return candidate
     shipped = ", ".join(sorted(p.name for p in (SHIPPED_SCENES / folder).glob("*.yaml"))) or "none"
-    raise LaunchError(f"{kind} {str(path)!r} not found: no such file here and no shipped one of that name "
-                      f"(shipped: {shipped})")
+    raise LaunchError(
+        f"{kind} {str(path)!r} not found: no such file here and no shipped one of that name (shipped: {shipped})"
+    )
 
 
 def load(path: str | Path | None, overrides: dict[str, Any] | None = None) -> Scene:
@@ -217,8 +230,7 @@ def _read_yaml(path: Path, budget: _Budget, included_from: Path | None = None) -
     keys) is refused naming it, never with what it holds: an include can name any file the user reads."""
     budget.files += 1
     if budget.files > MAX_INCLUDES:
-        raise LaunchError(f"{path}: more than {MAX_INCLUDES} launch files read for one scene; "
-                          f"include fewer files")
+        raise LaunchError(f"{path}: more than {MAX_INCLUDES} launch files read for one scene; include fewer files")
     if not path.is_file():
         raise LaunchError(f"launch file {str(path)!r} not found (or not a file)")
     try:
@@ -239,8 +251,12 @@ def _read_yaml(path: Path, budget: _Budget, included_from: Path | None = None) -
             at = f" at line {exc.line}" if exc.line else ""
             raise LaunchError(_not_launch_file(path, included_from, f"not valid YAML{at}")) from None
         raise LaunchError(str(exc)) from None
-    if isinstance(data, dict) and included_from is None and data and not any(
-            isinstance(k, str) and difflib.get_close_matches(k, LAUNCH_KEYS, n=1) for k in data):
+    if (
+        isinstance(data, dict)
+        and included_from is None
+        and data
+        and not any(isinstance(k, str) and difflib.get_close_matches(k, LAUNCH_KEYS, n=1) for k in data)
+    ):
         # Not one key is, or is close to, a launch file's: some other file, whose keys are its content.
         raise LaunchError(f"{path}: not a launch file (a YAML mapping of {', '.join(LAUNCH_KEYS)})")
     if included_from is not None and (not isinstance(data, dict) or not set(data) <= LAUNCH_KEYS):
@@ -279,8 +295,9 @@ def _load(path: Path, given: dict[str, Any], from_cli: bool, stack: tuple, budge
         raise LaunchError(f"{_where(path, root, exc.path)}: {exc.reason}") from None
 
 
-def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: bool, stack: tuple,
-           budget: _Budget) -> Scene:
+def _scene(
+    path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: bool, stack: tuple, budget: _Budget
+) -> Scene:
     decls = convert(data.get("args"), Optional[dict[str, Union[ArgDecl, Scalar]]], prefix=("args",)) or {}
     specs = {name: _arg_spec(name, body, _where(path, root, ["args", name])) for name, body in decls.items()}
     values = {name: spec.default for name, spec in specs.items()}
@@ -290,12 +307,16 @@ def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: b
         if name not in specs:
             lets = data.get("let") if isinstance(data.get("let"), list) else []
             if any(isinstance(d, dict) and d.get("name") == name for d in lets):
-                raise LaunchError(f"{path}: {name!r} is a `let` variable, made from the arguments: set those "
-                                  f"instead ({suggest('', specs, 'known args')})")
+                raise LaunchError(
+                    f"{path}: {name!r} is a `let` variable, made from the arguments: set those "
+                    f"instead ({suggest('', specs, 'known args')})"
+                )
             raise LaunchError(f"{path}: unknown arg {name!r}; {suggest(name, specs, 'known args')}")
         where = f"{path}" if from_cli else f"{path} (included)"
         spec = specs[name]
-        values[name] = spec.parse(value, where) if isinstance(value, str) and spec.type is not str else spec.check(value, where)
+        values[name] = (
+            spec.parse(value, where) if isinstance(value, str) and spec.type is not str else spec.check(value, where)
+        )
 
     # `let` variables, in order: each may use the arguments and the variables before it.
     lets = {}
@@ -307,8 +328,9 @@ def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: b
 
     # Arguments are substituted everywhere but in `args:` and `let:`; then the whole file meets the
     # schema, so `rate: $(arg rate)` is bounded exactly like `rate: 500`.
-    body = {key: value if key in ("args", "let") else _subst(value, values, [key], budget)
-            for key, value in data.items()}
+    body = {
+        key: value if key in ("args", "let") else _subst(value, values, [key], budget) for key, value in data.items()
+    }
     doc = convert(body, LaunchFile)
     scene = Scene(str(path), doc.description, doc.rate, doc.duration, specs, values, lets=lets)
 
@@ -332,17 +354,32 @@ def _scene(path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: b
         budget.nodes += 1
         if budget.nodes > MAX_NODES:
             raise SchemaError(at, f"more than {MAX_NODES} nodes in one scene")
-        scene.nodes.append(NodeSpec(name, nd.node, _params(nd, at), _remaps(nd.remap, [*at, "remap"]), str(path),
-                                    nd.respawn, nd.respawn_delay, nd.host, boundedyaml.line_of(root, at) or 0,
-                                    ns, dict(nd.max_age or {}), nd.container, nd.isolated))
+        scene.nodes.append(
+            NodeSpec(
+                name,
+                nd.node,
+                _params(nd, at),
+                _remaps(nd.remap, [*at, "remap"]),
+                str(path),
+                nd.respawn,
+                nd.respawn_delay,
+                nd.host,
+                boundedyaml.line_of(root, at) or 0,
+                ns,
+                dict(nd.max_age or {}),
+                nd.container,
+                nd.isolated,
+            )
+        )
 
     for i, inc in enumerate(doc.include or []):
         keep, reason = _condition(inc.if_, inc.unless, data["include"][i], ["include", i])
         if not keep:
             scene.skipped.append(Skipped(f"include {data['include'][i]['file']}", str(path), reason))
             continue
-        child = _load(path.parent / inc.file, inc.args or {}, from_cli=False, stack=(*stack, path.resolve()),
-                      budget=budget)
+        child = _load(
+            path.parent / inc.file, inc.args or {}, from_cli=False, stack=(*stack, path.resolve()), budget=budget
+        )
         scene.nodes.extend(child.nodes)
         scene.skipped.extend(child.skipped)
 
@@ -366,8 +403,9 @@ def loop_args(path: str, specs: dict[str, ArgSpec]) -> dict[str, Any]:
         raise LaunchError(f"loop file {path}: {exc}") from None
     args = data.get("args") if isinstance(data, dict) else None
     if len(raw) > boundedyaml.MAX_BYTES or not isinstance(args, dict):
-        raise LaunchError(f"loop file {path}: not a loop file (a mapping with `args:`); write one with "
-                          f"dockhil calibrate --out")
+        raise LaunchError(
+            f"loop file {path}: not a loop file (a mapping with `args:`); write one with dockhil calibrate --out"
+        )
     for name, value in args.items():
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise LaunchError(f"loop file {path}: args.{name} is {value!r}, not a number")
@@ -411,16 +449,16 @@ def _remaps(remap: Any, at: list) -> dict[str, str]:
     out: dict[str, str] = {}
     for j, r in enumerate(remap):
         if r.from_ in out:
-            raise SchemaError([*at, j, "from"], f"{r.from_!r} is remapped twice ({out[r.from_]}, {r.to}); "
-                                                f"remap it once")
+            raise SchemaError(
+                [*at, j, "from"], f"{r.from_!r} is remapped twice ({out[r.from_]}, {r.to}); remap it once"
+            )
         out[r.from_] = r.to
     return out
 
 
 def _arg_spec(name: str, body: Any, where: str) -> ArgSpec:
     if not _ARG_NAME.fullmatch(name):
-        raise LaunchError(f"{where}: arg name {name!r} cannot be written $(arg {name}); "
-                          f"use letters, digits and _")
+        raise LaunchError(f"{where}: arg name {name!r} cannot be written $(arg {name}); use letters, digits and _")
     if not isinstance(body, ArgDecl):
         body = ArgDecl(default=body)
     typ = _TYPES[body.type] if body.type else type(body.default)
@@ -442,8 +480,11 @@ def _subst(value: Any, values: dict[str, Any], at: list, budget: _Budget) -> Any
             raise SchemaError(at, f"is {size} characters after $(arg ...) substitution; at most {MAX_TEXT}")
         budget.text += size if parts else 0
         if budget.text > MAX_SUBSTITUTED:  # many strings that each repeat a long argument
-            raise SchemaError(at, f"substitution builds more than {MAX_SUBSTITUTED} characters for one scene; "
-                                  f"use fewer or shorter $(arg ...) in strings")
+            raise SchemaError(
+                at,
+                f"substitution builds more than {MAX_SUBSTITUTED} characters for one scene; "
+                f"use fewer or shorter $(arg ...) in strings",
+            )
         return _ARG.sub(lambda m: _text(values[m.group(1)]), value)
     if isinstance(value, dict):
         return {k: _subst(v, values, [*at, k], budget) for k, v in value.items()}
@@ -459,8 +500,7 @@ def _text(value: Any) -> str:
 def _lookup(m: re.Match, values: dict[str, Any], at: list) -> Any:
     name = m.group(1)
     if name not in values:
-        raise SchemaError(at, f"{m.group(0)} is not declared in `args:` or `let:`; "
-                              f"{suggest(name, values, 'declared')}")
+        raise SchemaError(at, f"{m.group(0)} is not declared in `args:` or `let:`; {suggest(name, values, 'declared')}")
     return values[name]
 
 

@@ -31,29 +31,70 @@ MAX_AGE = 600.0  # [s] the longest maximum age a launch file may give a wall-tim
 
 Scalar = Union[bool, int, float, str]
 Condition = Union[bool, int, str, None]
-Rate = Annotated[float, Meta(ge=MIN_RATE, le=MAX_RATE, description=(
-    f"steps per second [Hz], {MIN_RATE:g} to {MAX_RATE:g}; the sim-time step is 1/rate"))]
-Duration = Annotated[float, Meta(gt=0.0, le=MAX_DURATION, description=(
-    f"run length [s], > 0 and at most {MAX_DURATION:g}; default for --duration"))]
-RespawnDelay = Annotated[float, Meta(ge=0.0, le=MAX_RESPAWN_DELAY,
-                                     description=f"wait before a respawn [s], 0 to {MAX_RESPAWN_DELAY:g}")]
+Rate = Annotated[
+    float,
+    Meta(
+        ge=MIN_RATE,
+        le=MAX_RATE,
+        description=(f"steps per second [Hz], {MIN_RATE:g} to {MAX_RATE:g}; the sim-time step is 1/rate"),
+    ),
+]
+Duration = Annotated[
+    float,
+    Meta(
+        gt=0.0,
+        le=MAX_DURATION,
+        description=(f"run length [s], > 0 and at most {MAX_DURATION:g}; default for --duration"),
+    ),
+]
+RespawnDelay = Annotated[
+    float, Meta(ge=0.0, le=MAX_RESPAWN_DELAY, description=f"wait before a respawn [s], 0 to {MAX_RESPAWN_DELAY:g}")
+]
 NODE_NAME = r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$"
-NodeName = Annotated[str, Meta(pattern=NODE_NAME, max_length=64,
-                               description="a node name; letters, digits, _ . - and at most 64 characters")]
-NodeType = Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_.]*(:[A-Za-z_][A-Za-z0-9_]*)?$", max_length=200,
-                               description="a node type; a registered name (see `dockhil node types`) or "
-                                           "package.module:Class")]
+NodeName = Annotated[
+    str,
+    Meta(pattern=NODE_NAME, max_length=64, description="a node name; letters, digits, _ . - and at most 64 characters"),
+]
+NodeType = Annotated[
+    str,
+    Meta(
+        pattern=r"^[A-Za-z_][A-Za-z0-9_.]*(:[A-Za-z_][A-Za-z0-9_]*)?$",
+        max_length=200,
+        description="a node type; a registered name (see `dockhil node types`) or package.module:Class",
+    ),
+]
 NAMESPACE = r"^/?[A-Za-z_][A-Za-z0-9_]*$"
-Namespace = Annotated[str, Meta(pattern=NAMESPACE, max_length=32,
-                                description="a namespace; one word of letters, digits and _ (a leading / is "
-                                            "allowed), at most 32 characters")]
+Namespace = Annotated[
+    str,
+    Meta(
+        pattern=NAMESPACE,
+        max_length=32,
+        description="a namespace; one word of letters, digits and _ (a leading / is allowed), at most 32 characters",
+    ),
+]
 VAR_NAME = r"^[A-Za-z_][A-Za-z0-9_]*$"
-VarName = Annotated[str, Meta(pattern=VAR_NAME, max_length=64,
-                              description="a variable name; letters, digits and _, not starting with a digit")]
-MaxAge = Annotated[float, Meta(gt=0.0, le=MAX_AGE, description=(
-    f"maximum age of the input's latest message in wall time [s], > 0 and at most {MAX_AGE:g}"))]
-Host = Annotated[str, Meta(pattern=r"^[A-Za-z0-9_.\-]*$", max_length=253,
-                           description="a host name or address; letters, digits, . - _ (empty: this host)")]
+VarName = Annotated[
+    str,
+    Meta(
+        pattern=VAR_NAME, max_length=64, description="a variable name; letters, digits and _, not starting with a digit"
+    ),
+]
+MaxAge = Annotated[
+    float,
+    Meta(
+        gt=0.0,
+        le=MAX_AGE,
+        description=(f"maximum age of the input's latest message in wall time [s], > 0 and at most {MAX_AGE:g}"),
+    ),
+]
+Host = Annotated[
+    str,
+    Meta(
+        pattern=r"^[A-Za-z0-9_.\-]*$",
+        max_length=253,
+        description="a host name or address; letters, digits, . - _ (empty: this host)",
+    ),
+]
 
 
 class ArgDecl(Struct, forbid_unknown_fields=True):
@@ -100,8 +141,13 @@ class NodeDecl(Struct, forbid_unknown_fields=True):
     respawn: bool = False
     respawn_delay: RespawnDelay = 1.0
     host: Host = ""
-    container: Annotated[str, Meta(max_length=64, description="run in one process with the nodes naming the "
-                                   "same container (in-process delivery)")] = ""
+    container: Annotated[
+        str,
+        Meta(
+            max_length=64,
+            description="run in one process with the nodes naming the same container (in-process delivery)",
+        ),
+    ] = ""
     isolated: Annotated[bool, Meta(description="never contained: a hardware driver pinned to its own process")] = False
 
 
@@ -194,8 +240,14 @@ def _explain(text: str, data: Any, kind: Any) -> tuple[list, str]:
     return path, f"{msg}, got {got}" + (f" ({about})" if about else "")
 
 
-_WORDS = {"float": "a number", "int": "an integer", "str": "text", "bool": "true or false", "array": "a list",
-          "object": "a mapping"}
+_WORDS = {
+    "float": "a number",
+    "int": "an integer",
+    "str": "text",
+    "bool": "true or false",
+    "array": "a list",
+    "object": "a mapping",
+}
 
 
 def _words(types: str) -> str:

@@ -16,13 +16,36 @@ from __future__ import annotations
 
 from dockhil.analysis.scenecheck import first_node
 from dockhil.analysis.summary.common import ContactMeter, RangeMeter, Samples, TickMatcher, feed_from_bag
-from dockhil.analysis.summary.dof1 import (Collector, SummaryCollector1, contact_metrics, format_summary1,
-                                           ideal_reference, ideal_summary, samples_from_bag, scene_reference,
-                                           scene_summary, summarize)
+from dockhil.analysis.summary.dof1 import (
+    Collector,
+    SummaryCollector1,
+    contact_metrics,
+    format_summary1,
+    ideal_reference,
+    ideal_summary,
+    samples_from_bag,
+    scene_reference,
+    scene_summary,
+    summarize,
+)
 
-__all__ = ["Collector", "ContactMeter", "RangeMeter", "Samples", "SummaryCollector", "TickMatcher", "contact_metrics",
-           "feed_from_bag", "format_summary", "ideal_reference", "ideal_summary", "samples_from_bag",
-           "scene_reference", "scene_summary", "summarize"]
+__all__ = [
+    "Collector",
+    "ContactMeter",
+    "RangeMeter",
+    "Samples",
+    "SummaryCollector",
+    "TickMatcher",
+    "contact_metrics",
+    "feed_from_bag",
+    "format_summary",
+    "ideal_reference",
+    "ideal_summary",
+    "samples_from_bag",
+    "scene_reference",
+    "scene_summary",
+    "summarize",
+]
 
 
 def SummaryCollector(graph):

@@ -24,8 +24,6 @@ from dockhil.contact.envelope import EnvelopeFit
 
 
 @dataclass
-
-
 class Samples:
     """Per-tick series: time [s], penetration p = x1 - x2 [m], its rate [m/s],
     compressive contact force on the chaser [N]; `acting` (optional): whether any
@@ -111,24 +109,36 @@ class ContactMeter:
         """peak_force_N (the largest |force| of the run, whatever happened to the contact),
         contact_duration_s, entry_velocity_mps, exit_velocity_mps, restitution, contact_start_s
         (None where absent), and a `note` when something is not resolved or not over."""
-        out = {"peak_force_N": float(self.largest) if self.n else None, "contact_duration_s": None,
-               "entry_velocity_mps": None, "exit_velocity_mps": None, "restitution": None, "contact_start_s": None}
+        out = {
+            "peak_force_N": float(self.largest) if self.n else None,
+            "contact_duration_s": None,
+            "entry_velocity_mps": None,
+            "exit_velocity_mps": None,
+            "restitution": None,
+            "contact_start_s": None,
+        }
         if self.state == "before":
             return out
         out["contact_start_s"] = float(self.t_start)
         out["entry_velocity_mps"] = float(self.entry)
         if self.state != "in" and self.samples_in <= 1:
-            out["note"] = ("the contact lasted less than one sample: its duration is not resolved at this rate, "
-                           "nor its peak force compared")
+            out["note"] = (
+                "the contact lasted less than one sample: its duration is not resolved at this rate, "
+                "nor its peak force compared"
+            )
         if self.state == "in":
-            out["note"] = ("the contact had not ended when the run stopped: its peak force so far is not compared "
-                           "with the ideal's; run longer for its peak, duration and exit")
+            out["note"] = (
+                "the contact had not ended when the run stopped: its peak force so far is not compared "
+                "with the ideal's; run longer for its peak, duration and exit"
+            )
             return out
         if "note" not in out:
             out["contact_duration_s"] = float(self.t_end - self.t_start)
         if self.prev[3] and self.state == "after":
-            out["note"] = ("a force still acted when the run stopped (the passive compliance behind the robot's "
-                           "delay): run longer for the exit velocity")
+            out["note"] = (
+                "a force still acted when the run stopped (the passive compliance behind the robot's "
+                "delay): run longer for the exit velocity"
+            )
             return out
         if self.exit is not None:
             out["exit_velocity_mps"] = float(self.exit)
@@ -172,8 +182,11 @@ class RangeMeter:
             masses = [b.mass for b in bodies]
             fixed = next((v for m, v in zip(masses, velocities) if m == 0.0), None)
             total = sum(masses)
-            self.frame = fixed if fixed is not None else [sum(m * v[i] for m, v in zip(masses, velocities)) / total
-                                                          for i in range(3)]
+            self.frame = (
+                fixed
+                if fixed is not None
+                else [sum(m * v[i] for m, v in zip(masses, velocities)) / total for i in range(3)]
+            )
             m1, m2 = masses
             self.m_red = m1 if m2 == 0.0 else m2 if m1 == 0.0 else m1 * m2 / (m1 + m2)
             self.p0 = self.start[0][0] - self.start[1][0]
@@ -183,8 +196,9 @@ class RangeMeter:
             self.ke_max, self.tick = ke, msg.header.tick
         (x1, x2), (v1, v2) = self.start, velocities
         p1, p2 = bodies[0].pose.position, bodies[1].pose.position
-        far = max(math.hypot(p1.x - x1[0], p1.y - x1[1], p1.z - x1[2]),
-                  math.hypot(p2.x - x2[0], p2.y - x2[1], p2.z - x2[2]))
+        far = max(
+            math.hypot(p1.x - x1[0], p1.y - x1[1], p1.z - x1[2]), math.hypot(p2.x - x2[0], p2.y - x2[1], p2.z - x2[2])
+        )
         fast = max(_distance(v1, self.frame), _distance(v2, self.frame))
         if not far <= self.far:
             self.far = far
@@ -204,8 +218,13 @@ class RangeMeter:
                 ke += 0.5 * (x * (a * x + b_ * y + c * z) + y * (d * x + e * y + g * z) + z * (h * x + k * y + m * z))
         return ke
 
-    def reasons(self, largest_force: float | None, force_scale: list[tuple[float, str]], energy_extra: float,
-                stiffness: float = 0.0) -> list[str]:
+    def reasons(
+        self,
+        largest_force: float | None,
+        force_scale: list[tuple[float, str]],
+        energy_extra: float,
+        stiffness: float = 0.0,
+    ) -> list[str]:
         """Why the run left the physical range (dockhil.physical), or nothing. force_scale: the scene's
         forces to judge the largest by, as (newtons, what); energy_extra [J]: what else than the bodies'
         start gives them energy (a thrust); stiffness [N/m]: the stiffest spring a starting penetration
@@ -214,26 +233,31 @@ class RangeMeter:
         scale = max(force_scale, default=(0.0, ""))
         if largest_force is not None:
             if scale[0] > 0.0 and not largest_force <= physical.RUN_FORCE_FACTOR * scale[0]:
-                out.append(f"the force reached {largest_force:.3g} N, {largest_force / scale[0]:.3g} times "
-                           f"{scale[1]} ({scale[0]:.4g} N; more than {physical.RUN_FORCE_FACTOR:g} times is "
-                           f"beyond the physical range): the loop exploded or its input is not physical")
+                out.append(
+                    f"the force reached {largest_force:.3g} N, {largest_force / scale[0]:.3g} times "
+                    f"{scale[1]} ({scale[0]:.4g} N; more than {physical.RUN_FORCE_FACTOR:g} times is "
+                    f"beyond the physical range): the loop exploded or its input is not physical"
+                )
             elif scale[0] == 0.0 and not largest_force <= physical.RUN_FORCE:
-                out.append(f"the force reached {largest_force:.3g} N, beyond the {physical.RUN_FORCE:g} N any "
-                           f"docking hardware bears: the loop exploded or its input is not physical")
+                out.append(
+                    f"the force reached {largest_force:.3g} N, beyond the {physical.RUN_FORCE:g} N any "
+                    f"docking hardware bears: the loop exploded or its input is not physical"
+                )
         if self.start is None:
             return out
-        floor = 0.5 * self.m_red * physical.RUN_SPEED_FLOOR ** 2
-        given = self.ke0 + energy_extra + (0.5 * stiffness * self.p0 ** 2 if self.p0 > 0.0 else 0.0)
+        floor = 0.5 * self.m_red * physical.RUN_SPEED_FLOOR**2
+        given = self.ke0 + energy_extra + (0.5 * stiffness * self.p0**2 if self.p0 > 0.0 else 0.0)
         budget = max(given, floor)
         if not self.ke_max <= physical.RUN_ENERGY_FACTOR * budget:
-            out.append(f"the bodies' kinetic energy reached {self.ke_max:.3g} J at tick {self.tick}, "
-                       f"{self.ke_max / budget:.3g} times the {budget:.3g} J the scene gave them (more than "
-                       f"{physical.RUN_ENERGY_FACTOR:g} times): the loop made the energy")
+            out.append(
+                f"the bodies' kinetic energy reached {self.ke_max:.3g} J at tick {self.tick}, "
+                f"{self.ke_max / budget:.3g} times the {budget:.3g} J the scene gave them (more than "
+                f"{physical.RUN_ENERGY_FACTOR:g} times): the loop made the energy"
+            )
         if not self.far <= physical.RUN_DISTANCE:
             out.append(f"a body went {self.far:.3g} m from where it started, beyond {physical.RUN_DISTANCE:g} m")
         if not self.fast <= physical.RUN_SPEED:
-            out.append(f"a body reached {self.fast:.3g} m/s, beyond the {physical.RUN_SPEED:g} m/s of docking "
-                       f"hardware")
+            out.append(f"a body reached {self.fast:.3g} m/s, beyond the {physical.RUN_SPEED:g} m/s of docking hardware")
         return out
 
 
@@ -283,8 +307,15 @@ class TickMatcher:
     def __call__(self, topic: str, msg) -> None:
         if isinstance(msg, msgs.SatelliteState) and len(msg.bodies) >= 2:
             c, g = msg.bodies[0], msg.bodies[1]
-            bisect.insort(self.pending, (msg.header.stamp, msg.header.tick, c.pose.position.x - g.pose.position.x,
-                                         c.twist.linear.x - g.twist.linear.x))
+            bisect.insort(
+                self.pending,
+                (
+                    msg.header.stamp,
+                    msg.header.tick,
+                    c.pose.position.x - g.pose.position.x,
+                    c.twist.linear.x - g.twist.linear.x,
+                ),
+            )
             if len(self.pending) > self.WINDOW:
                 self._emit(self.pending.pop(0))
         elif topic == "/ft/wrench" and isinstance(msg, msgs.WrenchStamped):
@@ -331,7 +362,11 @@ def range_summary(out: dict, graph, ranges: RangeMeter, largest_force: float | N
     ideal_peak = (out.get("ideal") or {}).get("peak_force_N")
     if ideal_peak:
         scale.append((ideal_peak, "the ideal contact's peak"))
-    dyn, ft, imp = first_node(graph, "satellite_dynamics"), first_node(graph, "ft_sim"), first_node(graph, "virtual_impedance")
+    dyn, ft, imp = (
+        first_node(graph, "satellite_dynamics"),
+        first_node(graph, "ft_sim"),
+        first_node(graph, "virtual_impedance"),
+    )
     thrust = abs(dyn.params["thrust"]) if dyn is not None else 0.0
     if thrust:
         scale.append((thrust, "the thrust"))
@@ -342,8 +377,11 @@ def range_summary(out: dict, graph, ranges: RangeMeter, largest_force: float | N
     # What a thrust gives the bodies: pressed on a spring k from rest, at most thrust^2 / 2k of motion;
     # with nothing to press on, its work over the farthest a body may go.
     extra = 0.0 if not thrust else thrust * thrust / (2.0 * k) if k > 0.0 else thrust * physical.RUN_DISTANCE
-    springs = [k, imp.params["kcs"] if imp is not None else 0.0,
-               dyn.params["kcs"] if dyn is not None and dyn.params["model"] == "ideal" else 0.0]
+    springs = [
+        k,
+        imp.params["kcs"] if imp is not None else 0.0,
+        dyn.params["kcs"] if dyn is not None and dyn.params["model"] == "ideal" else 0.0,
+    ]
     reasons = ranges.reasons(largest_force, scale, extra, max(springs))
     if reasons:
         out["invalid_reasons"] = [*(out.get("invalid_reasons") or []), *reasons]

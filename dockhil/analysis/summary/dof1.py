@@ -15,8 +15,15 @@ import numpy as np
 
 from dockhil import msgs
 from dockhil.analysis.scenecheck import first_node, scene_check
-from dockhil.analysis.summary.common import (ContactMeter, RangeMeter, Samples, TickMatcher, bag_messages,
-                                             ideal_force_at, range_summary)
+from dockhil.analysis.summary.common import (
+    ContactMeter,
+    RangeMeter,
+    Samples,
+    TickMatcher,
+    bag_messages,
+    ideal_force_at,
+    range_summary,
+)
 
 
 def _feed(meter: ContactMeter, s: Samples) -> ContactMeter:
@@ -48,8 +55,11 @@ _COMPARED = ("peak_force_N", "contact_duration_s", "exit_velocity_mps", "restitu
 
 def _summary(meter: ContactMeter, run_time_s: float | None, ideal: dict | None, max_err: float | None) -> dict:
     sim_time = float(meter.t_last - meter.t_first) if meter.n > 1 else 0.0
-    out = {"run_time_s": run_time_s, "sim_time_s": sim_time,
-           "real_time_factor": (sim_time / run_time_s) if run_time_s else None}
+    out = {
+        "run_time_s": run_time_s,
+        "sim_time_s": sim_time,
+        "real_time_factor": (sim_time / run_time_s) if run_time_s else None,
+    }
     metrics = meter.result()
     out.update({k: v for k, v in metrics.items() if k not in ("contact_start_s", "note")})
     if "note" in metrics:
@@ -61,26 +71,42 @@ def _summary(meter: ContactMeter, run_time_s: float | None, ideal: dict | None, 
         if meter.state == "in" or meter.samples_in <= 1:  # the peak so far, or of no resolved contact: no error
             err["peak_force_N"] = None
         err["max_force_N"] = max_err
-        out["error"] = {k: err.get(k) for k in ("peak_force_N", "max_force_N", "contact_duration_s",
-                                                 "exit_velocity_mps", "restitution")}
+        out["error"] = {
+            k: err.get(k)
+            for k in ("peak_force_N", "max_force_N", "contact_duration_s", "exit_velocity_mps", "restitution")
+        }
     return out
 
 
-def ideal_summary(*, m1: float, m2: float, kcs: float, bcs: float, v1: float, v2: float,
-                  x1: float = 0.0, x2: float = 0.0) -> dict:
+def ideal_summary(
+    *, m1: float, m2: float, kcs: float, bcs: float, v1: float, v2: float, x1: float = 0.0, x2: float = 0.0
+) -> dict:
     """The ideal model's peak_force_N, contact_duration_s, exit_velocity_mps, restitution (closed form)."""
     from dockhil.contact.ideal import ideal_contact_summary
     from dockhil.contact.scenario import ContactScenario
 
     cs = ideal_contact_summary(ContactScenario(m1, m2, kcs, bcs, 0.0, v1, v2))
     dur = cs.duration if math.isfinite(cs.duration) else None
-    return {"peak_force_N": cs.peak_force, "contact_duration_s": dur,
-            "exit_velocity_mps": cs.exit_relative_velocity if dur is not None else None,
-            "restitution": cs.restitution if dur is not None else None}
+    return {
+        "peak_force_N": cs.peak_force,
+        "contact_duration_s": dur,
+        "exit_velocity_mps": cs.exit_relative_velocity if dur is not None else None,
+        "restitution": cs.restitution if dur is not None else None,
+    }
 
 
-def ideal_reference(*, m1: float, m2: float, kcs: float, bcs: float, v1: float, v2: float,
-                    t: np.ndarray, x1: float = 0.0, x2: float = 0.0) -> dict:
+def ideal_reference(
+    *,
+    m1: float,
+    m2: float,
+    kcs: float,
+    bcs: float,
+    v1: float,
+    v2: float,
+    t: np.ndarray,
+    x1: float = 0.0,
+    x2: float = 0.0,
+) -> dict:
     """The ideal model's summary (closed form) and its force on the ticks t."""
     params = dict(m1=m1, m2=m2, kcs=kcs, bcs=bcs, v1=v1, v2=v2, x1=x1, x2=x2)
     out = ideal_summary(**params)
@@ -145,9 +171,13 @@ def energy_summary(out: dict, graph, meter) -> None:
     e = meter.last
     out.setdefault("valid", True)
     out.setdefault("invalid_reasons", [])
-    out["energy"] = {"generated_J": e.generated_J, "compensation_dissipated_J": e.compensation_dissipated_J,
-                     "net_generated_J": e.net_generated_J, "virtual_dissipated_J": e.virtual_dissipated_J,
-                     "port_work_J": e.port_work_J}
+    out["energy"] = {
+        "generated_J": e.generated_J,
+        "compensation_dissipated_J": e.compensation_dissipated_J,
+        "net_generated_J": e.net_generated_J,
+        "virtual_dissipated_J": e.virtual_dissipated_J,
+        "port_work_J": e.port_work_J,
+    }
     imp = first_node(graph, "virtual_impedance")
     if imp is None or imp.params["compensation"] != "passivity":
         out["energy"]["compensation"] = "none"
@@ -155,9 +185,13 @@ def energy_summary(out: dict, graph, meter) -> None:
     max_damping = imp.params["max_damping"]
     line = meter.saturation(max_damping)
     left = meter.residual()
-    out["energy"].update(compensation="passivity", max_damping_Ns_m=max_damping,
-                         ticks_at_max_damping=meter.ticks_at_max, saturated=line is not None,
-                         left_in_loop_J=left if math.isfinite(left) else None)
+    out["energy"].update(
+        compensation="passivity",
+        max_damping_Ns_m=max_damping,
+        ticks_at_max_damping=meter.ticks_at_max,
+        saturated=line is not None,
+        left_in_loop_J=left if math.isfinite(left) else None,
+    )
     if line is not None:
         out["valid"] = False
         out["invalid_reasons"].append(line)
@@ -192,11 +226,16 @@ def scene_reference(graph) -> dict:
     free_contact = p["thrust"] == 0.0 and p["m2"] > 0.0 and p["v1"] > p["v2"]
     if kcs is not None and free_contact:
         out["ideal"] = dict(m1=p["m1"], m2=p["m2"], kcs=kcs, bcs=bcs, v1=p["v1"], v2=p["v2"], x1=p["x1"], x2=p["x2"])
-    ft, imp, delay = first_node(graph, "ft_sim"), first_node(graph, "virtual_impedance"), first_node(graph, "delay_injector")
+    ft, imp, delay = (
+        first_node(graph, "ft_sim"),
+        first_node(graph, "virtual_impedance"),
+        first_node(graph, "delay_injector"),
+    )
     if p["m2"] == 0.0 and p["thrust"] != 0.0 and ft and imp and delay and imp.params["mode"] == "given":
         K = ft.params["k"]
-        out["growth"] = dict(m=p["m1"], K=K, b=imp.params["b1"], h=delay.params["delay"],
-                             about=(p["thrust"] / K) if K > 0.0 else 0.0)
+        out["growth"] = dict(
+            m=p["m1"], K=K, b=imp.params["b1"], h=delay.params["delay"], about=(p["thrust"] / K) if K > 0.0 else 0.0
+        )
     return out
 
 
@@ -206,18 +245,22 @@ def scene_summary(graph, s, run_time_s: float | None) -> dict:
     ref = scene_reference(graph)
     growth = ref.get("growth")
     if isinstance(s, Samples):
-        meter = _feed(ContactMeter(ideal=ref.get("ideal"), growth_about=None if growth is None else growth["about"]),
-                      s)
+        meter = _feed(ContactMeter(ideal=ref.get("ideal"), growth_about=None if growth is None else growth["about"]), s)
     else:
         meter = s
     ideal = ideal_summary(**ref["ideal"]) if "ideal" in ref and meter.n else None
     out = _summary(meter, run_time_s, ideal, meter.max_force_error() if ideal is not None else None)
     dyn = first_node(graph, "satellite_dynamics")
     if dyn is None:  # no 1-DOF dynamics (the 6-DOF scene): its CoM x is not the contact axis
-        out.update(dict.fromkeys(("peak_force_N", "contact_duration_s", "entry_velocity_mps", "exit_velocity_mps",
-                                  "restitution")))
-        out["note"] = ("only the run and simulated times are summarised: the contact numbers are those of a 1-DOF "
-                       "scene; `dockhil plot` draws a 6-DOF bag")
+        out.update(
+            dict.fromkeys(
+                ("peak_force_N", "contact_duration_s", "entry_velocity_mps", "exit_velocity_mps", "restitution")
+            )
+        )
+        out["note"] = (
+            "only the run and simulated times are summarised: the contact numbers are those of a 1-DOF "
+            "scene; `dockhil plot` draws a 6-DOF bag"
+        )
     elif dyn.params["thrust"] != 0.0:
         out["restitution"] = None  # pushed by thrust, the body's exit is not a rebound
     check = scene_check(graph, refuse=False)
@@ -241,36 +284,50 @@ def format_summary1(out: dict) -> str:
         return "-" if v is None else fmt.format(v) + f" {unit}"
 
     rtf = out.get("real_time_factor")
-    lines = [f"simulated {f(out['sim_time_s'], 's')} in {f(out['run_time_s'], 's', '{:.2f}')}"
-             + (f" ({rtf:.1f}x real time)" if rtf else "")]
-    rows = [("peak force", "peak_force_N", "N"), ("contact duration", "contact_duration_s", "s"),
-            ("exit velocity", "exit_velocity_mps", "m/s"), ("restitution", "restitution", "")]
+    lines = [
+        f"simulated {f(out['sim_time_s'], 's')} in {f(out['run_time_s'], 's', '{:.2f}')}"
+        + (f" ({rtf:.1f}x real time)" if rtf else "")
+    ]
+    rows = [
+        ("peak force", "peak_force_N", "N"),
+        ("contact duration", "contact_duration_s", "s"),
+        ("exit velocity", "exit_velocity_mps", "m/s"),
+        ("restitution", "restitution", ""),
+    ]
     w = 16
     if "ideal" in out:
         lines.append(f"{'':18}{'run':>{w}}{'ideal':>{w}}{'error':>{w}}")
         for label, key, unit in rows:
-            lines.append(f"{label:18}{f(out[key], unit):>{w}}{f(out['ideal'][key], unit):>{w}}"
-                         f"{f(out['error'][key], unit):>{w}}")
+            lines.append(
+                f"{label:18}{f(out[key], unit):>{w}}{f(out['ideal'][key], unit):>{w}}{f(out['error'][key], unit):>{w}}"
+            )
         lines.append(f"{'max force error':18}{f(out['error']['max_force_N'], 'N'):>{w}}")
     else:
         for label, key, unit in rows:
             lines.append(f"{label:18}{f(out.get(key), unit):>{w}}")
     if "predicted_growth_rate_1_s" in out:
         compensated = (out.get("energy") or {}).get("compensation") == "passivity"
-        lines.append(f"{'growth rate':18}{f(out['growth_rate_1_s'], '1/s'):>{w}}   "
-                     f"predicted {f(out['predicted_growth_rate_1_s'], '1/s')} (sampled loop's dominant root"
-                     + (", without the compensation)" if compensated else ")"))
+        lines.append(
+            f"{'growth rate':18}{f(out['growth_rate_1_s'], '1/s'):>{w}}   "
+            f"predicted {f(out['predicted_growth_rate_1_s'], '1/s')} (sampled loop's dominant root"
+            + (", without the compensation)" if compensated else ")")
+        )
     loop = out.get("loop") or {}
     if loop:
         per = next((k for k in loop if k.startswith("samples_per_")), None)
-        lines.append(f"{'sampled loop':18}{loop['rate_Hz']:g} Hz, omega*dt {loop['omega_dt']:.3g}"
-                     + (f", {loop[per]:.4g} {per.replace('_', ' ')}" if per and loop[per] is not None else "")
-                     + f", spectral radius {loop['spectral_radius']:.9g}"
-                     + (f" ({loop['note']})" if "note" in loop else ""))
+        lines.append(
+            f"{'sampled loop':18}{loop['rate_Hz']:g} Hz, omega*dt {loop['omega_dt']:.3g}"
+            + (f", {loop[per]:.4g} {per.replace('_', ' ')}" if per and loop[per] is not None else "")
+            + f", spectral radius {loop['spectral_radius']:.9g}"
+            + (f" ({loop['note']})" if "note" in loop else "")
+        )
     energy = out.get("energy")
     if energy:
-        taken = (f", compensation took {energy['compensation_dissipated_J']:.4g} J, net "
-                 f"{energy['net_generated_J']:.4g} J" if energy["compensation"] == "passivity" else "")
+        taken = (
+            f", compensation took {energy['compensation_dissipated_J']:.4g} J, net {energy['net_generated_J']:.4g} J"
+            if energy["compensation"] == "passivity"
+            else ""
+        )
         lines.append(f"{'energy made':18}{f(energy['generated_J'], 'J'):>{w}}   by the delay and the sampling{taken}")
     if "note" in out:
         lines.append(f"note: {out['note']}")

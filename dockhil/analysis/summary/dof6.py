@@ -67,8 +67,10 @@ class ContactMeter6:
         peak_torque_Nm, entry_/exit_relative_velocity_mps and ..._angular_velocity_radps [x, y, z]."""
         out = self.normal.result()
         out["peak_torque_Nm"] = None if out["peak_force_N"] is None else float(self.peak_torque)
-        for when, got, known in (("entry", self.entry, out["entry_velocity_mps"]),
-                                 ("exit", self.exit, out["exit_velocity_mps"])):
+        for when, got, known in (
+            ("entry", self.entry, out["entry_velocity_mps"]),
+            ("exit", self.exit, out["exit_velocity_mps"]),
+        ):
             for key, value in zip(VECTORS, got or (None, None)):
                 out[f"{when}_{key}"] = None if known is None or value is None else [float(c) for c in value]
         return out
@@ -115,8 +117,9 @@ class TickMatcher6(TickMatcher):
         ft, imp = self._newest(self.ft, stamp), self._newest(self.virtual, stamp)
         zero = (0.0, 0.0, 0.0)
         force_s, torque_s = (zero, zero) if ft is None else (_triple(ft[2].wrench.force), _triple(ft[2].wrench.torque))
-        virtual = (zero,) * 4 if imp is None else tuple(_triple(v) for w in imp[2].wrenches[:2]
-                                                         for v in (w.force, w.torque))
+        virtual = (
+            (zero,) * 4 if imp is None else tuple(_triple(v) for w in imp[2].wrenches[:2] for v in (w.force, w.torque))
+        )
         acting = any(c != 0.0 for v in (force_s, *virtual) for c in v)
         force = torque = zero
         if acting and state is not None:
@@ -146,21 +149,37 @@ def ideal_metrics6(dyn, ideal, dt: float, t_end: float) -> dict:
     from dockhil.contact.contact6 import simulate_contact6
     from dockhil.contact.rigid import quat_multiply, rotate_back
 
-    run = simulate_contact6(dyn.b1, dyn.b2, dyn.m1.state(), dyn.m2.state(), ideal, dt=dt, t_end=t_end,
-                            until_exit=True)
+    run = simulate_contact6(dyn.b1, dyn.b2, dyn.m1.state(), dyn.m2.state(), ideal, dt=dt, t_end=t_end, until_exit=True)
     meter = ContactMeter6()
     q_i2 = dyn.b2.interface_orientation
     for i in range(run.t.size):
         q_b = quat_multiply(tuple(run.orientations[i, 1].tolist()), q_i2)  # B -> world
         spin = rotate_back(q_b, (run.omegas[i, 0] - run.omegas[i, 1]).tolist())
-        meter.add(float(run.t[i]), float(run.e[i, 0]), float(run.rate[i, 0]), run.force[i].tolist(),
-                  run.torque[i].tolist(), run.rate[i, :3].tolist(), spin, bool(run.in_contact[i]))
+        meter.add(
+            float(run.t[i]),
+            float(run.e[i, 0]),
+            float(run.rate[i, 0]),
+            run.force[i].tolist(),
+            run.torque[i].tolist(),
+            run.rate[i, :3].tolist(),
+            spin,
+            bool(run.in_contact[i]),
+        )
     return meter.result()
 
 
-COMPARED = ("peak_force_N", "peak_torque_Nm", "contact_duration_s", "entry_velocity_mps", "exit_velocity_mps",
-            "restitution", "entry_relative_velocity_mps", "entry_relative_angular_velocity_radps",
-            "exit_relative_velocity_mps", "exit_relative_angular_velocity_radps")
+COMPARED = (
+    "peak_force_N",
+    "peak_torque_Nm",
+    "contact_duration_s",
+    "entry_velocity_mps",
+    "exit_velocity_mps",
+    "restitution",
+    "entry_relative_velocity_mps",
+    "entry_relative_angular_velocity_radps",
+    "exit_relative_velocity_mps",
+    "exit_relative_angular_velocity_radps",
+)
 
 
 def _difference(a, b):
@@ -190,8 +209,12 @@ class SummaryCollector6:
         self.match.flush()
         m = self.meter.normal
         sim_time = float(m.t_last - m.t_first) if m.n > 1 else 0.0
-        out = {"dof": 6, "run_time_s": run_time_s, "sim_time_s": sim_time,
-               "real_time_factor": (sim_time / run_time_s) if run_time_s else None}
+        out = {
+            "dof": 6,
+            "run_time_s": run_time_s,
+            "sim_time_s": sim_time,
+            "real_time_factor": (sim_time / run_time_s) if run_time_s else None,
+        }
         metrics = self.meter.result()
         out.update({k: metrics[k] for k in COMPARED})
         if "note" in metrics:
@@ -199,7 +222,9 @@ class SummaryCollector6:
         if self.imp is not None and m.n:
             # The ideal contact the hybrid loop reproduces, on the scene's bodies, start and dt; run at
             # most as long as this run (a contact the run did not finish is not finished there either).
-            ideal = ideal_metrics6(self.dyn, self.imp.wall.ideal, self.graph.scene.dt, max(sim_time, self.graph.scene.dt))
+            ideal = ideal_metrics6(
+                self.dyn, self.imp.wall.ideal, self.graph.scene.dt, max(sim_time, self.graph.scene.dt)
+            )
             out["ideal"] = {k: ideal[k] for k in COMPARED}
             out["error"] = {k: _difference(out[k], ideal[k]) for k in COMPARED}
         check = scene_check(self.graph, refuse=False)
@@ -211,6 +236,7 @@ class SummaryCollector6:
 
 def format_summary6(out: dict) -> str:
     """A few readable lines of a 6-DOF summary."""
+
     def f(v, unit=""):
         if v is None:
             return "-"
@@ -219,15 +245,22 @@ def format_summary6(out: dict) -> str:
         return f"{v:.4g}" + (f" {unit}" if unit else "")
 
     rtf = out.get("real_time_factor")
-    lines = [f"simulated {f(out['sim_time_s'], 's')} in "
-             + ("-" if out["run_time_s"] is None else f"{out['run_time_s']:.2f} s")
-             + (f" ({rtf:.1f}x real time)" if rtf else "")]
-    scalars = [("peak force |F|", "peak_force_N", "N"), ("peak torque |T|", "peak_torque_Nm", "N m"),
-               ("contact duration", "contact_duration_s", "s")]
-    vectors = [("entry velocity", "entry_relative_velocity_mps", "m/s"),
-               ("entry ang. vel.", "entry_relative_angular_velocity_radps", "rad/s"),
-               ("exit velocity", "exit_relative_velocity_mps", "m/s"),
-               ("exit ang. vel.", "exit_relative_angular_velocity_radps", "rad/s")]
+    lines = [
+        f"simulated {f(out['sim_time_s'], 's')} in "
+        + ("-" if out["run_time_s"] is None else f"{out['run_time_s']:.2f} s")
+        + (f" ({rtf:.1f}x real time)" if rtf else "")
+    ]
+    scalars = [
+        ("peak force |F|", "peak_force_N", "N"),
+        ("peak torque |T|", "peak_torque_Nm", "N m"),
+        ("contact duration", "contact_duration_s", "s"),
+    ]
+    vectors = [
+        ("entry velocity", "entry_relative_velocity_mps", "m/s"),
+        ("entry ang. vel.", "entry_relative_angular_velocity_radps", "rad/s"),
+        ("exit velocity", "exit_relative_velocity_mps", "m/s"),
+        ("exit ang. vel.", "exit_relative_angular_velocity_radps", "rad/s"),
+    ]
     w = 16
     compared = "ideal" in out
     if compared:
@@ -245,8 +278,10 @@ def format_summary6(out: dict) -> str:
     lines.append("(velocities: of the chaser's interface A relative to the target's B, in B's axes; torque about A)")
     loop = out.get("loop") or {}
     if "spectral_radius" in loop:
-        lines.append(f"{'sampled loop':18}{loop['rate_Hz']:g} Hz, omega*dt {loop['omega_dt']:.3g}"
-                     f", spectral radius {loop['spectral_radius']:.9g}")
+        lines.append(
+            f"{'sampled loop':18}{loop['rate_Hz']:g} Hz, omega*dt {loop['omega_dt']:.3g}"
+            f", spectral radius {loop['spectral_radius']:.9g}"
+        )
     if "note" in out:
         lines.append(f"note: {out['note']}")
     return "\n".join(lines)

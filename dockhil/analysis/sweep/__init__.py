@@ -22,12 +22,40 @@ Modules: `campaign` (the file, its bounds and its runs), `run` (one run, in a wo
 
 from __future__ import annotations
 
-from dockhil.analysis.sweep.campaign import (MAX_RUNS, MAX_SEED, Campaign, CampaignError, WriteError, draw,
-                                             load_campaign, runs)
+from dockhil.analysis.sweep.campaign import (
+    MAX_RUNS,
+    MAX_SEED,
+    Campaign,
+    CampaignError,
+    WriteError,
+    draw,
+    load_campaign,
+    runs,
+)
 from dockhil.analysis.sweep.executors import Batcher, DaskExecutor, LocalPool, usable_cpus
 from dockhil.analysis.sweep.results import METADATA_KEY, format_report, journal_path, read_done, sweep
 from dockhil.analysis.sweep.run import check_outputs, flatten, run_batch, run_one
 
-__all__ = ["MAX_RUNS", "MAX_SEED", "METADATA_KEY", "Batcher", "Campaign", "CampaignError", "DaskExecutor", "LocalPool",
-           "WriteError", "check_outputs", "draw", "flatten", "format_report", "journal_path", "load_campaign",
-           "read_done", "run_batch", "run_one", "runs", "sweep", "usable_cpus"]
+__all__ = [
+    "MAX_RUNS",
+    "MAX_SEED",
+    "METADATA_KEY",
+    "Batcher",
+    "Campaign",
+    "CampaignError",
+    "DaskExecutor",
+    "LocalPool",
+    "WriteError",
+    "check_outputs",
+    "draw",
+    "flatten",
+    "format_report",
+    "journal_path",
+    "load_campaign",
+    "read_done",
+    "run_batch",
+    "run_one",
+    "runs",
+    "sweep",
+    "usable_cpus",
+]

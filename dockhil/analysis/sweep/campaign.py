@@ -248,8 +248,10 @@ def load_campaign(path: str | Path) -> Campaign:
     if data.get("duration") is not None:
         d = data["duration"]
         if isinstance(d, bool) or not isinstance(d, (int, float)) or not 0 < d <= MAX_DURATION:  # NaN fails too
-            raise CampaignError(f"{at('duration')}: `duration` must be simulated seconds per run, > 0 and at most "
-                                f"{MAX_DURATION:g}, got {_shown(d)}")
+            raise CampaignError(
+                f"{at('duration')}: `duration` must be simulated seconds per run, > 0 and at most "
+                f"{MAX_DURATION:g}, got {_shown(d)}"
+            )
     raw = _convert(data, CampaignFile, str(path))
     scene_path = resolve_scene(raw.scene, path.parent)
     scene = launchfile.load(scene_path)
@@ -257,7 +259,9 @@ def load_campaign(path: str | Path) -> Campaign:
 
     def check_name(name: Any, where: str) -> str:
         if name not in specs:
-            raise CampaignError(f"{where}: {raw.scene} has no arg {name!r}; its args: {', '.join(sorted(specs)) or 'none'}")
+            raise CampaignError(
+                f"{where}: {raw.scene} has no arg {name!r}; its args: {', '.join(sorted(specs)) or 'none'}"
+            )
         return name
 
     seen: dict[str, str] = {}
@@ -279,7 +283,9 @@ def load_campaign(path: str | Path) -> Campaign:
         if name in seen:
             raise CampaignError(f"{path}: random.{name}: {name!r} is already in `{seen[name]}:`; give it once")
         if specs[name].type is not float:
-            raise CampaignError(f"{path}: random.{name}: {name!r} is a {specs[name].type.__name__}; only float args are drawn")
+            raise CampaignError(
+                f"{path}: random.{name}: {name!r} is a {specs[name].type.__name__}; only float args are drawn"
+            )
         random[name] = _distribution(dist, f"{path}: random.{name}")
         seen[name] = "random"
     if "grid" in data and not axes:
@@ -289,17 +295,32 @@ def load_campaign(path: str | Path) -> Campaign:
     sizes = [_axis_len(axis) for axis in axes.values()]
     total = math.prod(sizes) * raw.samples  # from the axes' lengths: nothing is expanded yet
     if total > MAX_RUNS:
-        raise CampaignError(f"{path}: {' x '.join(map(str, sizes)) or 1} grid points x {raw.samples} samples = "
-                            f"{total:,} runs; a campaign has at most {MAX_RUNS:,}: coarsen the grid, or split it "
-                            f"into several campaigns")
-    grid = {name: [specs[name].check(v, f"{path}: grid.{name}") for v in _axis_points(axis)]
-            for name, axis in axes.items()}
+        raise CampaignError(
+            f"{path}: {' x '.join(map(str, sizes)) or 1} grid points x {raw.samples} samples = "
+            f"{total:,} runs; a campaign has at most {MAX_RUNS:,}: coarsen the grid, or split it "
+            f"into several campaigns"
+        )
+    grid = {
+        name: [specs[name].check(v, f"{path}: grid.{name}") for v in _axis_points(axis)] for name, axis in axes.items()
+    }
     duration = raw.duration if raw.duration is not None else scene.duration
     if duration is None:
         raise CampaignError(f"{path}: give a positive `duration:` in seconds (simulated, per run)")
-    c = Campaign(str(path), str(scene_path), hashlib.sha256(scene_path.read_bytes()).hexdigest(), scene.rate,
-                 float(duration), fixed, grid, random, raw.samples, raw.seed, raw.outputs, raw.bags,
-                 [*fixed, *grid, *random])
+    c = Campaign(
+        str(path),
+        str(scene_path),
+        hashlib.sha256(scene_path.read_bytes()).hexdigest(),
+        scene.rate,
+        float(duration),
+        fixed,
+        grid,
+        random,
+        raw.samples,
+        raw.seed,
+        raw.outputs,
+        raw.bags,
+        [*fixed, *grid, *random],
+    )
     c.rate = _check_in_scene(c)
     return c
 
@@ -382,11 +403,22 @@ def draw(kind: str, a: float, b: float, rng) -> float:
 
 def runs(c: Campaign, results: str | Path | None = None) -> list[dict]:
     """Every run of the campaign, in run-index order (see run_args)."""
-    bag_dir = None if not (c.bags and results) else Path(os.path.abspath(str(results) + ".bags"))  # workers' cwd may differ
+    bag_dir = (
+        None if not (c.bags and results) else Path(os.path.abspath(str(results) + ".bags"))
+    )  # workers' cwd may differ
     out = []
     for index, sample, args in run_args(c):
         key = json.dumps({"scene": c.scene_sha, "duration": c.duration, "args": args}, sort_keys=True)
-        out.append({"run": index, "sample": sample, "args": args, "args_hash": hashlib.sha256(key.encode()).hexdigest()[:16],
-                    "scene": c.scene, "duration": c.duration, "outputs": c.outputs,
-                    "bag": None if bag_dir is None else str(bag_dir / f"run-{index:06d}.mcap")})
+        out.append(
+            {
+                "run": index,
+                "sample": sample,
+                "args": args,
+                "args_hash": hashlib.sha256(key.encode()).hexdigest()[:16],
+                "scene": c.scene,
+                "duration": c.duration,
+                "outputs": c.outputs,
+                "bag": None if bag_dir is None else str(bag_dir / f"run-{index:06d}.mcap"),
+            }
+        )
     return out

@@ -138,13 +138,19 @@ class DaskExecutor:
         try:
             from dask.distributed import Client, LocalCluster
         except ImportError:
-            raise CampaignError("--dask needs dask.distributed: pip install 'dask[distributed]' "
-                                "(or dockhil[sweep])") from None
+            raise CampaignError(
+                "--dask needs dask.distributed: pip install 'dask[distributed]' (or dockhil[sweep])"
+            ) from None
         self.cluster = None
         try:
             if address == "local":
-                self.cluster = LocalCluster(n_workers=workers or usable_cpus(), processes=True, threads_per_worker=1,
-                                            dashboard_address=None, silence_logs=logging.ERROR)
+                self.cluster = LocalCluster(
+                    n_workers=workers or usable_cpus(),
+                    processes=True,
+                    threads_per_worker=1,
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,
+                )
                 self.client = Client(self.cluster)
             else:
                 self.client = Client(address, timeout="10s")

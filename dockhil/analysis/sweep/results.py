@@ -36,8 +36,10 @@ def read_done(results: str | Path) -> dict[int, dict]:
             for row in pq.read_table(results).to_pylist():
                 done[row["run"]] = row
         except Exception as exc:
-            raise CampaignError(f"{results}: exists but is not a readable results file ({exception_line(exc)}); "
-                                f"give another --out or remove it") from None
+            raise CampaignError(
+                f"{results}: exists but is not a readable results file ({exception_line(exc)}); "
+                f"give another --out or remove it"
+            ) from None
     jp = journal_path(results)
     if jp.exists():
         try:
@@ -46,7 +48,9 @@ def read_done(results: str | Path) -> dict[int, dict]:
             from dockhil.files import os_reason
 
             reason = os_reason(exc) if isinstance(exc, OSError) else exc
-            raise CampaignError(f"{jp}: cannot read: {reason}; give another --out, or remove it to start over") from None
+            raise CampaignError(
+                f"{jp}: cannot read: {reason}; give another --out, or remove it to start over"
+            ) from None
         for line in text.splitlines():
             try:
                 row = json.loads(line)
@@ -81,8 +85,16 @@ def write_parquet(results: str | Path, rows: list[dict], c: Campaign) -> None:
             columns[name] = pa.array(values, type=pa.string() if name in text else None)
         except (pa.ArrowInvalid, pa.ArrowTypeError):  # mixed types: keep them readable as text
             columns[name] = pa.array([None if v is None else str(v) for v in values])
-    meta = {"path": c.path, "scene": c.scene, "rate": c.rate, "duration": c.duration, "fixed": c.fixed,
-            "grid": list(c.grid), "random": list(c.random), "total": c.total}
+    meta = {
+        "path": c.path,
+        "scene": c.scene,
+        "rate": c.rate,
+        "duration": c.duration,
+        "fixed": c.fixed,
+        "grid": list(c.grid),
+        "random": list(c.random),
+        "total": c.total,
+    }
     table = pa.table(columns).replace_schema_metadata({METADATA_KEY: json.dumps(meta).encode()})
     with complete_or_nothing(str(results), WriteError) as part:  # a full disk leaves the last file whole
         pq.write_table(table, part)
@@ -111,8 +123,10 @@ class SweepProgress:
         new = done - self.already
         rate = new / elapsed if elapsed > 0 else 0.0
         left = f"{(self.total - done) / rate:.0f} s left" if rate > 0 else "time left: -"
-        self.line.show(f"[{bar(done / max(1, self.total), 24)}] {done}/{self.total} runs, {failed} failed, "
-                       f"{rate:.2f} runs/s, {left}")
+        self.line.show(
+            f"[{bar(done / max(1, self.total), 24)}] {done}/{self.total} runs, {failed} failed, "
+            f"{rate:.2f} runs/s, {left}"
+        )
 
     def done(self) -> None:
         self.line.end()
@@ -150,8 +164,10 @@ def sweep(campaign: Campaign, results: str | Path, executor, *, progress: bool =
     for index, row in done.items():
         spec = by_run.get(index)
         if spec is None or spec["args_hash"] != row.get("args_hash"):
-            raise CampaignError(f"{results}: holds run {index} of another campaign (other args, scene or duration); "
-                                f"give another --out, or remove the file to start over")
+            raise CampaignError(
+                f"{results}: holds run {index} of another campaign (other args, scene or duration); "
+                f"give another --out, or remove the file to start over"
+            )
     todo = [s for s in specs if s["run"] not in done]
     counts = Counter(r["status"] for r in done.values())
     skipped = len(done)
@@ -204,17 +220,27 @@ def sweep(campaign: Campaign, results: str | Path, executor, *, progress: bool =
     elapsed = time.perf_counter() - started
     stable = Counter(r.get("stable") for r in done.values() if r["status"] == "ok")
     errors = Counter(r["error"] for r in done.values() if r["status"] != "ok" and r.get("error"))
-    return {"total": len(specs), "executed": executed, "skipped": skipped, "elapsed_s": elapsed,
-            "runs_per_s": executed / elapsed if elapsed > 0 else None,
-            **{s: counts[s] for s in STATUSES}, "stable": stable.get(True, 0), "unstable": stable.get(False, 0),
-            "classified": (True in stable or False in stable), "errors": errors.most_common(3)}
+    return {
+        "total": len(specs),
+        "executed": executed,
+        "skipped": skipped,
+        "elapsed_s": elapsed,
+        "runs_per_s": executed / elapsed if elapsed > 0 else None,
+        **{s: counts[s] for s in STATUSES},
+        "stable": stable.get(True, 0),
+        "unstable": stable.get(False, 0),
+        "classified": (True in stable or False in stable),
+        "errors": errors.most_common(3),
+    }
 
 
 def format_report(out: dict, results: str, executor_name: str) -> str:
     rate = f", {out['runs_per_s']:.2f} runs/s" if out["runs_per_s"] else ""
-    lines = [f"{out['total']} runs: {out['ok']} ok, {out['invalid']} invalid, {out['failed']} failed"
-             + (f" ({out['skipped']} already in {results})" if out["skipped"] else "")
-             + f"; {out['executed']} run in {out['elapsed_s']:.1f} s on {executor_name}{rate}"]
+    lines = [
+        f"{out['total']} runs: {out['ok']} ok, {out['invalid']} invalid, {out['failed']} failed"
+        + (f" ({out['skipped']} already in {results})" if out["skipped"] else "")
+        + f"; {out['executed']} run in {out['elapsed_s']:.1f} s on {executor_name}{rate}"
+    ]
     if out["classified"]:
         lines.append(f"stability: {out['stable']} stable, {out['unstable']} unstable (growth rate of the contact)")
     for error, n in out["errors"]:

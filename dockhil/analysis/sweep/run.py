@@ -54,12 +54,16 @@ def failure_label(line: str, state) -> str:
     from dockhil import physical
 
     for body in state.bodies:
-        for what, vec, limit, unit in (("at", body.pose.position, physical.DISTANCE[1], "m"),
-                                       ("moving at", body.twist.linear, physical.SPEED[1], "m/s")):
+        for what, vec, limit, unit in (
+            ("at", body.pose.position, physical.DISTANCE[1], "m"),
+            ("moving at", body.twist.linear, physical.SPEED[1], "m/s"),
+        ):
             size = max(abs(vec.x), abs(vec.y), abs(vec.z))
             if size > limit:
-                return (f"diverged (at tick {state.header.tick} {body.name or 'a body'} was {what} {size:.3g} {unit}, "
-                        f"beyond the {limit:g} {unit} of docking hardware): {line}")
+                return (
+                    f"diverged (at tick {state.header.tick} {body.name or 'a body'} was {what} {size:.3g} {unit}, "
+                    f"beyond the {limit:g} {unit} of docking hardware): {line}"
+                )
     return line
 
 
@@ -74,8 +78,14 @@ def run_one(spec: dict) -> dict:
     from dockhil.analysis.scenecheck import scene_check
 
     started = time.perf_counter()
-    row = {"run": spec["run"], "sample": spec["sample"], **spec["args"], "args_hash": spec["args_hash"],
-           "status": "ok", "error": None}
+    row = {
+        "run": spec["run"],
+        "sample": spec["sample"],
+        **spec["args"],
+        "args_hash": spec["args_hash"],
+        "status": "ok",
+        "error": None,
+    }
     try:
         graph = build(launchfile.load(spec["scene"], dict(spec["args"])))
         if "/satellite/state" not in graph.publishers:
@@ -91,7 +101,7 @@ def run_one(spec: dict) -> dict:
 
         def node_log(name: str, line: str) -> None:
             if line.startswith("warning:"):
-                said.append(f"{name}: {line[len('warning:'):].strip()}")
+                said.append(f"{name}: {line[len('warning:') :].strip()}")
             elif line.startswith("error:"):
                 said.append(f"{name}: {line}")
 
@@ -158,15 +168,29 @@ def check_outputs(c: Campaign) -> None:
     if not c.outputs:
         return
     _index, _sample, args = next(run_args(c))
-    probe = run_one({"run": 0, "sample": 0, "args": args, "args_hash": "", "scene": c.scene,
-                     "duration": 3.0 / c.rate, "outputs": None, "bag": None})
+    probe = run_one(
+        {
+            "run": 0,
+            "sample": 0,
+            "args": args,
+            "args_hash": "",
+            "scene": c.scene,
+            "duration": 3.0 / c.rate,
+            "outputs": None,
+            "bag": None,
+        }
+    )
     if probe["status"] != "ok":
         return
-    fields = [k for k in probe if k not in ("run", "sample", "args_hash", "status", "error", "run_time_s", *c.arg_names)]
+    fields = [
+        k for k in probe if k not in ("run", "sample", "args_hash", "status", "error", "run_time_s", *c.arg_names)
+    ]
     unknown = [name for name in c.outputs if name not in fields]
     if unknown:
-        raise CampaignError(f"{c.path}: outputs: {unknown[0]!r} is not a summary field of {Path(c.scene).name}; "
-                            f"its fields: {', '.join(fields)}")
+        raise CampaignError(
+            f"{c.path}: outputs: {unknown[0]!r} is not a summary field of {Path(c.scene).name}; "
+            f"its fields: {', '.join(fields)}"
+        )
 
 
 def run_batch(batch: list[dict]) -> list[dict]:
@@ -174,5 +198,12 @@ def run_batch(batch: list[dict]) -> list[dict]:
 
 
 def failed_row(spec: dict, error: str) -> dict:
-    return {"run": spec["run"], "sample": spec["sample"], **spec["args"], "args_hash": spec["args_hash"],
-            "status": "failed", "error": error, "run_time_s": None}
+    return {
+        "run": spec["run"],
+        "sample": spec["sample"],
+        **spec["args"],
+        "args_hash": spec["args_hash"],
+        "status": "failed",
+        "error": error,
+        "run_time_s": None,
+    }
