@@ -286,7 +286,9 @@ def ideal_force_at(ideal: dict, t: np.ndarray) -> np.ndarray:
 
 class TickMatcher:
     """Turns published messages into per-tick samples (t, p, pd, force, acting), in time order,
-    with bounded buffers: a state waits in a window of WINDOW states for the forces of its tick.
+    with bounded buffers: a state waits in a window of WINDOW states for the forces of its tick,
+    and longer (up to HOLD states) while a force topic that has come lags behind it: a bag holds
+    its topics in the order the recorder got them, which can be hundreds of ticks apart.
 
     Time is simulated time: (tick - first tick) * dt when dt is known, else the stamps from the
     first state on. Forces are matched to each state by header stamp, taking the newest force at
@@ -294,11 +296,16 @@ class TickMatcher:
     wall time the one the dynamics would have seen."""
 
     WINDOW = 256
+    HOLD = 20_000
 
-    def __init__(self, sink, ideal_force: tuple[float, float] | None = None, dt: float | None = None):
+    def __init__(
+        self, sink, ideal_force: tuple[float, float] | None = None, dt: float | None = None, expect=frozenset()
+    ):
         self.sink = sink
         self.ideal_force = ideal_force  # (kcs, bcs) when the dynamics run the ideal model inside
         self.dt = dt
+        # The input topics the graph publishes: a tick waits for those even before their first message.
+        self.expect = frozenset(expect) if ideal_force is None else frozenset()
         self.pending: list[tuple[float, int, float, float]] = []
         self.ft: list[tuple[float, float]] = []
         self.virtual: list[tuple[float, float, float]] = []
@@ -316,13 +323,30 @@ class TickMatcher:
                     c.twist.linear.x - g.twist.linear.x,
                 ),
             )
-            if len(self.pending) > self.WINDOW:
-                self._emit(self.pending.pop(0))
         elif topic == "/ft/wrench" and isinstance(msg, msgs.WrenchStamped):
             bisect.insort(self.ft, (msg.header.stamp, msg.wrench.force.x))
         elif topic == "/impedance/wrench" and isinstance(msg, msgs.BodyWrenches) and msg.wrenches:
             f2 = msg.wrenches[1].force.x if len(msg.wrenches) > 1 else 0.0
             bisect.insort(self.virtual, (msg.header.stamp, msg.wrenches[0].force.x, f2))
+        self._release()
+
+    def _inputs(self) -> dict[str, list]:
+        """The series a tick reads besides its own, by topic, each sorted by stamp."""
+        return {"/ft/wrench": self.ft, "/impedance/wrench": self.virtual}
+
+    def _release(self) -> None:
+        """Emits the oldest ticks past WINDOW whose inputs have come, and past HOLD whatever came."""
+        pending = self.pending
+        while len(pending) > self.WINDOW and (len(pending) > self.HOLD or self._came(pending[0][0])):
+            self._emit(pending.pop(0))
+
+    def _came(self, stamp: float) -> bool:
+        """Every input of the tick at `stamp` has come: each input topic expected or seen so far has
+        reached the stamp."""
+        for topic, series in self._inputs().items():
+            if series[-1][0] < stamp if series else topic in self.expect:
+                return False
+        return True
 
     @staticmethod
     def _newest(series: list, stamp: float):

@@ -143,7 +143,7 @@ class SummaryCollector1:
         ref = scene_reference(graph)
         growth = ref.get("growth")
         self.meter = ContactMeter(ideal=ref.get("ideal"), growth_about=None if growth is None else growth["about"])
-        self.match = TickMatcher(self.meter.add, ref.get("ideal_force"), graph.scene.dt)
+        self.match = TickMatcher(self.meter.add, ref.get("ideal_force"), graph.scene.dt, expect=graph.publishers)
         self.energy = EnergyMeter()
         self.ranges = RangeMeter()
 

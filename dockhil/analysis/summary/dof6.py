@@ -84,8 +84,8 @@ class TickMatcher6(TickMatcher):
     from the state they published with it (hybrid6.relative_interface), so d_x, d' and the relative
     angular velocity are read, not recomputed. The wrench is rebuilt only while a force acts."""
 
-    def __init__(self, sink, dyn, dt: float | None):
-        super().__init__(sink, None, dt)
+    def __init__(self, sink, dyn, dt: float | None, expect=frozenset()):
+        super().__init__(sink, None, dt, expect)
         from dockhil.contact import hybrid6
 
         self.lib, self.dyn = hybrid6, dyn
@@ -97,8 +97,6 @@ class TickMatcher6(TickMatcher):
         if topic == "/robot/command":
             if isinstance(msg, msgs.RobotCommand):
                 bisect.insort(self.pending, (msg.header.stamp, msg.header.tick, next(self.seq), msg))
-                if len(self.pending) > self.WINDOW:
-                    self._emit(self.pending.pop(0))
         elif topic == "/ft/wrench":
             if isinstance(msg, msgs.WrenchStamped):
                 bisect.insort(self.ft, (msg.header.stamp, next(self.seq), msg))
@@ -107,6 +105,10 @@ class TickMatcher6(TickMatcher):
                 bisect.insort(self.virtual, (msg.header.stamp, next(self.seq), msg))
         elif isinstance(msg, msgs.SatelliteState) and len(msg.bodies) >= 2:
             bisect.insort(self.states, (msg.header.stamp, next(self.seq), msg))
+        self._release()
+
+    def _inputs(self) -> dict[str, list]:
+        return {"/ft/wrench": self.ft, "/impedance/wrench": self.virtual, "/satellite/state": self.states}
 
     def _emit(self, command) -> None:
         stamp, tick, _, cmd = command
@@ -197,7 +199,7 @@ class SummaryCollector6:
         self.graph = graph
         self.dyn, self.imp = sixdof_nodes(graph)
         self.meter = ContactMeter6()
-        self.match = TickMatcher6(self.meter.add, self.dyn, graph.scene.dt)
+        self.match = TickMatcher6(self.meter.add, self.dyn, graph.scene.dt, expect=graph.publishers)
         self.ranges = RangeMeter(inertia=(self.dyn.b1.inertia, self.dyn.b2.inertia))
 
     def __call__(self, topic: str, msg) -> None:
