@@ -260,10 +260,10 @@ def test_the_zap_handler_admits_the_graphs_client_key_and_nothing_else():
     """Each ZAP request a publisher's handshake makes: only CURVE with the graph's client key gets 200."""
     from zmq.utils import z85
 
-    from dockhil.runtime.transport import _ZapHandler
+    from dockhil.runtime.keys import ZapHandler
 
     keys, other = GraphKeys.make(), GraphKeys.make()
-    handler = _ZapHandler(zmq.Context())
+    handler = ZapHandler(zmq.Context())
     try:
         handler.allowed.add(keys.client_public)
 
