@@ -103,7 +103,7 @@ def run_scene(
         return verdict_fields(judged["code"], reasons)
 
     if composed:
-        from dockhil.runtime.launcher import check_composable
+        from dockhil.runtime.plan import check_composable
 
         check_composable(graph)
         recorder = None

@@ -108,7 +108,7 @@ def test_max_age_from_the_command_line_reaches_each_node_process_and_the_compose
     import msgspec
 
     from dockhil.node import default_max_age
-    from dockhil.runtime.launcher import Endpoints, run_specs
+    from dockhil.runtime.plan import Endpoints, run_specs
     from dockhil.runtime.transport import GraphKeys
     from dockhil.scene.graph import set_max_ages
 

@@ -15,7 +15,7 @@ from dockhil.runtime.composed import ComposedGraph
 from dockhil.errors import DockhilError, LaunchError
 from dockhil.runtime.executor import NodeExecutor, PortWire, RunSpec, StaleInput, Stop
 from dockhil.scene.graph import build
-from dockhil.runtime.launcher import Endpoints, run_specs
+from dockhil.runtime.plan import Endpoints, run_specs
 from dockhil.node import ManualClock, default_max_age
 from dockhil.runtime.transport import GraphKeys, Publisher
 from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped

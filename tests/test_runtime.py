@@ -299,7 +299,7 @@ def test_delayed_hops_send_in_bursts_and_change_no_bit(write_launch, tmp_path):
     held message) and gives the plain loop's bits, as the composed run does."""
     from dockhil.scene import launchfile
     from dockhil.scene.graph import build
-    from dockhil.runtime.launcher import burst
+    from dockhil.runtime.plan import burst
 
     traces = {}
     for mode in ("processes", "composed"):
@@ -329,7 +329,7 @@ def test_bursts_are_sim_time_only_and_follow_the_declared_delay(tmp_path):
 
     from dockhil.scene import launchfile
     from dockhil.scene.graph import build
-    from dockhil.runtime.launcher import Endpoints, run_specs
+    from dockhil.runtime.plan import Endpoints, run_specs
 
     graph = build(launchfile.load(Path(__file__).resolve().parent.parent / "launch" / "hil.yaml"))
     types = {t: "t" for t in graph.publishers}

@@ -430,7 +430,7 @@ def recorder_process(path: str, graph, clock: str, n_ticks: int | None, quiet: b
     """The recorder as a launcher helper process, subscribed to every topic of `graph`; the launcher
     tells it the run's verdict before it closes the bag. quiet: a bag the user did not ask for (the
     summary's), whose path and count are said only at debug level."""
-    from dockhil.runtime.launcher import ExtraProcess
+    from dockhil.runtime.plan import ExtraProcess
 
     argv = [sys.executable, "-m", "dockhil.bags.live", "record", path, "--graph-pid", str(os.getpid()), "--verdict"]
     if quiet:

@@ -72,7 +72,7 @@ def to_text(graph) -> str:
         changed = {k: v for k, v in gn.params.items() if v != gn.cls.params[k].default}
         if changed:
             lines.append("    params: " + ", ".join(f"{k}={v!r}" for k, v in changed.items()))
-    from dockhil.runtime.launcher import processes
+    from dockhil.runtime.plan import processes
 
     units = processes(graph)
     lines.append(f"processes ({len(units)}):")
