@@ -61,6 +61,16 @@ class SatelliteDynamics(Node):
             False,
             help="run even where the step does not resolve the contact (the summary then carries the warning)",
         ),
+        "max_gap": Param(
+            float,
+            0.0,
+            unit="m",
+            help="the robot command follows the gap between the bodies up to this distance and waits there "
+            "while they are farther apart (no contact can happen there; it keeps a long run in the robot's "
+            "workspace); 0: follows everywhere",
+            ge=0.0,
+            le=physical.DISTANCE[1],
+        ),
     }
 
     @classmethod
@@ -76,6 +86,7 @@ class SatelliteDynamics(Node):
         ideal = (p.kcs, p.bcs) if p.model == "ideal" else None
         self.bodies = Bodies(p.m1, p.m2, p.x1, p.x2, p.v1, p.v2, p.method, ideal=ideal)
         self.started = False
+        self.parked = False  # the command waits at max_gap
 
     def step(self, tick, inputs):
         p = self.p
@@ -112,5 +123,11 @@ class SatelliteDynamics(Node):
             ),
             in_contact=self.bodies.touching(),
         )
-        command = RobotCommand(header=tick.header("target"), pose=Pose(Vector3(x1 - x2)), twist=Twist(Vector3(v1 - v2)))
+        gap, closing = x1 - x2, v1 - v2
+        if p.max_gap and gap < -p.max_gap:  # apart beyond max_gap: the robot waits at it, still, until the bodies come back
+            gap, closing = -p.max_gap, 0.0
+            if not self.parked:
+                self.log(f"bodies {x2 - x1:.3g} m apart: the robot waits at the gap max_gap = {p.max_gap:g} m")
+        self.parked = gap == -p.max_gap
+        command = RobotCommand(header=tick.header("target"), pose=Pose(Vector3(gap)), twist=Twist(Vector3(closing)))
         return {"state": state, "command": command}
