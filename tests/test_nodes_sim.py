@@ -90,6 +90,23 @@ def test_dynamics_conserves_momentum_under_the_measured_force_and_commands_the_r
         assert cmd.header.frame == "target" and out["state"].header.frame == "world"
 
 
+def test_dynamics_command_waits_at_max_gap_while_the_bodies_are_farther_apart():
+    # The chaser flies away from a fixed target at 0.1 m/s from 0.05 m apart, then is pushed back:
+    # the command follows the gap to 0.2 m, stays there, still, and follows again once under it.
+    with NodeHarness("satellite_dynamics", dt=DT, m1=1.0, m2=0.0, x1=-0.05, v1=-0.1, max_gap=0.2) as h:
+        away = h.run(3000)
+        back = h.run(3000, inputs={"ft": wrench(fx=0.2)})
+    for out in away + back:
+        x1, u1 = chaser(out)
+        cmd = out["command"]
+        if x1 >= -0.2:
+            assert (cmd.pose.position.x, cmd.twist.linear.x) == (x1, u1)
+        else:
+            assert (cmd.pose.position.x, cmd.twist.linear.x) == (-0.2, 0.0)
+    assert chaser(away[-1])[0] < -0.3 and chaser(back[-1])[0] > -0.2  # it went past, and came back in
+    assert any(m.startswith("bodies ") and "waits at the gap max_gap = 0.2 m" in m for m in h.logs)
+
+
 def test_dynamics_fixed_target_stays_put():
     with NodeHarness("satellite_dynamics", dt=DT, m1=100.0, m2=0.0, x1=0.2, x2=0.25, v1=0.0) as h:
         outs = h.run(100, inputs={"ft": wrench(fx=-2.0)})
