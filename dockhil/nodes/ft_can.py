@@ -20,6 +20,7 @@ from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import ft_frames as ff
 from dockhil.hardware import tare
 from dockhil.hardware.device_path import private_link, untrusted
+from dockhil.hardware.slcan_reader import SlcanReader
 from dockhil.node import Node, Output, Param
 from dockhil.msgs import Vector3, Wrench, WrenchStamped
 
@@ -151,6 +152,9 @@ class FtCanDriver(Node):
                 raise
         try:
             self.bus = self._open_bus(time.monotonic() + p.open_timeout)
+            # python-can's slcan reads a byte per system call; the adapter's port is read in bulk.
+            self.slcan = SlcanReader(self.bus.serialPortOrig) if p.interface == "slcan" else None
+            self.recv = self.slcan.recv if self.slcan is not None else self.bus.recv
             self._tare()
         except BaseException:
             self._shutdown_bus()
@@ -204,7 +208,7 @@ class FtCanDriver(Node):
         samples = []
         for _ in range(MAX_FRAMES_PER_STEP):
             try:
-                msg = self.bus.recv(0.0)
+                msg = self.recv(0.0)
             except (can.CanError, OSError) as exc:
                 raise DeviceError(f"{self.device}: bus error: {one_line(exc)}") from None
             if msg is None:
@@ -329,7 +333,7 @@ class FtCanDriver(Node):
             for n, what in (
                 (self.lost, "samples lost"),
                 (self.repeated, "samples repeated"),
-                (self.bad_frames, "bad frames"),
+                (self.bad_frames + (self.slcan.malformed if self.slcan is not None else 0), "bad frames"),
                 (self.error_frames, "error frames"),
                 (self.assembler.orphans, "unpaired frames"),
             )
