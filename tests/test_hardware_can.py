@@ -120,6 +120,47 @@ def test_adapter_answers_lawicel_commands_and_moves_frames(tmp_path):
     assert not (tmp_path / "can0").exists()  # the link goes with the adapter
 
 
+def test_adapter_delivers_again_after_a_host_that_lagged_until_frames_dropped():
+    # A host that reads nothing for a while: the pty fills, the adapter's queue fills and it drops
+    # (as an adapter overruns). Once the host reads, frames must flow again, with no flush call
+    # from the sender (an emulator only delivers).
+    port = SlcanPort()
+    host = os.open(port.path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    try:
+        port.is_open = True
+        frame = CanFrame(0x1A0, bytes(8))
+        sent = 0
+        while port.dropped == 0:
+            sent += port.deliver(frame)
+        assert sent > 1000  # the pty and the queue held that many before the first drop
+
+        def read_all() -> int:
+            n = 0
+            while True:
+                try:
+                    chunk = os.read(host, 65536)
+                except BlockingIOError:
+                    return n
+                n += chunk.count(b"\r")
+
+        assert read_all() > 0  # what the kernel held
+        for _ in range(100):  # each delivery moves what is queued into the room the host made
+            port.deliver(frame)
+            read_all()
+        marker = CanFrame(0x1A1, b"\x55")
+        assert port.deliver(marker)
+        got = b""
+        for _ in range(20):
+            try:
+                got += os.read(host, 65536)
+            except BlockingIOError:
+                port.deliver(frame)
+        assert marker.to_slcan() in got
+    finally:
+        os.close(host)
+        port.close()
+
+
 def test_transmit_parser_refuses_bad_commands():
     assert parse_transmit(b"t7FF0") == CanFrame(0x7FF, b"")
     assert parse_transmit(b"r1A08") == CanFrame(0x1A0, b"", False, True, 8)

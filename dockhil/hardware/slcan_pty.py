@@ -249,6 +249,9 @@ class SlcanPort:
 
     def _send(self, data: bytes, force: bool = False) -> bool:
         with self._lock:
+            # What the host has read since makes room first: a host that lagged and caught up
+            # gets frames again (the sender calls nothing else that would flush the queue).
+            self._flush_locked()
             if not force and len(self._out) + len(data) > OUT_LIMIT:
                 self.dropped += 1
                 return False
