@@ -29,6 +29,12 @@ class Integrator(Node):
         return {"x": _w(tick, self.x)}
 
 
+class FreeRunningIntegrator(Integrator):
+    """An Integrator that stands for a device (as the emulators do): it runs from power-on."""
+
+    free_running = True
+
+
 class Gain(Node):
     """u[k] = -gain * x[k] + noise-free nonlinearity, feedthrough."""
 

@@ -203,3 +203,36 @@ def test_a_refused_node_loop_runs_at_normal_priority(monkeypatch):
         for s, h in handlers.items():
             signal.signal(s, h)
     assert sum("real-time scheduling of the node loop refused" in line for line in lines) == 1, lines
+
+
+@pytest.mark.parametrize("type_name, asked", [("Integrator", [50]), ("FreeRunningIntegrator", [50, 60])])
+def test_an_emulated_device_s_loop_runs_above_the_node_loops(monkeypatch, type_name, asked):
+    """--realtime: a free-running node (an emulator standing for a device) asks for the devices'
+    priority after the loops', so after a stall of the whole machine the device delivers before
+    the drivers judge it stale, as a real device, which no host stall stops, would have."""
+    from dockhil.runtime import process, realtime
+    from dockhil.runtime.executor import RunSpec
+
+    priorities = []
+    monkeypatch.setattr(os, "sched_setscheduler", lambda pid, policy, param: priorities.append(param.sched_priority))
+    monkeypatch.setattr(realtime, "granted", lambda: bool(priorities))
+    monkeypatch.setattr(realtime, "zmq_options", lambda ctx: False)
+    spec = RunSpec(
+        name="dev",
+        type_name=f"tests.graphnodes:{type_name}",
+        params={},
+        dt=0.01,
+        clock="wall",
+        n_ticks=2,
+        inputs={},
+        outputs={},
+        realtime=True,
+    )
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        assert process.run_node(spec, log=lambda line: None) == 0
+    finally:
+        for s, h in handlers.items():
+            signal.signal(s, h)
+    assert priorities == asked
+    assert asked == [realtime.LOOP_PRIORITY, realtime.DEVICE_PRIORITY][: len(asked)]

@@ -60,12 +60,15 @@ def run_node(spec, log=None, on_ready=None) -> int:
         signal.signal(signal.SIGUSR1, lambda signum, frame: go.append(True))
     executor = None
     ticking = close_failed = False
-    if spec.realtime and spec.clock == "wall":  # first: every thread made from here on inherits it
-        from dockhil.runtime import realtime
+    from dockhil.runtime import realtime
 
+    if spec.realtime and spec.clock == "wall":  # first: every thread made from here on inherits it
         realtime.ask(realtime.LOOP_PRIORITY, "the node loop", log)
     try:
-        executor = NodeExecutor(spec, nodes.load(spec.type_name), stop, log)
+        node_type = nodes.load(spec.type_name)
+        if node_type.free_running:  # an emulated device: above the loops, as a real one is never starved by them
+            realtime.raise_device_thread(log, "the emulated device's loop")
+        executor = NodeExecutor(spec, node_type, stop, log)
         executor.start()
         ticking = True  # past setup: a failure from here on is at a tick
         if on_ready:
