@@ -236,3 +236,14 @@ def test_an_emulated_device_s_loop_runs_above_the_node_loops(monkeypatch, type_n
             signal.signal(s, h)
     assert priorities == asked
     assert asked == [realtime.LOOP_PRIORITY, realtime.DEVICE_PRIORITY][: len(asked)]
+
+
+def test_a_real_time_loop_sleeps_without_spinning(monkeypatch):
+    """Spun time under SCHED_FIFO counts against the kernel's real-time budget; a graph of loops
+    that spend it gets every real-time thread stopped for the rest of the second."""
+    from dockhil.runtime import looptime, realtime
+
+    monkeypatch.setattr(realtime, "granted", lambda: True)
+    assert looptime.loop_spin() == 0.0
+    monkeypatch.setattr(realtime, "granted", lambda: False)
+    assert looptime.loop_spin() == looptime.SPIN_S > 0.0

@@ -18,7 +18,7 @@ import msgspec
 
 from dockhil.errors import NODE_RAISES, DockhilError, failure_line
 from dockhil.runtime.executor import Stop, check_outputs
-from dockhil.runtime.looptime import LoopTiming, sleep_until
+from dockhil.runtime.looptime import LoopTiming, loop_spin, sleep_until
 from dockhil.runtime.screen import bounds_check, checked_payload
 from dockhil.scene.graph import Graph
 from dockhil.log import node_line
@@ -138,6 +138,7 @@ class ComposedGraph:
         schedule = self.schedule(wall)
         timing = self.timing = LoopTiming([], period=dt, max_age=self.graph.wall_max_ages()) if wall else None
         end = n_ticks if n_ticks is not None else -1
+        spin = loop_spin()
         t0 = clock()
         k = 0
         while k != end and not stop.requested:
@@ -157,7 +158,7 @@ class ComposedGraph:
                 over = clock() - (t0 + k * dt)
                 if over > 0:
                     timing.missed(over if k > 1 else 0.0)  # the first tick has no schedule to keep
-                sleep_until(t0 + k * dt, clock)
+                sleep_until(t0 + k * dt, clock, spin)
         if wall:
             timing.ticks, timing.elapsed = k, clock() - t0
         return k

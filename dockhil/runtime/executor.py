@@ -39,7 +39,7 @@ from dockhil.log import node_line
 from dockhil.node import NodeContext, Tick
 from dockhil.msgs.codec import DecodeError, decode, decode_header
 from dockhil.runtime import realtime
-from dockhil.runtime.looptime import LoopTiming, sleep_until
+from dockhil.runtime.looptime import LoopTiming, loop_spin, sleep_until
 from dockhil.runtime.screen import checked_payload
 
 TIMING = "\x1edockhil-timing "  # a node process's line with its wall-time loop figures (JSON), read by the launcher
@@ -363,6 +363,7 @@ class NodeExecutor:
         self.timing = timing = LoopTiming(list(spec.inputs), period=spec.dt, max_age=self.max_age)
         clock = self.clock
         period = spec.dt
+        spin = loop_spin()
         t0 = clock()
         timing.first_tick_at = time.time()
         next_t = t0
@@ -393,7 +394,7 @@ class NodeExecutor:
                     if late > period:  # fell far behind: skip, do not burst to catch up
                         next_t = clock() + period
                 else:
-                    sleep_until(next_t, clock)
+                    sleep_until(next_t, clock, spin)
         finally:
             timing.ticks = k
             timing.elapsed = clock() - t0

@@ -95,15 +95,25 @@ def percentile(ordered: list[float], p: float) -> float:
 SPIN_S = float(os.environ.get("DOCKHIL_SPIN_S", "0.0002"))
 
 
-def sleep_until(deadline: float, clock=time.monotonic) -> None:
-    # Sleep most of the way, then spin the last SPIN_S: time.sleep alone overshoots by ~60-150 us,
-    # but every microsecond spun is CPU the other nodes on the machine do not get.
+def sleep_until(deadline: float, clock=time.monotonic, spin: float = SPIN_S) -> None:
+    # Sleep most of the way, then spin the last `spin` seconds: time.sleep alone overshoots by
+    # ~60-150 us, but every microsecond spun is CPU the other nodes on the machine do not get.
     if clock is not time.monotonic:  # a test's clock: its time moves when the test says, never by waiting
         if hasattr(clock, "sleep_until"):
             clock.sleep_until(deadline)
         return
     left = deadline - time.monotonic()
-    if left > SPIN_S:
-        time.sleep(left - SPIN_S)
+    if left > spin:
+        time.sleep(left - spin)
     while time.monotonic() < deadline:
         pass
+
+
+def loop_spin() -> float:
+    """The spin of this thread's loop: none under a real-time policy, where the sleep wakes within
+    tens of microseconds and spun time counts against the kernel's real-time budget (95 % of each
+    second, sched_rt_runtime_us): a graph whose loops spend it stops every real-time thread, the
+    devices' too, for the rest of that second."""
+    from dockhil.runtime import realtime
+
+    return 0.0 if realtime.granted() else SPIN_S
