@@ -41,6 +41,8 @@ from dockhil.msgs import (
     Pose,
     Quaternion,
     RobotCommand,
+    RobotCycle,
+    RobotCycles,
     RobotState,
     SatelliteState,
     Twist,
@@ -321,6 +323,21 @@ def every_type(k: int) -> dict[str, object]:
         "/impedance/wrench": BodyWrenches(header=header(k), wrenches=tuple(Wrench(force=vec(i)) for i in range(k % 4))),
         "/robot/command": RobotCommand(header=header(k, "target"), pose=pose(k), twist=twist(k), enable=k % 2 == 0),
         "/robot/state": RobotState(header=header(k, "target"), pose=pose(-k), twist=twist(k), status="ok" * (k % 3)),
+        "/robot/cycles": RobotCycles(
+            header=header(k, "target"),
+            cycles=tuple(
+                RobotCycle(
+                    sent=1_733_300_000.0 + i * 0.001,
+                    read=1_733_300_000.0004 + i * 0.001,
+                    setpoint=pose(k + i),
+                    written=i % 2 == 0,
+                    actual=pose(-i),
+                    device_cycle=65535 - i,
+                    taken=i == 1,
+                )
+                for i in range(k % 3)
+            ),
+        ),
         "/impedance/params": ImpedanceParams(header=header(k), k1=2001.5 + k, b1=40.03, k2=2.6e6, b2=5e4, method="fit"),
         "/status": NodeStatus(
             header=header(k), node="dynamics", state="running", ticks=2**63 + k, dropped=k, message="line\twith tab"

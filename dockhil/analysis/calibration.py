@@ -4,15 +4,18 @@ What `dockhil calibrate` measures, each with its one-sigma uncertainty:
 
 * at rest: the F/T sensor's bias (force and torque, per axis: the mean) and noise (the
   standard deviation per axis);
-* in free space, from the setpoints sent (/robot/command) and the poses read back
-  (/robot/state): the command-to-motion delay d and the servo lag tau of the model
+* in free space, from the setpoints the robot driver's link sent to the controller and the poses it
+  read back, each at the controller's cycle (/robot/cycles): the command-to-motion delay d and the
+  servo lag tau of the model
 
       x(t) = L[x_cmd](t - d),   L: first-order lag 1 / (1 + tau s)
 
   fitted by nonlinear least squares; a second-order lag (two equal poles) is fitted too and
   the model with the smaller Akaike information criterion is named (`lag_model`). The delay
-  is the loop's as the loop sees it: the controller's own delay plus the link's (the driver's
-  poll period and its read-back) and the graph's transport;
+  is the robot's own, at the device; the link (a command's tick to the device cycle that takes it,
+  and a pose's device cycle to the tick that publishes it) is measured apart, and the loop's delay
+  is their sum. A recording without device cycles is fitted on the graph's ticks (/robot/command
+  against /robot/state): the delay is then the loop's, the link included;
 * pressed into the passive compliance: the stiffness k, damping b and the surface position s
   of the unilateral contact  F = k (x - s) + b v  (F > 0 pushes the probe back), fitted on the
   samples where the force stands clear of the noise band, against the pose and velocity read
@@ -324,6 +327,109 @@ def contact(t_f, force, t_x, x, v, noise: float, max_ft_delay: float = 0.03) -> 
     return Contact(k, b, surface, sk, sb, ss, ft_delay, ft_sigma, float(np.sqrt(np.mean(residual**2))), n, peak)
 
 
+# -- timing at the device ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class DeviceCycles:
+    """The robot driver's exchanges with the controller (RobotCycles), as arrays in the order made: when the
+    setpoint went out and when the pose came back [s, graph clock], the setpoint's and the pose's x [m],
+    whether a setpoint was written, the device's cycle count of the pose, and whether that cycle had taken
+    the exchange's setpoint."""
+
+    sent: np.ndarray
+    read: np.ndarray
+    x_set: np.ndarray
+    written: np.ndarray
+    x_actual: np.ndarray
+    cycle: np.ndarray
+    taken: np.ndarray
+
+    def select(self, keep: np.ndarray) -> DeviceCycles:
+        return DeviceCycles(*(getattr(self, f)[keep] for f in self.__dataclass_fields__))
+
+
+@dataclass(frozen=True)
+class Link:
+    """The graph-to-device link [s]: from a command's tick to the device cycle that takes it (forward), and
+    from the device cycle that measured a pose to the tick that publishes it (back): medians and spreads."""
+
+    forward_s: float
+    back_s: float
+    forward_spread_s: float  # half the 5-95 % range
+    back_spread_s: float
+    samples: int
+
+    @property
+    def total_s(self) -> float:
+        return self.forward_s + self.back_s
+
+
+def _unwrap(count: np.ndarray) -> np.ndarray:
+    """A device's cycle count made monotonic: a 16-bit counter (Modbus) wraps; IPOC does not."""
+    steps = np.diff(count.astype(np.int64))
+    steps[steps < 0] += 1 << 16
+    return np.concatenate([[0], np.cumsum(steps)]) + int(count[0]) if len(count) else count.astype(np.int64)
+
+
+def device_clock(c: DeviceCycles):
+    """(cycle numbers, their times [s]) on the graph's clock: where the device echoed a setpoint it took
+    (`taken`) within one quick exchange, the cycle ran between the write and the read, so at their
+    midpoint; without such exchanges (RSI: the pose comes first), at the read. Monotonic in both."""
+    n = _unwrap(c.cycle)
+    span = c.read - c.sent
+    tight = c.taken & (span <= np.median(span[c.taken]) * 2.0) if c.taken.any() else c.taken
+    if tight.sum() >= 2:
+        cycle, t = n[tight], 0.5 * (c.sent[tight] + c.read[tight])
+    else:
+        cycle, t = n, c.read
+    cycle, first = np.unique(cycle, return_index=True)
+    return cycle, np.maximum.accumulate(t[first])
+
+
+def device_timing(c: DeviceCycles):
+    """(t_set, x_set, t_pose, x_pose): each setpoint at the device cycle that took it and each pose at the
+    device cycle that measured it, on the graph's clock. A setpoint the device echoed in the same
+    exchange was taken by the cycle read back; one it did not, by the next (the first after the send
+    where the device tells nothing: RSI's answer follows its pose)."""
+    cycles, times = device_clock(c)
+    n = _unwrap(c.cycle)
+    pose_cycle, first = np.unique(n, return_index=True)
+    t_pose = np.interp(pose_cycle, cycles, times)
+    w = c.written
+    taking = np.where(c.taken[w], n[w], n[w] + 1)
+    t_set = np.interp(taking, cycles, times)
+    order = np.argsort(t_set, kind="stable")
+    return t_set[order], c.x_set[w][order], t_pose, c.x_actual[first]
+
+
+def _spread(values: np.ndarray) -> float:
+    lo, hi = np.percentile(values, [5.0, 95.0])
+    return float(hi - lo) / 2.0
+
+
+def link(c: DeviceCycles, t_cmd, t_state) -> Link:
+    """The link from the commands' ticks (t_cmd) to the device and back to the states' ticks (t_state)."""
+    cycles, times = device_clock(c)
+    t_set, _x, _tp, _xp = device_timing(c)
+    sent = np.sort(c.sent[c.written])
+    # forward: the latest command before each send, to the device cycle that took the setpoint
+    i = np.searchsorted(t_cmd, sent, side="right") - 1
+    forward = (t_set - t_cmd[np.clip(i, 0, None)])[i >= 0]
+    # back: each state published, from the device cycle of the latest pose read before its tick
+    order = np.argsort(c.read, kind="stable")
+    j = np.searchsorted(c.read[order], t_state, side="right") - 1
+    measured = np.interp(_unwrap(c.cycle)[order], cycles, times)
+    back = (t_state - measured[np.clip(j, 0, None)])[j >= 0]
+    if len(forward) < 10 or len(back) < 10:
+        raise CalibrationError(
+            f"the device cycles match {len(forward)} commands and {len(back)} poses published; the link needs 10 each"
+        )
+    return Link(
+        float(np.median(forward)), float(np.median(back)), _spread(forward), _spread(back), min(len(forward), len(back))
+    )
+
+
 # -- the whole identification --------------------------------------------------------------------------------------
 
 
@@ -343,6 +449,7 @@ class Recording:
     force: np.ndarray  # (n, 3) [N], as the driver publishes it (no tare)
     torque: np.ndarray  # (n, 3) [N m]
     phases: list[tuple[float, str]]
+    cycles: DeviceCycles | None = None  # the driver's device exchanges (/robot/cycles); None: not recorded
 
     def window(self, *names: str) -> tuple[float, float]:
         """Start and end time of the run of consecutive phases `names` (end: the next phase's start)."""
@@ -361,16 +468,31 @@ def _between(t: np.ndarray, window: tuple[float, float]) -> np.ndarray:
     return (t >= window[0]) & (t < window[1])
 
 
+NO_CYCLES = (
+    "no device cycles (/robot/cycles) in the recording: the delay is timed on the graph's ticks, so it is "
+    "the loop's, the link included (a recording from before the drivers published them)"
+)
+
+
 @dataclass(frozen=True)
 class Calibration:
     rest: Rest
     servo: Servo
     contact: Contact
+    link: Link | None = None  # None: timed on the graph's ticks (no device cycles), the link in servo's delay
+
+    @property
+    def loop_delay_s(self) -> float:
+        """The loop's delay: the robot's at the device plus the link to it and back."""
+        return self.servo.delay_s + (self.link.total_s if self.link is not None else 0.0)
 
     def as_dict(self) -> dict:
-        r, s, c = self.rest, self.servo, self.contact
+        r, s, c, ln = self.rest, self.servo, self.contact, self.link
         return {
             "delay_s": s.delay_s,
+            "loop_delay_s": self.loop_delay_s,
+            "link_s": None if ln is None else ln.total_s,
+            "timing": "device cycles" if ln is not None else NO_CYCLES,
             "lag_s": s.lag_s,
             "k_N_per_m": c.k_N_per_m,
             "b_Ns_per_m": c.b_Ns_per_m,
@@ -382,6 +504,7 @@ class Calibration:
             "surface_m": c.surface_m,
             "uncertainty": {
                 "delay_s": s.delay_sigma_s,
+                "link_s": None if ln is None else math.hypot(ln.forward_spread_s, ln.back_spread_s),
                 "lag_s": s.lag_sigma_s,
                 "k_N_per_m": c.k_sigma,
                 "b_Ns_per_m": c.b_sigma,
@@ -398,6 +521,16 @@ class Calibration:
                 "contact_samples": c.samples,
                 "peak_force_N": c.peak_force_N,
                 "rest_samples": r.samples,
+                **(
+                    {}
+                    if ln is None
+                    else {
+                        "link_forward_s": ln.forward_s,
+                        "link_back_s": ln.back_s,
+                        "link_forward_spread_s": ln.forward_spread_s,
+                        "link_back_spread_s": ln.back_spread_s,
+                    }
+                ),
             },
         }
 
@@ -408,13 +541,22 @@ def identify(rec: Recording) -> Calibration:
     r = rest(rec.force[at_rest], rec.torque[at_rest])
     free = rec.window("steps", "chirp")
     cmd, state = _between(rec.t_cmd, free), _between(rec.t_state, free)
-    s = servo(rec.t_cmd[cmd], rec.x_cmd[cmd], rec.t_state[state], rec.x_state[state])
+    timed = None
+    if rec.cycles is not None:
+        inside = rec.cycles.select(_between(rec.cycles.sent, free))
+        if inside.written.sum() >= 10:
+            timed = inside
+    if timed is None:
+        s, ln = servo(rec.t_cmd[cmd], rec.x_cmd[cmd], rec.t_state[state], rec.x_state[state]), None
+    else:  # at the device boundary: the robot's own delay, and the link apart
+        s = servo(*device_timing(timed))
+        ln = link(timed, rec.t_cmd[cmd], rec.t_state[state])
     press = rec.window("approach", "press", "hold", "release")
     ft, st = _between(rec.t_ft, press), _between(rec.t_state, press)
     # The force on the probe pushes it back (-x); the bias is taken off.
     pushing = -(rec.force[ft, 0] - r.bias_N[0])
     c = contact(rec.t_ft[ft], pushing, rec.t_state[st], rec.x_state[st], rec.v_state[st], r.noise_N[0])
-    return Calibration(r, s, c)
+    return Calibration(r, s, c, ln)
 
 
 def check(cal: Calibration) -> None:
@@ -434,7 +576,7 @@ def check(cal: Calibration) -> None:
 def recording(messages) -> Recording:
     """A Recording from (topic, message) pairs of an identification run (a bag's, decoded), timed by
     their header stamps (each the publishing node's tick)."""
-    cmd, state, ft, phases = [], [], [], []
+    cmd, state, ft, phases, cycles = [], [], [], [], []
     for topic, msg in messages:
         stamp = msg.header.stamp
         if topic == "/robot/command":
@@ -446,6 +588,11 @@ def recording(messages) -> Recording:
             ft.append((stamp, f.x, f.y, f.z, t.x, t.y, t.z))
         elif topic == "/calibration/phase":
             phases.append((stamp, msg.state))
+        elif topic == "/robot/cycles":
+            cycles += [
+                (e.sent, e.read, e.setpoint.position.x, e.written, e.actual.position.x, e.device_cycle, e.taken)
+                for e in msg.cycles
+            ]
     if not phases:
         raise CalibrationError(
             "no /calibration/phase messages: this is not a recording of an identification run "
@@ -455,16 +602,32 @@ def recording(messages) -> Recording:
         if not rows:
             raise CalibrationError(f"no {what} messages in the identification run")
     c, s, w = (np.array(sorted(rows), dtype=float) for rows in (cmd, state, ft))
-    return Recording(c[:, 0], c[:, 1], s[:, 0], s[:, 1], s[:, 2], w[:, 0], w[:, 1:4], w[:, 4:7], sorted(phases))
+    return Recording(
+        c[:, 0], c[:, 1], s[:, 0], s[:, 1], s[:, 2], w[:, 0], w[:, 1:4], w[:, 4:7], sorted(phases), _cycles(cycles)
+    )
+
+
+def _cycles(rows: list) -> DeviceCycles | None:
+    if not rows:
+        return None
+    cols = list(zip(*rows))
+    return DeviceCycles(
+        *(np.array(cols[i], dtype=float) for i in (0, 1, 2)),
+        np.array(cols[3], dtype=bool),
+        np.array(cols[4], dtype=float),
+        np.array(cols[5], dtype=np.int64),
+        np.array(cols[6], dtype=bool),
+    )
 
 
 def verdict(cal: Calibration, m: float, kcs: float, bcs: float) -> dict:
     """The stability of the identified loop for a scene's reduced mass m, kcs and bcs: the exact bound of
-    m s^2 + (K + b s) e^(-sh) = 0 with h = delay + lag (a lag tau counts as delay: 1 / (1 + tau s) and
-    e^(-s tau) agree to first order, and the crossing frequency is low, omega tau << 1)."""
+    m s^2 + (K + b s) e^(-sh) = 0 with h = the loop's delay (the robot's and the link's) + lag (a lag tau
+    counts as delay: 1 / (1 + tau s) and e^(-s tau) agree to first order, and the crossing frequency is
+    low, omega tau << 1)."""
     from dockhil.contact.stability import exact_bound
 
-    h = cal.servo.delay_s + cal.servo.lag_s
+    h = cal.loop_delay_s + cal.servo.lag_s
     bound = exact_bound(m, bcs, h)
     k_max = bound.k_max
     stable = k_max is not None and kcs < k_max

@@ -89,6 +89,8 @@ def run(args) -> int:
     from dockhil.analysis import calibration
 
     calibration.check(cal)
+    if cal.link is None:
+        say.warning(calibration.NO_CYCLES)
     out = cal.as_dict()
     out.update(_verdict(scene, cal))
     out["run_valid"] = code == 0
@@ -234,8 +236,21 @@ def _pm(value, sigma, scale: float = 1.0, digits: int = 4) -> str:
 
 def _print_table(r: dict, scene: str) -> None:
     u = r["uncertainty"]
+    link = r["link_s"]
     rows = [
-        ("delay (command to pose read back)", _pm(r["delay_s"], u["delay_s"], 1e3), "ms"),
+        (
+            "delay (the robot's, at the device)" if link is not None else "delay (command to pose, link included)",
+            _pm(r["delay_s"], u["delay_s"], 1e3),
+            "ms",
+        ),
+        *(
+            [
+                ("link (to the device and back)", _pm(link, u["link_s"], 1e3), "ms"),
+                ("loop delay (robot + link)", _pm(r["loop_delay_s"], None, 1e3), "ms"),
+            ]
+            if link is not None
+            else []
+        ),
         (f"lag ({r['lag_model']} fits better)", _pm(r["lag_s"], u["lag_s"], 1e3), "ms"),
         ("passive stiffness k", _pm(r["k_N_per_m"], u["k_N_per_m"]), "N/m"),
         ("passive damping b", _pm(r["b_Ns_per_m"], u["b_Ns_per_m"]), "N s/m"),
@@ -255,7 +270,7 @@ def _print_table(r: dict, scene: str) -> None:
         return
     print(
         f"stability of m s^2 + (K + b s) e^(-sh) = 0 at m = {v['m_kg']:.6g} kg, b = bcs = {v['bcs_Ns_per_m']:g} "
-        f"N s/m, h = delay + lag = {v['h_s'] * 1e3:.4g} ms:"
+        f"N s/m, h = loop delay + lag = {v['h_s'] * 1e3:.4g} ms:"
     )
     if v["kcs_max_N_per_m"] is None:
         print(f"  {v['reason']}")
@@ -272,7 +287,7 @@ def _print_table(r: dict, scene: str) -> None:
 def _write_loop(path: str, r: dict, scene: str) -> None:
     from dockhil.files import complete_or_nothing
 
-    values = {"delay": r["delay_s"], "lag": r["lag_s"], "k": r["k_N_per_m"], "ft_noise": r["noise_N"][0]}
+    values = {"delay": r["loop_delay_s"], "lag": r["lag_s"], "k": r["k_N_per_m"], "ft_noise": r["noise_N"][0]}
     lines = [
         f"# the loop identified by dockhil calibrate on {scene}",
         f"# a scene takes it as loop:={os.path.basename(path)}; a name:=value on the command line wins",

@@ -17,6 +17,7 @@ import threading
 import time
 
 from dockhil.hardware import modbus_map as mm
+from dockhil.hardware.cycle_log import CycleLog
 from dockhil.hardware.robot_limits import angle_between, start_orientation, toward, turn_toward
 
 
@@ -108,6 +109,8 @@ class ModbusLink(threading.Thread):
         self.reconnects = 0
         self.fatal: str | None = None
         self.notes: list[str] = []  # log lines for the node thread to emit
+        self.cycles = CycleLog()  # every exchange: what was sent, what was read, when (the driver publishes it)
+        self._written = reading.actual if reading is not None else None  # the last setpoint written
 
     # -- from the node thread -------------------------------------------------
     def submit(self, setpoint: mm.PoseTwist | None) -> None:
@@ -181,6 +184,7 @@ class ModbusLink(threading.Thread):
         self.heartbeat = (self.heartbeat + 1) & 0xFFFF
         limiter = self.limiter
         reading = self.reading
+        written = False
         if (
             reading is not None
             and not reading.status & mm.STATUS_FOLLOWING
@@ -212,11 +216,22 @@ class ModbusLink(threading.Thread):
             )
             self.writes += 1
             self.setpoint_heartbeat = self.heartbeat
+            self._written, written = setpoint, True
         else:
             self._check(client.write_register(mm.HR_HEARTBEAT, self.heartbeat, device_id=dev))
         lag = limiter.lag(target) if target is not None and not hold else (0.0, 0.0)
         rr = self._check(client.read_input_registers(0, count=mm.IR_COUNT, device_id=dev))
         reading = mm.decode_inputs(rr.registers)
+        # The controller echoes the heartbeat it last took: this one, if it ran a cycle since the write.
+        self.cycles.add(
+            now,
+            self.clock(),
+            self._written or reading.actual,
+            written,
+            reading.actual,
+            reading.cycle,
+            reading.heartbeat == self.heartbeat,
+        )
         with self.lock:
             self.reading = reading
             self.readings += 1

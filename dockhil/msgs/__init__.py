@@ -192,6 +192,34 @@ class Energy(Message):
     port_loaded: bool = False
 
 
+class RobotCycle(_Field):
+    """One exchange with the robot controller on the device's own cycle, as the driver's link made it.
+
+    sent [s]: when the setpoint (or the hold, or the heartbeat alone) went to the device; read [s]: when
+    the actual pose came back; both on the graph's clock (Unix time in a wall-time run), as stamps are.
+    setpoint: the last setpoint written (this exchange's if `written`), after the per-cycle speed limit;
+    actual: the actual pose read. device_cycle: the device's own count of the cycle that measured
+    `actual` (Modbus: the controller's 16-bit cycle counter; RSI: IPOC [ms]). taken: the device had
+    taken this exchange's setpoint when it measured `actual` (Modbus: it echoed this exchange's
+    heartbeat), so that cycle ran between `sent` and `read`."""
+
+    sent: NonNegative = 0.0
+    read: NonNegative = 0.0
+    setpoint: Pose = Pose()
+    written: bool = False
+    actual: Pose = Pose()
+    device_cycle: Count = 0
+    taken: bool = False
+
+
+class RobotCycles(Message):
+    """The device cycles of the robot driver's link since its previous tick, oldest first: every exchange,
+    none lost to the hand-over of latest values (calibrate times the robot's delay on them)."""
+
+    header: Header
+    cycles: tuple[RobotCycle, ...] = ()
+
+
 # Wire type names, stable across releases: used in bags and by the launcher.
 TYPES: dict[str, type[msgspec.Struct]] = {
     f"dockhil/{cls.__name__}": cls
@@ -201,6 +229,7 @@ TYPES: dict[str, type[msgspec.Struct]] = {
         BodyWrenches,
         RobotCommand,
         RobotState,
+        RobotCycles,
         ImpedanceParams,
         NodeStatus,
         EStop,

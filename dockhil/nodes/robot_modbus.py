@@ -71,7 +71,7 @@ from dockhil.hardware.robot_limits import (
     vector_norm,
 )
 from dockhil.node import Input, Node, Output, Param
-from dockhil.msgs import EStop, Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3, WrenchStamped
+from dockhil.msgs import EStop, Pose, Quaternion, RobotCommand, RobotCycles, RobotState, Twist, Vector3, WrenchStamped
 
 # The workspace bounds reach at most as far as the register map carries a position (+-2147.48 m).
 _MAP_M = (2**31 - 1) / mm.POSITION_COUNTS
@@ -95,7 +95,10 @@ class RobotModbusDriver(Node):
         # Event topic: silent while nothing happens, so no maximum age.
         "estop": Input(EStop, "/estop", feedthrough=False, required=False, max_age=math.inf, help="emergency stop"),
     }
-    outputs = {"state": Output(RobotState, "/robot/state", help="actual pose read from the controller")}
+    outputs = {
+        "state": Output(RobotState, "/robot/state", help="actual pose read from the controller"),
+        "cycles": Output(RobotCycles, "/robot/cycles", help="every device cycle since the last tick: sent and read"),
+    }
     moves_hardware = True
     params = {
         "host": Param(str, "127.0.0.1", help="controller address"),
@@ -366,13 +369,14 @@ class RobotModbusDriver(Node):
         self._check_lag(link.lag)
 
         count, reading = link.latest()
+        out = link.cycles.output(tick.header(p.frame), now)
         if reading is None or count == self._seen_readings:
-            return {}
+            return out
         self._seen_readings = count
         self._check_actual(reading)
         if reading.status != self._status_word:
             self._status_changed(reading.status)
-        return {"state": _state(tick.header(p.frame), reading)}
+        return {**out, "state": _state(tick.header(p.frame), reading)}
 
     def _check_wrench(self, wrench: WrenchStamped | None, t: float) -> bool:
         """Check the force limit and the watchdog; True if the F/T data are fresh enough to move."""
