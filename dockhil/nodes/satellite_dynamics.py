@@ -124,7 +124,7 @@ class SatelliteDynamics(Node):
             in_contact=self.bodies.touching(),
         )
         gap, closing = x1 - x2, v1 - v2
-        if p.max_gap and gap < -p.max_gap:  # apart beyond max_gap: the robot waits at it, still, until the bodies come back
+        if p.max_gap and gap < -p.max_gap:  # apart beyond it: the robot waits there until the bodies come back
             gap, closing = -p.max_gap, 0.0
             if not self.parked:
                 self.log(f"bodies {x2 - x1:.3g} m apart: the robot waits at the gap max_gap = {p.max_gap:g} m")
