@@ -279,6 +279,8 @@ def graph_tare(
         )
         return first
     if not tare_samples:
+        if given is not None:
+            log(f"{device}: tare_samples 0: raw readings, the bias given is not subtracted")
         return None
     start = measure(got)
     if given is None:
