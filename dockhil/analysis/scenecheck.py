@@ -9,7 +9,9 @@ loop's exact eigenvalues; `dockhil.contact.stability` the delay equation the loo
 A run is refused (one line, naming the numbers and the `rate:=` that would work) when
   * the step does not resolve the contact: omega*dt > 0.25 or fewer than 10 samples per contact
     (per oscillation period for a lasting contact), where omega is the contact's fastest pole;
-  * the sampled loop and the delay equation disagree on stability (the sampling made it).
+  * the sampled loop and the delay equation disagree on stability (the sampling made it); the
+    equation counts the servo lag as delay, and near the margin the sampling is blamed only when
+    the equation without the lag disagrees too.
 `allow_coarse:=true` runs it anyway, with the refusal as a warning. A resolved but coarse step
 (omega*dt > 0.025 or fewer than 100 samples: about 1 % peak-force error) is a warning, and so
 is a loop that is unstable as the delay equation predicts (Fig. 11 is such a scene). Warnings

@@ -5,7 +5,9 @@ then misses that load. So a tare is refused when its bias is too large (the prob
 its samples spread beyond the sensor's noise band (the probe moved or was touched while taring),
 and a driver that restarts within its graph keeps the graph's first tare instead of taring again
 (it may restart in contact): the first tare is kept in the graph's private run directory
-(owner-checked, mode 0600) for the graph's lifetime. No I/O but the store; any F/T driver uses it.
+(owner-checked, mode 0600) for the graph's lifetime. A bias given instead (a loop file's tare) is
+not tared: the start's samples only check it (`mismatch`), and it is kept as the first tare. No I/O
+but the store; any F/T driver uses it.
 """
 
 from __future__ import annotations

@@ -37,7 +37,7 @@ def one_line(exc: BaseException) -> str:
 
 
 class FtCanDriver(Node):
-    """F/T sensor over CAN: tare at the graph's first start, stale-data and bus-error detection."""
+    """F/T sensor over CAN: tare (or a given bias, checked) at the graph's first start, stale-data and bus-error detection."""
 
     outputs = {"wrench": Output(WrenchStamped, "/ft/wrench", help="wrench the contact exerts on the chaser")}
     params = {
