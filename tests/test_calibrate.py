@@ -261,7 +261,8 @@ def test_a_bag_without_an_identification_run_is_refused_and_nothing_written(tmp_
 def test_a_loop_file_sets_the_scene_and_the_command_line_wins(tmp_path):
     loop = tmp_path / "loop.yaml"
     loop.write_text(
-        'args:\n  delay: 0.0473\n  lag: 0.0081\n  k: 1012.5\n  ft_noise: 0.21\ntare: {"force_N": [0.1, 0.2, 0.3]}\n'
+        "args:\n  delay: 0.0473\n  lag: 0.0081\n  k: 1012.5\n  ft_noise: 0.21\n"
+        'tare: {"force_N": [0.1, 0.2, 0.3], "torque_Nm": [0, 0, 0]}\n'
     )
     scene = launchfile.load("hil.yaml", {"loop": str(loop)})
     assert (scene.values["delay"], scene.values["lag"], scene.values["k"], scene.values["ft_noise"]) == (

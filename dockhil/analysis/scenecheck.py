@@ -9,7 +9,9 @@ loop's exact eigenvalues; `dockhil.contact.stability` the delay equation the loo
 A run is refused (one line, naming the numbers and the `rate:=` that would work) when
   * the step does not resolve the contact: omega*dt > 0.25 or fewer than 10 samples per contact
     (per oscillation period for a lasting contact), where omega is the contact's fastest pole;
-  * the sampled loop and the delay equation disagree on stability (the sampling made it).
+  * the sampled loop and the delay equation disagree on stability (the sampling made it); the
+    equation counts the servo lag as delay, and near the margin the sampling is blamed only when
+    the equation without the lag disagrees too.
 `allow_coarse:=true` runs it anyway, with the refusal as a warning. A resolved but coarse step
 (omega*dt > 0.025 or fewer than 100 samples: about 1 % peak-force error) is a warning, and so
 is a loop that is unstable as the delay equation predicts (Fig. 11 is such a scene). Warnings
@@ -118,15 +120,24 @@ def _with_target(info: dict, p: dict, free: bool, k: float, b: float) -> dict:
     return info
 
 
-def _analyse(info: dict, cont=None) -> dict:
-    """Dominant root of the sampled loop, and the delay equation's roots `cont` (computed when not given)."""
-    from dockhil.contact import sampled
+def _reference(info: dict, with_lag: bool = True):
+    """The rightmost roots of the delay equation the loop stands for, its robot's servo lag counted
+    as delay (1/(1 + tau s) and e^(-s tau) agree to first order, as `dockhil calibrate` counts it):
+    the sampled loop has the lag, so a reference without it calls the lag's growth the sampling's."""
     from dockhil.contact.stability import hybrid_roots
 
     loop = info["loop"]
-    h = info["h"] if loop.held else 0.0
+    h = info["h"] + (loop.lag if with_lag else 0.0) if loop.held else 0.0
+    return hybrid_roots(info["m"], info["kd"], info["bd"], info["kh"], info["bh"], h, count=4)
+
+
+def _analyse(info: dict, cont=None) -> dict:
+    """Dominant root of the sampled loop, and the delay equation's roots `cont` (computed when not given)."""
+    from dockhil.contact import sampled
+
+    loop = info["loop"]
     if cont is None:
-        cont = hybrid_roots(info["m"], info["kd"], info["bd"], info["kh"], info["bh"], h, count=4)
+        cont = _reference(info)
     try:
         guesses = [cmath.exp(complex(s) * loop.dt) for s in cont] + [
             cmath.exp(complex(s).conjugate() * loop.dt) for s in cont
@@ -307,6 +318,10 @@ def scene_check(graph, refuse: bool = True) -> dict:
     # Marginal loops (an undamped ideal contact, exact: |z| = 1 to rounding) count as not growing.
     tol = 1e-9 * max(1.0, res.omega)
     sampled_unstable, physics_unstable = growth > tol, cont.real > tol
+    # The lag only approximately a delay: the sampling is blamed only where the reference without the
+    # lag disagrees too (a lagged loop's stability lies between the two near the margin).
+    if sampled_unstable != physics_unstable and loop.held and loop.lag > 0.0:
+        physics_unstable = complex(_reference(info, with_lag=False)[0]).real > tol
     if sampled_unstable != physics_unstable:
         problems.append(
             f"the sampled loop {'grows' if sampled_unstable else 'does not grow'} (spectral radius {rho:.9g}, "

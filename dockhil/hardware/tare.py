@@ -5,7 +5,9 @@ then misses that load. So a tare is refused when its bias is too large (the prob
 its samples spread beyond the sensor's noise band (the probe moved or was touched while taring),
 and a driver that restarts within its graph keeps the graph's first tare instead of taring again
 (it may restart in contact): the first tare is kept in the graph's private run directory
-(owner-checked, mode 0600) for the graph's lifetime. No I/O but the store; any F/T driver uses it.
+(owner-checked, mode 0600) for the graph's lifetime. A bias given instead (a loop file's tare) is
+not tared: the start's samples only check it (`mismatch`), and it is kept as the first tare. No I/O
+but the store; any F/T driver uses it.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
-from dockhil.errors import DeviceError
+from dockhil.errors import DeviceError, ParamError
 
 Vec = tuple[float, float, float]
 
@@ -74,22 +76,104 @@ def refusal(bias: Bias, limits: TareLimits) -> str | None:
         what = f"bias force |F| = {f:.1f} N > max_bias {limits.max_bias:g} N"
     elif limits.max_bias_torque and t > limits.max_bias_torque:
         what = f"bias torque |T| = {t:.2f} N m > max_bias_torque {limits.max_bias_torque:g} N m"
-    elif limits.max_spread and bias.force_spread > limits.max_spread:
-        what = (
-            f"force spread {bias.force_spread:.2f} N over {bias.samples} samples > max_tare_spread "
-            f"{limits.max_spread:g} N"
-        )
-    elif limits.max_spread_torque and bias.torque_spread > limits.max_spread_torque:
-        what = (
-            f"torque spread {bias.torque_spread:.3f} N m over {bias.samples} samples > "
-            f"max_tare_spread_torque {limits.max_spread_torque:g} N m"
-        )
     else:
+        what = spread(bias, limits)
+    if what is None:
         return None
     return (
         f"{what}: something loads the probe (taring it away would hide that force from every limit); "
         f"free the probe and start again, or raise the bound for a heavy tool or a noisy sensor"
     )
+
+
+# A given bias (the loop file's tare) is checked against the start samples: an axis whose start mean
+# lies further from it than BAND_SD standard deviations of the start samples' noisiest axis plus the
+# floor means the sensor drifted, was re-mounted or is loaded since the bias was measured.
+BAND_SD = 5.0
+BAND_FLOOR = 0.5  # N
+BAND_FLOOR_TORQUE = 0.05  # N m
+
+
+def given_bias(values: Sequence[float], sign: float = 1.0) -> Bias | None:
+    """A bias given as [fx, fy, fz, tx, ty, tz] in the published frame (as the driver publishes the
+    unloaded probe without a tare: the loop file's), in the sensor's own frame; None for []."""
+    if not values:
+        return None
+    raw = [sign * float(v) for v in values]
+    return Bias(tuple(raw[:3]), tuple(raw[3:]), 0.0, 0.0, 0)  # type: ignore[arg-type]
+
+
+def check_bias_param(node: str, values: dict) -> None:
+    """Refuse (ParamError, one line) a driver's `bias` that is not six finite numbers or [], or
+    one beyond max_bias / max_bias_torque (what a tare would refuse)."""
+    bias, where = values["bias"], f"node {node!r} parameter 'bias'"
+    if len(bias) not in (0, 6):
+        raise ParamError(
+            f"{where}: {len(bias)} numbers; give [fx, fy, fz, tx, ty, tz] [N, N m], or [] to tare at start"
+        )
+    for i, v in enumerate(bias):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ParamError(
+                f"{where}[{i}]: {v!r} is not a finite number; give six numbers [N, N m], or [] to tare at start"
+            )
+    given = given_bias(bias)
+    if given is not None:
+        f, t = norm(given.force), norm(given.torque)
+        if values["max_bias"] and f > values["max_bias"]:
+            raise ParamError(
+                f"{where}: |F| = {f:.1f} N > max_bias {values['max_bias']:g} N (raise it for a heavy tool)"
+            )
+        if values["max_bias_torque"] and t > values["max_bias_torque"]:
+            raise ParamError(
+                f"{where}: |T| = {t:.2f} N m > max_bias_torque {values['max_bias_torque']:g} N m (raise it for a heavy tool)"
+            )
+
+
+def mismatch(start: Bias, given: Bias, limits: TareLimits) -> str | None:
+    """Why the start samples `start` do not fit the given bias (one clause, with what to do), or None."""
+    band = BAND_SD * start.force_spread + BAND_FLOOR
+    band_t = BAND_SD * start.torque_spread + BAND_FLOOR_TORQUE
+    df = [a - b for a, b in zip(start.force, given.force)]
+    dt = [a - b for a, b in zip(start.torque, given.torque)]
+    worst_f = max(range(3), key=lambda i: abs(df[i]))
+    worst_t = max(range(3), key=lambda i: abs(dt[i]))
+    if limits.max_bias and norm(df) > limits.max_bias:
+        what = f"|F - bias| = {norm(df):.1f} N > max_bias {limits.max_bias:g} N"
+    elif limits.max_bias_torque and norm(dt) > limits.max_bias_torque:
+        what = f"|T - bias| = {norm(dt):.2f} N m > max_bias_torque {limits.max_bias_torque:g} N m"
+    elif abs(df[worst_f]) > band:
+        what = (
+            f"F{'xyz'[worst_f]} - bias = {df[worst_f]:+.3f} N, beyond the noise band {band:.3f} N "
+            f"({BAND_SD:g} sd {start.force_spread:.3f} N + {BAND_FLOOR:g} N)"
+        )
+    elif abs(dt[worst_t]) > band_t:
+        what = (
+            f"T{'xyz'[worst_t]} - bias = {dt[worst_t]:+.4f} N m, beyond the noise band {band_t:.4f} N m "
+            f"({BAND_SD:g} sd {start.torque_spread:.4f} N m + {BAND_FLOOR_TORQUE:g} N m)"
+        )
+    else:
+        what = spread(start, limits)
+    if what is None:
+        return None
+    return (
+        f"the probe reads force {fmt(start.force)} N, torque {fmt(start.torque)} N m over {start.samples} "
+        f"samples at start: {what}"
+    )
+
+
+def spread(bias: Bias, limits: TareLimits) -> str | None:
+    """What spreads beyond the noise band over the samples of `bias` (the probe moved or was touched), or None."""
+    if limits.max_spread and bias.force_spread > limits.max_spread:
+        return (
+            f"force spread {bias.force_spread:.2f} N over {bias.samples} samples > max_tare_spread "
+            f"{limits.max_spread:g} N"
+        )
+    if limits.max_spread_torque and bias.torque_spread > limits.max_spread_torque:
+        return (
+            f"torque spread {bias.torque_spread:.3f} N m over {bias.samples} samples > "
+            f"max_tare_spread_torque {limits.max_spread_torque:g} N m"
+        )
+    return None
 
 
 class TareStore:
@@ -175,10 +259,14 @@ def graph_tare(
     read: Callable[[int], Samples],
     log: Callable[[str], None],
     unit: str = "samples",
+    given: Bias | None = None,
+    given_from: str = "",
 ) -> Bias | None:
     """The tare of `node` for this graph: at its first start, over `read(tare_samples)` (refused in
     one line where `refusal` says so) and kept; at a restart, the kept one (read(1): the sensor
-    streams). None when tare_samples is 0 (no tare)."""
+    streams). None when tare_samples is 0 (no tare). With a `given` bias (from `given_from`, the
+    loop file) the first start does not tare: its samples only check the given bias (`mismatch`),
+    which is kept as the graph's first tare."""
     store = graph_store(node) if tare_samples else None
     try:
         first = store.load() if store else None
@@ -193,17 +281,35 @@ def graph_tare(
         )
         return first
     if not tare_samples:
+        if given is not None:
+            log(f"{device}: tare_samples 0: raw readings, the bias given is not subtracted")
         return None
-    bias = measure(got)
-    why = refusal(bias, limits)
-    if why:
-        raise DeviceError(f"{device}: tare: {why}")
+    start = measure(got)
+    if given is None:
+        why = refusal(start, limits)
+        if why:
+            raise DeviceError(f"{device}: tare: {why}")
+        bias, said = start, f"tared over {start.samples} {unit}: bias"
+    else:
+        why = mismatch(start, given, limits)
+        if why:
+            source = f" ({given_from})" if given_from else ""
+            raise DeviceError(
+                f"{device}: the given bias{source} does not fit: {why}; the probe is loaded, or the sensor "
+                f"drifted or was re-mounted since the bias was measured: free the probe and start again, "
+                f"or calibrate again (dockhil calibrate --out), or drop the bias (ft_bias:=[]: tare at start)"
+            )
+        bias = Bias(given.force, given.torque, start.force_spread, start.torque_spread, start.samples)
+        said = (
+            f"the probe reads {fmt(start.force)} N, {fmt(start.torque)} N m over {start.samples} {unit}, "
+            f"within the noise band of the bias given{f' by {given_from}' if given_from else ''}:"
+        )
     if store is not None:
         try:
             store.save(bias)
         except OSError as exc:
             raise DeviceError(f"{device}: cannot keep the tare in {store.path}: {exc.strerror}") from None
-    log(f"{device}: tared over {bias.samples} {unit}: bias force {fmt(bias.force)} N, torque {fmt(bias.torque)} N m")
+    log(f"{device}: {said} force {fmt(bias.force)} N, torque {fmt(bias.torque)} N m")
     return bias
 
 

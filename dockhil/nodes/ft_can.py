@@ -38,7 +38,7 @@ def one_line(exc: BaseException) -> str:
 
 
 class FtCanDriver(Node):
-    """F/T sensor over CAN: tare at the graph's first start, stale-data and bus-error detection."""
+    """F/T sensor over CAN: tare (or a given bias, checked) at the graph's first start, stale-data and bus-error detection."""
 
     outputs = {"wrench": Output(WrenchStamped, "/ft/wrench", help="wrench the contact exerts on the chaser")}
     params = {
@@ -55,11 +55,19 @@ class FtCanDriver(Node):
         "tare_samples": Param(
             int,
             100,
-            help="samples averaged into the bias at the graph's first start (0: no "
-            "tare); nothing may touch the probe meanwhile. A restart keeps the first tare",
+            help="samples averaged into the bias at the graph's first start (0: raw readings, no "
+            "tare and no given bias); nothing may touch the probe meanwhile. A restart keeps the first tare",
             ge=0,
             le=100_000,
         ),
+        "bias": Param(
+            list,
+            [],
+            unit="N, N m",
+            help="[fx, fy, fz, tx, ty, tz] the unloaded probe reads untared (the loop file's tare): "
+            "subtracted instead of a tare at start, whose samples only check it (tare.mismatch); [] tares",
+        ),
+        "bias_from": Param(str, "", help="where the bias comes from (the loop file), named when it is refused"),
         # A tare takes whatever loads the probe at start for the sensor's offset, and every force limit downstream
         # would then miss it: a large bias means the probe is pressed, a large spread that it moved while taring.
         "max_bias": Param(
@@ -109,6 +117,12 @@ class FtCanDriver(Node):
         ),
         "frame": Param(str, "", help="header frame id of the published wrench"),
     }
+
+    @classmethod
+    def resolve_params(cls, node_name: str, given: dict) -> dict:
+        values = super().resolve_params(node_name, given)
+        tare.check_bias_param(node_name, values)
+        return values
 
     def setup(self) -> None:
         p = self.p
@@ -268,6 +282,8 @@ class FtCanDriver(Node):
             limits,
             lambda n: [(s.force, s.torque) for s in self._first_samples(n)],
             self.log,
+            given=tare.given_bias(p.bias, p.sign),
+            given_from=p.bias_from,
         )
         if bias is not None:
             self.bias_force, self.bias_torque = bias.force, bias.torque

@@ -135,6 +135,8 @@ class FtNetFtDriver(Node):
             for name in (
                 "sign",
                 "tare_samples",
+                "bias",
+                "bias_from",
                 "max_bias",
                 "max_bias_torque",
                 "max_tare_spread",
@@ -149,6 +151,7 @@ class FtNetFtDriver(Node):
     @classmethod
     def resolve_params(cls, node_name: str, given: dict) -> dict:
         values = super().resolve_params(node_name, given)
+        tare.check_bias_param(node_name, values)
         for name, check in (("force_unit", rdt.force_factor), ("torque_unit", rdt.torque_factor)):
             if values[name]:
                 try:
@@ -241,7 +244,15 @@ class FtNetFtDriver(Node):
         p = self.p
         limits = tare.TareLimits(p.max_bias, p.max_bias_torque, p.max_tare_spread, p.max_tare_spread_torque)
         bias = tare.graph_tare(
-            self.ctx.name, self.device, p.tare_samples, limits, self._first_records, self.log, unit="records"
+            self.ctx.name,
+            self.device,
+            p.tare_samples,
+            limits,
+            self._first_records,
+            self.log,
+            unit="records",
+            given=tare.given_bias(p.bias, p.sign),
+            given_from=p.bias_from,
         )
         if bias is not None:
             self.bias_force, self.bias_torque = bias.force, bias.torque

@@ -41,6 +41,7 @@ import difflib
 import math
 import os
 import re
+import reprlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Union
@@ -58,6 +59,7 @@ from dockhil.scene.schema import (
     LaunchFile,
     Lets,
     NodeDecl,
+    Numbers,
     Scalar,
     SchemaError,
     convert,
@@ -65,7 +67,7 @@ from dockhil.scene.schema import (
 
 _ARG = re.compile(r"\$\((?:arg|var) ([A-Za-z_][A-Za-z0-9_]*)\)")
 _ARG_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
-_TYPES = {"float": float, "int": int, "bool": bool, "str": str}
+_TYPES = {"float": float, "int": int, "bool": bool, "str": str, "list": list}
 
 
 @dataclass
@@ -84,13 +86,19 @@ class ArgSpec:
                 if low not in ("true", "false", "1", "0"):
                     raise ValueError
                 value: Any = low in ("true", "1")
+            elif self.type is list:  # [a, b, ...] or a,b,...; empty: []
+                items = text.strip().removeprefix("[").removesuffix("]").strip()
+                value = [float(x) for x in items.split(",")] if items else []
             else:
                 value = self.type(text)
         except ValueError:
             raise LaunchError(
-                f"{where}: arg {self.name!r} expects {self.type.__name__}, got {text!r} ({self.help or 'no help'})"
+                f"{where}: arg {self.name!r} expects {self._type_name()}, got {text!r} ({self.help or 'no help'})"
             ) from None
         return self.check(value, where)
+
+    def _type_name(self) -> str:
+        return "a list of numbers" if self.type is list else self.type.__name__
 
     def check(self, value: Any, where: str) -> Any:
         value = self.typed(value, where)
@@ -109,14 +117,29 @@ class ArgSpec:
                 raise LaunchError(
                     f"{where}: arg {self.name!r}: an integer of {len(str(abs(value)))} digits is too large for a float"
                 ) from None
+        if self.type is list and isinstance(value, list):
+            return [self._number(x, f"{where}: arg {self.name!r}[{i}]") for i, x in enumerate(value)]
         if not isinstance(value, self.type) or (self.type is not bool and isinstance(value, bool)):
             hint = " (YAML reads on/off/yes/no as booleans: quote them)" if isinstance(value, bool) else ""
             raise LaunchError(
-                f"{where}: arg {self.name!r} expects {self.type.__name__}, got {type(value).__name__} {value!r}{hint}"
+                f"{where}: arg {self.name!r} expects {self._type_name()}, got {type(value).__name__} {value!r}{hint}"
             )
         if self.type is float and not math.isfinite(value):
             raise LaunchError(f"{where}: arg {self.name!r} is {value!r}; give a finite number")
         return value
+
+    @staticmethod
+    def _number(value: Any, where: str) -> float:
+        """One number of a list argument, as a finite float."""
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise LaunchError(f"{where} is {type(value).__name__} {value!r}; give a number")
+        try:
+            number = float(value)
+        except OverflowError:
+            number = math.inf
+        if not math.isfinite(number):
+            raise LaunchError(f"{where} is {value!r}; give a finite number")
+        return number
 
 
 @dataclass
@@ -298,11 +321,12 @@ def _load(path: Path, given: dict[str, Any], from_cli: bool, stack: tuple, budge
 def _scene(
     path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: bool, stack: tuple, budget: _Budget
 ) -> Scene:
-    decls = convert(data.get("args"), Optional[dict[str, Union[ArgDecl, Scalar]]], prefix=("args",)) or {}
+    decls = convert(data.get("args"), Optional[dict[str, Union[ArgDecl, Scalar, Numbers]]], prefix=("args",)) or {}
     specs = {name: _arg_spec(name, body, _where(path, root, ["args", name])) for name, body in decls.items()}
     values = {name: spec.default for name, spec in specs.items()}
     if from_cli and "loop" in specs and given.get("loop"):
-        given = {**loop_args(str(given["loop"]), specs), **given}  # name:=value on the command line wins
+        # name:=value on the command line wins (ft_bias:=[] drops the file's tare unread)
+        given = {**loop_args(str(given["loop"]), {n: s for n, s in specs.items() if n not in given}), **given}
     for name, value in given.items():
         if name not in specs:
             lets = data.get("let") if isinstance(data.get("let"), list) else []
@@ -409,7 +433,29 @@ def loop_args(path: str, specs: dict[str, ArgSpec]) -> dict[str, Any]:
     for name, value in args.items():
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise LaunchError(f"loop file {path}: args.{name} is {value!r}, not a number")
-    return {name: value for name, value in args.items() if name in specs}
+    out = {name: value for name, value in args.items() if name in specs}
+    if "ft_bias" in specs and data.get("tare") is not None:
+        out["ft_bias"] = _loop_tare(path, data["tare"])
+    return out
+
+
+def _loop_tare(path: str, tare: Any) -> list[float]:
+    """The loop file's `tare: {force_N: [x, y, z], torque_Nm: [x, y, z]}` as the F/T driver's
+    bias [fx, fy, fz, tx, ty, tz]."""
+    bias: list[float] = []
+    for key in ("force_N", "torque_Nm"):
+        axes = tare.get(key) if isinstance(tare, dict) else None
+        if (
+            not isinstance(axes, list)
+            or len(axes) != 3
+            or not all(isinstance(a, (int, float)) and not isinstance(a, bool) and math.isfinite(a) for a in axes)
+        ):
+            raise LaunchError(
+                f"loop file {path}: tare.{key} is {reprlib.repr(axes)}, not three finite numbers; write the "
+                f"file again with dockhil calibrate --out, or drop its tare with ft_bias:=[] (tare at start)"
+            )
+        bias += [float(a) for a in axes]
+    return bias
 
 
 def _value_at(data: Any, at: list) -> Any:
@@ -494,6 +540,8 @@ def _subst(value: Any, values: dict[str, Any], at: list, budget: _Budget) -> Any
 
 
 def _text(value: Any) -> str:
+    if isinstance(value, list):
+        return "[" + ", ".join(map(_text, value)) + "]"
     return ("true" if value else "false") if isinstance(value, bool) else str(value)
 
 

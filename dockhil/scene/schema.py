@@ -30,6 +30,8 @@ MAX_LETS = 1000  # `let` variables in one file
 MAX_AGE = 600.0  # [s] the longest maximum age a launch file may give a wall-time input
 
 Scalar = Union[bool, int, float, str]
+# A list of numbers (an F/T bias per axis): an argument's default, given as [a, b, ...] or a,b,...
+Numbers = Annotated[list[float], Meta(max_length=MAX_CHOICES)]
 Condition = Union[bool, int, str, None]
 Rate = Annotated[
     float,
@@ -100,10 +102,10 @@ Host = Annotated[
 class ArgDecl(Struct, forbid_unknown_fields=True):
     """A launch argument, set on the command line as name:=value."""
 
-    default: Scalar
+    default: Union[Scalar, Numbers]
     help: str = ""
     choices: Optional[Annotated[list[Scalar], Meta(min_length=1, max_length=MAX_CHOICES)]] = None
-    type: Optional[Literal["float", "int", "bool", "str"]] = None
+    type: Optional[Literal["float", "int", "bool", "str", "list"]] = None
 
 
 class RemapDecl(Struct, forbid_unknown_fields=True):
@@ -178,7 +180,7 @@ class LaunchFile(Struct, forbid_unknown_fields=True):
     description: str = ""
     rate: Rate = 1000.0
     duration: Optional[Duration] = None
-    args: Optional[dict[str, Union[ArgDecl, Scalar]]] = None
+    args: Optional[dict[str, Union[ArgDecl, Scalar, Numbers]]] = None
     let: Lets = None
     nodes: Optional[list[NodeDecl]] = None
     group: Optional[list[GroupDecl]] = None
