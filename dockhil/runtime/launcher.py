@@ -91,6 +91,9 @@ class Launcher:
         self.specs = run_specs(
             graph, self.endpoints, clock, self.n_ticks if clock == "sim" else None, self.extra, self.units
         )
+        # --realtime in wall time: the recorders too, or a busy machine leaves them seconds behind the
+        # graph, and what a stopped graph still had queued for them never reaches the bag.
+        self.lift_recorders = realtime and clock == "wall"
         for name, spec in self.specs.items():
             spec.realtime = realtime
             # Wall time: every local node starts its fixed-rate loop when all are ready, so none runs
@@ -168,6 +171,10 @@ class Launcher:
             start_new_session=True,
             env=env,
         )
+        if self.lift_recorders and child.name not in self.specs:
+            from dockhil.runtime import realtime
+
+            realtime.lift(child.proc.pid, realtime.RECORD_PRIORITY, f"{child.name!r}", self.say.warning)
         child.reader = threading.Thread(target=self._read, args=(child, child.proc), daemon=True)
         child.reader.start()
         self.say.debug(f"started {child.name!r} (pid {child.proc.pid})")

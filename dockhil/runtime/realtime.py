@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 
+RECORD_PRIORITY = 40  # the graph's recorders: above ordinary work, below the loops they record
 LOOP_PRIORITY = 50  # node loops
 IO_PRIORITY = 55  # ZeroMQ's I/O threads: between the loops and the devices they serve
 DEVICE_PRIORITY = 60  # threads that meet a device's clock: drivers' link threads, emulators' cycles
@@ -26,6 +27,17 @@ def ask(priority: int, what: str, say) -> bool:
     `say` naming `what` runs at normal priority, and False."""
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (PermissionError, OSError, AttributeError) as exc:
+        say(f"warning: real-time scheduling of {what} refused ({exc}); running at normal priority ({HOW})")
+        return False
+    return True
+
+
+def lift(pid: int, priority: int, what: str, say) -> bool:
+    """SCHED_FIFO at `priority` for another process (its main thread, before it makes others);
+    where the OS refuses, one line through `say`, and False."""
+    try:
+        os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(priority))
     except (PermissionError, OSError, AttributeError) as exc:
         say(f"warning: real-time scheduling of {what} refused ({exc}); running at normal priority ({HOW})")
         return False
