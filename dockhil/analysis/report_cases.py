@@ -11,12 +11,12 @@ import warnings
 
 import numpy as np
 
+from dockhil.analysis.report_ivp import DelayedContactRun
 from dockhil.analysis.report_graph import bag_samples, composed_samples, last_line, launch_subprocess, run_cli
 from dockhil.analysis.report_precision import (
     EXPLICIT,
     LAUNCH_DIR,
     REFERENCE_DT,
-    DelayedContactRun,
     ReportConfig,
     compared_force,
     energy_run_fixed,
