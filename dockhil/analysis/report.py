@@ -38,18 +38,16 @@ from typing import Callable
 
 import numpy as np
 
+from dockhil.analysis.report_case import plain
 from dockhil.analysis.report_cases import (
-    delay_cases,
     hil_loop_cases,
     mass_ratio_cases,
-    negative_stiffness_cases,
     overdamped_cases,
-    plain,
-    refusal_cases,
-    stability_boundary_cases,
     stiff_contact_cases,
     zero_damping_cases,
 )
+from dockhil.analysis.report_graph_cases import refusal_cases
+from dockhil.analysis.report_loop_cases import delay_cases, negative_stiffness_cases, stability_boundary_cases
 from dockhil.analysis.report_graph import graph_cost
 from dockhil.analysis.report_precision import (
     GRID,
