@@ -1,22 +1,22 @@
-"""The report's stiff and extreme cases, each with an expectation computed from the model (closed
-form, stability analysis, the integrators' stability limits) and what was measured."""
+"""The report's stiff and extreme cases of the integrators and the HIL loop, each with an expectation
+computed from the model (closed form, stability analysis, the integrators' stability limits) and
+what was measured: the stiffest contact, the HIL loop's stiff and late contacts, an overdamped and
+an undamped contact, and mass ratios from 1e-6 to 1e9. The record of a case is
+`dockhil.analysis.report_case`; the cases run through the graph and the command line are
+`report_graph_cases`, those of the delay and the virtual impedance `report_loop_cases`."""
 
 from __future__ import annotations
 
 import math
-import os
-import re
-import tempfile
-import warnings
 
 import numpy as np
 
-from dockhil.analysis.report_graph import bag_samples, composed_samples, last_line, launch_subprocess, run_cli
+from dockhil.analysis.report_case import case, relative_difference
+from dockhil.analysis.report_graph_cases import fine_rate_expected, refused_launch_case, stiff_graph_cases
+from dockhil.analysis.report_ivp import DelayedContactRun
 from dockhil.analysis.report_precision import (
     EXPLICIT,
-    LAUNCH_DIR,
     REFERENCE_DT,
-    DelayedContactRun,
     ReportConfig,
     compared_force,
     energy_run_fixed,
@@ -26,10 +26,9 @@ from dockhil.analysis.report_precision import (
     relative_energy,
     undamped_scenario,
 )
-from dockhil.contact.hilloop import simulate_hil, simulate_ideal
+from dockhil.contact.hilloop import simulate_hil
 from dockhil.contact.hybrid import VirtualImpedance
-from dockhil.contact.ideal import ideal_contact_summary, ideal_trajectory, relative_motion
-from dockhil.contact.impedance import impedance_closed_form, negative_stiffness_message
+from dockhil.contact.ideal import ideal_contact_summary, ideal_trajectory
 from dockhil.contact.integrators import (
     METHODS,
     Integrator,
@@ -37,14 +36,7 @@ from dockhil.contact.integrators import (
     max_stable_step,
     simulate_contact,
 )
-from dockhil.contact.scenario import (
-    TABLE1,
-    ContactModelError,
-    ContactScenario,
-    NegativeVirtualStiffnessWarning,
-    StepTooLargeError,
-)
-from dockhil.errors import DockhilError
+from dockhil.contact.scenario import TABLE1, ContactScenario, StepTooLargeError
 
 # -- stiff and extreme cases -----------------------------------------------------------------------------
 # Each case computes its expectation from the model (closed form, the
@@ -54,46 +46,6 @@ from dockhil.errors import DockhilError
 STIFF = ContactScenario(m1=1.0, m2=1e6, kcs=1e9, bcs=1e3, v1=0.1, v2=0.0)
 STIFF_GAP = 1.234e-4  # [m] onset at 1.234 ms: inside a 1 ms step, not on the grid
 STIFF_DT = 1e-3
-
-
-def case(
-    group: str,
-    name: str,
-    expected: str,
-    measured: str,
-    passed: bool,
-    *,
-    params: dict | None = None,
-    expected_value=None,
-    measured_value=None,
-    tolerance=None,
-) -> dict:
-    return {
-        "group": group,
-        "name": name,
-        "expected": expected,
-        "measured": measured,
-        "passed": bool(passed),
-        "params": params or {},
-        "expected_value": plain(expected_value),
-        "measured_value": plain(measured_value),
-        "tolerance": tolerance,
-    }
-
-
-def plain(value):
-    """JSON-ready: numpy scalars to floats, non-finite floats to strings."""
-    if isinstance(value, (list, tuple)):
-        return [plain(v) for v in value]
-    if isinstance(value, (np.floating, np.integer)):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return str(value)
-    return value
-
-
-def _rel(a: float, b: float) -> float:
-    return abs(a - b) / max(abs(b), 1e-300)
 
 
 def energy_growth(scn: ContactScenario, method: str, dt: float, steps: int = 4000) -> float:
@@ -138,7 +90,7 @@ def explicit_refusal_case(
         simulate_contact(scenario, impedance=impedance, method=method, dt=dt, t_end=dt)
     except StepTooLargeError as exc:
         named = named_stable_step(str(exc))
-        ok = should_refuse and named is not None and (named == limit == 0.0 or _rel(named, limit) < 1e-5)
+        ok = should_refuse and named is not None and (named == limit == 0.0 or relative_difference(named, limit) < 1e-5)
         shown = "no stable step" if named == 0.0 else f"{named:.6g} s"
         return case(
             group,
@@ -168,7 +120,7 @@ def stiff_contact_cases(cfg: ReportConfig) -> list[dict]:
     for phase in phases:
         tr = simulate_contact(scn, method="exact", dt=dt, gap=scn.closing_velocity * phase * dt, t_end=t_end)
         results.append(float(tr.v1[-1] - tr.v2[-1]))
-    errors = [_rel(v, ref.exit_relative_velocity) for v in results]
+    errors = [relative_difference(v, ref.exit_relative_velocity) for v in results]
     good = [e < 1e-6 for e in errors]
     worst = int(np.argmax(errors))
     cases.append(
@@ -212,7 +164,7 @@ def stiff_contact_cases(cfg: ReportConfig) -> list[dict]:
                 f"solve_ivp {method} (implicit), rtol 1e-10",
                 f"exit {ref.exit_relative_velocity:.9g} m/s",
                 f"exit {exit_v:.9g} m/s",
-                _rel(exit_v, ref.exit_relative_velocity) < 1e-6,
+                relative_difference(exit_v, ref.exit_relative_velocity) < 1e-6,
                 params={**params, "method": method, "rtol": 1e-10},
                 tolerance=1e-6,
                 expected_value=ref.exit_relative_velocity,
@@ -220,132 +172,8 @@ def stiff_contact_cases(cfg: ReportConfig) -> list[dict]:
             )
         )
     if cfg.graph:
-        cases.extend(stiff_graph_cases(cfg))
+        cases.extend(stiff_graph_cases(cfg, group, scn, dt))
     return cases
-
-
-def stiff_graph_cases(cfg: ReportConfig) -> list[dict]:
-    """The stiffest contact through the graph: launch/ideal.yaml, where satellite_dynamics runs the
-    ideal model inside the node; as separate processes, or composed in this process in the quick
-    configuration (whose multi-process runs are graph_cost's: one timed and recorded, one start-up)."""
-    group = "kcs = 1e9 N/m, m = 1 kg, 1 ms step"
-    scn = STIFF
-    ref = ideal_contact_summary(scn)
-    args = {"kcs": scn.kcs, "bcs": scn.bcs, "m1": scn.m1, "m2": scn.m2, "v1": scn.v1, "v2": scn.v2}
-    duration = 5 * STIFF_DT
-    mode = "composed" if cfg.quick else "multi-process"
-    params = {**args, "scene": "launch/ideal.yaml", "duration": duration, "mode": mode}
-    cases = [refused_launch_case(group, "ideal.yaml", args, scn, duration)]
-    args = {**args, "allow_coarse": "true"}  # below: what the graph computes when told to run anyway
-    s, failed = None, None
-    if cfg.quick:
-        try:
-            s = composed_samples("ideal.yaml", duration, args, (scn.kcs, scn.bcs))
-        except DockhilError as exc:
-            failed = str(exc)
-    else:
-        with tempfile.TemporaryDirectory() as tmp:
-            path = os.path.join(tmp, "stiff.mcap")
-            result = launch_subprocess(LAUNCH_DIR / "ideal.yaml", duration, args, bag=path)
-            if result["code"] != 0 or not os.path.exists(path):
-                failed = last_line(result)
-            else:
-                s = bag_samples(path, (scn.kcs, scn.bcs))
-    if s is None:
-        cases.append(
-            case(group, f"{mode} graph (launch/ideal.yaml)", "runs", f"failed: {failed}", False, params=params)
-        )
-    else:
-        exit_v = float(s.pd[-1])
-        cases.append(
-            case(
-                group,
-                f"{mode} graph (launch/ideal.yaml), exact",
-                f"exit {ref.exit_relative_velocity:.9g} m/s",
-                f"exit {exit_v:.9g} m/s" + ("" if s.p[-1] < 0 else " (bodies still touching)"),
-                _rel(exit_v, ref.exit_relative_velocity) < 1e-6 and s.p[-1] < 0.0,
-                params=params,
-                tolerance=1e-6,
-                expected_value=ref.exit_relative_velocity,
-                measured_value=exit_v,
-            )
-        )
-        lib = simulate_ideal(
-            m1=scn.m1, m2=scn.m2, kcs=scn.kcs, bcs=scn.bcs, v1=scn.v1, v2=scn.v2, dt=STIFF_DT, n_ticks=len(s.t)
-        )
-        same = np.array_equal(s.p, lib.x1 - lib.x2) and np.array_equal(s.pd, lib.v1 - lib.v2)
-        cases.append(
-            case(
-                group,
-                f"{mode} graph equals the library loop",
-                "bit-identical to simulate_ideal",
-                "bit-identical" if same else f"differs by {np.max(np.abs(s.pd - (lib.v1 - lib.v2))):.3g} m/s",
-                same,
-                params=params,
-            )
-        )
-    limit = max_stable_step(LinearSecondOrderSystem.ideal_contact(scn), "rk4")
-    if cfg.quick:
-        try:
-            composed_samples("ideal.yaml", duration, {**args, "method": "rk4"})
-            code, text = 0, ""
-        except DockhilError as exc:
-            code, text = 1, f"error: {exc}"
-    else:
-        result = launch_subprocess(LAUNCH_DIR / "ideal.yaml", duration, {**args, "method": "rk4"})
-        code, text = result["code"], result["stdout"] + result["stderr"]
-    named = named_stable_step(text)
-    error_lines = [ln for ln in text.splitlines() if "error:" in ln]
-    ok = code != 0 and named is not None and _rel(named, limit) < 1e-5 and len(error_lines) == 1
-    cases.append(
-        case(
-            group,
-            f"{mode} graph, method rk4",
-            f"fails with one error line naming {limit:.6g} s",
-            f"exit code {code}, {len(error_lines)} error line(s)" + (f", names {named:.6g} s" if named else ""),
-            ok,
-            params={**params, "method": "rk4"},
-            expected_value=limit,
-            measured_value=named,
-        )
-    )
-    return cases
-
-
-def fine_rate_expected(scn: ContactScenario) -> float:
-    """The rate [Hz] a refusal should name, from the closed form: omega*dt <= 0.025 and 100 samples per
-    contact (the criterion in dockhil.contact.sampled), rounded up to two digits."""
-    m = scn.reduced_mass
-    poles = np.roots([m, scn.bcs, scn.kcs])
-    omega = float(np.max(np.abs(poles)))
-    need = max(omega / 0.025, 100.0 / ideal_contact_summary(scn).duration)
-    scale = 10.0 ** (math.floor(math.log10(need)) - 1)
-    return math.ceil(need / scale - 1e-9) * scale
-
-
-def refused_launch_case(group: str, scene: str, args: dict, scn: ContactScenario, duration: float) -> dict:
-    """`dockhil launch` of a contact its step does not resolve: one line, exit 2, naming the rate
-    (as `rate:=` when a scene can run at it, else as the rate it would need)."""
-    want = fine_rate_expected(scn)
-    # The refusal comes before any node starts: the command runs in this process.
-    code, err = run_cli(
-        ["launch", str(LAUNCH_DIR / scene), "--duration", repr(duration), "--quiet"]
-        + [f"{k}:={v}" for k, v in args.items()]
-    )
-    text = err.strip()
-    named = re.search(r"rate:=([0-9.e+]+)|needs a rate of ([0-9.e+]+) Hz", text)
-    named_rate = float(named.group(1) or named.group(2)) if named else None
-    ok = code == 2 and len(text.splitlines()) == 1 and named_rate == want
-    return case(
-        group,
-        f"{scene} at 1 kHz: refused before it runs",
-        f"exit 2, one line naming {want:g} Hz",
-        f"exit {code}, {len(text.splitlines())} line(s)" + (f", names {named_rate:g} Hz" if named_rate else ""),
-        ok,
-        params={**args, "scene": f"launch/{scene}", "duration": duration},
-        expected_value=want,
-        measured_value=named_rate,
-    )
 
 
 # The stiff contact of issue 12 (item 1): 2605 rad/s, a 1.2 ms contact, at 1 kHz the graph reported
@@ -387,7 +215,7 @@ def hil_loop_cases(cfg: ReportConfig) -> list[dict]:
             "at 1 kHz (what the graph would run)",
             "peak off by more than 10 % (why it is refused)",
             f"peak {coarse['peak_force_N']:.4g} N against {ideal.peak_force:.4g} N",
-            _rel(coarse["peak_force_N"], ideal.peak_force) > 0.1,
+            relative_difference(coarse["peak_force_N"], ideal.peak_force) > 0.1,
             params={**params, "dt": 1e-3},
             expected_value=ideal.peak_force,
             measured_value=coarse["peak_force_N"],
@@ -395,7 +223,10 @@ def hil_loop_cases(cfg: ReportConfig) -> list[dict]:
     )
     rate = fine_rate_expected(scn)
     fine = _hil_metrics(scn, 1.0 / rate, 0.006, 0.0)
-    errs = [_rel(fine["peak_force_N"], ideal.peak_force), _rel(fine["exit_velocity_mps"], ideal.exit_relative_velocity)]
+    errs = [
+        relative_difference(fine["peak_force_N"], ideal.peak_force),
+        relative_difference(fine["exit_velocity_mps"], ideal.exit_relative_velocity),
+    ]
     cases.append(
         case(
             group,
@@ -539,7 +370,7 @@ def zero_damping_cases(cfg: ReportConfig) -> list[dict]:
                     f"{method}: long run at {dt:g} s",
                     "refuses: no stable step" if limit == 0.0 else f"refuses, names {limit:.6g} s",
                     "refused: " + ("no stable step" if named == 0.0 else f"names {named:.6g} s"),
-                    named is not None and (named == limit or _rel(named, limit) < 1e-5),
+                    named is not None and (named == limit or relative_difference(named, limit) < 1e-5),
                     params={**params, "method": method, "dt": dt},
                     expected_value=limit,
                     measured_value=named,
@@ -623,271 +454,4 @@ def mass_ratio_cases(cfg: ReportConfig) -> list[dict]:
                 measured_value=[worst["ideal"], worst["hybrid"], momentum],
             )
         )
-    return cases
-
-
-def _hil_samples(scn: ContactScenario, delay: float, dt: float, t_end: float, imp: VirtualImpedance | None = None):
-    imp = imp or hybrid_impedance(scn)
-    return simulate_hil(
-        m1=scn.m1,
-        m2=scn.m2,
-        k=scn.k,
-        impedance=imp,
-        dt=dt,
-        n_ticks=int(round(t_end / dt)) + 1,
-        delay=delay,
-        v1=scn.v1,
-        v2=scn.v2,
-    )
-
-
-def delay_cases(cfg: ReportConfig) -> list[dict]:
-    """Delay 0 (the hybrid loop is the ideal contact) and a delay much longer
-    than the contact (during it only the virtual part acts, kcs - k; the
-    stale robot pose then pushes the separated bodies)."""
-    from dockhil.analysis.summary import Samples, contact_metrics
-
-    group = "robot delay"
-    scn, dt = TABLE1, 1e-3
-    ref = ideal_contact_summary(scn)
-    cases = []
-    run = _hil_samples(scn, 0.0, dt, cfg.contact_t_end)
-    closed = ideal_trajectory(scn, run.t)
-    step_change = float(np.max(np.abs(np.diff(closed.force))))
-    m = contact_metrics(Samples(run.t, run.x1 - run.x2, run.v1 - run.v2, run.force))
-    err = abs(m["peak_force_N"] - ref.peak_force)
-    cases.append(
-        case(
-            group,
-            "delay 0: hybrid loop = ideal contact",
-            f"peak {ref.peak_force:.6g} N within one step's force change ({step_change:.3g} N)",
-            f"peak {m['peak_force_N']:.6g} N",
-            err <= step_change,
-            params={**scn.as_dict(), "delay": 0.0, "dt": dt},
-            tolerance=step_change,
-            expected_value=ref.peak_force,
-            measured_value=m["peak_force_N"],
-        )
-    )
-    # Delay far beyond the contact: until h passes the robot reports no pose.
-    h = 10.0
-    soft = scn.replace(kcs=scn.kcs - scn.k)
-    soft_ref = ideal_contact_summary(soft)
-    run = _hil_samples(scn, h, dt, h + soft_ref.duration + 0.5)
-    before = run.t < h
-    s = Samples(run.t[before], (run.x1 - run.x2)[before], (run.v1 - run.v2)[before], run.force[before])
-    m = contact_metrics(s)
-    soft_closed = ideal_trajectory(soft, run.t[before])
-    step_change = float(np.max(np.abs(np.diff(soft_closed.force))))
-    cases.append(
-        case(
-            group,
-            f"delay {h:g} s >> contact: the contact runs on the virtual part only",
-            f"ideal contact with kcs - k: peak {soft_ref.peak_force:.6g} N",
-            f"peak {m['peak_force_N']:.6g} N",
-            abs(m["peak_force_N"] - soft_ref.peak_force) <= step_change,
-            params={**scn.as_dict(), "delay": h, "dt": dt},
-            tolerance=step_change,
-            expected_value=soft_ref.peak_force,
-            measured_value=m["peak_force_N"],
-        )
-    )
-    # After h the delayed pose replays the contact on separated bodies: an impulse k * integral(p dt).
-    tq = np.linspace(0.0, soft_ref.duration, 20001)
-    p, _ = relative_motion(soft.reduced_mass, soft.kcs, soft.bcs, soft.closing_velocity, tq)
-    impulse = scn.k * float(np.sum((p[1:] + p[:-1]) * np.diff(tq)) / 2.0)
-    expected_dv = -impulse / scn.reduced_mass
-    i0 = int(np.searchsorted(run.t, h - 10 * dt))
-    measured_dv = float((run.v1 - run.v2)[-1] - (run.v1 - run.v2)[i0])
-    cases.append(
-        case(
-            group,
-            f"delay {h:g} s: stale pose pushes after separation",
-            f"relative velocity change -k/m * int p dt = {expected_dv:.6g} m/s",
-            f"{measured_dv:.6g} m/s",
-            _rel(measured_dv, expected_dv) < 0.01,
-            params={**scn.as_dict(), "delay": h, "dt": dt},
-            tolerance=0.01,
-            expected_value=expected_dv,
-            measured_value=measured_dv,
-        )
-    )
-    return cases
-
-
-def negative_stiffness_cases(cfg: ReportConfig) -> list[dict]:
-    """kcs < k: the virtual springs come out negative; the model warns and the
-    undelayed hybrid model still reproduces the ideal contact."""
-    group = "kcs < k (negative virtual stiffness)"
-    scn = TABLE1.replace(kcs=500.0, k=1000.0)
-    params = scn.as_dict()
-    expected_message = negative_stiffness_message(scn)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        imp = impedance_closed_form(scn)
-    warned = [w for w in caught if issubclass(w.category, NegativeVirtualStiffnessWarning)]
-    predicted_k1 = (scn.kcs - scn.k) * (1.0 + scn.m1 / scn.m2)
-    cases = [
-        case(
-            group,
-            "impedance warns, k1 and k2 negative",
-            f"warning; k1 = {predicted_k1:.6g} N/m",
-            f"{len(warned)} warning(s); k1 = {imp.k1:.6g} N/m",
-            expected_message is not None
-            and len(warned) == 1
-            and str(warned[0].message) == expected_message
-            and imp.k1 < 0
-            and imp.k2 < 0
-            and _rel(imp.k1, predicted_k1) < 1e-12,
-            params=params,
-            expected_value=predicted_k1,
-            measured_value=imp.k1,
-        )
-    ]
-    ref = ideal_contact_summary(scn)
-    tr = simulate_contact(scn, impedance=imp, method="exact", dt=1e-3)
-    r = ideal_trajectory(scn, tr.t)
-    mine = compared_force(scn, None, tr.penetration, tr.penetration_rate, tr.in_contact, r.in_contact)
-    theirs = compared_force(scn, None, r.penetration, r.penetration_rate, r.in_contact, tr.in_contact)
-    err = float(np.max(np.abs(mine - theirs)))
-    cases.append(
-        case(
-            group,
-            "undelayed hybrid model = ideal contact",
-            f"force error < 1e-6 of the peak {ref.peak_force:.6g} N",
-            f"{err:.3g} N",
-            err < 1e-6 * ref.peak_force,
-            params={**params, "method": "exact", "dt": 1e-3},
-            tolerance=1e-6 * ref.peak_force,
-            expected_value=ref.peak_force,
-            measured_value=err,
-        )
-    )
-    return cases
-
-
-def stability_boundary_cases(cfg: ReportConfig) -> list[dict]:
-    """Figs. 11-12's loop (750 kg, 10 N thrust, virtual damper on the simulated
-    velocity, 16 ms delay) with K just inside and just outside the exact bound.
-    The sampled loop holds forces over a step, which acts as about half a step
-    of extra delay: the bound is taken at h + dt/2; the expected growth rate is
-    the sampled loop's own dominant eigenvalue (dockhil.contact.sampled), and the
-    envelope is fitted about the true equilibrium thrust / K."""
-    from dockhil.contact.envelope import growth_rate as measured_growth
-    from dockhil.contact.sampled import SampledLoop, sampled_growth_rate
-    from dockhil.contact.stability import exact_bound
-
-    group = "exact stability boundary"
-    m, b, h, thrust, dt = 750.0, 60.0, 0.016, 10.0, cfg.stability_dt
-    h_eff = h + dt / 2.0
-    k_max = exact_bound(m, b, h_eff, "undelayed").k_max
-    cases = []
-    for factor, where in ((0.95, "just inside"), (1.05, "just outside")):
-        K = factor * k_max
-        predicted = sampled_growth_rate(SampledLoop(m, 0.0, b, K, 0.0, dt=dt, delay_ticks=int(round(h / dt))))
-        x_eq = thrust / K
-        run = simulate_hil(
-            m1=m,
-            m2=0.0,
-            k=K,
-            impedance=VirtualImpedance(0.0, b, 0.0, 0.0),
-            dt=dt,
-            n_ticks=int(round(cfg.stability_t_end / dt)) + 1,
-            delay=h,
-            thrust=thrust,
-            x1=x_eq + 5e-4,
-        )
-        measured = measured_growth(run.t, run.x1, about=x_eq)
-        cases.append(
-            case(
-                group,
-                f"K = {factor:g} K_max ({where})",
-                f"growth rate {predicted:+.4g} 1/s ({'decays' if predicted < 0 else 'grows'}), within 2 %",
-                f"{measured:+.4g} 1/s",
-                (measured > 0) == (predicted > 0) and _rel(measured, predicted) < 0.02,
-                params={"m": m, "b": b, "h": h, "K": K, "K_max": k_max, "dt": dt, "damper": "undelayed"},
-                expected_value=predicted,
-                measured_value=measured,
-            )
-        )
-    return cases
-
-
-def refusal_cases(cfg: ReportConfig) -> list[dict]:
-    """NaN, Inf and non-positive masses are refused with one clear line, in the
-    library and on the launch command line."""
-    group = "bad input refused"
-    cases = []
-    for name in ("m1", "m2"):
-        for value in (math.nan, math.inf, 0.0, -1.0):
-            try:
-                TABLE1.replace(**{name: value})
-            except ContactModelError as exc:
-                text = str(exc)
-                ok = name in text and "\n" not in text
-                cases.append(
-                    case(
-                        group,
-                        f"ContactScenario({name} = {value!r})",
-                        f"ContactModelError naming {name}",
-                        text,
-                        ok,
-                        params={name: plain(value)},
-                    )
-                )
-            else:
-                cases.append(
-                    case(
-                        group,
-                        f"ContactScenario({name} = {value!r})",
-                        f"ContactModelError naming {name}",
-                        "accepted",
-                        False,
-                        params={name: plain(value)},
-                    )
-                )
-    for value in (math.nan, -750.0):
-        try:
-            simulate_hil(m1=value, m2=1e6, k=1000.0, impedance=hybrid_impedance(), dt=1e-3, n_ticks=2)
-        except ContactModelError as exc:
-            cases.append(
-                case(
-                    group,
-                    f"simulate_hil(m1 = {value!r})",
-                    "ContactModelError naming the mass",
-                    str(exc),
-                    "mass" in str(exc) and "\n" not in str(exc),
-                    params={"m1": plain(value)},
-                )
-            )
-        else:
-            cases.append(
-                case(
-                    group,
-                    f"simulate_hil(m1 = {value!r})",
-                    "ContactModelError naming the mass",
-                    "accepted",
-                    False,
-                    params={"m1": plain(value)},
-                )
-            )
-    if (LAUNCH_DIR / "ideal.yaml").exists():
-        for text in ("nan", "inf", "0", "-1"):
-            code, err = run_cli(
-                ["launch", str(LAUNCH_DIR / "ideal.yaml"), f"m1:={text}", "--duration", "0.01", "--quiet"]
-            )
-            lines = [ln for ln in err.splitlines() if ln.strip()]
-            ok = code == 2 and len(lines) == 1 and "m1" in lines[0]
-            cases.append(
-                case(
-                    group,
-                    f"dockhil launch ideal.yaml m1:={text}",
-                    "exit 2, one line naming m1",
-                    f"exit {code}: {lines[0] if lines else '(no message)'}"
-                    if len(lines) <= 1
-                    else f"exit {code}, {len(lines)} lines",
-                    ok,
-                    params={"m1": text},
-                )
-            )
     return cases

@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from dockhil.analysis import report
+    from dockhil.analysis import report, report_markdown, report_plots
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -53,10 +53,10 @@ def run(args) -> int:
 
         cfg = dataclasses.replace(cfg, lean=False)
     data = report.build_report(cfg)
-    plots = report.write_plots(data, out)
+    plots = report_plots.write_plots(data, out)
     data["plots"] = plots
     (out / "report.json").write_text(json.dumps(data, indent=1, allow_nan=False) + "\n")
-    (out / "report.md").write_text(report.render_markdown(data, plots))
+    (out / "report.md").write_text(report_markdown.render_markdown(data, plots))
     cases = data["stiff_cases"]
     failed = [c for c in cases if not c["passed"]]
     print(f"wrote {out / 'report.json'}, {out / 'report.md'} and {len(plots)} plots")

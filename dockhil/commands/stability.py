@@ -1,15 +1,23 @@
 """`dockhil stability`: how stiff a contact the robot's delay lets through
 (paper Sec. 4: Eq. 12 and the exact boundary), `stability map`: Fig. 7, and `stability multi`: the
-multi-axis delayed loop of a 6-DOF scene. Parse, call (dockhil.contact.stability_maps and the
-analyses it names; the plots in dockhil.analysis.stability_plot) and print."""
+multi-axis delayed loop of a 6-DOF scene. Parse, call (dockhil.contact.stability and
+stability_maps; the maps, the multi-axis record and the scenes' loops in
+dockhil.analysis.stability_report) and print (the text in dockhil.analysis.stability_text)."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import math
-import time
 
+from dockhil.analysis.stability_text import (
+    format_compensated,
+    format_hybrid,
+    format_hybrid_map,
+    format_multi_axis,
+    format_report,
+    format_stiffness_map,
+)
 from dockhil.contact.stability_maps import SECONDS
 from dockhil.errors import DockhilError
 
@@ -271,57 +279,10 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report))
         return 0
-    _print_report(report)
+    print(format_report(report))
     if "passivity" in report:
-        _print_compensated(report["passivity"])
+        print(format_compensated(report["passivity"]))
     return 0
-
-
-def _print_compensated(r: dict) -> None:
-    print(f"with passivity compensation (max_damping {r['max_damping']:g} N s/m), measured on {r['loop']}:")
-    for row in r["runs"]:
-        if row["diverged"]:
-            verdict = "diverged"
-        elif row["growth_rate"] is None:
-            verdict = "settled" if row.get("settled") else "too few peaks to fit a growth rate"
-        else:
-            verdict = f"growth rate {row['growth_rate']:+.4g} 1/s, {'decays' if row['growth_rate'] < 0 else 'GROWS'}"
-        sat = ", SATURATED (energy left in the loop)" if row["saturated"] else ""
-        print(f"  K = {row['K']:<10.6g} N/m ({row['label']}): {verdict}{sat}")
-    largest = r["largest_decaying_K"]
-    print(
-        f"  largest K that decays without saturating: {_fmt(largest)} N/m"
-        + ("" if largest is None or not r["exact_undelayed"] else f" ({largest / r['exact_undelayed']:.3g}x exact)")
-    )
-
-
-def _fmt(value: float | None) -> str:
-    return "none" if value is None else f"{value:.6g}"
-
-
-def _print_report(r: dict) -> None:
-    equation = "m s^2 + (K + b s) e^(-sh) = 0" if r["damper"] == "delayed" else "m s^2 + b s + K e^(-sh) = 0"
-    print(f"delayed contact loop ({r['damper']} damper): {equation}")
-    print(f"  m = {r['m']:g} kg, b = {r['b']:g} N s/m, h = {r['h']:g} s   (b h / m = {r['beta']:.4g})")
-    print(f"  {'bound':30} K_max [N/m]")
-    label = "Eq. 12 (Pade 1 + Routh)" if r["damper"] == "delayed" else "Pade 1 + Routh"
-    note = ""
-    if "pade1_error" in r:
-        note = f"   ({100 * r['pade1_error']:+.3g} % against exact)"
-    print(f"  {label:30} {_fmt(r['pade1']):12}{note}")
-    if "pade_order" in r:
-        print(f"  {'Pade ' + str(r['pade_order']):30} {_fmt(r['pade_n'])}")
-    print(f"  {'exact':30} {_fmt(r['exact'])}")
-    print(f"  {r['reason']}")
-    if "pade1_reason" in r:
-        print(f"  Pade 1: {r['pade1_reason']}")
-    if "K" in r:
-        re_, im_ = r["rightmost_root"]
-        verdict = "stable" if r["stable"] else "UNSTABLE"
-        print(
-            f"  K = {r['K']:g} N/m: {verdict}, growth rate {r['growth_rate']:+.4g} 1/s"
-            f" (rightmost root {re_:.4g} {'+' if im_ >= 0 else '-'} {abs(im_):.4g}j 1/s)"
-        )
 
 
 def _range(name: str, pair, positive: bool, most: float = MAX_COEFF, unit: str = "") -> tuple[float, float]:
@@ -335,12 +296,6 @@ def _range(name: str, pair, positive: bool, most: float = MAX_COEFF, unit: str =
 
 
 def _run_map(args) -> int:
-    import numpy as np
-
-    from dockhil.contact.stability_maps import nan_extreme
-
-    from dockhil.contact.stability import critical_stiffness_map
-
     if getattr(args, "m", None) is None:
         raise DockhilError("missing --m (free-floating mass [kg])")
     m = _mass(args.m)
@@ -351,55 +306,18 @@ def _run_map(args) -> int:
                 "map (--kcs, --bcs) has none: leave one of them out"
             )
         return _run_hybrid_map(args, m)
-    b_lo, b_hi = _range("--b-range", args.b_range, positive=False, unit="N s/m")
-    h_lo, h_hi = _range("--h-range", args.h_range, positive=True, most=MAX_DELAY, unit="s")
+    b_range = _range("--b-range", args.b_range, positive=False, unit="N s/m")
+    h_range = _range("--h-range", args.h_range, positive=True, most=MAX_DELAY, unit="s")
     args.n = 200 if args.n is None else args.n
     if not 2 <= args.n <= 2000:
         raise DockhilError(f"--n must be between 2 and 2000, got {args.n}")
-    damper = getattr(args, "damper", "delayed")
-    b = np.linspace(b_lo, b_hi, args.n)
-    h = np.linspace(h_lo, h_hi, args.n)
-    start = time.perf_counter()
-    pade1 = critical_stiffness_map(m, b, h, "pade1", damper)
-    exact = critical_stiffness_map(m, b, h, "exact", damper)
-    compute_seconds = time.perf_counter() - start
     compensated = None
     if getattr(args, "compensation", "none") == "passivity":
-        compensated = _compensated_region(m, (b_lo, b_hi), (h_lo, h_hi), args)
-    from dockhil.analysis.stability_plot import plot_map
+        compensated = _compensated_region(m, b_range, h_range, args)
+    from dockhil.analysis.stability_report import stiffness_map
 
-    plot_map(args.png, m, b, h, pade1, exact, damper, compensated)
-    with np.errstate(invalid="ignore"):
-        overestimate = (pade1 - exact) / exact
-    summary = {
-        "png": args.png,
-        "m": m,
-        "damper": damper,
-        "grid": [args.n, args.n],
-        "b_range": [b_lo, b_hi],
-        "h_range": [h_lo, h_hi],
-        "compute_seconds": compute_seconds,
-        "pade1_min": nan_extreme(np.nanmin, pade1),
-        "pade1_max": nan_extreme(np.nanmax, pade1),
-        "exact_min": nan_extreme(np.nanmin, exact),
-        "exact_max": nan_extreme(np.nanmax, exact),
-        "max_pade1_overestimate": nan_extreme(np.nanmax, overestimate),
-        "points_without_stable_K": int(np.sum(np.isnan(exact))),
-    }
-    if compensated is not None:
-        summary["passivity"] = compensated
-    if getattr(args, "json", False):
-        print(json.dumps(summary))
-    else:
-        print(f"wrote {args.png}: K_max over {args.n} x {args.n} (b, h) points in {compute_seconds * 1e3:.1f} ms")
-        print(f"  Eq. 12: {_fmt(summary['pade1_min'])} to {_fmt(summary['pade1_max'])} N/m")
-        print(f"  exact:  {_fmt(summary['exact_min'])} to {_fmt(summary['exact_max'])} N/m")
-        if summary["max_pade1_overestimate"] is not None:
-            print(f"  Eq. 12 overestimates the exact bound by up to {100 * summary['max_pade1_overestimate']:.3g} %")
-        if summary["points_without_stable_K"]:
-            print(f"  {summary['points_without_stable_K']} grid points have no stabilizing K at all")
-        if compensated is not None:
-            _print_region(compensated)
+    summary = stiffness_map(args.png, m, getattr(args, "damper", "delayed"), b_range, h_range, args.n, compensated)
+    print(json.dumps(summary) if getattr(args, "json", False) else format_stiffness_map(summary))
     return 0
 
 
@@ -439,29 +357,8 @@ def _compensated_region(m: float, b_range, h_range, args) -> dict:
     )
 
 
-def _print_region(r: dict) -> None:
-    flat = [x for row in r["largest_stable_multiple"] for x in row if x is not None]
-    print(
-        f"  with passivity compensation (max_damping {r['max_damping']:g} N s/m), simulated over {r['grid'][0]} x "
-        f"{r['grid'][1]} (b, h) points at {', '.join(f'{x:g}' for x in r['multiples'])} x the exact bound "
-        f"({r['points']} runs, {r['cpu_seconds']:.1f} s CPU):"
-    )
-    print(
-        f"    stable (neither grows nor saturates) in {r['stable_points']} of {r['points']} runs; "
-        f"{r['saturated_points']} saturated"
-    )
-    if flat:
-        print(
-            f"    largest stiffness stable at every point: {min(flat):g} x exact; at some point: {max(flat):g} x exact"
-        )
-
-
 def _scene_values(args) -> tuple[float, float, float, float, float, float, float]:
     """m, k_d, b_d, k_h, b_h, h, rate of a scene's loop, as the graph will run it."""
-    from dockhil.scene import launchfile
-    from dockhil.scene.graph import build
-    from dockhil.analysis.scenecheck import scene_loop
-
     given = [f"--{n.replace('_', '-')}" for n in ("m", "h", *_HYBRID) if getattr(args, n, None) is not None]
     if given:
         raise DockhilError(
@@ -469,19 +366,9 @@ def _scene_values(args) -> tuple[float, float, float, float, float, float, float
             f"name:=value after the file"
         )
     path, *overrides = args.scene
-    graph = build(launchfile.load(path, launchfile.parse_overrides(overrides)))
-    info = scene_loop(graph)
-    if info is None:
-        raise DockhilError(f"{path}: no satellite_dynamics node, so no contact loop to analyse")
-    if not info["loop"].held:
-        raise DockhilError(f"{path}: the ideal model has no delay; its step is checked when it launches")
-    if not info["delay_known"]:
-        raise DockhilError(
-            f"{path}: the robot's delay is the hardware's, which the scene does not give; "
-            f"analyse the scene with its simulated robot at the measured delay (delay:=H), or "
-            f"give it with --h and the loop's values"
-        )
-    return info["m"], info["kd"], info["bd"], info["kh"], info["bh"], info["h"], graph.scene.rate
+    from dockhil.analysis.stability_report import scene_hybrid_loop
+
+    return scene_hybrid_loop(path, overrides)
 
 
 def _hybrid_values(args) -> tuple[float, float, float, float, float, float, float]:
@@ -523,51 +410,13 @@ def _run_hybrid(args) -> int:
         r = hybrid_report(m, kd, bd, kh, bh, h, rate=rate, pade_order=args.pade_order)
     except RootsNotResolved as exc:
         raise DockhilError(f"{exc}; give a lower --rate") from None
-    if args.json:
-        print(json.dumps(r))
-        return 0
-    print(f"hybrid contact loop: {r['equation']}")
-    print(f"  m = {m:g} kg, k_d = {kd:g} N/m, b_d = {bd:g} N s/m, k_h = {kh:g} N/m, b_h = {bh:g} N s/m, h = {h:g} s")
-    if not r["stable_without_delay"]:
-        print("  unstable already without delay: m s^2 + (b_d + b_h) s + k_d + k_h has a root with Re >= 0")
-    elif r["no_delay_destabilizes"]:
-        print("  no delay destabilizes it: |k_d - m w^2 + j b_d w| > |k_h + j b_h w| at every frequency")
-    else:
-        print(
-            f"  {'critical delay (exact)':30} {r['critical_delay']:.6g} s, oscillating at "
-            f"{r['critical_frequency']:.6g} rad/s"
-        )
-        print(f"  {'critical delay (Pade 1)':30} {_fmt(r['pade1_critical_delay'])} s")
-        if "pade_order" in r:
-            print(f"  {'critical delay (Pade ' + str(r['pade_order']) + ')':30} {_fmt(r['pade_n_critical_delay'])} s")
-    for c in r["crossings"]:
-        print(
-            f"  crossing s = j {c['omega']:.6g} rad/s at h = {c['h0']:.6g} s + n {2 * math.pi / c['omega']:.6g} s "
-            f"({'destabilizing' if c['destabilizing'] else 'stabilizing'})"
-        )
-    re_, im_ = r["rightmost_root"]
-    verdict = "stable" if r["stable"] else "UNSTABLE"
-    print(f"  at h = {h:g} s: {verdict}, growth rate {re_:+.4g} 1/s (rightmost root {re_:.4g} + {im_:.4g}j 1/s)")
-    print(
-        f"  (were the whole contact delayed, as in Eq. 12's loop: growth rate {r['whole_delayed_growth_rate']:+.4g} 1/s)"
-    )
-    sm = r["sampled"]
-    verdict = "stable" if sm["stable"] else "UNSTABLE"
-    line = (
-        f"  sampled at {sm['rate']:g} Hz ({sm['delay_ticks']} ticks of delay, forces held over a step): {verdict}, "
-        f"spectral radius {sm['spectral_radius']:.9g}, growth rate {_fmt(sm['growth_rate'])} 1/s"
-    )
-    print(line)
-    if "critical_delay_ticks" in sm:
-        print(f"  sampled critical delay: {sm['critical_delay_ticks']} ticks ({sm['critical_delay']:.6g} s)")
+    print(json.dumps(r) if args.json else format_hybrid(r))
     return 0
 
 
 def _run_hybrid_map(args, m: float) -> int:
     """Stable region of the hybrid loop m s^2 + bcs s + (kcs - k) + k e^(-sh) over (k, h): exact (closed-form
     crossings) and sampled at --rate, beside Eq. 12's verdict on the paper's loop (the whole kcs delayed)."""
-    import numpy as np
-
     from dockhil.contact.scenario import check_nonnegative, check_positive
 
     if args.kcs is None or args.bcs is None:
@@ -585,39 +434,10 @@ def _run_hybrid_map(args, m: float) -> int:
     args.n = 60 if args.n is None else args.n
     if not 2 <= args.n <= 400:
         raise DockhilError(f"--n must be between 2 and 400 for the hybrid map, got {args.n}")
-    from dockhil.contact.stability_maps import hybrid_map
+    from dockhil.analysis.stability_report import hybrid_stability_map
 
-    ks, hs = np.linspace(k_lo, k_hi, args.n), np.linspace(h_lo, h_hi, args.n)
-    start = time.perf_counter()
-    exact, sampled, eq12 = hybrid_map(m, kcs, bcs, rate, ks, hs)
-    seconds = time.perf_counter() - start
-    from dockhil.analysis.stability_plot import plot_hybrid
-
-    plot_hybrid(args.png, m, kcs, bcs, rate, ks, hs, exact, sampled, eq12)
-    summary = {
-        "png": args.png,
-        "m": m,
-        "kcs": kcs,
-        "bcs": bcs,
-        "rate": rate,
-        "grid": [args.n, args.n],
-        "k_range": [k_lo, k_hi],
-        "h_range": [h_lo, h_hi],
-        "compute_seconds": seconds,
-        "exact_stable_fraction": float(exact.mean()),
-        "sampled_stable_fraction": float(sampled.mean()),
-        "sampled_disagrees_fraction": float((exact != sampled).mean()),
-        "eq12_stable_delays": float(eq12.mean()),
-    }
-    if getattr(args, "json", False):
-        print(json.dumps(summary))
-    else:
-        print(f"wrote {args.png}: the hybrid loop over {args.n} x {args.n} (k, h) points in {seconds:.2f} s")
-        print(
-            f"  stable: {100 * summary['exact_stable_fraction']:.3g} % exact, "
-            f"{100 * summary['sampled_stable_fraction']:.3g} % sampled at {rate:g} Hz; Eq. 12 (kcs wholly delayed) "
-            f"calls {100 * summary['eq12_stable_delays']:.3g} % of the delays stable, whatever k"
-        )
+    summary = hybrid_stability_map(args.png, m, kcs, bcs, rate, (k_lo, k_hi), (h_lo, h_hi), args.n)
+    print(json.dumps(summary) if getattr(args, "json", False) else format_hybrid_map(summary))
     return 0
 
 
@@ -671,36 +491,15 @@ def _add_multi_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help="print one JSON object")
 
 
-def _scene_loop6(items: list[str]):
-    """(loop, description) of a 6-DOF scene at its start configuration."""
-    from dockhil.scene import graph as graphmod
-    from dockhil.scene import launchfile
-    from dockhil import nodes
-    from dockhil.analysis.scenecheck import scene_loop6
-
-    path, overrides = items[0], launchfile.parse_overrides(items[1:])
-    graph = graphmod.build(launchfile.load(path, overrides))
-    loop = scene_loop6(graph)
-    if loop is None:
-        types = {gn.type_name for gn in graph.nodes.values()}
-        named = [
-            f"{nodes.ONE_DOF[t]} with dof: 6" for t in ("satellite_dynamics6", "virtual_impedance6") if t not in types
-        ]
-        raise DockhilError(
-            f"{path}: not a 6-DOF hybrid scene (no {' and no '.join(named)});"
-            " for a 1-DOF scene run `dockhil stability --scene`"
-        )
-    return loop, f"6-DOF hybrid loop of {path} at its start configuration, delay h = {loop.h:g} s"
-
-
 def _run_multi(args: argparse.Namespace) -> int:
+    from dockhil.analysis import stability_report
     from dockhil.contact import stability6
 
     scene = getattr(args, "scene", None)
     if bool(scene) == bool(args.planar):
         raise DockhilError("give either --scene FILE [NAME:=VALUE ...] or --planar with its values")
     if scene:
-        loop, what = _scene_loop6(scene)
+        loop, what = stability_report.scene_multi_axis_loop(scene[0], scene[1:])
     else:
         values = {}
         for name in ("m", "inertia", "k_normal", "b_normal", "h"):
@@ -722,48 +521,6 @@ def _run_multi(args: argparse.Namespace) -> int:
             args.direct,
         )
         what = f"planar loop (x at the contact point, rz), lever {args.lever:g} m, delay h = {values['h']:g} s"
-    root = stability6.rightmost(loop)
-    margin = stability6.stiffness_margin(loop)
-    modes = stability6.modal_loops(loop)
-    out = {
-        "loop": what,
-        "axes": list(loop.axes),
-        "h_s": loop.h,
-        "rightmost_root_1_s": [root.s.real, root.s.imag],
-        "rightmost_axis": root.axis,
-        "rightmost_mode": [abs(c) for c in root.mode],
-        "stable": root.s.real < 0.0,
-        "stiffness_margin": None if margin.alpha is None or math.isinf(margin.alpha) else margin.alpha,
-        "crossing_rad_s": margin.omega,
-        "limiting_axis": None if margin.root is None else margin.root.axis,
-        "limiting_mode": None if margin.root is None else [abs(c) for c in margin.root.mode],
-        "reason": margin.reason,
-        "decoupled_modes": modes is not None,
-    }
-    if getattr(args, "json", False):
-        print(json.dumps(out))
-        return 0
-    print(what)
-    print(
-        f"rightmost root   {root.s.real:+.6g} {root.s.imag:+.6g}j 1/s, led by axis {root.axis}: "
-        + ("stable (decays)" if out["stable"] else "UNSTABLE (grows)")
-    )
-    print("its mode         " + "  ".join(f"{a} {abs(c):.3g}" for a, c in zip(loop.axes, root.mode)))
-    if out["stiffness_margin"] is not None:
-        print(
-            f"stiffness margin stable up to {margin.alpha:.6g} times the delayed (passive) stiffness; there the"
-            f" mode led by axis {out['limiting_axis']} crosses at {margin.omega:.6g} rad/s"
-        )
-        print("crossing mode    " + "  ".join(f"{a} {abs(c):.3g}" for a, c in zip(loop.axes, margin.root.mode)))
-    else:
-        print(f"stiffness margin {margin.reason}")
-    print(
-        "modes: "
-        + (
-            "the loop splits into independent 1-DOF modal loops"
-            if modes is not None
-            else "the axes couple (the bound is not one axis's 1-DOF bound)"
-        )
-        + "; translations [m] and rotations [rad] are compared as numbers in the mode shapes"
-    )
+    out = stability_report.multi_axis_report(loop, what)
+    print(json.dumps(out) if getattr(args, "json", False) else format_multi_axis(out))
     return 0
