@@ -77,6 +77,7 @@ class RsiLink(threading.Thread):
         sentype: str = "ImFree",
         clock=time.monotonic,
         realtime: bool = False,
+        describe: str = "RSI link",
     ):
         super().__init__(name="robot-rsi-link", daemon=True)
         self.sock = sock
@@ -88,6 +89,7 @@ class RsiLink(threading.Thread):
         self.write = rsi.SenWriter(sentype)
         self.clock = clock
         self.realtime = realtime
+        self.describe = describe  # the device, as the fatal error's line names it
         self.stopping = False
         self.connected = True  # the safety stop's contract: a hold can be answered while datagrams come
         # Latest values, each replaced whole (one reference: no lock on the answering path).
@@ -269,7 +271,7 @@ class RsiLink(threading.Thread):
                 continue
             except OSError as exc:
                 if not self.stopping:
-                    self.fatal = f"receiving failed: {exc.strerror or exc}"
+                    self.fatal = f"{self.describe}: receiving failed: {exc.strerror or exc}"
                 return
             t = clock()
             answer = handle(bytes(view[:n]), addr[0], t)

@@ -28,7 +28,7 @@ stall_timeout (the graph stalled) or not finite, after a safety stop and at
 close.
 
 Safety, in step(), as robot_modbus (the same limits, checked by the same
-code): force and torque on the F/T input, the F/T watchdog, workspace and tilt,
+code: dockhil/hardware/robot_driver.py): force and torque on the F/T input, the F/T watchdog, workspace and tilt,
 the commanded twist and the command's lead, the following error from RIst, the
 measured speed; a stall of this driver; an e-stop. A controller that sends
 nothing for controller_timeout stopped RSI: the graph stops with one line.
@@ -44,11 +44,10 @@ import math
 from dockhil.contact.rigid import IDENTITY, quat_conjugate, quat_multiply, rotate, rotate_back
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import rsi
-from dockhil.hardware.robot_limits import command_values, message_key, non_finite
+from dockhil.hardware.robot_driver import RobotDriver, limit_params, robot_state
+from dockhil.hardware.robot_limits import command_values, non_finite
 from dockhil.hardware.rsi_link import RsiLink, open_socket
-from dockhil.msgs import Pose, Quaternion, RobotState, Twist, Vector3
 from dockhil.node import Param
-from dockhil.nodes.robot_modbus import RobotModbusDriver
 from dockhil.runtime import realtime
 
 VELOCITY_WINDOW_S = 0.02  # the measured twist is the pose's change over at least this long
@@ -87,39 +86,38 @@ class SceneFrame:
 
 
 class _Reading:
-    """The actual pose as robot_modbus's checks read it: actual = position, quaternion, twist; status."""
+    """The actual pose as the safety checks read it: actual = position, quaternion, twist."""
 
-    __slots__ = ("actual", "status")
+    __slots__ = ("actual",)
 
     def __init__(self, actual):
         self.actual = actual
-        self.status = 0
 
 
-_SHARED = (
-    "max_force",
-    "max_actual_speed",
-    "max_following_error",
-    "max_torque",
-    "max_actual_angular_speed",
-    "max_tilt",
-    "max_orientation_error",
-    "x_min",
-    "x_max",
-    "y_min",
-    "y_max",
-    "z_min",
-    "z_max",
-    "ft_timeout",
-    "stall_timeout",
-    "ft_grace",
-    "frame",
+_MAX_SPEED = Param(
+    float,
+    0.1,
+    unit="m/s",
+    help="commanded speed limit: the twist, and the command's "
+    "lead on the correction; the correction moves at most this times the cycle per cycle",
+    gt=0.0,
+    le=10.0,
+)
+_MAX_ANGULAR_SPEED = Param(
+    float,
+    0.5,
+    unit="rad/s",
+    help="commanded angular speed limit: the twist, "
+    "and the command's lead on the correction; the correction turns at most this "
+    "times the cycle per cycle",
+    gt=0.0,
+    le=10.0,
 )
 
 
-class RobotRsiDriver(RobotModbusDriver):
+class RobotRsiDriver(RobotDriver):
     """KUKA robot over RSI: corrections answered on the robot's cycle from /robot/command, actual pose to
-    /robot/state, the safety limits of robot_modbus."""
+    /robot/state, the safety limits of the robot drivers."""
 
     params = {
         "host": Param(str, "127.0.0.1", help="the controller's address: the only sender read"),
@@ -139,26 +137,10 @@ class RobotRsiDriver(RobotModbusDriver):
             choices=rsi.CYCLES,
         ),
         "sentype": Param(str, "ImFree", help="the Sen Type the controller expects (its configuration's SENTYPE)"),
-        "max_speed": Param(
-            float,
-            0.1,
-            unit="m/s",
-            help="commanded speed limit: the twist, and the command's "
-            "lead on the correction; the correction moves at most this times the cycle per cycle",
-            gt=0.0,
-            le=10.0,
-        ),
-        "max_angular_speed": Param(
-            float,
-            0.5,
-            unit="rad/s",
-            help="commanded angular speed limit: the twist, "
-            "and the command's lead on the correction; the correction turns at most this "
-            "times the cycle per cycle",
-            gt=0.0,
-            le=10.0,
-        ),
-        **{name: RobotModbusDriver.params[name] for name in _SHARED},
+        # the speeds first: they say how the correction moves
+        "max_speed": _MAX_SPEED,
+        "max_angular_speed": _MAX_ANGULAR_SPEED,
+        **limit_params(_MAX_SPEED, _MAX_ANGULAR_SPEED),
         "connect_timeout": Param(
             float,
             10.0,
@@ -200,14 +182,7 @@ class RobotRsiDriver(RobotModbusDriver):
 
     def setup(self) -> None:
         p = self.p
-        if self.ctx.sim_time:
-            raise LaunchError(
-                f"node {self.ctx.name!r} commands a real robot and runs only in wall time (launch with --wall-time)"
-            )
-        for axis in "xyz":
-            lo, hi = getattr(p, f"{axis}_min"), getattr(p, f"{axis}_max")
-            if lo >= hi:
-                raise LaunchError(f"node {self.ctx.name!r}: workspace {axis}_min {lo} must be below {axis}_max {hi}")
+        self._begin_setup()
         try:
             rsi.SenWriter(p.sentype)
         except ValueError as exc:
@@ -219,26 +194,12 @@ class RobotRsiDriver(RobotModbusDriver):
                 f"{1 / p.cycle:g} Hz: the robot takes every {ticks:.2f}th setpoint, unevenly (docs/time.md)"
             )
         self.device = f"robot controller (KUKA RSI {p.host} -> UDP port {p.port})"
-        self.link: RsiLink | None = None
-        self.tripped = None
-        self._last_cmd = None
-        self._last_wrench_key = None
-        self._last_wrench_t: float | None = None
-        self._first_t: float | None = None
-        self._last_step_at: float | None = None
-        self._last_cmd_at: float | None = None
-        self._moving = False  # a setpoint was handed over since the last hold
-        self._start_q = IDENTITY  # the first command's orientation, once it came (max_tilt)
         self._anchored = None  # the first command: the scene pose of the start pose
         self._seen = 0
         self._history: list[tuple[float, tuple, tuple]] = []
         self._actual = None
-        self._lock = rsi.claim_port(p.port)  # one graph per RSI port, refused in one line naming the owner
-        try:
-            self._open()
-        except BaseException:
-            self._lock.release()
-            raise
+        # one graph per RSI port, refused in one line naming the owner
+        self._connect_claimed(rsi.claim_port(p.port), self._open)
 
     def _open(self) -> None:
         p = self.p
@@ -254,6 +215,7 @@ class RobotRsiDriver(RobotModbusDriver):
             p.sentype,
             self.ctx.clock,
             p.realtime or inherited,
+            self.device,
         )
         self.link.start()
         if not self.link.started.wait(p.connect_timeout):
@@ -275,23 +237,8 @@ class RobotRsiDriver(RobotModbusDriver):
 
     # -- step -----------------------------------------------------------------------
     def step(self, tick, inputs):
-        if self.tripped is not None:
-            raise self.tripped  # latched: the correction stays held after a safety stop
         link, p = self.link, self.p
-        now = self.ctx.clock()
-        for line in link.take_notes():
-            self.log(line)
-        if link.fatal:
-            raise DeviceError(f"{self.device}: {link.fatal}")
-        if self._last_step_at is not None and now - self._last_step_at > p.stall_timeout:
-            gap = now - self._last_step_at
-            self._trip(
-                "stall",
-                gap,
-                f"stall: no step for {gap:.3f} s > stall_timeout {p.stall_timeout:g} s "
-                f"(this process was stopped or starved); resuming would jump",
-            )
-        self._last_step_at = now
+        now = self._begin_step()  # after a safety stop the correction stays held
         latest = link.latest
         silent = now - latest[2]
         if silent > p.controller_timeout:
@@ -301,14 +248,7 @@ class RobotRsiDriver(RobotModbusDriver):
                 f"{p.controller_timeout:g} s: the controller stopped RSI (late answers: Delay "
                 f"D={link.delay}; see its message window)"
             )
-        if self._first_t is None:
-            self._first_t = now
-
-        estop = inputs.get("estop")
-        if estop is not None and estop.active:
-            self._trip("estop", estop.reason or "active", f"estop: e-stop active ({estop.reason or 'no reason given'})")
-
-        ft_fresh = self._check_wrench(inputs.get("wrench"), now)
+        ft_fresh = self._check_inputs(inputs, now)
         cmd = inputs.get("command")
         if self._anchored is None:
             if cmd is None:
@@ -320,68 +260,19 @@ class RobotRsiDriver(RobotModbusDriver):
             self._anchored = values
             self.log(f"the start pose is the scene's pose x {values[0]:.4f} y {values[1]:.4f} z {values[2]:.4f} m")
         reading = self._reading(latest)
-        if cmd is not None and (self._last_cmd is None or message_key(cmd) != message_key(self._last_cmd)):
-            self._check_command(cmd, reading)
-            self._last_cmd, self._last_cmd_at = cmd, now
-            if not ft_fresh or not cmd.enable:
-                link.submit(None, None)  # no F/T data yet: hold rather than move blind
-                self._moving = False
-            else:
-                values = command_values(cmd)
-                link.submit(*self.frame.correction(values[:3], values[3:7]))
-                self._moving = True
-        elif self._moving and now - self._last_cmd_at > p.stall_timeout:
-            age = now - self._last_cmd_at
-            self._trip(
-                "stale_command",
-                age,
-                f"stale command: no new setpoint for {age:.3f} s > stall_timeout "
-                f"{p.stall_timeout:g} s while moving (the simulation stalled)",
-            )
-
-        self._check_ahead()
+        self._take_command(cmd, reading, ft_fresh, now)
+        # The link moves the correction by at most one cycle's travel toward the command: the lead's rule
+        # (or the following error's, at the start) on the correction in BASE.
+        self._check_lag(link.lead() if self._moving else None, "correction")
 
         if latest[0] == self._seen:
             return {}
         self._seen = latest[0]
         self._check_actual(reading)
-        a = reading.actual
-        return {
-            "state": RobotState(
-                header=tick.header(p.frame),
-                pose=Pose(position=Vector3(a[0], a[1], a[2]), orientation=Quaternion(a[3], a[4], a[5], a[6])),
-                twist=Twist(linear=Vector3(a[7], a[8], a[9]), angular=Vector3(a[10], a[11], a[12])),
-                status="ok",
-            )
-        }
+        return {"state": robot_state(tick.header(p.frame), reading.actual, "ok")}
 
-    def _check_ahead(self) -> None:
-        """The link moves the correction by at most one cycle's travel at max_speed (max_angular_speed)
-        toward the command, so late or bunched commands only put the command briefly ahead of the
-        correction sent. A command further ahead than stall_timeout's travel (or the following error, at
-        the start) moves faster than the limit: robot_modbus's rule, on the correction in BASE."""
-        p = self.p
-        lead = self.link.lead() if self._moving else None
-        if lead is None:
-            return
-        distance, turn = lead
-        if distance > max(p.max_speed * p.stall_timeout, p.max_following_error):
-            self._trip(
-                "max_speed",
-                distance,
-                f"max_speed: the command ran {distance:.4f} m ahead of the "
-                f"correction sent at {p.max_speed:g} m/s (more than stall_timeout {p.stall_timeout:g} s "
-                f"of travel and max_following_error): it moves faster than max_speed",
-            )
-        if turn > max(p.max_angular_speed * p.stall_timeout, p.max_orientation_error):
-            self._trip(
-                "max_angular_speed",
-                turn,
-                f"max_angular_speed: the command turned {turn:.4f} rad ahead "
-                f"of the correction sent at {p.max_angular_speed:g} rad/s (more than stall_timeout "
-                f"{p.stall_timeout:g} s of turning and max_orientation_error): it turns faster than "
-                f"max_angular_speed",
-            )
+    def _hand_over(self, values) -> None:
+        self.link.submit(*((None, None) if values is None else self.frame.correction(values[:3], values[3:7])))
 
     def _check_command_values(self, cmd) -> None:
         """The first command, which anchors the scene to the start pose, must be a pose."""
