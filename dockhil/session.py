@@ -108,7 +108,7 @@ def run_scene(
         check_composable(graph)
         recorder = None
         if bag is not None:
-            from dockhil.bags.live import TapRecorder
+            from dockhil.bags.tap import TapRecorder
 
             recorder = TapRecorder(bag, graph, sim=clock == "sim", duration=duration, recorded_by="launch --composed")
         try:

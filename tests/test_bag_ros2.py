@@ -28,7 +28,7 @@ from dockhil import cli
 from dockhil.bags.reader import BagReader
 from dockhil.bags.writer import BagWriter
 from dockhil.bags.tools import info
-from dockhil.bags import ros2
+from dockhil.bags import cdr, ros2
 from dockhil.msgs import (
     TYPES,
     BodyState,
@@ -373,7 +373,7 @@ def test_every_dockhil_type_has_a_ros_type_and_every_field_comes_back(tmp_path, 
 
 def test_cdr_aligns_after_the_encapsulation_header_and_counts_the_nul():
     value = {"header": {"stamp": {"sec": 7, "nanosec": 5}, "frame_id": "ab"}, "active": True, "reason": ""}
-    data = ros2.serialize("dockhil_msgs/msg/EStop", value)
+    data = cdr.serialize("dockhil_msgs/msg/EStop", value)
     assert data == (
         b"\x00\x01\x00\x00"
         + struct.pack("<iI", 7, 5)
@@ -391,12 +391,12 @@ def test_cdr_aligns_after_the_encapsulation_header_and_counts_the_nul():
         "b2": 4.0,
         "method": "x",
     }
-    data = ros2.serialize("dockhil_msgs/msg/ImpedanceParams", value)
+    data = cdr.serialize("dockhil_msgs/msg/ImpedanceParams", value)
     # 8 bytes of time, 4 + 1 of frame_id, then k1 8-aligned at 16 (3 bytes of padding)
     assert data[4:17] == bytes(8) + struct.pack("<I", 1) + b"\x00" and data[17:20] == bytes(3)
     assert struct.unpack_from("<4d", data, 4 + 16) == (1.0, 2.0, 3.0, 4.0)
     with pytest.raises(ValueError, match="NodeStatus"):
-        ros2.serialize(
+        cdr.serialize(
             "dockhil_msgs/msg/NodeStatus",
             {**value, "node": "", "state": "", "ticks": 2**64, "dropped": 0, "message": ""},
         )
@@ -428,7 +428,7 @@ def test_cdr_equals_rosbags_serializer_for_any_satellite_state(bodies, contact, 
             for name, mass, v in bodies
         ],
     }
-    data = ros2.serialize("dockhil_msgs/msg/SatelliteState", value)
+    data = cdr.serialize("dockhil_msgs/msg/SatelliteState", value)
     msg = store.deserialize_cdr(data, "dockhil_msgs/msg/SatelliteState")
     assert plain(msg) == value
     assert bytes(store.serialize_cdr(msg, "dockhil_msgs/msg/SatelliteState")) == data
@@ -439,9 +439,9 @@ _STORE = typestore()
 
 def test_every_type_hash_and_definition_agrees_with_rosbags():
     store = _STORE
-    for name in ros2.definitions():
-        assert ros2.type_hash(name) == store.hash_rihs01(name), name
-        assert [f.name for f in ros2.fields(name)] == [f[0] for f in store.fielddefs[name][1]], name
+    for name in cdr.definitions():
+        assert cdr.type_hash(name) == store.hash_rihs01(name), name
+        assert [f.name for f in cdr.fields(name)] == [f[0] for f in store.fielddefs[name][1]], name
 
 
 def test_the_export_needs_none_of_the_test_libraries(tmp_path, hil_run):

@@ -142,7 +142,7 @@ def test_a_journal_line_cut_short_is_ended_before_the_next_row(tmp_path):
 
 
 def test_a_bag_that_cannot_be_written_stops_the_campaign(tmp_path, monkeypatch):
-    from dockhil.bags.live import TapRecorder
+    from dockhil.bags.tap import TapRecorder
 
     c = sweep.load_campaign(campaign(tmp_path))
     spec = {**sweep.runs(c, tmp_path / "r.parquet")[0], "bag": str(tmp_path / "a-file" / "run-000000.mcap")}

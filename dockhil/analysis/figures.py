@@ -114,7 +114,7 @@ def sixdof(bag_path: str, delay: float = 0.032, seconds: float = SIXDOF_SECONDS)
     """Run launch/hil6.yaml (off-axis defaults, robot delay `delay`) for `seconds`, composed in
     sim time, recording every topic to bag_path; return its 6-DOF summary (run, ideal, error)."""
     from dockhil.scene import launchfile
-    from dockhil.bags.live import TapRecorder
+    from dockhil.bags.tap import TapRecorder
     from dockhil.runtime.composed import ComposedGraph
     from dockhil.scene.graph import build
     from dockhil.analysis.summary import SummaryCollector

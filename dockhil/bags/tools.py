@@ -93,7 +93,7 @@ def export_csv(
         if entry is None:
             have = ", ".join(t["topic"] for t in found["topics"]) or "none"
             raise BagError(f"{reader.path}: no topic {topic}; topics in the bag: {have}")
-        reader._check_encoding(topic)
+        reader.check_encoding(topic)
         if hasattr(out, "write"):
             result = _write_csv(reader, topic, out)
         else:
@@ -197,7 +197,7 @@ def convert(src: str | os.PathLike, dst: str | os.PathLike, *, overwrite: bool =
                     out.add_topic(topic, type_name)
                 except BagError as exc:
                     raise BagError(f"{src}: cannot convert: {str(exc).split(': ', 1)[1]}") from None
-                reader._check_encoding(topic)
+                reader.check_encoding(topic)
             for topic, _, log_ns, publish_ns, data in reader.messages_with_publish_time():
                 out.write(topic, log_ns, publish_ns, data)
     return ConvertResult(out.messages_written, out.messages_unencodable, found["loss"])

@@ -1,7 +1,7 @@
 """`dockhil bag`: inspect, export, record and replay MCAP bags.
 
 `info`, `export` and `convert` read and write files only. `record` and `play` talk to a running
-graph; they live in `dockhil.bags.live`, imported only when they run.
+graph; they live in `dockhil.bags.live` and `dockhil.bags.play`, imported only when they run.
 """
 
 from __future__ import annotations
@@ -282,21 +282,21 @@ def _record(args: argparse.Namespace) -> int:
 
 
 def _play(args: argparse.Namespace) -> int:
-    return _live().play(args)
+    return _live("play").play(args)
 
 
-def _live():
+def _live(name: str = "live"):
     import importlib
 
     from dockhil.errors import DockhilError
 
+    module = f"dockhil.bags.{name}"
     try:
-        bag_live = importlib.import_module("dockhil.bags.live")
+        return importlib.import_module(module)
     except ModuleNotFoundError as exc:
-        if exc.name != "dockhil.bags.live":
+        if exc.name != module:
             raise
-        raise DockhilError("recording and playback need the dockhil runtime (dockhil.bags.live), not found") from None
-    return bag_live
+        raise DockhilError(f"recording and playback need the dockhil runtime ({module}), not found") from None
 
 
 def _positive_float(text: str) -> float:

@@ -110,7 +110,7 @@ def run_one(spec: dict) -> dict:
         recorder = None
         if spec.get("bag"):
             from dockhil.bags.format import BagError
-            from dockhil.bags.live import TapRecorder
+            from dockhil.bags.tap import TapRecorder
 
             try:
                 os.makedirs(os.path.dirname(spec["bag"]), exist_ok=True)
