@@ -46,17 +46,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dockhil.contact import rigid
-from dockhil.contact.rigid import (
+from dockhil.contact import rigid, rigidbody
+from dockhil.contact.rigid import Motion, Wrench
+from dockhil.contact.rigidbody import BodyState, RigidBody, check_symmetric, check_vector
+from dockhil.contact.rotations import (
     IDENTITY,
-    BodyState,
-    Motion,
-    RigidBody,
-    Wrench,
     add3,
-    check_symmetric,
     check_unit_quaternion,
-    check_vector,
     cross3,
     quat_conjugate,
     quat_multiply,
@@ -164,7 +160,7 @@ class MatVec6:
 
 def check_matrix6(name: str, value, unit: str) -> np.ndarray:
     """A 6x6 symmetric PSD matrix; a 6-vector means its diagonal."""
-    arr = np.asarray(value, dtype=float) if rigid.is_numeric(value) else None
+    arr = np.asarray(value, dtype=float) if rigidbody.is_numeric(value) else None
     if arr is not None and arr.shape == (6,):
         if not np.all(np.isfinite(arr)) or np.any(arr < 0.0):
             raise ContactModelError(f"{name} diagonal must be 6 finite numbers >= 0 [{unit}], got {arr.tolist()}")

@@ -48,7 +48,7 @@ import sys
 import threading
 import time
 
-from dockhil.contact.rigid import IDENTITY, quat_conjugate, quat_from_rotvec, quat_multiply, rotate, rotate_back
+from dockhil.contact.rotations import IDENTITY, quat_conjugate, quat_from_rotvec, quat_multiply, rotate, rotate_back
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import rsi
 from dockhil.msgs import Pose, Quaternion, RobotState, Twist, Vector3
