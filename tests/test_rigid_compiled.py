@@ -103,7 +103,7 @@ def test_the_python_twins_alone_give_the_recorded_6dof_runs():
 @compiled
 def test_the_interface_geometry_equals_its_twin_bit_for_bit():
     from dockhil.contact import hybrid6
-    from dockhil.contact.contact6 import InterfaceGeometry
+    from dockhil.contact.interface6 import InterfaceGeometry
 
     rng = random.Random(5)
     inertia = [[300.0, 20.0, 0.0], [20.0, 400.0, 10.0], [0.0, 10.0, 500.0]]  # principal axes off the body's
@@ -137,7 +137,7 @@ def test_the_interface_geometry_equals_its_twin_bit_for_bit():
 
 @compiled
 def test_rotation_vectors_and_jacobians_equal_their_twins_bit_for_bit():
-    from dockhil.contact import contact6
+    from dockhil.contact import interface6
 
     rng = random.Random(13)
     quats = [_quat(rng) for _ in range(2000)] + [(0.0, 0.0, 0.0, 1.0), (1e-9, 0.0, 0.0, -1.0), (0.0, 0.0, 1.0, 0.0)]
@@ -146,4 +146,4 @@ def test_rotation_vectors_and_jacobians_equal_their_twins_bit_for_bit():
         assert theta == rotations.rotvec3_python(q)
         small = tuple(c * 1e-6 for c in theta)  # the series branch of J_l^-1 too
         for t in (theta, small):
-            assert rigid.COMPILED.left_jacobian_inverse3(t) == contact6.left_jacobian_inverse3_python(t)
+            assert rigid.COMPILED.left_jacobian_inverse3(t) == interface6.left_jacobian_inverse3_python(t)

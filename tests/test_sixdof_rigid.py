@@ -37,7 +37,8 @@ def test_quaternion_algebra_matches_rotation_matrices():
 
 def test_the_plain_float_helpers_are_the_matrix_algebra():
     # The per-tick path works on tuples of floats: each helper against the matrices it stands for.
-    from dockhil.contact.contact6 import MatVec6, left_jacobian_inverse3
+    from dockhil.contact.contact6 import MatVec6
+    from dockhil.contact.interface6 import left_jacobian_inverse3
     from dockhil.contact.rotations import cross3, rotate, rotate_back
 
     a, v = np.array([0.3, -1.1, 0.4]), (0.7, -0.2, 1.5)

@@ -346,7 +346,7 @@ static PyObject *rotvec3(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     return float_tuple(out, 3);
 }
 
-/* J_l(theta)^-1 as three rows (contact6.left_jacobian_inverse3_python). */
+/* J_l(theta)^-1 as three rows (interface6.left_jacobian_inverse3_python). */
 static PyObject *left_jacobian_inverse3(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     double t[3];
@@ -391,7 +391,7 @@ static PyMethodDef methods[] = {
     {"rotvec3", (PyCFunction)(void (*)(void))rotvec3, METH_FASTCALL,
      "rotvec3(q): rotations.rotvec3_python, compiled (the same bits)."},
     {"left_jacobian_inverse3", (PyCFunction)(void (*)(void))left_jacobian_inverse3, METH_FASTCALL,
-     "left_jacobian_inverse3(theta): contact6.left_jacobian_inverse3_python, compiled (the same bits)."},
+     "left_jacobian_inverse3(theta): interface6.left_jacobian_inverse3_python, compiled (the same bits)."},
     {"interface", (PyCFunction)(void (*)(void))interface, METH_FASTCALL,
      "interface(frames1, frames2, x1, q1, v1, w1, x2, q2, v2, w2): hybrid6.published_interface's arithmetic."},
     {"quat_multiply", (PyCFunction)(void (*)(void))quat_multiply, METH_FASTCALL,

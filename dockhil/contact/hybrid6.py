@@ -48,14 +48,11 @@ from typing import NamedTuple
 import numpy as np
 
 from dockhil.contact import rigid
-from dockhil.contact.contact6 import (
+from dockhil.contact.contact6 import Contact6, MatVec6, Recorder, Run6
+from dockhil.contact.interface6 import (
     AXES,
-    Contact6,
     InterfaceGeometry,
-    MatVec6,
     add6,
-    Recorder,
-    Run6,
     left_jacobian_inverse3,
     mat3_vec,
     mat3t_vec,

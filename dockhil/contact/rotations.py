@@ -170,7 +170,7 @@ def check_unit_quaternion(name: str, q) -> tuple[float, float, float, float]:
 # --- compiled twins --------------------------------------------------------------------------
 
 # dockhil/contact/_rigid.c: rotate, rotate_back, quat_multiply, rotvec3 here (and rigid's drift and
-# kick, contact6's left_jacobian_inverse3, hybrid6's interface geometry) in C, the same IEEE
+# kick, interface6's left_jacobian_inverse3, hybrid6's interface geometry) in C, the same IEEE
 # operations in the same order as their *_python twins; None where not built (dockhil.compiled.twin).
 COMPILED = twin("dockhil.contact._rigid")
 rotate = COMPILED.rotate if COMPILED else rotate_python

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dockhil.contact.contact6 import AXES
+from dockhil.contact.interface6 import AXES
 from dockhil.contact.rigidbody import check_symmetric
 from dockhil.contact.scenario import ContactModelError, check_nonnegative, check_positive
 from dockhil.contact.stability import chebyshev
