@@ -121,7 +121,7 @@ def _with_target(info: dict, p: dict, free: bool, k: float, b: float) -> dict:
 def _analyse(info: dict, cont=None) -> dict:
     """Dominant root of the sampled loop, and the delay equation's roots `cont` (computed when not given)."""
     from dockhil.contact import sampled
-    from dockhil.contact.stability import hybrid_roots
+    from dockhil.contact.hybrid_stability import hybrid_roots
 
     loop = info["loop"]
     h = info["h"] if loop.held else 0.0
