@@ -1,4 +1,4 @@
-"""The compiled per-tick arithmetic of dockhil.contact.rigid (dockhil/contact/_rigid.c) and message
+"""The compiled per-tick arithmetic of the 6-DOF contact (dockhil/contact/_rigid.c) and message
 screen (dockhil/runtime/_screen.c); the rest is in pyproject.toml.
 
 Optional: where they do not build (no C compiler), dockhil runs their Python twins, which give the

@@ -95,7 +95,8 @@ def library(n_ticks: int) -> float:
 
     from dockhil.contact.contact6 import Contact6
     from dockhil.contact.hybrid6 import simulate_hybrid6
-    from dockhil.contact.rigid import BodyState, RigidBody, quat_from_rotvec
+    from dockhil.contact.rigidbody import BodyState, RigidBody
+    from dockhil.contact.rotations import quat_from_rotvec
 
     chaser = RigidBody(750.0, np.diag([300.0, 400.0, 500.0]), interface_position=[1.0, 0.0, 0.0])
     target = RigidBody(1e6, np.diag([4e6, 5e6, 6e6]), interface_position=[-2.0, 0.0, 0.0])

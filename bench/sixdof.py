@@ -24,7 +24,9 @@ import numpy as np
 
 from dockhil.contact.contact6 import Contact6, simulate_contact6
 from dockhil.contact.hybrid6 import interface_mobilities, simulate_hybrid6
-from dockhil.contact.rigid import BodyState, Motion, RigidBody, free_step, quat_from_rotvec
+from dockhil.contact.rigid import Motion, free_step
+from dockhil.contact.rigidbody import BodyState, RigidBody
+from dockhil.contact.rotations import quat_from_rotvec
 from dockhil.contact.stability6 import hybrid_loop6, rightmost, stiffness_margin
 
 INERTIA = np.array([[1200.0, 30.0, -10.0], [30.0, 900.0, 20.0], [-10.0, 20.0, 1500.0]])

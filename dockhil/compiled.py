@@ -11,7 +11,7 @@ PURE_PYTHON_ENV = "DOCKHIL_PURE_PYTHON"
 # Every compiled twin and what it computes: setup.py builds these, twin() loads only these, and
 # `dockhil --version` names them.
 TWINS = {
-    "dockhil.contact._rigid": "rigid-body arithmetic",  # the 6-DOF loop's (dockhil/contact/rigid.py)
+    "dockhil.contact._rigid": "rigid-body arithmetic",  # the 6-DOF loop's (contact/rotations, rigid, interface6)
     "dockhil.runtime._screen": "message screen",  # each message of a composed run (runtime/executor.py)
 }
 

@@ -11,8 +11,10 @@ import sys
 import numpy as np
 import pytest
 
-from dockhil.contact import rigid
-from dockhil.contact.rigid import BodyState, Motion, RigidBody, quat_from_rotvec
+from dockhil.contact import rigid, rotations
+from dockhil.contact.rigid import Motion
+from dockhil.contact.rigidbody import BodyState, RigidBody
+from dockhil.contact.rotations import quat_from_rotvec
 from tests.conftest import ROOT
 
 compiled = pytest.mark.skipif(rigid.COMPILED is None, reason="dockhil.contact._rigid is not built here")
@@ -39,12 +41,12 @@ def test_rotations_and_products_equal_their_twins_bit_for_bit():
     rng = random.Random(7)
     for _ in range(2000):
         q, a, v = _quat(rng), _quat(rng), _vec(rng)
-        assert rigid.COMPILED.rotate(q, v) == rigid.rotate_python(q, v)
-        assert rigid.COMPILED.rotate_back(q, v) == rigid.rotate_back_python(q, v)
-        assert rigid.COMPILED.quat_multiply(q, a) == rigid.quat_multiply_python(q, a)
+        assert rigid.COMPILED.rotate(q, v) == rotations.rotate_python(q, v)
+        assert rigid.COMPILED.rotate_back(q, v) == rotations.rotate_back_python(q, v)
+        assert rigid.COMPILED.quat_multiply(q, a) == rotations.quat_multiply_python(q, a)
     # Any sequence, as the twins unpack it; floats out.
     q, v = [0.0, 0.0, math.sin(0.1), math.cos(0.1)], np.array([1.0, 2.0, 3.0])
-    assert rigid.COMPILED.rotate(q, v) == tuple(float(c) for c in rigid.rotate_python(q, v))
+    assert rigid.COMPILED.rotate(q, v) == tuple(float(c) for c in rotations.rotate_python(q, v))
 
 
 def _pair(rng):
@@ -101,7 +103,7 @@ def test_the_python_twins_alone_give_the_recorded_6dof_runs():
 @compiled
 def test_the_interface_geometry_equals_its_twin_bit_for_bit():
     from dockhil.contact import hybrid6
-    from dockhil.contact.contact6 import InterfaceGeometry
+    from dockhil.contact.interface6 import InterfaceGeometry
 
     rng = random.Random(5)
     inertia = [[300.0, 20.0, 0.0], [20.0, 400.0, 10.0], [0.0, 10.0, 500.0]]  # principal axes off the body's
@@ -135,13 +137,13 @@ def test_the_interface_geometry_equals_its_twin_bit_for_bit():
 
 @compiled
 def test_rotation_vectors_and_jacobians_equal_their_twins_bit_for_bit():
-    from dockhil.contact import contact6
+    from dockhil.contact import interface6
 
     rng = random.Random(13)
     quats = [_quat(rng) for _ in range(2000)] + [(0.0, 0.0, 0.0, 1.0), (1e-9, 0.0, 0.0, -1.0), (0.0, 0.0, 1.0, 0.0)]
     for q in quats:
         theta = rigid.COMPILED.rotvec3(q)
-        assert theta == rigid.rotvec3_python(q)
+        assert theta == rotations.rotvec3_python(q)
         small = tuple(c * 1e-6 for c in theta)  # the series branch of J_l^-1 too
         for t in (theta, small):
-            assert rigid.COMPILED.left_jacobian_inverse3(t) == contact6.left_jacobian_inverse3_python(t)
+            assert rigid.COMPILED.left_jacobian_inverse3(t) == interface6.left_jacobian_inverse3_python(t)

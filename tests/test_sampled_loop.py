@@ -81,7 +81,7 @@ def test_high_degree_loop_is_solved_without_the_companion_matrix(monkeypatch):
     # 1600 ticks of delay: the Newton path with the argument-principle check, no companion matrix.
     monkeypatch.setattr(np, "roots", lambda *a: pytest.fail("fell back to the companion matrix"))
     loop = SampledLoop(m=750.0, k_direct=0.0, b_direct=60.0, k_delayed=2510.0, dt=1e-5, delay_ticks=1600)
-    from dockhil.contact.stability import hybrid_roots
+    from dockhil.contact.hybrid_stability import hybrid_roots
 
     s = hybrid_roots(750.0, 0.0, 60.0, 2510.0, 0.0, 0.016, count=3)
     guesses = [np.exp(r * 1e-5) for r in s]

@@ -9,8 +9,11 @@ import numpy as np
 import pytest
 
 from dockhil.contact import TABLE1, ideal_trajectory, relative_motion, simulate_contact
-from dockhil.contact.contact6 import Contact6, sensor_wrench_to_bodies, simulate_contact6
-from dockhil.contact.rigid import BodyState, Motion, RigidBody, quat_from_rotvec
+from dockhil.contact.contact6 import Contact6, simulate_contact6
+from dockhil.contact.interface6 import sensor_wrench_to_bodies
+from dockhil.contact.rigid import Motion
+from dockhil.contact.rigidbody import BodyState, RigidBody
+from dockhil.contact.rotations import quat_from_rotvec
 from dockhil.contact.scenario import ContactModelError
 
 AT_REST = (0.0, 0.0, 0.0, 1.0)

@@ -13,7 +13,8 @@ from dockhil.bags.reader import BagReader
 from dockhil.runtime.composed import ComposedGraph
 from dockhil.contact.contact6 import Contact6
 from dockhil.contact.hybrid6 import simulate_hybrid6
-from dockhil.contact.rigid import BodyState, RigidBody, quat_from_rotvec
+from dockhil.contact.rigidbody import BodyState, RigidBody
+from dockhil.contact.rotations import quat_from_rotvec
 from dockhil.msgs import SatelliteState, WrenchStamped
 from tests.conftest import ROOT, dockhil_cmd
 
@@ -235,7 +236,7 @@ def _off_axis_pair():
 def test_sensor_reading_is_the_passive_contact_wrench_on_the_target_with_friction():
     from dockhil.contact.contact6 import contact_wrench
     from dockhil.contact.hybrid6 import PassiveSensor6
-    from dockhil.contact.rigid import cross
+    from dockhil.contact.rotations import cross
 
     m1, m2, g, rate, pose = _off_axis_pair()
     assert g.e[0] > 0.0 and np.linalg.norm(rate[1:3]) > 1e-3  # penetrating and sliding

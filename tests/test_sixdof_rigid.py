@@ -7,17 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from dockhil.contact.rigid import (
-    BodyState,
-    Motion,
-    RigidBody,
-    free_step,
-    matrix_to_quat,
-    quat_from_rotvec,
-    quat_multiply,
-    quat_to_matrix,
-    quat_to_rotvec,
-)
+from dockhil.contact.rigid import Motion, free_step
+from dockhil.contact.rigidbody import BodyState, RigidBody
+from dockhil.contact.rotations import matrix_to_quat, quat_from_rotvec, quat_multiply, quat_to_matrix, quat_to_rotvec
 from dockhil.contact.scenario import ContactModelError
 
 
@@ -45,8 +37,9 @@ def test_quaternion_algebra_matches_rotation_matrices():
 
 def test_the_plain_float_helpers_are_the_matrix_algebra():
     # The per-tick path works on tuples of floats: each helper against the matrices it stands for.
-    from dockhil.contact.contact6 import MatVec6, left_jacobian_inverse3
-    from dockhil.contact.rigid import cross3, rotate, rotate_back
+    from dockhil.contact.contact6 import MatVec6
+    from dockhil.contact.interface6 import left_jacobian_inverse3
+    from dockhil.contact.rotations import cross3, rotate, rotate_back
 
     a, v = np.array([0.3, -1.1, 0.4]), (0.7, -0.2, 1.5)
     q, r = quat_from_rotvec(a), rodrigues(a)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dockhil.contact.scenario import ContactModelError
-from dockhil.contact.stability import hybrid_rightmost
+from dockhil.contact.hybrid_stability import hybrid_rightmost
 from dockhil.contact.stability6 import (
     MultiAxisLoop,
     hybrid_loop6,

@@ -111,7 +111,8 @@ def test_off_axis_summary_is_the_librarys_hybrid_run_against_its_ideal_run(live)
         assert np.allclose(six[f"{when}_relative_angular_velocity_radps"], want[when][1], rtol=0, atol=1e-15)
     # The ideal contact on the scene's bodies and start, run by the library with its default order.
     chaser, target = hyb_bodies()
-    from dockhil.contact.rigid import BodyState, quat_from_rotvec
+    from dockhil.contact.rigidbody import BodyState
+    from dockhil.contact.rotations import quat_from_rotvec
 
     s1 = BodyState([-1.0, 0.05, 0.0], quat_from_rotvec([0.0, 0.0, 0.02]), [0.03, 0.0, 0.0], [0.01, 0.0, 0.0])
     s2 = BodyState([2.0, 0.0, 0.0], (0.0, 0.0, 0.0, 1.0), [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
@@ -137,7 +138,7 @@ def test_off_axis_summary_is_the_librarys_hybrid_run_against_its_ideal_run(live)
 
 
 def hyb_bodies():
-    from dockhil.contact.rigid import RigidBody
+    from dockhil.contact.rigidbody import RigidBody
 
     return (
         RigidBody(750.0, np.diag([300.0, 400.0, 500.0]), interface_position=[1.0, 0.0, 0.0]),

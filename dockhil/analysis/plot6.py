@@ -30,7 +30,7 @@ class Series6:
 
 def series6(path: str) -> Series6:
     from dockhil.bags.reader import BagReader
-    from dockhil.contact.rigid import quat_to_rotvec
+    from dockhil.contact.rotations import quat_to_rotvec
 
     ft, pose, state = [], [], []
     with BagReader(path) as bag:

@@ -124,7 +124,7 @@ def _reference(info: dict, with_lag: bool = True):
     """The rightmost roots of the delay equation the loop stands for, its robot's servo lag counted
     as delay (1/(1 + tau s) and e^(-s tau) agree to first order, as `dockhil calibrate` counts it):
     the sampled loop has the lag, so a reference without it calls the lag's growth the sampling's."""
-    from dockhil.contact.stability import hybrid_roots
+    from dockhil.contact.hybrid_stability import hybrid_roots
 
     loop = info["loop"]
     h = info["h"] + (loop.lag if with_lag else 0.0) if loop.held else 0.0
@@ -203,7 +203,7 @@ def scene_loop6(graph):
     dyn, imp = sixdof_nodes(graph)
     if dyn is None or imp is None:
         return None
-    from dockhil.contact.contact6 import InterfaceGeometry
+    from dockhil.contact.interface6 import InterfaceGeometry
     from dockhil.contact.hybrid6 import body_mobility
     from dockhil.contact.stability6 import hybrid_loop6
 

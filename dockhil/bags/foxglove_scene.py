@@ -112,7 +112,7 @@ def views(
 ) -> dict[str, dict]:
     """The derived messages at a SatelliteState, with the latest WrenchStamped and RobotState
     (None: not yet seen): {"/tf": FrameTransforms, "/scene": SceneUpdate}, as JSON values."""
-    from dockhil.contact.rigid import rotate
+    from dockhil.contact.rotations import rotate
 
     stamp = _time(state.header.stamp)
     chaser, target = state.bodies[0], state.bodies[1]
@@ -217,7 +217,7 @@ def views(
 
 def contact_force(state, wrench, geometry: Geometry = AT_THE_COMS) -> tuple[float, float, float]:
     """The measured contact force on the chaser [N], world axes (zero without a wrench)."""
-    from dockhil.contact.rigid import quat_multiply, rotate
+    from dockhil.contact.rotations import quat_multiply, rotate
 
     if wrench is None:
         return _ZERO

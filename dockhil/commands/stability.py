@@ -401,7 +401,7 @@ def _hybrid_values(args) -> tuple[float, float, float, float, float, float, floa
 
 
 def _run_hybrid(args) -> int:
-    from dockhil.contact.stability import hybrid_report
+    from dockhil.contact.hybrid_stability import hybrid_report
 
     from dockhil.contact.sampled import RootsNotResolved
 

@@ -1,5 +1,5 @@
-/* rigid.py's per-tick arithmetic, compiled: the free flight (drift_python), the held wrench's
-   kick (kick_python) and the rotations and quaternion product (rotate_python, ...).
+/* The 6-DOF loop's per-tick arithmetic, compiled: the free flight (rigid.drift_python), the held
+   wrench's kick (rigid.kick_python) and the rotations and quaternion product (rotations.rotate_python, ...).
 
    The same IEEE operations in the same order as the Python functions (which stay the reference
    and run where this module is not built), so both give the same bits: products and sums
@@ -237,7 +237,7 @@ static PyObject *drift(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     Py_RETURN_NONE;
 }
 
-/* q / |q| (rigid.normalised). */
+/* q / |q| (rotations.normalised). */
 static void normalised4(const double *q, double *out)
 {
     double n = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
@@ -325,7 +325,7 @@ static PyObject *interface(PyObject *self, PyObject *const *args, Py_ssize_t nar
     return out;
 }
 
-/* The rotation vector of a unit quaternion (rigid.rotvec3_python). */
+/* The rotation vector of a unit quaternion (rotations.rotvec3_python). */
 static PyObject *rotvec3(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     double q[4];
@@ -346,7 +346,7 @@ static PyObject *rotvec3(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     return float_tuple(out, 3);
 }
 
-/* J_l(theta)^-1 as three rows (contact6.left_jacobian_inverse3_python). */
+/* J_l(theta)^-1 as three rows (interface6.left_jacobian_inverse3_python). */
 static PyObject *left_jacobian_inverse3(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     double t[3];
@@ -385,17 +385,17 @@ static PyMethodDef methods[] = {
     {"kick", (PyCFunction)(void (*)(void))kick, METH_FASTCALL,
      "kick(m1, m2, f1, t1, f2, t2, h): rigid.kick_python, compiled (the same bits)."},
     {"rotate", (PyCFunction)(void (*)(void))rotate, METH_FASTCALL,
-     "rotate(q, v): rigid.rotate_python, compiled (the same bits)."},
+     "rotate(q, v): rotations.rotate_python, compiled (the same bits)."},
     {"rotate_back", (PyCFunction)(void (*)(void))rotate_back, METH_FASTCALL,
-     "rotate_back(q, v): rigid.rotate_back_python, compiled (the same bits)."},
+     "rotate_back(q, v): rotations.rotate_back_python, compiled (the same bits)."},
     {"rotvec3", (PyCFunction)(void (*)(void))rotvec3, METH_FASTCALL,
-     "rotvec3(q): rigid.rotvec3_python, compiled (the same bits)."},
+     "rotvec3(q): rotations.rotvec3_python, compiled (the same bits)."},
     {"left_jacobian_inverse3", (PyCFunction)(void (*)(void))left_jacobian_inverse3, METH_FASTCALL,
-     "left_jacobian_inverse3(theta): contact6.left_jacobian_inverse3_python, compiled (the same bits)."},
+     "left_jacobian_inverse3(theta): interface6.left_jacobian_inverse3_python, compiled (the same bits)."},
     {"interface", (PyCFunction)(void (*)(void))interface, METH_FASTCALL,
      "interface(frames1, frames2, x1, q1, v1, w1, x2, q2, v2, w2): hybrid6.published_interface's arithmetic."},
     {"quat_multiply", (PyCFunction)(void (*)(void))quat_multiply, METH_FASTCALL,
-     "quat_multiply(a, b): rigid.quat_multiply_python, compiled (the same bits)."},
+     "quat_multiply(a, b): rotations.quat_multiply_python, compiled (the same bits)."},
     {NULL, NULL, 0, NULL},
 };
 

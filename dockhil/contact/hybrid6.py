@@ -48,14 +48,11 @@ from typing import NamedTuple
 import numpy as np
 
 from dockhil.contact import rigid
-from dockhil.contact.contact6 import (
+from dockhil.contact.contact6 import Contact6, MatVec6, Recorder, Run6
+from dockhil.contact.interface6 import (
     AXES,
-    Contact6,
     InterfaceGeometry,
-    MatVec6,
     add6,
-    Recorder,
-    Run6,
     left_jacobian_inverse3,
     mat3_vec,
     mat3t_vec,
@@ -63,16 +60,13 @@ from dockhil.contact.contact6 import (
     skew,
     sub6,
 )
-from dockhil.contact.rigid import (
+from dockhil.contact.rigid import HeldWrench, Motion
+from dockhil.contact.rigidbody import BodyState, RigidBody, check_vector
+from dockhil.contact.rotations import (
     COMPILED,
-    BodyState,
-    HeldWrench,
-    Motion,
-    RigidBody,
     normalised,
     add3,
     check_unit_quaternion,
-    check_vector,
     cross3,
     quat_conjugate,
     quat_from_rotvec,
@@ -301,7 +295,7 @@ def published_interface(body1: RigidBody, published1: tuple, body2: RigidBody, p
         return last[1]
     x1, q1, v1, w1 = published1
     x2, q2, v2, w2 = published2
-    if COMPILED is not None:  # the same arithmetic in C (rigid.COMPILED), the same bits
+    if COMPILED is not None:  # the same arithmetic in C (rotations.COMPILED), the same bits
         g = InterfaceGeometry.__new__(InterfaceGeometry)
         q1, q2, g.arm1, g.arm2, g.point, g.r, g.q_b, g.q_rel, g.d, velocity, spin = COMPILED.interface(
             body1._frames, body2._frames, x1, q1, v1, w1, x2, q2, v2, w2

@@ -1,12 +1,5 @@
-"""Two free-floating rigid bodies in six degrees of freedom, and their integrator.
-
-Conventions (derivation in docs/sixdof.md):
-* Quaternions are scalar-last (x, y, z, w), as msgs.Quaternion; an attitude
-  quaternion q maps body-frame vectors to world: v_world = q v_body q*.
-* A body's own frame is any frame fixed to it. Its parameters say where the
-  centre of mass (CoM) and the docking interface are in that frame.
-* The state of a body: CoM position and velocity in world [m, m/s], attitude
-  of the body frame, angular velocity in the body frame [rad/s].
+"""The integrator of two free-floating rigid bodies in six degrees of freedom (the bodies and
+their state: dockhil.contact.rigidbody; the rotations: dockhil.contact.rotations).
 
 Integrator. Internally each body is carried in its principal frame (CoM,
 principal axes of inertia) as (x, v, q_p, L_p), L_p the angular momentum in
@@ -40,287 +33,24 @@ with one free flight a composition instead of two.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from dockhil.compiled import twin
-from dockhil.contact.scenario import ContactModelError, StepTooLargeError, check_positive
-
-UNIT_TOLERANCE = 1e-9  # |q| may differ from 1 by this much in a parameter
-IDENTITY = (0.0, 0.0, 0.0, 1.0)
-
-
-# --- quaternions (x, y, z, w), plain floats -------------------------------------------------
-
-
-def quat_multiply_python(a, b) -> tuple[float, float, float, float]:
-    """Hamilton product a b (scalar last); `quat_multiply` is it compiled where built (see `COMPILED`)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return (
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-        aw * bw - ax * bx - ay * by - az * bz,
-    )
-
-
-def quat_conjugate(q) -> tuple[float, float, float, float]:
-    return (-q[0], -q[1], -q[2], q[3])
-
-
-def quat_to_matrix(q) -> np.ndarray:
-    """Rotation matrix of a unit quaternion (body -> world)."""
-    x, y, z, w = q
-    return np.array(
-        [
-            [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
-            [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
-            [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)],
-        ]
-    )
-
-
-def matrix_to_quat(r) -> tuple[float, float, float, float]:
-    """Unit quaternion (w >= 0) of a proper rotation matrix (Shepperd's method)."""
-    r = np.asarray(r, float).tolist()  # plain floats: a numpy scalar here would slow every later product with q
-    tr = r[0][0] + r[1][1] + r[2][2]
-    if tr > max(r[0][0], r[1][1], r[2][2]):
-        s = 2.0 * math.sqrt(1.0 + tr)
-        q = ((r[2][1] - r[1][2]) / s, (r[0][2] - r[2][0]) / s, (r[1][0] - r[0][1]) / s, 0.25 * s)
-    elif r[0][0] >= r[1][1] and r[0][0] >= r[2][2]:
-        s = 2.0 * math.sqrt(1.0 + r[0][0] - r[1][1] - r[2][2])
-        q = (0.25 * s, (r[0][1] + r[1][0]) / s, (r[0][2] + r[2][0]) / s, (r[2][1] - r[1][2]) / s)
-    elif r[1][1] >= r[2][2]:
-        s = 2.0 * math.sqrt(1.0 + r[1][1] - r[0][0] - r[2][2])
-        q = ((r[0][1] + r[1][0]) / s, 0.25 * s, (r[1][2] + r[2][1]) / s, (r[0][2] - r[2][0]) / s)
-    else:
-        s = 2.0 * math.sqrt(1.0 + r[2][2] - r[0][0] - r[1][1])
-        q = ((r[0][2] + r[2][0]) / s, (r[1][2] + r[2][1]) / s, 0.25 * s, (r[1][0] - r[0][1]) / s)
-    q = normalised(q)
-    return q if q[3] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
-
-
-def quat_from_rotvec(v) -> tuple[float, float, float, float]:
-    """Quaternion of the rotation by |v| [rad] about v."""
-    x, y, z = (float(c) for c in v)
-    angle = math.sqrt(x * x + y * y + z * z)
-    if angle < 1e-8:
-        half = 0.5 - angle * angle / 48.0  # sin(a/2)/a
-        return normalised((half * x, half * y, half * z, 1.0 - angle * angle / 8.0))
-    s = math.sin(0.5 * angle) / angle
-    return (s * x, s * y, s * z, math.cos(0.5 * angle))
-
-
-def quat_to_rotvec(q) -> np.ndarray:
-    """Rotation vector (axis times angle in [0, pi]) of a unit quaternion."""
-    return np.array(rotvec3(q))
-
-
-def rotvec3_python(q) -> tuple[float, float, float]:
-    """`quat_to_rotvec` as a tuple of floats; `rotvec3` is it compiled where built."""
-    x, y, z, w = q
-    if w < 0.0:
-        x, y, z, w = -x, -y, -z, -w
-    s = math.sqrt(x * x + y * y + z * z)
-    angle = 2.0 * math.atan2(s, w)
-    scale = 2.0 / w * (1.0 + s * s / (3.0 * w * w)) if s < 1e-8 else angle / s
-    return (scale * x, scale * y, scale * z)
-
-
-def cross(a, b) -> np.ndarray:
-    """a x b for 3-vectors (np.cross costs ~10x more on vectors this small)."""
-    a0, a1, a2 = a
-    b0, b1, b2 = b
-    return np.array((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0))
-
-
-# --- 3-vectors as tuples of floats: the per-tick arithmetic of the sampled loop ----------------
-# numpy costs about a microsecond per call on vectors this small; plain floats cost a fraction.
-
-
-def cross3(a, b) -> tuple[float, float, float]:
-    a0, a1, a2 = a
-    b0, b1, b2 = b
-    return (a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0)
-
-
-def add3(a, b) -> tuple[float, float, float]:
-    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
-
-
-def sub3(a, b) -> tuple[float, float, float]:
-    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
-
-
-def rotate_python(q, v) -> tuple[float, float, float]:
-    """R(q) v for a unit quaternion q (x, y, z, w): v + w t + u x t with t = 2 u x v, u = (x, y, z);
-    `rotate` is it compiled where built (see `COMPILED`)."""
-    x, y, z, w = q
-    v0, v1, v2 = v
-    t0 = 2.0 * (y * v2 - z * v1)
-    t1 = 2.0 * (z * v0 - x * v2)
-    t2 = 2.0 * (x * v1 - y * v0)
-    return (v0 + w * t0 + y * t2 - z * t1, v1 + w * t1 + z * t0 - x * t2, v2 + w * t2 + x * t1 - y * t0)
-
-
-def rotate_back_python(q, v) -> tuple[float, float, float]:
-    """R(q)^T v (the inverse rotation); `rotate_back` is it compiled where built."""
-    x, y, z, w = q
-    v0, v1, v2 = v
-    t0 = 2.0 * (z * v1 - y * v2)
-    t1 = 2.0 * (x * v2 - z * v0)
-    t2 = 2.0 * (y * v0 - x * v1)
-    return (v0 + w * t0 - y * t2 + z * t1, v1 + w * t1 - z * t0 + x * t2, v2 + w * t2 - x * t1 + y * t0)
-
-
-def normalised(q) -> tuple[float, float, float, float]:
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
-
-
-def check_unit_quaternion(name: str, q) -> tuple[float, float, float, float]:
-    """q as a unit quaternion (x, y, z, w), or one clear ContactModelError."""
-    try:
-        values = tuple(float(c) for c in q)
-    except (TypeError, ValueError):
-        raise ContactModelError(f"{name} must be a quaternion (x, y, z, w), got {q!r}") from None
-    if len(values) != 4 or not all(math.isfinite(c) for c in values):
-        raise ContactModelError(f"{name} must be 4 finite numbers (x, y, z, w), got {q!r}")
-    norm = math.sqrt(sum(c * c for c in values))
-    if abs(norm - 1.0) > UNIT_TOLERANCE:
-        raise ContactModelError(
-            f"{name} must be a unit quaternion (x, y, z, w), got norm {norm:.12g};"
-            f" divide it by its norm or give (0, 0, 0, 1) for no rotation"
-        )
-    return normalised(values)
-
-
-def check_vector(name: str, v, size: int = 3, unit: str = "") -> np.ndarray:
-    arr = np.asarray(v, dtype=float) if is_numeric(v) else None
-    if arr is None or arr.shape != (size,) or not np.all(np.isfinite(arr)):
-        unit_text = f" [{unit}]" if unit else ""
-        raise ContactModelError(f"{name} must be {size} finite numbers{unit_text}, got {v!r}")
-    return arr
-
-
-def is_numeric(v) -> bool:
-    try:
-        np.asarray(v, dtype=float)
-    except (TypeError, ValueError):
-        return False
-    return True
-
-
-def check_symmetric(name: str, matrix, size: int, definite: bool, unit: str = "") -> np.ndarray:
-    """A size x size symmetric matrix, positive definite (definite) or
-    semi-definite, or one clear ContactModelError."""
-    arr = np.asarray(matrix, dtype=float) if is_numeric(matrix) else None
-    if arr is None or arr.shape != (size, size) or not np.all(np.isfinite(arr)):
-        shape = None if arr is None else arr.shape
-        raise ContactModelError(f"{name} must be a finite {size}x{size} matrix [{unit}], got shape {shape}")
-    scale = float(np.max(np.abs(arr))) or 1.0
-    asym = float(np.max(np.abs(arr - arr.T)))
-    if asym > 1e-12 * scale:
-        i, j = np.unravel_index(int(np.argmax(np.abs(arr - arr.T))), arr.shape)
-        raise ContactModelError(
-            f"{name} must be symmetric: entry [{i}][{j}] = {float(arr[i, j])!r} but [{j}][{i}] = {float(arr[j, i])!r}"
-        )
-    arr = 0.5 * (arr + arr.T)
-    low = float(np.linalg.eigvalsh(arr)[0])
-    if definite and low <= 0.0:
-        raise ContactModelError(f"{name} must be positive definite: its smallest eigenvalue is {low!r} {unit}")
-    if not definite and low < -1e-12 * scale:
-        raise ContactModelError(f"{name} must be positive semi-definite: its smallest eigenvalue is {low!r} {unit}")
-    return arr
-
-
-# --- bodies ----------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class RigidBody:
-    """Mass [kg], inertia about the CoM in the body frame [kg m^2] (3x3,
-    symmetric positive definite), CoM and docking-interface pose in the body
-    frame [m], interface orientation as a unit quaternion (x, y, z, w)."""
-
-    mass: float
-    inertia: np.ndarray
-    com: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    interface_position: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    interface_orientation: tuple = (0.0, 0.0, 0.0, 1.0)
-    name: str = "body"
-    # Derived in __post_init__: principal moments [kg m^2] and axes (columns, body frame).
-    principal_moments: np.ndarray = field(init=False, repr=False)
-    principal_axes: np.ndarray = field(init=False, repr=False)
-
-    def __post_init__(self) -> None:
-        n = self.name
-        object.__setattr__(self, "mass", check_positive(f"{n}.mass", self.mass, "kg"))
-        inertia = check_symmetric(f"{n}.inertia", self.inertia, 3, definite=True, unit="kg m^2")
-        moments, axes = np.linalg.eigh(inertia)
-        # A rigid body's principal moments obey the triangle inequality (I1 + I2 >= I3).
-        if moments[0] + moments[1] < moments[2] * (1.0 - 1e-12):
-            raise ContactModelError(
-                f"{n}.inertia is not a rigid body's: principal moments {moments.tolist()} break I1 + I2 >= I3"
-            )
-        if np.linalg.det(axes) < 0.0:
-            axes[:, 2] = -axes[:, 2]
-        object.__setattr__(self, "inertia", inertia)
-        object.__setattr__(self, "com", check_vector(f"{n}.com", self.com, unit="m"))
-        object.__setattr__(
-            self, "interface_position", check_vector(f"{n}.interface_position", self.interface_position, unit="m")
-        )
-        q_bi = check_unit_quaternion(f"{n}.interface_orientation", self.interface_orientation)
-        object.__setattr__(self, "interface_orientation", q_bi)
-        # Principal frame: columns of `axes` are the principal axes in body coordinates.
-        q_bp = matrix_to_quat(axes)
-        object.__setattr__(self, "principal_moments", moments)
-        object.__setattr__(self, "_moments", tuple(float(v) for v in moments))
-        object.__setattr__(self, "principal_axes", axes)
-        object.__setattr__(self, "_q_bp", q_bp)
-        # The interface seen from the CoM, in principal axes.
-        object.__setattr__(self, "_r_p", tuple(float(c) for c in axes.T @ (self.interface_position - self.com)))
-        object.__setattr__(self, "_q_pi", quat_multiply(quat_conjugate(q_bp), q_bi))
-        # Most bodies have principal axes along the body axes and the interface along them: the
-        # per-tick frame changes then skip a product by the identity (the same numbers).
-        object.__setattr__(self, "_bp_identity", q_bp == IDENTITY)
-        object.__setattr__(self, "_pi_identity", self._q_pi == IDENTITY)
-        object.__setattr__(self, "_com", tuple(float(c) for c in self.com))
-        # What the compiled interface geometry reads (None: the identity, whose product is skipped).
-        object.__setattr__(
-            self, "_frames", (self._r_p, None if self._pi_identity else self._q_pi, None if self._bp_identity else q_bp)
-        )
-        # What the per-tick geometry and mobilities read of the body: two bodies with equal keys
-        # give them equal numbers (hybrid6.published_interface remembers its last answer by it).
-        # Equal keys are one object, so that comparing them is an identity check.
-        key = (self.mass, self._moments, self._com, self._r_p, q_bp, self._q_pi)
-        object.__setattr__(self, "_key", _BODY_KEYS.setdefault(key, key))
-
-    def interface_offset_body(self) -> np.ndarray:
-        """Interface origin relative to the CoM, body frame [m]."""
-        return self.interface_position - self.com
-
-
-_BODY_KEYS: dict = {}  # RigidBody._key by value: one object for equal bodies
-
-
-@dataclass
-class BodyState:
-    """CoM position [m] and velocity [m/s] in world, attitude of the body frame
-    (unit quaternion x, y, z, w; body -> world), angular velocity in the body frame [rad/s]."""
-
-    position: np.ndarray
-    orientation: tuple
-    velocity: np.ndarray
-    angular_velocity: np.ndarray
-
-    def __post_init__(self) -> None:
-        self.position = check_vector("position", self.position, unit="m")
-        self.orientation = check_unit_quaternion("orientation", self.orientation)
-        self.velocity = check_vector("velocity", self.velocity, unit="m/s")
-        self.angular_velocity = check_vector("angular_velocity", self.angular_velocity, unit="rad/s")
+from dockhil.contact.rigidbody import BodyState, RigidBody
+from dockhil.contact.rotations import (
+    COMPILED,
+    add3,
+    cross,
+    cross3,
+    normalised,
+    quat_conjugate,
+    quat_multiply,
+    quat_to_matrix,
+    rotate,
+    rotate_back,
+    sub3,
+)
+from dockhil.contact.scenario import ContactModelError, StepTooLargeError
 
 
 class Motion:
@@ -627,13 +357,7 @@ def held_step(m1: Motion, m2: Motion, w: HeldWrench, h: float, order: int = 4) -
 
 # --- compiled twins --------------------------------------------------------------------------
 
-# dockhil/contact/_rigid.c: drift, kick, rotate, rotate_back, quat_multiply, rotvec3 (and contact6's
-# left_jacobian_inverse3, hybrid6's interface geometry) in C, the same IEEE operations in the same
-# order as their *_python twins here; None where not built (dockhil.compiled.twin).
-COMPILED = twin("dockhil.contact._rigid")
+# dockhil/contact/_rigid.c: drift and kick in C, the same IEEE operations in the same order as their
+# *_python twins here; None where not built (rotations.COMPILED).
 drift = COMPILED.drift if COMPILED else drift_python
 kick = COMPILED.kick if COMPILED else kick_python
-rotate = COMPILED.rotate if COMPILED else rotate_python
-rotate_back = COMPILED.rotate_back if COMPILED else rotate_back_python
-quat_multiply = COMPILED.quat_multiply if COMPILED else quat_multiply_python
-rotvec3 = COMPILED.rotvec3 if COMPILED else rotvec3_python

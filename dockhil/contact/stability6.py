@@ -7,7 +7,7 @@ q: the relative interface coordinates (n of them, up to 6); M: the effective
 mass at the interface, (G1 + G2)^-1 (hybrid6); direct terms: the virtual
 impedance acting on the simulator's state (K - K_p, C - C_p); delayed terms:
 the passive compliance the robots show h late (K_p, C_p). Along one axis with
-no offset this is the 1-DOF hybrid loop of `stability.hybrid_roots`.
+no offset this is the 1-DOF hybrid loop of `hybrid_stability.hybrid_roots`.
 
 Roots: Chebyshev collocation of the delay equation's infinitesimal generator
 (Breda, Maset and Vermiglio), as `stability.characteristic_roots`, here for
@@ -34,8 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dockhil.contact.contact6 import AXES
-from dockhil.contact.rigid import check_symmetric
+from dockhil.contact.interface6 import AXES
+from dockhil.contact.rigidbody import check_symmetric
 from dockhil.contact.scenario import ContactModelError, check_nonnegative, check_positive
 from dockhil.contact.stability import chebyshev
 

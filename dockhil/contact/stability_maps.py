@@ -126,7 +126,8 @@ def hybrid_map(m: float, kcs: float, bcs: float, rate: float, ks, hs):
     import numpy as np
 
     from dockhil.contact.sampled import SampledLoop, spectral_radius
-    from dockhil.contact.stability import pade1_bound, unstable_root_count
+    from dockhil.contact.hybrid_stability import unstable_root_count
+    from dockhil.contact.stability import pade1_bound
 
     exact = np.zeros((hs.size, ks.size), bool)
     sampled = np.zeros_like(exact)

@@ -55,7 +55,7 @@ import threading
 import time
 from collections import deque
 
-from dockhil.contact.rigid import quat_conjugate, quat_from_rotvec, quat_multiply, quat_to_rotvec
+from dockhil.contact.rotations import quat_conjugate, quat_from_rotvec, quat_multiply, quat_to_rotvec
 from dockhil.hardware import modbus_map as mm
 
 FOLLOW, HOLD, DISABLED = "follow", "hold", "disabled"

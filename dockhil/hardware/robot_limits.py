@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 
-from dockhil.contact.rigid import quat_conjugate, quat_from_rotvec, quat_multiply, rotvec3
+from dockhil.contact.rotations import quat_conjugate, quat_from_rotvec, quat_multiply, rotvec3
 from dockhil.hardware import modbus_map as mm
 from dockhil.msgs import Quaternion, RobotCommand, Vector3
 

@@ -42,7 +42,7 @@ import time
 from array import array
 from collections import deque
 
-from dockhil.contact.rigid import quat_conjugate, quat_from_rotvec, quat_multiply, rotvec3
+from dockhil.contact.rotations import quat_conjugate, quat_from_rotvec, quat_multiply, rotvec3
 from dockhil.hardware import rsi
 
 START_POSE = (500.0, 0.0, 900.0, 180.0, 0.0, 180.0)  # mm, degrees: a TCP in front of the robot, pointing down

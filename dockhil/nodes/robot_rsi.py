@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import math
 
-from dockhil.contact.rigid import IDENTITY, quat_conjugate, quat_multiply, rotate, rotate_back
+from dockhil.contact.rotations import IDENTITY, quat_conjugate, quat_multiply, rotate, rotate_back
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import rsi
 from dockhil.hardware.robot_driver import RobotDriver, limit_params, robot_state

@@ -20,10 +20,10 @@ from dockhil.nodes.sixdof_params import BODY_PARAMS, IDENTITY, MOUNT_PARAMS, bod
 
 def attitude(q, rotvec, name):
     """exp(rotvec) q: a tilt given in radians on top of a quaternion (unit, checked)."""
-    from dockhil.contact import rigid
+    from dockhil.contact import rigidbody, rotations
 
-    q = rigid.check_unit_quaternion(name.replace("attitude", "q"), q)
-    return rigid.quat_multiply(rigid.quat_from_rotvec(rigid.check_vector(name, rotvec, unit="rad")), q)
+    q = rotations.check_unit_quaternion(name.replace("attitude", "q"), q)
+    return rotations.quat_multiply(rotations.quat_from_rotvec(rigidbody.check_vector(name, rotvec, unit="rad")), q)
 
 
 class SatelliteDynamics6(Node):
@@ -91,14 +91,14 @@ class SatelliteDynamics6(Node):
     }
 
     def setup(self):
-        from dockhil.contact import hybrid6, rigid
+        from dockhil.contact import hybrid6, rigid, rigidbody
 
         p = self.p
 
         def build():
             b1, b2 = bodies(p)
-            s1 = rigid.BodyState(p.x1, attitude(p.q1, p.attitude1, "attitude1"), p.v1, p.w1)
-            s2 = rigid.BodyState(p.x2, attitude(p.q2, p.attitude2, "attitude2"), p.v2, p.w2)
+            s1 = rigidbody.BodyState(p.x1, attitude(p.q1, p.attitude1, "attitude1"), p.v1, p.w1)
+            s2 = rigidbody.BodyState(p.x2, attitude(p.q2, p.attitude2, "attitude2"), p.v2, p.w2)
             return (
                 b1,
                 b2,

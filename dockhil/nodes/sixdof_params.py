@@ -112,7 +112,7 @@ def checked(node: str, build):
 def bodies(p):
     """(chaser, target) RigidBody from the BODY_PARAMS values (CoM at the body origin); errors name
     the body: `chaser.inertia` is the param inertia1, `target.interface_position` interface2."""
-    from dockhil.contact.rigid import RigidBody
+    from dockhil.contact.rigidbody import RigidBody
 
     return (
         RigidBody(

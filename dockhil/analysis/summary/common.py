@@ -161,7 +161,7 @@ class RangeMeter:
     def __init__(self, inertia: tuple | None = None):
         self.inertia = None if inertia is None else tuple(np.asarray(i, float).tolist() for i in inertia)
         if inertia is not None:
-            from dockhil.contact.rigid import rotate_back
+            from dockhil.contact.rotations import rotate_back
 
             self.rotate_back = rotate_back
         self.start = None  # positions at the first state

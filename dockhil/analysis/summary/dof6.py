@@ -26,7 +26,7 @@ import itertools
 import math
 
 from dockhil import msgs
-from dockhil.contact.rigid import cross3, rotate, sub3
+from dockhil.contact.rotations import cross3, rotate, sub3
 from dockhil.analysis.scenecheck import scene_check, sixdof_nodes
 from dockhil.analysis.summary.common import ContactMeter, RangeMeter, TickMatcher, range_summary
 
@@ -149,7 +149,7 @@ def ideal_metrics6(dyn, ideal, dt: float, t_end: float) -> dict:
     """`ContactMeter6.result()` of the ideal 6-DOF contact from the dynamics' start, run until the
     contact has ended (at most t_end), sampled every dt."""
     from dockhil.contact.contact6 import simulate_contact6
-    from dockhil.contact.rigid import quat_multiply, rotate_back
+    from dockhil.contact.rotations import quat_multiply, rotate_back
 
     run = simulate_contact6(dyn.b1, dyn.b2, dyn.m1.state(), dyn.m2.state(), ideal, dt=dt, t_end=t_end, until_exit=True)
     meter = ContactMeter6()
