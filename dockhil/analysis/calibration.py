@@ -176,7 +176,6 @@ class _ServoModel:
 
 def servo(t_cmd, x_cmd, t_state, x_state, max_delay: float = MAX_DELAY_S, max_lag: float = MAX_LAG_S) -> Servo:
     """Delay and first-order lag from a command stream (times [s], positions [m]) and the poses read back."""
-    from scipy.optimize import least_squares
 
     t_cmd, x_cmd, t_state, x_state = (np.asarray(a, dtype=float) for a in (t_cmd, x_cmd, t_state, x_state))
     if len(t_cmd) < 10 or len(t_state) < 20:
@@ -205,33 +204,7 @@ def servo(t_cmd, x_cmd, t_state, x_state, max_delay: float = MAX_DELAY_S, max_la
         r = np.where(idx >= 0, x_cmd[np.clip(idx, 0, None)], model.x0) - xs
         costs.append(float(r @ r))
     total = float(delays[int(np.argmin(costs))])
-    fits = {}
-    for order in (1, 2):
-        best = None
-        for share in (0.0, 0.3, 0.6):
-            lag = min(share * total, max_lag) / order
-            start = [max(total - order * lag, 0.0), lag]
-            fit = least_squares(
-                model.residual,
-                x0=start,
-                args=(order,),
-                bounds=([0.0, 0.0], [max_delay, max_lag]),
-                diff_step=[1e-2, 1e-2],
-                x_scale=[0.01, 0.01],
-            )
-            if best is None or fit.cost < best.cost:
-                best = fit
-        fits[order] = best
-    first = fits[1]
-    if not first.success:
-        raise CalibrationError(f"the delay and lag fit did not converge ({first.message})")
-    residual = first.fun
-    cov = _covariance(_servo_jacobian(model, *first.x), residual, 2)
-    aic = {}
-    for order, fit in fits.items():
-        rss = float(fit.fun @ fit.fun)
-        aic["first-order" if order == 1 else "second-order"] = n * math.log(max(rss, 1e-300) / n) + 4.0
-    delay, lag = (float(v) for v in first.x)
+    (delay, lag), residual, cov, aic = _fit_delay_lag(model, total, max_delay, max_lag, 0.01, 1e-2)
     sigmas = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     return Servo(
         delay,
@@ -243,6 +216,40 @@ def servo(t_cmd, x_cmd, t_state, x_state, max_delay: float = MAX_DELAY_S, max_la
         min(aic, key=aic.get),
         aic,
     )
+
+
+def _fit_delay_lag(model, total: float, max_delay: float, max_lag: float, scale: float, diff_step: float):
+    """((delay, lag), residual, covariance, AIC per lag model) of `model` (its residual((delay, lag), order)),
+    by nonlinear least squares from a few splits of the total delay `total` between delay and lag; a
+    second-order lag (two equal poles) fitted too, for the AIC."""
+    from scipy.optimize import least_squares
+
+    fits = {}
+    for order in (1, 2):
+        best = None
+        for share in (0.0, 0.3, 0.6):
+            lag = min(share * total, max_lag) / order
+            fit = least_squares(
+                model.residual,
+                x0=[max(total - order * lag, 0.0), lag],
+                args=(order,),
+                bounds=([0.0, 0.0], [max_delay, max_lag]),
+                diff_step=[diff_step, diff_step],
+                x_scale=[scale, scale],
+            )
+            if best is None or fit.cost < best.cost:
+                best = fit
+        fits[order] = best
+    first = fits[1]
+    if not first.success:
+        raise CalibrationError(f"the delay and lag fit did not converge ({first.message})")
+    n = len(first.fun)
+    aic = {
+        name: n * math.log(max(float(fits[o].fun @ fits[o].fun), 1e-300) / n) + 4.0
+        for o, name in ((1, "first-order"), (2, "second-order"))
+    }
+    x = tuple(float(v) for v in first.x)
+    return x, first.fun, _covariance(_servo_jacobian(model, *x), first.fun, 2), aic
 
 
 def _servo_jacobian(model: _ServoModel | _CycleServo, delay: float, lag: float) -> np.ndarray:
@@ -493,7 +500,6 @@ def device_servo(c: DeviceCycles, max_delay: float = MAX_DELAY_S, max_lag: float
     d rounded up to a cycle (D = C T), or, where the cycle's phase jitters, the mean of those roundings,
     d + T/2; the delay reported is D - T/2, the middle of the cycle that holds d, and its uncertainty adds
     that cycle's, T / sqrt 12, to the fit's."""
-    from scipy.optimize import least_squares
 
     knots, times = device_clock(c)
     n = _unwrap(c.cycle)
@@ -523,33 +529,8 @@ def device_servo(c: DeviceCycles, max_delay: float = MAX_DELAY_S, max_lag: float
     # together from a few splits of it.
     shifts = np.arange(0.0, max_delay, period)
     total = float(shifts[int(np.argmin([np.sum(model.residual((d, 0.0)) ** 2) for d in shifts]))])
-    fits = {}
-    for order_ in (1, 2):
-        best = None
-        for share in (0.0, 0.3, 0.6):
-            lag = min(share * total, max_lag) / order_
-            fit = least_squares(
-                model.residual,
-                x0=[max(total - order_ * lag, 0.0), lag],
-                args=(order_,),
-                bounds=([0.0, 0.0], [max_delay, max_lag]),
-                diff_step=[1e-3, 1e-3],
-                x_scale=[period, period],
-            )
-            if best is None or fit.cost < best.cost:
-                best = fit
-        fits[order_] = best
-    first_order = fits[1]
-    if not first_order.success:
-        raise CalibrationError(f"the delay and lag fit did not converge ({first_order.message})")
-    residual = first_order.fun
-    cov = _covariance(_servo_jacobian(model, *first_order.x), residual, 2)
+    (whole, lag), residual, cov, aic = _fit_delay_lag(model, total, max_delay, max_lag, period, 1e-3)
     npose = len(residual)
-    aic = {
-        name: npose * math.log(max(float(fits[o].fun @ fits[o].fun), 1e-300) / npose) + 4.0
-        for o, name in ((1, "first-order"), (2, "second-order"))
-    }
-    whole, lag = (float(v) for v in first_order.x)
     sigmas = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     return Servo(
         max(whole - 0.5 * period, 0.0),
