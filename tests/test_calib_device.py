@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from dockhil.analysis import calibration as cal
+from dockhil.analysis.device_cycles import unwrap
 from dockhil.bags.reader import BagReader
 from dockhil.bags.writer import BagWriter
 from dockhil.hardware.cycle_log import CycleLog
@@ -128,7 +129,7 @@ def test_twenty_draws_over_the_specified_ranges_are_all_within_the_goal():
 
 def test_a_16_bit_cycle_count_is_unwrapped():
     count = np.array([65534, 65535, 65535, 0, 2, 3])
-    assert cal._unwrap(count).tolist() == [65534, 65535, 65535, 65536, 65538, 65539]
+    assert unwrap(count).tolist() == [65534, 65535, 65535, 65536, 65538, 65539]
 
 
 def _identification_messages(rec: cal.Recording):

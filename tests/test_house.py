@@ -1,5 +1,5 @@
 """The house's shape, from the source's ast (.ci/house.py): no import cycle between dockhil's
-modules, and no private name taken across modules."""
+modules, no private name taken across modules, and no module over 600 lines."""
 
 import importlib.util
 from pathlib import Path
@@ -37,3 +37,8 @@ def test_the_checks_find_a_cycle_and_a_private_import(tmp_path):
         house.ROOT = old_root
     assert edges["dockhil.two"] == {"dockhil.one"}
     assert private == ["dockhil/two.py:1: _hidden from dockhil.one", "dockhil/two.py:3: _hidden from dockhil.one"]
+
+
+def test_no_module_is_over_600_lines():
+    over = {n: len(p.read_text().splitlines()) for n, p in house.modules().items()}
+    assert {n: k for n, k in over.items() if k > house.MAX_LINES} == {}

@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from dockhil.contact.rigid import IDENTITY
+from dockhil.contact.rotations import IDENTITY
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import SafetyStop
 from dockhil.hardware import modbus_map as mm

@@ -23,7 +23,7 @@ import sys
 import threading
 import time
 
-from dockhil.contact.rigid import IDENTITY, quat_conjugate, quat_from_rotvec, quat_multiply
+from dockhil.contact.rotations import IDENTITY, quat_conjugate, quat_from_rotvec, quat_multiply
 from dockhil.errors import DeviceError
 from dockhil.hardware import rsi
 from dockhil.hardware.robot_limits import angle_between
