@@ -164,3 +164,25 @@ def test_a_stalled_robot_driver_holds_and_stops_the_graph(tmp_path):
         if stalled or not other_stop:
             break
     assert stalled, text
+
+
+def test_an_input_stopped_with_the_graph_at_the_end_is_no_stall():
+    """The graph's nodes are stopped together at the run's end, but a loop that started a little
+    after its publisher still ticks: an input silent since within two max_ages of the end ends the
+    run; one silent since earlier is a stall, in one line."""
+    from types import SimpleNamespace
+
+    from dockhil.runtime.executor import NodeExecutor, StaleInput
+
+    fake = SimpleNamespace(
+        max_age={"state": 0.1},
+        spec=SimpleNamespace(name="impedance", inputs={"state": SimpleNamespace(topic="/satellite/state")}),
+    )
+    timing = SimpleNamespace(aged=lambda port, age: None)
+    end = 60.0
+    assert NodeExecutor._check_ages(fake, {"state": 59.85}, 59.96, timing, end) is True
+    assert NodeExecutor._check_ages(fake, {"state": 59.9}, 59.95, timing, end) is False  # not stale yet
+    with pytest.raises(StaleInput, match=r"input 'state' \(/satellite/state\) is 0.150 s old > max_age 0.1 s"):
+        NodeExecutor._check_ages(fake, {"state": 30.0}, 30.15, timing, end)
+    with pytest.raises(StaleInput):  # no end: every stall is one
+        NodeExecutor._check_ages(fake, {"state": 59.85}, 59.96, timing, None)

@@ -379,7 +379,9 @@ class NodeExecutor:
                         if msg is not None:
                             latest[port] = msg
                             arrived[port] = now
-                self._check_ages(arrived, now, timing)
+                end = None if duration is None else t0 + duration
+                if self._check_ages(arrived, now, timing, end):
+                    break  # an input's publisher was stopped with the graph at the run's end
                 stamp = time.time()
                 timing.inputs(stamp, latest)
                 outs = node.step(Tick(k, now - t0, period, stamp=stamp), dict(latest))
@@ -408,17 +410,23 @@ class NodeExecutor:
                 json.dump(out, f)
         return out
 
-    def _check_ages(self, arrived: dict[str, float], now: float, timing: "LoopTiming") -> None:
+    def _check_ages(self, arrived: dict[str, float], now: float, timing: "LoopTiming", end: float | None) -> bool:
+        """Raises StaleInput for an input older than its max_age; True (the run is over) when that
+        input's publisher ran to within two max_ages of the run's `end`: the graph stopped it there,
+        and this loop, started a little after it, is still ticking."""
         for port, at in arrived.items():
             age = now - at
             timing.aged(port, age)
             limit = self.max_age.get(port, math.inf)
             if age > limit:
+                if end is not None and at >= end - 2 * limit:
+                    return True
                 topic = self.spec.inputs[port].topic
                 raise StaleInput(
                     f"node {self.spec.name!r}: input {port!r} ({topic}) is {age:.3f} s old > "
                     f"max_age {limit:g} s (its publisher stalled or died); stopping"
                 )
+        return False
 
     def close(self) -> None:
         try:
