@@ -26,6 +26,70 @@ def attitude(q, rotvec, name):
     return rotations.quat_multiply(rotations.quat_from_rotvec(rigidbody.check_vector(name, rotvec, unit="rad")), q)
 
 
+class GapHold:
+    """The robot command of max_gap: A's pose in B as it is while the interfaces are within max_gap
+    along B's docking axis (x: the gap is -d_x), held still while they are farther apart.
+
+    The gap is the distance along the docking axis, not between the interface points: the contact
+    acts on d_x alone (B's face is a plane), so a pair near the plane with a large lateral offset
+    can still touch, and its command must follow. Held, the whole pose stays where it was when the
+    pair left: x at -max_gap, y, z and the attitude those of that tick, the twist zero. The robot
+    driver checks the commanded position against its workspace box and the commanded attitude
+    against max_tilt from the start; a drifting pair's lateral offset and attitude (a chaser that
+    spins on for minutes) would leave both, and a pose held where the robot already was stays
+    inside them. Direction-keeping (the command on the line to A, at max_gap) would still move and
+    turn with the pair, and so would leave them.
+
+    Coming back under max_gap the pair is not where it left: the command starts at the held pose
+    and takes the offset between them, (position difference, rotation vector), down in proportion
+    to the gap: scale s = gap / (gap at the return), 1 at the return, 0 at the plane. It moves only
+    as the pair closes along the axis, by the pair's own step plus the offset times the gap's step
+    over the gap at the return, and is the pair's pose again, bit for bit, from the plane on (no
+    contact before it). Its twist is the derivative of that pose."""
+
+    def __init__(self, max_gap: float):
+        self.max_gap = max_gap
+        self.gap = 0.0  # the last tick's gap along the docking axis
+        self.parked: tuple | None = None  # the held (d, attitude)
+        self.offset: tuple | None = None  # coming back: (position offset, rotation vector, gap at the return)
+
+    def command(self, d, q, velocity, spin):
+        """(d, attitude, d', angular velocity) the robot is sent, of A's pose and twist in B."""
+        from dockhil.contact.rotations import quat_conjugate, quat_multiply, rotvec3, sub3
+
+        self.gap = gap = -d[0]
+        if gap > self.max_gap:
+            if self.parked is None:
+                cd, cq = self._blended(d, q, velocity, spin, gap)[:2] if self.offset else (d, q)
+                self.parked, self.offset = ((-self.max_gap, cd[1], cd[2]), cq), None
+            return self.parked + ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+        if self.parked is not None:  # back: take the offset to the pair down as the gap closes
+            hd, hq = self.parked
+            self.parked = None
+            if gap > 0.0:
+                self.offset = (sub3(hd, d), rotvec3(quat_multiply(hq, quat_conjugate(q))), gap)
+        if self.offset is None:
+            return d, q, velocity, spin
+        if gap <= 0.0:  # at the plane: the pair's pose from here on
+            self.offset = None
+            return d, q, velocity, spin
+        return self._blended(d, q, velocity, spin, gap)
+
+    def _blended(self, d, q, velocity, spin, gap):
+        from dockhil.contact.rotations import quat_from_rotvec, quat_multiply, rotate
+
+        dp, phi, back = self.offset
+        s, rate = (1.0, 0.0) if gap >= back else (gap / back, -velocity[0] / back)
+        turn = quat_from_rotvec((s * phi[0], s * phi[1], s * phi[2]))
+        w = rotate(turn, spin)
+        return (
+            (d[0] + s * dp[0], d[1] + s * dp[1], d[2] + s * dp[2]),
+            quat_multiply(turn, q),
+            (velocity[0] + rate * dp[0], velocity[1] + rate * dp[1], velocity[2] + rate * dp[2]),
+            (w[0] + rate * phi[0], w[1] + rate * phi[1], w[2] + rate * phi[2]),
+        )
+
+
 class SatelliteDynamics6(Node):
     """Integrates two rigid bodies under the F/T wrench and the virtual wrenches; publishes states and A's pose in B.
 
@@ -88,6 +152,16 @@ class SatelliteDynamics6(Node):
         ),
         **MOUNT_PARAMS,
         "order": Param(int, 4, help="integrator order (2 or 4)", choices=(2, 4)),
+        "max_gap": Param(
+            float,
+            0.0,
+            unit="m",
+            help="the robot command follows the interfaces' gap along B's docking axis up to this distance and "
+            "waits there, its whole pose held, while they are farther apart (no contact can happen there; it "
+            "keeps a long run in the robot's workspace); 0: follows everywhere",
+            ge=0.0,
+            le=physical.DISTANCE[1],
+        ),
     }
 
     def setup(self):
@@ -110,6 +184,7 @@ class SatelliteDynamics6(Node):
         self.b1, self.b2, self.m1, self.m2, self.mount = checked(self.ctx.name, build)
         self.lib, self.rigid = hybrid6, rigid
         self.started = False
+        self.hold = GapHold(p.max_gap) if p.max_gap else None
 
     def step(self, tick, inputs):
         if not self.started:
@@ -139,6 +214,14 @@ class SatelliteDynamics6(Node):
         lib = self.lib
         pub1, pub2 = lib.published_body(self.m1), lib.published_body(self.m2)
         (d, q_rel, d_rate, w_rel), touching = lib.robot_command(self.b1, pub1, self.b2, pub2)
+        if self.hold is not None:
+            held = self.hold.parked
+            d, q_rel, d_rate, w_rel = self.hold.command(d, q_rel, d_rate, w_rel)
+            if self.hold.parked and not held:
+                self.log(
+                    f"interfaces {self.hold.gap:.3g} m apart along the docking axis: the robot waits at the gap "
+                    f"max_gap = {self.hold.max_gap:g} m, its pose held"
+                )
         x1, q1, v1, w1 = pub1
         x2, q2, v2, w2 = pub2
         # The library's values are plain floats already (tuples): they go into the messages as they are.
