@@ -41,11 +41,12 @@ class GapHold:
     turn with the pair, and so would leave them.
 
     Coming back under max_gap the pair is not where it left: the command starts at the held pose
-    and takes the offset between them, (position difference, rotation vector), down in proportion
-    to the gap: scale s = gap / (gap at the return), 1 at the return, 0 at the plane. It moves only
-    as the pair closes along the axis, by the pair's own step plus the offset times the gap's step
-    over the gap at the return, and is the pair's pose again, bit for bit, from the plane on (no
-    contact before it). Its twist is the derivative of that pose."""
+    and takes the offset between them (position difference, rotation vector) down as the gap
+    closes: scaled by s = 3u^2 - 2u^3 of u = gap / (gap at the return), 1 at the return, 0 at the
+    plane. It moves only as the pair closes along the axis, each tick by the pair's own step plus
+    the offset times at most 1.5 times the gap's step over the gap at the return, and is the pair's
+    pose again, bit for bit, from the plane on (no contact before it). Its twist is the derivative
+    of that pose."""
 
     def __init__(self, max_gap: float):
         self.max_gap = max_gap
@@ -79,7 +80,10 @@ class GapHold:
         from dockhil.contact.rotations import quat_from_rotvec, quat_multiply, rotate
 
         dp, phi, back = self.offset
-        s, rate = (1.0, 0.0) if gap >= back else (gap / back, -velocity[0] / back)
+        # s = 3u^2 - 2u^3 of u = gap / back: its rate is 0 at both ends, so the command's velocity
+        # does not step where the take-down ends, at the plane, where the contact may begin.
+        u = 1.0 if gap > back else gap / back
+        s, rate = u * u * (3.0 - 2.0 * u), 6.0 * u * (1.0 - u) * -velocity[0] / back
         turn = quat_from_rotvec((s * phi[0], s * phi[1], s * phi[2]))
         w = rotate(turn, spin)
         return (
