@@ -56,8 +56,6 @@ class GapHold:
 
     def command(self, d, q, velocity, spin):
         """(d, attitude, d', angular velocity) the robot is sent, of A's pose and twist in B."""
-        from dockhil.contact.rotations import quat_conjugate, quat_multiply, rotvec3, sub3
-
         self.gap = gap = -d[0]
         if gap > self.max_gap:
             if self.parked is None:
@@ -68,6 +66,8 @@ class GapHold:
             hd, hq = self.parked
             self.parked = None
             if gap > 0.0:
+                from dockhil.contact.rotations import quat_conjugate, quat_multiply, rotvec3, sub3
+
                 self.offset = (sub3(hd, d), rotvec3(quat_multiply(hq, quat_conjugate(q))), gap)
         if self.offset is None:
             return d, q, velocity, spin
