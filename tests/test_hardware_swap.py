@@ -1,5 +1,6 @@
-"""The same scene on real-protocol drivers: CAN F/T over a pseudo-terminal slcan adapter,
-robot over Modbus TCP on 127.0.0.1, both emulated; missing devices and safety through the launcher.
+"""The same scene on real-protocol drivers: CAN F/T over UDP multicast on loopback (and over a
+pseudo-terminal slcan adapter, can_interface:=pty), robot over Modbus TCP on 127.0.0.1, both
+emulated; missing devices and safety through the launcher.
 
 True wall-time end-to-end runs (marked wall_time): they assert outcomes, and wait for
 conditions with deadlines. The F/T watchdog is widened to 1 s where it is not what a
@@ -18,12 +19,13 @@ from tests.conftest import Lines, dockhil_cmd, free_port, kill_child_and_expect_
 pytestmark = pytest.mark.wall_time
 
 
-def hardware_args(tmp_path, emulators=True):
+def hardware_args(tmp_path, emulators=True, can_interface="auto"):
     tmp_path.mkdir(exist_ok=True)
     return [
         "ft:=can",
         "robot:=modbus",
         f"emulators:={'true' if emulators else 'false'}",
+        f"can_interface:={can_interface}",
         f"can_channel:={tmp_path / 'ft.slcan'}",
         f"modbus_port:={free_port()}",
         "ft_timeout:=1.0",
@@ -164,10 +166,12 @@ def test_a_safety_limit_stops_the_graph_naming_limit_and_value(tmp_path):
     assert "robot held" in trip[0] and "Traceback" not in out
 
 
-def test_a_dead_device_stops_the_graph(tmp_path):
-    """The sensor's CAN adapter (the emulator) dies mid-run: the launcher stops the graph, non-zero.
+@pytest.mark.parametrize("can_interface", ["auto", "pty"])
+def test_a_dead_device_stops_the_graph(tmp_path, can_interface):
+    """The sensor's CAN adapter (the emulator, on UDP multicast or an slcan pseudo-terminal) dies
+    mid-run: the launcher stops the graph, non-zero.
     The driver's own watchdog and hold are tested in test_hardware_safety.py."""
-    args = hardware_args(tmp_path)
+    args = hardware_args(tmp_path, can_interface=can_interface)
     p = subprocess.Popen(
         dockhil_cmd("launch", "launch/hil.yaml", *args, "--wall-time", "--duration", "20", "--quiet"),
         stdout=subprocess.PIPE,
@@ -175,7 +179,8 @@ def test_a_dead_device_stops_the_graph(tmp_path):
         text=True,
     )
     lines = Lines(p)
-    lines.wait_for("tared over")  # running: the driver reads the emulated sensor
+    started = lines.wait_for("tared over")  # running: the driver reads the emulated sensor
+    assert f"F/T sensor ({'slcan' if can_interface == 'pty' else 'udp_multicast'} " in started, started
     out = kill_child_and_expect_the_graph_to_stop(p, "ft_emulator", dependent="ft", lines=lines)
     # Either way the sensor's loss is named: the dead adapter, or the driver's bus error.
     assert "'ft_emulator' was killed by SIGKILL" in out or "bus error" in out or "stale data" in out

@@ -17,6 +17,7 @@ import time
 
 from dockhil.runtime import ownership
 from dockhil.errors import DeviceError, LaunchError
+from dockhil.hardware import can_multicast
 from dockhil.hardware import ft_frames as ff
 from dockhil.hardware import tare
 from dockhil.hardware.device_path import private_link, untrusted
@@ -42,12 +43,23 @@ class FtCanDriver(Node):
 
     outputs = {"wrench": Output(WrenchStamped, "/ft/wrench", help="wrench the contact exerts on the chaser")}
     params = {
-        "interface": Param(str, "slcan", help="python-can interface: slcan, socketcan, pcan, virtual, ..."),
+        "interface": Param(
+            str,
+            "slcan",
+            help="python-can interface: slcan, socketcan, udp_multicast, pcan, virtual, ...; pty: slcan "
+            "on an emulated adapter's pseudo-terminal",
+        ),
         "channel": Param(
             str,
             "",
-            help="python-can channel: serial port, can0, ... (slcan, empty: the emulator's "
+            help="python-can channel: serial port, can0, multicast group, ... (slcan, empty: the emulator's "
             "link ft.slcan in the graph's private run directory)",
+        ),
+        "loopback": Param(
+            bool,
+            True,
+            help="udp_multicast: the group on this host's loopback, its own datagrams alone "
+            "(false: python-can's choice, the routed interface)",
         ),
         "bitrate": Param(int, 1_000_000, unit="bit/s", help="CAN bitrate", gt=0, le=1_000_000),
         **ff.frame_params(),
@@ -122,6 +134,7 @@ class FtCanDriver(Node):
     def resolve_params(cls, node_name: str, given: dict) -> dict:
         values = super().resolve_params(node_name, given)
         tare.check_bias_param(node_name, values)
+        can_multicast.check_params(node_name, values)
         return values
 
     def setup(self) -> None:
@@ -133,6 +146,8 @@ class FtCanDriver(Node):
         import can  # here, not at module import: only scenes with this driver load python-can
 
         self._can = can
+        if p.interface == "pty":  # the emulator's adapter on a pseudo-terminal speaks slcan
+            p.interface = "slcan"
         if not p.channel and p.interface == "slcan":
             p.channel = private_link("ft.slcan")
         # A path others could plant or replace would feed us their forces: checked before and after each open.
@@ -186,15 +201,20 @@ class FtCanDriver(Node):
         if p.interface == "slcan":
             # Non-blocking serial reads: recv(0) must not wait a serial timeout per step.
             kwargs = {"sleep_after_open": p.open_delay, "timeout": 0.0}
+        multicast = p.interface == "udp_multicast" and p.loopback
         while True:
             self._check_path()
             try:
                 # No ID filters: several interfaces filter error frames with them,
                 # and foreign frames cost only a comparison in decode_frame.
                 bus = can.Bus(interface=p.interface, channel=p.channel, bitrate=p.bitrate, **kwargs)
+                if multicast:
+                    self._on_loopback(bus)
             except (can.CanInterfaceNotImplementedError, ValueError, TypeError) as exc:
                 raise DeviceError(f"{self.device}: cannot open: {one_line(exc)}") from None
             except (can.CanError, OSError) as exc:
+                if multicast:  # no route for the group: waiting will not make one
+                    raise DeviceError(can_multicast.join_failure(self.device, p.channel, exc)) from None
                 # The device may still be appearing (adapter enumerating, emulator starting).
                 if time.monotonic() >= deadline:
                     raise DeviceError(f"{self.device}: cannot open: {one_line(exc)}") from None
@@ -206,6 +226,13 @@ class FtCanDriver(Node):
                 bus.shutdown()
                 raise
             return bus
+
+    def _on_loopback(self, bus) -> None:
+        try:
+            can_multicast.on_loopback(bus, self.p.channel)
+        except OSError as exc:
+            bus.shutdown()
+            raise DeviceError(can_multicast.join_failure(self.device, self.p.channel, exc)) from None
 
     def _check_path(self) -> None:
         why = untrusted(self._path) if self._path else None

@@ -4,8 +4,8 @@ It stands in for the sensor on the far side of the CAN bus, so the real
 driver (dockhil/nodes/ft_can.py) runs unchanged. With interface "pty" (the default)
 the emulator is itself an slcan adapter on a pseudo-terminal, symlinked at
 `channel`; the driver opens that path with python-can's slcan interface.
-Any other interface sends through python-can (virtual, socketcan on vcan,
-a second slcan adapter, ...).
+Any other interface sends through python-can (udp_multicast on loopback, which
+hil.yaml's emulators:=true uses, virtual, socketcan on vcan, a second slcan adapter, ...).
 """
 
 from __future__ import annotations
@@ -37,6 +37,11 @@ class FtSensorEmulator(Node):
             "",
             help="pty: symlink to create (empty: ft.slcan in the graph's private run "
             "directory, the driver's default); else the python-can channel",
+        ),
+        "loopback": Param(
+            bool,
+            True,
+            help="udp_multicast: the group on this host's loopback (false: python-can's choice, the routed interface)",
         ),
         "bitrate": Param(int, 1_000_000, unit="bit/s", help="CAN bitrate (python-can interfaces)", gt=0, le=1_000_000),
         **ff.frame_params(),
@@ -78,6 +83,14 @@ class FtSensorEmulator(Node):
         "seed": Param(int, 0, help="noise seed", ge=0, le=2**63 - 1),
     }
 
+    @classmethod
+    def resolve_params(cls, node_name: str, given: dict) -> dict:
+        from dockhil.hardware import can_multicast
+
+        values = super().resolve_params(node_name, given)
+        can_multicast.check_params(node_name, values)
+        return values
+
     def setup(self) -> None:
         p = self.p
         self.scaling = ff.FtScaling(p.force_resolution, p.torque_resolution)
@@ -102,6 +115,7 @@ class FtSensorEmulator(Node):
         else:
             import can
 
+            from dockhil.hardware import can_multicast
             from dockhil.runtime import ownership
             from dockhil.nodes.ft_can import one_line
 
@@ -119,11 +133,20 @@ class FtSensorEmulator(Node):
                 bus_claim.release()
                 raise
             self._bus_claim = bus_claim
+            multicast = p.interface == "udp_multicast" and p.loopback
+            device = f"F/T sensor emulator ({p.interface} {p.channel})"
             try:
                 self._can_bus = can.Bus(interface=p.interface, channel=p.channel, bitrate=p.bitrate)
+                if multicast:
+                    can_multicast.on_loopback(self._can_bus, p.channel)
             except (can.CanError, OSError, ValueError) as exc:
+                if self._can_bus is not None:
+                    self._can_bus.shutdown()
+                    self._can_bus = None
                 self._release_claims()
-                raise DeviceError(f"F/T sensor emulator ({p.interface} {p.channel}): {one_line(exc)}") from None
+                if multicast:
+                    raise DeviceError(can_multicast.join_failure(device, p.channel, exc)) from None
+                raise DeviceError(f"{device}: {one_line(exc)}") from None
             self._message = can.Message
 
     def wrench(self, state: RobotState | None) -> tuple[tuple[float, float, float], tuple[float, float, float]]:

@@ -187,6 +187,7 @@ def build(scene: Scene) -> Graph:
 
     _refuse_replay_into_hardware(scene.path, gnodes, publishers)
     _refuse_driver_past_its_emulator(scene.path, gnodes)
+    _refuse_ft_driver_off_its_emulator(scene.path, gnodes)
     order = _feedthrough_order(scene.path, gnodes, publishers)
     return Graph(scene, gnodes, order, publishers, subscribers, unconnected)
 
@@ -270,6 +271,31 @@ def _refuse_driver_past_its_emulator(path: str, gnodes: dict[str, GraphNode]) ->
                 f"{path}: node {gn.name!r} ({gn.type_name}) commands the controller at {gn.params['host']}:"
                 f"{gn.params['port']}, but node {em.name!r} emulates one at {em.params['host']}:{em.params['port']}: "
                 f"the driver would move a real robot; point it at the emulator, or drop the emulator"
+            )
+
+
+def _refuse_ft_driver_off_its_emulator(path: str, gnodes: dict[str, GraphNode]) -> None:
+    """A graph that emulates the CAN F/T sensor means its driver to read that emulator: a driver on
+    another bus (emulators:=true with can_interface:=socketcan) would read a real sensor, or none."""
+    emulators = [gn for gn in gnodes.values() if gn.type_name == "ft_emulator"]
+    if not emulators:
+        return
+
+    def reads(driver: dict, em: dict) -> bool:
+        interface = "slcan" if driver["interface"] == "pty" else driver["interface"]
+        if em["interface"] == "pty":  # an slcan adapter on a pseudo-terminal, linked at its channel
+            return interface == "slcan" and driver["channel"] == em["channel"]
+        if em["interface"] == "slcan":  # a second serial adapter on the driver's bus
+            return interface == "slcan" and driver["channel"] != em["channel"]
+        return interface == em["interface"] and driver["channel"] == em["channel"]
+
+    for gn in gnodes.values():
+        if gn.type_name == "ft_can" and not any(reads(gn.params, em.params) for em in emulators):
+            em = emulators[0]
+            raise LaunchError(
+                f"{path}: node {gn.name!r} (ft_can) reads CAN {gn.params['interface']} {gn.params['channel']!r}, "
+                f"but node {em.name!r} emulates the sensor on {em.params['interface']} {em.params['channel']!r}: "
+                f"the driver would read a real sensor, or none; with emulators:=true give can_interface:=auto or pty"
             )
 
 

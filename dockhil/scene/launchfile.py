@@ -27,8 +27,10 @@
 
 `$(arg NAME)` and `$(var NAME)` are the same: an argument or a `let`
 variable. Standing alone it keeps the value's type; inside a longer
-string it is replaced by its text. A condition is true/false, or
-`A == B` / `A != B` compared as text after substitution.
+string it is replaced by its text. `$(var multicast_group)` is built in: an
+IPv4 multicast group drawn each time the scene is read, one for all its
+files. A condition is true/false, or `A == B` / `A != B` compared as text
+after substitution.
 
 The file is read with bounds (dockhil.scene.boundedyaml), its arguments are
 substituted, and the result is checked against the schema in
@@ -42,6 +44,7 @@ import math
 import os
 import re
 import reprlib
+import secrets
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Union
@@ -246,6 +249,13 @@ class _Budget:
     nodes: int = 0
     text: int = 0  # characters built by substitution inside longer strings
     texts: dict[str, str] = field(default_factory=dict)  # what a bag records to rebuild the scene
+    group: str = field(default_factory=lambda: draw_group())  # $(var multicast_group)
+
+
+def draw_group() -> str:
+    """A multicast group 239.74.x.y (x, y in 1-254; never python-can's default 239.74.163.2)."""
+    group = f"239.74.{1 + secrets.randbelow(254)}.{1 + secrets.randbelow(254)}"
+    return draw_group() if group == "239.74.163.2" else group
 
 
 def _read_yaml(path: Path, budget: _Budget, included_from: Path | None = None) -> tuple[dict, Any]:
@@ -348,12 +358,14 @@ def _scene(
         if let.name in values:
             what = "an argument" if let.name in specs else "a variable defined above"
             raise SchemaError(["let", i, "name"], f"{let.name!r} is already {what}; give the variable another name")
-        values[let.name] = lets[let.name] = _subst(let.value, values, ["let", i, "value"], budget)
+        scope = {"multicast_group": budget.group, **values}
+        values[let.name] = lets[let.name] = _subst(let.value, scope, ["let", i, "value"], budget)
 
     # Arguments are substituted everywhere but in `args:` and `let:`; then the whole file meets the
     # schema, so `rate: $(arg rate)` is bounded exactly like `rate: 500`.
+    scope = {"multicast_group": budget.group, **values}
     body = {
-        key: value if key in ("args", "let") else _subst(value, values, [key], budget) for key, value in data.items()
+        key: value if key in ("args", "let") else _subst(value, scope, [key], budget) for key, value in data.items()
     }
     doc = convert(body, LaunchFile)
     scene = Scene(str(path), doc.description, doc.rate, doc.duration, specs, values, lets=lets)
