@@ -43,7 +43,7 @@ from typing import Callable
 from dockhil.msgs.codec import decode_header
 from dockhil.bags import runinfo
 from dockhil.bags.format import BagError
-from dockhil.bags.tail import missing, tail_lines
+from dockhil.bags.tail import SENT_WAIT_S, TAIL_MAX_S, TAIL_QUIET_S, missing, tail_lines
 from dockhil.bags.writer import BagWriter
 from dockhil.errors import DockhilError
 from dockhil.log import Log, setup_child
@@ -52,13 +52,6 @@ RECORDER_NAME = "bag-recorder"
 FLUSH_EVERY_S = 0.5  # bounds what a SIGKILL loses when topics are quiet
 DRAIN_QUIET_S = 0.2  # at stop: what still arrives within this is recorded
 DRAIN_MAX_S = 2.0
-# Wall time, at the end (dockhil.bags.tail): the wait for the launcher's counts of what was sent (it stops
-# the nodes first: 3 s each at most, drivers then devices), then for what is missing: until none came for
-# TAIL_QUIET_S (the publishers have exited: what is in flight is in our queue), at most TAIL_MAX_S (within
-# the launcher's wait for the recording, launcher.HELPER_WAIT_S).
-SENT_WAIT_S = 15.0
-TAIL_QUIET_S = 0.5
-TAIL_MAX_S = 6.0
 FIND_GRAPH_TIMEOUT_S = 20.0  # as long as sim-time publishers wait for subscribers
 
 

@@ -19,6 +19,14 @@ import queue
 import threading
 from typing import IO
 
+# The recorder's waits at the end: for the launcher's counts of what was sent (it stops the nodes first:
+# 3 s each at most, drivers then devices), then for what is missing: until none came for TAIL_QUIET_S (the
+# publishers have exited: what is in flight is in its queue), at most TAIL_MAX_S (within the launcher's
+# wait for the recording, dockhil.runtime.launcher.HELPER_WAIT_S).
+SENT_WAIT_S = 15.0
+TAIL_QUIET_S = 0.5
+TAIL_MAX_S = 6.0
+
 
 class Told:
     """The lines the launch writes to `stream` (the recorder's stdin), read by a thread as they come,

@@ -277,10 +277,11 @@ class Launcher:
                 child.reader.join(timeout=1.0)  # the node exited: its output ends
         line = SENT + json.dumps(self.sent_counts()) + "\n"
         for c in helpers:
-            if c.proc.poll() is None and c.proc.stdin is not None:
+            proc = c.proc
+            if proc is not None and proc.poll() is None and proc.stdin is not None:
                 try:
-                    c.proc.stdin.write(line)
-                    c.proc.stdin.flush()
+                    proc.stdin.write(line)
+                    proc.stdin.flush()
                 except OSError:  # it exited meanwhile: its exit code says why
                     pass
 
