@@ -10,7 +10,8 @@ run recorded twice gives the same bag. It runs in three ways:
   process (`python -m dockhil.bags.live record PATH --graph-pid PID
   [--n-ticks N]`) counted as a subscriber of every topic, so sim time waits
   for it before tick 0. In sim time it exits by itself once it holds tick
-  N-1 of every topic.
+  N-1 of every topic. In wall time it is told at the end what each topic's
+  publisher sent, and counts what never came as lost (dockhil.bags.tail).
 - `dockhil launch FILE --composed --bag PATH`: a tap in the one process
   (dockhil.bags.tap) encodes each message and writes it; the bytes are the same.
 - `dockhil bag record PATH [--topics ...]`: joins graphs that are already
@@ -42,6 +43,7 @@ from typing import Callable
 from dockhil.msgs.codec import decode_header
 from dockhil.bags import runinfo
 from dockhil.bags.format import BagError
+from dockhil.bags.tail import SENT_WAIT_S, TAIL_MAX_S, TAIL_QUIET_S, missing, tail_lines
 from dockhil.bags.writer import BagWriter
 from dockhil.errors import DockhilError
 from dockhil.log import Log, setup_child
@@ -121,11 +123,12 @@ def find_sources(topics: list[str] | None = None, graph_pid: int | None = None) 
 
 
 class _TopicState:
-    __slots__ = ("topic", "sim", "last_log", "last_index", "done")
+    __slots__ = ("topic", "sim", "last_log", "last_index", "done", "received")
 
     def __init__(self, topic: str, sim: bool):
         self.topic = topic
         self.sim = sim
+        self.received = 0  # messages (not empty ticks)
         self.last_log = 0  # ns; a message without a readable header reuses it in sim time
         self.last_index: int | None = None  # last header.tick (sim time)
         self.done = False
@@ -141,7 +144,10 @@ class Recorder:
     they are msgpack, counted in the bag's `messages_unencodable` if not).
     (header.seq is the tick: a wall-time node that has nothing new at a tick
     publishes nothing, so gaps in it are no loss. A graph member's losses are
-    counted by the publisher, whose full queue refused the message.)
+    counted by the publisher, whose full queue refused the message.) In wall
+    time, `await_sent` adds what the publishers sent that never arrived: the
+    end of the run, which a recorder that fell behind would otherwise lose
+    without a gap to show it (`tail`).
     """
 
     def __init__(
@@ -189,6 +195,7 @@ class Recorder:
         self.dropped = 0  # received while writing had stopped
         self.tick_gaps = 0
         self.unreadable = 0
+        self.tail: dict[str, tuple[int, int]] = {}  # topic -> (messages that never arrived, of how many sent)
         self.error: str | None = None
         self._next_flush = time.monotonic() + FLUSH_EVERY_S
         self._listening = True
@@ -202,7 +209,10 @@ class Recorder:
     def lost(self) -> int:
         # An observer's lost message is also a missing tick in sim time: counted once.
         return (
-            self.dropped + max(self.tick_gaps, self.sub.lost) + (self.bag.messages_written - self.bag.messages_flushed)
+            self.dropped
+            + max(self.tick_gaps, self.sub.lost)
+            + (self.bag.messages_written - self.bag.messages_flushed)
+            + sum(m for m, _ in self.tail.values())
         )
 
     def handle(self, frames: list[bytes]) -> None:
@@ -216,6 +226,7 @@ class Recorder:
             self._tick(st, int.from_bytes(frames[2], "little"))
             return
         self.received += 1
+        st.received += 1
         data = frames[1] if len(frames) == 2 else b"".join(frames[1:])
         header = decode_header(data)
         if header is None:
@@ -309,6 +320,50 @@ class Recorder:
                     self.handle(frames)
                     quiet_until = time.monotonic() + DRAIN_QUIET_S
 
+    def await_sent(
+        self,
+        sent: Callable[[], dict[str, int] | None],
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        wait_s: float = SENT_WAIT_S,
+        quiet_s: float = TAIL_QUIET_S,
+        most_s: float = TAIL_MAX_S,
+    ) -> None:
+        """Wall time, after `run`: record on until `sent()` (None until told) says what each topic's
+        publisher sent and all of it is in; what never came is lost (`tail`). Bounded: `wait_s` for the
+        counts, then `quiet_s` without a message, `most_s` in all."""
+        counts = None
+        end = clock() + wait_s
+        quiet_until = end
+        while True:
+            now = clock()
+            if counts is None and (counts := sent()) is not None:
+                end, quiet_until = now + most_s, now + quiet_s
+            if counts is not None and (now >= end or now >= quiet_until or not self._missing(counts)):
+                break
+            if counts is None and now >= end:
+                self.log(
+                    f"warning: not told within {wait_s:g} s what the publishers sent; whether the bag misses "
+                    f"the end of the run is not known"
+                )
+                return
+            got = self._burst()
+            if not got and (frames := self.sub.recv(0.02)) is not None:
+                self.handle(frames)
+                got = 1
+            if got:
+                quiet_until = clock() + quiet_s
+            self.flush_if_due(now)
+        self.tail = missing(counts, self._received())
+        for line in tail_lines(self.tail, sorted(st.topic for st in self._state.values() if st.topic not in counts)):
+            self.log(line)
+
+    def _received(self) -> dict[str, int]:
+        return {st.topic: st.received for st in self._state.values()}
+
+    def _missing(self, counts: dict[str, int]) -> bool:
+        return bool(missing(counts, self._received()))
+
     def stop_listening(self) -> None:
         """Receive no more and put every message on disk: the bag then holds the whole recording,
         open for the run's verdict (`close`)."""
@@ -338,6 +393,8 @@ class Recorder:
             self._stopped(exc)
         on_disk = self.bag.messages_flushed
         line = f"recorded {on_disk} messages on {len(self._state)} topics to {self.path}; {self.lost} lost"
+        if self.tail:
+            line += f" ({sum(m for m, _ in self.tail.values())} at the end of the run, never arrived)"
         if self.error is not None:
             line += " (recording stopped early, see above)"
         if self.sub.lost:
@@ -423,6 +480,8 @@ def recorder_process(path: str, graph, clock: str, n_ticks: int | None, quiet: b
         argv.append("--quiet")
     if clock == "sim" and n_ticks is not None:
         argv += ["--n-ticks", str(n_ticks)]
+    if clock == "wall":
+        argv.append("--sent-counts")
     return ExtraProcess(RECORDER_NAME, argv, list(graph.publishers), verdict=True)
 
 
@@ -445,6 +504,12 @@ def _recorder_main(argv: list[str]) -> int:
         "--verdict",
         action="store_true",
         help="once recorded, say RECORDED and read the run's verdict (one JSON line) on stdin before closing",
+    )
+    p.add_argument(
+        "--sent-counts",
+        action="store_true",
+        help="wall time, with --verdict: once stopped, read what each topic's publisher sent on stdin, "
+        "record until it is all in (bounded) and count what never came as lost",
     )
     args = p.parse_args(argv)
     die_with_parent()
@@ -474,6 +539,11 @@ def _recorder_main(argv: list[str]) -> int:
     except DockhilError as exc:
         out(f"error: {exc}")
         return 2
+    told = None
+    if args.verdict:
+        from dockhil.bags.tail import Told
+
+        told = Told(sys.stdin)
     print(READY, flush=True)
     out(f"recording {len(sources)} topics to {args.path}")
     run_id = next(iter(sources.values())).run_id if sources else None
@@ -481,17 +551,19 @@ def _recorder_main(argv: list[str]) -> int:
         recorder.run(
             stop, alive=lambda: _alive(args.graph_pid) and (run_id is None or _graph_running(args.graph_pid, run_id))
         )
+        if told is not None and args.sent_counts:
+            recorder.await_sent(told.sent)
     except DockhilError as exc:  # a publisher that failed authentication: what was recorded is kept
         out(f"error: {exc}")
         recorder.close(why_not_told=f"the recorder stopped: {exc}")
         return 2
     verdict = None
-    if args.verdict:
+    if told is not None:
         from dockhil.runtime.launcher import RECORDED
 
         recorder.stop_listening()
         print(RECORDED, flush=True)
-        verdict = _read_verdict(sys.stdin.readline())
+        verdict = _read_verdict(told.verdict_line())
     recorder.close(verdict, why_not_told="the launch ended without telling the recorder the run's verdict")
     if recorder.lost:  # a recording that misses messages is not the run: fail, with the count
         out(f"error: {recorder.lost} message(s) lost; the recording of this run is incomplete")

@@ -403,6 +403,7 @@ class NodeExecutor:
             timing.last_tick_at = timing.first_tick_at + timing.elapsed  # on the loop's own clock
             timing.dropped_in = self.dropped
             timing.dropped_out = self.dropped_outputs
+            timing.published = {pub.topic: pub.taken for pub in self.pubs.values()}
         out = timing.report(spec.name)
         folder = os.environ.get("DOCKHIL_TIMING_DIR")
         if folder:  # benchmarks collect every node's figures

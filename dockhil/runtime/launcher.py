@@ -22,7 +22,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -40,6 +40,9 @@ if TYPE_CHECKING:  # the graph module loads the launch-file parser (yaml): a rec
 
 POLL_S = 0.05  # the watch loop's longest sleep when no child speaks or exits
 RECORDED = "DOCKHIL-RECORDED"  # a verdict helper has everything on disk and waits for the verdict on stdin
+# Wall time, to a verdict helper's stdin once the nodes have exited: this, then JSON topic -> messages its
+# publisher sent over the run (sent_counts). The recorder counts what of them never reached it.
+SENT = "DOCKHIL-SENT "
 HELPER_WAIT_S = 10.0  # for a helper to finish its recording, and to close it once told the verdict
 
 
@@ -58,6 +61,9 @@ class _Child:
     reader: threading.Thread | None = None
     verdict: bool = False  # an ExtraProcess told the run's verdict
     recorded: bool = False  # ... which has said RECORDED
+    starts: int = 0  # how many times it was started (a respawned node: more than once)
+    reports: int = 0  # ... and how many exit reports (TIMING lines) it gave: a killed node gives none
+    sent: dict[str, int] = field(default_factory=dict)  # topic -> messages sent, over all its runs
 
 
 class Launcher:
@@ -144,8 +150,11 @@ class Launcher:
                 continue
             if line.startswith(TIMING):
                 try:
-                    self.timings[child.name] = json.loads(line[len(TIMING) :])
-                except ValueError:
+                    report = self.timings[child.name] = json.loads(line[len(TIMING) :])
+                    for topic, n in (report.get("published") or {}).items():
+                        child.sent[topic] = child.sent.get(topic, 0) + int(n)
+                    child.reports += 1
+                except (ValueError, TypeError, AttributeError):
                     pass
                 continue
             log.replay(line, f"[{child.name}]")
@@ -161,6 +170,7 @@ class Launcher:
         # Nodes multiply matrices of a few elements: BLAS worker threads would only spin on the shared cores.
         env.setdefault("OPENBLAS_NUM_THREADS", "1")
         child.ready = child.go_sent = False
+        child.starts += 1
         child.proc = subprocess.Popen(
             child.argv,
             stdout=subprocess.PIPE,
@@ -245,6 +255,35 @@ class Launcher:
         """Wall time: the local processes that report loop figures, each mapped to whether it
         stands for a device emulator (a container: when all its members do)."""
         return {child.name: self._is_emulator(child) for child in self.children[: len(self.specs)] if not child.host}
+
+    def sent_counts(self) -> dict[str, int]:
+        """Wall time, once the nodes have exited: topic -> messages its publisher's socket took over
+        the run (a respawned node's runs added up), from the nodes' exit reports. A node that did not
+        report every time it ran (killed, or on another host) leaves its topics out: what it sent is
+        not known, and the recorder waits for none of it."""
+        out: dict[str, int] = {}
+        for child in self.children:
+            if child.name in self.specs and not child.host and child.reports == child.starts:
+                out.update(child.sent)
+        return out
+
+    def _tell_sent(self, helpers: list[_Child]) -> None:
+        """Wall time: tell the verdict helpers (the recorder) what each topic's publisher sent, once
+        every node's exit report is read, so that a recorder that fell behind waits for the rest and
+        counts what never came (dockhil.bags.live). Sim time is lock-step: its recorder has every
+        tick when it finishes, and is told nothing."""
+        for child in self.children:
+            if child.name in self.specs and child.reader is not None:
+                child.reader.join(timeout=1.0)  # the node exited: its output ends
+        line = SENT + json.dumps(self.sent_counts()) + "\n"
+        for c in helpers:
+            proc = c.proc
+            if proc is not None and proc.poll() is None and proc.stdin is not None:
+                try:
+                    proc.stdin.write(line)
+                    proc.stdin.flush()
+                except OSError:  # it exited meanwhile: its exit code says why
+                    pass
 
     def _on_signal(self, signum, frame) -> None:
         self._stop_signal = signum
@@ -466,6 +505,8 @@ class Launcher:
             return code
         if self.clock == "wall" or code != 0:
             self.stop_all()  # stops their recording; they keep the bag open for the verdict
+        if self.clock == "wall":
+            self._tell_sent(helpers)
         deadline = time.monotonic() + HELPER_WAIT_S
         while not all(c.recorded or c.proc.poll() is not None for c in helpers) and time.monotonic() < deadline:
             self._wake.clear()

@@ -31,6 +31,8 @@ class LoopTiming:
         # graph's processes): the run's real-time factor counts this span, not the start-up.
         self.first_tick_at: float | None = None
         self.last_tick_at: float | None = None
+        # Wall time: topic -> messages its publisher's socket took (Publisher.taken), set as the loop ends.
+        self.published: dict[str, int] = {}
 
     def aged(self, port: str, age: float) -> None:
         if age > self.worst_age.get(port, 0.0):
@@ -78,6 +80,7 @@ class LoopTiming:
             "dropped_out": self.dropped_out,
             "first_tick_at_s": self.first_tick_at,
             "last_tick_at_s": self.last_tick_at,
+            "published": dict(self.published),
         }
         return out
 

@@ -284,6 +284,13 @@ class Publisher:
             return False
         return True
 
+    @property
+    def taken(self) -> int:
+        """Messages the graph's socket took (queued for every subscriber): those sent, less those a full
+        queue refused (wall time). A node reports it per topic as it exits, and the launch's recorder
+        counts what of it never arrived (dockhil.bags.live)."""
+        return self.sent - self.dropped
+
     def send_multipart(self, frames, copy: bool = True) -> None:
         """Send an envelope of frames ([topic, payload] or [topic, b"", tick], as `bag play` sends)
         on the graph's socket as it is (zmq.Again if a full queue refused it), then to the observers."""
