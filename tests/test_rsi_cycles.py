@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import socket
+import time
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -14,8 +15,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dockhil.hardware.rsi_link import RsiLink, open_socket
-from dockhil.node import ManualClock
+from dockhil.msgs import Header, RobotCycles
+from dockhil.node import ManualClock, Tick
 from dockhil.nodes.robot_rsi import SceneFrame
+from dockhil.testing import wrench
+from tests import test_hardware_rsi as hw
+
+driven = hw.driven  # the driver against a controller played here (a fixture)
 
 CYCLE = 0.004
 START = (500.0, 0.0, 900.0, 180.0, 0.0, 180.0)
@@ -32,6 +38,15 @@ def rob(ipoc: int, rist, delay: int) -> bytes:
 
 def quat(abc) -> np.ndarray:
     return Rotation.from_euler("ZYX", abc, degrees=True).as_quat()
+
+
+def logged(link: RsiLink, answered: int) -> None:
+    """Wait until the link has logged its `answered`-th answer (it logs after sending it, so an answer
+    read here may come before its log)."""
+    deadline = time.monotonic() + 5.0
+    while link.answered < answered:
+        assert time.monotonic() < deadline, f"the link answered {link.answered} datagrams, not {answered}"
+        time.sleep(0.001)
 
 
 def same_rotation(q, expected, atol: float = 1e-9) -> bool:
@@ -81,6 +96,7 @@ def test_each_datagram_answered_logs_its_cycle_the_setpoint_taken_and_the_pose_r
             got_ipoc, korr = ctl.answer()
             assert got_ipoc == ipoc  # the answer to this datagram, no other before it
             answers.append(korr)
+        logged(link, len(plan))
         entries = link.cycles.take()
     finally:
         link.stop()
@@ -129,3 +145,34 @@ def test_the_scene_frame_maps_a_logged_pose_as_it_maps_rist_and_the_setpoint_bac
     )
     back = frame.scene_values(setpoint)
     assert back[:3] == pytest.approx(command[0], abs=1e-12) and same_rotation(back[3:], command[1])
+
+
+def test_the_driver_with_anchor_origin_publishes_state_and_cycles_in_the_scene_frame_before_any_command(driven):
+    """The driver against a controller played here: with `anchor: origin` (calibrate's) the state comes from
+    the first datagram on, and /robot/cycles carries setpoint and pose in the scene frame, as the state."""
+    node, ctl, clock, logs = driven(anchor="origin", ft_timeout=0, scene_a=90.0)  # scene x = BASE Y
+    moved = (hw.START[0], hw.START[1] + 0.5, *hw.START[2:])  # 0.5 mm along BASE Y: scene x 0.5 mm
+    ctl.exchange(moved)
+    logged(node.link, node.link.received)
+    clock.advance(0.001)
+    out = node.step(Tick(0, 0.0, 0.001), {"wrench": wrench()})
+    assert out["state"].pose.position.x == pytest.approx(0.0005, abs=1e-9)  # no command yet
+    cycles = list(out["cycles"].cycles)
+    for k in range(1, 9):
+        clock.advance(0.001)
+        _, ipoc, korr = ctl.exchange(moved)
+        logged(node.link, node.link.received)
+        out = node.step(Tick(k, k * 0.001, 0.001), {"command": hw.command(k, 0.001), "wrench": wrench()})
+        cycles += out.get("cycles", RobotCycles(header=Header())).cycles
+    assert korr[1] == pytest.approx(1.0, abs=1e-4)  # 1 mm along BASE Y, reached at 0.4 mm a cycle
+    # one entry per datagram, each published once the next datagram came: the last is still held
+    counts = [c.device_cycle for c in cycles]
+    assert counts == list(range(counts[0], ipoc // 4)) and ipoc // 4 - counts[0] >= 9
+    assert all(not c.taken and c.written for c in cycles)
+    assert cycles[-1].actual.position.x == pytest.approx(0.0005, abs=1e-9)
+    assert cycles[-1].actual.orientation.w == pytest.approx(1.0, abs=1e-9)
+    # the setpoints the controller took, in the scene frame: 0 until the answer after the first command's
+    # step, then 0.4 mm a cycle to the command's 1 mm (the eighth datagram's entry is still held)
+    xs = [c.setpoint.position.x for c in cycles[-7:]]
+    assert xs == pytest.approx([0.0, 0.0004, 0.0008, 0.001, 0.001, 0.001, 0.001], abs=1e-9)
+    assert all(abs(c.setpoint.position.y) < 1e-12 and abs(c.setpoint.position.z) < 1e-12 for c in cycles)
