@@ -1,12 +1,15 @@
 """dockhil calibrate against emulators with hidden truths: prints one JSON line.
 
-    python3 bench/calibrate.py [--draws 20] [--seed 0] [--no-realtime]
+    python3 bench/calibrate.py [--draws 20] [--seed 0] [--no-realtime] [--robot modbus|rsi] [--rsi-cycle 0.004]
 
 Each draw hides a delay (16-120 ms), a lag (0-20 ms), a stiffness (1000 N/m +-30 %), a damping
 (0-50 N s/m), a surface (0-20 mm ahead), a noise (0-0.5 N) and a bias (|F| up to 5 N, and a torque)
-in the Modbus robot and CAN F/T emulators, runs `dockhil calibrate` on them (wall time, the real
-drivers in between) and compares, with medians and worst cases over the draws: the robot's delay as
-timed at the device (delay_s) against the emulator's servo delay, the lag's error (ms and relative),
+in the robot emulator (Modbus, or with --robot rsi the KUKA RSI controller at --rsi-cycle) and the CAN
+F/T emulator, runs `dockhil calibrate` on them (wall time, the real drivers in between) and compares,
+with medians and worst cases over the draws: the robot's delay as timed at the device (delay_s)
+against the emulator's servo delay, in ms and in the emulator's cycles (and against its effective
+delay, the hidden one rounded up to its cycle, which is all a cycle's data can show: delay_s + T/2
+against it), the lag's error (ms and relative),
 k's relative error, the bias's error in noise standard deviations, and the relative error of the
 exact stiffness bound (hil.yaml's m, bcs) from the identified delay_s + lag_s against the one from
 the emulator's delay + lag; the link (link_s) is reported as measured. The emulators' recorded
@@ -52,13 +55,40 @@ def draw(seed: int) -> dict:
     }
 
 
-def free_port() -> int:
-    with socket.socket() as s:
+MODBUS_CYCLE = 0.001  # s: the Modbus emulator's servo cycle (robot_emulator's default)
+
+
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 
 
-def rig(folder: str, truth: dict, port: int) -> str:
+def robot_nodes(folder: str, truth: dict, robot: str, cycle: float) -> list[dict]:
+    """The robot driver and its emulator hiding the delay and lag; the emulator writes its record (with its
+    largest speed) to folder/robot_maxima.json."""
+    limits = {"max_force": MAX_FORCE, "max_speed": MAX_SPEED, "ft_timeout": 0.2, "max_actual_speed": MAX_ACTUAL_SPEED}
+    record = os.path.join(folder, "robot_maxima.json")
+    if robot == "rsi":
+        port = free_port(socket.SOCK_DGRAM)
+        emulator = {"port": port, "cycle": cycle, "delay": truth["delay"], "tau": truth["lag"], "record": record}
+        return [
+            {
+                "name": "robot",
+                "node": "robot_rsi",
+                "params": {"port": port, "listen": "127.0.0.1", "cycle": cycle, **limits},
+            },
+            {"name": "robot_emulator", "node": "rsi_emulator", "params": emulator},
+        ]
+    port = free_port()
+    emulator = {"port": port, "delay": truth["delay"], "tau": truth["lag"], "maxima": record}
+    return [
+        {"name": "robot", "node": "robot_modbus", "params": {"port": port, **limits}},
+        {"name": "robot_emulator", "node": "robot_emulator", "params": emulator},
+    ]
+
+
+def rig(folder: str, truth: dict, robot: str = "modbus", cycle: float = 0.004) -> str:
     """A scene of the hardware loop on emulators hiding `truth`; the emulators write their maxima to
     folder/ft_maxima.json and folder/robot_maxima.json."""
     # CAN frames over UDP multicast on loopback (python-can's udp_multicast), one group per run: the
@@ -82,29 +112,12 @@ def rig(folder: str, truth: dict, port: int) -> str:
         "seed": 1,
         "maxima": os.path.join(folder, "ft_maxima.json"),
     }
-    robot = {
-        "port": port,
-        "delay": truth["delay"],
-        "tau": truth["lag"],
-        "maxima": os.path.join(folder, "robot_maxima.json"),
-    }
     nodes = [
         {"name": "dynamics", "node": "satellite_dynamics", "params": {"m1": M1, "m2": M2}},
         {"name": "impedance", "node": "virtual_impedance", "params": {"m1": M1, "m2": M2, "kcs": KCS, "bcs": BCS}},
-        {
-            "name": "robot",
-            "node": "robot_modbus",
-            "params": {
-                "port": port,
-                "max_force": MAX_FORCE,
-                "max_speed": MAX_SPEED,
-                "ft_timeout": 0.2,
-                "max_actual_speed": MAX_ACTUAL_SPEED,
-            },
-        },
+        *robot_nodes(folder, truth, robot, cycle),
         {"name": "ft", "node": "ft_can", "params": {"interface": "udp_multicast", "channel": channel}},
         {"name": "ft_emulator", "node": "ft_emulator", "params": ft},
-        {"name": "robot_emulator", "node": "robot_emulator", "params": robot},
     ]
     path = os.path.join(folder, "rig.yaml")
     with open(path, "w") as f:
@@ -125,24 +138,38 @@ BUSY = (
 )
 
 
-def run(truth: dict, realtime: bool = True, attempts: int = 3, bag_out: str | None = None) -> dict:
+def run(
+    truth: dict,
+    realtime: bool = True,
+    attempts: int = 3,
+    bag_out: str | None = None,
+    robot: str = "modbus",
+    cycle: float = 0.004,
+) -> dict:
     """One calibration against emulators hiding `truth`, tried up to `attempts` times while a busy machine
     stops it (BUSY)."""
     for attempt in range(1, attempts + 1):
-        out = run_once(truth, realtime, bag_out=bag_out)
+        out = run_once(truth, realtime, bag_out=bag_out, robot=robot, cycle=cycle)
         out["attempts"] = attempt
         if out["exit"] == 0 or not any(b in out.get("stderr_tail", "") for b in BUSY):
             break
     return out
 
 
-def run_once(truth: dict, realtime: bool = True, timeout: float = 120.0, bag_out: str | None = None) -> dict:
+def run_once(
+    truth: dict,
+    realtime: bool = True,
+    timeout: float = 120.0,
+    bag_out: str | None = None,
+    robot: str = "modbus",
+    cycle: float = 0.004,
+) -> dict:
     """One calibration against emulators hiding `truth`: its JSON, exit code, wall time, the emulators' maxima
     and the errors (bag_out: keep the run's recording there, replacing an earlier one)."""
     if bag_out and os.path.exists(bag_out):
         os.remove(bag_out)
     with tempfile.TemporaryDirectory(prefix="dockhil-calibrate-bench-") as folder:
-        scene = rig(folder, truth, free_port())
+        scene = rig(folder, truth, robot, cycle)
         start = time.perf_counter()
         p = subprocess.run(
             [
@@ -181,14 +208,16 @@ def run_once(truth: dict, realtime: bool = True, timeout: float = 120.0, bag_out
         out["error"] = (p.stderr.strip().splitlines() or ["no output"])[-1]
         return out
     out["found"] = found
-    out["errors"] = errors(truth, found)
+    out["errors"] = errors(truth, found, cycle if robot == "rsi" else MODBUS_CYCLE)
     return out
 
 
-def errors(truth: dict, found: dict) -> dict:
+def errors(truth: dict, found: dict, cycle: float = MODBUS_CYCLE) -> dict:
     """Identified minus hidden. The delay is the robot's own, timed at the device (delay_s); the link to
     the device and back (link_s) is measured apart, so the bound here is the robot's: from the identified
-    delay_s + lag_s against the hidden delay + lag."""
+    delay_s + lag_s against the hidden delay + lag. The emulator acts on whole cycles of `cycle`: its
+    effective delay is the hidden one rounded up to a cycle, which calibrate reports less half a cycle."""
+    effective = math.ceil(truth["delay"] / cycle - 1e-9) * cycle
     m = M1 * M2 / (M1 + M2)
     true_bound = exact_bound(m, BCS, truth["delay"] + truth["lag"]).k_max
     found_bound = exact_bound(m, BCS, found["delay_s"] + found["lag_s"]).k_max
@@ -198,6 +227,8 @@ def errors(truth: dict, found: dict) -> dict:
     ]
     return {
         "delay_ms": 1e3 * (found["delay_s"] - truth["delay"]),
+        "delay_cycles": (found["delay_s"] - truth["delay"]) / cycle,
+        "effective_delay_ms": 1e3 * (found["delay_s"] + 0.5 * cycle - effective),
         "lag_ms": 1e3 * (found["lag_s"] - truth["lag"]),
         "lag_rel": found["lag_s"] / truth["lag"] - 1.0,
         "k_rel": found["k_N_per_m"] / truth["k"] - 1.0,
@@ -229,10 +260,14 @@ def main() -> None:
     ap.add_argument("--draws", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-realtime", action="store_true", help="run calibrate without --realtime")
+    ap.add_argument("--robot", choices=("modbus", "rsi"), default="modbus", help="the robot driver and its emulator")
+    ap.add_argument("--rsi-cycle", type=float, choices=(0.004, 0.012), default=0.004, help="RSI cycle [s]")
     args = ap.parse_args()
     realtime = not args.no_realtime
-    rows = [run(draw(args.seed + i), realtime) for i in range(args.draws)]
+    cycle = args.rsi_cycle if args.robot == "rsi" else MODBUS_CYCLE
+    rows = [run(draw(args.seed + i), realtime, robot=args.robot, cycle=cycle) for i in range(args.draws)]
     done = [r for r in rows if "errors" in r]
+    half = 0.5 * cycle
     print(
         json.dumps(
             {
@@ -241,16 +276,24 @@ def main() -> None:
                 "exit_codes": [r["exit"] for r in rows],
                 "attempts": [r["attempts"] for r in rows],
                 "realtime": realtime,
+                "robot": args.robot,
+                "device_cycle_ms": 1e3 * cycle,
                 "timing": sorted({r["found"].get("timing", "") for r in done}),
                 "delay_within_1ms": sum(abs(r["errors"]["delay_ms"]) <= 1.0 for r in done),
+                "delay_within_half_cycle": sum(abs(r["errors"]["delay_ms"]) <= 1e3 * half + 1e-6 for r in done),
                 "lag_within_5pct_or_0.5ms": sum(
                     abs(r["errors"]["lag_rel"]) <= 0.05 or abs(r["errors"]["lag_ms"]) <= 0.5 for r in done
+                ),
+                "lag_within_5pct_or_half_cycle": sum(
+                    abs(r["errors"]["lag_rel"]) <= 0.05 or abs(r["errors"]["lag_ms"]) <= 1e3 * half for r in done
                 ),
                 "bound_within_2pct": sum(abs(r["errors"]["bound_rel"]) <= 0.02 for r in done),
                 **{
                     name: summary(done, key)
                     for name, key in (
                         ("delay_error_ms", "delay_ms"),
+                        ("delay_error_cycles", "delay_cycles"),
+                        ("effective_delay_error_ms", "effective_delay_ms"),
                         ("lag_error_ms", "lag_ms"),
                         ("lag_rel_error", "lag_rel"),
                         ("k_rel_error", "k_rel"),
@@ -263,7 +306,10 @@ def main() -> None:
                 "wall_s_max": max(r["wall_s"] for r in rows),
                 "max_force_N": max((r["ft_maxima"] or {}).get("max_force_N", 0.0) for r in rows),
                 "force_limit_N": MAX_FORCE,
-                "max_speed_m_s": max((r["robot_maxima"] or {}).get("max_speed_m_s", 0.0) for r in rows),
+                "max_speed_m_s": max(
+                    (r["robot_maxima"] or {}).get("max_speed_m_s", (r["robot_maxima"] or {}).get("max_speed", 0.0))
+                    for r in rows
+                ),
                 "actual_speed_limit_m_s": MAX_ACTUAL_SPEED,
                 "setpoint_speed_limit_m_s": MAX_SPEED,
                 "runs": rows,

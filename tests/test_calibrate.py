@@ -328,3 +328,22 @@ def test_calibrate_on_emulators_finds_their_hidden_truths_within_the_limits(tmp_
     found = json.loads(offline.stdout)
     for key in ("delay_s", "lag_s", "k_N_per_m", "b_Ns_per_m", "bias_N", "noise_N"):
         assert found[key] == r["found"][key], key
+
+
+@pytest.mark.wall_time
+def test_calibrate_on_the_rsi_emulator_times_the_robot_at_its_4ms_cycle():
+    """One live run on the KUKA RSI emulator hiding a draw: calibrate uses the driver's device cycles (no
+    fallback to the ticks), the delay within half the 4 ms cycle of the hidden one (the model's bound) and
+    a millisecond of fit, the lag within 5 % or two cycles, under 60 s."""
+    from bench.calibrate import MAX_ACTUAL_SPEED, draw as bench_draw, run
+
+    truth = bench_draw(7)
+    r = run(truth, robot="rsi", cycle=0.004)
+    assert r["exit"] == 0, r["stderr_tail"]
+    assert r["wall_s"] < 60.0 and r["written"]
+    assert r["found"]["timing"] == "device cycles" and r["found"]["link_s"] > 0.0
+    e = r["errors"]
+    assert abs(e["delay_ms"]) <= 2.0 + 1.0, e
+    assert abs(e["lag_ms"]) <= max(0.05 * 1e3 * truth["lag"], 8.0), e
+    assert abs(e["k_rel"]) < 0.05, e
+    assert r["robot_maxima"]["max_speed"] < MAX_ACTUAL_SPEED

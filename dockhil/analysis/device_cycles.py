@@ -48,7 +48,8 @@ class Link:
 
 
 def unwrap(count: np.ndarray) -> np.ndarray:
-    """A device's cycle count made monotonic: a 16-bit counter (Modbus) wraps; IPOC does not."""
+    """A device's cycle count made monotonic: it is 16 bits and wraps (Modbus: the controller's counter;
+    RSI: IPOC // the cycle in ms, as the driver publishes it)."""
     steps = np.diff(count.astype(np.int64))
     steps[steps < 0] += 1 << 16
     return np.concatenate([[0], np.cumsum(steps)]) + int(count[0]) if len(count) else count.astype(np.int64)

@@ -152,6 +152,8 @@ def calibration_scene(scene):
         outs = {o.topic for o in cls.outputs.values()}
         if cls.moves_hardware:
             robot = params
+            if "anchor" in cls.params:  # RSI: the state from the start pose on, where the profile starts
+                spec = dataclasses.replace(spec, params={**spec.params, "anchor": "origin"})
         elif "/ft/wrench" in outs:
             sensor = spec
             if "tare_samples" in cls.params:  # the bias is measured, not tared away

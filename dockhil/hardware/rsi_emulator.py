@@ -8,13 +8,15 @@ correction in BASE (docs/hardware.md):
   its millisecond timestamp; the answer carrying that IPOC must arrive within
   the cycle (judged on the kernel's receive timestamp, so an emulator that
   wakes late does not blame the sensor);
-- an answer in time sets the correction (absolute, from the start pose); a late
+- an answer in time sets the correction (absolute, from the start pose) from the
+  next cycle on, the one that takes it; a late
   or missing one keeps the last correction (HOLDON) and counts in Delay D;
   `max_late` late answers in a row stop RSI: it sends nothing more, as a
   controller does. The count starts at the first answer (the operator starts
   the RSI program once the sensor listens);
 - the commanded pose start + correction reaches the robot through a servo with
-  a pure delay and a first-order lag (hidden truths: `delay`, `tau`), position
+  a pure delay from the cycle that takes it (rounded up to a cycle) and a
+  first-order lag (hidden truths: `delay`, `tau`), position
   and orientation (a slerp toward the target, as robot_emulator's servo);
 - faults: datagram loss, duplicates and reordering (percent, seeded), send
   jitter (uniform, up to `jitter` seconds).
@@ -272,7 +274,9 @@ class RsiControllerEmulator:
             answered = True
             s["answered"] += 1
             self.latencies.append(arrival - sent_at)
-            self._apply(korr, slot_start)
+            # the next cycle takes it (this one's interpolation has run): the servo's delay counts from there,
+            # as the Modbus controller's counts from the cycle that takes a setpoint
+            self._apply(korr, slot_start + self.cycle)
         if self.armed and not answered:
             s["late"] += 1
             self._late_in_a_row += 1

@@ -10,6 +10,14 @@ latest setpoint by at most max_speed * cycle and max_angular_speed * cycle, and 
 the IPOC. The correction is held (does not change) when there is no setpoint, when the setpoint is
 older than stale_after (the graph stalled) or not finite, and after a hold.
 
+Every exchange goes to `cycles` (a CycleLog, which the driver publishes on /robot/cycles), once the next
+datagram tells whether the controller took its answer: the setpoint as the absolute pose it commands
+(start pose + RKorr) and the actual pose (RIst), both in BASE, metres and a quaternion (x, y, z, w); the
+device cycle IPOC // the cycle in ms, on 16 bits as the Modbus controller's counter (the calibration
+unwraps both alike); `taken` false (the datagram's pose comes before its answer, which the next cycle
+takes); `written` false for an answer the controller counted late (its Delay rose by more than the
+datagrams that never came in between: it kept the correction it had, which `setpoint` then holds).
+
 Latency: the answer is one %-format of a prebuilt template after expat has read a bounded datagram.
 While the link runs, the process's switch interval is lowered so that the thread waits for the
 interpreter at most that long while another thread runs; `realtime` asks for SCHED_FIFO for it.
@@ -26,6 +34,7 @@ import time
 from dockhil.contact.rotations import IDENTITY, quat_conjugate, quat_from_rotvec, quat_multiply
 from dockhil.errors import DeviceError
 from dockhil.hardware import rsi
+from dockhil.hardware.cycle_log import CycleLog
 from dockhil.hardware.robot_limits import angle_between
 from dockhil.runtime import realtime
 
@@ -112,6 +121,12 @@ class RsiLink(threading.Thread):
         self.lock = threading.Lock()
         self.notes: list[str] = []
         self.fatal: str | None = None
+        self.cycles = CycleLog()  # every exchange, as the controller took it (the driver publishes it)
+        self.cycle_ms = round(cycle * 1000.0)
+        self._exchange: tuple | None = None  # (read at, frame, correction sent) of the datagram just answered
+        self._pending: list | None = None  # the last exchange logged, until the next datagram says if it was taken
+        self._in_force: tuple | None = None  # the absolute setpoint the controller last took (BASE, m, quaternion)
+        self._start: tuple = ((0.0, 0.0, 0.0), IDENTITY)  # the start pose (the first RIst): mm, quaternion
 
     # -- from the node thread ------------------------------------------------------
     def submit(self, position_mm, orientation) -> None:
@@ -203,6 +218,7 @@ class RsiLink(threading.Thread):
         else:
             self.accepted = self.korr
         answer = self.write(self._advance(now), frame.ipoc)
+        self._exchange = (now, frame, self.korr)
         self.received += 1
         self.latest = (self.received, frame, now)
         if frame.delay is not None:
@@ -218,6 +234,40 @@ class RsiLink(threading.Thread):
             self.first = frame
             self.started.set()
         return answer
+
+    def log_exchange(self, sent: float | None) -> None:
+        """Log the datagram just answered (`sent`: when its answer went; None: it did not go), and hand the
+        one before it to `cycles`, now that this datagram's Delay tells whether its answer was taken."""
+        exchange, self._exchange = self._exchange, None
+        if exchange is None:
+            return
+        read, frame, (kp, kq, _abc) = exchange
+        pending = self._pending
+        if pending is not None:
+            ipoc, delay = pending[-2:]
+            never_came = max(0, round((frame.ipoc - ipoc) / self.cycle_ms) - 1)
+            late = delay is not None and frame.delay is not None and frame.delay - delay > never_came
+            if pending[3] and not late:
+                self._in_force = pending[2]
+            else:  # the controller kept the correction it had
+                pending[2], pending[3] = self._in_force, False
+            self.cycles.add(*pending[:7])
+        if self._in_force is None:  # no correction yet: the start pose
+            r = self.first.rist
+            self._start = (r[0], r[1], r[2]), rsi.abc_to_quat(*r[3:])
+            self._in_force = (r[0] / 1000.0, r[1] / 1000.0, r[2] / 1000.0, *self._start[1])
+        p0, q0 = self._start
+        setpoint = (
+            (p0[0] + kp[0]) / 1000.0,
+            (p0[1] + kp[1]) / 1000.0,
+            (p0[2] + kp[2]) / 1000.0,
+            *quat_multiply(kq, q0),
+        )
+        r = frame.rist
+        actual = (r[0] / 1000.0, r[1] / 1000.0, r[2] / 1000.0, *rsi.abc_to_quat(*r[3:]))
+        cycle = (frame.ipoc // self.cycle_ms) & 0xFFFF
+        self._pending = [read if sent is None else sent, read, setpoint, sent is not None, actual, cycle, False]
+        self._pending += [frame.ipoc, frame.delay]
 
     def _advance(self, now: float):
         """The correction for this cycle (X Y Z A B C): one bounded step toward the latest setpoint."""
@@ -281,7 +331,9 @@ class RsiLink(threading.Thread):
                 sock.sendto(answer, addr)
             except OSError as exc:
                 self._note(f"warning: answer to {addr[0]}:{addr[1]} not sent ({exc.strerror or exc})")
+                self.log_exchange(None)
                 continue
+            self.log_exchange(clock())
             self.answered += 1
             if self.hold_latched:
                 self.hold_written.set()

@@ -198,10 +198,14 @@ class RobotCycle(_Field):
     sent [s]: when the setpoint (or the hold, or the heartbeat alone) went to the device; read [s]: when
     the actual pose came back; both on the graph's clock (Unix time in a wall-time run), as stamps are.
     setpoint: the last setpoint written (this exchange's if `written`), after the per-cycle speed limit;
-    actual: the actual pose read. device_cycle: the device's own count of the cycle that measured
-    `actual` (Modbus: the controller's 16-bit cycle counter; RSI: IPOC [ms]). taken: the device had
-    taken this exchange's setpoint when it measured `actual` (Modbus: it echoed this exchange's
-    heartbeat), so that cycle ran between `sent` and `read`."""
+    actual: the actual pose read; both in the scene's robot frame, as /robot/state. written: this
+    exchange gave the device a new setpoint (RSI: false for an answer the controller counted late, which
+    it did not take; `setpoint` is then the correction it kept). device_cycle: the device's own count of
+    the cycle that measured `actual`, 16 bits (Modbus: the controller's cycle counter; RSI: IPOC // the
+    cycle in ms). taken: the device had taken this exchange's setpoint when it measured `actual` (Modbus:
+    it echoed this exchange's heartbeat), so that cycle ran between `sent` and `read`; otherwise the next
+    cycle takes it (RSI: always false, the datagram's pose comes before its answer, `read` before
+    `sent`)."""
 
     sent: NonNegative = 0.0
     read: NonNegative = 0.0

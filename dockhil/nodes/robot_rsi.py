@@ -17,7 +17,15 @@ the robot there before starting RSI; in hil.yaml it is x = 0, the surfaces
 touching): the correction is the command's change from it, and the published
 state is the RIst pose relative to the start pose, in the scene frame, plus
 that first pose, as robot_modbus publishes it. No state before the first
-command.
+command (with `anchor: origin` the start pose is the scene's origin and the
+state comes from the first datagram on: dockhil calibrate's profile starts
+from the pose read).
+
+Every datagram and its answer go to /robot/cycles (RobotCycles, as
+robot_modbus publishes them), in the scene frame as the state: the device
+cycle IPOC // the cycle in ms, the setpoint the pose start + RKorr that the
+controller took (dockhil/hardware/rsi_link.py), so that dockhil calibrate
+times the robot at the controller's cycle.
 
 The link thread (dockhil/hardware/rsi_link.py) reads only the configured
 controller's address, counts and ignores datagrams it cannot use, and moves the
@@ -47,7 +55,8 @@ from dockhil.hardware import rsi
 from dockhil.hardware.robot_driver import RobotDriver, limit_params, robot_state
 from dockhil.hardware.robot_limits import command_values, non_finite
 from dockhil.hardware.rsi_link import RsiLink, open_socket
-from dockhil.node import Param
+from dockhil.msgs import RobotCycles
+from dockhil.node import Output, Param
 from dockhil.runtime import realtime
 
 VELOCITY_WINDOW_S = 0.02  # the measured twist is the pose's change over at least this long
@@ -78,9 +87,18 @@ class SceneFrame:
 
     def scene_pose(self, rist) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
         """RIst (mm, degrees in BASE) -> scene pose: (m, quaternion)."""
+        return self._scene(rist[:3], rsi.abc_to_quat(*rist[3:]))
+
+    def scene_values(self, pose) -> tuple:
+        """A pose in BASE as the link logs it, (x, y, z, qx, qy, qz, qw) in m, -> the same in the scene frame,
+        as scene_pose."""
+        position, q = self._scene((pose[0] * 1000.0, pose[1] * 1000.0, pose[2] * 1000.0), pose[3:7])
+        return (*position, *q)
+
+    def _scene(self, mm, q_base) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
         p0, a = self.p0, self.a_p
-        d = rotate_back(self.q_sb, ((rist[0] - p0[0]) / 1000.0, (rist[1] - p0[1]) / 1000.0, (rist[2] - p0[2]) / 1000.0))
-        turn = quat_multiply(rsi.abc_to_quat(*rist[3:]), quat_conjugate(self.q0))  # in BASE axes
+        d = rotate_back(self.q_sb, ((mm[0] - p0[0]) / 1000.0, (mm[1] - p0[1]) / 1000.0, (mm[2] - p0[2]) / 1000.0))
+        turn = quat_multiply(q_base, quat_conjugate(self.q0))  # in BASE axes
         q = quat_multiply(quat_multiply(quat_multiply(quat_conjugate(self.q_sb), turn), self.q_sb), self.a_q)
         return (a[0] + d[0], a[1] + d[1], a[2] + d[2]), q if q[3] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
 
@@ -119,6 +137,12 @@ class RobotRsiDriver(RobotDriver):
     """KUKA robot over RSI: corrections answered on the robot's cycle from /robot/command, actual pose to
     /robot/state, the safety limits of the robot drivers."""
 
+    outputs = {
+        **RobotDriver.outputs,
+        "cycles": Output(
+            RobotCycles, "/robot/cycles", help="every controller datagram since the last tick: its answer and RIst"
+        ),
+    }
     params = {
         "host": Param(str, "127.0.0.1", help="the controller's address: the only sender read"),
         "port": Param(
@@ -170,6 +194,14 @@ class RobotRsiDriver(RobotDriver):
         ),
         "scene_c": Param(
             float, 0.0, unit="deg", help="KUKA angle C of the scene's robot frame in BASE", ge=-180.0, le=180.0
+        ),
+        "anchor": Param(
+            str,
+            "command",
+            choices=("command", "origin"),
+            help="the scene pose of the start pose: the first command's (command: no state before it), or "
+            "the scene's origin, x = y = z = 0 and no rotation (origin: the state from the first datagram on; "
+            "dockhil calibrate sets it, its profile starting from the pose read)",
         ),
         "realtime": Param(
             bool,
@@ -229,6 +261,8 @@ class RobotRsiDriver(RobotDriver):
                 f"and PORT name this host and port {p.port}{extra}"
             )
         self.frame = SceneFrame((p.scene_a, p.scene_b, p.scene_c), self.link.first.rist)
+        if p.anchor == "origin":  # the default anchor, the scene's origin, holds from the start
+            self._anchored = (0.0, 0.0, 0.0, *IDENTITY)
         start = self.link.first.rist
         self.log(
             f"{self.device}: RSI running, cycle {p.cycle * 1000:g} ms; start pose X {start[0]:.2f} "
@@ -252,6 +286,7 @@ class RobotRsiDriver(RobotDriver):
         cmd = inputs.get("command")
         if self._anchored is None:
             if cmd is None:
+                link.cycles.take()  # nor cycles: the scene frame is not anchored yet
                 return {}  # no state before the scene says where the robot stands
             self._check_command_values(cmd)
             values = command_values(cmd)
@@ -265,11 +300,12 @@ class RobotRsiDriver(RobotDriver):
         # (or the following error's, at the start) on the correction in BASE.
         self._check_lag(link.lead() if self._moving else None, "correction")
 
+        out = link.cycles.output(tick.header(p.frame), now, self.frame.scene_values)
         if latest[0] == self._seen:
-            return {}
+            return out
         self._seen = latest[0]
         self._check_actual(reading)
-        return {"state": robot_state(tick.header(p.frame), reading.actual, "ok")}
+        return {**out, "state": robot_state(tick.header(p.frame), reading.actual, "ok")}
 
     def _hand_over(self, values) -> None:
         self.link.submit(*((None, None) if values is None else self.frame.correction(values[:3], values[3:7])))
