@@ -48,6 +48,9 @@ from dockhil.contact.rotations import quat_conjugate, quat_from_rotvec, quat_mul
 from dockhil.hardware import rsi
 
 START_POSE = (500.0, 0.0, 900.0, 180.0, 0.0, 180.0)  # mm, degrees: a TCP in front of the robot, pointing down
+# The kernel's receive time of each answer (Python's socket module names the option from 3.13 on; 35 is
+# Linux's number on x86 and ARM): an answer is judged by when it came, not by when this thread woke.
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35 if sys.platform == "linux" else None)
 DEFAULT_MAX_LATE = 100  # late answers in a row before RSI stops (the ETHERNET object's Timeout)
 
 
@@ -164,9 +167,9 @@ class RsiControllerEmulator:
         self._thread: threading.Thread | None = None
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind((bind, 0))
-        self._stamped = hasattr(socket, "SO_TIMESTAMPNS")
+        self._stamped = SO_TIMESTAMPNS is not None
         if self._stamped:
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_TIMESTAMPNS, 1)
+            self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
 
     # -- one cycle ----------------------------------------------------------------------
     def _send(self, data: bytes) -> None:
@@ -196,16 +199,15 @@ class RsiControllerEmulator:
 
     def _receive(self, deadline: float):
         """One datagram before `deadline` (monotonic): (data, sender host, arrival in Unix time) or None."""
-        remaining = deadline - time.monotonic()
-        if remaining <= 0:
-            return None
-        self.sock.settimeout(remaining)
+        # Past the deadline, what is already queued is still read: the kernel's arrival time judges it, not
+        # when this thread woke (a busy machine may wake it late with the answer waiting since on time).
+        self.sock.settimeout(max(0.0, deadline - time.monotonic()))
         try:
             if self._stamped:
                 data, anc, _flags, addr = self.sock.recvmsg(rsi.MAX_DATAGRAM + 1, 64)
                 arrival = time.time()
                 for level, kind, payload in anc:
-                    if level == socket.SOL_SOCKET and kind == socket.SO_TIMESTAMPNS and len(payload) >= 16:
+                    if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(payload) >= 16:
                         sec, nsec = struct.unpack("qq", payload[:16])
                         arrival = sec + nsec * 1e-9
                 return data, addr[0], arrival
@@ -242,7 +244,7 @@ class RsiControllerEmulator:
             time.sleep(self.rng.uniform(0.0, self.jitter))
         ipoc = self.ipoc
         data = rsi.build_rob(ipoc, self.servo.rist(), self.servo.rsol(), s["late"])
-        sent_at = time.time()
+        sent_at, sent_mono = time.time(), time.monotonic()
         self._send(data)
         answered_late = self._answered_late
         self._sent_at[ipoc] = sent_at
@@ -250,7 +252,9 @@ class RsiControllerEmulator:
             oldest = min(self._sent_at)
             del self._sent_at[oldest]
             answered_late.pop(oldest, None)
-        deadline = slot_start + self.cycle
+        # A whole cycle from the send: an emulator that sent late (its own thread woken late) does not
+        # shorten the sensor's time to answer; the lag it takes is caught up by skipping slots (run).
+        deadline = max(slot_start, sent_mono) + self.cycle
         answered = False
         while True:
             got = self._receive(deadline)
