@@ -124,6 +124,8 @@ def main() -> None:
         "answered": rec["answered"],
         "late": rec["late"],
         "late_in_a_row_max": rec["late_in_a_row_max"],
+        # cycles the emulator itself sent more than half a cycle late: not the driver's to answer for
+        "unjudged": rec["unjudged"],
         "lost": rec["lost"],
         "counted_by_driver": counted,
         "stray_answers": rec["stray_answers"],

@@ -223,23 +223,25 @@ def test_the_emulator_sends_each_cycle_applies_answers_counts_late_ones_and_stop
 
 def test_an_answer_that_came_in_time_is_on_time_though_the_emulator_woke_after_its_cycle():
     """The kernel's arrival time judges an answer: a controller thread woken late (a busy machine) finds
-    the answer waiting and counts it answered; an answer that itself came after the cycle is late."""
+    the answer waiting and counts it answered; an answer that itself came after the cycle is late; a
+    cycle the emulator sent too late for the sensor to answer in is not the sensor's late answer."""
     sensor = RawSensor()
     cycle = 0.05  # long enough that the sensor here answers within it on a busy machine
     emulator = RsiControllerEmulator(port=sensor.port, cycle=cycle, max_late=5, start=START)
     real_receive = emulator._receive
-    answer_after = [0.0]  # how long the sensor takes to answer, in this cycle
+    answer_after: list[float | None] = [0.0]  # how long the sensor takes to answer, this cycle (None: never)
+    waited: set[int] = set()
 
     def answer_then_wake_late(deadline):
         if emulator.stats["cycles"] not in waited:
             waited.add(emulator.stats["cycles"])
             ipoc, _rist, _delay, addr = sensor.receive()
-            time.sleep(answer_after[0])
-            sensor.answer(ipoc, (0.5, 0.0, 0.0, 0.0, 0.0, 0.0), addr)
+            if answer_after[0] is not None:
+                time.sleep(answer_after[0])
+                sensor.answer(ipoc, (0.5, 0.0, 0.0, 0.0, 0.0, 0.0), addr)
             time.sleep(max(0.0, deadline - time.monotonic()) + 2 * cycle)  # the thread wakes after its cycle
         return real_receive(deadline)
 
-    waited: set[int] = set()
     emulator._receive = answer_then_wake_late
     try:
         emulator.cycle_once(time.monotonic())
@@ -248,6 +250,9 @@ def test_an_answer_that_came_in_time_is_on_time_though_the_emulator_woke_after_i
         emulator.cycle_once(time.monotonic())
         assert emulator.stats["answered"] == 1 and emulator.stats["late"] == 1
         assert emulator.stats["stray_answers"] == 1
+        answer_after[0] = None  # no answer, to a datagram the emulator sent 0.8 cycle into its slot
+        emulator.cycle_once(time.monotonic() - 0.8 * cycle)
+        assert emulator.stats["late"] == 1 and emulator.stats["unjudged"] == 1
     finally:
         emulator.sock.close()
         sensor.sock.close()

@@ -151,6 +151,7 @@ class RsiControllerEmulator:
             "answered": 0,
             "late": 0,
             "late_in_a_row_max": 0,
+            "unjudged": 0,  # cycles this emulator itself sent too late to judge the answer
             "bad_answers": 0,
             "stray_answers": 0,
             "max_speed": 0.0,
@@ -252,9 +253,7 @@ class RsiControllerEmulator:
             oldest = min(self._sent_at)
             del self._sent_at[oldest]
             answered_late.pop(oldest, None)
-        # A whole cycle from the send: an emulator that sent late (its own thread woken late) does not
-        # shorten the sensor's time to answer; the lag it takes is caught up by skipping slots (run).
-        deadline = max(slot_start, sent_mono) + self.cycle
+        deadline = slot_start + self.cycle
         answered = False
         while True:
             got = self._receive(deadline)
@@ -281,7 +280,11 @@ class RsiControllerEmulator:
             # the next cycle takes it (this one's interpolation has run): the servo's delay counts from there,
             # as the Modbus controller's counts from the cycle that takes a setpoint
             self._apply(korr, slot_start + self.cycle)
-        if self.armed and not answered:
+        if self.armed and not answered and deadline - sent_mono < 0.5 * self.cycle:
+            # this emulator sent so late (its thread woken late on a busy machine) that the sensor had less
+            # than half a cycle: the cycle is not the sensor's to answer for, and the next one keeps the slot
+            s["unjudged"] += 1
+        elif self.armed and not answered:
             s["late"] += 1
             self._late_in_a_row += 1
             s["late_in_a_row_max"] = max(s["late_in_a_row_max"], self._late_in_a_row)
