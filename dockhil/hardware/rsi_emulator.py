@@ -140,6 +140,7 @@ class RsiControllerEmulator:
         self.ipoc = ipoc0
         self.korr = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         self.stopped = False  # RSI stopped: too many late answers
+        self.stopped_at = 0.0  # when (monotonic)
         self.armed = False  # the first answer came: late answers count from now on
         self.lost_ipocs: list[int] = []  # which cycles' datagrams were lost (the first MAX_LOST_KEPT)
         self.stats = {
@@ -290,6 +291,7 @@ class RsiControllerEmulator:
             s["late_in_a_row_max"] = max(s["late_in_a_row_max"], self._late_in_a_row)
             if self._late_in_a_row >= self.max_late:
                 self.stopped = True
+                self.stopped_at = time.monotonic()
         elif answered:
             self._late_in_a_row = 0
         self.ipoc += self.cycle_ms

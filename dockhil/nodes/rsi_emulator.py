@@ -7,6 +7,8 @@ dockhil/hardware/rsi_emulator.py.
 
 from __future__ import annotations
 
+import time
+
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.hardware import rsi
 from dockhil.node import Node, Param
@@ -98,9 +100,15 @@ class RsiControllerEmulatorNode(Node):
         if emulator is None:
             return
         self.emulator = None
+        closing = time.monotonic()
         emulator.stop_thread()
         if emulator.stopped:
-            self.log(f"warning: KUKA RSI emulator: RSI stopped after {emulator.max_late} late answers in a row")
+            # A driver that ends before this emulator leaves it unanswered: at a graph's end that stop is the
+            # end of the run (the driver says when the controller stopped RSI while it ran).
+            self.log(
+                f"warning: KUKA RSI emulator: RSI stopped after {emulator.max_late} late answers in a row, "
+                f"{closing - emulator.stopped_at:.2f} s before the emulator closed"
+            )
         if self.p.record:
             try:
                 emulator.write_record(self.p.record)
