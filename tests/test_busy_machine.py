@@ -58,6 +58,39 @@ def test_drivers_stop_before_the_emulators_of_their_devices():
     assert {"ft", "robot"} <= set(stopped[:-2])
 
 
+def test_with_realtime_the_launcher_signals_every_node_above_their_priorities_then_returns(monkeypatch):
+    """A launcher preempted between two nodes' stops would leave a reader ticking on a stopped
+    publisher: it sends every stop at a priority above the nodes', and is back at its own after."""
+    from dockhil.runtime import realtime
+
+    policy = {"now": (os.SCHED_OTHER, 0)}
+    seen: list[tuple[str, tuple]] = []
+
+    def set_policy(pid, kind, param):
+        assert pid == 0
+        policy["now"] = (kind, param.sched_priority)
+
+    monkeypatch.setattr(os, "sched_setscheduler", set_policy)
+    monkeypatch.setattr(os, "sched_getscheduler", lambda pid: policy["now"][0])
+    monkeypatch.setattr(os, "sched_getparam", lambda pid: os.sched_param(policy["now"][1]))
+
+    class Seen(FakeProc):
+        def send_signal(self, sig):
+            seen.append((self.name, policy["now"]))
+            super().send_signal(sig)
+
+    for realtime_run, during in ((True, (os.SCHED_FIFO, realtime.SIGNAL_PRIORITY)), (False, (os.SCHED_OTHER, 0))):
+        seen.clear()
+        launcher = Launcher(emulated_graph(), clock="wall", duration=1.0, realtime=realtime_run)
+        stopped: list[str] = []
+        for child in launcher.children:
+            child.proc = Seen(child.name, stopped)
+        launcher.stop_all(grace=0.1)
+        assert len(seen) == len(launcher.children) and all(at == during for _, at in seen)
+        assert policy["now"] == (os.SCHED_OTHER, 0)
+    assert realtime.SIGNAL_PRIORITY > max(realtime.DEVICE_PRIORITY, realtime.IO_PRIORITY, realtime.LOOP_PRIORITY)
+
+
 def test_composed_drivers_close_before_their_emulators():
     from dockhil.node import Node
     from dockhil.runtime.composed import ComposedGraph

@@ -309,11 +309,14 @@ class Launcher:
         self._stop([c for c in live if c.name in devices], grace)
 
     def _stop(self, live: list, grace: float) -> None:
-        for c in live:
-            try:
-                c.proc.send_signal(signal.SIGTERM)
-            except ProcessLookupError:
-                pass
+        from dockhil.runtime import realtime
+
+        with realtime.signalling(self.lift_recorders):
+            for c in live:
+                try:
+                    c.proc.send_signal(signal.SIGTERM)
+                except ProcessLookupError:
+                    pass
         deadline = time.monotonic() + grace
         for c in live:
             try:
@@ -391,13 +394,17 @@ class Launcher:
         nodes = [c for c in self.children if c.name in self.specs]
         if not all(c.ready for c in nodes):
             return
-        for c in nodes:
-            if c.proc is not None and not c.go_sent and self.specs[c.name].wait_for_go:
-                c.go_sent = True
-                try:
-                    c.proc.send_signal(signal.SIGUSR1)
-                except ProcessLookupError:
-                    pass
+        from dockhil.runtime import realtime
+
+        waiting = [c for c in nodes if c.proc is not None and not c.go_sent and self.specs[c.name].wait_for_go]
+        if waiting:
+            with realtime.signalling(self.lift_recorders):
+                for c in waiting:
+                    c.go_sent = True
+                    try:
+                        c.proc.send_signal(signal.SIGUSR1)
+                    except ProcessLookupError:
+                        pass
         if self._all_ready_at is None:
             self._all_ready_at = time.monotonic()
 

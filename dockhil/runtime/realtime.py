@@ -12,12 +12,14 @@ the process says so in one line and runs at normal priority.
 
 from __future__ import annotations
 
+import contextlib
 import os
 
 RECORD_PRIORITY = 40  # the graph's recorders: above ordinary work, below the loops they record
 LOOP_PRIORITY = 50  # node loops
 IO_PRIORITY = 55  # ZeroMQ's I/O threads: between the loops and the devices they serve
 DEVICE_PRIORITY = 60  # threads that meet a device's clock: drivers' link threads, emulators' cycles
+SIGNAL_PRIORITY = 65  # the launcher while it starts or stops the graph's nodes: all of them in one go
 
 HOW = "grant CAP_SYS_NICE or an rtprio limit to use --realtime: docs/time.md"
 
@@ -69,3 +71,24 @@ def zmq_options(ctx) -> bool:
     ctx.set(zmq.THREAD_SCHED_POLICY, os.SCHED_FIFO)
     ctx.set(zmq.THREAD_PRIORITY, IO_PRIORITY)
     return True
+
+
+@contextlib.contextmanager
+def signalling(enabled: bool):
+    """The launcher's thread above every node while it signals them all (start, stop): a busy core that
+    preempted it between two nodes' signals would stop a publisher while its reader, told later, took the
+    silence for a stall. Back to its own policy after; without the privilege, as it was (no line: the
+    nodes' own requests already said it)."""
+    old = None
+    if enabled:
+        try:
+            old = (os.sched_getscheduler(0), os.sched_getparam(0))
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(SIGNAL_PRIORITY))
+        except (PermissionError, OSError, AttributeError):
+            old = None
+    try:
+        yield
+    finally:
+        if old is not None:
+            with contextlib.suppress(OSError):
+                os.sched_setscheduler(0, old[0], old[1])
