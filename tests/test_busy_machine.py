@@ -88,7 +88,7 @@ def test_with_realtime_the_launcher_signals_every_node_above_their_priorities_th
         launcher.stop_all(grace=0.1)
         assert len(seen) == len(launcher.children) and all(at == during for _, at in seen)
         assert policy["now"] == (os.SCHED_OTHER, 0)
-    assert realtime.SIGNAL_PRIORITY > max(realtime.DEVICE_PRIORITY, realtime.IO_PRIORITY, realtime.LOOP_PRIORITY)
+    assert realtime.SIGNAL_PRIORITY > max(realtime.IO_PRIORITY, realtime.LOOP_PRIORITY)
 
 
 def test_composed_drivers_close_before_their_emulators():

@@ -19,7 +19,9 @@ RECORD_PRIORITY = 40  # the graph's recorders: above ordinary work, below the lo
 LOOP_PRIORITY = 50  # node loops
 IO_PRIORITY = 55  # ZeroMQ's I/O threads: between the loops and the devices they serve
 DEVICE_PRIORITY = 60  # threads that meet a device's clock: drivers' link threads, emulators' cycles
-SIGNAL_PRIORITY = 65  # the launcher while it starts or stops the graph's nodes: all of them in one go
+# The launcher while it starts or stops the graph's nodes, all in one go: above the loops and I/O threads,
+# level with the devices (a FIFO thread is not preempted by its equals), within the rtprio limit of 60.
+SIGNAL_PRIORITY = DEVICE_PRIORITY
 
 HOW = "grant CAP_SYS_NICE or an rtprio limit to use --realtime: docs/time.md"
 
