@@ -13,6 +13,7 @@ counted datagrams.
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import math
 import os
@@ -83,6 +84,7 @@ def main() -> None:
         )
         try:
             node.setup()
+            gc.freeze()  # as a graph's node does after its setup (dockhil.runtime.executor)
             dt = 1.0 / args.rate
             t0 = next_t = time.monotonic()
             k = 0

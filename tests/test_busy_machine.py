@@ -6,6 +6,7 @@ import os
 import re
 import signal
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -204,7 +205,10 @@ def test_a_refused_realtime_request_is_one_line_and_normal_priority(monkeypatch)
     # A device thread of a process without the privilege is not asked again (nor said again).
     lines.clear()
     monkeypatch.setattr(realtime, "granted", lambda: False)
+    intervals = []
+    monkeypatch.setattr("sys.setswitchinterval", intervals.append)
     realtime.raise_device_thread(lines.append, "the RSI link")
+    assert intervals == [min(sys.getswitchinterval(), realtime.DEVICE_SWITCH_INTERVAL_S)]
     assert lines == []
 
 
@@ -280,3 +284,47 @@ def test_a_real_time_loop_sleeps_without_spinning(monkeypatch):
     assert looptime.loop_spin() == 0.0
     monkeypatch.setattr(realtime, "granted", lambda: False)
     assert looptime.loop_spin() == looptime.SPIN_S > 0.0
+
+
+def test_an_emulated_device_without_topics_ticks_its_loop_slowly_and_one_with_topics_at_the_graph_s_rate():
+    """An emulated device whose own thread is the device (RSI, Modbus) has nothing to step: its loop at
+    the graph's 1 kHz only took the interpreter from the device's thread. On a clock the test moves."""
+    from dockhil.node import ManualClock, Node
+    from dockhil.runtime.executor import IDLE_DEVICE_PERIOD_S, NodeExecutor, RunSpec, Stop
+
+    class Device(Node):
+        free_running = True
+
+        def step(self, tick, inputs):
+            return {}
+
+    class Loop(Device):
+        free_running = False
+
+    period = 1 / 1024
+    for cls, ticks in ((Device, round(1.0 / IDLE_DEVICE_PERIOD_S)), (Loop, 1024)):
+        clock = ManualClock()
+        ex = NodeExecutor(RunSpec("n", "x:Device", {}, period, "wall"), cls, Stop(), log=lambda line: None, clock=clock)
+        ex.start()
+        try:
+            report = ex.run_wall(1.0)
+        finally:
+            ex.close()
+        assert report["ticks"] == ticks and report["deadline_misses"] == 0
+
+
+def test_a_refused_nice_for_a_recorder_is_one_line_and_normal_priority(monkeypatch):
+    from dockhil.runtime import realtime
+
+    asked = []
+
+    def refuse(which, pid, value):
+        asked.append((which, pid, value))
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "setpriority", refuse)
+    lines: list[str] = []
+    assert not realtime.favour(4242, "'bag-recorder'", lines.append)
+    assert asked == [(os.PRIO_PROCESS, 4242, realtime.RECORD_NICE)] and realtime.RECORD_NICE < 0
+    assert len(lines) == 1 and lines[0].startswith("warning: a nice of -10 for 'bag-recorder' refused")
+    assert "docs/time.md" in lines[0]

@@ -77,6 +77,9 @@ class RunSpec:
     run_id: str = ""  # the graph's run id: names the owner of the devices this node claims
 
 
+IDLE_DEVICE_PERIOD_S = 0.05  # the loop of an emulated device with no topics (its device thread does the work)
+
+
 class Stop:
     """A flag set by SIGINT/SIGTERM; loops check it between waits."""
 
@@ -360,9 +363,13 @@ class NodeExecutor:
         arrived: dict[str, float] = {}  # port -> when its latest message arrived (runtime clock)
         for port in self.unconnected:
             latest[port] = None
-        self.timing = timing = LoopTiming(list(spec.inputs), period=spec.dt, max_age=self.max_age)
         clock = self.clock
         period = spec.dt
+        if type(node).free_running and not spec.inputs and not spec.outputs:
+            # An emulated device whose own thread is the device: its loop has nothing to read or hand on, and
+            # ticking it at the graph's rate only takes the interpreter from the device's thread.
+            period = max(period, IDLE_DEVICE_PERIOD_S)
+        self.timing = timing = LoopTiming(list(spec.inputs), period=period, max_age=self.max_age)
         spin = loop_spin()
         t0 = clock()
         timing.first_tick_at = time.time()

@@ -97,9 +97,10 @@ class Launcher:
         self.specs = run_specs(
             graph, self.endpoints, clock, self.n_ticks if clock == "sim" else None, self.extra, self.units
         )
-        # --realtime in wall time: the recorders too, or a busy machine leaves them seconds behind the
-        # graph, and what a stopped graph still had queued for them never reaches the bag.
-        self.lift_recorders = realtime and clock == "wall"
+        # --realtime in wall time: the recorders favoured too (a nice of realtime.RECORD_NICE), or a busy
+        # machine leaves them seconds behind the graph, and what a stopped graph still had queued for them
+        # never reaches the bag.
+        self.realtime_wall = realtime and clock == "wall"
         for name, spec in self.specs.items():
             spec.realtime = realtime
             # Wall time: every local node starts its fixed-rate loop when all are ready, so none runs
@@ -181,10 +182,10 @@ class Launcher:
             start_new_session=True,
             env=env,
         )
-        if self.lift_recorders and child.name not in self.specs:
+        if self.realtime_wall and child.name not in self.specs:
             from dockhil.runtime import realtime
 
-            realtime.lift(child.proc.pid, realtime.RECORD_PRIORITY, f"{child.name!r}", self.say.warning)
+            realtime.favour(child.proc.pid, f"{child.name!r}", self.say.warning)
         child.reader = threading.Thread(target=self._read, args=(child, child.proc), daemon=True)
         child.reader.start()
         self.say.debug(f"started {child.name!r} (pid {child.proc.pid})")
@@ -311,7 +312,7 @@ class Launcher:
     def _stop(self, live: list, grace: float) -> None:
         from dockhil.runtime import realtime
 
-        with realtime.signalling(self.lift_recorders):
+        with realtime.signalling(self.realtime_wall):
             for c in live:
                 try:
                     c.proc.send_signal(signal.SIGTERM)
@@ -398,7 +399,7 @@ class Launcher:
 
         waiting = [c for c in nodes if c.proc is not None and not c.go_sent and self.specs[c.name].wait_for_go]
         if waiting:
-            with realtime.signalling(self.lift_recorders):
+            with realtime.signalling(self.realtime_wall):
                 for c in waiting:
                     c.go_sent = True
                     try:
