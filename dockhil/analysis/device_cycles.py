@@ -206,6 +206,7 @@ def device_servo(c: DeviceCycles, max_delay: float = MAX_DELAY_S, max_lag: float
     shifts = np.arange(0.0, max_delay, period)
     total = float(shifts[int(np.argmin([np.sum(model.residual((d, 0.0)) ** 2) for d in shifts]))])
     (whole, lag), residual, cov, aic = fit_delay_lag(model, total, max_delay, max_lag, period, 1e-3)
+    (whole, lag), residual = whole_cycles(model, whole, lag, residual, period, max_lag)
     npose = len(residual)
     sigmas = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     return Servo(
@@ -218,6 +219,33 @@ def device_servo(c: DeviceCycles, max_delay: float = MAX_DELAY_S, max_lag: float
         min(aic, key=aic.get),
         aic,
     )
+
+
+def whole_cycles(model, delay: float, lag: float, residual: np.ndarray, period: float, max_lag: float):
+    """((delay, lag), residual): the free fit, or the delay at the whole cycle on either side of it with the lag
+    fitted alone, where that explains the poses as well for one parameter less (the smaller AIC). A controller
+    acts on whole cycles; a delay between two cycles blends them as a lag of under a cycle would, so where
+    the lag is small the free fit may trade one for the other (0.01 ms of lag read as 1.5 ms, the delay a
+    cycle short)."""
+    from scipy.optimize import minimize_scalar
+
+    n = len(residual)
+    best = (n * math.log(max(float(residual @ residual), 1e-300) / n) + 4.0, (delay, lag), residual)
+    for cycles in {math.floor(delay / period + 1e-9), math.ceil(delay / period - 1e-9)}:
+        d = cycles * period
+        if d < 0.0:
+            continue
+        fit = minimize_scalar(
+            lambda tau, d=d: float(np.sum(model.residual((d, tau)) ** 2)),
+            bounds=(0.0, max_lag),
+            method="bounded",
+            options={"xatol": 1e-6},
+        )
+        r = model.residual((d, float(fit.x)))
+        aic = n * math.log(max(float(r @ r), 1e-300) / n) + 2.0
+        if aic < best[0]:
+            best = (aic, (d, float(fit.x)), r)
+    return best[1], best[2]
 
 
 def _spread(values: np.ndarray) -> float:
