@@ -88,7 +88,7 @@ async def channels(ws, topics) -> dict[str, dict]:
     first = json.loads(await asyncio.wait_for(ws.recv(), DEADLINE_S))
     assert first["op"] == "serverInfo", first
     found = {}
-    while set(found) < set(topics):
+    while not set(topics) <= set(found):  # other channels may be advertised first
         msg = await asyncio.wait_for(ws.recv(), DEADLINE_S)
         if isinstance(msg, str) and json.loads(msg)["op"] == "advertise":
             for channel in json.loads(msg)["channels"]:
