@@ -48,7 +48,10 @@ def favour(pid: int, what: str, say) -> bool:
     try:
         os.setpriority(os.PRIO_PROCESS, pid, RECORD_NICE)
     except (PermissionError, OSError, AttributeError) as exc:
-        say(f"warning: a nice of {RECORD_NICE} for {what} refused ({exc}); running at normal priority ({HOW})")
+        say(
+            f"warning: a nice of {RECORD_NICE} for {what} refused ({exc}); running at normal priority "
+            f"(grant CAP_SYS_NICE or a nice limit of {RECORD_NICE}: docs/time.md)"
+        )
         return False
     return True
 
