@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 
-from dockhil.analysis.servo_fit import MAX_DELAY_S, MAX_LAG_S, CalibrationError, Servo, fit_delay_lag
+from dockhil.analysis.servo_fit import MAX_DELAY_S, MAX_LAG_S, CalibrationError, Servo, akaike, fit_delay_lag
 
 
 @dataclass
@@ -229,8 +229,7 @@ def whole_cycles(model, delay: float, lag: float, residual: np.ndarray, period: 
     cycle short)."""
     from scipy.optimize import minimize_scalar
 
-    n = len(residual)
-    best = (n * math.log(max(float(residual @ residual), 1e-300) / n) + 4.0, (delay, lag), residual)
+    best = (akaike(residual, 2), (delay, lag), residual)
     for cycles in {math.floor(delay / period + 1e-9), math.ceil(delay / period - 1e-9)}:
         d = cycles * period
         if d < 0.0:
@@ -242,7 +241,7 @@ def whole_cycles(model, delay: float, lag: float, residual: np.ndarray, period: 
             options={"xatol": 1e-6},
         )
         r = model.residual((d, float(fit.x)))
-        aic = n * math.log(max(float(r @ r), 1e-300) / n) + 2.0
+        aic = akaike(r, 1)
         if aic < best[0]:
             best = (aic, (d, float(fit.x)), r)
     return best[1], best[2]

@@ -216,13 +216,15 @@ def fit_delay_lag(model, total: float, max_delay: float, max_lag: float, scale: 
     first = fits[1]
     if not first.success:
         raise CalibrationError(f"the delay and lag fit did not converge ({first.message})")
-    n = len(first.fun)
-    aic = {
-        name: n * math.log(max(float(fits[o].fun @ fits[o].fun), 1e-300) / n) + 4.0
-        for o, name in ((1, "first-order"), (2, "second-order"))
-    }
+    aic = {name: akaike(fits[o].fun, 2) for o, name in ((1, "first-order"), (2, "second-order"))}
     x = tuple(float(v) for v in first.x)
     return x, first.fun, covariance(servo_jacobian(model, *x), first.fun, 2), aic
+
+
+def akaike(residual: np.ndarray, n_params: int) -> float:
+    """Akaike's information criterion of a least-squares fit with `n_params` parameters (Gaussian residuals)."""
+    n = len(residual)
+    return n * math.log(max(float(residual @ residual), 1e-300) / n) + 2.0 * n_params
 
 
 def servo_jacobian(model, delay: float, lag: float) -> np.ndarray:
