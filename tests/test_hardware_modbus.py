@@ -448,4 +448,6 @@ def test_driver_logs_when_the_controller_lost_its_heartbeat(controller):
         ]  # once, however often it flickers
     finally:
         node.close()
-    assert node.heartbeat_losses > 1 and f"lost our heartbeat {node.heartbeat_losses} times" in logs[-1]
+    # said at close; a busy machine may have dropped the connection, which close says after it
+    closing = logs[-2:] if "could not hold the robot at close" in logs[-1] else logs[-1:]
+    assert node.heartbeat_losses > 1 and f"lost our heartbeat {node.heartbeat_losses} times" in closing[0]
