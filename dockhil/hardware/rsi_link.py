@@ -38,6 +38,8 @@ from dockhil.hardware.cycle_log import CycleLog
 from dockhil.hardware.robot_limits import angle_between
 from dockhil.runtime import realtime
 
+SWITCH_INTERVAL = 0.0002  # s: longest wait of the link thread for the interpreter while another thread runs
+
 KINDS = {
     "foreign": "from another address than the controller's",
     "oversized": "oversized",
@@ -145,7 +147,7 @@ class RsiLink(threading.Thread):
 
     def start(self) -> None:
         self._switch_interval = sys.getswitchinterval()
-        sys.setswitchinterval(min(self._switch_interval, realtime.DEVICE_SWITCH_INTERVAL_S))
+        sys.setswitchinterval(min(self._switch_interval, SWITCH_INTERVAL))
         super().start()
 
     def stop(self) -> None:

@@ -64,16 +64,8 @@ def granted() -> bool:
         return False
 
 
-DEVICE_SWITCH_INTERVAL_S = 0.0002  # how long a device thread may wait for the interpreter while another runs
-
-
 def raise_device_thread(say, what: str) -> None:
-    """A device thread: the process's switch interval lowered (Python's 5 ms would let the node's loop
-    keep the interpreter from it for longer than a device cycle), and, in a process running real-time,
-    above the loops (it inherited theirs)."""
-    import sys
-
-    sys.setswitchinterval(min(sys.getswitchinterval(), DEVICE_SWITCH_INTERVAL_S))
+    """A device thread of a process running real-time: above the loops (it inherited theirs)."""
     if granted():
         ask(DEVICE_PRIORITY, what, say)
 
