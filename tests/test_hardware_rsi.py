@@ -231,11 +231,13 @@ def test_an_answer_that_came_in_time_is_on_time_though_the_emulator_woke_after_i
     real_receive = emulator._receive
     answer_after: list[float | None] = [0.0]  # how long the sensor takes to answer, this cycle (None: never)
     waited: set[int] = set()
+    sent_delays: list[int] = []
 
     def answer_then_wake_late(deadline):
         if emulator.stats["cycles"] not in waited:
             waited.add(emulator.stats["cycles"])
-            ipoc, _rist, _delay, addr = sensor.receive()
+            ipoc, _rist, delay, addr = sensor.receive()
+            sent_delays.append(delay)
             if answer_after[0] is not None:
                 time.sleep(answer_after[0])
                 sensor.answer(ipoc, (0.5, 0.0, 0.0, 0.0, 0.0, 0.0), addr)
@@ -253,6 +255,10 @@ def test_an_answer_that_came_in_time_is_on_time_though_the_emulator_woke_after_i
         answer_after[0] = None  # no answer, to a datagram the emulator sent 0.8 cycle into its slot
         emulator.cycle_once(time.monotonic() - 0.8 * cycle)
         assert emulator.stats["late"] == 1 and emulator.stats["unjudged"] == 1
+        # a controller counts every answer it did not take in Delay: the sensor then steps from what it has
+        answer_after[0] = 0.0
+        emulator.cycle_once(time.monotonic())
+        assert sent_delays == [0, 0, 1, 2]
     finally:
         emulator.sock.close()
         sensor.sock.close()
@@ -322,6 +328,29 @@ def test_each_answer_echoes_the_ipoc_and_moves_the_correction_at_most_the_limit_
     assert max(turns) <= math.degrees(0.5 * CYCLE) + 1e-3
     assert korrs[-1][:3] == pytest.approx((50.0, -20.0, 10.0), abs=1e-4)  # reached in the end
     assert rotation_deg((0, 0, 0), korrs[-1][3:]) == pytest.approx(30.0, abs=1e-3)
+
+
+def test_an_answer_the_controller_did_not_take_is_not_stepped_from():
+    """A controller that skips an answer (it came late, or the controller was late itself) keeps the
+    correction it had and counts the answer in Delay; the next step starts from the correction in force,
+    so the robot never moves more than the limit in a cycle. A datagram that never came is counted in
+    Delay too, and does not make the answer before it look untaken."""
+    clock = ManualClock()
+    lk = link(clock)
+    lk.submit((20.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+    in_force, taken = 0.0, []
+    exchanges = [  # (IPOC, Delay, taken by the controller)
+        (4, 0, True), (8, 0, True), (12, 0, False), (16, 1, False), (20, 2, True), (24, 2, True),
+        (32, 3, True), (36, 3, True),  # 28 never came: counted late; the answer to 24 was taken
+    ]
+    for ipoc, delay, took in exchanges:
+        clock.advance(CYCLE)
+        x = read_sen(lk.handle(rob_text(ipoc, delay=delay), "127.0.0.1", clock()))[2][0]
+        assert abs(x - in_force) <= 0.4 + 1e-4  # one cycle's travel at most, from what the robot has
+        if took:
+            in_force = x
+        taken.append(round(x, 4))
+    assert taken == [0.4, 0.8, 1.2, 1.2, 1.2, 1.6, 2.0, 2.4]
 
 
 def test_a_stalled_graph_holds_the_correction_where_it_is():

@@ -10,7 +10,9 @@ correction in BASE (docs/hardware.md):
   wakes late does not blame the sensor);
 - an answer in time sets the correction (absolute, from the start pose) from the
   next cycle on, the one that takes it; a late
-  or missing one keeps the last correction (HOLDON) and counts in Delay D;
+  or missing one keeps the last correction (HOLDON) and counts in Delay D, also
+  in a cycle this emulator itself sent too late to judge (`unjudged`, not the
+  sensor's late answer): D tells the sensor every correction not taken;
   `max_late` late answers in a row stop RSI: it sends nothing more, as a
   controller does. The count starts at the first answer (the operator starts
   the RSI program once the sensor listens);
@@ -245,7 +247,7 @@ class RsiControllerEmulator:
         if self.jitter:
             time.sleep(self.rng.uniform(0.0, self.jitter))
         ipoc = self.ipoc
-        data = rsi.build_rob(ipoc, self.servo.rist(), self.servo.rsol(), s["late"])
+        data = rsi.build_rob(ipoc, self.servo.rist(), self.servo.rsol(), s["late"] + s["unjudged"])
         sent_at, sent_mono = time.time(), time.monotonic()
         self._send(data)
         answered_late = self._answered_late
@@ -331,7 +333,7 @@ class RsiControllerEmulator:
         ms = lambda v: None if v is None else round(v * 1000.0, 4)  # noqa: E731
         return {
             **self.stats,
-            "delay": self.stats["late"],
+            "delay": self.stats["late"] + self.stats["unjudged"],  # D: every answer not taken
             "stopped": self.stopped,
             "cycle": self.cycle,
             "lost_ipocs": self.lost_ipocs,

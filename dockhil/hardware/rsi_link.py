@@ -209,12 +209,14 @@ class RsiLink(threading.Thread):
         if frame.ipoc <= self.last_ipoc:
             self._count("repeated", f"IPOC {frame.ipoc} after {self.last_ipoc}")
             return None
+        never_came = 0
         if self.last_ipoc >= 0:
-            self.missing += max(0, round((frame.ipoc - self.last_ipoc) / (self.cycle * 1000.0)) - 1)
+            never_came = max(0, round((frame.ipoc - self.last_ipoc) / (self.cycle * 1000.0)) - 1)
+            self.missing += never_came
         self.last_ipoc = frame.ipoc
-        if frame.delay is not None and self.delay_at_start is not None and frame.delay > self.delay:
-            # An answer since the last datagram came late: the controller kept the correction it had
-            # (HOLDON), so this cycle's step starts from there, not from what it never applied.
+        if frame.delay is not None and self.delay_at_start is not None and frame.delay - self.delay > never_came:
+            # Our last answer was not taken (the controller counts each datagram that never came as late
+            # too): it kept the correction it had (HOLDON), so this cycle's step starts from there.
             self.korr = self.accepted
         else:
             self.accepted = self.korr
