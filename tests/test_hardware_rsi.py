@@ -340,8 +340,14 @@ def test_an_answer_the_controller_did_not_take_is_not_stepped_from():
     lk.submit((20.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
     in_force, taken = 0.0, []
     exchanges = [  # (IPOC, Delay, taken by the controller)
-        (4, 0, True), (8, 0, True), (12, 0, False), (16, 1, False), (20, 2, True), (24, 2, True),
-        (32, 3, True), (36, 3, True),  # 28 never came: counted late; the answer to 24 was taken
+        (4, 0, True),
+        (8, 0, True),
+        (12, 0, False),
+        (16, 1, False),
+        (20, 2, True),
+        (24, 2, True),
+        (32, 3, True),
+        (36, 3, True),  # 28 never came: counted late; the answer to 24 was taken
     ]
     for ipoc, delay, took in exchanges:
         clock.advance(CYCLE)
