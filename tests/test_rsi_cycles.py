@@ -206,7 +206,7 @@ def test_a_lag_under_a_cycle_is_not_traded_for_a_delay_between_cycles():
     """A controller acts on whole cycles: the fit keeps the delay at a whole cycle where that explains the
     poses as well for one parameter less, so a lag well under the 4 ms cycle is read as such (the free fit
     read some as none, the delay taking a fraction of a cycle). Lags this small barely show: 0.6 ms of lag
-    leaves 0.1 % of a step after one cycle."""
+    leaves 0.1 % of a step after one cycle, and its uncertainty says so."""
     from dockhil.analysis.device_cycles import device_servo
 
     # (delay, lag, the noise's seed): three the free fit read with no lag (the third also 0.03 ms of delay
@@ -223,3 +223,6 @@ def test_a_lag_under_a_cycle_is_not_traded_for_a_delay_between_cycles():
         effective = math.ceil(delay / CYCLE) * CYCLE  # the controller's delay: whole cycles
         assert servo.delay_s + CYCLE / 2 == pytest.approx(effective, abs=2e-4), (delay, lag, servo)
         assert abs(servo.lag_s - lag) <= max(0.05 * lag, 1e-4), (delay, lag, servo)
+        # its uncertainty is the lag's own, as the poses bound it (the free fit's, where delay and lag trade,
+        # was tens of seconds), and covers the truth
+        assert abs(servo.lag_s - lag) <= 3.0 * servo.lag_sigma_s <= 1.5e-3, (delay, lag, servo)

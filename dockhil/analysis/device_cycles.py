@@ -9,7 +9,15 @@ from dataclasses import dataclass
 import numpy as np
 
 
-from dockhil.analysis.servo_fit import MAX_DELAY_S, MAX_LAG_S, CalibrationError, Servo, akaike, fit_delay_lag
+from dockhil.analysis.servo_fit import (
+    MAX_DELAY_S,
+    MAX_LAG_S,
+    CalibrationError,
+    Servo,
+    akaike,
+    fit_delay_lag,
+    inflation,
+)
 
 
 @dataclass
@@ -206,7 +214,7 @@ def device_servo(c: DeviceCycles, max_delay: float = MAX_DELAY_S, max_lag: float
     shifts = np.arange(0.0, max_delay, period)
     total = float(shifts[int(np.argmin([np.sum(model.residual((d, 0.0)) ** 2) for d in shifts]))])
     (whole, lag), residual, cov, aic = fit_delay_lag(model, total, max_delay, max_lag, period, 1e-3)
-    (whole, lag), residual = whole_cycles(model, whole, lag, residual, period, max_lag)
+    (whole, lag), residual, cov = whole_cycles(model, whole, lag, residual, cov, period, max_lag)
     npose = len(residual)
     sigmas = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     return Servo(
@@ -221,15 +229,16 @@ def device_servo(c: DeviceCycles, max_delay: float = MAX_DELAY_S, max_lag: float
     )
 
 
-def whole_cycles(model, delay: float, lag: float, residual: np.ndarray, period: float, max_lag: float):
-    """((delay, lag), residual): the free fit, or the delay at the whole cycle on either side of it with the lag
-    fitted alone, where that explains the poses as well for one parameter less (the smaller AIC). A controller
-    acts on whole cycles; a delay between two cycles blends them as a lag of under a cycle would, so where
-    the lag is small the free fit may trade one for the other (0.01 ms of lag read as 1.5 ms, the delay a
-    cycle short)."""
+def whole_cycles(model, delay: float, lag: float, residual: np.ndarray, cov: np.ndarray, period: float, max_lag: float):
+    """((delay, lag), residual, covariance): the free fit, or the delay at the whole cycle on either side of it
+    with the lag fitted alone, where that explains the poses as well for one parameter less (the smaller AIC).
+    A controller acts on whole cycles; a delay between two cycles blends them as a lag of under a cycle would,
+    so where the lag is small the free fit may trade one for the other (0.01 ms of lag read as 1.5 ms, the
+    delay a cycle short). At a whole cycle the delay is not fitted (no variance of its own: the caller adds
+    the cycle's resolution), and the lag's variance is that of its fit alone."""
     from scipy.optimize import minimize_scalar
 
-    best = (akaike(residual, 2), (delay, lag), residual)
+    best = (akaike(residual, 2), (delay, lag), residual, cov)
     for cycles in {math.floor(delay / period + 1e-9), math.ceil(delay / period - 1e-9)}:
         d = cycles * period
         if d < 0.0:
@@ -240,11 +249,28 @@ def whole_cycles(model, delay: float, lag: float, residual: np.ndarray, period: 
             method="bounded",
             options={"xatol": 1e-6},
         )
-        r = model.residual((d, float(fit.x)))
+        tau = float(fit.x)
+        r = model.residual((d, tau))
         aic = akaike(r, 1)
         if aic < best[0]:
-            best = (aic, (d, float(fit.x)), r)
-    return best[1], best[2]
+            best = (aic, (d, tau), r, np.diag([0.0, _lag_above(model, d, tau, r, max_lag) ** 2]))
+    return best[1:]
+
+
+def _lag_above(model, delay: float, lag: float, residual: np.ndarray, max_lag: float) -> float:
+    """One sigma of the lag fitted alone, from its profile: how much longer a lag fits the poses within one
+    residual variance (linearised, a lag far under the cycle, which the poses barely see, would read
+    +- 90 ms)."""
+    from scipy.optimize import brentq
+
+    def excess(tau: float) -> float:
+        return float(np.sum(model.residual((delay, tau)) ** 2)) - target
+
+    ssr = float(residual @ residual)
+    target = ssr + ssr / max(len(residual) - 1, 1) * inflation(residual)
+    if excess(max_lag) <= 0.0:
+        return math.inf
+    return brentq(excess, lag, max_lag, xtol=1e-7) - lag
 
 
 def _spread(values: np.ndarray) -> float:

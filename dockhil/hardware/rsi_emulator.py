@@ -145,6 +145,9 @@ class RsiControllerEmulator:
         self.stopped_at = 0.0  # when (monotonic)
         self.armed = False  # the first answer came: late answers count from now on
         self.lost_ipocs: list[int] = []  # which cycles' datagrams were lost (the first MAX_LOST_KEPT)
+        # when the late cycles' datagrams went (CLOCK_MONOTONIC, s; the first MAX_LOST_KEPT): to line them
+        # up with a scheduler trace or the graph's logs
+        self.late_sent_at: list[float] = []
         self.stats = {
             "cycles": 0,
             "sent": 0,
@@ -289,6 +292,8 @@ class RsiControllerEmulator:
             s["unjudged"] += 1
         elif self.armed and not answered:
             s["late"] += 1
+            if len(self.late_sent_at) < MAX_LOST_KEPT:
+                self.late_sent_at.append(sent_mono)
             self._late_in_a_row += 1
             s["late_in_a_row_max"] = max(s["late_in_a_row_max"], self._late_in_a_row)
             if self._late_in_a_row >= self.max_late:
@@ -337,6 +342,7 @@ class RsiControllerEmulator:
             "stopped": self.stopped,
             "cycle": self.cycle,
             "lost_ipocs": self.lost_ipocs,
+            "late_sent_at": self.late_sent_at,
             "latency_ms": {
                 "p50": ms(_percentile(lat, 0.5)),
                 "p99": ms(_percentile(lat, 0.99)),
