@@ -112,11 +112,15 @@ def node_process_error(spec: dict, env=None) -> str:
     return lines[0]
 
 
-def registered(pid: int, timeout=20.0) -> dict:
-    """The registry entry of the graph run by process `pid`."""
+def registered(pid: int, timeout=20.0, proc: subprocess.Popen | None = None) -> dict:
+    """The registry entry of the graph run by process `pid` (`proc`: its Popen, whose output an
+    early end shows)."""
     graphs = os.path.join(os.environ["DOCKHIL_RUNTIME_DIR"], "graphs")
     deadline = time.time() + timeout
     while time.time() < deadline:
+        if proc is not None and proc.poll() is not None:
+            out = proc.communicate(timeout=5)[0] if proc.stdout else ""
+            raise AssertionError(f"process {pid} ended (exit {proc.returncode}) with no graph registered:\n{out}")
         for name in glob.glob(os.path.join(graphs, "*.json")):
             try:
                 entry = json.load(open(name))
@@ -173,7 +177,7 @@ def kill_child_and_expect_the_graph_to_stop(
     """SIGKILL the launched process `name`; the launcher must stop the graph, non-zero, in plain lines.
     `dependent`: a node that may notice first (a driver whose device died) and fail with its own line.
     `lines`: the launcher's output, if a test already reads it."""
-    pid = registered(launch.pid)["nodes"][name]["pid"]
+    pid = registered(launch.pid, proc=launch)["nodes"][name]["pid"]
     try:
         os.kill(pid, signal.SIGKILL)
         out = lines.rest(timeout=60) if lines else launch.communicate(timeout=60)[0]

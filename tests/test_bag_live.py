@@ -40,6 +40,7 @@ nodes:
   - {name: gain, node: "tests.graphnodes:Gain"}
 """
 TICKS = 301  # 0..300 at 1 kHz for 0.3 s
+NO_AGE_LIMIT = ("--max-age", "plant.u=inf", "--max-age", "plant.d=inf", "--max-age", "gain.x=inf")
 
 
 def launch(scene, *args, timeout=60, **kw):
@@ -234,7 +235,8 @@ def test_recorder_killed_mid_run_leaves_a_readable_bag(write_launch, tmp_path):
     scene = write_launch(SCENE)
     path = tmp_path / "killed.mcap"
     p = subprocess.Popen(
-        dockhil_cmd("launch", scene, "--wall-time", "--duration", "20", "--bag", path),
+        # no input ages out on a busy machine: the graph runs until the recorder is killed
+        dockhil_cmd("launch", scene, "--wall-time", "--duration", "20", "--bag", path, *NO_AGE_LIMIT),
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,

@@ -439,8 +439,12 @@ def test_driver_logs_when_the_controller_lost_its_heartbeat(controller):
     try:
         drive = Drive(node)
         drive.until(lambda d: d.last() is not None, lambda d: {"command": d.command()})
-        controller.call(setattr, controller.servo, "heartbeat_timeout", 0.0)  # as if our writes stalled
-        drive.until(lambda d: node.heartbeat_losses > 1, lambda d: {"command": d.command()})
+        timeout = controller.call(getattr, controller.servo, "heartbeat_timeout")
+        for losses in (1, 2):  # twice: the controller loses our heartbeat (as if our writes stalled), then not
+            controller.call(setattr, controller.servo, "heartbeat_timeout", 0.0)
+            drive.until(lambda d, n=losses: node.heartbeat_losses >= n, lambda d: {"command": d.command()})
+            controller.call(setattr, controller.servo, "heartbeat_timeout", timeout)
+            drive.until(lambda d: d.last().status == "ok", lambda d: {"command": d.command()})
         assert any(s.status == "heartbeat-lost" for _, s in drive.states)
         assert [line for line in logs if "heartbeat" in line] == [
             f"warning: robot controller (Modbus TCP 127.0.0.1:{controller.port}): controller lost our heartbeat and "
