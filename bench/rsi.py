@@ -44,6 +44,7 @@ def main() -> None:
     from dockhil.msgs import Header, Pose, RobotCommand, Twist, Vector3
     from dockhil.node import NodeContext, Tick
     from dockhil.nodes.robot_rsi import RobotRsiDriver
+    from rt_probe import steal_ms  # this folder's
 
     port = free_udp_port()
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.busy)]
@@ -85,6 +86,7 @@ def main() -> None:
         try:
             node.setup()
             gc.freeze()  # as a graph's node does after its setup (dockhil.runtime.executor)
+            stolen = steal_ms()
             dt = 1.0 / args.rate
             t0 = next_t = time.monotonic()
             k = 0
@@ -104,6 +106,7 @@ def main() -> None:
                 elif pause < -0.1:
                     next_t = time.monotonic()
             counted, missing = dict(node.link.counted), node.link.missing
+            stolen = None if stolen is None else steal_ms() - stolen
         finally:
             emulator.terminate()  # the controller stops first: no late answers from the driver's closing
             emulator.wait(timeout=30)
@@ -136,6 +139,8 @@ def main() -> None:
         "emulator_stalls": missing - rec["lost"],
         "max_step_mm": round(rec["max_step_mm"], 4),
         "max_speed_m_s": round(rec["max_speed"], 4),
+        # the host's share of this virtual machine's vCPUs over the run (all CPUs): stalls no priority avoids
+        "steal_ms": stolen,
         "warnings": [line for line in logs if line.startswith("warning")],
     }
     print(json.dumps(out))

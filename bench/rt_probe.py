@@ -17,6 +17,17 @@ import sys
 import time
 
 
+def steal_ms() -> float | None:
+    """CPU time this machine's host took from its vCPUs since boot, all CPUs [ms] (Linux /proc/stat's
+    steal column; None elsewhere): the stalls no priority inside the machine can avoid."""
+    try:
+        with open("/proc/stat") as f:
+            fields = f.readline().split()
+        return int(fields[8]) * 1000.0 / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=30.0, help="seconds to run")
@@ -31,6 +42,7 @@ def main() -> None:
         except (PermissionError, OSError):
             realtime = False
         gc.disable()
+        stolen = steal_ms()
         t0 = deadline = time.monotonic()
         while deadline - t0 < args.duration:
             deadline += 0.001
@@ -41,6 +53,7 @@ def main() -> None:
             late.append(behind)
             if behind > 0.001:  # re-base: one stall is one count
                 deadline = time.monotonic()
+        stolen = None if stolen is None else steal_ms() - stolen
     finally:
         for p in busy:
             p.kill()
@@ -60,6 +73,7 @@ def main() -> None:
                 "max_ms": round(late[-1] * 1e3, 3),
                 "over_1ms": sum(v > 0.001 for v in late),
                 "over_4ms": sum(v > 0.004 for v in late),
+                "steal_ms": stolen,  # the host's share of the vCPUs over the run, all CPUs
             }
         )
     )

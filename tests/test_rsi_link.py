@@ -58,9 +58,15 @@ def test_the_report_names_each_count_once_and_nothing_when_all_went_well():
         f"warning: {DEVICE}: datagrams ignored: 1 from another address than the controller's",
         f"warning: {DEVICE}: 3 controller datagrams never came (gaps in the IPOC between 100 and 132)",
         f"warning: {DEVICE}: held on a stale setpoint for 2 cycles",
-        f"warning: {DEVICE}: the controller counted 2 late answers",
+        f"warning: {DEVICE}: the controller counted 2 late answers while the graph ran",
     ]
     assert lk.ignored() == "1 from another address than the controller's"
+    lk.delay_at_close = lk.delay  # the driver closes: what comes late now comes while the robot is held
+    answer(lk, clock, 136, delay=5)
+    assert lk.report(DEVICE)[-1] == (
+        f"warning: {DEVICE}: the controller counted 2 late answers while the graph ran, "
+        "3 while the driver closed (the robot held)"
+    )
 
 
 def test_a_port_in_use_or_an_unknown_host_is_refused_in_one_line_naming_the_device():

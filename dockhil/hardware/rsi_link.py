@@ -119,6 +119,7 @@ class RsiLink(threading.Thread):
         self.stale_holds = 0
         self.delay = 0  # the controller's count of late answers, as it last reported it
         self.delay_at_start: int | None = None  # ... and as it reported it first
+        self.delay_at_close: int | None = None  # ... and when the driver began to close (set by it)
         self.lock = threading.Lock()
         self.notes: list[str] = []
         self.fatal: str | None = None
@@ -181,7 +182,12 @@ class RsiLink(threading.Thread):
         if self.stale_holds:
             lines.append(f"warning: {device}: held on a stale setpoint for {self.stale_holds} cycles")
         if self.delay_at_start is not None and self.delay > self.delay_at_start:
-            lines.append(f"warning: {device}: the controller counted {self.delay - self.delay_at_start} late answers")
+            running = (self.delay if self.delay_at_close is None else self.delay_at_close) - self.delay_at_start
+            closing = self.delay - self.delay_at_start - running
+            lines.append(
+                f"warning: {device}: the controller counted {running} late answer{'' if running == 1 else 's'} "
+                "while the graph ran" + (f", {closing} while the driver closed (the robot held)" if closing else "")
+            )
         return lines
 
     # -- the answering path -----------------------------------------------------------

@@ -348,6 +348,7 @@ class RobotRsiDriver(RobotDriver):
             return
         self.link = None
         received = link.received
+        link.delay_at_close = link.delay  # what comes late from here on does not move the robot: it holds
         # Hold: the answers keep the last correction until the controller has one of them, then stop.
         held = link.hold(min(0.25, 3 * self.p.cycle + 0.05))
         sending = link.received != received  # no datagram while we waited: RSI had stopped, nothing to hold
