@@ -333,6 +333,16 @@ class RsiControllerEmulator:
             self._thread.join(timeout=2.0)
         self.sock.close()
 
+    def account(self) -> str:
+        """The cycles in one line: answered in time, late while the sensor answered, late at the end once
+        its answers stopped (a driver that closed first), and this emulator's own stalls."""
+        s = self.stats
+        trailing = self._late_in_a_row  # after the last answer in time: at a graph's end, the driver had closed
+        return (
+            f"{s['cycles']} cycles: {s['answered']} answered in time, {s['late'] - trailing} late, then "
+            f"{trailing} unanswered at the end; {s['unjudged']} sent too late by this emulator to judge"
+        )
+
     def record(self) -> dict:
         lat = list(self.latencies)
         ms = lambda v: None if v is None else round(v * 1000.0, 4)  # noqa: E731

@@ -102,6 +102,7 @@ class RsiControllerEmulatorNode(Node):
         self.emulator = None
         closing = time.monotonic()
         emulator.stop_thread()
+        self.log(f"KUKA RSI emulator: {emulator.account()}")
         if emulator.stopped:
             # A driver that ends before this emulator leaves it unanswered: at a graph's end that stop is the
             # end of the run (the driver says when the controller stopped RSI while it ran).
