@@ -128,7 +128,9 @@ def run_scene(
         if bag is not None:  # the recorder runs in a process of its own
             from dockhil.bags import live as bag_live
 
-            extra.append(bag_live.recorder_process(bag, graph, clock, n_ticks, quiet=tmp is not None))
+            # a bag only for the summary records what the summary reads: less for the recorder to keep up with
+            topics = summ.SUMMARY_TOPICS if tmp is not None else ()
+            extra.append(bag_live.recorder_process(bag, graph, clock, n_ticks, quiet=tmp is not None, topics=topics))
 
         def timing() -> list[str]:
             if clock == "wall":  # nodes on other hosts report to nobody here; a free-running node is an emulated device

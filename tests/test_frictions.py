@@ -94,6 +94,24 @@ def test_a_multi_process_run_counts_its_ticks_and_keeps_its_temporary_bag_quiet(
     assert "[bag-recorder] debug: recorded 102 messages on 2 topics to " in err
 
 
+def test_a_bag_kept_only_for_the_summary_records_what_the_summary_reads(tmp_path):
+    """Less for a recorder on a busy machine to keep up with; a bag asked for records every topic."""
+    from dockhil.analysis.summary import SUMMARY_TOPICS
+    from dockhil.bags.live import recorder_process
+
+    graph = _hil_graph()
+    kept = recorder_process("run.mcap", graph, "wall", None, quiet=True, topics=SUMMARY_TOPICS)
+    assert set(kept.topics) == set(SUMMARY_TOPICS) < set(graph.publishers)  # /robot/state is left out
+    assert kept.argv[kept.argv.index("--topics") + 1 :][: len(kept.topics)] == kept.topics
+    asked = recorder_process("run.mcap", graph, "wall", None)
+    assert asked.topics == list(graph.publishers) and "--topics" not in asked.argv
+    out = tmp_path / "s.json"
+    code, _, err = run_main("launch", "hil.yaml", "--duration", "0.05", "--log-level", "debug", "--summary", out)
+    assert code == 0, err
+    assert f"[bag-recorder] debug: recording {len(kept.topics)} topics to " in err
+    assert json.loads(out.read_text())["valid"] is True  # the summary has what it reads
+
+
 # -- --max-age NODE.INPUT=SECONDS ---------------------------------------------------------------
 
 

@@ -469,20 +469,26 @@ def check_bag_path(path: str) -> None:
     os.remove(path)
 
 
-def recorder_process(path: str, graph, clock: str, n_ticks: int | None, quiet: bool = False):
-    """The recorder as a launcher helper process, subscribed to every topic of `graph`; the launcher
-    tells it the run's verdict before it closes the bag. quiet: a bag the user did not ask for (the
-    summary's), whose path and count are said only at debug level."""
+def recorder_process(
+    path: str, graph, clock: str, n_ticks: int | None, quiet: bool = False, topics: tuple[str, ...] = ()
+):
+    """The recorder as a launcher helper process, subscribed to `topics` of `graph` (those it has; every
+    topic when none is given or it has none of them); the launcher tells it the run's verdict before it
+    closes the bag. quiet: a bag the user did not ask for (the summary's), whose path and count are said
+    only at debug level."""
     from dockhil.runtime.plan import ExtraProcess
 
     argv = [sys.executable, "-m", "dockhil.bags.live", "record", path, "--graph-pid", str(os.getpid()), "--verdict"]
+    recorded = [t for t in topics if t in graph.publishers] or list(graph.publishers)
+    if len(recorded) < len(graph.publishers):
+        argv += ["--topics", *recorded]
     if quiet:
         argv.append("--quiet")
     if clock == "sim" and n_ticks is not None:
         argv += ["--n-ticks", str(n_ticks)]
     if clock == "wall":
         argv.append("--sent-counts")
-    return ExtraProcess(RECORDER_NAME, argv, list(graph.publishers), verdict=True)
+    return ExtraProcess(RECORDER_NAME, argv, recorded, verdict=True)
 
 
 RECORDER_LOST_EXIT = 4  # the recorder process: it ran, but messages are missing from the bag

@@ -15,7 +15,14 @@ its summary here and nowhere else.
 from __future__ import annotations
 
 from dockhil.analysis.scenecheck import first_node
-from dockhil.analysis.summary.common import ContactMeter, RangeMeter, Samples, TickMatcher, feed_from_bag
+from dockhil.analysis.summary.common import (
+    SUMMARY_TOPICS,
+    ContactMeter,
+    RangeMeter,
+    Samples,
+    TickMatcher,
+    feed_from_bag,
+)
 from dockhil.analysis.summary.dof1 import (
     Collector,
     SummaryCollector1,
@@ -30,6 +37,7 @@ from dockhil.analysis.summary.dof1 import (
 )
 
 __all__ = [
+    "SUMMARY_TOPICS",
     "Collector",
     "ContactMeter",
     "RangeMeter",

@@ -412,12 +412,16 @@ def range_summary(out: dict, graph, ranges: RangeMeter, largest_force: float | N
         out["valid"] = False
 
 
+# What a run's summary reads; /robot/command: the 6-DOF summary's ticks (summary/dof6.py), the 1-DOF one
+# ignores it. A recorder kept only for the summary records just these.
+SUMMARY_TOPICS = ("/satellite/state", "/ft/wrench", "/impedance/wrench", "/energy", "/robot/command")
+
+
 def bag_messages(path: str):
     from dockhil.bags.reader import BagReader
 
     with BagReader(path) as bag:
-        # /robot/command: the 6-DOF summary's ticks (summary/dof6.py); the 1-DOF one ignores it.
-        yield from bag.decoded(["/satellite/state", "/ft/wrench", "/impedance/wrench", "/energy", "/robot/command"])
+        yield from bag.decoded(list(SUMMARY_TOPICS))
 
 
 def feed_from_bag(path: str, collector):
