@@ -78,6 +78,7 @@ class RunSpec:
 
 
 IDLE_DEVICE_PERIOD_S = 0.05  # the loop of an emulated device with no topics (its device thread does the work)
+WALL_LINGER_S = 2.0  # wall time: how long a closing node's publishers still send what a slow reader has not taken
 
 
 class Stop:
@@ -179,7 +180,9 @@ class NodeExecutor:
             fast = msgspec.msgpack.Decoder(self.in_types[port]).decode  # errors: the codec's lines, below
             self.routes.setdefault(wire.topic.encode(), []).append((port, fast))
         # Sim time loses nothing: a finished node waits (up to 60 s) until its slowest subscriber has all.
-        linger = 60.0 if spec.clock == "sim" else 1.0
+        # Wall time: a recorder behind a busy machine's graph catches up once the graph stops; 2 s of it
+        # (within the launcher's 3 s to stop a node), which the queues of a minute's run at 1 kHz need.
+        linger = 60.0 if spec.clock == "sim" else WALL_LINGER_S
         # Sim time sends in bursts: an output its readers take late (wire.burst > 1) every burst ticks;
         # any other when the node is about to wait for input (or DEFERRED frames are held), so a
         # node handed a burst passes one on. A node never waits holding a frame of the second kind.
