@@ -340,8 +340,8 @@ def test_missing_controller_fails_fast_with_one_line():
 class ForeignDevice(RobotControllerEmulator):
     """A Modbus server with some other register map."""
 
-    async def _action(self, function_code, start_address, address, count, registers, set_values):
-        return None  # input registers stay 0: no magic number
+    def _action(self, function, address, count, values, connection):
+        return None  # registers read 0: no magic number
 
 
 def test_a_device_with_another_register_map_is_refused():

@@ -11,6 +11,7 @@ read back. pymodbus is not imported here: the driver hands over its client.
 
 from __future__ import annotations
 
+import logging
 import math
 import socket
 import threading
@@ -60,6 +61,14 @@ class SetpointLimiter:
             return 0.0, 0.0  # reached (the angle formula leaves a rounding residue)
         step = math.sqrt(sum((b - a) ** 2 for a, b in zip(self.sent[:3], target[:3])))
         return step, angle_between(self.sent[3:7], target[3:7])
+
+
+def quiet_pymodbus() -> None:
+    # pymodbus logs every refused or dropped connection; the driver reports device problems itself, as one line.
+    logger = logging.getLogger("pymodbus.logging")
+    if not logger.handlers:
+        logger.addHandler(logging.NullHandler())
+        logger.propagate = False
 
 
 class ModbusLink(threading.Thread):

@@ -1,4 +1,4 @@
-"""Robot-controller emulator: a Modbus TCP server (pymodbus) with a servo behind it.
+"""Robot-controller emulator: a Modbus TCP server (dockhil.hardware.modbus_server) with a servo behind it.
 
 It serves the register map of dockhil/hardware/modbus_map.py. A servo
 cycle, on its own clock as a real controller's, follows the setpoint
@@ -45,9 +45,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextvars
-import itertools
-import logging
 import math
 import signal
 import sys
@@ -57,17 +54,9 @@ from collections import deque
 
 from dockhil.contact.rotations import quat_conjugate, quat_from_rotvec, quat_multiply, quat_to_rotvec
 from dockhil.hardware import modbus_map as mm
+from dockhil.hardware.modbus_server import DEVICE_BUSY, ModbusTcpServer
 
 FOLLOW, HOLD, DISABLED = "follow", "hold", "disabled"
-
-
-def quiet_pymodbus() -> None:
-    # pymodbus logs every refused or dropped connection; our callers report
-    # device problems themselves, as one line.
-    logger = logging.getLogger("pymodbus.logging")
-    if not logger.handlers:
-        logger.addHandler(logging.NullHandler())
-        logger.propagate = False
 
 
 def _normalize(q):
@@ -277,32 +266,6 @@ class ServoModel:
         self._history.clear()
 
 
-_connection: contextvars.ContextVar = contextvars.ContextVar("modbus_connection", default=None)
-_connection_ids = itertools.count(1)
-
-
-def _server_class():
-    """pymodbus's TCP server, telling the register callback which connection a request came on
-    (each request is handled in a task of its own, so a context variable carries it)."""
-    from pymodbus.server import ModbusTcpServer
-    from pymodbus.server.requesthandler import ServerRequestHandler
-
-    class Handler(ServerRequestHandler):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            self.connection_id = next(_connection_ids)
-
-        async def handle_request(self):
-            _connection.set(self.connection_id)
-            await super().handle_request()
-
-    class Server(ModbusTcpServer):
-        def callback_new_connection(self):
-            return Handler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
-
-    return Server
-
-
 class RobotControllerEmulator:
     """The Modbus TCP server and the servo, on one asyncio loop (so a request
     and a servo cycle never interleave)."""
@@ -331,45 +294,23 @@ class RobotControllerEmulator:
         self._stopped: asyncio.Event | None = None
         self._servo_task: asyncio.Task | None = None
 
-    async def _action(self, function_code, start_address, address, count, registers, set_values):
+    def _action(self, function: int, address: int, count: int, values: list[int] | None, connection: int):
+        """One request (dockhil.hardware.modbus_server's handle): the registers read, None for a write, or an
+        exception code."""
         self.requests += 1
-        offset = address - start_address
-        if function_code == 4:  # input registers: hand out the servo's latest
-            inputs = self.servo.inputs + self.servo.owner_inputs()
-            for i in range(count):
-                if 0 <= address + i < len(inputs):
-                    registers[offset + i] = inputs[address + i]
-        elif set_values is not None:
-            if not self.servo.host_wrote(address, list(set_values), _connection.get()):
-                from pymodbus.constants import ExcCodes
-
-                return ExcCodes.DEVICE_BUSY  # another host owns the controller
-        else:  # holding read: the controller may have changed them (RESET)
-            holding = self.servo.holding + self.servo.claim
-            for i in range(count):
-                if 0 <= address + i < len(holding):
-                    registers[offset + i] = holding[address + i]
-        return None
+        if function == 4:  # input registers: hand out the servo's latest
+            return (self.servo.inputs + self.servo.owner_inputs())[address : address + count]
+        if values is not None:
+            if not self.servo.host_wrote(address, values, connection):
+                return DEVICE_BUSY  # another host owns the controller
+            return None
+        # holding read: the controller may have changed them (RESET)
+        return (self.servo.holding + self.servo.claim)[address : address + count]
 
     async def start(self) -> int:
         """Listen and start the servo; return the port (useful with port 0)."""
-        from pymodbus.simulator import DataType, SimData, SimDevice
-
-        quiet_pymodbus()
-        bits = [SimData(0, count=16, values=False, datatype=DataType.BITS)]
-        device = SimDevice(
-            0,  # every unit id: a TCP controller does not care which one the host asks for
-            simdata=(
-                bits,
-                list(bits),
-                [SimData(0, count=mm.HR_END, values=0, datatype=DataType.REGISTERS)],
-                [SimData(0, count=mm.IR_END, values=0, datatype=DataType.REGISTERS)],
-            ),
-            action=self._action,
-        )
-        self._server = _server_class()(device, address=(self.host, self.port))
-        await self._server.serve_forever(background=True)
-        self.port = self._server.transport.sockets[0].getsockname()[1]
+        self._server = ModbusTcpServer(self._action, self.host, self.port, mm.HR_END, mm.IR_END)
+        self.port = await self._server.start()
         self._stopped = asyncio.Event()
         self._servo_task = asyncio.get_running_loop().create_task(self._run_servo())
         return self.port
@@ -391,7 +332,7 @@ class RobotControllerEmulator:
         if self._servo_task is not None:
             self._servo_task.cancel()
         if self._server is not None:
-            await self._server.shutdown()
+            await self._server.stop()
         if self._stopped is not None:
             self._stopped.set()
 
@@ -467,7 +408,7 @@ def claim_port(host: str, port: int):
 
 
 def listen_problem(host: str, port: int) -> str:
-    """Why listening on host:port fails (pymodbus reports only that it did)."""
+    """Why listening on host:port fails, in the OS's words."""
     import socket
 
     try:

@@ -134,7 +134,7 @@ class RobotModbusDriver(RobotDriver):
         p = self.p
         self._begin_setup()
         # pymodbus is imported here: only scenes with this driver load it
-        from dockhil.hardware.robot_emulator import quiet_pymodbus
+        from dockhil.hardware.modbus_link import quiet_pymodbus
 
         quiet_pymodbus()
         self.device = f"robot controller (Modbus TCP {p.host}:{p.port})"
