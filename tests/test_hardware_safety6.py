@@ -364,13 +364,22 @@ def test_a_turn_after_a_short_gap_is_sent_at_max_angular_speed(controller, make)
 def test_max_actual_angular_speed(controller, make):
     drive = make(max_actual_angular_speed=1.0, max_tilt=0.0, max_orientation_error=0.0)  # only the speed watches
     following(drive, controller)
-    # A lurch of 0.5 rad in one cycle: the windowed speed stays above 1 rad/s for ~30 ms while the servo
-    # turns back (tau 5 ms), long enough for a reading on a busy machine.
-    controller.call(controller.servo.teleport, (0.0, 0.0, 0.0), rotation((0.0, 0.0, 1.0), 0.5))
+    # Lurches of 0.5 rad in one cycle, out and back every 50 ms: the windowed speed stays above 1 rad/s
+    # for ~30 ms after each while the servo turns back (tau 5 ms), and a busy machine may hold the
+    # driver's poll past one such window.
+    lurch = {"at": 0.0, "out": True}
+
+    def lurching(d):
+        if time.monotonic() >= lurch["at"]:
+            turned = rotation((0.0, 0.0, 1.0), 0.5 if lurch["out"] else 0.0)
+            controller.call(controller.servo.teleport, (0.0, 0.0, 0.0), turned)
+            lurch["at"], lurch["out"] = time.monotonic() + 0.05, not lurch["out"]
+        return {"command": command6(d)}
+
     stop = tripped(
         drive,
         controller,
-        lambda: keep_stepping(drive, lambda d: {"command": command6(d)}),
+        lambda: keep_stepping(drive, lurching, seconds=5.0),
         "max_actual_angular_speed",
         "max_actual_angular_speed: measured angular speed ",
     )
