@@ -288,6 +288,7 @@ def test_a_recorder_stalled_over_the_end_of_a_wall_time_run_fails_it_with_the_co
     lost = sum(m for m, _ in said.values())
     assert f"; {lost} lost ({lost} at the end of the run, never arrived)" in out, out
     assert f"[bag-recorder] error: {lost} message(s) lost; the recording of this run is incomplete" in out
+    assert "[launch] node 'bag-recorder' exited with code 4 after the run" in out and "stopping the graph" not in out
     assert launch.returncode == 1, out
 
 

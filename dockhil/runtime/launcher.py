@@ -535,8 +535,9 @@ class Launcher:
             exit_code = self._exited(c, deadline, HELPER_WAIT_S)
             if exit_code is None:
                 return 1
-            if exit_code != 0 and code == 0:
-                return self._died(c, exit_code)
+            if exit_code != 0 and code == 0:  # the graph has stopped: nothing to stop, the line above says why
+                self.say.error(f"node {c.name!r} exited with code {exit_code} after the run", tag="")
+                return 1
         return code
 
     @staticmethod

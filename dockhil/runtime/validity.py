@@ -20,8 +20,10 @@ schedule well enough that the simulated time is the time that passed:
 - no node respawned: the run went on, but the restarted node's data has a gap (a force held
   stale while the F/T driver restarted, integrated by the dynamics);
 - no message lost: none dropped by a full queue (a subscriber that did not
-  keep up), none dropped as malformed, none lost by the recorder (in wall time also the
-  end of the run, which a recorder that fell behind is told was sent: dockhil.bags.tail).
+  keep up), none dropped as malformed.
+
+(Messages the recorder lost, in wall time also the end of the run that a recorder which fell behind is
+told was sent, dockhil.bags.tail, fail the run instead, exit 1: its recording is not the run.)
 
 An invalid run prints one INVALID line, gets "valid": false and its
 reasons in the summary JSON, and exits with INVALID_EXIT.
