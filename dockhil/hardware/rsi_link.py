@@ -125,7 +125,7 @@ class RsiLink(threading.Thread):
         self.fatal: str | None = None
         self.cycles = CycleLog()  # every exchange, as the controller took it (the driver publishes it)
         self.cycle_ms = round(cycle * 1000.0)
-        self._exchange: tuple | None = None  # (read at, frame, correction sent) of the datagram just answered
+        self._exchange: tuple | None = None  # (read at, frame, correction sent, the answer before it taken)
         self._pending: list | None = None  # the last exchange logged, until the next datagram says if it was taken
         self._in_force: tuple | None = None  # the absolute setpoint the controller last took (BASE, m, quaternion)
         self._start: tuple = ((0.0, 0.0, 0.0), IDENTITY)  # the start pose (the first RIst): mm, quaternion
@@ -220,14 +220,18 @@ class RsiLink(threading.Thread):
             never_came = max(0, round((frame.ipoc - self.last_ipoc) / (self.cycle * 1000.0)) - 1)
             self.missing += never_came
         self.last_ipoc = frame.ipoc
-        if frame.delay is not None and self.delay_at_start is not None and frame.delay - self.delay > never_came:
-            # Our last answer was not taken (the controller counts each datagram that never came as late
-            # too): it kept the correction it had (HOLDON), so this cycle's step starts from there.
-            self.korr = self.accepted
-        else:
+        # Was our last answer taken? Not when Delay rose by more than the datagrams that never came (the
+        # controller counts each of those as late too): it kept the correction it had (HOLDON), so this
+        # cycle's step starts from there, and the cycle log says so.
+        taken = not (
+            frame.delay is not None and self.delay_at_start is not None and frame.delay - self.delay > never_came
+        )
+        if taken:
             self.accepted = self.korr
+        else:
+            self.korr = self.accepted
         answer = self.write(self._advance(now), frame.ipoc)
-        self._exchange = (now, frame, self.korr)
+        self._exchange = (now, frame, self.korr, taken)
         self.received += 1
         self.latest = (self.received, frame, now)
         if frame.delay is not None:
@@ -250,17 +254,14 @@ class RsiLink(threading.Thread):
         exchange, self._exchange = self._exchange, None
         if exchange is None:
             return
-        read, frame, (kp, kq, _abc) = exchange
+        read, frame, (kp, kq, _abc), taken = exchange  # taken: the answer before this datagram's (handle)
         pending = self._pending
         if pending is not None:
-            ipoc, delay = pending[-2:]
-            never_came = max(0, round((frame.ipoc - ipoc) / self.cycle_ms) - 1)
-            late = delay is not None and frame.delay is not None and frame.delay - delay > never_came
-            if pending[3] and not late:
+            if pending[3] and taken:
                 self._in_force = pending[2]
             else:  # the controller kept the correction it had
                 pending[2], pending[3] = self._in_force, False
-            self.cycles.add(*pending[:7])
+            self.cycles.add(*pending)
         if self._in_force is None:  # no correction yet: the start pose
             r = self.first.rist
             self._start = (r[0], r[1], r[2]), rsi.abc_to_quat(*r[3:])
@@ -276,7 +277,6 @@ class RsiLink(threading.Thread):
         actual = (r[0] / 1000.0, r[1] / 1000.0, r[2] / 1000.0, *rsi.abc_to_quat(*r[3:]))
         cycle = (frame.ipoc // self.cycle_ms) & 0xFFFF
         self._pending = [read if sent is None else sent, read, setpoint, sent is not None, actual, cycle, False]
-        self._pending += [frame.ipoc, frame.delay]
 
     def _advance(self, now: float):
         """The correction for this cycle (X Y Z A B C): one bounded step toward the latest setpoint."""
