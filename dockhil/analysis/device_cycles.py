@@ -16,7 +16,7 @@ from dockhil.analysis.servo_fit import (
     Servo,
     akaike,
     fit_delay_lag,
-    inflation,
+    residual_variance,
 )
 
 
@@ -266,8 +266,7 @@ def _lag_above(model, delay: float, lag: float, residual: np.ndarray, max_lag: f
     def excess(tau: float) -> float:
         return float(np.sum(model.residual((delay, tau)) ** 2)) - target
 
-    ssr = float(residual @ residual)
-    target = ssr + ssr / max(len(residual) - 1, 1) * inflation(residual)
+    target = float(residual @ residual) + residual_variance(residual, 1)
     if excess(max_lag) <= 0.0:
         return math.inf
     return brentq(excess, lag, max_lag, xtol=1e-7) - lag

@@ -75,10 +75,13 @@ def inflation(residual: np.ndarray) -> float:
     return (1.0 + rho) / (1.0 - rho)
 
 
+def residual_variance(residual: np.ndarray, n_params: int) -> float:
+    """The residuals' variance for a fit of `n_params` parameters, inflated for their correlation."""
+    return float(residual @ residual) / max(len(residual) - n_params, 1) * inflation(residual)
+
+
 def covariance(jac: np.ndarray, residual: np.ndarray, n_params: int) -> np.ndarray:
-    n = len(residual)
-    dof = max(n - n_params, 1)
-    s2 = float(residual @ residual) / dof * inflation(residual)
+    s2 = residual_variance(residual, n_params)
     jtj = jac.T @ jac
     try:
         return np.linalg.inv(jtj) * s2
