@@ -116,6 +116,7 @@ class ModbusTcpServer:
         if isinstance(out, int):
             return bytes((function | 0x80, out))
         if values is None:  # a read
-            registers = list(out or ()) + [0] * (count - len(out or ()))  # what the map leaves out reads 0
+            registers = list(out or ())
+            registers += [0] * (count - len(registers))  # what the map leaves out reads 0
             return struct.pack(f">BB{count}H", function, 2 * count, *registers)
         return pdu[:5]  # a write: the request's function, address and count (or value), echoed

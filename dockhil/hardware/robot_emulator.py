@@ -54,7 +54,7 @@ from collections import deque
 
 from dockhil.contact.rotations import quat_conjugate, quat_from_rotvec, quat_multiply, quat_to_rotvec
 from dockhil.hardware import modbus_map as mm
-from dockhil.hardware.modbus_server import DEVICE_BUSY, ModbusTcpServer
+from dockhil.hardware.modbus_server import DEVICE_BUSY, READ_INPUT, ModbusTcpServer
 
 FOLLOW, HOLD, DISABLED = "follow", "hold", "disabled"
 
@@ -298,7 +298,7 @@ class RobotControllerEmulator:
         """One request (dockhil.hardware.modbus_server's handle): the registers read, None for a write, or an
         exception code."""
         self.requests += 1
-        if function == 4:  # input registers: hand out the servo's latest
+        if function == READ_INPUT:  # hand out the servo's latest
             return (self.servo.inputs + self.servo.owner_inputs())[address : address + count]
         if values is not None:
             if not self.servo.host_wrote(address, values, connection):
