@@ -270,7 +270,7 @@ def test_an_answer_that_came_in_time_is_on_time_though_the_emulator_woke_after_i
     finally:
         emulator.sock.close()
         sensor.sock.close()
-    assert emulator.latencies[0] < cycle < emulator.latencies[1]
+    assert emulator.latencies.count == 3 and emulator.latencies.min < cycle < emulator.latencies.max  # one came late
 
 
 def test_the_emulator_servo_follows_after_its_delay_with_a_first_order_lag():

@@ -43,11 +43,11 @@ import struct
 import sys
 import threading
 import time
-from array import array
 from collections import deque
 
 from dockhil.contact.rotations import quat_conjugate, quat_from_rotvec, quat_multiply, rotvec3
 from dockhil.hardware import rsi
+from dockhil.runtime.histogram import Histogram
 
 START_POSE = (500.0, 0.0, 900.0, 180.0, 0.0, 180.0)  # mm, degrees: a TCP in front of the robot, pointing down
 # The kernel's receive time of each answer (Python's socket module names the option from 3.13 on; 35 is
@@ -106,13 +106,6 @@ class RsiServo:
         return (*p, *rsi.quat_to_abc(q))
 
 
-def _percentile(values, q: float) -> float | None:
-    if not values:
-        return None
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(round(q * (len(ordered) - 1))))]
-
-
 class RsiControllerEmulator:
     """The controller's RSI loop over UDP, in a thread (start_thread/stop_thread) or in the caller (run)."""
 
@@ -165,7 +158,7 @@ class RsiControllerEmulator:
             "max_step_mm": 0.0,
             "max_step_deg": 0.0,
         }
-        self.latencies = array("d")  # send to answer arrival [s], on time or late
+        self.latencies = Histogram()  # send to answer arrival [s], on time or late
         self._sent_at: dict[int, float] = {}  # IPOC -> when its datagram was sent (Unix time), recent ones
         self._answered_late: dict[int, bool] = {}
         self._late_in_a_row = 0
@@ -278,11 +271,11 @@ class RsiControllerEmulator:
                 s["stray_answers"] += 1
                 if answer_ipoc in self._sent_at and not answered_late.get(answer_ipoc):
                     answered_late[answer_ipoc] = True
-                    self.latencies.append(arrival - self._sent_at[answer_ipoc])  # late, but it came
+                    self.latencies.add(arrival - self._sent_at[answer_ipoc])  # late, but it came
                 continue
             answered = True
             s["answered"] += 1
-            self.latencies.append(arrival - sent_at)
+            self.latencies.add(arrival - sent_at)
             # the next cycle takes it (this one's interpolation has run): the servo's delay counts from there,
             # as the Modbus controller's counts from the cycle that takes a setpoint
             self._apply(korr, slot_start + self.cycle)
@@ -344,7 +337,7 @@ class RsiControllerEmulator:
         )
 
     def record(self) -> dict:
-        lat = list(self.latencies)
+        lat = self.latencies
         ms = lambda v: None if v is None else round(v * 1000.0, 4)  # noqa: E731
         return {
             **self.stats,
@@ -354,9 +347,9 @@ class RsiControllerEmulator:
             "lost_ipocs": self.lost_ipocs,
             "late_sent_at": self.late_sent_at,
             "latency_ms": {
-                "p50": ms(_percentile(lat, 0.5)),
-                "p99": ms(_percentile(lat, 0.99)),
-                "max": ms(max(lat) if lat else None),
+                "p50": ms(lat.percentile(50)),
+                "p99": ms(lat.percentile(99)),
+                "max": ms(lat.max if lat.count else None),
             },
         }
 

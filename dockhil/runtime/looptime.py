@@ -7,6 +7,8 @@ import math
 import os
 import time
 
+from dockhil.runtime.histogram import Histogram
+
 
 class LoopTiming:
     """Wall-time loop statistics: how late each tick started against its schedule,
@@ -14,12 +16,13 @@ class LoopTiming:
     (by its stamp, and by the time since it arrived against its maximum age)."""
 
     def __init__(self, ports: list[str], period: float = 0.0, max_age: dict[str, float] | None = None):
-        from array import array
-
-        self.lateness = array("d")
-        self.ages = {port: array("d") for port in ports}
+        self.lateness = Histogram()  # from the second tick: the first has no schedule to keep
+        self.ages = {port: Histogram() for port in ports}
+        self.worst_late = -1.0
+        self.worst_tick: int | None = None  # which tick (from 0) started latest
         self.misses = 0
         self.ticks = 0
+        self.started_ticks = 0
         self.period = period
         self.elapsed = 0.0
         self.max_age = dict(max_age or {})
@@ -39,13 +42,18 @@ class LoopTiming:
             self.worst_age[port] = age
 
     def started(self, late_s: float) -> None:
-        self.lateness.append(late_s)
+        self.started_ticks += 1
+        if self.started_ticks == 1:
+            return
+        self.lateness.add(late_s)
+        if abs(late_s) > self.worst_late:
+            self.worst_late, self.worst_tick = abs(late_s), self.started_ticks - 1
 
     def inputs(self, now: float, latest: dict) -> None:
         for port, ages in self.ages.items():
             msg = latest.get(port)
             if msg is not None:
-                ages.append(now - msg.header.stamp)
+                ages.add(now - msg.header.stamp)
 
     def missed(self, late: float = 0.0) -> None:
         """A tick ended `late` seconds after its deadline (a long one re-bases the schedule, so the
@@ -54,20 +62,18 @@ class LoopTiming:
         self.worst_overrun = max(self.worst_overrun, late)
 
     def report(self, name: str) -> dict:
-        def pct(values) -> dict:
-            if not len(values):
+        def pct(values: Histogram) -> dict:
+            if not values.count:
                 return {}
-            us = sorted(abs(v) * 1e6 for v in values)
-            return {"p50": percentile(us, 50), "p99": percentile(us, 99), "max": us[-1]}
+            return {"p50": values.percentile(50) * 1e6, "p99": values.percentile(99) * 1e6, "max": values.max * 1e6}
 
-        late = [abs(v) for v in self.lateness[1:]]  # the first tick has no schedule to keep
-        worst = max(late, default=0.0)
+        worst = self.lateness.max
         out = {
             "node": name,
             "ticks": self.ticks,
             "deadline_misses": self.misses,
-            "jitter_us": pct(late),
-            "worst_tick": late.index(worst) + 1 if late else None,
+            "jitter_us": pct(self.lateness),
+            "worst_tick": self.worst_tick,
             "input_age_us": {port: pct(a) for port, a in self.ages.items()},
             # What validity is judged on (dockhil/runtime/validity.py):
             "period_s": self.period,
@@ -83,16 +89,6 @@ class LoopTiming:
             "published": dict(self.published),
         }
         return out
-
-
-def percentile(ordered: list[float], p: float) -> float:
-    """numpy.percentile(values, p) (its default, linear method) of values sorted ascending, without
-    numpy: a node that does not compute with numpy does not import it (0.1 s of CPU) to report."""
-    at = p / 100 * (len(ordered) - 1)
-    below = math.floor(at)
-    a, b = ordered[below], ordered[min(below + 1, len(ordered) - 1)]
-    t = at - below
-    return b - (b - a) * (1 - t) if t >= 0.5 else a + (b - a) * t  # numpy's two-sided interpolation
 
 
 SPIN_S = float(os.environ.get("DOCKHIL_SPIN_S", "0.0002"))
