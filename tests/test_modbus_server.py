@@ -129,3 +129,21 @@ def test_each_connection_is_told_apart_and_a_foreign_protocol_closes_it(served):
         assert a.recv(16) == b""  # closed: the stream cannot be trusted further
         b.sendall(frame(6, bytes.fromhex("04 0000 0001")))
         assert reply(b)[0] == 6
+
+
+def test_a_burst_of_requests_is_answered_and_reading_allocates_no_large_buffer(served):
+    """Reads go into the connection's own buffer: a transport that allocated 256 kB a read (asyncio's
+    Protocol) had the allocator map and unmap fresh pages for every request."""
+    import tracemalloc
+
+    with connect(served.port) as sock:
+        burst = b"".join(frame(tid, bytes.fromhex("03 0000 0002")) for tid in range(400))  # 4800 bytes
+        tracemalloc.start()
+        try:
+            sock.sendall(burst)
+            wrong = [tid for tid in range(400) if reply(sock) != (tid, 1, bytes.fromhex("03 04 0064 0065"))]
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+    assert wrong == []
+    assert peak < 128 * 1024, f"reading 400 requests took {peak} bytes at its peak"

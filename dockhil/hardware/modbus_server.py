@@ -33,13 +33,19 @@ MAX_WRITE = 123  # registers in one write multiple
 Handle = Callable[[int, int, int, "list[int] | None", int], "list[int] | int | None"]
 
 _MBAP = struct.Struct(">HHHB")  # transaction, protocol (0), length (unit + PDU), unit
+READ_SIZE = 4096  # bytes read at most at once; a frame is 260 at most, so one always fits after what is left
 
 
-class _Connection(asyncio.Protocol):
+class _Connection(asyncio.BufferedProtocol):
+    """Reads into one buffer made with the connection: a Protocol's transport allocated 256 kB for each
+    read, which the allocator mapped and unmapped every time (at 2000 requests a second, 4000 page faults
+    a second on the emulator's thread, each ~9 us on a virtual machine and milliseconds at worst)."""
+
     def __init__(self, server: "ModbusTcpServer", number: int):
         self.server = server
         self.number = number
-        self.buffer = bytearray()
+        self.buffer = bytearray(READ_SIZE)
+        self.filled = 0  # bytes of self.buffer received and not yet answered (less than a frame)
         self.transport: asyncio.Transport | None = None
 
     def connection_made(self, transport) -> None:
@@ -49,21 +55,25 @@ class _Connection(asyncio.Protocol):
     def connection_lost(self, exc) -> None:
         self.server.connections.discard(self)
 
-    def data_received(self, data: bytes) -> None:
-        buf = self.buffer
-        buf += data
-        while len(buf) >= 7:
-            tid, protocol, length, unit = _MBAP.unpack_from(buf)
+    def get_buffer(self, sizehint: int) -> memoryview:
+        return memoryview(self.buffer)[self.filled :]
+
+    def buffer_updated(self, nbytes: int) -> None:
+        buf, end, start = self.buffer, self.filled + nbytes, 0
+        while end - start >= 7:
+            tid, protocol, length, unit = _MBAP.unpack_from(buf, start)
             if protocol != 0 or not 2 <= length <= 254:
                 self.transport.close()
-                buf.clear()
+                self.filled = 0
                 return
-            if len(buf) < 6 + length:
-                return
-            pdu = bytes(buf[7 : 6 + length])
-            del buf[: 6 + length]
+            if end - start < 6 + length:
+                break
+            pdu = bytes(buf[start + 7 : start + 6 + length])
+            start += 6 + length
             reply = self.server.answer(pdu, self.number)
             self.transport.write(_MBAP.pack(tid, 0, len(reply) + 1, unit) + reply)
+        buf[: end - start] = buf[start:end]  # the part of a frame still to come stays at the front
+        self.filled = end - start
 
 
 class ModbusTcpServer:
