@@ -17,6 +17,7 @@ import gc
 import json
 import math
 import os
+import resource
 import socket
 import subprocess
 import sys
@@ -87,6 +88,7 @@ def main() -> None:
             node.setup()
             gc.freeze()  # as a graph's node does after its setup (dockhil.runtime.executor)
             stolen = steal_ms()
+            faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
             dt = 1.0 / args.rate
             t0 = next_t = time.monotonic()
             k = 0
@@ -107,6 +109,7 @@ def main() -> None:
                     next_t = time.monotonic()
             counted, missing = dict(node.link.counted), node.link.missing
             stolen = None if stolen is None else steal_ms() - stolen
+            faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
         finally:
             emulator.terminate()  # the controller stops first: no late answers from the driver's closing
             emulator.wait(timeout=30)
@@ -141,6 +144,8 @@ def main() -> None:
         "max_speed_m_s": round(rec["max_speed"], 4),
         # the host's share of this virtual machine's vCPUs over the run (all CPUs): stalls no priority avoids
         "steal_ms": stolen,
+        # the driver process's page faults while it ran (each one stalls the thread that takes it)
+        "driver_page_faults": faults,
         "warnings": [line for line in logs if line.startswith("warning")],
     }
     print(json.dumps(out))

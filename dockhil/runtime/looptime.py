@@ -18,7 +18,6 @@ class LoopTiming:
     def __init__(self, ports: list[str], period: float = 0.0, max_age: dict[str, float] | None = None):
         self.lateness = Histogram()  # from the second tick: the first has no schedule to keep
         self.ages = {port: Histogram() for port in ports}
-        self.worst_late = -1.0
         self.worst_tick: int | None = None  # which tick (from 0) started latest
         self.misses = 0
         self.ticks = 0
@@ -45,9 +44,9 @@ class LoopTiming:
         self.started_ticks += 1
         if self.started_ticks == 1:
             return
+        if self.worst_tick is None or abs(late_s) > self.lateness.max:
+            self.worst_tick = self.started_ticks - 1
         self.lateness.add(late_s)
-        if abs(late_s) > self.worst_late:
-            self.worst_late, self.worst_tick = abs(late_s), self.started_ticks - 1
 
     def inputs(self, now: float, latest: dict) -> None:
         for port, ages in self.ages.items():
