@@ -230,6 +230,26 @@ def test_the_verdict_gives_the_exact_bound_the_margin_and_the_largest_stable_kcs
     assert v["kcs_max_N_per_m"] == pytest.approx(bound)
     assert v["margin"] == pytest.approx(bound / 3000.0)
     assert v["stable"] is (3000.0 < bound)
+    assert v["kcs_max_cycle_top_N_per_m"] == pytest.approx(bound)  # read on the ticks: no cycle to place it in
+
+
+def test_a_delay_read_on_whole_device_cycles_is_stable_only_if_also_at_its_cycle_top():
+    """The data place a whole-cycle delay only within its cycle: a kcs between the bound at the cycle's
+    middle (delay_s) and at its top (half a cycle more, as a robot acting on whole cycles has it) is not
+    called stable."""
+    import dataclasses
+
+    rec, _f, _v = simulate(Truth(delay=0.032))
+    c = cal.identify(rec)
+    cycled = cal.Calibration(c.rest, dataclasses.replace(c.servo, cycle_s=0.004), c.contact, c.link)
+    h = c.loop_delay_s + c.servo.lag_s
+    middle, top = exact_bound(M_HIL, 40.0, h).k_max, exact_bound(M_HIL, 40.0, h + 0.002).k_max
+    assert top < middle
+    between = 0.5 * (middle + top)
+    v = cal.verdict(cycled, M_HIL, between, 40.0)
+    assert v["kcs_max_N_per_m"] == pytest.approx(middle) and v["kcs_max_cycle_top_N_per_m"] == pytest.approx(top)
+    assert v["stable"] is False and v["margin"] > 1.0
+    assert cal.verdict(cycled, M_HIL, 0.99 * top, 40.0)["stable"] is True
 
 
 # -- the command: bad input, the loop file ----------------------------------------------------------------------
@@ -344,6 +364,13 @@ def test_calibrate_on_the_rsi_emulator_times_the_robot_at_its_4ms_cycle():
     assert r["found"]["timing"] == "device cycles" and r["found"]["link_s"] > 0.0
     e = r["errors"]
     assert abs(e["delay_ms"]) <= 2.0 + 1.0, e
+    # the emulator acts on whole cycles: at its cycle's top the delay is the hidden one rounded up, and the
+    # stability verdict judges the loop there too
+    assert abs(e["effective_delay_ms"]) <= 1.0, e
+    v = r["found"]["verdict"]
+    assert (
+        v["h_cycle_top_s"] == pytest.approx(v["h_s"] + 0.002) and v["kcs_max_cycle_top_N_per_m"] < v["kcs_max_N_per_m"]
+    )
     assert abs(e["lag_ms"]) <= max(0.05 * 1e3 * truth["lag"], 8.0), e
     assert abs(e["k_rel"]) < 0.05, e
     assert r["robot_maxima"]["max_speed"] < MAX_ACTUAL_SPEED

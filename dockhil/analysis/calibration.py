@@ -247,20 +247,28 @@ def verdict(cal: Calibration, m: float, kcs: float, bcs: float) -> dict:
     """The stability of the identified loop for a scene's reduced mass m, kcs and bcs: the exact bound of
     m s^2 + (K + b s) e^(-sh) = 0 with h = the loop's delay (the robot's and the link's) + lag (a lag tau
     counts as delay: 1 / (1 + tau s) and e^(-s tau) agree to first order, and the crossing frequency is
-    low, omega tau << 1)."""
+    low, omega tau << 1). Where the delay was read on a device's whole cycles, the data place it only
+    within a cycle: the bound is given for its middle (delay_s) and for its top, half a cycle more, as a
+    robot that acts on whole cycles has it; `stable` holds only below both."""
     from dockhil.contact.stability import exact_bound
+
+    def shown(k: float | None) -> float | None:
+        return None if k is None or math.isinf(k) else k
 
     h = cal.loop_delay_s + cal.servo.lag_s
     bound = exact_bound(m, bcs, h)
-    k_max = bound.k_max
-    stable = k_max is not None and kcs < k_max
+    h_top = h + 0.5 * cal.servo.cycle_s if cal.servo.cycle_s else h
+    k_top = exact_bound(m, bcs, h_top).k_max
+    stable = bound.k_max is not None and k_top is not None and kcs < min(bound.k_max, k_top)
     return {
         "m_kg": m,
         "kcs_N_per_m": kcs,
         "bcs_Ns_per_m": bcs,
         "h_s": h,
-        "kcs_max_N_per_m": None if k_max is None or math.isinf(k_max) else k_max,
-        "margin": None if k_max is None or math.isinf(k_max) else k_max / kcs,
+        "kcs_max_N_per_m": shown(bound.k_max),
+        "margin": None if shown(bound.k_max) is None else bound.k_max / kcs,
+        "h_cycle_top_s": h_top,
+        "kcs_max_cycle_top_N_per_m": shown(k_top),
         "stable": bool(stable),
         "reason": bound.reason,
     }

@@ -226,6 +226,7 @@ def device_servo(c: DeviceCycles, max_delay: float = MAX_DELAY_S, max_lag: float
         npose,
         min(aic, key=aic.get),
         aic,
+        period,
     )
 
 

@@ -45,6 +45,9 @@ class Servo:
     samples: int
     lag_model: str  # "first-order" or "second-order": the smaller AIC
     aic: dict = field(default_factory=dict)
+    # The device's cycle where the delay was read on whole cycles (delay_s is the middle of the cycle that
+    # holds it): a robot that acts on whole cycles delays by up to half of it more. None: read on the ticks.
+    cycle_s: float | None = None
 
 
 @dataclass(frozen=True)

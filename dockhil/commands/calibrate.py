@@ -221,12 +221,18 @@ def _verdict(scene, cal) -> dict:
         return {
             "stable": None,
             "kcs_max_N_per_m": None,
+            "kcs_max_cycle_top_N_per_m": None,
             "verdict": {"reason": f"{scene.path} has no 1-DOF dynamics and impedance to judge the loop for"},
         }
     m1, m2 = values["m1"], values["m2"]
     m = m1 if m2 == 0.0 else m1 * m2 / (m1 + m2)
     v = calibration.verdict(cal, m, values["kcs"], values["bcs"])
-    return {"stable": v["stable"], "kcs_max_N_per_m": v["kcs_max_N_per_m"], "verdict": v}
+    return {
+        "stable": v["stable"],
+        "kcs_max_N_per_m": v["kcs_max_N_per_m"],
+        "kcs_max_cycle_top_N_per_m": v["kcs_max_cycle_top_N_per_m"],
+        "verdict": v,
+    }
 
 
 def _pm(value, sigma, scale: float = 1.0, digits: int = 4) -> str:
@@ -278,6 +284,10 @@ def _print_table(r: dict, scene: str) -> None:
         print(f"  {v['reason']}")
     else:
         print(f"  {'largest stable kcs (exact bound)':36} {v['kcs_max_N_per_m']:.6g} N/m")
+        top = v["kcs_max_cycle_top_N_per_m"]
+        if v["h_cycle_top_s"] != v["h_s"]:  # the delay read on whole device cycles: placed within one
+            shown = "none" if top is None else f"{top:.6g} N/m"
+            print(f"  {'  with the delay at its cycle top':36} {shown} (h = {v['h_cycle_top_s'] * 1e3:.4g} ms)")
         print(
             f"  {'the scene kcs':36} {v['kcs_N_per_m']:g} N/m: {'stable' if v['stable'] else 'UNSTABLE'}, "
             f"margin {v['margin']:.3g}x"
