@@ -288,10 +288,10 @@ def _print_table(r: dict, scene: str) -> None:
         if v["h_cycle_top_s"] != v["h_s"]:  # the delay read on whole device cycles: placed within one
             shown = "none" if top is None else f"{top:.6g} N/m"
             print(f"  {'  with the delay at its cycle top':36} {shown} (h = {v['h_cycle_top_s'] * 1e3:.4g} ms)")
-        print(
-            f"  {'the scene kcs':36} {v['kcs_N_per_m']:g} N/m: {'stable' if v['stable'] else 'UNSTABLE'}, "
-            f"margin {v['margin']:.3g}x"
+        state = (
+            "stable" if v["stable"] else "UNSTABLE" + (" with the delay at its cycle top" if v["margin"] > 1 else "")
         )
+        print(f"  {'the scene kcs':36} {v['kcs_N_per_m']:g} N/m: {state}, margin {v['margin']:.3g}x")
     if not r["run_valid"]:
         print("  the run fell behind real time: the delay includes that lateness")
 
