@@ -44,7 +44,7 @@ class Histogram:
     """Absolute values of a duration [s]: count, exact min and max, and percentiles within 0.1 %."""
 
     def __init__(self) -> None:
-        self.counts = array("Q", bytes(8 * BINS))  # made here, before the loop: no page is touched later
+        self.counts = array("Q", [0]) * BINS  # made (and its pages touched) here, before the loop
         self.count = 0
         self.min = math.inf
         self.max = 0.0
