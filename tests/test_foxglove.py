@@ -63,6 +63,18 @@ def finish(proc, out, *, interrupt: bool) -> tuple[int, str]:
     return code, out.read()
 
 
+def view_then_finish(view, proc, out, *, interrupt: bool):
+    """Run a viewer (a coroutine) against a launch, then end the launch: (what the viewer returned, the
+    launch's exit code, its output). A viewer that fails says what the launch printed."""
+    try:
+        got = asyncio.run(view)
+    except Exception as exc:
+        _code, text = finish(proc, out, interrupt=interrupt)
+        raise AssertionError(f"the viewer failed ({exc!r}); the launch printed:\n{text[-3000:]}") from exc
+    code, text = finish(proc, out, interrupt=interrupt)
+    return got, code, text
+
+
 # --------------------------------------------------------------------------- a Foxglove WebSocket client
 
 
@@ -156,10 +168,7 @@ def test_a_viewer_sees_every_topic_with_its_schema_and_receives_valid_wrenches(t
         finally:
             await ws.close()
 
-    try:
-        schema, got = asyncio.run(view())
-    finally:
-        code, text = finish(proc, out, interrupt=True)
+    (schema, got), code, text = view_then_finish(view(), proc, out, interrupt=True)
     assert code == 130 and "Traceback" not in text, text
     validator = jsonschema.Draft202012Validator(schema)
     for log_ns, message in got:
@@ -225,10 +234,7 @@ def test_a_watched_run_gives_the_same_bag_and_summary_as_an_unwatched_one(tmp_pa
         finally:
             await ws.close()
 
-    try:
-        asyncio.run(view())
-    finally:
-        code, text = finish(proc, out, interrupt=False)
+    _, code, text = view_then_finish(view(), proc, out, interrupt=False)
     assert code == 0, text
     assert "[foxglove] served" in text
 

@@ -334,7 +334,7 @@ def test_the_layout_has_a_3d_panel_on_tf_and_scene_and_the_raw_topics():
 def test_a_launched_6dof_run_serves_the_3d_view_to_a_viewer_of_tf_alone(tmp_path):
     """Multi-process: the bridge reads the state and the robot state for a viewer who only asked
     for /tf, and draws with the scene's mounting (hil6.yaml's)."""
-    from tests.test_foxglove import finish
+    from tests.test_foxglove import view_then_finish
 
     port = free_port()
     out = open(tmp_path / "launch.out", "w+")
@@ -361,10 +361,7 @@ def test_a_launched_6dof_run_serves_the_3d_view_to_a_viewer_of_tf_alone(tmp_path
         finally:
             await ws.close()
 
-    try:
-        got = asyncio.run(view())
-    finally:
-        code, text = finish(proc, out, interrupt=True)
+    got, code, text = view_then_finish(view(), proc, out, interrupt=True)
     assert code == 130 and "Traceback" not in text, text
     ticks = []
     for _, log_ns, payload in got:
