@@ -1,14 +1,14 @@
 """The distribution of a duration (a tick's lateness, an input's age, an answer's latency) in fixed
 memory, for its percentiles at the end of a run.
 
-A loop that kept every value grew its arrays by reallocation for as long as it ran (24 kB a minute
+A loop that kept every value grew its arrays by reallocation for as long as it ran (480 kB a minute
 per figure at 1 kHz); each growth copied the array into fresh pages while the thread held the
 interpreter, and a first touch of a page costs ~9 us on a virtual machine (milliseconds at worst):
 the growth of a node's figures stalled the device thread beside it. Here every bin is allocated and
 touched before the loop, and a value only increments one.
 
 Bins are log-linear: 0.1 us wide up to 204.8 us, then 1024 to each doubling (a bin is within 0.1 % of
-its values) up to a day; larger values, infinities and NaN count in the last bin.
+its values) up to ~30 h; larger values, infinities and NaN count in the last bin.
 """
 
 from __future__ import annotations
