@@ -28,6 +28,7 @@ from dockhil.msgs import Header, Pose, RobotCommand, Twist, Vector3
 from dockhil.node import ManualClock, NodeContext, Tick
 from dockhil.nodes.robot_rsi import RobotRsiDriver, RsiLink, SceneFrame
 from dockhil.testing import wrench
+from tests.conftest import dockhil_cmd
 
 ROOT = Path(__file__).resolve().parents[1]
 CYCLE = 0.004
@@ -712,12 +713,9 @@ def test_launch_hil_with_the_rsi_driver_and_its_emulator_is_valid(tmp_path):
     run the machine stopped (a node behind real time, or an input stale for 0.1 s) is tried once more."""
     for _attempt in range(2):
         proc = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "dockhil.cli",
+            dockhil_cmd(
                 "launch",
-                str(ROOT / "launch" / "hil.yaml"),
+                ROOT / "launch" / "hil.yaml",
                 "robot:=rsi",
                 "emulators:=true",
                 f"rsi_port:={udp_port()}",
@@ -726,7 +724,7 @@ def test_launch_hil_with_the_rsi_driver_and_its_emulator_is_valid(tmp_path):
                 "--duration",
                 "5",
                 "--quiet",
-            ],
+            ),
             cwd=tmp_path,
             capture_output=True,
             text=True,
