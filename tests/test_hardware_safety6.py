@@ -17,11 +17,11 @@ import time
 
 import pytest
 
-from dockhil.hardware import modbus_map as mm
-from dockhil.hardware.robot_emulator import FOLLOW, HOLD, VELOCITY_WINDOW_S, ServoModel
+from dockhil.devices.modbus_robot import registers as mm
+from dockhil.devices.modbus_robot.emulator import FOLLOW, HOLD, VELOCITY_WINDOW_S, ServoModel
 from dockhil.node import ManualClock, NodeContext
 from dockhil.msgs import Header, Pose, Quaternion, RobotCommand, Twist, Vector3, Wrench, WrenchStamped
-from dockhil.nodes.robot_modbus import RobotModbusDriver
+from dockhil.devices.modbus_robot.driver import RobotModbusDriver
 from tests.conftest import node_process_error
 from tests.test_hardware_modbus import ENV, read_holding
 from tests.test_hardware_safety import DT, ClockedDrive, following, make, mode, settled, tripped, wait_for
