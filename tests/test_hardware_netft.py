@@ -202,13 +202,13 @@ def box():
     def make(k=1000.0, position=None, **kw):
         model = ContactModel(k, kw.pop("b", 0.0), kw.pop("bias", 0.0), kw.pop("noise", 0.0))
         model.set_pose(position)
-        b = NetFtBox(model, port=0, http_port=0, **kw).start()
+        b = NetFtBox(model, port=0, http_port=0, **kw).start_thread()
         boxes.append(b)
         return b
 
     yield make
     for b in boxes:
-        b.stop()
+        b.stop_thread()
 
 
 def client() -> socket.socket:
