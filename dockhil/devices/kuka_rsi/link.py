@@ -4,8 +4,10 @@ never a queue), moving the correction toward it by at most one cycle's travel; a
 the way. The datagrams and the angles are in rsi.py; the driver node is dockhil/devices/kuka_rsi/driver.py.
 
 Per datagram, in this order: only the configured controller's address is read; a datagram that is
-oversized, malformed, without RIst or IPOC, or whose IPOC is not above the last one is counted (one
-warning line per kind) and neither answered nor used. Otherwise the correction moves toward the
+oversized, malformed (also: a pose or a count no controller sends, an IPOC further ahead of the last
+than the time since it allows), without RIst or IPOC, or whose IPOC is not above the last one is
+counted (one warning line per kind) and neither answered nor used; nothing a datagram carries stops
+the answering thread. Otherwise the correction moves toward the
 latest setpoint by at most max_speed * cycle and max_angular_speed * cycle, and the answer echoes
 the IPOC. The correction is held (does not change) when there is no setpoint, when the setpoint is
 older than stale_after (the graph stalled) or not finite, and after a hold.
@@ -39,6 +41,9 @@ from dockhil.devices.limits import angle_between
 from dockhil.runtime import realtime
 
 SWITCH_INTERVAL = 0.0002  # s: longest wait of the link thread for the interpreter while another thread runs
+# An IPOC may run ahead of the controller's clock as the earliest datagram showed it by at most this many
+# cycles (drift, jitter): further is no controller's, and taking it would lock the real ones out.
+IPOC_LEAD_CYCLES = 25
 
 KINDS = {
     "foreign": "from another address than the controller's",
@@ -112,6 +117,7 @@ class RsiLink(threading.Thread):
         self.hold_latched = False
         self.hold_written = threading.Event()
         self.last_ipoc = -1
+        self._least_offset = math.inf  # ms: the least (receive time - IPOC) seen: the controller's clock and ours
         self.missing = 0  # controller datagrams that never came: IPOC gaps of more than one cycle
         self.received = 0
         self.answered = 0
@@ -215,6 +221,13 @@ class RsiLink(threading.Thread):
         if frame.ipoc <= self.last_ipoc:
             self._count("repeated", f"IPOC {frame.ipoc} after {self.last_ipoc}")
             return None
+        # An IPOC counts the controller's milliseconds: it runs ahead of our clock by no more than it did at
+        # the least (a datagram arrives after it was sent), however late this thread reads it.
+        offset = now * 1000.0 - frame.ipoc
+        if self.latest is not None and offset < self._least_offset - IPOC_LEAD_CYCLES * self.cycle_ms:
+            self._count("malformed", f"IPOC {frame.ipoc} after {self.last_ipoc}: ahead of the controller's clock")
+            return None
+        self._least_offset = min(self._least_offset, offset)
         never_came = 0
         if self.last_ipoc >= 0:
             never_came = max(0, round((frame.ipoc - self.last_ipoc) / (self.cycle * 1000.0)) - 1)
@@ -333,7 +346,11 @@ class RsiLink(threading.Thread):
                     self.fatal = f"{self.describe}: receiving failed: {exc.strerror or exc}"
                 return
             t = clock()
-            answer = handle(bytes(view[:n]), addr[0], t)
+            try:
+                answer = handle(bytes(view[:n]), addr[0], t)
+            except Exception as exc:  # noqa: BLE001 - no datagram stops the answering thread
+                self._count("malformed", f"{type(exc).__name__}: {str(exc)[:60]}")
+                continue
             if answer is None:
                 continue
             try:
