@@ -72,10 +72,10 @@ def test_no_datagram_stops_the_answering_thread():
     lk = RsiLink(sock, controller, CYCLE, 0.1, 0.5, 10.0, "ImFree", clock)
     real_handle = lk.handle
 
-    def breaking(data, host, now):
+    def breaking(data, host, now, port=None):
         if b"BREAK" in data:
             raise OverflowError("int too large to convert to float")
-        return real_handle(data, host, now)
+        return real_handle(data, host, now, port)
 
     lk.handle = breaking  # type: ignore[method-assign]
     lk.start()

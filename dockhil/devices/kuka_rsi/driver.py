@@ -28,9 +28,11 @@ controller took (dockhil/devices/kuka_rsi/link.py), so that dockhil calibrate
 times the robot at the controller's cycle.
 
 The link thread (dockhil/devices/kuka_rsi/link.py) reads only the configured
-controller's address, counts and ignores datagrams it cannot use, and moves the
+controller's address and port, counts and ignores datagrams it cannot use, and moves the
 correction toward the latest setpoint by at most max_speed * cycle and
-max_angular_speed * cycle per datagram. The correction is held (does not
+max_angular_speed * cycle from every correction the controller may hold, as it
+reports them (RSol; without it, Delay and the IPOC sequence): a controller whose
+datagrams carry neither is refused at setup. The correction is held (does not
 change) when there is no setpoint, when the setpoint is older than
 stall_timeout (the graph stalled) or not finite, after a safety stop and at
 close.
@@ -262,6 +264,14 @@ class RobotRsiDriver(RobotDriver):
                 f"{self.device}: no RSI datagram from {p.host} within {p.connect_timeout:g} s: start "
                 f"the RSI program on the controller, and check its Ethernet configuration's IP_NUMBER "
                 f"and PORT name this host and port {p.port}{extra}"
+            )
+        first = self.link.first
+        if first.rsol is None and first.delay is None:
+            self.link.stop()
+            self.link = None
+            raise DeviceError(
+                f"{self.device}: the controller's datagrams carry neither RSol nor Delay, so nothing tells which "
+                f"correction it took: add DEF_RSol (or DEF_Delay) to the SEND elements of its Ethernet configuration"
             )
         self.frame = SceneFrame((p.scene_a, p.scene_b, p.scene_c), self.link.first.rist)
         if p.anchor == "origin":  # the default anchor, the scene's origin, holds from the start
