@@ -363,8 +363,7 @@ def main() -> None:
     realtime = not args.no_realtime
     cycle = args.rsi_cycle if args.robot == "rsi" else MODBUS_CYCLE
     rows = [
-        run(draw(args.seed + i), realtime, robot=args.robot, cycle=cycle, timing=args.timing)
-        for i in range(args.draws)
+        run(draw(args.seed + i), realtime, robot=args.robot, cycle=cycle, timing=args.timing) for i in range(args.draws)
     ]
     done = [r for r in rows if "errors" in r]
     half = 0.5 * cycle

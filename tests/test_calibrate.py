@@ -293,6 +293,14 @@ def test_a_bag_without_an_identification_run_is_refused_and_nothing_written(tmp_
     assert "no such file" in capsys.readouterr().err
 
 
+def test_a_loop_file_with_max_force_is_refused_by_the_command_in_one_line(tmp_path, capsys):
+    loop = tmp_path / "loop.yaml"
+    loop.write_text("args:\n  delay: 0.03\n  max_force: 90000\n")
+    assert main(["graph", "hil.yaml", f"loop:={loop}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "max_force" in err and "Traceback" not in err, err
+
+
 def test_a_loop_file_sets_the_scene_and_the_command_line_wins(tmp_path):
     loop = tmp_path / "loop.yaml"
     loop.write_text(
@@ -318,13 +326,17 @@ def test_a_loop_file_sets_the_scene_and_the_command_line_wins(tmp_path):
         ("delay: 0.03\n", "not a loop file"),
         ("args:\n  delay: fast\n", "not a number"),
         ("args: [1, 2]\n", "not a loop file"),
+        ("args:\n  delay: 0.03\n  max_force: 90000\n", "args.max_force is not what calibration identifies"),
+        ("args:\n  m1: 1000000.0\n", "args.m1 is not what calibration identifies"),
+        ("args:\n  delay: 0.03\nrsi_port: 80\n", "'rsi_port' is not what calibration identifies"),
     ],
 )
 def test_a_bad_loop_file_is_one_line(tmp_path, text, why):
     loop = tmp_path / "loop.yaml"
     loop.write_text(text)
-    with pytest.raises(LaunchError, match=why):
+    with pytest.raises(LaunchError, match=why) as refused:
         launchfile.load("hil.yaml", {"loop": str(loop)})
+    assert "\n" not in str(refused.value) and str(loop) in str(refused.value)
     with pytest.raises(LaunchError, match="cannot read"):
         launchfile.load("hil.yaml", {"loop": str(tmp_path / "missing.yaml")})
 

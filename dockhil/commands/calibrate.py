@@ -25,7 +25,7 @@ _SIMULATED = {
     "ft_sim6",
 }
 _START_S = 5.0  # s: the devices' setup and the first pose and force, beyond the profile's own length
-_LOOP_ARGS = ("delay", "lag", "k", "ft_noise")  # what a loop file sets in a scene
+_LOOP_ARGS = ("delay", "lag", "k", "ft_noise")  # what a loop file sets in a scene (of launchfile.LOOP_ARGS)
 
 
 def add_arguments(p) -> None:

@@ -426,9 +426,16 @@ def _scene(
     return scene
 
 
+# What a loop file may hold: what calibration identified (the loop's delay and lag, the passive stiffness and
+# damping, the F/T noise and delay in `args`; the sensor's bias as `tare`), and its record. Nothing else: a
+# loop file is no way to set a scene's limits or masses.
+LOOP_ARGS = ("delay", "lag", "k", "b_passive", "ft_noise", "ft_delay")
+LOOP_KEYS = ("args", "tare", "calibration", "verdict")
+
+
 def loop_args(path: str, specs: dict[str, ArgSpec]) -> dict[str, Any]:
     """The arguments a loop file (written by `dockhil calibrate --out`: delay, lag, k, ...) sets that the
-    scene declares; a scene takes it as loop:=FILE."""
+    scene declares; a scene takes it as loop:=FILE. A key calibration does not identify is refused."""
     try:
         with open(path, "rb") as f:
             raw = f.read(boundedyaml.MAX_BYTES + 1)
@@ -442,7 +449,18 @@ def loop_args(path: str, specs: dict[str, ArgSpec]) -> dict[str, Any]:
         raise LaunchError(
             f"loop file {path}: not a loop file (a mapping with `args:`); write one with dockhil calibrate --out"
         )
+    for key in data:
+        if key not in LOOP_KEYS:
+            raise LaunchError(
+                f"loop file {path}: {key!r} is not what calibration identifies (a loop file holds "
+                f"{', '.join(LOOP_KEYS)}); remove it, or give a scene's argument as {key}:=VALUE"
+            )
     for name, value in args.items():
+        if name not in LOOP_ARGS:
+            raise LaunchError(
+                f"loop file {path}: args.{name} is not what calibration identifies (only "
+                f"{', '.join(LOOP_ARGS)}); remove it, or give it on the command line as {name}:=VALUE"
+            )
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise LaunchError(f"loop file {path}: args.{name} is {value!r}, not a number")
     out = {name: value for name, value in args.items() if name in specs}

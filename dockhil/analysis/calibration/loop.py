@@ -166,11 +166,7 @@ class Calibration:
                 "contact_samples": c.samples,
                 "peak_force_N": c.peak_force_N,
                 "rest_samples": r.samples,
-                **(
-                    {"b_not_identified": NO_DAMPING.format(b=c.b_Ns_per_m, s=c.b_sigma)}
-                    if not b_known
-                    else {}
-                ),
+                **({"b_not_identified": NO_DAMPING.format(b=c.b_Ns_per_m, s=c.b_sigma)} if not b_known else {}),
                 **(
                     {}
                     if e2e is None
