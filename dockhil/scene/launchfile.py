@@ -227,9 +227,7 @@ def find_shipped(path: str | Path, kind: str = "launch file", folder: str = "") 
     )
 
 
-def load(
-    path: str | Path | None, overrides: dict[str, Any] | None = None, only: frozenset[str] | None = None
-) -> Scene:
+def load(path: str | Path | None, overrides: dict[str, Any] | None = None, only: frozenset[str] | None = None) -> Scene:
     """Read a launch file (a path, or a shipped scene by name), apply arguments,
     resolve includes and conditions. `only`: the absolute, normalised paths of the files it may read (a
     recorded scene's: anything else is refused without being opened)."""
