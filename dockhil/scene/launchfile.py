@@ -227,13 +227,14 @@ def find_shipped(path: str | Path, kind: str = "launch file", folder: str = "") 
     )
 
 
-def load(path: str | Path | None, overrides: dict[str, Any] | None = None) -> Scene:
+def load(path: str | Path | None, overrides: dict[str, Any] | None = None, only: frozenset[str] | None = None) -> Scene:
     """Read a launch file (a path, or a shipped scene by name), apply arguments,
-    resolve includes and conditions."""
+    resolve includes and conditions. `only`: the absolute, normalised paths of the files it may read (a
+    recorded scene's: anything else is refused without being opened)."""
     if path is None:
         raise LaunchError("give a launch file, e.g. hil.yaml (a shipped scene) or a path to your own")
-    path = find_shipped(path)
-    budget = _Budget()
+    path = Path(path) if only is not None else find_shipped(path)
+    budget = _Budget(only=only)
     scene = _load(path, overrides or {}, from_cli=True, stack=(), budget=budget)
     scene.texts = budget.texts
     if not scene.nodes:
@@ -249,6 +250,7 @@ class _Budget:
     nodes: int = 0
     text: int = 0  # characters built by substitution inside longer strings
     texts: dict[str, str] = field(default_factory=dict)  # what a bag records to rebuild the scene
+    only: frozenset[str] | None = None  # the files it may read (None: any)
     group: str = field(default_factory=lambda: draw_group())  # $(var multicast_group)
 
 
@@ -264,6 +266,13 @@ def _read_yaml(path: Path, budget: _Budget, included_from: Path | None = None) -
     budget.files += 1
     if budget.files > MAX_INCLUDES:
         raise LaunchError(f"{path}: more than {MAX_INCLUDES} launch files read for one scene; include fewer files")
+    if budget.only is not None and os.path.normpath(os.path.abspath(path)) not in budget.only:
+        # Not stat'ed, not opened: a recorded scene names paths of another machine, and a reader of what they
+        # name here could hang (a FIFO) or tell what the disk holds.
+        raise LaunchError(
+            f"{os.path.normpath(path)}: not among the launch files the scene recorded; an include is resolved "
+            f"only among them"
+        )
     if not path.is_file():
         raise LaunchError(f"launch file {str(path)!r} not found (or not a file)")
     try:
@@ -426,9 +435,16 @@ def _scene(
     return scene
 
 
+# What a loop file may hold: what calibration identified (the loop's delay and lag, the passive stiffness and
+# damping, the F/T noise and delay in `args`; the sensor's bias as `tare`), and its record. Nothing else: a
+# loop file is no way to set a scene's limits or masses.
+LOOP_ARGS = ("delay", "lag", "k", "b_passive", "ft_noise", "ft_delay")
+LOOP_KEYS = ("args", "tare", "calibration", "verdict")
+
+
 def loop_args(path: str, specs: dict[str, ArgSpec]) -> dict[str, Any]:
     """The arguments a loop file (written by `dockhil calibrate --out`: delay, lag, k, ...) sets that the
-    scene declares; a scene takes it as loop:=FILE."""
+    scene declares; a scene takes it as loop:=FILE. A key calibration does not identify is refused."""
     try:
         with open(path, "rb") as f:
             raw = f.read(boundedyaml.MAX_BYTES + 1)
@@ -442,7 +458,18 @@ def loop_args(path: str, specs: dict[str, ArgSpec]) -> dict[str, Any]:
         raise LaunchError(
             f"loop file {path}: not a loop file (a mapping with `args:`); write one with dockhil calibrate --out"
         )
+    for key in data:
+        if key not in LOOP_KEYS:
+            raise LaunchError(
+                f"loop file {path}: {key!r} is not what calibration identifies (a loop file holds "
+                f"{', '.join(LOOP_KEYS)}); remove it, or give a scene's argument as {key}:=VALUE"
+            )
     for name, value in args.items():
+        if name not in LOOP_ARGS:
+            raise LaunchError(
+                f"loop file {path}: args.{name} is not what calibration identifies (only "
+                f"{', '.join(LOOP_ARGS)}); remove it, or give it on the command line as {name}:=VALUE"
+            )
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise LaunchError(f"loop file {path}: args.{name} is {value!r}, not a number")
     out = {name: value for name, value in args.items() if name in specs}
