@@ -90,6 +90,11 @@ class SceneFrame:
         q = quat_multiply(quat_multiply(self.q_sb, turn), quat_conjugate(self.q_sb))
         return (d[0] * 1000.0, d[1] * 1000.0, d[2] * 1000.0), q
 
+    def velocity(self, linear, angular) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """Scene twist (m/s, rad/s) -> the correction's rate in BASE: (mm/s, rad/s about BASE axes)."""
+        v = rotate(self.q_sb, linear)
+        return (v[0] * 1000.0, v[1] * 1000.0, v[2] * 1000.0), tuple(rotate(self.q_sb, angular))
+
     def scene_pose(self, rist) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
         """RIst (mm, degrees in BASE) -> scene pose: (m, quaternion)."""
         return self._scene(rist[:3], rsi.abc_to_quat(*rist[3:]))
@@ -328,8 +333,13 @@ class RobotRsiDriver(RobotDriver):
         self._seen = latest[0]
         return self._reading(latest)
 
-    def _hand_over(self, values) -> None:
-        self.link.submit(*((None, None) if values is None else self.frame.correction(values[:3], values[3:7])))
+    def _hand_over(self, values, stamp: float) -> None:
+        if values is None:
+            self.link.submit(None, None)
+            return
+        position, orientation = self.frame.correction(values[:3], values[3:7])
+        linear, angular = self.frame.velocity(values[7:10], values[10:13])
+        self.link.submit(position, orientation, stamp, self.ctx.dt, linear, angular)
 
     def _check_command_values(self, cmd) -> None:
         """The first command, which anchors the scene to the start pose, must be a pose."""

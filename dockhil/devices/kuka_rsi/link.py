@@ -45,9 +45,11 @@ from dockhil.contact.rotations import IDENTITY, quat_conjugate, quat_multiply
 from dockhil.errors import DeviceError
 from dockhil.devices.kuka_rsi import protocol as rsi
 from dockhil.devices.cycle_log import CycleLog
+from dockhil.devices.handover import Handover
 from dockhil.devices.limits import angle_between, toward_within, turn_within
 from dockhil.runtime import realtime
 
+ZERO = (0.0, 0.0, 0.0)
 SWITCH_INTERVAL = 0.0002  # s: longest wait of the link thread for the interpreter while another thread runs
 # What the 4 decimals of RKorr and RSol may add to a step: half a unit of the last digit on each of three
 # coordinates, on both poses of a step and on the start (mm; degrees as radians).
@@ -124,6 +126,7 @@ class RsiLink(threading.Thread):
         self.connected = True  # the safety stop's contract: a hold can be answered while datagrams come
         # Latest values, each replaced whole (one reference: no lock on the answering path).
         self.target: tuple[float, tuple, tuple] | None = None  # (handed over at, X Y Z mm, quaternion) or None
+        self.handover = Handover()  # the pose for the time of each cycle, from the command's time and velocity
         self.korr = ((0.0, 0.0, 0.0), IDENTITY, (0.0, 0.0, 0.0))  # the last answer: position mm, quaternion, A B C
         # What the controller may hold when it takes our next answer: `held`, the correction it reported (RSol)
         # or that Delay confirmed, and every answer sent since that it may still take. Each answer is within one
@@ -159,9 +162,20 @@ class RsiLink(threading.Thread):
         self._start: tuple = ((0.0, 0.0, 0.0), IDENTITY)  # the start pose (the first RIst): mm, quaternion
 
     # -- from the node thread ------------------------------------------------------
-    def submit(self, position_mm, orientation) -> None:
-        """Move the correction toward this (None: hold where it is)."""
-        self.target = None if position_mm is None else (self.clock(), position_mm, orientation)
+    def submit(
+        self, position_mm, orientation, stamp: float | None = None, tick: float = 0.0, linear=ZERO, angular=ZERO
+    ) -> None:
+        """Move the correction toward this (None: hold where it is); with the command's `stamp`, each cycle
+        toward the pose for its own time, up to `tick` ahead along the velocity (mm/s, rad/s in BASE)."""
+        if position_mm is None:
+            self.target = None
+            return
+        now = self.clock()
+        if stamp is None:
+            self.handover.clear()
+        else:
+            self.handover.put(now, stamp, tick, position_mm, orientation, linear, angular)
+        self.target = (now, position_mm, orientation)
 
     def hold(self, timeout: float) -> bool:
         """Hold the correction from now on; True once an answer carrying the hold has been sent."""
@@ -366,6 +380,8 @@ class RsiLink(threading.Thread):
         if self.hold_latched or target is None or len(self.sent_since) >= MAX_UNTAKEN:
             return self._sent(kp, abc)
         handed, p, q = target
+        if self.handover.motion is not None:
+            p, q = self.handover.pose(now) or (p, q)
         if now - handed > self.stale_after:
             self.stale_holds += 1
             if self.stale_holds == 1:

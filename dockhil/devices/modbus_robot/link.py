@@ -19,6 +19,7 @@ import time
 
 from dockhil.devices.modbus_robot import registers as mm
 from dockhil.devices.cycle_log import CycleLog
+from dockhil.devices.handover import Handover
 from dockhil.devices.limits import angle_between, toward, turn_toward
 
 
@@ -98,6 +99,7 @@ class ModbusLink(threading.Thread):
         self.stopping = False
         self.target: mm.PoseTwist | None = None  # the latest commanded setpoint; None: hold
         self.fresh = False  # a command (or hold) was handed over since the last cycle took one
+        self.handover = Handover()  # the pose for the time of each cycle, from the command's time and velocity
         self.limiter = SetpointLimiter(p.max_speed, p.max_angular_speed, p.max_cycle)
         # (m, rad) the commanded setpoint is ahead of the one sent; None: not known (a cycle under way, or
         # nothing sent since the robot last stopped)
@@ -122,10 +124,17 @@ class ModbusLink(threading.Thread):
         self._written = reading.actual if reading is not None else None  # the last setpoint written
 
     # -- from the node thread -------------------------------------------------
-    def submit(self, setpoint: mm.PoseTwist | None) -> None:
+    def submit(self, setpoint: mm.PoseTwist | None, stamp: float | None = None, tick: float = 0.0) -> None:
         """Make this the latest setpoint (None: hold until the next one). Never queued: the link's next
-        cycle takes the latest."""
+        cycle takes the latest; with the command's `stamp`, the pose for the cycle's own time, up to `tick`
+        ahead along the setpoint's velocity (dockhil/devices/handover.py)."""
         with self.lock:
+            if setpoint is not None and stamp is not None:
+                self.handover.put(
+                    self.clock(), stamp, tick, setpoint[:3], setpoint[3:7], setpoint[7:10], setpoint[10:13]
+                )
+            else:
+                self.handover.clear()
             self.target = setpoint
             self.fresh = True
         self.wake.set()
@@ -178,6 +187,9 @@ class ModbusLink(threading.Thread):
         with self.lock:
             target, fresh, self.fresh = self.target, self.fresh, False
             hold = self.hold_latched
+            timed = self.handover.pose(self.clock()) if target is not None else None
+        if timed is not None:  # the pose for this cycle's time: written every cycle while it moves
+            target, fresh = (*timed[0], *timed[1], *target[7:]), True
             self.lag = None  # until this cycle has sent toward the target
         try:
             self._cycle(target, fresh, hold)
