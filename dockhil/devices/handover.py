@@ -1,6 +1,6 @@
 """The time-stamped hand-over: the pose a device takes on its own cycle, for the time of that cycle.
 
-A command carries its time (its header stamp, the tick it was computed for) and its velocity. The graph
+A command carries its time (the tick it was computed for, on the scene's clock) and its velocity. The graph
 hands it over whenever its tick ran, late or bunched; the device's cycle beats on its own clock. Handing
 the device the latest pose as it stands would make its path out of graph ticks beating against its
 cycle: a cycle with no new command stands still, the next takes two ticks' motion at once. Instead each

@@ -220,7 +220,8 @@ class RobotDriver(Node):
 
     def _hand_over(self, values: PoseTwist | None, stamp: float) -> None:
         """Hand the link the setpoint's command values (None: hold) and the time they are for (the command's
-        stamp: the link gives the device the pose for the time of its cycle, dockhil/devices/handover.py)."""
+        tick times the scene's step: the link gives the device the pose for the time of its cycle,
+        dockhil/devices/handover.py)."""
         raise NotImplementedError
 
     def _lag(self) -> tuple[tuple[float, float] | None, str]:
@@ -320,7 +321,8 @@ class RobotDriver(Node):
             self._check_command(cmd, reading)
             self._last_cmd, self._last_cmd_at = cmd, now
             moving = bool(ft_fresh and cmd.enable)  # no F/T data yet: hold rather than move blind
-            self._hand_over(command_values(cmd) if moving else None, cmd.header.stamp)
+            # the command's time: its tick on the scene's clock (its stamp is when the tick ran, jitter and all)
+            self._hand_over(command_values(cmd) if moving else None, cmd.header.tick * self.ctx.dt)
             self._moving = moving
         elif self._moving and now - self._last_cmd_at > p.stall_timeout:
             age = now - self._last_cmd_at
