@@ -373,6 +373,7 @@ class NodeExecutor:
             # ticking it at the graph's rate only takes the interpreter from the device's thread.
             period = max(period, IDLE_DEVICE_PERIOD_S)
         self.timing = timing = LoopTiming(list(spec.inputs), period=period, max_age=self.max_age)
+        timing.device = getattr(node, "device_figures", None)  # a driver's account of its device (validity)
         spin = loop_spin()
         t0 = clock()
         timing.first_tick_at = time.time()

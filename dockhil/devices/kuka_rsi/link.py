@@ -148,6 +148,8 @@ class RsiLink(threading.Thread):
         self.answered = 0
         self.counted = dict.fromkeys(KINDS, 0)
         self.stale_holds = 0
+        self.longest_gap_s = 0.0  # the most cycles in a row the controller did not take a command while moving
+        self._untaken = 0
         self.delay = 0  # the controller's count of late answers, as it last reported it
         self.delay_at_start: int | None = None  # ... and as it reported it first
         self.delay_at_close: int | None = None  # ... and when the driver began to close (set by it)
@@ -272,6 +274,13 @@ class RsiLink(threading.Thread):
             self.missing += never_came
         self.last_ipoc = frame.ipoc
         taken, in_force = self._took(frame, never_came)
+        if self.target is not None and not self.hold_latched and self.latest is not None:
+            # cycles that never came and answers not taken, in a row: a stalled controller or link
+            missed = never_came + (0 if taken else 1)
+            self._untaken = self._untaken + missed if missed else 0
+            self.longest_gap_s = max(self.longest_gap_s, self._untaken * self.cycle)
+        else:
+            self._untaken = 0
         answer = self.write(self._advance(now), frame.ipoc)
         self._exchange = (now, frame, self.korr, taken, in_force)
         self.received += 1
@@ -293,7 +302,6 @@ class RsiLink(threading.Thread):
     def _took(self, frame: rsi.RobFrame, never_came: int) -> tuple[bool, tuple | None]:
         """What the controller holds, from what this datagram reports (`held`, `sent_since`); whether it
         took our last answer, and the absolute pose it commands (RSol: BASE, m, quaternion; None without)."""
-        last = self.sent_since[-1] if self.sent_since else None
         if frame.rsol is not None:
             r = frame.rsol
             q = rsi.abc_to_quat(*r[3:])
@@ -312,13 +320,13 @@ class RsiLink(threading.Thread):
                 if self.held_exact and math.dist(kp, held[0]) <= MATCH_MM and angle_between(kq, held[1]) <= MATCH_RAD:
                     held, exact = self.held, True
             self.held, self.held_exact = held, exact
-            taken = last is not None and held == last
+            taken = not self.sent_since  # it holds the last answer sent
             return taken, (r[0] / 1000.0, r[1] / 1000.0, r[2] / 1000.0, *q)
         # Without RSol, Delay tells: unchanged, the last answer came in time and was taken. Risen, some
         # answer was late, or a datagram never came: which was taken is not known, so any may be held.
         if frame.delay is not None and self.delay_at_start is not None and frame.delay == self.delay:
-            if last is not None:
-                self.held, self.held_exact, self.sent_since = last, True, []
+            if self.sent_since:
+                self.held, self.held_exact, self.sent_since = self.sent_since[-1], True, []
         # the cycle log's reading (calibration): a datagram that never came counts one late answer
         taken = not (
             frame.delay is not None and self.delay_at_start is not None and frame.delay - self.delay > never_came

@@ -116,6 +116,10 @@ class ModbusLink(threading.Thread):
         self.heartbeat = 0
         self.writes = 0
         self.setpoint_heartbeat = 0  # the heartbeat written with the last setpoint
+        self.longest_gap_s = 0.0  # the longest the controller went without taking a write while moving
+        self._progress_at = clock()  # when the controller last took a newer write (its heartbeat echo changed)
+        self._echo: int | None = None
+        self._moving = False
         self.largest_step = 0.0  # m: the largest step between two setpoints sent in a row (not across a resume)
         self.reconnects = 0
         self.fatal: str | None = None
@@ -243,6 +247,7 @@ class ModbusLink(threading.Thread):
         lag = limiter.lag(target) if target is not None and not hold else (0.0, 0.0)
         rr = self._check(client.read_input_registers(0, count=mm.IR_COUNT, device_id=dev))
         reading = mm.decode_inputs(rr.registers)
+        self._progress(reading.heartbeat, target is not None and not hold)
         # The controller echoes the heartbeat it last took: this one, if it ran a cycle since the write.
         self.cycles.add(
             now,
@@ -258,6 +263,16 @@ class ModbusLink(threading.Thread):
             self.readings += 1
             self.lag = lag
 
+    def _progress(self, echo: int | None, moving: bool) -> None:
+        """The controller took a newer write when its heartbeat echo changes: the time since the last one,
+        while moving, is a gap in the device's cycles (a stalled controller, a lost connection)."""
+        now = self.clock()
+        if self._moving and (echo != self._echo or not moving):
+            self.longest_gap_s = max(self.longest_gap_s, now - self._progress_at)
+        if echo != self._echo or not moving or not self._moving:
+            self._echo, self._progress_at = echo, now
+        self._moving = moving
+
     @staticmethod
     def _check(response):
         if response.isError():
@@ -268,6 +283,7 @@ class ModbusLink(threading.Thread):
         self.client.close()
         self.connected = False
         self.lost_since = self.clock()
+        self._echo = None  # the next reading after the reconnect closes the gap, if it moved when lost
         self.last_error = " ".join(str(exc).split()) or type(exc).__name__
         self.limiter.reset()
         with self.lock:
@@ -298,6 +314,7 @@ class ModbusLink(threading.Thread):
             if self.hold_latched:
                 self.hold_written.set()
         self.limiter.reset()
+        self._progress(None, False)  # the gap of a loss while moving ends here (the robot holds until a command)
         gap = now - (self.lost_since or now)
         self.cycle_at = now
         self.connected = True
