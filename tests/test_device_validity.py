@@ -123,11 +123,22 @@ def stopped_run(tmp_path: Path, robot: str, node: str, seconds: float) -> tuple[
 
 @pytest.mark.wall_time
 @pytest.mark.parametrize(
-    "robot, node, seconds",
-    [("rsi", "rsi_emulator", 0.3), ("modbus", "robot_emulator", 0.3), ("rsi", "ft", 0.3), ("modbus", "robot", 1.0)],
+    "robot, node, seconds, named",
+    [
+        ("rsi", "rsi_emulator", 0.3, "robot controller (KUKA RSI 127.0.0.1 -> UDP port 49152) went"),
+        ("modbus", "robot_emulator", 0.3, "robot controller (Modbus TCP 127.0.0.1:5020)"),
+        ("rsi", "rsi_emulator", 1.0, "robot controller (KUKA RSI 127.0.0.1 -> UDP port 49152) went"),
+        ("rsi", "ft", 0.3, "'ft'"),
+        ("modbus", "robot", 1.0, "stall"),
+    ],
 )
-def test_a_node_or_emulator_stopped_mid_contact_is_never_a_valid_run_and_is_named(tmp_path, robot, node, seconds):
+def test_a_node_or_emulator_stopped_mid_contact_is_never_a_valid_run_and_is_named(
+    tmp_path, robot, node, seconds, named
+):
+    """Whatever else a busy machine makes of the run, it is not valid, and a line names what stopped: the
+    driver of the emulated device (its account of the device's cycles), the stopped node itself, or the
+    robot driver's safety stop (a stall of its own)."""
     code, out = stopped_run(tmp_path, robot, node, seconds)
-    assert code != 0, out[-2000:]
-    lines = [line for line in out.splitlines() if "INVALID" in line or "safety stop" in line or "error" in line]
-    assert lines and any(node in line or "controller" in line or "Net F/T" in line for line in lines), out[-3000:]
+    assert code != 0, out[-3000:]
+    said = [line for line in out.splitlines() if "INVALID" in line or "safety stop" in line or "error" in line]
+    assert any(named in line for line in said), out[-3000:]
