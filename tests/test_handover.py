@@ -8,7 +8,7 @@ import random
 
 import pytest
 
-from dockhil.devices.handover import Handover
+from dockhil.devices.handover import MARGIN_SLEW, Handover
 from dockhil.devices.kuka_rsi.link import RsiLink
 from dockhil.node import ManualClock
 from tests.test_hardware_rsi import read_sen, rob_text
@@ -73,8 +73,11 @@ def test_a_command_goes_at_most_one_tick_ahead_along_its_velocity():
     assert x == pytest.approx(1.06) and 2 * math.asin(q[2]) == pytest.approx(0.001)
     assert h.pose(10.5)[0][0] == pytest.approx(1.12)  # one tick at most: then it holds
     # a late command (handed over 5 ms after its time, where the first came at once) keeps the least delay;
-    # the timeline waits for such lateness, a tick at most: the pose is then between the two latest
+    # the timeline waits for such lateness (a tick at most), moving there slowly: before the latest
+    # command's time the pose is between the two latest
     h.put(10.009, 100.004, 0.004, (1.12, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0), (30.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-    assert h.delay == pytest.approx(-90.0, abs=1e-5) and h.margin == pytest.approx(0.004)
-    assert h.pose(10.006)[0][0] == pytest.approx(1.0 + 0.12 * 0.75, abs=1e-4)
-    assert h.pose(10.010)[0][0] == pytest.approx(1.18, abs=1e-4)
+    margin = MARGIN_SLEW * 0.009
+    assert h.delay == pytest.approx(-90.0, abs=1e-5) and h.margin == pytest.approx(margin)
+    t0 = 10.004 + margin
+    assert h.pose(10.002)[0][0] == pytest.approx(1.0 + 0.12 * 0.002 / (t0 - 10.0), abs=1e-4)
+    assert h.pose(t0 + 0.001)[0][0] == pytest.approx(1.15, abs=1e-4)

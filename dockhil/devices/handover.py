@@ -24,6 +24,7 @@ from dockhil.devices.limits import angle_between, turn_toward
 # The least delay from stamp to hand-over may grow this much per second (a clock that drifts, a graph that
 # fell behind for good): the timeline follows it, 0.1 ms a second, never a tick's jitter.
 DELAY_CREEP = 1e-4
+MARGIN_SLEW = 0.02  # s/s: how fast the margin moves: the device's speed changes by at most 2 % for it
 LATE_WINDOW = 64  # commands over which the timeline's margin is the latest's worst lateness (a quarter second)
 
 
@@ -43,10 +44,15 @@ class Handover:
         quaternion x y z w) and velocity (linear per second, angular rad/s as a rotation vector), in the
         device's units; `tick` [s]: how far ahead of it the device may go along the velocity."""
         seen = now - stamp
-        self.delay = seen if self.delay is None else min(seen, self.delay + DELAY_CREEP * (now - self._at))
+        first = self.delay is None
+        elapsed = now - self._at
+        self.delay = seen if self.delay is None else min(seen, self.delay + DELAY_CREEP * elapsed)
         self._at = now
         self._late.append(seen - self.delay)
-        self.margin = min(max(self._late), tick)
+        # The margin follows the lateness slowly: a shift of the timeline is a change of the device's speed.
+        goal = min(max(self._late), tick)
+        slew = MARGIN_SLEW * elapsed
+        self.margin = goal if first else self.margin + min(max(goal - self.margin, -slew), slew)
         self._before = self.motion
         self.motion = (
             stamp + self.delay + self.margin,

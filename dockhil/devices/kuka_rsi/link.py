@@ -281,7 +281,8 @@ class RsiLink(threading.Thread):
             self.longest_gap_s = max(self.longest_gap_s, self._untaken * self.cycle)
         else:
             self._untaken = 0
-        answer = self.write(self._advance(now), frame.ipoc)
+        # the cycle's time on our clock, from its IPOC: the controller's clock, not when this thread woke
+        answer = self.write(self._advance(now, (frame.ipoc + self._least_offset) / 1000.0), frame.ipoc)
         self._exchange = (now, frame, self.korr, taken, in_force)
         self.received += 1
         self.latest = (self.received, frame, now)
@@ -370,7 +371,7 @@ class RsiLink(threading.Thread):
         cycle = (frame.ipoc // self.cycle_ms) & 0xFFFF
         self._pending = [read if sent is None else sent, read, setpoint, sent is not None, actual, cycle, False]
 
-    def _advance(self, now: float):
+    def _advance(self, now: float, cycle_at: float | None = None):
         """The correction for this cycle (X Y Z A B C): one bounded step toward the latest setpoint, within one
         cycle's travel of every correction the controller may hold."""
         may_hold = self._may_hold()
@@ -389,7 +390,7 @@ class RsiLink(threading.Thread):
             return self._sent(kp, abc)
         handed, p, q = target
         if self.handover.motion is not None:
-            p, q = self.handover.pose(now) or (p, q)
+            p, q = self.handover.pose(now if cycle_at is None else cycle_at) or (p, q)
         if now - handed > self.stale_after:
             self.stale_holds += 1
             if self.stale_holds == 1:
