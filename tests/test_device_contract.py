@@ -224,3 +224,22 @@ def test_a_second_graph_claiming_the_device_is_refused_naming_the_owner(rig):
     assert text.endswith("; stop it first, or give this graph another device"), text
     out = rig.until(lambda o: rig.published in o)
     assert measured(rig, out) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_a_second_graph_emulating_the_device_is_refused_naming_the_owner(rig):
+    """An emulator node of another graph on the same device (the port the driver reads, the CAN bus
+    it listens on, the controller's port) is refused in one line naming the device and its owner; the
+    owner goes on undisturbed."""
+    rig.until(lambda o: rig.published in o)
+    with in_graph(OTHER_GRAPH):
+        other, device = rig.second_emulator()
+        try:
+            with pytest.raises(DeviceError) as err:
+                other.setup()
+        finally:
+            other.close()
+    text = str(err.value)
+    assert "\n" not in text
+    assert text.startswith(f"{device} is in use by graph {GRAPH} (pid {os.getpid()} on "), text
+    out = rig.until(lambda o: rig.published in o)
+    assert measured(rig, out) == pytest.approx(0.0, abs=1e-6)

@@ -20,19 +20,21 @@ import time
 from dockhil.devices.ati_netft import protocol as rdt
 from dockhil.devices.ati_netft.driver import FtNetFtDriver
 from dockhil.devices.ati_netft.emulator import ContactModel, NetFtBox
+from dockhil.devices.ati_netft.emulator_node import NetFtEmulator
 from dockhil.devices.can_ft import frames as ff
 from dockhil.devices.can_ft.driver import FtCanDriver
 from dockhil.devices.can_ft.emulator import FtSensorEmulator
 from dockhil.devices.kuka_rsi import protocol as rsi
 from dockhil.devices.kuka_rsi.driver import RobotRsiDriver
 from dockhil.devices.kuka_rsi.emulator import START_POSE, RsiControllerEmulator
+from dockhil.devices.kuka_rsi.emulator_node import RsiControllerEmulatorNode
 from dockhil.devices.modbus_robot import registers as mm
 from dockhil.devices.modbus_robot.driver import RobotModbusDriver
-from dockhil.devices.modbus_robot.emulator import RobotControllerEmulator
+from dockhil.devices.modbus_robot.emulator_node import RobotControllerEmulatorNode
 from dockhil.msgs import Header, Pose, RobotCommand, Twist, Vector3, Wrench, WrenchStamped
 from dockhil.node import ManualClock, Node, NodeContext, Tick
 from dockhil.runtime import ownership
-from tests.conftest import udp_port, wait_for
+from tests.conftest import free_port, udp_port, wait_for
 
 GRAPH, OTHER_GRAPH = "contract-one", "contract-two"  # the graph that owns the device, and one that may not
 DT = 0.001  # s: the driver's period, and how far each step moves its clock
@@ -94,6 +96,13 @@ class Rig:
     def claimed(self) -> str:
         """How a refused second driver names the device it could not claim."""
         raise NotImplementedError
+
+    def second_emulator(self) -> tuple[Node, str]:
+        """An emulator node of this same device (not set up), and how it names the device when refused."""
+        raise NotImplementedError
+
+    def emulator_ctx(self, name: str) -> NodeContext:
+        return NodeContext(name, DT, sim_time=False, log=lambda line: None)
 
     def setup(self, driver: Node) -> None:
         driver.setup()
@@ -189,6 +198,10 @@ class NetFtRig(Rig):
     def claimed(self) -> str:
         return f"Net F/T box 127.0.0.1:{self.box.port}"
 
+    def second_emulator(self) -> tuple[Node, str]:
+        node = NetFtEmulator(self.emulator_ctx("netft_emulator"), port=self.box.port, http_port=0)
+        return node, self.claimed()
+
 
 class CanRig(Rig):
     """ft_can against ft_emulator on a python-can virtual bus: an unloaded probe with a 1.5 N offset;
@@ -267,6 +280,10 @@ class CanRig(Rig):
     def claimed(self) -> str:
         return f"F/T adapter (virtual {self.channel})"
 
+    def second_emulator(self) -> tuple[Node, str]:
+        node = FtSensorEmulator(self.emulator_ctx("ft_emulator"), interface="virtual", channel=self.channel)
+        return node, f"CAN bus virtual {self.channel}"
+
 
 # -- robots --------------------------------------------------------------------------------
 
@@ -296,13 +313,18 @@ class RobotRig(Rig):
 
 
 class ModbusRig(RobotRig):
-    """robot_modbus against RobotControllerEmulator (Modbus TCP on a free port, in a thread)."""
+    """robot_modbus against the robot_emulator node (RobotControllerEmulator: Modbus TCP on a free port,
+    in a thread)."""
 
     name = "robot_modbus"
 
     def start_emulator(self, port: int = 0) -> None:
-        self.controller = RobotControllerEmulator(port=port, tau=0.005)
-        self.controller.start_thread()
+        # As a launch runs it: a node on a port of its own, claimed for the graph.
+        self.emulator = RobotControllerEmulatorNode(
+            NodeContext("robot_emulator", DT, sim_time=False, log=self.logs.append), port=port or free_port(), tau=0.005
+        )
+        self.emulator.setup()
+        self.controller = self.emulator.emulator
 
     def build(self, logs=None) -> RobotModbusDriver:
         # 1 s per request: a busy machine's slow round trip is not a lost connection
@@ -328,7 +350,7 @@ class ModbusRig(RobotRig):
         return self.holding().setpoint[0]
 
     def silence(self) -> None:
-        self.controller.stop_thread()
+        self.emulator.close()
         wait_for(lambda: not self.driver.link.connected, what="the lost connection")
 
     def _request(self, pdu: bytes) -> bytes:
@@ -360,10 +382,14 @@ class ModbusRig(RobotRig):
         return {"malformed": None, "foreign": self.servo("refused")}
 
     def stop_emulator(self) -> None:
-        self.controller.stop_thread()
+        self.emulator.close()
 
     def claimed(self) -> str:
         return f"robot controller (Modbus TCP 127.0.0.1:{self.controller.port})"
+
+    def second_emulator(self) -> tuple[Node, str]:
+        node = RobotControllerEmulatorNode(self.emulator_ctx("robot_emulator"), port=self.controller.port)
+        return node, f"robot controller emulator port 127.0.0.1:{self.controller.port}"
 
 
 class RsiRig(RobotRig):
@@ -442,6 +468,9 @@ class RsiRig(RobotRig):
 
     def claimed(self) -> str:
         return f"KUKA RSI port {self.port}"
+
+    def second_emulator(self) -> tuple[Node, str]:
+        return RsiControllerEmulatorNode(self.emulator_ctx("rsi_emulator"), port=self.port), self.claimed()
 
 
 RIGS = {rig.name: rig for rig in (CanRig, NetFtRig, ModbusRig, RsiRig)}
