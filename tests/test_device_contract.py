@@ -72,7 +72,9 @@ def test_malformed_and_foreign_input_is_counted_and_never_applied(rig):
     probe is pushed with 300-900 N or the robot stands 50 mm away: counted, and the published wrench,
     the published pose and what the robot is commanded stay where the device's own data put them.
 
-    Nearest equivalents: on a CAN bus the foreign sender is another device's CAN ID; the bus carries
+    Nearest equivalents: RSI's foreign sender is another address (RSI configures the sensor's
+    IP_NUMBER and PORT, not the controller's source port, so the driver tells its controller by
+    address); on a CAN bus the foreign sender is another device's CAN ID; the bus carries
     other devices' frames by design, so ft_can skips them without counting them. Over Modbus TCP the
     driver is the client: the malformed and the foreign request reach the controller (a write whose
     byte count disagrees with its register count; a setpoint write from another connection, which
