@@ -248,13 +248,16 @@ class RsiLink(threading.Thread):
 
     def handle(self, data: bytes, host: str, now: float, port: int | None = None) -> bytes | None:
         """The answer to one datagram received from `host` (`port`) at `now`, or None if it is ignored."""
-        if host != self.controller or (port is not None and self.controller_port not in (None, port)):
+        if host != self.controller:
             self._count("foreign", host if port is None else f"{host}:{port}")
             return None
         try:
             frame = rsi.parse_rob(data)
         except rsi.RsiError as exc:
             self._count("oversized" if len(data) > rsi.MAX_DATAGRAM else "malformed", str(exc))
+            return None
+        if port is not None and self.controller_port not in (None, port):  # another sender on its address
+            self._count("foreign", f"{host}:{port}, not the controller's port {self.controller_port}")
             return None
         if frame.ipoc <= self.last_ipoc:
             self._count("repeated", f"IPOC {frame.ipoc} after {self.last_ipoc}")
