@@ -20,33 +20,78 @@ import time
 from dockhil.devices.modbus_robot import registers as mm
 from dockhil.devices.cycle_log import CycleLog
 from dockhil.devices.handover import Handover
-from dockhil.devices.limits import angle_between, toward, turn_toward
+from dockhil.devices.limits import angle_between, toward_within, turn_within
+
+MAX_UNCONFIRMED = 64  # setpoints written that the controller has not echoed yet, kept as ones it may take
 
 
 class SetpointLimiter:
     """What the device is sent on one of its cycles: the latest commanded setpoint, approached from the
     previous value sent (or, after a hold, a reconnect or a stall, from the actual pose read back) by at
-    most max_speed and max_angular_speed times the cycle's time, that time capped at max_cycle. A late
-    or bunched command, a stalled link or controller thus never becomes a jump. No I/O: the caller gives
-    each cycle's time."""
+    most max_speed and max_angular_speed times the cycle's time, that time capped at max_cycle; and, from
+    every setpoint the controller may hold (the one whose heartbeat it echoes, its record, and each one
+    written since, which it may still take), by at most the same speeds times the time since that one was
+    written, capped at max_cycle. A late or bunched command, a stalled link or controller, a write the
+    controller missed thus never becomes a jump. No I/O: the caller gives each cycle's time, each write and
+    each echo."""
 
     def __init__(self, max_speed: float, max_angular_speed: float, max_cycle: float):
         self.max_speed = max_speed  # m/s, 0: off
         self.max_angular_speed = max_angular_speed  # rad/s, 0: off
         self.max_cycle = max_cycle  # s
         self.sent: mm.PoseTwist | None = None  # the last value sent; None: start from the actual pose
+        # (written at, setpoint): the one the controller echoed it took, and each written after it
+        self.held: tuple[float, mm.PoseTwist] | None = None
+        self.unconfirmed: list[tuple[int, float, mm.PoseTwist]] = []  # (heartbeat, written at, setpoint)
 
     def reset(self) -> None:
         """The controller stopped following: the next setpoint starts from the actual pose."""
-        self.sent = None
+        self.sent = self.held = None
+        self.unconfirmed = []
 
-    def next(self, target: mm.PoseTwist, actual: mm.PoseTwist, dt: float) -> mm.PoseTwist:
-        """The setpoint for a device cycle `dt` seconds after the previous one."""
+    def wrote(self, heartbeat: int, at: float, setpoint: mm.PoseTwist) -> None:
+        """A setpoint went to the controller with this heartbeat at `at`."""
+        self.unconfirmed.append((heartbeat, at, setpoint))
+        del self.unconfirmed[:-MAX_UNCONFIRMED]
+
+    def echoed(self, heartbeat: int) -> None:
+        """The controller reports the heartbeat of the last write it took: the setpoints written with it or
+        before are past, the latest of them is the one it holds."""
+        keep = []
+        for hb, at, setpoint in self.unconfirmed:
+            if (heartbeat - hb) & 0xFFFF < 0x8000:
+                self.held = (at, setpoint)
+            else:
+                keep.append((hb, at, setpoint))
+        self.unconfirmed = keep
+
+    def next(self, target: mm.PoseTwist, actual: mm.PoseTwist, dt: float, now: float | None = None) -> mm.PoseTwist:
+        """The setpoint for a device cycle `dt` seconds after the previous one (at `now` on the caller's
+        clock: the reach from each setpoint the controller may hold is counted from its write)."""
         dt = min(max(dt, 0.0), self.max_cycle)
         origin = self.sent if self.sent is not None else actual
-        position = toward(origin[:3], target[:3], self.max_speed * dt) if self.max_speed else target[:3]
+        held = [] if self.held is None else [self.held]
+        held += [(at, s) for _, at, s in self.unconfirmed]
+        ages = [min(max(now - at, dt), self.max_cycle) if now is not None else dt for at, _ in held]
+        position = (
+            toward_within(
+                origin[:3],
+                target[:3],
+                self.max_speed * dt,
+                [s[:3] for _, s in held],
+                [self.max_speed * a for a in ages],
+            )
+            if self.max_speed
+            else target[:3]
+        )
         orientation = (
-            turn_toward(origin[3:7], target[3:7], self.max_angular_speed * dt)
+            turn_within(
+                origin[3:7],
+                target[3:7],
+                self.max_angular_speed * dt,
+                [s[3:7] for _, s in held],
+                [self.max_angular_speed * a for a in ages],
+            )
             if self.max_angular_speed
             else target[3:7]
         )
@@ -232,7 +277,7 @@ class ModbusLink(threading.Thread):
                 self.hold_written.set()
         elif fresh or limiter.lag(target) not in (None, (0.0, 0.0)):
             before = limiter.sent
-            setpoint = limiter.next(target, reading.actual, dt)
+            setpoint = limiter.next(target, reading.actual, dt, now)
             if before is not None:
                 step = math.sqrt(sum((b - a) ** 2 for a, b in zip(before[:3], setpoint[:3])))
                 self.largest_step = max(self.largest_step, step)
@@ -240,6 +285,7 @@ class ModbusLink(threading.Thread):
                 client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE, self.heartbeat, setpoint), device_id=dev)
             )
             self.writes += 1
+            limiter.wrote(self.heartbeat, now, setpoint)
             self.setpoint_heartbeat = self.heartbeat
             self._written, written = setpoint, True
         else:
@@ -247,6 +293,7 @@ class ModbusLink(threading.Thread):
         lag = limiter.lag(target) if target is not None and not hold else (0.0, 0.0)
         rr = self._check(client.read_input_registers(0, count=mm.IR_COUNT, device_id=dev))
         reading = mm.decode_inputs(rr.registers)
+        limiter.echoed(reading.heartbeat)
         self._progress(reading.heartbeat, target is not None and not hold)
         # The controller echoes the heartbeat it last took: this one, if it ran a cycle since the write.
         self.cycles.add(
