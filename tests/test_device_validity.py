@@ -110,9 +110,12 @@ def stopped_run(tmp_path: Path, robot: str, node: str, seconds: float) -> tuple[
             pids = children(proc.pid)
         assert node in pids, f"no node {node!r} under the launch: {pids}"
         time.sleep(1.5)  # mid-contact: the scene starts touching and its contact lasts ~1.6 s after setup
-        os.kill(pids[node], signal.SIGSTOP)
-        time.sleep(seconds)
-        os.kill(pids[node], signal.SIGCONT)
+        try:
+            os.kill(pids[node], signal.SIGSTOP)
+            time.sleep(seconds)
+            os.kill(pids[node], signal.SIGCONT)
+        except ProcessLookupError:
+            pass  # the graph stopped before (a busy machine's stale input): the run says why
         out, _ = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
