@@ -63,6 +63,18 @@ class Handover:
             tuple(angular),
         )
 
+    def speed(self) -> float | None:
+        """How fast the commands move [units/s]: the latest's velocity, or its pose's change from the one
+        before over their times, whichever is more (a command that says no velocity still moves); None
+        without a command."""
+        motion, before = self.motion, self._before
+        if motion is None:
+            return None
+        v = math.sqrt(sum(c * c for c in motion[4]))
+        if before is not None and motion[0] > before[0]:
+            v = max(v, math.dist(motion[2], before[2]) / (motion[0] - before[0]))
+        return v
+
     def clear(self) -> None:
         self.motion = self._before = None
 

@@ -57,6 +57,8 @@ ROUNDING_MM = 3e-4
 ROUNDING_RAD = math.radians(3e-4)
 MATCH_MM = 2e-4  # an RSol this close to an answer (after the start is taken off) may show that answer
 MATCH_RAD = math.radians(2e-4)
+CATCH_UP = 1.25  # a timed command's step a cycle at most this times its own motion in a cycle ...
+CATCH_UP_FLOOR = 0.25  # ... or this part of the limit, whichever is more
 MAX_UNTAKEN = 64  # answers sent that the controller may still take; past it, the answers hold
 # An IPOC may run ahead of the controller's clock as the earliest datagram showed it by at most this many
 # cycles (drift, jitter): further is no controller's, and taking it would lock the real ones out.
@@ -405,8 +407,11 @@ class RsiLink(threading.Thread):
         if not (_finite(p) and _finite(q)):  # never formatted, never sent
             return self._sent(kp, abc)
         # Rounding to the answer's 4 decimals may add to the step: where it would exceed it, a bit less.
+        pace = self._pace() if math.dist(kp, p) <= 2.0 * self.max_step_mm else self.max_step_mm
         for margin in (0.0, 1.0):
-            step = toward_within(kp, p, self.max_step_mm - margin * ROUNDING_MM, [c[0] for c in may_hold])
+            travel = self.max_step_mm - margin * ROUNDING_MM
+            reach = [travel] * len(may_hold)
+            step = toward_within(kp, p, min(travel, pace), [c[0] for c in may_hold], reach)
             step = (round(step[0], 4), round(step[1], 4), round(step[2], 4))
             if self._within(step, None, may_hold):
                 kp = step
@@ -422,6 +427,16 @@ class RsiLink(threading.Thread):
                     break
         self.korr = (kp, kq, abc)
         return self._sent(kp, abc)
+
+    def _pace(self) -> float:
+        """The most the correction moves this cycle [mm] near its goal: a little more than the command moves
+        in a cycle, so that what a cycle the controller did not take left behind is made up over the next
+        ones, not in one (at least CATCH_UP_FLOOR of the limit); the limit without a timed command, for one
+        standing still (and, in _advance, for a goal further than two cycles' travel)."""
+        speed = self.handover.speed()
+        if not speed:  # no timed command, or one that stands still: reached at the limit
+            return self.max_step_mm
+        return max(CATCH_UP * speed * self.cycle, CATCH_UP_FLOOR * self.max_step_mm)
 
     def _within(self, kp, kq, may_hold) -> bool:
         """Whether the answer's position kp or orientation kq (None: not judged) is within one cycle's travel
