@@ -178,7 +178,7 @@ class NodeHarness:
     def __enter__(self) -> "NodeHarness":
         return self.setup()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     # -- stepping --------------------------------------------------------------------
