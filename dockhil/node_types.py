@@ -83,7 +83,7 @@ def dof_param(type_name: str) -> Param | None:
     )
 
 
-def resolve(type_name: str, node_name: str, given: dict) -> tuple[str, type, dict]:
+def resolve(type_name: str, node_name: str, given: dict) -> tuple[str, type[Node], dict]:
     """A declared node as it runs: (registered type name, class, checked parameters).
 
     `dof` picks the class of a type that takes it and is not passed on; a parameter that only

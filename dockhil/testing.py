@@ -33,7 +33,7 @@ Semantics, as in a launched graph:
 from __future__ import annotations
 
 from types import SimpleNamespace
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 import msgspec
 
@@ -160,7 +160,7 @@ class NodeHarness:
         self.clock = ManualClock()
         self.graph = ComposedGraph(graph, sim_time=sim_time, log=self._log, clock=self.clock)
         self.node = self.graph.nodes[self.name]
-        self._feeder = self.graph.nodes[FEEDER]
+        self._feeder = cast(_Feeder, self.graph.nodes[FEEDER])  # built from `feeder` above
         self.k = 0  # the tick the next step() computes
         self._set_up = False
 
