@@ -11,7 +11,7 @@ own process, composed with others in one process, in sim time or wall time.
         outputs = {"scaled": Output(WrenchStamped, "/ft/scaled")}
         params = {"gain": Param(float, 1.0, unit="1", help="scale factor")}
 
-        def step(self, tick, inputs):
+        def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
             w = inputs["wrench"]
             ...
             return {"scaled": WrenchStamped(header=tick.header(), ...)}

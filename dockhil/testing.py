@@ -68,7 +68,7 @@ class _Feeder(Node):
     def setup(self):
         self.pending = {}
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         header = {"tick": tick.index, "seq": tick.index, "stamp": tick.t if tick.stamp is None else tick.stamp}
         out = {
             port: msgspec.structs.replace(msg, header=msgspec.structs.replace(msg.header, **header))
