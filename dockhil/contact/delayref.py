@@ -19,8 +19,12 @@ itself) landed on exactly, so that no step straddles a kink of the delayed force
 from __future__ import annotations
 
 import bisect
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from dockhil.contact.hybrid import VirtualImpedance
 
 
 class DelayedContactReference:
@@ -28,6 +32,10 @@ class DelayedContactReference:
 
     m1, m2 [kg]; k1, b1, k2, b2: the virtual impedance; k: the passive compliance behind the
     delay h [s]; v0: closing velocity at t = 0 (p(0) = -gap)."""
+
+    # The virtual impedance k1, b1, k2, b2 come from, where the maker keeps it with the reference
+    # (the report's precision._delay_reference); the solver reads only the four numbers.
+    impedance: VirtualImpedance
 
     def __init__(
         self,
