@@ -49,10 +49,8 @@ from dockhil.errors import DockhilError
 from dockhil.log import Log, setup_child
 
 if TYPE_CHECKING:
-    from dockhil.runtime.executor import Stop
-    from dockhil.runtime.plan import ExtraProcess
+    from dockhil.runtime import executor, plan
     from dockhil.scene.graph import Graph
-
 RECORDER_NAME = "bag-recorder"
 FLUSH_EVERY_S = 0.5  # bounds what a SIGKILL loses when topics are quiet
 DRAIN_QUIET_S = 0.2  # at stop: what still arrives within this is recorded
@@ -287,7 +285,7 @@ class Recorder:
             n += 1
         return n
 
-    def run(self, stop: Stop, alive: Callable[[], bool] | None = None) -> str:
+    def run(self, stop: executor.Stop, alive: Callable[[], bool] | None = None) -> str:
         """Record until finished (sim time), stopped by a signal, or `alive()` turns false.
         Returns why it ended."""
         next_check = time.monotonic() + 0.5
@@ -476,7 +474,7 @@ def check_bag_path(path: str) -> None:
 
 def recorder_process(
     path: str, graph: Graph, clock: str, n_ticks: int | None, quiet: bool = False, topics: tuple[str, ...] = ()
-) -> ExtraProcess:
+) -> plan.ExtraProcess:
     """The recorder as a launcher helper process, subscribed to `topics` of `graph` (those it has; every
     topic when none is given or it has none of them); the launcher tells it the run's verdict before it
     closes the bag. quiet: a bag the user did not ask for (the summary's), whose path and count are said
