@@ -1,5 +1,7 @@
 """Errors a user can cause. The CLI prints them as one line, no traceback."""
 
+from collections.abc import Collection
+
 
 class DockhilError(Exception):
     """A user-facing error: the message says what went wrong, where, and what to do."""
@@ -30,7 +32,7 @@ class SafetyStop(DockhilError):
         self.value = value
 
 
-def suggest(name: str, known, what: str) -> str:
+def suggest(name: str, known: Collection[str], what: str) -> str:
     """`did you mean 'x'? (what: a, b, c)` when a known name is close to `name`, else `what: a, b, c`."""
     import difflib
 

@@ -11,7 +11,7 @@ own process, composed with others in one process, in sim time or wall time.
         outputs = {"scaled": Output(WrenchStamped, "/ft/scaled")}
         params = {"gain": Param(float, 1.0, unit="1", help="scale factor")}
 
-        def step(self, tick, inputs):
+        def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
             w = inputs["wrench"]
             ...
             return {"scaled": WrenchStamped(header=tick.header(), ...)}
@@ -45,6 +45,7 @@ import math
 import reprlib
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 from typing import Any, Callable, ClassVar
@@ -185,7 +186,7 @@ class Param:
         return f"{self.type.__name__}{unit}, default {self.default!r}: {self.help}".rstrip(": ")
 
 
-def _numbers(value: Any, at: str = ""):
+def _numbers(value: Any, at: str = "") -> Iterator[tuple[str, int | float]]:
     """(where, number) of a number or of each number in nested lists (`[1]`, `[0][2]`); what is not
     a number is left to the node's own check of the list's shape."""
     if isinstance(value, list):

@@ -38,7 +38,7 @@ import os
 import sys
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 from dockhil.msgs.codec import decode_header
 from dockhil.bags import runinfo
@@ -48,6 +48,9 @@ from dockhil.bags.writer import BagWriter
 from dockhil.errors import DockhilError
 from dockhil.log import Log, setup_child
 
+if TYPE_CHECKING:
+    from dockhil.runtime import executor, plan
+    from dockhil.scene.graph import Graph
 RECORDER_NAME = "bag-recorder"
 FLUSH_EVERY_S = 0.5  # bounds what a SIGKILL loses when topics are quiet
 DRAIN_QUIET_S = 0.2  # at stop: what still arrives within this is recorded
@@ -282,7 +285,7 @@ class Recorder:
             n += 1
         return n
 
-    def run(self, stop, alive: Callable[[], bool] | None = None) -> str:
+    def run(self, stop: executor.Stop, alive: Callable[[], bool] | None = None) -> str:
         """Record until finished (sim time), stopped by a signal, or `alive()` turns false.
         Returns why it ended."""
         next_check = time.monotonic() + 0.5
@@ -470,8 +473,8 @@ def check_bag_path(path: str) -> None:
 
 
 def recorder_process(
-    path: str, graph, clock: str, n_ticks: int | None, quiet: bool = False, topics: tuple[str, ...] = ()
-):
+    path: str, graph: Graph, clock: str, n_ticks: int | None, quiet: bool = False, topics: tuple[str, ...] = ()
+) -> plan.ExtraProcess:
     """The recorder as a launcher helper process, subscribed to `topics` of `graph` (those it has; every
     topic when none is given or it has none of them); the launcher tells it the run's verdict before it
     closes the bag. quiet: a bag the user did not ask for (the summary's), whose path and count are said

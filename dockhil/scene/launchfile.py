@@ -127,7 +127,7 @@ class ArgSpec:
             raise LaunchError(
                 f"{where}: arg {self.name!r} expects {self._type_name()}, got {type(value).__name__} {value!r}{hint}"
             )
-        if self.type is float and not math.isfinite(value):
+        if self.type is float and isinstance(value, float) and not math.isfinite(value):
             raise LaunchError(f"{where}: arg {self.name!r} is {value!r}; give a finite number")
         return value
 
@@ -189,7 +189,7 @@ class Scene:
 
 def parse_overrides(items: list[str]) -> dict[str, str]:
     """`name:=value` strings from the command line -> {name: text}."""
-    out = {}
+    out: dict[str, str] = {}
     for item in items:
         name, sep, value = item.partition(":=")
         if not sep or not name:
@@ -302,7 +302,7 @@ def _read_yaml(path: Path, budget: _Budget, included_from: Path | None = None) -
 LAUNCH_KEYS = {f.encode_name: None for f in msgspec.structs.fields(LaunchFile)}.keys()
 
 
-def _not_launch_file(path: Path, included_from: Path, why: str) -> str:
+def _not_launch_file(path: Path, included_from: Path | None, why: str) -> str:
     return f"{path} (included from {included_from}): not a launch file ({why})"
 
 
@@ -339,8 +339,8 @@ def _scene(
         given = {**loop_args(str(given["loop"]), {n: s for n, s in specs.items() if n not in given}), **given}
     for name, value in given.items():
         if name not in specs:
-            lets = data.get("let") if isinstance(data.get("let"), list) else []
-            if any(isinstance(d, dict) and d.get("name") == name for d in lets):
+            declared = data.get("let")
+            if isinstance(declared, list) and any(isinstance(d, dict) and d.get("name") == name for d in declared):
                 raise LaunchError(
                     f"{path}: {name!r} is a `let` variable, made from the arguments: set those "
                     f"instead ({suggest('', specs, 'known args')})"

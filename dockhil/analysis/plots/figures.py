@@ -11,6 +11,9 @@ ideal 6-DOF contact."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from dockhil.contact.hilloop import delay_ticks, simulate_hil, simulate_ideal
@@ -22,6 +25,9 @@ from dockhil.contact.stability import growth_rate as predicted_growth_rate
 from dockhil.contact.stability import pade1_bound
 from dockhil.analysis.summary import Samples, contact_metrics
 from dockhil.contact.envelope import growth_rate
+
+if TYPE_CHECKING:
+    from os import PathLike
 
 DT = 1e-3
 
@@ -54,7 +60,7 @@ def fig9(delay: float = 0.032) -> dict:
     return {"runs": runs, "metrics": {name: contact_metrics(s) for name, s in runs.items()}}
 
 
-def fig10(ks=(250.0, 500.0, 1000.0, 1500.0, 2000.0, 2500.0, 2900.0), delay: float = 0.032) -> dict:
+def fig10(ks: Iterable[float] = (250.0, 500.0, 1000.0, 1500.0, 2000.0, 2500.0, 2900.0), delay: float = 0.032) -> dict:
     rows = []
     for k in ks:
         rows.append(
@@ -72,10 +78,11 @@ def fig11_12(
     K: float = 2510.0,
     h: float = 0.016,
     thrust: float = 10.0,
-    dampers=(20.0, 60.0),
+    dampers: Iterable[float] = (20.0, 60.0),
     seconds: float = 20.0,
 ) -> dict:
-    out = {"m_kg": m, "K_N_per_m": K, "h_s": h, "thrust_N": thrust, "cases": []}
+    cases: list[dict] = []
+    out = {"m_kg": m, "K_N_per_m": K, "h_s": h, "thrust_N": thrust, "cases": cases}
     for b in dampers:
         r = simulate_hil(
             m1=m,
@@ -89,7 +96,7 @@ def fig11_12(
             x1=thrust / K + 0.002,
         )
         loop = SampledLoop(m, 0.0, b, K, 0.0, dt=DT, delay_ticks=delay_ticks(h, DT))
-        out["cases"].append(
+        cases.append(
             {
                 "b_N_s_per_m": b,
                 "t": r.t,
@@ -135,7 +142,7 @@ def sixdof(bag_path: str, delay: float = 0.032, seconds: float = SIXDOF_SECONDS)
     return {k: v for k, v in out.items() if k not in ("run_time_s", "real_time_factor", "loop", "warnings")}
 
 
-def plot_all(out_dir, delay: float = 0.032) -> dict:
+def plot_all(out_dir: str | PathLike[str], delay: float = 0.032) -> dict:
     """Write fig7.png, fig9.png, fig10.png, fig11_12.png and sixdof.png (with the bag it draws,
     sixdof.mcap) to out_dir; return the numbers."""
     import matplotlib
