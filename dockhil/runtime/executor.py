@@ -196,6 +196,7 @@ class NodeExecutor:
                 keys=keys,
                 lossy=not sim,
                 burst=(wire.burst if wire.burst > 1 else DEFERRED) if sim else 1,
+                trailing=sim,
             )
             for port, wire in spec.outputs.items()
         }
@@ -324,6 +325,7 @@ class NodeExecutor:
         self.timing.last_tick_at = time.time()
         for pub in self.pubs.values():  # the last, incomplete bursts
             pub.flush()
+            pub.flush_trailing()
         # Stay subscribed until every input's last tick is in: a publisher waits for its subscribers
         # before tick 0, and a node that needs no input for its ticks (a long delay) must not leave first.
         while spec.n_ticks is not None and not self.stop.requested:
