@@ -14,7 +14,8 @@ from dockhil import msgs
 from dockhil.errors import LaunchError
 from dockhil.runtime.executor import PortWire, RunSpec
 from dockhil.runtime.registry import KEY_FILE, new_run_id
-from dockhil.runtime.transport import GraphKeys, ipc_endpoint, new_run_dir
+from dockhil.runtime.rundir import new_run_dir
+from dockhil.runtime.transport import GraphKeys, ipc_endpoint
 
 if TYPE_CHECKING:  # the graph module loads the launch-file parser (yaml)
     from dockhil.scene.graph import Graph
