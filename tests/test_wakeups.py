@@ -82,3 +82,43 @@ def test_a_threads_wake_ups_are_counted_under_its_name():
     counted = switches.since(before, after)
     assert 20 <= counted["wakeup-test"][0] <= 30, counted
     assert all(v >= 0 and n >= 0 for v, n in counted.values()), counted
+
+
+def test_a_trailing_reader_gets_every_frame_in_bursts_apart_from_the_members(tmp_path):
+    """A trailing reader (the launch's recorder) is counted at the start barrier with the members, gets
+    nothing while fewer than TRAIL_BURST frames are held, then every frame in order, messages and
+    empty ticks alike, and the rest when the run's end sends it; a member reads the graph's socket and
+    gets each message at once, and no trailing frame."""
+    import zmq
+
+    from dockhil.runtime.transport import EMPTY_TICK, MESSAGE, TRAIL_BURST, GraphKeys, Publisher, Subscriber
+
+    ctx = zmq.Context.instance()
+    endpoint, keys = f"ipc://{tmp_path}/t", GraphKeys.make()
+    pub = Publisher(ctx, "/t", endpoint, keys=keys, trailing=True)
+    member, trailing = Subscriber(ctx), Subscriber(ctx, trailing=True)
+    for sub in (member, trailing):
+        sub.connect(endpoint, keys=keys)
+    try:
+        pub.wait_subscribers(2, 20.0)
+        assert (pub.subscribers, pub.trailing_readers) == (2, 1)
+        frames = []
+        for k in range(TRAIL_BURST + 10):
+            if k % 3:
+                payload = k.to_bytes(2, "little")
+                pub.send(payload)
+                frames.append(b"/t" + MESSAGE + payload)
+            else:
+                pub.send_empty(k)
+                frames.append(b"/t" + EMPTY_TICK + k.to_bytes(8, "little"))
+            if k == TRAIL_BURST - 2:
+                assert trailing.recv_frame(0.1) is None  # held: one short of a burst
+        assert [member.recv_frame(5.0) for _ in frames] == frames  # each at once, in order
+        assert [trailing.recv_frame(5.0) for _ in range(TRAIL_BURST)] == frames[:TRAIL_BURST]
+        assert trailing.recv_frame(0.1) is None  # the last 10 held until the run ends
+        pub.flush_trailing()
+        assert [trailing.recv_frame(5.0) for _ in range(10)] == frames[TRAIL_BURST:]
+        assert member.recv_frame(0.1) is None and trailing.recv_frame(0.1) is None  # nothing twice, nothing crossed
+    finally:
+        for s in (member, trailing, pub):
+            s.close()

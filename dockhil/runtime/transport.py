@@ -403,7 +403,8 @@ class Subscriber:
             raise ValueError("a subscriber is an observer or a trailing reader, not both")
         self.trailing = trailing
         self.sock = ctx.socket(zmq.SUB)
-        self.sock.setsockopt(zmq.RCVHWM, OBSERVER_HWM if observer else HWM)
+        # A trailing reader's messages are bursts: as many frames queued at most as a member's.
+        self.sock.setsockopt(zmq.RCVHWM, OBSERVER_HWM if observer else HWM // TRAIL_BURST if trailing else HWM)
         self.observer = observer
         self.lost = 0  # an observer's: messages its publishers sent it that never arrived (it fell behind)
         self.lost_on: dict[bytes, int] = {}  # topic -> of these
