@@ -386,8 +386,8 @@ class NodeExecutor:
             period = max(period, IDLE_DEVICE_PERIOD_S)
         self.timing = timing = LoopTiming(list(spec.inputs), period=period, max_age=self.max_age)
         spin = loop_spin()
+        timing.first_tick()  # before the schedule starts: its reading of /proc is not the first tick's time
         t0 = clock()
-        timing.first_tick()
         next_t = t0
         k = 0
         try:
