@@ -183,7 +183,9 @@ class Recorder:
             raise
         from dockhil.runtime.registry import graph_keys
 
-        self.sub = Subscriber(zmq.Context.instance(), observer=observer)
+        # A graph member in sim time trails: no tick waits for it, and it takes its messages in bursts.
+        trailing = not observer and bool(sources) and all(s.sim for s in sources.values())
+        self.sub = Subscriber(zmq.Context.instance(), observer=observer, trailing=trailing)
         try:
             for source in sources.values():
                 keys = graph_keys({"run_id": source.run_id, "keys": source.key_file})
