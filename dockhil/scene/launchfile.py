@@ -40,6 +40,7 @@ dockhil.scene.schema: every refusal is one line with file, line and field.
 from __future__ import annotations
 
 import difflib
+import errno
 import math
 import os
 import re
@@ -313,10 +314,26 @@ def _where(path: Path, root: Any, at: list) -> str:
     return f"{head}: {spot}" if spot else head
 
 
+def _unopenable(path: Path) -> str | None:
+    """Why no file can be at this path, in our words: Python's own differ between versions (3.13 resolves
+    a symlink loop without an error and words a NUL in a path differently)."""
+    if "\x00" in str(path):
+        return "its name holds a NUL character; name the file without it"
+    try:
+        os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "it is a symbolic link that leads back to itself (a loop); point it at a launch file"
+    return None
+
+
 def _load(path: Path, given: dict[str, Any], from_cli: bool, stack: tuple, budget: _Budget) -> Scene:
+    why = _unopenable(path)
+    if why is not None:
+        raise LaunchError(f"launch file {str(path)!r} cannot be opened: {why}")
     try:
         resolved = path.resolve()
-    except (OSError, RuntimeError, ValueError) as exc:  # a symlink loop, a NUL in the name
+    except (OSError, RuntimeError, ValueError) as exc:
         raise LaunchError(f"launch file {str(path)!r} cannot be opened: {exc}") from None
     if resolved in stack:
         chain = " -> ".join(str(p) for p in (*stack, resolved))
