@@ -194,7 +194,8 @@ def parse_overrides(items: list[str]) -> dict[str, str]:
     for item in items:
         name, sep, value = item.partition(":=")
         if not sep or not name:
-            raise LaunchError(f"launch argument {item!r} is not of the form name:=value")
+            hint = f"; did you mean {item.replace('=', ':=', 1)}?" if "=" in item and name else ""
+            raise LaunchError(f"launch argument {item!r} is not of the form name:=value{hint}")
         if name in out:  # which one was meant is a guess: ask
             raise LaunchError(f"{name} is given twice ({name}:={out[name]}, {item}); give it once")
         out[name] = value
@@ -222,9 +223,12 @@ def find_shipped(path: str | Path, kind: str = "launch file", folder: str = "") 
         for candidate in (SHIPPED_SCENES / folder).joinpath(*parts), SHIPPED_SCENES.joinpath(*parts):
             if candidate.is_file():
                 return candidate
-    shipped = ", ".join(sorted(p.name for p in (SHIPPED_SCENES / folder).glob("*.yaml"))) or "none"
+    names = sorted(p.name for p in (SHIPPED_SCENES / folder).glob("*.yaml"))
+    near = difflib.get_close_matches(path.stem, [Path(n).stem for n in names], n=1)  # the name, not .yaml
+    hint = f"; did you mean {str(path.with_name(near[0] + '.yaml'))}?" if near else ""
     raise LaunchError(
-        f"{kind} {str(path)!r} not found: no such file here and no shipped one of that name (shipped: {shipped})"
+        f"{kind} {str(path)!r} not found: no such file here and no shipped one of that name{hint} "
+        f"(shipped: {', '.join(names) or 'none'})"
     )
 
 
