@@ -157,8 +157,10 @@ def test_png_makes_its_folder_as_figures_out_does(tmp_path):
         "ideal.yaml", "--duration", "0.05", "--bag", tmp_path / "s.mcap", "--quiet", "--composed"
     )
     assert r.returncode == 0, r.stderr
-    code, _, err = run_main("analyze", tmp_path / "s.mcap", "--png", tmp_path / "new" / "figures")
+    code, out, err = run_main("analyze", tmp_path / "s.mcap", "--png", tmp_path / "new" / "figures")
     assert code == 0, err
+    # A bag does not know the run's wall time: the simulated time alone, not "simulated 0.05 s in -".
+    assert "\nsimulated 0.05 s\n" in out, out
     assert (tmp_path / "new" / "figures" / "s-force-velocity.png").stat().st_size > 1000
 
 
