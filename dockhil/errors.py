@@ -14,6 +14,10 @@ class LaunchError(DockhilError):
 class ParamError(DockhilError):
     """A node parameter is unknown, mistyped or out of range."""
 
+    # A time beyond its physical range that reads as milliseconds given for seconds: (the value given,
+    # what such a time is, the value in seconds meant); the launch layer names the argument it came from.
+    slip: tuple[float, str, float] | None = None
+
 
 class DeviceError(DockhilError):
     """A hardware device is missing, unreachable or misbehaving."""

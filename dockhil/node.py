@@ -171,6 +171,9 @@ class Param:
                 if isinstance(number, float) and not math.isfinite(number):
                     raise ParamError(f"{where}{at}: {number!r} is not a finite number ({self._describe()})")
                 if number != 0 and not self.scale[0] <= abs(number) <= self.scale[1]:
+                    what = getattr(self.scale, "what", "")
+                    if what and self.unit == "s" and abs(number) > self.scale[1]:
+                        raise _time_slip(f"{where}{at}", number, what, self.scale[1])
                     unit = f" {self.unit}" if self.unit else ""
                     raise ParamError(
                         f"{where}{at}: {number!r}{unit} is outside {self.scale[0]:g} to "
@@ -184,6 +187,17 @@ class Param:
     def _describe(self) -> str:
         unit = f" [{self.unit}]" if self.unit else ""
         return f"{self.type.__name__}{unit}, default {self.default!r}: {self.help}".rstrip(": ")
+
+
+def _time_slip(where: str, seconds: float, what: str, high: float) -> ParamError:
+    """A time too long for what it is: in one line, with the unit, and the value in seconds if it was
+    given in milliseconds."""
+    meant = seconds / 1000.0
+    hint = f"did you mean {meant:g}?" if meant <= high else f"give it in seconds, at most {high:g} s"
+    err = ParamError(f"{where}: {seconds:g} s is longer than {high:g} s: {what}; {hint}")
+    if meant <= high:
+        err.slip = (seconds, what, meant)
+    return err
 
 
 def _numbers(value: Any, at: str = "") -> Iterator[tuple[str, int | float]]:

@@ -158,8 +158,10 @@ def figures(a: Analysis, path: str, out_dir: str) -> list[str]:
 
     from dockhil.analysis.plots.runplot import is_sixdof, plot_runs
 
-    if not os.path.isdir(out_dir):
-        raise AnalyzeError(f"--png {out_dir}: no such folder; create it or name another")
+    try:  # made as `figures --out` makes its own
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as exc:
+        raise AnalyzeError(f"--png {out_dir}: cannot create the folder ({exc.strerror or exc})") from None
     stem = os.path.splitext(os.path.basename(path))[0]
     if is_sixdof(a.graph):
         from dockhil.analysis.plots.plot6 import plot6

@@ -21,10 +21,15 @@ class DelayInjector(Node):
 
     params = {
         "delay": Param(
-            float, 0.032, unit="s", help="fixed delay (rounded to whole ticks)", ge=0.0, scale=physical.TIME
+            float, 0.032, unit="s", help="fixed delay (rounded to whole ticks)", ge=0.0, scale=physical.ROBOT_DELAY
         ),
         "jitter": Param(
-            float, 0.0, unit="s", help="extra delay, uniform in [0, jitter], per message", ge=0.0, scale=physical.TIME
+            float,
+            0.0,
+            unit="s",
+            help="extra delay, uniform in [0, jitter], per message",
+            ge=0.0,
+            scale=physical.ROBOT_DELAY,
         ),
         "loss": Param(float, 0.0, help="probability that a message is lost (the last one is held)", ge=0.0, le=1.0),
         "seed": Param(int, 0, help="seed of jitter and loss: the same seed, the same run"),

@@ -43,6 +43,7 @@ from dockhil.runtime.looptime import LoopTiming, loop_spin, sleep_until
 from dockhil.runtime.screen import checked_payload
 
 TIMING = "\x1edockhil-timing "  # a node process's line with its wall-time loop figures (JSON), read by the launcher
+STALE = "\x1edockhil-stale "  # ... with the input that stopped it as stale (JSON): the launcher says whose fault
 DEFERRED = 16  # sim time: frames an output holds at most while its node computes on without waiting
 
 
@@ -56,6 +57,7 @@ class PortWire:
     unlimited_age: bool = False  # inputs: no maximum age (a publisher the launcher respawns may pause)
     max_age: float | None = None  # inputs: the launch file's maximum age [s], over the node's own
     burst: int = 1  # outputs, sim time: ticks whose messages go out together (readers' slack: launcher.burst)
+    publisher: str = ""  # inputs: the node that publishes the topic (named when the input goes stale)
 
 
 @dataclass
@@ -441,10 +443,15 @@ class NodeExecutor:
             if age > limit:
                 if end is not None and at >= end - 2 * limit:
                     return True
-                topic = self.spec.inputs[port].topic
+                wire = self.spec.inputs[port]
+                source = f"{wire.topic} from node {wire.publisher!r}" if wire.publisher else wire.topic
+                # The launcher, which sees the publisher's process, says whether it died or is late.
+                late = age - self.spec.dt  # its next message was due one period after the last
+                stale = {"port": port, "topic": wire.topic, "publisher": wire.publisher, "late": late}
+                print(STALE + json.dumps(stale), flush=True)
                 raise StaleInput(
-                    f"node {self.spec.name!r}: input {port!r} ({topic}) is {age:.3f} s old > "
-                    f"max_age {limit:g} s (its publisher stalled or died); stopping"
+                    f"node {self.spec.name!r}: input {port!r} ({source}) is {age:.3f} s old > max_age {limit:g} s; "
+                    f"stopping"
                 )
         return False
 

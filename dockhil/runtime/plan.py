@@ -298,6 +298,7 @@ def run_specs(
                 ref.lag,
                 unlimited_age=ref.topic in respawned or ref.max_age == math.inf,
                 max_age=None if ref.max_age == math.inf else ref.max_age,
+                publisher=graph.publishers[ref.topic].node if ref.topic in graph.publishers else "",
             )
             for port, ref in gn.inputs.items()
             if ref.topic in ep.topics

@@ -95,6 +95,19 @@ def _topic_for(port: str, default: str, remap: dict[str, str], where: str, names
     return topic
 
 
+def _slipped_argument(scene: Scene, exc: ParamError) -> str | None:
+    """A time given in milliseconds for seconds, said of the argument the user typed (delay:=16), when one
+    given away from its default holds that value."""
+    if exc.slip is None:
+        return None
+    seconds, what, meant = exc.slip
+    for name, arg in scene.args.items():
+        value = scene.values.get(name)
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and value == seconds != arg.default:
+            return f"{name}:={value:g} is {seconds:g} s: {what}; did you mean {name}:={meant:g}?"
+    return None
+
+
 def build(scene: Scene) -> Graph:
     gnodes: dict[str, GraphNode] = {}
     for spec in scene.nodes:
@@ -105,7 +118,7 @@ def build(scene: Scene) -> Graph:
         except LaunchError as exc:
             raise LaunchError(f"{where}: {exc}") from None
         except ParamError as exc:
-            raise LaunchError(f"{declared}: {exc}") from None
+            raise LaunchError(_slipped_argument(scene, exc) or f"{declared}: {exc}") from None
         ins, outs = cls.ports(params)
         for name, p in ins.items():
             # A declared input delay is kept as that many ticks of messages: bounded by the longest run.

@@ -40,6 +40,7 @@ dockhil.scene.schema: every refusal is one line with file, line and field.
 from __future__ import annotations
 
 import difflib
+import errno
 import math
 import os
 import re
@@ -193,7 +194,8 @@ def parse_overrides(items: list[str]) -> dict[str, str]:
     for item in items:
         name, sep, value = item.partition(":=")
         if not sep or not name:
-            raise LaunchError(f"launch argument {item!r} is not of the form name:=value")
+            hint = f"; did you mean {item.replace('=', ':=', 1)}?" if "=" in item and name else ""
+            raise LaunchError(f"launch argument {item!r} is not of the form name:=value{hint}")
         if name in out:  # which one was meant is a guess: ask
             raise LaunchError(f"{name} is given twice ({name}:={out[name]}, {item}); give it once")
         out[name] = value
@@ -221,9 +223,12 @@ def find_shipped(path: str | Path, kind: str = "launch file", folder: str = "") 
         for candidate in (SHIPPED_SCENES / folder).joinpath(*parts), SHIPPED_SCENES.joinpath(*parts):
             if candidate.is_file():
                 return candidate
-    shipped = ", ".join(sorted(p.name for p in (SHIPPED_SCENES / folder).glob("*.yaml"))) or "none"
+    names = sorted(p.name for p in (SHIPPED_SCENES / folder).glob("*.yaml"))
+    near = difflib.get_close_matches(path.stem, [Path(n).stem for n in names], n=1)  # the name, not .yaml
+    hint = f"; did you mean {str(path.with_name(near[0] + '.yaml'))}?" if near else ""
     raise LaunchError(
-        f"{kind} {str(path)!r} not found: no such file here and no shipped one of that name (shipped: {shipped})"
+        f"{kind} {str(path)!r} not found: no such file here and no shipped one of that name{hint} "
+        f"(shipped: {', '.join(names) or 'none'})"
     )
 
 
@@ -313,10 +318,26 @@ def _where(path: Path, root: Any, at: list) -> str:
     return f"{head}: {spot}" if spot else head
 
 
+def _unopenable(path: Path) -> str | None:
+    """Why no file can be at this path, in our words: Python's own differ between versions (3.13 resolves
+    a symlink loop without an error and words a NUL in a path differently)."""
+    if "\x00" in str(path):
+        return "its name holds a NUL character; name the file without it"
+    try:
+        os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "it is a symbolic link that leads back to itself (a loop); point it at a launch file"
+    return None
+
+
 def _load(path: Path, given: dict[str, Any], from_cli: bool, stack: tuple, budget: _Budget) -> Scene:
+    why = _unopenable(path)
+    if why is not None:
+        raise LaunchError(f"launch file {str(path)!r} cannot be opened: {why}")
     try:
         resolved = path.resolve()
-    except (OSError, RuntimeError, ValueError) as exc:  # a symlink loop, a NUL in the name
+    except (OSError, RuntimeError, ValueError) as exc:
         raise LaunchError(f"launch file {str(path)!r} cannot be opened: {exc}") from None
     if resolved in stack:
         chain = " -> ".join(str(p) for p in (*stack, resolved))

@@ -11,6 +11,7 @@ ideal 6-DOF contact."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
@@ -166,7 +167,7 @@ def plot_all(out_dir: str | PathLike[str], delay: float = 0.032) -> dict:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(f"{out_dir}/fig9.png", dpi=110)
+    fig.savefig(os.path.join(out_dir, "fig9.png"), dpi=110)
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -179,7 +180,7 @@ def plot_all(out_dir: str | PathLike[str], delay: float = 0.032) -> dict:
     ax.grid(True, alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(f"{out_dir}/fig10.png", dpi=110)
+    fig.savefig(os.path.join(out_dir, "fig10.png"), dpi=110)
     plt.close(fig)
 
     fig, axes = plt.subplots(1, 2, sharey=True, figsize=(10, 4))
@@ -198,7 +199,7 @@ def plot_all(out_dir: str | PathLike[str], delay: float = 0.032) -> dict:
         f"{f1112['K_N_per_m']:g} N/m, h = {f1112['h_s'] * 1e3:g} ms"
     )
     fig.tight_layout()
-    fig.savefig(f"{out_dir}/fig11_12.png", dpi=110)
+    fig.savefig(os.path.join(out_dir, "fig11_12.png"), dpi=110)
     plt.close(fig)
 
     bs, hs = np.linspace(10, 200, 200), np.linspace(0.016, 0.032, 200)
@@ -210,16 +211,16 @@ def plot_all(out_dir: str | PathLike[str], delay: float = 0.032) -> dict:
     ax.set_ylabel("h [ms]")
     ax.set_title("Fig. 7: critically stable stiffness, m = 750 kg")
     fig.tight_layout()
-    fig.savefig(f"{out_dir}/fig7.png", dpi=110)
+    fig.savefig(os.path.join(out_dir, "fig7.png"), dpi=110)
     plt.close(fig)
 
     from dockhil.analysis.plots.plot6 import plot6
 
-    bag = f"{out_dir}/sixdof.mcap"
+    bag = os.path.join(out_dir, "sixdof.mcap")
     six = sixdof(bag, delay)
     plot6(
         [bag],
-        f"{out_dir}/sixdof.png",
+        os.path.join(out_dir, "sixdof.png"),
         labels=[f"hil6.yaml, {delay * 1e3:g} ms"],
         title=f"6-DOF off-axis docking (launch/hil6.yaml, {delay * 1e3:g} ms delay): wrench, relative pose,"
         " angular rates",
