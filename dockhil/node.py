@@ -51,6 +51,7 @@ from types import SimpleNamespace
 from typing import Any, Callable, ClassVar
 
 from dockhil.errors import ParamError, suggest
+from dockhil.physical import Range
 from dockhil.msgs import Header
 
 
@@ -124,7 +125,7 @@ class Param:
     # (low, high): the magnitude of a nonzero value (of each number of a list) lies within this range,
     # that of docking hardware (dockhil.physical), so no product or quotient the loop and its scene
     # check form leaves floating point (1e-300 kg otherwise asks the scene check for a rate of 1e150 Hz).
-    scale: tuple[float, float] | None = None
+    scale: tuple[float, float] | Range | None = None  # a Range also says what a value beyond it is a slip for
 
     def check(self, node: str, name: str, value: Any) -> Any:
         """Return `value` converted to this type, or raise one clear ParamError."""
