@@ -26,7 +26,7 @@ _SIMULATED = {
 }
 MOST_STIFFNESS = 1e7  # N/m: the stiffest contact the bound is searched to
 _START_S = 5.0  # s: the devices' setup and the first pose and force, beyond the profile's own length
-_LOOP_ARGS = ("delay", "lag", "k", "ft_noise")  # what a loop file sets in a scene (of launchfile.LOOP_ARGS)
+_LOOP_ARGS = ("delay", "lag", "k", "ft_noise")  # what a loop file sets in a scene (of scene/loopfile.LOOP_ARGS)
 
 
 def add_arguments(p) -> None:
