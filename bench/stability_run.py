@@ -22,6 +22,7 @@ import subprocess
 import sys
 import tempfile
 
+SCENE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "launch", "stability.yaml")
 M, B, RATE = 50.0, 20.0, 250.0
 # A thrust that keeps a growing contact inside the robot driver's limits over the run (max_speed 0.1 m/s:
 # 10 N, Figs. 11-12's, starts an oscillation of 10 N / K that, grown, is stopped for speed within 30 s)
@@ -61,7 +62,7 @@ def dockhil(*args: str, timeout: float = 240.0) -> subprocess.CompletedProcess:
 
 
 def calibrate(args: list[str]) -> dict:
-    p = dockhil("calibrate", "launch/stability.yaml", *args, "--json", "--realtime")
+    p = dockhil("calibrate", SCENE, *args, "--json", "--realtime")
     if p.returncode not in (0, 3):  # 3: it fell behind real time (a busy machine); its JSON says run_valid
         raise RuntimeError(f"calibrate exit {p.returncode}: {(p.stderr.strip().splitlines() or [''])[-1]}")
     return json.loads(p.stdout.strip().splitlines()[-1])
@@ -93,7 +94,7 @@ def run(args: list[str], k: float, seconds: float) -> dict:
         bag = os.path.join(folder, "run.mcap")
         p = dockhil(
             "launch",
-            "launch/stability.yaml",
+            SCENE,
             *args,
             f"k:={k}",
             "allow_unstable:=true",
@@ -130,7 +131,6 @@ def main() -> None:
     ap.add_argument("--noise", type=float, default=0.2, help="the emulated F/T noise [N]")
     ap.add_argument("--factors", type=float, nargs="+", default=[0.75, 1.35])
     a = ap.parse_args()
-    os.chdir(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     args = hardware(a.robot, a.timing, a.delay, a.lag, a.noise)
     found = calibrate(args)
     bound = found["kcs_max_N_per_m"]
