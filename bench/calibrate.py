@@ -142,7 +142,8 @@ def rig(folder: str, truth: dict, robot: str = "modbus", cycle: float = 0.004, t
 
 # A busy machine can starve the drivers past their watchdogs: a valid safety stop, not a calibration
 # result; such a run is tried again (the attempts are counted). So is one whose F/T emulator, stopped with
-# the graph, closed its link before the driver stopped reading it ("while stopping").
+# the graph, closed its link before the driver stopped reading it ("while stopping"), and one whose bag
+# recorder, starved, lost the run's end (the fits read the bag).
 BUSY = (
     "ft_timeout: no F/T data",
     "stale data: no new sample",
@@ -150,6 +151,7 @@ BUSY = (
     "s old > max_age",
     "INVALID",
     "while stopping",
+    "the recorder fell behind",
 )
 
 
