@@ -297,7 +297,7 @@ def _print_table(r: dict, scene: str) -> None:
             else []
         ),
         (
-            f"loop delay (end to end, {r['fit'].get('loop_delay_percentile', 95):g}th percentile)",
+            f"loop delay (end to end, p{r['fit'].get('loop_delay_percentile', 95):g})",
             _pm(r["loop_delay_s"], None, 1e3),
             "ms",
         ),
