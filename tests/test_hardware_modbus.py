@@ -453,6 +453,8 @@ def test_driver_logs_when_the_controller_lost_its_heartbeat(controller):
         ]  # once, however often it flickers
     finally:
         node.close()
-    # said at close; a busy machine may have dropped the connection, which close says after it
-    closing = logs[-2:] if "could not hold the robot at close" in logs[-1] else logs[-1:]
+    # said at close, before the line that says whether the robot holds and where (a busy machine may
+    # have dropped the connection, which close says between them)
+    closing = logs[-3:] if "could not hold the robot at close" in logs[-2] else logs[-2:]
     assert node.heartbeat_losses > 1 and f"lost our heartbeat {node.heartbeat_losses} times" in closing[0]
+    assert closing[-1].startswith(f"robot controller (Modbus TCP 127.0.0.1:{controller.port}): the ")

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import dockhil_cmd
+from tests.conftest import dockhil_cmd, wait_for
 
 from dockhil.runtime import ownership
 from dockhil.errors import DeviceError, LaunchError, ParamError
@@ -57,14 +57,6 @@ def request(command: int, count: int = 0) -> bytes:
 
 def record(rdt_seq: int, ft_seq: int, status: int, counts) -> bytes:
     return struct.pack(">III6i", rdt_seq, ft_seq, status, *counts)
-
-
-def wait_for(cond, timeout: float = 10.0, what: str = "condition") -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"no {what} within {timeout} s")
-        time.sleep(0.002)
 
 
 # -- the codec, against bytes written from the manual's description ----------------------
@@ -202,13 +194,13 @@ def box():
     def make(k=1000.0, position=None, **kw):
         model = ContactModel(k, kw.pop("b", 0.0), kw.pop("bias", 0.0), kw.pop("noise", 0.0))
         model.set_pose(position)
-        b = NetFtBox(model, port=0, http_port=0, **kw).start()
+        b = NetFtBox(model, port=0, http_port=0, **kw).start_thread()
         boxes.append(b)
         return b
 
     yield make
     for b in boxes:
-        b.stop()
+        b.stop_thread()
 
 
 def client() -> socket.socket:

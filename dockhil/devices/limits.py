@@ -1,15 +1,21 @@
 """What the robot drivers (robot_modbus, robot_rsi) check a command and a reading with: a message's
 identity, a command's values, the distance and turn toward a setpoint, the angle between two
 orientations (of the smallest rotation, 2 atan2(|v|, |w|) of q1 q0*, so q and -q are one
-orientation), a non-finite field, and the controller's starting orientation."""
+orientation), a non-finite field, and what a unit quaternion is."""
 
 from __future__ import annotations
 
 import math
 
 from dockhil.contact.rotations import quat_conjugate, quat_from_rotvec, quat_multiply, rotvec3
-from dockhil.devices.modbus_robot import registers as mm
 from dockhil.msgs import Quaternion, RobotCommand, Vector3
+
+# |q| of an orientation may differ from 1 by this much: the Modbus map's 1e-9 counts round a unit
+# quaternion to within ~2e-9 of unit length; more is not a rotation.
+UNIT_TOLERANCE = 1e-6
+
+# A pose and twist as 13 floats: position(3), quaternion(4), linear(3), angular(3).
+PoseTwist = tuple[float, ...]
 
 
 def message_key(msg) -> tuple:
@@ -37,7 +43,7 @@ def angle_between(q0, q1) -> float:
     return 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), abs(w))
 
 
-def command_values(cmd: RobotCommand) -> mm.PoseTwist:
+def command_values(cmd: RobotCommand) -> PoseTwist:
     p, q, lin, ang = cmd.pose.position, cmd.pose.orientation, cmd.twist.linear, cmd.twist.angular
     return (p.x, p.y, p.z, q.x, q.y, q.z, q.w, lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
 
@@ -59,19 +65,6 @@ def turn_toward(origin, target, angle: float) -> tuple[float, ...]:
         return tuple(target)
     f = angle / turn
     return tuple(quat_multiply(quat_from_rotvec(tuple(f * c for c in rotvec)), origin))
-
-
-def start_orientation(reading: mm.ControllerReading) -> tuple[float, float, float, float]:
-    """The actual orientation at connect, the reference of max_tilt; RegisterError if it is no rotation."""
-    q = reading.actual[3:7]
-    n = quat_norm(q)
-    if abs(n - 1.0) > mm.UNIT_TOLERANCE:
-        raise mm.RegisterError(
-            f"the controller reports an actual orientation with |q| = {n:.9g}, not a unit "
-            f"quaternion; check its orientation registers (input {mm.IR_ACTUAL + 6}-"
-            f"{mm.IR_ACTUAL + 13})"
-        )
-    return tuple(c / n for c in q)
 
 
 def non_finite(*named: tuple[str, object]) -> str:

@@ -1,33 +1,38 @@
-"""What the robot drivers (robot_modbus over Modbus TCP, robot_rsi over KUKA RSI) share, written once:
-their ports, the parameters of their safety limits, and the safety paths. A driver adds its device:
-the claim to hold while it connects, its link thread (with `connected`, `hold(timeout)`,
-`take_notes()` and `fatal`), how a setpoint is handed over, and what a reading looks like.
+"""What the robot drivers (modbus_robot over Modbus TCP, kuka_rsi over KUKA RSI) share, written once:
+their ports, the parameters of their safety limits, and the whole safety sequence, in one order. A
+driver adds its device: the claim to hold while it connects, its link thread (a RobotLink:
+dockhil/devices/base.py), and the hooks the sequence calls (`_check_device`, `_ready`,
+`_command_reading`, `_hand_over`, `_lag`, `_cycles_output`, `_fresh_reading`, `_status`,
+`_close_device`).
 
 Setup refuses sim time and an empty workspace before anything runs, and lets go of the device's
-claim if connecting fails. Each step: a safety stop stays latched; the link's notes are logged and
-its fatal error stops the graph; a gap between two steps longer than stall_timeout stops; an e-stop
-stops; the F/T input is checked (max_force, max_torque, a NaN or Inf, the watchdog ft_timeout after
-ft_grace) and, until fresh F/T data came, every setpoint is a hold. A fresh command is checked
-(non-finite, unit quaternion, workspace, max_tilt from the start orientation, the commanded twist,
-the following errors from the actual pose) and handed over; while moving, no fresh command for
-stall_timeout stops, and so does a command that runs ahead of what was sent further than
-stall_timeout's travel. A reading is checked for the workspace, max_tilt and the measured twist.
+claim if connecting fails. Each step (`step`, here and nowhere else): a safety stop stays latched;
+the link's notes are logged and its fatal error stops the graph; a gap between two steps longer
+than stall_timeout stops; the device's own liveness (`_check_device`); an e-stop stops; the F/T
+input is checked (max_force, max_torque, a NaN or Inf, the watchdog ft_timeout after ft_grace) and,
+until fresh F/T data came, every setpoint is a hold. A fresh command is checked (non-finite, unit
+quaternion, workspace, max_tilt from the start orientation, the commanded twist, the following
+errors from the actual pose) and handed over; while moving, no fresh command for stall_timeout
+stops, and so does a command that runs ahead of what was sent further than stall_timeout's travel.
+A fresh reading is checked for the workspace, max_tilt and the measured twist, and published.
 
 A limit violation requests a hold, waits briefly for the hold to be sent, and raises SafetyStop (one
-line naming the limit and the value); from then on nothing is commanded. Angles between
-orientations are those of the smallest rotation (robot_limits.angle_between).
+line naming the limit and the value); from then on nothing is commanded. Close holds the robot
+(`_close_device` answers the device with a hold and lets go of it) and says in one line whether the
+robot holds and where: its last command and its last actual pose. Angles between orientations are
+those of the smallest rotation (limits.angle_between).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Protocol
 
 from dockhil.contact.rotations import IDENTITY
-from dockhil.errors import DeviceError, LaunchError
-from dockhil.errors import SafetyStop
-from dockhil.devices.modbus_robot import registers as mm
+from dockhil.devices.base import RobotLink
 from dockhil.devices.limits import (
+    UNIT_TOLERANCE,
+    PoseTwist,
     angle_between,
     command_values,
     message_key,
@@ -36,16 +41,23 @@ from dockhil.devices.limits import (
     quat_tuple,
     vector_norm,
 )
-from dockhil.msgs import EStop, Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3, WrenchStamped
-from dockhil.node import Input, Node, Output, Param
+from dockhil.errors import DeviceError, LaunchError, SafetyStop
+from dockhil.msgs import EStop, Header, Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3, WrenchStamped
+from dockhil.node import Input, Node, Output, Param, Tick
 
 HOLD_CONFIRM_TIMEOUT = 0.25  # s: how long a safety stop waits for the hold to be written
-# The workspace bounds reach at most as far as the register map carries a position (+-2147.48 m).
-_MAP_M = (2**31 - 1) / mm.POSITION_COUNTS
 
 
-def limit_params(max_speed: Param, max_angular_speed: Param) -> dict[str, Param]:
-    """The safety limits' parameters, with the driver's own commanded speed limits among them."""
+class Reading(Protocol):
+    """What a driver reads of the robot: `actual`, the 13 values of robot_state (scene frame)."""
+
+    @property
+    def actual(self) -> PoseTwist: ...
+
+
+def limit_params(max_speed: Param, max_angular_speed: Param, reach: float) -> dict[str, Param]:
+    """The safety limits' parameters, with the driver's own commanded speed limits among them; the
+    workspace bounds reach at most `reach` [m] from the origin (what the device can carry)."""
     return {
         "max_force": Param(float, 200.0, unit="N", help="contact force limit |F| (0: off)", ge=0.0, le=1e5),
         "max_speed": max_speed,
@@ -94,14 +106,14 @@ def limit_params(max_speed: Param, max_angular_speed: Param) -> dict[str, Param]
             ge=0.0,
             le=math.pi,
         ),
-        "x_min": Param(float, -0.5, unit="m", help="workspace lower bound, x", ge=-_MAP_M, le=_MAP_M),
+        "x_min": Param(float, -0.5, unit="m", help="workspace lower bound, x", ge=-reach, le=reach),
         "x_max": Param(
-            float, 0.1, unit="m", help="workspace upper bound, x (x > 0 is penetration)", ge=-_MAP_M, le=_MAP_M
+            float, 0.1, unit="m", help="workspace upper bound, x (x > 0 is penetration)", ge=-reach, le=reach
         ),
-        "y_min": Param(float, -0.2, unit="m", help="workspace lower bound, y", ge=-_MAP_M, le=_MAP_M),
-        "y_max": Param(float, 0.2, unit="m", help="workspace upper bound, y", ge=-_MAP_M, le=_MAP_M),
-        "z_min": Param(float, -0.2, unit="m", help="workspace lower bound, z", ge=-_MAP_M, le=_MAP_M),
-        "z_max": Param(float, 0.2, unit="m", help="workspace upper bound, z", ge=-_MAP_M, le=_MAP_M),
+        "y_min": Param(float, -0.2, unit="m", help="workspace lower bound, y", ge=-reach, le=reach),
+        "y_max": Param(float, 0.2, unit="m", help="workspace upper bound, y", ge=-reach, le=reach),
+        "z_min": Param(float, -0.2, unit="m", help="workspace lower bound, z", ge=-reach, le=reach),
+        "z_max": Param(float, 0.2, unit="m", help="workspace upper bound, z", ge=-reach, le=reach),
         "ft_timeout": Param(
             float, 0.05, unit="s", help="F/T watchdog: no new wrench this long stops (0: off)", ge=0.0, le=10.0
         ),
@@ -139,8 +151,8 @@ def robot_state(header, actual, status: str) -> RobotState:
 
 
 class RobotDriver(Node):
-    """A robot driver's ports and safety paths. A reading is anything with `actual`, the 13 values of
-    robot_state; a driver defines `_hand_over(values)`: the setpoint's command values, or None: hold."""
+    """A robot driver's ports, its safety sequence (`step`) and its close (`close`); the device fills
+    in the hooks below."""
 
     inputs = {
         "command": Input(RobotCommand, "/robot/command", help="setpoint: probe pose relative to the target"),
@@ -159,7 +171,7 @@ class RobotDriver(Node):
     outputs = {"state": Output(RobotState, "/robot/state", help="actual pose read from the controller")}
     moves_hardware = True
     device: str
-    link: Any
+    link: Any  # the device's RobotLink, with what the device's hooks use of it
 
     # -- setup ------------------------------------------------------------------
     def _begin_setup(self) -> None:
@@ -175,14 +187,15 @@ class RobotDriver(Node):
                 raise LaunchError(f"node {self.ctx.name!r}: workspace {axis}_min {lo} must be below {axis}_max {hi}")
         self.link = None
         self.tripped: SafetyStop | None = None
-        self._last_cmd = None
-        self._last_wrench_key = None
+        self._last_cmd: RobotCommand | None = None
+        self._last_wrench_key: tuple | None = None
         self._last_wrench_t: float | None = None
         self._first_t: float | None = None
         self._last_step_at: float | None = None
-        self._last_cmd_at: float | None = None  # when the last fresh command arrived
+        self._last_cmd_at = 0.0  # when the last fresh command arrived
         self._moving = False  # a setpoint was handed over since the last hold
-        self._start_q: tuple[float, float, float, float] = IDENTITY  # max_tilt's reference, set on connect
+        self._start_q: tuple[float, ...] = IDENTITY  # max_tilt's reference, set on connect
+        self._last_actual: PoseTwist | None = None  # the last actual pose read, for the close's line
 
     def _connect_claimed(self, lock, connect) -> None:
         """Keep `lock`, this graph's claim of the device, while connect() runs; let go if it fails."""
@@ -193,7 +206,81 @@ class RobotDriver(Node):
             lock.release()
             raise
 
+    # -- the device's part -------------------------------------------------------
+    def _check_device(self, now: float) -> None:
+        """The device's own liveness (a connection lost too long, a controller that stopped sending)."""
+
+    def _ready(self, cmd: RobotCommand | None) -> bool:
+        """Whether the step goes on to the command (RSI waits for the first one to anchor the scene)."""
+        return True
+
+    def _command_reading(self) -> Reading | None:
+        """The reading a fresh command's following errors are checked against (None: none yet)."""
+        raise NotImplementedError
+
+    def _hand_over(self, values: PoseTwist | None) -> None:
+        """Hand the link the setpoint's command values (None: hold)."""
+        raise NotImplementedError
+
+    def _lag(self) -> tuple[tuple[float, float] | None, str]:
+        """How far the command runs ahead of what was sent (m, rad; None: nothing to be ahead of), and
+        the name of what is sent."""
+        raise NotImplementedError
+
+    def _cycles_output(self, header: Header, now: float) -> dict:
+        """The outputs of the device cycles since the last step (/robot/cycles)."""
+        raise NotImplementedError
+
+    def _fresh_reading(self) -> Reading | None:
+        """The reading that came since the last step, or None."""
+        raise NotImplementedError
+
+    def _status(self, reading: Reading) -> str:
+        """The published state's status of a reading."""
+        return "ok"
+
+    def _close_device(self, link: RobotLink) -> bool:
+        """Answer the device with a hold, stop the link and let go of the device; whether the hold was
+        confirmed."""
+        raise NotImplementedError
+
     # -- step -------------------------------------------------------------------
+    def step(self, tick: Tick, inputs: dict) -> dict:
+        """The safety sequence of a tick, in this order for every device."""
+        now = self._begin_step()
+        self._check_device(now)
+        ft_fresh = self._check_inputs(inputs, now)
+        cmd = inputs.get("command")
+        if not self._ready(cmd):
+            return {}
+        self._take_command(cmd, self._command_reading(), ft_fresh, now)
+        self._check_lag(*self._lag())
+        header = tick.header(self.p.frame)
+        out = self._cycles_output(header, now)
+        reading = self._fresh_reading()
+        if reading is None:
+            return out
+        self._check_actual(reading)
+        self._last_actual = reading.actual
+        return {**out, "state": robot_state(header, reading.actual, self._status(reading))}
+
+    def close(self) -> None:
+        """Hold the robot, let go of the device, and say in one line whether the robot holds and where."""
+        link = getattr(self, "link", None)
+        if link is None:
+            return
+        self.link = None
+        held = self._close_device(link)
+        self._lock.release()
+        self.log(f"{self.device}: {'the robot holds' if held else 'the hold was not confirmed'}; {self._where()}")
+
+    def _where(self) -> str:
+        """The last command and the last actual pose, in the scene frame."""
+        cmd = self._last_cmd
+        said = "no command" if cmd is None else "last command " + _position(command_values(cmd))
+        actual = self._last_actual
+        return f"{said}, {'no pose read' if actual is None else 'actual ' + _position(actual)}"
+
     def _begin_step(self) -> float:
         """The step's time, after the latched stop, the link's notes and fatal error, and the stall check."""
         if self.tripped is not None:
@@ -222,9 +309,9 @@ class RobotDriver(Node):
         estop = inputs.get("estop")
         if estop is not None and estop.active:
             self._trip("estop", estop.reason or "active", f"estop: e-stop active ({estop.reason or 'no reason given'})")
-        return self._check_wrench(inputs.get("wrench"), t)
+        return self._check_wrench(inputs.get("wrench"), t, self._first_t)
 
-    def _take_command(self, cmd: RobotCommand | None, reading, ft_fresh: bool, now: float) -> None:
+    def _take_command(self, cmd: RobotCommand | None, reading: Reading | None, ft_fresh: bool, now: float) -> None:
         """Check a fresh command and hand it over (a hold without fresh F/T data or when disabled); while
         moving, no fresh command for stall_timeout stops."""
         p = self.p
@@ -243,12 +330,10 @@ class RobotDriver(Node):
                 f"{p.stall_timeout:g} s while moving (the simulation stalled)",
             )
 
-    def _hand_over(self, values: mm.PoseTwist | None) -> None:
-        raise NotImplementedError
-
     # -- the checks -------------------------------------------------------------
-    def _check_wrench(self, wrench: WrenchStamped | None, t: float) -> bool:
-        """Check the force limit and the watchdog; True if the F/T data are fresh enough to move."""
+    def _check_wrench(self, wrench: WrenchStamped | None, t: float, first_t: float) -> bool:
+        """Check the force limit and the watchdog (from first_t, the first step's time); True if the F/T
+        data are fresh enough to move."""
         p = self.p
         if wrench is not None and message_key(wrench) != self._last_wrench_key:
             self._last_wrench_key = message_key(wrench)
@@ -267,7 +352,7 @@ class RobotDriver(Node):
         if not p.ft_timeout:
             return True
         if self._last_wrench_t is None:
-            waited = t - self._first_t
+            waited = t - first_t
             if waited > p.ft_grace + p.ft_timeout:
                 self._trip(
                     "ft_timeout",
@@ -290,7 +375,7 @@ class RobotDriver(Node):
             if v > hi:
                 self._trip("workspace", v, f"workspace: {what} position.{axis} = {v:.4f} m above {axis}_max {hi:g} m")
 
-    def _check_command(self, cmd: RobotCommand, reading) -> None:
+    def _check_command(self, cmd: RobotCommand, reading: Reading | None) -> None:
         p = self.p
         bad = non_finite(
             ("position", cmd.pose.position),
@@ -338,13 +423,13 @@ class RobotDriver(Node):
     def _check_unit(self, what: str, q) -> None:
         """A quaternion that is not unit is no rotation: what it would command is undefined."""
         n = quat_norm(q)
-        if abs(n - 1.0) > mm.UNIT_TOLERANCE:
+        if abs(n - 1.0) > UNIT_TOLERANCE:
             self._trip(
                 "non_unit_quaternion",
                 n,
                 f"non-unit quaternion: {what} orientation |q| = {n:.9g} "
                 f"(x, y, z, w = {q[0]:g}, {q[1]:g}, {q[2]:g}, {q[3]:g}); a rotation needs |q| = 1 "
-                f"within {mm.UNIT_TOLERANCE:g}",
+                f"within {UNIT_TOLERANCE:g}",
             )
 
     def _check_tilt(self, what: str, q) -> None:
@@ -385,7 +470,7 @@ class RobotDriver(Node):
                 f"max_angular_speed",
             )
 
-    def _check_actual(self, reading) -> None:
+    def _check_actual(self, reading: Reading) -> None:
         a, p = reading.actual, self.p
         self._check_unit("actual", a[3:7])
         self._check_position("actual", a[0], a[1], a[2])
@@ -416,3 +501,7 @@ class RobotDriver(Node):
             line += "; robot held"
         self.tripped = SafetyStop(line, limit, value)
         raise self.tripped
+
+
+def _position(values) -> str:
+    return f"x {values[0]:.4f} y {values[1]:.4f} z {values[2]:.4f} m"

@@ -17,12 +17,11 @@ import threading
 import time
 
 from dockhil.runtime import ownership, realtime
-from dockhil.errors import DeviceError, LaunchError, ParamError
+from dockhil.devices.ft_base import FtDriver, Raw, problems_line, tare_params
+from dockhil.errors import DeviceError, ParamError
 from dockhil.devices.ati_netft import protocol as rdt
 from dockhil.devices import tare
-from dockhil.node import Node, Output, Param
-from dockhil.msgs import Vector3, Wrench, WrenchStamped
-from dockhil.devices.can_ft.driver import FtCanDriver
+from dockhil.node import Param
 
 RESEND_START_S = 0.25  # a start request is one datagram: ask again while the box says nothing
 
@@ -108,10 +107,10 @@ class _Receiver:
         self.thread.join(timeout=2.0)
 
 
-class FtNetFtDriver(Node):
+class FtNetFtDriver(FtDriver):
     """F/T sensor on an ATI Net F/T box (RDT over UDP): tare at start, gap, fault and stale-data detection."""
 
-    outputs = {"wrench": Output(WrenchStamped, "/ft/wrench", help="wrench the contact exerts on the chaser")}
+    sample = "record"
     params = {
         "host": Param(str, "192.168.1.1", help="the box's address (factory setting 192.168.1.1)"),
         "port": Param(int, rdt.RDT_PORT, help="the box's RDT UDP port", ge=1, le=65535),
@@ -130,28 +129,16 @@ class FtNetFtDriver(Node):
             str, "", help="the box's torque unit: Nm, Nmm, lbf-in, lbf-ft, kgf-cm, kNm ('': scfgtu of netftapi2.xml)"
         ),
         # the tare and the mounting as for the CAN sensor (tare_samples counts records here)
-        **{
-            name: FtCanDriver.params[name]
-            for name in (
-                "sign",
-                "tare_samples",
-                "bias",
-                "bias_from",
-                "max_bias",
-                "max_bias_torque",
-                "max_tare_spread",
-                "max_tare_spread_torque",
-            )
-        },
-        "stale_timeout": Param(float, 0.1, unit="s", help="no new record for this long is an error", gt=0.0),
-        "open_timeout": Param(float, 2.0, unit="s", help="time for the box to start streaming", gt=0.0),
-        "frame": Param(str, "probe", help="header frame id of the published wrench"),
+        **tare_params(
+            stale_help="no new record for this long is an error",
+            open_help="time for the box to start streaming",
+            frame="probe",
+        ),
     }
 
     @classmethod
     def resolve_params(cls, node_name: str, given: dict) -> dict:
         values = super().resolve_params(node_name, given)
-        tare.check_bias_param(node_name, values)
         for name, check in (("force_unit", rdt.force_factor), ("torque_unit", rdt.torque_factor)):
             if values[name]:
                 try:
@@ -160,22 +147,16 @@ class FtNetFtDriver(Node):
                     raise ParamError(f"node {node_name!r} parameter {name!r}: {exc}") from None
         return values
 
-    def setup(self) -> None:
+    # -- the device's part (the sequence is FtDriver's) ------------------------------
+    def _open(self) -> None:
         p = self.p
-        if self.ctx.sim_time:
-            raise LaunchError(
-                f"node {self.ctx.name!r} reads a real F/T sensor and runs only in wall time (launch with --wall-time)"
-            )
         self.device = f"Net F/T box {p.host}:{p.port}"
         try:
             address = socket.getaddrinfo(p.host, p.port, socket.AF_INET, socket.SOCK_DGRAM)[0][4][0]
         except (OSError, IndexError) as exc:
             raise DeviceError(f"{self.device}: cannot resolve {p.host!r}: {exc}") from None
         self.box = (address, p.port)
-        self.bias_force = (0.0, 0.0, 0.0)
-        self.bias_torque = (0.0, 0.0, 0.0)
         self.ticks = self.ticks_with_data = self.averaged = self.most_per_tick = 0
-        self._last_fresh_t: float | None = None
         self._foreign_logged = False
         self.receiver = None
         self.sock = None
@@ -191,7 +172,6 @@ class FtNetFtDriver(Node):
             self.sock.bind(("", 0))
             self.sock.settimeout(0.05)
             self.receiver = _Receiver(self.sock, self.box, self.log)
-            self._tare()
         except BaseException:
             self._shutdown()
             raise
@@ -238,26 +218,7 @@ class FtNetFtDriver(Node):
                 f"{self.device}: cannot send the {rdt.COMMANDS[command]} request: {exc.strerror or exc}"
             ) from None
 
-    def _tare(self) -> None:
-        """Tare at the graph's first start over tare_samples records; a restart keeps that tare (it
-        may come back in contact): dockhil/devices/tare.py, as for the CAN sensor."""
-        p = self.p
-        limits = tare.TareLimits(p.max_bias, p.max_bias_torque, p.max_tare_spread, p.max_tare_spread_torque)
-        bias = tare.graph_tare(
-            self.ctx.name,
-            self.device,
-            p.tare_samples,
-            limits,
-            self._first_records,
-            self.log,
-            unit="records",
-            given=tare.given_bias(p.bias, p.sign),
-            given_from=p.bias_from,
-        )
-        if bias is not None:
-            self.bias_force, self.bias_torque = bias.force, bias.torque
-
-    def _first_records(self, want: int) -> list[tuple[tuple[float, ...], tuple[float, ...]]]:
+    def _first_samples(self, want: int) -> list[Raw]:
         """Wait for the stream; the first `want` usable records as (force, torque) (at least one must come)."""
         p, receiver = self.p, self.receiver
         want = max(1, want)
@@ -306,7 +267,7 @@ class FtNetFtDriver(Node):
                 f"(raw force {tare.fmt(f)} N; see the box's web page)"
             )
 
-    def step(self, tick, inputs):
+    def _read(self) -> Raw | None:
         r = self.receiver
         n, sums, fault = r.take()
         self._refuse_fault(fault)
@@ -317,26 +278,17 @@ class FtNetFtDriver(Node):
                 f"warning: {self.device}: ignoring datagrams from {host}:{port}, not the box "
                 f"(counted; another device sends to this driver's port)"
             )
-        t = tick.t
         self.ticks += 1
-        if self._last_fresh_t is None:
-            self._last_fresh_t = t  # the stale clock starts with the first tick
         if not n:
-            age = t - self._last_fresh_t
-            if age > self.p.stale_timeout:
-                raise DeviceError(
-                    f"{self.device}: stale data: no new record for {age:.3f} s "
-                    f"(stale_timeout {self.p.stale_timeout:g} s)"
-                )
-            return {}  # nothing new: publish nothing rather than repeat an old mean
-        self._last_fresh_t = t
+            return None
         self.ticks_with_data += 1
         self.averaged += n
         self.most_per_tick = max(self.most_per_tick, n)
-        sign, fs, ts = self.p.sign, self.force_scale / n, self.torque_scale / n
-        force = Vector3(*(sign * (sums[i] * fs - self.bias_force[i]) for i in range(3)))
-        torque = Vector3(*(sign * (sums[3 + i] * ts - self.bias_torque[i]) for i in range(3)))
-        return {"wrench": WrenchStamped(header=tick.header(self.p.frame), wrench=Wrench(force=force, torque=torque))}
+        fs, ts = self.force_scale / n, self.torque_scale / n  # the mean of the records since the last step
+        return tuple(sums[i] * fs for i in range(3)), tuple(sums[3 + i] * ts for i in range(3))
+
+    def _is_open(self) -> bool:
+        return getattr(self, "_claim", None) is not None
 
     def counters(self) -> dict[str, int]:
         r = self.receiver
@@ -367,16 +319,12 @@ class FtNetFtDriver(Node):
             self._claim.release()
             self._claim = None
 
-    def close(self) -> None:
-        if getattr(self, "_claim", None) is None:
-            return
-        counters = self.counters()
-        self._shutdown()
+    def _report(self) -> list[str]:
+        lines = []
         if self.ticks_with_data:
-            self.log(
+            lines.append(
                 f"{self.device}: {self.averaged} records averaged over {self.ticks_with_data} ticks "
                 f"({self.averaged / self.ticks_with_data:.2f} a tick, at most {self.most_per_tick})"
             )
-        problems = [f"{n} {what}" for what, n in counters.items() if n and what != "records"]
-        if problems:
-            self.log(f"warning: {self.device}: {', '.join(problems)}")
+        counted = self.counters()
+        return lines + problems_line(self.device, [(n, what) for what, n in counted.items() if what != "records"])

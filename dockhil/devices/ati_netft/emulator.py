@@ -145,7 +145,7 @@ class NetFtBox:
         self.max_torque = [0.0, 0.0, 0.0]
 
     # -- life cycle -------------------------------------------------------------------
-    def start(self) -> "NetFtBox":
+    def start_thread(self) -> "NetFtBox":
         from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
         self.udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -187,7 +187,7 @@ class NetFtBox:
             thread.start()
         return self
 
-    def stop(self) -> None:
+    def stop_thread(self) -> None:
         if not self._running:
             return
         self._running = False
@@ -438,7 +438,7 @@ def main(argv: list[str] | None = None) -> int:
         say.error(str(exc))
         return 2
     try:
-        box.start()
+        box.start_thread()
     except OSError as exc:
         say.error(f"cannot listen on {args.host} (udp {args.port}, http {args.http_port}): {exc.strerror or exc}")
         return 2
@@ -455,7 +455,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         pass
     finally:
-        box.stop()
+        box.stop_thread()
     return 0
 
 

@@ -102,7 +102,7 @@ class NetFtEmulator(Node):
                 address = p.host
             self._claim = ownership.claim_for_graph(f"netft-{address}-{p.port}", f"Net F/T box {p.host}:{p.port}")
         try:
-            self.box.start()
+            self.box.start_thread()
         except OSError as exc:
             self._release()
             raise DeviceError(
@@ -122,7 +122,7 @@ class NetFtEmulator(Node):
     def close(self) -> None:
         box = getattr(self, "box", None)
         if box is not None:
-            box.stop()
+            box.stop_thread()
             self.box = None
             s = box.stats()
             self.log(

@@ -16,14 +16,14 @@ import os
 import time
 
 from dockhil.runtime import ownership
-from dockhil.errors import DeviceError, LaunchError
+from dockhil.devices.ft_base import FtDriver, Raw, problems_line, tare_params
+from dockhil.errors import DeviceError
 from dockhil.devices.can_ft import multicast as can_multicast
 from dockhil.devices.can_ft import frames as ff
 from dockhil.devices import tare
 from dockhil.devices.device_path import private_link, untrusted
 from dockhil.devices.can_ft.slcan_reader import SlcanReader
-from dockhil.node import Node, Output, Param
-from dockhil.msgs import Vector3, Wrench, WrenchStamped
+from dockhil.node import Param
 
 # A step reads at most this many frames, so a flooded bus cannot stall the loop.
 MAX_FRAMES_PER_STEP = 512
@@ -38,10 +38,9 @@ def one_line(exc: BaseException) -> str:
     return " ".join(text.split())
 
 
-class FtCanDriver(Node):
+class FtCanDriver(FtDriver):
     """F/T sensor over CAN: tare (or a given bias, checked) at the graph's first start, stale-data and bus-error detection."""
 
-    outputs = {"wrench": Output(WrenchStamped, "/ft/wrench", help="wrench the contact exerts on the chaser")}
     params = {
         "interface": Param(
             str,
@@ -63,58 +62,10 @@ class FtCanDriver(Node):
         ),
         "bitrate": Param(int, 1_000_000, unit="bit/s", help="CAN bitrate", gt=0, le=1_000_000),
         **ff.frame_params(),
-        "sign": Param(float, 1.0, help="-1 if the sensor reports the force on the target side", choices=(1.0, -1.0)),
-        "tare_samples": Param(
-            int,
-            100,
-            help="samples averaged into the bias at the graph's first start (0: raw readings, no "
-            "tare and no given bias); nothing may touch the probe meanwhile. A restart keeps the first tare",
-            ge=0,
-            le=100_000,
-        ),
-        "bias": Param(
-            list,
-            [],
-            unit="N, N m",
-            help="[fx, fy, fz, tx, ty, tz] the unloaded probe reads untared (the loop file's tare): "
-            "subtracted instead of a tare at start, whose samples only check it (tare.mismatch); [] tares",
-        ),
-        "bias_from": Param(str, "", help="where the bias comes from (the loop file), named when it is refused"),
-        # A tare takes whatever loads the probe at start for the sensor's offset, and every force limit downstream
-        # would then miss it: a large bias means the probe is pressed, a large spread that it moved while taring.
-        "max_bias": Param(
-            float,
-            50.0,
-            unit="N",
-            help="largest tare bias |F| accepted; more means something "
-            "loads the probe at start (raise it for a heavy tool; 0: off)",
-            ge=0.0,
-            le=10_000.0,
-        ),
-        "max_bias_torque": Param(
-            float, 5.0, unit="N m", help="largest tare bias |T| accepted (0: off)", ge=0.0, le=1_000.0
-        ),
-        "max_tare_spread": Param(
-            float,
-            2.0,
-            unit="N",
-            help="largest standard deviation of a force axis over the "
-            "tare samples (the noise band); more means the probe moved or was touched while "
-            "taring (0: off)",
-            ge=0.0,
-            le=1_000.0,
-        ),
-        "max_tare_spread_torque": Param(
-            float,
-            0.2,
-            unit="N m",
-            help="largest standard deviation of a torque axis over the tare samples (0: off)",
-            ge=0.0,
-            le=100.0,
-        ),
-        "stale_timeout": Param(float, 0.1, unit="s", help="no new sample for this long is an error", gt=0.0, le=10.0),
-        "open_timeout": Param(
-            float, 2.0, unit="s", help="time for the device to appear and start streaming", gt=0.0, le=120.0
+        **tare_params(
+            stale_help="no new sample for this long is an error",
+            open_help="time for the device to appear and start streaming",
+            frame="",
         ),
         "max_bus_errors": Param(
             int, 10, help="error frames in a row without a valid sample that are an error", ge=1, le=100_000
@@ -127,22 +78,17 @@ class FtCanDriver(Node):
             ge=0.0,
             le=30.0,
         ),
-        "frame": Param(str, "", help="header frame id of the published wrench"),
     }
 
     @classmethod
     def resolve_params(cls, node_name: str, given: dict) -> dict:
         values = super().resolve_params(node_name, given)
-        tare.check_bias_param(node_name, values)
         can_multicast.check_params(node_name, values)
         return values
 
-    def setup(self) -> None:
+    # -- the device's part (the sequence is FtDriver's) ------------------------------
+    def _open(self) -> None:
         p = self.p
-        if self.ctx.sim_time:
-            raise LaunchError(
-                f"node {self.ctx.name!r} reads a real F/T sensor and runs only in wall time (launch with --wall-time)"
-            )
         import can  # here, not at module import: only scenes with this driver load python-can
 
         self._can = can
@@ -155,15 +101,12 @@ class FtCanDriver(Node):
         self.device = f"F/T sensor ({p.interface} {p.channel}, CAN ID {p.can_id:#05x})"
         self.scaling = ff.FtScaling(p.force_resolution, p.torque_resolution)
         self.assembler = ff.SampleAssembler()
-        self.bias_force = (0.0, 0.0, 0.0)
-        self.bias_torque = (0.0, 0.0, 0.0)
         self.lost = 0
         self.repeated = 0
         self.bad_frames = 0
         self.error_frames = 0
         self._error_run = 0
         self._last_seq: int | None = None
-        self._last_fresh_t: float | None = None
         self._bad_logged = 0
         channel = os.path.abspath(p.channel) if p.interface == "slcan" else p.channel
         self._lock = ownership.claim(f"can-{p.interface}-{channel}", f"F/T adapter ({p.interface} {p.channel})")
@@ -184,10 +127,8 @@ class FtCanDriver(Node):
             # python-can's slcan reads a byte per system call; the adapter's port is read in bulk.
             self.slcan = SlcanReader(self.bus.serialPortOrig) if p.interface == "slcan" else None
             self.recv = self.slcan.recv if self.slcan is not None else self.bus.recv
-            self._tare()
         except BaseException:
-            self._shutdown_bus()
-            self._release_claims()
+            self._shutdown()
             raise
 
     def _release_claims(self) -> None:
@@ -298,24 +239,7 @@ class FtCanDriver(Node):
             samples.append(sample)
         return samples
 
-    def _tare(self) -> None:
-        """Tare at the graph's first start; a restart keeps that tare (it may come back in contact)."""
-        p = self.p
-        limits = tare.TareLimits(p.max_bias, p.max_bias_torque, p.max_tare_spread, p.max_tare_spread_torque)
-        bias = tare.graph_tare(
-            self.ctx.name,
-            self.device,
-            p.tare_samples,
-            limits,
-            lambda n: [(s.force, s.torque) for s in self._first_samples(n)],
-            self.log,
-            given=tare.given_bias(p.bias, p.sign),
-            given_from=p.bias_from,
-        )
-        if bias is not None:
-            self.bias_force, self.bias_torque = bias.force, bias.torque
-
-    def _first_samples(self, want: int) -> list[ff.FtSample]:
+    def _first_samples(self, want: int) -> list[Raw]:
         """The first `want` samples the sensor streams, within open_timeout (each budget)."""
         p = self.p
         got: list[ff.FtSample] = []
@@ -336,26 +260,20 @@ class FtCanDriver(Node):
                     )
                 raise DeviceError(f"{self.device}: only {len(got)} of {want} tare samples within {p.open_timeout:g} s")
             time.sleep(0.0005)
-        return got[:want]
+        return [(s.force, s.torque) for s in got[:want]]
 
-    def step(self, tick, inputs):
+    def _read(self) -> Raw | None:
         samples = self._read_samples()
-        t = tick.t  # the runtime's clock (a test chooses it), so "stale after 0.1 s" is decided exactly
-        if self._last_fresh_t is None:
-            self._last_fresh_t = t  # the stale clock starts with the first tick
-        if not samples:
-            age = t - self._last_fresh_t
-            if age > self.p.stale_timeout:
-                raise DeviceError(
-                    f"{self.device}: stale data: no new sample for {age:.3f} s (stale_timeout {self.p.stale_timeout:g} s)"
-                )
-            return {}  # nothing new: publish nothing rather than repeat an old sample
-        self._last_fresh_t = t
-        s = samples[-1]  # one message per tick: the newest sample
-        sign = self.p.sign
-        force = Vector3(*(sign * (s.force[i] - self.bias_force[i]) for i in range(3)))
-        torque = Vector3(*(sign * (s.torque[i] - self.bias_torque[i]) for i in range(3)))
-        return {"wrench": WrenchStamped(header=tick.header(self.p.frame), wrench=Wrench(force=force, torque=torque))}
+        return (samples[-1].force, samples[-1].torque) if samples else None  # one message per tick: the newest
+
+    def _is_open(self) -> bool:
+        return getattr(self, "bus", None) is not None
+
+    def _shutdown(self) -> None:
+        self._shutdown_bus()
+        if getattr(self, "_lock", None) is not None:
+            self._release_claims()
+            self._lock = None
 
     def _shutdown_bus(self) -> None:
         bus = getattr(self, "bus", None)
@@ -366,21 +284,14 @@ class FtCanDriver(Node):
             except Exception:  # the device may already be gone; closing must not raise
                 pass
 
-    def close(self) -> None:
-        if getattr(self, "bus", None) is None:
-            return
-        self._shutdown_bus()
-        self._release_claims()
-        problems = [
-            f"{n} {what}"
-            for n, what in (
+    def _report(self) -> list[str]:
+        return problems_line(
+            self.device,
+            (
                 (self.lost, "samples lost"),
                 (self.repeated, "samples repeated"),
                 (self.bad_frames + (self.slcan.malformed if self.slcan is not None else 0), "bad frames"),
                 (self.error_frames, "error frames"),
                 (self.assembler.orphans, "unpaired frames"),
-            )
-            if n
-        ]
-        if problems:
-            self.log(f"warning: {self.device}: {', '.join(problems)}")
+            ),
+        )

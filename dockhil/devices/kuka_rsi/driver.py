@@ -52,14 +52,17 @@ import math
 from dockhil.contact.rotations import IDENTITY, quat_conjugate, quat_multiply, rotate, rotate_back
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.devices.kuka_rsi import protocol as rsi
-from dockhil.devices.robot_base import RobotDriver, limit_params, robot_state
+from dockhil.devices.robot_base import RobotDriver, limit_params
 from dockhil.devices.limits import command_values, non_finite
 from dockhil.devices.kuka_rsi.link import RsiLink, open_socket
-from dockhil.msgs import RobotCycles
+from dockhil.msgs import Header, RobotCommand, RobotCycles
 from dockhil.node import Output, Param
 from dockhil.runtime import realtime
 
 VELOCITY_WINDOW_S = 0.02  # the measured twist is the pose's change over at least this long
+# The workspace bounds reach at most this far from the scene origin [m]: past any KUKA arm on a linear
+# unit; a bound beyond it is a unit slip (mm for m), not a workspace.
+RSI_REACH_M = 100.0
 
 
 class SceneFrame:
@@ -164,7 +167,7 @@ class RobotRsiDriver(RobotDriver):
         # the speeds first: they say how the correction moves
         "max_speed": _MAX_SPEED,
         "max_angular_speed": _MAX_ANGULAR_SPEED,
-        **limit_params(_MAX_SPEED, _MAX_ANGULAR_SPEED),
+        **limit_params(_MAX_SPEED, _MAX_ANGULAR_SPEED, reach=RSI_REACH_M),
         "connect_timeout": Param(
             float,
             10.0,
@@ -269,11 +272,10 @@ class RobotRsiDriver(RobotDriver):
             f"Y {start[1]:.2f} Z {start[2]:.2f} mm, A {start[3]:.2f} B {start[4]:.2f} C {start[5]:.2f} deg"
         )
 
-    # -- step -----------------------------------------------------------------------
-    def step(self, tick, inputs):
+    # -- the device's part of the step (the sequence is RobotDriver.step) ---------------
+    def _check_device(self, now: float) -> None:
         link, p = self.link, self.p
-        now = self._begin_step()  # after a safety stop the correction stays held
-        latest = link.latest
+        self._latest = latest = link.latest  # one snapshot of the controller's last datagram for the step
         silent = now - latest[2]
         if silent > p.controller_timeout:
             link.hold_latched = True
@@ -282,30 +284,39 @@ class RobotRsiDriver(RobotDriver):
                 f"{p.controller_timeout:g} s: the controller stopped RSI (late answers: Delay "
                 f"D={link.delay}; see its message window)"
             )
-        ft_fresh = self._check_inputs(inputs, now)
-        cmd = inputs.get("command")
-        if self._anchored is None:
-            if cmd is None:
-                link.cycles.take()  # nor cycles: the scene frame is not anchored yet
-                return {}  # no state before the scene says where the robot stands
-            self._check_command_values(cmd)
-            values = command_values(cmd)
-            self.frame.anchor(values[:3], values[3:7])
-            self._start_q = values[3:7]
-            self._anchored = values
-            self.log(f"the start pose is the scene's pose x {values[0]:.4f} y {values[1]:.4f} z {values[2]:.4f} m")
-        reading = self._reading(latest)
-        self._take_command(cmd, reading, ft_fresh, now)
+
+    def _ready(self, cmd: RobotCommand | None) -> bool:
+        """The first command anchors the scene to the start pose; before it, nothing is commanded."""
+        if self._anchored is not None:
+            return True
+        if cmd is None:
+            self.link.cycles.take()  # nor cycles: the scene frame is not anchored yet
+            return False  # no state before the scene says where the robot stands
+        self._check_command_values(cmd)
+        values = command_values(cmd)
+        self.frame.anchor(values[:3], values[3:7])
+        self._start_q = values[3:7]
+        self._anchored = values
+        self.log(f"the start pose is the scene's pose x {values[0]:.4f} y {values[1]:.4f} z {values[2]:.4f} m")
+        return True
+
+    def _command_reading(self) -> _Reading:
+        return self._reading(self._latest)
+
+    def _lag(self) -> tuple[tuple[float, float] | None, str]:
         # The link moves the correction by at most one cycle's travel toward the command: the lead's rule
         # (or the following error's, at the start) on the correction in BASE.
-        self._check_lag(link.lead() if self._moving else None, "correction")
+        return (self.link.lead() if self._moving else None), "correction"
 
-        out = link.cycles.output(tick.header(p.frame), now, self.frame.scene_values)
+    def _cycles_output(self, header: Header, now: float) -> dict:
+        return self.link.cycles.output(header, now, self.frame.scene_values)
+
+    def _fresh_reading(self) -> _Reading | None:
+        latest = self._latest
         if latest[0] == self._seen:
-            return out
+            return None
         self._seen = latest[0]
-        self._check_actual(reading)
-        return {**out, "state": robot_state(tick.header(p.frame), reading.actual, "ok")}
+        return self._reading(latest)
 
     def _hand_over(self, values) -> None:
         self.link.submit(*((None, None) if values is None else self.frame.correction(values[:3], values[3:7])))
@@ -342,11 +353,7 @@ class RobotRsiDriver(RobotDriver):
         self._actual = (count, reading)
         return reading
 
-    def close(self) -> None:
-        link = getattr(self, "link", None)
-        if link is None:
-            return
-        self.link = None
+    def _close_device(self, link: RsiLink) -> bool:
         received = link.received
         link.delay_at_close = link.delay  # what comes late from here on does not move the robot: it holds
         # Hold: the answers keep the last correction until the controller has one of them, then stop.
@@ -355,9 +362,9 @@ class RobotRsiDriver(RobotDriver):
         link.stop()
         for line in link.take_notes() + link.report(self.device):
             self.log(line)
-        self._lock.release()
         if not held and self.tripped is None and sending:
             self.log(
                 f"warning: {self.device}: could not confirm the hold at close; the controller stops RSI "
                 f"when the answers stop"
             )
+        return held

@@ -58,9 +58,9 @@ from dockhil.runtime import ownership
 from dockhil.errors import DeviceError
 from dockhil.devices.modbus_robot import registers as mm
 from dockhil.devices.modbus_robot.link import NoDelayClient, ModbusLink, set_nodelay, verify_and_hold
-from dockhil.devices.robot_base import HOLD_CONFIRM_TIMEOUT, RobotDriver, limit_params, robot_state
-from dockhil.devices.limits import start_orientation
-from dockhil.msgs import RobotCycles
+from dockhil.devices.limits import PoseTwist
+from dockhil.devices.robot_base import HOLD_CONFIRM_TIMEOUT, RobotDriver, limit_params
+from dockhil.msgs import Header, RobotCycles
 from dockhil.node import Output, Param
 
 
@@ -127,6 +127,7 @@ class RobotModbusDriver(RobotDriver):
                 ge=0.0,
                 le=10.0,
             ),
+            reach=(2**31 - 1) / mm.POSITION_COUNTS,  # as far as the register map carries a position (+-2147.48 m)
         ),
     }
 
@@ -164,7 +165,7 @@ class RobotModbusDriver(RobotDriver):
         try:
             set_nodelay(client)
             start = verify_and_hold(client, p.device_id, 0, self._claim)
-            self._start_q = start_orientation(start)
+            self._start_q = mm.start_orientation(start)
         except mm.RegisterError as exc:
             client.close()
             raise DeviceError(f"{self.device}: {exc}") from None
@@ -181,10 +182,9 @@ class RobotModbusDriver(RobotDriver):
         except OSError as exc:
             return exc.strerror or str(exc) or type(exc).__name__
 
-    # -- step -------------------------------------------------------------------
-    def step(self, tick, inputs):
+    # -- the device's part of the step (the sequence is RobotDriver.step) ---------------
+    def _check_device(self, now: float) -> None:
         link, p = self.link, self.p
-        t = now = self._begin_step()
         if not link.connected and p.reconnect_timeout and link.lost_since is not None:
             gone = now - link.lost_since
             if gone > p.reconnect_timeout:
@@ -192,27 +192,34 @@ class RobotModbusDriver(RobotDriver):
                     f"{self.device}: connection lost for {gone:.1f} s "
                     f"(reconnect_timeout {p.reconnect_timeout:g} s): {link.last_error}"
                 )
-        ft_fresh = self._check_inputs(inputs, t)
-
         if not link.connected or link.reconnects != self._reconnects_seen:
             # After a loss the controller holds until a fresh setpoint, and the link starts it from the
             # actual pose: nothing of the old connection is written.
             self._reconnects_seen = link.reconnects
             self._moving = False
-        self._take_command(inputs.get("command"), link.latest()[1], ft_fresh, now)
-        self._check_lag(link.lag, "setpoint")
 
-        count, reading = link.latest()
-        out = link.cycles.output(tick.header(p.frame), now)
+    def _command_reading(self) -> mm.ControllerReading | None:
+        return self.link.latest()[1]
+
+    def _lag(self) -> tuple[tuple[float, float] | None, str]:
+        return self.link.lag, "setpoint"
+
+    def _cycles_output(self, header: Header, now: float) -> dict:
+        return self.link.cycles.output(header, now)
+
+    def _fresh_reading(self) -> mm.ControllerReading | None:
+        count, reading = self.link.latest()
         if reading is None or count == self._seen_readings:
-            return out
+            return None
         self._seen_readings = count
-        self._check_actual(reading)
+        return reading
+
+    def _status(self, reading: mm.ControllerReading) -> str:
         if reading.status != self._status_word:
             self._status_changed(reading.status)
-        return {**out, "state": robot_state(tick.header(p.frame), reading.actual, mm.describe_status(reading.status))}
+        return mm.describe_status(reading.status)
 
-    def _hand_over(self, values: mm.PoseTwist | None) -> None:
+    def _hand_over(self, values: PoseTwist | None) -> None:
         if values is not None:
             try:  # here, not in the link's thread, where a failed write reads as a lost connection
                 mm.encode_block(values)
@@ -220,7 +227,7 @@ class RobotModbusDriver(RobotDriver):
                 self._trip("register_range", str(exc), f"register map: {exc}")
         self.link.submit(values)
 
-    def _check_actual(self, reading: mm.ControllerReading) -> None:
+    def _check_actual(self, reading: mm.ControllerReading) -> None:  # type: ignore[override]
         super()._check_actual(reading)
         if reading.status & mm.STATUS_FAULT:
             self.link.hold(HOLD_CONFIRM_TIMEOUT)
@@ -236,11 +243,7 @@ class RobotModbusDriver(RobotDriver):
                     f"warning: {self.device}: controller lost our heartbeat and holds; resuming on the next command"
                 )
 
-    def close(self) -> None:
-        link = getattr(self, "link", None)
-        if link is None:
-            return
-        self.link = None
+    def _close_device(self, link: ModbusLink) -> bool:
         held = link.connected and link.hold(HOLD_CONFIRM_TIMEOUT)
         link.stop()
         for line in link.take_notes():
@@ -251,7 +254,6 @@ class RobotModbusDriver(RobotDriver):
             except Exception:  # noqa: BLE001 - the heartbeat timeout ends the claim anyway
                 pass
         link.client.close()
-        self._lock.release()
         if self.heartbeat_losses > 1:
             self.log(f"warning: {self.device}: the controller lost our heartbeat {self.heartbeat_losses} times")
         if not held and self.tripped is None:
@@ -259,6 +261,7 @@ class RobotModbusDriver(RobotDriver):
                 f"warning: {self.device}: could not hold the robot at close (not connected); "
                 f"the controller holds when our heartbeat stops"
             )
+        return held
 
 
 def _address(host: str) -> str:

@@ -60,6 +60,7 @@ import time
 from collections import deque
 
 from dockhil.contact.rotations import quat_conjugate, quat_from_rotvec, quat_multiply, quat_to_rotvec
+from dockhil.devices.limits import UNIT_TOLERANCE
 from dockhil.devices.modbus_robot import registers as mm
 from dockhil.devices.modbus_robot.server import DEVICE_BUSY, READ_INPUT, ModbusTcpServer
 
@@ -72,7 +73,7 @@ def _normalize(q):
 
 
 def _is_unit(q) -> bool:
-    return abs(math.sqrt(sum(c * c for c in q)) - 1.0) <= mm.UNIT_TOLERANCE
+    return abs(math.sqrt(sum(c * c for c in q)) - 1.0) <= UNIT_TOLERANCE
 
 
 def _rotation_between(q_old, q_new):

@@ -19,7 +19,7 @@ import time
 
 from dockhil.devices.modbus_robot import registers as mm
 from dockhil.devices.cycle_log import CycleLog
-from dockhil.devices.limits import angle_between, start_orientation, toward, turn_toward
+from dockhil.devices.limits import angle_between, toward, turn_toward
 
 
 class SetpointLimiter:
@@ -333,7 +333,7 @@ def verify_and_hold(client, device_id: int, heartbeat: int, claim: list[int] | N
     if rr.isError():
         raise mm.RegisterError(f"cannot read input registers 0-{mm.IR_COUNT - 1}: {rr}")
     reading = mm.decode_inputs(rr.registers)
-    start_orientation(reading)  # a controller that reports no rotation is refused before anything is written
+    mm.start_orientation(reading)  # a controller that reports no rotation is refused before anything is written
     if claim is not None:
         claim_controller(client, device_id, claim)
     wr = client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE | mm.CONTROL_HOLD, heartbeat), device_id=device_id)

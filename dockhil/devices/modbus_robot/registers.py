@@ -74,6 +74,8 @@ import math
 import struct
 from dataclasses import dataclass
 
+from dockhil.devices.limits import UNIT_TOLERANCE, PoseTwist
+
 MAGIC = 0x4448
 VERSION = 1
 
@@ -123,10 +125,6 @@ QUATERNION_COUNTS = 1_000_000_000  # per 1
 LINEAR_COUNTS = 1_000_000  # per m/s
 ANGULAR_COUNTS = 1_000_000  # per rad/s
 
-# |q| of an orientation may differ from 1 by this much: 1e-9 counts round a unit
-# quaternion to within ~2e-9 of unit length; more is not a rotation.
-UNIT_TOLERANCE = 1e-6
-
 FIELDS = (
     ("position.x", POSITION_COUNTS, "m"),
     ("position.y", POSITION_COUNTS, "m"),
@@ -151,9 +149,6 @@ _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
 class RegisterError(ValueError):
     """A value that does not fit the map, or registers that are not this map."""
 
-
-# A pose and twist as 13 floats in FIELDS order: position(3), quaternion(4), linear(3), angular(3).
-PoseTwist = tuple[float, ...]
 
 HOLD_POSE: PoseTwist = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
@@ -268,3 +263,16 @@ def decode_owner(regs) -> tuple[int, str]:
         raise RegisterError(f"ownership block: expected {HR_CLAIM_COUNT} registers, got {len(regs)}")
     raw = b"".join(int(r).to_bytes(2, "big") for r in regs[2:])
     return (regs[0] << 16) | regs[1], raw.rstrip(b"\0").decode("ascii", "replace")
+
+
+def start_orientation(reading: ControllerReading) -> tuple[float, float, float, float]:
+    """The actual orientation at connect, the reference of max_tilt; RegisterError if it is no rotation."""
+    q = reading.actual[3:7]
+    n = math.sqrt(sum(c * c for c in q))
+    if abs(n - 1.0) > UNIT_TOLERANCE:
+        raise RegisterError(
+            f"the controller reports an actual orientation with |q| = {n:.9g}, not a unit "
+            f"quaternion; check its orientation registers (input {IR_ACTUAL + 6}-"
+            f"{IR_ACTUAL + 13})"
+        )
+    return tuple(c / n for c in q)
