@@ -410,7 +410,11 @@ def _run_hybrid(args) -> int:
         r = hybrid_report(m, kd, bd, kh, bh, h, rate=rate, pade_order=args.pade_order)
     except RootsNotResolved as exc:
         raise DockhilError(f"{exc}; give a lower --rate") from None
-    print(json.dumps(r) if args.json else format_hybrid(r))
+    if args.scene is not None:  # the verdict in the words of dockhil calibrate and the launch's scene check
+        from dockhil.analysis.stability.verdict import loop_verdict
+
+        r["verdict"] = loop_verdict(m, kd, bd, kh, bh, h)["line"]
+    print(json.dumps(r) if args.json else format_hybrid(r) + ("\n" + r["verdict"] if "verdict" in r else ""))
     return 0
 
 
