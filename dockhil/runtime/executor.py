@@ -387,6 +387,7 @@ class NodeExecutor:
             # ticking it at the graph's rate only takes the interpreter from the device's thread.
             period = max(period, IDLE_DEVICE_PERIOD_S)
         self.timing = timing = LoopTiming(list(spec.inputs), period=period, max_age=self.max_age)
+        timing.device = getattr(node, "device_figures", None)  # a driver's account of its device (validity)
         spin = loop_spin()
         timing.first_tick()  # before the schedule starts: its reading of /proc is not the first tick's time
         t0 = clock()

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections.abc import Callable
 
 from dockhil.runtime import switches
 from dockhil.runtime.histogram import Histogram
@@ -30,6 +31,7 @@ class LoopTiming:
         self.worst_age = {port: 0.0 for port in ports}  # since arrival [s]
         self.dropped_in = 0
         self.dropped_out = 0
+        self.device: Callable[[], dict] | None = None  # a driver's device_figures, read at report
         self.worst_overrun = 0.0
         # When the loop's first tick began and its last ended (time.time(), comparable across the
         # graph's processes): the run's real-time factor counts this span, not the start-up.
@@ -104,6 +106,8 @@ class LoopTiming:
             "published": dict(self.published),
             "switches": dict(self.switches),
         }
+        if self.device is not None:  # a driver's account of its device's cycles (validity.device_reasons)
+            out["device"] = self.device()
         return out
 
 

@@ -21,6 +21,7 @@ from dockhil.analysis.summary.common import (
     Samples,
     TickMatcher,
     bag_messages,
+    force_band,
     ideal_force_at,
     range_summary,
 )
@@ -143,7 +144,9 @@ class SummaryCollector1:
         ref = scene_reference(graph)
         growth = ref.get("growth")
         self.meter = ContactMeter(ideal=ref.get("ideal"), growth_about=None if growth is None else growth["about"])
-        self.match = TickMatcher(self.meter.add, ref.get("ideal_force"), graph.scene.dt, expect=graph.publishers)
+        self.match = TickMatcher(
+            self.meter.add, ref.get("ideal_force"), graph.scene.dt, expect=graph.publishers, band=force_band(graph)
+        )
         self.energy = EnergyMeter()
         self.ranges = RangeMeter()
 
