@@ -1,0 +1,100 @@
+"""The compensation methods, the Hunt-Crossley target and the simulated hardware's mismatch as launch
+arguments: the composed graph runs them bit for bit like the library loop, and bad arguments get
+one line."""
+
+import numpy as np
+import pytest
+
+from dockhil.bags.reader import BagReader
+from dockhil.contact.comploop import ZERO, Hardware, simulate_compensated, target_frequency
+from dockhil.contact.compensation import CompensationSettings
+from dockhil.contact.hunt_crossley import TargetContact
+from dockhil.contact.hybrid import VirtualImpedance
+from dockhil.contact.impedance import impedance_closed_form
+from dockhil.contact.passivity import DEFAULT_MAX_DAMPING, Passivity
+from dockhil.contact.scenario import TABLE1
+from tests.inprocess import run_main
+
+MISMATCH = ("hw_k_scale:=0.7", "hw_delay_scale:=1.2", "ft_delay:=0.002", "ft_noise:=0.2")
+
+
+def chaser_positions(bag):
+    with BagReader(bag) as b:
+        return np.array([m.bodies[0].pose.position.x for _, _, m in b.decoded(["/satellite/state"])])
+
+
+@pytest.mark.parametrize(
+    "method, contact, extra",
+    [
+        ("predictor", "linear", ()),
+        ("phase_lead", "hunt_crossley", ("kcs:=40000", "hc_alpha:=2.0")),
+        ("smith", "linear", ("lag:=0.004",)),
+        ("phase_lead+passivity", "linear", ()),
+    ],
+)
+def test_the_composed_graph_is_the_library_loop(tmp_path, method, contact, extra):
+    bag = tmp_path / "run.mcap"
+    args = ("launch/hil.yaml", f"compensation:={method}", f"contact:={contact}", *MISMATCH, *extra)
+    code, _out, err = run_main("launch", *args, "--duration", "0.8", "--quiet", "--composed", "--bag", bag)
+    assert code == 0, err
+    x1 = chaser_positions(bag)
+    t = TABLE1
+    m = t.m1 * t.m2 / (t.m1 + t.m2)
+    if contact == "linear":
+        target, imp = TargetContact("linear", t.kcs, t.bcs), impedance_closed_form(t, warn=False)
+    else:
+        target, imp = TargetContact("hunt_crossley", 40000.0, n=1.5, alpha=2.0), ZERO
+    lag = 0.004 if extra == ("lag:=0.004",) else 0.0
+    lib = simulate_compensated(
+        m1=t.m1,
+        m2=t.m2,
+        k=t.k,
+        impedance=imp,
+        dt=1e-3,
+        n_ticks=x1.size,
+        delay=0.032,
+        v1=t.v1,
+        settings=CompensationSettings(method, t.k, 0.032, lag, target_frequency(target, m, t.v1), 0.0, 0.2),
+        contact=target,
+        hardware=Hardware(0.7, 1.2, 0.002, 0.2, lag),
+        passivity=Passivity(t.k, DEFAULT_MAX_DAMPING),
+    )
+    assert np.array_equal(x1, lib.x1)
+
+
+def test_stability_yaml_takes_the_methods_and_the_mismatch(tmp_path):
+    bag = tmp_path / "run.mcap"
+    args = ("launch/stability.yaml", "compensation:=energy", "hw_delay_scale:=0.8", "hw_k_scale:=1.3")
+    code, _out, err = run_main("launch", *args, "--duration", "2", "--quiet", "--composed", "--bag", bag)
+    assert code == 0, err
+    x1 = chaser_positions(bag)
+    lib = simulate_compensated(
+        m1=750.0,
+        m2=0.0,
+        k=2510.0,
+        impedance=VirtualImpedance(0.0, 20.0, 0.0, 0.0),
+        dt=1e-3,
+        n_ticks=x1.size,
+        delay=0.016,
+        thrust=10.0,
+        settings=CompensationSettings("energy", 2510.0, 0.016),
+        hardware=Hardware(1.3, 0.8),
+    )
+    assert np.array_equal(x1, lib.x1)
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (("compensation:=wave",), "compensation"),
+        (("contact:=hunt_crossley", "hc_n:=0.5"), "hc_n"),
+        (("hw_k_scale:=0",), "k_scale"),
+        (("ft_delay:=-1",), "delay"),
+        (("compensation:=phase_lead", "delay:=0.9"), "cannot advance"),
+        (("compensation:=smith", "k:=0"), "needs the passive stiffness k > 0"),
+    ],
+)
+def test_bad_arguments_give_one_line(args, words):
+    code, _out, err = run_main("launch", "launch/hil.yaml", *args, "--duration", "0.1", "--composed", "--quiet")
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and words in lines[0], err
