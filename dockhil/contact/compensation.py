@@ -227,10 +227,12 @@ class Compensator:
     def __init__(self, settings: CompensationSettings, dt: float):
         s = settings
         self.settings, self.dt = s, dt
-        self.lead = PhaseLead(s.omega, delay_ticks(s.delay, dt) * dt, s.tau, dt) if "phase_lead" in s.method else None
+        ticks = delay_ticks(s.delay, dt)
+        # Without a whole tick of delay there is nothing to lead (and a lead_tau of delay / 4 would be 0).
+        self.lead = PhaseLead(s.omega, ticks * dt, s.tau, dt) if "phase_lead" in s.method and ticks else None
         self.smith = SmithPredictor(s.k, s.delay, s.lag, dt) if s.method == "smith" else None
         self.predictor = IdentifyingPredictor(s.k, s.noise, s.ft_delay, dt) if s.method == "predictor" else None
-        self.damping = energy_matching_damping(s.k, delay_ticks(s.delay, dt) * dt) if s.method == "energy" else 0.0
+        self.damping = energy_matching_damping(s.k, ticks * dt) if s.method == "energy" else 0.0
 
     def step(
         self, p: float, pd: float, f: float, robot: tuple[float, float] | None, touching: bool
