@@ -105,7 +105,7 @@ class ImpedanceStep:
                 stiffness = self.given_stiffness if self.target is None else self.target.stiffness(p)
                 extra -= hold_damping(stiffness, dt) * pd
             if self.passivity is not None:  # phase lead + passivity: the observer watches the led port
-                fc, account = self.monitor.step(x1, x2, v1, v2, port, fv1, fv2, dt, external=port - f)
+                fc, account = self.monitor.step(x1, x2, v1, v2, port, fv1, fv2, dt)
                 extra += fc
             else:
                 fc, account = self.monitor.step(x1, x2, v1, v2, f, fv1, fv2, dt, external=extra)
