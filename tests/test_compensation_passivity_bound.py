@@ -73,3 +73,18 @@ def test_a_bad_rate_is_one_line(rate):
     code, out, err = run_main("stability", "--m", "750", "--b", "20", "--h", "0.016", "--rate", rate)
     lines = [line for line in err.splitlines() if line.strip()]
     assert code == 2 and len(lines) == 1 and "--rate" in lines[0], err
+
+
+def test_the_map_draws_the_passivity_bound_under_the_exact_one(tmp_path):
+    png = tmp_path / "map.png"
+    code, out, err = run_main(
+        "stability", "map", "--m", "750", "--damper", "undelayed", "--n", "40", "--png", png, "--json"
+    )
+    r = json.loads(out)
+    assert code == 0 and png.stat().st_size > 1000, err
+    assert r["passivity_max_K_min"] == pytest.approx(10.0 / 0.032) and r["passivity_max_K_max"] == pytest.approx(
+        200.0 / 0.016
+    )
+    assert 0.999 < r["passivity_over_exact_max"] <= 1.0  # passive is stable for every mass: never above the exact bound
+    code, out, _ = run_main("stability", "map", "--m", "750", "--n", "20", "--png", png, "--json")
+    assert code == 0 and json.loads(out)["passivity_max_K_max"] is None  # the damper behind the delay: none passive

@@ -124,3 +124,15 @@ def passivity_report(
         out["sampled_passive"] = bool(b_undelayed >= sneed)
         out["sampled_rate_Hz"] = 1.0 / dt
     return out
+
+
+def passive_stiffness_map(b_values, h_values, damper: str, dt: float | None = None):
+    """The largest K [N/m] whose delayed port the undelayed damper b makes passive, over a grid
+    (shape (len(h), len(b))): b / h, or b / ((d + 1/2) dt) sampled at dt; NaN everywhere for the delayed
+    damper (the paper's loop), whose port no undelayed damping backs."""
+    b = np.asarray(b_values, dtype=float)[None, :]
+    h = np.asarray(h_values, dtype=float)[:, None]
+    if damper == "delayed":
+        return np.full((h.size, b.size), np.nan)
+    late = h if dt is None else (np.round(h / dt) + 0.5) * dt
+    return b / late
