@@ -2,6 +2,8 @@
 arguments: the composed graph runs them bit for bit like the library loop, and bad arguments get
 one line."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -98,3 +100,38 @@ def test_bad_arguments_give_one_line(args, words):
     code, _out, err = run_main("launch", "launch/hil.yaml", *args, "--duration", "0.1", "--composed", "--quiet")
     lines = [line for line in err.splitlines() if line.strip()]
     assert code == 2 and len(lines) == 1 and words in lines[0], err
+
+
+def test_the_scene_check_judges_the_simulated_hardwares_true_loop():
+    # 32 ms told, 1.5 x that and 10 ms of sensor delay true, a compliance twice as stiff: 58 ticks of a 2000 N/m port.
+    code, out, err = run_main(
+        "stability", "--scene", "launch/hil.yaml", "hw_delay_scale:=1.5", "ft_delay:=0.01", "hw_k_scale:=2", "--json"
+    )
+    r = json.loads(out)
+    assert code == 0, err
+    assert r["h"] == pytest.approx(0.058) and r["k_delayed"] == pytest.approx(2000.0)
+
+
+def test_a_hunt_crossley_target_is_checked_as_its_linear_equivalent():
+    from dockhil.contact.comploop import linear_equivalent
+    from dockhil.contact.hunt_crossley import restitution as hc_restitution
+
+    params = {"kcs": 40000.0, "hc_n": 1.5, "hc_alpha": 2.0, "v_close": 0.03}
+    m = TABLE1.m1 * TABLE1.m2 / (TABLE1.m1 + TABLE1.m2)
+    k, b = linear_equivalent(params, m)
+    from dockhil.contact.hunt_crossley import ideal_relative_run
+
+    linear = ideal_relative_run(TargetContact("linear", k, b), m, 0.03, 1e-3, 3000)
+    assert linear.restitution == pytest.approx(hc_restitution(2.0, 0.03), abs=1e-6)
+    code, _out, err = run_main(
+        "launch",
+        "launch/hil.yaml",
+        "contact:=hunt_crossley",
+        "kcs:=40000",
+        "hc_alpha:=2",
+        "--composed",
+        "--duration",
+        "0.5",
+        "--quiet",
+    )
+    assert code == 0, err

@@ -60,6 +60,16 @@ def target_frequency(contact: TargetContact, m: float, v: float = 0.03) -> float
     return hunt_crossley_omega(contact, m, v)
 
 
+def linear_equivalent(params: dict, m: float) -> tuple[float, float]:
+    """(kcs, bcs) of the linear contact with a Hunt-Crossley target's frequency (hunt_crossley_omega at
+    the closing velocity v_close) and restitution: what the scene check judges the loop with."""
+    from dockhil.contact.hunt_crossley import linear_damping_for_restitution, restitution
+
+    contact = TargetContact("hunt_crossley", params["kcs"], n=params["hc_n"], alpha=params["hc_alpha"])
+    stiffness = m * hunt_crossley_omega(contact, m, params["v_close"]) ** 2
+    return stiffness, linear_damping_for_restitution(restitution(contact.alpha, params["v_close"]), m, stiffness)
+
+
 class ImpedanceStep:
     """One tick of the virtual impedance: the virtual forces (the linear impedance, or the target's force
     less the told passive k p for a Hunt-Crossley target, on top of a given impedance), the energy
