@@ -97,7 +97,7 @@ class NodeHarness:
         **more_params: Any,
     ):
         if isinstance(node, str):
-            from dockhil import nodes as registry
+            from dockhil import node_types as registry
 
             cls = registry.load(node)
         else:

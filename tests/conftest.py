@@ -86,7 +86,7 @@ def write_launch(tmp_path):
 @pytest.fixture
 def controller():
     """A robot controller emulator (Modbus TCP on a free port) in this process."""
-    from dockhil.hardware.robot_emulator import RobotControllerEmulator
+    from dockhil.devices.modbus_robot.emulator import RobotControllerEmulator
 
     em = RobotControllerEmulator(port=0, tau=0.005)
     em.start_thread()
@@ -212,7 +212,7 @@ class VirtualFtSensor:
         self._thread = None
 
     def send(self, force=None, torque=None, seq=None, status=0, advance=True):
-        from dockhil.hardware import ft_frames as ff
+        from dockhil.devices.can_ft import frames as ff
 
         seq = self.seq if seq is None else seq
         for fid, data in ff.encode_sample(force or self.force, torque or self.torque, seq, status=status):

@@ -9,11 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from dockhil.analysis import calibration as cal
-from dockhil.analysis.device_cycles import unwrap
+from dockhil.analysis.calibration import loop as cal
+from dockhil.analysis.calibration.device_cycles import unwrap
 from dockhil.bags.reader import BagReader
 from dockhil.bags.writer import BagWriter
-from dockhil.hardware.cycle_log import CycleLog
+from dockhil.devices.cycle_log import CycleLog
 from dockhil.msgs import Header, NodeStatus, RobotCommand, RobotCycles, Pose, Vector3, type_name
 from dockhil.msgs.codec import encode
 from dockhil.nodes.identification import chirp_position

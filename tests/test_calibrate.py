@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from dockhil.scene import launchfile
-from dockhil.analysis import calibration as cal
+from dockhil.analysis.calibration import loop as cal
 from dockhil.cli import main
 from dockhil.contact.stability import exact_bound
 from dockhil.errors import DeviceError, LaunchError

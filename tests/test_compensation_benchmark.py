@@ -6,7 +6,7 @@ import json
 import pytest
 
 from dockhil.contact import compensation_grid as grid
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 
 @pytest.fixture(scope="module")

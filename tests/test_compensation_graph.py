@@ -15,7 +15,7 @@ from dockhil.contact.hybrid import VirtualImpedance
 from dockhil.contact.impedance import impedance_closed_form
 from dockhil.contact.passivity import DEFAULT_MAX_DAMPING, Passivity
 from dockhil.contact.scenario import TABLE1
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 MISMATCH = ("hw_k_scale:=0.7", "hw_delay_scale:=1.2", "ft_delay:=0.002", "ft_noise:=0.2")
 

@@ -10,7 +10,7 @@ import pytest
 
 from dockhil.contact.passivity_bound import passivity_min_damping, sampled_passivity_min_damping
 from dockhil.contact.stability import exact_bound
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 
 @pytest.mark.parametrize("k, h", [(2510.0, 0.016), (1e4, 0.032), (1.0, 1.0)])

@@ -14,7 +14,7 @@ from dockhil.msgs.codec import encode
 from dockhil.analysis.summary import SummaryCollector
 from dockhil.testing import NodeHarness
 from tests.conftest import ROOT, dockhil_cmd
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 HIL, HIL6 = ROOT / "launch" / "hil.yaml", ROOT / "launch" / "hil6.yaml"
 DOF_TYPES = ("satellite_dynamics", "virtual_impedance", "ft_sim", "robot_sim")

@@ -22,11 +22,12 @@ from scipy.spatial.transform import Rotation
 
 from dockhil.runtime import ownership
 from dockhil.errors import DeviceError, LaunchError
-from dockhil.hardware import SafetyStop, rsi
-from dockhil.hardware.rsi_emulator import RsiControllerEmulator, RsiServo
+from dockhil.errors import SafetyStop
+from dockhil.devices.kuka_rsi import protocol as rsi
+from dockhil.devices.kuka_rsi.emulator import RsiControllerEmulator, RsiServo
 from dockhil.msgs import Header, Pose, RobotCommand, Twist, Vector3
 from dockhil.node import ManualClock, NodeContext, Tick
-from dockhil.nodes.robot_rsi import RobotRsiDriver, RsiLink, SceneFrame
+from dockhil.devices.kuka_rsi.driver import RobotRsiDriver, RsiLink, SceneFrame
 from dockhil.testing import wrench
 from tests.conftest import dockhil_cmd
 
@@ -696,7 +697,7 @@ def test_the_driver_against_the_emulator_tracks_the_command_within_the_per_cycle
 
 
 def test_an_emulator_whose_driver_reads_another_controller_is_refused_in_one_line():
-    from dockhil.nodes.rsi_emulator import RsiControllerEmulatorNode
+    from dockhil.devices.kuka_rsi.emulator_node import RsiControllerEmulatorNode
 
     node = RsiControllerEmulatorNode(
         NodeContext("rsi_emulator", 0.001, sim_time=False), port=udp_port(), controller="192.0.2.7"
@@ -743,7 +744,7 @@ def test_launch_hil_with_the_rsi_driver_and_its_emulator_is_valid(tmp_path):
 
 def test_the_emulator_runs_alone_and_refuses_an_unphysical_fault_in_one_line(tmp_path):
     run = lambda *a: subprocess.run(  # noqa: E731
-        [sys.executable, "-m", "dockhil.hardware.rsi_emulator", *a],
+        [sys.executable, "-m", "dockhil.devices.kuka_rsi.emulator", *a],
         capture_output=True,
         text=True,
         timeout=60,
@@ -758,7 +759,7 @@ def test_the_emulator_runs_alone_and_refuses_an_unphysical_fault_in_one_line(tmp
         [
             sys.executable,
             "-m",
-            "dockhil.hardware.rsi_emulator",
+            "dockhil.devices.kuka_rsi.emulator",
             "--port",
             str(sensor.port),
             "--duration",

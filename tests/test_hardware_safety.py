@@ -15,12 +15,12 @@ import time
 import pytest
 
 from dockhil.errors import DockhilError
-from dockhil.hardware import SafetyStop
-from dockhil.hardware import modbus_map as mm
-from dockhil.hardware.robot_emulator import FOLLOW, HOLD
+from dockhil.errors import SafetyStop
+from dockhil.devices.modbus_robot import registers as mm
+from dockhil.devices.modbus_robot.emulator import FOLLOW, HOLD
 from dockhil.node import ManualClock, NodeContext, Tick
 from dockhil.msgs import EStop, Header, Pose, RobotCommand, Twist, Vector3, Wrench, WrenchStamped
-from dockhil.nodes.robot_modbus import RobotModbusDriver
+from dockhil.devices.modbus_robot.driver import RobotModbusDriver
 from tests.test_hardware_modbus import read_holding
 
 DT = 0.001

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from dockhil.hardware import rsi
+from dockhil.devices.kuka_rsi import protocol as rsi
 from dockhil.node import ManualClock
 from tests.conftest import dockhil_cmd
 from tests.test_hardware_rsi import CYCLE, START, SceneFrame, link, read_sen, rob_text

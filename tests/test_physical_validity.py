@@ -17,7 +17,7 @@ import pytest
 
 from dockhil.bags.reader import BagReader
 from tests.conftest import ROOT, dockhil_cmd
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 EXPLODING = ("delay:=0.4", "k:=20000")  # the delayed loop's root: +4.176 1/s
 SHORT = ("--duration", "1.5")  # 1500 ticks: the force is 700 times the ideal peak
@@ -195,7 +195,7 @@ NOT_LAUNCH_FILES = {
 def test_an_include_of_a_file_that_is_not_a_launch_file_never_shows_it(name, write_launch, tmp_path):
     secret = tmp_path / "secret"
     secret.write_text(NOT_LAUNCH_FILES[name])
-    scene = write_launch("nodes:\n  - {name: a, node: 'tests.graphnodes:Source'}\ninclude:\n  - file: secret\n")
+    scene = write_launch("nodes:\n  - {name: a, node: 'tests.support.graphnodes:Source'}\ninclude:\n  - file: secret\n")
     for command in ("graph", "launch"):
         code, out, err = run_main(command, scene, *(["--duration", "0.01"] if command == "launch" else []))
         assert code == 2, err

@@ -9,8 +9,8 @@ import socket
 import pytest
 
 from dockhil.errors import DeviceError
-from dockhil.hardware import rsi
-from dockhil.hardware.rsi_link import RsiLink, open_socket
+from dockhil.devices.kuka_rsi import protocol as rsi
+from dockhil.devices.kuka_rsi.link import RsiLink, open_socket
 from dockhil.node import ManualClock
 
 CYCLE = 0.004

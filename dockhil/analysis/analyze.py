@@ -41,7 +41,7 @@ class Analysis:
 
 def scene_graph(path: str, info: runinfo.RunInfo, scene_file: str | None = None, overrides: dict | None = None):
     """(graph, where its scene came from) of the run a bag recorded."""
-    from dockhil.analysis.runplot import bag_graph
+    from dockhil.analysis.plots.runplot import bag_graph
     from dockhil.scene import launchfile
     from dockhil.scene.graph import build
 
@@ -148,13 +148,13 @@ def figures(a: Analysis, path: str, out_dir: str) -> list[str]:
     or the 6-DOF figure; returns the files written."""
     import os
 
-    from dockhil.analysis.runplot import is_sixdof, plot_runs
+    from dockhil.analysis.plots.runplot import is_sixdof, plot_runs
 
     if not os.path.isdir(out_dir):
         raise AnalyzeError(f"--png {out_dir}: no such folder; create it or name another")
     stem = os.path.splitext(os.path.basename(path))[0]
     if is_sixdof(a.graph):
-        from dockhil.analysis.plot6 import plot6
+        from dockhil.analysis.plots.plot6 import plot6
 
         png = os.path.join(out_dir, f"{stem}-6dof.png")
         plot6([path], png)

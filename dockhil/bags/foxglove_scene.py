@@ -84,8 +84,8 @@ class Geometry(NamedTuple):
 
     @classmethod
     def six_dof_defaults(cls) -> "Geometry":
-        """The 6-DOF dynamics node's defaults (dockhil.nodes.sixdof_params), which the shipped 6-DOF scene keeps."""
-        from dockhil.nodes.sixdof_params import BODY_PARAMS, MOUNT_PARAMS
+        """The 6-DOF dynamics node's defaults (dockhil.scene.sixdof_params), which the shipped 6-DOF scene keeps."""
+        from dockhil.scene.sixdof_params import BODY_PARAMS, MOUNT_PARAMS
 
         return cls.from_params({name: param.default for name, param in {**BODY_PARAMS, **MOUNT_PARAMS}.items()})
 

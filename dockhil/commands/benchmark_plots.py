@@ -27,7 +27,7 @@ def _pyplot():
 def error_figure(rows: list[dict], path: str) -> str:
     """One panel per scene and target: |restitution error| (push: |energy residual|) against omega h, a line
     per method, solid with the hardware mismatched, dotted as told."""
-    from dockhil.analysis.figure_file import save_figure
+    from dockhil.analysis.plots.figure_file import save_figure
 
     plt = _pyplot()
     keys = sorted({(r["scene"], r["target"]) for r in rows})
@@ -74,7 +74,7 @@ def map_figure(best_map: dict, path: str) -> str:
     """Which method is best (smallest worst normalised error) at each omega h, per scene and target."""
     from matplotlib.colors import ListedColormap
 
-    from dockhil.analysis.figure_file import save_figure
+    from dockhil.analysis.plots.figure_file import save_figure
 
     plt = _pyplot()
     methods = list(METHOD_COLORS)

@@ -1,6 +1,6 @@
 """`dockhil calibrate SCENE [name:=value ...] --out LOOP.yaml`: identify the real loop (delay, lag, passive
 stiffness and damping, the F/T sensor's bias and noise) on the scene's hardware, or from a recorded run
-(`--bag RUN.mcap`). The excitation is dockhil/nodes/identification.py, the fits dockhil/analysis/calibration.py."""
+(`--bag RUN.mcap`). The excitation is dockhil/nodes/identification.py, the fits dockhil/analysis/calibration/loop.py."""
 
 from __future__ import annotations
 
@@ -86,7 +86,7 @@ def run(args) -> int:
         if cal is None:
             say.error(f"the identification run stopped (exit {code}; the line above says why); nothing written")
             return code
-    from dockhil.analysis import calibration
+    from dockhil.analysis.calibration import loop as calibration
 
     calibration.check(cal)
     if cal.link is None:
@@ -118,7 +118,7 @@ def _check_out(path: str) -> None:
 
 
 def _identify(bag: str):
-    from dockhil.analysis import calibration
+    from dockhil.analysis.calibration import loop as calibration
     from dockhil.bags.reader import BagReader
 
     if not os.path.isfile(bag):
@@ -135,7 +135,7 @@ def calibration_scene(scene):
     """The identification graph's scene: the scene's hardware nodes (drivers, emulators) and the
     identification node, without the simulated loop; LaunchError naming the arguments when the scene
     has no hardware to identify."""
-    from dockhil import nodes as registry
+    from dockhil import node_types as registry
     from dockhil.scene.launchfile import NodeSpec
     from dockhil.nodes.identification import Identification
 
@@ -207,8 +207,8 @@ def _live(scene, bag_out: str | None, realtime: bool, say):
 
 def _verdict(scene, cal) -> dict:
     """The scene's reduced mass, kcs and bcs, and the identified loop's stability for them."""
-    from dockhil import nodes as registry
-    from dockhil.analysis import calibration
+    from dockhil import node_types as registry
+    from dockhil.analysis.calibration import loop as calibration
 
     values = {}
     for spec in scene.nodes:

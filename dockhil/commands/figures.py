@@ -29,7 +29,7 @@ def run(args) -> int:
         os.makedirs(args.out, exist_ok=True)
     except OSError as exc:
         raise DockhilError(f"--out {args.out}: cannot create the folder ({exc.strerror})") from None
-    from dockhil.analysis.figures import plot_all
+    from dockhil.analysis.plots.figures import plot_all
 
     numbers = plot_all(args.out, args.delay)
     with open(os.path.join(args.out, "figures.json"), "w") as f:

@@ -108,23 +108,23 @@ def _info(name: str, graphs: list[dict], as_json: bool) -> int:
 
 def _types(name: str | None) -> int:
     from dockhil import msgs
-    from dockhil import nodes
+    from dockhil import node_types
 
-    extra = nodes.plugins()
-    names = [name] if name else [*sorted(nodes.REGISTRY), *sorted(extra)]
+    extra = node_types.plugins()
+    names = [name] if name else [*sorted(node_types.REGISTRY), *sorted(extra)]
     refused = 0
     for type_name in names:
         origin = f"  [from {extra[type_name][1]}]" if type_name in extra else ""
         if name is None and origin:  # one broken package does not hide the other types
             try:
-                cls = nodes.load(type_name)
+                cls = node_types.load(type_name)
             except LaunchError as exc:
                 Log("dockhil node types:").error(str(exc))
                 refused += 1
                 continue
         else:
-            cls = nodes.load(type_name)
-        alias = f"  [{nodes.ONE_DOF[type_name]} with dof: 6]" if type_name in nodes.ONE_DOF else ""
+            cls = node_types.load(type_name)
+        alias = f"  [{node_types.ONE_DOF[type_name]} with dof: 6]" if type_name in node_types.ONE_DOF else ""
         print(f"{type_name}: {cls.describe()}{origin}{alias}")
         if not name:
             continue
@@ -134,7 +134,7 @@ def _types(name: str | None) -> int:
             print(f"  in  {port}: {i.topic} {msgs.type_name(i.type)}{ft}{opt}  {i.help}")
         for port, o in cls.outputs.items():
             print(f"  out {port}: {o.topic} {msgs.type_name(o.type)}  {o.help}")
-        dof = nodes.dof_param(type_name)  # picks the class, so it is the registry's, not the class's
+        dof = node_types.dof_param(type_name)  # picks the class, so it is the registry's, not the class's
         for pname, p in {**({"dof": dof} if dof else {}), **cls.params}.items():
             unit = f" [{p.unit}]" if p.unit else ""
             print(f"  param {pname}: {p.type.__name__}{unit} = {p.default!r}  {p.help}")

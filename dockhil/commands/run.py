@@ -46,7 +46,7 @@ def run(args) -> int:
     import uuid
 
     from dockhil import msgs
-    from dockhil import nodes
+    from dockhil import node_types
     from dockhil.scene import boundedyaml
     from dockhil.runtime.executor import PortWire, RunSpec
     from dockhil.runtime.registry import KEY_FILE, graph_keys, registry_dir, running_graphs
@@ -56,7 +56,7 @@ def run(args) -> int:
 
     name = args.name or args.node.rsplit(":", 1)[-1]
     params = {k: boundedyaml.load(v, f"parameter {k}:={v}")[0] for k, v in parse_overrides(args.overrides).items()}
-    type_name, cls, params = nodes.resolve(args.node, name, params)  # dof:=6 picks the 6-DOF type
+    type_name, cls, params = node_types.resolve(args.node, name, params)  # dof:=6 picks the 6-DOF type
     remap = parse_overrides(args.remap)
     ins, outs = cls.ports(params)
     ages = {}

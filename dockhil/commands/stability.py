@@ -2,7 +2,7 @@
 (paper Sec. 4: Eq. 12 and the exact boundary), `stability map`: Fig. 7, and `stability multi`: the
 multi-axis delayed loop of a 6-DOF scene. Parse, call (dockhil.contact.stability and
 stability_maps; the maps, the multi-axis record and the scenes' loops in
-dockhil.analysis.stability_report) and print (the text in dockhil.analysis.stability_text)."""
+dockhil.analysis.stability.report) and print (the text in dockhil.analysis.stability.text)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import argparse
 import json
 import math
 
-from dockhil.analysis.stability_text import (
+from dockhil.analysis.stability.text import (
     format_compensated,
     format_hybrid,
     format_hybrid_map,
@@ -368,7 +368,7 @@ def _run_map(args) -> int:
     compensated = None
     if getattr(args, "compensation", "none") == "passivity":
         compensated = _compensated_region(m, b_range, h_range, args)
-    from dockhil.analysis.stability_report import stiffness_map
+    from dockhil.analysis.stability.report import stiffness_map
 
     summary = stiffness_map(args.png, m, getattr(args, "damper", "delayed"), b_range, h_range, args.n, compensated)
     print(json.dumps(summary) if getattr(args, "json", False) else format_stiffness_map(summary))
@@ -420,7 +420,7 @@ def _scene_values(args) -> tuple[float, float, float, float, float, float, float
             f"name:=value after the file"
         )
     path, *overrides = args.scene
-    from dockhil.analysis.stability_report import scene_hybrid_loop
+    from dockhil.analysis.stability.report import scene_hybrid_loop
 
     return scene_hybrid_loop(path, overrides)
 
@@ -491,7 +491,7 @@ def _run_hybrid_map(args, m: float) -> int:
     args.n = 60 if args.n is None else args.n
     if not 2 <= args.n <= 400:
         raise DockhilError(f"--n must be between 2 and 400 for the hybrid map, got {args.n}")
-    from dockhil.analysis.stability_report import hybrid_stability_map
+    from dockhil.analysis.stability.report import hybrid_stability_map
 
     summary = hybrid_stability_map(args.png, m, kcs, bcs, rate, (k_lo, k_hi), (h_lo, h_hi), args.n)
     print(json.dumps(summary) if getattr(args, "json", False) else format_hybrid_map(summary))
@@ -549,7 +549,7 @@ def _add_multi_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _run_multi(args: argparse.Namespace) -> int:
-    from dockhil.analysis import stability_report
+    from dockhil.analysis.stability import report as stability_report
     from dockhil.contact import stability6
 
     scene = getattr(args, "scene", None)

@@ -147,7 +147,7 @@ def _plot(args) -> int:
         raise DockhilError("sweep plot: give the results file: dockhil sweep plot RESULTS.parquet --png FILE")
     if not args.png:
         raise DockhilError("sweep plot: give --png FILE (where to write the figure)")
-    from dockhil.analysis.sweep_plot import plot_results
+    from dockhil.analysis.sweep.plot import plot_results
 
     for line in plot_results(args.results, args.png):
         print(line)

@@ -16,7 +16,7 @@ def estop_held(estop: EStop | None) -> None:
     """An active e-stop stops the simulated robot as it stops the robot driver: the pose holds (no state
     follows the command) and the graph stops with the driver's line."""
     if estop is not None and estop.active:
-        from dockhil.hardware import SafetyStop
+        from dockhil.errors import SafetyStop
 
         reason = estop.reason or "no reason given"
         raise SafetyStop(

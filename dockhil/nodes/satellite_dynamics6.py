@@ -15,7 +15,7 @@ from dockhil.msgs import (
     Vector3,
     WrenchStamped,
 )
-from dockhil.nodes.sixdof_params import BODY_PARAMS, IDENTITY, MOUNT_PARAMS, bodies, checked
+from dockhil.scene.sixdof_params import BODY_PARAMS, IDENTITY, MOUNT_PARAMS, bodies, checked
 
 
 def attitude(q, rotvec, name):

@@ -6,7 +6,7 @@ On this host the claim is a lock file in the private runtime directory, keyed by
 held with flock(2) for as long as the claiming process lives (the kernel drops it when the process
 dies, however it dies). The file holds the owner's description for the refusal line. Across
 machines a device must enforce ownership itself: the robot controller's owner registers
-(dockhil/hardware/modbus_map.py).
+(dockhil/devices/modbus_robot/registers.py).
 """
 
 from __future__ import annotations

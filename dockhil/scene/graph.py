@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from dockhil import msgs
-from dockhil import nodes as node_registry
+from dockhil import node_types as node_registry
 from dockhil.errors import LaunchError, ParamError, suggest
 from dockhil.scene.launchfile import Scene
 from dockhil.scene.schema import MAX_DURATION
