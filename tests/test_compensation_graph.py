@@ -135,3 +135,19 @@ def test_a_hunt_crossley_target_is_checked_as_its_linear_equivalent():
         "--quiet",
     )
     assert code == 0, err
+
+
+def test_the_predictor_reads_the_robot_alike_as_processes_and_composed(tmp_path):
+    import subprocess
+
+    from tests.conftest import dockhil_cmd
+
+    args = ("launch", "launch/hil.yaml", "compensation:=predictor", *MISMATCH, "--duration", "0.6", "--quiet")
+    bags = []
+    for extra in ((), ("--composed",)):
+        bag = tmp_path / f"run{len(bags)}.mcap"
+        r = subprocess.run(dockhil_cmd(*args, *extra, "--bag", bag), capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+        with BagReader(bag) as b:
+            bags.append(sorted((m.topic, m.log_time_ns, m.data) for m in b))
+    assert bags[0] == bags[1]
