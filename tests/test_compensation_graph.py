@@ -110,6 +110,10 @@ def test_the_scene_check_judges_the_simulated_hardwares_true_loop():
     r = json.loads(out)
     assert code == 0, err
     assert r["h"] == pytest.approx(0.058) and r["k_delayed"] == pytest.approx(2000.0)
+    # A scale written as 1 (the robot then delays the command itself) is the told delay, as the default.
+    for scale in ("hw_delay_scale:=1", "hw_delay_scale:=1.0"):
+        code, out, err = run_main("stability", "--scene", "launch/hil.yaml", scale, "--json")
+        assert code == 0 and json.loads(out)["h"] == pytest.approx(0.032), err
 
 
 def test_a_hunt_crossley_target_is_checked_as_its_linear_equivalent():
@@ -151,3 +155,24 @@ def test_the_predictor_reads_the_robot_alike_as_processes_and_composed(tmp_path)
         with BagReader(bag) as b:
             bags.append(sorted((m.topic, m.log_time_ns, m.data) for m in b))
     assert bags[0] == bags[1]
+
+
+def test_a_robot_that_delays_itself_by_the_told_delay_is_the_delay_injectors_loop(tmp_path):
+    runs = []
+    for scale in ("hw_delay_scale:=1.0", "hw_delay_scale:=1"):  # the injector's branch, and robot_sim's own delay
+        bag = tmp_path / f"{len(runs)}.mcap"
+        code, _out, err = run_main(
+            "launch",
+            "launch/hil.yaml",
+            scale,
+            "compensation:=smith",
+            "--duration",
+            "0.5",
+            "--quiet",
+            "--composed",
+            "--bag",
+            bag,
+        )
+        assert code == 0, err
+        runs.append(chaser_positions(bag))
+    assert np.array_equal(runs[0], runs[1])

@@ -85,8 +85,8 @@ def scene_loop(graph, dt: float | None = None) -> dict | None:
     delay = first_node(graph, "delay_injector")
     robot = first_node(graph, "robot_sim")
     h = delay.params["delay"] if delay is not None else 0.0
-    if robot is not None and robot.params.get("delay_scale", 1.0) != 1.0:  # the simulated robot delays itself
-        h = robot.params["delay"] * robot.params["delay_scale"]
+    if robot is not None and robot.params.get("delay", 0.0) > 0.0:  # a simulated robot that delays the command itself
+        h += robot.params["delay"] * robot.params.get("delay_scale", 1.0)
     if ft is not None:  # the simulated hardware's truth: its sensor's own delay, its true stiffness
         h += ft.params.get("delay", 0.0)
         kh *= ft.params.get("k_scale", 1.0)
