@@ -80,9 +80,34 @@ def test_the_figures_are_written(tmp_path):
         (("compensation", "--scenes", "moon"), "unknown scene 'moon'"),
         (("compensation", "--methods", "wave"), "unknown method 'wave'"),
         (("compensation", "--out", "/proc/no/such"), "--out /proc/no/such: cannot make the directory"),
+        (("compensation", "--workers", "0"), "--workers must be between 1 and 64"),
     ],
 )
 def test_bad_input_is_one_line(args, words):
     code, _out, err = run_main("benchmark", *args)
     lines = [line for line in err.splitlines() if line.strip()]
     assert code == 2 and len(lines) == 1 and words in lines[0], err
+
+
+def test_workers_give_the_same_rows(tmp_path):
+    rows = []
+    for workers in ("1", "2"):
+        out = tmp_path / workers
+        args = (
+            "--scenes",
+            "spring",
+            "--methods",
+            "smith",
+            "--out",
+            out,
+            "--quiet",
+            "--no-figures",
+            "--workers",
+            workers,
+        )
+        code, _stdout, err = run_main("benchmark", "compensation", *args)
+        assert code == 0, err
+        rows.append(
+            [{k: v for k, v in json.loads(line).items() if k != "cpu_s"} for line in (out / "rows.jsonl").open()]
+        )
+    assert rows[0] == rows[1] and len(rows[0]) == 6 * 2 * len(grid.OMEGA_H_QUICK) * 2

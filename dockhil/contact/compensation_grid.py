@@ -270,13 +270,14 @@ def run_point(scene: Scene, ref: Reference, method: str, omega_h: float, hw_name
     return row
 
 
-def grid(full: bool = False, only_scenes=None, only_methods=None, progress=None) -> list[dict]:
-    """Every run of the grid (quick or full), one row each; `progress(label)` before each."""
+def tasks(full: bool = False, only_scenes=None, only_methods=None) -> list[tuple]:
+    """The grid's runs as run_point's arguments (scene, reference, method, omega h, hardware name, hardware),
+    each scene's ideal reference computed once."""
     omega_hs = OMEGA_H_FULL if full else OMEGA_H_QUICK
     hardware = HARDWARE_FULL if full else HARDWARE_QUICK
     methods = [m for m in METHODS if only_methods is None or m in only_methods]
     chosen = [s for s in scenes() if only_scenes is None or s.name in only_scenes]
-    rows = []
+    out = []
     for scene in chosen:
         ref = reference(scene, 10.0 * 2.0 * math.pi / math.sqrt(scene.target().kcs / scene.reduced) + 0.01)
         for hw_name, hw in hardware.items():
@@ -284,21 +285,23 @@ def grid(full: bool = False, only_scenes=None, only_methods=None, progress=None)
                 hw = replace(hw, seed=1)
             for omega_h in omega_hs:
                 for method in methods:
-                    if progress is not None:
-                        progress(f"{scene.name} {scene.target_name} {hw_name} wh {omega_h:g} {method}")
-                    rows.append(run_point(scene, ref, method, omega_h, hw_name, hw))
+                    out.append((scene, ref, method, omega_h, hw_name, hw))
+    return out
+
+
+def label(task: tuple) -> str:
+    scene, _ref, method, omega_h, hw_name, _hw = task
+    return f"{scene.name} {scene.target_name} {hw_name} wh {omega_h:g} {method}"
+
+
+def grid(full: bool = False, only_scenes=None, only_methods=None, progress=None) -> list[dict]:
+    """Every run of the grid (quick or full), one row each, in this process; `progress(label)` before each."""
+    rows = []
+    for task in tasks(full, only_scenes, only_methods):
+        if progress is not None:
+            progress(label(task))
+        rows.append(run_point(*task))
     return rows
-
-
-def count(full: bool = False, only_scenes=None, only_methods=None) -> int:
-    n_scenes = sum(1 for s in scenes() if only_scenes is None or s.name in only_scenes)
-    n_methods = sum(1 for m in METHODS if only_methods is None or m in only_methods)
-    return (
-        n_scenes
-        * n_methods
-        * len(OMEGA_H_FULL if full else OMEGA_H_QUICK)
-        * len(HARDWARE_FULL if full else HARDWARE_QUICK)
-    )
 
 
 def _worst(rows: list[dict], metric: str) -> float | None:
