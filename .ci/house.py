@@ -208,9 +208,7 @@ def typed_share(mods: dict[str, Path], lines: dict[str, int]) -> dict:
 
     listed = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["mypy"].get("files", [])
     roots = [ROOT / f for f in listed]
-    checked = sum(
-        k for n, k in lines.items() if any(mods[n] == r or r in mods[n].parents for r in roots)
-    )
+    checked = sum(k for n, k in lines.items() if any(mods[n] == r or r in mods[n].parents for r in roots))
     total = sum(lines.values())
     return {"checked_lines": checked, "library_lines": total, "share": round(checked / total, 3)}
 

@@ -69,6 +69,24 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def udp_port() -> int:
+    """A UDP port on 127.0.0.1 that was free a moment ago (for a device a test starts)."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(done, timeout: float = 10.0, what: str = "condition") -> None:
+    """Wait until done() (a device's thread did something); fail naming `what` after `timeout` s."""
+    deadline = time.monotonic() + timeout
+    while not done():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what} not reached within {timeout} s")
+        time.sleep(0.002)
+
+
 def dockhil_cmd(*args):
     return [sys.executable, "-m", "dockhil.cli", *map(str, args)]
 

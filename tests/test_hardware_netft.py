@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import dockhil_cmd
+from tests.conftest import dockhil_cmd, wait_for
 
 from dockhil.runtime import ownership
 from dockhil.errors import DeviceError, LaunchError, ParamError
@@ -57,14 +57,6 @@ def request(command: int, count: int = 0) -> bytes:
 
 def record(rdt_seq: int, ft_seq: int, status: int, counts) -> bytes:
     return struct.pack(">III6i", rdt_seq, ft_seq, status, *counts)
-
-
-def wait_for(cond, timeout: float = 10.0, what: str = "condition") -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"no {what} within {timeout} s")
-        time.sleep(0.002)
 
 
 # -- the codec, against bytes written from the manual's description ----------------------

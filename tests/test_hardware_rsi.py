@@ -29,17 +29,11 @@ from dockhil.msgs import Header, Pose, RobotCommand, Twist, Vector3
 from dockhil.node import ManualClock, NodeContext, Tick
 from dockhil.devices.kuka_rsi.driver import RobotRsiDriver, RsiLink, SceneFrame
 from dockhil.testing import wrench
-from tests.conftest import dockhil_cmd
+from tests.conftest import dockhil_cmd, udp_port
 
 ROOT = Path(__file__).resolve().parents[1]
 CYCLE = 0.004
 START = (512.5, -20.25, 803.0, 170.0, 10.0, -175.0)  # mm, degrees: a pose off every axis
-
-
-def udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def rob_text(ipoc: int, rist=START, delay: int = 0, attribute: str = "Type", extra: str = "") -> bytes:

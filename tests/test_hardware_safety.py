@@ -21,17 +21,10 @@ from dockhil.devices.modbus_robot.emulator import FOLLOW, HOLD
 from dockhil.node import ManualClock, NodeContext, Tick
 from dockhil.msgs import EStop, Header, Pose, RobotCommand, Twist, Vector3, Wrench, WrenchStamped
 from dockhil.devices.modbus_robot.driver import RobotModbusDriver
+from tests.conftest import wait_for
 from tests.test_hardware_modbus import read_holding
 
 DT = 0.001
-
-
-def wait_for(condition, timeout: float = 5.0, what: str = "condition") -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{what} not reached within {timeout} s")
-        time.sleep(0.002)
 
 
 class ClockedDrive:

@@ -25,7 +25,8 @@ from dockhil.msgs import Header, Pose, Quaternion, RobotCommand, Twist, Vector3,
 from dockhil.devices.modbus_robot.driver import RobotModbusDriver
 from tests.conftest import node_process_error
 from tests.test_hardware_modbus import ENV, read_holding
-from tests.test_hardware_safety import DT, ClockedDrive, following, make, mode, settled, tripped, wait_for
+from tests.conftest import wait_for
+from tests.test_hardware_safety import DT, ClockedDrive, following, make, mode, settled, tripped
 
 __all__ = ["make"]  # the driver fixture, shared with test_hardware_safety.py
 
