@@ -41,6 +41,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "report": ("dockhil.commands.report", "error against run time, stiff and extreme cases, lean scenes"),
     "sweep": ("dockhil.commands.sweep", "run a scene over a campaign of parameters into a Parquet table"),
+    "benchmark": ("dockhil.commands.benchmark", "delay compensation methods against the ideal contact (compensation)"),
     "calibrate": (
         "dockhil.commands.calibrate",
         "identify the real loop's delay, lag, stiffness and F/T bias and noise",

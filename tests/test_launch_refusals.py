@@ -231,8 +231,9 @@ BAD_INPUTS = {
         "graph",
         "launch/hil.yaml",
         ["delay:=1e308"],
-        f"hil.yaml:{HIL_LINE['delay']}: node 'delay' parameter 'delay': 1e+308 s is longer than 1 s: a robot delay "
-        "is a few ms to a few hundred ms; give it in seconds, at most 1 s",
+        # The virtual impedance is told the delay too (its compensation), and is checked first.
+        f"hil.yaml:{HIL_LINE['impedance']}: node 'impedance' parameter 'delay': 1e+308 s is longer than 1 s: a "
+        "robot delay is a few ms to a few hundred ms; give it in seconds, at most 1 s",
     ),
     "params --m1 1e-320": ("params", None, ["--table1", "--m1", "1e-320"], "--m1 1e-320 is too small to compute with"),
     "params --m1 1e308": ("params", None, ["--table1", "--m1", "1e308"], "--m1 1e+308 kg is outside 0.01 to 1e+08 kg"),
