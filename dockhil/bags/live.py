@@ -6,18 +6,16 @@ The log time of a message is its receive time in wall time; in sim time it is
 the message's header stamp, so a sim-time bag carries sim times and the same
 run recorded twice gives the same bag. It runs in three ways:
 
-- `dockhil launch FILE --bag PATH`: the launcher starts it as a helper
-  process (`python -m dockhil.bags.live record PATH --graph-pid PID
-  [--n-ticks N]`) counted as a subscriber of every topic, so sim time waits
-  for it before tick 0. In sim time it exits by itself once it holds tick
-  N-1 of every topic. In wall time it is told at the end what each topic's
-  publisher sent, and counts what never came as lost (dockhil.bags.tail).
+- `dockhil launch FILE --bag PATH`: the launcher starts it as a helper process (`python -m
+  dockhil.bags.live record PATH --graph-pid PID [--n-ticks N]`) counted as a subscriber of every
+  topic, so sim time waits for it before tick 0. In sim time it exits by itself once it holds tick
+  N-1 of every topic. In wall time it is told at the end what each topic's publisher sent, and
+  counts what never came as lost (dockhil.bags.tail).
 - `dockhil launch FILE --composed --bag PATH`: a tap in the one process
   (dockhil.bags.tap) encodes each message and writes it; the bytes are the same.
-- `dockhil bag record PATH [--topics ...]`: joins graphs that are already
-  running (found in the registry), until Ctrl-C or until they stop. It is an
-  observer (`dockhil.runtime.transport`): if it falls behind it loses messages, counts
-  them and says so, and the graph's own deliveries go on.
+- `dockhil bag record PATH [--topics ...]`: joins graphs that are already running (found in the
+  registry), until Ctrl-C or until they stop. It is an observer (`dockhil.runtime.transport`): if
+  it falls behind it loses messages, counts them and says so, and the graph's own deliveries go on.
 
 Chunks are closed by size, by age and on a 0.5 s timer, so a recorder killed
 with SIGKILL loses at most the chunk it was filling. On SIGTERM or SIGINT it
