@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dockhil.analysis.calibration.servo_fit import MAX_DELAY_S, CalibrationError, _ServoModel, servo
+from dockhil.analysis.calibration.servo_fit import MAX_DELAY_S, CalibrationError, TickServoModel, servo
 
 PERCENTILE = 95.0  # of the windows' delays: the loop's delay
 WINDOW_S = 0.5  # s: a window, about the period of a contact's oscillation (the loop's delay counts over one)
@@ -35,7 +35,7 @@ class EndToEnd:
     percentile: float = PERCENTILE
 
 
-def _fit_delay(model: _ServoModel, lag: float, mask: np.ndarray, lo: float, hi: float) -> float:
+def _fit_delay(model: TickServoModel, lag: float, mask: np.ndarray, lo: float, hi: float) -> float:
     from scipy.optimize import minimize_scalar
 
     target = model.x_state[model.keep][mask]
@@ -60,7 +60,7 @@ def end_to_end(t_cmd, x_cmd, t_state, x_state, lag: float | None = None) -> EndT
     t_cmd, x_cmd, t_state, x_state = (np.asarray(a, dtype=float) for a in (t_cmd, x_cmd, t_state, x_state))
     if lag is None:
         lag = servo(t_cmd, x_cmd, t_state, x_state).lag_s
-    model = _ServoModel(t_cmd, x_cmd, t_state, x_state)
+    model = TickServoModel(t_cmd, x_cmd, t_state, x_state)
     ts = model.t_state[model.keep]
     if len(ts) < 20:
         raise CalibrationError(f"only {len(ts)} poses published in free space; the loop's delay needs at least 20")

@@ -285,21 +285,26 @@ def loop_h(cal: Calibration) -> float:
     return cal.loop_delay_s + cal.servo.lag_s + (cal.contact.ft_delay_s or 0.0)
 
 
-def verdict(cal: Calibration, m: float, kcs: float, bcs: float) -> dict:
-    """The stability of the identified loop for a scene's reduced mass m, kcs and bcs: the exact bound of
-    m s^2 + (K + b s) e^(-sh) = 0 with h = loop_h (the run's own loop, end to end)."""
-    from dockhil.contact.stability import exact_bound
+def verdict(cal: Calibration, m: float, kcs: float, bcs: float, damper: str = "delayed") -> dict:
+    """The stability of the identified loop for a scene's reduced mass m, stiffness kcs and damping bcs:
+    the exact bound of m s^2 + (K + b s) e^(-sh) = 0 (damper "delayed", the paper's), or of
+    m s^2 + b s + K e^(-sh) = 0 (damper "undelayed": the damper acts on the simulated velocity, the
+    stiffness is the hardware's behind the robot), with h = loop_h (the run's own loop, end to end); the
+    growth rate of the loop at kcs (its rightmost root)."""
+    from dockhil.contact.stability import exact_bound, growth_rate
 
     h = loop_h(cal)
-    bound = exact_bound(m, bcs, h)
+    bound = exact_bound(m, bcs, h, damper)
     k_max = None if bound.k_max is None or math.isinf(bound.k_max) else bound.k_max
     return {
         "m_kg": m,
         "kcs_N_per_m": kcs,
         "bcs_Ns_per_m": bcs,
+        "damper": damper,
         "h_s": h,
         "kcs_max_N_per_m": k_max,
         "margin": None if k_max is None else k_max / kcs,
+        "growth_rate_1_s": growth_rate(m, kcs, bcs, h, damper),
         "stable": bool(bound.k_max is not None and kcs < bound.k_max),
         "reason": bound.reason,
     }

@@ -252,8 +252,8 @@ def format_summary6(out: dict) -> str:
 
     rtf = out.get("real_time_factor")
     lines = [
-        f"simulated {f(out['sim_time_s'], 's')} in "
-        + ("-" if out["run_time_s"] is None else f"{out['run_time_s']:.2f} s")
+        f"simulated {f(out['sim_time_s'], 's')}"
+        + ("" if out["run_time_s"] is None else f" in {out['run_time_s']:.2f} s")  # a bag analyzed: not known
         + (f" ({rtf:.1f}x real time)" if rtf else "")
     ]
     scalars = [
