@@ -467,7 +467,12 @@ def _run_hybrid(args) -> int:
     except RootsNotResolved as exc:
         raise DockhilError(f"{exc}; give a lower --rate") from None
     r.update(passivity_report(kh, bh, h, bd, 1.0 / rate, kd))
-    print(json.dumps(r) if args.json else format_hybrid(r) + "\n" + _passivity_text(r))
+    if args.scene is not None:  # the verdict in the words of dockhil calibrate and the launch's scene check
+        from dockhil.analysis.stability.verdict import loop_verdict
+
+        r["verdict"] = loop_verdict(m, kd, bd, kh, bh, h)["line"]
+    text = format_hybrid(r) + "\n" + _passivity_text(r) + ("\n" + r["verdict"] if "verdict" in r else "")
+    print(json.dumps(r) if args.json else text)
     return 0
 
 

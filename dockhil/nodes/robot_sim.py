@@ -40,7 +40,7 @@ class RobotSim(Node):
             help="response delay of its own (the scenes give it to a delay injector; with delay_scale this node "
             "delays the command by delay x delay_scale itself)",
             ge=0.0,
-            scale=physical.TIME,
+            scale=physical.ROBOT_DELAY,
         ),
         "delay_scale": Param(
             float,

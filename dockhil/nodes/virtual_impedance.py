@@ -83,7 +83,7 @@ class VirtualImpedance(Node):
             unit="s",
             help="the robot delay the compensation is told (the scene's delay)",
             ge=0.0,
-            scale=physical.TIME,
+            scale=physical.ROBOT_DELAY,
         ),
         "lag": Param(
             float, 0.0, unit="s", help="the servo lag the Smith predictor is told", ge=0.0, scale=physical.TIME

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 import msgspec
 
 from dockhil import log
-from dockhil.runtime.executor import TIMING
+from dockhil.runtime.executor import STALE, TIMING
 from dockhil.runtime.process import READY
 from dockhil.runtime.registry import describe_nodes, describe_subscribers, write_entry
 from dockhil.runtime.transport import GraphKeys
@@ -64,6 +64,16 @@ class _Child:
     starts: int = 0  # how many times it was started (a respawned node: more than once)
     reports: int = 0  # ... and how many exit reports (TIMING lines) it gave: a killed node gives none
     sent: dict[str, int] = field(default_factory=dict)  # topic -> messages sent, over all its runs
+    stale: dict | None = None  # the input it stopped on as stale (executor.STALE)
+
+
+def _stopped(pid: int) -> bool:
+    """The process is stopped by a signal or traced (its state in /proc, Linux)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rpartition(")")[2].split()[0] in ("T", "t")
+    except (OSError, IndexError):
+        return False
 
 
 class Launcher:
@@ -148,6 +158,12 @@ class Launcher:
                 child.ready = child.ready or line == READY
                 child.recorded = child.recorded or line == RECORDED
                 self._wake.set()
+                continue
+            if line.startswith(STALE):
+                try:
+                    child.stale = json.loads(line[len(STALE) :])
+                except ValueError:
+                    pass
                 continue
             if line.startswith(TIMING):
                 try:
@@ -548,10 +564,27 @@ class Launcher:
         except OSError:  # it exited: nothing to tell it
             pass
 
+    def _blame(self, child: _Child) -> str:
+        """Whose fault a stale input was: a publisher whose process ended, or one alive but late (a busy
+        machine starves it of CPU), told apart by its process."""
+        stale = child.stale
+        pub = next((c for c in self.children if stale and c.name == stale.get("publisher")), None)
+        if pub is None or pub.proc is None:
+            return ""
+        code = pub.proc.poll()
+        if code is not None:
+            return f": its input {stale['topic']}'s publisher, node {pub.name!r}, had exited with code {code}"
+        if _stopped(pub.proc.pid):
+            return f": its input {stale['topic']}'s publisher, node {pub.name!r}, is stopped (SIGSTOP, a debugger)"
+        return (
+            f": its input {stale['topic']}'s publisher, node {pub.name!r}, is running but its message was late by "
+            f"{stale['late']:.3f} s; a busy machine? try --realtime"
+        )
+
     def _died(self, child: _Child, code: int) -> int:
         how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
         when = "while running" if child.ready else "at start"
-        self.say.error(f"node {child.name!r} {how} {when}; stopping the graph", tag="")
+        self.say.error(f"node {child.name!r} {how} {when}{self._blame(child)}; stopping the graph", tag="")
         if not child.ready:
             # Let nodes still opening devices finish, so every missing device gets its own line.
             deadline = time.monotonic() + 5.0

@@ -38,6 +38,7 @@ import numpy as np
 
 
 from dockhil.analysis.calibration.device_cycles import DeviceCycles, Link, device_servo, link
+from dockhil.analysis.calibration.end_to_end import EndToEnd, end_to_end
 from dockhil.analysis.calibration.servo_fit import CalibrationError, Contact, Rest, Servo, contact, rest, servo
 
 # The fits' names, as the calibration's users and tests reach them.
@@ -45,11 +46,13 @@ __all__ = [
     "CalibrationError",
     "Contact",
     "DeviceCycles",
+    "EndToEnd",
     "Link",
     "Rest",
     "Servo",
     "contact",
     "device_servo",
+    "end_to_end",
     "link",
     "rest",
     "servo",
@@ -91,6 +94,11 @@ def _between(t: np.ndarray, window: tuple[float, float]) -> np.ndarray:
     return (t >= window[0]) & (t < window[1])
 
 
+NO_DAMPING = (
+    "the press reads a damping of {b:.3g} +- {s:.2g} N s/m, negative beyond its uncertainty: no hardware has it "
+    "(the force leads the pose by a delay the slow press cannot separate from damping); not identified"
+)
+
 NO_CYCLES = (
     "no device cycles (/robot/cycles) in the recording: the delay is timed on the graph's ticks, so it is "
     "the loop's, the link included (a recording from before the drivers published them)"
@@ -103,22 +111,36 @@ class Calibration:
     servo: Servo
     contact: Contact
     link: Link | None = None  # None: timed on the graph's ticks (no device cycles), the link in servo's delay
+    loop: EndToEnd | None = None  # the loop's delay end to end; None: a Calibration built without the run
 
     @property
     def loop_delay_s(self) -> float:
-        """The loop's delay: the robot's at the device plus the link to it and back."""
+        """The loop's delay: end to end, from a command leaving the graph to the pose answering it arriving,
+        at a high percentile of what the run saw, and never below the robot's own delay; without the run's
+        end-to-end fit, the robot's at the device plus the link to it and back."""
+        if self.loop is not None:
+            return max(self.loop.delay_s, self.servo.delay_s)
         return self.servo.delay_s + (self.link.total_s if self.link is not None else 0.0)
 
+    @property
+    def damping_identified(self) -> bool:
+        """A passive damping hardware can have: not negative beyond its uncertainty (a force that leads the
+        pose reads as negative damping where the press cannot separate the force's delay)."""
+        c = self.contact
+        return math.isfinite(c.b_Ns_per_m) and c.b_Ns_per_m + max(c.b_sigma, 0.0) >= 0.0
+
     def as_dict(self) -> dict:
-        r, s, c, ln = self.rest, self.servo, self.contact, self.link
+        r, s, c, ln, e2e = self.rest, self.servo, self.contact, self.link, self.loop
+        b_known = self.damping_identified
         return {
             "delay_s": s.delay_s,
             "loop_delay_s": self.loop_delay_s,
+            "loop_delay_typical_s": None if e2e is None else e2e.typical_s,
             "link_s": None if ln is None else ln.total_s,
             "timing": "device cycles" if ln is not None else NO_CYCLES,
             "lag_s": s.lag_s,
             "k_N_per_m": c.k_N_per_m,
-            "b_Ns_per_m": c.b_Ns_per_m,
+            "b_Ns_per_m": c.b_Ns_per_m if b_known else None,
             "bias_N": list(r.bias_N),
             "noise_N": list(r.noise_N),
             "bias_Nm": list(r.bias_Nm),
@@ -130,7 +152,7 @@ class Calibration:
                 "link_s": None if ln is None else math.hypot(ln.forward_spread_s, ln.back_spread_s),
                 "lag_s": s.lag_sigma_s,
                 "k_N_per_m": c.k_sigma,
-                "b_Ns_per_m": c.b_sigma,
+                "b_Ns_per_m": c.b_sigma if b_known else None,
                 "bias_N": list(r.bias_sigma_N),
                 "noise_N": list(r.noise_sigma_N),
                 "ft_delay_s": c.ft_delay_sigma_s,
@@ -144,6 +166,17 @@ class Calibration:
                 "contact_samples": c.samples,
                 "peak_force_N": c.peak_force_N,
                 "rest_samples": r.samples,
+                **({"b_not_identified": NO_DAMPING.format(b=c.b_Ns_per_m, s=c.b_sigma)} if not b_known else {}),
+                **(
+                    {}
+                    if e2e is None
+                    else {
+                        "loop_delay_whole_run_s": e2e.whole_s,
+                        "loop_delay_spread_s": e2e.spread_s,
+                        "loop_delay_windows": e2e.windows,
+                        "loop_delay_percentile": e2e.percentile,
+                    }
+                ),
                 **(
                     {}
                     if ln is None
@@ -174,12 +207,14 @@ def identify(rec: Recording) -> Calibration:
     else:  # at the device boundary: the robot's own delay, and the link apart
         s = device_servo(timed)
         ln = link(timed, rec.t_cmd[cmd], rec.t_state[state])
+    # The loop's delay, end to end on the graph's ticks, with the servo's lag: what the loop has
+    e2e = end_to_end(rec.t_cmd[cmd], rec.x_cmd[cmd], rec.t_state[state], rec.x_state[state], s.lag_s)
     press = rec.window("approach", "press", "hold", "release")
     ft, st = _between(rec.t_ft, press), _between(rec.t_state, press)
     # The force on the probe pushes it back (-x); the bias is taken off.
     pushing = -(rec.force[ft, 0] - r.bias_N[0])
     c = contact(rec.t_ft[ft], pushing, rec.t_state[st], rec.x_state[st], rec.v_state[st], r.noise_N[0])
-    return Calibration(r, s, c, ln)
+    return Calibration(r, s, c, ln, e2e)
 
 
 def check(cal: Calibration) -> None:
@@ -243,32 +278,33 @@ def _cycles(rows: list) -> DeviceCycles | None:
     )
 
 
-def verdict(cal: Calibration, m: float, kcs: float, bcs: float) -> dict:
-    """The stability of the identified loop for a scene's reduced mass m, kcs and bcs: the exact bound of
-    m s^2 + (K + b s) e^(-sh) = 0 with h = the loop's delay (the robot's and the link's) + lag (a lag tau
-    counts as delay: 1 / (1 + tau s) and e^(-s tau) agree to first order, and the crossing frequency is
-    low, omega tau << 1). Where the delay was read on a device's whole cycles, the data place it only
-    within a cycle: the bound is given for its middle (delay_s) and for its top, half a cycle more, as a
-    robot that acts on whole cycles has it; `stable` holds only below both."""
-    from dockhil.contact.stability import exact_bound
+def loop_h(cal: Calibration) -> float:
+    """The delay the loop's force has [s]: the loop's delay end to end (to the pose), the servo's lag (a lag
+    tau counts as delay: 1 / (1 + tau s) and e^(-s tau) agree to first order, and the loop crosses at a low
+    frequency, omega tau << 1), and the force's delay behind the pose where the press separates it."""
+    return cal.loop_delay_s + cal.servo.lag_s + (cal.contact.ft_delay_s or 0.0)
 
-    def shown(k: float | None) -> float | None:
-        return None if k is None or math.isinf(k) else k
 
-    h = cal.loop_delay_s + cal.servo.lag_s
-    bound = exact_bound(m, bcs, h)
-    h_top = h + 0.5 * cal.servo.cycle_s if cal.servo.cycle_s else h
-    k_top = exact_bound(m, bcs, h_top).k_max
-    stable = bound.k_max is not None and k_top is not None and kcs < min(bound.k_max, k_top)
+def verdict(cal: Calibration, m: float, kcs: float, bcs: float, damper: str = "delayed") -> dict:
+    """The stability of the identified loop for a scene's reduced mass m, stiffness kcs and damping bcs:
+    the exact bound of m s^2 + (K + b s) e^(-sh) = 0 (damper "delayed", the paper's), or of
+    m s^2 + b s + K e^(-sh) = 0 (damper "undelayed": the damper acts on the simulated velocity, the
+    stiffness is the hardware's behind the robot), with h = loop_h (the run's own loop, end to end); the
+    growth rate of the loop at kcs (its rightmost root)."""
+    from dockhil.contact.stability import exact_bound, growth_rate
+
+    h = loop_h(cal)
+    bound = exact_bound(m, bcs, h, damper)
+    k_max = None if bound.k_max is None or math.isinf(bound.k_max) else bound.k_max
     return {
         "m_kg": m,
         "kcs_N_per_m": kcs,
         "bcs_Ns_per_m": bcs,
+        "damper": damper,
         "h_s": h,
-        "kcs_max_N_per_m": shown(bound.k_max),
-        "margin": None if shown(bound.k_max) is None else bound.k_max / kcs,
-        "h_cycle_top_s": h_top,
-        "kcs_max_cycle_top_N_per_m": shown(k_top),
-        "stable": bool(stable),
+        "kcs_max_N_per_m": k_max,
+        "margin": None if k_max is None else k_max / kcs,
+        "growth_rate_1_s": growth_rate(m, kcs, bcs, h, damper),
+        "stable": bool(bound.k_max is not None and kcs < bound.k_max),
         "reason": bound.reason,
     }

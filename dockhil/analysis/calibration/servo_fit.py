@@ -120,7 +120,7 @@ def rest(force: np.ndarray, torque: np.ndarray | None = None) -> Rest:
 # -- the servo: delay and lag ------------------------------------------------------------------------------------
 
 
-class _ServoModel:
+class TickServoModel:
     """The delayed, lagged response to a zero-order-held command, simulated on a fine uniform grid."""
 
     def __init__(self, t_cmd, x_cmd, t_state, x_state, grid: float = GRID_S):
@@ -167,7 +167,7 @@ def servo(t_cmd, x_cmd, t_state, x_state, max_delay: float = MAX_DELAY_S, max_la
         raise CalibrationError(
             "the commands in free space never moved the robot: nothing to identify the delay and lag from"
         )
-    model = _ServoModel(t_cmd, x_cmd, t_state, x_state)
+    model = TickServoModel(t_cmd, x_cmd, t_state, x_state)
     n = int(model.keep.sum())
     if n < 20:
         raise CalibrationError(

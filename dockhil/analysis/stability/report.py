@@ -129,7 +129,9 @@ def scene_hybrid_loop(path: str, overrides: list[str]) -> tuple[float, float, fl
             f"analyse the scene with its simulated robot at the measured delay (delay:=H), or "
             f"give it with --h and the loop's values"
         )
-    return info["m"], info["kd"], info["bd"], info["kh"], info["bh"], info["h"], graph.scene.rate
+    # the servo's lag counts as delay (1/(1 + tau s) and e^(-s tau) agree to first order), as the scene check
+    # and dockhil calibrate count it: one loop, one verdict (analysis/stability/verdict.py)
+    return info["m"], info["kd"], info["bd"], info["kh"], info["bh"], info["h"] + info["loop"].lag, graph.scene.rate
 
 
 def scene_multi_axis_loop(path: str, overrides: list[str]):

@@ -17,9 +17,17 @@ correction in BASE (docs/hardware.md):
   controller does. The count starts at the first answer (the operator starts
   the RSI program once the sensor listens);
 - the commanded pose start + correction reaches the robot through a servo with
-  a pure delay from the cycle that takes it (rounded up to a cycle) and a
-  first-order lag (hidden truths: `delay`, `tau`), position
-  and orientation (a slerp toward the target, as robot_emulator's servo);
+  a pure delay and a first-order lag (hidden truths: `delay`, `tau`), position
+  and orientation (a slerp toward the target, as robot_emulator's servo). When,
+  inside the controller, the cycles are spent is `timing` (a driver cannot know
+  it; both are plausible, and calibrate must hold on either):
+  `ours`: the correction is taken by the cycle after the one it answers, its
+  delay counts from there on whole cycles, and a datagram carries the pose after
+  the servo's step over the cycle before (the loop is up to two cycles longer);
+  `immediate`: the correction is taken as it arrives, the servo follows it
+  `delay` later in continuous time (a drive behind the cycle: any delay, not
+  whole cycles), and a datagram carries the pose sampled at its cycle, before
+  the servo's step over it;
 - faults: datagram loss, duplicates and reordering (percent, seeded), send
   jitter (uniform, up to `jitter` seconds).
 
@@ -64,10 +72,21 @@ def _normalised(q):
 MAX_LOST_KEPT = 100_000  # lost IPOCs the record lists: a driver's count is checked against them
 
 
-class RsiServo:
-    """The robot behind the controller: start pose + correction, through a delay and a first-order lag. No I/O."""
+TIMINGS = ("ours", "immediate")  # where inside the controller its cycles are spent (module docstring)
 
-    def __init__(self, start=START_POSE, delay: float = 0.0, tau: float = 0.0):
+
+class RsiServo:
+    """The robot behind the controller: start pose + correction, through a delay and a first-order lag. No I/O.
+
+    `timing` ours: a correction in force from `now` becomes the target at the first advance at or after
+    now + delay, and the pose moves toward it over the cycle after. immediate: the target switches at
+    now + delay exactly and the pose follows it in continuous time (exact for a first-order lag), so
+    advance(t) leaves the pose of time t."""
+
+    def __init__(self, start=START_POSE, delay: float = 0.0, tau: float = 0.0, timing: str = "ours"):
+        if timing not in TIMINGS:
+            raise ValueError(f"timing {timing!r}: one of {', '.join(TIMINGS)}")
+        self.timing = timing
         self.start_p = tuple(start[:3])
         self.start_q = rsi.abc_to_quat(*start[3:])
         self.delay = delay
@@ -87,16 +106,32 @@ class RsiServo:
         self._line.append((now, self.setpoint))
 
     def advance(self, now: float) -> None:
-        """Move over the cycle that ends now toward the target held during it (a zero-order hold)."""
+        """ours: move over the cycle that ends now toward the target held during it (a zero-order hold), then
+        take the targets due. immediate: follow each target from the moment it is due, up to now."""
+        if self.timing == "immediate":
+            t = now if self._last_t is None else self._last_t
+            while self._line and self._line[0][0] + self.delay <= now + 1e-12:
+                due = self._line[0][0] + self.delay
+                if due > t:
+                    self._follow(due - t)
+                    t = due
+                self._target = self._line.popleft()[1]
+            self._follow(now - t)
+            self._last_t = now
+            return
         dt = 0.0 if self._last_t is None else now - self._last_t
         self._last_t = now
+        self._follow(dt)
+        while self._line and self._line[0][0] <= now - self.delay + 1e-12:
+            self._target = self._line.popleft()[1]
+
+    def _follow(self, dt: float) -> None:
+        """The first-order lag toward the target over dt (exact for a target held over it)."""
         a = 1.0 if self.tau == 0 else (1.0 - math.exp(-dt / self.tau) if dt > 0 else 0.0)
         tp, tq = self._target
         self.position = [x + a * (t - x) for x, t in zip(self.position, tp)]
         error = rotvec3(quat_multiply(tq, quat_conjugate(self.orientation)))
         self.orientation = _normalised(quat_multiply(quat_from_rotvec([a * e for e in error]), self.orientation))
-        while self._line and self._line[0][0] <= now - self.delay + 1e-12:
-            self._target = self._line.popleft()[1]
 
     def rist(self) -> tuple:
         return (*self.position, *rsi.quat_to_abc(self.orientation))
@@ -125,12 +160,13 @@ class RsiControllerEmulator:
         start=START_POSE,
         bind: str = "127.0.0.1",
         ipoc0: int = 1_000_000,
+        timing: str = "ours",
     ):
         self.host, self.port, self.cycle = host, port, cycle
         self.max_late = max_late
         self.loss, self.duplicate, self.reorder, self.jitter = loss / 100.0, duplicate / 100.0, reorder / 100.0, jitter
         self.rng = random.Random(seed)
-        self.servo = RsiServo(start, delay, tau)
+        self.servo = RsiServo(start, delay, tau, timing)
         self.cycle_ms = round(cycle * 1000)
         self.ipoc = ipoc0
         self.korr = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -276,9 +312,12 @@ class RsiControllerEmulator:
             answered = True
             s["answered"] += 1
             self.latencies.add(arrival - sent_at)
-            # the next cycle takes it (this one's interpolation has run): the servo's delay counts from there,
-            # as the Modbus controller's counts from the cycle that takes a setpoint
-            self._apply(korr, slot_start + self.cycle)
+            if self.servo.timing == "immediate":  # taken as it arrives (on the monotonic clock)
+                self._apply(korr, sent_mono + (arrival - sent_at))
+            else:
+                # the next cycle takes it (this one's interpolation has run): the servo's delay counts from
+                # there, as the Modbus controller's counts from the cycle that takes a setpoint
+                self._apply(korr, slot_start + self.cycle)
         if self.armed and not answered and deadline - sent_mono < 0.5 * self.cycle:
             # this emulator sent so late (its thread woken late on a busy machine) that the sensor had less
             # than half a cycle: the cycle is not the sensor's to answer for, and the next one keeps the slot
@@ -369,6 +408,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cycle", type=float, default=0.004, choices=rsi.CYCLES, help="RSI cycle [s]")
     parser.add_argument("--delay", type=float, default=0.0, help="servo delay [s]")
     parser.add_argument("--tau", type=float, default=0.0, help="servo lag time constant [s]")
+    parser.add_argument(
+        "--timing", choices=TIMINGS, default="ours", help="when a correction is taken and the pose sampled"
+    )
     parser.add_argument("--max-late", type=int, default=DEFAULT_MAX_LATE, help="late answers in a row that stop RSI")
     parser.add_argument("--loss", type=float, default=0.0, help="datagrams lost [percent]")
     parser.add_argument("--duplicate", type=float, default=0.0, help="datagrams sent twice [percent]")
@@ -423,6 +465,7 @@ def main(argv: list[str] | None = None) -> int:
             args.seed,
             tuple(args.start),
             args.bind,
+            timing=args.timing,
         )
     except OSError as exc:
         say.error(f"cannot open a UDP socket on {args.bind}: {exc.strerror or exc}")

@@ -39,6 +39,14 @@ class RsiControllerEmulatorNode(Node):
             float, 0.0, unit="s", help="servo delay: corrections take effect this much later", ge=0.0, le=10.0
         ),
         "tau": Param(float, 0.0, unit="s", help="servo first-order lag time constant (0: none)", ge=0.0, le=10.0),
+        "timing": Param(
+            str,
+            "ours",
+            help="ours: a correction is taken the cycle after it answers, on whole cycles, the pose read after "
+            "the servo's step; immediate: taken as it arrives, followed `delay` later, the pose sampled "
+            "before the step",
+            choices=("ours", "immediate"),
+        ),
         "max_late": Param(int, 100, help="late answers in a row that stop RSI", ge=1, le=1_000_000),
         "loss": Param(float, 0.0, unit="%", help="datagrams lost", ge=0.0, le=100.0),
         "duplicate": Param(float, 0.0, unit="%", help="datagrams sent twice", ge=0.0, le=100.0),
@@ -85,6 +93,7 @@ class RsiControllerEmulatorNode(Node):
                 p.jitter,
                 p.seed,
                 bind=BIND,
+                timing=p.timing,
             )
         except OSError as exc:
             self._lock.release()

@@ -11,8 +11,15 @@ through a pure delay and a first-order lag:
                   a = 1 - exp(-dt/tau), so the remaining angle decays as
                   exp(-t/tau) about a fixed axis
 
-sampled once per servo cycle, so a setpoint takes effect up to one cycle
-after `delay` (a zero-order hold, as in a digital controller). The actual
+sampled once per servo cycle. When, inside the controller, the cycles are
+spent is `timing` (a host cannot know it; both are plausible): `ours`, a
+setpoint is taken by the next cycle and becomes the target at the first cycle
+`delay` after it (a zero-order hold on whole cycles, as in a digital
+controller), and a read returns the pose after the servo's step over the cycle
+before; `immediate`, a setpoint is taken as it is written, the servo follows it
+`delay` later in continuous time (any delay, not whole cycles), and a read
+returns the pose sampled at the last cycle, before the servo's step over the
+next. The actual
 twist is the pose's change over the last VELOCITY_WINDOW_S: linear velocity
 [m/s], and angular velocity [rad/s] as the rotation vector of that change
 divided by its time, both in the reference frame of the pose (the target's
@@ -76,12 +83,17 @@ def _rotation_between(q_old, q_new):
 
 
 VELOCITY_WINDOW_S = 0.01
+TIMINGS = ("ours", "immediate")  # where inside the controller its cycles are spent (module docstring)
 
 
 class ServoModel:
-    """The controller's state machine and servo, advanced by `cycle(now)`. No I/O."""
+    """The controller's state machine and servo, advanced by `cycle(now)`. No I/O: with the `immediate`
+    timing, a write says when it came (`host_wrote(..., now=)`)."""
 
-    def __init__(self, delay: float = 0.0, tau: float = 0.0, heartbeat_timeout: float = 0.2):
+    def __init__(self, delay: float = 0.0, tau: float = 0.0, heartbeat_timeout: float = 0.2, timing: str = "ours"):
+        if timing not in TIMINGS:
+            raise ValueError(f"timing {timing!r}: one of {', '.join(TIMINGS)}")
+        self.timing = timing
         self.delay = delay
         self.tau = tau
         self.heartbeat_timeout = heartbeat_timeout
@@ -122,9 +134,10 @@ class ServoModel:
     def actual(self) -> mm.PoseTwist:
         return tuple(self.position) + tuple(self.orientation) + tuple(self.linear) + tuple(self.angular)
 
-    def host_wrote(self, address: int, values: list[int], client=None) -> bool:
-        """A Modbus write to holding registers [address, address + len) over connection `client`;
-        False if refused: another host owns the controller (or a claim without its session id)."""
+    def host_wrote(self, address: int, values: list[int], client=None, now: float | None = None) -> bool:
+        """A Modbus write to holding registers [address, address + len) over connection `client` at time `now`
+        (the servo's clock; None: the last cycle's); False if refused: another host owns the controller (or a
+        claim without its session id)."""
         end = address + len(values)
         claim = list(values[mm.HR_SESSION - address :]) if address <= mm.HR_SESSION < end else None
         if claim is not None and (address != mm.HR_SESSION or len(claim) < 2):
@@ -160,7 +173,13 @@ class ServoModel:
         self.holding[address:end] = values[: end - address]
         if end > mm.HR_SETPOINT:
             self.setpoint_fresh = True
+            if self.timing == "immediate" and self.mode == FOLLOW:  # taken as it comes
+                self._take(self._last_t if now is None else now)
         return True
+
+    def _take(self, now: float | None) -> None:
+        setpoint = mm.decode_holding(self.holding).setpoint
+        self._line.append((now if now is not None else 0.0, setpoint[:3] + _normalize(setpoint[3:7])))
 
     def _release(self) -> None:
         self.owner_session, self.owner_name, self.owner_client = 0, "", None
@@ -211,24 +230,42 @@ class ServoModel:
             mode = FOLLOW if self.setpoint_fresh else HOLD
         if mode != FOLLOW:
             self.setpoint_fresh = False  # resuming needs a setpoint written from now on
+        immediate = self.timing == "immediate"
+        if immediate:  # the pose of now: the setpoints followed from when each was due
+            self._advance(now)
         if mode != self.mode:
             self._line.clear()
             self._target = self._actual_pose()  # stop where the robot is
             self.mode = mode
-        # The pose moves over the cycle that ends now toward the target held
-        # during it (a zero-order hold), then the target for the next cycle is
-        # taken from the delay line.
-        self._advance(now)
-        if mode == FOLLOW:
-            self._line.append((now, host.setpoint[:3] + _normalize(host.setpoint[3:7])))
-            while self._line and self._line[0][0] <= now - self.delay:
-                self._target = self._line.popleft()[1]
+            if immediate and mode == FOLLOW:
+                self._take(now)
+        if not immediate:
+            # The pose moves over the cycle that ends now toward the target held
+            # during it (a zero-order hold), then the target for the next cycle is
+            # taken from the delay line.
+            self._advance(now)
+            if mode == FOLLOW:
+                self._line.append((now, host.setpoint[:3] + _normalize(host.setpoint[3:7])))
+                while self._line and self._line[0][0] <= now - self.delay:
+                    self._target = self._line.popleft()[1]
         self.cycles = (self.cycles + 1) & 0xFFFF
         self.inputs = mm.encode_inputs(self.status(), host.heartbeat, self.cycles, self.actual())
 
     def _advance(self, now: float) -> None:
-        dt = 0.0 if self._last_t is None else now - self._last_t
+        t = now if self._last_t is None else self._last_t
         self._last_t = now
+        if self.timing == "immediate":  # each target from the moment it is due, the lag exact in between
+            while self._line and self._line[0][0] + self.delay <= now + 1e-12:
+                due = self._line[0][0] + self.delay
+                if due > t:
+                    self._follow(due - t)
+                    t = due
+                self._target = self._line.popleft()[1]
+        self._follow(now - t)
+        self._record(now)
+
+    def _follow(self, dt: float) -> None:
+        """The first-order lag toward the target over dt (exact for a target held over it)."""
         target = self._target
         if self.tau > 0 and dt > 0:
             a = 1.0 - math.exp(-dt / self.tau)
@@ -239,6 +276,8 @@ class ServoModel:
         # remaining angle decays as the position error does, exp(-t/tau), about a fixed axis.
         error = _rotation_between(self.orientation, target[3:7])
         self.orientation = _normalize(quat_multiply(quat_from_rotvec(a * error), self.orientation))
+
+    def _record(self, now: float) -> None:
         # Velocity over a window of VELOCITY_WINDOW_S, as a controller filters its encoders:
         # a per-cycle difference turns the host's write jitter into spurious speed spikes.
         self._history.append((now, list(self.position), self.orientation))
@@ -281,12 +320,13 @@ class RobotControllerEmulator:
         heartbeat_timeout: float = 0.2,
         clock=time.monotonic,
         log=None,
+        timing: str = "ours",
     ):
         self.clock = clock  # the servo's time (monotonic seconds); ServoModel itself takes `now` per cycle
         self.host = host
         self.port = port
         self.period = cycle
-        self.servo = ServoModel(delay, tau, heartbeat_timeout)
+        self.servo = ServoModel(delay, tau, heartbeat_timeout, timing)
         self.servo.log = log
         self.requests = 0
         self._server = None
@@ -302,7 +342,7 @@ class RobotControllerEmulator:
         if function == READ_INPUT:  # hand out the servo's latest
             return (self.servo.inputs + self.servo.owner_inputs())[address : address + count]
         if values is not None:
-            if not self.servo.host_wrote(address, values, connection):
+            if not self.servo.host_wrote(address, values, connection, self.clock()):
                 return DEVICE_BUSY  # another host owns the controller
             return None
         # holding read: the controller may have changed them (RESET)
@@ -431,6 +471,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--delay", type=float, default=0.0, help="servo delay [s]")
     parser.add_argument("--tau", type=float, default=0.0, help="servo lag time constant [s]")
     parser.add_argument("--cycle", type=float, default=0.001, help="servo period [s]")
+    parser.add_argument(
+        "--timing", choices=TIMINGS, default="ours", help="when a setpoint is taken and the pose sampled"
+    )
     parser.add_argument("--heartbeat-timeout", type=float, default=0.2, help="hold when the heartbeat stops [s]")
     args = parser.parse_args(argv)
     from dockhil.errors import DockhilError
@@ -453,7 +496,14 @@ def main(argv: list[str] | None = None) -> int:
         say.error(str(exc))
         return 2
     emulator = RobotControllerEmulator(
-        args.host, args.port, args.delay, args.tau, args.cycle, args.heartbeat_timeout, log=say.warning
+        args.host,
+        args.port,
+        args.delay,
+        args.tau,
+        args.cycle,
+        args.heartbeat_timeout,
+        log=say.warning,
+        timing=args.timing,
     )
 
     async def run():

@@ -22,6 +22,14 @@ class RobotControllerEmulatorNode(Node):
         "delay": Param(float, 0.0, unit="s", help="servo delay: setpoints take effect this much later", ge=0.0, le=1.0),
         "tau": Param(float, 0.0, unit="s", help="servo first-order lag time constant (0: none)", ge=0.0, le=10.0),
         "cycle": Param(float, 0.001, unit="s", help="servo period", ge=1e-5, le=0.1),
+        "timing": Param(
+            str,
+            "ours",
+            help="ours: a setpoint is taken by the next cycle, on whole cycles, a read gives the pose after the "
+            "servo's step; immediate: taken as it is written, followed `delay` later, the pose sampled before "
+            "the step",
+            choices=("ours", "immediate"),
+        ),
         "heartbeat_timeout": Param(
             float,
             0.2,
@@ -48,6 +56,7 @@ class RobotControllerEmulatorNode(Node):
             p.cycle,
             p.heartbeat_timeout,
             log=lambda line: self.log(f"warning: robot controller emulator: {line}"),
+            timing=p.timing,
         )
         try:
             self.emulator.start_thread()
