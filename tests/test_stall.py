@@ -182,13 +182,19 @@ def test_an_input_stopped_with_the_graph_at_the_end_is_no_stall():
 
     fake = SimpleNamespace(
         max_age={"state": 0.1},
-        spec=SimpleNamespace(name="impedance", inputs={"state": SimpleNamespace(topic="/satellite/state")}),
+        spec=SimpleNamespace(
+            name="impedance",
+            dt=0.001,
+            inputs={"state": SimpleNamespace(topic="/satellite/state", publisher="dynamics")},
+        ),
     )
     timing = SimpleNamespace(aged=lambda port, age: None)
     end = 60.0
     assert NodeExecutor._check_ages(fake, {"state": 59.85}, 59.96, timing, end) is True
     assert NodeExecutor._check_ages(fake, {"state": 59.9}, 59.95, timing, end) is False  # not stale yet
-    with pytest.raises(StaleInput, match=r"input 'state' \(/satellite/state\) is 0.150 s old > max_age 0.1 s"):
+    with pytest.raises(
+        StaleInput, match=r"input 'state' \(/satellite/state from node 'dynamics'\) is 0.150 s old > max_age 0.1 s"
+    ):
         NodeExecutor._check_ages(fake, {"state": 30.0}, 30.15, timing, end)
     with pytest.raises(StaleInput):  # no end: every stall is one
         NodeExecutor._check_ages(fake, {"state": 59.85}, 59.96, timing, None)
