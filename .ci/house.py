@@ -1,8 +1,11 @@
 #!/usr/bin/env python3
-"""The house in numbers, as one JSON object: the modules directly in dockhil/, the largest module,
-the modules over 600 lines, the import cycles between dockhil's modules (from the source's ast,
-imports at any depth: a function-level import still ties two modules together), the names imported
-across modules that their module keeps private (_name), and whether ruff and mypy are clean.
+"""The house in numbers, as one JSON object: the modules directly in dockhil/ and in dockhil/analysis/,
+the largest module, the modules over 600 lines, the import cycles between dockhil's modules and the
+imports that go up the layer order (both from the source's ast, imports at any depth: a
+function-level import still ties two modules together), the pairs of packages that import each
+other, the names imported across modules that their module keeps private (_name), the test helpers
+outside tests/support/, the share of the library's lines mypy checks, and whether ruff and mypy are
+clean.
 
     python3 .ci/house.py            everything (runs ruff and mypy: a few seconds)
     python3 .ci/house.py --fast     without ruff and mypy
@@ -19,6 +22,28 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "dockhil"
 MAX_LINES = 600
+MAX_ANALYSIS_MODULES = 12  # modules directly in dockhil/analysis/: more, and a subject wants a package
+
+# The layers, lowest first: a module imports its own layer and those below it, never one above.
+# A name is a package of dockhil or a module directly in it ("dockhil" is dockhil/__init__.py).
+LAYERS: list[list[str]] = [
+    ["dockhil", "errors", "files", "physical", "compiled", "progress"],  # no dockhil import but these
+    ["log"],
+    ["msgs"],  # the message types
+    ["contact"],  # the science: no I/O, no transport
+    ["node"],  # the node API
+    ["node_types"],  # node types by name (imported by their "module:Class" string, never statically)
+    ["scene"],  # launch files and the graph a scene builds
+    ["argtypes"],
+    ["runtime", "process"],  # the running graph
+    ["bags"],
+    ["nodes"],  # simulation and graph node types
+    ["devices"],  # the lab's devices: driver bases, one folder per device
+    ["analysis"],
+    ["testing", "session"],
+    ["commands"],  # one module per subcommand
+    ["cli"],  # names the commands by their "module" string
+]
 
 
 def modules() -> dict[str, Path]:
@@ -138,6 +163,56 @@ def cycles(edges: dict[str, set[str]]) -> list[list[str]]:
     return sorted(found)
 
 
+def layer_of(module: str) -> str:
+    """The layer name of a dockhil module: its package, or itself when directly in dockhil/."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "dockhil"
+
+
+def upward_imports(edges: dict[str, set[str]], layers: list[list[str]] = LAYERS) -> list[str]:
+    """`a -> b` for every import of a module b in a layer above a's (or in no layer: every package
+    must have its place)."""
+    rank = {name: i for i, group in enumerate(layers) for name in group}
+    found = []
+    for a, targets in sorted(edges.items()):
+        for b in sorted(targets):
+            la, lb = layer_of(a), layer_of(b)
+            if la == lb:
+                continue
+            if la not in rank or lb not in rank:
+                found.append(f"{a} -> {b} ({la if la not in rank else lb} has no layer in .ci/house.py)")
+            elif rank[lb] > rank[la]:
+                found.append(f"{a} -> {b} ({la} is below {lb})")
+    return found
+
+
+def package_pairs(edges: dict[str, set[str]]) -> list[str]:
+    """The pairs of layers (packages) that import each other, at any depth."""
+    between = {(layer_of(a), layer_of(b)) for a, targets in edges.items() for b in targets}
+    return sorted(f"{a} <-> {b}" for a, b in between if a < b and (b, a) in between)
+
+
+def test_helpers_outside_support() -> list[str]:
+    """Modules in tests/ that are not tests (test_*.py, conftest.py) nor in tests/support/."""
+    tests = ROOT / "tests"
+    return sorted(
+        p.name
+        for p in tests.glob("*.py")
+        if not (p.name.startswith("test_") or p.name in ("conftest.py", "__init__.py"))
+    )
+
+
+def typed_share(mods: dict[str, Path], lines: dict[str, int]) -> dict:
+    """The library's lines in the files mypy checks ([tool.mypy] files in pyproject.toml)."""
+    import tomllib
+
+    listed = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["mypy"].get("files", [])
+    roots = [ROOT / f for f in listed]
+    checked = sum(k for n, k in lines.items() if any(mods[n] == r or r in mods[n].parents for r in roots))
+    total = sum(lines.values())
+    return {"checked_lines": checked, "library_lines": total, "share": round(checked / total, 3)}
+
+
 def _clean(argv: list[str]) -> bool | None:
     try:
         return subprocess.run(argv, cwd=ROOT, capture_output=True, timeout=600).returncode == 0
@@ -152,12 +227,21 @@ def house(fast: bool = False) -> dict:
     largest = max(lines, key=lines.get)
     edges, private = graph_and_private(mods)
     found = cycles(edges)
+    analysis = sorted(p.name for p in (PACKAGE / "analysis").glob("*.py") if p.name != "__init__.py")
+    upward = upward_imports(edges)
+    pairs = package_pairs(edges)
+    helpers = test_helpers_outside_support()
     out = {
         "top_level_modules": {"count": len(top), "names": top},
+        "analysis_modules": {"count": len(analysis), "max": MAX_ANALYSIS_MODULES, "names": analysis},
         "largest_module": {"name": largest, "lines": lines[largest]},
         "over_600_lines": {n: k for n, k in sorted(lines.items()) if k > MAX_LINES},
         "import_cycles": {"count": len(found), "cycles": found},
         "private_imports": {"count": len(private), "where": private},
+        "layers": {"order": LAYERS, "upward_imports": {"count": len(upward), "where": upward}},
+        "package_pairs": {"count": len(pairs), "pairs": pairs},
+        "test_helpers_outside_support": {"count": len(helpers), "names": helpers},
+        "mypy": typed_share(mods, lines),
     }
     if not fast:
         out["ruff_clean"] = _clean([sys.executable, "-m", "ruff", "check", "--quiet", "."])

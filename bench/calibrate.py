@@ -1,6 +1,7 @@
 """dockhil calibrate against emulators with hidden truths: prints one JSON line.
 
     python3 bench/calibrate.py [--draws 20] [--seed 0] [--no-realtime] [--robot modbus|rsi] [--rsi-cycle 0.004]
+                               [--timing ours|immediate]
 
 Each draw hides a delay (16-120 ms), a lag (0-20 ms), a stiffness (1000 N/m +-30 %), a damping
 (0-50 N s/m), a surface (0-20 mm ahead), a noise (0-0.5 N) and a bias (|F| up to 5 N, and a torque)
@@ -15,6 +16,12 @@ exact stiffness bound (hil.yaml's m, bcs) from the identified delay_s + lag_s ag
 the emulator's delay + lag, and the bound the verdict also gives, at the cycle's top (delay_s + T/2),
 against the one from the emulator's effective delay; the link (link_s) is reported as measured. The emulators' recorded
 maxima show the run kept the scene's limits.
+
+The loop's delay (loop_delay_s, the verdict's) is held to the run itself: the bench reads the run's bag and
+finds, with code of its own, the delay from the /robot/command ticks to the /robot/state ticks that best
+explains the poses through the emulator's hidden lag, over the steps and the chirp (the whole run, and 0.5 s
+windows at their 95th percentile). loop_delay_s must lie within one device cycle of that and never below the
+hidden robot delay, with either emulator timing (--timing: where inside the controller its cycles are spent).
 """
 
 from __future__ import annotations
@@ -65,14 +72,21 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
         return s.getsockname()[1]
 
 
-def robot_nodes(folder: str, truth: dict, robot: str, cycle: float) -> list[dict]:
+def robot_nodes(folder: str, truth: dict, robot: str, cycle: float, timing: str = "ours") -> list[dict]:
     """The robot driver and its emulator hiding the delay and lag; the emulator writes its record (with its
     largest speed) to folder/robot_maxima.json."""
     limits = {"max_force": MAX_FORCE, "max_speed": MAX_SPEED, "ft_timeout": 0.2, "max_actual_speed": MAX_ACTUAL_SPEED}
     record = os.path.join(folder, "robot_maxima.json")
     if robot == "rsi":
         port = free_port(socket.SOCK_DGRAM)
-        emulator = {"port": port, "cycle": cycle, "delay": truth["delay"], "tau": truth["lag"], "record": record}
+        emulator = {
+            "port": port,
+            "cycle": cycle,
+            "delay": truth["delay"],
+            "tau": truth["lag"],
+            "record": record,
+            "timing": timing,
+        }
         return [
             {
                 "name": "robot",
@@ -82,14 +96,14 @@ def robot_nodes(folder: str, truth: dict, robot: str, cycle: float) -> list[dict
             {"name": "robot_emulator", "node": "rsi_emulator", "params": emulator},
         ]
     port = free_port()
-    emulator = {"port": port, "delay": truth["delay"], "tau": truth["lag"], "maxima": record}
+    emulator = {"port": port, "delay": truth["delay"], "tau": truth["lag"], "maxima": record, "timing": timing}
     return [
         {"name": "robot", "node": "robot_modbus", "params": {"port": port, **limits}},
         {"name": "robot_emulator", "node": "robot_emulator", "params": emulator},
     ]
 
 
-def rig(folder: str, truth: dict, robot: str = "modbus", cycle: float = 0.004) -> str:
+def rig(folder: str, truth: dict, robot: str = "modbus", cycle: float = 0.004, timing: str = "ours") -> str:
     """A scene of the hardware loop on emulators hiding `truth`; the emulators write their maxima to
     folder/ft_maxima.json and folder/robot_maxima.json."""
     # CAN frames over UDP multicast on loopback (python-can's udp_multicast), one group per run: the
@@ -116,7 +130,7 @@ def rig(folder: str, truth: dict, robot: str = "modbus", cycle: float = 0.004) -
     nodes = [
         {"name": "dynamics", "node": "satellite_dynamics", "params": {"m1": M1, "m2": M2}},
         {"name": "impedance", "node": "virtual_impedance", "params": {"m1": M1, "m2": M2, "kcs": KCS, "bcs": BCS}},
-        *robot_nodes(folder, truth, robot, cycle),
+        *robot_nodes(folder, truth, robot, cycle, timing),
         {"name": "ft", "node": "ft_can", "params": {"interface": "udp_multicast", "channel": channel}},
         {"name": "ft_emulator", "node": "ft_emulator", "params": ft},
     ]
@@ -128,7 +142,8 @@ def rig(folder: str, truth: dict, robot: str = "modbus", cycle: float = 0.004) -
 
 # A busy machine can starve the drivers past their watchdogs: a valid safety stop, not a calibration
 # result; such a run is tried again (the attempts are counted). So is one whose F/T emulator, stopped with
-# the graph, closed its link before the driver stopped reading it ("while stopping").
+# the graph, closed its link before the driver stopped reading it ("while stopping"), and one whose bag
+# recorder, starved, lost the run's end (the fits read the bag).
 BUSY = (
     "ft_timeout: no F/T data",
     "stale data: no new sample",
@@ -136,6 +151,7 @@ BUSY = (
     "s old > max_age",
     "INVALID",
     "while stopping",
+    "the recorder fell behind",
 )
 
 
@@ -146,11 +162,12 @@ def run(
     bag_out: str | None = None,
     robot: str = "modbus",
     cycle: float = 0.004,
+    timing: str = "ours",
 ) -> dict:
     """One calibration against emulators hiding `truth`, tried up to `attempts` times while a busy machine
     stops it (BUSY)."""
     for attempt in range(1, attempts + 1):
-        out = run_once(truth, realtime, bag_out=bag_out, robot=robot, cycle=cycle)
+        out = run_once(truth, realtime, bag_out=bag_out, robot=robot, cycle=cycle, timing=timing)
         out["attempts"] = attempt
         if out["exit"] == 0 or not any(b in out.get("stderr_tail", "") for b in BUSY):
             break
@@ -164,13 +181,15 @@ def run_once(
     bag_out: str | None = None,
     robot: str = "modbus",
     cycle: float = 0.004,
+    timing: str = "ours",
 ) -> dict:
     """One calibration against emulators hiding `truth`: its JSON, exit code, wall time, the emulators' maxima
     and the errors (bag_out: keep the run's recording there, replacing an earlier one)."""
     if bag_out and os.path.exists(bag_out):
         os.remove(bag_out)
     with tempfile.TemporaryDirectory(prefix="dockhil-calibrate-bench-") as folder:
-        scene = rig(folder, truth, robot, cycle)
+        scene = rig(folder, truth, robot, cycle, timing)
+        bag = bag_out or os.path.join(folder, "run.mcap")
         start = time.perf_counter()
         p = subprocess.run(
             [
@@ -183,7 +202,8 @@ def run_once(
                 "--out",
                 os.path.join(folder, "loop.yaml"),
                 *(["--realtime"] if realtime else []),
-                *(["--bag-out", bag_out] if bag_out else []),
+                "--bag-out",
+                bag,
             ],
             capture_output=True,
             text=True,
@@ -197,6 +217,10 @@ def run_once(
             "written": os.path.exists(os.path.join(folder, "loop.yaml")),
             "stderr_tail": "\n".join(p.stderr.strip().splitlines()[-12:]),
         }
+        try:
+            out["run_e2e"] = run_end_to_end(bag, truth["lag"])
+        except (OSError, ValueError) as exc:
+            out["run_e2e"] = {"error": str(exc)}
         for name in ("ft_maxima", "robot_maxima"):
             try:
                 with open(os.path.join(folder, f"{name}.json")) as f:
@@ -209,11 +233,64 @@ def run_once(
         out["error"] = (p.stderr.strip().splitlines() or ["no output"])[-1]
         return out
     out["found"] = found
-    out["errors"] = errors(truth, found, cycle if robot == "rsi" else MODBUS_CYCLE)
+    out["errors"] = errors(truth, found, cycle if robot == "rsi" else MODBUS_CYCLE, out["run_e2e"])
     return out
 
 
-def errors(truth: dict, found: dict, cycle: float = MODBUS_CYCLE) -> dict:
+def run_end_to_end(bag: str, lag: float) -> dict:
+    """The run's own loop delay [s], from its bag, by code independent of calibrate's: the /robot/command
+    setpoints held from their ticks, through the hidden first-order lag (exact on a 0.1 ms grid; a lag and a
+    delay commute, so it is filtered once), shifted by d on a 0.1 ms grid against the /robot/state poses at
+    their ticks over the steps and the chirp; the best d over the whole of them, and over 0.5 s windows
+    (where the pose moves) their median and 95th percentile."""
+    import numpy as np
+    from scipy.signal import lfilter
+
+    from dockhil.bags.reader import BagReader
+
+    cmd, state, phases = [], [], []
+    with BagReader(bag) as reader:
+        for topic, _t, msg in reader.decoded():
+            if topic == "/robot/command":
+                cmd.append((msg.header.stamp, msg.pose.position.x))
+            elif topic == "/robot/state":
+                state.append((msg.header.stamp, msg.pose.position.x))
+            elif topic == "/calibration/phase":
+                phases.append((msg.header.stamp, msg.state))
+    phases.sort()
+    names = [p for _t, p in phases]
+    begin = next(t for t, p in phases if p == "steps")
+    end = next(t for t, p in phases[names.index("chirp") + 1 :])
+    c, s = np.array(sorted(cmd)), np.array(sorted(state))
+    c = c[(c[:, 0] >= begin) & (c[:, 0] < end)]
+    s = s[(s[:, 0] >= begin) & (s[:, 0] < end)]
+    grid = np.arange(c[0, 0], s[-1, 0] + 1e-4, 1e-4)
+    x0 = s[0, 1]
+    u = c[np.clip(np.searchsorted(c[:, 0], grid, side="right") - 1, 0, None), 1] - x0
+    if lag > 0:
+        a = math.exp(-1e-4 / lag)
+        u = lfilter([0.0, 1.0 - a], [1.0, -a], u)
+    shifts = np.arange(0.0, 0.3, 1e-4)
+
+    def best(rows) -> float:
+        costs = [float(np.sum((np.interp(rows[:, 0] - d, grid, u, left=0.0) + x0 - rows[:, 1]) ** 2)) for d in shifts]
+        return float(shifts[int(np.argmin(costs))])
+
+    whole = best(s)
+    windows = []
+    for start in np.arange(s[0, 0], s[-1, 0], 0.5):
+        rows = s[(s[:, 0] >= start) & (s[:, 0] < start + 0.5)]
+        if len(rows) >= 20 and np.ptp(rows[:, 1]) >= 2e-4:
+            windows.append(best(rows))
+    return {
+        "whole_s": whole,
+        "median_s": float(np.median(windows)) if windows else whole,
+        "p95_s": float(np.percentile(windows, 95.0)) if windows else whole,
+        "windows": len(windows),
+    }
+
+
+def errors(truth: dict, found: dict, cycle: float = MODBUS_CYCLE, run_e2e: dict | None = None) -> dict:
     """Identified minus hidden. The delay is the robot's own, timed at the device (delay_s); the link to
     the device and back (link_s) is measured apart, so the bound here is the robot's: from the identified
     delay_s + lag_s against the hidden delay + lag. The emulator acts on whole cycles of `cycle`: its
@@ -236,12 +313,28 @@ def errors(truth: dict, found: dict, cycle: float = MODBUS_CYCLE) -> dict:
         "lag_ms": 1e3 * (found["lag_s"] - truth["lag"]),
         "lag_rel": found["lag_s"] / truth["lag"] - 1.0,
         "k_rel": found["k_N_per_m"] / truth["k"] - 1.0,
-        "b_Ns_per_m": found["b_Ns_per_m"] - truth["b"],
+        "b_Ns_per_m": None if found["b_Ns_per_m"] is None else found["b_Ns_per_m"] - truth["b"],
         "bias_in_noise_sd": max(bias_sd),
         "noise_rel": (found["noise_N"][0] / truth["noise"] - 1.0) if truth["noise"] else found["noise_N"][0],
         "bound_rel": found_bound / true_bound - 1.0,
         "bound_cycle_top_rel": top_bound / effective_bound - 1.0,
         "link_ms": 1e3 * found["link_s"] if found.get("link_s") is not None else None,
+        # the loop's delay against the run's own (its bag) and against the hidden robot delay
+        "loop_vs_run_p95_cycles": (found["loop_delay_s"] - run_e2e["p95_s"]) / cycle
+        if run_e2e and "p95_s" in run_e2e
+        else None,
+        "loop_vs_run_whole_cycles": (found["loop_delay_s"] - run_e2e["whole_s"]) / cycle
+        if run_e2e and "whole_s" in run_e2e
+        else None,
+        # with the lag each fit held (calibrate's, the hidden one): a fit may trade some of one for the other
+        "loop_and_lag_vs_run_p95_cycles": (found["loop_delay_s"] + found["lag_s"] - run_e2e["p95_s"] - truth["lag"])
+        / cycle
+        if run_e2e and "p95_s" in run_e2e
+        else None,
+        "loop_minus_hidden_ms": 1e3 * (found["loop_delay_s"] - truth["delay"]),
+        "run_p95_minus_whole_ms": 1e3 * (run_e2e["p95_s"] - run_e2e["whole_s"])
+        if run_e2e and "p95_s" in run_e2e
+        else None,
     }
 
 
@@ -267,10 +360,18 @@ def main() -> None:
     ap.add_argument("--no-realtime", action="store_true", help="run calibrate without --realtime")
     ap.add_argument("--robot", choices=("modbus", "rsi"), default="modbus", help="the robot driver and its emulator")
     ap.add_argument("--rsi-cycle", type=float, choices=(0.004, 0.012), default=0.004, help="RSI cycle [s]")
+    ap.add_argument(
+        "--timing",
+        choices=("ours", "immediate"),
+        default="ours",
+        help="the emulated controller's timing: where inside it the cycles are spent",
+    )
     args = ap.parse_args()
     realtime = not args.no_realtime
     cycle = args.rsi_cycle if args.robot == "rsi" else MODBUS_CYCLE
-    rows = [run(draw(args.seed + i), realtime, robot=args.robot, cycle=cycle) for i in range(args.draws)]
+    rows = [
+        run(draw(args.seed + i), realtime, robot=args.robot, cycle=cycle, timing=args.timing) for i in range(args.draws)
+    ]
     done = [r for r in rows if "errors" in r]
     half = 0.5 * cycle
     print(
@@ -279,10 +380,28 @@ def main() -> None:
                 "draws": len(rows),
                 "identified": len(done),
                 "exit_codes": [r["exit"] for r in rows],
+                "b_not_identified": sum(r["found"]["b_Ns_per_m"] is None for r in done),
                 "attempts": [r["attempts"] for r in rows],
                 "realtime": realtime,
                 "robot": args.robot,
+                "emulator_timing": args.timing,
                 "device_cycle_ms": 1e3 * cycle,
+                "loop_delay_within_one_cycle_of_run_p95": sum(
+                    r["errors"]["loop_vs_run_p95_cycles"] is not None
+                    and abs(r["errors"]["loop_vs_run_p95_cycles"]) <= 1.0
+                    for r in done
+                ),
+                "loop_delay_within_one_cycle_of_run_whole": sum(
+                    r["errors"]["loop_vs_run_whole_cycles"] is not None
+                    and abs(r["errors"]["loop_vs_run_whole_cycles"]) <= 1.0
+                    for r in done
+                ),
+                "loop_delay_and_lag_within_one_cycle_of_run_p95": sum(
+                    r["errors"]["loop_and_lag_vs_run_p95_cycles"] is not None
+                    and abs(r["errors"]["loop_and_lag_vs_run_p95_cycles"]) <= 1.0
+                    for r in done
+                ),
+                "loop_delay_not_below_hidden": sum(r["errors"]["loop_minus_hidden_ms"] >= 0.0 for r in done),
                 "timing": sorted({r["found"].get("timing", "") for r in done}),
                 "delay_within_1ms": sum(abs(r["errors"]["delay_ms"]) <= 1.0 for r in done),
                 "delay_within_half_cycle": sum(abs(r["errors"]["delay_ms"]) <= 1e3 * half + 1e-6 for r in done),
@@ -308,6 +427,11 @@ def main() -> None:
                         ("bound_cycle_top_rel_error", "bound_cycle_top_rel"),
                         ("b_error_Ns_per_m", "b_Ns_per_m"),
                         ("link_ms", "link_ms"),
+                        ("loop_delay_vs_run_p95_cycles", "loop_vs_run_p95_cycles"),
+                        ("loop_delay_vs_run_whole_cycles", "loop_vs_run_whole_cycles"),
+                        ("loop_delay_and_lag_vs_run_p95_cycles", "loop_and_lag_vs_run_p95_cycles"),
+                        ("loop_delay_minus_hidden_ms", "loop_minus_hidden_ms"),
+                        ("run_p95_minus_whole_ms", "run_p95_minus_whole_ms"),
                     )
                 },
                 "wall_s_max": max(r["wall_s"] for r in rows),

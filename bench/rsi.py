@@ -44,7 +44,7 @@ def main() -> None:
     sys.path.insert(0, ROOT)
     from dockhil.msgs import Header, Pose, RobotCommand, Twist, Vector3
     from dockhil.node import NodeContext, Tick
-    from dockhil.nodes.robot_rsi import RobotRsiDriver
+    from dockhil.devices.kuka_rsi.driver import RobotRsiDriver
     from rt_probe import steal_ms  # this folder's
 
     port = free_udp_port()
@@ -56,7 +56,7 @@ def main() -> None:
             [
                 sys.executable,
                 "-m",
-                "dockhil.hardware.rsi_emulator",
+                "dockhil.devices.kuka_rsi.emulator",
                 "--port",
                 str(port),
                 "--cycle",

@@ -1,6 +1,6 @@
 """CPU time to receive a frame from an slcan adapter: python-can's slcan recv against the bulk reader.
 
-An emulated adapter (dockhil.hardware.slcan_pty.SlcanPort, a pseudo-terminal) holds N frames of the
+An emulated adapter (dockhil.devices.can_ft.slcan_pty.SlcanPort, a pseudo-terminal) holds N frames of the
 F/T sensor's layout; each reader takes them all, three times, on the same process's CPU clock.
 Prints one JSON object: microseconds of CPU per frame (median of the three), and the ratio.
 """
@@ -14,8 +14,8 @@ import time
 
 import can
 
-from dockhil.hardware.slcan_pty import CanFrame, SlcanPort
-from dockhil.hardware.slcan_reader import SlcanReader
+from dockhil.devices.can_ft.slcan_pty import CanFrame, SlcanPort
+from dockhil.devices.can_ft.slcan_reader import SlcanReader
 
 
 def fill(port: SlcanPort, n: int) -> None:

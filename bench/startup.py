@@ -1,6 +1,6 @@
 """What a launch costs before its first tick and after its last: a one-tick launch of
 launch/hil.yaml (sim time), multi-process and composed, a one-tick launch of two small
-nodes (tests/graphnodes.py, as most runtime tests launch), and what one node process
+nodes (tests/support/graphnodes.py, as most runtime tests launch), and what one node process
 costs on its own, from interpreter start to exit.
 
 Each figure is the median of --repeat runs: wall time, and CPU time (user + system
@@ -44,8 +44,8 @@ def timed(argv: list[str], repeat: int, env: dict | None = None) -> dict:
 
 SMALL = """rate: 1000
 nodes:
-  - {name: integ, node: "tests.graphnodes:Integrator"}
-  - {name: gain, node: "tests.graphnodes:Gain"}
+  - {name: integ, node: "tests.support.graphnodes:Integrator"}
+  - {name: gain, node: "tests.support.graphnodes:Gain"}
 """
 
 

@@ -30,11 +30,11 @@ def ring_file(folder: str, n: int) -> str:
         "description: a ring for throughput",
         "rate: 1000",
         "nodes:",
-        f"  - {{name: integ, node: 'tests.graphnodes:Integrator', remap: {{x: /r0, u: /r{n - 1}}}}}",
+        f"  - {{name: integ, node: 'tests.support.graphnodes:Integrator', remap: {{x: /r0, u: /r{n - 1}}}}}",
     ]
     for i in range(1, n):
         lines.append(
-            f"  - {{name: gain{i}, node: 'tests.graphnodes:Gain', params: {{gain: 0.001}}, "
+            f"  - {{name: gain{i}, node: 'tests.support.graphnodes:Gain', params: {{gain: 0.001}}, "
             f"remap: {{x: /r{i - 1}, u: /r{i}}}}}"
         )
     path = os.path.join(folder, f"ring{n}.yaml")

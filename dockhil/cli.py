@@ -13,6 +13,7 @@ import importlib
 import os
 import sys
 import traceback
+from typing import NoReturn
 
 from dockhil.errors import DockhilError, one_line
 
@@ -40,6 +41,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "report": ("dockhil.commands.report", "error against run time, stiff and extreme cases, lean scenes"),
     "sweep": ("dockhil.commands.sweep", "run a scene over a campaign of parameters into a Parquet table"),
+    "benchmark": ("dockhil.commands.benchmark", "delay compensation methods against the ideal contact (compensation)"),
     "calibrate": (
         "dockhil.commands.calibrate",
         "identify the real loop's delay, lag, stiffness and F/T bias and noise",
@@ -50,7 +52,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
 class Parser(argparse.ArgumentParser):
     """argparse, but a refused command line is one line (no usage block) and exit code 2."""
 
-    def error(self, message: str):
+    def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {one_line(message)}{self._case_hint(message)}; see '{self.prog} --help'\n")
 
     def _case_hint(self, message: str) -> str:

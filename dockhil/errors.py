@@ -1,5 +1,7 @@
 """Errors a user can cause. The CLI prints them as one line, no traceback."""
 
+from collections.abc import Collection
+
 
 class DockhilError(Exception):
     """A user-facing error: the message says what went wrong, where, and what to do."""
@@ -21,7 +23,20 @@ class DeviceError(DockhilError):
     """A hardware device is missing, unreachable or misbehaving."""
 
 
-def suggest(name: str, known, what: str) -> str:
+class SafetyStop(DockhilError):
+    """A safety limit tripped: the robot was told to hold and commanding stopped.
+
+    The message is one line naming the limit and the value; `limit` and
+    `value` carry them for programs.
+    """
+
+    def __init__(self, message: str, limit: str, value: float | str | None = None):
+        super().__init__(message)
+        self.limit = limit
+        self.value = value
+
+
+def suggest(name: str, known: Collection[str], what: str) -> str:
     """`did you mean 'x'? (what: a, b, c)` when a known name is close to `name`, else `what: a, b, c`."""
     import difflib
 

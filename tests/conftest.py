@@ -69,6 +69,24 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def udp_port() -> int:
+    """A UDP port on 127.0.0.1 that was free a moment ago (for a device a test starts)."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(done, timeout: float = 10.0, what: str = "condition") -> None:
+    """Wait until done() (a device's thread did something); fail naming `what` after `timeout` s."""
+    deadline = time.monotonic() + timeout
+    while not done():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what} not reached within {timeout} s")
+        time.sleep(0.002)
+
+
 def dockhil_cmd(*args):
     return [sys.executable, "-m", "dockhil.cli", *map(str, args)]
 
@@ -86,7 +104,7 @@ def write_launch(tmp_path):
 @pytest.fixture
 def controller():
     """A robot controller emulator (Modbus TCP on a free port) in this process."""
-    from dockhil.hardware.robot_emulator import RobotControllerEmulator
+    from dockhil.devices.modbus_robot.emulator import RobotControllerEmulator
 
     em = RobotControllerEmulator(port=0, tau=0.005)
     em.start_thread()
@@ -212,7 +230,7 @@ class VirtualFtSensor:
         self._thread = None
 
     def send(self, force=None, torque=None, seq=None, status=0, advance=True):
-        from dockhil.hardware import ft_frames as ff
+        from dockhil.devices.can_ft import frames as ff
 
         seq = self.seq if seq is None else seq
         for fid, data in ff.encode_sample(force or self.force, torque or self.torque, seq, status=status):

@@ -13,7 +13,7 @@ import pytest
 from dockhil.bags.reader import BagReader
 from dockhil.bags.writer import BagWriter
 from tests.conftest import dockhil_cmd
-from tests.inprocess import launch_here_or_process, run_main
+from tests.support.inprocess import launch_here_or_process, run_main
 
 
 def launched(tmp_path, *args, name="run", code=0):
@@ -118,7 +118,7 @@ def test_a_bag_without_its_scene_says_what_to_pass_and_works_when_given(tmp_path
 
 def test_an_ideal_model_bag_is_plotted_with_its_recorded_force(tmp_path):
     """The ideal model publishes no force: the recorded scene's kcs and bcs give it, without --kcs/--bcs."""
-    from dockhil.analysis.runplot import bag_graph, load_samples
+    from dockhil.analysis.plots.runplot import bag_graph, load_samples
     from dockhil.analysis.summary import scene_reference
 
     bag, summary = launched(tmp_path, "ideal.yaml", "--composed")

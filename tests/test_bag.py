@@ -34,7 +34,7 @@ from dockhil.msgs import (
     type_name,
 )
 from dockhil.msgs.codec import encode, schema
-from tests.bagfiles import write_msgpack_bag
+from tests.support.bagfiles import write_msgpack_bag
 
 ROOT = Path(__file__).resolve().parent.parent
 MS = 1_000_000  # ns

@@ -267,7 +267,7 @@ def test_info_export_and_play_report_the_loss_in_one_line_and_go_on(bag, tmp_pat
 
 
 def test_export_of_a_deeply_nested_message_is_one_line(tmp_path, capsys):
-    from tests.bagfiles import write_msgpack_bag
+    from tests.support.bagfiles import write_msgpack_bag
 
     good = encode(WrenchStamped(header=Header(seq=1)))
     deep_arrays = b"\x91" * 20_000 + b"\x01"  # 20,000 nested arrays

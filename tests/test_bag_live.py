@@ -19,9 +19,9 @@ from dockhil.bags.tools import info
 from dockhil.errors import DockhilError
 from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped, type_name
 from dockhil.msgs.codec import encode
-from tests.bagfiles import assert_messages_meet_their_channel_schemas
+from tests.support.bagfiles import assert_messages_meet_their_channel_schemas
 from tests.conftest import Lines, dockhil_cmd, kill_child_and_expect_the_graph_to_stop, registered
-from tests.inprocess import run_main, completed
+from tests.support.inprocess import run_main, completed
 
 # A driven loop: /drive (a seeded noisy source, silent at every 5th tick) feeds
 # the plant at the same tick; plant and gain close a loop through /x and /u.
@@ -34,10 +34,10 @@ args:
   bag: {default: "", help: "bag to take /drive from with drive:=bag"}
   seed: {default: 7, help: "noise seed of the simulated drive"}
 nodes:
-  - {name: drive, node: "tests.bagnodes:Drive", params: {seed: $(arg seed), quiet_every: 5}, if: $(arg drive) == sim}
+  - {name: drive, node: "tests.support.bagnodes:Drive", params: {seed: $(arg seed), quiet_every: 5}, if: $(arg drive) == sim}
   - {name: drive, node: bag_source, params: {path: $(arg bag), topics: [/drive]}, if: $(arg drive) == bag}
-  - {name: plant, node: "tests.bagnodes:Plant"}
-  - {name: gain, node: "tests.graphnodes:Gain"}
+  - {name: plant, node: "tests.support.bagnodes:Plant"}
+  - {name: gain, node: "tests.support.graphnodes:Gain"}
 """
 TICKS = 301  # 0..300 at 1 kHz for 0.3 s
 NO_AGE_LIMIT = ("--max-age", "plant.u=inf", "--max-age", "plant.d=inf", "--max-age", "gain.x=inf")

@@ -19,7 +19,7 @@ from dockhil.bags.reader import BagReader
 from dockhil.bags.writer import BagWriter
 from dockhil.scene.launchfile import SHIPPED_SCENES, load
 from tests.conftest import dockhil_cmd, registered
-from tests.inprocess import launch_here_or_process, run_main
+from tests.support.inprocess import launch_here_or_process, run_main
 
 
 def records(path) -> dict[str, dict]:

@@ -17,7 +17,7 @@ from dockhil.runtime.launcher import Launcher
 from dockhil.scene import launchfile
 from dockhil.scene.graph import build
 from tests.conftest import dockhil_cmd
-from tests.graphnodes import Gain
+from tests.support.graphnodes import Gain
 
 HIL = Path(__file__).resolve().parent.parent / "launch" / "hil.yaml"
 
@@ -133,7 +133,7 @@ class DiesOnce(Gain):
 RESPAWNED = """
 rate: 200
 nodes:
-  - {name: integ, node: "tests.graphnodes:Integrator"}
+  - {name: integ, node: "tests.support.graphnodes:Integrator"}
   - {name: gain, node: "tests.test_busy_machine:DiesOnce", respawn: true, respawn_delay: 0.3,
      params: {die_once_at: 100, marker: MARKER}}
 """
@@ -220,7 +220,7 @@ def test_a_refused_node_loop_runs_at_normal_priority(monkeypatch):
     lines = []
     spec = RunSpec(
         name="src",
-        type_name="tests.graphnodes:Integrator",
+        type_name="tests.support.graphnodes:Integrator",
         params={},
         dt=0.01,
         clock="wall",
@@ -252,7 +252,7 @@ def test_an_emulated_device_s_loop_runs_above_the_node_loops(monkeypatch, type_n
     monkeypatch.setattr(realtime, "zmq_options", lambda ctx: False)
     spec = RunSpec(
         name="dev",
-        type_name=f"tests.graphnodes:{type_name}",
+        type_name=f"tests.support.graphnodes:{type_name}",
         params={},
         dt=0.01,
         clock="wall",

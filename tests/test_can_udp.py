@@ -12,13 +12,13 @@ from pathlib import Path
 import pytest
 
 from dockhil.errors import DeviceError
-from dockhil.hardware import can_multicast
+from dockhil.devices.can_ft import multicast as can_multicast
 from dockhil.node import NodeContext
-from dockhil.nodes.ft_emulator import FtSensorEmulator
+from dockhil.devices.can_ft.emulator import FtSensorEmulator
 from dockhil.runtime import ownership
 from dockhil.scene import launchfile
 from dockhil.scene.graph import build
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 HIL = Path(__file__).resolve().parent.parent / "launch" / "hil.yaml"
 ROOT = HIL.parent.parent
@@ -151,7 +151,7 @@ JOIN = """
 import sys
 from dockhil.errors import DeviceError
 from dockhil.node import NodeContext
-from dockhil.nodes.{module} import {cls}
+from dockhil.devices.can_ft.{module} import {cls}
 node = {cls}(NodeContext("ft", 0.001, sim_time=False, log=print), interface="udp_multicast", channel="239.74.1.2")
 try:
     node.setup()
@@ -162,7 +162,7 @@ except DeviceError as exc:
 
 
 @pytest.mark.skipif(shutil.which("unshare") is None, reason="needs unshare(1)")
-@pytest.mark.parametrize("module, cls", [("ft_can", "FtCanDriver"), ("ft_emulator", "FtSensorEmulator")])
+@pytest.mark.parametrize("module, cls", [("driver", "FtCanDriver"), ("emulator", "FtSensorEmulator")])
 def test_a_group_without_a_route_is_refused_in_one_line_saying_what_to_do(tmp_path, module, cls):
     """In a network namespace of its own the host has loopback alone, and no route for the group."""
     if subprocess.run(["unshare", "-rn", "true"], capture_output=True).returncode != 0:

@@ -8,7 +8,7 @@ import pytest
 
 from dockhil.bags.reader import BagReader
 from tests.conftest import dockhil_cmd
-from tests.inprocess import completed
+from tests.support.inprocess import completed
 
 HIL = Path(__file__).resolve().parent.parent / "launch" / "hil.yaml"
 
@@ -111,13 +111,13 @@ def test_a_member_s_refused_output_is_said_as_the_member_s_own_process_says_it(t
 duration: 0.1
 nodes:
   - name: source
-    node: tests.faultnodes:BoolAt{box}
+    node: tests.support.faultnodes:BoolAt{box}
   - name: other
-    node: tests.faultnodes:NanAt{box}
+    node: tests.support.faultnodes:NanAt{box}
     params: {{at: 1000}}
     remap: {{x: /y}}
   - name: follow
-    node: tests.faultnodes:Follow
+    node: tests.support.faultnodes:Follow
 """)
         r = run("launch", path)
         assert r.returncode == 1, r.stderr

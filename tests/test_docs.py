@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import ROOT
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 PAGES = sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
 # Pages being written elsewhere, linked from the index already: remove each once it exists.

@@ -14,7 +14,7 @@ from dockhil.msgs.codec import encode
 from dockhil.analysis.summary import SummaryCollector
 from dockhil.testing import NodeHarness
 from tests.conftest import ROOT, dockhil_cmd
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 HIL, HIL6 = ROOT / "launch" / "hil.yaml", ROOT / "launch" / "hil6.yaml"
 DOF_TYPES = ("satellite_dynamics", "virtual_impedance", "ft_sim", "robot_sim")
@@ -210,7 +210,7 @@ DYNAMICS6_LINE = HIL6.read_text().splitlines().index("  - name: dynamics") + 1
         ),
         (
             HIL,
-            "params: {k: $(arg k), noise: $(arg ft_noise)}",
+            "params: {k: $(arg k), noise: $(arg ft_noise), k_scale: $(arg hw_k_scale), delay: $(arg ft_delay)}",
             "params: {dof: 6}",
             "node 'dynamics' (satellite_dynamics) is 1-DOF and node 'ft' (ft_sim with dof: 6) is 6-DOF",
         ),

@@ -5,7 +5,7 @@ import json
 import pytest
 
 from dockhil.contact.stability import pade1_bound
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 
 def test_figures_command_writes_pngs_and_numbers(tmp_path):

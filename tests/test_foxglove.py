@@ -24,7 +24,7 @@ import pytest
 import websockets
 
 from tests.conftest import ROOT, dockhil_cmd, free_port
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 SCENE = "launch/hil.yaml"
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # foxglove-sdk 0.30; older servers

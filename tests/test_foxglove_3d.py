@@ -20,7 +20,7 @@ import pytest
 from dockhil.bags import foxglove_scene as fs
 from dockhil.msgs import BodyState, Header, Pose, Quaternion, RobotState, SatelliteState, Vector3, Wrench, WrenchStamped
 from tests.conftest import ROOT, dockhil_cmd, free_port
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 from tests.test_foxglove import channels, connect, message_data, subscribe, until_subscribed
 
 OFFICIAL = {name: fs.schema(name) for name in fs.DERIVED.values()}

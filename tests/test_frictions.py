@@ -14,8 +14,8 @@ from dockhil import session
 from dockhil.node import ManualClock
 from dockhil.runtime.executor import NodeExecutor, RunSpec, Stop
 from tests.conftest import ROOT
-from tests.faultnodes import Hiccup
-from tests.inprocess import run_main
+from tests.support.faultnodes import Hiccup
+from tests.support.inprocess import run_main
 
 P = 1 / 1024  # a period that binary floating point adds up exactly
 
@@ -38,7 +38,7 @@ def test_the_ticking_span_runs_from_the_graphs_first_tick_to_its_last():
 
 def test_a_wall_time_loop_reports_its_first_and_last_tick_on_its_own_clock():
     clock = ManualClock(50.0)
-    spec = RunSpec("n", "tests.faultnodes:Hiccup", {"at": 10, "seconds": 0.0}, P, "wall")
+    spec = RunSpec("n", "tests.support.faultnodes:Hiccup", {"at": 10, "seconds": 0.0}, P, "wall")
     ex = NodeExecutor(spec, Hiccup, Stop(), log=lambda line: None, clock=clock)
     ex.start()
     clock.advance(3.0)  # a slow start-up: not part of the loop
@@ -186,8 +186,8 @@ def test_a_node_name_may_hold_dots_and_the_input_is_after_the_last():
 
 RESPAWNED = """
 nodes:
-  - {name: sink, node: "tests.graphnodes:Integrator"}
-  - {name: src, node: "tests.graphnodes:Gain", respawn: true}
+  - {name: sink, node: "tests.support.graphnodes:Integrator"}
+  - {name: src, node: "tests.support.graphnodes:Gain", respawn: true}
 """
 
 

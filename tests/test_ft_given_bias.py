@@ -13,10 +13,10 @@ from tests.test_hardware_netft import LBF, FakeBox, arrive, record
 
 from dockhil.cli import main
 from dockhil.errors import DeviceError, LaunchError, ParamError
-from dockhil.hardware import tare
+from dockhil.devices import tare
 from dockhil.node import NodeContext, Tick
-from dockhil.nodes.ft_can import FtCanDriver
-from dockhil.nodes.ft_netft import FtNetFtDriver
+from dockhil.devices.can_ft.driver import FtCanDriver
+from dockhil.devices.ati_netft.driver import FtNetFtDriver
 from dockhil.runtime import ownership
 from dockhil.scene import launchfile
 

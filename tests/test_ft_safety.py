@@ -18,12 +18,12 @@ from tests.conftest import ROOT, VirtualFtSensor, node_process_error
 
 from dockhil.runtime import ownership
 from dockhil.errors import DeviceError, ParamError
-from dockhil.hardware import tare
-from dockhil.hardware.device_path import private_link, untrusted
-from dockhil.hardware.slcan_pty import SlcanPort
+from dockhil.devices import tare
+from dockhil.devices.device_path import private_link, untrusted
+from dockhil.devices.can_ft.slcan_pty import SlcanPort
 from dockhil.node import NodeContext, Tick
-from dockhil.nodes.ft_can import FtCanDriver
-from dockhil.nodes.ft_emulator import FtSensorEmulator
+from dockhil.devices.can_ft.driver import FtCanDriver
+from dockhil.devices.can_ft.emulator import FtSensorEmulator
 
 OTHER = 65534  # nobody: another local user
 OFFSET = (1.5, -0.25, 0.5)  # the unloaded sensor's offset
@@ -265,7 +265,7 @@ def test_a_channel_in_a_directory_anyone_may_write_is_refused_and_no_adapter_is_
         em.setup()
     assert not os.path.lexists(link)
     proc = subprocess.run(
-        [sys.executable, "-m", "dockhil.hardware.slcan_pty", link],
+        [sys.executable, "-m", "dockhil.devices.can_ft.slcan_pty", link],
         cwd=ROOT,
         env=ENV,
         capture_output=True,

@@ -31,9 +31,9 @@ BASE = {
     "duration": 0.05,
     "args": {"gain": {"default": 2.0, "help": "feedback gain"}, "use_trace": {"default": False}},
     "nodes": [
-        {"name": "integ", "node": "tests.graphnodes:Integrator", "params": {"x0": 1.0}},
-        {"name": "gain", "node": "tests.graphnodes:Gain", "params": {"gain": "$(arg gain)"}},
-        {"name": "trace", "node": "tests.graphnodes:Trace", "if": "$(arg use_trace)"},
+        {"name": "integ", "node": "tests.support.graphnodes:Integrator", "params": {"x0": 1.0}},
+        {"name": "gain", "node": "tests.support.graphnodes:Gain", "params": {"gain": "$(arg gain)"}},
+        {"name": "trace", "node": "tests.support.graphnodes:Trace", "if": "$(arg use_trace)"},
     ],
 }
 TOP_KEYS = {"description", "rate", "duration", "args", "let", "nodes", "group", "include"}
@@ -150,12 +150,12 @@ def mutated_scene(draw) -> str | bytes:
                         "builtins:print",
                         "dockhil.node:Param",
                         "dockhil.node:Node",
-                        "tests.graphnodes:Nope",
+                        "tests.support.graphnodes:Nope",
                         "no_such_pkg.mod:Node",
-                        "tests.graphnodes:",
+                        "tests.support.graphnodes:",
                         ":Gain",
                         "a..b:C",
-                        "tests/graphnodes:Gain",
+                        "tests/support/graphnodes:Gain",
                     ]
                 ),
                 words.filter(
@@ -335,7 +335,7 @@ def mutated_scene(draw) -> str | bytes:
                 ),
                 st.just([{"namespace": "ns"}]),  # no nodes
                 st.just([{"nodes": [], "scoped": True}]),
-                st.just([{"nodes": [{"name": "integ", "node": "tests.graphnodes:Source"}]}]),
+                st.just([{"nodes": [{"name": "integ", "node": "tests.support.graphnodes:Source"}]}]),
             )
         )  # a name twice
     elif kind == "remap list":
@@ -565,7 +565,7 @@ def test_an_include_fan_out_is_bounded(tmp_path):
         child = f"f{k + 1}.yaml"
         (tmp_path / f"f{k}.yaml").write_text(
             "args: {p: {default: n}}\n"
-            'nodes:\n  - {name: "$(arg p)", node: "tests.graphnodes:Source", remap: {x: "/$(arg p)"}}\n'
+            'nodes:\n  - {name: "$(arg p)", node: "tests.support.graphnodes:Source", remap: {x: "/$(arg p)"}}\n'
             f"include:\n  - {{file: {child}, args: {{p: $(arg p)a}}}}\n  - {{file: {child}, args: {{p: $(arg p)b}}}}\n"
         )
     (tmp_path / "f12.yaml").write_text("args: {p: {default: n}}\nnodes: []\n")
@@ -589,7 +589,7 @@ def test_arguments_that_double_through_includes_are_bounded(tmp_path):
             f'args: {{p: {{default: ab}}}}\ninclude:\n  - {{file: f{k + 1}.yaml, args: {{p: "$(arg p)$(arg p)"}}}}\n'
         )
     (tmp_path / "f40.yaml").write_text(
-        'args: {p: {default: ab}}\nnodes:\n  - {name: a, node: "tests.graphnodes:Source"}\n'
+        'args: {p: {default: ab}}\nnodes:\n  - {name: a, node: "tests.support.graphnodes:Source"}\n'
     )
     r = subprocess.run(
         dockhil_cmd("graph", tmp_path / "f0.yaml"),

@@ -18,10 +18,10 @@ import serial
 from tests.conftest import VirtualFtSensor, node_process_error
 
 from dockhil.errors import DeviceError, LaunchError
-from dockhil.hardware import ft_frames as ff
-from dockhil.hardware.slcan_pty import CanFrame, PtyCanBus, SlcanPort, parse_transmit
+from dockhil.devices.can_ft import frames as ff
+from dockhil.devices.can_ft.slcan_pty import CanFrame, PtyCanBus, SlcanPort, parse_transmit
 from dockhil.node import NodeContext, Tick
-from dockhil.nodes.ft_can import FtCanDriver
+from dockhil.devices.can_ft.driver import FtCanDriver
 
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -187,7 +187,7 @@ bus.shutdown()
 def test_python_can_slcan_talks_across_processes_through_the_pty_bus(tmp_path):
     a, b = str(tmp_path / "a"), str(tmp_path / "b")
     bridge = subprocess.Popen(
-        [sys.executable, "-m", "dockhil.hardware.slcan_pty", a, b],
+        [sys.executable, "-m", "dockhil.devices.can_ft.slcan_pty", a, b],
         cwd=ROOT,
         env=ENV,
         text=True,
@@ -241,7 +241,7 @@ EMULATOR = """
 import sys, threading, time
 from dockhil.node import NodeContext, Tick
 from dockhil.msgs import Header, Pose, RobotState, Vector3
-from dockhil.nodes.ft_emulator import FtSensorEmulator
+from dockhil.devices.can_ft.emulator import FtSensorEmulator
 
 em = FtSensorEmulator(NodeContext("ft_emulator", 0.001, sim_time=False), channel=sys.argv[1],
                       k=float(sys.argv[2]), bias=float(sys.argv[3]), noise=0.0)
@@ -378,7 +378,7 @@ def test_emulator_process_refuses_to_replace_a_file_in_one_line(tmp_path):
     precious = tmp_path / "data.csv"
     precious.write_text("1,2,3\n")
     proc = subprocess.run(
-        [sys.executable, "-m", "dockhil.hardware.slcan_pty", str(precious)],
+        [sys.executable, "-m", "dockhil.devices.can_ft.slcan_pty", str(precious)],
         cwd=ROOT,
         env=ENV,
         capture_output=True,
@@ -444,7 +444,7 @@ def test_node_process_exits_non_zero_with_one_line_when_the_sensor_is_missing(tm
 
 def test_modules_do_not_import_python_can_until_setup():
     code = (
-        "import sys, dockhil.nodes.ft_can, dockhil.nodes.ft_emulator, dockhil.hardware.slcan_pty; "
+        "import sys, dockhil.devices.can_ft.driver, dockhil.devices.can_ft.emulator, dockhil.devices.can_ft.slcan_pty; "
         "print(sorted(m for m in ('can', 'serial', 'pymodbus') if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=30)

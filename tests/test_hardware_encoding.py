@@ -6,8 +6,8 @@ import struct
 
 import pytest
 
-from dockhil.hardware import ft_frames as ff
-from dockhil.hardware import modbus_map as mm
+from dockhil.devices.can_ft import frames as ff
+from dockhil.devices.modbus_robot import registers as mm
 
 # -- F/T CAN frames -------------------------------------------------------------
 

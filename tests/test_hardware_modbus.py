@@ -22,11 +22,11 @@ import pymodbus  # noqa: F401  - a hard dependency: missing, the tests fail
 from tests.conftest import free_port, node_process_error
 
 from dockhil.errors import DeviceError, LaunchError
-from dockhil.hardware import modbus_map as mm
-from dockhil.hardware.robot_emulator import FOLLOW, HOLD, RobotControllerEmulator, ServoModel
+from dockhil.devices.modbus_robot import registers as mm
+from dockhil.devices.modbus_robot.emulator import FOLLOW, HOLD, RobotControllerEmulator, ServoModel
 from dockhil.node import NodeContext, Tick
 from dockhil.msgs import Header, Pose, RobotCommand, Twist, Vector3
-from dockhil.nodes.robot_modbus import RobotModbusDriver
+from dockhil.devices.modbus_robot.driver import RobotModbusDriver
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
@@ -60,7 +60,7 @@ def test_servo_follows_after_the_delay_with_first_order_lag():
     for i in (30, 50, 100):
         assert xs[i] == pytest.approx(0.004 * (1 - math.exp(-(i - 20) * 0.001 / 0.01)), rel=1e-9)
     # Velocity is the mean over the emulator's velocity window (10 cycles of 1 ms here).
-    from dockhil.hardware.robot_emulator import VELOCITY_WINDOW_S
+    from dockhil.devices.modbus_robot.emulator import VELOCITY_WINDOW_S
 
     cycles = round(VELOCITY_WINDOW_S / 0.001)
     assert model.linear[0] == pytest.approx((xs[100] - xs[100 - cycles]) / VELOCITY_WINDOW_S)
@@ -122,7 +122,7 @@ def test_fault_holds_until_reset():
 
 def start_emulator(port: int = 0, *args: str) -> tuple[subprocess.Popen, int]:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "dockhil.hardware.robot_emulator", "--port", str(port), *args],
+        [sys.executable, "-m", "dockhil.devices.modbus_robot.emulator", "--port", str(port), *args],
         cwd=ROOT,
         env=ENV,
         text=True,
@@ -373,7 +373,7 @@ def test_emulator_refuses_a_busy_port_with_one_line():
         s.listen()
         port = s.getsockname()[1]
         proc = subprocess.run(
-            [sys.executable, "-m", "dockhil.hardware.robot_emulator", "--port", str(port)],
+            [sys.executable, "-m", "dockhil.devices.modbus_robot.emulator", "--port", str(port)],
             cwd=ROOT,
             env=ENV,
             capture_output=True,
@@ -393,7 +393,8 @@ def test_sim_time_and_an_empty_workspace_are_refused():
 
 def test_modules_do_not_import_pymodbus_until_setup():
     code = (
-        "import sys, dockhil.nodes.robot_modbus, dockhil.nodes.robot_emulator, dockhil.hardware.robot_emulator; "
+        "import sys, dockhil.devices.modbus_robot.driver, dockhil.devices.modbus_robot.emulator_node, "
+        "dockhil.devices.modbus_robot.emulator; "
         "print(sorted(m for m in ('can', 'serial', 'pymodbus') if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=30)
@@ -452,6 +453,8 @@ def test_driver_logs_when_the_controller_lost_its_heartbeat(controller):
         ]  # once, however often it flickers
     finally:
         node.close()
-    # said at close; a busy machine may have dropped the connection, which close says after it
-    closing = logs[-2:] if "could not hold the robot at close" in logs[-1] else logs[-1:]
+    # said at close, before the line that says whether the robot holds and where (a busy machine may
+    # have dropped the connection, which close says between them)
+    closing = logs[-3:] if "could not hold the robot at close" in logs[-2] else logs[-2:]
     assert node.heartbeat_losses > 1 and f"lost our heartbeat {node.heartbeat_losses} times" in closing[0]
+    assert closing[-1].startswith(f"robot controller (Modbus TCP 127.0.0.1:{controller.port}): the ")

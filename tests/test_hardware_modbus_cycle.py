@@ -19,11 +19,11 @@ from types import SimpleNamespace
 
 import pytest
 
-from dockhil.hardware import modbus_map as mm
-from dockhil.hardware.robot_emulator import FOLLOW, ServoModel
+from dockhil.devices.modbus_robot import registers as mm
+from dockhil.devices.modbus_robot.emulator import FOLLOW, ServoModel
 from dockhil.node import ManualClock, NodeContext, ParamError
-from dockhil.hardware.modbus_link import ModbusLink, SetpointLimiter, verify_and_hold
-from dockhil.nodes.robot_modbus import RobotModbusDriver
+from dockhil.devices.modbus_robot.link import ModbusLink, SetpointLimiter, verify_and_hold
+from dockhil.devices.modbus_robot.driver import RobotModbusDriver
 from tests.test_hardware_modbus import ENV, ROOT, Drive, driver, end, start_emulator
 from tests.test_hardware_safety import (
     DT,
@@ -351,7 +351,7 @@ def test_a_sigstopped_controller_resumes_without_a_jump(stall):
 @pytest.mark.parametrize("arg, value", [("--cycle", "0"), ("--delay", "-0.1"), ("--heartbeat-timeout", "nan")])
 def test_the_emulator_refuses_a_parameter_outside_its_range_before_it_listens(arg, value):
     proc = subprocess.run(
-        [sys.executable, "-m", "dockhil.hardware.robot_emulator", "--port", "0", arg, value],
+        [sys.executable, "-m", "dockhil.devices.modbus_robot.emulator", "--port", "0", arg, value],
         cwd=ROOT,
         env=ENV,
         capture_output=True,

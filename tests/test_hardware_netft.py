@@ -22,14 +22,14 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import dockhil_cmd
+from tests.conftest import dockhil_cmd, wait_for
 
 from dockhil.runtime import ownership
 from dockhil.errors import DeviceError, LaunchError, ParamError
-from dockhil.hardware import netft as rdt
-from dockhil.hardware.netft_emulator import ContactModel, NetFtBox
+from dockhil.devices.ati_netft import protocol as rdt
+from dockhil.devices.ati_netft.emulator import ContactModel, NetFtBox
 from dockhil.node import NodeContext, Tick
-from dockhil.nodes.ft_netft import FtNetFtDriver
+from dockhil.devices.ati_netft.driver import FtNetFtDriver
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -57,14 +57,6 @@ def request(command: int, count: int = 0) -> bytes:
 
 def record(rdt_seq: int, ft_seq: int, status: int, counts) -> bytes:
     return struct.pack(">III6i", rdt_seq, ft_seq, status, *counts)
-
-
-def wait_for(cond, timeout: float = 10.0, what: str = "condition") -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"no {what} within {timeout} s")
-        time.sleep(0.002)
 
 
 # -- the codec, against bytes written from the manual's description ----------------------
@@ -202,13 +194,13 @@ def box():
     def make(k=1000.0, position=None, **kw):
         model = ContactModel(k, kw.pop("b", 0.0), kw.pop("bias", 0.0), kw.pop("noise", 0.0))
         model.set_pose(position)
-        b = NetFtBox(model, port=0, http_port=0, **kw).start()
+        b = NetFtBox(model, port=0, http_port=0, **kw).start_thread()
         boxes.append(b)
         return b
 
     yield make
     for b in boxes:
-        b.stop()
+        b.stop_thread()
 
 
 def client() -> socket.socket:
@@ -301,7 +293,7 @@ def test_emulator_loss_is_seeded_and_counted(box):
 def test_emulator_process_writes_its_maxima_when_terminated(tmp_path):
     maxima = tmp_path / "maxima.json"
     help_ = subprocess.run(
-        [sys.executable, "-m", "dockhil.hardware.netft_emulator", "--help"],
+        [sys.executable, "-m", "dockhil.devices.ati_netft.emulator", "--help"],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -312,7 +304,7 @@ def test_emulator_process_writes_its_maxima_when_terminated(tmp_path):
         [
             sys.executable,
             "-m",
-            "dockhil.hardware.netft_emulator",
+            "dockhil.devices.ati_netft.emulator",
             "--port",
             "0",
             "--http-port",

@@ -15,23 +15,16 @@ import time
 import pytest
 
 from dockhil.errors import DockhilError
-from dockhil.hardware import SafetyStop
-from dockhil.hardware import modbus_map as mm
-from dockhil.hardware.robot_emulator import FOLLOW, HOLD
+from dockhil.errors import SafetyStop
+from dockhil.devices.modbus_robot import registers as mm
+from dockhil.devices.modbus_robot.emulator import FOLLOW, HOLD
 from dockhil.node import ManualClock, NodeContext, Tick
 from dockhil.msgs import EStop, Header, Pose, RobotCommand, Twist, Vector3, Wrench, WrenchStamped
-from dockhil.nodes.robot_modbus import RobotModbusDriver
+from dockhil.devices.modbus_robot.driver import RobotModbusDriver
+from tests.conftest import wait_for
 from tests.test_hardware_modbus import read_holding
 
 DT = 0.001
-
-
-def wait_for(condition, timeout: float = 5.0, what: str = "condition") -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{what} not reached within {timeout} s")
-        time.sleep(0.002)
 
 
 class ClockedDrive:

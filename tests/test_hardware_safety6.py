@@ -17,14 +17,16 @@ import time
 
 import pytest
 
-from dockhil.hardware import modbus_map as mm
-from dockhil.hardware.robot_emulator import FOLLOW, HOLD, VELOCITY_WINDOW_S, ServoModel
+from dockhil.devices.modbus_robot import registers as mm
+from dockhil.devices.limits import UNIT_TOLERANCE
+from dockhil.devices.modbus_robot.emulator import FOLLOW, HOLD, VELOCITY_WINDOW_S, ServoModel
 from dockhil.node import ManualClock, NodeContext
 from dockhil.msgs import Header, Pose, Quaternion, RobotCommand, Twist, Vector3, Wrench, WrenchStamped
-from dockhil.nodes.robot_modbus import RobotModbusDriver
+from dockhil.devices.modbus_robot.driver import RobotModbusDriver
 from tests.conftest import node_process_error
 from tests.test_hardware_modbus import ENV, read_holding
-from tests.test_hardware_safety import DT, ClockedDrive, following, make, mode, settled, tripped, wait_for
+from tests.conftest import wait_for
+from tests.test_hardware_safety import DT, ClockedDrive, following, make, mode, settled, tripped
 
 __all__ = ["make"]  # the driver fixture, shared with test_hardware_safety.py
 
@@ -76,7 +78,7 @@ def test_a_six_dof_pose_and_twist_round_trip_through_the_register_map_both_ways(
     # one count is the resolution: 1e-6 m, 1e-9 per quaternion component, 1e-6 m/s and rad/s
     assert max(abs(a - b) for a, b in zip(expected, POSE6)) <= 0.5e-6
     assert max(abs(a - b) for a, b in zip(expected[3:7], POSE6[3:7])) <= 0.5e-9
-    assert abs(math.sqrt(sum(c * c for c in expected[3:7])) - 1.0) < mm.UNIT_TOLERANCE
+    assert abs(math.sqrt(sum(c * c for c in expected[3:7])) - 1.0) < UNIT_TOLERANCE
 
 
 STEP = 1.0 / 1024  # servo period [s]

@@ -15,7 +15,7 @@ from dockhil.contact.hilloop import simulate_hil
 from dockhil.contact.impedance import impedance_closed_form
 from dockhil.contact.scenario import TABLE1
 from dockhil.analysis.summary import samples_from_bag
-from tests.inprocess import run_main, launch_here_or_process
+from tests.support.inprocess import run_main, launch_here_or_process
 
 
 def launch(*args, timeout=180):

@@ -42,3 +42,33 @@ def test_the_checks_find_a_cycle_and_a_private_import(tmp_path):
 def test_no_module_is_over_600_lines():
     over = {n: len(p.read_text().splitlines()) for n, p in house.modules().items()}
     assert {n: k for n, k in over.items() if k > house.MAX_LINES} == {}
+
+
+def test_no_import_goes_up_the_layer_order_and_no_two_packages_import_each_other():
+    edges, _ = house.graph_and_private(house.modules())
+    assert house.upward_imports(edges) == []
+    assert house.package_pairs(edges) == []
+
+
+def test_the_layer_check_finds_an_import_that_goes_up_and_a_package_without_a_layer():
+    edges = {
+        "dockhil.contact.x": {"dockhil.runtime.y", "dockhil.errors"},
+        "dockhil.runtime.y": {"dockhil.contact.x"},
+        "dockhil.newpkg.z": {"dockhil.errors"},
+    }
+    assert house.upward_imports(edges) == [
+        "dockhil.contact.x -> dockhil.runtime.y (contact is below runtime)",
+        "dockhil.newpkg.z -> dockhil.errors (newpkg has no layer in .ci/house.py)",
+    ]
+    assert house.package_pairs(edges) == ["contact <-> runtime"]
+
+
+def test_every_package_and_top_level_module_has_a_layer():
+    named = {name for group in house.LAYERS for name in group}
+    assert {house.layer_of(m) for m in house.modules()} <= named
+
+
+def test_analysis_keeps_its_subjects_in_packages_and_test_helpers_live_in_tests_support():
+    analysis = [p for p in (house.PACKAGE / "analysis").glob("*.py") if p.name != "__init__.py"]
+    assert len(analysis) <= house.MAX_ANALYSIS_MODULES
+    assert house.test_helpers_outside_support() == []

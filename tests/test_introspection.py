@@ -19,8 +19,8 @@ from tests.conftest import Lines, dockhil_cmd
 WALL = """
 rate: 200
 nodes:
-  - {name: integ, node: "tests.graphnodes:Integrator"INTEG_AGE}
-  - {name: gain, node: "tests.graphnodes:Gain", respawn: RESPAWN, respawn_delay: 0.2, params: {die_at: DIE},
+  - {name: integ, node: "tests.support.graphnodes:Integrator"INTEG_AGE}
+  - {name: gain, node: "tests.support.graphnodes:Gain", respawn: RESPAWN, respawn_delay: 0.2, params: {die_at: DIE},
      max_age: {x: 5.0}}
 """
 
@@ -65,7 +65,7 @@ def stop(p, lines):
 def test_topic_and_node_commands_see_a_running_graph(write_launch, capsys):
     p, lines, nodes = start(write_launch, capsys=capsys)
     try:
-        assert "integ  tests.graphnodes:Integrator" in nodes and "gain  tests.graphnodes:Gain" in nodes
+        assert "integ  tests.support.graphnodes:Integrator" in nodes and "gain  tests.support.graphnodes:Gain" in nodes
         topics = dockhil(capsys, "topic", "list").stdout
         assert "/x  dockhil/WrenchStamped  from integ" in topics and "/u  dockhil/WrenchStamped  from gain" in topics
         echo = dockhil(capsys, "topic", "echo", "/x", "-n", "3")

@@ -23,9 +23,9 @@ from tests.conftest import Lines, dockhil_cmd, registered
 SCENE = """
 rate: 100
 nodes:
-  - {name: integ, node: "tests.graphnodes:Integrator", params: {x0: 0.25}, max_age: {u: 5.0}}
-  - {name: gain, node: "tests.graphnodes:Gain", container: box, params: {gain: 3.5}, max_age: {x: 5.0}}
-  - {name: sink, node: "tests.graphnodes:Sink", max_age: {x: 5.0}}
+  - {name: integ, node: "tests.support.graphnodes:Integrator", params: {x0: 0.25}, max_age: {u: 5.0}}
+  - {name: gain, node: "tests.support.graphnodes:Gain", container: box, params: {gain: 3.5}, max_age: {x: 5.0}}
+  - {name: sink, node: "tests.support.graphnodes:Sink", max_age: {x: 5.0}}
 """
 
 
@@ -137,7 +137,9 @@ def test_info_hz_and_echo_field_on_a_running_graph(write_launch, capsys):
         r = dockhil(capsys, "node", "info", "gain", "--json")
         assert r.returncode == 0, r.stderr
         node = json.loads(r.stdout)
-        assert node["type"] == "tests.graphnodes:Gain" and node["process"] == "box" and node["host"] == "localhost"
+        assert (
+            node["type"] == "tests.support.graphnodes:Gain" and node["process"] == "box" and node["host"] == "localhost"
+        )
         assert node["params"] == {"gain": 3.5, "die_at": -1}
         assert node["inputs"]["x"] == {
             "topic": "/x",
@@ -150,7 +152,7 @@ def test_info_hz_and_echo_field_on_a_running_graph(write_launch, capsys):
         assert node["outputs"] == {"u": {"topic": "/u", "type": "dockhil/WrenchStamped"}}
         assert node["pid"] == entry["nodes"]["box"]["pid"]
         text = dockhil(capsys, "node", "info", "integ").stdout
-        assert "Type: tests.graphnodes:Integrator" in text and "x0: 0.25" in text
+        assert "Type: tests.support.graphnodes:Integrator" in text and "x0: 0.25" in text
         assert "u: /u  dockhil/WrenchStamped  (previous tick, 1 tick(s) back, max_age 5 s)" in text
         assert "x: /x  dockhil/WrenchStamped" in text
         missing = dockhil(capsys, "node", "info", "nobody")

@@ -6,7 +6,7 @@ import subprocess
 import pytest
 
 from tests.conftest import ROOT, dockhil_cmd
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 # The line each node of the shipped hil.yaml is declared on, read from the file (a refusal names it).
 HIL_LINE = {
@@ -22,50 +22,52 @@ args:
   gain: {default: 2.0, help: feedback gain}
   use_trace: {default: false, help: add a tracer}
 nodes:
-  - {name: integ, node: "tests.graphnodes:Integrator"}
-  - {name: gain, node: "tests.graphnodes:Gain", params: {gain: $(arg gain)}}
-  - {name: trace, node: "tests.graphnodes:Trace", if: $(arg use_trace)}
+  - {name: integ, node: "tests.support.graphnodes:Integrator"}
+  - {name: gain, node: "tests.support.graphnodes:Gain", params: {gain: $(arg gain)}}
+  - {name: trace, node: "tests.support.graphnodes:Trace", if: $(arg use_trace)}
 """
 
 CASES = {
     "unknown node type": ("nodes:\n  - {name: a, node: no_such_node}\n", [], "unknown node type 'no_such_node'"),
     "unknown param": (
-        'nodes:\n  - {name: a, node: "tests.graphnodes:Source", params: {speed: 1}}\n',
+        'nodes:\n  - {name: a, node: "tests.support.graphnodes:Source", params: {speed: 1}}\n',
         [],
         "unknown parameter 'speed'",
     ),
     "mistyped param": (
-        'nodes:\n  - {name: i, node: "tests.graphnodes:Integrator", params: {x0: fast}}\n'
-        '  - {name: g, node: "tests.graphnodes:Gain"}\n',
+        'nodes:\n  - {name: i, node: "tests.support.graphnodes:Integrator", params: {x0: fast}}\n'
+        '  - {name: g, node: "tests.support.graphnodes:Gain"}\n',
         [],
         "parameter 'x0': expected float, got str",
     ),
     "param out of range": (
-        'nodes:\n  - {name: i, node: "tests.graphnodes:Integrator"}\n'
-        '  - {name: g, node: "tests.graphnodes:Gain", params: {gain: -1}}\n',
+        'nodes:\n  - {name: i, node: "tests.support.graphnodes:Integrator"}\n'
+        '  - {name: g, node: "tests.support.graphnodes:Gain", params: {gain: -1}}\n',
         [],
         "'gain': -1.0 is out of range, must be >= 0.0",
     ),
     "unknown arg": (LOOP, ["gian:=3"], "unknown arg 'gian'; did you mean 'gain'? (known args: gain, use_trace)"),
     "mistyped arg": (LOOP, ["gain:=high"], "arg 'gain' expects float, got 'high'"),
     "unconnected input": (
-        'nodes:\n  - {name: g, node: "tests.graphnodes:Gain"}\n',
+        'nodes:\n  - {name: g, node: "tests.support.graphnodes:Gain"}\n',
         [],
         "node 'g' input 'x' needs topic /x but no node publishes it",
     ),
     "type mismatch": (
-        'nodes:\n  - {name: s, node: "tests.graphnodes:Source"}\n  - {name: k, node: "tests.graphnodes:StateSink"}\n',
+        'nodes:\n  - {name: s, node: "tests.support.graphnodes:Source"}\n'
+        '  - {name: k, node: "tests.support.graphnodes:StateSink"}\n',
         [],
         "topic /x: s.x publishes dockhil/WrenchStamped but k.x expects dockhil/RobotState",
     ),
     "algebraic loop": (
-        'nodes:\n  - {name: g1, node: "tests.graphnodes:Gain"}\n'
-        '  - {name: g2, node: "tests.graphnodes:Gain", remap: {x: /u, u: /x}}\n',
+        'nodes:\n  - {name: g1, node: "tests.support.graphnodes:Gain"}\n'
+        '  - {name: g2, node: "tests.support.graphnodes:Gain", remap: {x: /u, u: /x}}\n',
         [],
         "algebraic loop g1 -> g2 -> g1",
     ),
     "two publishers": (
-        'nodes:\n  - {name: a, node: "tests.graphnodes:Source"}\n  - {name: b, node: "tests.graphnodes:Source"}\n',
+        'nodes:\n  - {name: a, node: "tests.support.graphnodes:Source"}\n'
+        '  - {name: b, node: "tests.support.graphnodes:Source"}\n',
         [],
         "topic /x is published by both a.x and b.x",
     ),
@@ -73,33 +75,33 @@ CASES = {
     "not a mapping": ("- a\n- b\n", [], "a launch file is a YAML mapping"),
     "unknown key": ("nodez: []\n", [], "unknown key 'nodez'"),
     "bad topic name": (
-        'nodes:\n  - {name: a, node: "tests.graphnodes:Source", remap: {x: "no slash"}}\n',
+        'nodes:\n  - {name: a, node: "tests.support.graphnodes:Source", remap: {x: "no slash"}}\n',
         [],
         "topic 'no slash' of port 'x' must start with /",
     ),
     "bad remap": (
-        'nodes:\n  - {name: a, node: "tests.graphnodes:Source", remap: {y: /z}}\n',
+        'nodes:\n  - {name: a, node: "tests.support.graphnodes:Source", remap: {y: /z}}\n',
         [],
         "remap 'y' names no port or topic",
     ),
     "undeclared arg": (
-        'nodes:\n  - {name: a, node: "tests.graphnodes:Source", if: $(arg sim)}\n',
+        'nodes:\n  - {name: a, node: "tests.support.graphnodes:Source", if: $(arg sim)}\n',
         [],
         "$(arg sim) is not declared",
     ),
     "bad condition": (
-        'nodes:\n  - {name: a, node: "tests.graphnodes:Source", if: maybe}\n',
+        'nodes:\n  - {name: a, node: "tests.support.graphnodes:Source", if: maybe}\n',
         [],
         "neither true/false nor",
     ),
     "duplicate name": (
-        'nodes:\n  - {name: a, node: "tests.graphnodes:Source"}\n  - {name: a, node: "tests.graphnodes:Sink"}\n',
+        'nodes:\n  - {name: a, node: "tests.support.graphnodes:Source"}\n  - {name: a, node: "tests.support.graphnodes:Sink"}\n',
         [],
         "two nodes are named 'a'",
     ),
     "bad override syntax": (LOOP, ["gain=3"], "is not of the form name:=value"),
     "no nodes left": (
-        'args: {enabled: {default: false}}\nnodes:\n  - {name: a, node: "tests.graphnodes:Source", if: $(arg enabled)}\n',
+        'args: {enabled: {default: false}}\nnodes:\n  - {name: a, node: "tests.support.graphnodes:Source", if: $(arg enabled)}\n',
         [],
         "no node to start after conditions",
     ),
@@ -131,12 +133,12 @@ def test_missing_file():
 
 def test_include_and_conditions(write_launch, tmp_path):
     (tmp_path / "child.yaml").write_text(
-        'args: {g: {default: 1.0}}\nnodes:\n  - {name: gain, node: "tests.graphnodes:Gain", params: {gain: $(arg g)}}\n'
+        'args: {g: {default: 1.0}}\nnodes:\n  - {name: gain, node: "tests.support.graphnodes:Gain", params: {gain: $(arg g)}}\n'
     )
     path = write_launch(
         'args:\n  g: {default: 5.0}\n  trace: {default: "off", choices: ["on", "off"]}\n'
-        'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
-        '  - {name: tr, node: "tests.graphnodes:Trace", if: $(arg trace) == on}\n'
+        'nodes:\n  - {name: integ, node: "tests.support.graphnodes:Integrator"}\n'
+        '  - {name: tr, node: "tests.support.graphnodes:Trace", if: $(arg trace) == on}\n'
         "include:\n  - {file: child.yaml, args: {g: $(arg g)}}\n"
     )
     from dockhil.scene import launchfile
@@ -165,7 +167,7 @@ def test_graph_shows_what_conditions_left_out(write_launch):
 
 # Each bad input reported against the first release: (what, launch file or None, command line after the
 # command, the words that say what and where). Every one is refused in one line, exit 2, before anything runs.
-SOURCE = '  - {name: a, node: "tests.graphnodes:Source"'
+SOURCE = '  - {name: a, node: "tests.support.graphnodes:Source"'
 BAD_INPUTS = {
     "rate .inf": (
         "graph",
@@ -229,8 +231,9 @@ BAD_INPUTS = {
         "graph",
         "launch/hil.yaml",
         ["delay:=1e308"],
-        f"hil.yaml:{HIL_LINE['delay']}: node 'delay' parameter 'delay': 1e+308 s is longer than 1 s: a robot delay "
-        "is a few ms to a few hundred ms; give it in seconds, at most 1 s",
+        # The virtual impedance is told the delay too (its compensation), and is checked first.
+        f"hil.yaml:{HIL_LINE['impedance']}: node 'impedance' parameter 'delay': 1e+308 s is longer than 1 s: a "
+        "robot delay is a few ms to a few hundred ms; give it in seconds, at most 1 s",
     ),
     "params --m1 1e-320": ("params", None, ["--table1", "--m1", "1e-320"], "--m1 1e-320 is too small to compute with"),
     "params --m1 1e308": ("params", None, ["--table1", "--m1", "1e308"], "--m1 1e+308 kg is outside 0.01 to 1e+08 kg"),
@@ -418,8 +421,8 @@ def test_a_run_that_writes_no_summary_leaves_no_earlier_one_behind(tmp_path):
 def test_rate_from_an_argument_sets_the_step(write_launch):
     path = write_launch(
         "rate: $(arg rate)\nduration: $(arg T)\nargs:\n  rate: {default: 1000.0}\n  T: {default: 0.5}\n"
-        'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
-        '  - {name: gain, node: "tests.graphnodes:Gain"}\n'
+        'nodes:\n  - {name: integ, node: "tests.support.graphnodes:Integrator"}\n'
+        '  - {name: gain, node: "tests.support.graphnodes:Gain"}\n'
     )
     from dockhil.scene import launchfile
 
@@ -430,9 +433,9 @@ def test_rate_from_an_argument_sets_the_step(write_launch):
 
 def test_aliases_within_bounds_still_work(write_launch):
     path = write_launch(
-        'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
-        '  - {name: gain, node: "tests.graphnodes:Gain", params: &p {gain: 3.0}}\n'
-        '  - {name: g2, node: "tests.graphnodes:Gain", params: *p, remap: {x: /u, u: /y}}\n'
+        'nodes:\n  - {name: integ, node: "tests.support.graphnodes:Integrator"}\n'
+        '  - {name: gain, node: "tests.support.graphnodes:Gain", params: &p {gain: 3.0}}\n'
+        '  - {name: g2, node: "tests.support.graphnodes:Gain", params: *p, remap: {x: /u, u: /y}}\n'
     )
     from dockhil.scene import launchfile
 
@@ -454,7 +457,7 @@ def test_schema_is_printed_as_json_schema():
 
 
 def test_node_path_must_name_a_node_class(tmp_path, monkeypatch):
-    from dockhil import nodes
+    from dockhil import node_types
     from dockhil.errors import LaunchError
 
     marker = tmp_path / "imported"
@@ -463,10 +466,10 @@ def test_node_path_must_name_a_node_class(tmp_path, monkeypatch):
     )
     monkeypatch.syspath_prepend(str(tmp_path))
     with pytest.raises(LaunchError, match="module 'sidefx_mod' defines no class 'run'"):
-        nodes.load("sidefx_mod:run")
+        node_types.load("sidefx_mod:run")
     assert not marker.exists()  # refused from its source: the module was never imported
     with pytest.raises(LaunchError, match="Helper is not a dockhil node"):
-        nodes.load("sidefx_mod:Helper")
+        node_types.load("sidefx_mod:Helper")
     assert marker.exists()
     for path, words in [
         ("os:system", "system is not a dockhil node"),
@@ -475,8 +478,8 @@ def test_node_path_must_name_a_node_class(tmp_path, monkeypatch):
         ("no_such_pkg.x:Y", "cannot import"),
     ]:
         with pytest.raises(LaunchError, match=words.replace(".", r"\.")):
-            nodes.load(path)
-    assert nodes.load("tests.graphnodes:Gain").__name__ == "Gain"
+            node_types.load(path)
+    assert node_types.load("tests.support.graphnodes:Gain").__name__ == "Gain"
 
 
 @pytest.mark.parametrize("error, words", [(RecursionError, "nested too deeply"), (MemoryError, "out of memory")])

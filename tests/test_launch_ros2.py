@@ -29,8 +29,8 @@ LOOP = """
 args:
   gain: {default: 2.0, help: feedback gain}
 nodes:
-  - {name: integ, node: "tests.graphnodes:Integrator", %s}
-  - {name: gain, node: "tests.graphnodes:Gain", params: {gain: %s}}
+  - {name: integ, node: "tests.support.graphnodes:Integrator", %s}
+  - {name: gain, node: "tests.support.graphnodes:Gain", params: {gain: %s}}
 """
 
 
@@ -114,8 +114,8 @@ def topics(g) -> dict:
 
 def test_remap_as_a_list_of_from_to_connects_as_the_mapping_does(write_launch):
     base = (
-        'nodes:\n  - {name: s, node: "tests.graphnodes:Source", remap: %s}\n'
-        '  - {name: k, node: "tests.graphnodes:Sink", remap: %s}\n'
+        'nodes:\n  - {name: s, node: "tests.support.graphnodes:Source", remap: %s}\n'
+        '  - {name: k, node: "tests.support.graphnodes:Sink", remap: %s}\n'
     )
     as_map = graph_of(write_launch, base % ("{x: /a}", "{/x: /a, opt: /b}"))
     as_list = graph_of(write_launch, base % ("[{from: x, to: /a}]", "[{from: /x, to: /a}, {from: opt, to: /b}]"))
@@ -142,7 +142,7 @@ def test_param_as_a_list_of_name_value_sets_what_the_mapping_sets(write_launch):
         ("remap: [{from: u, to: a}]", "topic 'a' of port 'u' must start with /"),
         (
             "remap: [{from: uu, to: /a}]",
-            "remap 'uu' names no port or topic of tests.graphnodes:Integrator; did you mean 'u'? ports: u, x",
+            "remap 'uu' names no port or topic of tests.support.graphnodes:Integrator; did you mean 'u'? ports: u, x",
         ),
         ("params: {x0: 1.0}, param: [{name: x0, value: 2.0}]", "nodes[0].param[0].name: parameter 'x0' is given twice"),
         ("param: [{name: x0, value: 1.0}, {name: x0, value: 2.0}]", "nodes[0].param[1].name: parameter 'x0' is given"),
@@ -163,15 +163,15 @@ args:
 group:
   - namespace: left
     nodes:
-      - {name: src, node: "tests.graphnodes:Source"}
-      - {name: sink, node: "tests.graphnodes:Sink", remap: [{from: opt, to: /shared}]}
+      - {name: src, node: "tests.support.graphnodes:Source"}
+      - {name: sink, node: "tests.support.graphnodes:Sink", remap: [{from: opt, to: /shared}]}
   - namespace: /right
     if: $(var right)
     nodes:
-      - {name: src, node: "tests.graphnodes:Source"}
-      - {name: sink, node: "tests.graphnodes:Sink", remap: [{from: opt, to: /shared}]}
+      - {name: src, node: "tests.support.graphnodes:Source"}
+      - {name: sink, node: "tests.support.graphnodes:Sink", remap: [{from: opt, to: /shared}]}
 nodes:
-  - {name: shared, node: "tests.graphnodes:Source", remap: {x: /shared}}
+  - {name: shared, node: "tests.support.graphnodes:Source", remap: {x: /shared}}
 """
 
 
@@ -208,12 +208,16 @@ def test_a_group_condition_leaves_out_its_nodes_and_says_why(write_launch):
         ("[{namespace: a}]", "scene.yaml:3: group[0]: `nodes` is required"),
         ("[{namespace: a, nodes: [], scoped: true}]", "group[0].scoped: unknown key 'scoped'"),
         (
-            "[{namespace: a, nodes: [{name: s, node: 'tests.graphnodes:Source', remap: {x: /y}}]},"
-            " {namespace: a, nodes: [{name: s, node: 'tests.graphnodes:Sink'}]}]",
+            "[{namespace: a, nodes: [{name: s, node: 'tests.support.graphnodes:Source', remap: {x: /y}}]},"
+            " {namespace: a, nodes: [{name: s, node: 'tests.support.graphnodes:Sink'}]}]",
             "two nodes are named 'a.s'",
         ),
         (
-            "[{namespace: " + "n" * 32 + ", nodes: [{name: " + "s" * 40 + ", node: 'tests.graphnodes:Source'}]}]",
+            "[{namespace: "
+            + "n" * 32
+            + ", nodes: [{name: "
+            + "s" * 40
+            + ", node: 'tests.support.graphnodes:Source'}]}]",
             "group[0].nodes[0].name: the name in its namespace, "
             + repr("n" * 32 + "." + "s" * 40)
             + ", is 73 characters; at most 64",
@@ -276,7 +280,7 @@ def test_max_age_reaches_the_node_process_spec_and_its_limit(write_launch, tmp_p
     [
         (
             "{uu: 0.05}",
-            "node 'integ': max_age 'uu' names no input of tests.graphnodes:Integrator; did you mean 'u'? inputs: u",
+            "node 'integ': max_age 'uu' names no input of tests.support.graphnodes:Integrator; did you mean 'u'? inputs: u",
         ),
         ("{u: 0}", "scene.yaml:5: nodes[0].max_age.u: expected a number > 0.0, got 0"),
         ("{u: -1}", "nodes[0].max_age.u: expected a number > 0.0, got -1"),
@@ -325,14 +329,14 @@ def test_a_launch_max_age_stops_the_node_when_its_input_is_older(tmp_path):
     clock = Upstream()
     spec = RunSpec(
         "follow",
-        "tests.faultnodes:Follow",
+        "tests.support.faultnodes:Follow",
         {},
         P,
         "wall",
         inputs={"x": PortWire("/x", endpoint, "dockhil/WrenchStamped", max_age=0.05)},
     )
     spec.key_file = str(keys.write(tmp_path / "graph.keys"))
-    from tests.faultnodes import Follow
+    from tests.support.faultnodes import Follow
 
     ex = NodeExecutor(spec, Follow, Stop(), log=lambda line: None, clock=clock)
     ex.start()
@@ -353,8 +357,8 @@ def test_the_composed_loop_is_judged_on_the_tightest_launch_max_age(write_launch
     """One loop; tick 50 stalls 64 P, so tick 51 starts 63 P = 0.0615 s late: within the default
     0.1 s, past the launch file's 0.05 s."""
     text = (
-        "rate: 1024\nnodes:\n  - {name: source, node: 'tests.faultnodes:Hiccup', "
-        "params: {at: 50, seconds: 0.0625}}\n  - {name: follow, node: 'tests.faultnodes:Follow'%s}\n"
+        "rate: 1024\nnodes:\n  - {name: source, node: 'tests.support.faultnodes:Hiccup', "
+        "params: {at: 50, seconds: 0.0625}}\n  - {name: follow, node: 'tests.support.faultnodes:Follow'%s}\n"
     )
     reports = []
     for extra in ("", ", max_age: {x: 0.05}"):
@@ -416,7 +420,7 @@ def _many_copies(kind: str) -> str:
     head = "args:\n  p: {default: " + "a" * 60000 + "}\n"
     if kind == "params":
         return head + (
-            'nodes:\n  - name: a\n    node: "tests.graphnodes:Source"\n    params:\n'
+            'nodes:\n  - name: a\n    node: "tests.support.graphnodes:Source"\n    params:\n'
             + "".join(f'      k{i}: "x$(arg p)"\n' for i in range(15000))
         )
     return head + "let:\n" + "".join(f'  - {{name: v{i}, value: "x$(var p)"}}\n' for i in range(1000))

@@ -3,7 +3,7 @@ and the science and the CLI stay light. Each node type is measured in a fresh in
 
 import pytest
 
-from dockhil import nodes
+from dockhil import node_types
 from dockhil.analysis import leanness
 
 # One worker runs this file under pytest-xdist: every node type is measured once.
@@ -37,7 +37,7 @@ def over_bare_interpreter(rows, name) -> float:
 
 
 def test_every_registered_node_type_is_measured_and_within_its_memory_budget(rows):
-    for type_name in nodes.REGISTRY:
+    for type_name in node_types.REGISTRY:
         assert type_name in rows, type_name
         row = rows[type_name]
         assert row["startup_s"] is not None and "rss_mb" in row, row
@@ -63,7 +63,7 @@ def test_the_budget_would_catch_scipy_or_matplotlib_in_a_node(rows):
     assert heavy["rss_mb"] - rows["python, nothing of dockhil"]["rss_mb"] > NODE_BUDGET_MB, heavy
 
 
-@pytest.mark.parametrize("type_name", sorted(nodes.REGISTRY))
+@pytest.mark.parametrize("type_name", sorted(node_types.REGISTRY))
 def test_no_node_imports_a_ruled_package_at_import(rows, type_name):
     early = set(rows[type_name]["after_import"]) & set(leanness.RULED)
     assert not early, f"{type_name} imports {early} when its module is imported"

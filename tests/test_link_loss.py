@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from dockhil.hardware import rsi
+from dockhil.devices.kuka_rsi import protocol as rsi
 from dockhil.node import ManualClock
 from tests.conftest import dockhil_cmd
 from tests.test_hardware_netft import free_udp_and_tcp_port

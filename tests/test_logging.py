@@ -15,7 +15,7 @@ import pytest
 from dockhil import cli, log
 from dockhil.progress import Progress, StatusLine
 from tests.conftest import dockhil_cmd
-from tests.inprocess import launch_here_or_process
+from tests.support.inprocess import launch_here_or_process
 
 WORDS = ("debug", "info", "warning", "error")
 
@@ -24,9 +24,9 @@ CHATTY = """
 rate: 100
 duration: 0.05
 nodes:
-  - {name: alone, node: "tests.lognodes:Chatty"}
-  - {name: left, node: "tests.lognodes:Chatty", container: pair, remap: {x: /l}}
-  - {name: right, node: "tests.lognodes:Chatty", container: pair, remap: {x: /r}}
+  - {name: alone, node: "tests.support.lognodes:Chatty"}
+  - {name: left, node: "tests.support.lognodes:Chatty", container: pair, remap: {x: /l}}
+  - {name: right, node: "tests.support.lognodes:Chatty", container: pair, remap: {x: /r}}
 """
 SPEAKERS = ("alone", "left", "right")
 
@@ -72,13 +72,13 @@ def test_the_level_filters_and_the_file_gets_the_node_processes_records_with_the
 
 
 def node_process(tmp_path, env, node="Chatty"):
-    """One node process (tests.lognodes) run as the launcher runs it, with `env` added."""
+    """One node process (tests.support.lognodes) run as the launcher runs it, with `env` added."""
     from dockhil.runtime.transport import GraphKeys
 
     keys = GraphKeys.make().write(tmp_path / "graph.keys")
     spec = {
         "name": "alone",
-        "type_name": f"tests.lognodes:{node}",
+        "type_name": f"tests.support.lognodes:{node}",
         "dt": 0.01,
         "clock": "sim",
         "n_ticks": 3,
@@ -288,7 +288,7 @@ def bad_places(tmp_path):
 
 COMMANDS = [
     ("launch", "launch/ideal.yaml", "--duration", "0.01"),
-    ("run", "tests.graphnodes:Source", "--duration", "0.01"),
+    ("run", "tests.support.graphnodes:Source", "--duration", "0.01"),
     ("sweep", "launch/campaigns/fig7.yaml", "--out", "{tmp}/r.parquet"),
     ("bag", "play", "{tmp}/none.mcap"),
     ("bag", "record", "{tmp}/new.mcap"),

@@ -10,7 +10,7 @@ import threading
 
 import pytest
 
-from dockhil.hardware.modbus_server import ModbusTcpServer
+from dockhil.devices.modbus_robot.server import ModbusTcpServer
 
 
 class Served:

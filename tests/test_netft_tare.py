@@ -1,4 +1,4 @@
-"""The Net F/T driver's tare is the graph's, as the CAN driver's (dockhil/hardware/tare.py): a
+"""The Net F/T driver's tare is the graph's, as the CAN driver's (dockhil/devices/tare.py): a
 driver restarted mid-contact keeps the graph's first tare, a tare over a moving probe is refused,
 and another graph tares anew. Against the fake box of tests/test_hardware_netft.py."""
 
@@ -11,7 +11,7 @@ import pytest
 
 from dockhil.errors import DeviceError
 from dockhil.node import Tick
-from dockhil.nodes.ft_netft import FtNetFtDriver
+from dockhil.devices.ati_netft.driver import FtNetFtDriver
 from dockhil.runtime import ownership
 from tests.test_hardware_netft import LBF, FakeBox, arrive, ctx, record
 

@@ -10,7 +10,7 @@ from dockhil.runtime.executor import check_outputs
 from dockhil.msgs import BodyWrenches, Wrench, WrenchStamped
 from dockhil.node import Input, Node, Output, Param
 from tests.conftest import dockhil_cmd
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 HERE = "tests.test_node_failures"
 

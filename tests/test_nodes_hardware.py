@@ -16,9 +16,9 @@ import pytest
 from tests.conftest import VirtualFtSensor
 
 from dockhil.errors import DeviceError
-from dockhil.hardware import SafetyStop
-from dockhil.hardware import modbus_map as mm
-from dockhil.hardware.robot_emulator import HOLD
+from dockhil.errors import SafetyStop
+from dockhil.devices.modbus_robot import registers as mm
+from dockhil.devices.modbus_robot.emulator import HOLD
 from dockhil.testing import NodeHarness, estop, robot_command, robot_state, wrench
 
 
@@ -187,7 +187,7 @@ def test_ft_emulator_sends_minus_k_x_in_the_documented_frame_layout(request):
         em.close()
         listener.shutdown()
     assert [m.arbitration_id for m in got] == [0x1A0, 0x1A1, 0x1A0, 0x1A1]
-    # Layout (dockhil/hardware/ft_frames.py): int16 x, y, z counts, little-endian; status; sequence.
+    # Layout (dockhil/devices/can_ft/frames.py): int16 x, y, z counts, little-endian; status; sequence.
     layout = struct.Struct("<hhhBB")
     force = [layout.unpack(bytes(m.data)) for m in got[0::2]]
     assert force[0] == (round((-1000.0 * 0.012 + 0.5) / 0.01), 0, 0, 0, 0)  # -11.5 N

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from dockhil import nodes
+from dockhil import node_types
 from dockhil.scene import launchfile
 from dockhil.errors import LaunchError
 from dockhil.analysis.sweep import CampaignError, load_campaign
@@ -169,14 +169,14 @@ def fake_distribution(tmp_path, monkeypatch):
 
 
 def test_an_installed_package_adds_a_node_type(fake_distribution):
-    assert nodes.plugins()["ramp"] == ("dockhil_fake_plugin:Ramp", "dockhil-fake-plugin 1.2")
-    cls = nodes.load("ramp")
+    assert node_types.plugins()["ramp"] == ("dockhil_fake_plugin:Ramp", "dockhil-fake-plugin 1.2")
+    cls = node_types.load("ramp")
     assert cls.__name__ == "Ramp" and cls.__module__ == "dockhil_fake_plugin"
 
 
 def test_a_built_in_name_is_never_replaced_by_a_package(fake_distribution):
-    assert "ft_sim" not in nodes.plugins()
-    assert nodes.load("ft_sim").__module__ == "dockhil.nodes.ft_sim"
+    assert "ft_sim" not in node_types.plugins()
+    assert node_types.load("ft_sim").__module__ == "dockhil.nodes.ft_sim"
 
 
 @pytest.mark.parametrize(
@@ -190,11 +190,11 @@ def test_a_built_in_name_is_never_replaced_by_a_package(fake_distribution):
 )
 def test_a_broken_entry_point_is_refused_in_one_line_naming_its_package(fake_distribution, name, why):
     with pytest.raises(LaunchError) as err:
-        nodes.load(name)
+        node_types.load(name)
     message = str(err.value)
     assert "\n" not in message and why in message and "dockhil-fake-plugin 1.2" in message
     # ... and the built-in types still load
-    assert nodes.load("satellite_dynamics").__name__ == "SatelliteDynamics"
+    assert node_types.load("satellite_dynamics").__name__ == "SatelliteDynamics"
 
 
 def test_an_unknown_name_lists_the_installed_types_too(fake_distribution):
@@ -203,7 +203,7 @@ def test_an_unknown_name_lists_the_installed_types_too(fake_distribution):
         match=r"unknown node type 'rampp'; did you mean 'ramp'\? "
         r"\(known types: .*\bramp\b.*satellite_dynamics",
     ):
-        nodes.load("rampp")
+        node_types.load("rampp")
 
 
 def test_node_types_lists_packages_and_a_launch_file_runs_their_node(fake_distribution, tmp_path):
@@ -218,7 +218,7 @@ def test_node_types_lists_packages_and_a_launch_file_runs_their_node(fake_distri
     )
     assert r.returncode == 1  # the broken entry points are errors ...
     listed = dict(line.split(": ", 1) for line in r.stdout.splitlines())
-    assert set(nodes.REGISTRY) < set(listed)  # ... that hide no other type
+    assert set(node_types.REGISTRY) < set(listed)  # ... that hide no other type
     assert listed["ramp"] == "A force ramp on /ramp.  [from dockhil-fake-plugin 1.2]"
     errors = r.stderr.strip().splitlines()
     assert len(errors) == 4 and all("dockhil-fake-plugin 1.2" in e for e in errors), r.stderr
@@ -336,8 +336,8 @@ def test_the_wheel_installs_into_a_fresh_venv_and_runs_from_another_directory(tm
         [
             str(py),
             "-c",
-            "import dockhil, dockhil.nodes, dockhil.msgs; from dockhil.scene import launchfile; "
-            "print(dockhil.__file__, dockhil.nodes.__file__, dockhil.msgs.__file__, launchfile.SHIPPED_SCENES)",
+            "import dockhil, dockhil.node_types, dockhil.msgs; from dockhil.scene import launchfile; "
+            "print(dockhil.__file__, dockhil.node_types.__file__, dockhil.msgs.__file__, launchfile.SHIPPED_SCENES)",
         ],
         cwd=elsewhere,
         env=clean_env(),

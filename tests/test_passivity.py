@@ -369,7 +369,7 @@ def test_stability_measures_the_compensated_loop(capsys):
 
 
 def test_the_report_section_compares_each_delay_with_and_without_compensation():
-    from dockhil.analysis.report import passivity_compensation
+    from dockhil.analysis.report.compute import passivity_compensation
 
     out = passivity_compensation()
     rows = {(r["delay_s"], r["compensation"]): r for r in out["rows"]}

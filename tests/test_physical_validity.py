@@ -17,7 +17,7 @@ import pytest
 
 from dockhil.bags.reader import BagReader
 from tests.conftest import ROOT, dockhil_cmd
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 EXPLODING = ("delay:=0.4", "k:=20000")  # the delayed loop's root: +4.176 1/s
 SHORT = ("--duration", "1.5")  # 1500 ticks: the force is 700 times the ideal peak
@@ -96,9 +96,14 @@ def test_a_loop_that_made_energy_but_not_yet_force_is_invalid(tmp_path):
 # -- meaningless input: one line, exit 2, before anything runs ----------------------------------------
 
 MEANINGLESS = [
-    ("launch/hil.yaml", "lag:=1e9", "node 'robot' parameter 'lag': 1e+09 s is longer than 1 s"),
-    ("launch/hil.yaml", "ft_noise:=1e12", "node 'ft' parameter 'noise': 1000000000000.0 N is outside 0 to 1e+06 N"),
-    ("launch/hil.yaml", "ft_noise:=1e300", "node 'ft' parameter 'noise': 1e+300 N is outside"),
+    # The virtual impedance is told lag and ft_noise too (its compensation), and is checked first.
+    ("launch/hil.yaml", "lag:=1e9", "node 'impedance' parameter 'lag': 1e+09 s is longer than 1 s"),
+    (
+        "launch/hil.yaml",
+        "ft_noise:=1e12",
+        "node 'impedance' parameter 'ft_noise': 1000000000000.0 N is outside 0 to 1e+06 N",
+    ),
+    ("launch/hil.yaml", "ft_noise:=1e300", "node 'impedance' parameter 'ft_noise': 1e+300 N is outside"),
     ("launch/hil.yaml", "k:=1e13", "node 'impedance' parameter 'k': 10000000000000.0 N/m is outside 0 to 1e+12"),
     ("launch/hil.yaml", "kcs:=1e13", "parameter 'kcs': 10000000000000.0 N/m is outside"),
     ("launch/hil.yaml", "v1:=6", "node 'dynamics' parameter 'v1': 6.0 m/s is outside 0 to 5 m/s"),
@@ -190,7 +195,7 @@ NOT_LAUNCH_FILES = {
 def test_an_include_of_a_file_that_is_not_a_launch_file_never_shows_it(name, write_launch, tmp_path):
     secret = tmp_path / "secret"
     secret.write_text(NOT_LAUNCH_FILES[name])
-    scene = write_launch("nodes:\n  - {name: a, node: 'tests.graphnodes:Source'}\ninclude:\n  - file: secret\n")
+    scene = write_launch("nodes:\n  - {name: a, node: 'tests.support.graphnodes:Source'}\ninclude:\n  - file: secret\n")
     for command in ("graph", "launch"):
         code, out, err = run_main(command, scene, *(["--duration", "0.01"] if command == "launch" else []))
         assert code == 2, err

@@ -215,8 +215,8 @@ def test_the_launcher_adds_up_the_counts_and_leaves_out_a_node_that_did_not_repo
 SMALL_SCENE = """
 rate: 1000
 nodes:
-  - {name: integ, node: "tests.graphnodes:Integrator"}
-  - {name: gain, node: "tests.graphnodes:Gain"}
+  - {name: integ, node: "tests.support.graphnodes:Integrator"}
+  - {name: gain, node: "tests.support.graphnodes:Gain"}
 """
 
 

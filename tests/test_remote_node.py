@@ -7,15 +7,15 @@ import sys
 import time
 
 from tests.conftest import dockhil_cmd
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 SCENE = """
 rate: 1000
 duration: 0.3
 nodes:
-  - {{name: integ, node: "tests.graphnodes:Integrator"}}
-  - {{name: gain, node: "tests.graphnodes:Gain"{host}}}
-  - {{name: trace, node: "tests.graphnodes:Trace", params: {{path: "{trace}"}}}}
+  - {{name: integ, node: "tests.support.graphnodes:Integrator"}}
+  - {{name: gain, node: "tests.support.graphnodes:Gain"{host}}}
+  - {{name: trace, node: "tests.support.graphnodes:Trace", params: {{path: "{trace}"}}}}
 """
 
 
@@ -50,6 +50,6 @@ def test_remote_node_runs_from_the_printed_command_and_changes_no_bit(write_laun
 
 
 def test_bad_host_is_refused(write_launch):
-    scene = write_launch('nodes:\n  - {name: a, node: "tests.graphnodes:Source", host: "lab pc"}\n')
+    scene = write_launch('nodes:\n  - {name: a, node: "tests.support.graphnodes:Source", host: "lab pc"}\n')
     code, _, err = run_main("graph", scene)
     assert code == 2 and "`host` must be a host name or address, got 'lab pc'" in err

@@ -15,8 +15,8 @@ import math
 import numpy as np
 import pytest
 
-from dockhil.analysis import report_cases
-from dockhil.analysis import report_precision
+from dockhil.analysis.report import cases as report_cases
+from dockhil.analysis.report import precision as report_precision
 from dockhil.cli import main
 from dockhil.contact.hilloop import simulate_hil
 from dockhil.contact.scenario import TABLE1, ContactModelError, ContactScenario

@@ -21,7 +21,7 @@ from dockhil.msgs import WrenchStamped as DockhilWrench
 from dockhil.nodes.ros2_bridge import LOOPBACK_URI as LOOPBACK  # Cyclone DDS on lo only: nothing leaves this host
 from dockhil.testing import NodeHarness, estop, wrench
 from tests.conftest import ROOT, dockhil_cmd
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 HAVE_DDS = importlib.util.find_spec("cyclonedds") is not None
 needs_dds = pytest.mark.skipif(
@@ -356,7 +356,7 @@ def test_a_ros2_estop_true_is_dockhils_active_estop_from_then_on_and_false_relea
 
 @pytest.mark.parametrize("node", ["robot_sim", "robot_sim6"])
 def test_the_simulated_robot_holds_on_an_active_estop_with_the_drivers_line(node):
-    from dockhil.hardware import SafetyStop
+    from dockhil.errors import SafetyStop
 
     with NodeHarness(node, dt=0.001) as h:
         command = RobotCommand(Header(), pose=Pose(Vector3(0.001)))

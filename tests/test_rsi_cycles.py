@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dockhil.hardware.rsi_link import RsiLink, open_socket
+from dockhil.devices.kuka_rsi.link import RsiLink, open_socket
 from dockhil.msgs import Header, RobotCycles
 from dockhil.node import ManualClock, Tick
-from dockhil.nodes.robot_rsi import SceneFrame
+from dockhil.devices.kuka_rsi.driver import SceneFrame
 from dockhil.testing import wrench
 from tests import test_hardware_rsi as hw
 
@@ -182,8 +182,8 @@ def played_cycles(delay: float, lag: float, cycle: float, seed: int, seconds: fl
     """The exchanges of an RSI controller with a hidden delay and lag (the emulator's servo, advanced on the
     test's cycle clock): steps then a chirp, each answer taken the cycle after its datagram, the link's read
     times scattered by up to a few tenths of a millisecond and 1 um of noise on the pose."""
-    from dockhil.analysis.device_cycles import DeviceCycles
-    from dockhil.hardware.rsi_emulator import RsiServo
+    from dockhil.analysis.calibration.device_cycles import DeviceCycles
+    from dockhil.devices.kuka_rsi.emulator import RsiServo
 
     rng = np.random.default_rng(seed)
     servo = RsiServo((0.0,) * 6, delay, lag)
@@ -207,7 +207,7 @@ def test_a_lag_under_a_cycle_is_not_traded_for_a_delay_between_cycles():
     poses as well for one parameter less, so a lag well under the 4 ms cycle is read as such (the free fit
     read some as none, the delay taking a fraction of a cycle). Lags this small barely show: 0.6 ms of lag
     leaves 0.1 % of a step after one cycle, and its uncertainty says so."""
-    from dockhil.analysis.device_cycles import device_servo
+    from dockhil.analysis.calibration.device_cycles import device_servo
 
     # (delay, lag, the noise's seed): three the free fit read with no lag (the third also 0.03 ms of delay
     # off), one without a lag and one with a lag of over two cycles

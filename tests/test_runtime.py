@@ -17,15 +17,15 @@ from dockhil import msgs
 from dockhil.runtime.transport import split
 from dockhil.msgs.codec import decode, encode
 from tests.conftest import dockhil_cmd, registered
-from tests.inprocess import launch_here_or_process
+from tests.support.inprocess import launch_here_or_process
 
 LOOP = """
 rate: 1000
 duration: 0.4
 nodes:
-  - {{name: integ, node: "tests.graphnodes:Integrator"}}
-  - {{name: gain, node: "tests.graphnodes:Gain", params: {{die_at: {die_at}}}}}
-  - {{name: trace, node: "tests.graphnodes:Trace", params: {{path: "{trace}"}}}}
+  - {{name: integ, node: "tests.support.graphnodes:Integrator"}}
+  - {{name: gain, node: "tests.support.graphnodes:Gain", params: {{die_at: {die_at}}}}}
+  - {{name: trace, node: "tests.support.graphnodes:Trace", params: {{path: "{trace}"}}}}
 """
 
 
@@ -111,8 +111,8 @@ def _wait_children(pid, n, timeout=60.0):
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_signal_shutdown_leaves_no_process(write_launch, tmp_path, sig):
     path = write_launch(
-        "rate: 200\nnodes:\n  - {name: integ, node: 'tests.graphnodes:Integrator'}\n"
-        "  - {name: gain, node: 'tests.graphnodes:Gain'}\n"
+        "rate: 200\nnodes:\n  - {name: integ, node: 'tests.support.graphnodes:Integrator'}\n"
+        "  - {name: gain, node: 'tests.support.graphnodes:Gain'}\n"
     )
     p = subprocess.Popen(
         dockhil_cmd("launch", path, "--wall-time"), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
@@ -130,8 +130,8 @@ def test_signal_shutdown_leaves_no_process(write_launch, tmp_path, sig):
 @pytest.mark.wall_time
 def test_launcher_killed_outright_leaves_no_orphans(write_launch):
     path = write_launch(
-        "rate: 200\nnodes:\n  - {name: integ, node: 'tests.graphnodes:Integrator'}\n"
-        "  - {name: gain, node: 'tests.graphnodes:Gain'}\n"
+        "rate: 200\nnodes:\n  - {name: integ, node: 'tests.support.graphnodes:Integrator'}\n"
+        "  - {name: gain, node: 'tests.support.graphnodes:Gain'}\n"
     )
     p = subprocess.Popen(dockhil_cmd("launch", path, "--wall-time"), stdout=subprocess.DEVNULL)
     kids = _wait_children(p.pid, 2)
@@ -174,7 +174,7 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
     # test's sender for more than 0.1 s does not stop the node on a stale input (what this test is
     # not about; the maximum age is tested on its own).
     node = subprocess.Popen(
-        dockhil_cmd("run", "tests.graphnodes:Gain", "gain:=3.0", "--rate", "20"),
+        dockhil_cmd("run", "tests.support.graphnodes:Gain", "gain:=3.0", "--rate", "20"),
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -285,11 +285,11 @@ BURSTS = """
 rate: 1000
 duration: 0.3
 nodes:
-  - {{name: integ, node: "tests.graphnodes:Integrator", remap: {{u: /u2}}}}
-  - {{name: gain, node: "tests.graphnodes:Gain"}}
+  - {{name: integ, node: "tests.support.graphnodes:Integrator", remap: {{u: /u2}}}}
+  - {{name: gain, node: "tests.support.graphnodes:Gain"}}
   - {{name: d1, node: delay_injector, params: {{delay: 0.004, type: dockhil/WrenchStamped, input: /u, output: /u1}}}}
   - {{name: d2, node: delay_injector, params: {{delay: 0.006, type: dockhil/WrenchStamped, input: /u1, output: /u2}}}}
-  - {{name: trace, node: "tests.graphnodes:Trace", params: {{path: "{trace}"}}, remap: {{u: /u2}}}}
+  - {{name: trace, node: "tests.support.graphnodes:Trace", params: {{path: "{trace}"}}, remap: {{u: /u2}}}}
 """
 
 

@@ -311,7 +311,7 @@ def test_summary_collector_keeps_bounded_buffers_over_a_long_run():
 
 @pytest.mark.parametrize("b", [20.0, 60.0])
 def test_growth_rate_matches_the_sampled_loop_root_within_one_percent(b):
-    from dockhil.analysis.figures import fig11_12
+    from dockhil.analysis.plots.figures import fig11_12
 
     case = next(c for c in fig11_12(dampers=(b,))["cases"])
     # The sampled loop built here: a body on a sheet, damper on the current velocity, spring 16 ticks late.
@@ -373,7 +373,7 @@ def test_a_contact_no_rate_resolves_gets_advice_that_changes_something():
     """kcs 3e9 N/m on hil.yaml: with its delay no rate makes the sampled loop agree with the delay
     equation; the advice names what would help, not the method the scene already uses (it said
     'use method:=exact' to a scene using it)."""
-    from tests.inprocess import run_main
+    from tests.support.inprocess import run_main
 
     code, out, err = run_main("launch", "launch/hil.yaml", "--composed", "kcs:=3e9")
     assert code == 2

@@ -23,7 +23,7 @@ from dockhil.errors import DeviceError, DockhilError
 from dockhil.runtime.transport import GraphKeys, Publisher, Subscriber, runtime_dir
 from dockhil.msgs.codec import decode, encode
 from tests.conftest import ROOT, dockhil_cmd, free_port, registered
-from tests.inprocess import run_main
+from tests.support.inprocess import run_main
 
 READY = "\x1edockhil-ready"
 
@@ -142,7 +142,7 @@ def test_key_files_other_users_could_read_are_refused(tmp_path):
     path.chmod(0o640)
     spec = {
         "name": "g",
-        "type_name": "tests.graphnodes:Gain",
+        "type_name": "tests.support.graphnodes:Gain",
         "dt": 0.01,
         "clock": "wall",
         "params": {},
@@ -306,8 +306,8 @@ def test_socket_monitor_events_read_as_pyzmq_reads_them():
 WALL_TCP = """
 rate: 200
 nodes:
-  - {name: integ, node: "tests.graphnodes:Integrator"}
-  - {name: gain, node: "tests.graphnodes:Gain"}
+  - {name: integ, node: "tests.support.graphnodes:Integrator"}
+  - {name: gain, node: "tests.support.graphnodes:Gain"}
 """
 
 
@@ -376,7 +376,7 @@ def controller():
     """The robot controller emulator, its heartbeat timeout 2 s instead of 0.2 s: the driver processes
     here run on the real clock, and a busy 2-core machine can pause one for longer than 0.2 s, which
     ends its claim before a test looks. The tests that need the claim to end wait for it (10 s)."""
-    from dockhil.hardware.robot_emulator import RobotControllerEmulator
+    from dockhil.devices.modbus_robot.emulator import RobotControllerEmulator
 
     em = RobotControllerEmulator(port=0, tau=0.005, heartbeat_timeout=2.0)
     em.start_thread()
@@ -480,7 +480,7 @@ def test_the_controller_refuses_a_host_that_ignores_the_claim_until_the_owner_di
     controller itself: no setpoint, no HOLD, no second claim. The claim dies with the owner's heartbeat."""
     from pymodbus.client import ModbusTcpClient
 
-    from dockhil.hardware import modbus_map as mm
+    from dockhil.devices.modbus_robot import registers as mm
 
     first = start_driver(controller.port, "graph-one")
     other = ModbusTcpClient("127.0.0.1", port=controller.port, timeout=1.0, retries=0)
@@ -535,7 +535,7 @@ def test_a_second_emulator_on_the_same_port_names_the_graph_that_owns_it():
         assert r.returncode == 2
         assert f"robot controller emulator port 127.0.0.1:{port} is in use by graph graph-one" in one_line(r.stderr)
         r = subprocess.run(
-            [sys.executable, "-m", "dockhil.hardware.robot_emulator", "--port", str(port)],
+            [sys.executable, "-m", "dockhil.devices.modbus_robot.emulator", "--port", str(port)],
             capture_output=True,
             text=True,
             env=env(),
@@ -549,7 +549,7 @@ def test_a_second_emulator_on_the_same_port_names_the_graph_that_owns_it():
 
 def test_a_second_slcan_adapter_or_driver_on_the_same_path_is_refused(tmp_path):
     from dockhil.runtime import ownership
-    from dockhil.hardware.slcan_pty import PtyCanBus
+    from dockhil.devices.can_ft.slcan_pty import PtyCanBus
 
     link = str(tmp_path / "ft.slcan")
     ownership.set_graph("graph-one")
@@ -560,7 +560,7 @@ def test_a_second_slcan_adapter_or_driver_on_the_same_path_is_refused(tmp_path):
     try:
         target = os.readlink(link)
         r = subprocess.run(
-            [sys.executable, "-m", "dockhil.hardware.slcan_pty", link],
+            [sys.executable, "-m", "dockhil.devices.can_ft.slcan_pty", link],
             capture_output=True,
             text=True,
             env=env(),
@@ -601,8 +601,8 @@ def test_another_graphs_emulator_cannot_join_the_can_bus_a_driver_reads(request)
     forged frames with the sensor's IDs, and the robot would move on them."""
     from dockhil.runtime import ownership
     from dockhil.node import NodeContext
-    from dockhil.nodes.ft_can import FtCanDriver
-    from dockhil.nodes.ft_emulator import FtSensorEmulator
+    from dockhil.devices.can_ft.driver import FtCanDriver
+    from dockhil.devices.can_ft.emulator import FtSensorEmulator
     from tests.conftest import VirtualFtSensor
 
     channel = f"bus-{request.node.name}"
@@ -730,7 +730,7 @@ def test_a_node_run_alone_never_publishes_what_a_running_graph_would_not_hear(en
 
     reg = _fake_graph("lab-graph", **entry)
     try:  # a refusal: in this process, no interpreter of its own
-        code, out, err = run_main("run", "tests.graphnodes:Source", "--rate", "100", "--duration", "0.05")
+        code, out, err = run_main("run", "tests.support.graphnodes:Source", "--rate", "100", "--duration", "0.05")
     finally:
         reg.unlink()
     assert code == 2, out + err
@@ -763,7 +763,7 @@ def test_a_driver_stalled_past_its_claim_does_not_resume_on_a_controller_taken_o
     host claims it. On SIGCONT the first driver's writes and its re-claim are refused; it stops in one line."""
     from pymodbus.client import ModbusTcpClient
 
-    from dockhil.hardware import modbus_map as mm
+    from dockhil.devices.modbus_robot import registers as mm
 
     first = start_driver(controller.port, "graph-one")
     other = ModbusTcpClient("127.0.0.1", port=controller.port, timeout=1.0, retries=0)
@@ -830,8 +830,8 @@ def test_a_remote_node_that_could_not_reach_a_loopback_bind_is_refused_before_an
     if not socket.gethostbyname(here).startswith("127."):
         pytest.skip(f"{here} resolves to a network address here")
     scene = write_launch(
-        'nodes:\n  - {name: integ, node: "tests.graphnodes:Integrator"}\n'
-        '  - {name: gain, node: "tests.graphnodes:Gain", host: 192.0.2.7}\n'
+        'nodes:\n  - {name: integ, node: "tests.support.graphnodes:Integrator"}\n'
+        '  - {name: gain, node: "tests.support.graphnodes:Gain", host: 192.0.2.7}\n'
     )
     code, out, err = run_main("launch", scene, "--duration", "0.1")  # a refusal: no process of its own
     assert code == 2 and out == ""

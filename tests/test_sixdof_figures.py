@@ -8,8 +8,8 @@ from tests.test_sixdof_graph import assert_equals_library, library_run
 
 
 def test_sixdof_figure_draws_the_recorded_scene_and_gives_its_summary(tmp_path):
-    from dockhil.analysis.figures import sixdof
-    from dockhil.analysis.plot6 import plot6, series6
+    from dockhil.analysis.plots.figures import sixdof
+    from dockhil.analysis.plots.plot6 import plot6, series6
 
     bag, png = tmp_path / "sixdof.mcap", tmp_path / "sixdof.png"
     seconds, delay = 1.7, 0.01

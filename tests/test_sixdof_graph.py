@@ -186,7 +186,7 @@ def test_bad_6dof_parameters_stop_the_launch_with_one_line(tmp_path, old, new, l
 
 
 def test_plot_6dof_draws_the_recorded_pose_and_rates(tmp_path):
-    from dockhil.analysis.plot6 import series6
+    from dockhil.analysis.plots.plot6 import series6
 
     bag, png = tmp_path / "hil6.mcap", tmp_path / "hil6.png"
     for args in (

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from dockhil import nodes as registry
+from dockhil import node_types as registry
 from dockhil.contact.rotations import quat_conjugate, quat_multiply, rotvec3
 from dockhil.msgs import BodyWrenches, Header, Vector3, Wrench
 from dockhil.testing import NodeHarness

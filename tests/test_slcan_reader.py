@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from dockhil.hardware.slcan_reader import MAX_LINE, Frame, SlcanReader, parse_line
+from dockhil.devices.can_ft.slcan_reader import MAX_LINE, Frame, SlcanReader, parse_line
 
 
 class FakePort:

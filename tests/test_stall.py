@@ -101,8 +101,8 @@ def test_a_sigstop_of_a_simulation_node_stops_the_graph_in_one_line(stalled, cap
 RESPAWN = """
 rate: 200
 nodes:
-  - {name: integ, node: "tests.graphnodes:Integrator"}
-  - {name: gain, node: "tests.graphnodes:Gain", respawn: true, respawn_delay: 30, params: {die_at: 20}}
+  - {name: integ, node: "tests.support.graphnodes:Integrator"}
+  - {name: gain, node: "tests.support.graphnodes:Gain", respawn: true, respawn_delay: 30, params: {die_at: 20}}
 """
 
 

@@ -441,7 +441,9 @@ def test_a_node_s_nan_is_its_own_failure_and_a_diverging_loop_is_labelled_diverg
     """A NaN a node produces while the bodies are where docking hardware can be is that node's
     failure: the row carries its line. The loop diverging shows as a NaN or Inf too, once the
     bodies have left that range: that row says diverged, and where the bodies were."""
-    node = one_row(hil_with(tmp_path, "- {name: nan, node: 'tests.faultnodes:NanAt', params: {at: 5}}"), {}, 0.1)
+    node = one_row(
+        hil_with(tmp_path, "- {name: nan, node: 'tests.support.faultnodes:NanAt', params: {at: 5}}"), {}, 0.1
+    )
     assert node["status"] == "failed"
     assert node["error"] == (
         "node 'nan' produced an invalid message at tick 5 on output 'x' (/x): WrenchStamped: "

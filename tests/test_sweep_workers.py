@@ -36,7 +36,7 @@ def gated_campaign(tmp_path: Path) -> tuple[Path, Path]:
           - file: {SCENE}
             args: {{m: 20.0, delay: 0.016, b: 150.0, k: $(arg k)}}
         nodes:
-          - {{name: gate, node: "tests.faultnodes:Gate", params: {{hold: $(arg hold), path: $(arg gate)}}}}
+          - {{name: gate, node: "tests.support.faultnodes:Gate", params: {{hold: $(arg hold), path: $(arg gate)}}}}
         """)
     )
     campaign = tmp_path / "campaign.yaml"

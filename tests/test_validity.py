@@ -24,14 +24,14 @@ from dockhil.runtime.transport import HWM, GraphKeys, Publisher, Subscriber
 from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped
 from dockhil.msgs.codec import encode
 from tests.conftest import dockhil_cmd
-from tests.faultnodes import Follow, Hiccup
+from tests.support.faultnodes import Follow, Hiccup
 
 P = 1 / 1024  # a period that binary floating point adds up exactly
 
 
 def executor(node_cls, clock, params=None, inputs=None, name="n", keys=None) -> NodeExecutor:
     """keys: the GraphKeys of the test's publisher (written to a 0600 key file the node reads)."""
-    spec = RunSpec(name, f"tests.faultnodes:{node_cls.__name__}", params or {}, P, "wall", inputs=inputs or {})
+    spec = RunSpec(name, f"tests.support.faultnodes:{node_cls.__name__}", params or {}, P, "wall", inputs=inputs or {})
     if keys is not None:
         folder = tempfile.mkdtemp(prefix="dh-keys-")
         spec.key_file = str(keys.write(Path(folder) / "graph.keys"))
@@ -172,8 +172,8 @@ NAN_SCENE = """
 rate: 100
 duration: 1.0
 nodes:
-  - {name: source, node: "tests.faultnodes:NanAt", params: {at: 7}}
-  - {name: follow, node: "tests.faultnodes:Follow"}
+  - {name: source, node: "tests.support.faultnodes:NanAt", params: {at: 7}}
+  - {name: follow, node: "tests.support.faultnodes:Follow"}
 """
 
 
@@ -229,7 +229,7 @@ def test_a_diverging_hil_loop_stops_both_modes_with_the_same_line():
 HICCUP_SCENE = """
 rate: 200
 nodes:
-  - {name: source, node: "tests.faultnodes:Hiccup", params: {at: 40, seconds: 0.5}}
+  - {name: source, node: "tests.support.faultnodes:Hiccup", params: {at: 40, seconds: 0.5}}
 """
 
 
@@ -251,8 +251,8 @@ def test_a_wall_time_run_that_stalled_says_invalid_and_exits_3(write_launch):
 STALE_SCENE = """
 rate: 200
 nodes:
-  - {name: source, node: "tests.faultnodes:Hiccup", params: {at: 40, seconds: 0.5}}
-  - {name: follow, node: "tests.faultnodes:Follow"}
+  - {name: source, node: "tests.support.faultnodes:Hiccup", params: {at: 40, seconds: 0.5}}
+  - {name: follow, node: "tests.support.faultnodes:Follow"}
 """
 
 
@@ -294,8 +294,8 @@ def test_a_stale_input_blames_a_publisher_that_had_exited_by_its_exit_code():
 SMALL_SCENE = """
 rate: 1000
 nodes:
-  - {name: integ, node: "tests.graphnodes:Integrator"}
-  - {name: gain, node: "tests.graphnodes:Gain"}
+  - {name: integ, node: "tests.support.graphnodes:Integrator"}
+  - {name: gain, node: "tests.support.graphnodes:Gain"}
 """
 
 
@@ -472,8 +472,8 @@ def test_a_composed_wall_time_loop_on_a_controlled_clock_reports_the_stall_exact
     from dockhil.scene.graph import build
 
     scene = write_launch(
-        "rate: 1024\nnodes:\n  - {name: source, node: 'tests.faultnodes:Hiccup', "
-        "params: {at: 50, seconds: 0.25}}\n  - {name: follow, node: 'tests.faultnodes:Follow'}\n"
+        "rate: 1024\nnodes:\n  - {name: source, node: 'tests.support.faultnodes:Hiccup', "
+        "params: {at: 50, seconds: 0.25}}\n  - {name: follow, node: 'tests.support.faultnodes:Follow'}\n"
     )
     clock = ManualClock()
     g = ComposedGraph(build(launchfile.load(str(scene))), sim_time=False, log=lambda n, m: None, clock=clock)

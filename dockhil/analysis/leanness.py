@@ -1,7 +1,7 @@
 """What each node type costs a scene: start-up time, resident memory, heavy imports.
 
 Each node type is measured in a fresh interpreter of its own, as the launcher
-would start it: import the node class (`nodes.load`), construct it, set it up
+would start it: import the node class (`node_types.load`), construct it, set it up
 and step it once with no inputs. Hardware drivers are set up against devices
 that are not there (a python-can `virtual` bus, a closed TCP port): their
 setup fails with a one-line DeviceError after loading what it needs, which is
@@ -72,9 +72,9 @@ try:
         out["setup"] = "ok: " + ", ".join(n.type_name for n in graph.nodes.values())
         out["setup_s"] = time.perf_counter() - t1
     else:
-        from dockhil import nodes
+        from dockhil import node_types
         from dockhil.node import NodeContext, Tick
-        cls = nodes.load(type_name)
+        cls = node_types.load(type_name)
         out["import_s"] = time.perf_counter() - t0
         out["after_import"] = loaded()
         t1 = time.perf_counter()
@@ -205,7 +205,7 @@ def _measure_once(type_name: str, spec: dict | None, timeout: float) -> dict:
 
 RUNTIME = (
     "module:dockhil.msgs,dockhil.node,dockhil.runtime.executor,dockhil.runtime.transport,"
-    "dockhil.runtime.process,dockhil.nodes"
+    "dockhil.runtime.process,dockhil.node_types"
 )
 BASELINES = {
     "module:json": "python, nothing of dockhil",
@@ -222,9 +222,9 @@ def measure_all(
     """Every registered node type (or `types`), plus baselines (a bare interpreter,
     the runtime every node process loads, `import dockhil.contact`, `import
     dockhil.cli`) and the simulated scenes composed in one process."""
-    from dockhil import nodes
+    from dockhil import node_types
 
-    types = sorted(nodes.REGISTRY) if types is None else list(types)
+    types = sorted(node_types.REGISTRY) if types is None else list(types)
     with tempfile.TemporaryDirectory() as tmp:
         specs = setup_specs(tmp)
         jobs = [(t, specs.get(t)) for t in types]
@@ -234,7 +234,7 @@ def measure_all(
 
             jobs += [(f"scene:{s}", None) for s in SCENES if (SHIPPED_SCENES / Path(s).name).exists()]
         with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
-            rows = list(pool.map(lambda job: measure(*job, repeats=repeats), jobs))
+            rows = list(pool.map(lambda job: measure(job[0], job[1], repeats=repeats), jobs))
     for row in rows:
         name = row["node"]
         row["kind"] = "node" if name in types else "scene" if name.startswith("scene:") else "baseline"

@@ -66,11 +66,15 @@ def scene_loop(graph, dt: float | None = None) -> dict | None:
             from dockhil.contact.scenario import ContactScenario
 
             kcs, bcs = ip["kcs"], ip["bcs"]
+            if ip.get("contact") == "hunt_crossley":
+                from dockhil.contact.comploop import linear_equivalent
+
+                kcs, bcs = linear_equivalent(ip, m)
             i = impedance_closed_form(ContactScenario(m1, m2, kcs, bcs, ip["k"], 0.03, 0.0), warn=False)
             k1, b1, k2, b2 = i.k1, i.b1, i.k2, i.b2
-            passive = ip["k"] if passive is None else passive  # real sensor: the compliance the scene names
         else:
             k1, b1, k2, b2 = ip["k1"], ip["b1"], ip["k2"], ip["b2"]
+        passive = ip["k"] if passive is None else passive  # real sensor: the compliance the scene names
     # Relative acceleration of the virtual forces: -(m2^2 k1 + m1^2 k2) / M^2 p / m (see hybrid.virtual_forces).
     if m2 == 0.0:
         kd, bd = k1, b1
@@ -81,6 +85,19 @@ def scene_loop(graph, dt: float | None = None) -> dict | None:
     delay = first_node(graph, "delay_injector")
     robot = first_node(graph, "robot_sim")
     h = delay.params["delay"] if delay is not None else 0.0
+    if robot is not None and robot.params.get("delay", 0.0) > 0.0:  # a simulated robot that delays the command itself
+        h += robot.params["delay"] * robot.params.get("delay_scale", 1.0)
+    if ft is not None:  # the simulated hardware's truth: its sensor's own delay, its true stiffness
+        h += ft.params.get("delay", 0.0)
+        kh *= ft.params.get("k_scale", 1.0)
+    lag = robot.params["lag"] if robot is not None else 0.0
+    # A robot driver's delay is the hardware's, which no parameter of the scene gives; a loop file's
+    # (loop:=, dockhil calibrate's) is the identified one: its delay end to end and its lag.
+    hardware = any(gn.cls.moves_hardware for gn in graph.nodes.values())
+    values = getattr(graph.scene, "values", {}) or {}
+    measured = hardware and delay is None and bool(values.get("loop")) and "delay" in values
+    if measured:
+        h, lag = float(values["delay"]), float(values.get("lag", 0.0))
     if delay_ticks(h, dt) > sampled.MAX_DELAY_TICKS:
         raise DockhilError(
             f"{graph.scene.path}: the delay h = {h:g} s at {1.0 / dt:g} Hz is {delay_ticks(h, dt)} "
@@ -94,12 +111,20 @@ def scene_loop(graph, dt: float | None = None) -> dict | None:
         kh,
         0.0,
         delay_ticks=delay_ticks(h, dt),
-        lag=robot.params["lag"] if robot is not None else 0.0,
+        lag=lag,
         **common,
     )
-    # A robot driver's delay is the hardware's, which no parameter of the scene gives.
-    hardware = any(gn.cls.moves_hardware for gn in graph.nodes.values())
-    info = dict(loop=loop, h=h, delay_known=delay is not None or not hardware, m=m, kd=kd, bd=bd, kh=kh, bh=0.0)
+    info = dict(
+        loop=loop,
+        h=h,
+        delay_known=delay is not None or not hardware or measured,
+        hardware=hardware,
+        m=m,
+        kd=kd,
+        bd=bd,
+        kh=kh,
+        bh=0.0,
+    )
     if kcs is not None:
         return _with_target(info, p, free, kcs, bcs)
     return _with_target(info, p, False, kd + kh, bd)
@@ -358,10 +383,23 @@ def scene_check(graph, refuse: bool = True) -> dict:
             f"the delay h = {h:g} s runs as {loop.delay_ticks} ticks = {loop.delay_ticks * loop.dt:g} s "
             f"at {rate:g} Hz (choose a rate with a whole number of ticks in h)"
         )
+    if info["delay_known"] and loop.held:
+        from dockhil.analysis.stability.verdict import loop_verdict
+
+        verdict = loop_verdict(info["m"], info["kd"], info["bd"], info["kh"], info["bh"], h + loop.lag)
+        numbers["verdict"] = verdict["line"]
+        values = getattr(graph.scene, "values", {}) or {}
+        if not verdict["stable"] and info.get("hardware") and refuse and not values.get("allow_unstable"):
+            # a robot would run it: a contact that grows is not started on hardware without being asked to
+            raise DockhilError(
+                f"{graph.scene.path}: refused: {verdict['line']}; a robot would run it: give a stable loop "
+                f"(a softer kcs or more bcs), or allow_unstable:=true to run it anyway"
+            )
     if physics_unstable and sampled_unstable:
         warnings.append(
             f"the loop is unstable: it grows at {growth:+.4g} 1/s (spectral radius {rho:.6g}), as "
             f"the delay equation predicts ({cont.real:+.4g} 1/s)"
+            + (f"; {numbers['verdict']}" if "verdict" in numbers else "")
         )
     return {"loop": numbers, "warnings": warnings + body_mismatches(graph)}
 

@@ -1,6 +1,6 @@
 """`dockhil calibrate SCENE [name:=value ...] --out LOOP.yaml`: identify the real loop (delay, lag, passive
 stiffness and damping, the F/T sensor's bias and noise) on the scene's hardware, or from a recorded run
-(`--bag RUN.mcap`). The excitation is dockhil/nodes/identification.py, the fits dockhil/analysis/calibration.py."""
+(`--bag RUN.mcap`). The excitation is dockhil/nodes/identification.py, the fits dockhil/analysis/calibration/loop.py."""
 
 from __future__ import annotations
 
@@ -24,8 +24,9 @@ _SIMULATED = {
     "ft_sim",
     "ft_sim6",
 }
+MOST_STIFFNESS = 1e7  # N/m: the stiffest contact the bound is searched to
 _START_S = 5.0  # s: the devices' setup and the first pose and force, beyond the profile's own length
-_LOOP_ARGS = ("delay", "lag", "k", "ft_noise")  # what a loop file sets in a scene
+_LOOP_ARGS = ("delay", "lag", "k", "ft_noise")  # what a loop file sets in a scene (of scene/loopfile.LOOP_ARGS)
 
 
 def add_arguments(p) -> None:
@@ -86,7 +87,7 @@ def run(args) -> int:
         if cal is None:
             say.error(f"the identification run stopped (exit {code}; the line above says why); nothing written")
             return code
-    from dockhil.analysis import calibration
+    from dockhil.analysis.calibration import loop as calibration
 
     calibration.check(cal)
     if cal.link is None:
@@ -118,7 +119,7 @@ def _check_out(path: str) -> None:
 
 
 def _identify(bag: str):
-    from dockhil.analysis import calibration
+    from dockhil.analysis.calibration import loop as calibration
     from dockhil.bags.reader import BagReader
 
     if not os.path.isfile(bag):
@@ -135,7 +136,7 @@ def calibration_scene(scene):
     """The identification graph's scene: the scene's hardware nodes (drivers, emulators) and the
     identification node, without the simulated loop; LaunchError naming the arguments when the scene
     has no hardware to identify."""
-    from dockhil import nodes as registry
+    from dockhil import node_types as registry
     from dockhil.scene.launchfile import NodeSpec
     from dockhil.nodes.identification import Identification
 
@@ -206,33 +207,70 @@ def _live(scene, bag_out: str | None, realtime: bool, say):
 
 
 def _verdict(scene, cal) -> dict:
-    """The scene's reduced mass, kcs and bcs, and the identified loop's stability for them."""
-    from dockhil import nodes as registry
-    from dockhil.analysis import calibration
+    """The stability of the scene's loop at the identified one: the loop as the scene places each force (what
+    acts on the simulated state, what acts through the robot's delay: dockhil/analysis/scenecheck.py's
+    reading, with the identified compliance behind the delay), its delay the identified loop's end to end
+    with the lag (analysis/calibration/loop.loop_h); judged as `dockhil stability --scene` and the launch's
+    scene check judge it (analysis/stability/verdict.py). `kcs_max_N_per_m`: the largest scene kcs (or, where
+    the scene gives its impedance, the largest surface stiffness) that stays stable. The paper's bound, with
+    the whole contact delayed, is given beside it (`paper`)."""
+    from dockhil import node_types as registry
+    from dockhil.analysis.calibration import loop as calibration
+    from dockhil.analysis.scenecheck import scene_loop
+    from dockhil.analysis.stability.verdict import largest_stable, loop_verdict
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
 
-    values = {}
-    for spec in scene.nodes:
-        type_name, _cls, params = registry.resolve(spec.type, spec.name, spec.params)
-        if type_name == "satellite_dynamics":
-            values["m1"], values["m2"] = params["m1"], params["m2"]
-        elif type_name == "virtual_impedance":
-            values["kcs"], values["bcs"] = params["kcs"], params["bcs"]
-    if len(values) < 4:
-        return {
-            "stable": None,
-            "kcs_max_N_per_m": None,
-            "kcs_max_cycle_top_N_per_m": None,
-            "verdict": {"reason": f"{scene.path} has no 1-DOF dynamics and impedance to judge the loop for"},
-        }
-    m1, m2 = values["m1"], values["m2"]
-    m = m1 if m2 == 0.0 else m1 * m2 / (m1 + m2)
-    v = calibration.verdict(cal, m, values["kcs"], values["bcs"])
-    return {
-        "stable": v["stable"],
-        "kcs_max_N_per_m": v["kcs_max_N_per_m"],
-        "kcs_max_cycle_top_N_per_m": v["kcs_max_cycle_top_N_per_m"],
-        "verdict": v,
+    def none(reason: str) -> dict:
+        return {"stable": None, "kcs_max_N_per_m": None, "verdict": {"reason": reason}}
+
+    k = cal.contact.k_N_per_m
+    h = calibration.loop_h(cal)
+
+    args = {name: scene.values[name] for name in scene.args}
+
+    def loop_at(**values):
+        given = {**args, "k": k, **values} if "k" in args else {**args, **values}
+        return scene_loop(build(launchfile.load(scene.path, given)))
+
+    info = loop_at()
+    if info is None or not info["loop"].held:
+        return none(f"{scene.path} has no delayed 1-DOF loop (dynamics, impedance, robot) to judge")
+    m, kd, bd = info["m"], info["kd"], info["bd"]
+    kh = k if info.get("hardware") else info["kh"]
+    v = loop_verdict(m, kd, bd, kh, 0.0, h)
+    paper = None
+    modes = {
+        registry.resolve(n.type, n.name, n.params)[2].get("mode")
+        for n in scene.nodes
+        if registry.resolve(n.type, n.name, n.params)[0] == "virtual_impedance"
     }
+    if "determine" in modes and "kcs" in args:
+        kcs = float(args["kcs"])
+
+        def judge(x: float) -> bool:
+            at = loop_at(kcs=x)
+            return loop_verdict(at["m"], at["kd"], at["bd"], kh, 0.0, h)["stable"]
+
+        v["kcs_N_per_m"] = kcs
+        bcs = float(args.get("bcs", 0.0))
+        paper = calibration.verdict(cal, m, kcs, bcs)
+    else:  # the scene gives its impedance: the largest surface stiffness behind the delay
+        kcs = kh
+
+        def judge(x: float) -> bool:
+            return loop_verdict(m, kd, bd, x, 0.0, h)["stable"]
+
+        v["kcs_N_per_m"] = kh
+    k_max = largest_stable(judge, kcs, most=MOST_STIFFNESS)
+    if k_max == MOST_STIFFNESS:  # no stiffness makes it grow: no bound
+        v["kcs_max_note"] = f"stable for every stiffness up to {MOST_STIFFNESS:g} N/m"
+        k_max = None
+    v["kcs_max_N_per_m"] = k_max
+    v["margin"] = None if k_max is None else k_max / kcs
+    if paper is not None:
+        v["paper"] = paper
+    return {"stable": v["stable"], "kcs_max_N_per_m": k_max, "verdict": v}
 
 
 def _pm(value, sigma, scale: float = 1.0, digits: int = 4) -> str:
@@ -254,14 +292,23 @@ def _print_table(r: dict, scene: str) -> None:
         *(
             [
                 ("link (to the device and back)", _pm(link, u["link_s"], 1e3), "ms"),
-                ("loop delay (robot + link)", _pm(r["loop_delay_s"], None, 1e3), "ms"),
             ]
             if link is not None
             else []
         ),
+        (
+            f"loop delay (end to end, p{r['fit'].get('loop_delay_percentile', 95):g})",
+            _pm(r["loop_delay_s"], None, 1e3),
+            "ms",
+        ),
+        ("loop delay (typical)", _pm(r["loop_delay_typical_s"], None, 1e3), "ms"),
         (f"lag ({r['lag_model']} fits better)", _pm(r["lag_s"], u["lag_s"], 1e3), "ms"),
         ("passive stiffness k", _pm(r["k_N_per_m"], u["k_N_per_m"]), "N/m"),
-        ("passive damping b", _pm(r["b_Ns_per_m"], u["b_Ns_per_m"]), "N s/m"),
+        (
+            "passive damping b",
+            _pm(r["b_Ns_per_m"], u["b_Ns_per_m"]) if r["b_Ns_per_m"] is not None else "not identified",
+            "N s/m" if r["b_Ns_per_m"] is not None else "",
+        ),
         ("F/T delay", _pm(r["ft_delay_s"], u["ft_delay_s"], 1e3), "ms" if r["ft_delay_s"] is not None else ""),
         ("contact surface x", _pm(r["surface_m"], u["surface_m"], 1e3), "mm"),
     ]
@@ -273,25 +320,20 @@ def _print_table(r: dict, scene: str) -> None:
     for name, value, unit in rows:
         print(f"  {name:36} {value} {unit}".rstrip())
     v = r["verdict"]
-    if "m_kg" not in v:
+    if "line" not in v:
         print(f"  stability: {v['reason']}")
         return
-    print(
-        f"stability of m s^2 + (K + b s) e^(-sh) = 0 at m = {v['m_kg']:.6g} kg, b = bcs = {v['bcs_Ns_per_m']:g} "
-        f"N s/m, h = loop delay + lag = {v['h_s'] * 1e3:.4g} ms:"
-    )
-    if v["kcs_max_N_per_m"] is None:
-        print(f"  {v['reason']}")
-    else:
-        print(f"  {'largest stable kcs (exact bound)':36} {v['kcs_max_N_per_m']:.6g} N/m")
-        top = v["kcs_max_cycle_top_N_per_m"]
-        if v["h_cycle_top_s"] != v["h_s"]:  # the delay read on whole device cycles: placed within one
-            shown = "none" if top is None else f"{top:.6g} N/m"
-            print(f"  {'  with the delay at its cycle top':36} {shown} (h = {v['h_cycle_top_s'] * 1e3:.4g} ms)")
-        state = (
-            "stable" if v["stable"] else "UNSTABLE" + (" with the delay at its cycle top" if v["margin"] > 1 else "")
+    print(f"stability: {v['line']}")
+    if v["kcs_max_N_per_m"] is not None:
+        print(
+            f"  {'largest stable stiffness':36} {v['kcs_max_N_per_m']:.6g} N/m (the scene's {v['kcs_N_per_m']:g} N/m: "
+            f"margin {v['margin']:.3g}x)"
         )
-        print(f"  {'the scene kcs':36} {v['kcs_N_per_m']:g} N/m: {state}, margin {v['margin']:.3g}x")
+    if "kcs_max_note" in v:
+        print(f"  {'largest stable stiffness':36} none: {v['kcs_max_note']}")
+    paper = v.get("paper")
+    if paper is not None and paper["kcs_max_N_per_m"] is not None:
+        print(f"  {'the paper bound (kcs wholly delayed)':36} {paper['kcs_max_N_per_m']:.6g} N/m")
     if not r["run_valid"]:
         print("  the run fell behind real time: the delay includes that lateness")
 
@@ -299,7 +341,9 @@ def _print_table(r: dict, scene: str) -> None:
 def _write_loop(path: str, r: dict, scene: str) -> None:
     from dockhil.files import complete_or_nothing
 
-    values = {"delay": r["loop_delay_s"], "lag": r["lag_s"], "k": r["k_N_per_m"], "ft_noise": r["noise_N"][0]}
+    # the force's delay behind the pose, where identified, is the loop's too: a scene's delay stands for it all
+    delay = r["loop_delay_s"] + (r["ft_delay_s"] or 0.0)
+    values = {"delay": delay, "lag": r["lag_s"], "k": r["k_N_per_m"], "ft_noise": r["noise_N"][0]}
     lines = [
         f"# the loop identified by dockhil calibrate on {scene}",
         f"# a scene takes it as loop:={os.path.basename(path)}; a name:=value on the command line wins",

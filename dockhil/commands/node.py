@@ -3,13 +3,15 @@ installed (built in, or added by another package through the `dockhil.nodes` ent
 
 from __future__ import annotations
 
+import argparse
 import os
+from typing import Any
 
 from dockhil.errors import DockhilError, LaunchError
 from dockhil.log import Log
 
 
-def add_arguments(p) -> None:
+def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
     ls = sub.add_parser("list", help="nodes of every running graph (first its run id), with type, pid and state")
     ls.add_argument("--graph", metavar="ID", help="only the graph with this run id")
@@ -21,7 +23,7 @@ def add_arguments(p) -> None:
     types.add_argument("name", nargs="?", help="show one type in full")
 
 
-def _alive(pid) -> bool:
+def _alive(pid: Any) -> bool:  # as a registry file gives it: not checked to be an int
     try:
         os.kill(pid, 0)
         return True
@@ -29,7 +31,7 @@ def _alive(pid) -> bool:
         return False
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     if args.action == "types":
         return _types(args.name)
     from dockhil.commands.topic import select_graphs
@@ -108,23 +110,23 @@ def _info(name: str, graphs: list[dict], as_json: bool) -> int:
 
 def _types(name: str | None) -> int:
     from dockhil import msgs
-    from dockhil import nodes
+    from dockhil import node_types
 
-    extra = nodes.plugins()
-    names = [name] if name else [*sorted(nodes.REGISTRY), *sorted(extra)]
+    extra = node_types.plugins()
+    names = [name] if name else [*sorted(node_types.REGISTRY), *sorted(extra)]
     refused = 0
     for type_name in names:
         origin = f"  [from {extra[type_name][1]}]" if type_name in extra else ""
         if name is None and origin:  # one broken package does not hide the other types
             try:
-                cls = nodes.load(type_name)
+                cls = node_types.load(type_name)
             except LaunchError as exc:
                 Log("dockhil node types:").error(str(exc))
                 refused += 1
                 continue
         else:
-            cls = nodes.load(type_name)
-        alias = f"  [{nodes.ONE_DOF[type_name]} with dof: 6]" if type_name in nodes.ONE_DOF else ""
+            cls = node_types.load(type_name)
+        alias = f"  [{node_types.ONE_DOF[type_name]} with dof: 6]" if type_name in node_types.ONE_DOF else ""
         print(f"{type_name}: {cls.describe()}{origin}{alias}")
         if not name:
             continue
@@ -134,7 +136,7 @@ def _types(name: str | None) -> int:
             print(f"  in  {port}: {i.topic} {msgs.type_name(i.type)}{ft}{opt}  {i.help}")
         for port, o in cls.outputs.items():
             print(f"  out {port}: {o.topic} {msgs.type_name(o.type)}  {o.help}")
-        dof = nodes.dof_param(type_name)  # picks the class, so it is the registry's, not the class's
+        dof = node_types.dof_param(type_name)  # picks the class, so it is the registry's, not the class's
         for pname, p in {**({"dof": dof} if dof else {}), **cls.params}.items():
             unit = f" [{p.unit}]" if p.unit else ""
             print(f"  param {pname}: {p.type.__name__}{unit} = {p.default!r}  {p.help}")

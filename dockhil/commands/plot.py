@@ -1,16 +1,21 @@
 """`dockhil plot BAG [BAG ...] --png FILE`: contact force and velocity profiles, like the paper's Fig. 9,
 beside the ideal contact of the scene each bag recorded, and the energy the delay made (with and without
 compensation) when the bags hold /energy; a 6-DOF bag (by its recorded scene, or --6dof) its 6-DOF figure.
-The drawing is dockhil/analysis/runplot.py's."""
+The drawing is dockhil/analysis/plots/runplot.py's."""
 
 from __future__ import annotations
 
+import argparse
+from typing import TYPE_CHECKING
+
 from dockhil.argtypes import nonnegative
 from dockhil.errors import DockhilError
-from dockhil.analysis.runplot import load_samples  # noqa: F401  (the report's graph check reads bags with it)
+
+if TYPE_CHECKING:
+    from dockhil.scene.graph import Graph
 
 
-def add_arguments(p) -> None:
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("bags", nargs="+", metavar="BAG", help="one or more recorded runs (MCAP); each is one curve")
     p.add_argument("--png", required=True, metavar="FILE", help="where to write the figure")
     p.add_argument("--labels", nargs="+", metavar="LABEL", help="legend label per bag (default: file names)")
@@ -37,13 +42,13 @@ def add_arguments(p) -> None:
     )
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     # A refused command line is refused before matplotlib is imported (half a CPU-second).
     if args.labels and len(args.labels) != len(args.bags):
         raise DockhilError(f"--labels has {len(args.labels)} labels for {len(args.bags)} bags; give one per bag")
     if (args.kcs is None) != (args.bcs is None):
         raise DockhilError("--kcs and --bcs go together (the ideal contact force is kcs p + bcs p')")
-    from dockhil.analysis.runplot import is_sixdof, plot_runs
+    from dockhil.analysis.plots.runplot import is_sixdof, plot_runs
 
     # Each bag's recorded scene: its ideal contact, and whether it is a 6-DOF run.
     graphs = [_recorded_graph(path) for path in args.bags]
@@ -52,7 +57,7 @@ def run(args) -> int:
         flat = [path for path, g, s in zip(args.bags, graphs, six) if g is not None and not s]
         if flat:
             raise DockhilError(f"{flat[0]}: a 1-DOF run (its recorded scene); plot it apart from the 6-DOF bags")
-        from dockhil.analysis.plot6 import plot6
+        from dockhil.analysis.plots.plot6 import plot6
 
         plot6(args.bags, args.png, args.labels)
     elif any(six):
@@ -67,10 +72,10 @@ def run(args) -> int:
     return 0
 
 
-def _recorded_graph(path: str):
+def _recorded_graph(path: str) -> Graph | None:
     """The bag's recorded scene; None, said in one line, when it does not rebuild here (a node type of
     a package not installed): the bag is then drawn as one without it."""
-    from dockhil.analysis.runplot import bag_graph
+    from dockhil.analysis.plots.runplot import bag_graph
     from dockhil.bags.format import BagError
     from dockhil.log import Log
 

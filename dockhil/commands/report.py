@@ -34,8 +34,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def run(args) -> int:
-    from dockhil.analysis import report, report_markdown, report_plots
+def run(args: argparse.Namespace) -> int:
+    from dockhil.analysis.report import compute as report
+    from dockhil.analysis.report import plots as report_plots
+    from dockhil.analysis.report import markdown as report_markdown
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():

@@ -7,6 +7,7 @@ wall time at --rate until Ctrl-C or --duration.
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
 
@@ -15,7 +16,7 @@ from dockhil.argtypes import hertz, max_age_setting, node_name, seconds
 from dockhil.errors import DockhilError, suggest
 
 
-def add_arguments(p) -> None:
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("node", help="node type (see 'dockhil node types') or module:Class")
     p.add_argument("overrides", nargs="*", metavar="param:=value", help="node parameters (anywhere on the line)")
     p.add_argument("--name", type=node_name, help="node name (default: the type name)")
@@ -41,12 +42,12 @@ def add_arguments(p) -> None:
     log.add_arguments(p)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     import json
     import uuid
 
     from dockhil import msgs
-    from dockhil import nodes
+    from dockhil import node_types
     from dockhil.scene import boundedyaml
     from dockhil.runtime.executor import PortWire, RunSpec
     from dockhil.runtime.registry import KEY_FILE, graph_keys, registry_dir, running_graphs
@@ -56,7 +57,7 @@ def run(args) -> int:
 
     name = args.name or args.node.rsplit(":", 1)[-1]
     params = {k: boundedyaml.load(v, f"parameter {k}:={v}")[0] for k, v in parse_overrides(args.overrides).items()}
-    type_name, cls, params = nodes.resolve(args.node, name, params)  # dof:=6 picks the 6-DOF type
+    type_name, cls, params = node_types.resolve(args.node, name, params)  # dof:=6 picks the 6-DOF type
     remap = parse_overrides(args.remap)
     ins, outs = cls.ports(params)
     ages = {}
@@ -69,9 +70,11 @@ def run(args) -> int:
                 f"{where}: node {name!r} ({type_name}) has no input {port!r}; {suggest(port, ins, 'inputs')}"
             )
         ages[port] = age
-    topic_of = lambda port, default: remap.get(port, remap.get(default, default))  # noqa: E731
 
-    published = {}
+    def topic_of(port: str, default: str) -> str:
+        return remap.get(port, remap.get(default, default))
+
+    published: dict[str, dict] = {}
     for info in running_graphs():
         for topic, t in info["topics"].items():
             published.setdefault(topic, dict(t, graph=info))

@@ -2,7 +2,7 @@
 (paper Sec. 4: Eq. 12 and the exact boundary), `stability map`: Fig. 7, and `stability multi`: the
 multi-axis delayed loop of a 6-DOF scene. Parse, call (dockhil.contact.stability and
 stability_maps; the maps, the multi-axis record and the scenes' loops in
-dockhil.analysis.stability_report) and print (the text in dockhil.analysis.stability_text)."""
+dockhil.analysis.stability.report) and print (the text in dockhil.analysis.stability.text)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import argparse
 import json
 import math
 
-from dockhil.analysis.stability_text import (
+from dockhil.analysis.stability.text import (
     format_compensated,
     format_hybrid,
     format_hybrid_map,
@@ -267,6 +267,7 @@ def run(args: argparse.Namespace) -> int:
 
     m, b, h = _loop_values(args)
     report = stability_report(m, b, h, K=args.K, damper=args.damper, pade_order=args.pade_order)
+    report.update(_passivity(args, b, h))
     if args.compensation == "passivity":
         from dockhil.contact.passivity import DEFAULT_MAX_DAMPING
 
@@ -280,9 +281,62 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(report))
         return 0
     print(format_report(report))
+    print(_passivity_text(report))
     if "passivity" in report:
         print(format_compensated(report["passivity"]))
     return 0
+
+
+def _passivity(args, b: float, h: float) -> dict:
+    """The passivity boundary of stability.yaml's loop (dockhil.contact.passivity_bound): the largest K whose
+    delayed port the damper b makes passive (none with the damper behind the delay, which itself needs b
+    undelayed), and with --K the least undelayed damping the port asks for."""
+    from dockhil.contact.passivity_bound import passivity_report
+
+    rate = 1000.0 if args.rate is None else check_rate(args.rate)
+    dt = 1.0 / rate
+    delayed = args.damper == "delayed"
+    out: dict = {
+        "passivity_max_K": None if delayed else b / h,
+        "sampled_passivity_max_K": None if delayed else b / ((round(h / dt) + 0.5) * dt),
+    }
+    if args.K is not None:
+        out.update(passivity_report(args.K, b if delayed else 0.0, h, 0.0 if delayed else b, dt))
+    return out
+
+
+def check_rate(rate: float) -> float:
+    from dockhil.contact.scenario import check_positive
+
+    rate = check_positive("--rate", _within("--rate", rate, MAX_RATE, "Hz"), "Hz")
+    if rate < 1.0:
+        raise DockhilError(f"--rate must be at least 1 Hz, got {rate:g}")
+    return rate
+
+
+def _passivity_text(r: dict) -> str:
+    """The passivity lines of `dockhil stability`'s text."""
+    lines = []
+    if r.get("passivity_max_K") is None and "passivity_max_K" in r:
+        lines.append(
+            "passivity: the damper acts behind the delay, so no K makes the port passive (it needs b undelayed)"
+        )
+    elif "passivity_max_K" in r:
+        lines.append(
+            f"passivity: the damper makes the delayed port passive for K <= b/h = {r['passivity_max_K']:.6g} N/m "
+            f"(sampled: {r['sampled_passivity_max_K']:.6g} N/m)"
+        )
+    if "passivity_min_damping_Ns_per_m" in r:
+        at = r["passivity_frequency_rad_s"]
+        sat = r.get("sampled_passivity_frequency_rad_s")
+        lines.append(
+            f"passivity: least undelayed damping {r['passivity_min_damping_Ns_per_m']:.6g} N s/m "
+            f"(max over w of (k_h/w) sin(wh) - b_h cos(wh), at {'w -> 0' if at is None else f'{at:.4g} rad/s'}): "
+            f"{'passive' if r['passive'] else 'not passive'}; sampled at {r['sampled_rate_Hz']:g} Hz "
+            f"{r['sampled_passivity_min_damping_Ns_per_m']:.6g} N s/m "
+            f"(at {'w -> 0' if sat is None else f'{sat:.4g} rad/s'}): {'passive' if r['sampled_passive'] else 'not passive'}"
+        )
+    return "\n".join(lines)
 
 
 def _range(name: str, pair, positive: bool, most: float = MAX_COEFF, unit: str = "") -> tuple[float, float]:
@@ -314,7 +368,7 @@ def _run_map(args) -> int:
     compensated = None
     if getattr(args, "compensation", "none") == "passivity":
         compensated = _compensated_region(m, b_range, h_range, args)
-    from dockhil.analysis.stability_report import stiffness_map
+    from dockhil.analysis.stability.report import stiffness_map
 
     summary = stiffness_map(args.png, m, getattr(args, "damper", "delayed"), b_range, h_range, args.n, compensated)
     print(json.dumps(summary) if getattr(args, "json", False) else format_stiffness_map(summary))
@@ -366,7 +420,7 @@ def _scene_values(args) -> tuple[float, float, float, float, float, float, float
             f"name:=value after the file"
         )
     path, *overrides = args.scene
-    from dockhil.analysis.stability_report import scene_hybrid_loop
+    from dockhil.analysis.stability.report import scene_hybrid_loop
 
     return scene_hybrid_loop(path, overrides)
 
@@ -405,12 +459,20 @@ def _run_hybrid(args) -> int:
 
     from dockhil.contact.sampled import RootsNotResolved
 
+    from dockhil.contact.passivity_bound import passivity_report
+
     m, kd, bd, kh, bh, h, rate = _hybrid_values(args)
     try:
         r = hybrid_report(m, kd, bd, kh, bh, h, rate=rate, pade_order=args.pade_order)
     except RootsNotResolved as exc:
         raise DockhilError(f"{exc}; give a lower --rate") from None
-    print(json.dumps(r) if args.json else format_hybrid(r))
+    r.update(passivity_report(kh, bh, h, bd, 1.0 / rate, kd))
+    if args.scene is not None:  # the verdict in the words of dockhil calibrate and the launch's scene check
+        from dockhil.analysis.stability.verdict import loop_verdict
+
+        r["verdict"] = loop_verdict(m, kd, bd, kh, bh, h)["line"]
+    text = format_hybrid(r) + "\n" + _passivity_text(r) + ("\n" + r["verdict"] if "verdict" in r else "")
+    print(json.dumps(r) if args.json else text)
     return 0
 
 
@@ -434,7 +496,7 @@ def _run_hybrid_map(args, m: float) -> int:
     args.n = 60 if args.n is None else args.n
     if not 2 <= args.n <= 400:
         raise DockhilError(f"--n must be between 2 and 400 for the hybrid map, got {args.n}")
-    from dockhil.analysis.stability_report import hybrid_stability_map
+    from dockhil.analysis.stability.report import hybrid_stability_map
 
     summary = hybrid_stability_map(args.png, m, kcs, bcs, rate, (k_lo, k_hi), (h_lo, h_hi), args.n)
     print(json.dumps(summary) if getattr(args, "json", False) else format_hybrid_map(summary))
@@ -492,7 +554,7 @@ def _add_multi_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _run_multi(args: argparse.Namespace) -> int:
-    from dockhil.analysis import stability_report
+    from dockhil.analysis.stability import report as stability_report
     from dockhil.contact import stability6
 
     scene = getattr(args, "scene", None)

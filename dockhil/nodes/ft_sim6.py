@@ -6,7 +6,7 @@ from dockhil import physical
 from dockhil.node import Input, Node, Output, Param
 from dockhil.msgs import RobotState, Vector3, Wrench, WrenchStamped
 from dockhil.nodes.robot_sim6 import relative_pose
-from dockhil.nodes.sixdof_params import MOUNT_PARAMS, PASSIVE_PARAMS, checked, passive_contact
+from dockhil.scene.sixdof_params import MOUNT_PARAMS, PASSIVE_PARAMS, checked, passive_contact
 
 
 NO_WRENCH = Wrench()  # msgs are frozen: one zero wrench serves every message that carries one

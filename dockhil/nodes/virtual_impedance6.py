@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dockhil.node import Input, Node, Output
 from dockhil.msgs import BodyWrenches, SatelliteState, Vector3, Wrench
-from dockhil.nodes.sixdof_params import (
+from dockhil.scene.sixdof_params import (
     BODY_PARAMS,
     IDEAL_PARAMS,
     PASSIVE_PARAMS,

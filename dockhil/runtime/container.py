@@ -32,11 +32,11 @@ class Container(Node):
 
     @classmethod
     def ports(cls, params):
-        from dockhil import nodes
+        from dockhil import node_types
 
         inputs, outputs = {}, {}
         for m in _members(params):
-            node_cls = nodes.load(m["type"])
+            node_cls = node_types.load(m["type"])
             ins, outs = node_cls.ports(m["params"])
             for port, (topic, _lag) in m["external"].items():
                 decl = ins[port]
@@ -50,7 +50,7 @@ class Container(Node):
         return inputs, outputs
 
     def __init__(self, ctx: NodeContext, **params: Any):
-        from dockhil import nodes
+        from dockhil import node_types
         from dockhil.runtime.composed import ComposedGraph
         from dockhil.scene.graph import GraphNode, PortRef
 
@@ -60,7 +60,7 @@ class Container(Node):
         self.boxes: dict[tuple[str, str], list] = {}
         self.reads: list[tuple[str, list]] = []  # (container input, its member's box)
         for m in _members(params):
-            cls = nodes.load(m["type"])
+            cls = node_types.load(m["type"])
             ins, outs = cls.ports(m["params"])
             inputs = {
                 port: PortRef(m["name"], port, topic, ins[port].type, lag)

@@ -139,6 +139,15 @@ def read_spec_keys(spec: RunSpec):
     return GraphKeys.read(spec.key_file)
 
 
+def dump_report(report: dict) -> None:
+    """A node's loop figures to DOCKHIL_TIMING_DIR/NAME.json, where set: benchmarks and tests collect
+    every node's figures (the launcher reads them from the node's TIMING line)."""
+    folder = os.environ.get("DOCKHIL_TIMING_DIR")
+    if folder:
+        with open(os.path.join(folder, f"{report['node']}.json"), "w") as f:
+            json.dump(report, f)
+
+
 class NodeExecutor:
     """Owns one node's sockets and loop. Used by node processes and `dockhil run`."""
 
@@ -198,6 +207,7 @@ class NodeExecutor:
                 keys=keys,
                 lossy=not sim,
                 burst=(wire.burst if wire.burst > 1 else DEFERRED) if sim else 1,
+                trailing=sim,
             )
             for port, wire in spec.outputs.items()
         }
@@ -313,7 +323,7 @@ class NodeExecutor:
                     break
             else:
                 if k == 0:  # the real-time factor counts from here, not from the start-up
-                    self.timing.first_tick_at = time.time()
+                    self.timing.first_tick()
                 inputs = {port: buf.pop(k - lag, None) for port, buf, lag in needs}
                 if unconnected:
                     inputs.update(unconnected)
@@ -323,9 +333,10 @@ class NodeExecutor:
                 k += 1
                 self.ticks_done = k
                 self._waited_since = time.monotonic()
-        self.timing.last_tick_at = time.time()
+        self.timing.last_tick()
         for pub in self.pubs.values():  # the last, incomplete bursts
             pub.flush()
+            pub.flush_trailing()
         # Stay subscribed until every input's last tick is in: a publisher waits for its subscribers
         # before tick 0, and a node that needs no input for its ticks (a long delay) must not leave first.
         while spec.n_ticks is not None and not self.stop.requested:
@@ -335,6 +346,7 @@ class NodeExecutor:
             self._receive(k, behind[0], keep=False)
         self.timing.ticks = k
         self.timing.dropped_in = self.dropped
+        dump_report(self.timing.report(spec.name))
 
     def _receive(self, k: int, waiting_for: str, keep: bool = True) -> None:
         """Take one message off the socket (or time out after 0.2 s), file it by tick; before
@@ -375,9 +387,10 @@ class NodeExecutor:
             # ticking it at the graph's rate only takes the interpreter from the device's thread.
             period = max(period, IDLE_DEVICE_PERIOD_S)
         self.timing = timing = LoopTiming(list(spec.inputs), period=period, max_age=self.max_age)
+        timing.device = getattr(node, "device_figures", None)  # a driver's account of its device (validity)
         spin = loop_spin()
+        timing.first_tick()  # before the schedule starts: its reading of /proc is not the first tick's time
         t0 = clock()
-        timing.first_tick_at = time.time()
         next_t = t0
         k = 0
         try:
@@ -412,15 +425,12 @@ class NodeExecutor:
         finally:
             timing.ticks = k
             timing.elapsed = clock() - t0
-            timing.last_tick_at = timing.first_tick_at + timing.elapsed  # on the loop's own clock
+            timing.last_tick(timing.first_tick_at + timing.elapsed)  # on the loop's own clock
             timing.dropped_in = self.dropped
             timing.dropped_out = self.dropped_outputs
             timing.published = {pub.topic: pub.taken for pub in self.pubs.values()}
         out = timing.report(spec.name)
-        folder = os.environ.get("DOCKHIL_TIMING_DIR")
-        if folder:  # benchmarks collect every node's figures
-            with open(os.path.join(folder, f"{spec.name}.json"), "w") as f:
-                json.dump(out, f)
+        dump_report(out)
         return out
 
     def _check_ages(self, arrived: dict[str, float], now: float, timing: "LoopTiming", end: float | None) -> bool:

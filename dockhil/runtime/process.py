@@ -45,7 +45,7 @@ def _wait_for_go(go: list, stop) -> None:
 
 def run_node(spec, log=None, on_ready=None) -> int:
     """Set up and run one node until its ticks are done or a stop is requested."""
-    from dockhil import nodes
+    from dockhil import node_types
     from dockhil import log as logs
     from dockhil.runtime import ownership
     from dockhil.errors import NODE_RAISES, DockhilError, failure_line
@@ -65,7 +65,7 @@ def run_node(spec, log=None, on_ready=None) -> int:
     if spec.realtime and spec.clock == "wall":  # first: every thread made from here on inherits it
         realtime.ask(realtime.LOOP_PRIORITY, "the node loop", log)
     try:
-        node_type = nodes.load(spec.type_name)
+        node_type = node_types.load(spec.type_name)
         if node_type.free_running:  # an emulated device: above the loops, as a real one is never starved by them
             realtime.raise_device_thread(log, "the emulated device's loop")
         executor = NodeExecutor(spec, node_type, stop, log)

@@ -12,7 +12,8 @@ import uuid
 from pathlib import Path
 
 from dockhil.errors import DockhilError, LaunchError
-from dockhil.runtime.transport import GraphKeys, private_dir, runtime_dir
+from dockhil.runtime.rundir import private_dir, runtime_dir
+from dockhil.runtime.transport import GraphKeys
 
 KEY_FILE = "graph.keys"  # a graph's CURVE keys, in its run directory
 COMPOSED = "composed"  # the process of a graph run --composed, as its entry names it

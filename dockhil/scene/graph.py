@@ -13,13 +13,16 @@ import difflib
 import math
 import re
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from dockhil import msgs
-from dockhil import nodes as node_registry
+from dockhil import node_types as node_registry
 from dockhil.errors import LaunchError, ParamError, suggest
 from dockhil.scene.launchfile import Scene
 from dockhil.scene.schema import MAX_DURATION
+
+if TYPE_CHECKING:
+    from dockhil.node import Node
 
 
 @dataclass
@@ -41,7 +44,7 @@ class PortRef:
 class GraphNode:
     name: str
     type_name: str
-    cls: type
+    cls: type[Node]
     params: dict[str, Any]
     inputs: dict[str, PortRef]
     outputs: dict[str, PortRef]
@@ -272,7 +275,7 @@ def _refuse_driver_past_its_emulator(path: str, gnodes: dict[str, GraphNode]) ->
     if not emulators:
         return
 
-    def where(params) -> tuple[str, int]:
+    def where(params: dict[str, Any]) -> tuple[str, int]:
         host = params["host"]
         return ("127.0.0.1" if host in _LOOPBACK else host), params["port"]
 

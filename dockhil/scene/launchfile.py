@@ -43,7 +43,6 @@ import difflib
 import math
 import os
 import re
-import reprlib
 import secrets
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,7 +52,8 @@ import msgspec
 
 from dockhil.scene import boundedyaml
 from dockhil.scene.files import SHIPPED_SCENES, find_shipped, unopenable  # noqa: F401 - part of this API
-from dockhil.errors import DockhilError, LaunchError, suggest
+from dockhil.scene.loopfile import loop_args
+from dockhil.errors import LaunchError, suggest
 from dockhil.scene.schema import (
     MAX_INCLUDES,
     MAX_NODES,
@@ -128,7 +128,7 @@ class ArgSpec:
             raise LaunchError(
                 f"{where}: arg {self.name!r} expects {self._type_name()}, got {type(value).__name__} {value!r}{hint}"
             )
-        if self.type is float and not math.isfinite(value):
+        if self.type is float and isinstance(value, float) and not math.isfinite(value):
             raise LaunchError(f"{where}: arg {self.name!r} is {value!r}; give a finite number")
         return value
 
@@ -190,7 +190,7 @@ class Scene:
 
 def parse_overrides(items: list[str]) -> dict[str, str]:
     """`name:=value` strings from the command line -> {name: text}."""
-    out = {}
+    out: dict[str, str] = {}
     for item in items:
         name, sep, value = item.partition(":=")
         if not sep or not name:
@@ -202,13 +202,14 @@ def parse_overrides(items: list[str]) -> dict[str, str]:
     return out
 
 
-def load(path: str | Path | None, overrides: dict[str, Any] | None = None) -> Scene:
+def load(path: str | Path | None, overrides: dict[str, Any] | None = None, only: frozenset[str] | None = None) -> Scene:
     """Read a launch file (a path, or a shipped scene by name), apply arguments,
-    resolve includes and conditions."""
+    resolve includes and conditions. `only`: the absolute, normalised paths of the files it may read (a
+    recorded scene's: anything else is refused without being opened)."""
     if path is None:
         raise LaunchError("give a launch file, e.g. hil.yaml (a shipped scene) or a path to your own")
-    path = find_shipped(path)
-    budget = _Budget()
+    path = Path(path) if only is not None else find_shipped(path)
+    budget = _Budget(only=only)
     scene = _load(path, overrides or {}, from_cli=True, stack=(), budget=budget)
     scene.texts = budget.texts
     if not scene.nodes:
@@ -224,6 +225,7 @@ class _Budget:
     nodes: int = 0
     text: int = 0  # characters built by substitution inside longer strings
     texts: dict[str, str] = field(default_factory=dict)  # what a bag records to rebuild the scene
+    only: frozenset[str] | None = None  # the files it may read (None: any)
     group: str = field(default_factory=lambda: draw_group())  # $(var multicast_group)
 
 
@@ -239,6 +241,13 @@ def _read_yaml(path: Path, budget: _Budget, included_from: Path | None = None) -
     budget.files += 1
     if budget.files > MAX_INCLUDES:
         raise LaunchError(f"{path}: more than {MAX_INCLUDES} launch files read for one scene; include fewer files")
+    if budget.only is not None and os.path.normpath(os.path.abspath(path)) not in budget.only:
+        # Not stat'ed, not opened: a recorded scene names paths of another machine, and a reader of what they
+        # name here could hang (a FIFO) or tell what the disk holds.
+        raise LaunchError(
+            f"{os.path.normpath(path)}: not among the launch files the scene recorded; an include is resolved "
+            f"only among them"
+        )
     if not path.is_file():
         raise LaunchError(f"launch file {str(path)!r} not found (or not a file)")
     try:
@@ -277,7 +286,7 @@ def _read_yaml(path: Path, budget: _Budget, included_from: Path | None = None) -
 LAUNCH_KEYS = {f.encode_name: None for f in msgspec.structs.fields(LaunchFile)}.keys()
 
 
-def _not_launch_file(path: Path, included_from: Path, why: str) -> str:
+def _not_launch_file(path: Path, included_from: Path | None, why: str) -> str:
     return f"{path} (included from {included_from}): not a launch file ({why})"
 
 
@@ -317,8 +326,8 @@ def _scene(
         given = {**loop_args(str(given["loop"]), {n: s for n, s in specs.items() if n not in given}), **given}
     for name, value in given.items():
         if name not in specs:
-            lets = data.get("let") if isinstance(data.get("let"), list) else []
-            if any(isinstance(d, dict) and d.get("name") == name for d in lets):
+            declared = data.get("let")
+            if isinstance(declared, list) and any(isinstance(d, dict) and d.get("name") == name for d in declared):
                 raise LaunchError(
                     f"{path}: {name!r} is a `let` variable, made from the arguments: set those "
                     f"instead ({suggest('', specs, 'known args')})"
@@ -402,50 +411,6 @@ def _scene(
     if dup:
         raise LaunchError(f"{path}: two nodes are named {dup!r}; node names must be unique")
     return scene
-
-
-def loop_args(path: str, specs: dict[str, ArgSpec]) -> dict[str, Any]:
-    """The arguments a loop file (written by `dockhil calibrate --out`: delay, lag, k, ...) sets that the
-    scene declares; a scene takes it as loop:=FILE."""
-    try:
-        with open(path, "rb") as f:
-            raw = f.read(boundedyaml.MAX_BYTES + 1)
-        data, _root = boundedyaml.load(raw.decode("utf-8"), path)
-    except OSError as exc:
-        raise LaunchError(f"loop file {path}: cannot read: {exc.strerror}") from None
-    except (UnicodeDecodeError, DockhilError) as exc:
-        raise LaunchError(f"loop file {path}: {exc}") from None
-    args = data.get("args") if isinstance(data, dict) else None
-    if len(raw) > boundedyaml.MAX_BYTES or not isinstance(args, dict):
-        raise LaunchError(
-            f"loop file {path}: not a loop file (a mapping with `args:`); write one with dockhil calibrate --out"
-        )
-    for name, value in args.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise LaunchError(f"loop file {path}: args.{name} is {value!r}, not a number")
-    out = {name: value for name, value in args.items() if name in specs}
-    if "ft_bias" in specs and data.get("tare") is not None:
-        out["ft_bias"] = _loop_tare(path, data["tare"])
-    return out
-
-
-def _loop_tare(path: str, tare: Any) -> list[float]:
-    """The loop file's `tare: {force_N: [x, y, z], torque_Nm: [x, y, z]}` as the F/T driver's
-    bias [fx, fy, fz, tx, ty, tz]."""
-    bias: list[float] = []
-    for key in ("force_N", "torque_Nm"):
-        axes = tare.get(key) if isinstance(tare, dict) else None
-        if (
-            not isinstance(axes, list)
-            or len(axes) != 3
-            or not all(isinstance(a, (int, float)) and not isinstance(a, bool) and math.isfinite(a) for a in axes)
-        ):
-            raise LaunchError(
-                f"loop file {path}: tare.{key} is {reprlib.repr(axes)}, not three finite numbers; write the "
-                f"file again with dockhil calibrate --out, or drop its tare with ft_bias:=[] (tare at start)"
-            )
-        bias += [float(a) for a in axes]
-    return bias
 
 
 def _value_at(data: Any, at: list) -> Any:

@@ -4,7 +4,8 @@
 run length, the dockhil version and the graph's start time on the wall clock) and `scene_texts`
 gives the text of every launch file read (the scene and its includes), both as the str -> str maps
 an MCAP metadata record holds. `rebuild` makes the scene again from them: each text is written
-where it stood relative to the others, in a temporary folder, and read with the recorded arguments.
+where it stood relative to the others, in a temporary folder, and read with the recorded arguments; an
+include of any file but those is refused without being opened (the bag's scene comes from the bag).
 The start time is written at a fixed width, so that two sim-time recordings of one run differ in
 those bytes alone.
 """
@@ -15,6 +16,10 @@ import json
 import os
 import tempfile
 import time
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from dockhil.scene.launchfile import Scene
 
 MAX_FILES = 64  # launch files one recorded scene may hold (a scene reads at most MAX_INCLUDES)
 
@@ -25,7 +30,9 @@ def iso_utc(ns: int) -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(seconds)) + f".{rest:09d}Z"
 
 
-def run_fields(scene, *, clock: str, duration: float | None, started_ns: int, recorded_by: str) -> dict[str, str]:
+def run_fields(
+    scene: Scene, *, clock: str, duration: float | None, started_ns: int, recorded_by: str
+) -> dict[str, str]:
     """The run's description, for a bag's metadata and the registry of running graphs."""
     from dockhil import __version__
 
@@ -46,12 +53,14 @@ def run_fields(scene, *, clock: str, duration: float | None, started_ns: int, re
     }
 
 
-def scene_texts(scene) -> dict[str, str]:
+def scene_texts(scene: Scene) -> dict[str, str]:
     """absolute path -> text of every launch file the scene read."""
     return dict(scene.texts)
 
 
-def rebuild(run: dict[str, str], texts: dict[str, str], overrides: dict | None = None, *, origin: str = "the bag"):
+def rebuild(
+    run: dict[str, str], texts: dict[str, str], overrides: dict | None = None, *, origin: str = "the bag"
+) -> Scene:
     """The scene of a recorded run: its launch files' texts read again with its arguments (and
     `overrides` on top). LaunchError (one line, naming the recorded files) if they do not read."""
     from dockhil.errors import LaunchError
@@ -68,6 +77,9 @@ def rebuild(run: dict[str, str], texts: dict[str, str], overrides: dict | None =
         raise LaunchError(f"{where}: its launch arguments are not readable JSON") from None
     if not isinstance(args, dict):
         raise LaunchError(f"{where}: its launch arguments are not a mapping")
+    if args.get("loop"):
+        # The values the loop file set are among the recorded arguments; the file itself is not recorded.
+        args["loop"] = ""
     args.update(overrides or {})
     common = os.path.commonpath([os.path.dirname(p) for p in files])
     with tempfile.TemporaryDirectory(prefix="dockhil-scene-") as tmp:
@@ -76,8 +88,9 @@ def rebuild(run: dict[str, str], texts: dict[str, str], overrides: dict | None =
             os.makedirs(os.path.dirname(dst), exist_ok=True)
             with open(dst, "w", encoding="utf-8") as f:
                 f.write(text)
+        written = frozenset(os.path.normpath(os.path.join(tmp, os.path.relpath(p, common))) for p in files)
         try:
-            scene = launchfile.load(os.path.join(tmp, os.path.relpath(root, common)), args)
+            scene = launchfile.load(os.path.join(tmp, os.path.relpath(root, common)), args, only=written)
         except LaunchError as exc:  # named by the recorded paths, not the temporary ones
             raise LaunchError(f"{where}: " + str(exc).replace(tmp, common)) from None
         for node in scene.nodes:

@@ -1,0 +1,24 @@
+"""The stability verdict proven on the run: on emulated hardware (a KUKA RSI controller whose hidden delay
+is not a whole number of its 4 ms cycles, with a lag, and a noisy Net F/T sensor), `dockhil calibrate
+launch/stability.yaml` gives the largest stable sheet stiffness for m 50 kg, b 20 N s/m at 250 Hz; the
+scene then runs in wall time with the emulated sheet at 0.75 and 1.35 times it: the first contact's
+oscillation decays, the second grows, with either timing of the emulated controller."""
+
+from __future__ import annotations
+
+import pytest
+
+
+@pytest.mark.wall_time
+@pytest.mark.parametrize("timing", ["ours", "immediate"])
+def test_below_the_calibrated_bound_the_contact_decays_above_it_grows(timing):
+    from bench.stability_run import calibrate, hardware, run
+
+    args = hardware("rsi", timing, 0.0231, 0.004, 0.2)
+    found = calibrate(args)
+    bound = found["kcs_max_N_per_m"]
+    assert bound is not None and found["loop_delay_s"] >= 0.0231
+    below, above = run(args, 0.75 * bound, 15.0), run(args, 1.35 * bound, 15.0)
+    for r in (below, above):
+        assert r.get("growth_rate_1_s") is not None and r["states"] > 0.8 * 15.0 * 250.0, r
+    assert below["growth_rate_1_s"] < 0.0 < above["growth_rate_1_s"], (bound, below, above)
