@@ -154,16 +154,22 @@ def plot_all(out_dir: str | PathLike[str], delay: float = 0.032) -> dict:
     from dockhil.contact.stability import critical_stiffness_map
 
     f9, f10, f1112 = fig9(delay), fig10(delay=delay), fig11_12()
-    fig, (a, b) = plt.subplots(2, 1, sharex=True, figsize=(8, 6))
+    # The delay's effect is a few percent of the force: the third panel shows each run less the ideal.
+    fig, (a, b, c) = plt.subplots(3, 1, sharex=True, figsize=(8, 8), gridspec_kw={"height_ratios": [3, 3, 2]})
+    ideal_force = f9["runs"]["ideal"].force
     for name, s in f9["runs"].items():
         style = "--" if name == "hybrid, no delay" else "-"
         a.plot(s.t, s.force, style, label=name)
         b.plot(s.t, s.pd, style, label=name)
+        if name != "ideal":
+            n = min(len(s.force), len(ideal_force))
+            c.plot(s.t[:n], np.asarray(s.force[:n]) - np.asarray(ideal_force[:n]), style, label=f"{name} - ideal")
     a.set_ylabel("contact force [N]")
     b.set_ylabel("relative velocity [m/s]")
-    b.set_xlabel("time [s]")
+    c.set_ylabel("force - ideal [N]")
+    c.set_xlabel("time [s]")
     a.set_title("Fig. 9: ideal and hybrid contact (Table 1)")
-    for ax in (a, b):
+    for ax in (a, b, c):
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
@@ -184,8 +190,14 @@ def plot_all(out_dir: str | PathLike[str], delay: float = 0.032) -> dict:
     plt.close(fig)
 
     fig, axes = plt.subplots(1, 2, sharey=True, figsize=(10, 4))
+    h = f1112["h_s"]
     for ax, case in zip(axes, f1112["cases"]):
-        ax.plot(case["t"], case["force_N"])
+        # The sheet's force reaches the loop h after the start (zero before it): drawn from there, beside
+        # the thrust it balances at rest.
+        t = np.asarray(case["t"])
+        ax.plot(t[t >= h], np.asarray(case["force_N"])[t >= h], label="contact force")
+        ax.axhline(f1112["thrust_N"], color="0.4", ls="--", lw=0.8, label="thrust (rest)")
+        ax.legend(fontsize=8, loc="upper right")
         ax.set_title(
             f"b = {case['b_N_s_per_m']:g} N s/m: growth {case['growth_rate_1_s']:+.4f} 1/s "
             f"(root {case['predicted_growth_rate_1_s']:+.4f})",
