@@ -201,9 +201,8 @@ class NodeExecutor:
         self.routes: dict[bytes, list[tuple[str, Any]]] = {}
         for port, wire in spec.inputs.items():
             self.sub.connect(wire.endpoint, keys=keys)
-            fast: Callable[[bytes], Any] = msgspec.msgpack.Decoder(
-                self.in_types[port]
-            ).decode  # errors: the codec's lines, below
+            decoder: msgspec.msgpack.Decoder[Any] = msgspec.msgpack.Decoder(self.in_types[port])
+            fast = decoder.decode  # errors: the codec's lines, below
             self.routes.setdefault(wire.topic.encode(), []).append((port, fast))
         # Sim time loses nothing: a finished node waits (up to 60 s) until its slowest subscriber has all.
         # Wall time: a recorder behind a busy machine's graph catches up once the graph stops; 2 s of it
