@@ -29,8 +29,10 @@ import math
 import os
 import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from types import FrameType
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 
@@ -41,6 +43,10 @@ from dockhil.msgs.codec import DecodeError, decode, decode_header
 from dockhil.runtime import realtime
 from dockhil.runtime.looptime import LoopTiming, loop_spin, sleep_until
 from dockhil.runtime.screen import checked_payload
+
+if TYPE_CHECKING:
+    from dockhil.node import Node
+    from dockhil.runtime.transport import GraphKeys, Publisher
 
 TIMING = "\x1edockhil-timing "  # a node process's line with its wall-time loop figures (JSON), read by the launcher
 STALE = "\x1edockhil-stale "  # ... with the input that stopped it as stale (JSON): the launcher says whose fault
@@ -93,7 +99,7 @@ class Stop:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self._handle)
 
-    def _handle(self, signum, frame) -> None:
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
         self.requested = True
 
 
@@ -125,7 +131,7 @@ def check_outputs(name: str, declared: dict, k: int, outs: dict, sim: bool) -> N
             )
 
 
-def read_spec_keys(spec: RunSpec):
+def read_spec_keys(spec: RunSpec) -> GraphKeys | None:
     """The graph's keys, which every endpoint needs; a node without endpoints needs none."""
     from dockhil.runtime.transport import GraphKeys
 
@@ -151,7 +157,14 @@ def dump_report(report: dict) -> None:
 class NodeExecutor:
     """Owns one node's sockets and loop. Used by node processes and `dockhil run`."""
 
-    def __init__(self, spec: RunSpec, node_cls: type, stop: Stop, log=None, clock=time.monotonic):
+    def __init__(
+        self,
+        spec: RunSpec,
+        node_cls: type[Node],
+        stop: Stop,
+        log: Callable[[str], object] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ):
         import zmq
 
         from dockhil.runtime.transport import Publisher, Subscriber, separator
@@ -179,7 +192,7 @@ class NodeExecutor:
         self.max_age = {port: limit(port, wire) for port, wire in spec.inputs.items() if port in ins}
         self.unconnected = [port for port in ins if port not in spec.inputs]
         self.in_types = {port: ins[port].type for port in spec.inputs}
-        self.ctx = zmq.Context.instance()
+        self.ctx: zmq.Context = zmq.Context.instance()
         realtime.zmq_options(self.ctx)  # --realtime: its I/O threads too, set before its first socket
         keys = read_spec_keys(spec)
         self.sub = Subscriber(self.ctx)
@@ -188,7 +201,8 @@ class NodeExecutor:
         self.routes: dict[bytes, list[tuple[str, Any]]] = {}
         for port, wire in spec.inputs.items():
             self.sub.connect(wire.endpoint, keys=keys)
-            fast = msgspec.msgpack.Decoder(self.in_types[port]).decode  # errors: the codec's lines, below
+            decoder: msgspec.msgpack.Decoder[Any] = msgspec.msgpack.Decoder(self.in_types[port])
+            fast = decoder.decode  # errors: the codec's lines, below
             self.routes.setdefault(wire.topic.encode(), []).append((port, fast))
         # Sim time loses nothing: a finished node waits (up to 60 s) until its slowest subscriber has all.
         # Wall time: a recorder behind a busy machine's graph catches up once the graph stops; 2 s of it
@@ -237,7 +251,7 @@ class NodeExecutor:
                     topic.decode(errors="replace"), "malformed frame: expected the topic, a NUL byte, then msgpack"
                 )
                 return []
-            tick = int.from_bytes(frame[i + 1 :], "little")
+            tick: int | None = int.from_bytes(frame[i + 1 :], "little")
             return [(port, tick, None, True) for port, _ in routes]
         payload = frame[i + 1 :]
         out = []
@@ -289,7 +303,7 @@ class NodeExecutor:
             elif sim:
                 pub.send_empty(k)
 
-    def _lost_output(self, pub) -> None:
+    def _lost_output(self, pub: Publisher) -> None:
         # Wall time: a subscriber's queue is full (it stopped reading); the message is dropped, not queued.
         if pub.dropped == 1 or pub.dropped % 1000 == 0:
             self.log(
@@ -425,6 +439,7 @@ class NodeExecutor:
         finally:
             timing.ticks = k
             timing.elapsed = clock() - t0
+            assert timing.first_tick_at is not None  # set by first_tick, before the loop
             timing.last_tick(timing.first_tick_at + timing.elapsed)  # on the loop's own clock
             timing.dropped_in = self.dropped
             timing.dropped_out = self.dropped_outputs

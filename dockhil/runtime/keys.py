@@ -114,7 +114,7 @@ class ZapHandler:
         self._thread = threading.Thread(target=self._serve, args=(woken,), name="dockhil-zap", daemon=True)
         self._thread.start()
 
-    def _serve(self, woken) -> None:
+    def _serve(self, woken: zmq.Socket) -> None:
         name_os_thread("dockhil-zap")
         poller = zmq.Poller()
         poller.register(self._zap, zmq.POLLIN)
@@ -167,7 +167,7 @@ _auth_lock = threading.Lock()
 _auth: dict[int, list] = {}  # id(context) -> [its ZAP handler, publishers using it]
 
 
-def allow_clients(ctx, keys: GraphKeys) -> None:
+def allow_clients(ctx: zmq.Context, keys: GraphKeys) -> None:
     """Start this context's ZAP handler (once) and let the graph's client key in."""
     with _auth_lock:
         entry = _auth.get(id(ctx))
@@ -177,7 +177,7 @@ def allow_clients(ctx, keys: GraphKeys) -> None:
         entry[1] += 1
 
 
-def release_clients(ctx) -> None:
+def release_clients(ctx: zmq.Context) -> None:
     with _auth_lock:
         entry = _auth.get(id(ctx))
         if entry is None:

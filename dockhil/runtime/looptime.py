@@ -80,9 +80,10 @@ class LoopTiming:
 
     def report(self, name: str) -> dict:
         def pct(values: Histogram) -> dict:
-            if not values.count:
+            p50, p99 = values.percentile(50), values.percentile(99)
+            if p50 is None or p99 is None:  # nothing counted
                 return {}
-            return {"p50": values.percentile(50) * 1e6, "p99": values.percentile(99) * 1e6, "max": values.max * 1e6}
+            return {"p50": p50 * 1e6, "p99": p99 * 1e6, "max": values.max * 1e6}
 
         worst = self.lateness.max
         out = {
@@ -114,7 +115,7 @@ class LoopTiming:
 SPIN_S = float(os.environ.get("DOCKHIL_SPIN_S", "0.0002"))
 
 
-def sleep_until(deadline: float, clock=time.monotonic, spin: float = SPIN_S) -> None:
+def sleep_until(deadline: float, clock: Callable[[], float] = time.monotonic, spin: float = SPIN_S) -> None:
     # Sleep most of the way, then spin the last `spin` seconds: time.sleep alone overshoots by
     # ~60-150 us, but every microsecond spun is CPU the other nodes on the machine do not get.
     if clock is not time.monotonic:  # a test's clock: its time moves when the test says, never by waiting

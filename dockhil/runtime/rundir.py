@@ -60,7 +60,7 @@ def _check_ancestors(path: Path, what: str) -> None:
     root, and be writable by no one else unless sticky (as /tmp, where only an entry's owner may
     remove or rename it)."""
     uid = os.getuid()
-    for parent in path.parent.resolve().parents[::-1] + (path.parent.resolve(),):
+    for parent in (*path.parent.resolve().parents[::-1], path.parent.resolve()):
         st = parent.stat()
         mode = stat.S_IMODE(st.st_mode)
         if st.st_uid not in (uid, 0):

@@ -53,6 +53,7 @@ so it bounds as many frames as the graph's socket.
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable, Sequence
 import time
 from pathlib import Path
 
@@ -189,7 +190,7 @@ class Publisher:
             self._bind(self.trail, trailing_endpoint(endpoint))
         self.subscribers = 0
 
-    def _bind(self, sock, endpoint: str) -> str:
+    def _bind(self, sock: zmq.Socket, endpoint: str) -> str:
         try:
             if endpoint.startswith("tcp://") and endpoint.endswith(":0"):
                 port = sock.bind_to_random_port(endpoint.rsplit(":", 1)[0])
@@ -202,7 +203,7 @@ class Publisher:
                 f"topic {self.topic}: cannot bind {endpoint}: {exc}; is another graph using it?"
             ) from None
 
-    def wait_subscribers(self, expected: int, timeout: float, should_stop=lambda: False) -> None:
+    def wait_subscribers(self, expected: int, timeout: float, should_stop: Callable[[], bool] = lambda: False) -> None:
         """Block until `expected` subscriptions have arrived, the graph's and the trailing readers'
         (sim-time start barrier)."""
         deadline = time.monotonic() + timeout
@@ -220,7 +221,7 @@ class Publisher:
                     f"topic {self.topic}: {self.subscribers} of {expected} subscribers joined within {timeout:.0f} s; "
                     f"a subscribing node did not start"
                 )
-            for sock, _ in poller.poll(min(left, 0.2) * 1000):
+            for sock, _ in poller.poll(int(min(left, 0.2) * 1000)):  # as poll itself truncates a float
                 # Graph members and trailing readers subscribe to everything (b""); observers (progress,
                 # `topic echo`) subscribe to the prefix "/" on their own socket and are not waited for.
                 if sock.recv() == b"\x01":
@@ -250,7 +251,7 @@ class Publisher:
         counts what of it never arrived (dockhil.bags.live)."""
         return self.sent - self.dropped
 
-    def send_multipart(self, frames, copy: bool = True) -> None:
+    def send_multipart(self, frames: Sequence[bytes], copy: bool = True) -> None:
         """Send an envelope of frames ([topic, payload] or [topic, b"", tick], as `bag play` sends)
         on the graph's socket as it is (zmq.Again if a full queue refused it), then to the observers."""
         self.sock.send_multipart(frames, copy=copy)
@@ -313,7 +314,8 @@ class Publisher:
         """Send what the trailing readers' burst holds (sim time: waits for room), as one ZeroMQ
         message of its frames: they subscribe to every kind, so one run; the end of a run sends it
         whole."""
-        if self._held_trail:
+        if self._held_trail:  # only with trailing readers, on their socket
+            assert self.trail is not None
             if len(self._held_trail) == 1:
                 self.trail.send(self._held_trail[0])
             else:
@@ -330,7 +332,7 @@ class Publisher:
         self._send_runs(self.observers, self._held_observed, zmq.NOBLOCK)
         self.look()
 
-    def _send_runs(self, sock, held: list[bytes], flags: int) -> None:
+    def _send_runs(self, sock: zmq.Socket, held: list[bytes], flags: int) -> None:
         n = len(self.topic_bytes)
         start = 0
         for i in range(1, len(held) + 1):
@@ -346,7 +348,7 @@ class Publisher:
         for sock, held in ((self.sock, self._held), (self.trail, self._held_trail)):
             try:  # a graph stopped early: what was computed still goes out, if there is room
                 for frame in held:
-                    sock.send(frame, zmq.NOBLOCK)
+                    sock.send(frame, zmq.NOBLOCK)  # type: ignore[union-attr]  # no trail socket: nothing held
             except zmq.ZMQError:
                 pass
             held.clear()
