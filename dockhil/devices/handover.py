@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 
 from dockhil.contact.rotations import quat_from_rotvec, quat_multiply
 from dockhil.devices.limits import angle_between, turn_toward
@@ -31,7 +32,7 @@ LATE_WINDOW = 64  # commands over which the timeline's margin is the latest's wo
 class Handover:
     """Commands placed on the device's clock; `pose(t)` is the pose for the device's cycle at t."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.delay: float | None = None  # s: the least (hand-over time - stamp), creeping up slowly
         self._at = 0.0
         self._late: deque[float] = deque(maxlen=LATE_WINDOW)  # how much later than the least the last ones came
@@ -39,7 +40,16 @@ class Handover:
         self.motion: tuple | None = None  # (t0 on the device's clock, tick, p, q, linear, angular) or None
         self._before: tuple | None = None  # the motion before it
 
-    def put(self, now: float, stamp: float, tick: float, position, orientation, linear, angular) -> None:
+    def put(
+        self,
+        now: float,
+        stamp: float,
+        tick: float,
+        position: Sequence[float],
+        orientation: Sequence[float],
+        linear: Sequence[float],
+        angular: Sequence[float],
+    ) -> None:
         """A command for `stamp` [s], handed over at `now` (the device's clock): pose (position, unit
         quaternion x y z w) and velocity (linear per second, angular rad/s as a rotation vector), in the
         device's units; `tick` [s]: how far ahead of it the device may go along the velocity."""

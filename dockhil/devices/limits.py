@@ -6,8 +6,10 @@ orientation), a non-finite field, and what a unit quaternion is."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import Any
 
-from dockhil.contact.rotations import quat_conjugate, quat_from_rotvec, quat_multiply, rotvec3
+from dockhil.contact.rotations import Quat, quat_conjugate, quat_from_rotvec, quat_multiply, rotvec3
 from dockhil.msgs import Quaternion, RobotCommand, Vector3
 
 # |q| of an orientation may differ from 1 by this much: the Modbus map's 1e-9 counts round a unit
@@ -18,7 +20,7 @@ UNIT_TOLERANCE = 1e-6
 PoseTwist = tuple[float, ...]
 
 
-def message_key(msg) -> tuple:
+def message_key(msg: Any) -> tuple:  # msg: any message with a Header
     """Identifies one published message; the runtime may hand the same one again."""
     h = msg.header
     return (h.stamp, h.tick, h.seq)
@@ -32,11 +34,11 @@ def quat_tuple(q: Quaternion) -> tuple[float, float, float, float]:
     return (q.x, q.y, q.z, q.w)
 
 
-def quat_norm(q) -> float:
+def quat_norm(q: Quat) -> float:
     return math.sqrt(sum(c * c for c in q))
 
 
-def angle_between(q0, q1) -> float:
+def angle_between(q0: Quat, q1: Quat) -> float:
     """Angle [rad, 0..pi] of the smallest rotation that turns q0 into q1 (q and -q are one rotation;
     the ratio of the parts makes it independent of |q|)."""
     x, y, z, w = quat_multiply(q1, quat_conjugate(q0))
@@ -48,7 +50,7 @@ def command_values(cmd: RobotCommand) -> PoseTwist:
     return (p.x, p.y, p.z, q.x, q.y, q.z, q.w, lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
 
 
-def toward(origin, target, travel: float) -> tuple[float, ...]:
+def toward(origin: Sequence[float], target: Sequence[float], travel: float) -> tuple[float, ...]:
     """The point at most `travel` from origin on the straight line to target."""
     d = math.sqrt(sum((b - a) ** 2 for a, b in zip(origin, target)))
     if d <= travel:
@@ -57,7 +59,7 @@ def toward(origin, target, travel: float) -> tuple[float, ...]:
     return tuple(a + f * (b - a) for a, b in zip(origin, target))
 
 
-def turn_toward(origin, target, angle: float) -> tuple[float, ...]:
+def turn_toward(origin: Quat, target: Quat, angle: float) -> tuple[float, ...]:
     """The orientation at most `angle` [rad] from origin on the shortest rotation to target."""
     rotvec = rotvec3(quat_multiply(target, quat_conjugate(origin)))
     turn = math.sqrt(sum(c * c for c in rotvec))
@@ -77,7 +79,13 @@ def non_finite(*named: tuple[str, object]) -> str:
     return ""
 
 
-def toward_within(origin, target, travel: float, held, reach=None) -> tuple[float, ...]:
+def toward_within(
+    origin: Sequence[float],
+    target: Sequence[float],
+    travel: float,
+    held: Sequence[Sequence[float]],
+    reach: Sequence[float] | None = None,
+) -> tuple[float, ...]:
     """The point toward `target` from `origin`, at most `travel` from origin and within reach of every point
     of `held` (each of which a device may hold: whichever it holds, the step to the answer is at most its
     reach; `reach`: one per point, default `travel`). Origin must be within reach of each; the answer is the
@@ -101,7 +109,9 @@ def toward_within(origin, target, travel: float, held, reach=None) -> tuple[floa
     return tuple(a + t * c for a, c in zip(origin, u))
 
 
-def turn_within(origin, target, angle: float, held, reach=None) -> tuple[float, ...]:
+def turn_within(
+    origin: Quat, target: Quat, angle: float, held: Sequence[Quat], reach: Sequence[float] | None = None
+) -> tuple[float, ...]:
     """The orientation toward `target` from `origin`, at most `angle` [rad] from origin and within reach of
     every orientation of `held` (`reach`: one per orientation, default `angle`; bounded through origin: what
     it is from each, plus the turn)."""

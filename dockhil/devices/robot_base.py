@@ -26,9 +26,10 @@ those of the smallest rotation (limits.angle_between).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
-from dockhil.contact.rotations import IDENTITY
+from dockhil.contact.rotations import IDENTITY, Quat
 from dockhil.devices.base import RobotLink
 from dockhil.devices.limits import (
     UNIT_TOLERANCE,
@@ -44,6 +45,7 @@ from dockhil.devices.limits import (
 from dockhil.errors import DeviceError, LaunchError, SafetyStop
 from dockhil.msgs import EStop, Header, Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3, WrenchStamped
 from dockhil.node import Input, Node, Output, Param, Tick
+from dockhil.runtime.ownership import DeviceLock
 
 HOLD_CONFIRM_TIMEOUT = 0.25  # s: how long a safety stop waits for the hold to be written
 
@@ -157,7 +159,7 @@ def limit_params(max_speed: Param, max_angular_speed: Param, reach: float) -> di
     }
 
 
-def robot_state(header, actual, status: str) -> RobotState:
+def robot_state(header: Header, actual: Sequence[float], status: str) -> RobotState:
     """The published state of an actual pose and twist (x y z, qx qy qz qw, vx vy vz, wx wy wz)."""
     a = actual
     return RobotState(
@@ -217,7 +219,7 @@ class RobotDriver(Node):
         self._path_error = 0.0  # m: the largest distance of the actual pose from the command while moving
         self._device_gap = 0.0  # s: the link's longest gap, kept at close
 
-    def _connect_claimed(self, lock, connect) -> None:
+    def _connect_claimed(self, lock: DeviceLock, connect: Callable[[], object]) -> None:
         """Keep `lock`, this graph's claim of the device, while connect() runs; let go if it fails."""
         self._lock = lock
         try:
@@ -342,7 +344,7 @@ class RobotDriver(Node):
         self._last_step_at = now
         return now
 
-    def _check_inputs(self, inputs, t: float) -> bool:
+    def _check_inputs(self, inputs: dict[str, Any], t: float) -> bool:
         """The e-stop and the F/T input; True if the F/T data are fresh enough to move."""
         if self._first_t is None:
             self._first_t = t
@@ -461,7 +463,7 @@ class RobotDriver(Node):
                     f"orientation first)",
                 )
 
-    def _check_unit(self, what: str, q) -> None:
+    def _check_unit(self, what: str, q: Quat) -> None:
         """A quaternion that is not unit is no rotation: what it would command is undefined."""
         n = quat_norm(q)
         if abs(n - 1.0) > UNIT_TOLERANCE:
@@ -473,7 +475,7 @@ class RobotDriver(Node):
                 f"within {UNIT_TOLERANCE:g}",
             )
 
-    def _check_tilt(self, what: str, q) -> None:
+    def _check_tilt(self, what: str, q: Quat) -> None:
         """Orientation workspace: the angle of the rotation from the orientation at start."""
         tilt = angle_between(self._start_q, q)
         if self.p.max_tilt and tilt > self.p.max_tilt:
@@ -532,7 +534,7 @@ class RobotDriver(Node):
                 f"{rate:.3f} rad/s > {p.max_actual_angular_speed:g} rad/s",
             )
 
-    def _trip(self, limit: str, value, text: str) -> None:
+    def _trip(self, limit: str, value: float | str | None, text: str) -> None:
         line = f"safety stop: {text}"
         held = self.link.connected and self.link.hold(HOLD_CONFIRM_TIMEOUT)
         if not held:
@@ -544,5 +546,5 @@ class RobotDriver(Node):
         raise self.tripped
 
 
-def _position(values) -> str:
+def _position(values: Sequence[float]) -> str:
     return f"x {values[0]:.4f} y {values[1]:.4f} z {values[2]:.4f} m"

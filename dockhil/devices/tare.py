@@ -60,7 +60,7 @@ def measure(samples: Sequence[tuple[Sequence[float], Sequence[float]]]) -> Bias:
 
     def mean_and_spread(which: int) -> tuple[Vec, float]:
         axes = [[s[which][i] for s in samples] for i in range(3)]
-        mean = tuple(sum(a) / n for a in axes)
+        mean: Vec = (sum(axes[0]) / n, sum(axes[1]) / n, sum(axes[2]) / n)
         spread = max(math.sqrt(sum((x - m) ** 2 for x in a) / n) for a, m in zip(axes, mean))
         return mean, spread
 
@@ -72,6 +72,7 @@ def measure(samples: Sequence[tuple[Sequence[float], Sequence[float]]]) -> Bias:
 def refusal(bias: Bias, limits: TareLimits) -> str | None:
     """Why this tare must not be taken (one clause, with what to do), or None."""
     f, t = norm(bias.force), norm(bias.torque)
+    what: str | None
     if limits.max_bias and f > limits.max_bias:
         what = f"bias force |F| = {f:.1f} N > max_bias {limits.max_bias:g} N"
     elif limits.max_bias_torque and t > limits.max_bias_torque:
@@ -137,6 +138,7 @@ def mismatch(start: Bias, given: Bias, limits: TareLimits) -> str | None:
     dt = [a - b for a, b in zip(start.torque, given.torque)]
     worst_f = max(range(3), key=lambda i: abs(df[i]))
     worst_t = max(range(3), key=lambda i: abs(dt[i]))
+    what: str | None
     if limits.max_bias and norm(df) > limits.max_bias:
         what = f"|F - bias| = {norm(df):.1f} N > max_bias {limits.max_bias:g} N"
     elif limits.max_bias_torque and norm(dt) > limits.max_bias_torque:
@@ -232,11 +234,11 @@ class TareStore:
         os.replace(tmp, self.path)
 
 
-def _vec(v) -> Vec:
+def _vec(v: Sequence[float]) -> Vec:
     x = tuple(float(a) for a in v)
     if len(x) != 3 or not all(math.isfinite(a) for a in x):
         raise ValueError(v)
-    return x  # type: ignore[return-value]
+    return x[0], x[1], x[2]
 
 
 def graph_store(node: str) -> TareStore | None:

@@ -15,6 +15,8 @@ from __future__ import annotations
 import socket
 import threading
 import time
+from collections.abc import Callable
+from typing import cast
 
 from dockhil.runtime import ownership, realtime
 from dockhil.devices.ft_base import FtDriver, Raw, problems_line, tare_params
@@ -30,7 +32,7 @@ class _Receiver:
     """Reads the box's socket in a thread: a running sum of the usable records and the counts of
     everything else."""
 
-    def __init__(self, sock: socket.socket, box: tuple[str, int], say=print):
+    def __init__(self, sock: socket.socket, box: tuple[str, int], say: Callable[[str], object] = print) -> None:
         self.sock, self.box, self.say = sock, box, say
         self.lock = threading.Lock()
         self.seq = rdt.SequenceCheck()
@@ -41,8 +43,8 @@ class _Receiver:
         self.repeated = 0
         self.bad = 0  # short or oversized datagrams from the box
         self.foreign = 0
-        self.foreign_from = None
-        self._last_ft = None
+        self.foreign_from: tuple[str, int] | None = None  # the first other sender
+        self._last_ft: int | None = None
         self.collected: list[tuple[int, ...]] | None = None  # while taring: each usable record's counts
         self._collect = 0
         self._run = True
@@ -157,12 +159,12 @@ class FtNetFtDriver(FtDriver):
             address = socket.getaddrinfo(p.host, p.port, socket.AF_INET, socket.SOCK_DGRAM)[0][4][0]
         except (OSError, IndexError) as exc:
             raise DeviceError(f"{self.device}: cannot resolve {p.host!r}: {exc}") from None
-        self.box = (address, p.port)
+        self.box = (str(address), p.port)  # an IPv4 address is a str
         self.ticks = self.ticks_with_data = self.averaged = self.most_per_tick = 0
         self._foreign_logged = False
-        self.receiver = None
-        self.sock = None
-        self._claim = ownership.claim_for_graph(f"netft-{address}-{p.port}", self.device)
+        self.receiver: _Receiver | None = None
+        self.sock: socket.socket | None = None
+        self._claim: ownership.DeviceLock | None = ownership.claim_for_graph(f"netft-{address}-{p.port}", self.device)
         try:
             self.calibration = self._calibration()
             self.force_scale = self.calibration.newtons_per_count
@@ -217,7 +219,7 @@ class FtNetFtDriver(FtDriver):
 
     def _send(self, command: int) -> None:
         try:
-            self.sock.sendto(rdt.encode_request(command), self.box)
+            self.sock.sendto(rdt.encode_request(command), self.box)  # type: ignore[union-attr]  # open: _open made it
         except OSError as exc:
             raise DeviceError(
                 f"{self.device}: cannot send the {rdt.COMMANDS[command]} request: {exc.strerror or exc}"
@@ -225,7 +227,7 @@ class FtNetFtDriver(FtDriver):
 
     def _first_samples(self, want: int) -> list[Raw]:
         """Wait for the stream; the first `want` usable records as (force, torque) (at least one must come)."""
-        p, receiver = self.p, self.receiver
+        p, receiver = self.p, cast(_Receiver, self.receiver)  # open: _open made it
         want = max(1, want)
         receiver.collect(want)
         deadline, asked, streaming = time.monotonic() + p.open_timeout, 0.0, False
@@ -235,7 +237,7 @@ class FtNetFtDriver(FtDriver):
                 self._send(rdt.CMD_START)
                 asked = now
             with receiver.lock:
-                n, fault = len(receiver.collected), receiver.fault
+                n, fault = len(receiver.collected), receiver.fault  # type: ignore[arg-type]  # collect() made it a list
             self._refuse_fault(fault)
             if n >= want:
                 break
@@ -254,13 +256,16 @@ class FtNetFtDriver(FtDriver):
             records, receiver.collected = receiver.collected, None
         receiver.take()  # the graph's ticks start from here
         fs, ts = self.force_scale, self.torque_scale
-        return [(tuple(c[i] * fs for i in range(3)), tuple(c[3 + i] * ts for i in range(3))) for c in records]
+        return [
+            (tuple(c[i] * fs for i in range(3)), tuple(c[3 + i] * ts for i in range(3)))
+            for c in records  # type: ignore[union-attr]  # collect() made it a list
+        ]
 
     def _foreign_note(self) -> str:
         r = self.receiver
         if r is None or not r.foreign:
             return ""
-        host, port = r.foreign_from
+        host, port = r.foreign_from  # type: ignore[misc]  # set with the first foreign datagram
         return f" ({r.foreign} datagrams came from {host}:{port} instead: is that the box, on another address or port?)"
 
     def _refuse_fault(self, fault: rdt.Record | None) -> None:
@@ -273,12 +278,12 @@ class FtNetFtDriver(FtDriver):
             )
 
     def _read(self) -> Raw | None:
-        r = self.receiver
+        r = cast(_Receiver, self.receiver)  # open: _open made it
         n, sums, fault = r.take()
         self._refuse_fault(fault)
         if r.foreign and not self._foreign_logged:
             self._foreign_logged = True
-            host, port = r.foreign_from
+            host, port = r.foreign_from  # type: ignore[misc]  # set with the first foreign datagram
             self.log(
                 f"warning: {self.device}: ignoring datagrams from {host}:{port}, not the box "
                 f"(counted; another device sends to this driver's port)"
@@ -296,7 +301,7 @@ class FtNetFtDriver(FtDriver):
         return getattr(self, "_claim", None) is not None
 
     def counters(self) -> dict[str, int]:
-        r = self.receiver
+        r = cast(_Receiver, self.receiver)  # open: _open made it
         with r.lock:
             return {
                 "records": r.records,
@@ -320,8 +325,9 @@ class FtNetFtDriver(FtDriver):
         if self.sock is not None:
             self.sock.close()
             self.sock = None
-        if getattr(self, "_claim", None) is not None:
-            self._claim.release()
+        claim = getattr(self, "_claim", None)
+        if claim is not None:
+            claim.release()
             self._claim = None
 
     def _report(self) -> list[str]:

@@ -33,6 +33,7 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Sequence
 
 from dockhil.devices.ati_netft import protocol as rdt
 
@@ -51,7 +52,7 @@ class ContactModel:
         self._passive = passive_force
         self.k, self.b, self.bias, self.noise, self.torque_noise = k, b, bias, noise, torque_noise
         self.rng = random.Random(seed)
-        self.x = None  # probe position [m] (x > 0: penetration); None: no pose yet
+        self.x: float | None = None  # probe position [m] (x > 0: penetration); None: no pose yet
         self.v = 0.0
 
     def set_pose(self, x: float | None, v: float = 0.0) -> None:
@@ -69,7 +70,7 @@ class ContactModel:
             gauss(0.0, sd) if sd else 0.0,
             gauss(0.0, sd) if sd else 0.0,
         )
-        torque = tuple(gauss(0.0, td) if td else 0.0 for _ in range(3))
+        torque = (gauss(0.0, td) if td else 0.0, gauss(0.0, td) if td else 0.0, gauss(0.0, td) if td else 0.0)
         return force, torque
 
 
@@ -113,13 +114,15 @@ class NetFtBox:
         self.fault_after, self.fault_status, self.maxima_path = fault_after, fault_status, maxima
         self.rng = random.Random(seed + 1)  # apart from the noise's generator: faults do not change the noise
         self._lock = threading.Lock()
-        self._client = None  # (address, port) of the latest start request
+        self._client: tuple[str, int] | None = None  # (address, port) of the latest start request
         self._remaining = 0  # records left of a counted request (0: until stopped)
         self._stream_t0 = 0.0
         self._seq = 0
         self._next_due = 0.0
         self._bias_counts = (0,) * 6
-        self._held = None  # a record held back to be sent after the next (reordering)
+        self._held: tuple[bytes, tuple[str, int] | None] | None = (
+            None  # a record held back to be sent after the next (reordering)
+        )
         self._later: list = []  # heap of (send time, rdt_sequence, late?, datagram, address)
         self._sent_seq = 0  # the newest rdt_sequence sent in this stream
         self._lost_tail = 0  # records lost since the last one that went out
@@ -259,7 +262,7 @@ class NetFtBox:
                 self._request(data, address)
             self._send_due(time.monotonic())
 
-    def _request(self, data: bytes, address) -> None:
+    def _request(self, data: bytes, address: tuple[str, int]) -> None:
         try:
             command, count = rdt.decode_request(data)
         except rdt.RdtError:
@@ -286,7 +289,7 @@ class NetFtBox:
             else:
                 self.counts["bad_requests"] += 1
 
-    def _raw_counts(self, force, torque) -> tuple[tuple, bool]:
+    def _raw_counts(self, force: Sequence[float], torque: Sequence[float]) -> tuple[tuple, bool]:
         c = self.calibration
         scaled = [f / c.newtons_per_count for f in force] + [t / c.newton_metres_per_count for t in torque]
         counts, saturated = [], False

@@ -8,9 +8,11 @@ same graph claims it too), so another graph's driver cannot read this graph's co
 
 from __future__ import annotations
 
+from typing import Any
+
 from dockhil.errors import DeviceError
 from dockhil.devices.ati_netft import protocol as rdt
-from dockhil.node import Input, Node, Param
+from dockhil.node import Input, Node, Param, Tick
 from dockhil.msgs import RobotState
 
 
@@ -73,7 +75,7 @@ class NetFtEmulator(Node):
 
         p = self.p
         self.model = ContactModel(p.k, p.b, p.bias, p.noise, p.torque_noise, p.seed)
-        self.box = NetFtBox(
+        self.box: NetFtBox | None = NetFtBox(
             self.model,
             p.host,
             p.port,
@@ -113,7 +115,7 @@ class NetFtEmulator(Node):
             f"http://{p.host}:{self.box.http_port}, {p.rate:g} records/s"
         )
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         state = inputs.get("state")
         if state is not None:
             self.model.set_pose(state.pose.position.x, state.twist.linear.x)

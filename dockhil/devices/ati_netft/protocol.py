@@ -26,7 +26,9 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 RDT_PORT = 49152
 HEADER = 0x1234
@@ -123,7 +125,7 @@ def decode_request(data: bytes) -> tuple[int, int]:
     return command, count
 
 
-def encode_record(rdt_sequence: int, ft_sequence: int, status: int, counts) -> bytes:
+def encode_record(rdt_sequence: int, ft_sequence: int, status: int, counts: Sequence[int]) -> bytes:
     return RECORD.pack(rdt_sequence % SEQ_MOD, ft_sequence % SEQ_MOD, status, *counts)
 
 
@@ -241,7 +243,7 @@ def calibration_from(fields: dict[str, str], override: dict | None = None) -> Ca
     """The Calibration of a parsed netftapi2.xml, each of its four values replaced by `override`'s
     where that gives one (counts_per_force, counts_per_torque, force_unit, torque_unit)."""
     override = {k: v for k, v in (override or {}).items() if v}
-    values = {}
+    values: dict[str, Any] = {}  # the calibration's floats and unit names
     for name, tag in (("counts_per_force", "cfgcpf"), ("counts_per_torque", "cfgcpt")):
         if name in override:
             values[name] = float(override[name])

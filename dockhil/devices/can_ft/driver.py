@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import time
+from typing import TYPE_CHECKING
 
 from dockhil.runtime import ownership
 from dockhil.devices.ft_base import FtDriver, Raw, problems_line, tare_params
@@ -24,6 +25,9 @@ from dockhil.devices import tare
 from dockhil.devices.device_path import private_link, untrusted
 from dockhil.devices.can_ft.slcan_reader import SlcanReader
 from dockhil.node import Param
+
+if TYPE_CHECKING:
+    import can
 
 # A step reads at most this many frames, so a flooded bus cannot stall the loop.
 MAX_FRAMES_PER_STEP = 512
@@ -109,7 +113,9 @@ class FtCanDriver(FtDriver):
         self._last_seq: int | None = None
         self._bad_logged = 0
         channel = os.path.abspath(p.channel) if p.interface == "slcan" else p.channel
-        self._lock = ownership.claim(f"can-{p.interface}-{channel}", f"F/T adapter ({p.interface} {p.channel})")
+        self._lock: ownership.DeviceLock | None = ownership.claim(
+            f"can-{p.interface}-{channel}", f"F/T adapter ({p.interface} {p.channel})"
+        )
         # The bus itself is this graph's while the driver reads it: another graph's emulator would
         # stream frames with the sensor's IDs (a serial slcan adapter is a point-to-point link: its
         # path is the claim above).
@@ -123,20 +129,25 @@ class FtCanDriver(FtDriver):
                 self._lock.release()
                 raise
         try:
-            self.bus = self._open_bus(time.monotonic() + p.open_timeout)
+            self.bus: can.BusABC | None = self._open_bus(time.monotonic() + p.open_timeout)
             # python-can's slcan reads a byte per system call; the adapter's port is read in bulk.
-            self.slcan = SlcanReader(self.bus.serialPortOrig) if p.interface == "slcan" else None
+            self.slcan = (
+                SlcanReader(self.bus.serialPortOrig)  # type: ignore[attr-defined]  # slcan's bus has it
+                if p.interface == "slcan"
+                else None
+            )
             self.recv = self.slcan.recv if self.slcan is not None else self.bus.recv
         except BaseException:
             self._shutdown()
             raise
 
     def _release_claims(self) -> None:
-        self._lock.release()
+        if self._lock is not None:
+            self._lock.release()
         if self._bus_claim is not None:
             self._bus_claim.release()
 
-    def _open_bus(self, deadline: float):
+    def _open_bus(self, deadline: float) -> can.BusABC:
         can, p = self._can, self.p
         kwargs = {}
         if p.interface == "slcan":
@@ -168,7 +179,7 @@ class FtCanDriver(FtDriver):
                 raise
             return bus
 
-    def _on_loopback(self, bus) -> None:
+    def _on_loopback(self, bus: can.BusABC) -> None:
         try:
             can_multicast.on_loopback(bus, self.p.channel)
         except OSError as exc:

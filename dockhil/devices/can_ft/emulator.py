@@ -13,10 +13,11 @@ from __future__ import annotations
 import json
 import math
 import random
+from typing import Any
 
 from dockhil.errors import DeviceError
 from dockhil.devices.can_ft import frames as ff
-from dockhil.node import Input, Node, Param
+from dockhil.node import Input, Node, Param, Tick
 from dockhil.msgs import RobotState
 
 
@@ -154,7 +155,7 @@ class FtSensorEmulator(Node):
         p = self.p
         depth = state.pose.position.x - p.surface if state is not None else 0.0
         fx = 0.0
-        if depth > 0.0:  # unilateral: the sheet pushes, never pulls
+        if depth > 0.0 and state is not None:  # unilateral: the sheet pushes, never pulls
             fx = min(-p.k * depth - p.b * state.twist.linear.x, 0.0)
             self.max_penetration = max(self.max_penetration, depth)
         force = (fx + p.bias + self._noise(p.noise), p.bias_y + self._noise(p.noise), p.bias_z + self._noise(p.noise))
@@ -169,7 +170,7 @@ class FtSensorEmulator(Node):
     def _noise(self, sd: float) -> float:
         return self.rng.gauss(0.0, sd) if sd else 0.0
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         force, torque = self.wrench(inputs.get("state"))
         frames = ff.encode_sample(force, torque, self.seq, self.scaling, self.p.can_id)
         self.seq = (self.seq + 1) & 0xFF
@@ -180,7 +181,9 @@ class FtSensorEmulator(Node):
         else:
             for arbitration_id, data in frames:
                 try:
-                    self._can_bus.send(self._message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
+                    self._can_bus.send(  # type: ignore[union-attr]  # open whenever the pty bus is not
+                        self._message(arbitration_id=arbitration_id, data=data, is_extended_id=False)
+                    )
                 except Exception:  # nobody acknowledging on a real bus; a sensor keeps streaming
                     pass
         self.sent += 1

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 DEFAULT_BASE_ID = 0x1A0
@@ -117,7 +118,7 @@ def check_base_id(base_id: int) -> int:
     return base_id
 
 
-def to_counts(values, resolution: float) -> tuple[tuple[int, int, int], bool]:
+def to_counts(values: Sequence[float], resolution: float) -> tuple[tuple[int, int, int], bool]:
     """Counts for three physical values, clipped to int16; True if any was clipped."""
     counts = []
     clipped = False
@@ -133,8 +134,8 @@ def to_counts(values, resolution: float) -> tuple[tuple[int, int, int], bool]:
 
 
 def encode_sample(
-    force,
-    torque,
+    force: Sequence[float],
+    torque: Sequence[float],
     seq: int,
     scaling: FtScaling = FtScaling(),
     base_id: int = DEFAULT_BASE_ID,
@@ -160,7 +161,7 @@ def encode_sample(
 
 def decode_frame(
     arbitration_id: int,
-    data: bytes,
+    data: bytes | bytearray,
     base_id: int = DEFAULT_BASE_ID,
     scaling: FtScaling = FtScaling(),
     *,

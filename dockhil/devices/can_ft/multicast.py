@@ -17,12 +17,16 @@ import errno
 import os
 import socket
 import struct
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import can
 
 LOOPBACK = "127.0.0.1"
 IP_MULTICAST_ALL = getattr(socket, "IP_MULTICAST_ALL", 49)  # Linux; Python 3.11's socket lacks the name
 
 
-def on_loopback(bus, group: str) -> None:
+def on_loopback(bus: can.BusABC, group: str) -> None:
     """Restrict an open udp_multicast `bus` on IPv4 `group` to that group on loopback (OSError if refused)."""
     sock = socket.socket(fileno=os.dup(bus.fileno()))  # the same socket: options set here are the bus's
     try:

@@ -35,6 +35,7 @@ import signal
 import sys
 import threading
 import tty
+from collections.abc import Callable
 from dataclasses import dataclass
 
 OK = b"\r"
@@ -299,7 +300,9 @@ class SlcanPort:
 class PtyCanBus:
     """Several SlcanPorts joined into one CAN bus, served by `serve()` or a thread."""
 
-    def __init__(self, links: list[str | None], on_frame=None):
+    def __init__(
+        self, links: list[str | None], on_frame: Callable[[SlcanPort, CanFrame], object] | None = None
+    ) -> None:
         self.ports: list[SlcanPort] = []
         try:
             for link in links:
@@ -324,7 +327,7 @@ class PtyCanBus:
                 for key, events in sel.select(timeout=0.05):
                     if key.data is None:
                         return
-                    port: SlcanPort = key.data
+                    port = key.data
                     if events & selectors.EVENT_READ:
                         for frame in port.read_host():
                             self.frames += 1

@@ -14,7 +14,7 @@ is counted in `malformed` and dropped.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 # A line longer than the longest frame (T + 8 + 1 + 16 + 4 timestamp digits) is no frame: the
 # buffer is cut there, so a port that streams garbage without a CR cannot grow it without bound.
@@ -62,7 +62,7 @@ class SlcanReader:
     """recv(timeout) as python-can's Bus.recv for a non-blocking poll (timeout is not waited: the
     port is read as it is), over the adapter's serial port (a pyserial object)."""
 
-    def __init__(self, port) -> None:
+    def __init__(self, port: Any) -> None:  # a pyserial port, or what reads as one
         self.port = port
         self.buffer = bytearray()
         self.frames: list[Frame] = []
@@ -88,7 +88,7 @@ class SlcanReader:
         rest = lines.pop()  # after the last CR: a line still arriving
         if len(rest) > MAX_LINE:
             self.malformed += 1
-            rest = b""
+            rest = bytearray()
         self.buffer = bytearray(rest)
         frames = []
         for line in lines:

@@ -50,12 +50,13 @@ Latency: the link lowers the process's switch interval while it runs;
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
-from dockhil.contact.rotations import IDENTITY, quat_conjugate, quat_multiply, rotate, rotate_back
+from dockhil.contact.rotations import IDENTITY, Quat, quat_conjugate, quat_multiply, rotate, rotate_back
 from dockhil.errors import DeviceError, LaunchError
 from dockhil.devices.kuka_rsi import protocol as rsi
 from dockhil.devices.robot_base import RobotDriver, limit_params
-from dockhil.devices.limits import command_values, non_finite
+from dockhil.devices.limits import PoseTwist, command_values, non_finite
 from dockhil.devices.kuka_rsi.link import RsiLink, open_socket
 from dockhil.msgs import Header, RobotCommand, RobotCycles
 from dockhil.node import Output, Param
@@ -71,18 +72,20 @@ class SceneFrame:
     """The scene's robot frame in the controller's BASE frame, the start pose (the first RIst), and the
     scene pose the robot had there (the first command: the robot was brought to the scene's start)."""
 
-    def __init__(self, abc, start):
+    def __init__(self, abc: Sequence[float], start: Sequence[float]) -> None:
         self.q_sb = rsi.abc_to_quat(*abc)  # scene axes -> BASE axes
         self.p0 = start[:3]  # mm
         self.q0 = rsi.abc_to_quat(*start[3:])
         self.anchor((0.0, 0.0, 0.0), IDENTITY)
 
-    def anchor(self, position, orientation) -> None:
+    def anchor(self, position: Sequence[float], orientation: Sequence[float]) -> None:
         """The scene pose (m, quaternion) of the robot at the start pose."""
         self.a_p = tuple(position)
         self.a_q = tuple(orientation)
 
-    def correction(self, position, orientation) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+    def correction(
+        self, position: Sequence[float], orientation: Quat
+    ) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
         """Scene pose (m, quaternion) -> correction from the start: (X Y Z mm, rotation quaternion) in BASE."""
         a = self.a_p
         d = rotate(self.q_sb, (position[0] - a[0], position[1] - a[1], position[2] - a[2]))
@@ -90,22 +93,26 @@ class SceneFrame:
         q = quat_multiply(quat_multiply(self.q_sb, turn), quat_conjugate(self.q_sb))
         return (d[0] * 1000.0, d[1] * 1000.0, d[2] * 1000.0), q
 
-    def velocity(self, linear, angular) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    def velocity(
+        self, linear: Sequence[float], angular: Sequence[float]
+    ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """Scene twist (m/s, rad/s) -> the correction's rate in BASE: (mm/s, rad/s about BASE axes)."""
         v = rotate(self.q_sb, linear)
         return (v[0] * 1000.0, v[1] * 1000.0, v[2] * 1000.0), tuple(rotate(self.q_sb, angular))
 
-    def scene_pose(self, rist) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+    def scene_pose(self, rist: Sequence[float]) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
         """RIst (mm, degrees in BASE) -> scene pose: (m, quaternion)."""
         return self._scene(rist[:3], rsi.abc_to_quat(*rist[3:]))
 
-    def scene_values(self, pose) -> tuple:
+    def scene_values(self, pose: Sequence[float]) -> tuple:
         """A pose in BASE as the link logs it, (x, y, z, qx, qy, qz, qw) in m, -> the same in the scene frame,
         as scene_pose."""
         position, q = self._scene((pose[0] * 1000.0, pose[1] * 1000.0, pose[2] * 1000.0), pose[3:7])
         return (*position, *q)
 
-    def _scene(self, mm, q_base) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+    def _scene(
+        self, mm: Sequence[float], q_base: Quat
+    ) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
         p0, a = self.p0, self.a_p
         d = rotate_back(self.q_sb, ((mm[0] - p0[0]) / 1000.0, (mm[1] - p0[1]) / 1000.0, (mm[2] - p0[2]) / 1000.0))
         turn = quat_multiply(q_base, quat_conjugate(self.q0))  # in BASE axes
@@ -236,10 +243,10 @@ class RobotRsiDriver(RobotDriver):
                 f"{1 / p.cycle:g} Hz: the robot takes every {ticks:.2f}th setpoint, unevenly (docs/time.md)"
             )
         self.device = f"robot controller (KUKA RSI {p.host} -> UDP port {p.port})"
-        self._anchored = None  # the first command: the scene pose of the start pose
+        self._anchored: PoseTwist | None = None  # the first command: the scene pose of the start pose
         self._seen = 0
         self._history: list[tuple[float, tuple, tuple]] = []
-        self._actual = None
+        self._actual: tuple[int, _Reading] | None = None
         # one graph per RSI port, refused in one line naming the owner
         self._connect_claimed(rsi.claim_port(p.port), self._open)
 
@@ -333,7 +340,7 @@ class RobotRsiDriver(RobotDriver):
         self._seen = latest[0]
         return self._reading(latest)
 
-    def _hand_over(self, values, stamp: float) -> None:
+    def _hand_over(self, values: PoseTwist | None, stamp: float) -> None:
         if values is None:
             self.link.submit(None, None)
             return
@@ -341,14 +348,14 @@ class RobotRsiDriver(RobotDriver):
         linear, angular = self.frame.velocity(values[7:10], values[10:13])
         self.link.submit(position, orientation, stamp, self.ctx.dt, linear, angular)
 
-    def _check_command_values(self, cmd) -> None:
+    def _check_command_values(self, cmd: RobotCommand) -> None:
         """The first command, which anchors the scene to the start pose, must be a pose."""
         bad = non_finite(("position", cmd.pose.position), ("orientation", cmd.pose.orientation))
         if bad:
             self._trip("non_finite", bad, f"non-finite setpoint: commanded {bad}")
         self._check_unit("commanded", command_values(cmd)[3:7])
 
-    def _reading(self, latest) -> _Reading:
+    def _reading(self, latest: tuple[int, rsi.RobFrame, float]) -> _Reading:
         """The latest RIst in the scene frame, with the twist over VELOCITY_WINDOW_S of receive times."""
         count, frame, t = latest
         if self._actual is not None and self._actual[0] == count:
@@ -373,7 +380,7 @@ class RobotRsiDriver(RobotDriver):
         self._actual = (count, reading)
         return reading
 
-    def _close_device(self, link: RsiLink) -> bool:
+    def _close_device(self, link: RsiLink) -> bool:  # type: ignore[override]  # the link it opened
         received = link.received
         link.delay_at_close = link.delay  # what comes late from here on does not move the robot: it holds
         # Hold: the answers keep the last correction until the controller has one of them, then stop.

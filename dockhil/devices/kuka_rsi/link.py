@@ -40,6 +40,7 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Callable, Iterable, Sequence
 
 from dockhil.contact.rotations import IDENTITY, quat_conjugate, quat_multiply
 from dockhil.errors import DeviceError
@@ -72,7 +73,7 @@ KINDS = {
 }
 
 
-def _finite(values) -> bool:
+def _finite(values: Iterable[float]) -> bool:
     for v in values:
         if not math.isfinite(v):
             return False
@@ -102,17 +103,17 @@ class RsiLink(threading.Thread):
 
     def __init__(
         self,
-        sock,
+        sock: socket.socket,
         controller: str,
         cycle: float,
         max_speed: float,
         max_angular_speed: float,
         stale_after: float,
         sentype: str = "ImFree",
-        clock=time.monotonic,
+        clock: Callable[[], float] = time.monotonic,
         realtime: bool = False,
         describe: str = "RSI link",
-    ):
+    ) -> None:
         super().__init__(name="robot-rsi-link", daemon=True)
         self.sock = sock
         self.controller = controller
@@ -167,11 +168,17 @@ class RsiLink(threading.Thread):
 
     # -- from the node thread ------------------------------------------------------
     def submit(
-        self, position_mm, orientation, stamp: float | None = None, tick: float = 0.0, linear=ZERO, angular=ZERO
+        self,
+        position_mm: tuple[float, ...] | None,
+        orientation: tuple[float, ...] | None,
+        stamp: float | None = None,
+        tick: float = 0.0,
+        linear: Sequence[float] = ZERO,
+        angular: Sequence[float] = ZERO,
     ) -> None:
         """Move the correction toward this (None: hold where it is); with the command's `stamp`, each cycle
         toward the pose for its own time, up to `tick` ahead along the velocity (mm/s, rad/s in BASE)."""
-        if position_mm is None:
+        if position_mm is None or orientation is None:  # given together, or neither (hold)
             self.target = None
             return
         now = self.clock()
@@ -223,7 +230,7 @@ class RsiLink(threading.Thread):
         if self.missing:
             lines.append(
                 f"warning: {device}: {self.missing} controller datagrams never came (gaps in the IPOC "
-                f"between {self.first.ipoc} and {self.last_ipoc})"
+                f"between {self.first.ipoc} and {self.last_ipoc})"  # type: ignore[union-attr]  # a gap follows a first
             )
         if self.stale_holds:
             lines.append(f"warning: {device}: held on a stale setpoint for {self.stale_holds} cycles")
@@ -361,7 +368,7 @@ class RsiLink(threading.Thread):
                 pending[2], pending[3] = self._in_force, False
             self.cycles.add(*pending)
         if self._in_force is None:  # no correction yet: the start pose
-            r = self.first.rist
+            r = self.first.rist  # type: ignore[union-attr]  # an exchange logged follows a first datagram
             self._start = (r[0], r[1], r[2]), rsi.abc_to_quat(*r[3:])
             self._in_force = (r[0] / 1000.0, r[1] / 1000.0, r[2] / 1000.0, *self._start[1])
         p0, q0 = self._start
@@ -376,7 +383,7 @@ class RsiLink(threading.Thread):
         cycle = (frame.ipoc // self.cycle_ms) & 0xFFFF
         self._pending = [read if sent is None else sent, read, setpoint, sent is not None, actual, cycle, False]
 
-    def _advance(self, now: float, cycle_at: float | None = None):
+    def _advance(self, now: float, cycle_at: float | None = None) -> tuple[float, ...]:
         """The correction for this cycle (X Y Z A B C): one bounded step toward the latest setpoint, within one
         cycle's travel of every correction the controller may hold."""
         may_hold = self._may_hold()
@@ -438,7 +445,7 @@ class RsiLink(threading.Thread):
             return self.max_step_mm
         return max(CATCH_UP * speed * self.cycle, CATCH_UP_FLOOR * self.max_step_mm)
 
-    def _within(self, kp, kq, may_hold) -> bool:
+    def _within(self, kp: Sequence[float] | None, kq: Sequence[float] | None, may_hold: list[tuple]) -> bool:
         """Whether the answer's position kp or orientation kq (None: not judged) is within one cycle's travel
         of all the controller may hold (of an RSol not one of our answers, by its rounding less)."""
         for i, (cp, cq) in enumerate(may_hold):

@@ -36,7 +36,11 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
-from typing import NamedTuple
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, NamedTuple
+
+if TYPE_CHECKING:
+    from dockhil.runtime.ownership import DeviceLock
 
 MAX_DATAGRAM = 4096  # bytes: a controller's datagram with every configured element is about 1 KB
 MAX_DIGITS = 19  # an IPOC or a count has at most this many digits (a 64-bit counter): longer, no controller sent it
@@ -72,7 +76,7 @@ def _screen(data: bytes) -> None:
         raise RsiError("datagram carries a processing instruction: refused unparsed")
 
 
-def _pose(element, tag: str) -> tuple[float, float, float, float, float, float]:
+def _pose(element: ET.Element, tag: str) -> tuple[float, float, float, float, float, float]:
     out = []
     for name in CARTESIAN:
         text = element.get(name)
@@ -100,7 +104,7 @@ def _count(text: str | None, what: str) -> int:
     return int(text)
 
 
-def _root(data: bytes, tag: str):
+def _root(data: bytes, tag: str) -> ET.Element:
     """The parsed datagram, whose root element must be `tag`."""
     _screen(data)
     try:
@@ -112,7 +116,7 @@ def _root(data: bytes, tag: str):
     return root
 
 
-def _element(root, tag: str, hint: str = ""):
+def _element(root: ET.Element, tag: str, hint: str = "") -> ET.Element:
     element = root.find(tag)
     if element is None:
         raise RsiError(f"no {tag} element{hint}")
@@ -156,12 +160,18 @@ class SenWriter:
             f'A="%.4f" B="%.4f" C="%.4f"/><IPOC>%d</IPOC></Sen>'
         ).encode()
 
-    def __call__(self, korr, ipoc: int) -> bytes:
+    def __call__(self, korr: Sequence[float], ipoc: int) -> bytes:
         """The answer carrying correction `korr` (X Y Z mm, A B C degrees, all finite) for cycle `ipoc`."""
         return self._template % (*korr, ipoc)
 
 
-def build_rob(ipoc: int, rist, rsol=None, delay: int | None = None, rob_type: str = "KUKA") -> bytes:
+def build_rob(
+    ipoc: int,
+    rist: Sequence[float],
+    rsol: Sequence[float] | None = None,
+    delay: int | None = None,
+    rob_type: str = "KUKA",
+) -> bytes:
     """A controller's datagram (the emulator's side)."""
     parts = [f'<Rob Type="{_check_type(rob_type)}">', _pose_text("RIst", rist)]
     if rsol is not None:
@@ -172,7 +182,7 @@ def build_rob(ipoc: int, rist, rsol=None, delay: int | None = None, rob_type: st
     return "".join(parts).encode()
 
 
-def _pose_text(tag: str, pose) -> str:
+def _pose_text(tag: str, pose: Sequence[float]) -> str:
     return f"<{tag} " + " ".join(f'{n}="{v:.4f}"' for n, v in zip(CARTESIAN, pose)) + "/>"
 
 
@@ -191,7 +201,7 @@ def abc_to_quat(a: float, b: float, c: float) -> tuple[float, float, float, floa
     )
 
 
-def quat_to_abc(q) -> tuple[float, float, float]:
+def quat_to_abc(q: Sequence[float]) -> tuple[float, float, float]:
     """KUKA angles A B C [degrees] of a unit quaternion (x, y, z, w); A and C in (-180, 180],
     B in [-90, 90]. At B = +-90 (gimbal lock) only A - C (B = 90) or A + C (B = -90) is defined:
     C is 0 there."""
@@ -214,7 +224,7 @@ def quat_to_abc(q) -> tuple[float, float, float]:
     return math.degrees(a), math.degrees(b), math.degrees(c)
 
 
-def claim_port(port: int):
+def claim_port(port: int) -> DeviceLock:
     """Claim the RSI port for this graph: its driver and its emulator may share it, another graph may not
     (its driver would answer our controller's datagrams, its emulator would send ours its own)."""
     from dockhil.runtime import ownership

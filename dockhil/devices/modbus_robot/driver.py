@@ -141,7 +141,7 @@ class RobotModbusDriver(RobotDriver):
         self.device = f"robot controller (Modbus TCP {p.host}:{p.port})"
         self._seen_readings = 0
         self._reconnects_seen = 0
-        self._status_word = None
+        self._status_word: int | None = None
         self.heartbeat_losses = 0
         # One graph per controller: this host first (a lock file naming the owner), then the controller's
         # owner registers, read before anything is written.
@@ -214,7 +214,7 @@ class RobotModbusDriver(RobotDriver):
         self._seen_readings = count
         return reading
 
-    def _status(self, reading: mm.ControllerReading) -> str:
+    def _status(self, reading: mm.ControllerReading) -> str:  # type: ignore[override]  # its link's readings
         if reading.status != self._status_word:
             self._status_changed(reading.status)
         return mm.describe_status(reading.status)
@@ -243,7 +243,7 @@ class RobotModbusDriver(RobotDriver):
                     f"warning: {self.device}: controller lost our heartbeat and holds; resuming on the next command"
                 )
 
-    def _close_device(self, link: ModbusLink) -> bool:
+    def _close_device(self, link: ModbusLink) -> bool:  # type: ignore[override]  # the link it opened
         held = link.connected and link.hold(HOLD_CONFIRM_TIMEOUT)
         link.stop()
         for line in link.take_notes():

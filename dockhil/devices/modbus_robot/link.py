@@ -16,11 +16,19 @@ import math
 import socket
 import threading
 import time
+from collections.abc import Callable
+from types import SimpleNamespace
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 from dockhil.devices.modbus_robot import registers as mm
 from dockhil.devices.cycle_log import CycleLog
 from dockhil.devices.handover import Handover
 from dockhil.devices.limits import angle_between, toward_within, turn_within
+
+if TYPE_CHECKING:
+    from pymodbus.client import ModbusTcpClient
+
+    Client: TypeAlias = "ModbusTcpClient | NoDelayClient"  # the pymodbus client, or it with TCP_NODELAY kept
 
 MAX_UNCONFIRMED = 64  # setpoints written that the controller has not echoed yet, kept as ones it may take
 
@@ -123,14 +131,14 @@ class ModbusLink(threading.Thread):
 
     def __init__(
         self,
-        client,
+        client: Client,
         describe: str,
-        p,
-        probe,
+        p: SimpleNamespace,
+        probe: Callable[[], str],
         claim: list[int] | None = None,
-        clock=time.monotonic,
+        clock: Callable[[], float] = time.monotonic,
         reading: mm.ControllerReading | None = None,
-    ):
+    ) -> None:
         super().__init__(name="robot-modbus-link", daemon=True)
         self.clock = clock
         self.client = client
@@ -237,7 +245,9 @@ class ModbusLink(threading.Thread):
             target, fresh, self.fresh = self.target, self.fresh, False
             hold = self.hold_latched
             timed = self.handover.pose(self.clock()) if target is not None else None
-        if timed is not None:  # the pose for this cycle's time: written every cycle while it moves
+        if (
+            timed is not None and target is not None
+        ):  # the pose for this cycle's time: written every cycle while it moves
             target, fresh = (*timed[0], *timed[1], *target[7:]), True
             self.lag = None  # until this cycle has sent toward the target
         try:
@@ -277,7 +287,8 @@ class ModbusLink(threading.Thread):
                 self.hold_written.set()
         elif fresh or limiter.lag(target) not in (None, (0.0, 0.0)):
             before = limiter.sent
-            setpoint = limiter.next(target, reading.actual, dt, now)
+            # read on connect (verify_and_hold's reading) before any cycle writes
+            setpoint = limiter.next(target, reading.actual, dt, now)  # type: ignore[union-attr]
             if before is not None:
                 step = math.sqrt(sum((b - a) ** 2 for a, b in zip(before[:3], setpoint[:3])))
                 self.largest_step = max(self.largest_step, step)
@@ -374,7 +385,7 @@ class ModbusLink(threading.Thread):
         return True
 
 
-def read_owner(client, device_id: int) -> tuple[int, str]:
+def read_owner(client: Client, device_id: int) -> tuple[int, str]:
     rr = client.read_input_registers(mm.IR_OWNER, count=mm.IR_OWNER_COUNT, device_id=device_id)
     if rr.isError():
         raise mm.RegisterError(
@@ -384,7 +395,7 @@ def read_owner(client, device_id: int) -> tuple[int, str]:
     return mm.decode_owner(rr.registers)
 
 
-def claim_controller(client, device_id: int, claim: list[int]) -> None:
+def claim_controller(client: Client, device_id: int, claim: list[int]) -> None:
     """Claim the controller for our session; RegisterError naming the owner if another host has it."""
     ours = mm.decode_owner(claim)[0]
     session, name = read_owner(client, device_id)
@@ -403,7 +414,9 @@ def _owned(session: int, name: str) -> str:
     )
 
 
-def verify_and_hold(client, device_id: int, heartbeat: int, claim: list[int] | None = None) -> mm.ControllerReading:
+def verify_and_hold(
+    client: Client, device_id: int, heartbeat: int, claim: list[int] | None = None
+) -> mm.ControllerReading:
     """Check the device speaks this register map, claim it if asked, then hold the robot where it is."""
     rr = client.read_input_registers(0, count=mm.IR_COUNT, device_id=device_id)
     if rr.isError():
@@ -421,7 +434,7 @@ def verify_and_hold(client, device_id: int, heartbeat: int, claim: list[int] | N
 class NoDelayClient:
     """The pymodbus client, with TCP_NODELAY set again after every reconnect."""
 
-    def __init__(self, client):
+    def __init__(self, client: ModbusTcpClient) -> None:
         self._client = client
 
     def connect(self) -> bool:
@@ -430,11 +443,11 @@ class NoDelayClient:
             set_nodelay(self._client)
         return ok
 
-    def __getattr__(self, name):
+    def __getattr__(self, name: str) -> Any:
         return getattr(self._client, name)
 
 
-def set_nodelay(client) -> None:
+def set_nodelay(client: ModbusTcpClient) -> None:
     # Small request/response frames: do not let Nagle hold a setpoint back.
     sock = getattr(client, "socket", None)
     if sock is not None:

@@ -72,6 +72,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from dockhil.devices.limits import UNIT_TOLERANCE, PoseTwist
@@ -179,7 +180,7 @@ def encode_block(values: PoseTwist, what: str = "setpoint") -> list[int]:
     return regs
 
 
-def decode_block(regs) -> PoseTwist:
+def decode_block(regs: Sequence[int]) -> PoseTwist:
     if len(regs) != BLOCK_REGISTERS:
         raise RegisterError(f"pose block: expected {BLOCK_REGISTERS} registers, got {len(regs)}")
     return tuple(registers_to_int32(regs[2 * i], regs[2 * i + 1]) / FIELDS[i][1] for i in range(BLOCK_VALUES))
@@ -202,7 +203,7 @@ class HostWrite:
     setpoint: PoseTwist
 
 
-def decode_holding(regs) -> HostWrite:
+def decode_holding(regs: Sequence[int]) -> HostWrite:
     if len(regs) != HR_COUNT:
         raise RegisterError(f"holding registers: expected {HR_COUNT}, got {len(regs)}")
     return HostWrite(regs[HR_CONTROL], regs[HR_HEARTBEAT], decode_block(regs[HR_SETPOINT:HR_COUNT]))
@@ -222,7 +223,7 @@ def encode_inputs(status: int, heartbeat: int, cycle: int, actual: PoseTwist) ->
     return [MAGIC, VERSION, status & 0xFFFF, heartbeat & 0xFFFF, cycle & 0xFFFF] + encode_block(actual, "actual")
 
 
-def decode_inputs(regs) -> ControllerReading:
+def decode_inputs(regs: Sequence[int]) -> ControllerReading:
     """Decode input registers 0..30; RegisterError if they are not this map."""
     if len(regs) != IR_COUNT:
         raise RegisterError(f"input registers: expected {IR_COUNT}, got {len(regs)}")
@@ -257,7 +258,7 @@ def encode_owner(session: int, name: str) -> list[int]:
     return [session >> 16, session & 0xFFFF] + [int.from_bytes(raw[i : i + 2], "big") for i in range(0, len(raw), 2)]
 
 
-def decode_owner(regs) -> tuple[int, str]:
+def decode_owner(regs: Sequence[int]) -> tuple[int, str]:
     """(session id, name) from an ownership block; session 0: nobody."""
     if len(regs) != HR_CLAIM_COUNT:
         raise RegisterError(f"ownership block: expected {HR_CLAIM_COUNT} registers, got {len(regs)}")
@@ -275,4 +276,4 @@ def start_orientation(reading: ControllerReading) -> tuple[float, float, float, 
             f"quaternion; check its orientation registers (input {IR_ACTUAL + 6}-"
             f"{IR_ACTUAL + 13})"
         )
-    return tuple(c / n for c in q)
+    return q[0] / n, q[1] / n, q[2] / n, q[3] / n

@@ -19,7 +19,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import struct
-from typing import Callable
+from typing import Callable, cast
 
 ILLEGAL_FUNCTION = 1
 ILLEGAL_ADDRESS = 2
@@ -46,13 +46,13 @@ class _Connection(asyncio.BufferedProtocol):
         self.number = number
         self.buffer = bytearray(READ_SIZE)
         self.filled = 0  # bytes of self.buffer received and not yet answered (less than a frame)
-        self.transport: asyncio.Transport | None = None
+        self.transport: asyncio.Transport  # set by connection_made, before anything reads it
 
-    def connection_made(self, transport) -> None:
-        self.transport = transport
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = cast(asyncio.Transport, transport)  # a stream server's: TCP
         self.server.connections.add(self)
 
-    def connection_lost(self, exc) -> None:
+    def connection_lost(self, exc: Exception | None) -> None:
         self.server.connections.discard(self)
 
     def get_buffer(self, sizehint: int) -> memoryview:
