@@ -13,6 +13,7 @@ import importlib
 import os
 import sys
 import traceback
+from typing import NoReturn
 
 from dockhil.errors import DockhilError, one_line
 
@@ -40,6 +41,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "report": ("dockhil.commands.report", "error against run time, stiff and extreme cases, lean scenes"),
     "sweep": ("dockhil.commands.sweep", "run a scene over a campaign of parameters into a Parquet table"),
+    "benchmark": ("dockhil.commands.benchmark", "delay compensation methods against the ideal contact (compensation)"),
     "calibrate": (
         "dockhil.commands.calibrate",
         "identify the real loop's delay, lag, stiffness and F/T bias and noise",
@@ -50,8 +52,16 @@ COMMANDS: dict[str, tuple[str, str]] = {
 class Parser(argparse.ArgumentParser):
     """argparse, but a refused command line is one line (no usage block) and exit code 2."""
 
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {one_line(message)}; see '{self.prog} --help'\n")
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {one_line(message)}{self._case_hint(message)}; see '{self.prog} --help'\n")
+
+    def _case_hint(self, message: str) -> str:
+        """An ambiguous abbreviation that is, in another case, an option of its own (--k for --K)."""
+        if not message.startswith("ambiguous option: "):
+            return ""
+        given = message[len("ambiguous option: ") :].split(" ", 1)[0].split("=", 1)[0]
+        same = [o for o in self._option_string_actions if o != given and o.lower() == given.lower()]
+        return f"; did you mean {same[0]}? (options are case-sensitive)" if same else ""
 
 
 class _Version(argparse.Action):
@@ -100,7 +110,9 @@ def parse(argv: list[str]) -> tuple[argparse.ArgumentParser, argparse.Namespace]
     if unknown and hasattr(args, "overrides") and all(":=" in u and not u.startswith("-") for u in unknown):
         args.overrides = list(args.overrides or []) + unknown
     elif unknown:
-        parser.error(f"unrecognized arguments: {' '.join(unknown)}")
+        slip = next((u for u in unknown if "=" in u and ":=" not in u and not u.startswith("-")), None)
+        hint = f"; a launch argument is name:=value: did you mean {slip.replace('=', ':=', 1)}?" if slip else ""
+        parser.error(f"unrecognized arguments: {' '.join(unknown)}{hint}")
     return parser, args
 
 

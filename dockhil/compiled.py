@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib
 import os
+from types import ModuleType
 
 PURE_PYTHON_ENV = "DOCKHIL_PURE_PYTHON"
 
@@ -16,7 +17,7 @@ TWINS = {
 }
 
 
-def twin(module: str):
+def twin(module: str) -> ModuleType | None:
     """The compiled module `module`, or None where it was not built (no C compiler at install) or
     DOCKHIL_PURE_PYTHON is set: the Python twins then run."""
     if module not in TWINS:

@@ -1,5 +1,7 @@
 """Errors a user can cause. The CLI prints them as one line, no traceback."""
 
+from collections.abc import Collection
+
 
 class DockhilError(Exception):
     """A user-facing error: the message says what went wrong, where, and what to do."""
@@ -11,6 +13,10 @@ class LaunchError(DockhilError):
 
 class ParamError(DockhilError):
     """A node parameter is unknown, mistyped or out of range."""
+
+    # A time beyond its physical range that reads as milliseconds given for seconds: (the value given,
+    # what such a time is, the value in seconds meant); the launch layer names the argument it came from.
+    slip: tuple[float, str, float] | None = None
 
 
 class DeviceError(DockhilError):
@@ -30,7 +36,7 @@ class SafetyStop(DockhilError):
         self.value = value
 
 
-def suggest(name: str, known, what: str) -> str:
+def suggest(name: str, known: Collection[str], what: str) -> str:
     """`did you mean 'x'? (what: a, b, c)` when a known name is close to `name`, else `what: a, b, c`."""
     import difflib
 

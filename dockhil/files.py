@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+from collections.abc import Iterator
 
 from dockhil.errors import DockhilError
 
@@ -18,7 +19,7 @@ def os_reason(exc: OSError) -> str:
 
 
 @contextlib.contextmanager
-def complete_or_nothing(path: str, error: type[DockhilError] = DockhilError):
+def complete_or_nothing(path: str, error: type[DockhilError] = DockhilError) -> Iterator[str]:
     """Yields `path`.part to write; it becomes `path` when the block ends well and is removed when
     it does not, so `path` appears only complete. An OSError is one `error` line."""
     part = f"{path}.part"

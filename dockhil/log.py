@@ -22,8 +22,12 @@ import logging
 import os
 import sys
 import time
+from typing import TYPE_CHECKING, TextIO
 
 from dockhil.errors import DockhilError, one_line
+
+if TYPE_CHECKING:
+    import argparse
 
 LEVELS = {"debug": logging.DEBUG, "info": logging.INFO, "warning": logging.WARNING, "error": logging.ERROR}
 WORDS = {logging.DEBUG: "debug", logging.WARNING: "warning", logging.ERROR: "error", logging.CRITICAL: "error"}
@@ -144,7 +148,7 @@ def _level_arg(text: str) -> str:
     return text.strip().lower()
 
 
-def add_arguments(p) -> None:
+def add_arguments(p: argparse.ArgumentParser) -> None:
     """--log-level and --log-file, for the commands that run things."""
     p.add_argument(
         "--log-level",
@@ -174,7 +178,7 @@ def _open_file(path: str) -> FileHandler:
         ) from None
 
 
-def setup(level: str | int | None = None, file: str | None = None, stream=None) -> None:
+def setup(level: str | int | None = None, file: str | None = None, stream: TextIO | None = None) -> None:
     """Where records go, and from which level: stderr (or `stream`), and `file` when given.
     An unwritable file is refused in one line (DockhilError). Replaces an earlier setup."""
     number = level if isinstance(level, int) else level_name(level or "info")
@@ -252,7 +256,7 @@ def emit(level: int, source: str, message: str, tag: str | None = None, created:
     if not _logger.isEnabledFor(level):
         return
     record = _logger.makeRecord(
-        _logger.name, level, "(dockhil)", 0, message, None, None, extra={"source": source, "tag": tag}
+        _logger.name, level, "(dockhil)", 0, message, (), None, extra={"source": source, "tag": tag}
     )
     if created is not None:
         record.created, record.msecs = created, (created % 1) * 1000

@@ -11,7 +11,7 @@ own process, composed with others in one process, in sim time or wall time.
         outputs = {"scaled": Output(WrenchStamped, "/ft/scaled")}
         params = {"gain": Param(float, 1.0, unit="1", help="scale factor")}
 
-        def step(self, tick, inputs):
+        def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
             w = inputs["wrench"]
             ...
             return {"scaled": WrenchStamped(header=tick.header(), ...)}
@@ -45,11 +45,13 @@ import math
 import reprlib
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 from typing import Any, Callable, ClassVar
 
 from dockhil.errors import ParamError, suggest
+from dockhil.physical import Range
 from dockhil.msgs import Header
 
 
@@ -123,7 +125,7 @@ class Param:
     # (low, high): the magnitude of a nonzero value (of each number of a list) lies within this range,
     # that of docking hardware (dockhil.physical), so no product or quotient the loop and its scene
     # check form leaves floating point (1e-300 kg otherwise asks the scene check for a rate of 1e150 Hz).
-    scale: tuple[float, float] | None = None
+    scale: tuple[float, float] | Range | None = None  # a Range also says what a value beyond it is a slip for
 
     def check(self, node: str, name: str, value: Any) -> Any:
         """Return `value` converted to this type, or raise one clear ParamError."""
@@ -170,6 +172,9 @@ class Param:
                 if isinstance(number, float) and not math.isfinite(number):
                     raise ParamError(f"{where}{at}: {number!r} is not a finite number ({self._describe()})")
                 if number != 0 and not self.scale[0] <= abs(number) <= self.scale[1]:
+                    what = getattr(self.scale, "what", "")
+                    if what and self.unit == "s" and abs(number) > self.scale[1]:
+                        raise _time_slip(f"{where}{at}", number, what, self.scale[1])
                     unit = f" {self.unit}" if self.unit else ""
                     raise ParamError(
                         f"{where}{at}: {number!r}{unit} is outside {self.scale[0]:g} to "
@@ -185,7 +190,18 @@ class Param:
         return f"{self.type.__name__}{unit}, default {self.default!r}: {self.help}".rstrip(": ")
 
 
-def _numbers(value: Any, at: str = ""):
+def _time_slip(where: str, seconds: float, what: str, high: float) -> ParamError:
+    """A time too long for what it is: in one line, with the unit, and the value in seconds if it was
+    given in milliseconds."""
+    meant = seconds / 1000.0
+    hint = f"did you mean {meant:g}?" if meant <= high else f"give it in seconds, at most {high:g} s"
+    err = ParamError(f"{where}: {seconds:g} s is longer than {high:g} s: {what}; {hint}")
+    if meant <= high:
+        err.slip = (seconds, what, meant)
+    return err
+
+
+def _numbers(value: Any, at: str = "") -> Iterator[tuple[str, int | float]]:
     """(where, number) of a number or of each number in nested lists (`[1]`, `[0][2]`); what is not
     a number is left to the node's own check of the list's shape."""
     if isinstance(value, list):

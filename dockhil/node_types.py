@@ -21,8 +21,12 @@ import os
 import re
 import reprlib
 import sys
+from typing import TYPE_CHECKING, Any
 
 from dockhil.errors import LaunchError, ParamError, suggest
+
+if TYPE_CHECKING:
+    from dockhil.node import Node, Param
 
 REGISTRY: dict[str, str] = {
     "satellite_dynamics": "dockhil.nodes.satellite_dynamics:SatelliteDynamics",
@@ -58,7 +62,7 @@ SIX_DOF = {
 ONE_DOF = {six: one for one, six in SIX_DOF.items()}
 
 
-def dof_param(type_name: str):
+def dof_param(type_name: str) -> Param | None:
     """The `dof` parameter of a type that takes one (its default and help, as a Param), else None.
     `resolve` checks it: it picks the class, so no class declares it."""
     if type_name not in SIX_DOF and type_name not in ONE_DOF:
@@ -79,7 +83,7 @@ def dof_param(type_name: str):
     )
 
 
-def resolve(type_name: str, node_name: str, given: dict) -> tuple[str, type, dict]:
+def resolve(type_name: str, node_name: str, given: dict) -> tuple[str, type[Node], dict]:
     """A declared node as it runs: (registered type name, class, checked parameters).
 
     `dof` picks the class of a type that takes it and is not passed on; a parameter that only
@@ -127,7 +131,9 @@ def mixed_dof(types: dict[str, str]) -> str | None:
     )
 
 
-def _other_dof_line(type_name: str, registered: str, dof: int, node_name: str, cls, given: dict) -> str | None:
+def _other_dof_line(
+    type_name: str, registered: str, dof: int, node_name: str, cls: type[Node], given: dict
+) -> str | None:
     """The refusal of a parameter that the node of the other dof takes and this one does not,
     or None (then the class's own refusal stands)."""
     other_dof = 1 if dof == 6 else 6
@@ -154,7 +160,7 @@ def _other_dof_line(type_name: str, registered: str, dof: int, node_name: str, c
     return None
 
 
-def _accepts(param, name: str, value) -> bool:
+def _accepts(param: Param, name: str, value: Any) -> bool:
     try:
         param.check("", name, value)
         return True
@@ -187,7 +193,7 @@ def plugins() -> dict[str, tuple[str, str]]:
 _PATH = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*:[A-Za-z_][A-Za-z0-9_]*")
 
 
-def load(type_name: str):
+def load(type_name: str) -> type[Node]:
     """The Node subclass for a registered name or a "package.module:Class" path.
 
     A module is imported only if its source defines the class, so a path such as
@@ -209,7 +215,7 @@ def load(type_name: str):
         ) from None
 
 
-def _load(type_name: str, target: str):
+def _load(type_name: str, target: str) -> type[Node]:
     from dockhil.node import Node
 
     if not _PATH.fullmatch(target):

@@ -13,6 +13,17 @@ scale (its ideal contact, thrust and force limits, its start). A run beyond any 
 or means nothing, whatever else it says: it is INVALID (dockhil.analysis.summary.common.RangeMeter.reasons)."""
 
 import math
+from typing import NamedTuple
+
+
+class Range(NamedTuple):
+    """(low, high) with what a value outside it is mistaken for, said to the user: a time in seconds
+    given in milliseconds (delay:=16 for 16 ms) reads as a physical value a thousand times too large."""
+
+    low: float
+    high: float
+    what: str = ""
+
 
 # (low, high): the magnitude of a nonzero value lies within this range.
 MASS = (1e-2, 1e8)  # [kg] a body: 10 g probe to 1e5 t (the ISS is 4.2e5 kg, the paper's target 1e6 kg)
@@ -24,7 +35,11 @@ SPEED = (0.0, 5.0)  # [m/s] a body's initial velocity: docking hardware survives
 ANGULAR_SPEED = (0.0, 10.0)  # [rad/s] a body's initial spin: 1.6 turns a second
 ANGLE = (0.0, 2.0 * math.pi)  # [rad] a component of a rotation vector (attitude, tilt)
 DISTANCE = (0.0, 1e3)  # [m] an initial position, an interface or sensor offset
-TIME = (0.0, 60.0)  # [s] a robot's delay, jitter or servo time constant
+# [s] a robot's response delay and its jitter: a few ms (a servo cycle) to a few hundred (a slow controller
+# behind a network); a second already makes the paper's loop a different experiment.
+ROBOT_DELAY = Range(0.0, 1.0, "a robot delay is a few ms to a few hundred ms")
+# [s] a robot servo's time constant: as short as its cycle, a few hundred ms for a sluggish one
+TIME = Range(0.0, 1.0, "a servo time constant is a few ms to a few hundred ms")
 FRICTION = (0.0, 10.0)  # [1] a Coulomb friction coefficient
 
 # A run leaves the physical range when (each against the scene's own scale, dockhil.analysis.summary):

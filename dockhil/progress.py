@@ -11,6 +11,7 @@ from __future__ import annotations
 import sys
 import threading
 import time
+from typing import TextIO
 
 # One screen: the status line and log records (from any thread) take turns at it.
 _screen = threading.RLock()
@@ -47,7 +48,7 @@ class StatusLine:
                 _active = None
 
 
-def write_between(stream, text: str) -> None:
+def write_between(stream: TextIO, text: str) -> None:
     """Write `text` (whole lines) so that it never shares a line with the status line on the
     terminal: the status line is erased first and drawn again below it."""
     with _screen:
@@ -70,7 +71,7 @@ def bar(fraction: float, width: int) -> str:
 class Progress:
     """A sim-time run: simulated time, share done, real-time factor."""
 
-    def __init__(self, total_ticks: int | None, dt: float, stream=None, min_interval: float = 0.2):
+    def __init__(self, total_ticks: int | None, dt: float, stream: TextIO | None = None, min_interval: float = 0.2):
         self.total = total_ticks
         self.dt = dt
         self.line = StatusLine(stream)
@@ -101,7 +102,7 @@ class Progress:
 class TaskProgress:
     """Named steps of a long job: `step(label)` before each, `finish()` at the end."""
 
-    def __init__(self, total: int, stream=None, width: int = 30):
+    def __init__(self, total: int, stream: TextIO | None = None, width: int = 30):
         self.total = max(1, total)
         self.done = 0
         self.width = width

@@ -19,12 +19,20 @@ import json
 import os
 import tempfile
 import time
+from pathlib import Path
+from typing import TYPE_CHECKING, AbstractSet, cast
 
 from dockhil.runtime import validity
 from dockhil.log import Log
 from dockhil.errors import DockhilError
 from dockhil.files import remove_quietly, complete_or_nothing, os_reason
 from dockhil.scene.graph import Graph
+
+if TYPE_CHECKING:
+    from dockhil.analysis.summary import SummaryCollector1
+    from dockhil.analysis.summary.dof6 import SummaryCollector6
+    from dockhil.bags.foxglove import FoxgloveBridge
+    from dockhil.bags.tap import TapRecorder
 
 
 def run_scene(
@@ -150,7 +158,8 @@ def run_scene(
             judge=lambda code: judge(code, timing()),
         )
         if bridge is not None:
-            bridge.observe(launcher.endpoints.topics, GraphKeys.read(launcher.endpoints.key_file))
+            keys = cast(Path, launcher.endpoints.key_file)  # plan() wrote them
+            bridge.observe(launcher.endpoints.topics, GraphKeys.read(keys))
         code = launcher.run()
         if not judged:  # no recorder was told: judged here
             judge(code, timing())
@@ -182,7 +191,13 @@ def run_scene(
     return code
 
 
-def _judge(code: int, reasons: list[str], collector, bag: str | None, elapsed: float) -> dict:
+def _judge(
+    code: int,
+    reasons: list[str],
+    collector: SummaryCollector1 | SummaryCollector6 | None,
+    bag: str | None,
+    elapsed: float,
+) -> dict:
     """code: INVALID_EXIT where the run has reasons (its summary's own added to `reasons`); out: the
     summary of a run that completed (read from `bag` in a multi-process run)."""
     if code == 0 and reasons:
@@ -239,7 +254,7 @@ def _check_writable(path: str, bag: str | None) -> None:
         remove_quietly(path)
 
 
-def ticking_span(timings: dict[str, dict], leave_out: set[str] = frozenset()) -> float | None:
+def ticking_span(timings: dict[str, dict], leave_out: AbstractSet[str] = frozenset()) -> float | None:
     """[s] from the graph's first tick to the end of its last, from the nodes' loop figures
     (LoopTiming.report), leaving out the nodes in `leave_out` unless no other ticked; None if none ticked."""
     spans = {
@@ -258,10 +273,10 @@ def _run_composed(
     clock: str,
     n_ticks: int | None,
     progress: bool,
-    recorder,
-    collector,
+    recorder: TapRecorder | None,
+    collector: SummaryCollector1 | SummaryCollector6 | None,
     reasons: list[str],
-    bridge=None,
+    bridge: FoxgloveBridge | None = None,
     ticking: list[float] | None = None,
 ) -> int:
     """recorder: a TapRecorder, left open (all on disk) for the run's verdict; ticking: gets the time

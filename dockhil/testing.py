@@ -33,7 +33,7 @@ Semantics, as in a launched graph:
 from __future__ import annotations
 
 from types import SimpleNamespace
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 import msgspec
 
@@ -68,7 +68,7 @@ class _Feeder(Node):
     def setup(self):
         self.pending = {}
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         header = {"tick": tick.index, "seq": tick.index, "stamp": tick.t if tick.stamp is None else tick.stamp}
         out = {
             port: msgspec.structs.replace(msg, header=msgspec.structs.replace(msg.header, **header))
@@ -160,7 +160,7 @@ class NodeHarness:
         self.clock = ManualClock()
         self.graph = ComposedGraph(graph, sim_time=sim_time, log=self._log, clock=self.clock)
         self.node = self.graph.nodes[self.name]
-        self._feeder = self.graph.nodes[FEEDER]
+        self._feeder = cast(_Feeder, self.graph.nodes[FEEDER])  # built from `feeder` above
         self.k = 0  # the tick the next step() computes
         self._set_up = False
 
@@ -178,7 +178,7 @@ class NodeHarness:
     def __enter__(self) -> "NodeHarness":
         return self.setup()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     # -- stepping --------------------------------------------------------------------

@@ -133,7 +133,7 @@ def test_an_ideal_model_bag_is_plotted_with_its_recorded_force(tmp_path):
     "args, says",
     [
         (["nothing.mcap"], "nothing.mcap: no such file"),
-        (["{bag}", "--png", "{tmp}/missing"], "no such folder"),
+        (["{bag}", "--png", "{bag}/figures"], "cannot create the folder (Not a directory)"),
         (["{bag}", "--kcs", "1", "kcs:=2"], "kcs is given twice"),
         (["{bag}", "nope:=1"], "unknown arg 'nope'"),
     ],
@@ -150,6 +150,18 @@ def test_refusals_are_one_line(tmp_path, args, says):
         bag = tmp_path / "s.mcap"
     code, out, err = run_main("analyze", *[a.format(bag=bag, tmp=tmp_path) for a in args])
     assert code == 2 and out == "" and len(err.strip().splitlines()) == 1 and says in err, err
+
+
+def test_png_makes_its_folder_as_figures_out_does(tmp_path):
+    r = launch_here_or_process(
+        "ideal.yaml", "--duration", "0.05", "--bag", tmp_path / "s.mcap", "--quiet", "--composed"
+    )
+    assert r.returncode == 0, r.stderr
+    code, out, err = run_main("analyze", tmp_path / "s.mcap", "--png", tmp_path / "new" / "figures")
+    assert code == 0, err
+    # A bag does not know the run's wall time: the simulated time alone, not "simulated 0.05 s in -".
+    assert "\nsimulated 0.05 s\n" in out, out
+    assert (tmp_path / "new" / "figures" / "s-force-velocity.png").stat().st_size > 1000
 
 
 def test_a_recorded_scene_that_does_not_rebuild_here_is_one_line(tmp_path):

@@ -210,7 +210,7 @@ DYNAMICS6_LINE = HIL6.read_text().splitlines().index("  - name: dynamics") + 1
         ),
         (
             HIL,
-            "params: {k: $(arg k), noise: $(arg ft_noise)}",
+            "params: {k: $(arg k), noise: $(arg ft_noise), k_scale: $(arg hw_k_scale), delay: $(arg ft_delay)}",
             "params: {dof: 6}",
             "node 'dynamics' (satellite_dynamics) is 1-DOF and node 'ft' (ft_sim with dof: 6) is 6-DOF",
         ),

@@ -534,8 +534,11 @@ BOUNDED = {
     "200 nested mappings": ("".join(" " * k + f"k{k}:\n" for k in range(200)) + "\n", "nested deeper than 32 levels"),
     "2 MB file": ("description: " + "x" * (2 << 20) + "\n", "larger than 1048576 bytes"),
     "5000-digit number": ("rate: " + "9" * 5000 + "\n", "not valid YAML: Exceeds the limit"),
-    "symlink loop": ("include: [{file: loop.yaml}]\n", "loop.yaml' cannot be opened: Symlink loop"),
-    "NUL in a file name": ('include: [{file: "a\\x00b.yaml"}]\n', "cannot be opened: embedded null byte"),
+    "symlink loop": (
+        "include: [{file: loop.yaml}]\n",
+        "loop.yaml' cannot be opened: it is a symbolic link that leads back to itself",
+    ),
+    "NUL in a file name": ('include: [{file: "a\\x00b.yaml"}]\n', "cannot be opened: its name holds a NUL character"),
     "include cycle": ("include: [" + ", ".join(["{file: scene.yaml}"] * 2) + "]\n", "include cycle"),
 }
 

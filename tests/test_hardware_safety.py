@@ -70,6 +70,10 @@ def make(controller):
 
     def make_driver(**params):
         params.setdefault("ft_timeout", 0.0)
+        # 1 s per request, as in test_hardware_modbus.py: the controller is a thread of this process, and on
+        # a machine with both cores busy its answer can outlast the 0.1 s default, which the link rightly
+        # takes for a lost connection (dropping the setpoint handed over); none of these limits is about it.
+        params.setdefault("timeout", 1.0)
         clock = ManualClock(100.0)
         node = RobotModbusDriver(
             NodeContext("robot", DT, sim_time=False, log=lambda line: None, clock=clock), port=controller.port, **params

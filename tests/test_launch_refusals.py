@@ -231,7 +231,9 @@ BAD_INPUTS = {
         "graph",
         "launch/hil.yaml",
         ["delay:=1e308"],
-        f"hil.yaml:{HIL_LINE['delay']}: node 'delay' parameter 'delay': 1e+308 s is outside 0 to 60 s",
+        # The virtual impedance is told the delay too (its compensation), and is checked first.
+        f"hil.yaml:{HIL_LINE['impedance']}: node 'impedance' parameter 'delay': 1e+308 s is longer than 1 s: a "
+        "robot delay is a few ms to a few hundred ms; give it in seconds, at most 1 s",
     ),
     "params --m1 1e-320": ("params", None, ["--table1", "--m1", "1e-320"], "--m1 1e-320 is too small to compute with"),
     "params --m1 1e308": ("params", None, ["--table1", "--m1", "1e308"], "--m1 1e+308 kg is outside 0.01 to 1e+08 kg"),
@@ -379,7 +381,9 @@ def test_a_real_robot_never_moves_on_a_replayed_recording(command, tmp_path, wri
 
 
 @pytest.mark.parametrize("command", ["graph", "launch"])
-@pytest.mark.parametrize("overrides, ticks", [(["delay:=30"], 30000), (["delay:=0.5", "rate:=100000"], 50000)])
+@pytest.mark.parametrize(
+    "overrides, ticks", [(["delay:=0.9", "rate:=30000"], 27000), (["delay:=0.5", "rate:=100000"], 50000)]
+)
 def test_a_delay_of_more_ticks_than_the_scene_check_resolves_is_refused_at_once(command, overrides, ticks):
     """delay:=30 made the scene check build a 30000-tick polynomial: minutes and 11 GB before anything ran."""
     code, _, err = run_main(command, "launch/hil.yaml", *overrides, "--composed" if command == "launch" else "--dot")
@@ -490,3 +494,37 @@ def test_exhaustion_anywhere_is_one_line(monkeypatch, error, words):
     code, out, err = run_main("graph", "launch/hil.yaml")
     assert_one_line_refusal(code, err, words)
     assert out == ""
+
+
+@pytest.mark.parametrize(
+    "given, meant, what",
+    [
+        ("delay:=16", "delay:=0.016", "a robot delay is a few ms to a few hundred ms"),
+        ("delay:=3", "delay:=0.003", "a robot delay is a few ms to a few hundred ms"),  # ran, 19 N off, no word
+        ("lag:=20", "lag:=0.02", "a servo time constant is a few ms to a few hundred ms"),
+    ],
+)
+@pytest.mark.parametrize("command", ["graph", "launch"])
+def test_a_time_given_in_milliseconds_is_refused_naming_the_unit_and_the_value_in_seconds(command, given, meant, what):
+    args = ("--dot",) if command == "graph" else ("--composed", "--duration", "0.01")
+    code, _, err = run_main(command, "launch/hil.yaml", given, *args)
+    seconds = given.split(":=")[1]
+    assert_one_line_refusal(code, err, f"{given} is {seconds} s: {what}; did you mean {meant}?")
+
+
+def test_a_time_in_a_launch_file_is_refused_naming_the_parameter_and_the_value_in_seconds(write_launch):
+    scene = write_launch("nodes:\n  - {name: late, node: delay_injector, params: {delay: 0.01, jitter: 5}}\n")
+    code, _, err = run_main("graph", scene, "--dot")
+    assert_one_line_refusal(
+        code,
+        err,
+        "node 'late' parameter 'jitter': 5 s is longer than 1 s: a robot delay is a few ms to a few "
+        "hundred ms; did you mean 0.005?",
+    )
+
+
+def test_a_delay_of_a_second_still_runs_and_one_past_it_is_refused():
+    code, _, err = run_main("graph", "launch/hil.yaml", "delay:=1", "--dot")
+    assert code == 0, err
+    code, _, err = run_main("graph", "launch/hil.yaml", "delay:=1.5", "--dot")
+    assert_one_line_refusal(code, err, "delay:=1.5 is 1.5 s: a robot delay is a few ms to a few hundred ms")

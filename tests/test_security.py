@@ -391,7 +391,16 @@ def start_driver(port: int, run_id: str, runtime: str | None = None, **params) -
         "dt": 0.01,
         "clock": "wall",
         "run_id": run_id,
-        "params": {"port": port, "ft_timeout": 0.0, "connect_timeout": 2.0, **params},
+        # As the controller's heartbeat (the fixture): 1 s a request and 2 s without a step, not the lab's 0.1 s
+        # and 0.2 s, which a busy 2-core machine outlasted (a lost connection, then a stall that stopped it).
+        "params": {
+            "port": port,
+            "ft_timeout": 0.0,
+            "connect_timeout": 2.0,
+            "timeout": 1.0,
+            "stall_timeout": 2.0,
+            **params,
+        },
     }
     e = env()
     if runtime:

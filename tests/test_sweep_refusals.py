@@ -94,7 +94,9 @@ def test_a_meaningless_campaign_is_refused_before_anything_runs(tmp_path, capsys
 def test_a_grid_value_the_scene_refuses_is_named_with_the_scene_s_line(tmp_path, capsys):
     line = refused(tmp_path, capsys, HEAD.replace("m: 20.0, ", "") + "duration: 0.1\ngrid: {m: [20.0, 5.0, -1.0]}\n")
     assert "grid.m = -1.0: refused by the scene: " in line
-    assert "stability.yaml:17: node 'dynamics' parameter 'm1': -1.0 is out of range, must be > 0.0" in line
+    scene = Path(__file__).resolve().parent.parent / "launch" / "stability.yaml"
+    at = next(n for n, text in enumerate(scene.read_text().splitlines(), 1) if text.strip() == "- name: dynamics")
+    assert f"stability.yaml:{at}: node 'dynamics' parameter 'm1': -1.0 is out of range, must be > 0.0" in line
 
 
 def test_a_random_draw_the_scene_refuses_names_its_run(tmp_path, capsys):

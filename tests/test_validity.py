@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import resource
 import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
@@ -155,9 +156,7 @@ def test_an_input_older_than_its_maximum_age_stops_the_node_with_one_line(tmp_pa
         pub.wait_subscribers(1, 10.0)
         with pytest.raises(StaleInput) as err:
             ex.run_wall(None)
-        assert str(err.value) == (
-            "node 'follow': input 'x' (/x) is 0.101 s old > max_age 0.1 s (its publisher stalled or died); stopping"
-        )
+        assert str(err.value) == ("node 'follow': input 'x' (/x) is 0.101 s old > max_age 0.1 s; stopping")
         assert clock() == 153 * P and sent[-1] == 50 * P
         assert isinstance(err.value, DockhilError)  # a node process turns it into one line and exit 2
     finally:
@@ -266,8 +265,27 @@ def test_a_stalled_publisher_stops_its_reader_naming_node_input_and_age(write_la
     text = r.stdout + r.stderr
     assert r.returncode == 1 and "Traceback" not in text, text
     stale = [line for line in text.splitlines() if "max_age" in line]
-    assert stale and stale[0].startswith("[follow] error: node 'follow': input 'x' (/x) is 0."), text
-    assert "[launch] node 'follow' exited with code 2 while running; stopping the graph" in text
+    assert stale and stale[0].startswith("[follow] error: node 'follow': input 'x' (/x from node 'source') is 0."), text
+    # The publisher was alive and late (its step slept): said so, not "stalled or died".
+    stop = next(line for line in text.splitlines() if line.startswith("[launch] node 'follow' exited"))
+    assert stop.startswith(
+        "[launch] node 'follow' exited with code 2 while running: its input /x's publisher, node 'source', is "
+        "running but its message was late by 0."
+    ) and stop.endswith(" s; a busy machine? try --realtime; stopping the graph"), stop
+
+
+def test_a_stale_input_blames_a_publisher_that_had_exited_by_its_exit_code():
+    """Told apart by the publisher's process: one that ended is said so, with its code."""
+    from types import SimpleNamespace
+
+    from dockhil.runtime.launcher import Launcher, _Child
+
+    ended = subprocess.Popen([sys.executable, "-c", "raise SystemExit(3)"])
+    ended.wait()
+    reader = _Child("follow", [], stale={"port": "x", "topic": "/x", "publisher": "source", "late": 0.2})
+    fake = SimpleNamespace(children=[reader, _Child("source", [], proc=ended)])
+    assert Launcher._blame(fake, reader) == ": its input /x's publisher, node 'source', had exited with code 3"
+    assert Launcher._blame(fake, _Child("other", [])) == ""  # stopped for another reason: no blame
 
 
 # -- the recorder: lost messages fail the run --------------------------------------------------

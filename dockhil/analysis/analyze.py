@@ -15,9 +15,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 from dockhil.bags import runinfo
 from dockhil.errors import DockhilError
+
+if TYPE_CHECKING:
+    from dockhil.analysis.summary import SummaryCollector1
+    from dockhil.analysis.summary.dof6 import SummaryCollector6
+    from dockhil.scene.graph import Graph
 
 IDEAL_ARGS = ("kcs", "bcs", "m1", "m2", "v1", "v2")  # the ideal contact, as launch arguments of hil.yaml
 _FORCE_TOPICS = ("/ft/wrench", "/impedance/wrench")
@@ -31,7 +37,7 @@ class AnalyzeError(DockhilError):
 class Analysis:
     summary: dict  # the launch's summary keys, less run_time_s and real_time_factor; `run`: the bag's run
     info: runinfo.RunInfo
-    graph: object
+    graph: Graph
     scene: str  # where the scene came from, in a few words
 
     @property
@@ -39,7 +45,9 @@ class Analysis:
         return bool(self.summary.get("valid"))
 
 
-def scene_graph(path: str, info: runinfo.RunInfo, scene_file: str | None = None, overrides: dict | None = None):
+def scene_graph(
+    path: str, info: runinfo.RunInfo, scene_file: str | None = None, overrides: dict | None = None
+) -> tuple[Graph, str]:
     """(graph, where its scene came from) of the run a bag recorded."""
     from dockhil.analysis.plots.runplot import bag_graph
     from dockhil.scene import launchfile
@@ -82,11 +90,11 @@ class _Ticks:
     """Hands each message on to the summary, and holds the bag's tick spacing against the scene's: a
     scene at another rate would put every sample at the wrong time."""
 
-    def __init__(self, collector, dt: float, path: str):
+    def __init__(self, collector: SummaryCollector1 | SummaryCollector6, dt: float, path: str):
         self.collector, self.dt, self.path = collector, dt, path
         self.states = 0
 
-    def __call__(self, topic: str, msg) -> None:
+    def __call__(self, topic: str, msg: Any) -> None:  # a message of the topic's type
         if topic == "/satellite/state":
             self.states += 1
             h = msg.header
@@ -150,8 +158,10 @@ def figures(a: Analysis, path: str, out_dir: str) -> list[str]:
 
     from dockhil.analysis.plots.runplot import is_sixdof, plot_runs
 
-    if not os.path.isdir(out_dir):
-        raise AnalyzeError(f"--png {out_dir}: no such folder; create it or name another")
+    try:  # made as `figures --out` makes its own
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as exc:
+        raise AnalyzeError(f"--png {out_dir}: cannot create the folder ({exc.strerror or exc})") from None
     stem = os.path.splitext(os.path.basename(path))[0]
     if is_sixdof(a.graph):
         from dockhil.analysis.plots.plot6 import plot6

@@ -234,7 +234,7 @@ def measure_all(
 
             jobs += [(f"scene:{s}", None) for s in SCENES if (SHIPPED_SCENES / Path(s).name).exists()]
         with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
-            rows = list(pool.map(lambda job: measure(*job, repeats=repeats), jobs))
+            rows = list(pool.map(lambda job: measure(job[0], job[1], repeats=repeats), jobs))
     for row in rows:
         name = row["node"]
         row["kind"] = "node" if name in types else "scene" if name.startswith("scene:") else "baseline"

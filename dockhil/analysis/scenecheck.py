@@ -66,6 +66,10 @@ def scene_loop(graph, dt: float | None = None) -> dict | None:
             from dockhil.contact.scenario import ContactScenario
 
             kcs, bcs = ip["kcs"], ip["bcs"]
+            if ip.get("contact") == "hunt_crossley":
+                from dockhil.contact.comploop import linear_equivalent
+
+                kcs, bcs = linear_equivalent(ip, m)
             i = impedance_closed_form(ContactScenario(m1, m2, kcs, bcs, ip["k"], 0.03, 0.0), warn=False)
             k1, b1, k2, b2 = i.k1, i.b1, i.k2, i.b2
         else:
@@ -81,6 +85,11 @@ def scene_loop(graph, dt: float | None = None) -> dict | None:
     delay = first_node(graph, "delay_injector")
     robot = first_node(graph, "robot_sim")
     h = delay.params["delay"] if delay is not None else 0.0
+    if robot is not None and robot.params.get("delay", 0.0) > 0.0:  # a simulated robot that delays the command itself
+        h += robot.params["delay"] * robot.params.get("delay_scale", 1.0)
+    if ft is not None:  # the simulated hardware's truth: its sensor's own delay, its true stiffness
+        h += ft.params.get("delay", 0.0)
+        kh *= ft.params.get("k_scale", 1.0)
     lag = robot.params["lag"] if robot is not None else 0.0
     # A robot driver's delay is the hardware's, which no parameter of the scene gives; a loop file's
     # (loop:=, dockhil calibrate's) is the identified one: its delay end to end and its lag.

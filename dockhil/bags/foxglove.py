@@ -33,11 +33,17 @@ from __future__ import annotations
 import json
 import threading
 import time
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import msgspec
 
 from dockhil.errors import DockhilError
+
+if TYPE_CHECKING:
+    from dockhil.bags.foxglove_scene import Geometry
+    from dockhil.runtime.keys import GraphKeys
+    from dockhil.runtime.transport import Subscriber
+    from dockhil.scene.graph import Graph
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
@@ -65,7 +71,7 @@ class FoxgloveBridge:
         port: int = DEFAULT_PORT,
         log: Callable[[str], None] = _log,
         burst: int = BURST,
-        geometry=None,
+        geometry: Geometry | None = None,
     ):
         """geometry: where the interfaces are mounted (`foxglove_scene.Geometry`, default at the CoMs)."""
         try:
@@ -129,7 +135,7 @@ class FoxgloveBridge:
         )
 
     # -- a multi-process graph ---------------------------------------------------
-    def observe(self, endpoints: dict[str, str], keys) -> None:
+    def observe(self, endpoints: dict[str, str], keys: GraphKeys) -> None:
         """Serve the topics of a multi-process graph: topic -> endpoint, with the graph's CURVE keys.
         The nodes need not have bound yet: the subscriber connects when they do."""
         import zmq
@@ -145,7 +151,7 @@ class FoxgloveBridge:
         self._thread = threading.Thread(target=self._run, args=(sub,), name="foxglove-bridge", daemon=True)
         self._thread.start()
 
-    def _run(self, sub) -> None:
+    def _run(self, sub: Subscriber) -> None:
         import zmq
 
         from dockhil.runtime.transport import OBSERVED
@@ -250,7 +256,7 @@ class FoxgloveBridge:
         self.log(f"[foxglove] served {self.sent} messages{lost}{bad}")
 
 
-def start(graph, *, clock: str, host: str, port: int) -> FoxgloveBridge:
+def start(graph: Graph, *, clock: str, host: str, port: int) -> FoxgloveBridge:
     """A bridge serving every topic of `graph` (checked before any node starts: a busy port fails here)."""
     from dockhil import msgs
     from dockhil.bags.foxglove_scene import geometry_of

@@ -31,7 +31,15 @@ from __future__ import annotations
 import json
 import math
 from importlib import resources
-from typing import Any, NamedTuple
+from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+if TYPE_CHECKING:
+    from os import PathLike
+
+    from dockhil.bags.reader import BagReader
+    from dockhil.msgs import Quaternion, RobotState, SatelliteState, Vector3, WrenchStamped
+    from dockhil.scene.graph import Graph
 
 TF_TOPIC = "/tf"
 SCENE_TOPIC = "/scene"
@@ -75,11 +83,9 @@ class Geometry(NamedTuple):
     @classmethod
     def from_params(cls, params: dict[str, Any]) -> "Geometry":
         """From a dynamics node's parameters; one without them (1-DOF) has its interfaces at the CoMs."""
-        return cls(
-            *(
-                tuple(float(v) for v in params.get(name, default))
-                for name, default in zip(cls._fields, cls._field_defaults.values())
-            )
+        return cls._make(  # every field, each a tuple of its numbers
+            tuple(float(v) for v in params.get(name, default))
+            for name, default in zip(cls._fields, cls._field_defaults.values())
         )
 
     @classmethod
@@ -93,7 +99,7 @@ class Geometry(NamedTuple):
 AT_THE_COMS = Geometry()  # the 1-DOF scenes' mounting
 
 
-def geometry_of(graph) -> Geometry:
+def geometry_of(graph: Graph) -> Geometry:
     """The geometry of a built scene: the parameters of the node that publishes /satellite/state."""
     ref = graph.publishers.get(STATE)
     return AT_THE_COMS if ref is None else Geometry.from_params(graph.nodes[ref.node].params)
@@ -108,7 +114,11 @@ def schema(name: str) -> dict:
 
 
 def views(
-    state, wrench=None, robot=None, geometry: Geometry = AT_THE_COMS, force_scale: float = FORCE_SCALE
+    state: SatelliteState,
+    wrench: WrenchStamped | None = None,
+    robot: RobotState | None = None,
+    geometry: Geometry = AT_THE_COMS,
+    force_scale: float = FORCE_SCALE,
 ) -> dict[str, dict]:
     """The derived messages at a SatelliteState, with the latest WrenchStamped and RobotState
     (None: not yet seen): {"/tf": FrameTransforms, "/scene": SceneUpdate}, as JSON values."""
@@ -215,7 +225,9 @@ def views(
     return {TF_TOPIC: {"transforms": transforms}, SCENE_TOPIC: {"deletions": [], "entities": entities}}
 
 
-def contact_force(state, wrench, geometry: Geometry = AT_THE_COMS) -> tuple[float, float, float]:
+def contact_force(
+    state: SatelliteState, wrench: WrenchStamped | None, geometry: Geometry = AT_THE_COMS
+) -> tuple[float, float, float]:
     """The measured contact force on the chaser [N], world axes (zero without a wrench)."""
     from dockhil.contact.rotations import quat_multiply, rotate
 
@@ -240,7 +252,7 @@ class SceneFeed:
         self.wrench = None
         self.robot = None
 
-    def add(self, topic: str, message) -> dict[str, dict]:
+    def add(self, topic: str, message: Any) -> dict[str, dict]:  # the message type of `topic`
         if topic == WRENCH:
             self.wrench = message
         elif topic == ROBOT:
@@ -258,35 +270,35 @@ def _time(stamp: float) -> dict:
     return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
 
 
-def _xyz(v) -> tuple[float, float, float]:
+def _xyz(v: Vector3) -> tuple[float, float, float]:
     return (v.x, v.y, v.z)
 
 
-def _xyzw(q) -> tuple[float, float, float, float]:
+def _xyzw(q: Quaternion) -> tuple[float, float, float, float]:
     return (q.x, q.y, q.z, q.w)
 
 
-def _add(a, b) -> tuple[float, float, float]:
+def _add(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, float]:
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
 
 
-def _vector(v) -> dict:
+def _vector(v: Sequence[float]) -> dict:
     return {"x": float(v[0]), "y": float(v[1]), "z": float(v[2])}
 
 
-def _quaternion(q) -> dict:
+def _quaternion(q: Sequence[float]) -> dict:
     return {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])}
 
 
-def _pose(position, orientation) -> dict:
+def _pose(position: Sequence[float], orientation: Sequence[float]) -> dict:
     return {"position": _vector(position), "orientation": _quaternion(orientation)}
 
 
-def _colour(rgba) -> dict:
+def _colour(rgba: Sequence[float]) -> dict:
     return {"r": rgba[0], "g": rgba[1], "b": rgba[2], "a": rgba[3]}
 
 
-def _x_towards(v) -> tuple[float, float, float, float]:
+def _x_towards(v: Sequence[float]) -> tuple[float, float, float, float]:
     """The shortest rotation taking +x to the direction of v (an arrow points along its pose's +x)."""
     n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
     ux, uy, uz = v[0] / n, v[1] / n, v[2] / n
@@ -298,11 +310,11 @@ def _x_towards(v) -> tuple[float, float, float, float]:
     return (x, y / s, z / s, w / s)
 
 
-def _sphere(rgba) -> dict:
+def _sphere(rgba: Sequence[float]) -> dict:
     return {"pose": _pose(_ZERO, _IDENTITY), "size": _vector((COM_DIAMETER,) * 3), "color": _colour(rgba)}
 
 
-def _line(points, rgba) -> dict:
+def _line(points: Iterable[Sequence[float]], rgba: Sequence[float]) -> dict:
     return {
         "type": 0,
         "pose": _pose(_ZERO, _IDENTITY),
@@ -315,7 +327,7 @@ def _line(points, rgba) -> dict:
     }
 
 
-def _entity(stamp: dict, entity_id: str, frame: str, *, frame_locked: bool = True, **primitives) -> dict:
+def _entity(stamp: dict, entity_id: str, frame: str, *, frame_locked: bool = True, **primitives: list) -> dict:
     entity = {
         "timestamp": stamp,
         "frame_id": frame,
@@ -338,7 +350,9 @@ class ExportResult(NamedTuple):
     loss: str | None  # what of the bag was unreadable or unfinished (see loss_line)
 
 
-def export(src, dst, *, geometry: Geometry | None = None, overwrite: bool = False) -> ExportResult:
+def export(
+    src: str | PathLike[str], dst: str | PathLike[str], *, geometry: Geometry | None = None, overwrite: bool = False
+) -> ExportResult:
     """Copy the bag `src` to `dst` with /tf and /scene added at each /satellite/state.
 
     `geometry`: the scene's (`geometry_of`); None takes it from the bag: the 6-DOF defaults if its
@@ -389,7 +403,7 @@ def export(src, dst, *, geometry: Geometry | None = None, overwrite: bool = Fals
     return ExportResult(out.messages_written - derived, derived, found["loss"])
 
 
-def _geometry_in(reader) -> Geometry:
+def _geometry_in(reader: BagReader) -> Geometry:
     for message in reader.messages(["/robot/command"]):
         return Geometry.six_dof_defaults() if message.decode().header.frame == TARGET_INTERFACE else AT_THE_COMS
     return AT_THE_COMS

@@ -6,18 +6,16 @@ The log time of a message is its receive time in wall time; in sim time it is
 the message's header stamp, so a sim-time bag carries sim times and the same
 run recorded twice gives the same bag. It runs in three ways:
 
-- `dockhil launch FILE --bag PATH`: the launcher starts it as a helper
-  process (`python -m dockhil.bags.live record PATH --graph-pid PID
-  [--n-ticks N]`) counted as a subscriber of every topic, so sim time waits
-  for it before tick 0. In sim time it exits by itself once it holds tick
-  N-1 of every topic. In wall time it is told at the end what each topic's
-  publisher sent, and counts what never came as lost (dockhil.bags.tail).
+- `dockhil launch FILE --bag PATH`: the launcher starts it as a helper process (`python -m
+  dockhil.bags.live record PATH --graph-pid PID [--n-ticks N]`) counted as a subscriber of every
+  topic, so sim time waits for it before tick 0. In sim time it exits by itself once it holds tick
+  N-1 of every topic. In wall time it is told at the end what each topic's publisher sent, and
+  counts what never came as lost (dockhil.bags.tail).
 - `dockhil launch FILE --composed --bag PATH`: a tap in the one process
   (dockhil.bags.tap) encodes each message and writes it; the bytes are the same.
-- `dockhil bag record PATH [--topics ...]`: joins graphs that are already
-  running (found in the registry), until Ctrl-C or until they stop. It is an
-  observer (`dockhil.runtime.transport`): if it falls behind it loses messages, counts
-  them and says so, and the graph's own deliveries go on.
+- `dockhil bag record PATH [--topics ...]`: joins graphs that are already running (found in the
+  registry), until Ctrl-C or until they stop. It is an observer (`dockhil.runtime.transport`): if
+  it falls behind it loses messages, counts them and says so, and the graph's own deliveries go on.
 
 Chunks are closed by size, by age and on a 0.5 s timer, so a recorder killed
 with SIGKILL loses at most the chunk it was filling. On SIGTERM or SIGINT it
@@ -38,7 +36,7 @@ import os
 import sys
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 from dockhil.msgs.codec import decode_header
 from dockhil.bags import runinfo
@@ -48,6 +46,9 @@ from dockhil.bags.writer import BagWriter
 from dockhil.errors import DockhilError
 from dockhil.log import Log, setup_child
 
+if TYPE_CHECKING:
+    from dockhil.runtime import executor, plan
+    from dockhil.scene.graph import Graph
 RECORDER_NAME = "bag-recorder"
 FLUSH_EVERY_S = 0.5  # bounds what a SIGKILL loses when topics are quiet
 DRAIN_QUIET_S = 0.2  # at stop: what still arrives within this is recorded
@@ -180,7 +181,9 @@ class Recorder:
             raise
         from dockhil.runtime.registry import graph_keys
 
-        self.sub = Subscriber(zmq.Context.instance(), observer=observer)
+        # A graph member in sim time trails: no tick waits for it, and it takes its messages in bursts.
+        trailing = not observer and bool(sources) and all(s.sim for s in sources.values())
+        self.sub = Subscriber(zmq.Context.instance(), observer=observer, trailing=trailing)
         try:
             for source in sources.values():
                 keys = graph_keys({"run_id": source.run_id, "keys": source.key_file})
@@ -282,7 +285,7 @@ class Recorder:
             n += 1
         return n
 
-    def run(self, stop, alive: Callable[[], bool] | None = None) -> str:
+    def run(self, stop: executor.Stop, alive: Callable[[], bool] | None = None) -> str:
         """Record until finished (sim time), stopped by a signal, or `alive()` turns false.
         Returns why it ended."""
         next_check = time.monotonic() + 0.5
@@ -470,8 +473,8 @@ def check_bag_path(path: str) -> None:
 
 
 def recorder_process(
-    path: str, graph, clock: str, n_ticks: int | None, quiet: bool = False, topics: tuple[str, ...] = ()
-):
+    path: str, graph: Graph, clock: str, n_ticks: int | None, quiet: bool = False, topics: tuple[str, ...] = ()
+) -> plan.ExtraProcess:
     """The recorder as a launcher helper process, subscribed to `topics` of `graph` (those it has; every
     topic when none is given or it has none of them); the launcher tells it the run's verdict before it
     closes the bag. quiet: a bag the user did not ask for (the summary's), whose path and count are said

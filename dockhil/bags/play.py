@@ -15,7 +15,7 @@ import json
 import os
 import time
 import uuid
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator
 
 import msgspec
 
@@ -24,6 +24,10 @@ from dockhil.bags.format import BagError, BagMessage
 from dockhil.bags.reader import BagReader
 from dockhil.log import Log
 from dockhil.msgs.codec import decode_header
+
+if TYPE_CHECKING:
+    from dockhil.runtime.executor import Stop
+    from dockhil.runtime.transport import Publisher
 
 _play_log = Log("dockhil bag play:").line
 
@@ -39,7 +43,7 @@ class _Player:
 
         self.run_id = f"play-{uuid.uuid4().hex[:6]}"
         self.run_dir = new_run_dir(self.run_id)
-        ctx = zmq.Context.instance()
+        ctx: zmq.Context = zmq.Context.instance()
         self.pubs: dict[str, Any] = {}
         try:
             keys = GraphKeys.make()
@@ -78,12 +82,12 @@ class _Player:
         )
         tmp.replace(self.registry)
 
-    def wait_subscribers(self, n: int, stop) -> bool:
+    def wait_subscribers(self, n: int, stop: Stop) -> bool:
         """Until every topic has `n` subscribers; False if stopped first."""
         if n <= 0:
             return True
         _play_log(f"waiting for {n} subscriber(s) on each of {len(self.pubs)} topics (Ctrl-C to give up)")
-        hint_at = time.monotonic() + 5.0
+        hint_at: float | None = time.monotonic() + 5.0
         while True:
             short = [t for t, pub in self.pubs.items() if pub.subscribers < n]
             if not short:
@@ -174,7 +178,7 @@ def play(args: argparse.Namespace) -> int:
     return 130 if stop.requested else 0
 
 
-def _play_wall(stream: Iterator[BagMessage], socks: dict, rate: float, stop) -> int:
+def _play_wall(stream: Iterator[BagMessage], socks: dict[str, Publisher], rate: float, stop: Stop) -> int:
     sent = 0
     t0 = time.monotonic()
     origin = None
@@ -245,18 +249,20 @@ def _retick(data: bytes, type_name: str, tick: int, stamp: float) -> bytes | Non
         msg = decode(data, msgs.type_by_name(type_name))
     except (DecodeError, KeyError):
         return None
-    h = msg.header
+    h = msg.header  # type: ignore[attr-defined]  # every message type has a header
     header = msgspec.structs.replace(h, tick=tick, seq=max(0, h.seq + tick - h.tick), stamp=max(0.0, stamp))
     return encode(msgspec.structs.replace(msg, header=header))
 
 
-def _play_sim(ordered, socks: dict, state: _TickShift, stop) -> int:
+def _play_sim(
+    ordered: Iterator[tuple[int, float, str, str, bytes]], socks: dict[str, Publisher], state: _TickShift, stop: Stop
+) -> int:
     """Send in tick order. Before tick k starts, every topic is complete up to k-1: a
     topic with no message at a tick gets the transport's empty-tick frame, so that
     lock-step subscribers never wait for a tick that has no message."""
     import zmq
 
-    def send(sock, frames) -> bool:
+    def send(sock: Publisher, frames: tuple[bytes, ...]) -> bool:
         while True:
             try:
                 sock.send_multipart(frames)
@@ -288,10 +294,11 @@ def _play_sim(ordered, socks: dict, state: _TickShift, stop) -> int:
                 return sent
             current = played_tick
         if shift:
-            data = _retick(data, type_name, played_tick, stamp - state.first[1] + state.base_stamp)
-            if data is None:
+            moved = _retick(data, type_name, played_tick, stamp - state.first[1] + state.base_stamp)
+            if moved is None:
                 unplayable += 1
                 continue
+            data = moved
         if not send(socks[topic], (topic.encode(), data)):
             return sent
         done[topic] = max(done[topic], played_tick)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from typing import Any, Iterable, Iterator
+from typing import TYPE_CHECKING, Any, Iterable, Iterator, Literal, overload
 
 import msgspec
 
@@ -20,6 +20,9 @@ from dockhil.bags.format import (
 )
 from dockhil.bags.records import CHANNEL, CHUNK, MESSAGE, SCHEMA, FilePass, RecordScanner, parse_definition
 from dockhil.files import os_reason
+
+if TYPE_CHECKING:
+    from mcap.records import Channel, Schema
 
 
 @dataclass
@@ -95,7 +98,7 @@ class BagReader:
     def __enter__(self) -> "BagReader":
         return self
 
-    def __exit__(self, *exc_info) -> None:
+    def __exit__(self, *exc_info: object) -> None:
         self.close()
 
     def __iter__(self) -> Iterator[BagMessage]:
@@ -138,7 +141,7 @@ class BagReader:
                 data = channel.to_wire(data)
             yield channel.topic, channel.type_name, log_time, publish_time, data
 
-    def decoded(self, topics: Iterable[str] | None = None, **bounds) -> Iterator[tuple[str, int, Any]]:
+    def decoded(self, topics: Iterable[str] | None = None, **bounds: int | None) -> Iterator[tuple[str, int, Any]]:
         """(topic, log_time_ns, msgs Struct) for each message; BagError if one does not decode."""
         from dockhil.msgs.codec import DecodeError
 
@@ -172,10 +175,10 @@ class BagReader:
                     entry[1] = log_time
                 if log_time > entry[2]:
                     entry[2] = log_time
-        topics = []
+        topics: list[dict[str, Any]] = []
         for channel_id, channel in self._channels.items():
             count, first, last = counts.get(channel_id, (0, None, None))
-            span = (last - first) / 1e9 if count else 0.0
+            span = (last - first) / 1e9 if first is not None and last is not None else 0.0  # count > 0
             topics.append(
                 {
                     "topic": channel.topic,
@@ -214,7 +217,7 @@ class BagReader:
             "chunks": self.chunks,
             "start": start,
             "end": end,
-            "duration_s": (end - start) if firsts else 0.0,
+            "duration_s": (end - start) if start is not None and end is not None else 0.0,  # firsts
             "topics": topics,
         }
         found["loss"] = loss_line(found)
@@ -245,6 +248,10 @@ class BagReader:
         self.orphaned = run.orphaned
         self.chunks = run.chunks
 
+    @overload
+    def _raw_messages(self, with_data: Literal[True]) -> Iterator[tuple[int, int, int, bytes]]: ...
+    @overload
+    def _raw_messages(self, with_data: Literal[False]) -> Iterator[tuple[int, int, int, None]]: ...
     def _raw_messages(self, with_data: bool) -> Iterator[tuple[int, int, int, bytes | None]]:
         """(channel id, log time, publish time, data as stored) in file order; registers
         schemas and channels on the way."""
@@ -293,7 +300,7 @@ class BagReader:
                 run.lost[i] = run.lost[i]._replace(before_ns=first)
             run.waiting = []
 
-    def _define(self, record) -> None:
+    def _define(self, record: Schema | Channel) -> None:
         from mcap.records import Schema
 
         if isinstance(record, Schema):

@@ -13,9 +13,12 @@ import re
 import struct
 import zlib
 from collections.abc import Container
-from typing import Any, BinaryIO, Iterator
+from typing import TYPE_CHECKING, Any, BinaryIO, Iterator
 
 from dockhil.bags.format import MAGIC, MESSAGE_HEAD, RECORD_HEAD, BagError, LostRegion
+
+if TYPE_CHECKING:
+    from mcap.records import Channel, Schema
 
 # MCAP opcodes (spec "Records"); 0x80-0xFF are reserved for user records.
 HEADER, FOOTER, SCHEMA, CHANNEL, MESSAGE, CHUNK, MESSAGE_INDEX, METADATA, DATA_END = (
@@ -148,7 +151,7 @@ class RecordScanner:
             return None
         if not (opcode in KNOWN_OPCODES or (opcode >= 0x80 and not resync)):
             return None
-        content = None
+        content: bytes | tuple[bytes, list[Any]] | None = None
         checked = False  # True: a CRC vouches for the record
         try:
             if opcode == CHUNK:
@@ -156,17 +159,17 @@ class RecordScanner:
             elif opcode in (MESSAGE, SCHEMA, CHANNEL):
                 if resync and length > _MAX_DEFINITION and opcode != MESSAGE:
                     return None
-                content = f.read(length)
+                content = body = f.read(length)
                 if opcode == MESSAGE:
                     if length < MESSAGE_HEAD.size:
                         return None
                     # Unless the file is known to be unchunked, a bare message found by
                     # scanning is one of a damaged (uncompressed) chunk's own records.
-                    known = MESSAGE_HEAD.unpack_from(content)[0] in self.channels
+                    known = MESSAGE_HEAD.unpack_from(body)[0] in self.channels
                     if resync and (run.chunks or not run.bare or not known):
                         return None
                 else:
-                    parse_definition(opcode, content)
+                    parse_definition(opcode, body)
             elif opcode == MESSAGE_INDEX:
                 if length < 6:
                     return None
@@ -311,7 +314,7 @@ class RecordScanner:
             pos += 9 + length
 
 
-def parse_definition(opcode: int, body: bytes):
+def parse_definition(opcode: int, body: bytes) -> Schema | Channel:
     """A schema or channel record, parsed; ValueError unless its fields fill the body exactly."""
     from mcap.data_stream import ReadDataStream
     from mcap.exceptions import EndOfFile

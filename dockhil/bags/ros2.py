@@ -37,13 +37,17 @@ import shutil
 import tempfile
 import textwrap
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import msgspec
 
 from dockhil.bags.cdr import PACKAGE, definitions, schema_text, serialize, type_hash
 from dockhil.bags.format import BagError
 from dockhil.bags.reader import BagReader
+
+if TYPE_CHECKING:
+    from dockhil.log import Log
+    from dockhil.msgs import Header, Message
 
 # ------------------------------------------------------------------ dockhil messages as ROS messages
 
@@ -79,7 +83,7 @@ def ros_topics(topic: str, type_name: str) -> tuple[tuple[str, str, tuple[str, .
     return ((topic, ros_type, None),)
 
 
-def ros_header(header) -> dict:
+def ros_header(header: Header) -> dict:
     """A dockhil Header as a std_msgs/Header value."""
     if not header.stamp < MAX_STAMP_S:
         raise ValueError(f"stamp {header.stamp} s does not fit builtin_interfaces/Time (int32 seconds)")
@@ -87,7 +91,7 @@ def ros_header(header) -> dict:
     return {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": header.frame}
 
 
-def ros_value(message, names: tuple[str, ...] | None) -> dict:
+def ros_value(message: Message, names: tuple[str, ...] | None) -> dict:
     """The value of a ROS message from a dockhil message: its header and the fields `names` (None:
     every field, each under its lowercased name)."""
     value = {
@@ -95,7 +99,7 @@ def ros_value(message, names: tuple[str, ...] | None) -> dict:
         for name in (names if names is not None else message.__struct_fields__)
         if name != "header"
     }
-    value["header"] = ros_header(message.header)
+    value["header"] = ros_header(message.header)  # type: ignore[attr-defined]  # every message type has one
     return value
 
 
@@ -266,8 +270,8 @@ def _write(reader: BagReader, found: dict, directory: str, src: str) -> Ros2Resu
         writer = Writer(f, compression=CompressionType.ZSTD)
         writer.start(profile="ros2", library=f"dockhil {__version__}")
         schemas: dict[str, int] = {}
-        for targets in plan.values():
-            for ros_topic, ros_type, _ in targets:
+        for planned in plan.values():
+            for ros_topic, ros_type, _ in planned:
                 if ros_type not in schemas:
                     schemas[ros_type] = writer.register_schema(ros_type, "ros2msg", schema_text(ros_type).encode())
                 channels[ros_topic] = writer.register_channel(
@@ -278,21 +282,24 @@ def _write(reader: BagReader, found: dict, directory: str, src: str) -> Ros2Resu
                 )
                 counts[ros_topic] = 0
         for topic, type_name, log_ns, publish_ns, data in reader.messages_with_publish_time():
-            targets = plan.get(topic)
-            if targets is None:
+            routes = plan.get(topic)
+            if routes is None:
                 continue
             try:
                 message = decode(data, TYPES[type_name])
                 encoded = [
-                    (ros_topic, serialize(ros_type, ros_value(message, names)))
-                    for ros_topic, ros_type, names in targets
+                    (ros_topic, serialize(ros_type, ros_value(message, names))) for ros_topic, ros_type, names in routes
                 ]
             except (DecodeError, ValueError, RecursionError):
                 unconvertible += 1
                 continue
             for ros_topic, cdr in encoded:
                 writer.add_message(
-                    channels[ros_topic], log_ns, cdr, publish_ns, sequence=message.header.seq & 0xFFFFFFFF
+                    channels[ros_topic],
+                    log_ns,
+                    cdr,
+                    publish_ns,
+                    sequence=message.header.seq & 0xFFFFFFFF,  # type: ignore[attr-defined]  # every message type has a header
                 )
                 counts[ros_topic] += 1
             converted += 1
@@ -313,7 +320,7 @@ def _write(reader: BagReader, found: dict, directory: str, src: str) -> Ros2Resu
     return Ros2Result(sum(counts.values()), len(counts), converted, unconvertible, skipped, found["loss"])
 
 
-def tell(result: Ros2Result, dst: str, say) -> str:
+def tell(result: Ros2Result, dst: str, say: Log) -> str:
     """What an export lost or left out, to `say` (a dockhil.log.Log); returns the line saying what
     it wrote."""
     if result.loss:
@@ -348,7 +355,7 @@ def recording_path(dst: str, *, overwrite: bool = False) -> str:
     return path
 
 
-def record_then_convert(dst: str, record: Callable[[str], int], say, *, overwrite: bool = False) -> int:
+def record_then_convert(dst: str, record: Callable[[str], int], say: Log, *, overwrite: bool = False) -> int:
     """`record(path)` records a dockhil bag at `path` and returns an exit code; the bag then becomes
     the rosbag2 bag `dst` and is removed. The dockhil bag is recorded first, and converted after,
     so that one recorder (crash-safe, lossless, read back by the run's summary) serves both formats.

@@ -20,6 +20,11 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from dockhil.bags.reader import BagReader
+    from dockhil.bags.writer import BagWriter
 
 RUN, SCENE, VERDICT = "dockhil.run", "dockhil.scene", "dockhil.verdict"
 NOT_FINISHED = "did not finish"
@@ -141,7 +146,7 @@ class RunInfo:
         if not self.runs:
             return None
         run = self.run
-        out = {
+        out: dict[str, Any] = {
             k: run.get(k)
             for k in ("scene", "description", "dockhil_version", "clock", "start", "recorded_by", "joined")
         }
@@ -187,7 +192,7 @@ def info_lines(run: dict | None) -> list[str]:
     ]
 
 
-def read(reader) -> RunInfo:
+def read(reader: BagReader) -> RunInfo:
     """The run records of an open BagReader."""
     info = RunInfo()
     for name, data in reader.metadata():
@@ -207,7 +212,7 @@ def read_path(path: str) -> RunInfo:
         return read(reader)
 
 
-def write_start(bag, run: dict[str, str] | None, texts: dict[str, str] | None) -> None:
+def write_start(bag: BagWriter, run: dict[str, str] | None, texts: dict[str, str] | None) -> None:
     """The run's description and its scene's texts, first in the bag."""
     if run is not None:
         bag.add_metadata(RUN, run)

@@ -4,7 +4,7 @@ and writes it to the bag, the same bytes the recorder process (dockhil.bags.live
 from __future__ import annotations
 
 import time
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from dockhil import msgs
 from dockhil.bags import runinfo
@@ -13,6 +13,9 @@ from dockhil.bags.live import FLUSH_EVERY_S, RECORDER_NAME
 from dockhil.bags.writer import BagWriter
 from dockhil.log import Log
 
+if TYPE_CHECKING:
+    from dockhil.scene.graph import Graph
+
 
 class TapRecorder:
     """The recorder of a composed run: a tap that encodes each message and writes it."""
@@ -20,7 +23,7 @@ class TapRecorder:
     def __init__(
         self,
         path: str,
-        graph,
+        graph: Graph,
         *,
         sim: bool,
         log: Callable[[str], None] | None = None,

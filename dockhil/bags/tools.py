@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import csv
 import os
-from typing import IO, Any, Iterator, NamedTuple
+from typing import IO, Any, Iterator, NamedTuple, cast
 
 import msgspec
 
@@ -47,6 +47,7 @@ def flatten(value: Any, prefix: str = "") -> dict[str, Any]:
     stack = [(prefix, value)]
     while stack:
         prefix, value = stack.pop()
+        items: list[tuple[Any, Any]]
         if isinstance(value, msgspec.Struct):
             items = [(name, getattr(value, name)) for name in value.__struct_fields__]
         elif isinstance(value, dict):
@@ -95,7 +96,7 @@ def export_csv(
             raise BagError(f"{reader.path}: no topic {topic}; topics in the bag: {have}")
         reader.check_encoding(topic)
         if hasattr(out, "write"):
-            result = _write_csv(reader, topic, out)
+            result = _write_csv(reader, topic, cast(IO[str], out))  # it writes
         else:
             with complete_or_nothing(os.fspath(out), BagError) as part, open(part, "w", newline="") as fh:
                 result = _write_csv(reader, topic, fh)
@@ -156,7 +157,7 @@ def _write_csv(reader: BagReader, topic: str, fh: IO[str]) -> tuple[int, int, in
             if key not in known:
                 known.add(key)
                 columns.append(key)
-    if reshaped:
+    if reshaped and columns is not None:  # reshaped: a row was seen, so columns are set
         if not fh.seekable():
             raise BagError(f"{reader.path}: messages on {topic} change shape; export to a file, not a stream")
         fh.seek(0)

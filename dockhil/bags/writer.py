@@ -51,7 +51,7 @@ import json
 import operator
 import os
 import time
-from typing import IO, Any
+from typing import IO, Any, cast
 
 import msgspec
 
@@ -95,7 +95,7 @@ class BagWriter:
             raise BagError(f"chunk_size and chunk_seconds must be > 0, got {chunk_size!r} and {chunk_seconds!r}")
         if hasattr(path, "write"):
             self.path = str(getattr(path, "name", "<stream>"))
-            self._file = path
+            self._file: IO[bytes] = cast(IO[bytes], path)
             self._owns_file = False
         else:
             self.path = os.fspath(path)
@@ -159,7 +159,9 @@ class BagWriter:
             )
         schema_id = self._schemas.get(type_name)
         if schema_id is None:
-            data = json.dumps(channel_schema(cls) if schema is None else schema, separators=(",", ":")).encode()
+            data = json.dumps(
+                channel_schema(cast(type, cls)) if schema is None else schema, separators=(",", ":")
+            ).encode()
             schema_id = self._writer.register_schema(name=type_name, encoding=SCHEMA_ENCODING, data=data)
             self._schemas[type_name] = schema_id
             self._pending += len(data)
@@ -257,7 +259,7 @@ class BagWriter:
     def __enter__(self) -> "BagWriter":
         return self
 
-    def __exit__(self, *exc_info) -> None:
+    def __exit__(self, *exc_info: object) -> None:
         self.close()
 
     def _stop(self, exc: OSError, doing: str) -> BagError:
@@ -315,7 +317,7 @@ def channel_schema(cls: type) -> dict:
     return out
 
 
-def _open_for_writing(path: str, overwrite: bool):
+def _open_for_writing(path: str, overwrite: bool) -> IO[bytes]:
     try:
         return open(path, "wb" if overwrite else "xb")
     except FileExistsError:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+
 from dockhil.argtypes import nonnegative
 from dockhil.errors import DockhilError
 
@@ -12,7 +14,7 @@ EXIT_STATUS = """exit status:
   3  INVALID: the run recorded is not valid (as the launch said, exit 3), failed, or did not finish"""
 
 
-def add_arguments(p) -> None:
+def add_arguments(p: argparse.ArgumentParser) -> None:
     import argparse
 
     p.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -50,7 +52,7 @@ def add_arguments(p) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     import json
 
     from dockhil.analysis.analyze import IDEAL_ARGS, analyze, figures, validity_line

@@ -10,6 +10,7 @@ import argparse
 import datetime
 import json
 import sys
+from types import ModuleType
 
 from dockhil import log
 
@@ -285,7 +286,7 @@ def _play(args: argparse.Namespace) -> int:
     return _live("play").play(args)
 
 
-def _live(name: str = "live"):
+def _live(name: str = "live") -> ModuleType:
     import importlib
 
     from dockhil.errors import DockhilError

@@ -3,13 +3,14 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 
 from dockhil.errors import DockhilError
 
 
-def add_arguments(p) -> None:
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--out", default="figures", metavar="DIR", help="folder for the PNGs and figures.json (default: figures)"
     )
@@ -22,7 +23,7 @@ def add_arguments(p) -> None:
     )
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     if not 0.0 <= args.delay < 1.0:
         raise DockhilError(f"--delay must be between 0 and 1 s, got {args.delay}")
     try:

@@ -3,18 +3,23 @@ whether `dockhil launch` would refuse its step (the same scene check, same one l
 
 from __future__ import annotations
 
+import argparse
+from typing import TYPE_CHECKING
 
 from dockhil import msgs
 
+if TYPE_CHECKING:
+    from dockhil.scene.graph import Graph
 
-def add_arguments(p) -> None:
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", nargs="?", help="launch file (YAML)")
     p.add_argument("overrides", nargs="*", metavar="name:=value", help="launch arguments")
     p.add_argument("--dot", action="store_true", help="print Graphviz DOT instead of text")
     p.add_argument("--schema", action="store_true", help="print the JSON Schema of launch files and exit")
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from dockhil.scene import launchfile
     from dockhil.scene.graph import build
 
@@ -38,7 +43,7 @@ def run(args) -> int:
     return 0
 
 
-def to_text(graph) -> str:
+def to_text(graph: Graph) -> str:
     scene = graph.scene
     lines = [
         f"{scene.path}: {scene.description}".rstrip(": "),
@@ -86,7 +91,7 @@ def to_text(graph) -> str:
     return "\n".join(lines)
 
 
-def declared_types(graph) -> dict[str, str]:
+def declared_types(graph: Graph) -> dict[str, str]:
     """Each node's type as its launch file writes it, with the dof it gives: `satellite_dynamics,
     dof 6`, not the registered satellite_dynamics6 that runs (a name the file does not show)."""
     out = {}
@@ -101,7 +106,7 @@ def _q(text: str) -> str:
     return text.replace("\\", "\\\\").replace('"', '\\"')
 
 
-def to_dot(graph) -> str:
+def to_dot(graph: Graph) -> str:
     out = ["digraph dockhil {", "  rankdir=LR;", "  node [shape=box];"]
     declared = declared_types(graph)
     for name in graph.order:
@@ -113,7 +118,7 @@ def to_dot(graph) -> str:
             out.append(f'  "{pub.node}" -> "{s.node}" [label="{topic}"{style}];')
     # A node left out may share its name with one that runs (`robot` of either kind): its own id,
     # so it never restyles the running one.
-    for i, s in enumerate(graph.scene.skipped):
-        out.append(f'  "left out {i}" [style=dotted, label="{_q(s.name)}\\n(left out)"];')
+    for i, left in enumerate(graph.scene.skipped):
+        out.append(f'  "left out {i}" [style=dotted, label="{_q(left.name)}\\n(left out)"];')
     out.append("}")
     return "\n".join(out)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+
 from dockhil import log
 from dockhil.argtypes import max_age_setting, seconds
 from dockhil.errors import LaunchError
@@ -21,7 +23,7 @@ EXIT_STATUS = """exit status:
   128+N  stopped by signal N (130: Ctrl-C)"""
 
 
-def add_arguments(p) -> None:
+def add_arguments(p: argparse.ArgumentParser) -> None:
     import argparse
 
     p.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -108,7 +110,7 @@ def _port(text: str) -> int:
     return int(text)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from dockhil.scene import launchfile
     from dockhil.scene.graph import build, set_max_ages
 

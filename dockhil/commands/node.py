@@ -3,13 +3,15 @@ installed (built in, or added by another package through the `dockhil.nodes` ent
 
 from __future__ import annotations
 
+import argparse
 import os
+from typing import Any
 
 from dockhil.errors import DockhilError, LaunchError
 from dockhil.log import Log
 
 
-def add_arguments(p) -> None:
+def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
     ls = sub.add_parser("list", help="nodes of every running graph (first its run id), with type, pid and state")
     ls.add_argument("--graph", metavar="ID", help="only the graph with this run id")
@@ -21,7 +23,7 @@ def add_arguments(p) -> None:
     types.add_argument("name", nargs="?", help="show one type in full")
 
 
-def _alive(pid) -> bool:
+def _alive(pid: Any) -> bool:  # as a registry file gives it: not checked to be an int
     try:
         os.kill(pid, 0)
         return True
@@ -29,7 +31,7 @@ def _alive(pid) -> bool:
         return False
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     if args.action == "types":
         return _types(args.name)
     from dockhil.commands.topic import select_graphs

@@ -8,9 +8,13 @@ import json
 import math
 import sys
 import warnings
+from typing import TYPE_CHECKING
 
 from dockhil import physical
 from dockhil.errors import DockhilError
+
+if TYPE_CHECKING:
+    from dockhil.contact.scenario import ContactScenario
 
 _SCENARIO_ARGS = (
     # name, unit, check, help
@@ -137,7 +141,7 @@ PLAUSIBLE = {
 TIME_SCALE = (1e-9, 1e9)  # [s]
 
 
-def _check_scales(s) -> None:
+def _check_scales(s: ContactScenario) -> None:
     """Each value within the range of docking hardware and the contact's time scales physical: then
     no product or quotient the fit forms leaves the floating-point range, and its solvers end."""
     for name, (low, high, unit) in PLAUSIBLE.items():
@@ -159,7 +163,7 @@ def _check_scales(s) -> None:
             )
 
 
-def _check_steps(scenario, args) -> None:
+def _check_steps(scenario: ContactScenario, args: argparse.Namespace) -> None:
     """A fixed-step state source steps to the later fit time: refuse a step that makes that endless."""
     from dockhil.contact.impedance import recommended_fit_times
 

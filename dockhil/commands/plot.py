@@ -5,11 +5,17 @@ The drawing is dockhil/analysis/plots/runplot.py's."""
 
 from __future__ import annotations
 
+import argparse
+from typing import TYPE_CHECKING
+
 from dockhil.argtypes import nonnegative
 from dockhil.errors import DockhilError
 
+if TYPE_CHECKING:
+    from dockhil.scene.graph import Graph
 
-def add_arguments(p) -> None:
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("bags", nargs="+", metavar="BAG", help="one or more recorded runs (MCAP); each is one curve")
     p.add_argument("--png", required=True, metavar="FILE", help="where to write the figure")
     p.add_argument("--labels", nargs="+", metavar="LABEL", help="legend label per bag (default: file names)")
@@ -36,7 +42,7 @@ def add_arguments(p) -> None:
     )
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     # A refused command line is refused before matplotlib is imported (half a CPU-second).
     if args.labels and len(args.labels) != len(args.bags):
         raise DockhilError(f"--labels has {len(args.labels)} labels for {len(args.bags)} bags; give one per bag")
@@ -66,7 +72,7 @@ def run(args) -> int:
     return 0
 
 
-def _recorded_graph(path: str):
+def _recorded_graph(path: str) -> Graph | None:
     """The bag's recorded scene; None, said in one line, when it does not rebuild here (a node type of
     a package not installed): the bag is then drawn as one without it."""
     from dockhil.analysis.plots.runplot import bag_graph

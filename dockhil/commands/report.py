@@ -34,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from dockhil.analysis.report import compute as report
     from dockhil.analysis.report import plots as report_plots
     from dockhil.analysis.report import markdown as report_markdown

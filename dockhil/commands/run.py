@@ -7,6 +7,7 @@ wall time at --rate until Ctrl-C or --duration.
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
 
@@ -15,7 +16,7 @@ from dockhil.argtypes import hertz, max_age_setting, node_name, seconds
 from dockhil.errors import DockhilError, suggest
 
 
-def add_arguments(p) -> None:
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("node", help="node type (see 'dockhil node types') or module:Class")
     p.add_argument("overrides", nargs="*", metavar="param:=value", help="node parameters (anywhere on the line)")
     p.add_argument("--name", type=node_name, help="node name (default: the type name)")
@@ -41,7 +42,7 @@ def add_arguments(p) -> None:
     log.add_arguments(p)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     import json
     import uuid
 
@@ -69,9 +70,11 @@ def run(args) -> int:
                 f"{where}: node {name!r} ({type_name}) has no input {port!r}; {suggest(port, ins, 'inputs')}"
             )
         ages[port] = age
-    topic_of = lambda port, default: remap.get(port, remap.get(default, default))  # noqa: E731
 
-    published = {}
+    def topic_of(port: str, default: str) -> str:
+        return remap.get(port, remap.get(default, default))
+
+    published: dict[str, dict] = {}
     for info in running_graphs():
         for topic, t in info["topics"].items():
             published.setdefault(topic, dict(t, graph=info))

@@ -267,6 +267,7 @@ def run(args: argparse.Namespace) -> int:
 
     m, b, h = _loop_values(args)
     report = stability_report(m, b, h, K=args.K, damper=args.damper, pade_order=args.pade_order)
+    report.update(_passivity(args, b, h))
     if args.compensation == "passivity":
         from dockhil.contact.passivity import DEFAULT_MAX_DAMPING
 
@@ -280,9 +281,62 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(report))
         return 0
     print(format_report(report))
+    print(_passivity_text(report))
     if "passivity" in report:
         print(format_compensated(report["passivity"]))
     return 0
+
+
+def _passivity(args, b: float, h: float) -> dict:
+    """The passivity boundary of stability.yaml's loop (dockhil.contact.passivity_bound): the largest K whose
+    delayed port the damper b makes passive (none with the damper behind the delay, which itself needs b
+    undelayed), and with --K the least undelayed damping the port asks for."""
+    from dockhil.contact.passivity_bound import passivity_report
+
+    rate = 1000.0 if args.rate is None else check_rate(args.rate)
+    dt = 1.0 / rate
+    delayed = args.damper == "delayed"
+    out: dict = {
+        "passivity_max_K": None if delayed else b / h,
+        "sampled_passivity_max_K": None if delayed else b / ((round(h / dt) + 0.5) * dt),
+    }
+    if args.K is not None:
+        out.update(passivity_report(args.K, b if delayed else 0.0, h, 0.0 if delayed else b, dt))
+    return out
+
+
+def check_rate(rate: float) -> float:
+    from dockhil.contact.scenario import check_positive
+
+    rate = check_positive("--rate", _within("--rate", rate, MAX_RATE, "Hz"), "Hz")
+    if rate < 1.0:
+        raise DockhilError(f"--rate must be at least 1 Hz, got {rate:g}")
+    return rate
+
+
+def _passivity_text(r: dict) -> str:
+    """The passivity lines of `dockhil stability`'s text."""
+    lines = []
+    if r.get("passivity_max_K") is None and "passivity_max_K" in r:
+        lines.append(
+            "passivity: the damper acts behind the delay, so no K makes the port passive (it needs b undelayed)"
+        )
+    elif "passivity_max_K" in r:
+        lines.append(
+            f"passivity: the damper makes the delayed port passive for K <= b/h = {r['passivity_max_K']:.6g} N/m "
+            f"(sampled: {r['sampled_passivity_max_K']:.6g} N/m)"
+        )
+    if "passivity_min_damping_Ns_per_m" in r:
+        at = r["passivity_frequency_rad_s"]
+        sat = r.get("sampled_passivity_frequency_rad_s")
+        lines.append(
+            f"passivity: least undelayed damping {r['passivity_min_damping_Ns_per_m']:.6g} N s/m "
+            f"(max over w of (k_h/w) sin(wh) - b_h cos(wh), at {'w -> 0' if at is None else f'{at:.4g} rad/s'}): "
+            f"{'passive' if r['passive'] else 'not passive'}; sampled at {r['sampled_rate_Hz']:g} Hz "
+            f"{r['sampled_passivity_min_damping_Ns_per_m']:.6g} N s/m "
+            f"(at {'w -> 0' if sat is None else f'{sat:.4g} rad/s'}): {'passive' if r['sampled_passive'] else 'not passive'}"
+        )
+    return "\n".join(lines)
 
 
 def _range(name: str, pair, positive: bool, most: float = MAX_COEFF, unit: str = "") -> tuple[float, float]:
@@ -405,16 +459,20 @@ def _run_hybrid(args) -> int:
 
     from dockhil.contact.sampled import RootsNotResolved
 
+    from dockhil.contact.passivity_bound import passivity_report
+
     m, kd, bd, kh, bh, h, rate = _hybrid_values(args)
     try:
         r = hybrid_report(m, kd, bd, kh, bh, h, rate=rate, pade_order=args.pade_order)
     except RootsNotResolved as exc:
         raise DockhilError(f"{exc}; give a lower --rate") from None
+    r.update(passivity_report(kh, bh, h, bd, 1.0 / rate, kd))
     if args.scene is not None:  # the verdict in the words of dockhil calibrate and the launch's scene check
         from dockhil.analysis.stability.verdict import loop_verdict
 
         r["verdict"] = loop_verdict(m, kd, bd, kh, bh, h)["line"]
-    print(json.dumps(r) if args.json else format_hybrid(r) + ("\n" + r["verdict"] if "verdict" in r else ""))
+    text = format_hybrid(r) + "\n" + _passivity_text(r) + ("\n" + r["verdict"] if "verdict" in r else "")
+    print(json.dumps(r) if args.json else text)
     return 0
 
 

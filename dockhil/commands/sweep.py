@@ -4,13 +4,14 @@ launch arguments; `dockhil sweep plot RESULTS.parquet --png FILE`: what the camp
 from __future__ import annotations
 
 import argparse
+from types import FrameType
 
 from dockhil import log
 from dockhil.errors import DockhilError
 from dockhil.log import Log
 
 
-def add_arguments(p) -> None:
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.description = (
         "Run a scene many times (composed, sim time) over the launch arguments a campaign\n"
@@ -65,7 +66,7 @@ def add_arguments(p) -> None:
     log.add_arguments(p)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     if args.campaign == "plot":
         return _plot(args)
     if args.results is not None:
@@ -90,6 +91,7 @@ def run(args) -> int:
     say = Log("dockhil sweep:")
     signals = _StopOnSignal()
     try:
+        executor: sweep.DaskExecutor | sweep.LocalPool
         if args.dask:
             executor = sweep.DaskExecutor(args.dask, args.workers)
         else:
@@ -121,13 +123,13 @@ class _StopOnSignal:
         import signal
         import threading
 
-        self.number = signal.SIGINT
+        self.number: int = signal.SIGINT
         self.what = "interrupted"
         self.old = {}
         if threading.current_thread() is threading.main_thread():  # where Python runs handlers
             self.old = {sig: signal.signal(sig, self._stop) for sig in (signal.SIGTERM, signal.SIGHUP)}
 
-    def _stop(self, signum, frame) -> None:
+    def _stop(self, signum: int, frame: FrameType | None) -> None:
         import signal
 
         if self.number != signal.SIGINT:  # ending already: a second signal must not cut that short
@@ -142,7 +144,7 @@ class _StopOnSignal:
             signal.signal(sig, handler)
 
 
-def _plot(args) -> int:
+def _plot(args: argparse.Namespace) -> int:
     if not args.results:
         raise DockhilError("sweep plot: give the results file: dockhil sweep plot RESULTS.parquet --png FILE")
     if not args.png:

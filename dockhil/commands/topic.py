@@ -10,12 +10,21 @@ left open) never slows the graph; it loses its own messages, and says at the end
 
 from __future__ import annotations
 
+import argparse
 import os
 import time
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING, Any
 
 from dockhil.argtypes import nonnegative, seconds
 from dockhil.errors import DockhilError
 from dockhil.log import Log
+
+if TYPE_CHECKING:
+    import msgspec
+
+    from dockhil.runtime.keys import GraphKeys
+    from dockhil.runtime.transport import Subscriber
 
 # How often echo and hz look whether their graph still runs [s].
 ALIVE_CHECK_S = 0.5
@@ -23,7 +32,7 @@ OUTPUT_QUEUE = 1000  # lines waiting for stdout at most; beyond, an unread outpu
 HZ_WINDOW = 10_000  # hz's statistics are over this many messages by default, as ros2 topic hz's
 
 
-def add_arguments(p) -> None:
+def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
     ls = sub.add_parser("list", help="topics of every running graph, with type and publisher")
     info = sub.add_parser("info", help="a topic's type, publisher, subscribers, endpoint and rate")
@@ -129,7 +138,7 @@ def graph_alive(info: dict) -> bool:
     return (registry_dir() / f"{info['run_id']}.json").exists()
 
 
-def _subscribe(endpoint: str, keys):
+def _subscribe(endpoint: str, keys: GraphKeys) -> Subscriber:
     from dockhil.runtime.transport import Subscriber
     import zmq
 
@@ -156,7 +165,7 @@ class _Watch:
         return True
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from dockhil.runtime.registry import graph_keys
 
     if args.action == "list":
@@ -210,7 +219,7 @@ def _wait_for(topic: str, graph_id: str | None) -> dict:
         time.sleep(ALIVE_CHECK_S)
 
 
-def field_reader(cls: type, path: str):
+def field_reader(cls: type, path: str) -> Callable[[Any], Any]:
     """A function from a message of type `cls` to its field at `path` (dotted, list indices as
     numbers); DockhilError (one line, naming the fields there are) if the type has no such field."""
     import types
@@ -268,7 +277,7 @@ def field_reader(cls: type, path: str):
     return read
 
 
-def period_stats(arrivals) -> dict | None:
+def period_stats(arrivals: Iterable[float]) -> dict | None:
     """Rate and period statistics of messages that arrived at `arrivals` [s, ascending], as ros2
     topic hz gives them: the mean rate, the shortest and longest period, the standard deviation of
     the periods (over all of them, not a sample's), and how many periods; None under two arrivals."""
@@ -298,7 +307,7 @@ def format_stats(stats: dict, lost: int = 0) -> str:
     return line + (f" / lost: {lost}" if lost else "")
 
 
-def _info(args, info: dict, t: dict, keys) -> int:
+def _info(args: argparse.Namespace, info: dict, t: dict, keys: GraphKeys) -> int:
     import json
 
     endpoint = t["endpoint"]
@@ -419,7 +428,14 @@ class _Output:
         return self.dropped + (0 if self.left else self.lines.qsize())
 
 
-def _read(args, sub, cls, watch, out, pick=None) -> int:
+def _read(
+    args: argparse.Namespace,
+    sub: Subscriber,
+    cls: type[msgspec.Struct],
+    watch: _Watch,
+    out: _Output,
+    pick: Callable[[Any], Any] | None = None,
+) -> int:
     import collections
 
     import msgspec

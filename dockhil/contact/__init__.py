@@ -16,6 +16,7 @@ and the exact delay boundary), integrators (stepping and contact runs).
 from __future__ import annotations
 
 import importlib
+from typing import Any
 
 # module -> the names it provides here
 _PROVIDES = {
@@ -79,7 +80,7 @@ _MODULE_OF = {name: module for module, names in _PROVIDES.items() for name in na
 __all__ = sorted(_MODULE_OF)
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> Any:  # whatever the named module defines
     module = _MODULE_OF.get(name)
     if module is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -32,16 +32,21 @@ a Coulomb law regularised below the sliding speed v_s [m/s].
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
 from dockhil.contact import rigid, rigidbody
 from dockhil.contact.interface6 import InterfaceGeometry, add6, interface_state, mat3t_vec, sub6
-from dockhil.contact.rigid import Motion, Wrench
+from dockhil.contact.rigid import Motion, Wrench, WrenchOf
 from dockhil.contact.rigidbody import BodyState, RigidBody, check_symmetric
-from dockhil.contact.rotations import rotate
+from dockhil.contact.rotations import Vec3, rotate
 from dockhil.contact.scenario import ContactModelError, check_nonnegative, check_positive
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 
 class MatVec6:
@@ -57,7 +62,7 @@ class MatVec6:
         self.diagonal = tuple(float(c) for c in np.diag(a)) if not off.any() else None
         self.zero = not a.any()
 
-    def __call__(self, v) -> tuple:
+    def __call__(self, v: Sequence[float]) -> tuple:
         if self.zero:
             return (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         v0, v1, v2, v3, v4, v5 = v
@@ -75,7 +80,7 @@ class MatVec6:
         )
 
 
-def check_matrix6(name: str, value, unit: str) -> np.ndarray:
+def check_matrix6(name: str, value: object, unit: str) -> np.ndarray:
     """A 6x6 symmetric PSD matrix; a 6-vector means its diagonal."""
     arr = np.asarray(value, dtype=float) if rigidbody.is_numeric(value) else None
     if arr is not None and arr.shape == (6,):
@@ -96,6 +101,9 @@ class Contact6:
     damping: np.ndarray = field(default_factory=lambda: np.zeros(6))
     mu: float = 0.0
     slip_velocity: float = 1e-3
+    if TYPE_CHECKING:  # also set in __post_init__, as attributes only: the per-tick products K v and C v
+        stiffness_of: MatVec6 = field(init=False)
+        damping_of: MatVec6 = field(init=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "stiffness", check_matrix6("stiffness", self.stiffness, "N/m, N m/rad"))
@@ -111,13 +119,18 @@ class Contact6:
         return bool(np.any(self.damping != 0.0) or self.mu > 0.0)
 
 
-def contact_wrench(model: Contact6, g: InterfaceGeometry, rate, anchor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def contact_wrench(
+    model: Contact6, g: InterfaceGeometry, rate: Sequence[float], anchor: Sequence[float]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(F, M, generalized force) on body 1 at o_A while touching; the springs
     pull toward `anchor` (the onset pose, normal axis 0)."""
-    return tuple(np.array(v) for v in contact_wrench3(model, g, rate, anchor))
+    force, moment, q = contact_wrench3(model, g, rate, anchor)
+    return np.array(force), np.array(moment), np.array(q)
 
 
-def contact_wrench3(model: Contact6, g: InterfaceGeometry, rate, anchor) -> tuple[tuple, tuple, tuple]:
+def contact_wrench3(
+    model: Contact6, g: InterfaceGeometry, rate: Sequence[float], anchor: Sequence[float]
+) -> tuple[tuple, tuple, tuple]:
     """`contact_wrench` on plain floats (the integrator's kicks): F = -R_B q_t, M = -R_B J^-T q_r."""
     q = add6(model.stiffness_of(sub6(g.e, anchor)), model.damping_of(rate))
     fx, fy, fz = rotate(g.q_b, q[:3])
@@ -144,7 +157,7 @@ class IdealContactWrench(Wrench):
         self.touching = True
         self.anchor = (0.0,) + InterfaceGeometry(m1, m2).e[1:]
 
-    def prepare(self, m1: Motion, m2: Motion):
+    def prepare(self, m1: Motion, m2: Motion) -> tuple[Vec3, WrenchOf]:
         g = InterfaceGeometry(m1, m2)
         if not self.touching:
             zero = (0.0, 0.0, 0.0)
@@ -205,7 +218,7 @@ class Run6:
     @property
     def normal_force(self) -> np.ndarray:
         """Compressive force [N] along the target interface's normal (the 1-DOF 'force')."""
-        return self.generalized[:, 0]
+        return cast(np.ndarray, self.generalized)[:, 0]  # a run's own: recorded
 
     def peak(self, what: str) -> float:
         return float(np.max(np.linalg.norm(getattr(self, what), axis=1)))
@@ -232,7 +245,16 @@ class Recorder:
         self.q = np.zeros((n, 6))
 
     def record(
-        self, i: int, t: float, m1: Motion, m2: Motion, force, torque, q, potential: float, touching: bool
+        self,
+        i: int,
+        t: float,
+        m1: Motion,
+        m2: Motion,
+        force: ArrayLike,
+        torque: ArrayLike,
+        q: ArrayLike,
+        potential: float,
+        touching: bool,
     ) -> None:
         g, rate = interface_state(m1, m2)
         self.t[i] = t
@@ -249,7 +271,14 @@ class Recorder:
         self.energy[i] = m1.kinetic_energy() + m2.kinetic_energy() + potential
         self.flag[i] = touching
 
-    def run(self, onset, exit_time, final, anchor, n: int | None = None) -> Run6:
+    def run(
+        self,
+        onset: float | None,
+        exit_time: float | None,
+        final: tuple,
+        anchor: np.ndarray | None,
+        n: int | None = None,
+    ) -> Run6:
         """The run of the first n samples (all by default)."""
         k = slice(None, n)
         return Run6(
@@ -278,7 +307,7 @@ def _step_with_events(m1: Motion, m2: Motion, wrench: IdealContactWrench, h: flo
     """One step of h with contact onset/separation located inside it (bisection on the
     step map, as the 1-DOF library): returns [(time into the step, touching after)].
     A contact that starts and ends within one step is not seen."""
-    events = []
+    events: list[tuple[float, bool]] = []
     done = 0.0
     remaining = h
     for _ in range(16):
@@ -315,7 +344,7 @@ def _assign(dst: Motion, src: Motion) -> None:
     dst.x, dst.v, dst.q, dst.L = src.x, src.v, src.q, src.L
 
 
-def potential_energy(model: Contact6, g: InterfaceGeometry, anchor, touching: bool) -> float:
+def potential_energy(model: Contact6, g: InterfaceGeometry, anchor: Sequence[float], touching: bool) -> float:
     """1/2 (e - anchor)^T K (e - anchor) [J] while touching."""
     de = np.array(g.e) - anchor
     return 0.5 * float(de @ model.stiffness @ de) if touching else 0.0

@@ -19,8 +19,14 @@ itself) landed on exactly, so that no step straddles a kink of the delayed force
 from __future__ import annotations
 
 import bisect
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from dockhil.contact.hybrid import VirtualImpedance
 
 
 class DelayedContactReference:
@@ -28,6 +34,10 @@ class DelayedContactReference:
 
     m1, m2 [kg]; k1, b1, k2, b2: the virtual impedance; k: the passive compliance behind the
     delay h [s]; v0: closing velocity at t = 0 (p(0) = -gap)."""
+
+    # The virtual impedance k1, b1, k2, b2 come from, where the maker keeps it with the reference
+    # (the report's precision._delay_reference); the solver reads only the four numbers.
+    impedance: VirtualImpedance
 
     def __init__(
         self,
@@ -82,7 +92,7 @@ class DelayedContactReference:
             self._append(t + step, p1, v1, touching)
             t += step
 
-    def _append(self, t, p, v, mode) -> None:
+    def _append(self, t: float, p: float, v: float, mode: bool) -> None:
         self.ts.append(t)
         self.ps.append(p)
         self.vs.append(v)
@@ -110,12 +120,12 @@ class DelayedContactReference:
         dp = (6 * s**2 - 6 * s) * p0 + (3 * s**2 - 4 * s + 1) * v0 + (-6 * s**2 + 6 * s) * p1 + (3 * s**2 - 2 * s) * v1
         return p, (dp / w if w else self.vs[i])
 
-    def _acc(self, t, p, v, touching) -> float:
+    def _acc(self, t: float, p: float, v: float, touching: bool) -> float:
         # Method of steps: a step never exceeds h, so t - h lies in the finished history.
         a = -(self.cp * p + self.cv * v) if touching else 0.0
         return a - self.kr * self.delayed(t) if self.kr else a
 
-    def _rk4(self, t, p, v, dt, touching) -> tuple[float, float]:
+    def _rk4(self, t: float, p: float, v: float, dt: float, touching: bool) -> tuple[float, float]:
         a1 = self._acc(t, p, v, touching)
         p2, v2 = p + 0.5 * dt * v, v + 0.5 * dt * a1
         a2 = self._acc(t + 0.5 * dt, p2, v2, touching)
@@ -125,7 +135,7 @@ class DelayedContactReference:
         a4 = self._acc(t + dt, p4, v4, touching)
         return (p + dt / 6.0 * (v + 2 * v2 + 2 * v3 + v4), v + dt / 6.0 * (a1 + 2 * a2 + 2 * a3 + a4))
 
-    def _locate(self, t, p, v, step, touching) -> float:
+    def _locate(self, t: float, p: float, v: float, step: float, touching: bool) -> float:
         """Step length to the zero of p (secant on the step length, bracketed)."""
         lo, hi = 0.0, step
         f_lo, f_hi = p, self._rk4(t, p, v, step, touching)[0]
@@ -145,7 +155,7 @@ class DelayedContactReference:
                 break
         return tau
 
-    def sample(self, t) -> dict:
+    def sample(self, t: ArrayLike) -> dict:
         """p, pd, touching, fs (passive force on the chaser along +x) and the compressive force
         on the chaser at times t [s]; a sample at an event belongs to the next phase."""
         t = np.asarray(t, float)
@@ -161,6 +171,6 @@ class DelayedContactReference:
         return {"t": t, "p": p, "pd": pd, "touching": touching, "fs": fs, "force": virtual - fs}
 
 
-def reference_error(run_a: DelayedContactReference, run_b: DelayedContactReference, t) -> float:
+def reference_error(run_a: DelayedContactReference, run_b: DelayedContactReference, t: ArrayLike) -> float:
     """Largest difference [N] of the compressive force between two reference runs at times t."""
     return float(np.max(np.abs(run_a.sample(t)["force"] - run_b.sample(t)["force"])))

@@ -15,16 +15,18 @@ class EnvelopeFit:
 
     def __init__(self, about: float):
         self.about = about
-        self.a1 = self.a2 = None  # |e| of the two previous ticks
-        self.t1 = None
+        self.a1: float | None = None  # |e| of the two previous ticks
+        self.a2: float | None = None
+        self.t1: float | None = None
         self.sums = np.zeros(5)  # n, sum t, sum t^2, sum y, sum t y
 
     def add(self, t: float, p: float) -> None:
         a = abs(p - self.about)
-        if self.a2 is not None and self.a1 > self.a2 and self.a1 >= a and self.a1 > 0.0:
-            y = math.log(self.a1)
-            self.sums += (1.0, self.t1, self.t1 * self.t1, y, self.t1 * y)
-        self.a2, self.a1, self.t1 = self.a1, a, t
+        a1, a2, t1 = self.a1, self.a2, self.t1  # a1 and t1 are set once a2 is
+        if a2 is not None and a1 is not None and t1 is not None and a1 > a2 and a1 >= a and a1 > 0.0:
+            y = math.log(a1)
+            self.sums += (1.0, t1, t1 * t1, y, t1 * y)
+        self.a2, self.a1, self.t1 = a1, a, t
 
     def rate(self) -> float:
         n, st, stt, sy, sty = self.sums

@@ -42,8 +42,9 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
 import numpy as np
 
@@ -64,6 +65,8 @@ from dockhil.contact.rigid import HeldWrench, Motion
 from dockhil.contact.rigidbody import BodyState, RigidBody, check_vector
 from dockhil.contact.rotations import (
     COMPILED,
+    Quat,
+    Vec3,
     normalised,
     add3,
     check_unit_quaternion,
@@ -79,6 +82,9 @@ from dockhil.contact.rotations import (
 )
 from dockhil.contact.scenario import ContactModelError, FitError, check_positive
 
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
 
 def wrench_map(g: InterfaceGeometry) -> np.ndarray:
     """S (6x6): [F; M about o_A] on body 1 = -S q for a generalized force q."""
@@ -88,12 +94,12 @@ def wrench_map(g: InterfaceGeometry) -> np.ndarray:
     return s
 
 
-def body_mobility(m: Motion, point, g: InterfaceGeometry) -> np.ndarray:
+def body_mobility(m: Motion, point: Vec3, g: InterfaceGeometry) -> np.ndarray:
     """G_i (6x6, symmetric positive definite) of one body at `point`, generalized coordinates."""
     return _mobility(m.body, m.x, m.q, point, g)
 
 
-def _mobility(body: RigidBody, x, q, point, g: InterfaceGeometry) -> np.ndarray:
+def _mobility(body: RigidBody, x: Vec3, q: Quat, point: Vec3, g: InterfaceGeometry) -> np.ndarray:
     """`body_mobility` of a body at CoM x with principal-frame attitude q."""
     rot = quat_to_matrix(q)
     inv_inertia = (rot / body.principal_moments) @ rot.T
@@ -110,7 +116,9 @@ def _mobility(body: RigidBody, x, q, point, g: InterfaceGeometry) -> np.ndarray:
     return pt @ spatial @ pt.T
 
 
-def interface_mobilities(body1: RigidBody, body2: RigidBody, state1: BodyState, state2: BodyState):
+def interface_mobilities(
+    body1: RigidBody, body2: RigidBody, state1: BodyState, state2: BodyState
+) -> tuple[np.ndarray, np.ndarray]:
     """(G1, G2) at the chaser's interface origin for the given states."""
     m1, m2 = Motion.from_state(body1, state1), Motion.from_state(body2, state2)
     g = InterfaceGeometry(m1, m2)
@@ -156,7 +164,7 @@ def _check_frictionless(ideal: Contact6) -> None:
         )
 
 
-def impedance_closed_form6(ideal: Contact6, passive: Contact6, g1, g2) -> Impedance6:
+def impedance_closed_form6(ideal: Contact6, passive: Contact6, g1: np.ndarray, g2: np.ndarray) -> Impedance6:
     """K_i, C_i with K_i D_i = K - K_p and C_i D_i = C - C_p (exact: see the module text)."""
     _check_frictionless(ideal)
     d1, d2 = wall_split(g1, g2)
@@ -166,7 +174,13 @@ def impedance_closed_form6(ideal: Contact6, passive: Contact6, g1, g2) -> Impeda
 
 
 def fit_impedance6(
-    run: Run6, times, passive: Contact6, g1, g2, axes=AXES, max_condition: float = 1e8
+    run: Run6,
+    times: Iterable[float],
+    passive: Contact6,
+    g1: ArrayLike,
+    g2: ArrayLike,
+    axes: Iterable[str] = AXES,
+    max_condition: float = 1e8,
 ) -> dict[str, tuple[float, float, float, float]]:
     """The two-time fit (Eqs. 5-6) per axis: (k1, c1, k2, c2) for each axis in `axes`.
 
@@ -199,11 +213,11 @@ def fit_impedance6(
         if axis not in AXES:
             raise FitError(f"unknown axis {axis!r}; axes are {', '.join(AXES)}")
         j = AXES.index(axis)
-        rows = {1: [], 2: []}
+        rows: dict[int, list[list[float]]] = {1: [], 2: []}
         rhs = []
         for i in idx:
             de = run.e[i] - run.anchor
-            y = run.generalized[i] - passive.stiffness @ de - passive.damping @ run.rate[i]
+            y = cast(np.ndarray, run.generalized)[i] - passive.stiffness @ de - passive.damping @ run.rate[i]
             rhs.append(y[j])
             rows[1].append([(d1 @ de)[j], (d1 @ run.rate[i])[j]])
             rows[2].append([(d2 @ de)[j], (d2 @ run.rate[i])[j]])
@@ -259,12 +273,14 @@ def published_body(m: Motion) -> tuple:
     return m.x, q, m.v, m.omega3()
 
 
-def principal_attitude(body: RigidBody, orientation) -> tuple:
+def principal_attitude(body: RigidBody, orientation: Quat) -> tuple:
     """The integrator's (principal-frame) attitude of a published body-frame attitude."""
     return normalised(orientation if body._bp_identity else quat_multiply(orientation, body._q_bp))
 
 
-def motion_from_published(body: RigidBody, position, orientation, velocity, omega_world) -> Motion:
+def motion_from_published(
+    body: RigidBody, position: Vec3, orientation: Quat, velocity: Vec3, omega_world: Vec3
+) -> Motion:
     """The integrator's variables rebuilt from a published body state (what a node downstream sees)."""
     q_p = principal_attitude(body, orientation)
     i1, i2, i3 = body._moments
@@ -272,14 +288,18 @@ def motion_from_published(body: RigidBody, position, orientation, velocity, omeg
     return Motion(body, tuple(position), tuple(velocity), q_p, (i1 * w[0], i2 * w[1], i3 * w[2]))
 
 
-def relative_interface(m1: Motion, m2: Motion, omega1, omega2) -> tuple[InterfaceGeometry, tuple, RelativePose]:
+def relative_interface(
+    m1: Motion, m2: Motion, omega1: Vec3, omega2: Vec3
+) -> tuple[InterfaceGeometry, tuple, RelativePose]:
     """(geometry, e', robot command) for published states; omega_i world angular velocities."""
     g = InterfaceGeometry(m1, m2)
     rate, w_rel = g.rates(m1.v, omega1, m2.v, omega2)
     return g, rate, RelativePose(g.e[:3], g.q_rel, rate[:3], w_rel)
 
 
-def published_interface(body1: RigidBody, published1: tuple, body2: RigidBody, published2: tuple):
+def published_interface(
+    body1: RigidBody, published1: tuple, body2: RigidBody, published2: tuple
+) -> tuple[InterfaceGeometry, tuple, tuple]:
     """(geometry, d', relative angular velocity in B) of two published body states (`published_body`):
     `relative_interface` without rebuilding the momenta, which neither the command nor the wall
     reads (the per-tick path of the sampled loop; e' is `g.rate_from(d', angular velocity)`).
@@ -340,9 +360,11 @@ class VirtualWall6:
         self.ideal, self.passive, self.impedance = ideal, passive, impedance
         self.anchor: tuple | None = None
         self.touching = False
-        self._products = None  # K_i D_i, C_i D_i as MatVec6, fixed at the first tick in contact
+        self._products: tuple[MatVec6, ...] | None = (
+            None  # K_i D_i, C_i D_i as MatVec6, fixed at the first tick in contact
+        )
 
-    def wrenches(self, g: InterfaceGeometry, velocity, spin) -> tuple:
+    def wrenches(self, g: InterfaceGeometry, velocity: tuple, spin: Vec3) -> tuple:
         """(F_1, T_1, F_2, T_2): world forces [N] and torques [N m] about each CoM (tuples), for the
         geometry between the published states and its rates (`published_interface`)."""
         self.touching = _touching(g.d[0], velocity[0])
@@ -365,7 +387,7 @@ class VirtualWall6:
                 self._products = tuple(
                     MatVec6(a @ d) for a, d in ((imp.k1, imp.d1), (imp.c1, imp.d1), (imp.k2, imp.d2), (imp.c2, imp.d2))
                 )
-        k1, c1, k2, c2 = self._products
+        k1, c1, k2, c2 = cast(tuple[MatVec6, ...], self._products)  # fixed with the anchor
         de = sub6(g.e, self.anchor)
         q1 = add6(k1(de), c1(rate))
         # W = -S q on body 1 and +S q on body 2 at o_A: force R_B q_t, moment R_B J^-T q_r.
@@ -392,7 +414,7 @@ class PassiveSensor6:
     Friction (mu > 0) is contact6's regularised Coulomb law on A's sliding in B.
     """
 
-    def __init__(self, passive: Contact6, mount_position=(0.0, 0.0, 0.0), mount_orientation=IDENTITY):
+    def __init__(self, passive: Contact6, mount_position: object = (0.0, 0.0, 0.0), mount_orientation: Any = IDENTITY):
         self.passive = passive
         self.mount_position = tuple(check_vector("sensor_position", mount_position, unit="m").tolist())
         self.mount_orientation = check_unit_quaternion("sensor_orientation", mount_orientation)
@@ -433,7 +455,9 @@ class PassiveSensor6:
         return (rotate_back(qm, force_b), rotate_back(qm, sub3(moment_b, cross3(self.mount_position, force_b))), q)
 
 
-def sensor_mount_in_body(body2: RigidBody, mount_position=(0.0, 0.0, 0.0), mount_orientation=IDENTITY) -> tuple:
+def sensor_mount_in_body(
+    body2: RigidBody, mount_position: object = (0.0, 0.0, 0.0), mount_orientation: Any = IDENTITY
+) -> tuple:
     """The sensor's pose in the target's body frame, from its pose in the interface frame B."""
     p = check_vector("sensor_position", mount_position, unit="m")
     q = check_unit_quaternion("sensor_orientation", mount_orientation)
@@ -441,7 +465,7 @@ def sensor_mount_in_body(body2: RigidBody, mount_position=(0.0, 0.0, 0.0), mount
     return tuple(position.tolist()), quat_multiply(body2.interface_orientation, q)
 
 
-def held_wrench(m1: Motion, m2: Motion, mount: tuple, force, torque, virtual: tuple) -> HeldWrench:
+def held_wrench(m1: Motion, m2: Motion, mount: tuple, force: Vec3, torque: Vec3, virtual: tuple) -> HeldWrench:
     """The dynamics' wrench for the next tick: the F/T reading (sensor on the target at
     `mount`, body frame) moved to both CoMs, plus the virtual wrenches (about the CoMs)."""
     if force == torque == ZERO3 and virtual == NO_VIRTUAL:  # out of contact: a free flight
@@ -483,7 +507,7 @@ class Servo6:
         return self.pose
 
 
-def _toward(now, goal, a: float) -> tuple:
+def _toward(now: Sequence[float], goal: Sequence[float], a: float) -> tuple:
     """now + a (goal - now), per component."""
     return (now[0] + a * (goal[0] - now[0]), now[1] + a * (goal[1] - now[1]), now[2] + a * (goal[2] - now[2]))
 
@@ -502,8 +526,8 @@ def simulate_hybrid6(
     impedance: Impedance6 | None = None,
     order: int = 4,
     lag: float = 0.0,
-    sensor_position=(0.0, 0.0, 0.0),
-    sensor_orientation=IDENTITY,
+    sensor_position: object = (0.0, 0.0, 0.0),
+    sensor_orientation: Any = IDENTITY,
 ) -> Run6:
     """The sampled hybrid loop, tick by tick, as the graph runs it.
 

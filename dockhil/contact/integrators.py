@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -37,6 +37,9 @@ from dockhil.contact.scenario import (
     check_finite,
     check_positive,
 )
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 METHODS = ("exact", "rk4", "symplectic_euler", "euler")
 _METHOD_NAMES = {
@@ -54,7 +57,7 @@ class LinearSecondOrderSystem:
     external forces [N]. The state is x = [q, v] (2n,).
     """
 
-    def __init__(self, masses: Sequence[float], stiffness=None, damping=None):
+    def __init__(self, masses: Sequence[float], stiffness: ArrayLike | None = None, damping: ArrayLike | None = None):
         m = np.array([check_positive(f"mass[{i}]", v, "kg") for i, v in enumerate(masses)], dtype=float)
         n = m.size
         k = np.zeros((n, n)) if stiffness is None else np.array(stiffness, dtype=float)
@@ -93,7 +96,7 @@ class LinearSecondOrderSystem:
         virt_c = np.array([[m2 / total * impedance.b1] * 2, [m1 / total * impedance.b2] * 2]) * link
         return cls([m1, m2], scenario.k * link + virt_k, virt_c)
 
-    def accelerations(self, q, v, u=None) -> np.ndarray:
+    def accelerations(self, q: ArrayLike, v: ArrayLike, u: ArrayLike | None = None) -> np.ndarray:
         """q'' [m/s^2] for positions q, velocities v and external forces u."""
         force = -(self.stiffness @ np.asarray(q, float)) - self.damping @ np.asarray(v, float)
         if u is not None:
@@ -257,12 +260,12 @@ class Integrator:
             self._cache[dt] = mats
         return mats
 
-    def step(self, state, force=None, dt: float = 1e-3) -> np.ndarray:
+    def step(self, state: np.ndarray, force: np.ndarray | None = None, dt: float = 1e-3) -> np.ndarray:
         """State [q, v] after one step of dt [s] with the external forces held constant."""
         phi, gamma = self.step_matrices(dt)
         return phi @ state + gamma @ (self._zero_force if force is None else force)
 
-    def step_uncached(self, state, force, dt: float) -> np.ndarray:
+    def step_uncached(self, state: np.ndarray, force: np.ndarray, dt: float) -> np.ndarray:
         """One step without caching or stability check: for the sub-steps that
         end at a contact event, which are shorter than a checked step (so
         stable too) and whose lengths never repeat."""
@@ -270,7 +273,9 @@ class Integrator:
         return phi @ state + gamma @ force
 
 
-def _scenario_systems(scenario: ContactScenario, impedance: VirtualImpedance | None):
+def _scenario_systems(
+    scenario: ContactScenario, impedance: VirtualImpedance | None
+) -> tuple[LinearSecondOrderSystem, LinearSecondOrderSystem]:
     free = LinearSecondOrderSystem.free([scenario.m1, scenario.m2])
     if impedance is None:
         return free, LinearSecondOrderSystem.ideal_contact(scenario)
@@ -355,14 +360,14 @@ def simulate_contact(
 class Penetration:
     """p = c . q + offset: how far the bodies overlap, as a linear function of positions q."""
 
-    def __init__(self, c, offset: float = 0.0):
+    def __init__(self, c: ArrayLike, offset: float = 0.0):
         self.c = np.asarray(c, float)
         self.offset = offset
 
-    def of(self, state) -> float:
+    def of(self, state: np.ndarray) -> float:
         return float(self.c @ state[: self.c.size]) + self.offset
 
-    def rate(self, state) -> float:
+    def rate(self, state: np.ndarray) -> float:
         return float(self.c @ state[self.c.size :])
 
 
@@ -370,7 +375,14 @@ RELATIVE = Penetration([1.0, -1.0])  # chaser minus target
 
 
 def step_with_events(
-    free: Integrator, contact: Integrator, x, u, dt: float, touching: bool, pen: Penetration, omega: float
+    free: Integrator,
+    contact: Integrator,
+    x: np.ndarray,
+    u: np.ndarray,
+    dt: float,
+    touching: bool,
+    pen: Penetration,
+    omega: float,
 ) -> tuple[np.ndarray, bool, list[tuple[float, bool]]]:
     """One step of dt with the contact switching on and off inside it.
 
@@ -401,13 +413,20 @@ def step_with_events(
     raise ContactModelError(f"more than 16 contact events within one step of {dt:.6g} s (chatter); use a smaller dt")
 
 
-def _side_changed(y, touching: bool, pen: Penetration) -> bool:
+def _side_changed(y: np.ndarray, touching: bool, pen: Penetration) -> bool:
     p = pen.of(y)
     return p <= 0.0 if touching else p > 0.0
 
 
 def _event_bracket(
-    integ: Integrator, x, u, span: float, end, touching: bool, pen: Penetration, omega: float
+    integ: Integrator,
+    x: np.ndarray,
+    u: np.ndarray,
+    span: float,
+    end: np.ndarray,
+    touching: bool,
+    pen: Penetration,
+    omega: float,
 ) -> tuple[float, float] | None:
     """(lo, hi) with the penetration on the old side at lo and on the new side at hi, or None."""
     inner: list[float] = []
@@ -430,7 +449,9 @@ def _event_bracket(
     return (lo, span) if _side_changed(end, touching, pen) else None
 
 
-def _locate_event(integ: Integrator, x, u, bracket: tuple[float, float], touching: bool, pen: Penetration) -> float:
+def _locate_event(
+    integ: Integrator, x: np.ndarray, u: np.ndarray, bracket: tuple[float, float], touching: bool, pen: Penetration
+) -> float:
     """Sub-step length in (lo, hi] at which the penetration changes side:
     returns the first point found on the new side, so the mode switch is safe."""
     lo, hi = bracket
@@ -446,7 +467,7 @@ def _locate_event(integ: Integrator, x, u, bracket: tuple[float, float], touchin
 
 def simulate_reference(
     scenario: ContactScenario,
-    t_eval,
+    t_eval: ArrayLike,
     *,
     impedance: VirtualImpedance | None = None,
     gap: float = 0.0,
@@ -468,7 +489,7 @@ def simulate_reference(
     def penetration(_t, y):
         return y[0] - y[1]
 
-    penetration.terminal = True
+    penetration.terminal = True  # type: ignore[attr-defined]  # solve_ivp reads an event's flags from it
     x = np.array([-gap, 0.0, scenario.v1, scenario.v2])
     touching = bool(x[0] - x[1] > 0.0 or (x[0] == x[1] and x[2] > x[3]))
     onset = 0.0 if touching else None
@@ -477,7 +498,7 @@ def simulate_reference(
     phases = []
     while t0 < t_final:
         system = contact_sys if touching else free_sys
-        penetration.direction = -1.0 if touching else 1.0
+        penetration.direction = -1.0 if touching else 1.0  # type: ignore[attr-defined]  # as terminal
         a, b = system.A, system.B @ u
         sol = solve_ivp(
             lambda _t, y, a=a, b=b: a @ y + b,

@@ -22,6 +22,8 @@ wrench F = -R_B g, M = -R_B J_l(theta)^{-T} tau on body 1 at o_A.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -30,6 +32,8 @@ from dockhil.contact.rigidbody import RigidBody, check_vector
 from dockhil.contact.rotations import (
     COMPILED,
     IDENTITY,
+    Quat,
+    Vec3,
     add3,
     check_unit_quaternion,
     cross3,
@@ -45,17 +49,17 @@ from dockhil.contact.rotations import (
 AXES = ("x", "y", "z", "rx", "ry", "rz")
 
 
-def skew(v) -> np.ndarray:
+def skew(v: Vec3) -> np.ndarray:
     x, y, z = v
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
-def left_jacobian_inverse(theta) -> np.ndarray:
+def left_jacobian_inverse(theta: Vec3) -> np.ndarray:
     """J_l(theta)^{-1} of SO(3): d theta = J_l^{-1} d psi for R -> exp([d psi]x) R."""
     return np.array(left_jacobian_inverse3(theta))
 
 
-def left_jacobian_inverse3_python(theta) -> tuple:
+def left_jacobian_inverse3_python(theta: Vec3) -> tuple:
     """`left_jacobian_inverse` as three rows of plain floats (`left_jacobian_inverse3` is it
     compiled where built, rotations.COMPILED):
     1 - [theta]x / 2 + c [theta]x^2, and [theta]x^2 = theta theta^T - |theta|^2 1."""
@@ -75,7 +79,7 @@ def left_jacobian_inverse3_python(theta) -> tuple:
     )
 
 
-def mat3_vec(a, v) -> tuple[float, float, float]:
+def mat3_vec(a: Sequence[Vec3] | np.ndarray, v: Vec3) -> tuple[float, float, float]:
     """a v for a 3x3 matrix given as rows, plain floats."""
     r0, r1, r2 = a
     v0, v1, v2 = v
@@ -86,7 +90,7 @@ def mat3_vec(a, v) -> tuple[float, float, float]:
     )
 
 
-def mat3t_vec(a, v) -> tuple[float, float, float]:
+def mat3t_vec(a: Sequence[Vec3] | np.ndarray, v: Vec3) -> tuple[float, float, float]:
     """a^T v for a 3x3 matrix given as rows, plain floats."""
     r0, r1, r2 = a
     v0, v1, v2 = v
@@ -97,11 +101,11 @@ def mat3t_vec(a, v) -> tuple[float, float, float]:
     )
 
 
-def add6(a, b) -> tuple:
+def add6(a: Sequence[float], b: Sequence[float]) -> tuple:
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3], a[4] + b[4], a[5] + b[5])
 
 
-def sub6(a, b) -> tuple:
+def sub6(a: Sequence[float], b: Sequence[float]) -> tuple:
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2], a[3] - b[3], a[4] - b[4], a[5] - b[5])
 
 
@@ -119,13 +123,13 @@ class InterfaceGeometry:
         self._place(m1.body, m1.x, m1.q, m2.body, m2.x, m2.q)
 
     @classmethod
-    def between(cls, body1: RigidBody, x1, q1, body2: RigidBody, x2, q2) -> "InterfaceGeometry":
+    def between(cls, body1: RigidBody, x1: Vec3, q1: Quat, body2: RigidBody, x2: Vec3, q2: Quat) -> "InterfaceGeometry":
         """The geometry of two CoM positions and principal-frame attitudes (no Motion needed)."""
         g = cls.__new__(cls)
         g._place(body1, x1, q1, body2, x2, q2)
         return g
 
-    def _place(self, body1, x1, q1, body2, x2, q2) -> None:
+    def _place(self, body1: RigidBody, x1: Vec3, q1: Quat, body2: RigidBody, x2: Vec3, q2: Quat) -> None:
         self.pose1, self.pose2 = (body1, x1, q1), (body2, x2, q2)
         self.arm1 = arm1 = rotate(q1, body1._r_p)  # CoM -> o_A, world
         self.arm2 = arm2 = rotate(q2, body2._r_p)  # CoM -> o_B
@@ -155,20 +159,20 @@ class InterfaceGeometry:
     def jinv(self) -> np.ndarray:
         return np.array(self.jinv3)
 
-    def rate(self, v1, w1, v2, w2) -> tuple:
+    def rate(self, v1: Vec3, w1: Vec3, v2: Vec3, w2: Vec3) -> tuple:
         """e' from CoM velocities and world angular velocities of both bodies."""
         return self.rates(v1, w1, v2, w2)[0]
 
-    def rates(self, v1, w1, v2, w2) -> tuple[tuple, tuple]:
+    def rates(self, v1: Vec3, w1: Vec3, v2: Vec3, w2: Vec3) -> tuple[tuple, tuple]:
         """(e', relative angular velocity R_B^T (w1 - w2) in B axes)."""
         velocity, spin = self.rates3(v1, w1, v2, w2)
         return self.rate_from(velocity, spin), spin
 
-    def rate_from(self, velocity, spin) -> tuple:
+    def rate_from(self, velocity: tuple, spin: Vec3) -> tuple:
         """e' from the two parts `rates3` returns."""
         return velocity + mat3_vec(self.jinv3, spin)
 
-    def rates3(self, v1, w1, v2, w2) -> tuple[tuple, tuple]:
+    def rates3(self, v1: Vec3, w1: Vec3, v2: Vec3, w2: Vec3) -> tuple[tuple, tuple]:
         """(d' = e'[:3], relative angular velocity R_B^T (w1 - w2) in B axes): the robot command's
         rates, without J_l(theta)^{-1}."""
         # v_A - v_B + r x w2, with v_A = v1 + w1 x arm1 and v_B = v2 + w2 x arm2 (written out: the hot path)
@@ -202,7 +206,9 @@ def generalized_to_wrench(g: InterfaceGeometry, q: np.ndarray) -> tuple[np.ndarr
 # --- the F/T sensor's wrench, moved to the centres of mass ---------------------------------
 
 
-def sensor_wrench_to_bodies(carrier: Motion, other: Motion, sensor_position, sensor_orientation, force, torque):
+def sensor_wrench_to_bodies(
+    carrier: Motion, other: Motion, sensor_position: object, sensor_orientation: Any, force: object, torque: object
+) -> tuple[np.ndarray, ...]:
     """Forces and torques [N, N m] (world, about each CoM) on the body carrying
     the sensor and on the other body.
 
@@ -220,7 +226,9 @@ def sensor_wrench_to_bodies(carrier: Motion, other: Motion, sensor_position, sen
     return tuple(np.array(w) for w in sensor_wrench_checked(carrier, other, p_s, q_s, f_s, t_s))
 
 
-def sensor_wrench_checked(carrier: Motion, other: Motion, p_s, q_s, f_s, t_s):
+def sensor_wrench_checked(
+    carrier: Motion, other: Motion, p_s: Vec3, q_s: Quat, f_s: Vec3, t_s: Vec3
+) -> tuple[Vec3, Vec3, Vec3, Vec3]:
     """`sensor_wrench_to_bodies` for values already checked (3-vectors, a unit quaternion),
     as tuples of floats: the per-tick path of a sampled loop, whose mounting pose is checked once."""
     b = carrier.body

@@ -173,12 +173,22 @@ class EnergyMonitor:
         self.initial = 0.0  # [J] what the port and the virtual springs hold at the first tick
 
     def step(
-        self, x1: float, x2: float, v1: float, v2: float, f: float, fv1: float, fv2: float, dt: float
+        self,
+        x1: float,
+        x2: float,
+        v1: float,
+        v2: float,
+        f: float,
+        fv1: float,
+        fv2: float,
+        dt: float,
+        external: float = 0.0,
     ) -> tuple[float, EnergyTick]:
         """Account for the tick that just ended (the previous tick's forces over the motion since),
         then return the controller's force on the chaser for the next tick (0 without it; the
         target gets its opposite) and the account. f: measured force on the chaser [N]; fv1, fv2:
-        virtual forces [N] on chaser and target."""
+        virtual forces [N] on chaser and target; external: another compensation's force on the chaser
+        over the next tick [N] (dockhil.contact.compensation), counted with the controller's."""
         e, imp = self.e, self.imp
         p, pd = x1 - x2, v1 - v2
         touching = p > 0.0 or (p == 0.0 and pd > 0.0)  # as hybrid.virtual_forces
@@ -219,7 +229,7 @@ class EnergyMonitor:
             )
         else:
             fc, e.damping_Ns_m, e.at_max_damping = 0.0, 0.0, False
-        self.prev = (x1, x2, p, pd, f, fc, fv1, fv2, touching)
+        self.prev = (x1, x2, p, pd, f, fc + external, fv1, fv2, touching)
         return fc, e
 
 

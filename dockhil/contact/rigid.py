@@ -33,12 +33,15 @@ with one free flight a composition instead of two.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dockhil.contact.rigidbody import BodyState, RigidBody
 from dockhil.contact.rotations import (
     COMPILED,
+    Vec3,
     add3,
     cross,
     cross3,
@@ -52,6 +55,12 @@ from dockhil.contact.rotations import (
 )
 from dockhil.contact.scenario import ContactModelError, StepTooLargeError
 
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+# A kick's wrench model: (v1, omega1, v2, omega2) [world] -> (force, moment) on body 1 (see Wrench).
+WrenchOf = Callable[[Vec3, Vec3, Vec3, Vec3], tuple[Vec3, Vec3]]
+
 
 class Motion:
     """A body's state in the integrator's variables: principal frame (x, v, q_p, L_p).
@@ -61,7 +70,14 @@ class Motion:
 
     __slots__ = ("body", "x", "v", "q", "L")
 
-    def __init__(self, body: RigidBody, x, v, q, L):
+    def __init__(
+        self,
+        body: RigidBody,
+        x: tuple[float, ...],
+        v: tuple[float, ...],
+        q: tuple[float, ...],
+        L: tuple[float, ...],
+    ):
         self.body, self.x, self.v, self.q, self.L = body, x, v, q, L
 
     @classmethod
@@ -102,13 +118,13 @@ class Motion:
             quat_to_matrix(quat_multiply(self.q, self.body._q_pi)),
         )
 
-    def point_velocity(self, point) -> np.ndarray:
+    def point_velocity(self, point: Vec3) -> np.ndarray:
         return np.array(add3(self.v, cross3(self.omega3(), sub3(point, self.x))))
 
     def momentum(self) -> np.ndarray:
         return self.body.mass * np.array(self.v)
 
-    def angular_momentum(self, about=None) -> np.ndarray:
+    def angular_momentum(self, about: ArrayLike | None = None) -> np.ndarray:
         """World angular momentum [kg m^2/s] about the point `about` (the origin by default)."""
         ref = np.zeros(3) if about is None else np.asarray(about, float)
         return cross(np.array(self.x) - ref, self.momentum()) + self.rotation() @ np.array(self.L)
@@ -121,7 +137,7 @@ class Motion:
         )
 
 
-def _floats3(v) -> tuple[float, float, float]:
+def _floats3(v: Vec3) -> tuple[float, float, float]:
     return (float(v[0]), float(v[1]), float(v[2]))
 
 
@@ -207,7 +223,7 @@ class Wrench:
 
     velocity_dependent = True
 
-    def prepare(self, m1: "Motion", m2: "Motion"):
+    def prepare(self, m1: "Motion", m2: "Motion") -> tuple[Vec3, WrenchOf]:
         raise NotImplementedError
 
 
@@ -233,7 +249,7 @@ def _apply(m1: Motion, m2: Motion, w: Wrench, h: float) -> None:
     kick(m1, m2, f, add3(mom, cross3(arm1, f)), (-f[0], -f[1], -f[2]), sub3(cross3(f, arm2), mom), h)
 
 
-def kick_python(m1: Motion, m2: Motion, f1, t1, f2, t2, h: float) -> None:
+def kick_python(m1: Motion, m2: Motion, f1: Vec3, t1: Vec3, f2: Vec3, t2: Vec3, h: float) -> None:
     """Momenta += h (force, torque) for forces and torques about each CoM (world); `kick` is it
     compiled where built."""
     b1, b2 = m1.body, m2.body
@@ -277,26 +293,26 @@ def _midpoint_wrench(wrench_of, f, mom, m1, m2, arm1, arm2, h):
         z = nz
         if change <= 4e-16 * max(max(abs(c) for c in z), 1e-300):
             return z[:3], z[3:]
-    z = np.array(z)
+    y = np.array(z)
     previous = math.inf
     for _ in range(40):
-        pz = np.array(phi(tuple(z.tolist())))
-        res = z - pz
-        scale = max(float(np.max(np.abs(z))), 1e-300)
+        pz = np.array(phi(tuple(y.tolist())))
+        res = y - pz
+        scale = max(float(np.max(np.abs(y))), 1e-300)
         size = float(np.max(np.abs(res)))
         # Converged: at round-off, or no longer shrinking once well below the solution's size.
         if size <= 64.0 * np.finfo(float).eps * scale or (size <= 1e-12 * scale and size >= previous):
-            z = tuple(z.tolist())
+            z = tuple(y.tolist())
             return z[:3], z[3:]
         previous = size
         jac = np.eye(6)
         for k in range(6):
-            dz = 1e-7 * max(abs(z[k]), scale * 1e-3)
-            zk = z.copy()
+            dz = 1e-7 * max(abs(y[k]), scale * 1e-3)
+            zk = y.copy()
             zk[k] += dz
             jac[:, k] -= (np.array(phi(tuple(zk.tolist()))) - pz) / dz
         try:
-            z = z - np.linalg.solve(jac, res)
+            y = y - np.linalg.solve(jac, res)
         except np.linalg.LinAlgError:
             break
     raise StepTooLargeError(
@@ -326,7 +342,7 @@ def total_momentum(m1: Motion, m2: Motion) -> np.ndarray:
     return m1.momentum() + m2.momentum()
 
 
-def total_angular_momentum(m1: Motion, m2: Motion, about=None) -> np.ndarray:
+def total_angular_momentum(m1: Motion, m2: Motion, about: ArrayLike | None = None) -> np.ndarray:
     return m1.angular_momentum(about) + m2.angular_momentum(about)
 
 

@@ -12,6 +12,7 @@ Conventions (derivation in docs/sixdof.md):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,7 +20,7 @@ from dockhil.contact.rotations import IDENTITY, check_unit_quaternion, matrix_to
 from dockhil.contact.scenario import ContactModelError, check_positive
 
 
-def check_vector(name: str, v, size: int = 3, unit: str = "") -> np.ndarray:
+def check_vector(name: str, v: object, size: int = 3, unit: str = "") -> np.ndarray:
     arr = np.asarray(v, dtype=float) if is_numeric(v) else None
     if arr is None or arr.shape != (size,) or not np.all(np.isfinite(arr)):
         unit_text = f" [{unit}]" if unit else ""
@@ -27,7 +28,7 @@ def check_vector(name: str, v, size: int = 3, unit: str = "") -> np.ndarray:
     return arr
 
 
-def is_numeric(v) -> bool:
+def is_numeric(v: object) -> bool:
     try:
         np.asarray(v, dtype=float)
     except (TypeError, ValueError):
@@ -35,7 +36,7 @@ def is_numeric(v) -> bool:
     return True
 
 
-def check_symmetric(name: str, matrix, size: int, definite: bool, unit: str = "") -> np.ndarray:
+def check_symmetric(name: str, matrix: object, size: int, definite: bool, unit: str = "") -> np.ndarray:
     """A size x size symmetric matrix, positive definite (definite) or
     semi-definite, or one clear ContactModelError."""
     arr = np.asarray(matrix, dtype=float) if is_numeric(matrix) else None
@@ -76,6 +77,16 @@ class RigidBody:
     # Derived in __post_init__: principal moments [kg m^2] and axes (columns, body frame).
     principal_moments: np.ndarray = field(init=False, repr=False)
     principal_axes: np.ndarray = field(init=False, repr=False)
+    if TYPE_CHECKING:  # also set in __post_init__, as attributes only: what the per-tick arithmetic reads
+        _moments: tuple[float, ...] = field(init=False)  # principal moments
+        _q_bp: tuple[float, float, float, float] = field(init=False)  # principal frame in the body frame
+        _r_p: tuple[float, ...] = field(init=False)  # CoM -> interface, principal axes
+        _q_pi: tuple[float, float, float, float] = field(init=False)  # interface in the principal frame
+        _bp_identity: bool = field(init=False)
+        _pi_identity: bool = field(init=False)
+        _com: tuple[float, ...] = field(init=False)
+        _frames: tuple = field(init=False)  # what the compiled interface geometry reads
+        _key: tuple = field(init=False)  # equal bodies, one object
 
     def __post_init__(self) -> None:
         n = self.name

@@ -11,11 +11,16 @@ bits as their *_python twins here.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 from dockhil.compiled import twin
 from dockhil.contact.scenario import ContactModelError
+
+Vec3 = Sequence[float] | np.ndarray  # a 3-vector: a tuple, a list or an array
+Quat = Sequence[float] | np.ndarray  # a quaternion (x, y, z, w), as a Vec3
 
 UNIT_TOLERANCE = 1e-9  # |q| may differ from 1 by this much in a parameter
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
@@ -24,7 +29,7 @@ IDENTITY = (0.0, 0.0, 0.0, 1.0)
 # --- quaternions (x, y, z, w), plain floats -------------------------------------------------
 
 
-def quat_multiply_python(a, b) -> tuple[float, float, float, float]:
+def quat_multiply_python(a: Quat, b: Quat) -> tuple[float, float, float, float]:
     """Hamilton product a b (scalar last); `quat_multiply` is it compiled where built (see `COMPILED`)."""
     ax, ay, az, aw = a
     bx, by, bz, bw = b
@@ -36,11 +41,11 @@ def quat_multiply_python(a, b) -> tuple[float, float, float, float]:
     )
 
 
-def quat_conjugate(q) -> tuple[float, float, float, float]:
+def quat_conjugate(q: Quat) -> tuple[float, float, float, float]:
     return (-q[0], -q[1], -q[2], q[3])
 
 
-def quat_to_matrix(q) -> np.ndarray:
+def quat_to_matrix(q: Quat) -> np.ndarray:
     """Rotation matrix of a unit quaternion (body -> world)."""
     x, y, z, w = q
     return np.array(
@@ -52,7 +57,7 @@ def quat_to_matrix(q) -> np.ndarray:
     )
 
 
-def matrix_to_quat(r) -> tuple[float, float, float, float]:
+def matrix_to_quat(r: Sequence[Sequence[float]] | np.ndarray) -> tuple[float, float, float, float]:
     """Unit quaternion (w >= 0) of a proper rotation matrix (Shepperd's method)."""
     r = np.asarray(r, float).tolist()  # plain floats: a numpy scalar here would slow every later product with q
     tr = r[0][0] + r[1][1] + r[2][2]
@@ -72,7 +77,7 @@ def matrix_to_quat(r) -> tuple[float, float, float, float]:
     return q if q[3] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
 
 
-def quat_from_rotvec(v) -> tuple[float, float, float, float]:
+def quat_from_rotvec(v: Vec3) -> tuple[float, float, float, float]:
     """Quaternion of the rotation by |v| [rad] about v."""
     x, y, z = (float(c) for c in v)
     angle = math.sqrt(x * x + y * y + z * z)
@@ -83,12 +88,12 @@ def quat_from_rotvec(v) -> tuple[float, float, float, float]:
     return (s * x, s * y, s * z, math.cos(0.5 * angle))
 
 
-def quat_to_rotvec(q) -> np.ndarray:
+def quat_to_rotvec(q: Quat) -> np.ndarray:
     """Rotation vector (axis times angle in [0, pi]) of a unit quaternion."""
     return np.array(rotvec3(q))
 
 
-def rotvec3_python(q) -> tuple[float, float, float]:
+def rotvec3_python(q: Quat) -> tuple[float, float, float]:
     """`quat_to_rotvec` as a tuple of floats; `rotvec3` is it compiled where built."""
     x, y, z, w = q
     if w < 0.0:
@@ -99,7 +104,7 @@ def rotvec3_python(q) -> tuple[float, float, float]:
     return (scale * x, scale * y, scale * z)
 
 
-def cross(a, b) -> np.ndarray:
+def cross(a: Vec3, b: Vec3) -> np.ndarray:
     """a x b for 3-vectors (np.cross costs ~10x more on vectors this small)."""
     a0, a1, a2 = a
     b0, b1, b2 = b
@@ -110,21 +115,21 @@ def cross(a, b) -> np.ndarray:
 # numpy costs about a microsecond per call on vectors this small; plain floats cost a fraction.
 
 
-def cross3(a, b) -> tuple[float, float, float]:
+def cross3(a: Vec3, b: Vec3) -> tuple[float, float, float]:
     a0, a1, a2 = a
     b0, b1, b2 = b
     return (a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0)
 
 
-def add3(a, b) -> tuple[float, float, float]:
+def add3(a: Vec3, b: Vec3) -> tuple[float, float, float]:
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
 
 
-def sub3(a, b) -> tuple[float, float, float]:
+def sub3(a: Vec3, b: Vec3) -> tuple[float, float, float]:
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
-def rotate_python(q, v) -> tuple[float, float, float]:
+def rotate_python(q: Quat, v: Vec3) -> tuple[float, float, float]:
     """R(q) v for a unit quaternion q (x, y, z, w): v + w t + u x t with t = 2 u x v, u = (x, y, z);
     `rotate` is it compiled where built (see `COMPILED`)."""
     x, y, z, w = q
@@ -135,7 +140,7 @@ def rotate_python(q, v) -> tuple[float, float, float]:
     return (v0 + w * t0 + y * t2 - z * t1, v1 + w * t1 + z * t0 - x * t2, v2 + w * t2 + x * t1 - y * t0)
 
 
-def rotate_back_python(q, v) -> tuple[float, float, float]:
+def rotate_back_python(q: Quat, v: Vec3) -> tuple[float, float, float]:
     """R(q)^T v (the inverse rotation); `rotate_back` is it compiled where built."""
     x, y, z, w = q
     v0, v1, v2 = v
@@ -145,12 +150,12 @@ def rotate_back_python(q, v) -> tuple[float, float, float]:
     return (v0 + w * t0 - y * t2 + z * t1, v1 + w * t1 - z * t0 + x * t2, v2 + w * t2 - x * t1 + y * t0)
 
 
-def normalised(q) -> tuple[float, float, float, float]:
+def normalised(q: Quat) -> tuple[float, float, float, float]:
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
 
-def check_unit_quaternion(name: str, q) -> tuple[float, float, float, float]:
+def check_unit_quaternion(name: str, q: Any) -> tuple[float, float, float, float]:  # q: anything, checked here
     """q as a unit quaternion (x, y, z, w), or one clear ContactModelError."""
     try:
         values = tuple(float(c) for c in q)

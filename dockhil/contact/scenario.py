@@ -172,7 +172,16 @@ class Trajectory:
     method: str
 
     @classmethod
-    def from_states(cls, t, states, force, in_contact, onset, exit, method: str) -> "Trajectory":
+    def from_states(
+        cls,
+        t: np.ndarray,
+        states: np.ndarray,
+        force: np.ndarray,
+        in_contact: np.ndarray,
+        onset: float | None,
+        exit: float | None,
+        method: str,
+    ) -> "Trajectory":
         """From rows of states [x1, x2, v1, v2]."""
         return cls(t, states[:, 0], states[:, 1], states[:, 2], states[:, 3], force, in_contact, onset, exit, method)
 

@@ -12,22 +12,29 @@ thrust / K is larger over the last fifth of the run than over the second fifth),
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from dockhil.contact.passivity import RESIDUAL_TOLERANCE
 
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from dockhil.progress import Progress
+
 
 def simulate_sheets(
-    m,
-    b,
-    K,
-    h,
-    max_damping,
+    m: ArrayLike,
+    b: ArrayLike,
+    K: ArrayLike,
+    h: ArrayLike,
+    max_damping: ArrayLike,
     *,
     dt: float = 1e-3,
     seconds: float = 30.0,
     thrust: float = 10.0,
-    progress=None,
+    progress: Progress | None = None,
     record: bool = False,
 ) -> dict:
     """Run every lane (arrays broadcast together: mass m [kg], damper b [N s/m], sheet K [N/m], delay
@@ -68,7 +75,7 @@ def simulate_sheets(
         for tick in range(n_ticks):
             if tick > 0:
                 p, v = p + dt * v + gamma_p * f1, v + gamma_v * f1
-            if record:
+            if trace is not None:  # record
                 trace[tick] = p
             touching = (p > 0.0) | ((p == 0.0) & (v > 0.0))
             fv = np.where(touching, -(b * v), 0.0)

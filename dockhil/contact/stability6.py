@@ -30,7 +30,9 @@ rotation about z, coupled through the lateral lever arm of the contact point;
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -38,6 +40,11 @@ from dockhil.contact.interface6 import AXES
 from dockhil.contact.rigidbody import check_symmetric
 from dockhil.contact.scenario import ContactModelError, check_nonnegative, check_positive
 from dockhil.contact.stability import chebyshev
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from dockhil.contact.contact6 import Contact6
 
 MAX_NODES = 120
 TRACK_WIDTH = 0.02  # relative bracket of the stiffness margin below which bisection follows the crossing roots
@@ -219,7 +226,9 @@ def stiffness_margin(loop: MultiAxisLoop, rel_tol: float = 1e-7) -> Margin:
     return Margin(lo, root.s.imag, root, reason)
 
 
-def _bisect_on_crossing_roots(loop: MultiAxisLoop, lo: float, hi: float, rel_tol: float, grows) -> tuple[float, float]:
+def _bisect_on_crossing_roots(
+    loop: MultiAxisLoop, lo: float, hi: float, rel_tol: float, grows: Callable[[float], bool]
+) -> tuple[float, float]:
     """The bisection of `stiffness_margin` inside a narrow bracket (lo stable, hi not), on the roots
     alone that are unstable at hi (those that cross in between), each followed by Newton from its
     value at the previous alpha: a few n x n solves per step instead of the 2n x nodes eigenvalue
@@ -232,8 +241,8 @@ def _bisect_on_crossing_roots(loop: MultiAxisLoop, lo: float, hi: float, rel_tol
         moved = [_newton(loop.scaled(mid), z) for z in crossing]
         if any(z is None for z in moved):
             break
-        crossing = moved
-        a, b = (a, mid) if any(z.real > 0.0 for z in moved) else (mid, b)
+        crossing = cast(list[complex], moved)  # none is None
+        a, b = (a, mid) if any(z.real > 0.0 for z in crossing) else (mid, b)
     if b - a <= rel_tol * b and (a == lo or not grows(a)) and (b == hi or grows(b)):
         return a, b
     while hi - lo > rel_tol * hi:
@@ -306,7 +315,7 @@ def planar_loop(
     )
 
 
-def hybrid_loop6(ideal, passive, g1, g2, h: float) -> MultiAxisLoop:
+def hybrid_loop6(ideal: Contact6, passive: Contact6, g1: ArrayLike, g2: ArrayLike, h: float) -> MultiAxisLoop:
     """The 6-DOF hybrid loop at the contact's onset configuration: M = (G1 + G2)^-1,
     the virtual impedance (K - K_p, C - C_p) direct, the passive (K_p, C_p) delayed."""
     mass = np.linalg.inv(np.asarray(g1, float) + np.asarray(g2, float))

@@ -7,6 +7,13 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, SupportsFloat
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from dockhil.progress import Progress
 
 THRUST, SECONDS, RATE = 10.0, 30.0, 1000.0  # stability.yaml's loop as the compensated runs simulate it
 MULTIPLES = (1.0, 2.0, 3.0, 5.0, 10.0)  # of the exact bound: the stiffnesses a single (b, h) tries
@@ -31,7 +38,7 @@ def compensated_runs(m: float, b: float, h: float, K: float | None, max_damping:
         stiffnesses.append(("--K", K))
     rows = []
     for label, k in stiffnesses:
-        row = {"label": label, "K": k, "growth_rate": None, "saturated": None, "diverged": False}
+        row: dict[str, Any] = {"label": label, "K": k, "growth_rate": None, "saturated": None, "diverged": False}
         try:
             run = simulate_hil(
                 m1=m,
@@ -75,7 +82,14 @@ def compensated_runs(m: float, b: float, h: float, K: float | None, max_damping:
 
 
 def compensated_region(
-    m: float, b_range, h_range, n: int, multiples: list[float], max_damping: float, seconds: float, progress=None
+    m: float,
+    b_range: tuple[float, float],
+    h_range: tuple[float, float],
+    n: int,
+    multiples: list[float],
+    max_damping: float,
+    seconds: float,
+    progress: Progress | None = None,
 ) -> dict:
     """Over a coarse n x n (b, h) grid, stability.yaml's loop with the passivity controller simulated at
     multiples of the exact bound (undelayed damper: the loop the scene runs), all points at once."""
@@ -119,7 +133,9 @@ def compensated_region(
     }
 
 
-def hybrid_map(m: float, kcs: float, bcs: float, rate: float, ks, hs):
+def hybrid_map(
+    m: float, kcs: float, bcs: float, rate: float, ks: np.ndarray, hs: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stable region of the hybrid loop m s^2 + bcs s + (kcs - k) + k e^(-sh) over (k, h): exact (closed-form
     crossings) and sampled at `rate` [h, k], and Eq. 12's verdict on the paper's loop (the whole kcs
     delayed) per h."""
@@ -140,7 +156,7 @@ def hybrid_map(m: float, kcs: float, bcs: float, rate: float, ks, hs):
     return exact, sampled, eq12
 
 
-def nan_extreme(fn, values) -> float | None:
+def nan_extreme(fn: Callable[[np.ndarray], SupportsFloat], values: np.ndarray) -> float | None:
     """fn (np.nanmin, np.nanmax) of values, None where every value is NaN."""
     import numpy as np
 

@@ -21,6 +21,7 @@ class RobotLink(Protocol):
     connected: bool  # a hold can be answered now
     fatal: str | None  # why the link cannot go on (one line), or None
     cycles: CycleLog  # every exchange with the controller, collected on the link's thread
+    longest_gap_s: float  # the longest the device went without taking a command while moving (validity)
 
     def hold(self, timeout: float) -> bool:
         """Command a hold; True once the device has it within `timeout` [s] (0: do not wait)."""

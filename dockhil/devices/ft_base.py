@@ -76,6 +76,15 @@ def tare_params(stale_help: str, open_help: str, frame: str) -> dict[str, Param]
             le=100.0,
         ),
         "stale_timeout": Param(float, 0.1, unit="s", help=stale_help, gt=0.0, le=10.0),
+        "max_gap": Param(
+            float,
+            0.05,
+            unit="s",
+            help="validity: longest time between two fresh readings in the run; longer (a stalled sensor or "
+            "emulator), the run is INVALID",
+            gt=0.0,
+            le=10.0,
+        ),
         "open_timeout": Param(float, 2.0, unit="s", help=open_help, gt=0.0, le=120.0),
         "frame": Param(str, frame, help="header frame id of the published wrench"),
     }
@@ -129,6 +138,8 @@ class FtDriver(Node):
         self.bias_force: Sequence[float] = (0.0, 0.0, 0.0)
         self.bias_torque: Sequence[float] = (0.0, 0.0, 0.0)
         self._last_fresh_t: float | None = None
+        self._longest_gap = 0.0
+        self._fresh_before = False
         self._open()
         try:
             self._tare()
@@ -167,11 +178,23 @@ class FtDriver(Node):
                     f"(stale_timeout {self.p.stale_timeout:g} s)"
                 )
             return {}  # nothing new: publish nothing rather than repeat an old value
+        if self._fresh_before:  # from the first reading on (the first tick waits for no stream)
+            self._longest_gap = max(self._longest_gap, t - self._last_fresh_t)
+        self._fresh_before = True
         self._last_fresh_t = t
         (f, tq), sign, bf, bt = raw, self.p.sign, self.bias_force, self.bias_torque
         force = Vector3(*(sign * (f[i] - bf[i]) for i in range(3)))
         torque = Vector3(*(sign * (tq[i] - bt[i]) for i in range(3)))
         return {"wrench": WrenchStamped(header=tick.header(self.p.frame), wrench=Wrench(force=force, torque=torque))}
+
+    def device_figures(self) -> dict:
+        """The sensor's stream as validity judges it (dockhil/runtime/validity.py: device_reasons)."""
+        return {
+            "what": getattr(self, "device", "the F/T sensor"),
+            "gap_is": f"a fresh {self.sample}",
+            "longest_gap_s": getattr(self, "_longest_gap", 0.0),
+            "gap_limit_s": self.p.max_gap,
+        }
 
     def close(self) -> None:
         if not self._is_open():

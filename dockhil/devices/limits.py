@@ -75,3 +75,37 @@ def non_finite(*named: tuple[str, object]) -> str:
             if v is not None and not math.isfinite(v):
                 return f"{name}.{axis} = {v}"
     return ""
+
+
+def toward_within(origin, target, travel: float, held, reach=None) -> tuple[float, ...]:
+    """The point toward `target` from `origin`, at most `travel` from origin and within reach of every point
+    of `held` (each of which a device may hold: whichever it holds, the step to the answer is at most its
+    reach; `reach`: one per point, default `travel`). Origin must be within reach of each; the answer is the
+    farthest such point on the straight line."""
+    goal = toward(origin, target, travel)
+    u = [b - a for a, b in zip(origin, goal)]
+    uu = sum(c * c for c in u)
+    if uu == 0.0:
+        return tuple(origin)
+    t = 1.0
+    for i, c in enumerate(held):
+        r = travel if reach is None else reach[i]
+        d = [a - b for a, b in zip(origin, c)]
+        du = sum(a * b for a, b in zip(d, u))
+        dd = sum(a * a for a in d)
+        if dd + 2.0 * du + uu <= r * r:
+            continue  # the whole step stays within reach of this one
+        # |d + t u| = r: the larger root (t = 0 is within reach)
+        root = (-du + math.sqrt(max(0.0, du * du - uu * (dd - r * r)))) / uu
+        t = min(t, max(0.0, root))
+    return tuple(a + t * c for a, c in zip(origin, u))
+
+
+def turn_within(origin, target, angle: float, held, reach=None) -> tuple[float, ...]:
+    """The orientation toward `target` from `origin`, at most `angle` [rad] from origin and within reach of
+    every orientation of `held` (`reach`: one per orientation, default `angle`; bounded through origin: what
+    it is from each, plus the turn)."""
+    spare = min(
+        ((angle if reach is None else reach[i]) - angle_between(c, origin) for i, c in enumerate(held)), default=angle
+    )
+    return turn_toward(origin, target, max(0.0, min(angle, spare)))

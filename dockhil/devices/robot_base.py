@@ -135,6 +135,24 @@ def limit_params(max_speed: Param, max_angular_speed: Param, reach: float) -> di
             ge=0.0,
             le=600.0,
         ),
+        "max_device_gap": Param(
+            float,
+            0.05,
+            unit="s",
+            help="validity: longest the device may go without taking a command while the loop moves it (cycles "
+            "that never came, answers it did not take, a stalled controller); longer, the run is INVALID",
+            gt=0.0,
+            le=10.0,
+        ),
+        "max_path_error": Param(
+            float,
+            0.005,
+            unit="m",
+            help="validity: farthest the actual pose may be from the command while moving (the robot's delay "
+            "and lag at the scene's speed stay well within it); farther, the run is INVALID",
+            gt=0.0,
+            le=10.0,
+        ),
         "frame": Param(str, "", help="header frame id of the published state"),
     }
 
@@ -196,6 +214,8 @@ class RobotDriver(Node):
         self._moving = False  # a setpoint was handed over since the last hold
         self._start_q: tuple[float, ...] = IDENTITY  # max_tilt's reference, set on connect
         self._last_actual: PoseTwist | None = None  # the last actual pose read, for the close's line
+        self._path_error = 0.0  # m: the largest distance of the actual pose from the command while moving
+        self._device_gap = 0.0  # s: the link's longest gap, kept at close
 
     def _connect_claimed(self, lock, connect) -> None:
         """Keep `lock`, this graph's claim of the device, while connect() runs; let go if it fails."""
@@ -218,8 +238,10 @@ class RobotDriver(Node):
         """The reading a fresh command's following errors are checked against (None: none yet)."""
         raise NotImplementedError
 
-    def _hand_over(self, values: PoseTwist | None) -> None:
-        """Hand the link the setpoint's command values (None: hold)."""
+    def _hand_over(self, values: PoseTwist | None, stamp: float) -> None:
+        """Hand the link the setpoint's command values (None: hold) and the time they are for (the command's
+        tick times the scene's step: the link gives the device the pose for the time of its cycle,
+        dockhil/devices/handover.py)."""
         raise NotImplementedError
 
     def _lag(self) -> tuple[tuple[float, float] | None, str]:
@@ -262,6 +284,11 @@ class RobotDriver(Node):
             return out
         self._check_actual(reading)
         self._last_actual = reading.actual
+        if self._moving and self._last_cmd is not None:
+            a, c = reading.actual, self._last_cmd.pose.position
+            self._path_error = max(
+                self._path_error, math.sqrt((c.x - a[0]) ** 2 + (c.y - a[1]) ** 2 + (c.z - a[2]) ** 2)
+            )
         return {**out, "state": robot_state(header, reading.actual, self._status(reading))}
 
     def close(self) -> None:
@@ -270,9 +297,22 @@ class RobotDriver(Node):
         if link is None:
             return
         self.link = None
+        self._device_gap = link.longest_gap_s
         held = self._close_device(link)
         self._lock.release()
         self.log(f"{self.device}: {'the robot holds' if held else 'the hold was not confirmed'}; {self._where()}")
+
+    def device_figures(self) -> dict:
+        """The device's cycles as validity judges them (dockhil/runtime/validity.py: device_reasons)."""
+        link = self.link
+        return {
+            "what": getattr(self, "device", "the robot controller"),
+            "gap_is": "taking a command",
+            "longest_gap_s": link.longest_gap_s if link is not None else self._device_gap,
+            "gap_limit_s": self.p.max_device_gap,
+            "path_error_m": self._path_error,
+            "path_error_limit_m": self.p.max_path_error,
+        }
 
     def _where(self) -> str:
         """The last command and the last actual pose, in the scene frame."""
@@ -319,7 +359,8 @@ class RobotDriver(Node):
             self._check_command(cmd, reading)
             self._last_cmd, self._last_cmd_at = cmd, now
             moving = bool(ft_fresh and cmd.enable)  # no F/T data yet: hold rather than move blind
-            self._hand_over(command_values(cmd) if moving else None)
+            # the command's time: its tick on the scene's clock (its stamp is when the tick ran, jitter and all)
+            self._hand_over(command_values(cmd) if moving else None, cmd.header.tick * self.ctx.dt)
             self._moving = moving
         elif self._moving and now - self._last_cmd_at > p.stall_timeout:
             age = now - self._last_cmd_at

@@ -225,7 +225,7 @@ class RobotCycles(Message):
 
 
 # Wire type names, stable across releases: used in bags and by the launcher.
-TYPES: dict[str, type[msgspec.Struct]] = {
+TYPES: dict[str, type[Message]] = {
     f"dockhil/{cls.__name__}": cls
     for cls in (
         SatelliteState,
@@ -246,7 +246,7 @@ def type_name(cls: type) -> str:
     return f"dockhil/{cls.__name__}"
 
 
-def type_by_name(name: str) -> type[msgspec.Struct]:
+def type_by_name(name: str) -> type[Message]:
     try:
         return TYPES[name]
     except KeyError:

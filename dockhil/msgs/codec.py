@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import functools
 import re
+from typing import TypeVar
 
 import msgspec
 
 from dockhil.msgs import Header
+
+T = TypeVar("T", bound=msgspec.Struct)
 
 _encoder = msgspec.msgpack.Encoder()
 encode = _encoder.encode
@@ -30,7 +33,7 @@ def _decoder(cls: type) -> msgspec.msgpack.Decoder:
 _BOUND = re.compile(r"Expected `float` [<>]= [-0-9.e+]+")
 
 
-def decode(buf: bytes, cls: type):
+def decode(buf: bytes, cls: type[T]) -> T:
     """Decode `buf` as a `cls`; raise DecodeError naming the field and reason."""
     try:
         return _decoder(cls).decode(buf)

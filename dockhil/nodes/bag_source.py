@@ -33,11 +33,11 @@ import msgspec
 
 from dockhil import msgs
 from dockhil.msgs.codec import decode_header
-from dockhil.bags.format import BagError
+from dockhil.bags.format import BagError, BagMessage
 from dockhil.bags.reader import BagReader
 from dockhil.errors import DockhilError, ParamError
 from dockhil.scene.schema import MAX_DURATION
-from dockhil.node import Node, Output, Param
+from dockhil.node import Node, Output, Param, Tick
 
 _summaries: dict[tuple, dict] = {}
 
@@ -142,12 +142,12 @@ class BagSource(Node):
         self.frontier_ns = message.log_time_ns
         return True
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         if self.ctx.sim_time:
             return {topic: self._at_tick(topic, tick) for topic in self.types}
         return self._by_time(tick)
 
-    def _at_tick(self, topic: str, tick) -> Any:
+    def _at_tick(self, topic: str, tick: Tick) -> Any:
         want = tick.index + self.offset
         queue = self.queues[topic]
         while True:
@@ -170,7 +170,7 @@ class BagSource(Node):
                     + "; shorten the run or record a longer bag"
                 )
 
-    def _tick_of(self, topic: str, message) -> int:
+    def _tick_of(self, topic: str, message: BagMessage) -> int:
         header = decode_header(message.data)
         if header is None:
             raise DockhilError(
@@ -178,7 +178,7 @@ class BagSource(Node):
             )
         return header.tick
 
-    def _decode(self, topic: str, message):
+    def _decode(self, topic: str, message: BagMessage) -> Any:
         try:
             return self.decoders[topic].decode(message.data)
         except (msgspec.DecodeError, msgspec.ValidationError) as exc:
@@ -190,7 +190,7 @@ class BagSource(Node):
                 f"bag {self.p.path}: message on {topic} at log time {message.log_time_ns} ns nests too deeply to decode"
             ) from None
 
-    def _emit(self, topic: str, message, tick, recorded_tick: int):
+    def _emit(self, topic: str, message: BagMessage, tick: Tick, recorded_tick: int) -> Any:
         msg = self._decode(topic, message)
         if self.offset:
             header = msgspec.structs.replace(msg.header, tick=tick.index, seq=tick.index, stamp=tick.t)

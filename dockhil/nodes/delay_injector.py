@@ -5,11 +5,15 @@ Before the delay has passed there is nothing to deliver: the output is empty."""
 from __future__ import annotations
 
 from collections import deque
+from typing import TYPE_CHECKING, Any, cast
 
 import msgspec
 
 from dockhil import msgs, physical
-from dockhil.node import Input, Node, Output, Param
+from dockhil.node import Input, Node, Output, Param, Tick
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 class DelayInjector(Node):
@@ -17,10 +21,15 @@ class DelayInjector(Node):
 
     params = {
         "delay": Param(
-            float, 0.032, unit="s", help="fixed delay (rounded to whole ticks)", ge=0.0, scale=physical.TIME
+            float, 0.032, unit="s", help="fixed delay (rounded to whole ticks)", ge=0.0, scale=physical.ROBOT_DELAY
         ),
         "jitter": Param(
-            float, 0.0, unit="s", help="extra delay, uniform in [0, jitter], per message", ge=0.0, scale=physical.TIME
+            float,
+            0.0,
+            unit="s",
+            help="extra delay, uniform in [0, jitter], per message",
+            ge=0.0,
+            scale=physical.ROBOT_DELAY,
         ),
         "loss": Param(float, 0.0, help="probability that a message is lost (the last one is held)", ge=0.0, le=1.0),
         "seed": Param(int, 0, help="seed of jitter and loss: the same seed, the same run"),
@@ -50,15 +59,16 @@ class DelayInjector(Node):
             self.rng = np.random.default_rng(self.p.seed)
         self.last = None
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         msg = inputs["input"]
         if self.max_jitter == 0 and self.p.loss == 0.0:
             out = msg
         else:
             if msg is not None:
                 self.recent.append(msg)
-            extra = int(self.rng.integers(0, self.max_jitter + 1)) if self.max_jitter else 0
-            lost = self.p.loss > 0.0 and self.rng.random() < self.p.loss
+            rng = cast("np.random.Generator", self.rng)  # setup made it: this node draws
+            extra = int(rng.integers(0, self.max_jitter + 1)) if self.max_jitter else 0
+            lost = self.p.loss > 0.0 and rng.random() < self.p.loss
             out = self.recent[max(0, len(self.recent) - 1 - extra)] if self.recent else None
             # A lost message leaves the last one standing; a late one never overtakes one delivered.
             if self.last is not None and (lost or out is None or out.header.tick < self.last.header.tick):

@@ -31,10 +31,25 @@ class FtSensorSim(Node):
         ),
         "quantization": Param(float, 0.0, unit="N", help="force resolution (0: none)", ge=0.0, scale=physical.FORCE),
         "seed": Param(int, 0, help="noise seed: the same seed gives the same noise in every run"),
+        "k_scale": Param(
+            float,
+            1.0,
+            help="the hardware's true stiffness over the told k (what a lab does not know; hw_k_scale:=)",
+            gt=0.0,
+            le=100.0,
+        ),
+        "delay": Param(
+            float,
+            0.0,
+            unit="s",
+            help="the sensor's own delay: it reports the force it reads this much later (0 N before)",
+            ge=0.0,
+            scale=physical.TIME,
+        ),
     }
 
     def setup(self):
-        from dockhil.contact.hilloop import sensor_force
+        from dockhil.contact.hilloop import DelayLine, delay_ticks, sensor_force
 
         self.sensor_force = sensor_force  # bound once: an import statement in step costs every tick
         self.rng = None
@@ -44,12 +59,15 @@ class FtSensorSim(Node):
             self.rng = np.random.default_rng(self.p.seed)
         self.held = None
         self.next_sample = 0.0
+        self.k = self.p.k * self.p.k_scale
+        ticks = delay_ticks(self.p.delay, self.ctx.dt)
+        self.line = DelayLine(ticks) if ticks else None
 
     def step(self, tick, inputs):
         p = self.p
         if self.held is None or p.rate == 0.0 or tick.t >= self.next_sample - 1e-12:
             robot = inputs["robot"]
-            force = self.sensor_force(None if robot is None else robot.pose.position.x, p.k)
+            force = self.sensor_force(None if robot is None else robot.pose.position.x, self.k)
             if p.noise:
                 force += float(self.rng.normal(0.0, p.noise))
             if p.bias:
@@ -59,4 +77,8 @@ class FtSensorSim(Node):
             self.held = force
             if p.rate:
                 self.next_sample += 1.0 / p.rate
-        return {"wrench": WrenchStamped(header=tick.header("probe"), wrench=Wrench(Vector3(self.held)))}
+        force = self.held
+        if self.line is not None:  # as dockhil.contact.comploop.SensorSim
+            late = self.line.push(force)
+            force = 0.0 if late is None else late
+        return {"wrench": WrenchStamped(header=tick.header("probe"), wrench=Wrench(Vector3(force)))}

@@ -23,10 +23,11 @@ one line (the driver holds the robot).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from dockhil.errors import DeviceError
 from dockhil.msgs import NodeStatus, Pose, RobotCommand, RobotState, Twist, Vector3, WrenchStamped
-from dockhil.node import Input, Node, Output, Param
+from dockhil.node import Input, Node, Output, Param, Tick
 
 PHASES = ("backoff", "rest", "steps", "chirp", "approach", "press", "hold", "release", "done")
 SETTLE_S = 0.3  # after a move: the robot answers up to a delay and a lag later
@@ -145,7 +146,7 @@ class Identification(Node):
         self.x += self.v * dt
         return False
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         state, wrench = inputs.get("state"), inputs.get("wrench")
         if state is None or wrench is None:
             return {}  # the driver holds until the first command; the profile starts from the pose read
@@ -219,7 +220,7 @@ class Identification(Node):
         elif self.phase == "release":
             if self._move_toward(back, self.press_speed, dt):
                 self._enter("done", t)
-        out = {
+        out: dict[str, Any] = {
             "command": RobotCommand(
                 header=tick.header(), pose=Pose(position=Vector3(x=self.x)), twist=Twist(linear=Vector3(x=self.v))
             )

@@ -30,17 +30,39 @@ class RobotSim(Node):
     inputs = {"command": Input(RobotCommand, "/robot/command", help="probe pose setpoint"), "estop": ESTOP}
     outputs = {"state": Output(RobotState, "/robot/state", help="actual probe pose")}
     params = {
-        "lag": Param(float, 0.0, unit="s", help="servo time constant (0: follows exactly)", ge=0.0, scale=physical.TIME)
+        "lag": Param(
+            float, 0.0, unit="s", help="servo time constant (0: follows exactly)", ge=0.0, scale=physical.TIME
+        ),
+        "delay": Param(
+            float,
+            0.0,
+            unit="s",
+            help="response delay of its own (the scenes give it to a delay injector; with delay_scale this node "
+            "delays the command by delay x delay_scale itself)",
+            ge=0.0,
+            scale=physical.ROBOT_DELAY,
+        ),
+        "delay_scale": Param(
+            float,
+            1.0,
+            help="the hardware's true delay over the told `delay` (what a lab does not know; hw_delay_scale:=)",
+            gt=0.0,
+            le=100.0,
+        ),
     }
 
     def setup(self):
-        from dockhil.contact.hilloop import Servo
+        from dockhil.contact.hilloop import DelayLine, Servo, delay_ticks
 
         self.servo = Servo(self.p.lag, self.ctx.dt)
+        ticks = delay_ticks(self.p.delay * self.p.delay_scale, self.ctx.dt)
+        self.line = DelayLine(ticks) if ticks else None
 
     def step(self, tick, inputs):
         estop_held(inputs.get("estop"))
         cmd = inputs["command"]
+        if self.line is not None:
+            cmd = self.line.push(cmd)
         if cmd is None:  # no command yet (the delay has not passed): report no pose
             return {}
         x, v = self.servo.step(cmd.pose.position.x, cmd.twist.linear.x)

@@ -33,10 +33,14 @@ import functools
 import importlib.util
 import math
 import re
+from typing import TYPE_CHECKING, Any
 
 from dockhil.errors import DockhilError, ParamError
 from dockhil.msgs import EStop, Header, RobotCommand, RobotState, WrenchStamped
-from dockhil.node import Input, Node, Output, Param
+from dockhil.node import Input, Node, Output, Param, Tick
+
+if TYPE_CHECKING:
+    from cyclonedds.pub import DataWriter
 
 NEEDS = "the ROS 2 bridge needs the cyclonedds binding: pip install 'dockhil[ros2]'"
 DOMAIN_MAX = 232  # ROS 2's largest domain id: DDS ports 7400 + 250 d stay below 65536
@@ -59,7 +63,7 @@ LOOPBACK_URI = (
 _ROS_NAME = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")  # a fully qualified ROS 2 topic name
 
 
-def bridged_topics(entries) -> dict[str, type]:
+def bridged_topics(entries: object) -> dict[str, type]:
     """topic -> dockhil message type of the `topics` parameter, or one ParamError line."""
     where = "node type ros2_bridge parameter 'topics'"
     if not isinstance(entries, list) or not all(isinstance(e, str) for e in entries):
@@ -188,7 +192,7 @@ def ros_types():
     )
 
 
-def ros_messages(msg) -> list[tuple[str, object]]:
+def ros_messages(msg: WrenchStamped | RobotCommand | RobotState) -> list[tuple[str, object]]:
     """(suffix of the ROS 2 topic, ROS 2 sample) for one dockhil message."""
     t = ros_types()
     h = msg.header
@@ -197,7 +201,7 @@ def ros_messages(msg) -> list[tuple[str, object]]:
     def vec(v):
         return t.Vector3(v.x, v.y, v.z)
 
-    if type(msg) is WrenchStamped:
+    if isinstance(msg, WrenchStamped):  # no message type derives from it
         return [("", t.WrenchStamped(header, t.Wrench(vec(msg.wrench.force), vec(msg.wrench.torque))))]
     p, q, tw = msg.pose.position, msg.pose.orientation, msg.twist
     pose = t.Pose(t.Point(p.x, p.y, p.z), t.Quaternion(q.x, q.y, q.z, q.w))
@@ -207,7 +211,7 @@ def ros_messages(msg) -> list[tuple[str, object]]:
     ]
 
 
-def ros_sample_types(cls) -> list[tuple[str, type]]:
+def ros_sample_types(cls: type) -> list[tuple[str, type]]:
     """(suffix of the ROS 2 topic, ROS 2 type) that `ros_messages` makes of a message of type `cls`."""
     t = ros_types()
     if cls is WrenchStamped:
@@ -266,7 +270,7 @@ class Ros2Bridge(Node):
         try:
             self.participant = DomainParticipant(self.p.domain_id)
             qos = ros2_qos()
-            self.writers = {}
+            self.writers: dict[str, list[DataWriter]] = {}
             for topic, cls in self.topics.items():
                 self.writers[topic] = [
                     DataWriter(
@@ -287,7 +291,7 @@ class Ros2Bridge(Node):
         self.dropped = 0
         self.pressed = False  # latched: an e-stop holds until the graph stops
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         for topic, writers in self.writers.items():
             msg = inputs.get(topic)
             if msg is None or self.last_header.get(topic) == msg.header:  # wall time: the latest, once
@@ -301,7 +305,7 @@ class Ros2Bridge(Node):
                 self.log(f"ROS 2 /estop data: true on domain {self.p.domain_id}: holding the robot")
         return {"estop": EStop(header=tick.header(), active=True, reason="ROS 2 /estop")} if self.pressed else {}
 
-    def _write(self, writer, sample) -> None:
+    def _write(self, writer: "DataWriter", sample: object) -> None:
         try:
             writer.write(sample)
             self.written += 1
@@ -316,10 +320,10 @@ class Ros2Bridge(Node):
         participant = getattr(self, "participant", None)
         if participant is None:
             return
-        self.participant = None
+        self.participant = None  # type: ignore[assignment]  # closed: the node holds no participant
         if self.dropped:
             self.log(
                 f"warning: {self.dropped} of {self.written + self.dropped} ROS 2 samples dropped (readers too slow)"
             )
-        self.writers, self.estop_reader = {}, None
+        self.writers, self.estop_reader = {}, None  # type: ignore[assignment]  # nor reader
         participant.__del__()  # now, not at garbage collection: ROS 2 readers see the writers leave

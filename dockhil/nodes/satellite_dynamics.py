@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from dockhil import physical
-from dockhil.node import Input, Node, Output, Param
+from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.msgs import BodyState, BodyWrenches, Pose, RobotCommand, SatelliteState, Twist, Vector3, WrenchStamped
 
 
@@ -88,7 +90,7 @@ class SatelliteDynamics(Node):
         self.started = False
         self.parked = False  # the command waits at max_gap
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         p = self.p
         if not self.started:
             # Wall time with hardware: the simulated clock starts when the sensor answers, so the robot

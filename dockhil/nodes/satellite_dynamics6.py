@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from typing import Any, cast
+
 from dockhil import physical
-from dockhil.node import Input, Node, Output, Param
+from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.msgs import (
     BodyState,
     BodyWrenches,
@@ -79,7 +81,7 @@ class GapHold:
     def _blended(self, d, q, velocity, spin, gap):
         from dockhil.contact.rotations import quat_from_rotvec, quat_multiply, rotate
 
-        dp, phi, back = self.offset
+        dp, phi, back = cast(tuple, self.offset)  # set: called only while the offset is taken down
         # s = 3u^2 - 2u^3 of u = gap / back: its rate is 0 at both ends, so the command's velocity
         # does not step where the take-down ends, at the plane, where the contact may begin.
         u = 1.0 if gap > back else gap / back
@@ -190,7 +192,7 @@ class SatelliteDynamics6(Node):
         self.started = False
         self.hold = GapHold(p.max_gap) if p.max_gap else None
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         if not self.started:
             # Wall time with hardware: the simulated clock starts when the sensor answers (as the 1-DOF node).
             self.started = self.ctx.sim_time or inputs.get("ft") is not None

@@ -12,7 +12,7 @@ from __future__ import annotations
 import functools
 import time
 from collections import deque
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 import msgspec
 
@@ -25,6 +25,8 @@ from dockhil.log import node_line
 from dockhil.node import NodeContext, Tick
 
 Tap = Callable[[str, Any], None]  # (topic, message)
+# A whole tick, written out (tick_function): (tick, k, check_types) -> each node's outputs, with collect.
+Schedule = Callable[[Tick, int, bool], dict[str, dict] | None]
 
 
 class ComposedGraph:
@@ -33,7 +35,7 @@ class ComposedGraph:
         graph: Graph,
         *,
         sim_time: bool = True,
-        log=None,
+        log: Callable[[str, str], object] | None = None,
         taps: list[Tap] | None = None,
         clock: Callable[[], float] = time.monotonic,
         boxes: dict[tuple[str, str], list] | None = None,
@@ -101,11 +103,11 @@ class ComposedGraph:
         if first:
             raise first
 
-    def schedule(self, wall: bool, collect: bool = False):
+    def schedule(self, wall: bool, collect: bool = False) -> Schedule:
         """The whole tick as one function, resolved once (see `tick_function`)."""
         return tick_function(self.plan, list(self.history.values()), self.taps, wall, collect)
 
-    def step_tick(self, schedule: Callable, tick: Tick, wall: bool) -> dict[str, dict] | None:
+    def step_tick(self, schedule: Schedule, tick: Tick, wall: bool) -> dict[str, dict] | None:
         """One tick of every node (a container's step, and `step`); with a
         schedule made with collect=True, returns each node's outputs by node name."""
         k = tick.index
@@ -117,7 +119,7 @@ class ComposedGraph:
         schedule = self._schedules.get(wall)
         if schedule is None:
             schedule = self._schedules[wall] = self.schedule(wall, collect=True)
-        return self.step_tick(schedule, tick, wall)
+        return cast("dict[str, dict]", self.step_tick(schedule, tick, wall))  # a collecting schedule's
 
     def run(
         self,
@@ -143,7 +145,7 @@ class ComposedGraph:
         k = 0
         while k != end and not stop.requested:
             if wall:
-                timing.started(clock() - (t0 + k * dt))
+                timing.started(clock() - (t0 + k * dt))  # type: ignore[union-attr]  # wall: timing is set
                 tick = Tick(k, clock() - t0, dt, stamp=time.time())
             else:
                 tick = Tick(k, k * dt, dt)
@@ -157,14 +159,14 @@ class ComposedGraph:
             if wall:
                 over = clock() - (t0 + k * dt)
                 if over > 0:
-                    timing.missed(over if k > 1 else 0.0)  # the first tick has no schedule to keep
+                    timing.missed(over if k > 1 else 0.0)  # type: ignore[union-attr]  # wall: timing is set; tick 0 keeps no schedule
                 sleep_until(t0 + k * dt, clock, spin)
         if wall:
-            timing.ticks, timing.elapsed = k, clock() - t0
+            timing.ticks, timing.elapsed = k, clock() - t0  # type: ignore[union-attr]  # wall: timing is set
         return k
 
 
-def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, collect: bool):
+def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, collect: bool) -> Schedule:
     """One tick of every node in `plan`, written out as one function and compiled once per run:
     `f(tick, k, check_types)`. Each topic's history gets this tick's slot (in wall time holding
     the latest value, in sim time None until a message is sent); each node's inputs are read
@@ -245,7 +247,7 @@ def _sequence_fields(cls: type) -> tuple[str, ...]:
     type costs milliseconds, and a run writes its tick anew."""
     import msgspec.inspect as mi
 
-    info = mi.type_info(cls)
+    info = cast(mi.StructType, mi.type_info(cls))  # msgs are Structs
     return tuple(f.name for f in info.fields if isinstance(f.type, (mi.VarTupleType, mi.ListType)))
 
 

@@ -13,10 +13,13 @@ from __future__ import annotations
 
 import math
 from types import SimpleNamespace
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 from dockhil.errors import NODE_RAISES
-from dockhil.node import Input, Node, NodeContext, Output
+from dockhil.node import Input, Node, NodeContext, Output, Tick
+
+if TYPE_CHECKING:
+    from dockhil.runtime.composed import Schedule
 
 
 def _members(params: dict) -> list[dict]:
@@ -31,7 +34,7 @@ class Container(Node):
         return dict(given)  # made by the launcher from a checked graph
 
     @classmethod
-    def ports(cls, params):
+    def ports(cls, params: dict[str, Any]) -> tuple[dict[str, Input], dict[str, Output]]:
         from dockhil import node_types
 
         inputs, outputs = {}, {}
@@ -52,7 +55,7 @@ class Container(Node):
     def __init__(self, ctx: NodeContext, **params: Any):
         from dockhil import node_types
         from dockhil.runtime.composed import ComposedGraph
-        from dockhil.scene.graph import GraphNode, PortRef
+        from dockhil.scene.graph import Graph, GraphNode, PortRef
 
         self.ctx = ctx
         self.p = SimpleNamespace(**params)
@@ -81,22 +84,22 @@ class Container(Node):
         self.sent: dict[str, Any] = {}
         self.out_port = {topic: f"{ref.node}.{ref.port}" for topic, ref in publishers.items()}
         self.members = ComposedGraph(
-            graph,
+            cast("Graph", graph),  # the parts of a Graph a composed run reads
             sim_time=ctx.sim_time,
             clock=ctx.clock,
             boxes=self.boxes,
             log=lambda name, msg: ctx.log(f"[{name}] {msg}"),
             taps=[self._sent],
         )
-        self._schedule = None
+        self._schedule: Schedule | None = None
 
-    def _sent(self, topic: str, msg) -> None:
+    def _sent(self, topic: str, msg: Any) -> None:
         self.sent[self.out_port[topic]] = msg
 
     def setup(self) -> None:
         self.members.setup()
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         if self._schedule is None:
             self._schedule = self.members.schedule(wall=not self.ctx.sim_time)
         for port, box in self.reads:

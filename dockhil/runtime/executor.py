@@ -29,8 +29,10 @@ import math
 import os
 import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from types import FrameType
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 
@@ -42,7 +44,12 @@ from dockhil.runtime import realtime
 from dockhil.runtime.looptime import LoopTiming, loop_spin, sleep_until
 from dockhil.runtime.screen import checked_payload
 
+if TYPE_CHECKING:
+    from dockhil.node import Node
+    from dockhil.runtime.transport import GraphKeys, Publisher
+
 TIMING = "\x1edockhil-timing "  # a node process's line with its wall-time loop figures (JSON), read by the launcher
+STALE = "\x1edockhil-stale "  # ... with the input that stopped it as stale (JSON): the launcher says whose fault
 DEFERRED = 16  # sim time: frames an output holds at most while its node computes on without waiting
 
 
@@ -56,6 +63,7 @@ class PortWire:
     unlimited_age: bool = False  # inputs: no maximum age (a publisher the launcher respawns may pause)
     max_age: float | None = None  # inputs: the launch file's maximum age [s], over the node's own
     burst: int = 1  # outputs, sim time: ticks whose messages go out together (readers' slack: launcher.burst)
+    publisher: str = ""  # inputs: the node that publishes the topic (named when the input goes stale)
 
 
 @dataclass
@@ -91,7 +99,7 @@ class Stop:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self._handle)
 
-    def _handle(self, signum, frame) -> None:
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
         self.requested = True
 
 
@@ -123,7 +131,7 @@ def check_outputs(name: str, declared: dict, k: int, outs: dict, sim: bool) -> N
             )
 
 
-def read_spec_keys(spec: RunSpec):
+def read_spec_keys(spec: RunSpec) -> GraphKeys | None:
     """The graph's keys, which every endpoint needs; a node without endpoints needs none."""
     from dockhil.runtime.transport import GraphKeys
 
@@ -137,10 +145,26 @@ def read_spec_keys(spec: RunSpec):
     return GraphKeys.read(spec.key_file)
 
 
+def dump_report(report: dict) -> None:
+    """A node's loop figures to DOCKHIL_TIMING_DIR/NAME.json, where set: benchmarks and tests collect
+    every node's figures (the launcher reads them from the node's TIMING line)."""
+    folder = os.environ.get("DOCKHIL_TIMING_DIR")
+    if folder:
+        with open(os.path.join(folder, f"{report['node']}.json"), "w") as f:
+            json.dump(report, f)
+
+
 class NodeExecutor:
     """Owns one node's sockets and loop. Used by node processes and `dockhil run`."""
 
-    def __init__(self, spec: RunSpec, node_cls: type, stop: Stop, log=None, clock=time.monotonic):
+    def __init__(
+        self,
+        spec: RunSpec,
+        node_cls: type[Node],
+        stop: Stop,
+        log: Callable[[str], object] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ):
         import zmq
 
         from dockhil.runtime.transport import Publisher, Subscriber, separator
@@ -168,7 +192,7 @@ class NodeExecutor:
         self.max_age = {port: limit(port, wire) for port, wire in spec.inputs.items() if port in ins}
         self.unconnected = [port for port in ins if port not in spec.inputs]
         self.in_types = {port: ins[port].type for port in spec.inputs}
-        self.ctx = zmq.Context.instance()
+        self.ctx: zmq.Context = zmq.Context.instance()
         realtime.zmq_options(self.ctx)  # --realtime: its I/O threads too, set before its first socket
         keys = read_spec_keys(spec)
         self.sub = Subscriber(self.ctx)
@@ -177,7 +201,8 @@ class NodeExecutor:
         self.routes: dict[bytes, list[tuple[str, Any]]] = {}
         for port, wire in spec.inputs.items():
             self.sub.connect(wire.endpoint, keys=keys)
-            fast = msgspec.msgpack.Decoder(self.in_types[port]).decode  # errors: the codec's lines, below
+            decoder: msgspec.msgpack.Decoder[Any] = msgspec.msgpack.Decoder(self.in_types[port])
+            fast = decoder.decode  # errors: the codec's lines, below
             self.routes.setdefault(wire.topic.encode(), []).append((port, fast))
         # Sim time loses nothing: a finished node waits (up to 60 s) until its slowest subscriber has all.
         # Wall time: a recorder behind a busy machine's graph catches up once the graph stops; 2 s of it
@@ -196,6 +221,7 @@ class NodeExecutor:
                 keys=keys,
                 lossy=not sim,
                 burst=(wire.burst if wire.burst > 1 else DEFERRED) if sim else 1,
+                trailing=sim,
             )
             for port, wire in spec.outputs.items()
         }
@@ -225,7 +251,7 @@ class NodeExecutor:
                     topic.decode(errors="replace"), "malformed frame: expected the topic, a NUL byte, then msgpack"
                 )
                 return []
-            tick = int.from_bytes(frame[i + 1 :], "little")
+            tick: int | None = int.from_bytes(frame[i + 1 :], "little")
             return [(port, tick, None, True) for port, _ in routes]
         payload = frame[i + 1 :]
         out = []
@@ -277,7 +303,7 @@ class NodeExecutor:
             elif sim:
                 pub.send_empty(k)
 
-    def _lost_output(self, pub) -> None:
+    def _lost_output(self, pub: Publisher) -> None:
         # Wall time: a subscriber's queue is full (it stopped reading); the message is dropped, not queued.
         if pub.dropped == 1 or pub.dropped % 1000 == 0:
             self.log(
@@ -311,7 +337,7 @@ class NodeExecutor:
                     break
             else:
                 if k == 0:  # the real-time factor counts from here, not from the start-up
-                    self.timing.first_tick_at = time.time()
+                    self.timing.first_tick()
                 inputs = {port: buf.pop(k - lag, None) for port, buf, lag in needs}
                 if unconnected:
                     inputs.update(unconnected)
@@ -321,9 +347,10 @@ class NodeExecutor:
                 k += 1
                 self.ticks_done = k
                 self._waited_since = time.monotonic()
-        self.timing.last_tick_at = time.time()
+        self.timing.last_tick()
         for pub in self.pubs.values():  # the last, incomplete bursts
             pub.flush()
+            pub.flush_trailing()
         # Stay subscribed until every input's last tick is in: a publisher waits for its subscribers
         # before tick 0, and a node that needs no input for its ticks (a long delay) must not leave first.
         while spec.n_ticks is not None and not self.stop.requested:
@@ -333,6 +360,7 @@ class NodeExecutor:
             self._receive(k, behind[0], keep=False)
         self.timing.ticks = k
         self.timing.dropped_in = self.dropped
+        dump_report(self.timing.report(spec.name))
 
     def _receive(self, k: int, waiting_for: str, keep: bool = True) -> None:
         """Take one message off the socket (or time out after 0.2 s), file it by tick; before
@@ -373,9 +401,10 @@ class NodeExecutor:
             # ticking it at the graph's rate only takes the interpreter from the device's thread.
             period = max(period, IDLE_DEVICE_PERIOD_S)
         self.timing = timing = LoopTiming(list(spec.inputs), period=period, max_age=self.max_age)
+        timing.device = getattr(node, "device_figures", None)  # a driver's account of its device (validity)
         spin = loop_spin()
+        timing.first_tick()  # before the schedule starts: its reading of /proc is not the first tick's time
         t0 = clock()
-        timing.first_tick_at = time.time()
         next_t = t0
         k = 0
         try:
@@ -410,15 +439,13 @@ class NodeExecutor:
         finally:
             timing.ticks = k
             timing.elapsed = clock() - t0
-            timing.last_tick_at = timing.first_tick_at + timing.elapsed  # on the loop's own clock
+            assert timing.first_tick_at is not None  # set by first_tick, before the loop
+            timing.last_tick(timing.first_tick_at + timing.elapsed)  # on the loop's own clock
             timing.dropped_in = self.dropped
             timing.dropped_out = self.dropped_outputs
             timing.published = {pub.topic: pub.taken for pub in self.pubs.values()}
         out = timing.report(spec.name)
-        folder = os.environ.get("DOCKHIL_TIMING_DIR")
-        if folder:  # benchmarks collect every node's figures
-            with open(os.path.join(folder, f"{spec.name}.json"), "w") as f:
-                json.dump(out, f)
+        dump_report(out)
         return out
 
     def _check_ages(self, arrived: dict[str, float], now: float, timing: "LoopTiming", end: float | None) -> bool:
@@ -432,10 +459,15 @@ class NodeExecutor:
             if age > limit:
                 if end is not None and at >= end - 2 * limit:
                     return True
-                topic = self.spec.inputs[port].topic
+                wire = self.spec.inputs[port]
+                source = f"{wire.topic} from node {wire.publisher!r}" if wire.publisher else wire.topic
+                # The launcher, which sees the publisher's process, says whether it died or is late.
+                late = age - self.spec.dt  # its next message was due one period after the last
+                stale = {"port": port, "topic": wire.topic, "publisher": wire.publisher, "late": late}
+                print(STALE + json.dumps(stale), flush=True)
                 raise StaleInput(
-                    f"node {self.spec.name!r}: input {port!r} ({topic}) is {age:.3f} s old > "
-                    f"max_age {limit:g} s (its publisher stalled or died); stopping"
+                    f"node {self.spec.name!r}: input {port!r} ({source}) is {age:.3f} s old > max_age {limit:g} s; "
+                    f"stopping"
                 )
         return False
 

@@ -114,7 +114,8 @@ class ZapHandler:
         self._thread = threading.Thread(target=self._serve, args=(woken,), name="dockhil-zap", daemon=True)
         self._thread.start()
 
-    def _serve(self, woken) -> None:
+    def _serve(self, woken: zmq.Socket) -> None:
+        name_os_thread("dockhil-zap")
         poller = zmq.Poller()
         poller.register(self._zap, zmq.POLLIN)
         poller.register(woken, zmq.POLLIN)
@@ -152,11 +153,21 @@ class ZapHandler:
         self._stop.close()
 
 
+def name_os_thread(name: str) -> None:
+    """The calling thread's name as the OS shows it (/proc/PID/task/TID/comm: `top -H`, bench/graph.py's
+    context switches by thread); Python 3.11 names only its own thread object. At most 15 bytes."""
+    try:
+        with open(f"/proc/self/task/{threading.get_native_id()}/comm", "w") as f:
+            f.write(name[:15])
+    except OSError:  # not Linux: the name is only a help
+        pass
+
+
 _auth_lock = threading.Lock()
 _auth: dict[int, list] = {}  # id(context) -> [its ZAP handler, publishers using it]
 
 
-def allow_clients(ctx, keys: GraphKeys) -> None:
+def allow_clients(ctx: zmq.Context, keys: GraphKeys) -> None:
     """Start this context's ZAP handler (once) and let the graph's client key in."""
     with _auth_lock:
         entry = _auth.get(id(ctx))
@@ -166,7 +177,7 @@ def allow_clients(ctx, keys: GraphKeys) -> None:
         entry[1] += 1
 
 
-def release_clients(ctx) -> None:
+def release_clients(ctx: zmq.Context) -> None:
     with _auth_lock:
         entry = _auth.get(id(ctx))
         if entry is None:

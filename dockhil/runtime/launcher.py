@@ -22,20 +22,24 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from types import FrameType
+from typing import TYPE_CHECKING, cast
 
 import msgspec
 
 from dockhil import log
-from dockhil.runtime.executor import TIMING
+from dockhil.runtime.executor import STALE, TIMING
 from dockhil.runtime.process import READY
 from dockhil.runtime.registry import describe_nodes, describe_subscribers, write_entry
 from dockhil.runtime.transport import GraphKeys
 from dockhil.runtime.plan import ExtraProcess, assign_endpoints, is_local, processes, run_specs
 
 if TYPE_CHECKING:  # the graph module loads the launch-file parser (yaml): a recorder or `dockhil topic` needs neither
+    from dockhil.progress import Progress
+    from dockhil.runtime.transport import Subscriber
     from dockhil.scene.graph import Graph
 
 POLL_S = 0.05  # the watch loop's longest sleep when no child speaks or exits
@@ -64,6 +68,16 @@ class _Child:
     starts: int = 0  # how many times it was started (a respawned node: more than once)
     reports: int = 0  # ... and how many exit reports (TIMING lines) it gave: a killed node gives none
     sent: dict[str, int] = field(default_factory=dict)  # topic -> messages sent, over all its runs
+    stale: dict | None = None  # the input it stopped on as stale (executor.STALE)
+
+
+def _stopped(pid: int) -> bool:
+    """The process is stopped by a signal or traced (its state in /proc, Linux)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rpartition(")")[2].split()[0] in ("T", "t")
+    except (OSError, IndexError):
+        return False
 
 
 class Launcher:
@@ -77,7 +91,7 @@ class Launcher:
         extra: list[ExtraProcess] | None = None,
         progress: bool = False,
         realtime: bool = False,
-        judge=None,
+        judge: Callable[[int], dict] | None = None,
     ):
         """judge: exit code -> the run's verdict (str -> str), asked once the nodes are done and
         the verdict helpers have recorded everything."""
@@ -142,12 +156,19 @@ class Launcher:
     say = log.Log("[launch]")
 
     def _read(self, child: _Child, proc: subprocess.Popen) -> None:
+        assert proc.stdout is not None  # started with a pipe for it (_start)
         for raw in proc.stdout:
             line = raw.rstrip("\n")
             if line == READY or line == RECORDED:
                 child.ready = child.ready or line == READY
                 child.recorded = child.recorded or line == RECORDED
                 self._wake.set()
+                continue
+            if line.startswith(STALE):
+                try:
+                    child.stale = json.loads(line[len(STALE) :])
+                except ValueError:
+                    pass
                 continue
             if line.startswith(TIMING):
                 try:
@@ -286,7 +307,7 @@ class Launcher:
                 except OSError:  # it exited meanwhile: its exit code says why
                     pass
 
-    def _on_signal(self, signum, frame) -> None:
+    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
         self._stop_signal = signum
 
     def _is_emulator(self, child: _Child) -> bool:
@@ -302,6 +323,7 @@ class Launcher:
             if self._sparing:
                 live.remove(c)
                 if not c.recorded:
+                    assert c.proc is not None  # live ones only
                     c.proc.send_signal(signal.SIGTERM)
             else:
                 self._close_stdin(c)
@@ -352,7 +374,7 @@ class Launcher:
                 registry.unlink(missing_ok=True)
             shutil.rmtree(self.endpoints.run_dir, ignore_errors=True)
 
-    def _progress_probe(self):
+    def _progress_probe(self) -> Subscriber | None:
         """A subscriber on one topic whose header ticks tell how far the graph is."""
         import zmq
 
@@ -362,10 +384,11 @@ class Launcher:
         if topic is None:
             return None
         sub = Subscriber(zmq.Context.instance(), observer=True)
-        sub.connect(self.endpoints.topics[topic], keys=GraphKeys.read(self.endpoints.key_file))
+        keys = GraphKeys.read(cast(Path, self.endpoints.key_file))  # plan() wrote them
+        sub.connect(self.endpoints.topics[topic], keys=keys)
         return sub
 
-    def _show_progress(self, probe, bar) -> None:
+    def _show_progress(self, probe: Subscriber, bar: Progress) -> None:
         from dockhil.msgs.codec import decode_header
 
         tick = None
@@ -402,6 +425,7 @@ class Launcher:
             with realtime.signalling(self.realtime_wall):
                 for c in waiting:
                     c.go_sent = True
+                    assert c.proc is not None  # waiting ones only
                     try:
                         c.proc.send_signal(signal.SIGUSR1)
                     except ProcessLookupError:
@@ -427,13 +451,14 @@ class Launcher:
             and not (c.proc.returncode == -signal.SIGTERM and not c.ready)
         ]
         for c in failed:
+            assert c.proc is not None  # failed ones only
             self.say.error(f"{c.name!r} exited with code {c.proc.returncode} while stopping", tag="")
         return 1 if failed else 0
 
-    def _watch_children(self, probe, bar) -> int:
+    def _watch_children(self, probe: Subscriber | None, bar: Progress | None) -> int:
         while True:
             self._wake.clear()  # before looking: what happens from here on wakes the wait below
-            if probe is not None:
+            if probe is not None and bar is not None:  # made together (_watch)
                 self._show_progress(probe, bar)
             if self._duration_over():
                 return self._stop_at_duration()
@@ -452,6 +477,7 @@ class Launcher:
                         child.respawn_at = None
                         self._start(child)
                     continue
+                assert child.proc is not None  # started, or on another host and so finished
                 code = child.proc.poll()
                 is_node = child.name in self.specs
                 if code is None:
@@ -486,6 +512,7 @@ class Launcher:
         for child in self.children:
             if child.name in self.specs or child.finished or child.verdict:
                 continue
+            assert child.proc is not None  # every helper runs here
             if self.clock == "wall":
                 child.proc.send_signal(signal.SIGTERM)  # wall-time helpers run until told
             code = self._exited(child, deadline, timeout)
@@ -497,6 +524,7 @@ class Launcher:
 
     def _exited(self, child: _Child, deadline: float, timeout: float) -> int | None:
         """The helper's exit code once it exits before `deadline`; None (said) if it does not."""
+        assert child.proc is not None  # a started helper
         try:
             code = child.proc.wait(max(0.1, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
@@ -516,16 +544,18 @@ class Launcher:
         if self.clock == "wall":
             self._tell_sent(helpers)
         deadline = time.monotonic() + HELPER_WAIT_S
-        while not all(c.recorded or c.proc.poll() is not None for c in helpers) and time.monotonic() < deadline:
+        while not all(c.recorded or c.proc.poll() is not None for c in helpers) and time.monotonic() < deadline:  # type: ignore[union-attr]  # helpers are started
             self._wake.clear()
             self._wake.wait(POLL_S)
-        late = [c for c in helpers if not c.recorded and c.proc.poll() is None]
+        late = [c for c in helpers if not c.recorded and c.proc.poll() is None]  # type: ignore[union-attr]  # started
         if late and code == 0:  # its bag is not the whole run yet: no verdict is drawn from it
             self.say.error(f"{late[0].name!r} did not finish recording within {HELPER_WAIT_S:.0f} s; stopping it")
             code = 1
+        assert self.judge is not None  # a helper is told the verdict only where there is a judge
         verdict = json.dumps(self.judge(code)) + "\n"
         deadline = time.monotonic() + HELPER_WAIT_S  # the judge may have read a long bag meanwhile
         for c in helpers:
+            assert c.proc is not None and c.proc.stdin is not None  # started, with a pipe to its stdin
             if c.recorded and c.proc.poll() is None:
                 try:
                     c.proc.stdin.write(verdict)
@@ -542,16 +572,35 @@ class Launcher:
 
     @staticmethod
     def _close_stdin(child: _Child) -> None:
+        assert child.proc is not None  # a started helper
         try:
             if child.proc.stdin is not None:
                 child.proc.stdin.close()
         except OSError:  # it exited: nothing to tell it
             pass
 
+    def _blame(self, child: _Child) -> str:
+        """Whose fault a stale input was: a publisher whose process ended, or one alive but late (a busy
+        machine starves it of CPU), told apart by its process."""
+        stale = child.stale
+        pub = next((c for c in self.children if stale and c.name == stale.get("publisher")), None)
+        if pub is None or pub.proc is None:
+            return ""
+        assert stale is not None  # pub was found by it
+        code = pub.proc.poll()
+        if code is not None:
+            return f": its input {stale['topic']}'s publisher, node {pub.name!r}, had exited with code {code}"
+        if _stopped(pub.proc.pid):
+            return f": its input {stale['topic']}'s publisher, node {pub.name!r}, is stopped (SIGSTOP, a debugger)"
+        return (
+            f": its input {stale['topic']}'s publisher, node {pub.name!r}, is running but its message was late by "
+            f"{stale['late']:.3f} s; a busy machine? try --realtime"
+        )
+
     def _died(self, child: _Child, code: int) -> int:
         how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
         when = "while running" if child.ready else "at start"
-        self.say.error(f"node {child.name!r} {how} {when}; stopping the graph", tag="")
+        self.say.error(f"node {child.name!r} {how} {when}{self._blame(child)}; stopping the graph", tag="")
         if not child.ready:
             # Let nodes still opening devices finish, so every missing device gets its own line.
             deadline = time.monotonic() + 5.0

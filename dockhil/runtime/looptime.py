@@ -1,12 +1,15 @@
 """Wall-time loop timing: each tick's lateness against its schedule, missed deadlines, input ages
-(what validity judges a run on), and the sleep to the next tick."""
+(what validity judges a run on), and the sleep to the next tick; in both clocks, the span of the
+ticks and the context switches of each thread over it."""
 
 from __future__ import annotations
 
 import math
 import os
 import time
+from collections.abc import Callable
 
+from dockhil.runtime import switches
 from dockhil.runtime.histogram import Histogram
 
 
@@ -28,6 +31,7 @@ class LoopTiming:
         self.worst_age = {port: 0.0 for port in ports}  # since arrival [s]
         self.dropped_in = 0
         self.dropped_out = 0
+        self.device: Callable[[], dict] | None = None  # a driver's device_figures, read at report
         self.worst_overrun = 0.0
         # When the loop's first tick began and its last ended (time.time(), comparable across the
         # graph's processes): the run's real-time factor counts this span, not the start-up.
@@ -35,6 +39,20 @@ class LoopTiming:
         self.last_tick_at: float | None = None
         # Wall time: topic -> messages its publisher's socket took (Publisher.taken), set as the loop ends.
         self.published: dict[str, int] = {}
+        # Thread name -> [voluntary, involuntary] context switches from the first tick to the end of the last.
+        self.switches: dict[str, list[int]] = {}
+        self._switches_before: dict[str, list[int]] | None = None
+
+    def first_tick(self) -> None:
+        """The first tick begins: the run's span and its context switches count from here."""
+        self.first_tick_at = time.time()
+        self._switches_before = switches.by_thread()
+
+    def last_tick(self, at: float | None = None) -> None:
+        """The last tick has ended (at `at`, time.time() by default)."""
+        self.last_tick_at = time.time() if at is None else at
+        if self._switches_before is not None:
+            self.switches = switches.since(self._switches_before, switches.by_thread())
 
     def aged(self, port: str, age: float) -> None:
         if age > self.worst_age.get(port, 0.0):
@@ -62,9 +80,10 @@ class LoopTiming:
 
     def report(self, name: str) -> dict:
         def pct(values: Histogram) -> dict:
-            if not values.count:
+            p50, p99 = values.percentile(50), values.percentile(99)
+            if p50 is None or p99 is None:  # nothing counted
                 return {}
-            return {"p50": values.percentile(50) * 1e6, "p99": values.percentile(99) * 1e6, "max": values.max * 1e6}
+            return {"p50": p50 * 1e6, "p99": p99 * 1e6, "max": values.max * 1e6}
 
         worst = self.lateness.max
         out = {
@@ -86,14 +105,17 @@ class LoopTiming:
             "first_tick_at_s": self.first_tick_at,
             "last_tick_at_s": self.last_tick_at,
             "published": dict(self.published),
+            "switches": dict(self.switches),
         }
+        if self.device is not None:  # a driver's account of its device's cycles (validity.device_reasons)
+            out["device"] = self.device()
         return out
 
 
 SPIN_S = float(os.environ.get("DOCKHIL_SPIN_S", "0.0002"))
 
 
-def sleep_until(deadline: float, clock=time.monotonic, spin: float = SPIN_S) -> None:
+def sleep_until(deadline: float, clock: Callable[[], float] = time.monotonic, spin: float = SPIN_S) -> None:
     # Sleep most of the way, then spin the last `spin` seconds: time.sleep alone overshoots by
     # ~60-150 us, but every microsecond spun is CPU the other nodes on the machine do not get.
     if clock is not time.monotonic:  # a test's clock: its time moves when the test says, never by waiting

@@ -32,7 +32,7 @@ def set_graph(run_id: str) -> None:
 def graph_dir():
     """This graph's private run directory (0700, owner checked; the launcher removes it when the graph
     ends), where a node keeps what must outlive its own restarts; None outside a graph."""
-    from dockhil.runtime.transport import private_dir, runtime_dir
+    from dockhil.runtime.rundir import private_dir, runtime_dir
 
     return private_dir(runtime_dir() / _graph, "run directory") if _graph else None
 
@@ -69,7 +69,7 @@ class DeviceLock:
 
 
 def lock_path(key: str) -> str:
-    from dockhil.runtime.transport import private_dir, runtime_dir
+    from dockhil.runtime.rundir import private_dir, runtime_dir
 
     name = re.sub(r"[^A-Za-z0-9_.-]", "_", key).strip("._")[:200] or "device"
     return str(private_dir(runtime_dir() / "devices", "device lock directory") / f"{name}.lock")

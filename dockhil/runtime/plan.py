@@ -14,7 +14,8 @@ from dockhil import msgs
 from dockhil.errors import LaunchError
 from dockhil.runtime.executor import PortWire, RunSpec
 from dockhil.runtime.registry import KEY_FILE, new_run_id
-from dockhil.runtime.transport import GraphKeys, ipc_endpoint, new_run_dir
+from dockhil.runtime.rundir import new_run_dir
+from dockhil.runtime.transport import GraphKeys, ipc_endpoint
 
 if TYPE_CHECKING:  # the graph module loads the launch-file parser (yaml)
     from dockhil.scene.graph import Graph
@@ -46,20 +47,23 @@ class Endpoints:
 
 
 def _free_tcp_port(taken: set[int]) -> int:
-    """A free port whose next one is free too (a publisher's observers get the next: see
-    transport.observer_endpoint); neither in `taken`, to which both are added."""
+    """A free port whose next two are free too (a publisher's observers get the next, its trailing
+    readers the one after: see transport.observer_endpoint and trailing_endpoint); none in `taken`,
+    to which all three are added."""
     while True:
         with socket.socket() as s:
             s.bind(("127.0.0.1", 0))
             port = s.getsockname()[1]
-        if port >= 65535 or {port, port + 1} & taken:
+        ports = {port, port + 1, port + 2}
+        if port >= 65534 or ports & taken:
             continue
         try:
-            with socket.socket() as s:
-                s.bind(("127.0.0.1", port + 1))
+            for after in (port + 1, port + 2):
+                with socket.socket() as s:
+                    s.bind(("127.0.0.1", after))
         except OSError:
             continue
-        taken.update((port, port + 1))
+        taken.update(ports)
         return port
 
 
@@ -294,6 +298,7 @@ def run_specs(
                 ref.lag,
                 unlimited_age=ref.topic in respawned or ref.max_age == math.inf,
                 max_age=None if ref.max_age == math.inf else ref.max_age,
+                publisher=graph.publishers[ref.topic].node if ref.topic in graph.publishers else "",
             )
             for port, ref in gn.inputs.items()
             if ref.topic in ep.topics

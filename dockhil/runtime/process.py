@@ -16,15 +16,20 @@ from __future__ import annotations
 import os
 import signal
 import sys
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import msgspec
 
 from dockhil.runtime.parent import die_with_parent  # the recorder takes it from here too
 
+if TYPE_CHECKING:
+    from dockhil.runtime.executor import RunSpec, Stop
+
 READY = "\x1edockhil-ready"  # a line the launcher intercepts
 
 
-def _wait_for_go(go: list, stop) -> None:
+def _wait_for_go(go: list, stop: Stop) -> None:
     """Sleep until the launcher's go (SIGUSR1, whose handler fills `go`) or a stop. The signal's
     byte on the wake-up fd ends the wait at once, on whichever thread the signal lands; the
     time-out only bounds a signal that came just before the fd was set."""
@@ -43,7 +48,9 @@ def _wait_for_go(go: list, stop) -> None:
         os.close(w)
 
 
-def run_node(spec, log=None, on_ready=None) -> int:
+def run_node(
+    spec: RunSpec, log: Callable[[str], object] | None = None, on_ready: Callable[[], object] | None = None
+) -> int:
     """Set up and run one node until its ticks are done or a stop is requested."""
     from dockhil import node_types
     from dockhil import log as logs
@@ -86,7 +93,8 @@ def run_node(spec, log=None, on_ready=None) -> int:
         log(f"error: {exc}")
         return 2
     except NODE_RAISES as exc:  # a bug in a node (a sys.exit would leave the graph waiting): one line
-        log(f"error: {failure_line(spec.name, f'tick {executor.ticks_done}' if ticking else 'setup', exc)}")
+        where = f"tick {executor.ticks_done}" if ticking and executor is not None else "setup"
+        log(f"error: {failure_line(spec.name, where, exc)}")
         if os.environ.get("DOCKHIL_TRACEBACK"):  # as the dockhil command shows its own
             import traceback
 

@@ -14,6 +14,11 @@ from __future__ import annotations
 
 import contextlib
 import os
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import zmq
 
 # The graph's recorders run at normal policy with a nice of -10: ordinary work cannot starve them (nine
 # times a busy loop's share), and they are not real-time. At SCHED_FIFO (40, once) their bursts left the
@@ -31,7 +36,7 @@ SIGNAL_PRIORITY = DEVICE_PRIORITY
 HOW = "grant CAP_SYS_NICE or an rtprio limit to use --realtime: docs/time.md"
 
 
-def ask(priority: int, what: str, say) -> bool:
+def ask(priority: int, what: str, say: Callable[[str], object]) -> bool:
     """SCHED_FIFO at `priority` for the calling thread; where the OS refuses, one line through
     `say` naming `what` runs at normal priority, and False."""
     try:
@@ -42,7 +47,7 @@ def ask(priority: int, what: str, say) -> bool:
     return True
 
 
-def favour(pid: int, what: str, say) -> bool:
+def favour(pid: int, what: str, say: Callable[[str], object]) -> bool:
     """Nice RECORD_NICE for another process (its main thread, before it makes others); where the OS
     refuses, one line through `say`, and False."""
     try:
@@ -64,13 +69,13 @@ def granted() -> bool:
         return False
 
 
-def raise_device_thread(say, what: str) -> None:
+def raise_device_thread(say: Callable[[str], object], what: str) -> None:
     """A device thread of a process running real-time: above the loops (it inherited theirs)."""
     if granted():
         ask(DEVICE_PRIORITY, what, say)
 
 
-def zmq_options(ctx) -> bool:
+def zmq_options(ctx: zmq.Context) -> bool:
     """SCHED_FIFO for a ZeroMQ context's I/O threads, set before its first socket starts them.
     Only where this thread already holds a real-time policy: libzmq aborts the process when the
     OS refuses the policy to its thread, so it is asked only once the privilege is proven."""
@@ -84,7 +89,7 @@ def zmq_options(ctx) -> bool:
 
 
 @contextlib.contextmanager
-def signalling(enabled: bool):
+def signalling(enabled: bool) -> Iterator[None]:
     """The launcher's thread above every node while it signals them all (start, stop): a busy core that
     preempted it between two nodes' signals would stop a publisher while its reader, told later, took the
     silence for a stall. Back to its own policy after; without the privilege, as it was (no line: the

@@ -10,9 +10,17 @@ import os
 import time
 import uuid
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from dockhil.errors import DockhilError, LaunchError
-from dockhil.runtime.transport import GraphKeys, private_dir, runtime_dir
+from dockhil.runtime.rundir import private_dir, runtime_dir
+from dockhil.runtime.transport import GraphKeys
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+
+    from dockhil.runtime.plan import ExtraProcess
+    from dockhil.scene.graph import Graph
 
 KEY_FILE = "graph.keys"  # a graph's CURVE keys, in its run directory
 COMPOSED = "composed"  # the process of a graph run --composed, as its entry names it
@@ -36,7 +44,7 @@ def write_entry(info: dict) -> Path:
     return path
 
 
-def register_composed(graph, clock: str) -> Path | None:
+def register_composed(graph: Graph, clock: str) -> Path | None:
     """The entry of a graph run --composed in this process, for `node list` and `node info`: its
     nodes, all in one process (this one). No topics: its nodes hand messages to each other here,
     with no socket an observer could read. None if it cannot be written: the run needs no entry."""
@@ -82,7 +90,7 @@ def running_graphs() -> list[dict]:
     return out
 
 
-def describe_nodes(graph, units: dict[str, list[str]]) -> dict[str, dict]:
+def describe_nodes(graph: Graph, units: dict[str, list[str]]) -> dict[str, dict]:
     """Each node of a built graph as `dockhil node info` shows it: its type, host, process (its own,
     or the container it shares), parameters as resolved, and its ports with topic, message type,
     lag and maximum age (wall time; None: no limit)."""
@@ -121,7 +129,7 @@ def describe_nodes(graph, units: dict[str, list[str]]) -> dict[str, dict]:
     return out
 
 
-def describe_subscribers(graph, extra=()) -> dict[str, list[str]]:
+def describe_subscribers(graph: Graph, extra: Iterable[ExtraProcess] = ()) -> dict[str, list[str]]:
     """Topic -> what reads it: `node.port` for each input, and each helper process (a recorder) by name."""
     out = {topic: [f"{ref.node}.{ref.port}" for ref in refs] for topic, refs in graph.subscribers.items()}
     for proc in extra:

@@ -5,13 +5,16 @@ stops the producing node with one line, the same in a multi-process and a compos
 from __future__ import annotations
 
 import functools
-from typing import Any
+from collections.abc import Callable
+from typing import Any, cast
+
+import msgspec
 
 from dockhil.errors import DockhilError
 from dockhil.msgs.codec import DecodeError, decode, encode
 
 
-def checked_payload(name: str, port: str, topic: str, k: int, msg) -> bytes:
+def checked_payload(name: str, port: str, topic: str, k: int, msg: msgspec.Struct) -> bytes:
     """`msg` encoded, after checking it decodes as a valid message: a NaN or Inf in a physical field
     (a loop that diverged) stops the node that produced it, not its readers, with one line. (Decoding
     is the reader's own check, and faster than a screen of the fields' types written in Python.)"""
@@ -26,7 +29,7 @@ def checked_payload(name: str, port: str, topic: str, k: int, msg) -> bytes:
     return payload
 
 
-def check_message(name: str, port: str, topic: str, k: int, msg) -> None:
+def check_message(name: str, port: str, topic: str, k: int, msg: msgspec.Struct) -> None:
     """What checked_payload checks, for a message that is not sent (composed runs): the numbers'
     screen first (several times faster than encoding and decoding; the message is handed on as
     the object it is); on a failure, the same check and line as a node process gives."""
@@ -35,14 +38,15 @@ def check_message(name: str, port: str, topic: str, k: int, msg) -> None:
 
 
 _MAX_FLOAT = 1.7976931348623157e308
-_SCREENS: dict[type, Any] = {}
+Screen = Callable[[Any], bool]  # true when a message holds what its decoding would accept
+_SCREENS: dict[type, Screen] = {}
 
 
 class _Unscreened(Exception):
     """A number the screen does not judge (multiple_of): every message of that type gets the full check."""
 
 
-def bounds_check(cls: type):
+def bounds_check(cls: type) -> Screen:
     """A function true when a message of type `cls` holds what its decoding would accept: every
     number finite and within its type's bounds, and every value of its field's own type (a float,
     a str, a bool, an int, the declared struct, a tuple), as a node process's encoding and decoding
@@ -64,7 +68,7 @@ def bounds_check(cls: type):
     return check
 
 
-def python_screen(cls: type):
+def python_screen(cls: type) -> Screen:
     """`bounds_check`'s screen of `cls` as a generated Python function (the compiled one's twin)."""
     try:
         return _python_screen(cls.__name__, _screen_spec(cls))
@@ -72,7 +76,7 @@ def python_screen(cls: type):
         return _never
 
 
-def _never(m) -> bool:
+def _never(m: Any) -> bool:
     return False
 
 
@@ -84,10 +88,10 @@ def _screen_spec(cls: type) -> tuple:
     judges (a multiple_of, a constrained str, a type msgs do not use)."""
     import msgspec.inspect as mi
 
-    def struct(t) -> tuple:
+    def struct(t: mi.StructType) -> tuple:
         return (t.cls, tuple(field(f.type, _member(t.cls, f.name)) for f in t.fields))
 
-    def field(t, member) -> tuple:
+    def field(t: Any, member: Any) -> tuple:  # t: a msgspec.inspect type, told apart by its class name
         if isinstance(t, mi.Metadata):
             t = t.type
         kind = _LEAF_KINDS.get(type(t).__name__)
@@ -105,10 +109,10 @@ def _screen_spec(cls: type) -> tuple:
             return (member, 5 if isinstance(t, mi.VarTupleType) else 6, field(t.item_type, None))
         raise _Unscreened
 
-    return struct(mi.type_info(cls))
+    return struct(cast(mi.StructType, mi.type_info(cls)))  # msgs are Structs
 
 
-def _member(cls: type, name: str):
+def _member(cls: type, name: str) -> Any:
     for klass in cls.__mro__:
         if name in vars(klass):
             return vars(klass)[name]
@@ -121,7 +125,7 @@ _LEAF_KINDS = {"FloatType": 0, "IntType": 1, "BoolType": 2, "StrType": 3}
 _LEAF_TYPES = (float, int, bool, str)
 
 
-def _python_screen(name: str, spec: tuple):
+def _python_screen(name: str, spec: tuple) -> Screen:
     """A screen's spec written out as a Python function. The floats are added up as they are read
     (each struct read once): a NaN or Inf anywhere makes the sum non-finite; the types are compared
     a struct's fields at a time."""

@@ -38,13 +38,22 @@ deliveries too; on its own socket, a full queue (OBSERVER_HWM) drops that
 observer's messages alone. Its frames carry the publisher's count of messages
 (topic, 0x02, the count as 8 bytes little-endian, the payload), from which the
 observer counts what it lost (`Subscriber.lost`) and says so.
+
+Trailing readers (sim time: the launch's recorder) are the graph's, and lose
+nothing, but no tick waits for them: they read at
+`trailing_endpoint(endpoint)`, a third socket, on which a publisher sends
+their frames TRAIL_BURST at a time. On the graph's socket each of the
+recorder's messages went out when the lock-step readers needed it, and woke
+the publisher's I/O thread, the recorder's I/O thread and its reader once
+more per message: a 1 kHz hil.yaml tick took twice the context switches of
+one without the recorder. Its high-water mark is HWM // TRAIL_BURST bursts,
+so it bounds as many frames as the graph's socket.
 """
 
 from __future__ import annotations
 
-import os
-import stat
 import struct
+from collections.abc import Callable, Sequence
 import time
 from pathlib import Path
 
@@ -52,6 +61,7 @@ import zmq
 
 from dockhil.errors import DockhilError
 from dockhil.runtime.keys import GraphKeys, allow_clients, release_clients
+from dockhil.runtime.rundir import new_run_dir, private_dir, runtime_dir  # noqa: F401 - importers find them here too
 
 
 HWM = 20_000  # messages queued per subscriber, each way: bounded memory; far above any lock-step lead
@@ -62,6 +72,8 @@ OBSERVER_LINGER_MS = 500
 LOOK_EVERY_S = 0.05  # wall time: how often a publisher looks whether an observer listens
 OBSERVED = b"\x02"  # an observer's frame: the topic, this byte, the publisher's message count, the payload
 OBSERVER_SUFFIX = "+observers"  # an ipc observer endpoint's path: a topic's name never holds "+"
+TRAILING_SUFFIX = "+trailing"  # likewise, a trailing reader's endpoint
+TRAIL_BURST = 64  # frames a trailing reader gets in one ZeroMQ message: ~0.2 wake-ups a tick for hil.yaml's 5 topics
 
 
 def separator(frame: bytes) -> tuple[int, bool]:
@@ -87,98 +99,23 @@ def split(frames: list[bytes]) -> list[bytes]:
     return [frame[:i], b"", frame[i + 1 :]]
 
 
-def observer_endpoint(endpoint: str) -> str:
-    """Where a publisher bound at `endpoint` serves observers: the ipc path with OBSERVER_SUFFIX, or
-    over tcp the next port (the launcher picks the two together); a random port stays random."""
+def _beside(endpoint: str, suffix: str, offset: int) -> str:
     if endpoint.startswith("tcp://"):
         base, port = endpoint.rsplit(":", 1)
-        return endpoint if port in ("0", "*") else f"{base}:{int(port) + 1}"
-    return endpoint + OBSERVER_SUFFIX
+        return endpoint if port in ("0", "*") else f"{base}:{int(port) + offset}"
+    return endpoint + suffix
 
 
-def _check_private_dir(path: Path, what: str) -> None:
-    """Refuse, in one line, a directory another user could plant sockets or files in; tighten our own."""
-    try:
-        st = path.lstat()
-    except OSError as exc:
-        raise DockhilError(
-            f"{what} {path}: {exc.strerror}; set DOCKHIL_RUNTIME_DIR to a directory of your own"
-        ) from None
-    if stat.S_ISLNK(st.st_mode) or not stat.S_ISDIR(st.st_mode):
-        raise DockhilError(
-            f"{what} {path} is not a plain directory (a symlink or a file); "
-            f"remove it, or set DOCKHIL_RUNTIME_DIR to a directory of your own"
-        )
-    if st.st_uid != os.getuid():
-        raise DockhilError(
-            f"{what} {path} belongs to uid {st.st_uid}, not to you (uid {os.getuid()}): "
-            f"its owner could read or replace your graph's sockets; remove it, "
-            f"or set DOCKHIL_RUNTIME_DIR to a directory of your own"
-        )
-    mode = stat.S_IMODE(st.st_mode)
-    if mode & 0o022:
-        raise DockhilError(
-            f"{what} {path} has mode {mode:04o}: other users may write to it and replace your "
-            f"graph's sockets; remove it (with what is in it), or chmod 700 {path}"
-        )
-    if mode != 0o700:
-        os.chmod(path, 0o700)  # ours and not writable by others: readable by others need not be
+def observer_endpoint(endpoint: str) -> str:
+    """Where a publisher bound at `endpoint` serves observers: the ipc path with OBSERVER_SUFFIX, or
+    over tcp the next port (the launcher picks the three together); a random port stays random."""
+    return _beside(endpoint, OBSERVER_SUFFIX, 1)
 
 
-def private_dir(path: Path, what: str = "runtime directory") -> Path:
-    """`path` as a directory of mode 0700 owned by this user, made if missing, refused otherwise."""
-    try:
-        path.mkdir(mode=0o700)
-    except FileExistsError:
-        pass
-    except OSError as exc:
-        raise DockhilError(
-            f"cannot create {what} {path}: {exc.strerror}; set DOCKHIL_RUNTIME_DIR to a directory of your own"
-        ) from None
-    _check_private_dir(path, what)
-    return path
-
-
-def _check_ancestors(path: Path, what: str) -> None:
-    """Refuse, in one line, a directory whose parent (or one of its parents) another user could
-    rename or replace mid-run (with a directory of theirs): each must belong to this user or to
-    root, and be writable by no one else unless sticky (as /tmp, where only an entry's owner may
-    remove or rename it)."""
-    uid = os.getuid()
-    for parent in path.parent.resolve().parents[::-1] + (path.parent.resolve(),):
-        st = parent.stat()
-        mode = stat.S_IMODE(st.st_mode)
-        if st.st_uid not in (uid, 0):
-            why = f"belongs to uid {st.st_uid}, not to you (uid {uid}) or root"
-        elif mode & 0o022 and not mode & stat.S_ISVTX:
-            why = f"has mode {mode:04o}: other users may write to it"
-        else:
-            continue
-        raise DockhilError(
-            f"{what} {path}: its parent {parent} {why}, and could swap your graph's sockets "
-            f"mid-run; set DOCKHIL_RUNTIME_DIR to a directory under one that only you or root own"
-        )
-
-
-def runtime_dir() -> Path:
-    """Where ipc sockets, key files, device locks and the registry of running graphs live: private,
-    in a parent no other user can change."""
-    base = Path(os.environ.get("DOCKHIL_RUNTIME_DIR") or f"/tmp/dockhil-{os.getuid()}")
-    if not base.parent.exists():
-        base.parent.mkdir(parents=True, mode=0o700)
-    _check_ancestors(base, "runtime directory")
-    return private_dir(base)
-
-
-def new_run_dir(run_id: str) -> Path:
-    """A fresh private directory for one run's sockets and keys."""
-    path = runtime_dir() / run_id
-    try:
-        path.mkdir(mode=0o700)
-    except OSError as exc:
-        raise DockhilError(f"cannot create run directory {path}: {exc.strerror}") from None
-    _check_private_dir(path, "run directory")
-    return path
+def trailing_endpoint(endpoint: str) -> str:
+    """Where a sim-time publisher bound at `endpoint` serves trailing readers: the ipc path with
+    TRAILING_SUFFIX, or over tcp the port after the observers'; a random port stays random."""
+    return _beside(endpoint, TRAILING_SUFFIX, 2)
 
 
 def ipc_endpoint(run_dir: Path, topic: str) -> str:
@@ -187,7 +124,8 @@ def ipc_endpoint(run_dir: Path, topic: str) -> str:
 
 
 class Publisher:
-    """A topic's XPUB socket, a CURVE server with the graph's keys (None: plain, for benchmarks only)."""
+    """A topic's XPUB socket, a CURVE server with the graph's keys (None: plain, for benchmarks only).
+    trailing: also serve trailing readers (sim time), on a socket of their own."""
 
     def __init__(
         self,
@@ -199,6 +137,7 @@ class Publisher:
         keys: GraphKeys | None,
         lossy: bool = False,
         burst: int = 1,
+        trailing: bool = False,
     ):
         self.topic = topic
         # Sim time, readers with slack (a declared delay): frames held and sent `burst` at a time, back
@@ -228,18 +167,30 @@ class Publisher:
         self._next_look = 0.0
         self.sent = 0  # messages offered to observers, counted in their frames
         self._observed_prefix = self.topic_bytes + OBSERVED
+        # Trailing readers' socket: waits for room as the graph's does, with as many frames queued at most.
+        self.trail = None
+        self.trailing_readers = 0  # their subscriptions in (counted in `subscribers` too)
+        self._held_trail: list[bytes] = []
+        if trailing:
+            self.trail = ctx.socket(zmq.XPUB)
+            self.trail.setsockopt(zmq.SNDHWM, max(1, HWM // TRAIL_BURST))
+            self.trail.setsockopt(zmq.XPUB_NODROP, 1)
+            self.trail.setsockopt(zmq.LINGER, int(linger_s * 1000))
         self._ctx = ctx if keys is not None else None
+        sockets = [self.sock, self.observers] + ([self.trail] if self.trail is not None else [])
         if keys is not None:
             allow_clients(ctx, keys)  # before bind: no handshake may happen without the check
-            for sock in (self.sock, self.observers):
+            for sock in sockets:
                 sock.curve_server = True
                 sock.curve_secretkey = keys.server_secret
                 sock.curve_publickey = keys.server_public
         self.endpoint = self._bind(self.sock, endpoint)
         self.observer_endpoint = self._bind(self.observers, observer_endpoint(endpoint))
+        if self.trail is not None:
+            self._bind(self.trail, trailing_endpoint(endpoint))
         self.subscribers = 0
 
-    def _bind(self, sock, endpoint: str) -> str:
+    def _bind(self, sock: zmq.Socket, endpoint: str) -> str:
         try:
             if endpoint.startswith("tcp://") and endpoint.endswith(":0"):
                 port = sock.bind_to_random_port(endpoint.rsplit(":", 1)[0])
@@ -252,10 +203,15 @@ class Publisher:
                 f"topic {self.topic}: cannot bind {endpoint}: {exc}; is another graph using it?"
             ) from None
 
-    def wait_subscribers(self, expected: int, timeout: float, should_stop=lambda: False) -> None:
-        """Block until `expected` subscriptions have arrived (sim-time start barrier)."""
+    def wait_subscribers(self, expected: int, timeout: float, should_stop: Callable[[], bool] = lambda: False) -> None:
+        """Block until `expected` subscriptions have arrived, the graph's and the trailing readers'
+        (sim-time start barrier)."""
         deadline = time.monotonic() + timeout
         self.look()  # observers already there get the first tick too
+        poller = zmq.Poller()
+        for sock in (self.sock, self.trail):
+            if sock is not None:
+                poller.register(sock, zmq.POLLIN)
         while self.subscribers < expected:
             if should_stop():
                 return
@@ -265,20 +221,24 @@ class Publisher:
                     f"topic {self.topic}: {self.subscribers} of {expected} subscribers joined within {timeout:.0f} s; "
                     f"a subscribing node did not start"
                 )
-            if self.sock.poll(min(left, 0.2) * 1000, zmq.POLLIN):
-                # Graph members subscribe to everything (b""); observers (progress, `topic echo`)
-                # subscribe to the prefix "/" and are not waited for.
-                if self.sock.recv() == b"\x01":
+            for sock, _ in poller.poll(int(min(left, 0.2) * 1000)):  # as poll itself truncates a float
+                # Graph members and trailing readers subscribe to everything (b""); observers (progress,
+                # `topic echo`) subscribe to the prefix "/" on their own socket and are not waited for.
+                if sock.recv() == b"\x01":
                     self.subscribers += 1
+                    self.trailing_readers += sock is self.trail
 
     def send(self, payload: bytes) -> bool:
         """False if a subscriber's full queue refused it (wall time only; sim time waits for room)."""
         self._observe(payload)
+        frame = self._message_prefix + payload
+        if self.trailing_readers:
+            self._trail(frame)
         if self.burst > 1:
-            self._hold(self._message_prefix + payload)
+            self._hold(frame)
             return True
         try:
-            self.sock.send(self._message_prefix + payload, self._send_flags)
+            self.sock.send(frame, self._send_flags)
         except zmq.Again:
             self.dropped += 1
             return False
@@ -291,7 +251,7 @@ class Publisher:
         counts what of it never arrived (dockhil.bags.live)."""
         return self.sent - self.dropped
 
-    def send_multipart(self, frames, copy: bool = True) -> None:
+    def send_multipart(self, frames: Sequence[bytes], copy: bool = True) -> None:
         """Send an envelope of frames ([topic, payload] or [topic, b"", tick], as `bag play` sends)
         on the graph's socket as it is (zmq.Again if a full queue refused it), then to the observers."""
         self.sock.send_multipart(frames, copy=copy)
@@ -329,6 +289,8 @@ class Publisher:
     def send_empty(self, tick: int) -> None:
         """Sim time: this topic has no message at this tick."""
         frame = self._empty_prefix + tick.to_bytes(8, "little")
+        if self.trailing_readers:
+            self._trail(frame)
         if self.burst > 1:
             if self.watchers > 0:
                 self._held_observed.append(frame)
@@ -343,6 +305,23 @@ class Publisher:
         if len(self._held) >= self.burst:
             self.flush()
 
+    def _trail(self, frame: bytes) -> None:
+        self._held_trail.append(frame)
+        if len(self._held_trail) >= TRAIL_BURST:
+            self.flush_trailing()
+
+    def flush_trailing(self) -> None:
+        """Send what the trailing readers' burst holds (sim time: waits for room), as one ZeroMQ
+        message of its frames: they subscribe to every kind, so one run; the end of a run sends it
+        whole."""
+        if self._held_trail:  # only with trailing readers, on their socket
+            assert self.trail is not None
+            if len(self._held_trail) == 1:
+                self.trail.send(self._held_trail[0])
+            else:
+                self.trail.send_multipart(self._held_trail)
+            self._held_trail.clear()
+
     def flush(self) -> None:
         """Send the frames a burst holds (sim time, which waits for room rather than drop) as one
         ZeroMQ message of several frames, each frame still one message: ZeroMQ hands a message of
@@ -353,7 +332,7 @@ class Publisher:
         self._send_runs(self.observers, self._held_observed, zmq.NOBLOCK)
         self.look()
 
-    def _send_runs(self, sock, held: list[bytes], flags: int) -> None:
+    def _send_runs(self, sock: zmq.Socket, held: list[bytes], flags: int) -> None:
         n = len(self.topic_bytes)
         start = 0
         for i in range(1, len(held) + 1):
@@ -366,15 +345,18 @@ class Publisher:
         held.clear()
 
     def close(self) -> None:
-        try:  # a graph stopped early: what was computed still goes out, if there is room
-            for frame in self._held:
-                self.sock.send(frame, zmq.NOBLOCK)
-        except zmq.ZMQError:
-            pass
-        self._held.clear()
+        for sock, held in ((self.sock, self._held), (self.trail, self._held_trail)):
+            try:  # a graph stopped early: what was computed still goes out, if there is room
+                for frame in held:
+                    sock.send(frame, zmq.NOBLOCK)  # type: ignore[union-attr]  # no trail socket: nothing held
+            except zmq.ZMQError:
+                pass
+            held.clear()
         self._send_runs(self.observers, self._held_observed, zmq.NOBLOCK)
         self.sock.close()
         self.observers.close()
+        if self.trail is not None:
+            self.trail.close()
         if self._ctx is not None:
             release_clients(self._ctx)
             self._ctx = None
@@ -410,13 +392,21 @@ class Subscriber:
     It reads the publishers' observer sockets, and counts in `lost` what they
     dropped because it fell behind.
 
+    A trailing reader (sim time: the launch's recorder) is the graph's, loses
+    nothing, and takes the publishers' messages in bursts from their trailing
+    sockets.
+
     A peer that fails the CURVE handshake is not the graph's publisher (a
     process that took its ipc path or tcp port): receiving then raises
     DockhilError, so the node stops and says so instead of waiting in silence."""
 
-    def __init__(self, ctx: zmq.Context, observer: bool = False):
+    def __init__(self, ctx: zmq.Context, observer: bool = False, trailing: bool = False):
+        if observer and trailing:
+            raise ValueError("a subscriber is an observer or a trailing reader, not both")
+        self.trailing = trailing
         self.sock = ctx.socket(zmq.SUB)
-        self.sock.setsockopt(zmq.RCVHWM, OBSERVER_HWM if observer else HWM)
+        # A trailing reader's messages are bursts: as many frames queued at most as a member's.
+        self.sock.setsockopt(zmq.RCVHWM, OBSERVER_HWM if observer else HWM // TRAIL_BURST if trailing else HWM)
         self.observer = observer
         self.lost = 0  # an observer's: messages its publishers sent it that never arrived (it fell behind)
         self.lost_on: dict[bytes, int] = {}  # topic -> of these
@@ -440,7 +430,10 @@ class Subscriber:
                 self.sock.curve_serverkey = keys.server_public
                 self.sock.curve_publickey = keys.client_public
                 self.sock.curve_secretkey = keys.client_secret
-            self.sock.connect(observer_endpoint(endpoint) if self.observer else endpoint)
+            if self.observer:
+                self.sock.connect(observer_endpoint(endpoint))
+            else:
+                self.sock.connect(trailing_endpoint(endpoint) if self.trailing else endpoint)
             self._connected.add(endpoint)
 
     def recv(self, timeout_s: float | None) -> list[bytes] | None:

@@ -20,7 +20,12 @@ schedule well enough that the simulated time is the time that passed:
 - no node respawned: the run went on, but the restarted node's data has a gap (a force held
   stale while the F/T driver restarted, integrated by the dynamics);
 - no message lost: none dropped by a full queue (a subscriber that did not
-  keep up), none dropped as malformed.
+  keep up), none dropped as malformed;
+- the devices kept the loop: a driver's account of its device's cycles (`device` in its figures,
+  `device_figures()` of the node) says the device went no longer than its tolerance without taking
+  a command or delivering a reading while the loop moved it (a stalled controller, sensor or
+  emulator: the loop that ran was not the scene's), and the robot's actual path stayed within the
+  following-error tolerance of the commanded one. A stall is never a valid run.
 
 (Messages the recorder lost, in wall time also the end of the run that a recorder which fell behind is
 told was sent, dockhil.bags.tail, fail the run instead, exit 1: its recording is not the run.)
@@ -79,7 +84,28 @@ def node_reasons(t: dict, dt: float, device: bool = False) -> list[str]:
         limit = (t.get("max_age_s") or {}).get(port)
         if limit is not None and age > limit:
             out.append(f"node {name!r}: input {port!r} was used {age:.3f} s old (> max_age {limit:g} s)")
-    return out + message_reasons(t)
+    return out + message_reasons(t) + device_reasons(t)
+
+
+def device_reasons(t: dict) -> list[str]:
+    """What a driver's account of its device's cycles says against the run (none without one)."""
+    d = t.get("device")
+    if not d:
+        return []
+    name, out = t["node"], []
+    gap, limit = d.get("longest_gap_s"), d.get("gap_limit_s")
+    if gap is not None and limit is not None and gap > limit:
+        out.append(
+            f"node {name!r}: {d.get('what', 'the device')} went {gap:.3f} s without {d.get('gap_is', 'a cycle')} "
+            f"(> {limit:g} s): the device stalled, or the loop did, and the loop that ran was not the scene's"
+        )
+    err, limit = d.get("path_error_m"), d.get("path_error_limit_m")
+    if err is not None and limit is not None and err > limit:
+        out.append(
+            f"node {name!r}: the robot's actual path left the commanded one by {err:.4f} m "
+            f"(> following-error tolerance {limit:g} m)"
+        )
+    return out
 
 
 def message_reasons(t: dict) -> list[str]:

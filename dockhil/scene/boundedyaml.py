@@ -11,6 +11,7 @@ floats, as in YAML 1.2, not as strings.
 from __future__ import annotations
 
 import re
+from typing import Any
 
 import yaml
 
@@ -84,7 +85,7 @@ _Loader.add_implicit_resolver(
 )
 
 
-def load(text: str, source: str):
+def load(text: str, source: str) -> tuple[Any, yaml.Node | None]:
     """(data, root node) of one YAML document; YamlError, one line naming `source`, if refused.
     The root node's marks give line numbers for later messages (see `line_of`)."""
     if len(text) > MAX_BYTES:

@@ -13,13 +13,16 @@ import difflib
 import math
 import re
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from dockhil import msgs
 from dockhil import node_types as node_registry
 from dockhil.errors import LaunchError, ParamError, suggest
 from dockhil.scene.launchfile import Scene
 from dockhil.scene.schema import MAX_DURATION
+
+if TYPE_CHECKING:
+    from dockhil.node import Node
 
 
 @dataclass
@@ -41,7 +44,7 @@ class PortRef:
 class GraphNode:
     name: str
     type_name: str
-    cls: type
+    cls: type[Node]
     params: dict[str, Any]
     inputs: dict[str, PortRef]
     outputs: dict[str, PortRef]
@@ -92,6 +95,19 @@ def _topic_for(port: str, default: str, remap: dict[str, str], where: str, names
     return topic
 
 
+def _slipped_argument(scene: Scene, exc: ParamError) -> str | None:
+    """A time given in milliseconds for seconds, said of the argument the user typed (delay:=16), when one
+    given away from its default holds that value."""
+    if exc.slip is None:
+        return None
+    seconds, what, meant = exc.slip
+    for name, arg in scene.args.items():
+        value = scene.values.get(name)
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and value == seconds != arg.default:
+            return f"{name}:={value:g} is {seconds:g} s: {what}; did you mean {name}:={meant:g}?"
+    return None
+
+
 def build(scene: Scene) -> Graph:
     gnodes: dict[str, GraphNode] = {}
     for spec in scene.nodes:
@@ -102,7 +118,7 @@ def build(scene: Scene) -> Graph:
         except LaunchError as exc:
             raise LaunchError(f"{where}: {exc}") from None
         except ParamError as exc:
-            raise LaunchError(f"{declared}: {exc}") from None
+            raise LaunchError(_slipped_argument(scene, exc) or f"{declared}: {exc}") from None
         ins, outs = cls.ports(params)
         for name, p in ins.items():
             # A declared input delay is kept as that many ticks of messages: bounded by the longest run.
@@ -259,7 +275,7 @@ def _refuse_driver_past_its_emulator(path: str, gnodes: dict[str, GraphNode]) ->
     if not emulators:
         return
 
-    def where(params) -> tuple[str, int]:
+    def where(params: dict[str, Any]) -> tuple[str, int]:
         host = params["host"]
         return ("127.0.0.1" if host in _LOOPBACK else host), params["port"]
 

@@ -51,6 +51,7 @@ from typing import Any, Optional, Union
 import msgspec
 
 from dockhil.scene import boundedyaml
+from dockhil.scene.files import SHIPPED_SCENES, find_shipped, unopenable  # noqa: F401 - part of this API
 from dockhil.scene.loopfile import loop_args
 from dockhil.errors import LaunchError, suggest
 from dockhil.scene.schema import (
@@ -127,7 +128,7 @@ class ArgSpec:
             raise LaunchError(
                 f"{where}: arg {self.name!r} expects {self._type_name()}, got {type(value).__name__} {value!r}{hint}"
             )
-        if self.type is float and not math.isfinite(value):
+        if self.type is float and isinstance(value, float) and not math.isfinite(value):
             raise LaunchError(f"{where}: arg {self.name!r} is {value!r}; give a finite number")
         return value
 
@@ -189,42 +190,16 @@ class Scene:
 
 def parse_overrides(items: list[str]) -> dict[str, str]:
     """`name:=value` strings from the command line -> {name: text}."""
-    out = {}
+    out: dict[str, str] = {}
     for item in items:
         name, sep, value = item.partition(":=")
         if not sep or not name:
-            raise LaunchError(f"launch argument {item!r} is not of the form name:=value")
+            hint = f"; did you mean {item.replace('=', ':=', 1)}?" if "=" in item and name else ""
+            raise LaunchError(f"launch argument {item!r} is not of the form name:=value{hint}")
         if name in out:  # which one was meant is a guess: ask
             raise LaunchError(f"{name} is given twice ({name}:={out[name]}, {item}); give it once")
         out[name] = value
     return out
-
-
-def _shipped_dir() -> Path:
-    here = Path(__file__).resolve().parent.parent  # the dockhil package
-    packaged = here / "launch"  # an installed wheel: the package data dockhil.launch
-    return packaged if packaged.is_dir() else here.parent / "launch"  # a source checkout
-
-
-SHIPPED_SCENES = _shipped_dir()
-
-
-def find_shipped(path: str | Path, kind: str = "launch file", folder: str = "") -> Path:
-    """`path` itself if it exists, else the shipped file of that name (`hil.yaml`,
-    `launch/hil.yaml`; with folder="campaigns" also `fig7.yaml`), so that a shipped
-    scene runs from any directory. A file in the current directory always wins."""
-    path = Path(path)
-    if path.exists() or path.is_absolute():
-        return path
-    parts = path.parts[1:] if path.parts[:1] == ("launch",) else path.parts
-    if parts and ".." not in parts:
-        for candidate in (SHIPPED_SCENES / folder).joinpath(*parts), SHIPPED_SCENES.joinpath(*parts):
-            if candidate.is_file():
-                return candidate
-    shipped = ", ".join(sorted(p.name for p in (SHIPPED_SCENES / folder).glob("*.yaml"))) or "none"
-    raise LaunchError(
-        f"{kind} {str(path)!r} not found: no such file here and no shipped one of that name (shipped: {shipped})"
-    )
 
 
 def load(path: str | Path | None, overrides: dict[str, Any] | None = None, only: frozenset[str] | None = None) -> Scene:
@@ -311,7 +286,7 @@ def _read_yaml(path: Path, budget: _Budget, included_from: Path | None = None) -
 LAUNCH_KEYS = {f.encode_name: None for f in msgspec.structs.fields(LaunchFile)}.keys()
 
 
-def _not_launch_file(path: Path, included_from: Path, why: str) -> str:
+def _not_launch_file(path: Path, included_from: Path | None, why: str) -> str:
     return f"{path} (included from {included_from}): not a launch file ({why})"
 
 
@@ -323,9 +298,12 @@ def _where(path: Path, root: Any, at: list) -> str:
 
 
 def _load(path: Path, given: dict[str, Any], from_cli: bool, stack: tuple, budget: _Budget) -> Scene:
+    why = unopenable(path)
+    if why is not None:
+        raise LaunchError(f"launch file {str(path)!r} cannot be opened: {why}")
     try:
         resolved = path.resolve()
-    except (OSError, RuntimeError, ValueError) as exc:  # a symlink loop, a NUL in the name
+    except (OSError, RuntimeError, ValueError) as exc:
         raise LaunchError(f"launch file {str(path)!r} cannot be opened: {exc}") from None
     if resolved in stack:
         chain = " -> ".join(str(p) for p in (*stack, resolved))
@@ -348,8 +326,8 @@ def _scene(
         given = {**loop_args(str(given["loop"]), {n: s for n, s in specs.items() if n not in given}), **given}
     for name, value in given.items():
         if name not in specs:
-            lets = data.get("let") if isinstance(data.get("let"), list) else []
-            if any(isinstance(d, dict) and d.get("name") == name for d in lets):
+            declared = data.get("let")
+            if isinstance(declared, list) and any(isinstance(d, dict) and d.get("name") == name for d in declared):
                 raise LaunchError(
                     f"{path}: {name!r} is a `let` variable, made from the arguments: set those "
                     f"instead ({suggest('', specs, 'known args')})"

@@ -16,6 +16,10 @@ import json
 import os
 import tempfile
 import time
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from dockhil.scene.launchfile import Scene
 
 MAX_FILES = 64  # launch files one recorded scene may hold (a scene reads at most MAX_INCLUDES)
 
@@ -26,7 +30,9 @@ def iso_utc(ns: int) -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(seconds)) + f".{rest:09d}Z"
 
 
-def run_fields(scene, *, clock: str, duration: float | None, started_ns: int, recorded_by: str) -> dict[str, str]:
+def run_fields(
+    scene: Scene, *, clock: str, duration: float | None, started_ns: int, recorded_by: str
+) -> dict[str, str]:
     """The run's description, for a bag's metadata and the registry of running graphs."""
     from dockhil import __version__
 
@@ -47,12 +53,14 @@ def run_fields(scene, *, clock: str, duration: float | None, started_ns: int, re
     }
 
 
-def scene_texts(scene) -> dict[str, str]:
+def scene_texts(scene: Scene) -> dict[str, str]:
     """absolute path -> text of every launch file the scene read."""
     return dict(scene.texts)
 
 
-def rebuild(run: dict[str, str], texts: dict[str, str], overrides: dict | None = None, *, origin: str = "the bag"):
+def rebuild(
+    run: dict[str, str], texts: dict[str, str], overrides: dict | None = None, *, origin: str = "the bag"
+) -> Scene:
     """The scene of a recorded run: its launch files' texts read again with its arguments (and
     `overrides` on top). LaunchError (one line, naming the recorded files) if they do not read."""
     from dockhil.errors import LaunchError

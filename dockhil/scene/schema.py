@@ -11,7 +11,7 @@ from __future__ import annotations
 import difflib
 import math
 import re
-from typing import Annotated, Any, Literal, Optional, Union, get_args, get_origin
+from typing import Annotated, Any, Literal, Optional, Union, cast, get_args, get_origin
 
 import msgspec
 from msgspec import Meta, Struct, field
@@ -214,7 +214,7 @@ _STEP = re.compile(r"\.([^.\[]+)|\[(\d+|\.\.\.)\]")
 
 
 def _explain(text: str, data: Any, kind: Any) -> tuple[list, str]:
-    m = _AT.match(text)
+    m = cast(re.Match[str], _AT.match(text))  # every text matches: all but `msg` is optional
     msg, where, key_error = m.group("msg"), m.group("path") or "$", bool(m.group("key"))
     path, declared = _resolve([k or i for k, i in _STEP.findall(where[1:])], data, kind)
     kind_there = _inner(declared, _value_at(data, path))

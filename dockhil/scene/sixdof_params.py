@@ -9,9 +9,18 @@ Each node checks what it is given at setup (one line per bad value).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from types import SimpleNamespace
+from typing import TYPE_CHECKING, TypeVar
+
 from dockhil import physical
 from dockhil.errors import ParamError
 from dockhil.node import Param
+
+if TYPE_CHECKING:
+    from dockhil.contact.contact6 import Contact6
+
+T = TypeVar("T")
 
 IDENTITY = [0.0, 0.0, 0.0, 1.0]
 
@@ -98,7 +107,7 @@ MOUNT_PARAMS = {
 }
 
 
-def checked(node: str, build):
+def checked(node: str, build: Callable[[], T]) -> T:
     """Call `build()`; a model error (non-PD inertia, non-unit quaternion, asymmetric
     matrix...) becomes one ParamError line naming the node."""
     from dockhil.contact.scenario import ContactModelError
@@ -145,7 +154,7 @@ def ideal_contact(p):
     return Contact6(_matrix(p.stiffness, "stiffness"), _matrix(p.damping, "damping"))
 
 
-def passive_contact(p, mu: float = 0.0, slip_velocity: float = 1e-3):
+def passive_contact(p: SimpleNamespace, mu: float = 0.0, slip_velocity: float = 1e-3) -> Contact6:
     from dockhil.contact.contact6 import Contact6
 
     return Contact6(

@@ -2,10 +2,17 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from dockhil.errors import DockhilError
 
+if TYPE_CHECKING:
+    from os import PathLike
 
-def save_figure(fig, path, dpi: int = 110) -> None:
+    from matplotlib.figure import Figure
+
+
+def save_figure(fig: Figure, path: str | PathLike[str], dpi: int = 110) -> None:
     """fig.savefig(path), then close the figure; a place that cannot be written is one DockhilError line."""
     import matplotlib.pyplot as plt
 

@@ -11,6 +11,10 @@ ideal 6-DOF contact."""
 
 from __future__ import annotations
 
+import os
+from collections.abc import Iterable
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from dockhil.contact.hilloop import delay_ticks, simulate_hil, simulate_ideal
@@ -22,6 +26,9 @@ from dockhil.contact.stability import growth_rate as predicted_growth_rate
 from dockhil.contact.stability import pade1_bound
 from dockhil.analysis.summary import Samples, contact_metrics
 from dockhil.contact.envelope import growth_rate
+
+if TYPE_CHECKING:
+    from os import PathLike
 
 DT = 1e-3
 
@@ -54,7 +61,7 @@ def fig9(delay: float = 0.032) -> dict:
     return {"runs": runs, "metrics": {name: contact_metrics(s) for name, s in runs.items()}}
 
 
-def fig10(ks=(250.0, 500.0, 1000.0, 1500.0, 2000.0, 2500.0, 2900.0), delay: float = 0.032) -> dict:
+def fig10(ks: Iterable[float] = (250.0, 500.0, 1000.0, 1500.0, 2000.0, 2500.0, 2900.0), delay: float = 0.032) -> dict:
     rows = []
     for k in ks:
         rows.append(
@@ -72,10 +79,11 @@ def fig11_12(
     K: float = 2510.0,
     h: float = 0.016,
     thrust: float = 10.0,
-    dampers=(20.0, 60.0),
+    dampers: Iterable[float] = (20.0, 60.0),
     seconds: float = 20.0,
 ) -> dict:
-    out = {"m_kg": m, "K_N_per_m": K, "h_s": h, "thrust_N": thrust, "cases": []}
+    cases: list[dict] = []
+    out = {"m_kg": m, "K_N_per_m": K, "h_s": h, "thrust_N": thrust, "cases": cases}
     for b in dampers:
         r = simulate_hil(
             m1=m,
@@ -89,7 +97,7 @@ def fig11_12(
             x1=thrust / K + 0.002,
         )
         loop = SampledLoop(m, 0.0, b, K, 0.0, dt=DT, delay_ticks=delay_ticks(h, DT))
-        out["cases"].append(
+        cases.append(
             {
                 "b_N_s_per_m": b,
                 "t": r.t,
@@ -135,7 +143,7 @@ def sixdof(bag_path: str, delay: float = 0.032, seconds: float = SIXDOF_SECONDS)
     return {k: v for k, v in out.items() if k not in ("run_time_s", "real_time_factor", "loop", "warnings")}
 
 
-def plot_all(out_dir, delay: float = 0.032) -> dict:
+def plot_all(out_dir: str | PathLike[str], delay: float = 0.032) -> dict:
     """Write fig7.png, fig9.png, fig10.png, fig11_12.png and sixdof.png (with the bag it draws,
     sixdof.mcap) to out_dir; return the numbers."""
     import matplotlib
@@ -146,20 +154,26 @@ def plot_all(out_dir, delay: float = 0.032) -> dict:
     from dockhil.contact.stability import critical_stiffness_map
 
     f9, f10, f1112 = fig9(delay), fig10(delay=delay), fig11_12()
-    fig, (a, b) = plt.subplots(2, 1, sharex=True, figsize=(8, 6))
+    # The delay's effect is a few percent of the force: the third panel shows each run less the ideal.
+    fig, (a, b, c) = plt.subplots(3, 1, sharex=True, figsize=(8, 8), gridspec_kw={"height_ratios": [3, 3, 2]})
+    ideal_force = f9["runs"]["ideal"].force
     for name, s in f9["runs"].items():
         style = "--" if name == "hybrid, no delay" else "-"
         a.plot(s.t, s.force, style, label=name)
         b.plot(s.t, s.pd, style, label=name)
+        if name != "ideal":
+            n = min(len(s.force), len(ideal_force))
+            c.plot(s.t[:n], np.asarray(s.force[:n]) - np.asarray(ideal_force[:n]), style, label=f"{name} - ideal")
     a.set_ylabel("contact force [N]")
     b.set_ylabel("relative velocity [m/s]")
-    b.set_xlabel("time [s]")
+    c.set_ylabel("force - ideal [N]")
+    c.set_xlabel("time [s]")
     a.set_title("Fig. 9: ideal and hybrid contact (Table 1)")
-    for ax in (a, b):
+    for ax in (a, b, c):
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(f"{out_dir}/fig9.png", dpi=110)
+    fig.savefig(os.path.join(out_dir, "fig9.png"), dpi=110)
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -172,12 +186,18 @@ def plot_all(out_dir, delay: float = 0.032) -> dict:
     ax.grid(True, alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(f"{out_dir}/fig10.png", dpi=110)
+    fig.savefig(os.path.join(out_dir, "fig10.png"), dpi=110)
     plt.close(fig)
 
     fig, axes = plt.subplots(1, 2, sharey=True, figsize=(10, 4))
+    h = f1112["h_s"]
     for ax, case in zip(axes, f1112["cases"]):
-        ax.plot(case["t"], case["force_N"])
+        # The sheet's force reaches the loop h after the start (zero before it): drawn from there, beside
+        # the thrust it balances at rest.
+        t = np.asarray(case["t"])
+        ax.plot(t[t >= h], np.asarray(case["force_N"])[t >= h], label="contact force")
+        ax.axhline(f1112["thrust_N"], color="0.4", ls="--", lw=0.8, label="thrust (rest)")
+        ax.legend(fontsize=8, loc="upper right")
         ax.set_title(
             f"b = {case['b_N_s_per_m']:g} N s/m: growth {case['growth_rate_1_s']:+.4f} 1/s "
             f"(root {case['predicted_growth_rate_1_s']:+.4f})",
@@ -191,7 +211,7 @@ def plot_all(out_dir, delay: float = 0.032) -> dict:
         f"{f1112['K_N_per_m']:g} N/m, h = {f1112['h_s'] * 1e3:g} ms"
     )
     fig.tight_layout()
-    fig.savefig(f"{out_dir}/fig11_12.png", dpi=110)
+    fig.savefig(os.path.join(out_dir, "fig11_12.png"), dpi=110)
     plt.close(fig)
 
     bs, hs = np.linspace(10, 200, 200), np.linspace(0.016, 0.032, 200)
@@ -203,16 +223,16 @@ def plot_all(out_dir, delay: float = 0.032) -> dict:
     ax.set_ylabel("h [ms]")
     ax.set_title("Fig. 7: critically stable stiffness, m = 750 kg")
     fig.tight_layout()
-    fig.savefig(f"{out_dir}/fig7.png", dpi=110)
+    fig.savefig(os.path.join(out_dir, "fig7.png"), dpi=110)
     plt.close(fig)
 
     from dockhil.analysis.plots.plot6 import plot6
 
-    bag = f"{out_dir}/sixdof.mcap"
+    bag = os.path.join(out_dir, "sixdof.mcap")
     six = sixdof(bag, delay)
     plot6(
         [bag],
-        f"{out_dir}/sixdof.png",
+        os.path.join(out_dir, "sixdof.png"),
         labels=[f"hil6.yaml, {delay * 1e3:g} ms"],
         title=f"6-DOF off-axis docking (launch/hil6.yaml, {delay * 1e3:g} ms delay): wrench, relative pose,"
         " angular rates",

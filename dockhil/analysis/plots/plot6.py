@@ -63,6 +63,16 @@ def series6(path: str) -> Series6:
     )
 
 
+def separation(s: Series6) -> float | None:
+    """The time the bodies part: the first F/T sample after contact whose force and torque are 0."""
+    acting = np.any(s.force != 0.0, axis=1) | np.any(s.torque != 0.0, axis=1)
+    touched = np.flatnonzero(acting)
+    if touched.size == 0:
+        return None
+    after = np.flatnonzero(~acting[touched[0] :])
+    return float(s.t_ft[touched[0] + after[0]]) if after.size else None
+
+
 def plot6(
     bags: list[str],
     png: str,
@@ -77,14 +87,19 @@ def plot6(
     fig, axes = plt.subplots(5, 1, sharex=True, figsize=(8, 13.5))
     for i, path in enumerate(bags):
         s = series6(path)
-        label = labels[i] if labels else path.rsplit("/", 1)[-1]
+        # One run: its name is the title's, and each curve is named by its axis alone.
+        label = "" if len(bags) == 1 else (labels[i] if labels else path.rsplit("/", 1)[-1]) + ": "
         for j, c in enumerate("xyz"):
-            axes[0].plot(s.t_ft, s.force[:, j], label=f"{label}: F{c}")
-            axes[1].plot(s.t_ft, s.torque[:, j], label=f"{label}: T{c}")
-            axes[2].plot(s.t_pose, s.position[:, j], label=f"{label}: {c}")
-            axes[3].plot(s.t_pose, s.rotation[:, j], label=f"{label}: r{c}")
+            axes[0].plot(s.t_ft, s.force[:, j], label=f"{label}F{c}")
+            axes[1].plot(s.t_ft, s.torque[:, j], label=f"{label}T{c}")
+            axes[2].plot(s.t_pose, s.position[:, j], label=f"{label}{c}")
+            axes[3].plot(s.t_pose, s.rotation[:, j], label=f"{label}r{c}")
             for b, body in enumerate(("chaser", "target")):
-                axes[4].plot(s.t_state, s.omega[:, b, j], label=f"{label}: {body} w{c}")
+                axes[4].plot(s.t_state, s.omega[:, b, j], label=f"{label}{body} w{c}")
+        parted = separation(s)
+        if parted is not None:  # the wrench ends there: the torque's drop to 0 is the contact's end
+            for k, ax in enumerate(axes):
+                ax.axvline(parted, color="0.3", ls=":", lw=1.0, label=f"{label}separation" if k < 2 else None)
     for ax, text in zip(
         axes,
         (
@@ -97,7 +112,7 @@ def plot6(
     ):
         ax.set_ylabel(text, fontsize=8)
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=6, ncol=3)
+        ax.legend(fontsize=7 if len(bags) == 1 else 6, ncol=3 if len(bags) > 1 else 4)
     axes[-1].set_xlabel("time [s]")
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()

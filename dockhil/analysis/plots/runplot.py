@@ -5,11 +5,21 @@ velocity against time, like the paper's Fig. 9, beside the ideal contact of the 
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from dockhil.errors import DockhilError
 from dockhil.analysis.plots.figure_file import save_figure
 
+if TYPE_CHECKING:
+    import numpy as np
+    from matplotlib.axes import Axes
 
-def bag_graph(path: str, overrides: dict | None = None, info=None):
+    from dockhil.analysis.summary.common import Samples
+    from dockhil.bags.runinfo import RunInfo
+    from dockhil.scene.graph import Graph
+
+
+def bag_graph(path: str, overrides: dict | None = None, info: RunInfo | None = None) -> Graph | None:
     """The graph of the scene a bag recorded (info: its runinfo.RunInfo, read if not given), rebuilt
     from its texts; None for a bag without them. LaunchError (one line) if it does not rebuild here."""
     from dockhil.bags import runinfo
@@ -27,13 +37,13 @@ def bag_graph(path: str, overrides: dict | None = None, info=None):
         raise LaunchError(f"{path}: recorded scene: {exc}") from None
 
 
-def is_sixdof(graph) -> bool:
+def is_sixdof(graph: Graph | None) -> bool:
     from dockhil.analysis.scenecheck import first_node
 
     return graph is not None and first_node(graph, "satellite_dynamics6") is not None
 
 
-def load_samples(path: str, ideal_force=None, dt: float | None = None):
+def load_samples(path: str, ideal_force: tuple[float, float] | None = None, dt: float | None = None) -> Samples:
     from dockhil.analysis.summary import samples_from_bag
 
     s = samples_from_bag(path, ideal_force, dt)
@@ -42,7 +52,7 @@ def load_samples(path: str, ideal_force=None, dt: float | None = None):
     return s
 
 
-def load_energy(path: str):
+def load_energy(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(t [s], generated_J, net_generated_J) arrays of a bag's /energy, or None without it."""
     import numpy as np
 
@@ -80,9 +90,9 @@ def plot_runs(
     bags: list[str],
     png: str,
     labels: list[str] | None = None,
-    kcs_bcs=None,
+    kcs_bcs: tuple[float, float] | None = None,
     topics: list[str] | None = None,
-    graphs: list | None = None,
+    graphs: list[Graph | None] | None = None,
 ) -> None:
     """The force and velocity figure of 1-DOF bags; graphs: each bag's recorded graph (or None)."""
     import matplotlib
@@ -107,14 +117,15 @@ def plot_runs(
         axes[1].plot(s.t, s.pd, label=label)
         ideal = ref.get("ideal")
         key = tuple(sorted(ideal.items())) if ideal else None
-        if key is not None and key not in drawn:  # one curve per distinct ideal contact
+        if ideal and key not in drawn:  # one curve per distinct ideal contact
             drawn.add(key)
             force, velocity = ideal_curves(graph, s.t)
             text = f"ideal (kcs {ideal['kcs']:g} N/m, bcs {ideal['bcs']:g} N s/m)"
             axes[0].plot(s.t, force, "k--", lw=1, label=text)
             axes[1].plot(s.t, velocity, "k--", lw=1, label=text)
-        if energies[i] is not None:
-            t, made, net = energies[i]
+        energy = energies[i]
+        if energy is not None:
+            t, made, net = energy
             (line,) = axes[2].plot(t, made, label=f"{label}: made by delay and sampling")
             if any(net != made):
                 axes[2].plot(t, net, "--", color=line.get_color(), label=f"{label}: left after compensation")
@@ -133,7 +144,7 @@ def plot_runs(
     save_figure(fig, png, dpi=120)
 
 
-def _plot_topics(ax, path, topics, label) -> None:
+def _plot_topics(ax: Axes, path: str, topics: list[str], label: str) -> None:
     from dockhil.bags.reader import BagReader
     from dockhil.bags.tools import flatten
 

@@ -16,9 +16,9 @@ def case(
     passed: bool,
     *,
     params: dict | None = None,
-    expected_value=None,
-    measured_value=None,
-    tolerance=None,
+    expected_value: object = None,
+    measured_value: object = None,
+    tolerance: float | None = None,
 ) -> dict:
     return {
         "group": group,

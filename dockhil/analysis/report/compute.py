@@ -34,7 +34,7 @@ import math
 import os
 import time
 from dataclasses import asdict
-from typing import Callable
+from typing import TYPE_CHECKING, Callable, TextIO
 
 import numpy as np
 
@@ -75,6 +75,9 @@ from dockhil.contact.scenario import (
 )
 from dockhil.errors import DockhilError
 from dockhil.progress import TaskProgress
+
+if TYPE_CHECKING:
+    from dockhil.contact.delayref import DelayedContactReference
 
 STIFF_GROUPS: tuple[tuple[str, Callable[[ReportConfig], list[dict]]], ...] = (
     ("kcs = 1e9 N/m against 1 kg", stiff_contact_cases),
@@ -122,7 +125,7 @@ def work_precision(cfg: ReportConfig, progress: TaskProgress) -> tuple[list[dict
     return [{k: plain(v) for k, v in e.items()} for e in entries], reference
 
 
-def reference_check(cfg: ReportConfig, ref) -> dict:
+def reference_check(cfg: ReportConfig, ref: DelayedContactReference) -> dict:
     """How the references were made, and how far the delayed one is trusted: the same solver at
     half the step, and solve_ivp DOP853 (a different method, different code) at rtol 1e-13. The
     quick configuration takes twice the step (a quarter of the work; the difference bounds the
@@ -291,7 +294,7 @@ def passivity_compensation() -> dict:
     }
 
 
-def build_report(cfg: ReportConfig | None = None, stream=None) -> dict:
+def build_report(cfg: ReportConfig | None = None, stream: TextIO | None = None) -> dict:
     """Run everything; progress on `stream` (stderr by default)."""
     import platform
 

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -20,10 +21,15 @@ from dockhil.contact.scenario import (
 from dockhil.errors import DockhilError
 from dockhil.progress import TaskProgress
 
+if TYPE_CHECKING:
+    from os import PathLike
+
+    from dockhil.analysis.summary.common import Samples
+
 # -- the graph's cost ----------------------------------------------------------------------------------
 
 
-def _hil_library(duration: float, dt: float = 1e-3):
+def _hil_library(duration: float, dt: float = 1e-3) -> Samples:
     from dockhil.analysis.summary import Samples
 
     imp = hybrid_impedance(TABLE1)
@@ -42,7 +48,9 @@ def _hil_library(duration: float, dt: float = 1e-3):
     return Samples(r.t, r.x1 - r.x2, r.v1 - r.v2, r.force)
 
 
-def composed_samples(scene_file: str, duration: float, args: dict | None = None, ideal_force=None):
+def composed_samples(
+    scene_file: str, duration: float, args: dict | None = None, ideal_force: tuple[float, float] | None = None
+) -> Samples:
     """A shipped scene composed in this process (what `dockhil launch --composed` runs), its
     per-tick series collected by a tap; `args` as `name:=value` on the command line."""
     from dockhil.analysis.summary import Collector
@@ -64,7 +72,11 @@ def composed_samples(scene_file: str, duration: float, args: dict | None = None,
 
 
 def launch_subprocess(
-    scene: str, duration: float, args: dict | None = None, bag: str | None = None, timeout: float = 300.0
+    scene: str | PathLike[str],
+    duration: float,
+    args: dict | None = None,
+    bag: str | None = None,
+    timeout: float = 300.0,
 ) -> dict:
     """`dockhil launch SCENE --duration S` as its own process tree; returns exit
     code, output and wall time (process start-up included)."""
@@ -87,7 +99,7 @@ def launch_subprocess(
     }
 
 
-def bag_samples(path: str, ideal_force=None):
+def bag_samples(path: str, ideal_force: tuple[float, float] | None = None) -> Samples:
     from dockhil.analysis.plots.runplot import load_samples
 
     return load_samples(path, ideal_force)
@@ -100,7 +112,7 @@ def graph_cost(cfg: ReportConfig, progress: TaskProgress | None = None) -> dict:
 
     say = progress.step if progress else (lambda label: None)
     duration = cfg.graph_duration
-    runs = {}
+    runs: dict[str, tuple[Samples, float, str]] = {}
     say("graph cost: model library loop")
     lib, t_lib = best_time(lambda: _hil_library(duration), cfg.min_timing_s)
     runs["library"] = (lib, t_lib, "dockhil.contact.hilloop.simulate_hil")
@@ -109,6 +121,7 @@ def graph_cost(cfg: ReportConfig, progress: TaskProgress | None = None) -> dict:
     runs["composed"] = (comp, t_comp, "ComposedGraph(hil.yaml), one process, a tap collecting the series")
     say("graph cost: multi-process graph")
     multi = None
+    recorded: dict | None
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "hil.mcap")
         if cfg.quick:  # one run, timed while it records (the recorder is one more process)
@@ -120,6 +133,7 @@ def graph_cost(cfg: ReportConfig, progress: TaskProgress | None = None) -> dict:
             when = "in a second run"
         if timed["code"] != 0:
             raise DockhilError(f"dockhil launch launch/hil.yaml failed: {last_line(timed)}")
+        recorded = cast(dict, recorded)  # the timed run passed: the recording ran
         if recorded["code"] == 0 and os.path.exists(path):
             multi = bag_samples(path)
             how = f"recorded with --bag {when} and read back through the same Collector"
@@ -129,7 +143,11 @@ def graph_cost(cfg: ReportConfig, progress: TaskProgress | None = None) -> dict:
     ideal = ideal_reference(
         m1=TABLE1.m1, m2=TABLE1.m2, kcs=TABLE1.kcs, bcs=TABLE1.bcs, v1=TABLE1.v1, v2=TABLE1.v2, t=lib.t
     )
-    out = {"scene": "launch/hil.yaml (Table 1, delay 32 ms, 1 kHz, sim time)", "sim_time_s": duration, "modes": []}
+    out: dict[str, Any] = {
+        "scene": "launch/hil.yaml (Table 1, delay 32 ms, 1 kHz, sim time)",
+        "sim_time_s": duration,
+        "modes": [],
+    }
     for name, (s, elapsed, what) in runs.items():
         summary = summarize(s, run_time_s=elapsed, ideal=ideal)
         out["modes"].append(
@@ -164,12 +182,12 @@ def graph_cost(cfg: ReportConfig, progress: TaskProgress | None = None) -> dict:
     return out
 
 
-def _same(a, b) -> bool:
+def _same(a: Samples, b: Samples) -> bool:
     """Bit-identical per-tick series (time, penetration, rate, force)."""
     return all(np.array_equal(getattr(a, f), getattr(b, f)) for f in ("t", "p", "pd", "force"))
 
 
-def _max_diff(a, b) -> float | None:
+def _max_diff(a: np.ndarray, b: np.ndarray) -> float | None:
     if len(a) != len(b):
         return None
     return float(np.max(np.abs(np.asarray(a) - np.asarray(b)))) if len(a) else 0.0

@@ -9,6 +9,7 @@ import math
 import os
 import re
 import tempfile
+from typing import Any
 
 import numpy as np
 
@@ -28,7 +29,7 @@ def stiff_graph_cases(cfg: ReportConfig, group: str, scn: ContactScenario, dt: f
     this process in the quick configuration (whose multi-process runs are graph_cost's: one timed
     and recorded, one start-up)."""
     ref = ideal_contact_summary(scn)
-    args = {"kcs": scn.kcs, "bcs": scn.bcs, "m1": scn.m1, "m2": scn.m2, "v1": scn.v1, "v2": scn.v2}
+    args: dict[str, Any] = {"kcs": scn.kcs, "bcs": scn.bcs, "m1": scn.m1, "m2": scn.m2, "v1": scn.v1, "v2": scn.v2}
     duration = 5 * dt
     mode = "composed" if cfg.quick else "multi-process"
     params = {**args, "scene": "launch/ideal.yaml", "duration": duration, "mode": mode}

@@ -5,12 +5,17 @@ implicit solvers of its stiff cases)."""
 from __future__ import annotations
 
 import bisect
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from dockhil.contact.hybrid import VirtualImpedance
 from dockhil.contact.integrators import LinearSecondOrderSystem
 from dockhil.contact.scenario import ContactModelError, ContactScenario
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 IVP_METHODS = ("RK45", "DOP853", "Radau", "LSODA")
 
@@ -63,14 +68,14 @@ class DelayedContactRun:
             self.k_delayed = scn.k
         self.contact_system = contact
         self.push = np.array([0.0, 0.0, 1.0 / m1, -1.0 / m2])  # accelerations per newton of fs
-        self.segments: list[tuple[float, float, bool, object]] = []
+        self.segments: list[tuple[float, float, bool, Callable[[Any], np.ndarray]]] = []  # (t0, t1, touching, dense)
         self._starts: list[float] = []
         self.events: list[float] = []
 
         def penetration(_t, y):
             return y[0] - y[1]
 
-        penetration.terminal = True
+        penetration.terminal = True  # type: ignore[attr-defined]  # solve_ivp reads an event's flags from it
         x = np.array([-gap, 0.0, scn.v1, scn.v2])
         touching = bool(x[0] - x[1] > 0.0 or (x[0] == x[1] and x[2] > x[3]))
         breaks = [self.delay] if 0.0 < self.delay < t_end else []
@@ -82,14 +87,14 @@ class DelayedContactRun:
             t1 = min([b for b in breaks if b > t0 * (1 + 1e-15) + 1e-300] + [t_end])
             if self.k_delayed:
                 t1 = min(t1, t0 + self.delay)  # method of steps: t - h must fall in a finished segment
-            penetration.direction = -1.0 if touching else 1.0
+            penetration.direction = -1.0 if touching else 1.0  # type: ignore[attr-defined]  # as terminal
             if self.k_delayed:
 
                 def rhs(t, y, a=a, push=self.push):
                     return a @ y + push * self.passive(t)
             else:
 
-                def rhs(_t, y, a=a):
+                def rhs(_t, y, a=a):  # type: ignore[misc]  # no push: no delayed force
                     return a @ y
 
             options = {"jac": lambda _t, _y, a=a: a} if method in ("Radau", "LSODA") else {}
@@ -114,7 +119,7 @@ class DelayedContactRun:
             if len(self.segments) > 10_000:
                 raise ContactModelError("more than 10000 contact events (chatter); check the parameters")
 
-    def _segment(self, t: float):
+    def _segment(self, t: float) -> tuple[float, float, bool, Callable[[Any], np.ndarray]]:
         i = max(0, bisect.bisect_right(self._starts, t) - 1)
         return self.segments[i]
 
@@ -129,7 +134,7 @@ class DelayedContactRun:
         p = self.penetration_at(t - self.delay)
         return -self.k_delayed * p if p > 0.0 else 0.0
 
-    def sample(self, t) -> dict:
+    def sample(self, t: ArrayLike) -> dict:
         """States, contact flags and forces at times t [s]."""
         t = np.asarray(t, dtype=float)
         ends = np.array([seg[1] for seg in self.segments[:-1]])

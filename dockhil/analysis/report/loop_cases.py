@@ -5,12 +5,13 @@ springs), and the delayed loop just inside and just outside its exact stability 
 from __future__ import annotations
 
 import warnings
+from typing import cast
 
 import numpy as np
 
 from dockhil.analysis.report.case import case, relative_difference
 from dockhil.analysis.report.precision import ReportConfig, compared_force, hybrid_impedance
-from dockhil.contact.hilloop import simulate_hil
+from dockhil.contact.hilloop import HilRun, simulate_hil
 from dockhil.contact.hybrid import VirtualImpedance
 from dockhil.contact.ideal import ideal_contact_summary, ideal_trajectory, relative_motion
 from dockhil.contact.impedance import impedance_closed_form, negative_stiffness_message
@@ -18,7 +19,9 @@ from dockhil.contact.integrators import simulate_contact
 from dockhil.contact.scenario import TABLE1, ContactScenario, NegativeVirtualStiffnessWarning
 
 
-def _hil_samples(scn: ContactScenario, delay: float, dt: float, t_end: float, imp: VirtualImpedance | None = None):
+def _hil_samples(
+    scn: ContactScenario, delay: float, dt: float, t_end: float, imp: VirtualImpedance | None = None
+) -> HilRun:
     imp = imp or hybrid_impedance(scn)
     return simulate_hil(
         m1=scn.m1,
@@ -172,7 +175,7 @@ def stability_boundary_cases(cfg: ReportConfig) -> list[dict]:
     group = "exact stability boundary"
     m, b, h, thrust, dt = 750.0, 60.0, 0.016, 10.0, cfg.stability_dt
     h_eff = h + dt / 2.0
-    k_max = exact_bound(m, b, h_eff, "undelayed").k_max
+    k_max = cast(float, exact_bound(m, b, h_eff, "undelayed").k_max)  # b > 0, h > 0: a finite bound
     cases = []
     for factor, where in ((0.95, "just inside"), (1.05, "just outside")):
         K = factor * k_max

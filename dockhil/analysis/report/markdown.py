@@ -4,7 +4,7 @@ the figures that `dockhil.analysis.report.plots` drew."""
 from __future__ import annotations
 
 
-def _g(value, digits: int = 3) -> str:
+def _g(value: object, digits: int = 3) -> str:
     if value is None:
         return "-"
     if isinstance(value, str):
@@ -15,7 +15,7 @@ def _g(value, digits: int = 3) -> str:
 
 
 def _md_table(header: list[str], rows: list[list]) -> str:
-    def cell(v) -> str:
+    def cell(v: object) -> str:
         return str(v).replace("|", "\\|").replace("\n", " ")
 
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]

@@ -5,8 +5,12 @@ report.md."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 
 def write_plots(report: dict, out_dir: Path) -> dict[str, str]:
@@ -18,7 +22,7 @@ def write_plots(report: dict, out_dir: Path) -> dict[str, str]:
 
     quick = report["config"]["quick"]
 
-    def save(fig, name: str) -> None:
+    def save(fig: Figure, name: str) -> None:
         # The quick configuration's figures skip the layout pass (measuring every tick label:
         # a third of the plotting time) and are drawn at a lower resolution.
         if not quick:

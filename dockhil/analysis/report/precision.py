@@ -12,7 +12,7 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Any, Callable, TypeVar
 
 import numpy as np
 
@@ -34,6 +34,13 @@ from dockhil.contact.scenario import (
     StepTooLargeError,
 )
 from dockhil.scene.launchfile import SHIPPED_SCENES
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from dockhil.contact.delayref import DelayedContactReference
+
+R = TypeVar("R")
 
 EXPLICIT = ("rk4", "symplectic_euler", "euler")
 ROOT = Path(__file__).resolve().parents[2]  # the repository (a source checkout)
@@ -82,12 +89,11 @@ class ReportConfig:
         )
 
 
-def best_time(run: Callable[[], object], min_total: float) -> tuple[object, float]:
+def best_time(run: Callable[[], R], min_total: float) -> tuple[R, float]:
     """Run at least once and until `min_total` seconds have passed; the fastest
     run time is the least disturbed by other load on a shared machine."""
     best = math.inf
     spent = 0.0
-    result = None
     while True:
         t0 = time.perf_counter()
         result = run()
@@ -104,7 +110,9 @@ def _grid_indices(t: np.ndarray, dt: float) -> np.ndarray:
     return np.arange(0, len(t), stride)
 
 
-def contact_force_law(scenario: ContactScenario, impedance: VirtualImpedance | None, p, pd):
+def contact_force_law(
+    scenario: ContactScenario, impedance: VirtualImpedance | None, p: np.ndarray, pd: np.ndarray
+) -> np.ndarray:
     """The compressive force on the chaser [N] that the contact law gives for
     penetration p and rate pd, as if in contact (no unilateral switch):
     kcs p + bcs pd for the ideal model, the virtual impedance's share otherwise."""
@@ -134,16 +142,16 @@ def _wp_entry(
     model: str,
     method: str,
     *,
-    step_s=None,
-    rtol=None,
-    error=None,
-    run_time=None,
-    refused=None,
-    exit_error=None,
-    steps=None,
-    extra=None,
+    step_s: float | None = None,
+    rtol: float | None = None,
+    error: float | None = None,
+    run_time: float | None = None,
+    refused: str | None = None,
+    exit_error: float | None = None,
+    steps: int | None = None,
+    extra: dict | None = None,
 ) -> dict:
-    entry = {"model": model, "method": method}
+    entry: dict[str, Any] = {"model": model, "method": method}
     if step_s is not None:
         entry["step_s"] = step_s
     if rtol is not None:
@@ -238,13 +246,13 @@ def hybrid_reference(
     delay: float = HIL_DELAY,
     dt: float = REFERENCE_DT,
     t_end: float | None = None,
-):
+) -> DelayedContactReference:
     """The continuous delayed hybrid loop by the independent method-of-steps solver."""
     return _delay_reference(scenario, float(delay), float(dt), float(cfg.contact_t_end if t_end is None else t_end))
 
 
 @functools.lru_cache(maxsize=8)
-def _delay_reference(scenario: ContactScenario, delay: float, dt: float, t_end: float):
+def _delay_reference(scenario: ContactScenario, delay: float, dt: float, t_end: float) -> DelayedContactReference:
     # A pure function of its arguments, and the dearest one here: solved once per process
     # (the returned reference is only read).
     from dockhil.contact.delayref import DelayedContactReference
@@ -278,7 +286,12 @@ def _hil_compared(scenario, imp, run, idx, other_touching):
 
 
 def hybrid_fixed_step(
-    method: str, dt: float, cfg: ReportConfig, ref, scenario: ContactScenario = TABLE1, delay: float = HIL_DELAY
+    method: str,
+    dt: float,
+    cfg: ReportConfig,
+    ref: DelayedContactReference,
+    scenario: ContactScenario = TABLE1,
+    delay: float = HIL_DELAY,
 ) -> dict:
     """The sampled HIL loop (the graph's own arithmetic) against the continuous reference."""
     imp = ref.impedance
@@ -318,7 +331,12 @@ def hybrid_fixed_step(
 
 
 def hybrid_ivp(
-    method: str, rtol: float, cfg: ReportConfig, ref, scenario: ContactScenario = TABLE1, delay: float = HIL_DELAY
+    method: str,
+    rtol: float,
+    cfg: ReportConfig,
+    ref: DelayedContactReference,
+    scenario: ContactScenario = TABLE1,
+    delay: float = HIL_DELAY,
 ) -> dict:
     grid = np.arange(int(round(cfg.contact_t_end / GRID)) + 1) * GRID
     imp = ref.impedance
@@ -372,7 +390,7 @@ def undamped_scenario() -> ContactScenario:
     return TABLE1.replace(kcs=UNDAMPED_KCS, bcs=0.0, k=0.0)
 
 
-def relative_energy(scn: ContactScenario, p, pd):
+def relative_energy(scn: ContactScenario, p: ArrayLike, pd: ArrayLike) -> np.ndarray:
     """Energy of the relative motion [J]: 1/2 m pd^2 + 1/2 kcs p^2 (the CoM motion
     carries the rest, and every method here conserves momentum exactly)."""
     return 0.5 * scn.reduced_mass * np.asarray(pd) ** 2 + 0.5 * scn.kcs * np.asarray(p) ** 2

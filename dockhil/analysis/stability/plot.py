@@ -6,7 +6,9 @@ from __future__ import annotations
 from dockhil.analysis.plots.figure_file import save_figure
 
 
-def plot_map(path: str, m: float, b, h, pade1, exact, damper: str, compensated: dict | None = None) -> None:
+def plot_map(
+    path: str, m: float, b, h, pade1, exact, damper: str, compensated: dict | None = None, passive=None
+) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -30,9 +32,19 @@ def plot_map(path: str, m: float, b, h, pade1, exact, damper: str, compensated: 
     if np.any(np.isfinite(percent)):
         lines = ax2.contour(bb, hh, percent, colors="white", linewidths=0.8, levels=6)
         ax2.clabel(lines, fmt="%.2g %%", fontsize=7)
+    if passive is not None and np.any(np.isfinite(passive)):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            share = 100.0 * passive / exact
+        lines = ax2.contour(bb, hh, share, colors="red", linestyles="dashed", linewidths=0.8, levels=5)
+        ax2.clabel(lines, fmt="%.3g %%", fontsize=7)
     ax2.set_xlabel("b [N s/m]")
     ax2.set_ylabel("h [ms]")
-    ax2.set_title(f"exact bound ({damper} damper); white: Eq. 12 excess [%]")
+    passivity = (
+        "red: passivity bound b/h, % of exact"
+        if passive is not None and np.any(np.isfinite(passive))
+        else "no K passive (damper behind the delay)"
+    )
+    ax2.set_title(f"exact bound ({damper} damper); white: Eq. 12 excess [%]; {passivity}", fontsize=8)
     if compensated is not None:
         plot_region(fig.add_subplot(1, panels, 3), compensated)
     fig.tight_layout()

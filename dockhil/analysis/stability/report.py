@@ -17,6 +17,7 @@ def stiffness_map(png: str, m: float, damper: str, b_range, h_range, n: int, com
     import numpy as np
 
     from dockhil.analysis.stability.plot import plot_map
+    from dockhil.contact.passivity_bound import passive_stiffness_map
     from dockhil.contact.stability import critical_stiffness_map
     from dockhil.contact.stability_maps import nan_extreme
 
@@ -25,8 +26,9 @@ def stiffness_map(png: str, m: float, damper: str, b_range, h_range, n: int, com
     start = time.perf_counter()
     pade1 = critical_stiffness_map(m, b, h, "pade1", damper)
     exact = critical_stiffness_map(m, b, h, "exact", damper)
+    passive = passive_stiffness_map(b, h, damper)
     compute_seconds = time.perf_counter() - start
-    plot_map(png, m, b, h, pade1, exact, damper, compensated)
+    plot_map(png, m, b, h, pade1, exact, damper, compensated, passive)
     with np.errstate(invalid="ignore"):
         overestimate = (pade1 - exact) / exact
     summary = {
@@ -43,6 +45,11 @@ def stiffness_map(png: str, m: float, damper: str, b_range, h_range, n: int, com
         "exact_max": nan_extreme(np.nanmax, exact),
         "max_pade1_overestimate": nan_extreme(np.nanmax, overestimate),
         "points_without_stable_K": int(np.sum(np.isnan(exact))),
+        # The passivity boundary: the largest K the undelayed damper b makes passive behind h (b / h), none
+        # for the delayed damper; passive is stable for every mass, so it lies under the exact bound.
+        "passivity_max_K_min": nan_extreme(np.nanmin, passive),
+        "passivity_max_K_max": nan_extreme(np.nanmax, passive),
+        "passivity_over_exact_max": nan_extreme(np.nanmax, passive / exact),
     }
     if compensated is not None:
         summary["passivity"] = compensated

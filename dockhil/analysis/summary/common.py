@@ -8,6 +8,10 @@ more, neither virtual nor measured: through the robot's delay the passive compli
 pushing for up to h after the simulated bodies separated, so the first sample after the
 separation is too early. The contact duration is the time the bodies overlap (penetration
 > 0, zero crossings interpolated between ticks), comparable with the ideal model's.
+
+A measured force acts when it stands out of the sensor's noise band (`ForceBand`): a real sensor
+never reads exactly zero (noise, a bias the tare left, a tare's rounding residue), and a force that
+is only noise would leave every hardware run without an exit velocity.
 """
 
 from __future__ import annotations
@@ -38,6 +42,61 @@ class Samples:
 
 
 _CHUNK = 4096  # ticks whose ideal force is evaluated at once (bounded memory)
+BAND_SIGMAS = 5.0  # a reading within this many noise deviations of the sensor's rest reading is no force
+FORCE_FLOOR_N = 1e-6  # N: the narrowest band: a tare's rounding residue (1e-15 N) is no force, 1 uN below any sensor
+REST_READINGS = 20  # readings before the first contact that measure the band (fewer: the scene's numbers alone)
+FT_NODES = ("ft_sim", "ft_emulator", "netft_emulator")  # nodes whose `noise` and `bias` are the sensor's
+
+
+class ForceBand:
+    """Whether a measured force acts: outside the sensor's noise band about its rest reading. The band's
+    half width is the widest of FORCE_FLOOR_N, the scene's `force_deadband` and BAND_SIGMAS times the
+    noise it gives its sensor (`half_width`), and BAND_SIGMAS times the spread of the readings before
+    the first contact; its centre is their mean (an untared bias), else the bias the scene gives."""
+
+    def __init__(self, half_width: float = FORCE_FLOOR_N, centre: float = 0.0):
+        self.half_width = max(half_width, FORCE_FLOOR_N)
+        self.centre = centre
+        self.n = 0
+        self._mean = 0.0
+        self._m2 = 0.0
+        self.closed = False  # the first contact began: the rest readings are in
+
+    def rest(self, force: float) -> None:
+        """A reading before the first contact (Welford's running mean and variance)."""
+        if self.closed or not math.isfinite(force):
+            return
+        self.n += 1
+        d = force - self._mean
+        self._mean += d / self.n
+        self._m2 += d * (force - self._mean)
+
+    def close(self) -> None:
+        """The first contact began: from here on the band is fixed."""
+        if self.closed:
+            return
+        self.closed = True
+        if self.n >= REST_READINGS:
+            self.centre = self._mean
+            self.half_width = max(self.half_width, BAND_SIGMAS * math.sqrt(self._m2 / (self.n - 1)))
+
+    def acting(self, force: float) -> bool:
+        return not abs(force - self.centre) <= self.half_width  # a NaN acts: it is not nothing
+
+
+def force_band(graph) -> ForceBand:
+    """The band of the scene's sensor: its force_deadband (virtual impedance) and the noise and bias its
+    sensor node is given (a sim sensor, an emulator; with loop:= the loop file's noise)."""
+    width, centre = 0.0, 0.0
+    for gn in graph.nodes.values():
+        p = gn.params
+        if gn.type_name == "virtual_impedance":
+            width = max(width, float(p.get("force_deadband") or 0.0))
+        elif gn.type_name in FT_NODES:
+            width = max(width, BAND_SIGMAS * float(p.get("noise") or 0.0), float(p.get("quantization") or 0.0))
+            if gn.type_name == "ft_sim":
+                centre = float(p.get("bias") or 0.0)  # the sim sensor publishes its bias untared
+    return ForceBand(width, centre)
 
 
 class ContactMeter:
@@ -299,9 +358,15 @@ class TickMatcher:
     HOLD = 20_000
 
     def __init__(
-        self, sink, ideal_force: tuple[float, float] | None = None, dt: float | None = None, expect=frozenset()
+        self,
+        sink,
+        ideal_force: tuple[float, float] | None = None,
+        dt: float | None = None,
+        expect=frozenset(),
+        band: ForceBand | None = None,
     ):
         self.sink = sink
+        self.band = ForceBand() if band is None else band  # when a measured force acts
         self.ideal_force = ideal_force  # (kcs, bcs) when the dynamics run the ideal model inside
         self.dt = dt
         # The input topics the graph publishes: a tick waits for those even before their first message.
@@ -371,8 +436,18 @@ class TickMatcher:
             fs = 0.0 if ft is None else ft[1]
             v1, v2 = (0.0, 0.0) if virtual is None else virtual[1:]
             # Compressive force on the chaser: minus (measured + virtual) force along +x.
-            force, acting = -(fs + v1), (fs != 0.0 or v1 != 0.0 or v2 != 0.0)
+            force, acting = -(fs + v1), (self._measured_acts(fs, p, pd) or v1 != 0.0 or v2 != 0.0)
         self.sink(t, p, pd, force, acting)
+
+    def _measured_acts(self, fs: float, p: float, pd: float) -> bool:
+        """Whether the measured force acts: the band learns the sensor at rest until the first contact."""
+        band = self.band
+        if not band.closed:
+            if p > 0.0 or (p == 0.0 and pd > 0.0):
+                band.close()
+            else:
+                band.rest(fs)
+        return band.acting(fs)
 
     def flush(self) -> None:
         while self.pending:

@@ -28,7 +28,7 @@ import math
 from dockhil import msgs
 from dockhil.contact.rotations import cross3, rotate, sub3
 from dockhil.analysis.scenecheck import scene_check, sixdof_nodes
-from dockhil.analysis.summary.common import ContactMeter, RangeMeter, TickMatcher, range_summary
+from dockhil.analysis.summary.common import ContactMeter, RangeMeter, TickMatcher, force_band, range_summary
 
 VECTORS = ("relative_velocity_mps", "relative_angular_velocity_radps")
 
@@ -84,8 +84,8 @@ class TickMatcher6(TickMatcher):
     from the state they published with it (hybrid6.relative_interface), so d_x, d' and the relative
     angular velocity are read, not recomputed. The wrench is rebuilt only while a force acts."""
 
-    def __init__(self, sink, dyn, dt: float | None, expect=frozenset()):
-        super().__init__(sink, None, dt, expect)
+    def __init__(self, sink, dyn, dt: float | None, expect=frozenset(), band=None):
+        super().__init__(sink, None, dt, expect, band)
         from dockhil.contact import hybrid6
 
         self.lib, self.dyn = hybrid6, dyn
@@ -122,7 +122,9 @@ class TickMatcher6(TickMatcher):
         virtual = (
             (zero,) * 4 if imp is None else tuple(_triple(v) for w in imp[2].wrenches[:2] for v in (w.force, w.torque))
         )
-        acting = any(c != 0.0 for v in (force_s, *virtual) for c in v)
+        acting = self._measured_acts(_norm(force_s), cmd.pose.position.x, cmd.twist.linear.x) or any(
+            c != 0.0 for v in virtual for c in v
+        )
         force = torque = zero
         if acting and state is not None:
             lib, dyn = self.lib, self.dyn
@@ -199,7 +201,9 @@ class SummaryCollector6:
         self.graph = graph
         self.dyn, self.imp = sixdof_nodes(graph)
         self.meter = ContactMeter6()
-        self.match = TickMatcher6(self.meter.add, self.dyn, graph.scene.dt, expect=graph.publishers)
+        self.match = TickMatcher6(
+            self.meter.add, self.dyn, graph.scene.dt, expect=graph.publishers, band=force_band(graph)
+        )
         self.ranges = RangeMeter(inertia=(self.dyn.b1.inertia, self.dyn.b2.inertia))
 
     def __call__(self, topic: str, msg) -> None:
@@ -248,8 +252,8 @@ def format_summary6(out: dict) -> str:
 
     rtf = out.get("real_time_factor")
     lines = [
-        f"simulated {f(out['sim_time_s'], 's')} in "
-        + ("-" if out["run_time_s"] is None else f"{out['run_time_s']:.2f} s")
+        f"simulated {f(out['sim_time_s'], 's')}"
+        + ("" if out["run_time_s"] is None else f" in {out['run_time_s']:.2f} s")  # a bag analyzed: not known
         + (f" ({rtf:.1f}x real time)" if rtf else "")
     ]
     scalars = [

@@ -14,7 +14,7 @@ import math
 import os
 import re
 from pathlib import Path
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator, TypeVar, cast
 
 import msgspec
 
@@ -22,6 +22,11 @@ from dockhil.scene import boundedyaml
 from dockhil.errors import DockhilError
 from dockhil.scene.launchfile import SHIPPED_SCENES
 from dockhil.scene.schema import MAX_DURATION
+
+if TYPE_CHECKING:
+    import numpy as np
+
+T = TypeVar("T", bound=msgspec.Struct)
 
 # Runs in one campaign (grid points x samples): some CPU-days of one-second runs, and the runs'
 # list stays near 100 MB and 2 s to expand. A larger study is several campaigns.
@@ -100,11 +105,11 @@ class Campaign(msgspec.Struct):
         return self.points * self.samples
 
 
-def _field_list(struct) -> str:
+def _field_list(struct: type[msgspec.Struct]) -> str:
     return ", ".join(struct.__struct_fields__)
 
 
-def _convert(data: Any, typ, where: str):
+def _convert(data: Any, typ: type[T], where: str) -> T:
     """msgspec validation with the error in one line naming the place in the file."""
     try:
         return msgspec.convert(data, typ)
@@ -137,7 +142,7 @@ def _axis(raw: Any, where: str) -> Axis:
         if not axis.values:
             raise CampaignError(f"{where}: empty grid axis: give at least one value")
         return axis
-    a, b = axis.range
+    a, b = cast(tuple[float, float], axis.range)  # values is None: range is given
     if axis.num is None or not 1 <= axis.num <= MAX_RUNS:
         raise CampaignError(f"{where}: `range` needs `num:` from 1 to {MAX_RUNS:,} points, got {axis.num!r}")
     if not (math.isfinite(a) and math.isfinite(b)):
@@ -148,7 +153,7 @@ def _axis(raw: Any, where: str) -> Axis:
 
 
 def _axis_len(axis: Axis) -> int:
-    return len(axis.values) if axis.values is not None else axis.num
+    return len(axis.values) if axis.values is not None else cast(int, axis.num)  # a range: _axis checked num
 
 
 def _axis_points(axis: Axis) -> list[Any]:
@@ -156,8 +161,9 @@ def _axis_points(axis: Axis) -> list[Any]:
         return list(axis.values)
     import numpy as np
 
-    a, b = axis.range
-    points = np.geomspace(a, b, axis.num) if axis.log else np.linspace(a, b, axis.num)
+    a, b = cast(tuple[float, float], axis.range)  # no values: a range with its num (_axis)
+    num = cast(int, axis.num)
+    points = np.geomspace(a, b, num) if axis.log else np.linspace(a, b, num)
     return [float(v) for v in points]
 
 
@@ -393,7 +399,7 @@ def _check_in_scene(c: Campaign) -> float:
     return rate
 
 
-def draw(kind: str, a: float, b: float, rng) -> float:
+def draw(kind: str, a: float, b: float, rng: np.random.Generator) -> float:
     if kind == "uniform":
         return float(rng.uniform(a, b))
     if kind == "normal":

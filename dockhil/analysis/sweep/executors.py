@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Iterator
+from typing import Generator
 
 from dockhil.analysis.sweep.campaign import CampaignError, WriteError
 from dockhil.analysis.sweep.run import exception_line, failed_row, run_batch
@@ -78,7 +78,7 @@ class LocalPool:
     def __init__(self, workers: int):
         self.workers = workers
 
-    def map(self, batcher: Batcher) -> Iterator[list[dict]]:
+    def map(self, batcher: Batcher) -> Generator[list[dict], None, None]:
         from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
         from concurrent.futures.process import BrokenProcessPool
 
@@ -160,7 +160,7 @@ class DaskExecutor:
         self.workers = max(1, len(self.client.scheduler_info().get("workers", {})))
         self.name = f"dask {address}"
 
-    def map(self, batcher: Batcher) -> Iterator[list[dict]]:
+    def map(self, batcher: Batcher) -> Generator[list[dict], None, None]:
         from dask.distributed import as_completed
 
         in_flight: dict = {}

@@ -71,6 +71,31 @@ def _numeric(values: list) -> bool:
     )
 
 
+# What a column is, with its unit, for the axes (a column not named here keeps its own name).
+LABELS = {
+    "error.peak_force_N": "peak force error [N]",
+    "error.exit_velocity_mps": "exit velocity error [m/s]",
+    "growth_rate_per_s": "growth rate [1/s]",
+    "delay": "robot delay h [s]",
+    "lag": "servo lag [s]",
+    "k": "passive stiffness k [N/m]",
+    "kcs": "contact stiffness kcs [N/m]",
+    "bcs": "contact damping bcs [N s/m]",
+    "b": "virtual damper b [N s/m]",
+    "m": "mass m [kg]",
+    "m1": "chaser mass m1 [kg]",
+    "m2": "target mass m2 [kg]",
+    "v1": "approach velocity v1 [m/s]",
+    "rate": "tick rate [Hz]",
+    "ft_noise": "F/T noise [N]",
+    "thrust": "thrust [N]",
+}
+
+
+def label(column: str) -> str:
+    return LABELS.get(column, column)
+
+
 def plot_results(path: str, png: str) -> list[str]:
     """Draw the figure; returns lines for the user (what the map shows)."""
     import matplotlib
@@ -169,11 +194,18 @@ def plot_results(path: str, png: str) -> list[str]:
         ax.set_visible(True)
         x = np.array([np.nan if v is None else v for v in cols[a]], float)
         y = np.array([np.nan if v is None else v for v in cols[q]], float)
-        ax.scatter(x, y, s=10)
+        # Coloured by the other swept axis, so a second grid axis is told apart rather than stacked.
+        other = next((o for o in swept if o != a), None)
+        if other is not None:
+            c = np.array([np.nan if v is None else v for v in cols[other]], float)
+            dots = ax.scatter(x, y, s=12, c=c, cmap="viridis")
+            fig.colorbar(dots, ax=ax).set_label(label(other), fontsize=8)
+        else:
+            ax.scatter(x, y, s=12)
         ax.axhline(0.0, color="0.7", lw=0.8)
-        ax.set_xlabel(a)
-        ax.set_ylabel(q)
-        ax.set_title(f"{q} against {a}")
+        ax.set_xlabel(label(a))
+        ax.set_ylabel(label(q))
+        ax.set_title(f"{label(q).split(' [')[0]} against {label(a).split(' [')[0]}", fontsize=9)
     fig.suptitle(f"{meta.get('path', path)}: {n} runs ({int(np.sum(status == 'ok'))} ok)")
     fig.tight_layout()
     save_figure(fig, png)

@@ -10,9 +10,10 @@ import os
 import time
 from collections import Counter
 from pathlib import Path
+from typing import TextIO, cast
 
 from dockhil.analysis.sweep.campaign import Campaign, CampaignError, WriteError, cannot_write, runs
-from dockhil.analysis.sweep.executors import Batcher
+from dockhil.analysis.sweep.executors import Batcher, DaskExecutor, LocalPool
 from dockhil.analysis.sweep.run import exception_line
 
 STATUSES = ("ok", "invalid", "failed")
@@ -62,7 +63,7 @@ def read_done(results: str | Path) -> dict[int, dict]:
 
 def column_order(rows: list[dict], arg_names: list[str]) -> list[str]:
     head = ["run", "sample", *arg_names, "status", "error", "run_time_s"]
-    rest = []
+    rest: list[str] = []
     for row in rows:
         rest.extend(k for k in row if k not in head and k not in rest)
     return head + [k for k in rest if k != "args_hash"] + ["args_hash"]
@@ -103,7 +104,7 @@ def write_parquet(results: str | Path, rows: list[dict], c: Campaign) -> None:
 class SweepProgress:
     """Runs done, failed, runs per second and time left, on one status line."""
 
-    def __init__(self, total: int, already: int, stream=None):
+    def __init__(self, total: int, already: int, stream: TextIO | None = None):
         from dockhil.progress import StatusLine
 
         self.total, self.already = total, already
@@ -132,7 +133,7 @@ class SweepProgress:
         self.line.end()
 
 
-def _open_journal(results: str | Path, c: Campaign):
+def _open_journal(results: str | Path, c: Campaign) -> TextIO:
     """The journal, open to append, and the bags' folder made: refused before anything runs
     when they cannot be written. A line a crash or a full disk cut short is ended first."""
     jp = journal_path(results)
@@ -150,7 +151,14 @@ def _open_journal(results: str | Path, c: Campaign):
         raise CampaignError(f"{cannot_write(jp, exc)}; give --out in a folder with room that you can write") from None
 
 
-def sweep(campaign: Campaign, results: str | Path, executor, *, progress: bool = True, stream=None) -> dict:
+def sweep(
+    campaign: Campaign,
+    results: str | Path,
+    executor: LocalPool | DaskExecutor,
+    *,
+    progress: bool = True,
+    stream: TextIO | None = None,
+) -> dict:
     """Run every run not yet in `results`; returns counts. Rows are journaled per batch;
     the Parquet file is written at the end, and on interruption before it is re-raised.
     A result that cannot be written (a full disk) stops the campaign with a WriteError;
@@ -183,11 +191,12 @@ def sweep(campaign: Campaign, results: str | Path, executor, *, progress: bool =
             for row in rows:
                 done[row["run"]] = row
                 counts[row["status"]] += 1
+            log = cast(TextIO, journal)  # open: there are runs to do
             try:
-                journal.write("".join(json.dumps(row) + "\n" for row in rows))
-                journal.flush()
+                log.write("".join(json.dumps(row) + "\n" for row in rows))
+                log.flush()
             except OSError as exc:
-                raise cannot_write(journal.name, exc) from None
+                raise cannot_write(log.name, exc) from None
             executed += len(rows)
             if time.perf_counter() - written > PARQUET_EVERY_S:  # readable while the campaign runs
                 write_parquet(results, list(done.values()), campaign)

@@ -8,10 +8,13 @@ import math
 import os
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from dockhil.errors import DockhilError
 from dockhil.analysis.sweep.campaign import Campaign, CampaignError, WriteError, cannot_write, run_args
+
+if TYPE_CHECKING:
+    from dockhil.msgs import SatelliteState
 
 
 def exception_line(exc: BaseException) -> str:
@@ -43,7 +46,7 @@ class RunFailed(Exception):
     """A run stopped with one line: a node's own, or the divergence it was the sign of."""
 
 
-def failure_label(line: str, state) -> str:
+def failure_label(line: str, state: SatelliteState | None) -> str:
     """What a run that stopped with a node's `line` failed of. A node's output that left the finite
     numbers is the physics diverging when the bodies' last state (`state`, a SatelliteState) had
     already left the range of docking hardware, where the loop's products leave floating point

@@ -115,7 +115,9 @@ class FtNetFtDriver(FtDriver):
         "host": Param(str, "192.168.1.1", help="the box's address (factory setting 192.168.1.1)"),
         "port": Param(int, rdt.RDT_PORT, help="the box's RDT UDP port", ge=1, le=65535),
         "http_port": Param(int, 80, help="the box's web server port (netftapi2.xml)", ge=1, le=65535),
-        "http_timeout": Param(float, 2.0, unit="s", help="time for the box's web server to answer", gt=0.0, le=60.0),
+        "http_timeout": Param(
+            float, 2.0, unit="s", help="longest time for the box's web server to serve its whole page", gt=0.0, le=60.0
+        ),
         "counts_per_force": Param(
             float, 0.0, help="counts per force unit (0: cfgcpf of the box's netftapi2.xml)", ge=0.0, scale=(1e-3, 1e12)
         ),
@@ -194,6 +196,9 @@ class FtNetFtDriver(FtDriver):
             raise DeviceError(
                 f"{self.device}: {exc} (or give counts_per_force, counts_per_torque, force_unit and torque_unit)"
             ) from None
+        problem = calibration.full_scale_problem()
+        if problem:
+            raise DeviceError(f"{self.device}: {problem}")
         self.log(f"{self.device}: {calibration.describe()}")
         return calibration
 

@@ -89,6 +89,8 @@ STATUS_BITS = {
 STATUS_SATURATED = (1 << 31) | (1 << 17)
 
 MAX_XML_BYTES = 1 << 20  # the real page is a few kB
+FORCE_FULL_SCALE = (1.0, 1e5)  # N: the force of the largest count, from a nano sensor to the largest ATI makes
+TORQUE_FULL_SCALE = (0.01, 1e4)  # N m: the same for torque
 
 
 class RdtError(ValueError):
@@ -194,6 +196,22 @@ class Calibration:
     def newton_metres_per_count(self) -> float:
         return torque_factor(self.torque_unit) / self.counts_per_torque
 
+    def full_scale_problem(self) -> str | None:
+        """Why the largest count (2**31 - 1) is no sensor's full scale, or None: outside FORCE_FULL_SCALE
+        (newtons) or TORQUE_FULL_SCALE (newton metres) the sensor would never see a contact, or see
+        noise as one."""
+        for name, scale, (lo, hi), unit in (
+            ("counts_per_force", self.newtons_per_count, FORCE_FULL_SCALE, "N"),
+            ("counts_per_torque", self.newton_metres_per_count, TORQUE_FULL_SCALE, "N m"),
+        ):
+            full = scale * INT32[1]
+            if not lo <= full <= hi:
+                return (
+                    f"{name} {getattr(self, name):g} makes the full scale {full:.3g} {unit}, outside "
+                    f"{lo:g} to {hi:g} {unit}: not a sensor's (check the counts per unit and the units)"
+                )
+        return None
+
     def describe(self) -> str:
         return (
             f"{self.counts_per_force:g} counts/{self.force_unit}, {self.counts_per_torque:g} counts/{self.torque_unit}"
@@ -251,21 +269,49 @@ def calibration_from(fields: dict[str, str], override: dict | None = None) -> Ca
 
 
 def fetch_netftapi2(host: str, http_port: int, timeout: float) -> dict[str, str]:
-    """GET http://host:http_port/netftapi2.xml and parse it; RdtError (one line) when it fails.
-    No proxy: the box is on the lab's own network, whatever a proxy variable says."""
-    import urllib.error
-    import urllib.request
+    """GET http://host:http_port/netftapi2.xml and parse it; RdtError (one line) when it fails. The whole
+    exchange, from connecting to the last byte, takes at most `timeout` and MAX_XML_BYTES: a server that
+    trickles or floods the page is refused, never waited for. No proxy: the box is on the lab's own
+    network, whatever a proxy variable says. HTTP/1.0, so the page ends when the box closes."""
+    import socket
+    import time
 
     url = f"http://{host}:{http_port}/netftapi2.xml"
-    opener = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+    deadline = time.monotonic() + timeout
+    data = bytearray()
     try:
-        with opener.open(url, timeout=timeout) as response:
-            body = response.read(MAX_XML_BYTES + 1)
-    except urllib.error.HTTPError as exc:
-        raise RdtError(f"{url}: HTTP {exc.code} {exc.reason}") from None
-    except (urllib.error.URLError, OSError, ValueError) as exc:
-        reason = getattr(exc, "reason", None) or exc
-        raise Unreachable(f"{url}: {' '.join(str(reason).split()) or type(exc).__name__}") from None
+        with socket.create_connection((host, http_port), timeout=timeout) as sock:
+            sock.sendall(f"GET /netftapi2.xml HTTP/1.0\r\nHost: {host}\r\n\r\n".encode())
+            while True:
+                left = deadline - time.monotonic()
+                try:
+                    if left <= 0:
+                        raise TimeoutError
+                    sock.settimeout(left)
+                    chunk = sock.recv(65536)
+                except TimeoutError:
+                    if not data:
+                        raise
+                    raise RdtError(
+                        f"{url}: the page took more than {timeout:g} s (http_timeout); {len(data)} bytes came"
+                    ) from None
+                if not chunk:
+                    break
+                data += chunk
+                if len(data) > MAX_XML_BYTES + 65536:
+                    raise RdtError(f"{url}: more than {MAX_XML_BYTES} bytes, not a Net F/T page")
+    except RdtError:
+        raise
+    except TimeoutError:
+        raise Unreachable(f"{url}: no answer within {timeout:g} s") from None
+    except OSError as exc:
+        raise Unreachable(f"{url}: {exc.strerror or exc}") from None
+    head, sep, body = bytes(data).partition(b"\r\n\r\n")
+    status = head.split(b"\r\n", 1)[0].split(None, 2)
+    if not sep or len(status) < 2 or not status[0].startswith(b"HTTP/"):
+        raise RdtError(f"{url}: not an HTTP answer")
+    if status[1] != b"200":
+        raise RdtError(f"{url}: HTTP {b' '.join(status[1:]).decode('latin-1')}")
     try:
         return parse_netftapi2(body)
     except RdtError as exc:

@@ -28,9 +28,11 @@ controller took (dockhil/devices/kuka_rsi/link.py), so that dockhil calibrate
 times the robot at the controller's cycle.
 
 The link thread (dockhil/devices/kuka_rsi/link.py) reads only the configured
-controller's address, counts and ignores datagrams it cannot use, and moves the
+controller's address and port, counts and ignores datagrams it cannot use, and moves the
 correction toward the latest setpoint by at most max_speed * cycle and
-max_angular_speed * cycle per datagram. The correction is held (does not
+max_angular_speed * cycle from every correction the controller may hold, as it
+reports them (RSol; without it, Delay and the IPOC sequence): a controller whose
+datagrams carry neither is refused at setup. The correction is held (does not
 change) when there is no setpoint, when the setpoint is older than
 stall_timeout (the graph stalled) or not finite, after a safety stop and at
 close.
@@ -87,6 +89,11 @@ class SceneFrame:
         turn = quat_multiply(orientation, quat_conjugate(self.a_q))  # in scene axes
         q = quat_multiply(quat_multiply(self.q_sb, turn), quat_conjugate(self.q_sb))
         return (d[0] * 1000.0, d[1] * 1000.0, d[2] * 1000.0), q
+
+    def velocity(self, linear, angular) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """Scene twist (m/s, rad/s) -> the correction's rate in BASE: (mm/s, rad/s about BASE axes)."""
+        v = rotate(self.q_sb, linear)
+        return (v[0] * 1000.0, v[1] * 1000.0, v[2] * 1000.0), tuple(rotate(self.q_sb, angular))
 
     def scene_pose(self, rist) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
         """RIst (mm, degrees in BASE) -> scene pose: (m, quaternion)."""
@@ -263,6 +270,14 @@ class RobotRsiDriver(RobotDriver):
                 f"the RSI program on the controller, and check its Ethernet configuration's IP_NUMBER "
                 f"and PORT name this host and port {p.port}{extra}"
             )
+        first = self.link.first
+        if first.rsol is None and first.delay is None:
+            self.link.stop()
+            self.link = None
+            raise DeviceError(
+                f"{self.device}: the controller's datagrams carry neither RSol nor Delay, so nothing tells which "
+                f"correction it took: add DEF_RSol (or DEF_Delay) to the SEND elements of its Ethernet configuration"
+            )
         self.frame = SceneFrame((p.scene_a, p.scene_b, p.scene_c), self.link.first.rist)
         if p.anchor == "origin":  # the default anchor, the scene's origin, holds from the start
             self._anchored = (0.0, 0.0, 0.0, *IDENTITY)
@@ -318,8 +333,13 @@ class RobotRsiDriver(RobotDriver):
         self._seen = latest[0]
         return self._reading(latest)
 
-    def _hand_over(self, values) -> None:
-        self.link.submit(*((None, None) if values is None else self.frame.correction(values[:3], values[3:7])))
+    def _hand_over(self, values, stamp: float) -> None:
+        if values is None:
+            self.link.submit(None, None)
+            return
+        position, orientation = self.frame.correction(values[:3], values[3:7])
+        linear, angular = self.frame.velocity(values[7:10], values[10:13])
+        self.link.submit(position, orientation, stamp, self.ctx.dt, linear, angular)
 
     def _check_command_values(self, cmd) -> None:
         """The first command, which anchors the scene to the start pose, must be a pose."""

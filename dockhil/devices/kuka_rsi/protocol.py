@@ -28,6 +28,8 @@ Parsing is safe by construction: a datagram is bounded (MAX_DATAGRAM bytes),
 one that declares anything (`<!`: a DOCTYPE, an ENTITY, CDATA or a comment) or
 an instruction other than a leading XML declaration is refused before expat
 sees it, so there is no entity to expand; expat then parses at most a few KB.
+What no controller sends is refused too: a count of more than 19 digits, a
+position beyond a kilometre, an angle beyond +-360 degrees.
 """
 
 from __future__ import annotations
@@ -37,6 +39,9 @@ import xml.etree.ElementTree as ET
 from typing import NamedTuple
 
 MAX_DATAGRAM = 4096  # bytes: a controller's datagram with every configured element is about 1 KB
+MAX_DIGITS = 19  # an IPOC or a count has at most this many digits (a 64-bit counter): longer, no controller sent it
+MAX_POSITION_MM = 1e6  # |X|, |Y|, |Z| of a pose above a kilometre is no robot's pose
+MAX_ANGLE_DEG = 360.0  # |A|, |B|, |C| of a pose
 CARTESIAN = ("X", "Y", "Z", "A", "B", "C")
 CYCLES = (0.004, 0.012)  # s: the RSI interpolation cycles (KR C4/C5; KR C2 and older RSI versions)
 
@@ -79,6 +84,9 @@ def _pose(element, tag: str) -> tuple[float, float, float, float, float, float]:
             raise RsiError(f"{tag} {name}={text[:20]!r} is not a number") from None
         if not math.isfinite(value):
             raise RsiError(f"{tag} {name}={text[:20]!r} is not finite")
+        limit, unit = (MAX_POSITION_MM, "mm") if name in "XYZ" else (MAX_ANGLE_DEG, "degrees")
+        if abs(value) > limit:
+            raise RsiError(f"{tag} {name}={text[:20]!r} is outside +-{limit:g} {unit}: no robot's pose")
         out.append(value)
     return tuple(out)  # type: ignore[return-value]
 
@@ -87,6 +95,8 @@ def _count(text: str | None, what: str) -> int:
     text = (text or "").strip()
     if not text.isdigit() or not text.isascii():
         raise RsiError(f"{what} {text[:20]!r} is not a non-negative integer")
+    if len(text) > MAX_DIGITS:
+        raise RsiError(f"{what} of {len(text)} digits: no controller counts that far")
     return int(text)
 
 

@@ -219,13 +219,13 @@ class RobotModbusDriver(RobotDriver):
             self._status_changed(reading.status)
         return mm.describe_status(reading.status)
 
-    def _hand_over(self, values: PoseTwist | None) -> None:
+    def _hand_over(self, values: PoseTwist | None, stamp: float) -> None:
         if values is not None:
             try:  # here, not in the link's thread, where a failed write reads as a lost connection
                 mm.encode_block(values)
             except mm.RegisterError as exc:
                 self._trip("register_range", str(exc), f"register map: {exc}")
-        self.link.submit(values)
+        self.link.submit(values, stamp, self.ctx.dt)
 
     def _check_actual(self, reading: mm.ControllerReading) -> None:  # type: ignore[override]
         super()._check_actual(reading)

@@ -19,33 +19,79 @@ import time
 
 from dockhil.devices.modbus_robot import registers as mm
 from dockhil.devices.cycle_log import CycleLog
-from dockhil.devices.limits import angle_between, toward, turn_toward
+from dockhil.devices.handover import Handover
+from dockhil.devices.limits import angle_between, toward_within, turn_within
+
+MAX_UNCONFIRMED = 64  # setpoints written that the controller has not echoed yet, kept as ones it may take
 
 
 class SetpointLimiter:
     """What the device is sent on one of its cycles: the latest commanded setpoint, approached from the
     previous value sent (or, after a hold, a reconnect or a stall, from the actual pose read back) by at
-    most max_speed and max_angular_speed times the cycle's time, that time capped at max_cycle. A late
-    or bunched command, a stalled link or controller thus never becomes a jump. No I/O: the caller gives
-    each cycle's time."""
+    most max_speed and max_angular_speed times the cycle's time, that time capped at max_cycle; and, from
+    every setpoint the controller may hold (the one whose heartbeat it echoes, its record, and each one
+    written since, which it may still take), by at most the same speeds times the time since that one was
+    written, capped at max_cycle. A late or bunched command, a stalled link or controller, a write the
+    controller missed thus never becomes a jump. No I/O: the caller gives each cycle's time, each write and
+    each echo."""
 
     def __init__(self, max_speed: float, max_angular_speed: float, max_cycle: float):
         self.max_speed = max_speed  # m/s, 0: off
         self.max_angular_speed = max_angular_speed  # rad/s, 0: off
         self.max_cycle = max_cycle  # s
         self.sent: mm.PoseTwist | None = None  # the last value sent; None: start from the actual pose
+        # (written at, setpoint): the one the controller echoed it took, and each written after it
+        self.held: tuple[float, mm.PoseTwist] | None = None
+        self.unconfirmed: list[tuple[int, float, mm.PoseTwist]] = []  # (heartbeat, written at, setpoint)
 
     def reset(self) -> None:
         """The controller stopped following: the next setpoint starts from the actual pose."""
-        self.sent = None
+        self.sent = self.held = None
+        self.unconfirmed = []
 
-    def next(self, target: mm.PoseTwist, actual: mm.PoseTwist, dt: float) -> mm.PoseTwist:
-        """The setpoint for a device cycle `dt` seconds after the previous one."""
+    def wrote(self, heartbeat: int, at: float, setpoint: mm.PoseTwist) -> None:
+        """A setpoint went to the controller with this heartbeat at `at`."""
+        self.unconfirmed.append((heartbeat, at, setpoint))
+        del self.unconfirmed[:-MAX_UNCONFIRMED]
+
+    def echoed(self, heartbeat: int) -> None:
+        """The controller reports the heartbeat of the last write it took: the setpoints written with it or
+        before are past, the latest of them is the one it holds."""
+        keep = []
+        for hb, at, setpoint in self.unconfirmed:
+            if (heartbeat - hb) & 0xFFFF < 0x8000:
+                self.held = (at, setpoint)
+            else:
+                keep.append((hb, at, setpoint))
+        self.unconfirmed = keep
+
+    def next(self, target: mm.PoseTwist, actual: mm.PoseTwist, dt: float, now: float | None = None) -> mm.PoseTwist:
+        """The setpoint for a device cycle `dt` seconds after the previous one (at `now` on the caller's
+        clock: the reach from each setpoint the controller may hold is counted from its write)."""
         dt = min(max(dt, 0.0), self.max_cycle)
         origin = self.sent if self.sent is not None else actual
-        position = toward(origin[:3], target[:3], self.max_speed * dt) if self.max_speed else target[:3]
+        held = [] if self.held is None else [self.held]
+        held += [(at, s) for _, at, s in self.unconfirmed]
+        ages = [min(max(now - at, dt), self.max_cycle) if now is not None else dt for at, _ in held]
+        position = (
+            toward_within(
+                origin[:3],
+                target[:3],
+                self.max_speed * dt,
+                [s[:3] for _, s in held],
+                [self.max_speed * a for a in ages],
+            )
+            if self.max_speed
+            else target[:3]
+        )
         orientation = (
-            turn_toward(origin[3:7], target[3:7], self.max_angular_speed * dt)
+            turn_within(
+                origin[3:7],
+                target[3:7],
+                self.max_angular_speed * dt,
+                [s[3:7] for _, s in held],
+                [self.max_angular_speed * a for a in ages],
+            )
             if self.max_angular_speed
             else target[3:7]
         )
@@ -98,6 +144,7 @@ class ModbusLink(threading.Thread):
         self.stopping = False
         self.target: mm.PoseTwist | None = None  # the latest commanded setpoint; None: hold
         self.fresh = False  # a command (or hold) was handed over since the last cycle took one
+        self.handover = Handover()  # the pose for the time of each cycle, from the command's time and velocity
         self.limiter = SetpointLimiter(p.max_speed, p.max_angular_speed, p.max_cycle)
         # (m, rad) the commanded setpoint is ahead of the one sent; None: not known (a cycle under way, or
         # nothing sent since the robot last stopped)
@@ -114,6 +161,10 @@ class ModbusLink(threading.Thread):
         self.heartbeat = 0
         self.writes = 0
         self.setpoint_heartbeat = 0  # the heartbeat written with the last setpoint
+        self.longest_gap_s = 0.0  # the longest the controller went without taking a write while moving
+        self._progress_at = clock()  # when the controller last took a newer write (its heartbeat echo changed)
+        self._echo: int | None = None
+        self._moving = False
         self.largest_step = 0.0  # m: the largest step between two setpoints sent in a row (not across a resume)
         self.reconnects = 0
         self.fatal: str | None = None
@@ -122,10 +173,17 @@ class ModbusLink(threading.Thread):
         self._written = reading.actual if reading is not None else None  # the last setpoint written
 
     # -- from the node thread -------------------------------------------------
-    def submit(self, setpoint: mm.PoseTwist | None) -> None:
+    def submit(self, setpoint: mm.PoseTwist | None, stamp: float | None = None, tick: float = 0.0) -> None:
         """Make this the latest setpoint (None: hold until the next one). Never queued: the link's next
-        cycle takes the latest."""
+        cycle takes the latest; with the command's `stamp`, the pose for the cycle's own time, up to `tick`
+        ahead along the setpoint's velocity (dockhil/devices/handover.py)."""
         with self.lock:
+            if setpoint is not None and stamp is not None:
+                self.handover.put(
+                    self.clock(), stamp, tick, setpoint[:3], setpoint[3:7], setpoint[7:10], setpoint[10:13]
+                )
+            else:
+                self.handover.clear()
             self.target = setpoint
             self.fresh = True
         self.wake.set()
@@ -178,6 +236,9 @@ class ModbusLink(threading.Thread):
         with self.lock:
             target, fresh, self.fresh = self.target, self.fresh, False
             hold = self.hold_latched
+            timed = self.handover.pose(self.clock()) if target is not None else None
+        if timed is not None:  # the pose for this cycle's time: written every cycle while it moves
+            target, fresh = (*timed[0], *timed[1], *target[7:]), True
             self.lag = None  # until this cycle has sent toward the target
         try:
             self._cycle(target, fresh, hold)
@@ -216,7 +277,7 @@ class ModbusLink(threading.Thread):
                 self.hold_written.set()
         elif fresh or limiter.lag(target) not in (None, (0.0, 0.0)):
             before = limiter.sent
-            setpoint = limiter.next(target, reading.actual, dt)
+            setpoint = limiter.next(target, reading.actual, dt, now)
             if before is not None:
                 step = math.sqrt(sum((b - a) ** 2 for a, b in zip(before[:3], setpoint[:3])))
                 self.largest_step = max(self.largest_step, step)
@@ -224,6 +285,7 @@ class ModbusLink(threading.Thread):
                 client.write_registers(0, mm.encode_write(mm.CONTROL_ENABLE, self.heartbeat, setpoint), device_id=dev)
             )
             self.writes += 1
+            limiter.wrote(self.heartbeat, now, setpoint)
             self.setpoint_heartbeat = self.heartbeat
             self._written, written = setpoint, True
         else:
@@ -231,6 +293,8 @@ class ModbusLink(threading.Thread):
         lag = limiter.lag(target) if target is not None and not hold else (0.0, 0.0)
         rr = self._check(client.read_input_registers(0, count=mm.IR_COUNT, device_id=dev))
         reading = mm.decode_inputs(rr.registers)
+        limiter.echoed(reading.heartbeat)
+        self._progress(reading.heartbeat, target is not None and not hold)
         # The controller echoes the heartbeat it last took: this one, if it ran a cycle since the write.
         self.cycles.add(
             now,
@@ -246,6 +310,16 @@ class ModbusLink(threading.Thread):
             self.readings += 1
             self.lag = lag
 
+    def _progress(self, echo: int | None, moving: bool) -> None:
+        """The controller took a newer write when its heartbeat echo changes: the time since the last one,
+        while moving, is a gap in the device's cycles (a stalled controller, a lost connection)."""
+        now = self.clock()
+        if self._moving and (echo != self._echo or not moving):
+            self.longest_gap_s = max(self.longest_gap_s, now - self._progress_at)
+        if echo != self._echo or not moving or not self._moving:
+            self._echo, self._progress_at = echo, now
+        self._moving = moving
+
     @staticmethod
     def _check(response):
         if response.isError():
@@ -256,6 +330,7 @@ class ModbusLink(threading.Thread):
         self.client.close()
         self.connected = False
         self.lost_since = self.clock()
+        self._echo = None  # the next reading after the reconnect closes the gap, if it moved when lost
         self.last_error = " ".join(str(exc).split()) or type(exc).__name__
         self.limiter.reset()
         with self.lock:
@@ -286,6 +361,7 @@ class ModbusLink(threading.Thread):
             if self.hold_latched:
                 self.hold_written.set()
         self.limiter.reset()
+        self._progress(None, False)  # the gap of a loss while moving ends here (the robot holds until a command)
         gap = now - (self.lost_since or now)
         self.cycle_at = now
         self.connected = True
