@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, cast
 import msgspec
 
 from dockhil import log
+from dockhil.runtime.blame import blame
 from dockhil.runtime.executor import STALE, TIMING
 from dockhil.runtime.process import READY
 from dockhil.runtime.registry import describe_nodes, describe_subscribers, write_entry
@@ -69,15 +70,6 @@ class _Child:
     reports: int = 0  # ... and how many exit reports (TIMING lines) it gave: a killed node gives none
     sent: dict[str, int] = field(default_factory=dict)  # topic -> messages sent, over all its runs
     stale: dict | None = None  # the input it stopped on as stale (executor.STALE)
-
-
-def _stopped(pid: int) -> bool:
-    """The process is stopped by a signal or traced (its state in /proc, Linux)."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rpartition(")")[2].split()[0] in ("T", "t")
-    except (OSError, IndexError):
-        return False
 
 
 class Launcher:
@@ -580,22 +572,10 @@ class Launcher:
             pass
 
     def _blame(self, child: _Child) -> str:
-        """Whose fault a stale input was: a publisher whose process ended, or one alive but late (a busy
-        machine starves it of CPU), told apart by its process."""
+        """Whose fault the stale input `child` stopped on was (runtime/blame.py)."""
         stale = child.stale
         pub = next((c for c in self.children if stale and c.name == stale.get("publisher")), None)
-        if pub is None or pub.proc is None:
-            return ""
-        assert stale is not None  # pub was found by it
-        code = pub.proc.poll()
-        if code is not None:
-            return f": its input {stale['topic']}'s publisher, node {pub.name!r}, had exited with code {code}"
-        if _stopped(pub.proc.pid):
-            return f": its input {stale['topic']}'s publisher, node {pub.name!r}, is stopped (SIGSTOP, a debugger)"
-        return (
-            f": its input {stale['topic']}'s publisher, node {pub.name!r}, is running but its message was late by "
-            f"{stale['late']:.3f} s; a busy machine? try --realtime"
-        )
+        return blame(stale, pub.name, pub.proc) if pub is not None and pub.proc is not None and stale else ""
 
     def _died(self, child: _Child, code: int) -> int:
         how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"

@@ -10,7 +10,7 @@ import os
 import time
 import uuid
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 from dockhil.errors import DockhilError, LaunchError
 from dockhil.runtime.rundir import private_dir, runtime_dir
@@ -19,7 +19,6 @@ from dockhil.runtime.transport import GraphKeys
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
-    from dockhil.runtime.plan import ExtraProcess
     from dockhil.scene.graph import Graph
 
 KEY_FILE = "graph.keys"  # a graph's CURVE keys, in its run directory
@@ -129,7 +128,14 @@ def describe_nodes(graph: Graph, units: dict[str, list[str]]) -> dict[str, dict]
     return out
 
 
-def describe_subscribers(graph: Graph, extra: Iterable[ExtraProcess] = ()) -> dict[str, list[str]]:
+class Subscriber(Protocol):
+    """A helper process that reads topics (plan.ExtraProcess, a recorder), as the registry names it."""
+
+    name: str
+    topics: list[str]
+
+
+def describe_subscribers(graph: Graph, extra: Iterable[Subscriber] = ()) -> dict[str, list[str]]:
     """Topic -> what reads it: `node.port` for each input, and each helper process (a recorder) by name."""
     out = {topic: [f"{ref.node}.{ref.port}" for ref in refs] for topic, refs in graph.subscribers.items()}
     for proc in extra:
