@@ -70,6 +70,7 @@ from dockhil.contact.scenario import ContactModelError
 
 if TYPE_CHECKING:
     from dockhil.contact.hybrid import VirtualImpedance
+    from dockhil.msgs import Energy
 
 RESIDUAL_TOLERANCE = 1e-3  # of the largest energy the port's spring held: more left in the loop = saturated
 # [N s/m] the scenes' max_damping. The force added is the delay's force error, so the bound need not
@@ -245,12 +246,12 @@ class EnergyMeter:
     the loop when the controller stopped (each time the port was unloaded, and at the end)."""
 
     def __init__(self):
-        self.last: EnergyTick | None = None
+        self.last: EnergyTick | Energy | None = None
         self.spring_max = 0.0
         self.ticks_at_max = 0
         self.left = -math.inf
 
-    def add(self, account: EnergyTick) -> None:
+    def add(self, account: EnergyTick | Energy) -> None:
         if self.last is not None and self.last.port_loaded and not account.port_loaded:
             self.left = max(self.left, account.net_generated_J)  # after the last loaded tick's force acted
         self.last = account
@@ -259,7 +260,7 @@ class EnergyMeter:
 
     def residual(self) -> float:
         """[J] the most net generated energy the loop kept when the controller stopped."""
-        last = cast(EnergyTick, self.last)  # an account was added
+        last = cast("EnergyTick | Energy", self.last)  # an account was added
         return max(self.left, last.net_generated_J) if last.port_loaded else self.left
 
     def saturation(self, max_damping: float) -> str | None:
