@@ -9,8 +9,12 @@ import json
 import math
 import os
 import time
+from typing import TYPE_CHECKING, Any
 
 from dockhil.errors import DockhilError
+
+if TYPE_CHECKING:
+    from dockhil.progress import TaskProgress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -105,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run(todo: list[tuple], workers: int, progress) -> list[dict]:
+def _run(todo: list[tuple], workers: int, progress: TaskProgress | None) -> list[dict]:
     """Every run's row, in the grid's order: here, or in `workers` processes (CPU seconds are then theirs)."""
     from dockhil.contact import compensation_grid as grid
 
@@ -152,7 +156,7 @@ def _plain(value):
     return value
 
 
-def _cell(value, fmt: str) -> str:
+def _cell(value: Any, fmt: str) -> str:
     if value is None:
         return "-"
     if isinstance(value, float) and not math.isfinite(value):

@@ -21,11 +21,14 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, cast
 
 from dockhil.contact.comploop import ZERO, Hardware, simulate_compensated, target_frequency
 from dockhil.contact.compensation import METHODS, CompensationSettings
 from dockhil.contact.hunt_crossley import (
+    IdealRun,
     TargetContact,
     alpha_for_restitution,
     ideal_relative_run,
@@ -34,6 +37,12 @@ from dockhil.contact.hunt_crossley import (
 from dockhil.contact.hybrid import VirtualImpedance
 from dockhil.contact.passivity import DEFAULT_MAX_DAMPING, Passivity
 from dockhil.contact.scenario import ContactModelError
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import ArrayLike
+
+    from dockhil.contact.hilloop import HilRun
 
 DT = 1e-3
 OMEGA_H_QUICK = (0.0, 0.04, 0.08, 0.16, 0.32, 0.5)
@@ -139,7 +148,7 @@ class Reference:
     """The ideal contact of a scene: omega [rad/s], and its run and metrics."""
 
     omega: float
-    run: object
+    run: IdealRun
     period: float
 
 
@@ -157,7 +166,7 @@ def reference(scene: Scene, seconds: float) -> Reference:
     return Reference(omega, probe, math.pi / omega)
 
 
-def _crossing(p, t, start: int) -> float | None:
+def _crossing(p: np.ndarray, t: np.ndarray, start: int) -> float | None:
     """The time the penetration first returns to 0 after tick `start` (linear between ticks)."""
     for i in range(start + 1, len(p)):
         if p[i] <= 0.0 < p[i - 1]:
@@ -165,7 +174,7 @@ def _crossing(p, t, start: int) -> float | None:
     return None
 
 
-def impact_metrics(run, scene: Scene, ref: Reference) -> dict:
+def impact_metrics(run: HilRun, scene: Scene, ref: Reference) -> dict:
     import numpy as np
 
     p, pd = run.x1 - run.x2, run.v1 - run.v2
@@ -175,21 +184,23 @@ def impact_metrics(run, scene: Scene, ref: Reference) -> dict:
     e = float(-pd[-1] / v0) if end is not None else None
     impulse = scene.reduced * float(v0 - pd[-1])
     peak = float(np.max(run.force))
+    # An impact scene's ideal contact parts: its restitution and duration are numbers.
+    e_ideal, duration_ideal = cast(float, ideal.restitution), cast(float, ideal.duration)
     out = {
         "restitution": e,
         "restitution_ideal": ideal.restitution,
-        "restitution_error": None if e is None else e - ideal.restitution,
+        "restitution_error": None if e is None else e - e_ideal,
         "peak_force_N": peak,
         "peak_force_error": peak / ideal.peak_force - 1.0,
-        "duration_error": None if end is None else end / ideal.duration - 1.0,
+        "duration_error": None if end is None else end / duration_ideal - 1.0,
         "impulse_error": impulse / ideal.impulse - 1.0,
-        "energy_residual": None if e is None else e * e - ideal.restitution**2,
+        "energy_residual": None if e is None else e * e - e_ideal**2,
         "growth_10": None,
     }
     return out
 
 
-def amplitudes(t, p, period: float, n: int = 10):
+def amplitudes(t: ArrayLike, p: ArrayLike, period: float, n: int = 10) -> list[float]:
     """Half the peak-to-peak penetration over each of the first n periods."""
     import numpy as np
 
@@ -201,7 +212,7 @@ def amplitudes(t, p, period: float, n: int = 10):
     return out
 
 
-def push_metrics(run, scene: Scene, ref: Reference) -> dict:
+def push_metrics(run: HilRun, scene: Scene, ref: Reference) -> dict:
     """The push: energy (as amplitude squared about the oscillation's own middle, so a stiffness error's
     other rest position does not count) of the tenth period against the first, the loop's less the
     ideal's (growth_10), and the tenth period's energy less the ideal's over the first's (energy_residual)."""
@@ -270,7 +281,9 @@ def run_point(scene: Scene, ref: Reference, method: str, omega_h: float, hw_name
     return row
 
 
-def tasks(full: bool = False, only_scenes=None, only_methods=None) -> list[tuple]:
+def tasks(
+    full: bool = False, only_scenes: Collection[str] | None = None, only_methods: Collection[str] | None = None
+) -> list[tuple]:
     """The grid's runs as run_point's arguments (scene, reference, method, omega h, hardware name, hardware),
     each scene's ideal reference computed once."""
     omega_hs = OMEGA_H_FULL if full else OMEGA_H_QUICK
@@ -294,7 +307,12 @@ def label(task: tuple) -> str:
     return f"{scene.name} {scene.target_name} {hw_name} wh {omega_h:g} {method}"
 
 
-def grid(full: bool = False, only_scenes=None, only_methods=None, progress=None) -> list[dict]:
+def grid(
+    full: bool = False,
+    only_scenes: Collection[str] | None = None,
+    only_methods: Collection[str] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> list[dict]:
     """Every run of the grid (quick or full), one row each, in this process; `progress(label)` before each."""
     rows = []
     for task in tasks(full, only_scenes, only_methods):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, cast
 
 from dockhil.contact.compensation import CompensationSettings, Compensator, hold_damping
 from dockhil.contact.hilloop import Bodies, DelayLine, HilRun, Servo, delay_ticks, sensor_force, virtual_wrench
@@ -20,6 +21,9 @@ from dockhil.contact.hunt_crossley import TargetContact
 from dockhil.contact.hybrid import VirtualImpedance, passive_force
 from dockhil.contact.passivity import ENERGY_FIELDS, EnergyMonitor, Passivity
 from dockhil.contact.scenario import ContactModelError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 ZERO = VirtualImpedance(0.0, 0.0, 0.0, 0.0)
 
@@ -147,7 +151,8 @@ class SensorSim:
     def read(self, robot_x: float | None) -> float:
         force = sensor_force(robot_x, self.k)
         if self.noise:
-            force += float(self.rng.normal(0.0, self.noise))
+            rng = cast("np.random.Generator", self.rng)  # made with the noise
+            force += float(rng.normal(0.0, self.noise))
         if self.line is not None:
             late = self.line.push(force)
             force = 0.0 if late is None else late
@@ -200,4 +205,4 @@ def simulate_compensated(
         f1 = fs + fv1 + thrust
         f2 = -fs + fv2
         out[:, tick] = (tick * dt, a1, a2, b1, b2, -(fs + fv1))
-    return HilRun(*out, extra=account)
+    return HilRun(out[0], out[1], out[2], out[3], out[4], out[5], extra=account)

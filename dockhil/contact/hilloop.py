@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 from dockhil.contact.hybrid import VirtualImpedance, passive_force, virtual_forces
 from dockhil.contact.passivity import ENERGY_FIELDS, EnergyMonitor, Passivity
@@ -70,9 +70,11 @@ class Bodies:
             self.omega = math.sqrt(kcs / reduced)
         # A fixed target's state is kept relative to it, so a contact spring pulls toward the sheet.
         self.pen = Penetration([1.0]) if self.fixed_target else RELATIVE
-        self.state = np.array([x1 - x2, v1]) if self.fixed_target else np.array([x1, x2, v1, v2])
+        self.state: np.ndarray | tuple[float, float, float, float] = (
+            np.array([x1 - x2, v1]) if self.fixed_target else np.array([x1, x2, v1, v2])
+        )
         if ideal is None and not self.fixed_target:  # free flight steps in scalar arithmetic on Python floats: see step
-            self.state = tuple(self.state.tolist())
+            self.state = cast("tuple[float, float, float, float]", tuple(self.state.tolist()))
         self._rows: dict[float, tuple] = {}  # dt -> the free step's matrices as rows of Python floats
         self.in_contact = self._overlapping()
 
@@ -117,15 +119,17 @@ class Bodies:
         elif self.contact is None:  # a fixed target: numpy's product of two values fuses differently
             import numpy as np
 
-            self.state = self.free.step(self.state, np.array([f1]), dt)
+            state = cast(np.ndarray, self.state)  # an array: only free flight between free bodies keeps a tuple
+            self.state = self.free.step(state, np.array([f1]), dt)
         else:
             import numpy as np
 
             from dockhil.contact.integrators import step_with_events
 
             force = np.array([f1]) if self.fixed_target else np.array([f1, f2])
+            state = cast(np.ndarray, self.state)  # an array: only free flight between free bodies keeps a tuple
             self.state, self.in_contact, _ = step_with_events(
-                self.free, self.contact, self.state, force, dt, self.in_contact, self.pen, self.omega
+                self.free, self.contact, state, force, dt, self.in_contact, self.pen, self.omega
             )
         s0, s1, *rest = self.state
         if not (math.isfinite(s0) and math.isfinite(s1) and all(map(math.isfinite, rest))):
@@ -258,7 +262,7 @@ def simulate_hil(
         f1 = fs + fv1 + thrust
         f2 = -fs + fv2
         out[:, tick] = (tick * dt, a1, a2, b1, b2, -(fs + fv1))
-    return HilRun(*out, extra=account)
+    return HilRun(out[0], out[1], out[2], out[3], out[4], out[5], extra=account)
 
 
 def simulate_ideal(

@@ -35,7 +35,7 @@ def _check_hybrid(m, k_direct, b_direct, k_delayed, b_delayed, h):
     return (m, *vals, check_nonnegative("h", h, "s"))
 
 
-def _hybrid_char(lam: complex, kd, bd, kh, bh) -> tuple[complex, complex]:
+def _hybrid_char(lam: complex, kd: float, bd: float, kh: float, bh: float) -> tuple[complex, complex]:
     """lambda^2 + bd lambda + kd + (kh + bh lambda) e^{-lambda} and its derivative (dimensionless)."""
     e = np.exp(-lam)
     f = lam * lam + bd * lam + kd + (kh + bh * lam) * e
@@ -84,7 +84,9 @@ def hybrid_roots(
     return roots[np.argsort(-roots.real)][:count]
 
 
-def hybrid_rightmost(m, k_direct, b_direct, k_delayed, b_delayed, h) -> complex:
+def hybrid_rightmost(
+    m: float, k_direct: float, b_direct: float, k_delayed: float, b_delayed: float, h: float
+) -> complex:
     root = complex(hybrid_roots(m, k_direct, b_direct, k_delayed, b_delayed, h, count=1)[0])
     return complex(root.real, abs(root.imag))
 
@@ -113,7 +115,7 @@ def delay_crossings(
     cross to the right with growing h (Cooke and van den Driessche)."""
     m, kd, bd, kh, bh, _ = _check_hybrid(m, k_direct, b_direct, k_delayed, b_delayed, 0.0)
     a, b, c = m * m, bd * bd - bh * bh - 2.0 * m * kd, kd * kd - kh * kh
-    out = []
+    out: list[DelayCrossing] = []
     disc = b * b - 4.0 * a * c
     if disc < 0.0:
         return out
@@ -161,7 +163,7 @@ def critical_delay(
     return (c.h0 if c.h0 > 0.0 else 2.0 * math.pi / c.omega), c.omega
 
 
-def _pade_hybrid_stable(m, kd, bd, kh, bh, h, order) -> bool:
+def _pade_hybrid_stable(m: float, kd: float, bd: float, kh: float, bh: float, h: float, order: int) -> bool:
     c = pade_coefficients(order)
     num = Polynomial(c * (-h) ** np.arange(c.size))  # N(s h), e^{-sh} ~ N / D
     den = Polynomial(c * h ** np.arange(c.size))
@@ -241,7 +243,9 @@ def hybrid_report(
     return out
 
 
-def _sampled_report(m, kd, bd, kh, bh, h, rate, h_star) -> dict:
+def _sampled_report(
+    m: float, kd: float, bd: float, kh: float, bh: float, h: float, rate: float, h_star: float | None
+) -> dict:
     """The hybrid loop sampled at `rate`: its spectral radius at round(h rate) ticks and the smallest
     delay in whole ticks at which it grows (near the exact critical delay h_star)."""
     from dockhil.contact.sampled import SampledLoop, sampled_roots

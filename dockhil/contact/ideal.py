@@ -17,13 +17,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dockhil.contact.scenario import ContactModelError, ContactScenario, Trajectory
 
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
-def ideal_contact_force(penetration, penetration_rate, kcs: float, bcs: float):
+
+def ideal_contact_force(
+    penetration: float | np.ndarray, penetration_rate: float | np.ndarray, kcs: float, bcs: float
+) -> float | np.ndarray:
     """Compressive contact force [N] of Eq. 1: kcs p + bcs p' while p > 0, else 0.
 
     Scalars give a float (cheap enough to call every step); arrays give an array.
@@ -57,7 +63,9 @@ def modes(m: float, kcs: float, bcs: float) -> _Modes:
     return _Modes(sigma, 0.0, math.sqrt(-disc))
 
 
-def relative_motion(m: float, kcs: float, bcs: float, closing_velocity: float, t):
+def relative_motion(
+    m: float, kcs: float, bcs: float, closing_velocity: float, t: ArrayLike
+) -> tuple[np.ndarray, np.ndarray]:
     """Closed-form penetration p(t) [m] and rate p'(t) [m/s] from contact onset
     (p(0) = 0, p'(0) = closing_velocity), valid while the contact lasts."""
     t = np.asarray(t, dtype=float)
@@ -172,7 +180,7 @@ def ideal_contact_summary(scenario: ContactScenario) -> ContactSummary:
     )
 
 
-def ideal_trajectory(scenario: ContactScenario, t, gap: float = 0.0) -> Trajectory:
+def ideal_trajectory(scenario: ContactScenario, t: ArrayLike, gap: float = 0.0) -> Trajectory:
     """Closed-form unilateral motion of the ideal model at times t [s]:
     approach at constant velocities, contact (Eq. 1), separation.
 

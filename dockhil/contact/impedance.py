@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -40,6 +41,9 @@ from dockhil.contact.scenario import (
     check_finite,
     check_positive,
 )
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 STATE_SOURCES = ("exact", "closed_form", "rk4", "symplectic_euler", "euler", "solve_ivp")
 # The fit's matrices are compared after scaling the position column by the
@@ -128,7 +132,7 @@ class IdealStates:
     source: str
 
 
-def ideal_states(scenario: ContactScenario, times, source: str = "exact", dt: float = 1e-3) -> IdealStates:
+def ideal_states(scenario: ContactScenario, times: ArrayLike, source: str = "exact", dt: float = 1e-3) -> IdealStates:
     """States of the ideal model (contact from t = 0 at the origin) at `times`.
 
     source: "exact" (simulated with the exact step), "closed_form", a fixed-step

@@ -64,8 +64,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING, cast
 
 from dockhil.contact.scenario import ContactModelError
+
+if TYPE_CHECKING:
+    from dockhil.contact.hybrid import VirtualImpedance
+    from dockhil.msgs import Energy
 
 RESIDUAL_TOLERANCE = 1e-3  # of the largest energy the port's spring held: more left in the loop = saturated
 # [N s/m] the scenes' max_damping. The force added is the delay's force error, so the bound need not
@@ -162,13 +167,15 @@ class EnergyMonitor:
     i's deflection is e1 = (m2/M) p, e2 = -(m1/M) p while the bodies touch. k: the passive
     compliance [N/m] (0: unknown, the port's store is not credited)."""
 
-    def __init__(self, m1: float, m2: float, k: float, impedance, passivity: Passivity | None = None):
+    def __init__(self, m1: float, m2: float, k: float, impedance: VirtualImpedance, passivity: Passivity | None = None):
         self.m1, self.m2, self.k = m1, m2, k
         self.imp = impedance
         self.s1, self.s2 = (1.0, 0.0) if m2 == 0.0 else (m2 / (m1 + m2), -m1 / (m1 + m2))
         self.reduced = m1 if m2 == 0.0 else m1 * m2 / (m1 + m2)  # [kg] of the relative motion p
         self.passivity = passivity
-        self.prev = None  # (x1, x2, p, pd, f, fc, fv1, fv2, touching) of the previous tick
+        self.prev: tuple[float, float, float, float, float, float, float, float, bool] | None = (
+            None  # (x1, x2, p, pd, f, fc, fv1, fv2, touching) of the previous tick
+        )
         self.e = EnergyTick()
         self.initial = 0.0  # [J] what the port and the virtual springs hold at the first tick
 
@@ -239,12 +246,12 @@ class EnergyMeter:
     the loop when the controller stopped (each time the port was unloaded, and at the end)."""
 
     def __init__(self):
-        self.last = None
+        self.last: EnergyTick | Energy | None = None
         self.spring_max = 0.0
         self.ticks_at_max = 0
         self.left = -math.inf
 
-    def add(self, account) -> None:
+    def add(self, account: EnergyTick | Energy) -> None:
         if self.last is not None and self.last.port_loaded and not account.port_loaded:
             self.left = max(self.left, account.net_generated_J)  # after the last loaded tick's force acted
         self.last = account
@@ -253,7 +260,8 @@ class EnergyMeter:
 
     def residual(self) -> float:
         """[J] the most net generated energy the loop kept when the controller stopped."""
-        return max(self.left, self.last.net_generated_J) if self.last.port_loaded else self.left
+        last = cast("EnergyTick | Energy", self.last)  # an account was added
+        return max(self.left, last.net_generated_J) if last.port_loaded else self.left
 
     def saturation(self, max_damping: float) -> str | None:
         """One line when the controller left generated energy in the loop, else None."""

@@ -25,13 +25,18 @@ from __future__ import annotations
 
 import cmath
 import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dockhil.contact.scenario import ContactModelError, check_finite
 
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
-def _refine(fun, grid: np.ndarray, values: np.ndarray) -> tuple[float, float]:
+
+def _refine(fun: Callable[[float], float], grid: np.ndarray, values: np.ndarray) -> tuple[float, float]:
     """(max, argmax) of fun, from its values on a grid, refined by golden section around the best point."""
     i = int(np.argmax(values))
     lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
@@ -126,7 +131,7 @@ def passivity_report(
     return out
 
 
-def passive_stiffness_map(b_values, h_values, damper: str, dt: float | None = None):
+def passive_stiffness_map(b_values: ArrayLike, h_values: ArrayLike, damper: str, dt: float | None = None) -> np.ndarray:
     """The largest K [N/m] whose delayed port the undelayed damper b makes passive, over a grid
     (shape (len(h), len(b))): b / h, or b / ((d + 1/2) dt) sampled at dt; NaN everywhere for the delayed
     damper (the paper's loop), whose port no undelayed damping backs."""

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import cmath
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -179,7 +180,7 @@ def _zeros_outside(q: np.ndarray, radius: float, margin: float = VERIFY_MARGIN) 
     return deg - inside
 
 
-def sampled_roots(loop: SampledLoop, guesses=()) -> np.ndarray:
+def sampled_roots(loop: SampledLoop, guesses: Sequence[complex] = ()) -> np.ndarray:
     """Roots z of the loop, largest modulus first. Up to degree DENSE_DEGREE: all of them
     (companion matrix). Above: the dominant ones, by Newton from `guesses` (e.g. e^{s dt} of the
     delay equation's rightmost roots), accepted only when the argument principle finds no zero
@@ -188,7 +189,7 @@ def sampled_roots(loop: SampledLoop, guesses=()) -> np.ndarray:
     q = np.trim_zeros(q, "b")
     if len(q) - 1 <= DENSE_DEGREE or not len(guesses):
         return _all_roots(q)
-    found = []
+    found: list[complex] = []
     for z0 in guesses:
         z = complex(z0)
         for _ in range(60):
@@ -227,17 +228,17 @@ def _all_roots(q: np.ndarray) -> np.ndarray:
     return roots[np.argsort(-np.abs(roots))]
 
 
-def spectral_radius(loop: SampledLoop, guesses=()) -> float:
+def spectral_radius(loop: SampledLoop, guesses: Sequence[complex] = ()) -> float:
     return float(abs(sampled_roots(loop, guesses)[0]))
 
 
-def sampled_growth_rate(loop: SampledLoop, guesses=()) -> float:
+def sampled_growth_rate(loop: SampledLoop, guesses: Sequence[complex] = ()) -> float:
     """ln(spectral radius) / dt [1/s]: < 0 decays, > 0 grows (the sampled rightmost root)."""
     rho = spectral_radius(loop, guesses)
     return -math.inf if rho == 0.0 else math.log(rho) / loop.dt
 
 
-def sampled_rightmost(loop: SampledLoop, guesses=()) -> complex:
+def sampled_rightmost(loop: SampledLoop, guesses: Sequence[complex] = ()) -> complex:
     """The dominant root as s = ln(z) / dt [1/s], imaginary part >= 0."""
     z = complex(sampled_roots(loop, guesses)[0])
     if z == 0:

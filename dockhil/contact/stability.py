@@ -33,11 +33,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 from numpy.polynomial import Polynomial
 
 from dockhil.contact.scenario import ContactModelError, check_finite, check_nonnegative, check_positive
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 DAMPERS = ("delayed", "undelayed")
 HALF_PI = 0.5 * math.pi
@@ -106,13 +110,14 @@ def pade_bound(m: float, b: float, h: float, order: int = 1, damper: str = "dela
     beta = b * h / m
     a_poly, b_poly = _pade_polys(beta, order, damper)
     # Crossings lambda = j w: A(jw) conj(B(jw)) must be real (then kappa = -A/B).
-    cross = a_poly * Polynomial(b_poly.coef * (-1.0) ** np.arange(b_poly.coef.size))
+    b_coef = cast(np.ndarray, b_poly.coef)  # real: the stubs allow object coefficients
+    cross = a_poly * Polynomial(b_coef * (-1.0) ** np.arange(b_coef.size))
     odd = np.zeros(cross.coef.size)
     for k in range(1, cross.coef.size, 2):
         odd[k] = cross.coef[k] * (-1.0) ** ((k - 1) // 2)
     kappas = []
     if np.any(odd):
-        for w in Polynomial(odd).roots():
+        for w in cast(np.ndarray, Polynomial(odd).roots()):  # numbers: the stubs allow objects
             if abs(w.imag) < 1e-9 * max(1.0, abs(w)) and w.real > 0.0:
                 jw = 1j * w.real
                 kappa = -(a_poly(jw) / b_poly(jw)).real
@@ -125,7 +130,7 @@ def pade_bound(m: float, b: float, h: float, order: int = 1, damper: str = "dela
     return float(edges[0]) * m / (h * h) if edges else math.inf
 
 
-def _solve_theta(beta: np.ndarray, damper: str) -> np.ndarray:
+def _solve_theta(beta: ArrayLike, damper: str) -> np.ndarray:
     """theta in (0, pi/2) with theta sin(theta) = beta (delayed) or
     theta tan(theta) = beta (undelayed), by vectorized bisection; nan where
     there is none. Both left-hand sides increase on (0, pi/2)."""
@@ -152,7 +157,7 @@ def _solve_theta(beta: np.ndarray, damper: str) -> np.ndarray:
     return np.where(valid, 0.5 * (lo + hi), np.nan)
 
 
-def exact_kappa(beta, damper: str = "delayed") -> np.ndarray:
+def exact_kappa(beta: ArrayLike, damper: str = "delayed") -> np.ndarray:
     """Dimensionless exact bound kappa_max = K_max h^2 / m at beta = b h / m; nan where no K > 0 is stable."""
     theta = _solve_theta(beta, damper)
     if damper == "delayed":
@@ -222,7 +227,9 @@ def exact_bound(m: float, b: float, h: float, damper: str = "delayed") -> Stabil
     return StabilityBound(k_max, omega, beta, damper, reason)
 
 
-def critical_stiffness_map(m: float, b_values, h_values, bound: str = "pade1", damper: str = "delayed") -> np.ndarray:
+def critical_stiffness_map(
+    m: float, b_values: ArrayLike, h_values: ArrayLike, bound: str = "pade1", damper: str = "delayed"
+) -> np.ndarray:
     """K_max [N/m] over a grid, shape (len(h_values), len(b_values)); nan where
     no K > 0 is stable. bound: "pade1" (Eq. 12, Fig. 7) or "exact". Vectorized."""
     m = check_positive("m", m, "kg")
@@ -306,7 +313,7 @@ def characteristic_roots(m: float, K: float, b: float, h: float, damper: str = "
     gen[:2, -2:] = late  # theta = -1 (x = -1): the delayed state
     eig = np.linalg.eigvals(gen)
     eig = eig[np.argsort(-eig.real)][: max(2 * count, 8)]
-    refined = []
+    refined: list[complex] = []
     for lam in eig:
         root = _newton(complex(lam), kappa, beta, damper)
         root = complex(lam) if root is None else root

@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any, cast
+
 from dockhil import physical
 from dockhil.scene.schema import MAX_RATE
-from dockhil.node import Input, Node, Output, Param
+from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.msgs import RobotState, Vector3, Wrench, WrenchStamped
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 class FtSensorSim(Node):
@@ -63,13 +68,14 @@ class FtSensorSim(Node):
         ticks = delay_ticks(self.p.delay, self.ctx.dt)
         self.line = DelayLine(ticks) if ticks else None
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         p = self.p
         if self.held is None or p.rate == 0.0 or tick.t >= self.next_sample - 1e-12:
             robot = inputs["robot"]
             force = self.sensor_force(None if robot is None else robot.pose.position.x, self.k)
             if p.noise:
-                force += float(self.rng.normal(0.0, p.noise))
+                rng = cast("np.random.Generator", self.rng)  # setup made it: the sensor is noisy
+                force += float(rng.normal(0.0, p.noise))
             if p.bias:
                 force += p.bias
             if p.quantization:

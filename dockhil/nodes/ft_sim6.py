@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from dockhil import physical
-from dockhil.node import Input, Node, Output, Param
+from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.msgs import RobotState, Vector3, Wrench, WrenchStamped
 from dockhil.nodes.robot_sim6 import relative_pose
 from dockhil.scene.sixdof_params import MOUNT_PARAMS, PASSIVE_PARAMS, checked, passive_contact
@@ -39,7 +41,7 @@ class FtSensorSim6(Node):
             lambda: PassiveSensor6(passive_contact(p, p.mu, p.slip_velocity), p.sensor_position, p.sensor_orientation),
         )
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         robot = inputs["robot"]
         force, torque, _ = self.sensor.read(None if robot is None else relative_pose(robot))
         # The sensor's values are plain floats already (tuples): they go into the message as they are;

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from dockhil import physical
-from dockhil.node import Input, Node, Output, Param
+from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.msgs import EStop, Pose, RobotCommand, RobotState, Twist, Vector3
 
 # Event topic, as the robot driver's: active holds the robot and stops the graph.
@@ -58,7 +59,7 @@ class RobotSim(Node):
         ticks = delay_ticks(self.p.delay * self.p.delay_scale, self.ctx.dt)
         self.line = DelayLine(ticks) if ticks else None
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         estop_held(inputs.get("estop"))
         cmd = inputs["command"]
         if self.line is not None:

@@ -2,18 +2,24 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any, cast
+
 from dockhil import physical
-from dockhil.node import Input, Node, Output, Param
+from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.msgs import Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3
 from dockhil.nodes.robot_sim import ESTOP, estop_held
 
+if TYPE_CHECKING:
+    from dockhil.contact.hybrid6 import RelativePose
 
-def relative_pose(msg) -> tuple:
+
+def relative_pose(msg: RobotCommand | RobotState) -> RelativePose:
     """The fields of a hybrid6.RelativePose (position, orientation, velocity, angular velocity) of a
     RobotCommand or RobotState, as a plain tuple (what Servo6 and PassiveSensor6 take)."""
     pose, twist = msg.pose, msg.twist
     p, o, v, w = pose.position, pose.orientation, twist.linear, twist.angular
-    return (p.x, p.y, p.z), (o.x, o.y, o.z, o.w), (v.x, v.y, v.z), (w.x, w.y, w.z)
+    # Its fields as a plain tuple: building the NamedTuple would cost every tick for nothing.
+    return cast("RelativePose", ((p.x, p.y, p.z), (o.x, o.y, o.z, o.w), (v.x, v.y, v.z), (w.x, w.y, w.z)))
 
 
 class RobotSim6(Node):
@@ -32,7 +38,7 @@ class RobotSim6(Node):
 
         self.servo = Servo6(self.p.lag, self.ctx.dt)
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         estop_held(inputs.get("estop"))
         cmd = inputs["command"]
         if cmd is None:  # no command yet (the delay has not passed): report no pose

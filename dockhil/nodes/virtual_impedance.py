@@ -5,9 +5,10 @@ compensation (dockhil.contact.compensation; the tick is dockhil.contact.comploop
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from dockhil import physical
-from dockhil.node import Input, Node, Output, Param
+from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.msgs import BodyWrenches, Energy, RobotState, SatelliteState, Vector3, Wrench, WrenchStamped
 
 # As dockhil.contact.compensation.METHODS (not imported here: the node's class loads no science).
@@ -226,10 +227,10 @@ class VirtualImpedance(Node):
             + (f"; compensation {p.compensation}" if p.compensation != "none" else "")
         )
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         state, ft = inputs["state"], inputs.get("ft")
         f1 = f2 = 0.0
-        out = {}
+        out: dict[str, Any] = {}
         if state is not None and len(state.bodies) >= 2:
             c, t = state.bodies[0], state.bodies[1]
             x1, x2, v1, v2 = c.pose.position.x, t.pose.position.x, c.twist.linear.x, t.twist.linear.x

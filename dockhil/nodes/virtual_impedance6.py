@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from dockhil.node import Input, Node, Output
+from typing import Any
+
+from dockhil.node import Input, Node, Output, Tick
 from dockhil.msgs import BodyWrenches, SatelliteState, Vector3, Wrench
 from dockhil.scene.sixdof_params import (
     BODY_PARAMS,
@@ -49,7 +51,7 @@ class VirtualImpedance6(Node):
         self.lib = hybrid6
         self.logged = False
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         state = inputs["state"]
         forces = None
         if state is not None and len(state.bodies) >= 2:

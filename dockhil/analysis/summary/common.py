@@ -18,13 +18,20 @@ from __future__ import annotations
 
 import bisect
 import math
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 import numpy as np
 
 from dockhil import msgs, physical
 from dockhil.analysis.scenecheck import first_node
 from dockhil.contact.envelope import EnvelopeFit
+
+if TYPE_CHECKING:
+    from dockhil.scene.graph import Graph
+
+_Collector = TypeVar("_Collector", bound=Callable[[str, Any], None])
 
 
 @dataclass
@@ -84,7 +91,7 @@ class ForceBand:
         return not abs(force - self.centre) <= self.half_width  # a NaN acts: it is not nothing
 
 
-def force_band(graph) -> ForceBand:
+def force_band(graph: Graph) -> ForceBand:
     """The band of the scene's sensor: its force_deadband (virtual impedance) and the noise and bias its
     sensor node is given (a sim sensor, an emulator; with loop:= the loop file's noise)."""
     width, centre = 0.0, 0.0
@@ -108,15 +115,17 @@ class ContactMeter:
 
     def __init__(self, ideal: dict | None = None, growth_about: float | None = None):
         self.n = 0
-        self.t_first = self.t_last = None
+        self.t_first: float | None = None
+        self.t_last: float | None = None
         self.state = "before"  # before -> in -> after -> done (a second contact is not summarized)
-        self.prev = None  # (t, p, pd, acting) of the previous tick
-        self.t_start = self.t_end = None
-        self.entry = None
+        self.prev: tuple[float, float, float, bool] | None = None  # (t, p, pd, acting) of the previous tick
+        self.t_start: float | None = None
+        self.t_end: float | None = None
+        self.entry: float | None = None
         self.samples_in = 0
         self.peak = -math.inf  # the first contact's largest compressive force
         self.largest = 0.0  # the run's largest |force|, whatever happened to the contact
-        self.exit = None  # relative velocity after the last acting tick seen so far
+        self.exit: float | None = None  # relative velocity after the last acting tick seen so far
         self.ideal = ideal
         self.max_err = 0.0
         self.chunk_t: list[float] = []
@@ -135,11 +144,12 @@ class ContactMeter:
         if self.state == "before" and touching:
             self.state = "in"
             first = prev is None or p == 0.0
-            self.t_start = t if first else _crossing(prev[0], prev[1], t, p)
+            self.t_start = t if prev is None or first else _crossing(prev[0], prev[1], t, p)
             self.entry = pd
         elif self.state == "in" and not touching:
             self.state = "after"
-            self.t_end = _crossing(prev[0], prev[1], t, p)
+            last = cast("tuple[float, float, float, bool]", prev)  # a tick in contact came before
+            self.t_end = _crossing(last[0], last[1], t, p)
         elif self.state == "after" and touching:
             self.state = "done"
         if not abs(force) <= self.largest:  # an Inf or NaN too: it is what the run reached
@@ -159,7 +169,7 @@ class ContactMeter:
     def _compare(self) -> None:
         if not self.chunk_t:
             return
-        ref = ideal_force_at(self.ideal, np.array(self.chunk_t))
+        ref = ideal_force_at(cast(dict, self.ideal), np.array(self.chunk_t))  # chunks fill only with an ideal
         self.max_err = max(self.max_err, float(np.max(np.abs(ref - np.array(self.chunk_f)))))
         self.chunk_t.clear()
         self.chunk_f.clear()
@@ -168,7 +178,7 @@ class ContactMeter:
         """peak_force_N (the largest |force| of the run, whatever happened to the contact),
         contact_duration_s, entry_velocity_mps, exit_velocity_mps, restitution, contact_start_s
         (None where absent), and a `note` when something is not resolved or not over."""
-        out = {
+        out: dict[str, Any] = {
             "peak_force_N": float(self.largest) if self.n else None,
             "contact_duration_s": None,
             "entry_velocity_mps": None,
@@ -178,8 +188,10 @@ class ContactMeter:
         }
         if self.state == "before":
             return out
-        out["contact_start_s"] = float(self.t_start)
-        out["entry_velocity_mps"] = float(self.entry)
+        # Set at the contact's first tick, as the previous tick is and, once it ended, its end.
+        t_start, entry = cast(float, self.t_start), cast(float, self.entry)
+        out["contact_start_s"] = float(t_start)
+        out["entry_velocity_mps"] = float(entry)
         if self.state != "in" and self.samples_in <= 1:
             out["note"] = (
                 "the contact lasted less than one sample: its duration is not resolved at this rate, "
@@ -192,8 +204,8 @@ class ContactMeter:
             )
             return out
         if "note" not in out:
-            out["contact_duration_s"] = float(self.t_end - self.t_start)
-        if self.prev[3] and self.state == "after":
+            out["contact_duration_s"] = float(cast(float, self.t_end) - t_start)
+        if cast("tuple[float, float, float, bool]", self.prev)[3] and self.state == "after":
             out["note"] = (
                 "a force still acted when the run stopped (the passive compliance behind the robot's "
                 "delay): run longer for the exit velocity"
@@ -223,15 +235,15 @@ class RangeMeter:
             from dockhil.contact.rotations import rotate_back
 
             self.rotate_back = rotate_back
-        self.start = None  # positions at the first state
-        self.frame = None  # velocity of the frame of the start
+        self.start: list[list[float]] | None = None  # positions at the first state
+        self.frame: list[float] | None = None  # velocity of the frame of the start
         self.m_red = 0.0  # reduced mass of the relative motion [kg] (the chaser's alone, for a fixed target)
         self.p0 = 0.0  # penetration x1 - x2 along x at the start (1-DOF) [m]
         self.ke0 = self.ke_max = 0.0
         self.far = self.fast = 0.0  # [m], [m/s]: the largest distance from the start and speed in the frame
-        self.tick = None  # tick of the largest kinetic energy
+        self.tick: int | None = None  # tick of the largest kinetic energy
 
-    def __call__(self, msg) -> None:
+    def __call__(self, msg: msgs.SatelliteState) -> None:
         bodies = msg.bodies[:2]
         if len(bodies) < 2:
             return
@@ -258,15 +270,16 @@ class RangeMeter:
         far = max(
             math.hypot(p1.x - x1[0], p1.y - x1[1], p1.z - x1[2]), math.hypot(p2.x - x2[0], p2.y - x2[1], p2.z - x2[2])
         )
-        fast = max(_distance(v1, self.frame), _distance(v2, self.frame))
+        frame = cast("list[float]", self.frame)  # set with the start
+        fast = max(_distance(v1, frame), _distance(v2, frame))
         if not far <= self.far:
             self.far = far
         if not fast <= self.fast:
             self.fast = fast
 
-    def _kinetic(self, bodies, velocities) -> float:
+    def _kinetic(self, bodies: Sequence[msgs.BodyState], velocities: list[list[float]]) -> float:
         ke = 0.0
-        f = self.frame
+        f = cast("list[float]", self.frame)  # set with the start
         for i, (b, v) in enumerate(zip(bodies, velocities)):
             dx, dy, dz = v[0] - f[0], v[1] - f[1], v[2] - f[2]
             ke += 0.5 * b.mass * (dx * dx + dy * dy + dz * dz)  # not ** 2: an exploded speed overflows to Inf
@@ -320,11 +333,11 @@ class RangeMeter:
         return out
 
 
-def _xyz(v) -> list[float]:
+def _xyz(v: msgs.Vector3) -> list[float]:
     return [v.x, v.y, v.z]
 
 
-def _distance(a, b) -> float:
+def _distance(a: Sequence[float], b: Sequence[float]) -> float:
     return math.hypot(a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
@@ -359,10 +372,10 @@ class TickMatcher:
 
     def __init__(
         self,
-        sink,
+        sink: Callable[..., None],  # ContactMeter.add, ContactMeter6.add
         ideal_force: tuple[float, float] | None = None,
         dt: float | None = None,
-        expect=frozenset(),
+        expect: Iterable[str] = frozenset(),
         band: ForceBand | None = None,
     ):
         self.sink = sink
@@ -371,12 +384,13 @@ class TickMatcher:
         self.dt = dt
         # The input topics the graph publishes: a tick waits for those even before their first message.
         self.expect = frozenset(expect) if ideal_force is None else frozenset()
-        self.pending: list[tuple[float, int, float, float]] = []
-        self.ft: list[tuple[float, float]] = []
-        self.virtual: list[tuple[float, float, float]] = []
+        # Sorted by stamp: (stamp, tick, p, pd), (stamp, force), (stamp, f1, f2); TickMatcher6 keeps its messages.
+        self.pending: list[tuple] = []
+        self.ft: list[tuple] = []
+        self.virtual: list[tuple] = []
         self.first: tuple[float, int] | None = None
 
-    def __call__(self, topic: str, msg) -> None:
+    def __call__(self, topic: str, msg: object) -> None:
         if isinstance(msg, msgs.SatelliteState) and len(msg.bodies) >= 2:
             c, g = msg.bodies[0], msg.bodies[1]
             bisect.insort(
@@ -414,7 +428,7 @@ class TickMatcher:
         return True
 
     @staticmethod
-    def _newest(series: list, stamp: float):
+    def _newest(series: list, stamp: float) -> tuple | None:
         """The newest entry at or before stamp (None before the first); drops older ones."""
         i = bisect.bisect_right(series, (stamp, math.inf, math.inf)) - 1
         if i < 0:
@@ -422,7 +436,7 @@ class TickMatcher:
         del series[:i]
         return series[0]
 
-    def _emit(self, state) -> None:
+    def _emit(self, state: tuple) -> None:
         stamp, tick, p, pd = state
         if self.first is None:
             self.first = (stamp, tick)
@@ -454,7 +468,7 @@ class TickMatcher:
             self._emit(self.pending.pop(0))
 
 
-def range_summary(out: dict, graph, ranges: RangeMeter, largest_force: float | None) -> None:
+def range_summary(out: dict, graph: Graph, ranges: RangeMeter, largest_force: float | None) -> None:
     """Mark a summary invalid, with its reasons, where the run left the physical range: its forces,
     its bodies' energy, distance or speed (RangeMeter.reasons), judged by the scene's own scale."""
     scale = []
@@ -492,14 +506,14 @@ def range_summary(out: dict, graph, ranges: RangeMeter, largest_force: float | N
 SUMMARY_TOPICS = ("/satellite/state", "/ft/wrench", "/impedance/wrench", "/energy", "/robot/command")
 
 
-def bag_messages(path: str):
+def bag_messages(path: str) -> Iterator[tuple[str, int, Any]]:
     from dockhil.bags.reader import BagReader
 
     with BagReader(path) as bag:
         yield from bag.decoded(list(SUMMARY_TOPICS))
 
 
-def feed_from_bag(path: str, collector):
+def feed_from_bag(path: str, collector: _Collector) -> _Collector:
     """Feed a recorded run into a summary collector, one message at a time."""
     for topic, _t, msg in bag_messages(path):
         collector(topic, msg)

@@ -10,6 +10,7 @@ One pass over the ticks with O(1) memory (common.ContactMeter): the live summary
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -25,6 +26,11 @@ from dockhil.analysis.summary.common import (
     ideal_force_at,
     range_summary,
 )
+
+if TYPE_CHECKING:
+    from dockhil.contact.envelope import EnvelopeFit
+    from dockhil.contact.passivity import EnergyMeter
+    from dockhil.scene.graph import Graph
 
 
 def _feed(meter: ContactMeter, s: Samples) -> ContactMeter:
@@ -55,8 +61,9 @@ _COMPARED = ("peak_force_N", "contact_duration_s", "exit_velocity_mps", "restitu
 
 
 def _summary(meter: ContactMeter, run_time_s: float | None, ideal: dict | None, max_err: float | None) -> dict:
-    sim_time = float(meter.t_last - meter.t_first) if meter.n > 1 else 0.0
-    out = {
+    # Both times are set once a tick came.
+    sim_time = float(cast(float, meter.t_last) - cast(float, meter.t_first)) if meter.n > 1 else 0.0
+    out: dict[str, Any] = {
         "run_time_s": run_time_s,
         "sim_time_s": sim_time,
         "real_time_factor": (sim_time / run_time_s) if run_time_s else None,
@@ -123,7 +130,7 @@ class Collector:
         self.rows: list[tuple] = []
         self.match = TickMatcher(lambda *row: self.rows.append(row), ideal_force, dt)
 
-    def __call__(self, topic: str, msg) -> None:
+    def __call__(self, topic: str, msg: object) -> None:
         self.match(topic, msg)
 
     def samples(self) -> Samples:
@@ -137,7 +144,7 @@ class Collector:
 class SummaryCollector1:
     """The run summary of a 1-DOF scene, gathered from published messages in one pass with O(1) memory."""
 
-    def __init__(self, graph):
+    def __init__(self, graph: Graph):
         from dockhil.contact.passivity import EnergyMeter
 
         self.graph = graph
@@ -150,7 +157,7 @@ class SummaryCollector1:
         self.energy = EnergyMeter()
         self.ranges = RangeMeter()
 
-    def __call__(self, topic: str, msg) -> None:
+    def __call__(self, topic: str, msg: object) -> None:
         if topic == "/energy" and isinstance(msg, msgs.Energy):
             self.energy.add(msg)
             return
@@ -166,7 +173,7 @@ class SummaryCollector1:
         return out
 
 
-def energy_summary(out: dict, graph, meter) -> None:
+def energy_summary(out: dict, graph: Graph, meter: EnergyMeter) -> None:
     """Add the run's energy account (`energy`) to a summary; a passivity controller that left
     energy in the loop marks the run invalid."""
     if meter.last is None:
@@ -208,7 +215,7 @@ def samples_from_bag(path: str, ideal_force: tuple[float, float] | None = None, 
     return collect.samples()
 
 
-def scene_reference(graph) -> dict:
+def scene_reference(graph: Graph) -> dict:
     """What the summary of this scene can be compared with, read from its nodes' parameters:
     `ideal_force` (kcs, bcs) when the dynamics run the ideal model, `ideal` (the ideal
     contact's parameters) for a free contact, `growth` (m, K, b, h, about) for a body pushed
@@ -244,7 +251,7 @@ def scene_reference(graph) -> dict:
     return out
 
 
-def scene_summary(graph, s, run_time_s: float | None) -> dict:
+def scene_summary(graph: Graph, s: Samples | ContactMeter, run_time_s: float | None) -> dict:
     """The run summary of a scene (per-tick `Samples`, or a fed `ContactMeter`), with its ideal
     reference or growth rate where it has one, and the check of its sampled loop."""
     ref = scene_reference(graph)
@@ -271,7 +278,7 @@ def scene_summary(graph, s, run_time_s: float | None) -> dict:
     check = scene_check(graph, refuse=False)
     if growth is not None and meter.n:
         try:
-            out["growth_rate_1_s"] = meter.growth.rate()
+            out["growth_rate_1_s"] = cast("EnvelopeFit", meter.growth).rate()  # made with the scene's growth
         except ValueError:
             out["growth_rate_1_s"] = None
         # The loop the graph runs: its dominant eigenvalue, ln|z| / dt; and the delay equation's root.

@@ -24,16 +24,24 @@ from __future__ import annotations
 import bisect
 import itertools
 import math
+from collections.abc import Callable, Iterable, Sequence
+from typing import TYPE_CHECKING, Any, cast
 
 from dockhil import msgs
 from dockhil.contact.rotations import cross3, rotate, sub3
 from dockhil.analysis.scenecheck import scene_check, sixdof_nodes
 from dockhil.analysis.summary.common import ContactMeter, RangeMeter, TickMatcher, force_band, range_summary
 
+if TYPE_CHECKING:
+    from dockhil.analysis.summary.common import ForceBand
+    from dockhil.contact.contact6 import Contact6
+    from dockhil.nodes.satellite_dynamics6 import SatelliteDynamics6
+    from dockhil.scene.graph import Graph
+
 VECTORS = ("relative_velocity_mps", "relative_angular_velocity_radps")
 
 
-def _norm(v) -> float:
+def _norm(v: Sequence[float]) -> float:
     return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 
 
@@ -50,7 +58,17 @@ class ContactMeter6:
     def n(self) -> int:
         return self.normal.n
 
-    def add(self, t: float, p: float, pd: float, force, torque, velocity, angular_velocity, acting: bool) -> None:
+    def add(
+        self,
+        t: float,
+        p: float,
+        pd: float,
+        force: Sequence[float],
+        torque: Sequence[float],
+        velocity: Sequence[float],
+        angular_velocity: Sequence[float],
+        acting: bool,
+    ) -> None:
         m = self.normal
         if m.prev is not None and m.prev[3] and m.state in ("in", "after"):  # ContactMeter's exit rule
             self.exit = (tuple(velocity), tuple(angular_velocity))
@@ -84,7 +102,14 @@ class TickMatcher6(TickMatcher):
     from the state they published with it (hybrid6.relative_interface), so d_x, d' and the relative
     angular velocity are read, not recomputed. The wrench is rebuilt only while a force acts."""
 
-    def __init__(self, sink, dyn, dt: float | None, expect=frozenset(), band=None):
+    def __init__(
+        self,
+        sink: Callable[..., None],
+        dyn: SatelliteDynamics6,
+        dt: float | None,
+        expect: Iterable[str] = frozenset(),
+        band: ForceBand | None = None,
+    ):
         super().__init__(sink, None, dt, expect, band)
         from dockhil.contact import hybrid6
 
@@ -92,7 +117,7 @@ class TickMatcher6(TickMatcher):
         self.states: list = []
         self.seq = itertools.count()  # (stamp, seq, payload): equal stamps never compare the payloads
 
-    def __call__(self, topic: str, msg) -> None:
+    def __call__(self, topic: str, msg: object) -> None:
         # Messages are kept as they came (bounded: `_newest` drops the old ones) and read at their tick.
         if topic == "/robot/command":
             if isinstance(msg, msgs.RobotCommand):
@@ -110,7 +135,7 @@ class TickMatcher6(TickMatcher):
     def _inputs(self) -> dict[str, list]:
         return {"/ft/wrench": self.ft, "/impedance/wrench": self.virtual, "/satellite/state": self.states}
 
-    def _emit(self, command) -> None:
+    def _emit(self, command: tuple) -> None:
         stamp, tick, _, cmd = command
         if self.first is None:
             self.first = (stamp, tick)
@@ -137,17 +162,17 @@ class TickMatcher6(TickMatcher):
         self.sink(t, cmd.pose.position.x, velocity[0], force, torque, velocity, _triple(cmd.twist.angular), acting)
 
 
-def _triple(v) -> tuple[float, float, float]:
+def _triple(v: msgs.Vector3) -> tuple[float, float, float]:
     return (v.x, v.y, v.z)
 
 
-def _published(body) -> tuple:
+def _published(body: msgs.BodyState) -> tuple:
     """(position, orientation, velocity, world angular velocity) of a msgs.BodyState."""
     o = body.pose.orientation
     return _triple(body.pose.position), (o.x, o.y, o.z, o.w), _triple(body.twist.linear), _triple(body.twist.angular)
 
 
-def ideal_metrics6(dyn, ideal, dt: float, t_end: float) -> dict:
+def ideal_metrics6(dyn: SatelliteDynamics6, ideal: Contact6, dt: float, t_end: float) -> dict:
     """`ContactMeter6.result()` of the ideal 6-DOF contact from the dynamics' start, run until the
     contact has ended (at most t_end), sampled every dt."""
     from dockhil.contact.contact6 import simulate_contact6
@@ -197,7 +222,7 @@ def _difference(a, b):
 class SummaryCollector6:
     """The run summary of a 6-DOF scene, gathered from published messages in one pass, O(1) memory."""
 
-    def __init__(self, graph):
+    def __init__(self, graph: Graph):
         self.graph = graph
         self.dyn, self.imp = sixdof_nodes(graph)
         self.meter = ContactMeter6()
@@ -206,7 +231,7 @@ class SummaryCollector6:
         )
         self.ranges = RangeMeter(inertia=(self.dyn.b1.inertia, self.dyn.b2.inertia))
 
-    def __call__(self, topic: str, msg) -> None:
+    def __call__(self, topic: str, msg: object) -> None:
         if isinstance(msg, msgs.SatelliteState):
             self.ranges(msg)
         self.match(topic, msg)
@@ -214,8 +239,9 @@ class SummaryCollector6:
     def summary(self, run_time_s: float | None = None) -> dict:
         self.match.flush()
         m = self.meter.normal
-        sim_time = float(m.t_last - m.t_first) if m.n > 1 else 0.0
-        out = {
+        # Both times are set once a tick came.
+        sim_time = float(cast(float, m.t_last) - cast(float, m.t_first)) if m.n > 1 else 0.0
+        out: dict[str, Any] = {
             "dof": 6,
             "run_time_s": run_time_s,
             "sim_time_s": sim_time,
