@@ -182,7 +182,9 @@ def test_an_input_stopped_with_the_graph_at_the_end_is_no_stall():
 
     fake = SimpleNamespace(
         max_age={"state": 0.1},
-        spec=SimpleNamespace(name="impedance", inputs={"state": SimpleNamespace(topic="/satellite/state")}),
+        spec=SimpleNamespace(
+            name="impedance", dt=0.01, inputs={"state": SimpleNamespace(topic="/satellite/state", publisher="")}
+        ),
     )
     timing = SimpleNamespace(aged=lambda port, age: None)
     end = 60.0
