@@ -78,8 +78,8 @@ def record_graph(tmp: str, seconds: float) -> dict:
 def play_bag(tmp: str, seconds: float, rate: float) -> dict:
     from bag_write import graph_messages
 
-    from dockhil.bags.writer import BagWriter
     from dockhil.bags.tools import info
+    from dockhil.bags.writer import BagWriter
 
     path = os.path.join(tmp, "long.mcap")
     messages, topics = graph_messages(seconds)

@@ -120,8 +120,8 @@ def hardware_container(folder: str) -> str:
 
 
 def composed(n_ticks: int, cpu: list[float], scene: str = HIL) -> float:
-    from dockhil.scene import launchfile
     from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene import launchfile
     from dockhil.scene.graph import build
 
     g = ComposedGraph(build(launchfile.load(scene)), log=lambda n, m: None)

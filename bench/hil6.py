@@ -28,8 +28,8 @@ HIL6 = os.path.join(ROOT, "launch", "hil6.yaml")
 
 def composed(n_ticks: int, per_node: bool = False, order: int | None = None) -> tuple[float, float, dict]:
     """(wall [s], CPU [s], CPU per node [us/tick]) of one composed run of n_ticks; order None: the scene's."""
-    from dockhil.scene import launchfile
     from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene import launchfile
     from dockhil.scene.graph import build
 
     args = {} if order is None else {"order": str(order)}
@@ -60,8 +60,8 @@ def runtime_only(n_ticks: int) -> float:
     the runner (inputs, output checks, histories) and the headers, not the nodes' arithmetic."""
     import msgspec
 
-    from dockhil.scene import launchfile
     from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene import launchfile
     from dockhil.scene.graph import build
 
     g = ComposedGraph(build(launchfile.load(HIL6)), log=lambda n, m: None)

@@ -76,8 +76,8 @@ def receiver(kind: str, endpoint: str, n: int) -> list[float]:
     out = []
     if kind in ("runtime", "plain"):
         from dockhil import msgs
-        from dockhil.runtime.transport import Subscriber
         from dockhil.msgs.codec import decode
+        from dockhil.runtime.transport import Subscriber
 
         sub = Subscriber(ctx)
         sub.connect(endpoint, keys=_keys(kind, endpoint))

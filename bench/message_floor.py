@@ -59,8 +59,8 @@ def rebuilder(cls: type):
 
 def messages_of(scene: str, n_ticks: int, args: dict | None = None) -> list[list]:
     """Every message a composed run of `scene` publishes, per tick."""
-    from dockhil.scene import launchfile
     from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene import launchfile
     from dockhil.scene.graph import build
 
     ticks: list[list] = [[] for _ in range(n_ticks)]

@@ -32,14 +32,14 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
+from dockhil.analysis.summary import Samples, contact_metrics, ideal_summary  # noqa: E402
+from dockhil.contact.envelope import growth_rate  # noqa: E402
 from dockhil.contact.hilloop import simulate_hil  # noqa: E402
 from dockhil.contact.hybrid import VirtualImpedance  # noqa: E402
 from dockhil.contact.impedance import impedance_closed_form  # noqa: E402
 from dockhil.contact.passivity import DEFAULT_MAX_DAMPING, Passivity, left_in_loop  # noqa: E402
 from dockhil.contact.scenario import TABLE1  # noqa: E402
 from dockhil.contact.stability import exact_bound  # noqa: E402
-from dockhil.analysis.summary import Samples, contact_metrics, ideal_summary  # noqa: E402
-from dockhil.contact.envelope import growth_rate  # noqa: E402
 
 DT = 1e-3
 MAX_DAMPING = DEFAULT_MAX_DAMPING  # the shipped scenes'

@@ -42,10 +42,11 @@ def main() -> None:
     ap.add_argument("--busy", type=int, default=0, help="start this many busy loops for the run")
     args = ap.parse_args()
     sys.path.insert(0, ROOT)
+    from rt_probe import steal_ms  # this folder's
+
+    from dockhil.devices.kuka_rsi.driver import RobotRsiDriver
     from dockhil.msgs import Header, Pose, RobotCommand, Twist, Vector3
     from dockhil.node import NodeContext, Tick
-    from dockhil.devices.kuka_rsi.driver import RobotRsiDriver
-    from rt_probe import steal_ms  # this folder's
 
     port = free_udp_port()
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.busy)]

@@ -15,10 +15,10 @@ sys.path.insert(0, ROOT)
 
 
 def peak_bytes(seconds: float) -> tuple[int, dict]:
-    from dockhil.scene import launchfile
-    from dockhil.runtime.composed import ComposedGraph
-    from dockhil.scene.graph import build
     from dockhil.analysis.summary import SummaryCollector
+    from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
 
     graph = build(launchfile.load(os.path.join(ROOT, "launch", "hil.yaml"), {"delay": "0.032"}))
     collect = SummaryCollector(graph)

@@ -66,8 +66,8 @@ def multiprocess_seconds(duration: float, scene: str = os.path.join(HERE, "loop.
 
 def composed_seconds(n_ticks: int, scene: str = os.path.join(HERE, "loop.yaml")) -> float:
     sys.path.insert(0, ROOT)
-    from dockhil.scene import launchfile
     from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene import launchfile
     from dockhil.scene.graph import build
 
     g = ComposedGraph(build(launchfile.load(scene)))

@@ -45,14 +45,14 @@ import math
 import reprlib
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from types import SimpleNamespace
-from typing import Any, Callable, ClassVar
+from typing import Any, ClassVar
 
 from dockhil.errors import ParamError, suggest
-from dockhil.physical import Range
 from dockhil.msgs import Header
+from dockhil.physical import Range
 
 
 @dataclass(frozen=True)

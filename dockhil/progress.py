@@ -15,7 +15,7 @@ from typing import TextIO
 
 # One screen: the status line and log records (from any thread) take turns at it.
 _screen = threading.RLock()
-_active: "StatusLine | None" = None  # the status line now drawn on a terminal
+_active: StatusLine | None = None  # the status line now drawn on a terminal
 
 
 class StatusLine:

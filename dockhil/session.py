@@ -19,13 +19,14 @@ import json
 import os
 import tempfile
 import time
+from collections.abc import Set
 from pathlib import Path
-from typing import TYPE_CHECKING, AbstractSet, cast
+from typing import TYPE_CHECKING, cast
 
-from dockhil.runtime import validity
-from dockhil.log import Log
 from dockhil.errors import DockhilError
-from dockhil.files import remove_quietly, complete_or_nothing, os_reason
+from dockhil.files import complete_or_nothing, os_reason, remove_quietly
+from dockhil.log import Log
+from dockhil.runtime import validity
 from dockhil.scene.graph import Graph
 
 if TYPE_CHECKING:
@@ -254,7 +255,7 @@ def _check_writable(path: str, bag: str | None) -> None:
         remove_quietly(path)
 
 
-def ticking_span(timings: dict[str, dict], leave_out: AbstractSet[str] = frozenset()) -> float | None:
+def ticking_span(timings: dict[str, dict], leave_out: Set[str] = frozenset()) -> float | None:
     """[s] from the graph's first tick to the end of its last, from the nodes' loop figures
     (LoopTiming.report), leaving out the nodes in `leave_out` unless no other ticked; None if none ticked."""
     spans = {
@@ -281,10 +282,10 @@ def _run_composed(
 ) -> int:
     """recorder: a TapRecorder, left open (all on disk) for the run's verdict; ticking: gets the time
     from the first tick to the end of the last [s]."""
+    from dockhil.progress import Progress
     from dockhil.runtime.composed import ComposedGraph
     from dockhil.runtime.executor import Stop
     from dockhil.runtime.registry import register_composed
-    from dockhil.progress import Progress
 
     stop = Stop()
     stop.install()

@@ -32,16 +32,13 @@ Semantics, as in a launched graph:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from types import SimpleNamespace
-from typing import Any, Callable, cast
+from typing import Any, cast
 
 import msgspec
 
-from dockhil.runtime.composed import ComposedGraph
 from dockhil.errors import DockhilError
-from dockhil.runtime.executor import check_outputs
-from dockhil.scene.graph import Graph, GraphNode, PortRef
-from dockhil.node import ManualClock, Node, Output, Tick
 from dockhil.msgs import (
     BodyState,
     BodyWrenches,
@@ -56,6 +53,10 @@ from dockhil.msgs import (
     Wrench,
     WrenchStamped,
 )
+from dockhil.node import ManualClock, Node, Output, Tick
+from dockhil.runtime.composed import ComposedGraph
+from dockhil.runtime.executor import check_outputs
+from dockhil.scene.graph import Graph, GraphNode, PortRef
 
 FEEDER = "harness-inputs"  # name of the node that publishes the test's inputs
 
@@ -165,7 +166,7 @@ class NodeHarness:
         self._set_up = False
 
     # -- life cycle ------------------------------------------------------------------
-    def setup(self) -> "NodeHarness":
+    def setup(self) -> NodeHarness:
         self.graph.setup(name_failures=False)  # a test of the node sees its own exception
         self._set_up = True
         return self
@@ -175,7 +176,7 @@ class NodeHarness:
         self._set_up = False
         self.graph.close()
 
-    def __enter__(self) -> "NodeHarness":
+    def __enter__(self) -> NodeHarness:
         return self.setup()
 
     def __exit__(self, *exc: object) -> None:

@@ -20,8 +20,8 @@ import pytest
 from dockhil import cli
 from dockhil.bags.format import BagError
 from dockhil.bags.reader import BagReader
-from dockhil.bags.writer import BagWriter
 from dockhil.bags.tools import flatten, info
+from dockhil.bags.writer import BagWriter
 from dockhil.msgs import (
     BodyState,
     Header,
@@ -254,7 +254,7 @@ def test_reference_mcap_reader_reads_json_that_validates_against_the_channel_sch
 
 class Tree(msgspec.Struct):
     name: str
-    children: list["Tree"] = []
+    children: list[Tree] = []
 
 
 def test_every_message_type_has_a_self_contained_schema_its_messages_meet():

@@ -18,10 +18,10 @@ from pathlib import Path
 import pytest
 
 from dockhil import cli
-from dockhil.bags.reader import BagReader
-from dockhil.bags.writer import BagWriter
 from dockhil.bags.format import format_size
+from dockhil.bags.reader import BagReader
 from dockhil.bags.tools import info
+from dockhil.bags.writer import BagWriter
 from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped
 from dockhil.msgs.codec import encode
 

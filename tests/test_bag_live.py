@@ -14,14 +14,14 @@ import pytest
 
 from dockhil import cli
 from dockhil.bags.reader import BagReader
-from dockhil.bags.writer import BagWriter
 from dockhil.bags.tools import info
+from dockhil.bags.writer import BagWriter
 from dockhil.errors import DockhilError
 from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped, type_name
 from dockhil.msgs.codec import encode
-from tests.support.bagfiles import assert_messages_meet_their_channel_schemas
 from tests.conftest import Lines, dockhil_cmd, kill_child_and_expect_the_graph_to_stop, registered
-from tests.support.inprocess import run_main, completed
+from tests.support.bagfiles import assert_messages_meet_their_channel_schemas
+from tests.support.inprocess import completed, run_main
 
 # A driven loop: /drive (a seeded noisy source, silent at every 5th tick) feeds
 # the plant at the same tick; plant and gain close a loop through /x and /u.

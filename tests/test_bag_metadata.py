@@ -51,8 +51,8 @@ def test_a_launch_bag_records_its_scene_arguments_start_and_verdict(tmp_path, mo
     assert json.loads(run["args_set"]) == {"delay": 0.016}
     start_ns = int(run["start_ns"])
     assert before <= start_ns <= time.time_ns()
-    stamp = datetime.datetime.strptime(run["start"][:26], "%Y-%m-%dT%H:%M:%S.%f").replace(tzinfo=datetime.timezone.utc)
-    epoch = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
+    stamp = datetime.datetime.strptime(run["start"][:26], "%Y-%m-%dT%H:%M:%S.%f").replace(tzinfo=datetime.UTC)
+    epoch = datetime.datetime(1970, 1, 1, tzinfo=datetime.UTC)
     # Integer microseconds: a float of about 1.8e9 s holds them only to a quarter of one.
     assert (stamp - epoch) // datetime.timedelta(microseconds=1) == start_ns // 1000 and run["start"].endswith("Z")
     # The launch files read, as they were read (hil.yaml's include of emulators.yaml is off by its condition).

@@ -25,10 +25,10 @@ from rosbags.rosbag2 import Reader as Rosbag2Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from dockhil import cli
-from dockhil.bags.reader import BagReader
-from dockhil.bags.writer import BagWriter
-from dockhil.bags.tools import info
 from dockhil.bags import cdr, ros2
+from dockhil.bags.reader import BagReader
+from dockhil.bags.tools import info
+from dockhil.bags.writer import BagWriter
 from dockhil.msgs import (
     TYPES,
     BodyState,

@@ -4,9 +4,9 @@ ran and said valid with nothing to say why its error was larger)."""
 
 import pytest
 
+from dockhil.analysis.scenecheck import scene_check
 from dockhil.scene import graph as graphmod
 from dockhil.scene import launchfile
-from dockhil.analysis.scenecheck import scene_check
 from tests.conftest import ROOT
 
 

@@ -11,7 +11,6 @@ from pathlib import Path
 import pytest
 
 from dockhil.node import Param
-
 from dockhil.runtime import validity
 from dockhil.runtime.launcher import Launcher
 from dockhil.scene import launchfile

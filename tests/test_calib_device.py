@@ -14,7 +14,7 @@ from dockhil.analysis.calibration.device_cycles import unwrap
 from dockhil.bags.reader import BagReader
 from dockhil.bags.writer import BagWriter
 from dockhil.devices.cycle_log import CycleLog
-from dockhil.msgs import Header, NodeStatus, RobotCommand, RobotCycles, Pose, Vector3, type_name
+from dockhil.msgs import Header, NodeStatus, Pose, RobotCommand, RobotCycles, Vector3, type_name
 from dockhil.msgs.codec import encode
 from dockhil.nodes.identification import chirp_position
 from tests.test_calibrate import Truth, simulate

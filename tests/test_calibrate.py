@@ -13,7 +13,6 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from dockhil.scene import launchfile
 from dockhil.analysis.calibration import loop as cal
 from dockhil.cli import main
 from dockhil.contact.stability import exact_bound
@@ -21,6 +20,7 @@ from dockhil.errors import DeviceError, LaunchError
 from dockhil.msgs import Header, Pose, RobotState, Twist, Vector3, Wrench, WrenchStamped
 from dockhil.node import NodeContext, Tick
 from dockhil.nodes.identification import Identification
+from dockhil.scene import launchfile
 
 M_HIL = 750.0 * 1e6 / (750.0 + 1e6)  # hil.yaml's reduced mass
 
@@ -349,7 +349,8 @@ def test_calibrate_on_emulators_finds_their_hidden_truths_within_the_limits(tmp_
     """One live run (wall time, real drivers, --realtime) on emulators hiding a draw: the delay, timed at the
     device, within the emulator's 1 ms cycle of its hidden one, the rest within its tolerance; the emulators'
     maxima show the scene's force and speed limits were kept, and the run took under 60 s."""
-    from bench.calibrate import MAX_ACTUAL_SPEED, MAX_FORCE, draw as bench_draw, run
+    from bench.calibrate import MAX_ACTUAL_SPEED, MAX_FORCE, run
+    from bench.calibrate import draw as bench_draw
 
     truth = bench_draw(7)
     bag = tmp_path / "run.mcap"
@@ -382,7 +383,8 @@ def test_calibrate_on_the_rsi_emulator_times_the_robot_at_its_4ms_cycle():
     """One live run on the KUKA RSI emulator hiding a draw: calibrate uses the driver's device cycles (no
     fallback to the ticks), the delay within half the 4 ms cycle of the hidden one (the model's bound) and
     a millisecond of fit, the lag within 5 % or two cycles, under 60 s."""
-    from bench.calibrate import MAX_ACTUAL_SPEED, draw as bench_draw, run
+    from bench.calibrate import MAX_ACTUAL_SPEED, run
+    from bench.calibrate import draw as bench_draw
 
     truth = bench_draw(7)
     r = run(truth, robot="rsi", cycle=0.004)
@@ -406,7 +408,8 @@ def test_calibrate_holds_the_loops_delay_on_a_controller_that_takes_corrections_
     """The other plausible controller (the emulators' `timing: immediate`): the loop's delay is the run's
     own, end to end, within a device cycle of what its bag shows and never below the hidden delay, where
     the device model's split into robot and link does not hold."""
-    from bench.calibrate import draw as bench_draw, run
+    from bench.calibrate import draw as bench_draw
+    from bench.calibrate import run
 
     truth = bench_draw(3)
     r = run(truth, robot=robot, cycle=cycle, timing="immediate")

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from dockhil.errors import DeviceError
 from dockhil.devices.can_ft import multicast as can_multicast
-from dockhil.node import NodeContext
 from dockhil.devices.can_ft.emulator import FtSensorEmulator
+from dockhil.errors import DeviceError
+from dockhil.node import NodeContext
 from dockhil.runtime import ownership
 from dockhil.scene import launchfile
 from dockhil.scene.graph import build

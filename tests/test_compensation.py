@@ -8,7 +8,6 @@ import math
 import numpy as np
 import pytest
 
-from dockhil.contact.comploop import ZERO, Hardware, simulate_compensated
 from dockhil.contact.compensation import (
     METHODS,
     CompensationSettings,
@@ -18,6 +17,7 @@ from dockhil.contact.compensation import (
     first_order_restitution,
     lead_time_constants,
 )
+from dockhil.contact.comploop import ZERO, Hardware, simulate_compensated
 from dockhil.contact.hilloop import DelayLine, Servo, delay_ticks, sensor_force, simulate_hil
 from dockhil.contact.hunt_crossley import TargetContact, linear_damping_for_restitution
 from dockhil.contact.hybrid import VirtualImpedance

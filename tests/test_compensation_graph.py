@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from dockhil.bags.reader import BagReader
-from dockhil.contact.comploop import ZERO, Hardware, simulate_compensated, target_frequency
 from dockhil.contact.compensation import CompensationSettings
+from dockhil.contact.comploop import ZERO, Hardware, simulate_compensated, target_frequency
 from dockhil.contact.hunt_crossley import TargetContact
 from dockhil.contact.hybrid import VirtualImpedance
 from dockhil.contact.impedance import impedance_closed_form

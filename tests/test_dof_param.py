@@ -7,11 +7,11 @@ import subprocess
 
 import pytest
 
+from dockhil.analysis.summary import SummaryCollector
+from dockhil.msgs.codec import encode
+from dockhil.runtime.composed import ComposedGraph
 from dockhil.scene import graph as graphmod
 from dockhil.scene import launchfile
-from dockhil.runtime.composed import ComposedGraph
-from dockhil.msgs.codec import encode
-from dockhil.analysis.summary import SummaryCollector
 from dockhil.testing import NodeHarness
 from tests.conftest import ROOT, dockhil_cmd
 from tests.support.inprocess import run_main

@@ -3,16 +3,16 @@
 import numpy as np
 import pytest
 
-from dockhil.scene import launchfile
-from dockhil.runtime.composed import ComposedGraph
+from dockhil.analysis.summary import Collector, Samples, contact_metrics, ideal_reference, summarize
 from dockhil.contact import stability
+from dockhil.contact.envelope import growth_rate
 from dockhil.contact.hilloop import simulate_hil, simulate_ideal
 from dockhil.contact.hybrid import VirtualImpedance
 from dockhil.contact.impedance import impedance_closed_form
 from dockhil.contact.scenario import ContactScenario
+from dockhil.runtime.composed import ComposedGraph
+from dockhil.scene import launchfile
 from dockhil.scene.graph import build
-from dockhil.analysis.summary import Collector, Samples, contact_metrics, ideal_reference, summarize
-from dockhil.contact.envelope import growth_rate
 
 T1 = dict(m1=750.0, m2=1e6, kcs=3000.0, bcs=40.0, v1=0.03, v2=0.0)
 DT = 1e-3

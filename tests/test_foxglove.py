@@ -87,7 +87,7 @@ async def connect(port: int, proc=None):
             return await websockets.connect(
                 f"ws://127.0.0.1:{port}", subprotocols=SUBPROTOCOLS, max_size=None, open_timeout=10, close_timeout=0.5
             )
-        except (OSError, asyncio.TimeoutError, websockets.exceptions.InvalidHandshake):
+        except (TimeoutError, OSError, websockets.exceptions.InvalidHandshake):
             assert proc is None or proc.poll() is None, (
                 f"the launch exited ({proc.returncode}) before its server was reached"
             )
@@ -270,8 +270,8 @@ def test_the_bridge_joins_a_publisher_as_an_observer_and_serves_what_it_sends():
     order, at its sim time; an empty tick does not; bytes that are not a message are counted."""
     import zmq
 
-    from dockhil.errors import DockhilError
     from dockhil.bags.foxglove import FoxgloveBridge
+    from dockhil.errors import DockhilError
     from dockhil.runtime.transport import OBSERVED, GraphKeys, Publisher, ipc_endpoint, new_run_dir
 
     keys = GraphKeys.make()

@@ -8,17 +8,16 @@ import math
 
 import pytest
 
-from tests.conftest import VirtualFtSensor
-from tests.test_hardware_netft import LBF, FakeBox, arrive, record
-
 from dockhil.cli import main
-from dockhil.errors import DeviceError, LaunchError, ParamError
 from dockhil.devices import tare
-from dockhil.node import NodeContext, Tick
-from dockhil.devices.can_ft.driver import FtCanDriver
 from dockhil.devices.ati_netft.driver import FtNetFtDriver
+from dockhil.devices.can_ft.driver import FtCanDriver
+from dockhil.errors import DeviceError, LaunchError, ParamError
+from dockhil.node import NodeContext, Tick
 from dockhil.runtime import ownership
 from dockhil.scene import launchfile
+from tests.conftest import VirtualFtSensor
+from tests.test_hardware_netft import LBF, FakeBox, arrive, record
 
 OFFSET = (1.5, -0.25, 0.5)  # the unloaded sensor's offset [N]
 MILLION = 1_000_000  # counts per lbf of the fake box's page

@@ -14,16 +14,15 @@ import time
 
 import pytest
 
-from tests.conftest import ROOT, VirtualFtSensor, node_process_error
-
-from dockhil.runtime import ownership
-from dockhil.errors import DeviceError, ParamError
 from dockhil.devices import tare
-from dockhil.devices.device_path import private_link, untrusted
-from dockhil.devices.can_ft.slcan_pty import SlcanPort
-from dockhil.node import NodeContext, Tick
 from dockhil.devices.can_ft.driver import FtCanDriver
 from dockhil.devices.can_ft.emulator import FtSensorEmulator
+from dockhil.devices.can_ft.slcan_pty import SlcanPort
+from dockhil.devices.device_path import private_link, untrusted
+from dockhil.errors import DeviceError, ParamError
+from dockhil.node import NodeContext, Tick
+from dockhil.runtime import ownership
+from tests.conftest import ROOT, VirtualFtSensor, node_process_error
 
 OTHER = 65534  # nobody: another local user
 OFFSET = (1.5, -0.25, 0.5)  # the unloaded sensor's offset

@@ -15,14 +15,12 @@ import can
 import pytest
 import serial
 
-from tests.conftest import VirtualFtSensor, node_process_error
-
-from dockhil.errors import DeviceError, LaunchError
 from dockhil.devices.can_ft import frames as ff
-from dockhil.devices.can_ft.slcan_pty import CanFrame, PtyCanBus, SlcanPort, parse_transmit
-from dockhil.node import NodeContext, Tick
 from dockhil.devices.can_ft.driver import FtCanDriver
-
+from dockhil.devices.can_ft.slcan_pty import CanFrame, PtyCanBus, SlcanPort, parse_transmit
+from dockhil.errors import DeviceError, LaunchError
+from dockhil.node import NodeContext, Tick
+from tests.conftest import VirtualFtSensor, node_process_error
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}

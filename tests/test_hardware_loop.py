@@ -9,13 +9,13 @@ import time
 
 import pytest
 
-from dockhil.errors import SafetyStop
-from dockhil.devices.modbus_robot.emulator import HOLD, RobotControllerEmulator
-from dockhil.node import ManualClock, NodeContext, Tick
-from dockhil.msgs import Header, Pose, RobotCommand, Twist, Vector3
 from dockhil.devices.can_ft.driver import FtCanDriver
 from dockhil.devices.can_ft.emulator import FtSensorEmulator
 from dockhil.devices.modbus_robot.driver import RobotModbusDriver
+from dockhil.devices.modbus_robot.emulator import HOLD, RobotControllerEmulator
+from dockhil.errors import SafetyStop
+from dockhil.msgs import Header, Pose, RobotCommand, Twist, Vector3
+from dockhil.node import ManualClock, NodeContext, Tick
 
 
 def test_pushing_into_the_compliance_measures_k_x_and_trips_the_force_limit(tmp_path):

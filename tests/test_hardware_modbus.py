@@ -16,17 +16,16 @@ import threading
 import time
 from pathlib import Path
 
-import pytest
 import pymodbus  # noqa: F401  - a hard dependency: missing, the tests fail
+import pytest
 
-from tests.conftest import free_port, node_process_error
-
-from dockhil.errors import DeviceError, LaunchError
 from dockhil.devices.modbus_robot import registers as mm
-from dockhil.devices.modbus_robot.emulator import FOLLOW, HOLD, RobotControllerEmulator, ServoModel
-from dockhil.node import NodeContext, Tick
-from dockhil.msgs import Header, Pose, RobotCommand, Twist, Vector3
 from dockhil.devices.modbus_robot.driver import RobotModbusDriver
+from dockhil.devices.modbus_robot.emulator import FOLLOW, HOLD, RobotControllerEmulator, ServoModel
+from dockhil.errors import DeviceError, LaunchError
+from dockhil.msgs import Header, Pose, RobotCommand, Twist, Vector3
+from dockhil.node import NodeContext, Tick
+from tests.conftest import free_port, node_process_error
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}

@@ -20,10 +20,10 @@ from types import SimpleNamespace
 import pytest
 
 from dockhil.devices.modbus_robot import registers as mm
-from dockhil.devices.modbus_robot.emulator import FOLLOW, ServoModel
-from dockhil.node import ManualClock, NodeContext, ParamError
-from dockhil.devices.modbus_robot.link import ModbusLink, SetpointLimiter, verify_and_hold
 from dockhil.devices.modbus_robot.driver import RobotModbusDriver
+from dockhil.devices.modbus_robot.emulator import FOLLOW, ServoModel
+from dockhil.devices.modbus_robot.link import ModbusLink, SetpointLimiter, verify_and_hold
+from dockhil.node import ManualClock, NodeContext, ParamError
 from tests.test_hardware_modbus import ENV, ROOT, Drive, driver, end, start_emulator
 from tests.test_hardware_safety import (
     DT,

@@ -22,14 +22,13 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import dockhil_cmd, wait_for
-
-from dockhil.runtime import ownership
-from dockhil.errors import DeviceError, LaunchError, ParamError
 from dockhil.devices.ati_netft import protocol as rdt
-from dockhil.devices.ati_netft.emulator import ContactModel, NetFtBox
-from dockhil.node import NodeContext, Tick
 from dockhil.devices.ati_netft.driver import FtNetFtDriver
+from dockhil.devices.ati_netft.emulator import ContactModel, NetFtBox
+from dockhil.errors import DeviceError, LaunchError, ParamError
+from dockhil.node import NodeContext, Tick
+from dockhil.runtime import ownership
+from tests.conftest import dockhil_cmd, wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -264,7 +263,7 @@ def test_emulator_biases_stops_and_ignores_what_is_not_a_request(box):
         try:
             while True:
                 c.recvfrom(100)  # what was under way
-        except socket.timeout:
+        except TimeoutError:
             pass
         c.settimeout(0.2)
         with pytest.raises(socket.timeout):
@@ -282,7 +281,7 @@ def test_emulator_loss_is_seeded_and_counted(box):
         while time.monotonic() < deadline:
             try:
                 seqs.append(struct.unpack(">III6i", c.recvfrom(100)[0])[0])
-            except socket.timeout:
+            except TimeoutError:
                 if b.counts["records"] == 2000:
                     break
     assert b.counts["records"] == 2000
@@ -379,7 +378,7 @@ class FakeBox:
         while self.running:
             try:
                 data, addr = self.udp.recvfrom(100)
-            except socket.timeout:
+            except TimeoutError:
                 continue
             self.requests.append(struct.unpack(">HHI", data))
             if data == request(0x0002):

@@ -20,14 +20,13 @@ from pathlib import Path
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dockhil.runtime import ownership
-from dockhil.errors import DeviceError, LaunchError
-from dockhil.errors import SafetyStop
 from dockhil.devices.kuka_rsi import protocol as rsi
+from dockhil.devices.kuka_rsi.driver import RobotRsiDriver, RsiLink, SceneFrame
 from dockhil.devices.kuka_rsi.emulator import RsiControllerEmulator, RsiServo
+from dockhil.errors import DeviceError, LaunchError, SafetyStop
 from dockhil.msgs import Header, Pose, RobotCommand, Twist, Vector3
 from dockhil.node import ManualClock, NodeContext, Tick
-from dockhil.devices.kuka_rsi.driver import RobotRsiDriver, RsiLink, SceneFrame
+from dockhil.runtime import ownership
 from dockhil.testing import wrench
 from tests.conftest import dockhil_cmd, udp_port
 

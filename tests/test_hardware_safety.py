@@ -14,13 +14,12 @@ import time
 
 import pytest
 
-from dockhil.errors import DockhilError
-from dockhil.errors import SafetyStop
 from dockhil.devices.modbus_robot import registers as mm
-from dockhil.devices.modbus_robot.emulator import FOLLOW, HOLD
-from dockhil.node import ManualClock, NodeContext, Tick
-from dockhil.msgs import EStop, Header, Pose, RobotCommand, Twist, Vector3, Wrench, WrenchStamped
 from dockhil.devices.modbus_robot.driver import RobotModbusDriver
+from dockhil.devices.modbus_robot.emulator import FOLLOW, HOLD
+from dockhil.errors import DockhilError, SafetyStop
+from dockhil.msgs import EStop, Header, Pose, RobotCommand, Twist, Vector3, Wrench, WrenchStamped
+from dockhil.node import ManualClock, NodeContext, Tick
 from tests.conftest import wait_for
 from tests.test_hardware_modbus import read_holding
 

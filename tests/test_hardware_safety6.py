@@ -17,15 +17,14 @@ import time
 
 import pytest
 
-from dockhil.devices.modbus_robot import registers as mm
 from dockhil.devices.limits import UNIT_TOLERANCE
-from dockhil.devices.modbus_robot.emulator import FOLLOW, HOLD, VELOCITY_WINDOW_S, ServoModel
-from dockhil.node import ManualClock, NodeContext
-from dockhil.msgs import Header, Pose, Quaternion, RobotCommand, Twist, Vector3, Wrench, WrenchStamped
+from dockhil.devices.modbus_robot import registers as mm
 from dockhil.devices.modbus_robot.driver import RobotModbusDriver
-from tests.conftest import node_process_error
+from dockhil.devices.modbus_robot.emulator import FOLLOW, HOLD, VELOCITY_WINDOW_S, ServoModel
+from dockhil.msgs import Header, Pose, Quaternion, RobotCommand, Twist, Vector3, Wrench, WrenchStamped
+from dockhil.node import ManualClock, NodeContext
+from tests.conftest import node_process_error, wait_for
 from tests.test_hardware_modbus import ENV, read_holding
-from tests.conftest import wait_for
 from tests.test_hardware_safety import DT, ClockedDrive, following, make, mode, settled, tripped
 
 __all__ = ["make"]  # the driver fixture, shared with test_hardware_safety.py

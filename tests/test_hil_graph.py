@@ -10,12 +10,12 @@ import json
 import numpy as np
 import pytest
 
+from dockhil.analysis.summary import samples_from_bag
 from dockhil.bags.reader import BagReader
 from dockhil.contact.hilloop import simulate_hil
 from dockhil.contact.impedance import impedance_closed_form
 from dockhil.contact.scenario import TABLE1
-from dockhil.analysis.summary import samples_from_bag
-from tests.support.inprocess import run_main, launch_here_or_process
+from tests.support.inprocess import launch_here_or_process, run_main
 
 
 def launch(*args, timeout=180):

@@ -236,7 +236,8 @@ def test_refusals_before_anything_runs():
 
 @pytest.mark.wall_time
 def test_node_info_follows_a_respawned_node_to_its_new_pid(write_launch, capsys):
-    from tests.test_introspection import start, stop as stop_graph
+    from tests.test_introspection import start
+    from tests.test_introspection import stop as stop_graph
 
     p, lines, _ = start(write_launch, respawn=True, die_at=20)
     try:

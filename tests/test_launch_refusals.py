@@ -366,10 +366,10 @@ def test_a_real_robot_never_moves_on_a_replayed_recording(command, tmp_path, wri
     # a command that only depends on the recording, through other nodes, is refused as well
     scene = write_launch(
         "rate: 200\nduration: 1\nnodes:\n"
-        "  - {name: ft, node: bag_source, params: {path: %s, topics: [/ft/wrench]}}\n"
+        "  - {name: ft, node: bag_source, params: {path: BAG, topics: [/ft/wrench]}}\n"
         "  - {name: dynamics, node: satellite_dynamics}\n"
         "  - {name: impedance, node: virtual_impedance}\n"
-        "  - {name: robot, node: robot_modbus, remap: {wrench: /unused}}\n" % bag
+        "  - {name: robot, node: robot_modbus, remap: {wrench: /unused}}\n".replace("BAG", str(bag))
     )
     code, _, err = run_main(command, scene)
     assert_one_line_refusal(code, err, "input 'command' (/robot/command) depends on /ft/wrench")

@@ -9,17 +9,17 @@ import re
 import pytest
 import zmq
 
-from dockhil.scene import launchfile
-from dockhil.runtime import validity
-from dockhil.runtime.composed import ComposedGraph
 from dockhil.errors import DockhilError, LaunchError
-from dockhil.runtime.executor import NodeExecutor, PortWire, RunSpec, StaleInput, Stop
-from dockhil.scene.graph import build
-from dockhil.runtime.plan import Endpoints, run_specs
-from dockhil.node import ManualClock, default_max_age
-from dockhil.runtime.transport import GraphKeys, Publisher
 from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped
 from dockhil.msgs.codec import encode
+from dockhil.node import ManualClock, default_max_age
+from dockhil.runtime import validity
+from dockhil.runtime.composed import ComposedGraph
+from dockhil.runtime.executor import NodeExecutor, PortWire, RunSpec, StaleInput, Stop
+from dockhil.runtime.plan import Endpoints, run_specs
+from dockhil.runtime.transport import GraphKeys, Publisher
+from dockhil.scene import launchfile
+from dockhil.scene.graph import build
 from tests.conftest import ROOT
 from tests.test_launch_refusals import run_main
 

@@ -9,9 +9,9 @@ import stat
 
 import pytest
 
+from dockhil.devices.ati_netft.driver import FtNetFtDriver
 from dockhil.errors import DeviceError
 from dockhil.node import Tick
-from dockhil.devices.ati_netft.driver import FtNetFtDriver
 from dockhil.runtime import ownership
 from tests.test_hardware_netft import LBF, FakeBox, arrive, ctx, record
 

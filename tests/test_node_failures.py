@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import pytest
 
-from dockhil.runtime.executor import check_outputs
 from dockhil.msgs import BodyWrenches, Wrench, WrenchStamped
 from dockhil.node import Input, Node, Output, Param
+from dockhil.runtime.executor import check_outputs
 from tests.conftest import dockhil_cmd
 from tests.support.inprocess import run_main
 
@@ -301,8 +301,8 @@ def test_a_node_failing_at_close_does_not_keep_the_others_from_closing(bad):
     # A driver holds the robot in its close: the nodes after a failing one close all the same.
     from types import SimpleNamespace
 
-    from dockhil.runtime.composed import ComposedGraph
     from dockhil.errors import DockhilError
+    from dockhil.runtime.composed import ComposedGraph
 
     closed = []
 

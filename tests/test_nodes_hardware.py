@@ -13,13 +13,11 @@ import time
 import can
 import pytest
 
-from tests.conftest import VirtualFtSensor
-
-from dockhil.errors import DeviceError
-from dockhil.errors import SafetyStop
 from dockhil.devices.modbus_robot import registers as mm
 from dockhil.devices.modbus_robot.emulator import HOLD
+from dockhil.errors import DeviceError, SafetyStop
 from dockhil.testing import NodeHarness, estop, robot_command, robot_state, wrench
+from tests.conftest import VirtualFtSensor
 
 
 def until(h: NodeHarness, done, inputs=None, timeout: float = 30.0) -> dict:

@@ -8,10 +8,10 @@ import pytest
 from dockhil import msgs
 from dockhil.bags.writer import BagWriter
 from dockhil.errors import DockhilError, ParamError
-from dockhil.node import Input, Node, Output, Param
-from dockhil.testing import NodeHarness, robot_command, wrench
 from dockhil.msgs import RobotCommand, Vector3, Wrench, WrenchStamped
 from dockhil.msgs.codec import encode
+from dockhil.node import Input, Node, Output, Param
+from dockhil.testing import NodeHarness, robot_command, wrench
 
 
 class Probe(Node):
@@ -187,8 +187,8 @@ def test_the_node_writing_guides_example_node_scene_and_test_work(tmp_path, monk
     import re
     import sys
 
-    from dockhil.scene import launchfile
     from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene import launchfile
     from dockhil.scene.graph import build
     from tests.conftest import ROOT
 

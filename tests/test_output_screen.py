@@ -8,7 +8,6 @@ import pytest
 
 from dockhil import msgs
 from dockhil.errors import DockhilError
-from dockhil.runtime.screen import check_message, checked_payload
 from dockhil.msgs import (
     BodyState,
     BodyWrenches,
@@ -22,6 +21,7 @@ from dockhil.msgs import (
     Wrench,
     WrenchStamped,
 )
+from dockhil.runtime.screen import check_message, checked_payload
 
 
 def reader_accepts(msg) -> bool:
@@ -154,9 +154,8 @@ def _mutants(seed: int, n: int):
 
 
 def test_the_compiled_screen_judges_as_its_python_twin():
-    from dockhil.runtime import screen
-
     from dockhil.compiled import twin
+    from dockhil.runtime import screen
 
     if twin("dockhil.runtime._screen") is None:
         pytest.skip("dockhil.runtime._screen is not built here")

@@ -17,9 +17,9 @@ from pathlib import Path
 import pytest
 
 from dockhil import node_types
-from dockhil.scene import launchfile
-from dockhil.errors import LaunchError
 from dockhil.analysis.sweep import CampaignError, load_campaign
+from dockhil.errors import LaunchError
+from dockhil.scene import launchfile
 
 REPO = Path(__file__).resolve().parent.parent
 SCENES = sorted(p.name for p in (REPO / "launch").glob("*.yaml"))

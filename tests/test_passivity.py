@@ -8,14 +8,14 @@ import subprocess
 import numpy as np
 import pytest
 
+from dockhil.analysis.summary import Samples, contact_metrics, ideal_summary
 from dockhil.bags.reader import BagReader
+from dockhil.contact.envelope import growth_rate
 from dockhil.contact.hilloop import Bodies, DelayLine, Servo, sensor_force, simulate_hil, virtual_wrench
 from dockhil.contact.hybrid import VirtualImpedance
 from dockhil.contact.impedance import impedance_closed_form
 from dockhil.contact.passivity import DEFAULT_MAX_DAMPING, ENERGY_FIELDS, Passivity, left_in_loop
 from dockhil.contact.scenario import TABLE1
-from dockhil.analysis.summary import Samples, contact_metrics, ideal_summary
-from dockhil.contact.envelope import growth_rate
 from tests.conftest import dockhil_cmd
 
 DT = 1e-3

@@ -16,8 +16,8 @@ import pytest
 
 from dockhil.bags.reader import BagReader
 from dockhil.msgs import Header, Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3
-from dockhil.msgs.codec import decode
 from dockhil.msgs import WrenchStamped as DockhilWrench
+from dockhil.msgs.codec import decode
 from dockhil.nodes.ros2_bridge import LOOPBACK_URI as LOOPBACK  # Cyclone DDS on lo only: nothing leaves this host
 from dockhil.testing import NodeHarness, estop, wrench
 from tests.conftest import ROOT, dockhil_cmd

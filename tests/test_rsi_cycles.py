@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from dockhil.devices.kuka_rsi.driver import SceneFrame
 from dockhil.devices.kuka_rsi.link import RsiLink, open_socket
 from dockhil.msgs import Header, RobotCycles
 from dockhil.node import ManualClock, Tick
-from dockhil.devices.kuka_rsi.driver import SceneFrame
 from dockhil.testing import wrench
 from tests import test_hardware_rsi as hw
 

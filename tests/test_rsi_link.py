@@ -8,9 +8,9 @@ import socket
 
 import pytest
 
-from dockhil.errors import DeviceError
 from dockhil.devices.kuka_rsi import protocol as rsi
 from dockhil.devices.kuka_rsi.link import ROUNDING_RAD, RsiLink, open_socket
+from dockhil.errors import DeviceError
 from dockhil.node import ManualClock
 
 CYCLE = 0.004

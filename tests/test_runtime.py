@@ -14,8 +14,8 @@ import pytest
 import zmq
 
 from dockhil import msgs
-from dockhil.runtime.transport import split
 from dockhil.msgs.codec import decode, encode
+from dockhil.runtime.transport import split
 from tests.conftest import dockhil_cmd, registered
 from tests.support.inprocess import launch_here_or_process
 
@@ -260,9 +260,7 @@ def test_node_fed_garbage_keeps_running_and_counts(tmp_path):
 def test_observers_are_not_counted_as_subscribers(tmp_path):
     """A progress probe or `topic echo` joining first must not let sim time start early."""
     from dockhil.errors import DockhilError
-    from dockhil.runtime.transport import Publisher, Subscriber
-
-    from dockhil.runtime.transport import GraphKeys
+    from dockhil.runtime.transport import GraphKeys, Publisher, Subscriber
 
     ctx = zmq.Context.instance()
     endpoint = f"ipc://{tmp_path}/t"
@@ -297,9 +295,9 @@ def test_delayed_hops_send_in_bursts_and_change_no_bit(write_launch, tmp_path):
     """A loop through two delayed hops (4 and 6 ticks): their publishers send 2 and 3 ticks at a
     time, the others as soon as their node would wait. The run still ends (no cycle waits for a
     held message) and gives the plain loop's bits, as the composed run does."""
+    from dockhil.runtime.plan import burst
     from dockhil.scene import launchfile
     from dockhil.scene.graph import build
-    from dockhil.runtime.plan import burst
 
     traces = {}
     for mode in ("processes", "composed"):
@@ -327,9 +325,9 @@ def test_bursts_are_sim_time_only_and_follow_the_declared_delay(tmp_path):
     a time in sim time; in wall time every message leaves when it is made."""
     from pathlib import Path
 
+    from dockhil.runtime.plan import Endpoints, run_specs
     from dockhil.scene import launchfile
     from dockhil.scene.graph import build
-    from dockhil.runtime.plan import Endpoints, run_specs
 
     graph = build(launchfile.load(Path(__file__).resolve().parent.parent / "launch" / "hil.yaml"))
     types = {t: "t" for t in graph.publishers}

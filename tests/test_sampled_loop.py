@@ -277,10 +277,10 @@ def test_a_run_stopped_inside_the_contact_reports_no_peak_force_error():
 
 
 def test_summary_collector_keeps_bounded_buffers_over_a_long_run():
-    from dockhil.scene import launchfile
-    from dockhil.runtime.composed import ComposedGraph
-    from dockhil.scene.graph import build
     from dockhil.analysis.summary import ContactMeter, SummaryCollector, TickMatcher
+    from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
 
     graph = build(launchfile.load("launch/stability.yaml", {"b": "60"}))
     collect = SummaryCollector(graph)

@@ -6,8 +6,8 @@ directory of the wrong mode or owner."""
 from __future__ import annotations
 
 import json
-import re
 import os
+import re
 import signal
 import stat
 import subprocess
@@ -20,8 +20,8 @@ import zmq
 
 from dockhil import msgs
 from dockhil.errors import DeviceError, DockhilError
-from dockhil.runtime.transport import GraphKeys, Publisher, Subscriber, runtime_dir
 from dockhil.msgs.codec import decode, encode
+from dockhil.runtime.transport import GraphKeys, Publisher, Subscriber, runtime_dir
 from tests.conftest import ROOT, dockhil_cmd, free_port, registered
 from tests.support.inprocess import run_main
 
@@ -548,8 +548,8 @@ def test_a_second_emulator_on_the_same_port_names_the_graph_that_owns_it():
 
 
 def test_a_second_slcan_adapter_or_driver_on_the_same_path_is_refused(tmp_path):
-    from dockhil.runtime import ownership
     from dockhil.devices.can_ft.slcan_pty import PtyCanBus
+    from dockhil.runtime import ownership
 
     link = str(tmp_path / "ft.slcan")
     ownership.set_graph("graph-one")
@@ -599,10 +599,10 @@ def test_another_graphs_emulator_cannot_join_the_can_bus_a_driver_reads(request)
     """A CAN bus (python-can interface and channel) read by one graph's F/T driver takes that graph's
     emulator (hil.yaml with emulators:=true on a virtual bus), never another graph's: it would stream
     forged frames with the sensor's IDs, and the robot would move on them."""
-    from dockhil.runtime import ownership
-    from dockhil.node import NodeContext
     from dockhil.devices.can_ft.driver import FtCanDriver
     from dockhil.devices.can_ft.emulator import FtSensorEmulator
+    from dockhil.node import NodeContext
+    from dockhil.runtime import ownership
     from tests.conftest import VirtualFtSensor
 
     channel = f"bus-{request.node.name}"

@@ -7,15 +7,15 @@ import subprocess
 import numpy as np
 import pytest
 
-from dockhil.scene import graph as graphmod
-from dockhil.scene import launchfile
 from dockhil.bags.reader import BagReader
-from dockhil.runtime.composed import ComposedGraph
 from dockhil.contact.contact6 import Contact6
 from dockhil.contact.hybrid6 import simulate_hybrid6
 from dockhil.contact.rigidbody import BodyState, RigidBody
 from dockhil.contact.rotations import quat_from_rotvec
 from dockhil.msgs import SatelliteState, WrenchStamped
+from dockhil.runtime.composed import ComposedGraph
+from dockhil.scene import graph as graphmod
+from dockhil.scene import launchfile
 from tests.conftest import ROOT, dockhil_cmd
 
 HIL6 = ROOT / "launch" / "hil6.yaml"

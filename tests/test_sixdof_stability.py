@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from dockhil.contact.scenario import ContactModelError
 from dockhil.contact.hybrid_stability import hybrid_rightmost
+from dockhil.contact.scenario import ContactModelError
 from dockhil.contact.stability6 import (
     MultiAxisLoop,
     hybrid_loop6,
@@ -146,9 +146,9 @@ def test_bad_loops_are_refused_with_one_line():
 def test_the_6dof_scene_check_warns_of_an_unstable_delayed_loop_as_the_1dof_one_does():
     # hil6.yaml at its 32 ms is (just) stable; at 64 ms the linearised loop grows, led by the normal
     # axis: the launch says so in its warnings, as hil.yaml's check does for its loop.
+    from dockhil.analysis.scenecheck import scene_check
     from dockhil.scene import graph as graphmod
     from dockhil.scene import launchfile
-    from dockhil.analysis.scenecheck import scene_check
     from tests.conftest import ROOT
 
     def check(args):

@@ -10,12 +10,12 @@ import subprocess
 import numpy as np
 import pytest
 
-from dockhil.scene import graph as graphmod
-from dockhil.scene import launchfile
+from dockhil.analysis.summary import SummaryCollector, format_summary
 from dockhil.contact.contact6 import Contact6, simulate_contact6
 from dockhil.contact.ideal import ideal_contact_summary
 from dockhil.contact.scenario import ContactScenario
-from dockhil.analysis.summary import SummaryCollector, format_summary
+from dockhil.scene import graph as graphmod
+from dockhil.scene import launchfile
 from tests.conftest import ROOT, dockhil_cmd
 from tests.test_sixdof_graph import DT, library_run, run_taps
 

@@ -152,9 +152,9 @@ def test_bad_input_gives_one_line_and_exit_2(argv, message):
 
 
 def test_the_launch_scene_check_says_a_hardware_robots_delay_is_not_in_its_numbers():
+    from dockhil.analysis.scenecheck import scene_check
     from dockhil.scene import launchfile
     from dockhil.scene.graph import build
-    from dockhil.analysis.scenecheck import scene_check
 
     def check(*overrides):
         return scene_check(build(launchfile.load("launch/hil.yaml", launchfile.parse_overrides(list(overrides)))))

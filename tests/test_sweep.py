@@ -10,14 +10,15 @@ import os
 import textwrap
 from pathlib import Path
 
+import pyarrow.parquet as pq
 import pytest
 
 from dockhil import cli
 from dockhil.analysis import sweep
+from dockhil.analysis.sweep import LocalPool
+from dockhil.analysis.sweep import campaign as sweep_campaign
+from dockhil.analysis.sweep import executors as sweep_executors
 from dockhil.node import Node
-from dockhil.analysis.sweep import LocalPool, campaign as sweep_campaign, executors as sweep_executors
-
-import pyarrow.parquet as pq
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENE = ROOT / "launch" / "stability.yaml"

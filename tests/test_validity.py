@@ -16,13 +16,13 @@ from pathlib import Path
 import pytest
 import zmq
 
-from dockhil.runtime import validity
 from dockhil.errors import DockhilError
-from dockhil.runtime.executor import NodeExecutor, PortWire, RunSpec, StaleInput, Stop
-from dockhil.node import ManualClock, default_max_age
-from dockhil.runtime.transport import HWM, GraphKeys, Publisher, Subscriber
 from dockhil.msgs import Header, Vector3, Wrench, WrenchStamped
 from dockhil.msgs.codec import encode
+from dockhil.node import ManualClock, default_max_age
+from dockhil.runtime import validity
+from dockhil.runtime.executor import NodeExecutor, PortWire, RunSpec, StaleInput, Stop
+from dockhil.runtime.transport import HWM, GraphKeys, Publisher, Subscriber
 from tests.conftest import dockhil_cmd
 from tests.support.faultnodes import Follow, Hiccup
 
@@ -392,9 +392,8 @@ def test_a_stopped_composed_wall_time_run_is_invalid_in_its_summary(tmp_path):
     loop fell half a second behind: the summary says so, the table says INVALID, exit 3."""
     import json
     import signal
-    import time
-
     import threading
+    import time
 
     out = tmp_path / "s.json"
     p = subprocess.Popen(
@@ -437,8 +436,8 @@ def test_the_composed_bounds_check_refuses_what_a_reader_refuses():
     import math
 
     from dockhil import msgs
-    from dockhil.runtime.screen import check_message, checked_payload
     from dockhil.msgs import BodyState, BodyWrenches, Pose, SatelliteState, Twist
+    from dockhil.runtime.screen import check_message, checked_payload
 
     def body(mass=1.0, vx=0.0):
         return BodyState(name="b", mass=mass, pose=Pose(), twist=Twist(linear=Vector3(x=vx)))
@@ -467,8 +466,8 @@ def test_the_composed_bounds_check_refuses_what_a_reader_refuses():
 
 
 def test_a_composed_wall_time_loop_on_a_controlled_clock_reports_the_stall_exactly(write_launch):
-    from dockhil.scene import launchfile
     from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene import launchfile
     from dockhil.scene.graph import build
 
     scene = write_launch(

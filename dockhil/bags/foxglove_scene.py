@@ -30,8 +30,8 @@ from __future__ import annotations
 
 import json
 import math
-from importlib import resources
 from collections.abc import Iterable, Sequence
+from importlib import resources
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 if TYPE_CHECKING:
@@ -81,7 +81,7 @@ class Geometry(NamedTuple):
     sensor_orientation: tuple[float, float, float, float] = _IDENTITY
 
     @classmethod
-    def from_params(cls, params: dict[str, Any]) -> "Geometry":
+    def from_params(cls, params: dict[str, Any]) -> Geometry:
         """From a dynamics node's parameters; one without them (1-DOF) has its interfaces at the CoMs."""
         return cls._make(  # every field, each a tuple of its numbers
             tuple(float(v) for v in params.get(name, default))
@@ -89,7 +89,7 @@ class Geometry(NamedTuple):
         )
 
     @classmethod
-    def six_dof_defaults(cls) -> "Geometry":
+    def six_dof_defaults(cls) -> Geometry:
         """The 6-DOF dynamics node's defaults (dockhil.scene.sixdof_params), which the shipped 6-DOF scene keeps."""
         from dockhil.scene.sixdof_params import BODY_PARAMS, MOUNT_PARAMS
 

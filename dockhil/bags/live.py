@@ -17,9 +17,8 @@ run recorded twice gives the same bag. It runs in three ways:
   registry), until Ctrl-C or until they stop. It is an observer (`dockhil.runtime.transport`): if
   it falls behind it loses messages, counts them and says so, and the graph's own deliveries go on.
 
-Chunks are closed by size, by age and on a 0.5 s timer, so a recorder killed
-with SIGKILL loses at most the chunk it was filling. On SIGTERM or SIGINT it
-drains what its socket holds, then closes the bag.
+Chunks are closed by size, by age and on a 0.5 s timer, so a recorder killed with SIGKILL loses at
+most the chunk it was filling. On SIGTERM or SIGINT it drains what its socket holds, then closes it.
 
 Exit status: 2 (one line, nothing recorded) when the bag cannot be created;
 the launcher checks the path before any node starts. 0 otherwise, also when
@@ -35,16 +34,17 @@ import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
-from dockhil.msgs.codec import decode_header
 from dockhil.bags import runinfo
 from dockhil.bags.format import BagError
 from dockhil.bags.tail import SENT_WAIT_S, TAIL_MAX_S, TAIL_QUIET_S, missing, tail_lines
 from dockhil.bags.writer import BagWriter
 from dockhil.errors import DockhilError
 from dockhil.log import Log, setup_child
+from dockhil.msgs.codec import decode_header
 
 if TYPE_CHECKING:
     from dockhil.runtime import executor, plan

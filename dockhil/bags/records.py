@@ -12,8 +12,8 @@ import io
 import re
 import struct
 import zlib
-from collections.abc import Container
-from typing import TYPE_CHECKING, Any, BinaryIO, Iterator
+from collections.abc import Container, Iterator
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 from dockhil.bags.format import MAGIC, MESSAGE_HEAD, RECORD_HEAD, BagError, LostRegion
 

@@ -4,7 +4,8 @@ and writes it to the bag, the same bytes the recorder process (dockhil.bags.live
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Any, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from dockhil import msgs
 from dockhil.bags import runinfo

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import csv
 import os
-from typing import IO, Any, Iterator, NamedTuple, cast
+from collections.abc import Iterator
+from typing import IO, Any, NamedTuple, cast
 
 import msgspec
 

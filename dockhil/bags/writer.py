@@ -256,7 +256,7 @@ class BagWriter:
             raise error from None
         self.messages_flushed = self.messages_written
 
-    def __enter__(self) -> "BagWriter":
+    def __enter__(self) -> BagWriter:
         return self
 
     def __exit__(self, *exc_info: object) -> None:

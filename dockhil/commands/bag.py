@@ -198,7 +198,7 @@ def _time(seconds: float | None) -> str:
     text = f"{seconds:.6f} s"
     # Wall-time bags carry Unix time; sim-time bags start near 0.
     if seconds > 1e9:
-        stamp = datetime.datetime.fromtimestamp(seconds, datetime.timezone.utc)
+        stamp = datetime.datetime.fromtimestamp(seconds, datetime.UTC)
         text += f" ({stamp:%Y-%m-%d %H:%M:%S.%f} UTC)"
     return text
 

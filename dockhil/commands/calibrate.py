@@ -68,8 +68,8 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from dockhil.scene import launchfile
     from dockhil.log import Log
+    from dockhil.scene import launchfile
 
     say = Log("dockhil calibrate:")
     if args.out is not None:
@@ -137,8 +137,8 @@ def calibration_scene(scene):
     identification node, without the simulated loop; LaunchError naming the arguments when the scene
     has no hardware to identify."""
     from dockhil import node_types as registry
-    from dockhil.scene.launchfile import NodeSpec
     from dockhil.nodes.identification import Identification
+    from dockhil.scene.launchfile import NodeSpec
 
     kept, robot, sensor = [], None, None
     for spec in scene.nodes:

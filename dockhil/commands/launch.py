@@ -8,7 +8,6 @@ from dockhil import log
 from dockhil.argtypes import max_age_setting, seconds
 from dockhil.errors import LaunchError
 
-
 EXIT_STATUS = """exit status:
   0  the run completed and its result is valid
   1  a node failed or a safety stop held the robot (the line above says which and why),

@@ -109,8 +109,7 @@ def _info(name: str, graphs: list[dict], as_json: bool) -> int:
 
 
 def _types(name: str | None) -> int:
-    from dockhil import msgs
-    from dockhil import node_types
+    from dockhil import msgs, node_types
 
     extra = node_types.plugins()
     names = [name] if name else [*sorted(node_types.REGISTRY), *sorted(extra)]

@@ -180,10 +180,10 @@ def _check_steps(scenario: ContactScenario, args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from dockhil.contact.impedance import fit_impedance
     from dockhil.contact.scenario import NegativeVirtualStiffnessWarning
-
-    import numpy as np
 
     scenario = _scenario(args)
     _check_steps(scenario, args)

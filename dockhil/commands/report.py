@@ -36,8 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from dockhil.analysis.report import compute as report
-    from dockhil.analysis.report import plots as report_plots
     from dockhil.analysis.report import markdown as report_markdown
+    from dockhil.analysis.report import plots as report_plots
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():

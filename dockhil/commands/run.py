@@ -46,14 +46,13 @@ def run(args: argparse.Namespace) -> int:
     import json
     import uuid
 
-    from dockhil import msgs
-    from dockhil import node_types
-    from dockhil.scene import boundedyaml
+    from dockhil import msgs, node_types
     from dockhil.runtime.executor import PortWire, RunSpec
-    from dockhil.runtime.registry import KEY_FILE, graph_keys, registry_dir, running_graphs
-    from dockhil.scene.launchfile import parse_overrides
     from dockhil.runtime.process import run_node
+    from dockhil.runtime.registry import KEY_FILE, graph_keys, registry_dir, running_graphs
     from dockhil.runtime.transport import GraphKeys, ipc_endpoint, new_run_dir
+    from dockhil.scene import boundedyaml
+    from dockhil.scene.launchfile import parse_overrides
 
     name = args.name or args.node.rsplit(":", 1)[-1]
     params = {k: boundedyaml.load(v, f"parameter {k}:={v}")[0] for k, v in parse_overrides(args.overrides).items()}

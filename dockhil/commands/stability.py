@@ -456,10 +456,8 @@ def _hybrid_values(args) -> tuple[float, float, float, float, float, float, floa
 
 def _run_hybrid(args) -> int:
     from dockhil.contact.hybrid_stability import hybrid_report
-
-    from dockhil.contact.sampled import RootsNotResolved
-
     from dockhil.contact.passivity_bound import passivity_report
+    from dockhil.contact.sampled import RootsNotResolved
 
     m, kd, bd, kh, bh, h, rate = _hybrid_values(args)
     try:

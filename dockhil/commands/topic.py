@@ -139,8 +139,9 @@ def graph_alive(info: dict) -> bool:
 
 
 def _subscribe(endpoint: str, keys: GraphKeys) -> Subscriber:
-    from dockhil.runtime.transport import Subscriber
     import zmq
+
+    from dockhil.runtime.transport import Subscriber
 
     sub = Subscriber(zmq.Context.instance(), observer=True)
     sub.connect(endpoint, keys=keys)

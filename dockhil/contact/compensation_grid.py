@@ -25,8 +25,8 @@ from collections.abc import Callable, Collection
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, cast
 
-from dockhil.contact.comploop import ZERO, Hardware, simulate_compensated, target_frequency
 from dockhil.contact.compensation import METHODS, CompensationSettings
+from dockhil.contact.comploop import ZERO, Hardware, simulate_compensated, target_frequency
 from dockhil.contact.hunt_crossley import (
     IdealRun,
     TargetContact,

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from dockhil.contact.hybrid import VirtualImpedance
-from dockhil.contact.ideal import modes, contact_duration, ideal_trajectory
+from dockhil.contact.ideal import contact_duration, ideal_trajectory, modes
 from dockhil.contact.integrators import METHODS, Integrator, LinearSecondOrderSystem, simulate_reference
 from dockhil.contact.scenario import (
     ContactModelError,

@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import TYPE_CHECKING, Sequence
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -75,18 +76,18 @@ class LinearSecondOrderSystem:
         self.B = np.vstack([np.zeros((n, n)), np.diag(1.0 / m)])
 
     @classmethod
-    def free(cls, masses: Sequence[float]) -> "LinearSecondOrderSystem":
+    def free(cls, masses: Sequence[float]) -> LinearSecondOrderSystem:
         """Free-floating bodies: only the external forces act."""
         return cls(masses)
 
     @classmethod
-    def ideal_contact(cls, scenario: ContactScenario) -> "LinearSecondOrderSystem":
+    def ideal_contact(cls, scenario: ContactScenario) -> LinearSecondOrderSystem:
         """Eq. 1 in two-body form: kcs and bcs between chaser and target."""
         link = np.array([[1.0, -1.0], [-1.0, 1.0]])
         return cls([scenario.m1, scenario.m2], scenario.kcs * link, scenario.bcs * link)
 
     @classmethod
-    def hybrid_contact(cls, scenario: ContactScenario, impedance: VirtualImpedance) -> "LinearSecondOrderSystem":
+    def hybrid_contact(cls, scenario: ContactScenario, impedance: VirtualImpedance) -> LinearSecondOrderSystem:
         """Eqs. 2-4 in contact: passive k plus the virtual impedance on the CoM wall
         (see dockhil.contact.hybrid: x1 - w = m2 p / M, x2 - w = -m1 p / M)."""
         m1, m2, total = scenario.m1, scenario.m2, scenario.total_mass

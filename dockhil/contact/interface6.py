@@ -123,7 +123,7 @@ class InterfaceGeometry:
         self._place(m1.body, m1.x, m1.q, m2.body, m2.x, m2.q)
 
     @classmethod
-    def between(cls, body1: RigidBody, x1: Vec3, q1: Quat, body2: RigidBody, x2: Vec3, q2: Quat) -> "InterfaceGeometry":
+    def between(cls, body1: RigidBody, x1: Vec3, q1: Quat, body2: RigidBody, x2: Vec3, q2: Quat) -> InterfaceGeometry:
         """The geometry of two CoM positions and principal-frame attitudes (no Motion needed)."""
         g = cls.__new__(cls)
         g._place(body1, x1, q1, body2, x2, q2)

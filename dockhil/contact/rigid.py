@@ -81,14 +81,14 @@ class Motion:
         self.body, self.x, self.v, self.q, self.L = body, x, v, q, L
 
     @classmethod
-    def from_state(cls, body: RigidBody, state: BodyState) -> "Motion":
+    def from_state(cls, body: RigidBody, state: BodyState) -> Motion:
         q_p = normalised(quat_multiply(state.orientation, body._q_bp))
         omega_p = body.principal_axes.T @ state.angular_velocity
         return cls(
             body, _floats3(state.position), _floats3(state.velocity), q_p, _floats3(body.principal_moments * omega_p)
         )
 
-    def copy(self) -> "Motion":
+    def copy(self) -> Motion:
         return Motion(self.body, self.x, self.v, self.q, self.L)  # tuples: nothing shared can change
 
     def state(self) -> BodyState:
@@ -223,7 +223,7 @@ class Wrench:
 
     velocity_dependent = True
 
-    def prepare(self, m1: "Motion", m2: "Motion") -> tuple[Vec3, WrenchOf]:
+    def prepare(self, m1: Motion, m2: Motion) -> tuple[Vec3, WrenchOf]:
         raise NotImplementedError
 
 

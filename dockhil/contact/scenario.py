@@ -137,7 +137,7 @@ class ContactScenario:
             return math.inf
         return self.bcs / (2.0 * math.sqrt(self.kcs * self.reduced_mass))
 
-    def replace(self, **changes: float) -> "ContactScenario":
+    def replace(self, **changes: float) -> ContactScenario:
         return replace(self, **changes)
 
     def as_dict(self) -> dict[str, float]:
@@ -160,13 +160,13 @@ class Trajectory:
     contact, None when the run does not reach them.
     """
 
-    t: "np.ndarray"
-    x1: "np.ndarray"
-    x2: "np.ndarray"
-    v1: "np.ndarray"
-    v2: "np.ndarray"
-    force: "np.ndarray"
-    in_contact: "np.ndarray"
+    t: np.ndarray
+    x1: np.ndarray
+    x2: np.ndarray
+    v1: np.ndarray
+    v2: np.ndarray
+    force: np.ndarray
+    in_contact: np.ndarray
     onset: float | None
     exit: float | None
     method: str
@@ -181,7 +181,7 @@ class Trajectory:
         onset: float | None,
         exit: float | None,
         method: str,
-    ) -> "Trajectory":
+    ) -> Trajectory:
         """From rows of states [x1, x2, v1, v2]."""
         return cls(t, states[:, 0], states[:, 1], states[:, 2], states[:, 3], force, in_contact, onset, exit, method)
 

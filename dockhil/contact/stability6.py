@@ -81,7 +81,7 @@ class MultiAxisLoop:
     def n(self) -> int:
         return self.mass.shape[0]
 
-    def scaled(self, alpha: float) -> "MultiAxisLoop":
+    def scaled(self, alpha: float) -> MultiAxisLoop:
         """The same loop with the delayed stiffness times alpha."""
         return MultiAxisLoop(
             self.mass, self.k_direct, self.b_direct, alpha * self.k_delayed, self.b_delayed, self.h, self.axes

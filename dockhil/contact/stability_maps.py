@@ -25,12 +25,12 @@ def compensated_runs(m: float, b: float, h: float, K: float | None, max_damping:
     delay h) with the passivity controller, simulated: growth rate and saturation per K."""
     import numpy as np
 
+    from dockhil.contact.envelope import growth_rate
     from dockhil.contact.hilloop import simulate_hil
     from dockhil.contact.hybrid import VirtualImpedance
     from dockhil.contact.passivity import Passivity, left_in_loop
     from dockhil.contact.scenario import ContactModelError
     from dockhil.contact.stability import exact_bound
-    from dockhil.contact.envelope import growth_rate
 
     bound = exact_bound(m, b, h, damper="undelayed").k_max
     stiffnesses = [] if bound is None else [(f"{x:g}x exact", x * bound) for x in MULTIPLES]
@@ -141,8 +141,8 @@ def hybrid_map(
     delayed) per h."""
     import numpy as np
 
-    from dockhil.contact.sampled import SampledLoop, spectral_radius
     from dockhil.contact.hybrid_stability import unstable_root_count
+    from dockhil.contact.sampled import SampledLoop, spectral_radius
     from dockhil.contact.stability import pade1_bound
 
     exact = np.zeros((hs.size, ks.size), bool)

@@ -17,9 +17,9 @@ import math
 import os
 import re
 import stat
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, Sequence
 
 from dockhil.errors import DeviceError, ParamError
 

@@ -25,7 +25,7 @@ class DecodeError(ValueError):
     """Bytes that are not a valid message of the expected type."""
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _decoder(cls: type) -> msgspec.msgpack.Decoder:
     return msgspec.msgpack.Decoder(cls)
 

@@ -32,12 +32,12 @@ from typing import Any
 import msgspec
 
 from dockhil import msgs
-from dockhil.msgs.codec import decode_header
 from dockhil.bags.format import BagError, BagMessage
 from dockhil.bags.reader import BagReader
 from dockhil.errors import DockhilError, ParamError
-from dockhil.scene.schema import MAX_DURATION
+from dockhil.msgs.codec import decode_header
 from dockhil.node import Node, Output, Param, Tick
+from dockhil.scene.schema import MAX_DURATION
 
 _summaries: dict[tuple, dict] = {}
 

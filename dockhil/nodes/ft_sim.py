@@ -5,9 +5,9 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any, cast
 
 from dockhil import physical
-from dockhil.scene.schema import MAX_RATE
-from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.msgs import RobotState, Vector3, Wrench, WrenchStamped
+from dockhil.node import Input, Node, Output, Param, Tick
+from dockhil.scene.schema import MAX_RATE
 
 if TYPE_CHECKING:
     import numpy as np

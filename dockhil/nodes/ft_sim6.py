@@ -5,11 +5,10 @@ from __future__ import annotations
 from typing import Any
 
 from dockhil import physical
-from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.msgs import RobotState, Vector3, Wrench, WrenchStamped
+from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.nodes.robot_sim6 import relative_pose
 from dockhil.scene.sixdof_params import MOUNT_PARAMS, PASSIVE_PARAMS, checked, passive_contact
-
 
 NO_WRENCH = Wrench()  # msgs are frozen: one zero wrench serves every message that carries one
 

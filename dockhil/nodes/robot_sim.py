@@ -6,8 +6,8 @@ import math
 from typing import Any
 
 from dockhil import physical
-from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.msgs import EStop, Pose, RobotCommand, RobotState, Twist, Vector3
+from dockhil.node import Input, Node, Output, Param, Tick
 
 # Event topic, as the robot driver's: active holds the robot and stops the graph.
 ESTOP = Input(EStop, "/estop", feedthrough=False, required=False, max_age=math.inf, help="emergency stop")

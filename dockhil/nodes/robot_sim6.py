@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any, cast
 
 from dockhil import physical
-from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.msgs import Pose, Quaternion, RobotCommand, RobotState, Twist, Vector3
+from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.nodes.robot_sim import ESTOP, estop_held
 
 if TYPE_CHECKING:

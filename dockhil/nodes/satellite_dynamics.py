@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import Any
 
 from dockhil import physical
-from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.msgs import BodyState, BodyWrenches, Pose, RobotCommand, SatelliteState, Twist, Vector3, WrenchStamped
+from dockhil.node import Input, Node, Output, Param, Tick
 
 
 class SatelliteDynamics(Node):

@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import Any, cast
 
 from dockhil import physical
-from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.msgs import (
     BodyState,
     BodyWrenches,
@@ -17,6 +16,7 @@ from dockhil.msgs import (
     Vector3,
     WrenchStamped,
 )
+from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.scene.sixdof_params import BODY_PARAMS, IDENTITY, MOUNT_PARAMS, bodies, checked
 
 

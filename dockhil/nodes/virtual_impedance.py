@@ -8,8 +8,8 @@ import math
 from typing import Any
 
 from dockhil import physical
-from dockhil.node import Input, Node, Output, Param, Tick
 from dockhil.msgs import BodyWrenches, Energy, RobotState, SatelliteState, Vector3, Wrench, WrenchStamped
+from dockhil.node import Input, Node, Output, Param, Tick
 
 # As dockhil.contact.compensation.METHODS (not imported here: the node's class loads no science).
 METHODS = ("none", "passivity", "phase_lead", "smith", "predictor", "energy", "phase_lead+passivity")
@@ -154,8 +154,8 @@ class VirtualImpedance(Node):
     @staticmethod
     def settings(p):
         """(target contact or None, compensation settings, passivity or None) of the parameters `p` (a dict)."""
-        from dockhil.contact.comploop import target_frequency
         from dockhil.contact.compensation import CompensationSettings
+        from dockhil.contact.comploop import target_frequency
         from dockhil.contact.hunt_crossley import TargetContact
         from dockhil.contact.passivity import Passivity
 
@@ -181,7 +181,6 @@ class VirtualImpedance(Node):
 
     def setup(self):
         import warnings
-
         from operator import attrgetter
 
         from dockhil.contact.comploop import ImpedanceStep

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from dockhil.node import Input, Node, Output, Tick
 from dockhil.msgs import BodyWrenches, SatelliteState, Vector3, Wrench
+from dockhil.node import Input, Node, Output, Tick
 from dockhil.scene.sixdof_params import (
     BODY_PARAMS,
     IDEAL_PARAMS,
@@ -15,7 +15,6 @@ from dockhil.scene.sixdof_params import (
     ideal_contact,
     passive_contact,
 )
-
 
 NO_WRENCH = Wrench()  # msgs are frozen: one zero wrench serves every message that carries one
 

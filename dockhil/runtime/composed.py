@@ -12,17 +12,18 @@ from __future__ import annotations
 import functools
 import time
 from collections import deque
-from typing import Any, Callable, cast
+from collections.abc import Callable
+from typing import Any, cast
 
 import msgspec
 
 from dockhil.errors import NODE_RAISES, DockhilError, failure_line
+from dockhil.log import node_line
+from dockhil.node import NodeContext, Tick
 from dockhil.runtime.executor import Stop, check_outputs
 from dockhil.runtime.looptime import LoopTiming, loop_spin, sleep_until
 from dockhil.runtime.screen import bounds_check, checked_payload
 from dockhil.scene.graph import Graph
-from dockhil.log import node_line
-from dockhil.node import NodeContext, Tick
 
 Tap = Callable[[str, Any], None]  # (topic, message)
 # A whole tick, written out (tick_function): (tick, k, check_types) -> each node's outputs, with collect.
@@ -240,7 +241,7 @@ def tick_function(plan: list, histories: list, taps: list[Tap], wall: bool, coll
 TICK_SOURCE = "<composed tick>"
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _sequence_fields(cls: type) -> tuple[str, ...]:
     """The top-level fields of a message type that hold a sequence (tuples in msgs): a reader in
     the same process must not be able to change them under another reader. Cached: inspecting a

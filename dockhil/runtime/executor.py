@@ -38,8 +38,8 @@ import msgspec
 
 from dockhil.errors import DockhilError
 from dockhil.log import node_line
-from dockhil.node import NodeContext, Tick
 from dockhil.msgs.codec import DecodeError, decode, decode_header
+from dockhil.node import NodeContext, Tick
 from dockhil.runtime import realtime
 from dockhil.runtime.looptime import LoopTiming, loop_spin, sleep_until
 from dockhil.runtime.screen import checked_payload
@@ -448,7 +448,7 @@ class NodeExecutor:
         dump_report(out)
         return out
 
-    def _check_ages(self, arrived: dict[str, float], now: float, timing: "LoopTiming", end: float | None) -> bool:
+    def _check_ages(self, arrived: dict[str, float], now: float, timing: LoopTiming, end: float | None) -> bool:
         """Raises StaleInput for an input older than its max_age; True (the run is over) when that
         input's publisher ran to within two max_ages of the run's `end`: the graph stopped it there,
         and this loop, started a little after it, is still ticking."""

@@ -30,7 +30,7 @@ class GraphKeys:
     client_secret: bytes
 
     @classmethod
-    def make(cls) -> "GraphKeys":
+    def make(cls) -> GraphKeys:
         import zmq
 
         server_public, server_secret = zmq.curve_keypair()
@@ -46,7 +46,7 @@ class GraphKeys:
         return path
 
     @classmethod
-    def read(cls, path: str | Path) -> "GraphKeys":
+    def read(cls, path: str | Path) -> GraphKeys:
         """Keys from a key file that only this user can read; one line otherwise."""
         try:
             fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)

@@ -33,10 +33,10 @@ import msgspec
 from dockhil import log
 from dockhil.runtime.blame import blame
 from dockhil.runtime.executor import STALE, TIMING
+from dockhil.runtime.plan import ExtraProcess, assign_endpoints, is_local, processes, run_specs
 from dockhil.runtime.process import READY
 from dockhil.runtime.registry import describe_nodes, describe_subscribers, write_entry
 from dockhil.runtime.transport import GraphKeys
-from dockhil.runtime.plan import ExtraProcess, assign_endpoints, is_local, processes, run_specs
 
 if TYPE_CHECKING:  # the graph module loads the launch-file parser (yaml): a recorder or `dockhil topic` needs neither
     from dockhil.progress import Progress

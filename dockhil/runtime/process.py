@@ -52,10 +52,10 @@ def run_node(
     spec: RunSpec, log: Callable[[str], object] | None = None, on_ready: Callable[[], object] | None = None
 ) -> int:
     """Set up and run one node until its ticks are done or a stop is requested."""
-    from dockhil import node_types
     from dockhil import log as logs
-    from dockhil.runtime import ownership
+    from dockhil import node_types
     from dockhil.errors import NODE_RAISES, DockhilError, failure_line
+    from dockhil.runtime import ownership
     from dockhil.runtime.executor import TIMING, NodeExecutor, Stop
 
     log = log or (lambda m: logs.node_line(spec.name, m))

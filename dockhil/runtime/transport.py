@@ -53,8 +53,8 @@ so it bounds as many frames as the graph's socket.
 from __future__ import annotations
 
 import struct
-from collections.abc import Callable, Sequence
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import zmq
@@ -62,7 +62,6 @@ import zmq
 from dockhil.errors import DockhilError
 from dockhil.runtime.keys import GraphKeys, allow_clients, release_clients
 from dockhil.runtime.rundir import new_run_dir, private_dir, runtime_dir  # noqa: F401 - importers find them here too
-
 
 HWM = 20_000  # messages queued per subscriber, each way: bounded memory; far above any lock-step lead
 OBSERVER_HWM = 1_000  # per observer, each way: one that stops reading loses messages, it does not hoard them

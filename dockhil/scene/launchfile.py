@@ -46,14 +46,14 @@ import re
 import secrets
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Union
+from typing import Any
 
 import msgspec
 
+from dockhil.errors import LaunchError, suggest
 from dockhil.scene import boundedyaml
 from dockhil.scene.files import SHIPPED_SCENES, find_shipped, unopenable  # noqa: F401 - part of this API
 from dockhil.scene.loopfile import loop_args
-from dockhil.errors import LaunchError, suggest
 from dockhil.scene.schema import (
     MAX_INCLUDES,
     MAX_NODES,
@@ -318,7 +318,7 @@ def _load(path: Path, given: dict[str, Any], from_cli: bool, stack: tuple, budge
 def _scene(
     path: Path, data: dict, root: Any, given: dict[str, Any], from_cli: bool, stack: tuple, budget: _Budget
 ) -> Scene:
-    decls = convert(data.get("args"), Optional[dict[str, Union[ArgDecl, Scalar, Numbers]]], prefix=("args",)) or {}
+    decls = convert(data.get("args"), dict[str, ArgDecl | Scalar | Numbers] | None, prefix=("args",)) or {}
     specs = {name: _arg_spec(name, body, _where(path, root, ["args", name])) for name, body in decls.items()}
     values = {name: spec.default for name, spec in specs.items()}
     if from_cli and "loop" in specs and given.get("loop"):

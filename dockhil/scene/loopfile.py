@@ -10,7 +10,6 @@ from typing import Any
 from dockhil.errors import DockhilError, LaunchError
 from dockhil.scene import boundedyaml
 
-
 # What a loop file may hold: what calibration identified (the loop's delay and lag, the passive stiffness and
 # damping, the F/T noise and delay in `args`; the sensor's bias as `tare`), and its record. Nothing else: a
 # loop file is no way to set a scene's limits or masses.

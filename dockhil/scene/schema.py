@@ -11,7 +11,8 @@ from __future__ import annotations
 import difflib
 import math
 import re
-from typing import Annotated, Any, Literal, Optional, Union, cast, get_args, get_origin
+import types
+from typing import Annotated, Any, Literal, Union, cast, get_args, get_origin
 
 import msgspec
 from msgspec import Meta, Struct, field
@@ -29,10 +30,12 @@ MAX_SUBSTITUTED = 1 << 22  # characters built by substitution for one scene, inc
 MAX_LETS = 1000  # `let` variables in one file
 MAX_AGE = 600.0  # [s] the longest maximum age a launch file may give a wall-time input
 
-Scalar = Union[bool, int, float, str]
+UNIONS = (Union, types.UnionType)  # typing.Union[...] and X | Y
+
+Scalar = bool | int | float | str
 # A list of numbers (an F/T bias per axis): an argument's default, given as [a, b, ...] or a,b,...
 Numbers = Annotated[list[float], Meta(max_length=MAX_CHOICES)]
-Condition = Union[bool, int, str, None]
+Condition = bool | int | str | None
 Rate = Annotated[
     float,
     Meta(
@@ -102,10 +105,10 @@ Host = Annotated[
 class ArgDecl(Struct, forbid_unknown_fields=True):
     """A launch argument, set on the command line as name:=value."""
 
-    default: Union[Scalar, Numbers]
+    default: Scalar | Numbers
     help: str = ""
-    choices: Optional[Annotated[list[Scalar], Meta(min_length=1, max_length=MAX_CHOICES)]] = None
-    type: Optional[Literal["float", "int", "bool", "str", "list"]] = None
+    choices: Annotated[list[Scalar], Meta(min_length=1, max_length=MAX_CHOICES)] | None = None
+    type: Literal["float", "int", "bool", "str", "list"] | None = None
 
 
 class RemapDecl(Struct, forbid_unknown_fields=True):
@@ -134,10 +137,10 @@ class NodeDecl(Struct, forbid_unknown_fields=True):
 
     name: NodeName
     node: NodeType
-    params: Union[dict[str, Any], list[ParamDecl], None] = None
-    param: Union[dict[str, Any], list[ParamDecl], None] = None  # the ROS 2 spelling; either form in either
-    remap: Union[dict[str, str], list[RemapDecl], None] = None
-    max_age: Optional[dict[str, MaxAge]] = None
+    params: dict[str, Any] | list[ParamDecl] | None = None
+    param: dict[str, Any] | list[ParamDecl] | None = None  # the ROS 2 spelling; either form in either
+    remap: dict[str, str] | list[RemapDecl] | None = None
+    max_age: dict[str, MaxAge] | None = None
     if_: Condition = field(default=None, name="if")
     unless: Condition = None
     respawn: bool = False
@@ -157,19 +160,19 @@ class IncludeDecl(Struct, forbid_unknown_fields=True):
     """Another launch file whose nodes join this scene."""
 
     file: Annotated[str, Meta(min_length=1, description="path relative to this file")]
-    args: Optional[dict[str, Scalar]] = None
+    args: dict[str, Scalar] | None = None
     if_: Condition = field(default=None, name="if")
     unless: Condition = None
 
 
-Lets = Optional[Annotated[list[LetDecl], Meta(max_length=MAX_LETS, description=f"at most {MAX_LETS} variables")]]
+Lets = Annotated[list[LetDecl], Meta(max_length=MAX_LETS, description=f"at most {MAX_LETS} variables")] | None
 
 
 class GroupDecl(Struct, forbid_unknown_fields=True):
     """Nodes under one namespace and one condition."""
 
     nodes: list[NodeDecl]
-    namespace: Optional[Namespace] = None
+    namespace: Namespace | None = None
     if_: Condition = field(default=None, name="if")
     unless: Condition = None
 
@@ -179,12 +182,12 @@ class LaunchFile(Struct, forbid_unknown_fields=True):
 
     description: str = ""
     rate: Rate = 1000.0
-    duration: Optional[Duration] = None
-    args: Optional[dict[str, Union[ArgDecl, Scalar, Numbers]]] = None
+    duration: Duration | None = None
+    args: dict[str, ArgDecl | Scalar | Numbers] | None = None
     let: Lets = None
-    nodes: Optional[list[NodeDecl]] = None
-    group: Optional[list[GroupDecl]] = None
-    include: Optional[list[IncludeDecl]] = None
+    nodes: list[NodeDecl] | None = None
+    group: list[GroupDecl] | None = None
+    include: list[IncludeDecl] | None = None
 
 
 def json_schema() -> dict:
@@ -285,7 +288,7 @@ def _inner(kind: Any, data: Any = None) -> Any:
     while True:
         if get_origin(kind) is Annotated:
             kind = get_args(kind)[0]
-        elif get_origin(kind) is Union:
+        elif get_origin(kind) in UNIONS:
             options = [k for k in get_args(kind) if k is not type(None)]
             shaped = [k for k in options if _is_struct(k) or get_origin(k) in (dict, list)]
             if len(shaped) > 1:
@@ -300,7 +303,7 @@ def _description(kind: Any) -> str:
     """The Meta description declared for a field, through Optional."""
     if get_origin(kind) is Annotated:
         return next((m.description for m in get_args(kind)[1:] if isinstance(m, Meta) and m.description), "")
-    if get_origin(kind) is Union:
+    if get_origin(kind) in UNIONS:
         return next((d for d in map(_description, get_args(kind)) if d), "")
     return ""
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 import random
 
-from dockhil.node import Input, Node, Output, Param
 from dockhil.msgs import Vector3, Wrench, WrenchStamped
+from dockhil.node import Input, Node, Output, Param
 
 
 def _w(tick, x, y=0.0):

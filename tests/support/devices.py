@@ -115,7 +115,7 @@ class Rig:
         log = (self.logs if logs is None else logs).append
         return NodeContext("driver", DT, sim_time=False, log=log, clock=self.clock)
 
-    def start(self) -> "Rig":
+    def start(self) -> Rig:
         with in_graph(GRAPH):
             self.start_emulator()
             self.driver = self.build()

@@ -6,8 +6,8 @@ import math
 import os
 import time
 
-from dockhil.node import Input, Node, Output, Param
 from dockhil.msgs import SatelliteState, Vector3, Wrench, WrenchStamped
+from dockhil.node import Input, Node, Output, Param
 
 
 def _w(tick, x):

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from dockhil.node import Node, Output, Param
 from dockhil.msgs import Vector3, Wrench, WrenchStamped
+from dockhil.node import Node, Output, Param
 
 
 class Chatty(Node):

@@ -8,7 +8,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
 from dockhil.analysis.calibration.servo_fit import (
     MAX_DELAY_S,
     MAX_LAG_S,

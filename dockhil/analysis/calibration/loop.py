@@ -36,7 +36,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
 from dockhil.analysis.calibration.device_cycles import DeviceCycles, Link, device_servo, link
 from dockhil.analysis.calibration.end_to_end import EndToEnd, end_to_end
 from dockhil.analysis.calibration.servo_fit import CalibrationError, Contact, Rest, Servo, contact, rest, servo

@@ -10,7 +10,6 @@ import numpy as np
 
 from dockhil.errors import DockhilError
 
-
 GRID_S = 1e-4  # simulation step of the servo model [s]: a tenth of the device cycle
 MAX_DELAY_S = 0.5
 MAX_LAG_S = 0.5

@@ -17,6 +17,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from dockhil.analysis.summary import Samples, contact_metrics
+from dockhil.contact.envelope import growth_rate
 from dockhil.contact.hilloop import delay_ticks, simulate_hil, simulate_ideal
 from dockhil.contact.hybrid import VirtualImpedance
 from dockhil.contact.impedance import impedance_closed_form
@@ -24,8 +26,6 @@ from dockhil.contact.sampled import SampledLoop, sampled_growth_rate
 from dockhil.contact.scenario import TABLE1, ContactScenario
 from dockhil.contact.stability import growth_rate as predicted_growth_rate
 from dockhil.contact.stability import pade1_bound
-from dockhil.analysis.summary import Samples, contact_metrics
-from dockhil.contact.envelope import growth_rate
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -121,11 +121,11 @@ SIXDOF_SECONDS = 2.0  # the off-axis contact lasts 1.6 s; the delayed passive fo
 def sixdof(bag_path: str, delay: float = 0.032, seconds: float = SIXDOF_SECONDS) -> dict:
     """Run launch/hil6.yaml (off-axis defaults, robot delay `delay`) for `seconds`, composed in
     sim time, recording every topic to bag_path; return its 6-DOF summary (run, ideal, error)."""
-    from dockhil.scene import launchfile
+    from dockhil.analysis.summary import SummaryCollector
     from dockhil.bags.tap import TapRecorder
     from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene import launchfile
     from dockhil.scene.graph import build
-    from dockhil.analysis.summary import SummaryCollector
 
     graph = build(launchfile.load(launchfile.SHIPPED_SCENES / "hil6.yaml", {"delay": repr(float(delay))}))
     collector = SummaryCollector(graph)

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dockhil.errors import DockhilError
 from dockhil.analysis.plots.figure_file import save_figure
+from dockhil.errors import DockhilError
 
 
 @dataclass

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from dockhil.errors import DockhilError
 from dockhil.analysis.plots.figure_file import save_figure
+from dockhil.errors import DockhilError
 
 if TYPE_CHECKING:
     import numpy as np

@@ -10,9 +10,10 @@ import math
 import re
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -70,7 +71,7 @@ class ReportConfig:
     quick: bool = False
 
     @classmethod
-    def quick_config(cls) -> "ReportConfig":
+    def quick_config(cls) -> ReportConfig:
         """Every section, case and check of the full report, on less work: three steps that
         divide the 32 ms delay (an order needs two; steps that round the delay distort it),
         shorter long runs, and, where `quick` is read, fewer processes (graph_cost,

@@ -28,9 +28,9 @@ from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any, cast
 
 from dockhil import msgs
-from dockhil.contact.rotations import cross3, rotate, sub3
 from dockhil.analysis.scenecheck import scene_check, sixdof_nodes
 from dockhil.analysis.summary.common import ContactMeter, RangeMeter, TickMatcher, force_band, range_summary
+from dockhil.contact.rotations import cross3, rotate, sub3
 
 if TYPE_CHECKING:
     from dockhil.analysis.summary.common import ForceBand

@@ -13,13 +13,14 @@ import json
 import math
 import os
 import re
+from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator, TypeVar, cast
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 import msgspec
 
-from dockhil.scene import boundedyaml
 from dockhil.errors import DockhilError
+from dockhil.scene import boundedyaml
 from dockhil.scene.launchfile import SHIPPED_SCENES
 from dockhil.scene.schema import MAX_DURATION
 

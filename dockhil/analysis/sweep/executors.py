@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Generator
+from collections.abc import Generator
 
 from dockhil.analysis.sweep.campaign import CampaignError, WriteError
 from dockhil.analysis.sweep.run import exception_line, failed_row, run_batch

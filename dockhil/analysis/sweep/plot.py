@@ -15,9 +15,9 @@ import math
 
 import numpy as np
 
-from dockhil.errors import DockhilError
 from dockhil.analysis.plots.figure_file import save_figure
 from dockhil.analysis.sweep.results import METADATA_KEY
+from dockhil.errors import DockhilError
 
 MAP_ARGS = ("k", "b", "delay", "m")  # the stability scene's names for K, b, h, m
 NEAR = 0.02  # points this close to the exact boundary (relative in K) are not counted

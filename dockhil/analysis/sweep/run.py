@@ -10,8 +10,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from dockhil.errors import DockhilError
 from dockhil.analysis.sweep.campaign import Campaign, CampaignError, WriteError, cannot_write, run_args
+from dockhil.errors import DockhilError
 
 if TYPE_CHECKING:
     from dockhil.msgs import SatelliteState
@@ -74,11 +74,11 @@ def run_one(spec: dict) -> dict:
     """One composed sim-time run; returns its row. Never raises for what the run does."""
     import warnings
 
-    from dockhil.scene import launchfile
     from dockhil.analysis import summary as summ
-    from dockhil.runtime.composed import ComposedGraph
-    from dockhil.scene.graph import build
     from dockhil.analysis.scenecheck import scene_check
+    from dockhil.runtime.composed import ComposedGraph
+    from dockhil.scene import launchfile
+    from dockhil.scene.graph import build
 
     started = time.perf_counter()
     row = {

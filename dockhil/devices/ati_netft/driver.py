@@ -18,12 +18,12 @@ import time
 from collections.abc import Callable
 from typing import cast
 
-from dockhil.runtime import ownership, realtime
+from dockhil.devices import tare
+from dockhil.devices.ati_netft import protocol as rdt
 from dockhil.devices.ft_base import FtDriver, Raw, problems_line, tare_params
 from dockhil.errors import DeviceError, ParamError
-from dockhil.devices.ati_netft import protocol as rdt
-from dockhil.devices import tare
 from dockhil.node import Param
+from dockhil.runtime import ownership, realtime
 
 RESEND_START_S = 0.25  # a start request is one datagram: ask again while the box says nothing
 
@@ -57,7 +57,7 @@ class _Receiver:
         while self._run:
             try:
                 data, sender = sock.recvfrom(2048)
-            except (TimeoutError, socket.timeout):
+            except TimeoutError:
                 continue
             except OSError:
                 if not self._run:

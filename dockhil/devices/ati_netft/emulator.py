@@ -148,7 +148,7 @@ class NetFtBox:
         self.max_torque = [0.0, 0.0, 0.0]
 
     # -- life cycle -------------------------------------------------------------------
-    def start_thread(self) -> "NetFtBox":
+    def start_thread(self) -> NetFtBox:
         from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
         self.udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -252,7 +252,7 @@ class NetFtBox:
         while self._running:
             try:
                 data, address = self.udp.recvfrom(2048)
-            except (TimeoutError, socket.timeout):
+            except TimeoutError:
                 data = None
             except OSError:
                 if not self._running:

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from dockhil.errors import DeviceError
 from dockhil.devices.ati_netft import protocol as rdt
-from dockhil.node import Input, Node, Param, Tick
+from dockhil.errors import DeviceError
 from dockhil.msgs import RobotState
+from dockhil.node import Input, Node, Param, Tick
 
 
 class NetFtEmulator(Node):
@@ -70,8 +70,8 @@ class NetFtEmulator(Node):
     def setup(self) -> None:
         import socket
 
-        from dockhil.runtime import ownership
         from dockhil.devices.ati_netft.emulator import ContactModel, NetFtBox
+        from dockhil.runtime import ownership
 
         p = self.p
         self.model = ContactModel(p.k, p.b, p.bias, p.noise, p.torque_noise, p.seed)

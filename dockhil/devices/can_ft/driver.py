@@ -16,15 +16,15 @@ import os
 import time
 from typing import TYPE_CHECKING
 
-from dockhil.runtime import ownership
+from dockhil.devices import tare
+from dockhil.devices.can_ft import frames as ff
+from dockhil.devices.can_ft import multicast as can_multicast
+from dockhil.devices.can_ft.slcan_reader import SlcanReader
+from dockhil.devices.device_path import private_link, untrusted
 from dockhil.devices.ft_base import FtDriver, Raw, problems_line, tare_params
 from dockhil.errors import DeviceError
-from dockhil.devices.can_ft import multicast as can_multicast
-from dockhil.devices.can_ft import frames as ff
-from dockhil.devices import tare
-from dockhil.devices.device_path import private_link, untrusted
-from dockhil.devices.can_ft.slcan_reader import SlcanReader
 from dockhil.node import Param
+from dockhil.runtime import ownership
 
 if TYPE_CHECKING:
     import can

@@ -15,10 +15,10 @@ import math
 import random
 from typing import Any
 
-from dockhil.errors import DeviceError
 from dockhil.devices.can_ft import frames as ff
-from dockhil.node import Input, Node, Param, Tick
+from dockhil.errors import DeviceError
 from dockhil.msgs import RobotState
+from dockhil.node import Input, Node, Param, Tick
 
 
 class FtSensorEmulator(Node):
@@ -103,8 +103,8 @@ class FtSensorEmulator(Node):
         self._pty_bus = None
         self._can_bus = None
         if p.interface == "pty":
-            from dockhil.devices.device_path import private_link
             from dockhil.devices.can_ft.slcan_pty import CanFrame, PtyCanBus
+            from dockhil.devices.device_path import private_link
 
             p.channel = p.channel or private_link("ft.slcan")
             self._frame = CanFrame
@@ -117,8 +117,8 @@ class FtSensorEmulator(Node):
             import can
 
             from dockhil.devices.can_ft import multicast as can_multicast
-            from dockhil.runtime import ownership
             from dockhil.devices.can_ft.driver import one_line
+            from dockhil.runtime import ownership
 
             # One emulated sensor per channel: two would stream the same CAN IDs.
             # The bus is its graph's: a driver of another graph reading it would take our frames for

@@ -93,8 +93,8 @@ def _check_replaceable(link: str) -> None:
     """The link may replace only a link an earlier emulated adapter left (to a pseudo-terminal):
     a file or a real adapter's name given by mistake is refused, not destroyed. Nor is it made
     where another user could replace it (the driver would refuse it: dockhil/devices/device_path.py)."""
-    from dockhil.errors import DeviceError
     from dockhil.devices.device_path import untrusted
+    from dockhil.errors import DeviceError
 
     why = untrusted(link)
     if why:

@@ -53,11 +53,11 @@ import math
 from collections.abc import Sequence
 
 from dockhil.contact.rotations import IDENTITY, Quat, quat_conjugate, quat_multiply, rotate, rotate_back
-from dockhil.errors import DeviceError, LaunchError
 from dockhil.devices.kuka_rsi import protocol as rsi
-from dockhil.devices.robot_base import RobotDriver, limit_params
-from dockhil.devices.limits import PoseTwist, command_values, non_finite
 from dockhil.devices.kuka_rsi.link import RsiLink, open_socket
+from dockhil.devices.limits import PoseTwist, command_values, non_finite
+from dockhil.devices.robot_base import RobotDriver, limit_params
+from dockhil.errors import DeviceError, LaunchError
 from dockhil.msgs import Header, RobotCommand, RobotCycles
 from dockhil.node import Output, Param
 from dockhil.runtime import realtime

@@ -9,10 +9,9 @@ from __future__ import annotations
 
 import time
 
-from dockhil.errors import DeviceError, LaunchError
 from dockhil.devices.kuka_rsi import protocol as rsi
+from dockhil.errors import DeviceError, LaunchError
 from dockhil.node import Node, Param
-
 
 BIND = "127.0.0.1"  # the emulated controller's address
 

@@ -43,11 +43,11 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 
 from dockhil.contact.rotations import IDENTITY, quat_conjugate, quat_multiply
-from dockhil.errors import DeviceError
-from dockhil.devices.kuka_rsi import protocol as rsi
 from dockhil.devices.cycle_log import CycleLog
 from dockhil.devices.handover import Handover
+from dockhil.devices.kuka_rsi import protocol as rsi
 from dockhil.devices.limits import angle_between, toward_within, turn_within
+from dockhil.errors import DeviceError
 from dockhil.runtime import realtime
 
 ZERO = (0.0, 0.0, 0.0)

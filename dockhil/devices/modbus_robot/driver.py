@@ -54,14 +54,14 @@ from __future__ import annotations
 import socket
 import time
 
-from dockhil.runtime import ownership
-from dockhil.errors import DeviceError
-from dockhil.devices.modbus_robot import registers as mm
-from dockhil.devices.modbus_robot.link import NoDelayClient, ModbusLink, set_nodelay, verify_and_hold
 from dockhil.devices.limits import PoseTwist
+from dockhil.devices.modbus_robot import registers as mm
+from dockhil.devices.modbus_robot.link import ModbusLink, NoDelayClient, set_nodelay, verify_and_hold
 from dockhil.devices.robot_base import HOLD_CONFIRM_TIMEOUT, RobotDriver, limit_params
+from dockhil.errors import DeviceError
 from dockhil.msgs import Header, RobotCycles
 from dockhil.node import Output, Param
+from dockhil.runtime import ownership
 
 
 class RobotModbusDriver(RobotDriver):

@@ -20,10 +20,10 @@ from collections.abc import Callable
 from types import SimpleNamespace
 from typing import TYPE_CHECKING, Any, TypeAlias
 
-from dockhil.devices.modbus_robot import registers as mm
 from dockhil.devices.cycle_log import CycleLog
 from dockhil.devices.handover import Handover
 from dockhil.devices.limits import angle_between, toward_within, turn_within
+from dockhil.devices.modbus_robot import registers as mm
 
 if TYPE_CHECKING:
     from pymodbus.client import ModbusTcpClient

@@ -19,7 +19,8 @@ from __future__ import annotations
 import asyncio
 import itertools
 import struct
-from typing import Callable, cast
+from collections.abc import Callable
+from typing import cast
 
 ILLEGAL_FUNCTION = 1
 ILLEGAL_ADDRESS = 2
@@ -41,7 +42,7 @@ class _Connection(asyncio.BufferedProtocol):
     read, which the allocator mapped and unmapped every time (at 2000 requests a second, 4000 page faults
     a second on the emulator's thread, each ~9 us on a virtual machine and milliseconds at worst)."""
 
-    def __init__(self, server: "ModbusTcpServer", number: int):
+    def __init__(self, server: ModbusTcpServer, number: int):
         self.server = server
         self.number = number
         self.buffer = bytearray(READ_SIZE)
