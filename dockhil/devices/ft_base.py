@@ -13,6 +13,7 @@ shuts the device and logs what the driver counted (`_report`).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 from dockhil.devices import tare
 from dockhil.errors import DeviceError, LaunchError
@@ -165,7 +166,7 @@ class FtDriver(Node):
         if bias is not None:
             self.bias_force, self.bias_torque = bias.force, bias.torque
 
-    def step(self, tick: Tick, inputs: dict) -> dict:
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         raw = self._read()
         t = tick.t  # the runtime's clock (a test chooses it), so "stale after 0.1 s" is decided exactly
         if self._last_fresh_t is None:

@@ -269,7 +269,7 @@ class RobotDriver(Node):
         raise NotImplementedError
 
     # -- step -------------------------------------------------------------------
-    def step(self, tick: Tick, inputs: dict) -> dict:
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         """The safety sequence of a tick, in this order for every device."""
         now = self._begin_step()
         self._check_device(now)

@@ -8,10 +8,11 @@ dockhil/devices/kuka_rsi/emulator.py.
 from __future__ import annotations
 
 import time
+from typing import Any
 
 from dockhil.devices.kuka_rsi import protocol as rsi
 from dockhil.errors import DeviceError, LaunchError
-from dockhil.node import Node, Param
+from dockhil.node import Node, Param, Tick
 
 BIND = "127.0.0.1"  # the emulated controller's address
 
@@ -100,7 +101,7 @@ class RsiControllerEmulatorNode(Node):
         self.emulator.start_thread()
         self.log(f"KUKA RSI emulator sending to {p.host}:{p.port} every {p.cycle * 1000:g} ms")
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         return {}
 
     def close(self) -> None:

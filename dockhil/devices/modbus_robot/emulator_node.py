@@ -7,8 +7,10 @@ register map are in dockhil/devices/modbus_robot/emulator.py and modbus_map.py.
 
 from __future__ import annotations
 
+from typing import Any
+
 from dockhil.errors import DeviceError
-from dockhil.node import Node, Param
+from dockhil.node import Node, Param, Tick
 
 
 class RobotControllerEmulatorNode(Node):
@@ -67,7 +69,7 @@ class RobotControllerEmulatorNode(Node):
             ) from None
         self.log(f"robot controller emulator listening on {p.host}:{self.emulator.port}")
 
-    def step(self, tick, inputs):
+    def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         return {}
 
     def close(self) -> None:
