@@ -55,6 +55,7 @@ from collections import deque
 
 from dockhil.contact.rotations import quat_conjugate, quat_from_rotvec, quat_multiply, rotvec3
 from dockhil.devices.kuka_rsi import protocol as rsi
+from dockhil.devices.servo_line import follow_due
 from dockhil.runtime.histogram import Histogram
 
 START_POSE = (500.0, 0.0, 900.0, 180.0, 0.0, 180.0)  # mm, degrees: a TCP in front of the robot, pointing down
@@ -110,13 +111,7 @@ class RsiServo:
         take the targets due. immediate: follow each target from the moment it is due, up to now."""
         if self.timing == "immediate":
             t = now if self._last_t is None else self._last_t
-            while self._line and self._line[0][0] + self.delay <= now + 1e-12:
-                due = self._line[0][0] + self.delay
-                if due > t:
-                    self._follow(due - t)
-                    t = due
-                self._target = self._line.popleft()[1]
-            self._follow(now - t)
+            follow_due(self._line, self.delay, t, now, self._follow, self._set_target)
             self._last_t = now
             return
         dt = 0.0 if self._last_t is None else now - self._last_t
@@ -124,6 +119,9 @@ class RsiServo:
         self._follow(dt)
         while self._line and self._line[0][0] <= now - self.delay + 1e-12:
             self._target = self._line.popleft()[1]
+
+    def _set_target(self, target: tuple) -> None:
+        self._target = target
 
     def _follow(self, dt: float) -> None:
         """The first-order lag toward the target over dt (exact for a target held over it)."""

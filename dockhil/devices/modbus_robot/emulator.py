@@ -63,6 +63,7 @@ from dockhil.contact.rotations import quat_conjugate, quat_from_rotvec, quat_mul
 from dockhil.devices.limits import UNIT_TOLERANCE
 from dockhil.devices.modbus_robot import registers as mm
 from dockhil.devices.modbus_robot.server import DEVICE_BUSY, READ_INPUT, ModbusTcpServer
+from dockhil.devices.servo_line import follow_due
 
 FOLLOW, HOLD, DISABLED = "follow", "hold", "disabled"
 
@@ -255,14 +256,13 @@ class ServoModel:
         t = now if self._last_t is None else self._last_t
         self._last_t = now
         if self.timing == "immediate":  # each target from the moment it is due, the lag exact in between
-            while self._line and self._line[0][0] + self.delay <= now + 1e-12:
-                due = self._line[0][0] + self.delay
-                if due > t:
-                    self._follow(due - t)
-                    t = due
-                self._target = self._line.popleft()[1]
-        self._follow(now - t)
+            follow_due(self._line, self.delay, t, now, self._follow, self._set_target)
+        else:
+            self._follow(now - t)
         self._record(now)
+
+    def _set_target(self, target: tuple) -> None:
+        self._target = target
 
     def _follow(self, dt: float) -> None:
         """The first-order lag toward the target over dt (exact for a target held over it)."""
