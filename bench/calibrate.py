@@ -1,7 +1,13 @@
 """dockhil calibrate against emulators with hidden truths: prints one JSON line.
 
     python3 bench/calibrate.py [--draws 20] [--seed 0] [--no-realtime] [--robot modbus|rsi] [--rsi-cycle 0.004]
-                               [--timing ours|immediate]
+                               [--timing ours|immediate] [--configs rsi:ours,rsi:immediate,modbus:ours,modbus:immediate]
+                               [--rows ROWS.jsonl] [--from-rows ROWS.jsonl ...] [--keep DIR]
+
+--configs runs several robot:timing configurations, --draws each, and prints one summary per configuration
+(its pass counts and worst margins). A long run is kept row by row in --rows (one JSON line per draw, as it
+ends), so it can be run in chunks (--seed, --draws) and summarised later with --from-rows; --keep DIR keeps
+each draw's bag and loop file (DIR/ROBOT-TIMING-SEED.mcap, .yaml).
 
 Each draw hides a delay (16-120 ms), a lag (0-20 ms), a stiffness (1000 N/m +-30 %), a damping
 (0-50 N s/m), a surface (0-20 mm ahead), a noise (0-0.5 N) and a bias (|F| up to 5 N, and a torque)
@@ -31,6 +37,7 @@ import json
 import math
 import os
 import random
+import shutil
 import socket
 import subprocess
 import sys
@@ -163,11 +170,12 @@ def run(
     robot: str = "modbus",
     cycle: float = 0.004,
     timing: str = "ours",
+    loop_out: str | None = None,
 ) -> dict:
     """One calibration against emulators hiding `truth`, tried up to `attempts` times while a busy machine
     stops it (BUSY)."""
     for attempt in range(1, attempts + 1):
-        out = run_once(truth, realtime, bag_out=bag_out, robot=robot, cycle=cycle, timing=timing)
+        out = run_once(truth, realtime, bag_out=bag_out, robot=robot, cycle=cycle, timing=timing, loop_out=loop_out)
         out["attempts"] = attempt
         if out["exit"] == 0 or not any(b in out.get("stderr_tail", "") for b in BUSY):
             break
@@ -182,9 +190,11 @@ def run_once(
     robot: str = "modbus",
     cycle: float = 0.004,
     timing: str = "ours",
+    loop_out: str | None = None,
 ) -> dict:
     """One calibration against emulators hiding `truth`: its JSON, exit code, wall time, the emulators' maxima
-    and the errors (bag_out: keep the run's recording there, replacing an earlier one)."""
+    and the errors (bag_out: keep the run's recording there, replacing an earlier one; loop_out: the loop
+    file written, if any)."""
     if bag_out and os.path.exists(bag_out):
         os.remove(bag_out)
     with tempfile.TemporaryDirectory(prefix="dockhil-calibrate-bench-") as folder:
@@ -221,6 +231,8 @@ def run_once(
             out["run_e2e"] = run_end_to_end(bag, truth["lag"])
         except (OSError, ValueError) as exc:
             out["run_e2e"] = {"error": str(exc)}
+        if loop_out and out["written"]:
+            shutil.copyfile(os.path.join(folder, "loop.yaml"), loop_out)
         for name in ("ft_maxima", "robot_maxima"):
             try:
                 with open(os.path.join(folder, f"{name}.json")) as f:
@@ -294,48 +306,53 @@ def errors(truth: dict, found: dict, cycle: float = MODBUS_CYCLE, run_e2e: dict 
     """Identified minus hidden. The delay is the robot's own, timed at the device (delay_s); the link to
     the device and back (link_s) is measured apart, so the bound here is the robot's: from the identified
     delay_s + lag_s against the hidden delay + lag. The emulator acts on whole cycles of `cycle`: its
-    effective delay is the hidden one rounded up to a cycle, which calibrate reports less half a cycle."""
+    effective delay is the hidden one rounded up to a cycle, which calibrate reports less half a cycle.
+    A split calibrate reports as not identified (delay_s None) leaves the robot's delay errors None."""
     effective = math.ceil(truth["delay"] / cycle - 1e-9) * cycle
     m = M1 * M2 / (M1 + M2)
+    split = found["delay_s"] is not None
     true_bound = exact_bound(m, BCS, truth["delay"] + truth["lag"]).k_max
-    found_bound = exact_bound(m, BCS, found["delay_s"] + found["lag_s"]).k_max
-    # at the cycle's top, as the verdict also judges it, against the emulator's effective delay
-    top_bound = exact_bound(m, BCS, found["delay_s"] + 0.5 * cycle + found["lag_s"]).k_max
     effective_bound = exact_bound(m, BCS, effective + truth["lag"]).k_max
     bias_sd = [
         abs(f - t) / truth["noise"] if truth["noise"] else math.inf * (abs(f - t) > 0.01)
         for f, t in zip(found["bias_N"], truth["bias"])
     ]
-    return {
-        "delay_ms": 1e3 * (found["delay_s"] - truth["delay"]),
-        "delay_cycles": (found["delay_s"] - truth["delay"]) / cycle,
-        "effective_delay_ms": 1e3 * (found["delay_s"] + 0.5 * cycle - effective),
+    e2e = run_e2e if run_e2e and "p95_s" in run_e2e else None
+    out = {
+        "delay_ms": None,
+        "delay_cycles": None,
+        "effective_delay_ms": None,
+        "bound_rel": None,
+        "bound_cycle_top_rel": None,
         "lag_ms": 1e3 * (found["lag_s"] - truth["lag"]),
         "lag_rel": found["lag_s"] / truth["lag"] - 1.0,
         "k_rel": found["k_N_per_m"] / truth["k"] - 1.0,
         "b_Ns_per_m": None if found["b_Ns_per_m"] is None else found["b_Ns_per_m"] - truth["b"],
         "bias_in_noise_sd": max(bias_sd),
         "noise_rel": (found["noise_N"][0] / truth["noise"] - 1.0) if truth["noise"] else found["noise_N"][0],
-        "bound_rel": found_bound / true_bound - 1.0,
-        "bound_cycle_top_rel": top_bound / effective_bound - 1.0,
         "link_ms": 1e3 * found["link_s"] if found.get("link_s") is not None else None,
         # the loop's delay against the run's own (its bag) and against the hidden robot delay
-        "loop_vs_run_p95_cycles": (found["loop_delay_s"] - run_e2e["p95_s"]) / cycle
-        if run_e2e and "p95_s" in run_e2e
-        else None,
-        "loop_vs_run_whole_cycles": (found["loop_delay_s"] - run_e2e["whole_s"]) / cycle
-        if run_e2e and "whole_s" in run_e2e
-        else None,
+        "loop_vs_run_p95_cycles": (found["loop_delay_s"] - e2e["p95_s"]) / cycle if e2e else None,
+        "loop_vs_run_whole_cycles": (found["loop_delay_s"] - e2e["whole_s"]) / cycle if e2e else None,
         # with the lag each fit held (calibrate's, the hidden one): a fit may trade some of one for the other
-        "loop_and_lag_vs_run_p95_cycles": (found["loop_delay_s"] + found["lag_s"] - run_e2e["p95_s"] - truth["lag"])
-        / cycle
-        if run_e2e and "p95_s" in run_e2e
+        "loop_and_lag_vs_run_p95_cycles": (found["loop_delay_s"] + found["lag_s"] - e2e["p95_s"] - truth["lag"]) / cycle
+        if e2e
         else None,
         "loop_minus_hidden_ms": 1e3 * (found["loop_delay_s"] - truth["delay"]),
-        "run_p95_minus_whole_ms": 1e3 * (run_e2e["p95_s"] - run_e2e["whole_s"])
-        if run_e2e and "p95_s" in run_e2e
-        else None,
+        "run_p95_minus_whole_ms": 1e3 * (e2e["p95_s"] - e2e["whole_s"]) if e2e else None,
     }
+    if split:
+        found_bound = exact_bound(m, BCS, found["delay_s"] + found["lag_s"]).k_max
+        # at the cycle's top, as the verdict also judges it, against the emulator's effective delay
+        top_bound = exact_bound(m, BCS, found["delay_s"] + 0.5 * cycle + found["lag_s"]).k_max
+        out.update(
+            delay_ms=1e3 * (found["delay_s"] - truth["delay"]),
+            delay_cycles=(found["delay_s"] - truth["delay"]) / cycle,
+            effective_delay_ms=1e3 * (found["delay_s"] + 0.5 * cycle - effective),
+            bound_rel=found_bound / true_bound - 1.0,
+            bound_cycle_top_rel=top_bound / effective_bound - 1.0,
+        )
+    return out
 
 
 def summary(done: list[dict], key: str) -> dict:
@@ -353,6 +370,81 @@ def summary(done: list[dict], key: str) -> dict:
     }
 
 
+def count(done: list[dict], key: str, ok) -> int:
+    """How many identified draws have the error `key` and pass `ok` on it."""
+    return sum(r["errors"][key] is not None and bool(ok(r["errors"][key])) for r in done)
+
+
+def summarize(rows: list[dict], robot: str, timing: str, cycle: float, realtime: bool) -> dict:
+    """One configuration's pass counts, medians and worst cases over its draws."""
+    done = [r for r in rows if "errors" in r]
+    half = 1e3 * 0.5 * cycle
+    within = lambda v: abs(v) <= 1.0  # noqa: E731 (one device cycle)
+    return {
+        "draws": len(rows),
+        "identified": len(done),
+        "seeds": [r.get("seed") for r in rows],
+        "exit_codes": [r["exit"] for r in rows],
+        "b_not_identified": sum(r["found"]["b_Ns_per_m"] is None for r in done),
+        "split_not_identified": sum(r["found"]["delay_s"] is None for r in done),
+        "attempts": [r["attempts"] for r in rows],
+        "realtime": realtime,
+        "robot": robot,
+        "emulator_timing": timing,
+        "device_cycle_ms": 1e3 * cycle,
+        "loop_delay_within_one_cycle_of_run_p95": count(done, "loop_vs_run_p95_cycles", within),
+        "loop_delay_within_one_cycle_of_run_whole": count(done, "loop_vs_run_whole_cycles", within),
+        "loop_delay_and_lag_within_one_cycle_of_run_p95": count(done, "loop_and_lag_vs_run_p95_cycles", within),
+        "loop_delay_not_below_hidden": count(done, "loop_minus_hidden_ms", lambda v: v >= 0.0),
+        "timing": sorted({r["found"].get("timing", "") for r in done}),
+        "delay_within_1ms": count(done, "delay_ms", lambda v: abs(v) <= 1.0),
+        "delay_within_half_cycle": count(done, "delay_ms", lambda v: abs(v) <= half + 1e-6),
+        "lag_within_5pct_or_0.5ms": sum(
+            abs(r["errors"]["lag_rel"]) <= 0.05 or abs(r["errors"]["lag_ms"]) <= 0.5 for r in done
+        ),
+        "lag_within_5pct_or_half_cycle": sum(
+            abs(r["errors"]["lag_rel"]) <= 0.05 or abs(r["errors"]["lag_ms"]) <= half for r in done
+        ),
+        "k_within_1pct": count(done, "k_rel", lambda v: abs(v) <= 0.01),
+        "bias_within_1_noise_sd": count(done, "bias_in_noise_sd", lambda v: v <= 1.0),
+        "bound_within_2pct": count(done, "bound_rel", lambda v: abs(v) <= 0.02),
+        "bound_cycle_top_within_2pct": count(done, "bound_cycle_top_rel", lambda v: abs(v) <= 0.02),
+        **{
+            name: summary(done, key)
+            for name, key in (
+                ("delay_error_ms", "delay_ms"),
+                ("delay_error_cycles", "delay_cycles"),
+                ("effective_delay_error_ms", "effective_delay_ms"),
+                ("lag_error_ms", "lag_ms"),
+                ("lag_rel_error", "lag_rel"),
+                ("k_rel_error", "k_rel"),
+                ("bias_error_noise_sd", "bias_in_noise_sd"),
+                ("bound_rel_error", "bound_rel"),
+                ("bound_cycle_top_rel_error", "bound_cycle_top_rel"),
+                ("b_error_Ns_per_m", "b_Ns_per_m"),
+                ("link_ms", "link_ms"),
+                ("loop_delay_vs_run_p95_cycles", "loop_vs_run_p95_cycles"),
+                ("loop_delay_vs_run_whole_cycles", "loop_vs_run_whole_cycles"),
+                ("loop_delay_and_lag_vs_run_p95_cycles", "loop_and_lag_vs_run_p95_cycles"),
+                ("loop_delay_minus_hidden_ms", "loop_minus_hidden_ms"),
+                ("run_p95_minus_whole_ms", "run_p95_minus_whole_ms"),
+            )
+        },
+        "wall_s_max": max((r["wall_s"] for r in rows), default=None),
+        "max_force_N": max(((r["ft_maxima"] or {}).get("max_force_N", 0.0) for r in rows), default=None),
+        "force_limit_N": MAX_FORCE,
+        "max_speed_m_s": max(
+            (
+                (r["robot_maxima"] or {}).get("max_speed_m_s", (r["robot_maxima"] or {}).get("max_speed", 0.0))
+                for r in rows
+            ),
+            default=None,
+        ),
+        "actual_speed_limit_m_s": MAX_ACTUAL_SPEED,
+        "setpoint_speed_limit_m_s": MAX_SPEED,
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--draws", type=int, default=20)
@@ -366,87 +458,56 @@ def main() -> None:
         default="ours",
         help="the emulated controller's timing: where inside it the cycles are spent",
     )
+    ap.add_argument(
+        "--configs",
+        help="robot:timing,... to run in turn, --draws each (e.g. rsi:ours,rsi:immediate,modbus:ours,modbus:immediate)",
+    )
+    ap.add_argument("--rows", metavar="ROWS.jsonl", help="append each draw's row here as it ends")
+    ap.add_argument("--from-rows", nargs="+", metavar="ROWS.jsonl", help="summarise these rows; run nothing")
+    ap.add_argument("--keep", metavar="DIR", help="keep each draw's bag and loop file in DIR")
     args = ap.parse_args()
     realtime = not args.no_realtime
-    cycle = args.rsi_cycle if args.robot == "rsi" else MODBUS_CYCLE
-    rows = [
-        run(draw(args.seed + i), realtime, robot=args.robot, cycle=cycle, timing=args.timing) for i in range(args.draws)
-    ]
-    done = [r for r in rows if "errors" in r]
-    half = 0.5 * cycle
-    print(
-        json.dumps(
-            {
-                "draws": len(rows),
-                "identified": len(done),
-                "exit_codes": [r["exit"] for r in rows],
-                "b_not_identified": sum(r["found"]["b_Ns_per_m"] is None for r in done),
-                "attempts": [r["attempts"] for r in rows],
-                "realtime": realtime,
-                "robot": args.robot,
-                "emulator_timing": args.timing,
-                "device_cycle_ms": 1e3 * cycle,
-                "loop_delay_within_one_cycle_of_run_p95": sum(
-                    r["errors"]["loop_vs_run_p95_cycles"] is not None
-                    and abs(r["errors"]["loop_vs_run_p95_cycles"]) <= 1.0
-                    for r in done
-                ),
-                "loop_delay_within_one_cycle_of_run_whole": sum(
-                    r["errors"]["loop_vs_run_whole_cycles"] is not None
-                    and abs(r["errors"]["loop_vs_run_whole_cycles"]) <= 1.0
-                    for r in done
-                ),
-                "loop_delay_and_lag_within_one_cycle_of_run_p95": sum(
-                    r["errors"]["loop_and_lag_vs_run_p95_cycles"] is not None
-                    and abs(r["errors"]["loop_and_lag_vs_run_p95_cycles"]) <= 1.0
-                    for r in done
-                ),
-                "loop_delay_not_below_hidden": sum(r["errors"]["loop_minus_hidden_ms"] >= 0.0 for r in done),
-                "timing": sorted({r["found"].get("timing", "") for r in done}),
-                "delay_within_1ms": sum(abs(r["errors"]["delay_ms"]) <= 1.0 for r in done),
-                "delay_within_half_cycle": sum(abs(r["errors"]["delay_ms"]) <= 1e3 * half + 1e-6 for r in done),
-                "lag_within_5pct_or_0.5ms": sum(
-                    abs(r["errors"]["lag_rel"]) <= 0.05 or abs(r["errors"]["lag_ms"]) <= 0.5 for r in done
-                ),
-                "lag_within_5pct_or_half_cycle": sum(
-                    abs(r["errors"]["lag_rel"]) <= 0.05 or abs(r["errors"]["lag_ms"]) <= 1e3 * half for r in done
-                ),
-                "bound_within_2pct": sum(abs(r["errors"]["bound_rel"]) <= 0.02 for r in done),
-                "bound_cycle_top_within_2pct": sum(abs(r["errors"]["bound_cycle_top_rel"]) <= 0.02 for r in done),
-                **{
-                    name: summary(done, key)
-                    for name, key in (
-                        ("delay_error_ms", "delay_ms"),
-                        ("delay_error_cycles", "delay_cycles"),
-                        ("effective_delay_error_ms", "effective_delay_ms"),
-                        ("lag_error_ms", "lag_ms"),
-                        ("lag_rel_error", "lag_rel"),
-                        ("k_rel_error", "k_rel"),
-                        ("bias_error_noise_sd", "bias_in_noise_sd"),
-                        ("bound_rel_error", "bound_rel"),
-                        ("bound_cycle_top_rel_error", "bound_cycle_top_rel"),
-                        ("b_error_Ns_per_m", "b_Ns_per_m"),
-                        ("link_ms", "link_ms"),
-                        ("loop_delay_vs_run_p95_cycles", "loop_vs_run_p95_cycles"),
-                        ("loop_delay_vs_run_whole_cycles", "loop_vs_run_whole_cycles"),
-                        ("loop_delay_and_lag_vs_run_p95_cycles", "loop_and_lag_vs_run_p95_cycles"),
-                        ("loop_delay_minus_hidden_ms", "loop_minus_hidden_ms"),
-                        ("run_p95_minus_whole_ms", "run_p95_minus_whole_ms"),
-                    )
-                },
-                "wall_s_max": max(r["wall_s"] for r in rows),
-                "max_force_N": max((r["ft_maxima"] or {}).get("max_force_N", 0.0) for r in rows),
-                "force_limit_N": MAX_FORCE,
-                "max_speed_m_s": max(
-                    (r["robot_maxima"] or {}).get("max_speed_m_s", (r["robot_maxima"] or {}).get("max_speed", 0.0))
-                    for r in rows
-                ),
-                "actual_speed_limit_m_s": MAX_ACTUAL_SPEED,
-                "setpoint_speed_limit_m_s": MAX_SPEED,
-                "runs": rows,
-            }
-        )
-    )
+    configs = [tuple(c.split(":")) for c in args.configs.split(",")] if args.configs else [(args.robot, args.timing)]
+    for robot, timing in configs:
+        if robot not in ("modbus", "rsi") or timing not in ("ours", "immediate"):
+            ap.error(f"--configs: {robot}:{timing} is no robot:timing (robots modbus, rsi; timings ours, immediate)")
+    if args.keep:
+        os.makedirs(args.keep, exist_ok=True)
+    rows: list[dict] = []
+    if args.from_rows:
+        for path in args.from_rows:
+            with open(path) as f:
+                rows += [json.loads(line) for line in f if line.strip()]
+        configs = sorted({(r["robot"], r["emulator_timing"]) for r in rows}, key=lambda c: (c[0] != "rsi", c))
+        realtime = all(r.get("realtime", True) for r in rows)
+    else:
+        for robot, timing in configs:
+            cycle = args.rsi_cycle if robot == "rsi" else MODBUS_CYCLE
+            for seed in range(args.seed, args.seed + args.draws):
+                keep = os.path.join(args.keep, f"{robot}-{timing}-{seed}") if args.keep else None
+                row = run(
+                    draw(seed),
+                    realtime,
+                    robot=robot,
+                    cycle=cycle,
+                    timing=timing,
+                    bag_out=keep and keep + ".mcap",
+                    loop_out=keep and keep + ".yaml",
+                )
+                row.update(seed=seed, robot=robot, emulator_timing=timing, cycle_s=cycle, realtime=realtime)
+                rows.append(row)
+                if args.rows:
+                    with open(args.rows, "a") as f:
+                        f.write(json.dumps(row) + "\n")
+    summaries = {}
+    for robot, timing in configs:
+        mine = [r for r in rows if r["robot"] == robot and r["emulator_timing"] == timing]
+        cycle = mine[0]["cycle_s"] if mine else (args.rsi_cycle if robot == "rsi" else MODBUS_CYCLE)
+        summaries[f"{robot}:{timing}"] = summarize(mine, robot, timing, cycle, realtime)
+    if len(summaries) == 1 and not args.configs and not args.from_rows:
+        print(json.dumps({**next(iter(summaries.values())), "runs": rows}))
+    else:
+        print(json.dumps({"configs": summaries, "runs": rows}))
 
 
 if __name__ == "__main__":
