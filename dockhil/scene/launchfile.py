@@ -323,7 +323,7 @@ def _scene(
     values = {name: spec.default for name, spec in specs.items()}
     if from_cli and "loop" in specs and given.get("loop"):
         # name:=value on the command line wins (ft_bias:=[] drops the file's tare unread)
-        given = {**loop_args(str(given["loop"]), {n: s for n, s in specs.items() if n not in given}), **given}
+        given = {**loop_args(str(given["loop"]), specs, set(given), str(path)), **given}
     for name, value in given.items():
         if name not in specs:
             declared = data.get("let")

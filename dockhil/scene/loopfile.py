@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import math
 import reprlib
+from collections.abc import Collection
 from typing import Any
 
 from dockhil.errors import DockhilError, LaunchError
+from dockhil.log import Log
 from dockhil.scene import boundedyaml
 
 # What a loop file may hold: what calibration identified (the loop's delay and lag, the passive stiffness and
@@ -17,9 +19,18 @@ LOOP_ARGS = ("delay", "lag", "k", "b_passive", "ft_noise", "ft_delay")
 LOOP_KEYS = ("args", "tare", "calibration", "verdict")
 
 
-def loop_args(path: str, specs: dict) -> dict[str, Any]:
+NO_FT_BIAS = (
+    "loop file {path}: its tare (the F/T bias calibration measured) is not applied: the scene {scene} declares "
+    "no ft_bias argument, so its F/T driver tares at start; declare ft_bias and pass it to the driver's bias "
+    "to use the file's"
+)
+
+
+def loop_args(path: str, specs: dict, given: Collection[str] = (), scene: str = "") -> dict[str, Any]:
     """The arguments a loop file (written by `dockhil calibrate --out`: delay, lag, k, ...) sets that the
-    scene declares; a scene takes it as loop:=FILE. A key calibration does not identify is refused."""
+    scene declares (specs) and the command line does not give (given); a scene takes it as loop:=FILE. A
+    key calibration does not identify is refused. The file's tare becomes ft_bias where the scene declares
+    it; where it does not, one line says the tare is not applied."""
     try:
         with open(path, "rb") as f:
             raw = f.read(boundedyaml.MAX_BYTES + 1)
@@ -47,9 +58,12 @@ def loop_args(path: str, specs: dict) -> dict[str, Any]:
             )
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise LaunchError(f"loop file {path}: args.{name} is {value!r}, not a number")
-    out = {name: value for name, value in args.items() if name in specs}
-    if "ft_bias" in specs and data.get("tare") is not None:
-        out["ft_bias"] = _loop_tare(path, data["tare"])
+    out = {name: value for name, value in args.items() if name in specs and name not in given}
+    if data.get("tare") is not None and "ft_bias" not in given:  # ft_bias:= on the command line: unread
+        if "ft_bias" in specs:
+            out["ft_bias"] = _loop_tare(path, data["tare"])
+        else:
+            Log("[launch]").warning(NO_FT_BIAS.format(path=path, scene=scene or "(this scene)"))
     return out
 
 
