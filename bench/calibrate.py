@@ -481,9 +481,10 @@ def main() -> None:
         configs = sorted({(r["robot"], r["emulator_timing"]) for r in rows}, key=lambda c: (c[0] != "rsi", c))
         realtime = all(r.get("realtime", True) for r in rows)
     else:
-        for robot, timing in configs:
-            cycle = args.rsi_cycle if robot == "rsi" else MODBUS_CYCLE
-            for seed in range(args.seed, args.seed + args.draws):
+        # seed by seed, each configuration in turn: a run stopped early has all of them alike
+        for seed in range(args.seed, args.seed + args.draws):
+            for robot, timing in configs:
+                cycle = args.rsi_cycle if robot == "rsi" else MODBUS_CYCLE
                 keep = os.path.join(args.keep, f"{robot}-{timing}-{seed}") if args.keep else None
                 row = run(
                     draw(seed),
