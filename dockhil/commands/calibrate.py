@@ -92,6 +92,8 @@ def run(args) -> int:
     calibration.check(cal)
     if cal.link is None:
         say.warning(calibration.NO_CYCLES)
+    elif not cal.split_identified:
+        say.info(calibration.NO_SPLIT)
     out = cal.as_dict()
     out.update(_verdict(scene, cal))
     out["run_valid"] = code == 0
@@ -283,10 +285,15 @@ def _pm(value, sigma, scale: float = 1.0, digits: int = 4) -> str:
 def _print_table(r: dict, scene: str) -> None:
     u = r["uncertainty"]
     link = r["link_s"]
+    span = r.get("delay_range_s")
     rows = [
         (
-            "delay (the robot's, at the device)" if link is not None else "delay (command to pose, link included)",
-            _pm(r["delay_s"], u["delay_s"], 1e3),
+            "delay (the robot's, at the device)"
+            if link is not None or span is not None
+            else "delay (command to pose, link included)",
+            _pm(r["delay_s"], u["delay_s"], 1e3)
+            if span is None
+            else f"not identified apart from the link: {span[0] * 1e3:.4g} to {span[1] * 1e3:.4g}",
             "ms",
         ),
         *(

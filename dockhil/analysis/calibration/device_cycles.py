@@ -48,6 +48,11 @@ class Link:
     forward_spread_s: float  # half the 5-95 % range
     back_spread_s: float
     samples: int
+    # The device echoed the setpoint a cycle took (Modbus): the take is seen. Not (RSI: the answer follows the
+    # pose), the take is placed by assumption at the next cycle, and where inside the controller the time is
+    # spent (that cycle or the correction's arrival, the pose before or after the servo's step) the data do
+    # not tell: the split of the loop into the robot's delay and the link is then not identified.
+    take_seen: bool = True
 
     @property
     def total_s(self) -> float:
@@ -295,7 +300,12 @@ def link(c: DeviceCycles, t_cmd, t_state) -> Link:
             f"the device cycles match {len(forward)} commands and {len(back)} poses published; the link needs 10 each"
         )
     return Link(
-        float(np.median(forward)), float(np.median(back)), _spread(forward), _spread(back), min(len(forward), len(back))
+        float(np.median(forward)),
+        float(np.median(back)),
+        _spread(forward),
+        _spread(back),
+        min(len(forward), len(back)),
+        bool(c.taken[c.written].any()),
     )
 
 

@@ -104,6 +104,14 @@ NO_CYCLES = (
 )
 
 
+NO_SPLIT = (
+    "the controller does not tell which cycle took a correction (its answer follows the pose): the robot's own "
+    "delay and the link are not separated by these data (a controller that takes a correction as it arrives, "
+    "or samples the pose before the servo's step, spends up to about a cycle and the link's wait less than "
+    "assumed); the robot's delay lies in delay_range_s; the loop's delay, end to end, is measured"
+)
+
+
 @dataclass(frozen=True)
 class Calibration:
     rest: Rest
@@ -122,6 +130,22 @@ class Calibration:
         return self.servo.delay_s + (self.link.total_s if self.link is not None else 0.0)
 
     @property
+    def split_identified(self) -> bool:
+        """The loop's delay separated into the robot's at the device and the link: where the device shows the
+        cycle that took each setpoint (or no device cycles were recorded: the delay is then the loop's)."""
+        return self.link is None or self.link.take_seen
+
+    def delay_range_s(self) -> tuple[float, float]:
+        """Where the robot's own delay lies when the split is not identified: from the device model's (the
+        latest take, the next cycle, and the pose after the servo's step), less half its cycle, to that plus
+        half a cycle, the link's forward part (the correction taken as it arrived, not at the next cycle) and
+        a cycle (the pose sampled before the servo's step)."""
+        s, ln = self.servo, self.link
+        cycle = s.cycle_s or 0.0
+        forward = ln.forward_s if ln is not None else 0.0
+        return max(s.delay_s - 0.5 * cycle, 0.0), s.delay_s + 1.5 * cycle + forward
+
+    @property
     def damping_identified(self) -> bool:
         """A passive damping hardware can have: not negative beyond its uncertainty (a force that leads the
         pose reads as negative damping where the press cannot separate the force's delay)."""
@@ -131,11 +155,13 @@ class Calibration:
     def as_dict(self) -> dict:
         r, s, c, ln, e2e = self.rest, self.servo, self.contact, self.link, self.loop
         b_known = self.damping_identified
+        split = self.split_identified
         return {
-            "delay_s": s.delay_s,
+            "delay_s": s.delay_s if split else None,
+            "delay_range_s": None if split else list(self.delay_range_s()),
             "loop_delay_s": self.loop_delay_s,
             "loop_delay_typical_s": None if e2e is None else e2e.typical_s,
-            "link_s": None if ln is None else ln.total_s,
+            "link_s": None if ln is None or not split else ln.total_s,
             "timing": "device cycles" if ln is not None else NO_CYCLES,
             "lag_s": s.lag_s,
             "k_N_per_m": c.k_N_per_m,
@@ -147,8 +173,8 @@ class Calibration:
             "ft_delay_s": c.ft_delay_s,
             "surface_m": c.surface_m,
             "uncertainty": {
-                "delay_s": s.delay_sigma_s,
-                "link_s": None if ln is None else math.hypot(ln.forward_spread_s, ln.back_spread_s),
+                "delay_s": s.delay_sigma_s if split else None,
+                "link_s": None if ln is None or not split else math.hypot(ln.forward_spread_s, ln.back_spread_s),
                 "lag_s": s.lag_sigma_s,
                 "k_N_per_m": c.k_sigma,
                 "b_Ns_per_m": c.b_sigma if b_known else None,
@@ -166,6 +192,7 @@ class Calibration:
                 "peak_force_N": c.peak_force_N,
                 "rest_samples": r.samples,
                 **({"b_not_identified": NO_DAMPING.format(b=c.b_Ns_per_m, s=c.b_sigma)} if not b_known else {}),
+                **({} if split else {"split_not_identified": NO_SPLIT}),
                 **(
                     {}
                     if e2e is None
@@ -222,6 +249,8 @@ def check(cal: Calibration) -> None:
     d = cal.as_dict()
     for key, what in (("delay_s", "delay"), ("k_N_per_m", "stiffness k")):
         value, sigma = d[key], d["uncertainty"][key]
+        if value is None:  # not identified (the split): said so in the result, nothing to check
+            continue
         if not (math.isfinite(value) and math.isfinite(sigma)) or sigma > abs(value):
             raise CalibrationError(
                 f"the {what} fit is no measurement: {value:.4g} +- {sigma:.3g} (the uncertainty "
