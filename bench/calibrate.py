@@ -159,6 +159,7 @@ BUSY = (
     "INVALID",
     "while stopping",
     "the recorder fell behind",
+    "a busy machine?",
 )
 
 
