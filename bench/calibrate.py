@@ -384,13 +384,15 @@ def count(done: list[dict], key: str, ok) -> int:
 
 
 def summarize(rows: list[dict], robot: str, timing: str, cycle: float, realtime: bool) -> dict:
-    """One configuration's pass counts, medians and worst cases over its draws."""
-    done = [r for r in rows if "errors" in r]
+    """One configuration's pass counts, medians and worst cases over its draws that calibrate identified on a
+    valid run (exit 0: a run that fell behind real time, exit 3, prints its fits but writes no loop file)."""
+    done = [r for r in rows if "errors" in r and r["exit"] == 0]
     half = 1e3 * 0.5 * cycle
     within = lambda v: abs(v) <= 1.0  # noqa: E731 (one device cycle)
     return {
         "draws": len(rows),
         "identified": len(done),
+        "invalid_runs": sum(r["exit"] == 3 for r in rows),
         "seeds": [r.get("seed") for r in rows],
         "exit_codes": [r["exit"] for r in rows],
         "b_not_identified": sum(r["found"]["b_Ns_per_m"] is None for r in done),

@@ -46,7 +46,7 @@ def add_arguments(p) -> None:
         "  dockhil calibrate --bag run.mcap --out loop.yaml      # from a recorded identification run\n"
         "  dockhil launch hil.yaml loop:=loop.yaml               # the scene at the identified loop\n"
         "exit status: 0 identified; 1 the run stopped (a safety stop, no contact found); 2 bad input or\n"
-        "a fit that is no measurement (nothing written); 3 the run fell behind real time"
+        "a fit that is no measurement (nothing written); 3 the run was INVALID (nothing written)"
     )
     p.add_argument("scene", nargs="?", help="launch file with the hardware (robot and F/T drivers, or emulators)")
     p.add_argument("overrides", nargs="*", metavar="name:=value", help="launch arguments of the scene")
@@ -103,8 +103,9 @@ def run(args) -> int:
         _print_table(out, scene.path)
     if code != 0:
         say.error(
-            f"the identification run fell behind real time (INVALID, exit {code}): its delays include "
-            f"that lateness; nothing written: run it again on a quieter machine"
+            f"the identification run was INVALID (exit {code}; the INVALID line above says why: a run that fell "
+            f"behind real time or whose devices stalled, or a robot that left its commanded path); nothing "
+            f"written: run it again (with --realtime, on a quieter machine)"
         )
     elif args.out is not None:
         _write_loop(args.out, out, scene.path)
@@ -342,7 +343,7 @@ def _print_table(r: dict, scene: str) -> None:
     if paper is not None and paper["kcs_max_N_per_m"] is not None:
         print(f"  {'the paper bound (kcs wholly delayed)':36} {paper['kcs_max_N_per_m']:.6g} N/m")
     if not r["run_valid"]:
-        print("  the run fell behind real time: the delay includes that lateness")
+        print("  the run was INVALID (the line above says why): nothing written")
 
 
 def _write_loop(path: str, r: dict, scene: str) -> None:
