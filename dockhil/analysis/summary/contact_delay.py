@@ -13,6 +13,7 @@ smooth, so the residual's minimum is clear to a fraction of a millisecond. No I/
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,29 +47,35 @@ def _cost(t_cmd: np.ndarray, x_cmd: np.ndarray, t_f: np.ndarray, f: np.ndarray, 
     return float(r @ r), float(coef[0])
 
 
-def fit(t_cmd, x_cmd, t_f, f, band: float = 0.0) -> ContactDelay:
+def fit(
+    t_cmd: Sequence[float] | np.ndarray,
+    x_cmd: Sequence[float] | np.ndarray,
+    t_f: Sequence[float] | np.ndarray,
+    f: Sequence[float] | np.ndarray,
+    band: float = 0.0,
+) -> ContactDelay:
     """The delay from the commanded poses (ticks t_cmd [s], x_cmd [m]) to the measured forces (t_f [s],
     f [N], tared) of one contact; `band` [N]: the sensor's noise band's half width (the forces within it,
     and CLEAR_N beyond, are left out: the contact's edge, where the compliance lets go)."""
     from scipy.optimize import minimize_scalar
 
-    t_cmd, x_cmd, t_f, f = (np.asarray(v, dtype=float) for v in (t_cmd, x_cmd, t_f, f))
-    order = np.argsort(t_cmd, kind="stable")
-    t_cmd, x_cmd = t_cmd[order], x_cmd[order]
-    keep = (np.abs(f) > band + CLEAR_N) & (t_f - MAX_DELAY_S >= t_cmd[0]) if len(t_cmd) else np.zeros(0, bool)
-    if len(t_cmd) < 2 or int(np.count_nonzero(keep)) < MIN_SAMPLES:
+    tc, xc, tf, ff = (np.asarray(v, dtype=float) for v in (t_cmd, x_cmd, t_f, f))
+    order = np.argsort(tc, kind="stable")
+    tc, xc = tc[order], xc[order]
+    keep = (np.abs(ff) > band + CLEAR_N) & (tf - MAX_DELAY_S >= tc[0]) if len(tc) else np.zeros(len(ff), bool)
+    if len(tc) < 2 or int(np.count_nonzero(keep)) < MIN_SAMPLES:
         raise NoContactError(
-            f"{int(np.count_nonzero(keep)) if len(t_cmd) else 0} forces stand {CLEAR_N:g} N out of the noise band "
-            f"after the first command: at least {MIN_SAMPLES} are needed to read the loop's delay"
+            f"{int(np.count_nonzero(keep))} forces stand {CLEAR_N:g} N out of the noise band after the first "
+            f"command: at least {MIN_SAMPLES} are needed to read the loop's delay"
         )
-    t_f, f = t_f[keep], f[keep]
+    tf, ff = tf[keep], ff[keep]
     grid = np.arange(0.0, MAX_DELAY_S + 1e-12, GRID_S)
-    costs = [_cost(t_cmd, x_cmd, t_f, f, d)[0] for d in grid]
+    costs = [_cost(tc, xc, tf, ff, d)[0] for d in grid]
     best = float(grid[int(np.argmin(costs))])
     lo, hi = max(0.0, best - GRID_S), min(MAX_DELAY_S, best + GRID_S)
-    d = float(minimize_scalar(lambda v: _cost(t_cmd, x_cmd, t_f, f, v)[0], bounds=(lo, hi), method="bounded").x)
-    cost, gain = _cost(t_cmd, x_cmd, t_f, f, d)
-    return ContactDelay(d, gain, float(np.sqrt(cost / len(f))), len(f))
+    d = float(minimize_scalar(lambda v: _cost(tc, xc, tf, ff, v)[0], bounds=(lo, hi), method="bounded").x)
+    cost, gain = _cost(tc, xc, tf, ff, d)
+    return ContactDelay(d, gain, float(np.sqrt(cost / len(ff))), len(ff))
 
 
 def from_bag(path: str, band: float = 0.0) -> ContactDelay:
