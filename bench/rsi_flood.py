@@ -1,7 +1,9 @@
 """The RSI flood during a wall-time contact, against both controller timings: tests/test_rsi_flood.py's run
 (15,000 foreign datagrams a second for 3 s, then 5,000 malformed a second from the controller's address),
 `--runs` times per timing. Per run the largest correction step the controller emulator took in one cycle
-over max_speed x cycle (0.4 mm), the answers in time, the counts sent and whether a traceback showed.
+over max_speed x cycle (0.4 mm), the answers in time, the counts sent, whether a traceback showed and
+whether the run could be judged (the test's conditions: more than 10 answers in time, the foreign datagrams
+counted by the driver; a busy machine may stop RSI before the flood).
 Prints one JSON object: per timing the runs, the worst step ratio and how many runs held the limit.
 """
 
@@ -41,11 +43,15 @@ def main() -> None:
                     "sent": counts,
                     "traceback": "Traceback" in out,
                     "foreign_counted": "from another address than the controller's" in out,
+                    # the test's conditions: enough answers in time to judge, the flood seen by the driver
+                    "judged": record["answered"] > 10 and "from another address than the controller's" in out,
+                    "line": next((ln for ln in out.splitlines() if "INVALID" in ln or "error" in ln), ""),
                 }
             )
         result[timing] = {
             "worst_step_ratio": max(r["step_ratio"] for r in runs),
             "held": sum(r["step_ratio"] <= 1.0 + 1e-9 and not r["traceback"] for r in runs),
+            "judged": sum(r["judged"] for r in runs),
             "runs": runs,
         }
     print(json.dumps(result))
