@@ -47,7 +47,7 @@ def launch(args: list[str], summary: str, bag: str) -> tuple[int, dict, str]:
             out = json.load(f)
         os.remove(summary)
     lines = (p.stdout + p.stderr).strip().splitlines()
-    said = [ln for ln in lines if "error" in ln or "INVALID" in ln] or lines[-1:]
+    said = [ln for ln in lines if "INVALID" in ln or "error:" in ln] or lines[-1:]
     return p.returncode, out, said[0] if p.returncode and said else ""
 
 
