@@ -7,12 +7,16 @@ included); the *_ticking_rtf figures subtract a one-tick launch; composed
 and bare time the ticking only. CPU time and context switches per tick
 (all processes and threads of a launch, less a one-tick launch; this
 process for composed and bare) are given too: a shared machine's load
-inflates them much less than wall time. *_switches_per_tick_by_thread gives
+inflates them much less than wall time, and the voluntary switches (wake-ups,
+*_voluntary_switches_per_tick) least. *_switches_per_tick_by_thread gives
 each node process's threads by name ([voluntary, involuntary] a tick, over
 its ticks, as the node counts them: dockhil.runtime.switches; the main thread
 is the node's loop, ZMQbg/IO/0 its ZeroMQ I/O thread); what the nodes' threads
 do not take of the total is the recorder's, the launcher's and the nodes'
-start and close (*_switches_per_tick_elsewhere).
+start and close (*_switches_per_tick_elsewhere). *_cpu_us_per_tick_by_node is each node process's
+CPU over its ticks; *_cpu_us_per_tick_elsewhere what the nodes' ticking does not take: the
+recorder of the summary (a sim-time run always has one), the summary read back from its bag, the
+launcher, and the nodes' start and close beyond a one-tick launch's.
 The rings of bench/throughput.py give what each added process costs a tick. The composed
 floor is the bare loop plus what the tick's messages cost to screen and build
 (bench/message_floor.py): the most a composed run of these messages can reach.
@@ -44,7 +48,9 @@ HIL6 = os.path.join(ROOT, "launch", "hil6.yaml")
 
 CPU: list[float] = []  # CPU seconds (user + system) of every process of each launch
 SWITCHES: list[int] = []  # context switches (voluntary + involuntary, all threads) of each launch
+VOLUNTARY: list[int] = []  # of these, the voluntary ones (wake-ups): what a busy machine inflates least
 THREADS: list[dict] = []  # each launch's node -> thread name -> [voluntary, involuntary] a tick, over its ticks
+NODE_CPU: list[dict] = []  # each launch's node -> its process's CPU us a tick, over its ticks
 
 
 def multiprocess(seconds: float, scene: str = HIL) -> float:
@@ -63,9 +69,11 @@ def multiprocess(seconds: float, scene: str = HIL) -> float:
         )
         wall = time.perf_counter() - t0
         THREADS.append(per_thread(reports))
+        NODE_CPU.append(node_cpu(reports))
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     CPU.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
     SWITCHES.append(after.ru_nvcsw - before.ru_nvcsw + after.ru_nivcsw - before.ru_nivcsw)
+    VOLUNTARY.append(after.ru_nvcsw - before.ru_nvcsw)
     return wall
 
 
@@ -80,6 +88,16 @@ def per_thread(reports: str) -> dict[str, dict[str, list[float]]]:
     return out
 
 
+def node_cpu(reports: str) -> dict[str, float]:
+    """node -> its process's CPU time (user + system) a tick over its ticks [us], from the nodes' reports."""
+    out = {}
+    for name in sorted(os.listdir(reports)):
+        with open(os.path.join(reports, name)) as f:
+            report = json.load(f)
+        out[report["node"]] = report["cpu_s"][0] / max(1, report["ticks"]) * 1e6
+    return out
+
+
 def median_threads(runs: list[dict]) -> dict[str, dict[str, list[float]]]:
     """Each node's threads' figures, the median over runs, rounded."""
     out: dict[str, dict[str, list[float]]] = {}
@@ -91,14 +109,18 @@ def median_threads(runs: list[dict]) -> dict[str, dict[str, list[float]]]:
     return out
 
 
-def launches(seconds: float, scene: str, repeat: int) -> tuple[float, float, float, dict]:
-    """Median wall time, CPU time, context switches and each node's threads' switches a tick of
-    `repeat` launches."""
+def launches(seconds: float, scene: str, repeat: int) -> tuple[float, float, float, float, dict, dict]:
+    """Median wall time, CPU time, context switches, voluntary ones, each node's threads' switches a
+    tick and each node's CPU us a tick of `repeat` launches."""
     CPU.clear()
     SWITCHES.clear()
+    VOLUNTARY.clear()
     THREADS.clear()
+    NODE_CPU.clear()
     wall = statistics.median(multiprocess(seconds, scene) for _ in range(repeat))
-    return wall, statistics.median(CPU), statistics.median(SWITCHES), median_threads(THREADS)
+    by_node = {node: round(statistics.median(run[node] for run in NODE_CPU)) for node in NODE_CPU[0]}
+    med = statistics.median
+    return wall, med(CPU), med(SWITCHES), med(VOLUNTARY), median_threads(THREADS), by_node
 
 
 def elsewhere(total_per_tick: float, threads: dict) -> float:
@@ -160,10 +182,10 @@ def main() -> None:
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as folder:
         hw = hardware_container(folder)
-        start, start_cpu, start_sw, _ = launches(0.001, HIL, args.repeat)
-        mp, mp_cpu, mp_sw, mp_threads = launches(args.seconds, HIL, args.repeat)
-        hw_start, hw_start_cpu, hw_start_sw, _ = launches(0.001, hw, args.repeat)
-        cont, cont_cpu, cont_sw, cont_threads = launches(args.seconds, hw, args.repeat)
+        start, start_cpu, start_sw, start_vol, _, _ = launches(0.001, HIL, args.repeat)
+        mp, mp_cpu, mp_sw, mp_vol, mp_threads, mp_node_cpu = launches(args.seconds, HIL, args.repeat)
+        hw_start, hw_start_cpu, hw_start_sw, hw_start_vol, _, _ = launches(0.001, hw, args.repeat)
+        cont, cont_cpu, cont_sw, cont_vol, cont_threads, cont_node_cpu = launches(args.seconds, hw, args.repeat)
     comp_cpu: list[float] = []
     bare_cpu: list[float] = []
     comp = med(composed(n, comp_cpu) for _ in range(args.repeat))
@@ -175,13 +197,23 @@ def main() -> None:
         "multiprocess_ticking_rtf": round(args.seconds / (mp - start), 2),
         "multiprocess_startup_s": round(start, 3),
         "multiprocess_cpu_us_per_tick": round((mp_cpu - start_cpu) / (n - 1) * 1e6),
+        "multiprocess_cpu_us_per_tick_by_node": mp_node_cpu,
+        "multiprocess_cpu_us_per_tick_elsewhere": round(
+            (mp_cpu - start_cpu) / (n - 1) * 1e6 - sum(mp_node_cpu.values())
+        ),
         "multiprocess_switches_per_tick": round((mp_sw - start_sw) / (n - 1), 1),
+        "multiprocess_voluntary_switches_per_tick": round((mp_vol - start_vol) / (n - 1), 2),
         "multiprocess_switches_per_tick_by_thread": mp_threads,
         "multiprocess_switches_per_tick_elsewhere": elsewhere((mp_sw - start_sw) / (n - 1), mp_threads),
         "container_rtf": round(args.seconds / cont, 2),
         "container_ticking_rtf": round(args.seconds / (cont - hw_start), 2),
         "container_cpu_us_per_tick": round((cont_cpu - hw_start_cpu) / (n - 1) * 1e6),
+        "container_cpu_us_per_tick_by_node": cont_node_cpu,
+        "container_cpu_us_per_tick_elsewhere": round(
+            (cont_cpu - hw_start_cpu) / (n - 1) * 1e6 - sum(cont_node_cpu.values())
+        ),
         "container_switches_per_tick": round((cont_sw - hw_start_sw) / (n - 1), 1),
+        "container_voluntary_switches_per_tick": round((cont_vol - hw_start_vol) / (n - 1), 2),
         "container_switches_per_tick_by_thread": cont_threads,
         "container_switches_per_tick_elsewhere": elsewhere((cont_sw - hw_start_sw) / (n - 1), cont_threads),
         "composed_rtf": round(args.seconds / comp, 1),

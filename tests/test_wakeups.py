@@ -122,3 +122,43 @@ def test_a_trailing_reader_gets_every_frame_in_bursts_apart_from_the_members(tmp
     finally:
         for s in (member, trailing, pub):
             s.close()
+
+
+def test_a_trailing_readers_threads_are_put_under_sched_batch():
+    """Sim time: the launcher puts every thread of the recorder's process under SCHED_BATCH (no tick
+    waits for it, and a batch thread's wake-up never preempts a lock-step node); a thread it makes
+    afterwards inherits the policy."""
+    import sys
+
+    from dockhil.runtime import realtime
+
+    child = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import os, sys, threading, time\n"
+            "threading.Thread(target=time.sleep, args=(30,), daemon=True).start()\n"
+            "print('up', flush=True)\n"
+            "sys.stdin.readline()\n"
+            "threading.Thread(target=time.sleep, args=(30,), daemon=True).start()\n"
+            "print(len(os.listdir('/proc/self/task')), flush=True)\n"
+            "time.sleep(30)\n",
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert child.stdout.readline().strip() == "up"
+        before = os.listdir(f"/proc/{child.pid}/task")
+        assert len(before) == 2 and all(os.sched_getscheduler(int(t)) == os.SCHED_OTHER for t in before)
+        assert realtime.trailing(child.pid)
+        child.stdin.write("go\n")
+        child.stdin.flush()
+        assert child.stdout.readline().strip() == "3"
+        tids = os.listdir(f"/proc/{child.pid}/task")
+        assert len(tids) == 3 and all(os.sched_getscheduler(int(t)) == os.SCHED_BATCH for t in tids), tids
+    finally:
+        child.kill()
+        child.wait()
+    assert not realtime.trailing(child.pid)  # gone: nothing to set, no error

@@ -26,6 +26,9 @@ from dockhil.devices.limits import angle_between, turn_toward
 # fell behind for good): the timeline follows it, 0.1 ms a second, never a tick's jitter.
 DELAY_CREEP = 1e-4
 MARGIN_SLEW = 0.02  # s/s: how fast the margin moves: the device's speed changes by at most 2 % for it
+# A link thread's longest wait for the interpreter while another thread of its process runs (the links
+# lower the process's switch interval to it while they run): a device's cycle is timed to a fraction of it.
+SWITCH_INTERVAL = 0.0002  # s
 LATE_WINDOW = 64  # commands over which the timeline's margin is the latest's worst lateness (a quarter second)
 
 

@@ -199,6 +199,10 @@ class Launcher:
             from dockhil.runtime import realtime
 
             realtime.favour(child.proc.pid, f"{child.name!r}", self.say.warning)
+        elif self.clock == "sim" and child.name not in self.specs:
+            from dockhil.runtime import realtime
+
+            realtime.trailing(child.proc.pid)  # the recorder: no tick waits for it
         child.reader = threading.Thread(target=self._read, args=(child, child.proc), daemon=True)
         child.reader.start()
         self.say.debug(f"started {child.name!r} (pid {child.proc.pid})")

@@ -42,17 +42,22 @@ class LoopTiming:
         # Thread name -> [voluntary, involuntary] context switches from the first tick to the end of the last.
         self.switches: dict[str, list[int]] = {}
         self._switches_before: dict[str, list[int]] | None = None
+        # [the process's, the loop thread's] CPU seconds over the same span: what a tick costs where.
+        self.cpu: list[float] = []
+        self._cpu_before = (0.0, 0.0)
 
     def first_tick(self) -> None:
         """The first tick begins: the run's span and its context switches count from here."""
         self.first_tick_at = time.time()
         self._switches_before = switches.by_thread()
+        self._cpu_before = (time.process_time(), time.thread_time())
 
     def last_tick(self, at: float | None = None) -> None:
         """The last tick has ended (at `at`, time.time() by default)."""
         self.last_tick_at = time.time() if at is None else at
         if self._switches_before is not None:
             self.switches = switches.since(self._switches_before, switches.by_thread())
+            self.cpu = [time.process_time() - self._cpu_before[0], time.thread_time() - self._cpu_before[1]]
 
     def aged(self, port: str, age: float) -> None:
         if age > self.worst_age.get(port, 0.0):
@@ -106,6 +111,7 @@ class LoopTiming:
             "last_tick_at_s": self.last_tick_at,
             "published": dict(self.published),
             "switches": dict(self.switches),
+            "cpu_s": list(self.cpu),
         }
         if self.device is not None:  # a driver's account of its device's cycles (validity.device_reasons)
             out["device"] = self.device()

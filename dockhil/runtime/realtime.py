@@ -8,6 +8,9 @@ message between processes, go between: a busy core then delays none of them behi
 
 Without the privilege (not root, no CAP_SYS_NICE, no rtprio limit: docs/time.md) the OS refuses;
 the process says so in one line and runs at normal priority.
+
+Sim time asks for no privilege: only the launch's recorder, which no tick waits for, is lowered to
+SCHED_BATCH (`trailing`), so that its wake-ups do not preempt the lock-step nodes.
 """
 
 from __future__ import annotations
@@ -59,6 +62,24 @@ def favour(pid: int, what: str, say: Callable[[str], object]) -> bool:
         )
         return False
     return True
+
+
+def trailing(pid: int) -> bool:
+    """Sim time: SCHED_BATCH for every thread of a trailing reader's process (the launch's recorder).
+    No tick waits for it, yet at normal policy each of its wake-ups may preempt a lock-step node on a
+    busy core; a batch thread never preempts on waking, and takes an idle core or its turn. Lowering
+    one's own policy needs no privilege; where the OS refuses anyway, it runs as it was (False)."""
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:  # not Linux, or it exited already
+        return False
+    done = True
+    for tid in tids:
+        try:
+            os.sched_setscheduler(int(tid), os.SCHED_BATCH, os.sched_param(0))
+        except (PermissionError, OSError, AttributeError):
+            done = False
+    return done
 
 
 def granted() -> bool:

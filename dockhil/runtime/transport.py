@@ -272,12 +272,11 @@ class Publisher:
 
     def _observe(self, payload: bytes, hold: bool = True) -> None:
         """Offer a message to the observers (with a burst's, when it goes out); never waits. Whether
-        one listens is looked at every burst, or every LOOK_EVERY_S: a new observer may miss the
-        first messages, and none costs 0.2 us a message."""
+        one listens is looked at every LOOK_EVERY_S (as a message or a burst goes out): a new observer
+        may miss the first messages, and none costs 0.2 us a message."""
         self.sent += 1
-        if self.burst == 1 and (now := time.monotonic()) >= self._next_look:
-            self._next_look = now + LOOK_EVERY_S
-            self.look()
+        if self.burst == 1:
+            self._look_now_and_then()
         if self.watchers > 0:
             frame = self._observed_prefix + self.sent.to_bytes(8, "little") + payload
             if self.burst > 1 and hold:
@@ -327,9 +326,18 @@ class Publisher:
         many frames to its I/O thread, and to the reader, in one wake-up. Messages and empty ticks
         go in separate runs, as a reader may subscribe to only one kind (its prefix is matched
         against the first frame). The observers get theirs the same way, after, without waiting."""
-        self._send_runs(self.sock, self._held, 0)
-        self._send_runs(self.observers, self._held_observed, zmq.NOBLOCK)
-        self.look()
+        if self._held:
+            self._send_runs(self.sock, self._held, 0)
+        if self._held_observed:
+            self._send_runs(self.observers, self._held_observed, zmq.NOBLOCK)
+        self._look_now_and_then()
+
+    def _look_now_and_then(self) -> None:
+        """`look`, at most every LOOK_EVERY_S: a node flushes before each wait, once a tick in lock-step,
+        and a look that finds nothing is a ZeroMQ receive, its system call and an exception."""
+        if (now := time.monotonic()) >= self._next_look:
+            self._next_look = now + LOOK_EVERY_S
+            self.look()
 
     def _send_runs(self, sock: zmq.Socket, held: list[bytes], flags: int) -> None:
         n = len(self.topic_bytes)

@@ -44,14 +44,13 @@ from collections.abc import Callable, Iterable, Sequence
 
 from dockhil.contact.rotations import IDENTITY, quat_conjugate, quat_multiply
 from dockhil.devices.cycle_log import CycleLog
-from dockhil.devices.handover import Handover
+from dockhil.devices.handover import SWITCH_INTERVAL, Handover
 from dockhil.devices.kuka_rsi import protocol as rsi
 from dockhil.devices.limits import angle_between, toward_within, turn_within
 from dockhil.errors import DeviceError
 from dockhil.runtime import realtime
 
 ZERO = (0.0, 0.0, 0.0)
-SWITCH_INTERVAL = 0.0002  # s: longest wait of the link thread for the interpreter while another thread runs
 # What the 4 decimals of RKorr and RSol may add to a step: half a unit of the last digit on each of three
 # coordinates, on both poses of a step and on the start (mm; degrees as radians).
 ROUNDING_MM = 3e-4

@@ -389,6 +389,10 @@ class RobotControllerEmulator:
         error: list[BaseException] = []
 
         def run():
+            from dockhil.runtime import realtime
+
+            # It stands for the controller: its cycle is the device's clock, above the node loops.
+            realtime.raise_device_thread(print if self.servo.log is None else self.servo.log, "the robot emulator")
             self._loop = asyncio.new_event_loop()
             try:
                 self._loop.run_until_complete(self.start())

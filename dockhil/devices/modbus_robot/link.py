@@ -14,14 +14,16 @@ from __future__ import annotations
 import logging
 import math
 import socket
+import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from types import SimpleNamespace
 from typing import TYPE_CHECKING, Any, TypeAlias
 
 from dockhil.devices.cycle_log import CycleLog
-from dockhil.devices.handover import Handover
+from dockhil.devices.handover import SWITCH_INTERVAL, Handover
 from dockhil.devices.limits import angle_between, toward_within, turn_within
 from dockhil.devices.modbus_robot import registers as mm
 
@@ -125,6 +127,55 @@ def quiet_pymodbus() -> None:
         logger.propagate = False
 
 
+MAX_CONTROLLER_CYCLE = 0.02  # s: the slowest controller cycle placed (docs/hardware.md: 1-8 ms)
+
+
+class ControllerPhase:
+    """When the controller's own cycles run, from its cycle count read back: each read that reports cycle k
+    came after cycle k ran, so t_k = phase + k period is at most that read's time; the reads that came
+    soonest after their cycle bound it closest (a busy machine's late read only loosens the bound). The
+    period from the count over the reads kept. `mid(t)`: the middle between two of its cycles nearest t,
+    where a write is taken by the same cycle whatever the host's jitter of up to half a cycle. No I/O."""
+
+    KEPT = 256  # reads (about half a second at 2 ms)
+    LEAST = 32  # reads before the phase is known
+
+    def __init__(self) -> None:
+        self.reads: deque[tuple[float, int]] = deque(maxlen=self.KEPT)  # (time read, cycle count unwrapped)
+        self.anchor: tuple[float, int] | None = None  # the first read: the period over the whole span since
+
+    def read(self, at: float, cycle: int) -> None:
+        if self.reads:
+            last = self.reads[-1][1]
+            cycle = last + ((cycle - last) & 0xFFFF)
+        else:
+            self.anchor = (at, cycle)
+        self.reads.append((at, cycle))
+
+    def clear(self) -> None:
+        self.reads.clear()
+        self.anchor = None
+
+    def _fit(self) -> tuple[float, float] | None:
+        """(when the anchor's cycle ran, period) [s], or None while not known. The period over the span since
+        the anchor (a read's lateness spread over all its cycles), the phase from the recent reads."""
+        reads, anchor = self.reads, self.anchor
+        if anchor is None or len(reads) < self.LEAST or reads[-1][1] - anchor[1] < self.LEAST:
+            return None
+        period = (reads[-1][0] - anchor[0]) / (reads[-1][1] - anchor[1])
+        if not 0.0 < period <= MAX_CONTROLLER_CYCLE:
+            return None  # not a controller's cycle (its count restarted): the writes stay on the host's grid
+        return min(at - (k - anchor[1]) * period for at, k in reads), period
+
+    def mid(self, t: float) -> float:
+        """The middle between two of the controller's cycles nearest t (t while they are not known)."""
+        fit = self._fit()
+        if fit is None:
+            return t
+        phase, period = fit
+        return phase + (math.floor((t - phase) / period) + 0.5) * period
+
+
 class ModbusLink(threading.Thread):
     """Owns the Modbus client: on each of its cycles writes the rate-limited setpoint (or a hold, or the
     heartbeat) and reads the actual pose. The device's cycle is this thread's, on `clock`."""
@@ -163,6 +214,12 @@ class ModbusLink(threading.Thread):
         self.lost_since: float | None = None
         self._backoff = p.reconnect_min  # the wait after the next failed reconnect (doubles)
         self.cycle_at: float = clock()  # when the previous device cycle ran
+        # The cycles' grid (every poll_period on `clock`): a regular cycle lands at the same phase of the
+        # controller's own cycle each time, so the controller takes each write the same number of its
+        # cycles after the last; a cycle timed by the graph's commands or by the exchange's own length would
+        # beat against it (writes 1.6 and 2.4 ms apart taken 1, 2 or 3 cycles apart).
+        self._next_at: float | None = None
+        self.phase = ControllerPhase()  # the controller's cycles, each write placed between two of them
         self.last_error = ""
         self.reading: mm.ControllerReading | None = reading
         self.readings = 0
@@ -186,6 +243,9 @@ class ModbusLink(threading.Thread):
         cycle takes the latest; with the command's `stamp`, the pose for the cycle's own time, up to `tick`
         ahead along the setpoint's velocity (dockhil/devices/handover.py)."""
         with self.lock:
+            # A timed command moving on from one before it waits for the next cycle on the grid, which
+            # writes the pose for its own time; the first, an untimed one or a hold goes at once.
+            timed = setpoint is not None and stamp is not None and self.handover.motion is not None
             if setpoint is not None and stamp is not None:
                 self.handover.put(
                     self.clock(), stamp, tick, setpoint[:3], setpoint[3:7], setpoint[7:10], setpoint[10:13]
@@ -194,7 +254,8 @@ class ModbusLink(threading.Thread):
                 self.handover.clear()
             self.target = setpoint
             self.fresh = True
-        self.wake.set()
+        if not timed:
+            self.wake.set()
 
     def hold(self, timeout: float) -> bool:
         """Hold from now on; True once a hold has been written to the controller."""
@@ -214,11 +275,18 @@ class ModbusLink(threading.Thread):
             notes, self.notes = self.notes, []
         return notes
 
+    def start(self) -> None:
+        self._switch_interval = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._switch_interval, SWITCH_INTERVAL))
+        super().start()
+
     def stop(self) -> None:
         self.stopping = True
         self.stop_event.set()
         self.wake.set()
         self.join(timeout=2.0 + 2 * self.p.timeout)
+        if hasattr(self, "_switch_interval"):
+            sys.setswitchinterval(self._switch_interval)
 
     # -- the thread -------------------------------------------------------------
     def _note(self, line: str) -> None:
@@ -226,12 +294,28 @@ class ModbusLink(threading.Thread):
             self.notes.append(line)
 
     def run(self) -> None:
+        from dockhil.runtime import realtime
+
+        # The device's cycle is this thread's: above the node loops in a process running real-time.
+        realtime.raise_device_thread(self._note, "the Modbus link")
         while not self.stopping:
             wait = self.cycle_once()
             if not self.connected:
+                self._next_at = None
                 self.stop_event.wait(wait)  # commands do not shorten the backoff; close() does
             else:
-                self.wake.wait(wait)
+                self.wake.wait(self._until_next(wait))
+
+    def _until_next(self, wait: float) -> float:
+        """The wait until the grid's next cycle (`wait` after a cycle that was no regular one)."""
+        now, period = self.clock(), self.p.poll_period
+        if wait != period or self._next_at is None:
+            self._next_at = now + wait
+        elif now >= self._next_at:  # past the cycle due: on to the next on the grid (late ones skipped)
+            self._next_at += period * (1 + math.floor((now - self._next_at) / period))
+            # between two of the controller's cycles, not at the edge where jitter takes it one early or late
+            self._next_at = self.phase.mid(self._next_at)
+        return max(0.0, self._next_at - now)
 
     def cycle_once(self) -> float:
         """One device cycle (or one reconnect attempt); the time to wait before the next."""
@@ -304,6 +388,7 @@ class ModbusLink(threading.Thread):
         lag = limiter.lag(target) if target is not None and not hold else (0.0, 0.0)
         rr = self._check(client.read_input_registers(0, count=mm.IR_COUNT, device_id=dev))
         reading = mm.decode_inputs(rr.registers)
+        self.phase.read(self.clock(), reading.cycle)
         limiter.echoed(reading.heartbeat)
         self._progress(reading.heartbeat, target is not None and not hold)
         # The controller echoes the heartbeat it last took: this one, if it ran a cycle since the write.
@@ -342,6 +427,7 @@ class ModbusLink(threading.Thread):
         self.connected = False
         self.lost_since = self.clock()
         self._echo = None  # the next reading after the reconnect closes the gap, if it moved when lost
+        self.phase.clear()  # a controller that restarted counts its cycles anew
         self.last_error = " ".join(str(exc).split()) or type(exc).__name__
         self.limiter.reset()
         with self.lock:
