@@ -48,6 +48,7 @@ if TYPE_CHECKING:
     import numpy as np
     from numpy.typing import ArrayLike
 
+    from dockhil.contact.contact6 import Run6
     from dockhil.contact.hilloop import HilRun
 
 DT = 1e-3
@@ -170,12 +171,13 @@ def offaxis6_scene() -> tuple:
     from dockhil.contact.rigidbody import BodyState, RigidBody
     from dockhil.contact.rotations import quat_from_rotvec
 
-    chaser = RigidBody(750.0, np.diag([300.0, 400.0, 500.0]), interface_position=[1.0, 0.0, 0.0])
-    target = RigidBody(1e6, np.diag([4e6, 5e6, 6e6]), interface_position=[-2.0, 0.0, 0.0])
-    s1 = BodyState([-1.0, 0.05, 0.0], quat_from_rotvec([0.0, 0.0, 0.02]), [0.03, 0.0, 0.0], [0.01, 0.0, 0.0])
-    s2 = BodyState([2.0, 0.0, 0.0], (0.0, 0.0, 0.0, 1.0), [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
-    ideal = Contact6([3000.0] * 3 + [300.0] * 3, [40.0] * 3 + [4.0] * 3)
-    passive = Contact6([1000.0] * 3 + [100.0] * 3)
+    a = np.array
+    chaser = RigidBody(750.0, np.diag([300.0, 400.0, 500.0]), interface_position=a([1.0, 0.0, 0.0]))
+    target = RigidBody(1e6, np.diag([4e6, 5e6, 6e6]), interface_position=a([-2.0, 0.0, 0.0]))
+    s1 = BodyState(a([-1.0, 0.05, 0.0]), quat_from_rotvec([0.0, 0.0, 0.02]), a([0.03, 0.0, 0.0]), a([0.01, 0.0, 0.0]))
+    s2 = BodyState(a([2.0, 0.0, 0.0]), (0.0, 0.0, 0.0, 1.0), np.zeros(3), np.zeros(3))
+    ideal = Contact6(a([3000.0] * 3 + [300.0] * 3), a([40.0] * 3 + [4.0] * 3))
+    passive = Contact6(a([1000.0] * 3 + [100.0] * 3))
     return chaser, target, s1, s2, ideal, passive
 
 
@@ -191,21 +193,21 @@ def reference6() -> Reference:
     return Reference(math.pi / duration, cast("IdealRun", run), duration)
 
 
-def normal_metrics6(run, ref_run, m1: float) -> dict:
+def normal_metrics6(run: Run6, ref_run: Run6, m1: float) -> dict:
     """Restitution (the normal rate at the end over that before the onset), peak compressive normal force,
     normal impulse (the chaser's momentum change along the target's normal), contact duration."""
     import numpy as np
 
     from dockhil.contact.rotations import rotate
 
-    def measured(r, last: int | None = None) -> tuple:
-        end = r.t.size - 1 if last is None else last
+    def measured(r: Run6) -> tuple:
+        end, onset = r.t.size - 1, cast(float, r.onset)  # the run touched: checked below
         normal = np.array([rotate(tuple(q), (1.0, 0.0, 0.0)) for q in r.orientations[: end + 1, 1]])
         force = -np.einsum("ij,ij->i", r.force[: end + 1], normal)
-        start = int(math.floor(r.onset / DT + 1e-9))
+        start = int(math.floor(onset / DT + 1e-9))
         e = -float(r.rate[end, 0]) / float(r.rate[start, 0])
         impulse = m1 * float((r.velocities[end, 0] - r.velocities[start, 0]) @ normal[end])
-        duration = None if r.exit is None else r.exit - r.onset
+        duration = None if r.exit is None else r.exit - onset
         return e, float(force.max()), impulse, duration
 
     if run.onset is None:
@@ -225,7 +227,7 @@ def normal_metrics6(run, ref_run, m1: float) -> dict:
     }
 
 
-def simulate_offaxis6(method: str, delay: float, hw: Hardware, n_ticks: int):
+def simulate_offaxis6(method: str, delay: float, hw: Hardware, n_ticks: int) -> Run6:
     """The 6-DOF loop of hil6.yaml with `compensation:=method` told `delay`, the hardware's truth `hw`
     (its k_scale and delay_scale): the library loop the graph runs (contact.hybrid6.simulate_hybrid6)."""
     from dockhil.contact.contact6 import Contact6
@@ -361,7 +363,7 @@ def run_point(scene: Scene, ref: Reference, method: str, omega_h: float, hw_name
         except ContactModelError as exc:
             row["error"] = str(exc)
             return row
-        row.update(normal_metrics6(run6, ref.run, scene.m1))
+        row.update(normal_metrics6(run6, cast("Run6", ref.run), scene.m1))
         row["cpu_s"] = time.process_time() - started
         return row
     if scene.kind == "push":
