@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="13 omega h (0 to 1.0) and each mismatch alone (-+30 %% k, -+20 %% delay, ...)",
     )
     p.add_argument("--out", metavar="DIR", default="benchmark-compensation", help="where rows, summary and figures go")
-    p.add_argument("--scenes", nargs="+", metavar="NAME", help="only these scenes (table1, spring, push)")
+    p.add_argument("--scenes", nargs="+", metavar="NAME", help="only these scenes (table1, spring, push, offaxis6)")
     p.add_argument("--methods", nargs="+", metavar="NAME", help="only these methods (none is always run)")
     p.add_argument("--no-figures", action="store_true", help="leave out the PNGs")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object instead of the table")
@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from dockhil.contact import compensation_grid as grid
     from dockhil.contact.compensation import METHODS
 
-    known = sorted({s.name for s in grid.scenes()})
+    known = sorted({s.name for s in grid.scenes()} | {grid.OFFAXIS6.name})
     for name in args.scenes or []:
         if name not in known:
             raise DockhilError(f"--scenes: unknown scene {name!r}; the scenes are {', '.join(known)}")

@@ -9,6 +9,12 @@ Scenes (1 kHz; omega the target's frequency, the delay h = omega h / omega in wh
   deepest penetration as the spring, e 0.9 and 0.6).
 - push: Fig. 11, a 750 kg body pushed by 10 N against the sheet K = 2510 N/m with the virtual damper
   b = 20 N s/m from rest at the sheet's surface, so that it bounces on it: 10 periods.
+- offaxis6: launch/hil6.yaml's off-axis 6-DOF impact (the chaser 5 cm off the target's axis, tilted
+  0.02 rad, rolling at 0.01 rad/s: the contact makes torques), through the 6-DOF loop
+  (dockhil.contact.hybrid6, the compensation along the normal) against the ideal 6-DOF contact
+  (contact6.simulate_contact6): restitution, peak force and impulse on the normal. Its `mismatch` is
+  the compliance 30 % softer and the delay 20 % longer (the 6-DOF sensor has no noise or delay of
+  its own).
 
 Metrics against the ideal contact (dockhil.contact.hunt_crossley.ideal_relative_run, located inside
 the step): restitution error (absolute), peak force, contact duration and impulse errors (relative),
@@ -42,6 +48,7 @@ if TYPE_CHECKING:
     import numpy as np
     from numpy.typing import ArrayLike
 
+    from dockhil.contact.contact6 import Run6
     from dockhil.contact.hilloop import HilRun
 
 DT = 1e-3
@@ -68,6 +75,7 @@ GOALS = {
     "growth_10": 0.02,  # no growth: the tenth period's energy over the first's no more than the ideal's, within 2 %
 }
 GOAL_OMEGA_H = 0.5
+OFFAXIS6_IN_QUICK = True  # the 6-DOF scene's 84 quick runs: about 40 s of CPU
 RATIO_OMEGA_H = 0.16  # where the best method must beat none 10 x on the restitution error
 
 
@@ -145,11 +153,109 @@ def scenes() -> list[Scene]:
 
 @dataclass
 class Reference:
-    """The ideal contact of a scene: omega [rad/s], and its run and metrics."""
+    """The ideal contact of a scene: omega [rad/s], and its run and metrics (offaxis6: a contact6.Run6)."""
 
     omega: float
     run: IdealRun
     period: float
+
+
+OFFAXIS6 = Scene("offaxis6", "hil6.yaml linear e 0.958", "offaxis6", 750.0, 1e6, 1000.0, 0.03, None, ZERO)
+
+
+def offaxis6_scene() -> tuple:
+    """(chaser, target, their states, ideal contact, passive compliance) of launch/hil6.yaml's defaults."""
+    import numpy as np
+
+    from dockhil.contact.contact6 import Contact6
+    from dockhil.contact.rigidbody import BodyState, RigidBody
+    from dockhil.contact.rotations import quat_from_rotvec
+
+    a = np.array
+    chaser = RigidBody(750.0, np.diag([300.0, 400.0, 500.0]), interface_position=a([1.0, 0.0, 0.0]))
+    target = RigidBody(1e6, np.diag([4e6, 5e6, 6e6]), interface_position=a([-2.0, 0.0, 0.0]))
+    s1 = BodyState(a([-1.0, 0.05, 0.0]), quat_from_rotvec([0.0, 0.0, 0.02]), a([0.03, 0.0, 0.0]), a([0.01, 0.0, 0.0]))
+    s2 = BodyState(a([2.0, 0.0, 0.0]), (0.0, 0.0, 0.0, 1.0), np.zeros(3), np.zeros(3))
+    ideal = Contact6(a([3000.0] * 3 + [300.0] * 3), a([40.0] * 3 + [4.0] * 3))
+    passive = Contact6(a([1000.0] * 3 + [100.0] * 3))
+    return chaser, target, s1, s2, ideal, passive
+
+
+OFFAXIS6_SECONDS = 3.6  # the ideal contact (1.57 s) and what follows it at omega h 1.0 with the delay 20 % long
+
+
+def reference6() -> Reference:
+    from dockhil.contact.contact6 import simulate_contact6
+
+    chaser, target, s1, s2, ideal, _passive = offaxis6_scene()
+    run = simulate_contact6(chaser, target, s1, s2, ideal, dt=DT, t_end=OFFAXIS6_SECONDS)
+    duration = cast(float, run.exit) - cast(float, run.onset)
+    return Reference(math.pi / duration, cast("IdealRun", run), duration)
+
+
+def normal_metrics6(run: Run6, ref_run: Run6, m1: float) -> dict:
+    """Restitution (the normal rate at the end over that before the onset), peak compressive normal force,
+    normal impulse (the chaser's momentum change along the target's normal), contact duration."""
+    import numpy as np
+
+    from dockhil.contact.rotations import rotate
+
+    def measured(r: Run6) -> tuple:
+        end, onset = r.t.size - 1, cast(float, r.onset)  # the run touched: checked below
+        normal = np.array([rotate(tuple(q), (1.0, 0.0, 0.0)) for q in r.orientations[: end + 1, 1]])
+        force = -np.einsum("ij,ij->i", r.force[: end + 1], normal)
+        start = int(math.floor(onset / DT + 1e-9))
+        e = -float(r.rate[end, 0]) / float(r.rate[start, 0])
+        impulse = m1 * float((r.velocities[end, 0] - r.velocities[start, 0]) @ normal[end])
+        duration = None if r.exit is None else r.exit - onset
+        return e, float(force.max()), impulse, duration
+
+    if run.onset is None:
+        return {"error": "no contact"}
+    e, peak, impulse, duration = measured(run)
+    e0, peak0, impulse0, duration0 = measured(ref_run)
+    return {
+        "restitution": e,
+        "restitution_ideal": e0,
+        "restitution_error": e - e0 if duration is not None else None,
+        "peak_force_N": peak,
+        "peak_force_error": peak / peak0 - 1.0,
+        "duration_error": None if duration is None else duration / duration0 - 1.0,
+        "impulse_error": impulse / impulse0 - 1.0,
+        "energy_residual": e * e - e0 * e0 if duration is not None else None,
+        "growth_10": None,
+    }
+
+
+def simulate_offaxis6(method: str, delay: float, hw: Hardware, n_ticks: int) -> Run6:
+    """The 6-DOF loop of hil6.yaml with `compensation:=method` told `delay`, the hardware's truth `hw`
+    (its k_scale and delay_scale): the library loop the graph runs (contact.hybrid6.simulate_hybrid6)."""
+    from dockhil.contact.contact6 import Contact6
+    from dockhil.contact.hybrid6 import NormalCompensation6, simulate_hybrid6
+
+    chaser, target, s1, s2, ideal, passive = offaxis6_scene()
+    reduced = OFFAXIS6.reduced
+    comp = None
+    if method != "none":
+        omega = math.sqrt(float(ideal.stiffness[0, 0]) / reduced)
+        settings = CompensationSettings(method, OFFAXIS6.k, delay, 0.0, omega, 0.0, hw.noise)
+        passivity = Passivity(OFFAXIS6.k, DEFAULT_MAX_DAMPING) if "passivity" in method else None
+        comp = NormalCompensation6(ideal, passive, settings, reduced, DT, passivity)
+    truth = None if hw.k_scale == 1.0 else Contact6(passive.stiffness * hw.k_scale, passive.damping)
+    return simulate_hybrid6(
+        chaser,
+        target,
+        s1,
+        s2,
+        ideal,
+        passive,
+        dt=DT,
+        t_end=(n_ticks - 1) * DT,
+        delay_ticks=int(round(delay * hw.delay_scale / DT)),
+        order=2,
+        compensation=comp,
+        hardware=truth,
+    )
 
 
 def reference(scene: Scene, seconds: float) -> Reference:
@@ -249,6 +355,17 @@ def run_point(scene: Scene, ref: Reference, method: str, omega_h: float, hw_name
         "error": None,
     }
     true_delay = delay * hw.delay_scale + hw.ft_delay + hw.lag
+    if scene.kind == "offaxis6":
+        n = int(round((1.3 * ref.period + 3.0 * true_delay + 0.05) / DT)) + 1
+        started = time.process_time()
+        try:
+            run6 = simulate_offaxis6(method, delay, hw, n)
+        except ContactModelError as exc:
+            row["error"] = str(exc)
+            return row
+        row.update(normal_metrics6(run6, cast("Run6", ref.run), scene.m1))
+        row["cpu_s"] = time.process_time() - started
+        return row
     if scene.kind == "push":
         n = int(round(10.0 * ref.period / DT)) + 1
     else:
@@ -290,8 +407,20 @@ def tasks(
     hardware = HARDWARE_FULL if full else HARDWARE_QUICK
     methods = [m for m in METHODS if only_methods is None or m in only_methods]
     chosen = [s for s in scenes() if only_scenes is None or s.name in only_scenes]
+    if OFFAXIS6.name in only_scenes if only_scenes is not None else (OFFAXIS6_IN_QUICK or full):
+        chosen.append(OFFAXIS6)
     out = []
     for scene in chosen:
+        if scene.kind == "offaxis6":
+            ref = reference6()
+            hw_6dof = {name: Hardware(k_scale=hw.k_scale, delay_scale=hw.delay_scale) for name, hw in hardware.items()}
+            for hw_name, hw in hw_6dof.items():
+                if hw_name in ("noise 0.2 N", "ft_delay 2 ms"):  # the 6-DOF sensor has neither
+                    continue
+                for omega_h in omega_hs:
+                    for method in methods:
+                        out.append((scene, ref, method, omega_h, hw_name, hw))
+            continue
         ref = reference(scene, 10.0 * 2.0 * math.pi / math.sqrt(scene.target().kcs / scene.reduced) + 0.01)
         for hw_name, hw in hardware.items():
             if scene.kind == "push":

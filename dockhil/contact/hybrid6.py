@@ -364,12 +364,17 @@ class VirtualWall6:
             None  # K_i D_i, C_i D_i as MatVec6, fixed at the first tick in contact
         )
 
-    def wrenches(self, g: InterfaceGeometry, velocity: tuple, spin: Vec3) -> tuple:
+    def wrenches(self, g: InterfaceGeometry, velocity: tuple, spin: Vec3, normal: float = 0.0) -> tuple:
         """(F_1, T_1, F_2, T_2): world forces [N] and torques [N m] about each CoM (tuples), for the
-        geometry between the published states and its rates (`published_interface`)."""
+        geometry between the published states and its rates (`published_interface`); `normal` [N]: a
+        force on the chaser along the normal (the target gets its opposite) at o_A, a delay
+        compensation's (`NormalCompensation6`), which acts touching or not."""
         self.touching = _touching(g.d[0], velocity[0])
         if not self.touching:
-            return ZERO3, ZERO3, ZERO3, ZERO3
+            if normal == 0.0:
+                return ZERO3, ZERO3, ZERO3, ZERO3
+            q = (-normal, 0.0, 0.0, 0.0, 0.0, 0.0)
+            return _wall_wrenches(g, q, q)
         rate = g.rate_from(velocity, spin)
         if self.anchor is None:
             self.anchor = (0.0,) + tuple(g.e[1:])
@@ -390,17 +395,71 @@ class VirtualWall6:
         k1, c1, k2, c2 = cast(tuple[MatVec6, ...], self._products)  # fixed with the anchor
         de = sub6(g.e, self.anchor)
         q1 = add6(k1(de), c1(rate))
-        # W = -S q on body 1 and +S q on body 2 at o_A: force R_B q_t, moment R_B J^-T q_r.
-        qb, jinv = g.q_b, g.jinv3
-        f2 = rotate(qb, q1[:3])
-        moment2 = rotate(qb, mat3t_vec(jinv, q1[3:]))
-        f1 = (-f2[0], -f2[1], -f2[2])
-        t1 = sub3(cross3(g.arm1, f1), moment2)  # the negative of body 1's moment acts on it
-        if k2 is not k1 or c2 is not c1:  # the closed form gives both bodies the same products
-            q2 = add6(k2(de), c2(rate))
-            f2 = rotate(qb, q2[:3])
-            moment2 = rotate(qb, mat3t_vec(jinv, q2[3:]))
-        return f1, t1, f2, add3(moment2, cross3(sub3(g.point, g.pose2[1]), f2))
+        # The closed form gives both bodies the same products.
+        q2 = q1 if k2 is k1 and c2 is c1 else add6(k2(de), c2(rate))
+        if normal != 0.0:  # on the chaser along the normal is -q[0] (W = -S q)
+            q1 = (q1[0] - normal,) + tuple(q1[1:])
+            q2 = (q2[0] - normal,) + tuple(q2[1:])
+        return _wall_wrenches(g, q1, q2)
+
+
+def _wall_wrenches(g: InterfaceGeometry, q1: Sequence[float], q2: Sequence[float]) -> tuple:
+    """(F_1, T_1, F_2, T_2) of the generalized forces q1 on the chaser and q2 on the target at o_A."""
+    # W = -S q on body 1 and +S q on body 2 at o_A: force R_B q_t, moment R_B J^-T q_r.
+    qb, jinv = g.q_b, g.jinv3
+    f2 = rotate(qb, q1[:3])
+    moment2 = rotate(qb, mat3t_vec(jinv, q1[3:]))
+    f1 = (-f2[0], -f2[1], -f2[2])
+    t1 = sub3(cross3(g.arm1, f1), moment2)  # the negative of body 1's moment acts on it
+    if q2 is not q1:
+        f2 = rotate(qb, q2[:3])
+        moment2 = rotate(qb, mat3t_vec(jinv, q2[3:]))
+    return f1, t1, f2, add3(moment2, cross3(sub3(g.point, g.pose2[1]), f2))
+
+
+class NormalCompensation6:
+    """A delay compensation of dockhil.contact.compensation on the contact's normal (B's x axis): the
+    1-DOF loop's tick (dockhil.contact.comploop.ImpedanceStep, the methods unchanged) on the normal
+    penetration p = d_x, its rate, the measured force on the chaser along the normal and the robot's
+    reported normal pose, as a body of the reduced mass m1 m2 / (m1 + m2) against a fixed wall with the
+    normal entries of the virtual impedance (K - K_p, C - C_p) for the energy account and the hold.
+    `force` returns the compensation's force on the chaser along the normal (the target gets its
+    opposite); the virtual wall applies it at o_A, so off the axis it makes torques as the contact
+    does. The other five axes are left as published: their delays are not compensated."""
+
+    def __init__(
+        self,
+        ideal: Contact6,
+        passive: Contact6,
+        settings: Any,
+        reduced_mass: float,
+        dt: float,
+        passivity: Any = None,
+        sensor_orientation: Any = IDENTITY,
+    ):
+        from dockhil.contact.comploop import ImpedanceStep
+        from dockhil.contact.hybrid import VirtualImpedance
+
+        k = float(passive.stiffness[0, 0])
+        self.normal = VirtualImpedance(
+            float(ideal.stiffness[0, 0]) - k, float(ideal.damping[0, 0] - passive.damping[0, 0]), 0.0, 0.0
+        )
+        self.mass = reduced_mass
+        self.tick = ImpedanceStep(reduced_mass, 0.0, k, self.normal, None, settings, dt, passivity)
+        self.mount = check_unit_quaternion("sensor_orientation", sensor_orientation)
+        self.account: Any = None
+
+    def force(self, g: InterfaceGeometry, velocity: tuple, measured: Vec3, robot: tuple | None, dt: float) -> float:
+        """[N] on the chaser along the normal over the next tick. measured: the F/T force on the target
+        in the sensor's axes; robot: the robot's reported (normal pose, normal velocity) or None."""
+        from dockhil.contact.hilloop import virtual_wrench
+
+        on_target = measured if self.mount == IDENTITY else rotate(self.mount, measured)
+        p, pd = g.d[0], velocity[0]
+        f1, _f2, self.account = self.tick.step(p, 0.0, pd, 0.0, -on_target[0], robot, dt)
+        # ImpedanceStep's force is the normal virtual spring-damper plus the compensation: the wall
+        # applies the first already.
+        return f1 - virtual_wrench(p, 0.0, pd, 0.0, self.mass, 0.0, self.normal)[0]
 
 
 class PassiveSensor6:
@@ -528,6 +587,8 @@ def simulate_hybrid6(
     lag: float = 0.0,
     sensor_position: object = (0.0, 0.0, 0.0),
     sensor_orientation: Any = IDENTITY,
+    compensation: NormalCompensation6 | None = None,
+    hardware: Contact6 | None = None,
 ) -> Run6:
     """The sampled hybrid loop, tick by tick, as the graph runs it.
 
@@ -542,13 +603,18 @@ def simulate_hybrid6(
     is sensed per tick: penetrating, or at the surface and closing. `force`
     and `torque` record the total wrench on the chaser (torque about its
     interface origin); `generalized` the passive reading's generalized force.
+
+    `compensation`: a delay compensation on the normal, fed each tick with the
+    reading and the robot's reported pose (as the virtual-impedance node with
+    `compensation:=`); `hardware`: the compliance the sensor truly reads, if not
+    `passive` (what the virtual impedance is told).
     """
     dt = check_positive("dt", dt, "s")
     t_end = check_positive("t_end", t_end, "s")
     if int(delay_ticks) != delay_ticks or delay_ticks < 0:
         raise ContactModelError(f"delay_ticks must be a whole number >= 0, got {delay_ticks!r}")
     wall = VirtualWall6(ideal, passive, impedance)
-    sensor = PassiveSensor6(passive, sensor_position, sensor_orientation)
+    sensor = PassiveSensor6(passive if hardware is None else hardware, sensor_position, sensor_orientation)
     mount = sensor_mount_in_body(body2, sensor_position, sensor_orientation)
     servo = Servo6(lag, dt)
     m1, m2 = Motion.from_state(body1, state1), Motion.from_state(body2, state2)
@@ -559,12 +625,17 @@ def simulate_hybrid6(
     for i in range(steps + 1):
         # dynamics -> state, command; virtual impedance on the published state
         g, velocity, spin = published_interface(body1, published_body(m1), body2, published_body(m2))
-        virtual = wall.wrenches(g, velocity, spin)
         # delay injector -> robot -> F/T sensor
         commands.append(RelativePose(g.d, g.q_rel, velocity, spin))
         delayed = commands[0]
         actual = None if delayed is None else servo.step(delayed)
         force_s, torque_s, q_seen = sensor.read(actual)
+        # virtual impedance on the published state (with a compensation: and the reading, the robot's pose)
+        normal = 0.0
+        if compensation is not None:
+            robot = None if actual is None else (actual[0][0], actual[2][0])
+            normal = compensation.force(g, velocity, force_s, robot, dt)
+        virtual = wall.wrenches(g, velocity, spin, normal)
         wrench = held_wrench(m1, m2, mount, force_s, torque_s, virtual)
         if wall.touching and onset is None:
             onset = i * dt
