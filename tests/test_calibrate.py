@@ -383,8 +383,9 @@ def test_calibrate_on_emulators_finds_their_hidden_truths_within_the_limits(tmp_
 @pytest.mark.xdist_group("long_realtime")  # one long realtime run at a time (tests/conftest.py)
 def test_calibrate_on_the_rsi_emulator_times_the_robot_at_its_4ms_cycle():
     """One live run on the KUKA RSI emulator hiding a draw: calibrate uses the driver's device cycles (no
-    fallback to the ticks), the delay within half the 4 ms cycle of the hidden one (the model's bound) and
-    a millisecond of fit, the lag within 5 % or two cycles, under 60 s."""
+    fallback to the ticks); RSI does not say which cycle took a correction, so the robot's own delay and
+    the link are not identified apart, and the hidden delay lies in the range given (tests/test_calib_split.py
+    on a controller of each timing); the loop's delay end to end, the lag within 5 % or two cycles, under 60 s."""
     from bench.calibrate import MAX_ACTUAL_SPEED, run
     from bench.calibrate import draw as bench_draw
 
@@ -392,11 +393,11 @@ def test_calibrate_on_the_rsi_emulator_times_the_robot_at_its_4ms_cycle():
     r = run(truth, robot="rsi", cycle=0.004)
     assert r["exit"] == 0, r["stderr_tail"]
     assert r["wall_s"] < 60.0 and r["written"]
-    assert r["found"]["timing"] == "device cycles" and r["found"]["link_s"] > 0.0
+    found = r["found"]
+    assert found["timing"] == "device cycles" and found["fit"]["split_not_identified"]
+    assert found["delay_s"] is None and found["link_s"] is None
     e = r["errors"]
-    assert abs(e["delay_ms"]) <= 2.0 + 1.0, e
-    # the emulator acts on whole cycles: at its cycle's top the delay is the hidden one rounded up
-    assert abs(e["effective_delay_ms"]) <= 1.0, e
+    assert e["range_low_margin_ms"] >= 0.0 and e["range_high_margin_ms"] >= 0.0, (found["delay_range_s"], truth)
     # the loop's delay, the verdict's, is the run's own end to end: within a cycle of what its bag shows
     assert abs(e["loop_vs_run_p95_cycles"]) <= 1.0 and e["loop_minus_hidden_ms"] >= 0.0, e
     assert abs(e["lag_ms"]) <= max(0.05 * 1e3 * truth["lag"], 8.0), e
