@@ -23,7 +23,8 @@ import time
 import numpy as np
 
 from dockhil.contact.contact6 import Contact6, simulate_contact6
-from dockhil.contact.hybrid6 import interface_mobilities, simulate_hybrid6
+from dockhil.contact.hybrid6 import simulate_hybrid6
+from dockhil.contact.impedance6 import interface_mobilities
 from dockhil.contact.rigid import Motion, free_step
 from dockhil.contact.rigidbody import BodyState, RigidBody
 from dockhil.contact.rotations import quat_from_rotvec

@@ -304,7 +304,7 @@ def test_a_loop_file_with_max_force_is_refused_by_the_command_in_one_line(tmp_pa
 def test_a_loop_file_sets_the_scene_and_the_command_line_wins(tmp_path):
     loop = tmp_path / "loop.yaml"
     loop.write_text(
-        "args:\n  delay: 0.0473\n  lag: 0.0081\n  k: 1012.5\n  ft_noise: 0.21\n"
+        "args:\n  delay: 0.0473\n  lag: 0.0081\n  k: 1012.5\n  ft_noise: 0.21\n  ft_delay: 0.002\n"
         'tare: {"force_N": [0.1, 0.2, 0.3], "torque_Nm": [0, 0, 0]}\n'
     )
     scene = launchfile.load("hil.yaml", {"loop": str(loop)})
@@ -316,8 +316,8 @@ def test_a_loop_file_sets_the_scene_and_the_command_line_wins(tmp_path):
     )
     scene = launchfile.load("hil.yaml", launchfile.parse_overrides([f"loop:={loop}", "delay:=0.02"]))
     assert scene.values["delay"] == 0.02 and scene.values["k"] == 1012.5
-    six = launchfile.load("hil6.yaml", {"loop": str(loop)})  # it has no ft_noise: what it declares is set
-    assert six.values["delay"] == 0.0473 and "ft_noise" not in six.values
+    six = launchfile.load("hil6.yaml", {"loop": str(loop)})  # it has no ft_delay: what it declares is set
+    assert six.values["delay"] == 0.0473 and six.values["ft_noise"] == 0.21 and "ft_delay" not in six.values
 
 
 @pytest.mark.parametrize(

@@ -7,7 +7,8 @@ import pytest
 
 from dockhil.contact import TABLE1
 from dockhil.contact.contact6 import Contact6, simulate_contact6
-from dockhil.contact.hybrid6 import fit_impedance6, impedance_closed_form6, interface_mobilities, simulate_hybrid6
+from dockhil.contact.hybrid6 import simulate_hybrid6
+from dockhil.contact.impedance6 import fit_impedance6, impedance_closed_form6, interface_mobilities
 from dockhil.contact.rigidbody import BodyState, RigidBody
 from dockhil.contact.rotations import quat_from_rotvec
 from dockhil.contact.scenario import ContactModelError, FitError

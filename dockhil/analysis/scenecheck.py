@@ -228,7 +228,7 @@ def scene_loop6(graph):
     dyn, imp = sixdof_nodes(graph)
     if dyn is None or imp is None:
         return None
-    from dockhil.contact.hybrid6 import body_mobility
+    from dockhil.contact.impedance6 import body_mobility
     from dockhil.contact.interface6 import InterfaceGeometry
     from dockhil.contact.stability6 import hybrid_loop6
 
