@@ -168,7 +168,7 @@ class Drive:
     def step(self, command=None, wrench=None, estop=None):
         out = self.node.step(Tick(self.k, self.now(), 0.001), {"command": command, "wrench": wrench, "estop": estop})
         self.k += 1
-        if out:
+        if "state" in out:  # a step may publish the device cycles alone, without a fresh pose
             self.states.append((self.now(), out["state"]))
         return out
 

@@ -54,7 +54,7 @@ class ClockedDrive:
         self.clock.advance(dt)
         out = self.node.step(Tick(self.k, self.now(), DT), {"command": command, "wrench": wrench, "estop": estop})
         self.k += 1
-        if out:
+        if "state" in out:  # a step may publish the device cycles alone, without a fresh pose
             self.states.append(out["state"])
         return out
 
