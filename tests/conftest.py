@@ -50,9 +50,10 @@ def pytest_ignore_collect(collection_path, config):
 
 
 # The wall-time tests whose graphs open the lab devices' default ports (RSI and the Net F/T's UDP 49152,
-# Modbus 5020): one xdist worker runs them one after another, so two never bind the same port while the
-# other worker runs the rest. The long realtime runs (calibrations, the stability and restitution runs), on
-# ports of their own, are a group of their own (xdist_group "long_realtime"): two never share the cores.
+# Modbus 5020), and the long realtime runs (calibrations, the stability and restitution runs, marked
+# xdist_group("devices") where they are): one xdist worker runs them one after another, so two never bind
+# the same port, and a calibration never shares the cores with another realtime graph or a flood of
+# datagrams (a busy machine's 60 ms stalls made such runs INVALID); the other worker runs the rest.
 DEFAULT_PORT_FILES = {
     "test_bag_metadata.py",
     "test_busy_machine.py",
@@ -78,7 +79,7 @@ def pytest_collection_modifyitems(config, items):
             and item.get_closest_marker("wall_time")
             and not item.get_closest_marker("xdist_group")
         ):
-            item.add_marker(pytest.mark.xdist_group("default_ports"))
+            item.add_marker(pytest.mark.xdist_group("devices"))
 
 
 @pytest.fixture(autouse=True)
