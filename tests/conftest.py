@@ -49,39 +49,6 @@ def pytest_ignore_collect(collection_path, config):
     return None
 
 
-# The wall-time tests whose graphs open the lab devices' default ports (RSI and the Net F/T's UDP 49152,
-# Modbus 5020), and the long realtime runs (calibrations, the stability and restitution runs, marked
-# xdist_group("devices") where they are): one xdist worker runs them one after another, so two never bind
-# the same port, and a calibration never shares the cores with another realtime graph or a flood of
-# datagrams (a busy machine's 60 ms stalls made such runs INVALID); the other worker runs the rest.
-DEFAULT_PORT_FILES = {
-    "test_bag_metadata.py",
-    "test_busy_machine.py",
-    "test_device_validity.py",
-    "test_hardware_can.py",
-    "test_hardware_modbus.py",
-    "test_hardware_modbus_cycle.py",
-    "test_hardware_netft.py",
-    "test_hardware_rsi.py",
-    "test_hardware_swap.py",
-    "test_link_loss.py",
-    "test_rsi_flood.py",
-    "test_security.py",
-    "test_stall.py",
-}
-
-
-@pytest.hookimpl(tryfirst=True)  # before xdist names each item's group from its markers
-def pytest_collection_modifyitems(config, items):
-    for item in items:
-        if (
-            item.path.name in DEFAULT_PORT_FILES
-            and item.get_closest_marker("wall_time")
-            and not item.get_closest_marker("xdist_group")
-        ):
-            item.add_marker(pytest.mark.xdist_group("devices"))
-
-
 @pytest.fixture(autouse=True)
 def _runtime_dir(monkeypatch):
     # Each test gets its own registry and ipc directory: no test sees a user's graphs or another

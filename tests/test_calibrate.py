@@ -345,7 +345,6 @@ def test_a_bad_loop_file_is_one_line(tmp_path, text, why):
 
 
 @pytest.mark.wall_time
-@pytest.mark.xdist_group("devices")  # one heavy device run at a time (tests/conftest.py)
 def test_calibrate_on_emulators_finds_their_hidden_truths_within_the_limits(tmp_path):
     """One live run (wall time, real drivers, --realtime) on emulators hiding a draw: the delay, timed at the
     device, within the emulator's 1 ms cycle of its hidden one, the rest within its tolerance; the emulators'
@@ -380,7 +379,6 @@ def test_calibrate_on_emulators_finds_their_hidden_truths_within_the_limits(tmp_
 
 
 @pytest.mark.wall_time
-@pytest.mark.xdist_group("devices")  # one heavy device run at a time (tests/conftest.py)
 def test_calibrate_on_the_rsi_emulator_times_the_robot_at_its_4ms_cycle():
     """One live run on the KUKA RSI emulator hiding a draw: calibrate uses the driver's device cycles (no
     fallback to the ticks); RSI does not say which cycle took a correction, so the robot's own delay and
@@ -406,7 +404,6 @@ def test_calibrate_on_the_rsi_emulator_times_the_robot_at_its_4ms_cycle():
 
 
 @pytest.mark.wall_time
-@pytest.mark.xdist_group("devices")  # one heavy device run at a time (tests/conftest.py)
 @pytest.mark.parametrize("robot, cycle", [("rsi", 0.004), ("modbus", 0.001)])
 def test_calibrate_holds_the_loops_delay_on_a_controller_that_takes_corrections_as_they_come(robot, cycle):
     """The other plausible controller (the emulators' `timing: immediate`): the loop's delay is the run's

@@ -57,7 +57,6 @@ MACHINE = ("fell behind real time", "late", "without taking a command", "stopped
 
 
 @pytest.mark.wall_time
-@pytest.mark.xdist_group("devices")  # one heavy device run at a time (tests/conftest.py)
 def test_wall_time_restitution_is_within_2_percent_of_sim_time_at_the_same_loop(tmp_path):
     """One wall-time run (--realtime), the loop's delay read from its bag; the sim-time scene at the told
     delay gives the simulated loop's own hops, and at the wall run's loop less those hops the restitution

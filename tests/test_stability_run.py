@@ -18,7 +18,6 @@ SECONDS = 10.0
 
 
 @pytest.mark.wall_time
-@pytest.mark.xdist_group("devices")  # one heavy device run at a time (tests/conftest.py)
 @pytest.mark.parametrize("timing", ["ours", "immediate"])
 def test_below_the_calibrated_bound_the_contact_decays_above_it_grows(timing):
     from bench.stability_run import calibrate, hardware, run
