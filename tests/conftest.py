@@ -91,6 +91,13 @@ def dockhil_cmd(*args):
     return [sys.executable, "-m", "dockhil.cli", *map(str, args)]
 
 
+def sigint_as_a_terminal_sends_it() -> None:
+    """For Popen(preexec_fn=...): SIGINT's default disposition in the child. A script's background job
+    (this suite started by `cmd &`) runs with SIGINT ignored, which a Python child would inherit and
+    never raise KeyboardInterrupt; a user's Ctrl-C reaches a command that does not ignore it."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.fixture
 def write_launch(tmp_path):
     def write(text: str, name: str = "scene.yaml") -> Path:

@@ -16,7 +16,7 @@ import pytest
 from dockhil import cli, msgs
 from dockhil.commands.topic import field_reader, format_stats, period_stats
 from dockhil.errors import DockhilError
-from tests.conftest import Lines, dockhil_cmd, registered
+from tests.conftest import Lines, dockhil_cmd, registered, sigint_as_a_terminal_sends_it
 
 # gain runs in a container; sink reads /x beside it. Inputs may be 5 s old: a busy machine
 # pausing a node must not stop the graph these tests look at.
@@ -212,7 +212,11 @@ def test_echo_wait_started_before_the_graph_prints_its_first_message(write_launc
 @pytest.mark.wall_time
 def test_echo_wait_ends_cleanly_on_ctrl_c():
     echo = subprocess.Popen(
-        dockhil_cmd("topic", "echo", "/nothing", "--wait"), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        dockhil_cmd("topic", "echo", "/nothing", "--wait"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=sigint_as_a_terminal_sends_it,
     )
     try:
         Lines(echo, echo.stderr).wait_for("[topic] waiting for /nothing", timeout=60)

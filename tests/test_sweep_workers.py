@@ -14,7 +14,7 @@ import psutil
 import pytest
 
 from dockhil.analysis import sweep
-from tests.conftest import dockhil_cmd
+from tests.conftest import dockhil_cmd, sigint_as_a_terminal_sends_it
 from tests.test_sweep import Counting
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -59,16 +59,14 @@ def start_and_kill(tmp_path: Path, sig: int, *extra: str):
     campaign, _gate = gated_campaign(tmp_path)
     out = tmp_path / "r.parquet"
     stderr = tmp_path / "stderr.txt"
-    # A file, not a pipe: a worker left behind would hold a pipe open. SIGINT as a terminal sends it:
-    # the default disposition, even where this test runs with SIGINT ignored (a script's background
-    # job), which Python would inherit.
+    # A file, not a pipe: a worker left behind would hold a pipe open.
     with open(stderr, "w") as err:
         proc = subprocess.Popen(
             dockhil_cmd("sweep", campaign, "--out", out, "--quiet", *extra),
             stdout=subprocess.DEVNULL,
             stderr=err,
             cwd=ROOT,
-            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+            preexec_fn=sigint_as_a_terminal_sends_it,
         )
     workers = []
     try:
