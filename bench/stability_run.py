@@ -29,15 +29,21 @@ M, B, RATE = 50.0, 20.0, 250.0
 THRUST = 2.0
 
 
-def free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def free_ports(kind: int, n: int) -> list[int]:
+    """`n` distinct ports free now (each held while the next is chosen)."""
+    sockets = [socket.socket(socket.AF_INET, kind) for _ in range(n)]
+    try:
+        for s in sockets:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in sockets]
+    finally:
+        for s in sockets:
+            s.close()
 
 
 def hardware(robot: str, timing: str, delay: float, lag: float, noise: float) -> list[str]:
     """The launch arguments of the emulated lab, on ports of its own."""
-    udp, tcp = free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_STREAM)
+    (rsi, netft), (tcp,) = free_ports(socket.SOCK_DGRAM, 2), free_ports(socket.SOCK_STREAM, 1)
     ft = "netft" if robot == "rsi" else "can"
     return [
         f"robot:={robot}",
@@ -47,8 +53,8 @@ def hardware(robot: str, timing: str, delay: float, lag: float, noise: float) ->
         f"delay:={delay}",
         f"lag:={lag}",
         f"ft_noise:={noise}",
-        f"rsi_port:={udp}",
-        f"netft_port:={udp + 1}",
+        f"rsi_port:={rsi}",
+        f"netft_port:={netft}",
         f"modbus_port:={tcp}",
         f"m:={M}",
         f"b:={B}",
@@ -61,11 +67,20 @@ def dockhil(*args: str, timeout: float = 240.0) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "dockhil.cli", *args], capture_output=True, text=True, timeout=timeout)
 
 
-def calibrate(args: list[str]) -> dict:
-    p = dockhil("calibrate", SCENE, *args, "--json", "--realtime")
-    if p.returncode not in (0, 3):  # 3: it fell behind real time (a busy machine); its JSON says run_valid
-        raise RuntimeError(f"calibrate exit {p.returncode}: {(p.stderr.strip().splitlines() or [''])[-1]}")
-    return json.loads(p.stdout.strip().splitlines()[-1])
+def calibrate(args: list[str], attempts: int = 2) -> dict:
+    """The calibration's JSON. An identification run that stopped (exit 1: a busy machine may stall a
+    device or an input past its limit; the lines say which) is tried again, up to `attempts` in all, as a
+    lab would; each stop's reason is kept in `stopped_attempts`."""
+    stops: list[str] = []
+    for _ in range(attempts):
+        p = dockhil("calibrate", SCENE, *args, "--json", "--realtime")
+        if p.returncode in (0, 3):  # 3: it fell behind real time (a busy machine); its JSON says run_valid
+            return {**json.loads(p.stdout.strip().splitlines()[-1]), "stopped_attempts": stops}
+        said = [line for line in p.stderr.splitlines() if "error" in line or "INVALID" in line or "stop" in line]
+        stops.append(f"exit {p.returncode}: " + " | ".join(said[-3:] or p.stderr.strip().splitlines()[-1:]))
+        if p.returncode != 1:
+            break
+    raise RuntimeError(f"calibrate stopped {len(stops)} time(s): " + " || ".join(stops))
 
 
 def growth(bag: str, k: float) -> tuple[float | None, int]:
@@ -145,6 +160,7 @@ def main() -> None:
         "seconds": a.seconds,
         "thrust_N": THRUST,
         "calibration_run_valid": found["run_valid"],
+        "calibration_stopped_attempts": found["stopped_attempts"],
         "loop_delay_s": found["loop_delay_s"],
         "lag_s": found["lag_s"],
         "verdict_h_s": found["verdict"]["h_s"],
