@@ -49,8 +49,10 @@ def run_scene(
     show_summary: bool = True,
     realtime: bool = False,
     foxglove: tuple[str, int] | None = None,
+    end_on: tuple[str, str] | None = None,
 ) -> int:
-    """foxglove: (host, port) to serve a live view of the run on (dockhil.bags.foxglove)."""
+    """foxglove: (host, port) to serve a live view of the run on (dockhil.bags.foxglove). end_on: (topic,
+    state): a wall-time run ends, as at its duration, once a node says that state there (Launcher)."""
     say = Log("[launch]")
 
     dt = graph.scene.dt
@@ -157,6 +159,7 @@ def run_scene(
             progress=progress,
             realtime=realtime,
             judge=lambda code: judge(code, timing()),
+            end_on=end_on,
         )
         if bridge is not None:
             keys = cast(Path, launcher.endpoints.key_file)  # plan() wrote them

@@ -208,7 +208,14 @@ def _live(scene, bag_out: str | None, realtime: bool, say):
     try:
         say.info(f"identification run on {scene.path}: at most {calib.duration:.0f} s; keep clear of the robot")
         code = run_scene(
-            graph, clock="wall", duration=calib.duration, bag=bag, progress=False, show_summary=False, realtime=realtime
+            graph,
+            clock="wall",
+            duration=calib.duration,
+            bag=bag,
+            progress=False,
+            show_summary=False,
+            realtime=realtime,
+            end_on=("/calibration/phase", "done"),  # the profile's end: the robot back and holding
         )
         if code not in (0, 3):
             return code, None

@@ -36,11 +36,10 @@ from dockhil.runtime.executor import STALE, TIMING
 from dockhil.runtime.plan import ExtraProcess, assign_endpoints, is_local, processes, run_specs
 from dockhil.runtime.process import READY
 from dockhil.runtime.registry import describe_nodes, describe_subscribers, write_entry
-from dockhil.runtime.transport import GraphKeys
 
 if TYPE_CHECKING:  # the graph module loads the launch-file parser (yaml): a recorder or `dockhil topic` needs neither
     from dockhil.progress import Progress
-    from dockhil.runtime.transport import Subscriber
+    from dockhil.runtime.probe import Probe
     from dockhil.scene.graph import Graph
 
 POLL_S = 0.05  # the watch loop's longest sleep when no child speaks or exits
@@ -48,6 +47,8 @@ RECORDED = "DOCKHIL-RECORDED"  # a verdict helper has everything on disk and wai
 # Wall time, to a verdict helper's stdin once the nodes have exited: this, then JSON topic -> messages its
 # publisher sent over the run (sent_counts). The recorder counts what of them never reached it.
 SENT = "DOCKHIL-SENT "
+# After a run's end_on state is said: what answered the last commands (a robot's delay) still arrives.
+END_AFTER_S = 1.0
 HELPER_WAIT_S = 10.0  # for a helper to finish its recording, and to close it once told the verdict
 
 
@@ -84,9 +85,11 @@ class Launcher:
         progress: bool = False,
         realtime: bool = False,
         judge: Callable[[int], dict] | None = None,
+        end_on: tuple[str, str] | None = None,
     ):
         """judge: exit code -> the run's verdict (str -> str), asked once the nodes are done and
-        the verdict helpers have recorded everything."""
+        the verdict helpers have recorded everything. end_on: (topic, state): in wall time the run
+        ends as at its duration END_AFTER_S after a NodeStatus on that topic says that state."""
         self.graph = graph
         self.judge = judge
         self._sparing = True  # while the graph runs, stopping it leaves the verdict helpers to _judged
@@ -99,6 +102,8 @@ class Launcher:
         # Wall time: the launcher stops the whole graph at once when the duration is up, so no driver
         # sees its device (an emulator) stop first and mistakes that for a fault.
         self.wall_duration = duration if clock == "wall" else None
+        self.end_on = end_on if clock == "wall" else None
+        self._end_said_at: float | None = None
         self.units = processes(graph)
         self.specs = run_specs(
             graph, self.endpoints, clock, self.n_ticks if clock == "sim" else None, self.extra, self.units
@@ -370,43 +375,27 @@ class Launcher:
                 registry.unlink(missing_ok=True)
             shutil.rmtree(self.endpoints.run_dir, ignore_errors=True)
 
-    def _progress_probe(self) -> Subscriber | None:
-        """A subscriber on one topic whose header ticks tell how far the graph is."""
-        import zmq
+    def _probe(self, topic: str) -> Probe:
+        from dockhil.runtime.probe import Probe
 
-        from dockhil.runtime.transport import Subscriber
-
-        topic = next(iter(self.endpoints.topics), None)
-        if topic is None:
-            return None
-        sub = Subscriber(zmq.Context.instance(), observer=True)
-        keys = GraphKeys.read(cast(Path, self.endpoints.key_file))  # plan() wrote them
-        sub.connect(self.endpoints.topics[topic], keys=keys)
-        return sub
-
-    def _show_progress(self, probe: Subscriber, bar: Progress) -> None:
-        from dockhil.msgs.codec import decode_header
-
-        tick = None
-        while (frames := probe.recv_nowait()) is not None:
-            header = decode_header(frames[1]) if len(frames) == 2 else None
-            if header is not None:
-                tick = header.tick
-        if tick is not None:
-            bar.update(tick + 1)
+        return Probe(self.endpoints.topics[topic], cast(Path, self.endpoints.key_file))  # plan() wrote the keys
 
     def _watch(self) -> int:
-        probe = bar = None
-        if self.progress:
+        bar = None
+        probes: dict[str, Probe] = {}
+        if self.progress and self.endpoints.topics:
             from dockhil.progress import Progress
 
-            probe, bar = self._progress_probe(), Progress(self.n_ticks, self.graph.scene.dt)
+            probes["progress"] = self._probe(next(iter(self.endpoints.topics)))
+            bar = Progress(self.n_ticks, self.graph.scene.dt)
+        if self.end_on is not None:
+            probes["end"] = self._probe(self.end_on[0])
         try:
-            return self._watch_children(probe, bar)
+            return self._watch_children(probes, bar)
         finally:
             if bar is not None:
                 bar.done()
-            if probe is not None:
+            for probe in probes.values():
                 probe.close()
 
     def _send_go(self) -> None:
@@ -429,12 +418,20 @@ class Launcher:
         if self._all_ready_at is None:
             self._all_ready_at = time.monotonic()
 
-    def _duration_over(self) -> bool:
+    def _duration_over(self, end: Probe | None) -> bool:
         if self.clock == "wall":
             self._send_go()
         if self.wall_duration is None or self._all_ready_at is None:
             return False
-        return time.monotonic() - self._all_ready_at >= self.wall_duration
+        now = time.monotonic()
+        if end is not None and self.end_on is not None and self._end_said_at is None:
+            end.read(status=True)
+            if self.end_on[1] in end.states:
+                self._end_said_at = now
+                self.say.info(f"{self.end_on[0]} says {self.end_on[1]!r}: the run ends in {END_AFTER_S:g} s")
+        if self._end_said_at is not None and now - self._end_said_at >= END_AFTER_S:
+            return True
+        return now - self._all_ready_at >= self.wall_duration
 
     def _stop_at_duration(self) -> int:
         self.stop_all()
@@ -451,12 +448,14 @@ class Launcher:
             self.say.error(f"{c.name!r} exited with code {c.proc.returncode} while stopping", tag="")
         return 1 if failed else 0
 
-    def _watch_children(self, probe: Subscriber | None, bar: Progress | None) -> int:
+    def _watch_children(self, probes: dict[str, Probe], bar: Progress | None) -> int:
         while True:
             self._wake.clear()  # before looking: what happens from here on wakes the wait below
-            if probe is not None and bar is not None:  # made together (_watch)
-                self._show_progress(probe, bar)
-            if self._duration_over():
+            if bar is not None:  # made with its probe (_watch)
+                probes["progress"].read()
+                if probes["progress"].tick is not None:
+                    bar.update(probes["progress"].tick + 1)
+            if self._duration_over(probes.get("end")):
                 return self._stop_at_duration()
             if self._stop_signal is not None:
                 name = signal.Signals(self._stop_signal).name

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-from dockhil.msgs import Vector3, Wrench, WrenchStamped
+from dockhil.msgs import NodeStatus, Vector3, Wrench, WrenchStamped
 from dockhil.node import Input, Node, Output, Param
 
 
@@ -124,3 +124,17 @@ class StateTrace(Node):
     def close(self):
         with open(self.p.path, "w") as f:
             f.write("\n".join(self.rows) + "\n")
+
+
+class Announcer(Node):
+    """Says its state on /status when it changes: 'running', then 'done' from tick done_at on (a profile
+    that ends, as calibrate's identification does)."""
+
+    outputs = {"status": Output(NodeStatus, "/status")}
+    params = {"done_at": Param(int, 10, help="the tick it says 'done' at")}
+
+    def step(self, tick, inputs):
+        if tick.index in (0, self.p.done_at):
+            state = "done" if tick.index == self.p.done_at else "running"
+            return {"status": NodeStatus(header=tick.header(), node=self.ctx.name, state=state)}
+        return {}
