@@ -17,11 +17,19 @@ if TYPE_CHECKING:
 
 
 class DelayInjector(Node):
-    """Re-publishes its input `delay` seconds later (exact in ticks in sim time); jitter and loss optional."""
+    """Re-publishes its input `delay` (x `delay_scale`) seconds later (exact in ticks in sim time); jitter and loss optional."""
 
     params = {
         "delay": Param(
             float, 0.032, unit="s", help="fixed delay (rounded to whole ticks)", ge=0.0, scale=physical.ROBOT_DELAY
+        ),
+        "delay_scale": Param(
+            float,
+            1.0,
+            help="the hardware's true delay over the told `delay`: the topic is delayed by delay x delay_scale "
+            "(what a lab does not know; hw_delay_scale:=)",
+            gt=0.0,
+            le=100.0,
         ),
         "jitter": Param(
             float,
@@ -42,8 +50,9 @@ class DelayInjector(Node):
     def ports(cls, params):
         t = msgs.type_by_name(params["type"])
         # The declared delay lets the runtime pipeline: this node at tick k reads tick k - delay/dt.
+        delay = params["delay"] * params.get("delay_scale", 1.0)
         return (
-            {"input": Input(t, params["input"], delay=params["delay"], help="the topic to delay")},
+            {"input": Input(t, params["input"], delay=delay, help="the topic to delay")},
             {"output": Output(t, params["output"], help="the same messages, later")},
         )
 

@@ -29,16 +29,37 @@ class FtSensorSim6(Node):
             float, 1e-3, unit="m/s", help="friction regularising sliding speed", gt=0.0, scale=physical.SPEED
         ),
         **MOUNT_PARAMS,
+        "k_scale": Param(
+            float,
+            1.0,
+            help="the hardware's true compliance over the told passive_stiffness, all six axes (what a lab does "
+            "not know; hw_k_scale:=)",
+            gt=0.0,
+            le=100.0,
+        ),
+        "delay": Param(
+            float,
+            0.0,
+            unit="s",
+            help="the sensor's own delay: it reports the wrench it reads this much later (zero before)",
+            ge=0.0,
+            scale=physical.TIME,
+        ),
     }
 
     def setup(self):
+        from dockhil.contact.hilloop import DelayLine, delay_ticks
         from dockhil.contact.hybrid6 import PassiveSensor6
 
         p = self.p
         self.sensor = checked(
             self.ctx.name,
-            lambda: PassiveSensor6(passive_contact(p, p.mu, p.slip_velocity), p.sensor_position, p.sensor_orientation),
+            lambda: PassiveSensor6(
+                passive_contact(p, p.mu, p.slip_velocity, p.k_scale), p.sensor_position, p.sensor_orientation
+            ),
         )
+        ticks = delay_ticks(p.delay, self.ctx.dt)
+        self.line = DelayLine(ticks) if ticks else None
 
     def step(self, tick: Tick, inputs: dict[str, Any]) -> dict[str, Any]:
         robot = inputs["robot"]
@@ -46,4 +67,7 @@ class FtSensorSim6(Node):
         # The sensor's values are plain floats already (tuples): they go into the message as they are;
         # out of contact they are zero, and one frozen Wrench() carries them.
         wrench = Wrench(Vector3(*force), Vector3(*torque)) if self.sensor.touching else NO_WRENCH
+        if self.line is not None:  # the sensor's own delay: what it read `delay` ago, none before
+            late = self.line.push(wrench)
+            wrench = NO_WRENCH if late is None else late
         return {"wrench": WrenchStamped(header=tick.header("ft_sensor"), wrench=wrench)}

@@ -154,11 +154,12 @@ def ideal_contact(p):
     return Contact6(_matrix(p.stiffness, "stiffness"), _matrix(p.damping, "damping"))
 
 
-def passive_contact(p: SimpleNamespace, mu: float = 0.0, slip_velocity: float = 1e-3) -> Contact6:
+def passive_contact(p: SimpleNamespace, mu: float = 0.0, slip_velocity: float = 1e-3, k_scale: float = 1.0) -> Contact6:
+    """The passive compliance of `p`; k_scale: the hardware's true stiffness over the one given."""
     from dockhil.contact.contact6 import Contact6
 
     return Contact6(
-        _matrix(p.passive_stiffness, "passive_stiffness"),
+        k_scale * _matrix(p.passive_stiffness, "passive_stiffness"),
         _matrix(p.passive_damping, "passive_damping"),
         mu=mu,
         slip_velocity=slip_velocity,
