@@ -9,12 +9,11 @@ import json
 import math
 import os
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from dockhil.errors import DockhilError
 
-if TYPE_CHECKING:
-    from dockhil.progress import TaskProgress
+FAILURES_SHOWN = 5  # failed runs named in the summary and the table; rows.jsonl has them all
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,6 +22,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "examples:\n"
         "  dockhil benchmark compensation --quick --out bench-comp/   # ~2 min: 7 methods, 8 targets, omega h 0-0.5\n"
         "  dockhil benchmark compensation --full --out bench-comp/    # 13 omega h to 1.0, 9 hardware cases\n"
+        "  dockhil benchmark compensation --full --workers 2 --out bench-comp/     # in 2 worker processes\n"
+        "  dockhil benchmark compensation --full --dask tcp://host:8786 --out bench-comp/   # on a Dask cluster\n"
+        "\n"
+        "exit status: 0 every run gave its row, 1 some run failed (its row and the table say which),\n"
+        "2 bad input (nothing ran), 130 interrupted (Ctrl-C: nothing written)\n"
+        "\n"
         "see docs/compensation.md"
     )
     sub = parser.add_subparsers(dest="what", metavar="compensation", title="benchmarks")
@@ -30,6 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "compensation",
         help="delay compensation methods against the ideal contact, under what a lab does not know",
         description=__doc__,
+        epilog=parser.epilog,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     size = p.add_mutually_exclusive_group()
     size.add_argument(
@@ -47,7 +54,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object instead of the table")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.add_argument(
-        "--workers", type=int, default=1, metavar="N", help="runs in N processes (default 1: in this process)"
+        "--workers",
+        type=int,
+        metavar="N",
+        help="runs in N worker processes that end with this one (default: in this process); "
+        "with --dask local: the LocalCluster's processes (default: the usable CPUs)",
+    )
+    p.add_argument(
+        "--dask",
+        metavar="ADDRESS|local",
+        help="runs on a Dask distributed scheduler (tcp://host:8786), or 'local' for a LocalCluster",
     )
 
 
@@ -65,28 +81,46 @@ def run(args: argparse.Namespace) -> int:
         if name not in METHODS:
             raise DockhilError(f"--methods: unknown method {name!r}; the methods are {', '.join(METHODS)}")
     methods = None if args.methods is None else sorted({"none", *args.methods}, key=METHODS.index)
+    if args.workers is not None and not 1 <= args.workers <= 64:
+        raise DockhilError(f"--workers must be between 1 and 64, got {args.workers}")
     try:
         os.makedirs(args.out, exist_ok=True)
     except OSError as exc:
         raise DockhilError(f"--out {args.out}: cannot make the directory ({exc.strerror or exc})") from None
-    if not 1 <= args.workers <= 64:
-        raise DockhilError(f"--workers must be between 1 and 64, got {args.workers}")
-    started, cpu = time.perf_counter(), time.process_time()
-    todo = grid.tasks(args.full, args.scenes, methods)
-    progress = None
-    if not args.quiet:
-        from dockhil.progress import TaskProgress
+    from dockhil.analysis.compensation_runs import make_executor, run_grid
+    from dockhil.log import Log
 
-        progress = TaskProgress(len(todo))
-    rows = _run(todo, args.workers, progress)
+    started, cpu = time.perf_counter(), time.process_time()
+    progress = None
+    executor = None
+    try:
+        executor = make_executor(args.workers, args.dask)
+        todo = grid.tasks(args.full, args.scenes, methods)
+        if not args.quiet:
+            from dockhil.progress import TaskProgress
+
+            progress = TaskProgress(len(todo))
+        rows = run_grid(todo, executor, None if progress is None else progress.step)
+    except KeyboardInterrupt:
+        if progress is not None:
+            progress.line.end(keep=True)
+        Log("dockhil benchmark:").info(f"interrupted; nothing written to {args.out}: rerun the command to start over")
+        return 130
+    finally:
+        if executor is not None:
+            executor.close()
     if progress is not None:
         progress.finish()
-    summary = {
+    failed = [r for r in rows if r.get("failed")]
+    summary: dict[str, Any] = {
         "grid": "full" if args.full else "quick",
         "runs": len(rows),
+        "failed": len(failed),
+        "failures": [r["error"] for r in failed[:FAILURES_SHOWN]],
         "wall_seconds": time.perf_counter() - started,
-        "cpu_seconds": time.process_time() - cpu,  # this process's: with --workers, not the workers'
-        "workers": args.workers,
+        "cpu_seconds": time.process_time() - cpu,  # this process's: with workers, not the workers'
+        "executor": "this process" if executor is None else executor.name,
+        "workers": 1 if executor is None else executor.workers,
         "goals": grid.GOALS,
         "goal_hardware": "mismatch: hw_k_scale 0.7, hw_delay_scale 1.2, ft_delay 2 ms, ft_noise 0.2 N",
         "goal_omega_h": grid.GOAL_OMEGA_H,
@@ -105,36 +139,14 @@ def run(args: argparse.Namespace) -> int:
             error_figure(rows, os.path.join(args.out, "error_vs_omega_h.png")),
             map_figure(summary["best_map"], os.path.join(args.out, "method_map.png")),
         ]
-    print(json.dumps(_plain(summary)) if args.json else table)
+    print(json.dumps(_plain(summary)) if args.json else table, flush=True)
+    if failed:
+        Log("dockhil benchmark:").error(
+            f"{len(failed)} of {len(rows)} runs failed, the first: {failed[0]['error']} "
+            f"(each failed row is in {os.path.join(args.out, 'rows.jsonl')})"
+        )
+        return 1
     return 0
-
-
-def _run(todo: list[tuple], workers: int, progress: TaskProgress | None) -> list[dict]:
-    """Every run's row, in the grid's order: here, or in `workers` processes (CPU seconds are then theirs)."""
-    from dockhil.contact import compensation_grid as grid
-
-    if workers == 1:
-        rows = []
-        for task in todo:
-            if progress is not None:
-                progress.step(grid.label(task))
-            rows.append(grid.run_point(*task))
-        return rows
-    from concurrent.futures import ProcessPoolExecutor
-
-    with ProcessPoolExecutor(workers) as pool:
-        rows = []
-        for task, row in zip(todo, pool.map(_point, todo, chunksize=4)):
-            if progress is not None:
-                progress.step(grid.label(task))
-            rows.append(row)
-        return rows
-
-
-def _point(task: tuple) -> dict:
-    from dockhil.contact import compensation_grid as grid
-
-    return grid.run_point(*task)
 
 
 def _write(path: str, text: str) -> None:
@@ -166,11 +178,18 @@ def _cell(value: Any, fmt: str) -> str:
 
 def format_table(summary: dict) -> str:
     """The worst errors for omega h up to 0.5 per scene and method, with the hardware mismatched and as told."""
+    failed = summary.get("failed", 0)
     lines = [
-        f"compensation benchmark ({summary['grid']}, {summary['runs']} runs, {summary['wall_seconds']:.0f} s): "
+        f"compensation benchmark ({summary['grid']}, {summary['runs']} runs"
+        + (f", {failed} failed" if failed else "")
+        + f", {summary['wall_seconds']:.0f} s): "
         f"worst errors for omega h <= {summary['goal_omega_h']:g}; goals |e| <= 0.02, |F|, |impulse| <= 5 %, "
         f"energy residual <= 2 %, growth over 10 periods <= 2 %"
     ]
+    for error in summary.get("failures", []):
+        lines.append(f"  failed: {error}")
+    if failed > len(summary.get("failures", [])):
+        lines.append(f"  and {failed - len(summary['failures'])} more failed (rows.jsonl: their rows say why)")
     for key, title in (("scenes", summary["goal_hardware"]), ("scenes_as_told", "hardware as told")):
         lines.append("")
         lines.append(title)

@@ -1,17 +1,24 @@
 """Where a campaign's runs go: batches sized to the runs' time (`Batcher`), to a local process pool
-whose workers die with the sweep (`LocalPool`) or a Dask cluster (`DaskExecutor`)."""
+whose workers die with the sweep (`LocalPool`) or a Dask cluster (`DaskExecutor`).
+
+What a batch is run with is the executor's `run` (a batch of specs -> their rows) and `failed`
+(a spec and a line -> its failed row): module-level functions, since a worker receives them by
+name. A sweep's run_batch and failed_row by default; the compensation benchmark gives its own."""
 
 from __future__ import annotations
 
 import math
 import os
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 
 from dockhil.analysis.sweep.campaign import CampaignError, WriteError
 from dockhil.analysis.sweep.run import exception_line, failed_row, run_batch
 from dockhil.runtime.parent import die_with_parent
 
 RETRIES = 2  # a batch whose worker was lost is sent again this many times
+
+BatchRunner = Callable[[list[dict]], list[dict]]
+FailedRow = Callable[[dict, str], dict]
 
 
 def _worker_start(parent: int) -> None:
@@ -31,15 +38,24 @@ class Batcher:
     the mean run time seen so far (the first batches hold one run each): per-task
     overhead stays small for short runs, and progress and the journal stay current for
     long ones. Near the end batches shrink so that every worker gets a share. A batch
-    whose worker was lost comes back first, RETRIES times."""
+    whose worker was lost comes back first, RETRIES times. A row's run time is its
+    `time_key` column (rows without it do not count)."""
 
-    def __init__(self, specs: list[dict], workers: int, target_s: float = 2.0, max_size: int = 50):
+    def __init__(
+        self,
+        specs: list[dict],
+        workers: int,
+        target_s: float = 2.0,
+        max_size: int = 50,
+        time_key: str = "run_time_s",
+    ):
         from collections import deque
 
         self.queue = deque(specs)
         self.retry: deque = deque()  # (batch, tries so far)
         self.workers = max(1, workers)
         self.target_s, self.max_size = target_s, max_size
+        self.time_key = time_key
         self.seen = 0
         self.total_s = 0.0
 
@@ -57,16 +73,16 @@ class Batcher:
 
     def finished(self, rows: list[dict]) -> None:
         for row in rows:
-            if row.get("run_time_s") is not None:
+            if row.get(self.time_key) is not None:
                 self.seen += 1
-                self.total_s += row["run_time_s"]
+                self.total_s += row[self.time_key]
 
-    def lost(self, batch: list[dict], tries: int) -> list[dict] | None:
-        """Send the batch again, or (after RETRIES) its runs as failed rows."""
+    def lost(self, batch: list[dict], tries: int) -> bool:
+        """Send the batch again (True), or not after RETRIES (False: its runs become failed rows)."""
         if tries < RETRIES:
             self.retry.append((batch, tries + 1))
-            return None
-        return [failed_row(spec, f"worker lost {tries + 1} times running this batch") for spec in batch]
+            return True
+        return False
 
 
 class LocalPool:
@@ -75,8 +91,16 @@ class LocalPool:
 
     name = "local"
 
-    def __init__(self, workers: int):
+    def __init__(self, workers: int, run: BatchRunner | None = None, failed: FailedRow | None = None):
         self.workers = workers
+        # The defaults are looked up now, not where the signature is read: a test can stand in for them.
+        self.run = run or run_batch
+        self.failed = failed or failed_row
+
+    def _lost(self, batcher: Batcher, batch: list[dict], tries: int) -> list[dict] | None:
+        if batcher.lost(batch, tries):
+            return None
+        return [self.failed(spec, f"worker lost {tries + 1} times running this batch") for spec in batch]
 
     def map(self, batcher: Batcher) -> Generator[list[dict], None, None]:
         from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -89,7 +113,7 @@ class LocalPool:
             try:
                 while batcher or in_flight:
                     while len(in_flight) < 2 * self.workers and (item := batcher.next()) is not None:
-                        in_flight[pool.submit(run_batch, item[0])] = item
+                        in_flight[pool.submit(self.run, item[0])] = item
                     done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
                     broken = False
                     for fut in done:
@@ -98,17 +122,17 @@ class LocalPool:
                             rows = fut.result()
                         except BrokenProcessPool:
                             broken = True
-                            rows = batcher.lost(batch, tries)
+                            rows = self._lost(batcher, batch, tries)
                         except WriteError:
                             raise
                         except Exception as exc:
-                            rows = [failed_row(spec, f"batch failed: {exception_line(exc)}") for spec in batch]
+                            rows = [self.failed(spec, f"batch failed: {exception_line(exc)}") for spec in batch]
                         if rows is not None:
                             batcher.finished(rows)
                             yield rows
                     if broken:  # every batch still in flight is lost with the pool: send them again
                         for _fut, (batch, tries) in list(in_flight.items()):
-                            rows = batcher.lost(batch, tries)
+                            rows = self._lost(batcher, batch, tries)
                             if rows is not None:
                                 yield rows
                         in_flight.clear()
@@ -132,9 +156,13 @@ class DaskExecutor:
 
     name = "dask"
 
-    def __init__(self, address: str, workers: int | None):
+    def __init__(
+        self, address: str, workers: int | None, run: BatchRunner | None = None, failed: FailedRow | None = None
+    ):
         import logging
 
+        self.run = run or run_batch
+        self.failed = failed or failed_row
         try:
             from dask.distributed import Client, LocalCluster
         except ImportError:
@@ -157,6 +185,11 @@ class DaskExecutor:
         except (OSError, TimeoutError) as exc:
             self.close()
             raise CampaignError(f"--dask {address}: cannot reach the scheduler: {exception_line(exc)}") from None
+        except ValueError as exc:  # no scheme or port: Dask's own parse of the address
+            self.close()
+            raise CampaignError(
+                f"--dask {address!r}: not a scheduler's address ({exc}); give tcp://HOST:PORT, or local"
+            ) from None
         self.workers = max(1, len(self.client.scheduler_info().get("workers", {})))
         self.name = f"dask {address}"
 
@@ -168,7 +201,7 @@ class DaskExecutor:
 
         def feed() -> None:
             while len(in_flight) < 2 * self.workers and (item := batcher.next()) is not None:
-                fut = self.client.submit(run_batch, item[0], retries=RETRIES, pure=False)
+                fut = self.client.submit(self.run, item[0], retries=RETRIES, pure=False)
                 in_flight[fut] = item[0]
                 pending.add(fut)
 
@@ -181,7 +214,7 @@ class DaskExecutor:
                 except WriteError:
                     raise
                 except Exception as exc:  # e.g. KilledWorker after the retries
-                    rows = [failed_row(spec, f"task failed: {exception_line(exc)}") for spec in batch]
+                    rows = [self.failed(spec, f"task failed: {exception_line(exc)}") for spec in batch]
                 batcher.finished(rows)
                 yield rows
                 feed()
