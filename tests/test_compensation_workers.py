@@ -153,15 +153,18 @@ def test_a_bad_dask_address_is_one_line(tmp_path):
 
 
 @pytest.mark.wall_time
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL])
-def test_a_benchmark_with_workers_stopped_by_ctrl_c_or_killed_leaves_no_worker(tmp_path, sig):
+@pytest.mark.parametrize(
+    "sig, where",
+    [(signal.SIGINT, ()), (signal.SIGKILL, ()), (signal.SIGINT, ("--dask", "local"))],
+    ids=["ctrl-c", "sigkill", "ctrl-c-dask-local"],
+)
+def test_a_benchmark_with_workers_stopped_by_ctrl_c_or_killed_leaves_no_worker(tmp_path, sig, where):
     out, stderr = tmp_path / "out", tmp_path / "stderr.txt"
     # The push's 84 points, about 0.35 CPU-s each: the workers are mid-grid when the signal comes.
+    command = ("benchmark", "compensation", "--scenes", "push", "--no-figures", "--workers", "2", *where)
     with open(stderr, "w") as err:  # a file, not a pipe: a worker left behind would hold a pipe open
         proc = subprocess.Popen(
-            dockhil_cmd(
-                "benchmark", "compensation", "--scenes", "push", "--no-figures", "--workers", "2", "--out", out
-            ),
+            dockhil_cmd(*command, "--out", out),
             stdout=subprocess.DEVNULL,
             stderr=err,
             cwd=ROOT,
