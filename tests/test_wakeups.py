@@ -162,3 +162,31 @@ def test_a_trailing_readers_threads_are_put_under_sched_batch():
         child.kill()
         child.wait()
     assert not realtime.trailing(child.pid)  # gone: nothing to set, no error
+
+
+def test_a_sim_time_nodes_zeromq_io_threads_are_niced_and_its_loop_is_not():
+    """Sim time: each node process's ZeroMQ I/O threads get a nice of IO_NICE (the executor, once its
+    sockets started them), so that the wake-up carrying a send does not preempt the loop that sent it;
+    the loop's own thread keeps its priority."""
+    import sys
+
+    from dockhil.runtime import realtime
+
+    script = (
+        "import json, os, zmq\n"
+        "from dockhil.runtime import realtime\n"
+        "sock = zmq.Context.instance().socket(zmq.PUB)\n"  # starts the I/O thread
+        "lowered = realtime.lower_io_threads()\n"
+        "nice = {}\n"
+        "for tid in os.listdir('/proc/self/task'):\n"
+        "    name = open(f'/proc/self/task/{tid}/comm').read().strip()\n"
+        "    nice[name if int(tid) != os.getpid() else 'main'] = os.getpriority(os.PRIO_PROCESS, int(tid))\n"
+        "print(json.dumps({'lowered': lowered, 'nice': nice}))\n"
+        "sock.close(0)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    own = os.getpriority(os.PRIO_PROCESS, 0)
+    assert out["lowered"] and out["nice"]["ZMQbg/IO/0"] == max(own, realtime.IO_NICE), out
+    assert out["nice"]["main"] == own, out

@@ -226,6 +226,8 @@ class NodeExecutor:
             for port, wire in spec.outputs.items()
         }
         self._deferred = [self.pubs[port] for port, wire in spec.outputs.items() if sim and wire.burst <= 1]
+        if sim:  # the sockets above started the I/O threads
+            realtime.lower_io_threads()
         self.dropped = 0
         self._drop_logged = 0.0
         self._drop_reasons: set[str] = set()
