@@ -8,19 +8,15 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
-import time
 from pathlib import Path
 
-import psutil
 import pytest
 
 from dockhil.analysis.compensation_runs import failed_point, make_executor, run_grid, run_points
 from dockhil.analysis.sweep import LocalPool
 from dockhil.contact import compensation_grid as grid
-from tests.conftest import dockhil_cmd, sigint_as_a_terminal_sends_it
 from tests.support.inprocess import run_main
-from tests.test_sweep_workers import assert_gone
+from tests.test_sweep_workers import assert_gone, signal_mid_run
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -162,29 +158,10 @@ def test_a_benchmark_with_workers_stopped_by_ctrl_c_or_killed_leaves_no_worker(t
     out, stderr = tmp_path / "out", tmp_path / "stderr.txt"
     # The push's 84 points, about 0.35 CPU-s each: the workers are mid-grid when the signal comes.
     command = ("benchmark", "compensation", "--scenes", "push", "--no-figures", "--workers", "2", *where)
-    with open(stderr, "w") as err:  # a file, not a pipe: a worker left behind would hold a pipe open
-        proc = subprocess.Popen(
-            dockhil_cmd(*command, "--out", out),
-            stdout=subprocess.DEVNULL,
-            stderr=err,
-            cwd=ROOT,
-            preexec_fn=sigint_as_a_terminal_sends_it,
-        )
-    workers = []
-    try:
-        deadline = time.monotonic() + 120
-        while stderr.read_text().count("] ") < 3:  # progress lines: points finished on the workers
-            assert proc.poll() is None and time.monotonic() < deadline, stderr.read_text()
-            time.sleep(0.05)
-        workers = psutil.Process(proc.pid).children(recursive=True)
-        assert workers
-        proc.send_signal(sig)
-        proc.wait(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    text = stderr.read_text()
+    # ready once 3 progress lines say points finished on the workers
+    workers, proc, text = signal_mid_run(
+        (*command, "--out", out), stderr, lambda: stderr.read_text().count("] ") >= 3, sig
+    )
     assert_gone(workers)
     assert not (out / "rows.jsonl").exists()
     if sig == signal.SIGKILL:

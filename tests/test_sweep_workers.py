@@ -53,16 +53,13 @@ def gated_campaign(tmp_path: Path) -> tuple[Path, Path]:
     return campaign, gate
 
 
-def start_and_kill(tmp_path: Path, sig: int, *extra: str):
-    """Start the gated sweep, wait until runs 0 and 1 are journaled and the workers hold runs, send `sig`
-    to the sweep alone (not its process group), and return (its workers, the process, stderr)."""
-    campaign, _gate = gated_campaign(tmp_path)
-    out = tmp_path / "r.parquet"
-    stderr = tmp_path / "stderr.txt"
-    # A file, not a pipe: a worker left behind would hold a pipe open.
+def signal_mid_run(command: tuple, stderr: Path, ready, sig: int, settle_s: float = 0.0):
+    """Start `dockhil COMMAND` (stderr to a file: a worker left behind would hold a pipe open), wait until
+    `ready()` (then `settle_s` more), send `sig` to it alone (not its process group) as a terminal sends
+    SIGINT, and return (the workers it had then, the process, its stderr)."""
     with open(stderr, "w") as err:
         proc = subprocess.Popen(
-            dockhil_cmd("sweep", campaign, "--out", out, "--quiet", *extra),
+            dockhil_cmd(*command),
             stdout=subprocess.DEVNULL,
             stderr=err,
             cwd=ROOT,
@@ -71,11 +68,10 @@ def start_and_kill(tmp_path: Path, sig: int, *extra: str):
     workers = []
     try:
         deadline = time.monotonic() + 120
-        journal = sweep.journal_path(out)
-        while not (journal.exists() and journal.read_text().count("\n") >= 2):
+        while not ready():
             assert proc.poll() is None and time.monotonic() < deadline, stderr.read_text()
             time.sleep(0.05)
-        time.sleep(0.5)  # the workers take the held runs
+        time.sleep(settle_s)
         workers = psutil.Process(proc.pid).children(recursive=True)
         assert workers
         proc.send_signal(sig)
@@ -85,6 +81,21 @@ def start_and_kill(tmp_path: Path, sig: int, *extra: str):
             proc.kill()
             proc.wait()
     return workers, proc, stderr.read_text()
+
+
+def start_and_kill(tmp_path: Path, sig: int, *extra: str):
+    """Start the gated sweep, wait until runs 0 and 1 are journaled and the workers hold runs, send `sig`
+    to the sweep alone, and return (its workers, the process, stderr)."""
+    campaign, _gate = gated_campaign(tmp_path)
+    out = tmp_path / "r.parquet"
+    journal = sweep.journal_path(out)
+    return signal_mid_run(
+        ("sweep", campaign, "--out", out, "--quiet", *extra),
+        tmp_path / "stderr.txt",
+        lambda: journal.exists() and journal.read_text().count("\n") >= 2,
+        sig,
+        settle_s=0.5,  # the workers take the held runs
+    )
 
 
 def assert_gone(workers) -> None:

@@ -13,6 +13,26 @@ if TYPE_CHECKING:
     import numpy as np
 
 
+# What a lab does not know of its sensor, apart from what the loop is told (the 6-DOF sensor's too).
+HARDWARE_TRUTH = {
+    "k_scale": Param(
+        float,
+        1.0,
+        help="the hardware's true stiffness over the told one (what a lab does not know; hw_k_scale:=)",
+        gt=0.0,
+        le=100.0,
+    ),
+    "delay": Param(
+        float,
+        0.0,
+        unit="s",
+        help="the sensor's own delay: it reports what it reads this much later (zero before)",
+        ge=0.0,
+        scale=physical.TIME,
+    ),
+}
+
+
 class FtSensorSim(Node):
     """Force of the passive compliance k against the robot pose, unilateral, with optional sensor defects."""
 
@@ -36,21 +56,7 @@ class FtSensorSim(Node):
         ),
         "quantization": Param(float, 0.0, unit="N", help="force resolution (0: none)", ge=0.0, scale=physical.FORCE),
         "seed": Param(int, 0, help="noise seed: the same seed gives the same noise in every run"),
-        "k_scale": Param(
-            float,
-            1.0,
-            help="the hardware's true stiffness over the told k (what a lab does not know; hw_k_scale:=)",
-            gt=0.0,
-            le=100.0,
-        ),
-        "delay": Param(
-            float,
-            0.0,
-            unit="s",
-            help="the sensor's own delay: it reports the force it reads this much later (0 N before)",
-            ge=0.0,
-            scale=physical.TIME,
-        ),
+        **HARDWARE_TRUTH,
     }
 
     def setup(self):

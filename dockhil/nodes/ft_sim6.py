@@ -7,6 +7,7 @@ from typing import Any
 from dockhil import physical
 from dockhil.msgs import RobotState, Vector3, Wrench, WrenchStamped
 from dockhil.node import Input, Node, Output, Param, Tick
+from dockhil.nodes.ft_sim import HARDWARE_TRUTH
 from dockhil.nodes.robot_sim6 import relative_pose
 from dockhil.scene.sixdof_params import MOUNT_PARAMS, PASSIVE_PARAMS, checked, passive_contact
 
@@ -29,22 +30,7 @@ class FtSensorSim6(Node):
             float, 1e-3, unit="m/s", help="friction regularising sliding speed", gt=0.0, scale=physical.SPEED
         ),
         **MOUNT_PARAMS,
-        "k_scale": Param(
-            float,
-            1.0,
-            help="the hardware's true compliance over the told passive_stiffness, all six axes (what a lab does "
-            "not know; hw_k_scale:=)",
-            gt=0.0,
-            le=100.0,
-        ),
-        "delay": Param(
-            float,
-            0.0,
-            unit="s",
-            help="the sensor's own delay: it reports the wrench it reads this much later (zero before)",
-            ge=0.0,
-            scale=physical.TIME,
-        ),
+        **HARDWARE_TRUTH,
     }
 
     def setup(self):
