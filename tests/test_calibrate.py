@@ -316,8 +316,17 @@ def test_a_loop_file_sets_the_scene_and_the_command_line_wins(tmp_path):
     )
     scene = launchfile.load("hil.yaml", launchfile.parse_overrides([f"loop:={loop}", "delay:=0.02"]))
     assert scene.values["delay"] == 0.02 and scene.values["k"] == 1012.5
-    six = launchfile.load("hil6.yaml", {"loop": str(loop)})  # it has no ft_delay: what it declares is set
-    assert six.values["delay"] == 0.0473 and six.values["ft_noise"] == 0.21 and "ft_delay" not in six.values
+    six = launchfile.load("hil6.yaml", {"loop": str(loop)})  # the 6-DOF scene declares the same
+    assert (six.values["delay"], six.values["ft_noise"], six.values["ft_delay"]) == (0.0473, 0.21, 0.002)
+    stability = launchfile.load("stability.yaml", {"loop": str(loop)})
+    assert (stability.values["delay"], stability.values["ft_delay"]) == (0.0473, 0.002)
+    lean = tmp_path / "lean.yaml"  # a scene that declares only some: those are set, the rest left aside
+    lean.write_text(
+        "args:\n  loop: {default: ''}\n  delay: {default: 0.016}\n"
+        "nodes:\n  - {name: delay, node: delay_injector, params: {delay: $(arg delay)}}\n"
+    )
+    only = launchfile.load(str(lean), {"loop": str(loop)})
+    assert only.values["delay"] == 0.0473 and "ft_delay" not in only.values and "k" not in only.values
 
 
 @pytest.mark.parametrize(
