@@ -288,6 +288,33 @@ def test_a_stale_input_blames_a_publisher_that_had_exited_by_its_exit_code():
     assert Launcher._blame(fake, _Child("other", [])) == ""  # stopped for another reason: no blame
 
 
+def test_the_first_node_to_find_a_stale_input_is_the_one_the_stop_names_with_the_fault_it_saw():
+    """A node stopped (SIGSTOP) and then resumed finds its own inputs stale too, and may exit before the
+    reader that found it stopped is seen to: the stop names the first reader, with the fault as it was
+    when that reader said so (the stopped publisher), not as the resumed publisher's exit makes it look."""
+    from types import SimpleNamespace
+
+    from dockhil.runtime.launcher import Launcher, _Child
+
+    exited = [subprocess.Popen([sys.executable, "-c", "raise SystemExit(2)"]) for _ in range(2)]
+    for p in exited:
+        p.wait()
+    stopped = ": its input /robot/command's publisher, node 'dynamics', is stopped (SIGSTOP, a debugger)"
+    reader = _Child("delay", [], proc=exited[0], ready=True)
+    reader.stale = {"topic": "/robot/command", "publisher": "dynamics", "late": 0.1, "at": 1.0, "fault": stopped}
+    resumed = _Child("dynamics", [], proc=exited[1], ready=True)
+    resumed.stale = {"topic": "/ft/wrench", "publisher": "ft", "late": 0.1, "at": 2.0, "fault": ": late"}
+    said: list[str] = []
+    fake = SimpleNamespace(
+        children=[resumed, reader],  # the watch loop meets the resumed node first
+        say=SimpleNamespace(error=lambda line, tag=None: said.append(line)),
+        stop_all=lambda: None,
+    )
+    fake._blame = lambda child: Launcher._blame(fake, child)
+    assert Launcher._died(fake, resumed, 2) == 1
+    assert said == [f"node 'delay' exited with code 2 while running{stopped}; stopping the graph"]
+
+
 # -- the recorder: lost messages fail the run --------------------------------------------------
 
 

@@ -5,6 +5,7 @@ that stops the graph blames the right one."""
 from __future__ import annotations
 
 import subprocess
+from typing import Any
 
 
 def stopped(pid: int) -> bool:
@@ -26,3 +27,12 @@ def blame(stale: dict, publisher: str, proc: subprocess.Popen) -> str:
     if stopped(proc.pid):
         return f"{what} is stopped (SIGSTOP, a debugger)"
     return f"{what} is running but its message was late by {stale['late']:.3f} s; a busy machine? try --realtime"
+
+
+def first_stale(child: Any, children: list[Any]) -> Any:
+    """Of the launcher's children that exited on a stale input (each `.stale` with the time it said so,
+    "at"), the one that said so before `child` did, first; else `child`. A stopped node, once resumed,
+    finds its own inputs stale too, and may exit before the reader that found it stopped is seen to."""
+    at = child.stale["at"] if child.stale else 0.0
+    gone = [c for c in children if c.stale and c.proc and c.proc.poll() and c.stale["at"] < at]
+    return min(gone, key=lambda c: c.stale["at"]) if gone else child

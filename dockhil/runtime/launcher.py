@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, cast
 import msgspec
 
 from dockhil import log
-from dockhil.runtime.blame import blame
+from dockhil.runtime.blame import blame, first_stale
 from dockhil.runtime.executor import STALE, TIMING
 from dockhil.runtime.plan import ExtraProcess, assign_endpoints, is_local, processes, run_specs
 from dockhil.runtime.process import READY
@@ -47,8 +47,7 @@ RECORDED = "DOCKHIL-RECORDED"  # a verdict helper has everything on disk and wai
 # Wall time, to a verdict helper's stdin once the nodes have exited: this, then JSON topic -> messages its
 # publisher sent over the run (sent_counts). The recorder counts what of them never reached it.
 SENT = "DOCKHIL-SENT "
-# After a run's end_on state is said: what answered the last commands (a robot's delay) still arrives.
-END_AFTER_S = 1.0
+END_AFTER_S = 1.0  # a run's end after its end_on state is said: what answered the last commands still arrives
 HELPER_WAIT_S = 10.0  # for a helper to finish its recording, and to close it once told the verdict
 
 
@@ -70,7 +69,7 @@ class _Child:
     starts: int = 0  # how many times it was started (a respawned node: more than once)
     reports: int = 0  # ... and how many exit reports (TIMING lines) it gave: a killed node gives none
     sent: dict[str, int] = field(default_factory=dict)  # topic -> messages sent, over all its runs
-    stale: dict | None = None  # the input it stopped on as stale (executor.STALE)
+    stale: dict | None = None  # the input it stopped on as stale (executor.STALE), when ("at") and whose fault
 
 
 class Launcher:
@@ -164,6 +163,8 @@ class Launcher:
             if line.startswith(STALE):
                 try:
                     child.stale = json.loads(line[len(STALE) :])
+                    # Whose fault, as the publisher is now: once stopped, it may be resumed, or exit, by the end.
+                    child.stale.update(at=time.monotonic(), fault=self._blame(child))
                 except ValueError:
                     pass
                 continue
@@ -581,9 +582,12 @@ class Launcher:
         return blame(stale, pub.name, pub.proc) if pub is not None and pub.proc is not None and stale else ""
 
     def _died(self, child: _Child, code: int) -> int:
+        first = first_stale(child, self.children)  # a stalled node, resumed, finds its own inputs stale too
+        child, code = first, (code if first is child else cast(int, cast(subprocess.Popen, first.proc).poll()))
         how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
         when = "while running" if child.ready else "at start"
-        self.say.error(f"node {child.name!r} {how} {when}{self._blame(child)}; stopping the graph", tag="")
+        fault = child.stale["fault"] if child.stale and "fault" in child.stale else self._blame(child)
+        self.say.error(f"node {child.name!r} {how} {when}{fault}; stopping the graph", tag="")
         if not child.ready:
             # Let nodes still opening devices finish, so every missing device gets its own line.
             deadline = time.monotonic() + 5.0
