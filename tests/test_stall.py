@@ -198,3 +198,27 @@ def test_an_input_stopped_with_the_graph_at_the_end_is_no_stall():
         NodeExecutor._check_ages(fake, {"state": 30.0}, 30.15, timing, end)
     with pytest.raises(StaleInput):  # no end: every stall is one
         NodeExecutor._check_ages(fake, {"state": 59.85}, 59.96, timing, None)
+
+
+def test_a_loop_that_stalled_itself_counts_its_inputs_ages_from_its_restart():
+    """A wall-time node stopped or starved for a second finds, on its first tick back, that nothing new has
+    reached it yet (its own I/O thread was stopped too): that second is its own stall, not its publisher's.
+    Its inputs' ages count from its restart; an input still silent max_age after it is stale, and the
+    loop's figures keep the true age."""
+    from types import SimpleNamespace
+
+    from dockhil.runtime.executor import NodeExecutor, StaleInput
+    from dockhil.runtime.looptime import LoopTiming
+
+    wire = SimpleNamespace(topic="/robot/command", publisher="dynamics")
+    node = SimpleNamespace(
+        max_age={"command": 0.1}, spec=SimpleNamespace(inputs={"command": wire}, dt=0.001, name="robot")
+    )
+    timing = LoopTiming(["command"], period=0.001, max_age={"command": 0.1})
+    arrived = {"command": 10.0}  # its last message came at 10.0 s; the loop stopped then, back at 11.0 s
+    assert NodeExecutor._check_ages(node, arrived, 11.0, timing, None, resumed=11.0) is False
+    assert NodeExecutor._check_ages(node, arrived, 11.05, timing, None, resumed=11.0) is False
+    with pytest.raises(StaleInput, match=r"input 'command' \(/robot/command from node 'dynamics'\) is 1\.101 s old"):
+        NodeExecutor._check_ages(node, arrived, 11.101, timing, None, resumed=11.0)
+    with pytest.raises(StaleInput):  # without a stall of its own the same silence is stale at once
+        NodeExecutor._check_ages(node, arrived, 11.0, timing, None)

@@ -85,6 +85,9 @@ class RunSpec:
     run_id: str = ""  # the graph's run id: names the owner of the devices this node claims
 
 
+# A gap this long between two of a wall-time loop's own ticks is its own stall (stopped, starved of CPU):
+# its inputs' ages count from its restart (NodeExecutor._check_ages).
+OWN_STALL_S = 0.05
 IDLE_DEVICE_PERIOD_S = 0.05  # the loop of an emulated device with no topics (its device thread does the work)
 WALL_LINGER_S = 2.0  # wall time: how long a closing node's publishers still send what a slow reader has not taken
 
@@ -407,13 +410,16 @@ class NodeExecutor:
         spin = loop_spin()
         timing.first_tick()  # before the schedule starts: its reading of /proc is not the first tick's time
         t0 = clock()
-        next_t = t0
+        next_t = resumed = before = t0
         k = 0
         try:
             while not self.stop.requested:
                 now = clock()
                 if duration is not None and now - t0 >= duration:
                     break
+                if now - before > OWN_STALL_S:  # this loop did not run (stopped, starved): its inputs' ages restart
+                    resumed = now
+                before = now
                 timing.started(now - next_t)
                 while (frames := self.sub.recv_frame_nowait()) is not None:
                     for port, _tick, msg, _ok in self._decode(frames):
@@ -421,7 +427,7 @@ class NodeExecutor:
                             latest[port] = msg
                             arrived[port] = now
                 end = None if duration is None else t0 + duration
-                if self._check_ages(arrived, now, timing, end):
+                if self._check_ages(arrived, now, timing, end, resumed):
                     break  # an input's publisher was stopped with the graph at the run's end
                 stamp = time.time()
                 timing.inputs(stamp, latest)
@@ -450,15 +456,19 @@ class NodeExecutor:
         dump_report(out)
         return out
 
-    def _check_ages(self, arrived: dict[str, float], now: float, timing: LoopTiming, end: float | None) -> bool:
-        """Raises StaleInput for an input older than its max_age; True (the run is over) when that
-        input's publisher ran to within two max_ages of the run's `end`: the graph stopped it there,
-        and this loop, started a little after it, is still ticking."""
+    def _check_ages(
+        self, arrived: dict[str, float], now: float, timing: LoopTiming, end: float | None, resumed: float = 0.0
+    ) -> bool:
+        """Raises StaleInput for an input older than its max_age, counted from no earlier than `resumed`
+        (this loop's own restart after a stall: what arrived meanwhile may still be on its way through
+        the process's I/O thread, and the stall is the loop's, not the publisher's); True (the run is
+        over) when that input's publisher ran to within two max_ages of the run's `end`: the graph
+        stopped it there, and this loop, started a little after it, is still ticking."""
         for port, at in arrived.items():
             age = now - at
             timing.aged(port, age)
             limit = self.max_age.get(port, math.inf)
-            if age > limit:
+            if now - max(at, resumed) > limit:
                 if end is not None and at >= end - 2 * limit:
                     return True
                 wire = self.spec.inputs[port]
