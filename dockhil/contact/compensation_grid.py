@@ -12,9 +12,10 @@ Scenes (1 kHz; omega the target's frequency, the delay h = omega h / omega in wh
 - offaxis6: launch/hil6.yaml's off-axis 6-DOF impact (the chaser 5 cm off the target's axis, tilted
   0.02 rad, rolling at 0.01 rad/s: the contact makes torques), through the 6-DOF loop
   (dockhil.contact.hybrid6, the compensation along the normal) against the ideal 6-DOF contact
-  (contact6.simulate_contact6): restitution, peak force and impulse on the normal. Its `mismatch` is
-  the compliance 30 % softer and the delay 20 % longer (the 6-DOF sensor has no noise or delay of
-  its own).
+  (contact6.simulate_contact6): restitution, peak force and impulse on the normal; targets hil6.yaml's
+  linear contact and, on the normal, Hunt-Crossley contacts (n 1.5, the linear normal's deepest
+  penetration, e 0.9 and 0.6: contact:=hunt_crossley). Its `mismatch` is the compliance 30 % softer
+  and the delay 20 % longer (the 6-DOF sensor has no noise or delay of its own).
 
 Metrics against the ideal contact (dockhil.contact.hunt_crossley.ideal_relative_run, located inside
 the step): restitution error (absolute), peak force, contact duration and impulse errors (relative),
@@ -75,7 +76,7 @@ GOALS = {
     "growth_10": 0.02,  # no growth: the tenth period's energy over the first's no more than the ideal's, within 2 %
 }
 GOAL_OMEGA_H = 0.5
-OFFAXIS6_IN_QUICK = True  # the 6-DOF scene's 84 quick runs: about 40 s of CPU
+OFFAXIS6_IN_QUICK = True  # the 6-DOF scene's 252 quick runs (84 a target)
 RATIO_OMEGA_H = 0.16  # where the best method must beat none 10 x on the restitution error
 
 
@@ -128,10 +129,7 @@ def scenes() -> list[Scene]:
     for e in (1.0, 0.9, 0.6, 0.3):
         b = linear_damping_for_restitution(e, m, k) if e < 1.0 else 0.0
         out.append(Scene("spring", f"linear e {e:g}", "impact", m, 0.0, k, v, None, VirtualImpedance(0.0, b, 0.0, 0.0)))
-    deepest = v / math.sqrt(k / m)  # the linear spring's; the Hunt-Crossley stiffness reaches it undamped
-    kcs = 2.5 * m * v * v / (2.0 * deepest**2.5)
-    for e in (0.9, 0.6):
-        hc = TargetContact("hunt_crossley", kcs, n=1.5, alpha=alpha_for_restitution(e, v))
+    for e, hc in hunt_crossley_targets(m, k, v):
         out.append(Scene("spring", f"hunt_crossley e {e:g}", "impact", m, 0.0, k, v, hc, ZERO))
     sheet, thrust = 2510.0, 10.0
     out.append(
@@ -151,6 +149,14 @@ def scenes() -> list[Scene]:
     return out
 
 
+def hunt_crossley_targets(m: float, k: float, v: float) -> list[tuple[float, TargetContact]]:
+    """(e, target) of the Hunt-Crossley targets (n 1.5, e 0.9 and 0.6) that an undamped impact at v [m/s]
+    of the reduced mass m [kg] presses as deep as the linear spring k [N/m] does."""
+    deepest = v / math.sqrt(k / m)
+    kcs = 2.5 * m * v * v / (2.0 * deepest**2.5)
+    return [(e, TargetContact("hunt_crossley", kcs, n=1.5, alpha=alpha_for_restitution(e, v))) for e in (0.9, 0.6)]
+
+
 @dataclass
 class Reference:
     """The ideal contact of a scene: omega [rad/s], and its run and metrics (offaxis6: a contact6.Run6)."""
@@ -161,33 +167,42 @@ class Reference:
 
 
 OFFAXIS6 = Scene("offaxis6", "hil6.yaml linear e 0.958", "offaxis6", 750.0, 1e6, 1000.0, 0.03, None, ZERO)
+# hil6.yaml's scene with contact:=hunt_crossley: the targets reach the linear normal's (kcs 3000) depth undamped.
+OFFAXIS6_SCENES = [OFFAXIS6] + [
+    replace(OFFAXIS6, target_name=f"hunt_crossley e {e:g}", contact=hc)
+    for e, hc in hunt_crossley_targets(OFFAXIS6.reduced, 3000.0, OFFAXIS6.v1)
+]
 
 
-def offaxis6_scene() -> tuple:
-    """(chaser, target, their states, ideal contact, passive compliance) of launch/hil6.yaml's defaults."""
+def offaxis6_scene(target: TargetContact | None = None) -> tuple:
+    """(chaser, target, their states, ideal contact, passive compliance) of launch/hil6.yaml's defaults;
+    `target`: a Hunt-Crossley law on the ideal's normal (contact:=hunt_crossley, its linear equivalent at
+    the reduced mass and 0.03 m/s, as the node figures it)."""
     import numpy as np
 
-    from dockhil.contact.contact6 import Contact6
+    from dockhil.contact.contact6 import Contact6, hunt_crossley_normal
     from dockhil.contact.rigidbody import BodyState, RigidBody
     from dockhil.contact.rotations import quat_from_rotvec
 
     a = np.array
     chaser = RigidBody(750.0, np.diag([300.0, 400.0, 500.0]), interface_position=a([1.0, 0.0, 0.0]))
-    target = RigidBody(1e6, np.diag([4e6, 5e6, 6e6]), interface_position=a([-2.0, 0.0, 0.0]))
+    body2 = RigidBody(1e6, np.diag([4e6, 5e6, 6e6]), interface_position=a([-2.0, 0.0, 0.0]))
     s1 = BodyState(a([-1.0, 0.05, 0.0]), quat_from_rotvec([0.0, 0.0, 0.02]), a([0.03, 0.0, 0.0]), a([0.01, 0.0, 0.0]))
     s2 = BodyState(a([2.0, 0.0, 0.0]), (0.0, 0.0, 0.0, 1.0), np.zeros(3), np.zeros(3))
     ideal = Contact6(a([3000.0] * 3 + [300.0] * 3), a([40.0] * 3 + [4.0] * 3))
+    if target is not None:
+        ideal = hunt_crossley_normal(ideal, target, OFFAXIS6.reduced, OFFAXIS6.v1)
     passive = Contact6(a([1000.0] * 3 + [100.0] * 3))
-    return chaser, target, s1, s2, ideal, passive
+    return chaser, body2, s1, s2, ideal, passive
 
 
 OFFAXIS6_SECONDS = 3.6  # the ideal contact (1.57 s) and what follows it at omega h 1.0 with the delay 20 % long
 
 
-def reference6() -> Reference:
+def reference6(scene: Scene = OFFAXIS6) -> Reference:
     from dockhil.contact.contact6 import simulate_contact6
 
-    chaser, target, s1, s2, ideal, _passive = offaxis6_scene()
+    chaser, target, s1, s2, ideal, _passive = offaxis6_scene(scene.contact)
     run = simulate_contact6(chaser, target, s1, s2, ideal, dt=DT, t_end=OFFAXIS6_SECONDS)
     duration = cast(float, run.exit) - cast(float, run.onset)
     return Reference(math.pi / duration, cast("IdealRun", run), duration)
@@ -227,16 +242,21 @@ def normal_metrics6(run: Run6, ref_run: Run6, m1: float) -> dict:
     }
 
 
-def simulate_offaxis6(method: str, delay: float, hw: Hardware, n_ticks: int) -> Run6:
+def simulate_offaxis6(
+    method: str, delay: float, hw: Hardware, n_ticks: int, contact: TargetContact | None = None
+) -> Run6:
     """The 6-DOF loop of hil6.yaml with `compensation:=method` told `delay`, the hardware's truth `hw`
-    (its k_scale and delay_scale): the library loop the graph runs (contact.hybrid6.simulate_hybrid6)."""
+    (its k_scale and delay_scale), `contact` a Hunt-Crossley target on the normal (None: the linear
+    contact): the library loop the graph runs (contact.hybrid6.simulate_hybrid6)."""
     from dockhil.contact.contact6 import Contact6
     from dockhil.contact.hybrid6 import NormalCompensation6, simulate_hybrid6
 
-    chaser, target, s1, s2, ideal, passive = offaxis6_scene()
+    chaser, target, s1, s2, ideal, passive = offaxis6_scene(contact)
     reduced = OFFAXIS6.reduced
     comp = None
     if method != "none":
+        # The normal's frequency, as the node figures it: a Hunt-Crossley target's normal entry is its
+        # linear equivalent, of the secant stiffness (comploop.target_frequency).
         omega = math.sqrt(float(ideal.stiffness[0, 0]) / reduced)
         settings = CompensationSettings(method, OFFAXIS6.k, delay, 0.0, omega, 0.0, hw.noise)
         passivity = Passivity(OFFAXIS6.k, DEFAULT_MAX_DAMPING) if "passivity" in method else None
@@ -359,7 +379,7 @@ def run_point(scene: Scene, ref: Reference, method: str, omega_h: float, hw_name
         n = int(round((1.3 * ref.period + 3.0 * true_delay + 0.05) / DT)) + 1
         started = time.process_time()
         try:
-            run6 = simulate_offaxis6(method, delay, hw, n)
+            run6 = simulate_offaxis6(method, delay, hw, n, scene.contact)
         except ContactModelError as exc:
             row["error"] = str(exc)
             return row
@@ -408,11 +428,11 @@ def tasks(
     methods = [m for m in METHODS if only_methods is None or m in only_methods]
     chosen = [s for s in scenes() if only_scenes is None or s.name in only_scenes]
     if OFFAXIS6.name in only_scenes if only_scenes is not None else (OFFAXIS6_IN_QUICK or full):
-        chosen.append(OFFAXIS6)
+        chosen.extend(OFFAXIS6_SCENES)
     out = []
     for scene in chosen:
         if scene.kind == "offaxis6":
-            ref = reference6()
+            ref = reference6(scene)
             hw_6dof = {name: Hardware(k_scale=hw.k_scale, delay_scale=hw.delay_scale) for name, hw in hardware.items()}
             for hw_name, hw in hw_6dof.items():
                 if hw_name in ("noise 0.2 N", "ft_delay 2 ms"):  # the 6-DOF sensor has neither

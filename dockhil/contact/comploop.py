@@ -15,9 +15,10 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, cast
 
+from dockhil.contact import hunt_crossley
 from dockhil.contact.compensation import CompensationSettings, Compensator, hold_damping
 from dockhil.contact.hilloop import Bodies, DelayLine, HilRun, Servo, delay_ticks, sensor_force, virtual_wrench
-from dockhil.contact.hunt_crossley import TargetContact
+from dockhil.contact.hunt_crossley import TargetContact, hunt_crossley_omega
 from dockhil.contact.hybrid import VirtualImpedance, passive_force
 from dockhil.contact.passivity import ENERGY_FIELDS, EnergyMonitor, Passivity
 from dockhil.contact.scenario import ContactModelError
@@ -50,13 +51,6 @@ class Hardware:
                 raise ContactModelError(f"{name} must be >= 0, got {value!r}")
 
 
-def hunt_crossley_omega(contact: TargetContact, m: float, v: float) -> float:
-    """[rad/s] the frequency a phase lead is tuned at for a Hunt-Crossley target: sqrt(K / m) with K the
-    secant stiffness F / p at the deepest penetration of an undamped impact at v [m/s]."""
-    deepest = ((contact.n + 1.0) * m * v * v / (2.0 * contact.kcs)) ** (1.0 / (contact.n + 1.0))
-    return math.sqrt(contact.kcs * deepest ** (contact.n - 1.0) / m)
-
-
 def target_frequency(contact: TargetContact, m: float, v: float = 0.03) -> float:
     """[rad/s] the contact's frequency: sqrt(kcs / m) (linear), or hunt_crossley_omega."""
     if contact.kind == "linear":
@@ -67,11 +61,8 @@ def target_frequency(contact: TargetContact, m: float, v: float = 0.03) -> float
 def linear_equivalent(params: dict, m: float) -> tuple[float, float]:
     """(kcs, bcs) of the linear contact with a Hunt-Crossley target's frequency (hunt_crossley_omega at
     the closing velocity v_close) and restitution: what the scene check judges the loop with."""
-    from dockhil.contact.hunt_crossley import linear_damping_for_restitution, restitution
-
     contact = TargetContact("hunt_crossley", params["kcs"], n=params["hc_n"], alpha=params["hc_alpha"])
-    stiffness = m * hunt_crossley_omega(contact, m, params["v_close"]) ** 2
-    return stiffness, linear_damping_for_restitution(restitution(contact.alpha, params["v_close"]), m, stiffness)
+    return hunt_crossley.linear_equivalent(contact, m, params["v_close"])
 
 
 class ImpedanceStep:
@@ -128,11 +119,16 @@ class ImpedanceStep:
         elif self.method != "none":
             fv1, fv2 = fv1 + extra, fv2 - (extra if self.m2 != 0.0 else 0.0)
         if self.contact is not None:
-            p, pd = x1 - x2, v1 - v2
-            if p > 0.0 or (p == 0.0 and pd > 0.0):
-                fh = -(self.contact.force(p, pd) - passive_force(p, self.k))
-                fv1, fv2 = fv1 + fh, fv2 - (fh if self.m2 != 0.0 else 0.0)
+            fh = self.target_force(x1 - x2, v1 - v2)
+            fv1, fv2 = fv1 + fh, fv2 - (fh if self.m2 != 0.0 else 0.0)
         return fv1, fv2, account
+
+    def target_force(self, p: float, pd: float) -> float:
+        """[N] on the chaser from a Hunt-Crossley target at penetration p, rate pd: its force less the told
+        passive k p while touching (0 apart, or without one)."""
+        if self.contact is None or not (p > 0.0 or (p == 0.0 and pd > 0.0)):
+            return 0.0
+        return -(self.contact.force(p, pd) - passive_force(p, self.k))
 
 
 class SensorSim:

@@ -27,6 +27,12 @@ the normal axis is stiff; with full K it is conserved while touching.
 Friction (optional): on the tangential sliding velocity u = (e'_y, e'_z),
     f_t = -mu max(g_x, 0) u / sqrt(|u|^2 + v_s^2)      (in B, on body 1, at o_A)
 a Coulomb law regularised below the sliding speed v_s [m/s].
+
+Hunt-Crossley normal (optional, `normal`): the normal row of K e + C e' is replaced by
+dockhil.contact.hunt_crossley's kcs d^n (1 + alpha d') (0 where it would pull), the other five axes
+keep their linear law; the normal row and column of K and C must then be uncoupled, and their normal
+entries hold the target's linear equivalent (`hunt_crossley_normal`), which the linear analyses of
+the contact (the scene check, the stability of the delayed loop) read.
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from dockhil.contact import rigid, rigidbody
+from dockhil.contact.hunt_crossley import TargetContact, linear_equivalent
 from dockhil.contact.interface6 import InterfaceGeometry, add6, interface_state, mat3t_vec, sub6
 from dockhil.contact.rigid import Motion, Wrench, WrenchOf
 from dockhil.contact.rigidbody import BodyState, RigidBody, check_symmetric
@@ -95,12 +102,14 @@ class Contact6:
     """Spring-dashpot between the interfaces: stiffness [N/m, N/rad, coupled]
     and damping (6x6 symmetric PSD, or a 6-vector for the diagonal, axes
     x y z rx ry rz of the target's interface frame); friction coefficient mu
-    and its regularising sliding speed [m/s]."""
+    and its regularising sliding speed [m/s]; `normal`: a Hunt-Crossley law
+    for the normal axis in place of its row of K e + C e' (module text)."""
 
     stiffness: np.ndarray
     damping: np.ndarray = field(default_factory=lambda: np.zeros(6))
     mu: float = 0.0
     slip_velocity: float = 1e-3
+    normal: TargetContact | None = None
     if TYPE_CHECKING:  # also set in __post_init__, as attributes only: the per-tick products K v and C v
         stiffness_of: MatVec6 = field(init=False)
         damping_of: MatVec6 = field(init=False)
@@ -110,13 +119,37 @@ class Contact6:
         object.__setattr__(self, "damping", check_matrix6("damping", self.damping, "N s/m, N m s/rad"))
         object.__setattr__(self, "mu", check_nonnegative("mu", self.mu))
         object.__setattr__(self, "slip_velocity", check_positive("slip_velocity", self.slip_velocity, "m/s"))
+        if self.normal is not None:
+            if self.normal.kind != "hunt_crossley":
+                raise ContactModelError(f"the normal law must be a hunt_crossley contact, got {self.normal.kind!r}")
+            for name, matrix in (("stiffness", self.stiffness), ("damping", self.damping)):
+                if np.any(matrix[0, 1:] != 0.0):
+                    raise ContactModelError(
+                        f"contact hunt_crossley: the {name}'s normal row couples x to the other axes"
+                        f" ({matrix[0, 1:].tolist()}); give a diagonal normal entry"
+                    )
         # The per-tick products K v and C v on plain floats.
         object.__setattr__(self, "stiffness_of", MatVec6(self.stiffness))
         object.__setattr__(self, "damping_of", MatVec6(self.damping))
 
     @property
     def dissipative(self) -> bool:
-        return bool(np.any(self.damping != 0.0) or self.mu > 0.0)
+        return bool(np.any(self.damping != 0.0) or self.mu > 0.0 or (self.normal is not None and self.normal.alpha))
+
+    def normal_force(self, penetration: float, rate: float) -> float:
+        """[N] the compressive Hunt-Crossley normal force at penetration d and its rate d' (`normal` set)."""
+        return cast(TargetContact, self.normal).force(penetration, rate)
+
+
+def hunt_crossley_normal(model: Contact6, target: TargetContact, mass: float, v_close: float) -> Contact6:
+    """`model` with the Hunt-Crossley `target` on its normal axis: the normal entries of K and C become the
+    target's linear equivalent for the reduced mass `mass` [kg] at the closing velocity `v_close` [m/s]
+    (its secant stiffness at the deepest undamped penetration and the damping of its restitution)."""
+    if not target.kcs > 0.0:
+        raise ContactModelError(f"contact hunt_crossley: kcs (the normal stiffness) must be > 0, got {target.kcs!r}")
+    stiffness, damping = model.stiffness.copy(), model.damping.copy()
+    stiffness[0, 0], damping[0, 0] = linear_equivalent(target, mass, check_positive("v_close", v_close, "m/s"))
+    return Contact6(stiffness, damping, model.mu, model.slip_velocity, target)
 
 
 def contact_wrench(
@@ -133,6 +166,8 @@ def contact_wrench3(
 ) -> tuple[tuple, tuple, tuple]:
     """`contact_wrench` on plain floats (the integrator's kicks): F = -R_B q_t, M = -R_B J^-T q_r."""
     q = add6(model.stiffness_of(sub6(g.e, anchor)), model.damping_of(rate))
+    if model.normal is not None:  # the normal row is uncoupled: its law alone
+        q = (model.normal_force(g.e[0] - anchor[0], rate[0]),) + q[1:]
     fx, fy, fz = rotate(g.q_b, q[:3])
     if model.mu > 0.0:  # regularised Coulomb friction on A's sliding (u = e'_y, e'_z), in B's axes
         u1, u2 = rate[1], rate[2]
@@ -345,9 +380,15 @@ def _assign(dst: Motion, src: Motion) -> None:
 
 
 def potential_energy(model: Contact6, g: InterfaceGeometry, anchor: Sequence[float], touching: bool) -> float:
-    """1/2 (e - anchor)^T K (e - anchor) [J] while touching."""
+    """1/2 (e - anchor)^T K (e - anchor) [J] while touching (a Hunt-Crossley normal: its own potential
+    on the normal axis)."""
+    if not touching:
+        return 0.0
     de = np.array(g.e) - anchor
-    return 0.5 * float(de @ model.stiffness @ de) if touching else 0.0
+    energy = 0.5 * float(de @ model.stiffness @ de)
+    if model.normal is not None:
+        energy += model.normal.potential(float(de[0])) - 0.5 * float(model.stiffness[0, 0]) * float(de[0]) ** 2
+    return energy
 
 
 def simulate_contact6(

@@ -51,12 +51,14 @@ class TargetContact:
 
     def force(self, p: float, pd: float) -> float:
         """Compressive force [N] at penetration p [m] and rate pd [m/s] (0 while p <= 0, but the
-        linear dashpot acts from the first instant of a contact at p = 0 closing in, as Eq. 1)."""
+        linear dashpot acts from the first instant of a contact at p = 0 closing in, as Eq. 1).
+        Hunt-Crossley's is 0 where it would pull (alpha pd < -1): the exact contact never leaves
+        faster than 1 / alpha, a loop that makes energy can."""
         if p < 0.0 or (p == 0.0 and pd <= 0.0):
             return 0.0
         if self.kind == "linear":
             return self.kcs * p + self.bcs * pd
-        return self.kcs * p**self.n * (1.0 + self.alpha * pd)
+        return self.kcs * p**self.n * max(1.0 + self.alpha * pd, 0.0)
 
     def stiffness(self, p: float) -> float:
         """dF/dp [N/m] at rest at penetration p: the local stiffness (kcs for the linear contact)."""
@@ -69,6 +71,21 @@ class TargetContact:
         if p <= 0.0:
             return 0.0
         return 0.5 * self.kcs * p * p if self.kind == "linear" else self.kcs * p ** (self.n + 1.0) / (self.n + 1.0)
+
+
+def hunt_crossley_omega(contact: TargetContact, m: float, v: float) -> float:
+    """[rad/s] the frequency a phase lead is tuned at for a Hunt-Crossley target: sqrt(K / m) with K the
+    secant stiffness F / p at the deepest penetration of an undamped impact at v [m/s]."""
+    deepest = ((contact.n + 1.0) * m * v * v / (2.0 * contact.kcs)) ** (1.0 / (contact.n + 1.0))
+    return math.sqrt(contact.kcs * deepest ** (contact.n - 1.0) / m)
+
+
+def linear_equivalent(contact: TargetContact, m: float, v: float) -> tuple[float, float]:
+    """(stiffness [N/m], damping [N s/m]) of the linear contact with a Hunt-Crossley target's frequency
+    (hunt_crossley_omega at the closing velocity v [m/s], reduced mass m [kg]) and its restitution at v:
+    what the linear analyses (the scene check, the stability maps) judge the target as."""
+    stiffness = m * hunt_crossley_omega(contact, m, v) ** 2
+    return stiffness, linear_damping_for_restitution(restitution(contact.alpha, v), m, stiffness)
 
 
 def _work(x: float) -> float:

@@ -239,10 +239,21 @@ class VirtualWall6:
         q1 = add6(k1(de), c1(rate))
         # The closed form gives both bodies the same products.
         q2 = q1 if k2 is k1 and c2 is c1 else add6(k2(de), c2(rate))
+        if self.ideal.normal is not None:  # a Hunt-Crossley normal: its force less the passive's normal row
+            row = self.ideal.normal_force(de[0], rate[0]) - _normal_row(self.passive, de, rate)
+            same = q2 is q1
+            q1 = (row,) + tuple(q1[1:])
+            q2 = q1 if same else (row,) + tuple(q2[1:])
         if normal != 0.0:  # on the chaser along the normal is -q[0] (W = -S q)
             q1 = (q1[0] - normal,) + tuple(q1[1:])
             q2 = (q2[0] - normal,) + tuple(q2[1:])
         return _wall_wrenches(g, q1, q2)
+
+
+def _normal_row(model: Contact6, de: Sequence[float], rate: Sequence[float]) -> float:
+    """[N] the normal entry of K de + C e' of `model` (the passive compliance's normal force)."""
+    k, c = model.stiffness_of.rows[0], model.damping_of.rows[0]
+    return sum(a * b for a, b in zip(k, de)) + sum(a * b for a, b in zip(c, rate))
 
 
 def _wall_wrenches(g: InterfaceGeometry, q1: Sequence[float], q2: Sequence[float]) -> tuple:
@@ -264,7 +275,9 @@ class NormalCompensation6:
     1-DOF loop's tick (dockhil.contact.comploop.ImpedanceStep, the methods unchanged) on the normal
     penetration p = d_x, its rate, the measured force on the chaser along the normal and the robot's
     reported normal pose, as a body of the reduced mass m1 m2 / (m1 + m2) against a fixed wall with the
-    normal entries of the virtual impedance (K - K_p, C - C_p) for the energy account and the hold.
+    normal entries of the virtual impedance (K - K_p, C - C_p) for the energy account and the hold, or,
+    for an ideal with a Hunt-Crossley normal (Contact6.normal), with that target as hil.yaml's
+    contact:=hunt_crossley has it (no wall; the hold at its local stiffness).
     `force` returns the compensation's force on the chaser along the normal (the target gets its
     opposite); the virtual wall applies it at o_A, so off the axis it makes torques as the contact
     does. The other five axes are left as published: their delays are not compensated."""
@@ -283,11 +296,14 @@ class NormalCompensation6:
         from dockhil.contact.hybrid import VirtualImpedance
 
         k = float(passive.stiffness[0, 0])
-        self.normal = VirtualImpedance(
-            float(ideal.stiffness[0, 0]) - k, float(ideal.damping[0, 0] - passive.damping[0, 0]), 0.0, 0.0
-        )
+        if ideal.normal is not None:  # the target's force less k p acts, no wall (ImpedanceStep's target)
+            self.normal = VirtualImpedance(0.0, 0.0, 0.0, 0.0)
+        else:
+            self.normal = VirtualImpedance(
+                float(ideal.stiffness[0, 0]) - k, float(ideal.damping[0, 0] - passive.damping[0, 0]), 0.0, 0.0
+            )
         self.mass = reduced_mass
-        self.tick = ImpedanceStep(reduced_mass, 0.0, k, self.normal, None, settings, dt, passivity)
+        self.tick = ImpedanceStep(reduced_mass, 0.0, k, self.normal, ideal.normal, settings, dt, passivity)
         self.mount = check_unit_quaternion("sensor_orientation", sensor_orientation)
         self.account: Any = None
 
@@ -299,9 +315,9 @@ class NormalCompensation6:
         on_target = measured if self.mount == IDENTITY else rotate(self.mount, measured)
         p, pd = g.d[0], velocity[0]
         f1, _f2, self.account = self.tick.step(p, 0.0, pd, 0.0, -on_target[0], robot, dt)
-        # ImpedanceStep's force is the normal virtual spring-damper plus the compensation: the wall
-        # applies the first already.
-        return f1 - virtual_wrench(p, 0.0, pd, 0.0, self.mass, 0.0, self.normal)[0]
+        # ImpedanceStep's force is the normal virtual spring-damper (or the Hunt-Crossley target less k p)
+        # plus the compensation: the wall applies the first already.
+        return f1 - virtual_wrench(p, 0.0, pd, 0.0, self.mass, 0.0, self.normal)[0] - self.tick.target_force(p, pd)
 
 
 class PassiveSensor6:

@@ -3,6 +3,7 @@ compensation along the contact's normal (dockhil.contact.hybrid6.NormalCompensat
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 from dockhil.msgs import BodyWrenches, SatelliteState, Vector3, Wrench, WrenchStamped
@@ -24,6 +25,21 @@ from dockhil.scene.sixdof_params import (
 COMPENSATION_PARAMS = {
     name: VirtualImpedance1.params[name]
     for name in ("compensation", "delay", "lag", "lead_omega", "lead_tau", "ft_noise", "max_damping", "force_deadband")
+}
+# The target's law along the normal, as hil.yaml's on its axis (the other five axes stay linear).
+CONTACT_PARAMS = {
+    "contact": replace(
+        VirtualImpedance1.params["contact"],
+        help="the law on the normal axis (B's x): linear (stiffness, damping) or hunt_crossley "
+        "(kcs d^hc_n (1 + hc_alpha d'), kcs the stiffness's normal entry in N/m^hc_n; its damping entry unused)",
+    ),
+    "hc_n": VirtualImpedance1.params["hc_n"],
+    "hc_alpha": VirtualImpedance1.params["hc_alpha"],
+    "v_close": replace(
+        VirtualImpedance1.params["v_close"],
+        help="contact hunt_crossley: the normal closing velocity its linear equivalent (the scene check's, a "
+        "phase lead's frequency) is figured at",
+    ),
 }
 FT = Input(
     WrenchStamped,
@@ -54,24 +70,35 @@ class VirtualImpedance6(Node):
             BodyWrenches, "/impedance/wrench", help="virtual wrench on chaser, target (world, about each CoM)"
         )
     }
-    params = {**BODY_PARAMS, **IDEAL_PARAMS, **PASSIVE_PARAMS, **COMPENSATION_PARAMS, **MOUNT_PARAMS}
+    params = {
+        **BODY_PARAMS,
+        **IDEAL_PARAMS,
+        **CONTACT_PARAMS,
+        **PASSIVE_PARAMS,
+        **COMPENSATION_PARAMS,
+        **MOUNT_PARAMS,
+    }
 
     @classmethod
     def ports(cls, params):
-        if params["compensation"] == "none":
+        if params["compensation"] == "none" and params["contact"] == "linear":
             return cls.inputs, cls.outputs
         # Refused when the graph is built, before anything runs: one line.
         from types import SimpleNamespace
 
-        checked("virtual_impedance", lambda: cls.compensation(SimpleNamespace(**params), 1e-3))
+        given = SimpleNamespace(**params)
+        checked("virtual_impedance", lambda: (ideal_contact(given), cls.compensation(given, 1e-3)))
+        if params["compensation"] == "none":
+            return cls.inputs, cls.outputs
         extra = {"ft": FT, "robot": ROBOT} if params["compensation"] == "predictor" else {"ft": FT}
         return {**cls.inputs, **extra}, cls.outputs
 
     @staticmethod
     def compensation(p, dt):
         """The NormalCompensation6 of the parameters `p` (a namespace), or None for compensation none: told
-        the passive and ideal normal entries, the delay, lag and F/T noise; a phase lead's frequency
-        defaults to the normal's sqrt(kcs / m_r), m_r = m1 m2 / (m1 + m2)."""
+        the passive and ideal normal entries (or the Hunt-Crossley target), the delay, lag and F/T noise; a
+        phase lead's frequency defaults to the normal's sqrt(kcs / m_r), m_r = m1 m2 / (m1 + m2), kcs the
+        linear equivalent's for a Hunt-Crossley target (its secant stiffness: comploop.target_frequency)."""
         if p.compensation == "none":
             return None
         import math

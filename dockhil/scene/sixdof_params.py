@@ -149,9 +149,18 @@ def _inertia(value):
 
 
 def ideal_contact(p):
-    from dockhil.contact.contact6 import Contact6
+    """The ideal contact of `p`; with contact hunt_crossley (the virtual impedance's params) the normal is
+    the Hunt-Crossley target of kcs the stiffness's normal entry, hc_n, hc_alpha (contact6.hunt_crossley_normal,
+    its linear equivalent for the reduced mass m1 m2 / (m1 + m2) at v_close)."""
+    from dockhil.contact.contact6 import Contact6, hunt_crossley_normal
 
-    return Contact6(_matrix(p.stiffness, "stiffness"), _matrix(p.damping, "damping"))
+    linear = Contact6(_matrix(p.stiffness, "stiffness"), _matrix(p.damping, "damping"))
+    if getattr(p, "contact", "linear") != "hunt_crossley":
+        return linear
+    from dockhil.contact.hunt_crossley import TargetContact
+
+    target = TargetContact("hunt_crossley", float(linear.stiffness[0, 0]), n=p.hc_n, alpha=p.hc_alpha)
+    return hunt_crossley_normal(linear, target, p.m1 * p.m2 / (p.m1 + p.m2), p.v_close)
 
 
 def passive_contact(p: SimpleNamespace, mu: float = 0.0, slip_velocity: float = 1e-3, k_scale: float = 1.0) -> Contact6:
