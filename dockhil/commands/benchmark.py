@@ -20,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.epilog = (
         "examples:\n"
-        "  dockhil benchmark compensation --quick --out bench-comp/   # ~2 min: 7 methods, 8 targets, omega h 0-0.5\n"
+        "  dockhil benchmark compensation --quick --out bench-comp/   # 2-3 min: 7 methods, 11 targets, omega h 0-0.5\n"
         "  dockhil benchmark compensation --full --out bench-comp/    # 13 omega h to 1.0, 9 hardware cases\n"
         "  dockhil benchmark compensation --full --workers 2 --out bench-comp/     # in 2 worker processes\n"
         "  dockhil benchmark compensation --full --dask tcp://host:8786 --out bench-comp/   # on a Dask cluster\n"
