@@ -27,7 +27,10 @@ The loop's delay (loop_delay_s, the verdict's) is held to the run itself: the be
 finds, with code of its own, the delay from the /robot/command ticks to the /robot/state ticks that best
 explains the poses through the emulator's hidden lag, over the steps and the chirp (the whole run, and 0.5 s
 windows at their 95th percentile). loop_delay_s must lie within one device cycle of that and never below the
-hidden robot delay, with either emulator timing (--timing: where inside the controller its cycles are spent).
+hidden robot delay, with either emulator timing (--timing: where inside the controller its cycles are spent),
+and the stiffness bound of that loop (loop_delay_s + lag_s) within 2 % of the bound of the loop the run had
+(its 95th percentile through the hidden lag). The robot's own delay must lie in delay_range_s, which holds it
+whatever the controller's inside (delay_s is the device model's point in it).
 """
 
 from __future__ import annotations
@@ -340,6 +343,12 @@ def errors(truth: dict, found: dict, cycle: float = MODBUS_CYCLE, run_e2e: dict 
         if e2e
         else None,
         "loop_minus_hidden_ms": 1e3 * (found["loop_delay_s"] - truth["delay"]),
+        # the bound the verdict's loop gives (loop_delay_s + lag_s) against the one of the loop the run had
+        "loop_bound_rel": exact_bound(m, BCS, found["loop_delay_s"] + found["lag_s"]).k_max
+        / exact_bound(m, BCS, e2e["p95_s"] + truth["lag"]).k_max
+        - 1.0
+        if e2e
+        else None,
         "run_p95_minus_whole_ms": 1e3 * (e2e["p95_s"] - e2e["whole_s"]) if e2e else None,
         # where the split is not identified: the hidden delay's margins inside the range calibrate gives
         "range_low_margin_ms": 1e3 * (truth["delay"] - found["delay_range_s"][0])
@@ -425,6 +434,7 @@ def summarize(rows: list[dict], robot: str, timing: str, cycle: float, realtime:
         "bias_within_1_noise_sd": count(done, "bias_in_noise_sd", lambda v: v <= 1.0),
         "bound_within_2pct": count(done, "bound_rel", lambda v: abs(v) <= 0.02),
         "bound_cycle_top_within_2pct": count(done, "bound_cycle_top_rel", lambda v: abs(v) <= 0.02),
+        "loop_bound_within_2pct": count(done, "loop_bound_rel", lambda v: abs(v) <= 0.02),
         **{
             name: summary(done, key)
             for name, key in (
@@ -437,6 +447,7 @@ def summarize(rows: list[dict], robot: str, timing: str, cycle: float, realtime:
                 ("bias_error_noise_sd", "bias_in_noise_sd"),
                 ("bound_rel_error", "bound_rel"),
                 ("bound_cycle_top_rel_error", "bound_cycle_top_rel"),
+                ("loop_bound_rel_error", "loop_bound_rel"),
                 ("b_error_Ns_per_m", "b_Ns_per_m"),
                 ("link_ms", "link_ms"),
                 ("loop_delay_vs_run_p95_cycles", "loop_vs_run_p95_cycles"),

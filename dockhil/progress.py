@@ -119,6 +119,10 @@ class TaskProgress:
         self._draw(label)
         self.line.end(keep=True)
 
+    def stop(self) -> None:
+        """Cut short (Ctrl-C): the bar stays as far as it got, and what follows starts on a line of its own."""
+        self.line.end(keep=True)
+
     def _draw(self, label: str) -> None:
         elapsed = time.perf_counter() - self.started
         self.line.show(

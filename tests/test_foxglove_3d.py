@@ -16,12 +16,13 @@ import time
 import jsonschema
 import msgspec
 import pytest
+import websockets
 
 from dockhil.bags import foxglove_scene as fs
 from dockhil.msgs import BodyState, Header, Pose, Quaternion, RobotState, SatelliteState, Vector3, Wrench, WrenchStamped
 from tests.conftest import ROOT, dockhil_cmd, free_port
 from tests.support.inprocess import run_main
-from tests.test_foxglove import channels, connect, message_data, subscribe, until_subscribed
+from tests.test_foxglove import SUBPROTOCOLS, channels, connect, message_data, subscribe, until_subscribed
 
 OFFICIAL = {name: fs.schema(name) for name in fs.DERIVED.values()}
 
@@ -245,6 +246,62 @@ def test_export_refusals_are_one_line(tmp_path):
 
 
 # --------------------------------------------------------------------------- the live bridge
+
+
+def test_a_viewer_that_connects_while_the_bridge_starts_can_subscribe_to_every_channel_it_is_told_of(monkeypatch):
+    """A viewer that connects the moment the server listens: each channel advertised to it is one its
+    session knows (a server that listened while its channels were still being added told viewers of some
+    it then refused to subscribe them to, 'Unknown channel ID'). Each channel here takes 3 ms to make, as
+    on a busy machine."""
+    import threading
+
+    import foxglove
+
+    from dockhil.bags.foxglove import FoxgloveBridge
+
+    make_channel = foxglove.Channel
+
+    def slow_channel(*args, **kwargs):
+        time.sleep(0.003)
+        return make_channel(*args, **kwargs)
+
+    monkeypatch.setattr(foxglove, "Channel", slow_channel)
+
+    topics = {
+        "/satellite/state": "dockhil/SatelliteState",
+        "/ft/wrench": "dockhil/WrenchStamped",
+        "/robot/state": "dockhil/RobotState",
+        "/robot/command": "dockhil/RobotCommand",
+    }
+
+    async def view(port: int, starter):
+        starter.start()
+        while True:  # at once, as a viewer retrying does
+            try:
+                ws = await websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=SUBPROTOCOLS, max_size=None)
+                break
+            except (OSError, websockets.exceptions.InvalidHandshake):
+                await asyncio.sleep(0.0005)
+        try:
+            found = await channels(ws, [*topics, "/tf", "/scene"])
+            await subscribe(ws, {i: channel["id"] for i, channel in enumerate(found.values())})
+            try:
+                return json.loads(await asyncio.wait_for(ws.recv(), 0.3))  # a refusal comes at once
+            except TimeoutError:
+                return None
+        finally:
+            await ws.close()
+
+    for _ in range(12):
+        port = free_port()
+        started: list = []
+        starter = threading.Thread(
+            target=lambda p=port, out=started: out.append(FoxgloveBridge(topics, sim=True, port=p, log=lambda _: None))
+        )
+        refused = asyncio.run(view(port, starter))
+        starter.join()
+        started[0].close()
+        assert refused is None, refused
 
 
 def test_the_live_bridge_announces_and_sends_tf_and_scene():

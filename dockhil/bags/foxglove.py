@@ -93,17 +93,6 @@ class FoxgloveBridge:
         self._from_wire = msgspec.msgpack.Decoder().decode
         self._to_json = msgspec.json.Encoder().encode
         self._context = foxglove.Context()  # channels of this bridge only, not the process-wide default
-        try:
-            self._server = foxglove.start_server(name="dockhil", host=host, port=port, context=self._context)
-        except RuntimeError as exc:
-            reason = str(exc).removeprefix("FoxgloveError: ")
-            todo = (
-                "choose a free port with --foxglove PORT"
-                if "in use" in reason
-                else "give --foxglove-host an address of this machine"
-            )
-            raise DockhilError(f"--foxglove: cannot serve on {host}:{port}: {reason}; {todo}") from None
-        self.host, self.port = host, self._server.port
         schemas = {}
         for type_name in set(topics.values()):
             data = json.dumps(channel_schema(msgs.type_by_name(type_name)), separators=(",", ":")).encode()
@@ -125,6 +114,19 @@ class FoxgloveBridge:
                     message_encoding="json",
                     context=self._context,
                 )
+        # The server starts once every channel exists: a viewer that connects while channels are being
+        # added can be told of one its session does not know, and its subscription is refused.
+        try:
+            self._server = foxglove.start_server(name="dockhil", host=host, port=port, context=self._context)
+        except RuntimeError as exc:
+            reason = str(exc).removeprefix("FoxgloveError: ")
+            todo = (
+                "choose a free port with --foxglove PORT"
+                if "in use" in reason
+                else "give --foxglove-host an address of this machine"
+            )
+            raise DockhilError(f"--foxglove: cannot serve on {host}:{port}: {reason}; {todo}") from None
+        self.host, self.port = host, self._server.port
         self._sources = [topic for topic in fs.SOURCES if topic in topics]
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None

@@ -88,11 +88,13 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise DockhilError(f"--out {args.out}: cannot make the directory ({exc.strerror or exc})") from None
     from dockhil.analysis.compensation_runs import make_executor, run_grid
+    from dockhil.commands.stop_signal import StopOnSignal
     from dockhil.log import Log
 
     started, cpu = time.perf_counter(), time.process_time()
     progress = None
     executor = None
+    signals = StopOnSignal()
     try:
         executor = make_executor(args.workers, args.dask)
         todo = grid.tasks(args.full, args.scenes, methods)
@@ -103,12 +105,15 @@ def run(args: argparse.Namespace) -> int:
         rows = run_grid(todo, executor, None if progress is None else progress.step)
     except KeyboardInterrupt:
         if progress is not None:
-            progress.line.end(keep=True)
-        Log("dockhil benchmark:").info(f"interrupted; nothing written to {args.out}: rerun the command to start over")
-        return 130
+            progress.stop()
+        Log("dockhil benchmark:").info(
+            f"{signals.what}; nothing written to {args.out}: rerun the command to start over"
+        )
+        return 128 + signals.number
     finally:
         if executor is not None:
             executor.close()
+        signals.restore()
     if progress is not None:
         progress.finish()
     failed = [r for r in rows if r.get("failed")]

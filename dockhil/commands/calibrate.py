@@ -305,11 +305,14 @@ def _print_table(r: dict, scene: str) -> None:
     span = r.get("delay_range_s")
     rows = [
         (
-            "delay (the robot's, at the device)"
-            if link is not None or span is not None
-            else "delay (command to pose, link included)",
+            "delay (the robot's, at the device)" if span is not None else "delay (command to pose, link included)",
             _pm(r["delay_s"], u["delay_s"], 1e3)
-            if span is None
+            + (
+                ""
+                if span is None
+                else f" (within {span[0] * 1e3:.4g} to {span[1] * 1e3:.4g}, whatever the controller's timing)"
+            )
+            if r["delay_s"] is not None
             else f"not identified apart from the link: {span[0] * 1e3:.4g} to {span[1] * 1e3:.4g}",
             "ms",
         ),

@@ -4,9 +4,9 @@ launch arguments; `dockhil sweep plot RESULTS.parquet --png FILE`: what the camp
 from __future__ import annotations
 
 import argparse
-from types import FrameType
 
 from dockhil import log
+from dockhil.commands.stop_signal import StopOnSignal
 from dockhil.errors import DockhilError
 from dockhil.log import Log
 
@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     campaign = sweep.load_campaign(args.campaign)
     sweep.check_outputs(campaign)
     say = Log("dockhil sweep:")
-    signals = _StopOnSignal()
+    signals = StopOnSignal()
     try:
         executor: sweep.DaskExecutor | sweep.LocalPool
         if args.dask:
@@ -113,35 +113,6 @@ def run(args: argparse.Namespace) -> int:
         signals.restore()
     print(sweep.format_report(out, args.out, executor.name), flush=True)
     return 1 if out["failed"] else 0
-
-
-class _StopOnSignal:
-    """SIGTERM and SIGHUP end a sweep as Ctrl-C does (a KeyboardInterrupt): the workers are ended
-    and the finished rows written, where Python's default would exit at once and leave both."""
-
-    def __init__(self):
-        import signal
-        import threading
-
-        self.number: int = signal.SIGINT
-        self.what = "interrupted"
-        self.old = {}
-        if threading.current_thread() is threading.main_thread():  # where Python runs handlers
-            self.old = {sig: signal.signal(sig, self._stop) for sig in (signal.SIGTERM, signal.SIGHUP)}
-
-    def _stop(self, signum: int, frame: FrameType | None) -> None:
-        import signal
-
-        if self.number != signal.SIGINT:  # ending already: a second signal must not cut that short
-            return
-        self.number, self.what = signum, f"stopped by {signal.Signals(signum).name}"
-        raise KeyboardInterrupt
-
-    def restore(self) -> None:
-        import signal
-
-        for sig, handler in self.old.items():
-            signal.signal(sig, handler)
 
 
 def _plot(args: argparse.Namespace) -> int:

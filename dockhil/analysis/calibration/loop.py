@@ -136,14 +136,17 @@ class Calibration:
         return self.link is None or self.link.take_seen
 
     def delay_range_s(self) -> tuple[float, float]:
-        """Where the robot's own delay lies when the split is not identified: from the device model's (the
-        latest take, the next cycle, and the pose after the servo's step), less half its cycle, to that plus
-        half a cycle, the link's forward part (the correction taken as it arrived, not at the next cycle) and
-        a cycle (the pose sampled before the servo's step)."""
+        """Where the robot's own delay lies, whatever the controller's inside (device cycles recorded): from
+        the device model's (the take at the cycle read back, or the next where the device does not echo it,
+        and the pose after the servo's step), less half its cycle, to that plus a cycle and a half (the pose
+        sampled before the servo's step; a setpoint taken as it is written, between the cycles), the lag up to
+        a cycle (a lag under a cycle or two blends with the delay's cycle: the fit may read that much of the
+        delay as lag) and, where the device does not echo its takes, the link's forward part (the correction
+        taken as it arrived, not at the next cycle)."""
         s, ln = self.servo, self.link
         cycle = s.cycle_s or 0.0
-        forward = ln.forward_s if ln is not None else 0.0
-        return max(s.delay_s - 0.5 * cycle, 0.0), s.delay_s + 1.5 * cycle + forward
+        forward = ln.forward_s if ln is not None and not ln.take_seen else 0.0
+        return max(s.delay_s - 0.5 * cycle, 0.0), s.delay_s + 1.5 * cycle + min(s.lag_s, cycle) + forward
 
     @property
     def damping_identified(self) -> bool:
@@ -158,7 +161,7 @@ class Calibration:
         split = self.split_identified
         return {
             "delay_s": s.delay_s if split else None,
-            "delay_range_s": None if split else list(self.delay_range_s()),
+            "delay_range_s": None if ln is None else list(self.delay_range_s()),
             "loop_delay_s": self.loop_delay_s,
             "loop_delay_typical_s": None if e2e is None else e2e.typical_s,
             "link_s": None if ln is None or not split else ln.total_s,
