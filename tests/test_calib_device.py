@@ -32,6 +32,22 @@ def command(t: float) -> float:
     return chirp_position(t - 1.2, 0.0025, 0.04, 0.5, 8.0, 3.8)
 
 
+def read_back(sent, read, value, pose, seen, echoed):
+    """(DeviceCycles, kept): the exchanges whose read saw a cycle (`seen`, the index of the cycle each read
+    saw: its pose and count), each written, marked taken where that cycle echoed the exchange (`echoed`, the
+    exchange each cycle last took)."""
+    ok = seen >= 0
+    return cal.DeviceCycles(
+        sent[ok],
+        read[ok],
+        value[ok],
+        np.ones(ok.sum(), dtype=bool),
+        pose[seen[ok]],
+        (seen[ok] % 65536).astype(np.int64),
+        echoed[seen[ok]] == np.arange(len(sent))[ok],
+    ), ok
+
+
 def device_run(delay: float, tau: float, seed: int = 0, length: float = 5.0):
     """A controller on its own 1 kHz cycle (each cycle up to 0.2 ms late) behind a Modbus-like link that
     writes the latest command and reads the pose back in exchanges of 0.6-2 ms (one in twenty stretched
@@ -67,16 +83,7 @@ def device_run(delay: float, tau: float, seed: int = 0, length: float = 5.0):
         if m >= 0:
             target = took[m]
     seen = np.searchsorted(c_t, handled, side="right") - 1  # the cycle each read sees
-    ok = seen >= 0
-    dc = cal.DeviceCycles(
-        sent[ok],
-        read[ok],
-        value[ok],
-        np.ones(ok.sum(), dtype=bool),
-        pose[seen[ok]],
-        (seen[ok] % 65536).astype(np.int64),
-        (taken_by[seen[ok]] == np.arange(len(sent))[ok]),
-    )
+    dc, ok = read_back(sent, read, value, pose, seen, taken_by)
     # the truths of the link: each setpoint from its command's tick to the first cycle after its write
     first = np.searchsorted(c_t, wrote[ok], side="right")
     forward = c_t[np.clip(first, 0, n_cycles - 1)] - used[ok]

@@ -16,7 +16,7 @@ import pytest
 
 from dockhil.analysis.calibration import loop as cal
 from tests.test_calib_device import T as MODBUS_CYCLE
-from tests.test_calib_device import command, device_run
+from tests.test_calib_device import command, device_run, read_back
 from tests.test_calibrate import Truth, simulate
 
 CYCLE = 0.004  # s: RSI's
@@ -113,16 +113,7 @@ def modbus_immediate_run(delay: float, tau: float, seed: int = 0, length: float 
     pose = continuous_poses(c_t, wrote + delay, value, tau)
     seen = np.searchsorted(c_t, sent + 0.85 * span, side="right") - 1  # the last cycle before the read
     echoed = np.searchsorted(wrote, c_t, side="right") - 1  # the last write before each cycle
-    ok = seen >= 0
-    dc = cal.DeviceCycles(
-        sent[ok],
-        read[ok],
-        value[ok],
-        np.ones(ok.sum(), dtype=bool),
-        pose[seen[ok]],
-        (seen[ok] % 65536).astype(np.int64),
-        echoed[seen[ok]] == np.arange(len(sent))[ok],
-    )
+    dc, _kept = read_back(sent, read, value, pose, seen, echoed)
     return dc, t_cmd, t_cmd + 0.5 * MODBUS_CYCLE
 
 
