@@ -138,15 +138,15 @@ class Calibration:
     def delay_range_s(self) -> tuple[float, float]:
         """Where the robot's own delay lies, whatever the controller's inside (device cycles recorded): from
         the device model's (the take at the cycle read back, or the next where the device does not echo it,
-        and the pose after the servo's step), less half its cycle, to that plus a cycle and a half (the pose
-        sampled before the servo's step; a setpoint taken as it is written, between the cycles), the lag up to
-        a cycle (a lag under a cycle or two blends with the delay's cycle: the fit may read that much of the
-        delay as lag) and, where the device does not echo its takes, the link's forward part (the correction
-        taken as it arrived, not at the next cycle)."""
+        and the pose after the servo's step), less half its cycle, to that plus two cycles (the pose sampled
+        before the servo's step; a setpoint taken as it is written, up to a cycle before the cycle that echoes
+        it), the lag up to a cycle (a lag under a cycle or two blends with the delay's cycle: the fit may read
+        that much of the delay as lag) and, where the device does not echo its takes, the link's forward part
+        (the correction taken as it arrived, not at the next cycle)."""
         s, ln = self.servo, self.link
         cycle = s.cycle_s or 0.0
         forward = ln.forward_s if ln is not None and not ln.take_seen else 0.0
-        return max(s.delay_s - 0.5 * cycle, 0.0), s.delay_s + 1.5 * cycle + min(s.lag_s, cycle) + forward
+        return max(s.delay_s - 0.5 * cycle, 0.0), s.delay_s + 2.0 * cycle + min(s.lag_s, cycle) + forward
 
     @property
     def damping_identified(self) -> bool:
