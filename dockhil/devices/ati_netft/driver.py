@@ -25,6 +25,8 @@ from dockhil.errors import DeviceError, ParamError
 from dockhil.node import Param
 from dockhil.runtime import ownership, realtime
 
+STOP_QUIET_S = 0.05  # at close: the box is taken to have stopped once no record came for this long
+STOP_WAIT_S = 0.5  # at most, whatever still comes
 RESEND_START_S = 0.25  # a start request is one datagram: ask again while the box says nothing
 
 
@@ -164,6 +166,7 @@ class FtNetFtDriver(FtDriver):
         self._foreign_logged = False
         self.receiver: _Receiver | None = None
         self.sock: socket.socket | None = None
+        self._stream_stopped = False
         self._claim: ownership.DeviceLock | None = ownership.claim_for_graph(f"netft-{address}-{p.port}", self.device)
         try:
             self.calibration = self._calibration()
@@ -314,12 +317,27 @@ class FtNetFtDriver(FtDriver):
                 "foreign datagrams": r.foreign,
             }
 
+    def _stop_stream(self) -> None:
+        """The box stops streaming to us, and what it sent before is read (until none came for STOP_QUIET_S,
+        at most STOP_WAIT_S): the gaps counted are then every one the box could show, as it counts them."""
+        if self.sock is None or self._stream_stopped:
+            return
+        self._stream_stopped = True
+        try:
+            self.sock.sendto(rdt.encode_request(rdt.CMD_STOP), self.box)
+        except OSError:
+            return
+        r = self.receiver
+        if r is None:
+            return
+        deadline, seen, quiet_since = time.monotonic() + STOP_WAIT_S, r.records, time.monotonic()
+        while time.monotonic() < deadline and time.monotonic() - quiet_since < STOP_QUIET_S:
+            time.sleep(0.005)
+            if r.records != seen:
+                seen, quiet_since = r.records, time.monotonic()
+
     def _shutdown(self) -> None:
-        if self.sock is not None:
-            try:
-                self.sock.sendto(rdt.encode_request(rdt.CMD_STOP), self.box)  # the box stops streaming to us
-            except OSError:
-                pass
+        self._stop_stream()
         if self.receiver is not None:
             self.receiver.stop()
         if self.sock is not None:
@@ -331,6 +349,7 @@ class FtNetFtDriver(FtDriver):
             self._claim = None
 
     def _report(self) -> list[str]:
+        self._stop_stream()
         lines = []
         if self.ticks_with_data:
             lines.append(
