@@ -177,7 +177,10 @@ class DaskExecutor:
                     processes=True,
                     threads_per_worker=1,
                     dashboard_address=None,
-                    silence_logs=logging.ERROR,
+                    # A worker whose scheduler closed first logs its failed heartbeat at ERROR, with a
+                    # traceback, when a run ends early (Ctrl-C, SIGTERM); a task's own error reaches the
+                    # client as its row's failure, so the workers' logs are not needed.
+                    silence_logs=logging.CRITICAL,
                 )
                 self.client = Client(self.cluster)
             else:
