@@ -16,6 +16,7 @@ import socket
 import struct
 import subprocess
 import sys
+import threading
 import time
 
 import foxglove  # noqa: F401  (a dev dependency: a broken install fails here, never skips)
@@ -429,3 +430,29 @@ def test_the_shipped_layout_plots_numbers_the_scene_publishes():
             plotted.add(path["value"])
     assert "/ft/wrench.wrench.force.x" in plotted
     assert {"/satellite/state.bodies[0].pose.position.x", "/satellite/state.bodies[0].twist.linear.x"} <= plotted
+
+
+def test_the_end_of_a_run_does_not_wait_for_a_viewer_that_stopped_reading():
+    """The server's stop waits for every viewer to take its close; one that stopped reading is given up only
+    after about 40 s (foxglove-sdk 0.30). The bridge waits STOP_WAIT_S for it and says so in its last line."""
+    from dockhil.bags import foxglove as fg
+
+    lines = []
+    bridge = fg.FoxgloveBridge({"/ft/wrench": "dockhil/WrenchStamped"}, sim=True, port=free_port(), log=lines.append)
+    server, released = bridge._server, threading.Event()
+
+    class Stalled:  # the SDK's stop with a viewer that never takes its close
+        def stop(self):
+            released.wait(30.0)
+
+    bridge._server = Stalled()
+    began = time.monotonic()
+    try:
+        bridge.close()
+        took = time.monotonic() - began
+    finally:
+        released.set()
+        server.stop()
+    assert took < fg.STOP_WAIT_S + 5.0  # the wait, and a busy machine's slack; not the viewer's 30 s
+    assert lines[-1].startswith("[foxglove] served 0 messages")
+    assert lines[-1].endswith(f"; a viewer that stopped reading was not waited for ({fg.STOP_WAIT_S:g} s)")

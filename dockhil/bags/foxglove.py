@@ -49,6 +49,7 @@ if TYPE_CHECKING:
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
 BURST = 4096  # messages forwarded per pass at most; the older ones of a larger burst are dropped
+STOP_WAIT_S = 1.0  # s: how long the end of a run waits for the viewers to take the close
 DRAIN_MAX = 100_000  # frames taken from the socket in one pass, so that a pass ends
 
 
@@ -253,10 +254,15 @@ class FoxgloveBridge:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
-        self._server.stop()
+        # The server's stop waits for each viewer to take its close, and one that stopped reading (a paused
+        # or frozen app) takes 40 s to be given up: the run's end does not wait for that.
+        stopping = threading.Thread(target=self._server.stop, name="foxglove-stop", daemon=True)
+        stopping.start()
+        stopping.join(timeout=STOP_WAIT_S)
+        late = f"; a viewer that stopped reading was not waited for ({STOP_WAIT_S:g} s)" if stopping.is_alive() else ""
         lost = f"; dropped {self.dropped} it could not keep up with" if self.dropped else ""
         bad = f"; {self.unencodable} not encodable as JSON" if self.unencodable else ""
-        self.log(f"[foxglove] served {self.sent} messages{lost}{bad}")
+        self.log(f"[foxglove] served {self.sent} messages{lost}{bad}{late}")
 
 
 def start(graph: Graph, *, clock: str, host: str, port: int) -> FoxgloveBridge:
