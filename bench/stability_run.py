@@ -67,13 +67,14 @@ def dockhil(*args: str, timeout: float = 240.0) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "dockhil.cli", *args], capture_output=True, text=True, timeout=timeout)
 
 
-def calibrate(args: list[str], attempts: int = 2) -> dict:
-    """The calibration's JSON. An identification run that stopped (exit 1: a busy machine may stall a
-    device or an input past its limit; the lines say which) is tried again, up to `attempts` in all, as a
-    lab would; each stop's reason is kept in `stopped_attempts`."""
+def calibrate(args: list[str], attempts: int = 2, bag_out: str | None = None) -> dict:
+    """The calibration's JSON (`bag_out`: keep its identification run there). An identification run that
+    stopped (exit 1: a busy machine may stall a device or an input past its limit; the lines say which) is
+    tried again, up to `attempts` in all, as a lab would; each stop's reason is kept in `stopped_attempts`."""
     stops: list[str] = []
+    keep = ["--bag-out", bag_out] if bag_out else []
     for _ in range(attempts):
-        p = dockhil("calibrate", SCENE, *args, "--json", "--realtime")
+        p = dockhil("calibrate", SCENE, *args, *keep, "--json", "--realtime")
         if p.returncode in (0, 3):  # 3: it fell behind real time (a busy machine); its JSON says run_valid
             return {**json.loads(p.stdout.strip().splitlines()[-1]), "stopped_attempts": stops}
         said = [line for line in p.stderr.splitlines() if "error" in line or "INVALID" in line or "stop" in line]
