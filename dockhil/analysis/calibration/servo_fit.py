@@ -47,6 +47,9 @@ class Servo:
     # The device's cycle where the delay was read on whole cycles (delay_s is the middle of the cycle that
     # holds it): a robot that acts on whole cycles delays by up to half of it more. None: read on the ticks.
     cycle_s: float | None = None
+    # The lag a fit of delay and lag read where a pure delay explains the poses nearly as well: the data do
+    # not separate them, lag_s is 0 and delay_s holds it (the robot's own delay may be up to that less).
+    unseparated_lag_s: float = 0.0
 
 
 @dataclass(frozen=True)
