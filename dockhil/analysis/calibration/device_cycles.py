@@ -68,7 +68,8 @@ def unwrap(count: np.ndarray) -> np.ndarray:
     return np.concatenate([[0], np.cumsum(steps)]) + int(count[0]) if len(count) else count.astype(np.int64)
 
 
-# A pure delay that explains the poses within this factor of a delay-and-lag fit's residual energy: the
+# A pure delay that explains the poses within this factor of a delay-and-lag fit's residual energy (and
+# moves the delay by half a cycle or more: where it moves it less, the split does not matter to it): the
 # steps (ramps at the link's speed limit) and the chirp show a lag of a few cycles as as much more delay,
 # and the split the free fit makes is then not the data's (a 1.3 ms lag at 1 kHz read as 3.0 ms, the delay
 # as much short, where a pure delay left 1.6 times the residual energy; 5.4 ms and more left 12 times).
@@ -227,9 +228,11 @@ def device_servo(c: DeviceCycles, max_delay: float = MAX_DELAY_S, max_lag: float
     (whole, lag), residual, cov, aic = fit_delay_lag(model, total, max_delay, max_lag, period, 1e-3)
     (whole, lag), residual, cov = whole_cycles(model, whole, lag, residual, cov, period, max_lag)
     unseparated = 0.0
-    if lag >= 0.1 * period:  # a lag under a tenth of a cycle is no split to speak of
+    if lag >= 0.5 * period:  # a smaller lag, folded in, would move the delay by less than half a cycle
         fused, r0, var0 = pure_delay(model, whole + lag, period, max_delay)
-        if float(r0 @ r0) <= SEPARATION * float(residual @ residual):
+        # not separated where the lag-free delay moves by half a cycle or more (the split matters to the delay)
+        # and explains the poses nearly as well
+        if fused - whole >= 0.5 * period and float(r0 @ r0) <= SEPARATION * float(residual @ residual):
             unseparated, (whole, lag), residual, cov = lag, (fused, 0.0), r0, np.diag([var0, lag**2])
     npose = len(residual)
     sigmas = np.sqrt(np.clip(np.diag(cov), 0.0, None))
