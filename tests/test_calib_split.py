@@ -79,7 +79,7 @@ def test_a_controller_that_does_not_echo_its_takes_leaves_the_robots_delay_not_i
     d = c.as_dict()
     assert d["delay_s"] is None and d["link_s"] is None and d["uncertainty"]["delay_s"] is None
     lo, hi = d["delay_range_s"]
-    assert lo <= delay <= hi and hi - lo <= 3.5 * CYCLE + c.link.forward_s + 1e-6, (lo, delay, hi)
+    assert lo <= delay <= hi and hi - lo <= 4.0 * CYCLE + c.link.forward_s + 1e-6, (lo, delay, hi)
     reason = d["fit"]["split_not_identified"]
     assert "\n" not in reason and "not separated" in reason and "delay_range_s" in reason
     cal.check(c)  # not identified is no failed fit: the loop's delay and the rest stand
@@ -92,7 +92,7 @@ def test_a_controller_that_echoes_its_takes_keeps_the_split():
     assert d["delay_s"] == pytest.approx(0.04337, abs=0.001) and d["link_s"] > 0.0
     assert "split_not_identified" not in d["fit"]
     lo, hi = d["delay_range_s"]
-    assert lo <= 0.04337 <= hi and hi - lo <= 3.5 * MODBUS_CYCLE + 1e-6, (lo, hi)
+    assert lo <= 0.04337 <= hi and hi - lo <= 4.0 * MODBUS_CYCLE + 1e-6, (lo, hi)
 
 
 def modbus_immediate_run(delay: float, tau: float, seed: int = 0, length: float = 5.0):
@@ -128,7 +128,7 @@ def test_a_controller_that_takes_a_setpoint_as_it_is_written_has_its_delay_in_th
     c = calibration_with(dc, t_cmd, t_state)
     d = c.as_dict()
     lo, hi = d["delay_range_s"]
-    assert lo <= delay <= hi and hi - lo <= 3.5 * MODBUS_CYCLE + 1e-6, (lo, delay, hi, d["delay_s"], d["lag_s"])
+    assert lo <= delay <= hi and hi - lo <= 4.0 * MODBUS_CYCLE + 1e-6, (lo, delay, hi, d["delay_s"], d["lag_s"])
     assert d["delay_s"] is not None and d["delay_s"] < delay, d["delay_s"]
 
 

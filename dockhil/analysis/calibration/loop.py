@@ -144,7 +144,7 @@ class Calibration:
     def delay_range_s(self) -> tuple[float, float]:
         """Where the robot's own delay lies, whatever the controller's inside (device cycles recorded): from
         the device model's (the take at the cycle read back, or the next where the device does not echo it,
-        and the pose after the servo's step), less half its cycle and what the lag may trade with it, to that
+        and the pose after the servo's step), less half its cycle and what the lag may trade with it (up to another half), to that
         plus two cycles (the pose sampled before the servo's step; a setpoint taken as it is written, up to a
         cycle before the cycle that echoes it), the lag up to a cycle (a lag under a cycle or two blends with
         the delay's cycle: the fit may read that much of the delay as lag) and, where the device does not
@@ -152,9 +152,10 @@ class Calibration:
         s, ln = self.servo, self.link
         cycle = s.cycle_s or 0.0
         forward = ln.forward_s if ln is not None and not ln.take_seen else 0.0
-        # The delay may be shorter by what the lag may be longer (two of the lag's sigmas: a 16.71 ms lag read
-        # as 16.29 +- 0.29 ms left the delay 0.67 ms long), and a lag the delay holds (not separated) is not its.
-        trade = s.unseparated_lag_s or 2.0 * s.lag_sigma_s
+        # The delay may be shorter by what the lag may be longer (two of the lag's sigmas, up to half a cycle: a
+        # 16.71 ms lag read as 16.29 +- 0.29 ms left the delay 0.67 ms long), and a lag the delay holds (not
+        # separated) is not its.
+        trade = s.unseparated_lag_s or min(2.0 * s.lag_sigma_s, 0.5 * cycle)
         return max(s.delay_s - 0.5 * cycle - trade, 0.0), s.delay_s + 2.0 * cycle + min(s.lag_s, cycle) + forward
 
     @property
