@@ -26,7 +26,8 @@ maxima show the run kept the scene's limits.
 The loop's delay (loop_delay_s, the verdict's) is held to the run itself: the bench reads the run's bag and
 finds, with code of its own, the delay from the /robot/command ticks to the /robot/state ticks that best
 explains the poses through the emulator's hidden lag, over the steps and the chirp (the whole run, and 0.5 s
-windows at their 95th percentile). loop_delay_s must lie within one device cycle of that and never below the
+windows at their 95th percentile; read with no lag where calibrate did not separate the lag from the delay,
+which then holds it). loop_delay_s must lie within one device cycle of that and never below the
 hidden robot delay, with either emulator timing (--timing: where inside the controller its cycles are spent),
 and the stiffness bound of that loop (loop_delay_s + lag_s) within 2 % of the bound of the loop the run had
 (its 95th percentile through the hidden lag). The robot's own delay must lie in delay_range_s, which holds it
