@@ -95,8 +95,8 @@ def run(args) -> int:
         say.warning(calibration.NO_CYCLES)
     elif not cal.split_identified:
         say.info(calibration.NO_SPLIT)
-    if cal.servo.unseparated_lag_s:
-        say.info(calibration.NO_LAG.format(lag=1e3 * cal.servo.unseparated_lag_s))
+    if cal.lag_note:
+        say.info(cal.lag_note)
     out = cal.as_dict()
     out.update(_verdict(scene, cal))
     out["run_valid"] = code == 0

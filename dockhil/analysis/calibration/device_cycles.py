@@ -16,7 +16,9 @@ from dockhil.analysis.calibration.servo_fit import (
     akaike,
     covariance,
     fit_delay_lag,
+    grid_then_refine,
     residual_variance,
+    servo_jacobian,
 )
 
 
@@ -253,21 +255,15 @@ def device_servo(c: DeviceCycles, max_delay: float = MAX_DELAY_S, max_lag: float
 def pure_delay(model, near: float, period: float, max_delay: float) -> tuple[float, np.ndarray, float]:
     """(delay, residual, its variance) of the poses as the setpoints delayed alone, no lag, the delay within
     three cycles of `near` (a lag looks like as much more delay)."""
-    from scipy.optimize import minimize_scalar
-
-    def cost(d: float) -> float:
-        return float(np.sum(model.residual((d, 0.0)) ** 2))
-
-    # on a tenth of a cycle first: the cost has local minima between the cycles
-    grid = np.arange(max(near - 3.0 * period, 0.0), min(near + 3.0 * period, max_delay), 0.1 * period)
-    best = float(grid[int(np.argmin([cost(d) for d in grid]))])
-    fit = minimize_scalar(
-        cost, bounds=(max(best - 0.1 * period, 0.0), best + 0.1 * period), method="bounded", options={"xatol": 1e-6}
+    d = grid_then_refine(
+        lambda d: float(np.sum(model.residual((d, 0.0)) ** 2)),
+        max(near - 3.0 * period, 0.0),
+        min(near + 3.0 * period, max_delay),
+        0.1 * period,  # a tenth of a cycle first: the cost has local minima between the cycles
+        1e-6,
     )
-    d, h = float(fit.x), 1e-4
     r = model.residual((d, 0.0))
-    slope = (model.residual((d + h, 0.0)) - model.residual((max(d - h, 0.0), 0.0))) / (d + h - max(d - h, 0.0))
-    return d, r, float(covariance(slope[:, None], r, 1)[0, 0])
+    return d, r, float(covariance(servo_jacobian(model, d, 0.0)[:, :1], r, 1)[0, 0])
 
 
 def whole_cycles(model, delay: float, lag: float, residual: np.ndarray, cov: np.ndarray, period: float, max_lag: float):

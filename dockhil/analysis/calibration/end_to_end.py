@@ -14,7 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dockhil.analysis.calibration.servo_fit import MAX_DELAY_S, CalibrationError, TickServoModel, servo
+from dockhil.analysis.calibration.servo_fit import (
+    MAX_DELAY_S,
+    CalibrationError,
+    TickServoModel,
+    grid_then_refine,
+    servo,
+)
 
 PERCENTILE = 95.0  # of the windows' delays: the loop's delay
 WINDOW_S = 0.5  # s: a window, about the period of a contact's oscillation (the loop's delay counts over one)
@@ -36,21 +42,13 @@ class EndToEnd:
 
 
 def _fit_delay(model: TickServoModel, lag: float, mask: np.ndarray, lo: float, hi: float) -> float:
-    from scipy.optimize import minimize_scalar
-
     target = model.x_state[model.keep][mask]
 
     def cost(d: float) -> float:
         r = model.response(d, lag)[mask] - target
         return float(r @ r)
 
-    # coarse on 0.5 ms, then refined: the cost has local minima a chirp's period apart
-    grid = np.arange(lo, hi + 1e-12, 5e-4)
-    best = float(grid[int(np.argmin([cost(d) for d in grid]))])
-    fit = minimize_scalar(
-        cost, bounds=(max(lo, best - 5e-4), min(hi, best + 5e-4)), method="bounded", options={"xatol": 1e-5}
-    )
-    return float(fit.x)
+    return grid_then_refine(cost, lo, hi, 5e-4, 1e-5)  # coarse on 0.5 ms: minima a chirp's period apart
 
 
 def end_to_end(t_cmd, x_cmd, t_state, x_state, lag: float | None = None) -> EndToEnd:

@@ -144,11 +144,12 @@ class Calibration:
     def delay_range_s(self) -> tuple[float, float]:
         """Where the robot's own delay lies, whatever the controller's inside (device cycles recorded): from
         the device model's (the take at the cycle read back, or the next where the device does not echo it,
-        and the pose after the servo's step), less half its cycle and what the lag may trade with it (up to another half), to that
-        plus two cycles (the pose sampled before the servo's step; a setpoint taken as it is written, up to a
-        cycle before the cycle that echoes it), the lag up to a cycle (a lag under a cycle or two blends with
-        the delay's cycle: the fit may read that much of the delay as lag) and, where the device does not
-        echo its takes, the link's forward part (the correction taken as it arrived, not at the next cycle)."""
+        and the pose after the servo's step), less half its cycle and what the lag may trade with it (up to
+        another half), to that plus two cycles (the pose sampled before the servo's step; a setpoint taken as
+        it is written, up to a cycle before the cycle that echoes it), the lag up to a cycle (a lag under a
+        cycle or two blends with the delay's cycle: the fit may read that much of the delay as lag) and, where
+        the device does not echo its takes, the link's forward part (the correction taken as it arrived, not
+        at the next cycle)."""
         s, ln = self.servo, self.link
         cycle = s.cycle_s or 0.0
         forward = ln.forward_s if ln is not None and not ln.take_seen else 0.0
@@ -157,6 +158,12 @@ class Calibration:
         # separated) is not its.
         trade = s.unseparated_lag_s or min(2.0 * s.lag_sigma_s, 0.5 * cycle)
         return max(s.delay_s - 0.5 * cycle - trade, 0.0), s.delay_s + 2.0 * cycle + min(s.lag_s, cycle) + forward
+
+    @property
+    def lag_note(self) -> str | None:
+        """The line that says the lag is not identified (the delay holds it); None where it is."""
+        lag = self.servo.unseparated_lag_s
+        return NO_LAG.format(lag=1e3 * lag) if lag else None
 
     @property
     def damping_identified(self) -> bool:
@@ -206,7 +213,7 @@ class Calibration:
                 "rest_samples": r.samples,
                 **({"b_not_identified": NO_DAMPING.format(b=c.b_Ns_per_m, s=c.b_sigma)} if not b_known else {}),
                 **({} if split else {"split_not_identified": NO_SPLIT}),
-                **({"lag_not_identified": NO_LAG.format(lag=1e3 * s.unseparated_lag_s)} if s.unseparated_lag_s else {}),
+                **({"lag_not_identified": self.lag_note} if self.lag_note else {}),
                 **(
                     {}
                     if e2e is None

@@ -229,6 +229,20 @@ def fit_delay_lag(model, total: float, max_delay: float, max_lag: float, scale: 
     return x, first.fun, covariance(servo_jacobian(model, *x), first.fun, 2), aic
 
 
+def grid_then_refine(cost, lo: float, hi: float, step: float, xatol: float) -> float:
+    """The argument in [lo, hi] that minimises `cost`: on a grid of `step` first (the delay's cost has local
+    minima closer together than the search: a chirp's period, the cycles), then refined within a step of
+    the grid's best."""
+    from scipy.optimize import minimize_scalar
+
+    grid = np.arange(lo, hi + 1e-12, step)
+    best = float(grid[int(np.argmin([cost(d) for d in grid]))])
+    fit = minimize_scalar(
+        cost, bounds=(max(lo, best - step), min(hi, best + step)), method="bounded", options={"xatol": xatol}
+    )
+    return float(fit.x)
+
+
 def akaike(residual: np.ndarray, n_params: int) -> float:
     """Akaike's information criterion of a least-squares fit with `n_params` parameters (Gaussian residuals)."""
     n = len(residual)
